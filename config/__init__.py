@@ -1,0 +1,1 @@
+"""Configuration models and shipped configuration files (tables, DBCs, scenarios)."""

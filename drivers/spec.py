@@ -1,0 +1,394 @@
+"""Declarative wire tables: one table per message, walked by both decode and encode.
+
+A message is a frozen dataclass whose fields carry a :class:`Wire` entry in their metadata (the
+vendor's field name, wire type, byte offset inside the block, scale to SI, units, description).
+The dataclass *is* the table::
+
+    @message(endian="<")
+    class Example:
+        depth: float = wire("u16", 4, scale=0.1, units="m", vendor="Depth (dm)")
+        beams: np.ndarray = wire("s16", 6, shape=("n_beams",), scale=1e-3, units="m/s",
+                                 invalid=-32768)
+
+Decoding converts each raw wire value to SI (``raw * scale + add``); a raw value equal to
+``invalid`` becomes NaN. Encoding inverts that with rounding, so ``encode(decode(b)) == b`` for
+every valid block. Array shapes may name keys of a context dict (``n_beams`` above) so a table
+can describe blocks whose size depends on another block (PD0 cell counts, SeaNet bin counts).
+
+Fields without a :class:`Wire` entry are ordinary dataclass fields that the codec supplies
+(derived or structural values such as a block ID list); they are not walked by this module.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import struct
+from collections.abc import Mapping
+from typing import Any, TypeVar
+
+import numpy as np
+
+__all__ = [
+    "Wire",
+    "WireError",
+    "block_size",
+    "decode_block",
+    "encode_block",
+    "message",
+    "raw_value",
+    "table_rows",
+    "to_jsonable",
+    "wire",
+]
+
+#: wire type name -> struct code
+WIRE_TYPES: dict[str, str] = {
+    "u8": "B",
+    "s8": "b",
+    "u16": "H",
+    "s16": "h",
+    "u32": "I",
+    "s32": "i",
+    "u64": "Q",
+    "s64": "q",
+    "f32": "f",
+    "f64": "d",
+}
+_INT_LIMITS: dict[str, tuple[int, int]] = {
+    t: (0, 2 ** (8 * struct.calcsize(c)) - 1)
+    if t.startswith("u")
+    else (-(2 ** (8 * struct.calcsize(c) - 1)), 2 ** (8 * struct.calcsize(c) - 1) - 1)
+    for t, c in WIRE_TYPES.items()
+    if not t.startswith("f")
+}
+
+T = TypeVar("T")
+
+
+class WireError(ValueError):
+    """A value cannot be decoded from or encoded to the wire (names message, field, offset)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Wire:
+    """One row of a declarative table.
+
+    ``type`` is a :data:`WIRE_TYPES` name, or ``"bytes"``/``"str"`` with ``size`` bytes
+    (``str`` is ASCII, NUL/space padded on encode and stripped of trailing NULs on decode).
+    ``offset`` is the byte offset from the start of the block. SI value = raw * scale + add.
+    """
+
+    type: str
+    offset: int
+    scale: float = 1.0
+    add: float = 0.0
+    units: str = ""
+    vendor: str = ""
+    doc: str = ""
+    invalid: int | None = None
+    shape: tuple[int | str, ...] = ()
+    size: int = 0
+    endian: str | None = None
+
+    @property
+    def is_array(self) -> bool:
+        return bool(self.shape)
+
+    @property
+    def is_scaled(self) -> bool:
+        return self.scale != 1.0 or self.add != 0.0 or self.invalid is not None
+
+    def item_size(self) -> int:
+        if self.type in ("bytes", "str"):
+            return self.size
+        return struct.calcsize(WIRE_TYPES[self.type])
+
+    def resolve_shape(self, ctx: Mapping[str, int]) -> tuple[int, ...]:
+        out = []
+        for dim in self.shape:
+            if isinstance(dim, str):
+                if dim not in ctx:
+                    raise WireError(f"array dimension {dim!r} missing from context")
+                out.append(int(ctx[dim]))
+            else:
+                out.append(int(dim))
+        return tuple(out)
+
+    def nbytes(self, ctx: Mapping[str, int]) -> int:
+        n = math.prod(self.resolve_shape(ctx)) if self.shape else 1
+        return n * self.item_size()
+
+
+def wire(
+    type: str,
+    offset: int,
+    *,
+    scale: float = 1.0,
+    add: float = 0.0,
+    units: str = "",
+    vendor: str = "",
+    doc: str = "",
+    invalid: int | None = None,
+    shape: tuple[int | str, ...] = (),
+    size: int = 0,
+    endian: str | None = None,
+) -> Any:
+    """Declare a dataclass field as a wire field (see :class:`Wire`)."""
+    if type not in WIRE_TYPES and type not in ("bytes", "str"):
+        raise ValueError(f"unknown wire type {type!r}")
+    if type in ("bytes", "str") and size <= 0:
+        raise ValueError(f"wire type {type!r} needs size > 0")
+    w = Wire(type, offset, scale, add, units, vendor, doc, invalid, tuple(shape), size, endian)
+    return dataclasses.field(metadata={"wire": w})
+
+
+def _wire_fields(cls: type) -> list[tuple[str, Wire]]:
+    cached = cls.__dict__.get("__wire_fields__")
+    if cached is not None:
+        return cached
+    out = [
+        (f.name, f.metadata["wire"]) for f in dataclasses.fields(cls) if "wire" in f.metadata
+    ]
+    cls.__wire_fields__ = out  # type: ignore[attr-defined]
+    return out
+
+
+def _eq(a: Any, b: Any) -> bool:
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        a_arr, b_arr = np.asarray(a), np.asarray(b)
+        if a_arr.shape != b_arr.shape:
+            return False
+        if a_arr.dtype.kind in "fc" or b_arr.dtype.kind in "fc":
+            return bool(np.array_equal(a_arr, b_arr, equal_nan=True))
+        return bool(np.array_equal(a_arr, b_arr))
+    if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
+        return True
+    if isinstance(a, tuple | list) and isinstance(b, tuple | list):
+        return len(a) == len(b) and all(_eq(x, y) for x, y in zip(a, b, strict=True))
+    return bool(a == b)
+
+
+def message(cls: type[T] | None = None, *, endian: str = "<") -> Any:
+    """Class decorator: a frozen, slotted dataclass with array-aware equality.
+
+    ``endian`` is the default byte order of the table ("<" little, ">" big).
+    """
+
+    def wrap(c: type[T]) -> type[T]:
+        c.__wire_endian__ = endian  # type: ignore[attr-defined]
+        dc = dataclasses.dataclass(frozen=True, eq=False)(c)
+
+        def __eq__(self: Any, other: object) -> bool:
+            if type(other) is not type(self):
+                return NotImplemented
+            return all(
+                _eq(getattr(self, f.name), getattr(other, f.name))
+                for f in dataclasses.fields(self)
+            )
+
+        dc.__eq__ = __eq__  # type: ignore[method-assign]
+        dc.__hash__ = None  # type: ignore[assignment]
+        return dc
+
+    return wrap(cls) if cls is not None else wrap
+
+
+def _endian(cls: type, w: Wire) -> str:
+    return w.endian or getattr(cls, "__wire_endian__", "<")
+
+
+def block_size(cls: type, ctx: Mapping[str, int] | None = None) -> int:
+    """Bytes spanned by the table: the end of its last field (offsets are from block start)."""
+    ctx = ctx or {}
+    return max((w.offset + w.nbytes(ctx) for _, w in _wire_fields(cls)), default=0)
+
+
+def _to_si(w: Wire, raw: Any) -> Any:
+    if not w.is_scaled:
+        return raw
+    if isinstance(raw, np.ndarray):
+        out = raw.astype(np.float64) * w.scale + w.add
+        if w.invalid is not None:
+            out[raw == w.invalid] = np.nan
+        return out
+    if w.invalid is not None and raw == w.invalid:
+        return math.nan
+    return raw * w.scale + w.add
+
+
+def _from_si(cls: type, name: str, w: Wire, value: Any) -> Any:
+    """SI value -> raw wire value, rounded for integer types, range-checked."""
+    if w.type in ("bytes", "str"):
+        return value
+    is_int = not w.type.startswith("f")
+    if isinstance(value, np.ndarray) or w.is_array:
+        arr = np.asarray(value, dtype=np.float64 if w.is_scaled else None)
+        if w.is_scaled:
+            bad = np.isnan(arr)
+            raw = (arr - w.add) / w.scale
+            if is_int:
+                raw = np.rint(np.where(bad, 0.0, raw))
+            if w.invalid is not None:
+                raw = np.where(bad, w.invalid, raw)
+            elif bad.any():
+                raise WireError(f"{cls.__name__}.{name}: NaN but the field has no invalid code")
+        else:
+            raw = arr
+        if is_int:
+            lo, hi = _INT_LIMITS[w.type]
+            if raw.size and (raw.min() < lo or raw.max() > hi):
+                raise WireError(
+                    f"{cls.__name__}.{name}: values outside {w.type} range [{lo}, {hi}] "
+                    f"after scaling by {w.scale} {w.units}"
+                )
+        return raw
+    if w.is_scaled:
+        if isinstance(value, float) and math.isnan(value):
+            if w.invalid is None:
+                raise WireError(f"{cls.__name__}.{name}: NaN but the field has no invalid code")
+            return w.invalid
+        raw = (value - w.add) / w.scale
+        value = round(raw) if is_int else raw
+    if is_int:
+        value = int(value)
+        lo, hi = _INT_LIMITS[w.type]
+        if not lo <= value <= hi:
+            raise WireError(
+                f"{cls.__name__}.{name}: raw value {value} outside {w.type} range [{lo}, {hi}]"
+            )
+    return value
+
+
+def decode_block(
+    cls: type[T],
+    buf: bytes | bytearray | memoryview,
+    base: int = 0,
+    ctx: Mapping[str, int] | None = None,
+    **extra: Any,
+) -> T:
+    """Decode the table ``cls`` from ``buf`` starting at ``base``; ``extra`` fills non-wire fields.
+
+    Raises :class:`WireError` naming the message, field and absolute offset when ``buf`` is short.
+    """
+    ctx = ctx or {}
+    values: dict[str, Any] = {}
+    n = len(buf)
+    for name, w in _wire_fields(cls):
+        start = base + w.offset
+        size = w.nbytes(ctx)
+        if start + size > n:
+            raise WireError(
+                f"{cls.__name__}.{name}: needs bytes {start}..{start + size - 1}, "
+                f"block ends at {n}"
+            )
+        if w.type == "bytes":
+            raw: Any = bytes(buf[start : start + size])
+        elif w.type == "str":
+            raw = bytes(buf[start : start + size]).rstrip(b"\x00").decode("ascii", "replace")
+        elif w.is_array:
+            dt = np.dtype(_endian(cls, w) + WIRE_TYPES[w.type])
+            raw = np.frombuffer(buf, dtype=dt, count=size // dt.itemsize, offset=start)
+            raw = raw.reshape(w.resolve_shape(ctx)).astype(dt.newbyteorder("="))
+        else:
+            (raw,) = struct.unpack_from(_endian(cls, w) + WIRE_TYPES[w.type], buf, start)
+        value = _to_si(w, raw)
+        if isinstance(value, np.ndarray):
+            value.flags.writeable = False
+        values[name] = value
+    values.update(extra)
+    return cls(**values)
+
+
+def encode_block(
+    msg: Any,
+    buf: bytearray,
+    base: int = 0,
+    ctx: Mapping[str, int] | None = None,
+) -> None:
+    """Write the wire fields of ``msg`` into ``buf`` at ``base`` (``buf`` must be large enough)."""
+    cls = type(msg)
+    ctx = ctx or {}
+    for name, w in _wire_fields(cls):
+        start = base + w.offset
+        raw = _from_si(cls, name, w, getattr(msg, name))
+        if w.type == "bytes":
+            if len(raw) != w.size:
+                raise WireError(f"{cls.__name__}.{name}: needs {w.size} bytes, got {len(raw)}")
+            buf[start : start + w.size] = raw
+        elif w.type == "str":
+            data = str(raw).encode("ascii")
+            if len(data) > w.size:
+                raise WireError(f"{cls.__name__}.{name}: {raw!r} longer than {w.size} bytes")
+            buf[start : start + w.size] = data.ljust(w.size, b"\x00")
+        elif w.is_array:
+            shape = w.resolve_shape(ctx)
+            arr = np.asarray(raw)
+            if arr.shape != shape:
+                raise WireError(f"{cls.__name__}.{name}: shape {arr.shape}, table says {shape}")
+            dt = np.dtype(_endian(cls, w) + WIRE_TYPES[w.type])
+            data = arr.astype(dt).tobytes()
+            buf[start : start + len(data)] = data
+        else:
+            struct.pack_into(_endian(cls, w) + WIRE_TYPES[w.type], buf, start, raw)
+
+
+def raw_value(msg: Any, name: str) -> Any:
+    """The wire (raw, unscaled) value of field ``name`` of ``msg``."""
+    cls = type(msg)
+    for fname, w in _wire_fields(cls):
+        if fname == name:
+            return _from_si(cls, name, w, getattr(msg, name))
+    raise KeyError(f"{cls.__name__} has no wire field {name!r}")
+
+
+def table_rows(cls: type) -> list[dict[str, Any]]:
+    """The table as rows (for docs and ``--describe``): name, vendor, type, offset, scale, units."""
+    return [
+        {
+            "name": name,
+            "vendor": w.vendor,
+            "type": w.type if not w.shape else f"{w.type}[{','.join(map(str, w.shape))}]",
+            "offset": w.offset,
+            "scale": w.scale,
+            "add": w.add,
+            "units": w.units,
+            "invalid": w.invalid,
+            "doc": w.doc,
+        }
+        for name, w in _wire_fields(cls)
+    ]
+
+
+def _jsonable(value: Any) -> Any:
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return to_jsonable(value)
+    if isinstance(value, np.ndarray):
+        if value.dtype.kind == "f":
+            return np.where(np.isnan(value), None, value.astype(object)).tolist()
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return _jsonable(value.item())
+    if isinstance(value, float):
+        return None if math.isnan(value) or math.isinf(value) else value
+    if isinstance(value, bytes | bytearray):
+        return value.hex()
+    if isinstance(value, tuple | list):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, Mapping):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if hasattr(value, "name") and hasattr(value, "value"):  # enum
+        return value.name
+    return value
+
+
+def to_jsonable(msg: Any) -> dict[str, Any]:
+    """A JSON-ready dict of a message: ``type`` (class name) then every field in SI units.
+
+    NaN (invalid on the wire) becomes ``null``; bytes become hex strings; nested messages nest.
+    """
+    out: dict[str, Any] = {"type": getattr(msg, "TYPE", type(msg).__name__)}
+    for f in dataclasses.fields(msg):
+        out[f.name] = _jsonable(getattr(msg, f.name))
+    return out
+

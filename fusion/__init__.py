@@ -1,0 +1,1 @@
+"""Navigation fusion: INS + DVL dead reckoning, time alignment, frames and lever arms."""

@@ -1,0 +1,1 @@
+"""Emulated vehicle: world model, one emulator per device, virtual ports, fault injection."""
