@@ -1,0 +1,275 @@
+"""Scenario file: one JSON format for the world model, the SLAM evaluation harness and the tests.
+
+Frames and units (the whole project uses them):
+
+* local horizontal frame, metres: ``x`` north, ``y`` east, ``z`` down (NED); 2-D poses are
+  ``(x, y, heading)`` with heading in radians measured from +x (north) towards +y (east), i.e.
+  clockwise seen from above, as the VB paper's yaw. In scenario files angles are in **degrees**
+  (fields end in ``_deg``) and converted on load.
+* Tim Bailey's simulator maps use a plain (x, y) frame with counter-clockwise angles from +x; the
+  formulas are identical when his x is read as our north and his y as our east, so his
+  coordinates are used unchanged.
+
+Load with :func:`load_scenario`; every validation error names the file, the field path and what
+was expected.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+__all__ = [
+    "AcousticBeacon",
+    "BicycleMotion",
+    "DeviceSettings",
+    "Devices",
+    "FaultSettings",
+    "Features",
+    "MagneticBeacon",
+    "ObservationSettings",
+    "Scenario",
+    "ScenarioError",
+    "Terrain",
+    "Vehicle",
+    "load_scenario",
+]
+
+XY = tuple[float, float]
+
+
+class ScenarioError(ValueError):
+    """A scenario file that cannot be used; the message names the file and the field."""
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class Vehicle(_Model):
+    """Route and speed. Waypoints are (x north, y east) in metres, visited in order."""
+
+    waypoints: list[XY] = Field(min_length=2)
+    speed_mps: float = Field(1.5, gt=0, le=10)
+    depth_m: float = Field(5.0, ge=0, description="commanded depth; ignored if altitude_m is set")
+    altitude_m: float | None = Field(None, gt=0, description="terrain-following altitude")
+    loops: int = Field(1, ge=1, description="times the waypoint list is driven")
+    closed: bool = Field(False, description="return to the first waypoint at the end of a loop")
+    max_yaw_rate_dps: float = Field(10.0, gt=0, description="turn-rate limit, deg/s")
+    accept_radius_m: float = Field(2.0, gt=0, description="waypoint acceptance radius")
+    start: tuple[float, float, float] | None = Field(
+        None, description="initial (x, y, heading_deg); default: first waypoint facing the second"
+    )
+
+
+class BicycleMotion(_Model):
+    """Tim Bailey's simulator vehicle (his defaults): a steered car following waypoints."""
+
+    speed_mps: float = 3.0
+    wheelbase_m: float = 4.0
+    max_steer_deg: float = 30.0
+    max_steer_rate_dps: float = 20.0
+    dt_s: float = 0.025
+    sigma_v_mps: float = 0.3
+    sigma_steer_deg: float = 3.0
+
+
+class ObservationSettings(_Model):
+    """Range-bearing observations of point features (the SLAM papers' eq. 4)."""
+
+    max_range_m: float = 30.0
+    sigma_range_m: float = 0.1
+    sigma_bearing_deg: float = 1.0
+    every_n_steps: int = Field(8, ge=1, description="observe every n motion steps")
+    #: the VB paper's dynamic noise: with probability p the covariance is n times R0
+    burst_p: float = Field(0.0, ge=0, le=1)
+    burst_n: float = Field(1.0, ge=1)
+
+
+class Features(_Model):
+    """Point features (x, y) and line features (x1, y1, x2, y2): walls, piers, in metres."""
+
+    points: list[XY] = []
+    lines: list[tuple[float, float, float, float]] = []
+    points_file: str | None = Field(
+        None,
+        description="JSON with a 'landmarks' list of [x, y] (e.g. 'shared:bailey/webmap.json', "
+        "resolved in ../shared/data), appended to points",
+    )
+
+
+class Terrain(_Model):
+    """Seabed depth below the surface, metres (positive down).
+
+    ``flat``: ``depth_m`` everywhere. ``procedural``: ``depth_m`` plus a seeded sum of sinusoids
+    of ``relief_m`` amplitude and ``wavelength_m``. ``grid``: a depth grid from ``file`` (``.npy``
+    or JSON list of rows) with cell size ``cell_m`` and its (x, y) origin at ``origin``.
+    """
+
+    kind: Literal["flat", "procedural", "grid"] = "flat"
+    depth_m: float = Field(50.0, gt=0)
+    relief_m: float = Field(0.0, ge=0)
+    wavelength_m: float = Field(80.0, gt=0)
+    seed: int = 0
+    file: str | None = None
+    cell_m: float = Field(1.0, gt=0)
+    origin: XY = (0.0, 0.0)
+
+    @model_validator(mode="after")
+    def _grid_needs_file(self) -> Terrain:
+        if self.kind == "grid" and not self.file:
+            raise ValueError("terrain kind 'grid' needs 'file'")
+        return self
+
+
+class MagneticBeacon(_Model):
+    """A coil on the seabed: position (NED, m), dipole moment (A m^2) along ``axis``, frequency."""
+
+    x: float
+    y: float
+    z: float = 0.0
+    moment_am2: float = Field(gt=0)
+    frequency_hz: float = Field(0.0, ge=0, description="0 = static (DC) field")
+    axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
+
+
+class AcousticBeacon(_Model):
+    """One acoustic transponder (USBL/LBL-style range source), position NED in metres."""
+
+    x: float
+    y: float
+    z: float = 0.0
+    sigma_range_m: float = Field(0.5, gt=0)
+
+
+class FaultSettings(_Model):
+    """Fault knobs of one device (all off by default). Times are vehicle seconds [start, end)."""
+
+    noise_burst_p: float = Field(0.0, ge=0, le=1, description="probability of a noise burst")
+    noise_burst_n: float = Field(1.0, ge=1, description="covariance multiplier in a burst")
+    dropout_p: float = Field(0.0, ge=0, le=1, description="probability a frame is not sent")
+    garbage_p: float = Field(0.0, ge=0, le=1, description="probability of garbage before a frame")
+    garbage_max_bytes: int = Field(32, ge=1)
+    corrupt_p: float = Field(0.0, ge=0, le=1, description="probability a frame is corrupted")
+    truncate_p: float = Field(0.0, ge=0, le=1, description="probability a frame is cut short")
+    bottom_lock_loss: list[tuple[float, float]] = []
+    unplug: list[tuple[float, float]] = []
+    stall: list[tuple[float, float]] = []
+    clock_jumps: list[tuple[float, float]] = Field(
+        [], description="(time, jump_s): the device clock jumps by jump_s at time"
+    )
+
+
+class DeviceSettings(_Model):
+    """One emulated device: on/off, rate, noise figures (named sigmas, SI or *_deg), faults."""
+
+    enabled: bool = True
+    rate_hz: float | None = Field(None, gt=0, description="None: the device's nominal rate")
+    noise: dict[str, float] = {}
+    faults: FaultSettings = FaultSettings()
+    options: dict[str, float | int | str | bool] = {}
+
+
+class Devices(_Model):
+    ins: DeviceSettings = DeviceSettings()
+    dvl: DeviceSettings = DeviceSettings()
+    msis: DeviceSettings = DeviceSettings()
+    multibeam: DeviceSettings = DeviceSettings()
+    magnetometer: DeviceSettings = DeviceSettings()
+
+
+class Scenario(_Model):
+    """A whole scenario (see the module docstring for frames and units)."""
+
+    name: str
+    description: str = ""
+    seed: int = 0
+    duration_s: float | None = Field(None, gt=0, description="None: until the route ends")
+    vehicle: Vehicle
+    motion: Literal["auv", "bicycle"] = "auv"
+    bicycle: BicycleMotion = BicycleMotion()
+    observations: ObservationSettings = ObservationSettings()
+    features: Features = Features()
+    terrain: Terrain = Terrain()
+    magnetic_beacons: list[MagneticBeacon] = []
+    acoustic_beacon: AcousticBeacon | None = None
+    earth_field_nt: tuple[float, float, float] = Field(
+        (20000.0, 0.0, 45000.0), description="Earth field, NED components in nT"
+    )
+    sound_speed_mps: Annotated[float, Field(gt=1300, lt=1700)] = 1500.0
+    devices: Devices = Devices()
+
+    #: set by load_scenario: the file the scenario came from (for resolving relative paths)
+    source: str | None = None
+
+    def resolve_path(self, ref: str) -> Path:
+        """A path named in the scenario: ``shared:rel`` is in ../shared/data, else relative to
+        the scenario file (or absolute)."""
+        if ref.startswith("shared:"):
+            from auvgw.paths import shared_dir
+
+            root = shared_dir()
+            if root is None:
+                raise ScenarioError(
+                    f"{self.source or self.name}: {ref!r} needs ../shared/data, not found "
+                    "(set AUVGW_SHARED)"
+                )
+            return root / "data" / ref.removeprefix("shared:")
+        p = Path(ref)
+        if not p.is_absolute() and self.source:
+            p = Path(self.source).parent / p
+        return p
+
+    def point_features(self) -> list[XY]:
+        """All point features: ``features.points`` plus those of ``features.points_file``."""
+        pts = list(self.features.points)
+        if self.features.points_file:
+            path = self.resolve_path(self.features.points_file)
+            try:
+                data = json.loads(path.read_text())
+                pts += [(float(p[0]), float(p[1])) for p in data["landmarks"]]
+            except (OSError, ValueError, KeyError, TypeError, IndexError) as exc:
+                raise ScenarioError(
+                    f"{self.source}: features.points_file {path}: cannot read landmarks: {exc}"
+                ) from exc
+        return pts
+
+    @property
+    def start_pose(self) -> tuple[float, float, float]:
+        """Initial (x, y, heading) in metres and radians."""
+        if self.vehicle.start is not None:
+            x, y, h = self.vehicle.start
+            return (x, y, math.radians(h))
+        (x0, y0), (x1, y1) = self.vehicle.waypoints[0], self.vehicle.waypoints[1]
+        return (x0, y0, math.atan2(y1 - y0, x1 - x0))
+
+
+def _format_errors(path: str, exc: ValidationError) -> str:
+    lines = []
+    for err in exc.errors():
+        loc = ".".join(str(p) for p in err["loc"]) or "(top level)"
+        lines.append(f"{path}: field '{loc}': {err['msg']} (got {err.get('input')!r:.60})")
+    return "\n".join(lines)
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read and validate a scenario JSON file; :class:`ScenarioError` names file and field."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except OSError as exc:
+        raise ScenarioError(f"{path}: cannot read: {exc.strerror}") from exc
+    except json.JSONDecodeError as exc:
+        raise ScenarioError(f"{path}: not JSON: {exc.msg} at line {exc.lineno}") from exc
+    if not isinstance(data, dict):
+        raise ScenarioError(f"{path}: top level must be a JSON object")
+    data.pop("source", None)
+    try:
+        scn = Scenario.model_validate({**data, "source": str(path)})
+    except ValidationError as exc:
+        raise ScenarioError(_format_errors(str(path), exc)) from exc
+    return scn
