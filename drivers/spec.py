@@ -22,8 +22,11 @@ Fields without a :class:`Wire` entry are ordinary dataclass fields that the code
 from __future__ import annotations
 
 import dataclasses
+import enum
 import math
 import struct
+import types
+import typing
 from collections.abc import Mapping
 from typing import Any, TypeVar
 
@@ -35,6 +38,7 @@ __all__ = [
     "block_size",
     "decode_block",
     "encode_block",
+    "from_jsonable",
     "message",
     "raw_value",
     "table_rows",
@@ -64,6 +68,10 @@ _INT_LIMITS: dict[str, tuple[int, int]] = {
 }
 
 T = TypeVar("T")
+
+#: every class made with :func:`message`, by type name (``TYPE`` class attribute or class name);
+#: used to rebuild typed messages from their JSON form (:func:`from_jsonable`)
+MESSAGE_TYPES: dict[str, type] = {}
 
 
 class WireError(ValueError):
@@ -178,6 +186,7 @@ def message(cls: type[T] | None = None, *, endian: str = "<") -> Any:
     def wrap(c: type[T]) -> type[T]:
         c.__wire_endian__ = endian  # type: ignore[attr-defined]
         dc = dataclasses.dataclass(frozen=True, eq=False)(c)
+        MESSAGE_TYPES[getattr(dc, "TYPE", dc.__name__)] = dc
 
         def __eq__(self: Any, other: object) -> bool:
             if type(other) is not type(self):
@@ -392,3 +401,70 @@ def to_jsonable(msg: Any) -> dict[str, Any]:
         out[f.name] = _jsonable(getattr(msg, f.name))
     return out
 
+
+
+def _from_json_value(tp: Any, value: Any) -> Any:
+    origin = typing.get_origin(tp)
+    args = typing.get_args(tp)
+    if value is None:
+        if tp is float:
+            return math.nan
+        return None
+    if tp is np.ndarray:
+        arr = np.asarray(
+            value if not _has_none(value) else _none_to_nan(value),
+        )
+        arr.flags.writeable = False
+        return arr
+    if isinstance(tp, type) and dataclasses.is_dataclass(tp) and isinstance(value, Mapping):
+        return from_jsonable(value, tp)
+    if tp is bytes and isinstance(value, str):
+        return bytes.fromhex(value)
+    if isinstance(tp, type) and issubclass(tp, enum.Enum) and isinstance(value, str):
+        return tp[value]
+    if origin in (types.UnionType, typing.Union):
+        for a in args:
+            if a is type(None):
+                continue
+            try:
+                return _from_json_value(a, value)
+            except (TypeError, ValueError, KeyError):
+                continue
+        return value
+    if origin is tuple and isinstance(value, list):
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_from_json_value(args[0], v) for v in value)
+        if args:
+            return tuple(_from_json_value(a, v) for a, v in zip(args, value, strict=False))
+        return tuple(value)
+    if tp is float and isinstance(value, int):
+        return float(value)
+    return value
+
+
+def _has_none(value: Any) -> bool:
+    if isinstance(value, list):
+        return any(_has_none(v) for v in value)
+    return value is None
+
+
+def _none_to_nan(value: Any) -> Any:
+    if isinstance(value, list):
+        return [_none_to_nan(v) for v in value]
+    return math.nan if value is None else value
+
+
+def from_jsonable(data: Mapping[str, Any], cls: type | None = None) -> Any:
+    """Rebuild a typed message from :func:`to_jsonable` output (inverse up to JSON's limits:
+    NaN travels as null, arrays as lists; integer arrays come back as int64)."""
+    if cls is None:
+        name = data.get("type")
+        if name not in MESSAGE_TYPES:
+            raise KeyError(f"unknown message type {name!r}")
+        cls = MESSAGE_TYPES[name]
+    hints = typing.get_type_hints(cls)
+    kwargs = {}
+    for f in dataclasses.fields(cls):
+        if f.name in data:
+            kwargs[f.name] = _from_json_value(hints.get(f.name, Any), data[f.name])
+    return cls(**kwargs)

@@ -12,6 +12,7 @@ from auvgw.drivers.spec import (
     block_size,
     decode_block,
     encode_block,
+    from_jsonable,
     message,
     raw_value,
     to_jsonable,
@@ -127,3 +128,20 @@ def test_framer_bounded_buffer_on_garbage() -> None:
         f.feed(b"\x00" * 1000)
     assert f.buffered <= 1
     assert f.stats.skipped_bytes >= 99_999
+
+
+@message
+class _JsonToy:
+    depth: float = wire("u16", 0, scale=0.1, units="m")
+    vel: np.ndarray = wire("s16", 2, shape=(2,), scale=1e-3, invalid=-32768)
+    tag: str = wire("str", 6, size=3)
+
+
+def test_from_jsonable_rebuilds_typed_message() -> None:
+    import json
+
+    m = decode_block(_JsonToy, b"\x0a\x00\x01\x00\x00\x80abc")
+    d = json.loads(json.dumps(to_jsonable(m)))
+    back = from_jsonable(d)
+    assert type(back) is _JsonToy
+    assert back == m
