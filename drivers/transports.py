@@ -1,0 +1,774 @@
+"""Transports: where bytes come from, behind one small interface, chosen by configuration.
+
+A transport moves bytes and stamps them with the host receive time; it never decodes. Every kind
+has the same interface (:class:`Transport`): ``open()``, ``read(timeout_s) -> Chunk | None``,
+``write(data)``, ``close()``, ``describe()``, and ``with`` support. Kinds:
+
+* :class:`SerialTransport`: a serial device or any pyserial URL (``/dev/ttyUSB0``,
+  ``/dev/pts/7``, ``socket://host:port``, ``loop://``); a chunk is whatever the OS had ready.
+* :class:`CanTransport`: a python-can bus (``socketcan``, ``slcan``, ``virtual``,
+  ``udp_multicast``, ...); a chunk is one CAN frame with its id.
+* :class:`UdpTransport`: a bound UDP socket, optional multicast group; a chunk is one datagram.
+* :class:`FileReplayTransport`: a capture file re-read in chunks, as fast as possible or paced.
+
+Times: :attr:`Chunk.t_recv_ns` is ``time.time_ns()`` (UTC wall clock, ns) taken as soon as the
+OS reports the data ready, so it is comparable across processes and hosts with synchronised
+clocks. :attr:`Chunk.t_device_s` carries the interface's own timestamp where one exists (CAN).
+
+Errors: :class:`TransportOpenError` (cannot open: the message names the port and what to check),
+:class:`Disconnected` (alias :data:`TransportClosed`; the device went away while open; the
+transport is then closed and ``open()`` may be called again to reconnect), :class:`EndOfStream`
+(a finite replay is over). All derive from :class:`TransportError`, whose ``port`` names the device.
+
+:func:`open_transport` builds and opens a transport from a ``auvgw.config.transport`` model or a
+plain mapping (e.g. a TOML table).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import io
+import os
+import select
+import socket
+import time
+from abc import ABC, abstractmethod
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+from types import TracebackType
+from typing import Any, ClassVar, NoReturn, Self
+
+import can
+import serial
+from auvgw.config.transport import (
+    CAN_EXT_MAX,
+    CAN_STD_MAX,
+    CanTransportConfig,
+    FileTransportConfig,
+    SerialTransportConfig,
+    TransportConfig,
+    UdpTransportConfig,
+    parse_transport_config,
+)
+from serial.urlhandler import protocol_socket
+
+__all__ = [
+    "CanTransport",
+    "Chunk",
+    "Disconnected",
+    "EndOfStream",
+    "FileReplayTransport",
+    "SerialTransport",
+    "Transport",
+    "TransportClosed",
+    "TransportError",
+    "TransportOpenError",
+    "UdpTransport",
+    "make_transport",
+    "open_transport",
+    "replay_schedule",
+]
+
+#: largest UDP payload (IPv4: 65535 - 8 UDP - 20 IP header bytes); reads never truncate
+UDP_MAX_DATAGRAM = 65535
+
+
+@dataclass(frozen=True, slots=True)
+class Chunk:
+    """Bytes as received, with the host receive time.
+
+    ``t_recv_ns``: ``time.time_ns()`` when the OS reported the data ready (UTC, ns).
+    For CAN frames also ``can_id`` (11- or 29-bit arbitration id), ``is_extended_id``, and
+    ``t_device_s``: the interface's timestamp in seconds (python-can ``Message.timestamp``: the
+    kernel receive time for socketcan, the adapter's clock where it reports one, else the host
+    time when the frame was parsed); None where the transport has no such clock.
+    """
+
+    data: bytes
+    t_recv_ns: int
+    can_id: int | None = None
+    is_extended_id: bool = False
+    t_device_s: float | None = None
+
+
+class TransportError(Exception):
+    """A transport failure; ``port`` names the device (path, URL, channel, address or file)."""
+
+    def __init__(self, port: str, message: str) -> None:
+        super().__init__(f"{port}: {message}")
+        self.port = port
+
+
+class TransportOpenError(TransportError):
+    """The transport could not be opened; the message says what to check."""
+
+
+class Disconnected(TransportError):
+    """The device went away while open (unplugged, pty writer closed, peer closed, link down).
+
+    The transport is closed when this is raised; call ``open()`` again (with backoff) to
+    reconnect.
+    """
+
+
+#: The same exception under the name the gateway uses.
+TransportClosed = Disconnected
+
+
+class EndOfStream(TransportError):
+    """A finite source (a file replayed without ``loop``) has delivered all its bytes."""
+
+
+def _chain(exc: BaseException) -> Iterator[BaseException]:
+    """An exception and its causes (pyserial and python-can wrap the OSError)."""
+    seen: set[int] = set()
+    cur: BaseException | None = exc
+    while cur is not None and id(cur) not in seen:
+        seen.add(id(cur))
+        yield cur
+        cur = cur.__cause__ or cur.__context__
+
+
+def _errnos(exc: BaseException) -> set[int]:
+    """Every errno in an exception's chain."""
+    return {e.errno for e in _chain(exc) if isinstance(getattr(e, "errno", None), int)}
+
+
+_OPEN_HINTS = {
+    errno.ENOENT: "no such device or file: check the cable/adapter is plugged in, the path "
+    "(ls /dev/serial/by-id/), or that the emulator owning the pty is running",
+    errno.ENODEV: "no such device: check the adapter is plugged in and its driver loaded",
+    errno.ENXIO: "device not configured: check the adapter is plugged in",
+    errno.EACCES: "permission denied: add the user to the 'dialout' group or fix udev rules",
+    errno.EPERM: "permission denied: add the user to the 'dialout' group or fix udev rules",
+    errno.EBUSY: "device busy: another process holds it (lsof the path)",
+    errno.EAGAIN: "port locked by another process (lsof the path); set exclusive = false to share",
+    errno.ECONNREFUSED: "connection refused: nothing listens at that address; check the server",
+    errno.EHOSTUNREACH: "host unreachable: check the network and address",
+    errno.ETIMEDOUT: "connection timed out: check the network and address",
+    errno.EADDRINUSE: "address in use: another process is bound to this port (ss -ulpn)",
+    errno.EADDRNOTAVAIL: "address not available: the host is not an address of this machine",
+    errno.EISDIR: "is a directory, not a file",
+}
+
+
+def _hint(exc: BaseException, default: str) -> str:
+    for code in sorted(_errnos(exc)):
+        if code in _OPEN_HINTS:
+            return _OPEN_HINTS[code]
+    return default
+
+
+class Transport(ABC):
+    """Bytes in and out of one device, with receive timestamps; no decoding.
+
+    ``read`` returns one :class:`Chunk` or None when nothing arrived within ``timeout_s``
+    (seconds; None waits indefinitely). Counters: ``chunks_read``, ``bytes_read``,
+    ``bytes_written``. Opening an open transport and closing a closed one do nothing.
+    """
+
+    kind: ClassVar[str]
+
+    def __init__(self) -> None:
+        self.chunks_read = 0
+        self.bytes_read = 0
+        self.bytes_written = 0
+
+    @property
+    @abstractmethod
+    def port(self) -> str:
+        """The device path, URL, channel, address or file this transport uses."""
+
+    @property
+    @abstractmethod
+    def is_open(self) -> bool:
+        """Whether the transport is open."""
+
+    @abstractmethod
+    def open(self) -> None:
+        """Open the device; raises :class:`TransportOpenError` naming the port."""
+
+    @abstractmethod
+    def read(self, timeout_s: float | None) -> Chunk | None:
+        """Next chunk, or None if nothing arrived within ``timeout_s`` seconds."""
+
+    @abstractmethod
+    def write(self, data: bytes) -> None:
+        """Send bytes to the device."""
+
+    @abstractmethod
+    def close(self) -> None:
+        """Release the device; safe to call more than once and after :class:`Disconnected`."""
+
+    @abstractmethod
+    def describe(self) -> str:
+        """One line naming the kind, the port and its settings (for logs and status)."""
+
+    def __enter__(self) -> Self:
+        self.open()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        state = "open" if self.is_open else "closed"
+        return f"<{type(self).__name__} {self.describe()} ({state})>"
+
+    # helpers for subclasses -------------------------------------------------------------------
+
+    def _name(self) -> str:
+        return f"{self.kind} {self.port}"
+
+    def _not_open(self) -> NoReturn:
+        raise TransportError(self._name(), "not open; call open() first")
+
+    def _gone(self, exc: BaseException) -> NoReturn:
+        self.close()
+        reasons: list[str] = []
+        for e in _chain(exc):  # wrapped errors: keep each distinct message once
+            text = str(e)
+            if text and not any(text in r for r in reasons):
+                reasons.append(text)
+        raise Disconnected(
+            self._name(),
+            f"disconnected ({': '.join(reasons)}); transport closed, open() again to reconnect",
+        ) from exc
+
+    def _chunk(self, chunk: Chunk) -> Chunk:
+        self.chunks_read += 1
+        self.bytes_read += len(chunk.data)
+        return chunk
+
+    @staticmethod
+    def _check_timeout(timeout_s: float | None) -> None:
+        if timeout_s is not None and timeout_s < 0:
+            raise ValueError(f"timeout_s must be >= 0 or None, got {timeout_s}")
+
+
+class SerialTransport(Transport):
+    """A serial port or pyserial URL; each chunk is the bytes the OS had ready (up to
+    ``max_chunk``).
+
+    Device files (``/dev/tty*``, ``/dev/pts/N``) are waited on with ``select`` and read without
+    blocking; other URL handlers use pyserial timeouts. A pty whose writer closed, an unplugged
+    USB adapter and a closed socket peer all raise :class:`Disconnected`.
+    """
+
+    kind = "serial"
+
+    def __init__(self, cfg: SerialTransportConfig) -> None:
+        super().__init__()
+        self.cfg = cfg
+        self._ser: serial.SerialBase | None = None
+        self._fd: int | None = None
+        self._socket_like = False
+
+    @property
+    def port(self) -> str:
+        return self.cfg.url
+
+    @property
+    def is_open(self) -> bool:
+        return self._ser is not None
+
+    def open(self) -> None:
+        if self._ser is not None:
+            return
+        c = self.cfg
+        try:
+            ser = serial.serial_for_url(
+                c.url,
+                baudrate=c.baud,
+                bytesize=c.bytesize,
+                parity=c.parity,
+                stopbits=c.stopbits,
+                rtscts=c.rtscts,
+                xonxoff=c.xonxoff,
+                exclusive=c.exclusive,
+                write_timeout=c.write_timeout_s,
+                timeout=0,
+            )
+        except (serial.SerialException, OSError, ValueError) as exc:
+            hint = _hint(exc, "check the path or URL and the device")
+            raise TransportOpenError(self._name(), f"cannot open: {hint} ({exc})") from exc
+        try:
+            self._fd = ser.fileno()
+        except (AttributeError, io.UnsupportedOperation, OSError, NotImplementedError):
+            self._fd = None
+        self._socket_like = isinstance(ser, protocol_socket.Serial)
+        self._ser = ser
+
+    def _set_timeout(self, ser: serial.SerialBase, timeout_s: float | None) -> None:
+        if ser.timeout != timeout_s:
+            ser.timeout = timeout_s
+
+    def read(self, timeout_s: float | None) -> Chunk | None:
+        self._check_timeout(timeout_s)
+        ser = self._ser
+        if ser is None:
+            self._not_open()
+        limit = self.cfg.max_chunk
+        try:
+            if self._fd is not None:
+                ready, _, _ = select.select([self._fd], [], [], timeout_s)
+                if not ready:
+                    return None
+                t_recv = time.time_ns()
+                data = ser.read(limit)  # timeout 0: what is ready; b"" ready = gone (raises)
+                if not data:
+                    return None
+            else:
+                self._set_timeout(ser, timeout_s)
+                first = ser.read(1)
+                if not first:
+                    return None
+                t_recv = time.time_ns()
+                rest = b""
+                if limit > 1:
+                    if self._socket_like:  # in_waiting is only 0/1 there; timeouts are free
+                        self._set_timeout(ser, 0)
+                        rest = ser.read(limit - 1)
+                    else:
+                        n = min(ser.in_waiting, limit - 1)
+                        rest = ser.read(n) if n else b""
+                data = first + rest
+        except (serial.SerialException, OSError) as exc:  # SerialException is an OSError
+            self._gone(exc)
+        return self._chunk(Chunk(bytes(data), t_recv))
+
+    def write(self, data: bytes) -> None:
+        ser = self._ser
+        if ser is None:
+            self._not_open()
+        try:
+            ser.write(data)
+        except serial.SerialTimeoutException as exc:
+            raise TransportError(
+                self._name(),
+                f"write of {len(data)} bytes timed out after {self.cfg.write_timeout_s} s; "
+                "is the other end reading?",
+            ) from exc
+        except (serial.SerialException, OSError) as exc:
+            self._gone(exc)
+        self.bytes_written += len(data)
+
+    def close(self) -> None:
+        ser, self._ser, self._fd = self._ser, None, None
+        if ser is not None:
+            with contextlib.suppress(serial.SerialException, OSError):  # already gone
+                ser.close()
+
+    def describe(self) -> str:
+        return self.cfg.describe()
+
+
+_CAN_HINTS = {
+    "socketcan": "check the interface exists and is up (ip link show {ch}); a vcan needs "
+    "'modprobe vcan', which not every kernel has",
+    "slcan": "check the adapter's serial path exists (ls /dev/serial/by-id/) and that the "
+    "bitrate is one slcan supports",
+    "udp_multicast": "needs the msgpack package and a multicast group as channel "
+    "(e.g. 239.74.163.2)",
+}
+
+
+class CanTransport(Transport):
+    """A python-can bus; each chunk is one data frame with its id and the interface timestamp.
+
+    Error and remote frames carry no payload and are skipped (counted in ``frames_skipped``).
+    ``write(data)`` sends with the configured ``tx_id``/``tx_extended``; :meth:`send_frame` takes
+    the id explicitly.
+    """
+
+    kind = "can"
+
+    def __init__(self, cfg: CanTransportConfig) -> None:
+        super().__init__()
+        self.cfg = cfg
+        self._bus: can.BusABC | None = None
+        self.frames_skipped = 0
+
+    @property
+    def port(self) -> str:
+        return self.cfg.port
+
+    @property
+    def is_open(self) -> bool:
+        return self._bus is not None
+
+    def open(self) -> None:
+        if self._bus is not None:
+            return
+        c = self.cfg
+        kwargs: dict[str, Any] = dict(c.options)
+        kwargs["interface"] = c.interface
+        if c.channel is not None:
+            kwargs["channel"] = c.channel
+        if c.bitrate is not None:
+            kwargs["bitrate"] = c.bitrate
+        if c.fd:
+            kwargs["fd"] = True
+            if c.data_bitrate is not None:
+                kwargs["data_bitrate"] = c.data_bitrate
+        if c.filters:
+            kwargs["can_filters"] = [f.as_python_can() for f in c.filters]
+        kwargs["receive_own_messages"] = c.receive_own_messages
+        try:
+            self._bus = can.Bus(**kwargs)
+        except (can.CanError, OSError, ValueError, ImportError, serial.SerialException) as exc:
+            hint = _CAN_HINTS.get(c.interface)
+            if hint is None:
+                hint = _hint(exc, "check the interface driver is installed and the channel")
+            hint = hint.format(ch=c.channel)
+            raise TransportOpenError(self._name(), f"cannot open: {hint} ({exc})") from exc
+
+    def read(self, timeout_s: float | None) -> Chunk | None:
+        self._check_timeout(timeout_s)
+        bus = self._bus
+        if bus is None:
+            self._not_open()
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        while True:
+            left = None if deadline is None else max(0.0, deadline - time.monotonic())
+            try:
+                msg = bus.recv(left)
+            except (can.CanError, OSError, serial.SerialException) as exc:
+                self._gone(exc)
+            if msg is None:
+                return None
+            t_recv = time.time_ns()
+            if msg.is_error_frame or msg.is_remote_frame:
+                self.frames_skipped += 1
+                if deadline is not None and time.monotonic() >= deadline:
+                    return None
+                continue
+            return self._chunk(
+                Chunk(
+                    data=bytes(msg.data),
+                    t_recv_ns=t_recv,
+                    can_id=msg.arbitration_id,
+                    is_extended_id=msg.is_extended_id,
+                    t_device_s=msg.timestamp or None,
+                )
+            )
+
+    def send_frame(self, can_id: int, data: bytes, *, is_extended_id: bool) -> None:
+        """Send one frame; ``is_extended_id`` is required (29-bit when True, 11-bit when False)."""
+        bus = self._bus
+        if bus is None:
+            self._not_open()
+        top = CAN_EXT_MAX if is_extended_id else CAN_STD_MAX
+        if not 0 <= can_id <= top:
+            kind = "extended 29-bit" if is_extended_id else "standard 11-bit"
+            raise ValueError(f"can_id 0x{can_id:X} out of range for a {kind} id (max 0x{top:X})")
+        limit = 64 if self.cfg.fd else 8
+        if len(data) > limit:
+            raise ValueError(f"{len(data)} data bytes exceed the frame's {limit}")
+        msg = can.Message(
+            arbitration_id=can_id, data=data, is_extended_id=is_extended_id, is_fd=self.cfg.fd
+        )
+        try:
+            bus.send(msg, timeout=self.cfg.send_timeout_s)
+        except (can.CanError, OSError, serial.SerialException) as exc:
+            busy = _errnos(exc) & {errno.ENOBUFS, errno.EAGAIN} or any(
+                isinstance(e, serial.SerialTimeoutException) for e in _chain(exc)
+            )
+            if busy or "buffer full" in str(exc).lower():  # socketcan: "Transmit buffer full"
+                raise TransportError(
+                    self._name(), f"send of id 0x{can_id:X} timed out: bus busy or no ack ({exc})"
+                ) from exc
+            self._gone(exc)
+        self.bytes_written += len(data)
+
+    def write(self, data: bytes) -> None:
+        """Send ``data`` as one frame with the configured ``tx_id`` / ``tx_extended``."""
+        c = self.cfg
+        if c.tx_id is None or c.tx_extended is None:
+            raise TransportError(
+                self._name(),
+                "write(data) needs tx_id and tx_extended in the config; "
+                "or call send_frame(can_id, data, is_extended_id=...)",
+            )
+        self.send_frame(c.tx_id, data, is_extended_id=c.tx_extended)
+
+    def close(self) -> None:
+        bus, self._bus = self._bus, None
+        if bus is not None:
+            # an adapter already gone fails here (slcan writes 'C' on shutdown)
+            with contextlib.suppress(can.CanError, OSError, serial.SerialException):
+                bus.shutdown()
+
+    def describe(self) -> str:
+        return self.cfg.describe()
+
+
+#: send errors meaning the network itself is gone (interface down, no route)
+_LINK_GONE = frozenset({errno.ENETDOWN, errno.ENETUNREACH, errno.EHOSTUNREACH, errno.ENODEV})
+
+
+class UdpTransport(Transport):
+    """A UDP socket bound to ``host:port``; one datagram per chunk (boundaries preserved).
+
+    With ``multicast_group`` it joins that IPv4 group on ``multicast_interface``. ``write`` sends
+    to ``remote_host:remote_port``, or back to the sender of the last datagram read.
+    """
+
+    kind = "udp"
+
+    def __init__(self, cfg: UdpTransportConfig) -> None:
+        super().__init__()
+        self.cfg = cfg
+        self._sock: socket.socket | None = None
+        self.last_sender: tuple[str, int] | None = None
+
+    @property
+    def port(self) -> str:
+        return f"{self.cfg.host}:{self.cfg.port}"
+
+    @property
+    def is_open(self) -> bool:
+        return self._sock is not None
+
+    @property
+    def local_address(self) -> tuple[str, int]:
+        """The bound (host, port); shows the real port when ``port = 0``."""
+        if self._sock is None:
+            self._not_open()
+        host, port = self._sock.getsockname()[:2]
+        return host, port
+
+    def open(self) -> None:
+        if self._sock is not None:
+            return
+        c = self.cfg
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            reuse = c.reuse_address if c.reuse_address is not None else bool(c.multicast_group)
+            if reuse:
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            if c.receive_buffer_bytes is not None:
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, c.receive_buffer_bytes)
+            sock.bind((c.host, c.port))
+            if c.multicast_group:
+                mreq = socket.inet_aton(c.multicast_group) + socket.inet_aton(c.multicast_interface)
+                sock.setsockopt(socket.IPPROTO_IP, socket.IP_ADD_MEMBERSHIP, mreq)
+                sock.setsockopt(
+                    socket.IPPROTO_IP,
+                    socket.IP_MULTICAST_IF,
+                    socket.inet_aton(c.multicast_interface),
+                )
+        except socket.gaierror as exc:
+            sock.close()
+            raise TransportOpenError(
+                self._name(), f"cannot open: cannot resolve host {c.host!r} ({exc})"
+            ) from exc
+        except OSError as exc:
+            sock.close()
+            hint = _hint(exc, "check host, port and multicast settings")
+            raise TransportOpenError(self._name(), f"cannot open: {hint} ({exc})") from exc
+        self._sock = sock
+
+    def read(self, timeout_s: float | None) -> Chunk | None:
+        self._check_timeout(timeout_s)
+        sock = self._sock
+        if sock is None:
+            self._not_open()
+        try:
+            sock.settimeout(timeout_s)
+            data, addr = sock.recvfrom(UDP_MAX_DATAGRAM)
+        except TimeoutError:
+            return None
+        except OSError as exc:
+            self._gone(exc)
+        t_recv = time.time_ns()
+        self.last_sender = (addr[0], addr[1])
+        return self._chunk(Chunk(data, t_recv))
+
+    def write(self, data: bytes) -> None:
+        """Send ``data`` as one datagram."""
+        sock = self._sock
+        if sock is None:
+            self._not_open()
+        c = self.cfg
+        if c.remote_host is not None and c.remote_port is not None:
+            target: tuple[str, int] = (c.remote_host, c.remote_port)
+        elif self.last_sender is not None:
+            target = self.last_sender
+        else:
+            raise TransportError(
+                self._name(),
+                "no destination: set remote_host/remote_port, or read a datagram first",
+            )
+        try:
+            sock.settimeout(None)
+            sock.sendto(data, target)
+        except OSError as exc:
+            if _errnos(exc) & _LINK_GONE:
+                self._gone(exc)
+            raise TransportError(
+                self._name(), f"send to {target[0]}:{target[1]} failed ({exc})"
+            ) from exc
+        self.bytes_written += len(data)
+
+    def close(self) -> None:
+        sock, self._sock = self._sock, None
+        if sock is not None:
+            sock.close()
+
+    def describe(self) -> str:
+        out = self.cfg.describe()
+        if self._sock is not None and self.cfg.port == 0:
+            out += f" (bound port {self.local_address[1]})"
+        return out
+
+
+def replay_schedule(
+    total_bytes: int, chunk_size: int, bytes_per_s: float
+) -> list[tuple[int, int, float]]:
+    """When a paced replay releases each chunk: ``(offset, length, due_s)`` per chunk.
+
+    A chunk is due when its last byte would have arrived on a line delivering ``bytes_per_s``
+    (byte/s), counted in seconds from ``open()``. :class:`FileReplayTransport` uses exactly
+    this rule (offsets keep counting across loops).
+    """
+    out = []
+    for off in range(0, total_bytes, chunk_size):
+        n = min(chunk_size, total_bytes - off)
+        out.append((off, n, (off + n) / bytes_per_s))
+    return out
+
+
+class FileReplayTransport(Transport):
+    """A capture file of raw bytes replayed as chunks; see :class:`FileTransportConfig`.
+
+    Unpaced, each read returns the next ``chunk_size`` bytes at once. Paced, a chunk is held
+    until it is due (:func:`replay_schedule`); a consumer that reads late gets the overdue
+    chunks back to back. Without ``loop`` the read after the last chunk raises
+    :class:`EndOfStream`. Writes are accepted and discarded (counted in ``bytes_discarded``) so
+    a host that polls its device (e.g. the MSIS) runs unchanged against a replay.
+    """
+
+    kind = "file"
+
+    def __init__(self, cfg: FileTransportConfig) -> None:
+        super().__init__()
+        self.cfg = cfg
+        self.bytes_per_s = cfg.bytes_per_s
+        self.chunk_size = cfg.chunk_bytes
+        self._f: io.BufferedReader | None = None
+        self._pending: bytes | None = None
+        self._delivered = 0
+        self._t0_ns = 0
+        self.loops = 0
+        self.bytes_discarded = 0
+
+    @property
+    def port(self) -> str:
+        return str(self.cfg.path)
+
+    @property
+    def is_open(self) -> bool:
+        return self._f is not None
+
+    def open(self) -> None:
+        if self._f is not None:
+            return
+        path = self.cfg.path
+        try:
+            f = open(path, "rb")  # noqa: SIM115 - held open across reads, closed by close()
+            size = os.fstat(f.fileno()).st_size
+        except OSError as exc:
+            hint = _hint(exc, "check the path")
+            if exc.errno == errno.ENOENT:
+                hint = (
+                    "no such file: check the path (relative paths start at the working "
+                    f"directory {os.getcwd()})"
+                )
+            raise TransportOpenError(self._name(), f"cannot open: {hint} ({exc})") from exc
+        if size == 0 and self.cfg.loop:
+            f.close()
+            raise TransportOpenError(self._name(), "cannot loop an empty file")
+        self._f = f
+        self._pending = None
+        self._delivered = 0
+        self.loops = 0
+        self._t0_ns = time.monotonic_ns()
+
+    def _next_block(self, f: io.BufferedReader) -> bytes:
+        data = f.read(self.chunk_size)
+        if not data and self.cfg.loop:
+            f.seek(0)
+            self.loops += 1
+            data = f.read(self.chunk_size)
+        if not data:
+            raise EndOfStream(
+                self._name(), f"end of file after {self._delivered} bytes (loop = false)"
+            )
+        return data
+
+    def read(self, timeout_s: float | None) -> Chunk | None:
+        self._check_timeout(timeout_s)
+        f = self._f
+        if f is None:
+            self._not_open()
+        if self._pending is None:
+            self._pending = self._next_block(f)
+        data = self._pending
+        if self.bytes_per_s is not None:
+            due_ns = self._t0_ns + round((self._delivered + len(data)) / self.bytes_per_s * 1e9)
+            wait_ns = due_ns - time.monotonic_ns()
+            if wait_ns > 0:
+                if timeout_s is not None and wait_ns > timeout_s * 1e9:
+                    time.sleep(timeout_s)
+                    return None
+                time.sleep(wait_ns / 1e9)
+        self._pending = None
+        self._delivered += len(data)
+        return self._chunk(Chunk(data, time.time_ns()))
+
+    def write(self, data: bytes) -> None:
+        """Discard ``data`` (a replay has no device to answer); counted in bytes_discarded."""
+        if self._f is None:
+            self._not_open()
+        self.bytes_discarded += len(data)
+
+    def close(self) -> None:
+        f, self._f = self._f, None
+        if f is not None:
+            f.close()
+
+    def describe(self) -> str:
+        return self.cfg.describe()
+
+
+_KINDS: dict[type, type[Transport]] = {
+    SerialTransportConfig: SerialTransport,
+    CanTransportConfig: CanTransport,
+    UdpTransportConfig: UdpTransport,
+    FileTransportConfig: FileReplayTransport,
+}
+
+
+def make_transport(cfg: TransportConfig | Mapping[str, Any]) -> Transport:
+    """The transport for a config model or mapping, not yet opened (for reconnect loops)."""
+    if isinstance(cfg, Mapping):
+        cfg = parse_transport_config(cfg)
+    try:
+        cls = _KINDS[type(cfg)]
+    except KeyError:
+        raise TypeError(f"not a transport config: {type(cfg).__name__}") from None
+    return cls(cfg)  # type: ignore[arg-type]
+
+
+def open_transport(cfg: TransportConfig | Mapping[str, Any]) -> Transport:
+    """Build and open the transport a config describes; raises :class:`TransportOpenError`."""
+    t = make_transport(cfg)
+    t.open()
+    return t
