@@ -1,0 +1,476 @@
+"""Tritech Seanet ``.V4LOG`` files: what Seanet Pro records from a SeaNet line.
+
+Layout (little endian; verified against two open readers, see ``docs/protocols/v4log.md``)::
+
+    header, 80 bytes
+      0   char[32]  "SeaNetV4 Log File V1", NUL padded
+      32  u32       version
+      36  u32       registration section offset (0 = none)
+      40  u32       data offset: first record
+      44  u32       number of records ("nScanLines")
+      48  u32       config section offset = end of the records
+      52  u32       extra section offset
+      56  u32       index section offset
+      60  u32       check section offset
+      64  f64       log opened, TDateTime (days since 1899-12-30)
+      72  f64       log closed, TDateTime
+    records, from the data offset up to the config offset
+      0   u16       record length, this field included
+      2   f64       PC time of the packet, TDateTime
+      10  u8        Tx node
+      11  u8        Rx node
+      12  ...       the SeaNet packet from its type byte (offset 10) up to, not including, the LF
+
+A record drops the packet's '@', both lengths and its byte count, so records are rebuilt into
+whole SeaNet packets (byte count: 0 in mtHeadData, else L - 5, as a head sends them) and decoded
+by :mod:`auvgw.drivers.seanet`. Each record decodes to a :class:`V4LogRecord`: the PC time as
+POSIX seconds (``time``; TDateTime carries no time zone, it is read as UTC), the exact TDateTime
+(``tdatetime``) and the SeaNet message.
+
+Records have no sync bytes, so :class:`V4LogFramer` walks them by their lengths within the
+record section; a record with an implausible length or time (outside the log's open/close
+times, one day of slack) is a bad frame, and the framer then slides byte by byte until a
+plausible record starts again. ``skipped_bytes`` counts the 80-byte header and any non-record
+section too (every byte not delivered in a record).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import struct
+from collections.abc import Iterable, Iterator, Mapping
+from pathlib import Path
+from types import TracebackType
+from typing import Any, BinaryIO, ClassVar
+
+from auvgw.drivers import seanet
+from auvgw.drivers.formats import Format
+from auvgw.drivers.framing import (
+    BadFrame,
+    DecodeError,
+    ErrorPolicy,
+    Frame,
+    FrameError,
+    Framer,
+    read_file_frames,
+)
+from auvgw.drivers.spec import (
+    WireError,
+    decode_block,
+    encode_block,
+    from_jsonable,
+    message,
+    wire,
+)
+
+__all__ = [
+    "FORMAT",
+    "HEADER_SIZE",
+    "HEADER_TEXT",
+    "MAGIC",
+    "V4LogError",
+    "V4LogFramer",
+    "V4LogHeader",
+    "V4LogRecord",
+    "V4LogWriter",
+    "decode",
+    "encode",
+    "packet_to_record",
+    "read_file",
+    "read_header",
+    "read_v4log",
+    "record_to_packet",
+    "tdatetime_from_unix",
+    "unix_from_tdatetime",
+    "write_v4log",
+]
+
+log = logging.getLogger(__name__)
+
+#: what every .V4LOG starts with
+MAGIC = b"SeaNetV4 Log File"
+#: the header text this writer puts in
+HEADER_TEXT = "SeaNetV4 Log File V1"
+HEADER_SIZE = 80
+RECORD_HEADER_SIZE = 12  # length, time, Tx, Rx
+#: shortest record: header + type, sequence, node
+MIN_RECORD_SIZE = RECORD_HEADER_SIZE + 3
+#: days from the TDateTime epoch (1899-12-30) to the POSIX epoch (1970-01-01)
+TDATETIME_POSIX_EPOCH = 25569.0
+SECONDS_PER_DAY = 86400.0
+_MAX_TDATETIME = 2958466.0  # year 9999
+
+
+def unix_from_tdatetime(days: float) -> float:
+    """Delphi TDateTime (days since 1899-12-30) -> POSIX seconds (the day count taken as UTC)."""
+    return (days - TDATETIME_POSIX_EPOCH) * SECONDS_PER_DAY
+
+
+def tdatetime_from_unix(seconds: float) -> float:
+    """POSIX seconds -> Delphi TDateTime (days since 1899-12-30)."""
+    return seconds / SECONDS_PER_DAY + TDATETIME_POSIX_EPOCH
+
+
+class V4LogError(ValueError):
+    """The file is not a readable .V4LOG (its header is missing or inconsistent)."""
+
+
+@message
+class V4LogHeader:
+    """The 80-byte file header."""
+
+    TYPE: ClassVar[str] = "V4LogHeader"
+
+    text: str = wire("str", 0, size=32, vendor="Header", doc="'SeaNetV4 Log File V1'")
+    version: int = wire("u32", 32, vendor="Version")
+    reg_offset: int = wire("u32", 36, units="byte", vendor="RegOffset")
+    data_offset: int = wire("u32", 40, units="byte", vendor="DataOffset", doc="first record")
+    n_records: int = wire("u32", 44, vendor="nScanLines", doc="records of every type")
+    config_offset: int = wire("u32", 48, units="byte", vendor="ConfigOffset", doc="records end")
+    extra_offset: int = wire("u32", 52, units="byte", vendor="ExtraOffset")
+    index_offset: int = wire("u32", 56, units="byte", vendor="IndexOffset")
+    check_offset: int = wire("u32", 60, units="byte", vendor="CheckOffset")
+    open_tdatetime: float = wire("f64", 64, units="day", vendor="LogOpen (TDateTime)")
+    close_tdatetime: float = wire("f64", 72, units="day", vendor="LogClose (TDateTime)")
+
+    @property
+    def open_time(self) -> float:
+        """Log opened, POSIX seconds."""
+        return unix_from_tdatetime(self.open_tdatetime)
+
+    @property
+    def close_time(self) -> float:
+        """Log closed, POSIX seconds."""
+        return unix_from_tdatetime(self.close_tdatetime)
+
+
+@message
+class V4LogRecord:
+    """One logged SeaNet packet: PC time and the decoded message.
+
+    ``tdatetime`` is the record's exact time (days since 1899-12-30); ``time`` the same as POSIX
+    seconds (build records with :meth:`at` so the two agree). ``message`` is a
+    :mod:`~auvgw.drivers.seanet` message.
+    """
+
+    TYPE: ClassVar[str] = "V4LogRecord"
+
+    tdatetime: float = wire("f64", 2, units="day", vendor="Time (TDateTime)")
+    time: float
+    message: Any
+
+    def __post_init__(self) -> None:
+        if isinstance(self.message, Mapping):  # rebuilt from JSON: the nested type names it
+            object.__setattr__(self, "message", from_jsonable(self.message))
+
+    @classmethod
+    def at(cls, time: float, msg: Any) -> V4LogRecord:
+        """A record of ``msg`` at POSIX ``time`` (s)."""
+        days = tdatetime_from_unix(time)
+        return cls(tdatetime=days, time=unix_from_tdatetime(days), message=msg)
+
+
+# -- records <-> packets ----------------------------------------------------------------------
+def record_to_packet(record: bytes | bytearray) -> bytes:
+    """A V4LOG record -> the whole SeaNet packet it logged."""
+    if len(record) < MIN_RECORD_SIZE:
+        raise DecodeError(f"V4LOG record of {len(record)} bytes, at least {MIN_RECORD_SIZE}")
+    (length,) = struct.unpack_from("<H", record, 0)
+    if length != len(record):
+        raise DecodeError(f"V4LOG record length field says {length}, record has {len(record)}")
+    body = bytes(record[RECORD_HEADER_SIZE:])  # from the type byte on
+    length = len(body) + 5
+    count = seanet.default_byte_count(body[0], length)
+    head = b"@%04X" % length + struct.pack("<H", length) + bytes([record[10], record[11], count])
+    return head + body + b"\n"
+
+
+def packet_to_record(packet: bytes | bytearray, tdatetime: float) -> bytes:
+    """A whole SeaNet packet and its TDateTime -> the V4LOG record (drops '@', the lengths,
+    the byte count and the LF)."""
+    total = seanet.packet_length(packet)
+    record = bytearray(total + 1)
+    struct.pack_into("<Hd", record, 0, total + 1, tdatetime)
+    record[10:12] = packet[7:9]
+    record[12:] = packet[10 : total - 1]
+    return bytes(record)
+
+
+# -- codec ------------------------------------------------------------------------------------
+def decode(record: bytes | bytearray | memoryview) -> list[V4LogRecord]:
+    """One record (as :class:`V4LogFramer` delivers it) -> [V4LogRecord]."""
+    rec = bytes(record)
+    msgs = seanet.decode(record_to_packet(rec))
+    (days,) = struct.unpack_from("<d", rec, 2)
+    try:
+        return [
+            decode_block(V4LogRecord, rec, time=unix_from_tdatetime(days), message=m) for m in msgs
+        ]
+    except WireError as exc:
+        raise DecodeError(str(exc)) from None
+
+
+def encode(rec: V4LogRecord) -> bytes:
+    """A V4LogRecord -> its record bytes (length, TDateTime, Tx, Rx, packet from the type on)."""
+    out = bytearray(packet_to_record(seanet.encode(rec.message), 0.0))
+    encode_block(rec, out)
+    return bytes(out)
+
+
+# -- framing ----------------------------------------------------------------------------------
+class V4LogFramer(Framer):
+    """Delivers the records of a .V4LOG fed in chunks (``sync`` is the file magic).
+
+    Raises :class:`V4LogError` (whatever the policy) when the stream does not start with a
+    V4LOG header: that is the wrong kind of file, not a bad record.
+    """
+
+    name = "v4log"
+    sync = MAGIC
+    max_frame_size = seanet.MAX_PACKET_SIZE + 1
+
+    def __init__(
+        self,
+        policy: ErrorPolicy | str = ErrorPolicy.LOG,
+        source: str = "",
+        max_frame_size: int | None = None,
+    ) -> None:
+        super().__init__(policy, source, max_frame_size)
+        self.header: V4LogHeader | None = None
+        self._start = HEADER_SIZE
+        self._end: int | None = None
+        self._times = (0.0, _MAX_TDATETIME)
+        self._resync = False
+
+    def _read_header(self, buf: bytearray) -> None:
+        if bytes(buf[: len(MAGIC)]) != MAGIC:
+            raise V4LogError(
+                f"not a SeaNet .V4LOG file: it starts {bytes(buf[:20])!r}, "
+                f"a .V4LOG starts {HEADER_TEXT!r}"
+            )
+        if len(buf) < HEADER_SIZE:
+            raise V4LogError(f"truncated .V4LOG header: {len(buf)} of {HEADER_SIZE} bytes")
+        hdr = decode_block(V4LogHeader, buf)
+        if hdr.data_offset < HEADER_SIZE:
+            raise V4LogError(f".V4LOG header: data offset {hdr.data_offset} is inside the header")
+        self.header = hdr
+        self._start = hdr.data_offset
+        self._end = hdr.config_offset if hdr.config_offset > hdr.data_offset else None
+        t0, t1 = hdr.open_tdatetime, hdr.close_tdatetime
+        if 0.0 < t0 <= t1 < _MAX_TDATETIME:
+            self._times = (t0 - 1.0, t1 + 1.0)
+
+    def check(self, buf: bytearray, start: int) -> int:
+        """Length of the plausible record at ``start``, 0 if more bytes are needed."""
+        avail = len(buf) - start
+        if avail < 2:
+            return 0
+        (length,) = struct.unpack_from("<H", buf, start)
+        if not MIN_RECORD_SIZE <= length <= self.max_frame_size:
+            raise BadFrame(f"record_length: {length} (allowed {MIN_RECORD_SIZE}..)")
+        if self._end is not None and self._base + start + length > self._end:
+            raise BadFrame(f"record_length: {length} runs past the record section")
+        if avail < RECORD_HEADER_SIZE:
+            return 0
+        (days,) = struct.unpack_from("<d", buf, start + 2)
+        lo, hi = self._times
+        if not (math.isfinite(days) and lo <= days <= hi):
+            raise BadFrame(f"record_time: TDateTime {days!r} outside the log's time span")
+        return length if avail >= length else 0
+
+    def _scan(self, eof: bool) -> list[Frame]:
+        buf = self._buf
+        out, self._pending = self._pending, []
+        if self.header is None:
+            if len(buf) < HEADER_SIZE and not eof:
+                return out
+            self._read_header(buf)
+        i = 0
+        error: FrameError | None = None
+        while i < len(buf) or eof:
+            pos = self._base + i
+            if pos < self._start:  # the header and anything before the first record
+                n = min(self._start - pos, len(buf) - i)
+                self.stats.skipped_bytes += n
+                i += n
+                if self._base + i < self._start:
+                    break
+                continue
+            if self._end is not None and pos >= self._end:  # sections after the records
+                self.stats.skipped_bytes += len(buf) - i
+                i = len(buf)
+                break
+            try:
+                length = self.check(buf, i)
+                if length == 0 and eof and i < len(buf):
+                    raise BadFrame(f"truncated: stream ends {len(buf) - i} bytes into a record")
+            except BadFrame as exc:
+                self.stats.skipped_bytes += 1
+                if not self._resync:  # one bad frame per lost stretch, then slide quietly
+                    self._resync = True
+                    error = self._bad(i, exc.reason)
+                i += 1
+                if error is not None:
+                    break
+                continue
+            if length == 0:
+                break
+            out.append(Frame(bytes(buf[i : i + length]), pos))
+            self.stats.frames += 1
+            self._resync = False
+            i += length
+        del buf[:i]
+        self._base += i
+        if error is not None:
+            self._pending = out
+            raise error
+        return out
+
+
+def read_file(
+    path: str | Path, policy: ErrorPolicy | str = ErrorPolicy.IGNORE
+) -> tuple[Iterator[Frame], V4LogFramer]:
+    """The records of a .V4LOG file as frames, and the framer counting them (for the format
+    registry); iterating raises :class:`V4LogError` when the file is not a .V4LOG."""
+    framer = V4LogFramer(policy=policy, source=str(path))
+    return read_file_frames(framer, path), framer
+
+
+def read_header(path: str | Path) -> V4LogHeader:
+    """The header of a .V4LOG file (:class:`V4LogError` naming the file if there is none)."""
+    with open(path, "rb") as fh:
+        data = fh.read(HEADER_SIZE)
+    framer = V4LogFramer(source=str(path))
+    try:
+        framer._read_header(bytearray(data))
+    except V4LogError as exc:
+        raise V4LogError(f"{path}: {exc}") from None
+    assert framer.header is not None
+    return framer.header
+
+
+def read_v4log(
+    path: str | Path, policy: ErrorPolicy | str = ErrorPolicy.LOG
+) -> Iterator[tuple[float, seanet.SeaNetMessage]]:
+    """(POSIX time s, SeaNet message) for every record of a .V4LOG file, in file order.
+
+    Bad records are counted and skipped (or raised, or logged, as ``policy`` says); a record
+    whose packet does not decode is handled the same way.
+    """
+    frames, _ = read_file(path, policy)
+    policy = ErrorPolicy(policy)
+    try:
+        for frame in frames:
+            try:
+                records = decode(frame.data)
+            except DecodeError as exc:
+                if policy is ErrorPolicy.RAISE:
+                    where = f"{path}: record at byte offset {frame.offset}"
+                    raise DecodeError(f"{where}: {exc}") from None
+                if policy is ErrorPolicy.LOG:
+                    log.warning("%s: record at byte offset %d: %s", path, frame.offset, exc)
+                continue
+            for rec in records:
+                yield rec.time, rec.message
+    except V4LogError as exc:
+        raise V4LogError(f"{path}: {exc}") from None
+
+
+# -- writing ----------------------------------------------------------------------------------
+class V4LogWriter:
+    """Writes a .V4LOG: the header (patched on :meth:`close`), then one record per packet.
+
+    No clock inside: every record gets the time it is given; the header's open/close times
+    default to the first/last record's.
+    """
+
+    def __init__(self, file: str | Path | BinaryIO, *, version: int = 1) -> None:
+        self._own = isinstance(file, str | Path)
+        self._fh: BinaryIO = open(file, "wb") if isinstance(file, str | Path) else file  # noqa: SIM115
+        self._origin = self._fh.tell()
+        self._fh.write(bytes(HEADER_SIZE))
+        self.version = version
+        self.n_records = 0
+        self._first: float | None = None
+        self._last: float | None = None
+
+    def write(self, time: float, item: seanet.SeaNetMessage | bytes) -> None:
+        """Log a SeaNet message (or a whole packet's bytes) at POSIX ``time`` (s)."""
+        packet = bytes(item) if isinstance(item, bytes | bytearray) else seanet.encode(item)
+        self._write(packet_to_record(packet, tdatetime_from_unix(time)), tdatetime_from_unix(time))
+
+    def write_record(self, rec: V4LogRecord) -> None:
+        """Log a :class:`V4LogRecord` exactly (its TDateTime as it is)."""
+        self._write(encode(rec), rec.tdatetime)
+
+    def _write(self, record: bytes, days: float) -> None:
+        self._fh.write(record)
+        self.n_records += 1
+        self._first = days if self._first is None else self._first
+        self._last = days
+
+    def close(
+        self, *, open_time: float | None = None, close_time: float | None = None
+    ) -> V4LogHeader:
+        """Write the header (open/close POSIX times default to the first/last record's)."""
+        end = self._fh.tell() - self._origin
+        t_open = tdatetime_from_unix(open_time) if open_time is not None else self._first
+        t_close = tdatetime_from_unix(close_time) if close_time is not None else self._last
+        header = V4LogHeader(
+            text=HEADER_TEXT,
+            version=self.version,
+            reg_offset=0,
+            data_offset=HEADER_SIZE,
+            n_records=self.n_records,
+            config_offset=end,
+            extra_offset=end,
+            index_offset=end,
+            check_offset=end,
+            open_tdatetime=t_open or 0.0,
+            close_tdatetime=t_close or 0.0,
+        )
+        buf = bytearray(HEADER_SIZE)
+        encode_block(header, buf)
+        self._fh.seek(self._origin)
+        self._fh.write(buf)
+        self._fh.seek(self._origin + end)
+        if self._own:
+            self._fh.close()
+        return header
+
+    def __enter__(self) -> V4LogWriter:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        if not self._fh.closed:
+            self.close()
+
+
+def write_v4log(
+    path: str | Path,
+    items: Iterable[tuple[float, seanet.SeaNetMessage | bytes]],
+    *,
+    open_time: float | None = None,
+    close_time: float | None = None,
+) -> V4LogHeader:
+    """Write (POSIX time s, message or packet bytes) pairs as a .V4LOG file; its header."""
+    writer = V4LogWriter(path)
+    for time, item in items:
+        writer.write(time, item)
+    return writer.close(open_time=open_time, close_time=close_time)
+
+
+FORMAT = Format(
+    name="v4log",
+    summary="a Tritech Seanet .V4LOG file (80-byte header, timed SeaNet records)",
+    framer=V4LogFramer,
+    decode=decode,
+    encode=encode,
+    read_file=read_file,
+)

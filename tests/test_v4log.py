@@ -1,0 +1,286 @@
+"""Seanet .V4LOG container: layout, write -> read round trip, bad records, the decode CLI."""
+
+from __future__ import annotations
+
+import json
+import struct
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from auvgw.drivers import seanet as sn
+from auvgw.drivers import v4log as v4
+from auvgw.drivers.framing import ErrorPolicy
+from auvgw.drivers.spec import from_jsonable, to_jsonable
+
+T0 = 1_700_000_000.0  # 2023-11-14T22:13:20Z
+
+
+def sample_items() -> list[tuple[float, sn.SeaNetMessage]]:
+    cfg = sn.head_command(range_m=20.0, n_bins=40)
+    cfg4 = sn.head_command(range_m=20.0, n_bins=40, adc8on=False)
+    return [
+        (T0 + 0.0, sn.alive(100.0, head_inf=sn.HeadInf.NO_PARAMS | sn.HeadInf.MOTOR_ON)),
+        (T0 + 0.1, sn.reboot()),
+        (T0 + 0.2, sn.send_version()),
+        (T0 + 0.3, sn.version_data(serial_number=4321)),
+        (T0 + 0.4, cfg),
+        (T0 + 1.0, sn.send_data(80_001_000)),
+        (T0 + 1.1, sn.head_data(np.arange(40) % 50, 1.0, config=cfg)),
+        (T0 + 1.2, sn.send_data(80_001_200)),
+        (T0 + 1.3, sn.head_data(np.arange(40) % 16, 1.1, config=cfg4)),
+        (
+            T0 + 1.4,
+            sn.SeaNetRaw(
+                tx_node=2,
+                rx_node=255,
+                byte_count=8,
+                sequence=0x80,
+                node=2,
+                msg_type=8,
+                payload=b"aux!\x01",
+            ),
+        ),
+    ]
+
+
+@pytest.fixture
+def log_file(tmp_path: Path) -> Path:
+    path = tmp_path / "scan.V4LOG"
+    v4.write_v4log(path, sample_items())
+    return path
+
+
+def test_write_read_round_trip(log_file: Path) -> None:
+    items = sample_items()
+    got = list(v4.read_v4log(log_file, policy=ErrorPolicy.RAISE))
+    assert [m for _, m in got] == [m for _, m in items]
+    assert [t for t, _ in got] == pytest.approx([t for t, _ in items], abs=1e-5)
+    hdr = v4.read_header(log_file)
+    assert hdr.text == "SeaNetV4 Log File V1"
+    assert hdr.n_records == len(items)
+    assert hdr.data_offset == 80
+    assert hdr.config_offset == log_file.stat().st_size
+    assert hdr.open_time == pytest.approx(T0, abs=1e-5)
+    assert hdr.close_time == pytest.approx(T0 + 1.4, abs=1e-5)
+
+
+def test_file_layout_matches_the_documented_bytes(log_file: Path) -> None:
+    data = log_file.read_bytes()
+    assert data[:32] == b"SeaNetV4 Log File V1".ljust(32, b"\x00")
+    version, reg, data_off, n, config = struct.unpack_from("<5I", data, 32)
+    assert (version, reg, data_off, n, config) == (1, 0, 80, 10, len(data))
+    # first record: the mtAlive packet
+    packet = sn.encode(sample_items()[0][1])
+    length, days = struct.unpack_from("<Hd", data, 80)
+    assert length == len(packet) + 1 == 23
+    assert days == pytest.approx(T0 / 86400 + 25569.0)  # TDateTime: days since 1899-12-30
+    assert data[90:92] == bytes([2, 255])  # Tx, Rx
+    assert data[92 : 80 + length] == packet[10:-1]  # from the type byte, without the LF
+
+
+def hand_built_log(bins: bytes, bearing: int, days: float) -> bytes:
+    """A .V4LOG with one mtHeadData record, built from the documented layout only."""
+    rec = bytearray(46 + len(bins))
+    struct.pack_into("<Hd", rec, 0, len(rec), days)
+    rec[10], rec[11], rec[12], rec[13], rec[14] = 2, 255, 2, 0x80, 2  # Tx Rx type seq node
+    struct.pack_into("<H", rec, 15, len(rec) - 15)  # bytes after the node (packet offset 13..)
+    rec[17] = 11  # device type
+    struct.pack_into("<H", rec, 20, 0x2301 | 2)  # HdCtrl: 8-bit, continuous
+    struct.pack_into("<H", rec, 22, 150)  # range 15.0 m
+    struct.pack_into("<H", rec, 35, 25)  # ADInterval
+    rec[41] = 16  # step
+    struct.pack_into("<HH", rec, 42, bearing, len(bins))
+    rec[46:] = bins
+    header = bytearray(80)
+    header[:20] = b"SeaNetV4 Log File V1"
+    struct.pack_into("<8I2d", header, 32, 1, 0, 80, 1, 80 + len(rec), 0, 0, 0, days, days)
+    return bytes(header + rec)
+
+
+def test_hand_built_record_decodes(tmp_path: Path) -> None:
+    days = 45_000.5  # 2023-03-15 12:00
+    path = tmp_path / "hand.V4LOG"
+    path.write_bytes(hand_built_log(bytes([9, 8, 7, 200]), 4800, days))
+    ((t, m),) = list(v4.read_v4log(path, policy=ErrorPolicy.RAISE))
+    assert t == pytest.approx((45_000.5 - 25_569) * 86_400)
+    assert isinstance(m, sn.HeadData)
+    assert m.bins.tolist() == [9, 8, 7, 200]
+    assert m.bearing == pytest.approx(3 * np.pi / 2)
+    assert m.range_m == pytest.approx(15.0) and m.adc8on and m.continuous
+    assert m.bin_length(1500.0) == pytest.approx(25 * 640e-9 * 750)
+    assert (m.tx_node, m.rx_node, m.byte_count) == (2, 255, 0)
+
+
+def test_records_decode_and_encode_exactly(log_file: Path) -> None:
+    frames, framer = v4.read_file(log_file)
+    frames = list(frames)
+    assert framer.stats.frames == 10
+    for fr in frames:
+        (rec,) = v4.decode(fr.data)
+        assert v4.encode(rec) == fr.data
+        assert v4.FORMAT.decode(fr.data) == [rec]
+        assert v4.packet_to_record(v4.record_to_packet(fr.data), rec.tdatetime) == fr.data
+        assert rec.time == pytest.approx(v4.unix_from_tdatetime(rec.tdatetime))
+        assert from_jsonable(to_jsonable(rec)) == rec
+
+
+def test_record_packet_conversion_keeps_packets() -> None:
+    for _, m in sample_items():
+        packet = sn.encode(m)
+        assert v4.record_to_packet(v4.packet_to_record(packet, 45_000.0)) == packet
+
+
+def test_writer_exact_records(tmp_path: Path) -> None:
+    path = tmp_path / "exact.V4LOG"
+    recs = [v4.V4LogRecord.at(T0 + i, m) for i, (_, m) in enumerate(sample_items())]
+    with v4.V4LogWriter(path) as w:
+        for r in recs:
+            w.write_record(r)
+    frames, _ = v4.read_file(path)
+    assert [v4.decode(fr.data)[0] for fr in frames] == recs
+
+
+def _frames(data: bytes, chunk: int) -> tuple[list, v4.V4LogFramer]:
+    f = v4.V4LogFramer(policy=ErrorPolicy.IGNORE)
+    return list(f.frames(data[i : i + chunk] for i in range(0, len(data), chunk))), f
+
+
+def test_any_chunking(log_file: Path) -> None:
+    data = log_file.read_bytes()
+    ref, _ = _frames(data, len(data))
+    assert len(ref) == 10
+    for chunk in (1, 2, 7, 13, 80, 1000):
+        frames, f = _frames(data, chunk)
+        assert frames == ref
+        assert (f.stats.frames, f.stats.bad_frames, f.stats.skipped_bytes) == (10, 0, 80)
+
+
+def _record_spans(data: bytes) -> list[tuple[int, int]]:
+    spans, pos = [], 80
+    while pos < len(data):
+        (n,) = struct.unpack_from("<H", data, pos)
+        spans.append((pos, n))
+        pos += n
+    return spans
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "reason"),
+    [
+        ("length", struct.pack("<H", 3), "record_length:"),
+        ("length", struct.pack("<H", 60_000), "record_length:"),
+        ("time", struct.pack("<d", 0.0), "record_time:"),
+        ("time", struct.pack("<d", float("nan")), "record_time:"),
+    ],
+)
+def test_bad_record_is_skipped_and_the_rest_recovered(
+    log_file: Path, field: str, value: bytes, reason: str
+) -> None:
+    data = bytearray(log_file.read_bytes())
+    spans = _record_spans(bytes(data))
+    pos, n = spans[4]  # the mtHeadCommand record
+    at = pos if field == "length" else pos + 2
+    data[at : at + len(value)] = value
+    for chunk in (1, 5, 4096):
+        frames, f = _frames(bytes(data), chunk)
+        assert [fr.offset for fr in frames] == [p for p, _ in spans if p != pos]
+        assert f.stats.bad_frames == 1 and dict(f.stats.reasons) == {reason: 1}
+        assert f.stats.skipped_bytes == 80 + n
+    kept = [type(m).__name__ for _, m in v4.read_v4log(_write(log_file, data))]
+    assert "HeadCommand" not in kept and len(kept) == 9
+
+
+def _write(path: Path, data: bytes | bytearray) -> Path:
+    out = path.with_name("edited.V4LOG")
+    out.write_bytes(bytes(data))
+    return out
+
+
+def test_truncated_file(log_file: Path) -> None:
+    data = log_file.read_bytes()
+    spans = _record_spans(data)
+    pos, n = spans[-2]  # the 4-bit mtHeadData record loses its tail (and the record after it)
+    assert n > 20
+    cut = data[: pos + 20]
+    frames, f = _frames(cut, 33)
+    assert [fr.offset for fr in frames] == [p for p, _ in spans[:-2]]
+    assert f.stats.bad_frames == 1 and dict(f.stats.reasons) == {"truncated:": 1}
+    assert f.stats.skipped_bytes == 80 + 20
+
+
+def test_not_a_v4log_names_the_file(tmp_path: Path) -> None:
+    raw = tmp_path / "capture.bin"
+    raw.write_bytes(b"".join(sn.encode(m) for _, m in sample_items()))
+    with pytest.raises(v4.V4LogError, match=r"capture\.bin: not a SeaNet \.V4LOG file"):
+        list(v4.read_v4log(raw))
+    with pytest.raises(v4.V4LogError, match=r"capture\.bin: not a SeaNet \.V4LOG file"):
+        v4.read_header(raw)
+    empty = tmp_path / "empty.V4LOG"
+    empty.write_bytes(b"")
+    with pytest.raises(v4.V4LogError, match=r"empty\.V4LOG: not a SeaNet \.V4LOG file"):
+        list(v4.read_v4log(empty))
+    short = tmp_path / "short.V4LOG"
+    short.write_bytes(b"SeaNetV4 Log File V1\x00\x00")
+    with pytest.raises(v4.V4LogError, match=r"truncated \.V4LOG header: 22 of 80 bytes"):
+        list(v4.read_v4log(short))
+
+
+def test_tdatetime_conversions() -> None:
+    assert v4.unix_from_tdatetime(25569.0) == 0.0
+    assert v4.unix_from_tdatetime(25569.5) == 43_200.0
+    assert v4.tdatetime_from_unix(86_400.0) == 25570.0
+    assert v4.unix_from_tdatetime(v4.tdatetime_from_unix(T0)) == pytest.approx(T0, abs=1e-6)
+
+
+# -- the CLI ----------------------------------------------------------------------------------
+
+AUVGW = Path(sys.executable).with_name("auvgw")
+
+
+def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
+    cmd = [str(AUVGW)] if AUVGW.exists() else [sys.executable, "-m", "auvgw.cli"]
+    return subprocess.run([*cmd, *args], capture_output=True, text=True, timeout=120)
+
+
+def test_cli_decodes_a_v4log(log_file: Path) -> None:
+    res = run_cli("decode", "--format", "v4log", str(log_file))
+    assert res.returncode == 0, res.stderr
+    lines = [json.loads(x) for x in res.stdout.splitlines()]
+    assert [d["type"] for d in lines] == ["V4LogRecord"] * 10
+    assert [d["message"]["type"] for d in lines] == [m.TYPE for _, m in sample_items()]
+    assert lines[6]["message"]["bins"] == list(range(40))
+    assert lines[0]["time"] == pytest.approx(T0, abs=1e-5)
+    summary = json.loads(res.stderr.strip().splitlines()[-1])
+    assert summary["frames"] == 10 and summary["bad_frames"] == 0
+    assert summary["messages"] == {"V4LogRecord": 10}
+
+
+def test_cli_decodes_a_raw_seanet_capture(tmp_path: Path) -> None:
+    raw = tmp_path / "capture.bin"
+    items = sample_items()
+    raw.write_bytes(b"\x00junk" + b"".join(sn.encode(m) for _, m in items))
+    res = run_cli("decode", "--format", "seanet", str(raw))
+    assert res.returncode == 0, res.stderr
+    types = [json.loads(x)["type"] for x in res.stdout.splitlines()]
+    assert types == [m.TYPE for _, m in items]
+    summary = json.loads(res.stderr.strip().splitlines()[-1])
+    assert summary["messages"]["mtHeadData"] == 2 and summary["messages"]["mtSendData"] == 2
+    assert (summary["frames"], summary["bad_frames"], summary["skipped_bytes"]) == (10, 0, 5)
+
+
+def test_cli_wrong_file_is_one_line_exit_2(tmp_path: Path, log_file: Path) -> None:
+    raw = tmp_path / "capture.bin"
+    raw.write_bytes(b"".join(sn.encode(m) for _, m in sample_items()))
+    res = run_cli("decode", "--format", "v4log", str(raw))
+    assert res.returncode == 2
+    assert res.stdout == ""
+    err = res.stderr.strip().splitlines()
+    assert len(err) == 1 and "not a SeaNet .V4LOG file" in err[0] and "capture.bin" in err[0]
+    assert "Traceback" not in res.stderr
+    # a .V4LOG read as a raw SeaNet stream holds no packet
+    res = run_cli("decode", "--format", "seanet", str(log_file))
+    assert res.returncode == 2 and "Traceback" not in res.stderr
+    assert "no valid seanet frame" in res.stderr.strip().splitlines()[-1]
