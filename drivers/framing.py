@@ -155,7 +155,7 @@ class Framer:
 
     def _bad(self, pos: int, reason: str) -> FrameError | None:
         self.stats.bad_frames += 1
-        self.stats.reasons[reason.split(" ")[0] if reason else "bad"] += 1
+        self.stats.reasons[reason.split(" ")[0].rstrip(":") if reason else "bad"] += 1
         offset = self._base + pos
         if self.policy is ErrorPolicy.RAISE:
             return FrameError(self.source, offset, reason)

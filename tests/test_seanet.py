@@ -403,30 +403,30 @@ def _expect(stream: bytes, frames_out: list[bytes], bad: int, reasons: dict[str,
 def test_bad_hex_length() -> None:
     bad = bytearray(GOOD[2])  # mtSendVersion, no '@' inside
     bad[3] = ord("G")
-    _expect(GOOD[0] + bytes(bad) + GOOD[1], [GOOD[0], GOOD[1]], 1, {"hex_length:": 1})
+    _expect(GOOD[0] + bytes(bad) + GOOD[1], [GOOD[0], GOOD[1]], 1, {"hex_length": 1})
 
 
 def test_lower_case_hex_is_rejected() -> None:
     bad = GOOD[7].replace(b"@000C", b"@000c")  # mtSendData
-    _expect(bad + GOOD[2], [GOOD[2]], 1, {"hex_length:": 1})
+    _expect(bad + GOOD[2], [GOOD[2]], 1, {"hex_length": 1})
 
 
 def test_hex_binary_length_mismatch() -> None:
     bad = bytearray(GOOD[7])
     bad[5] += 1
-    _expect(GOOD[2] + bytes(bad) + GOOD[2], [GOOD[2], GOOD[2]], 1, {"length_mismatch:": 1})
+    _expect(GOOD[2] + bytes(bad) + GOOD[2], [GOOD[2], GOOD[2]], 1, {"length_mismatch": 1})
 
 
 def test_implausible_length() -> None:
     huge = b"@FFF0" + struct.pack("<H", 0xFFF0) + bytes([255, 2, 0]) + b"junk"
     tiny = b"@0004" + struct.pack("<H", 4) + bytes([255, 2, 0]) + b"\n"
-    _expect(huge + GOOD[1] + tiny + GOOD[2], [GOOD[1], GOOD[2]], 2, {"length:": 2})
+    _expect(huge + GOOD[1] + tiny + GOOD[2], [GOOD[1], GOOD[2]], 2, {"length": 2})
 
 
 def test_bad_byte_count() -> None:
     bad = bytearray(GOOD[7])
     bad[9] = 6  # should be 7 (or 0)
-    _expect(bytes(bad) + GOOD[7], [GOOD[7]], 1, {"byte_count:": 1})
+    _expect(bytes(bad) + GOOD[7], [GOOD[7]], 1, {"byte_count": 1})
     zero = bytearray(GOOD[7])
     zero[9] = 0  # 0 is accepted (the single-packet marker)
     frames, f = feed(bytes(zero), 5)
@@ -435,7 +435,7 @@ def test_bad_byte_count() -> None:
 
 def test_missing_lf() -> None:
     bad = GOOD[3][:-1] + b"\r"  # mtVersionData
-    _expect(GOOD[2] + bad + GOOD[5], [GOOD[2], GOOD[5]], 1, {"terminator:": 1})
+    _expect(GOOD[2] + bad + GOOD[5], [GOOD[2], GOOD[5]], 1, {"terminator": 1})
 
 
 def test_truncated_packet_does_not_swallow_the_next() -> None:
@@ -445,12 +445,12 @@ def test_truncated_packet_does_not_swallow_the_next() -> None:
     cut = head[: len(head) - len(send)]
     # cut + send is exactly as long as the head data claims and ends in send's LF
     assert len(cut + send) == len(head) and (cut + send)[-1] == 0x0A
-    _expect(cut + send + GOOD[2], [send, GOOD[2]], 1, {"overlap:": 1})
+    _expect(cut + send + GOOD[2], [send, GOOD[2]], 1, {"overlap": 1})
     # cut short with nothing after it: truncated at the end of the stream
-    _expect(GOOD[2] + head[:40], [GOOD[2]], 1, {"truncated:": 1})
+    _expect(GOOD[2] + head[:40], [GOOD[2]], 1, {"truncated": 1})
     # cut short, declared end lands inside later bytes that are not LF
     assert head[34] != 0x0A
-    _expect(head[:60] + GOOD[8] + GOOD[2], [GOOD[8], GOOD[2]], 1, {"terminator:": 1})
+    _expect(head[:60] + GOOD[8] + GOOD[2], [GOOD[8], GOOD[2]], 1, {"terminator": 1})
 
 
 def test_every_truncation_keeps_the_packets_after_it() -> None:
@@ -473,7 +473,7 @@ def test_garbage_between_packets() -> None:
     garbage = bytes(range(0x41, 0x41 + 30))  # no '@', no LF surprises
     _expect(garbage + GOOD[0] + garbage + GOOD[1] + garbage, [GOOD[0], GOOD[1]], 0, {})
     with_at = b"\x00@@\x99@0"  # three false syncs: '@@', '@\x99', '@0' then a real '@'
-    _expect(GOOD[0] + with_at + GOOD[1], [GOOD[0], GOOD[1]], 3, {"hex_length:": 3})
+    _expect(GOOD[0] + with_at + GOOD[1], [GOOD[0], GOOD[1]], 3, {"hex_length": 3})
 
 
 def test_stream_starting_mid_packet() -> None:

@@ -70,10 +70,10 @@ def run(args: argparse.Namespace) -> int:
         "skipped_bytes": s.skipped_bytes,
         "decode_errors": decode_errors,
     }
-    print(json.dumps(summary), file=sys.stderr)
     if s.frames == 0 and not args.limit:
         raise UserError(
             f"{path}: no valid {fmt.name} frame found in {s.bytes_in} bytes "
             f"({s.bad_frames} bad frame candidates): is this really {fmt.summary}?"
         )
+    print(json.dumps(summary), file=sys.stderr)
     return 0
