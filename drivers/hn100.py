@@ -1,0 +1,149 @@
+"""HN-100 INS binary navigation frame, defined entirely by a table in ``config/hn100.toml``.
+
+No public protocol of the HN-100 exists: the shipped table is the project's *assumed* layout
+(``docs/protocols/hn100.md``). A site with the vendor manual writes its own table and loads it
+with :meth:`Hn100Codec.from_toml`; the message class, framer, decoder and encoder all follow it.
+
+Decoded :data:`Hn100Nav` messages carry SI: time s (device clock), roll/pitch/heading rad,
+angular rates rad/s and specific force m/s^2 in the body frame (x forward, y starboard, z down),
+velocity m/s in local NED, latitude/longitude rad (WGS-84), depth m (positive down), the raw
+status word and its flags ``aligned``, ``gnss_aided``, ``dvl_aided``, ``error``.
+``raw_value(msg, name)`` gives any field's wire value.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from auvgw.drivers.formats import Format
+from auvgw.drivers.framing import ErrorPolicy
+from auvgw.drivers.tablecodec import (
+    BinaryFrameCodec,
+    BinaryFrameFramer,
+    BinaryFrameSpec,
+    build_message_class,
+    load_toml,
+    parse_binary_table,
+)
+
+from auvgw.paths import config_file
+
+__all__ = [
+    "CODEC",
+    "FORMAT",
+    "REQUIRED_FIELDS",
+    "REQUIRED_FLAGS",
+    "Hn100Codec",
+    "Hn100Framer",
+    "Hn100Nav",
+]
+
+#: fields every HN-100 table must declare: name -> decoded units ('' = integer count)
+REQUIRED_FIELDS: dict[str, str] = {
+    "time": "s",
+    "roll": "rad",
+    "pitch": "rad",
+    "heading": "rad",
+    "rate_x": "rad/s",
+    "rate_y": "rad/s",
+    "rate_z": "rad/s",
+    "accel_x": "m/s^2",
+    "accel_y": "m/s^2",
+    "accel_z": "m/s^2",
+    "vel_n": "m/s",
+    "vel_e": "m/s",
+    "vel_d": "m/s",
+    "latitude": "rad",
+    "longitude": "rad",
+    "depth": "m",
+}
+#: status bits every HN-100 table must name (in its [status] table, on any integer field)
+REQUIRED_FLAGS: tuple[str, ...] = ("aligned", "gnss_aided", "dvl_aided", "error")
+
+_DOC = """HN-100 navigation solution (one binary frame), SI units.
+
+Body frame x forward, y starboard, z down; velocity in local NED; angles in rad; flags derived
+from the status word (passing a flag that disagrees with it raises ValueError)."""
+
+
+def _vec(*names: str) -> property:
+    def get(self: Any) -> np.ndarray:
+        return np.array([getattr(self, n) for n in names], dtype=np.float64)
+
+    get.__doc__ = f"({', '.join(names)}) as a float64 array"
+    return property(get)
+
+
+_EXTRA = {
+    "rates": _vec("rate_x", "rate_y", "rate_z"),
+    "accel": _vec("accel_x", "accel_y", "accel_z"),
+    "vel_ned": _vec("vel_n", "vel_e", "vel_d"),
+}
+
+
+class Hn100Codec(BinaryFrameCodec):
+    """HN-100 frames under one table: :meth:`framer`, :meth:`decode`, :meth:`encode`."""
+
+    @classmethod
+    def from_toml(cls, path: str | Path | None = None) -> Hn100Codec:
+        """Load a table (default: the shipped ``config/hn100.toml``).
+
+        Raises :class:`~auvgw.drivers.tablecodec.TableError` naming the file, the entry and
+        what is expected (unknown type, overlapping fields, field beyond the frame, ...).
+        """
+        path = Path(path) if path is not None else config_file("hn100.toml")
+        spec = parse_binary_table(load_toml(path), str(path), REQUIRED_FIELDS, REQUIRED_FLAGS)
+        return cls.from_spec(spec)
+
+    @classmethod
+    def from_spec(cls, spec: BinaryFrameSpec) -> Hn100Codec:
+        msg_type = build_message_class(
+            "Hn100Nav",
+            spec.fields,
+            byte_order=spec.byte_order,
+            doc=f"{_DOC}\n\nTable: {spec.source}",
+            flags=spec.flags,
+            module=__name__,
+            namespace=_EXTRA,
+            source=spec.source,
+        )
+        return cls(spec, msg_type, name="hn100")
+
+    def framer(
+        self, policy: ErrorPolicy | str = ErrorPolicy.LOG, source: str = "", **_ignored: Any
+    ) -> Hn100Framer:
+        """A fresh framer for this codec's table."""
+        return Hn100Framer(self, policy=policy, source=source)
+
+
+#: the codec of the shipped table
+CODEC: Hn100Codec = Hn100Codec.from_toml()
+#: message class of the shipped table (a site table builds its own class of the same name)
+Hn100Nav = CODEC.message_type
+
+
+class Hn100Framer(BinaryFrameFramer):
+    """HN-100 framer: sync, size, length and checksum from ``codec``'s table (default shipped)."""
+
+    def __init__(
+        self,
+        codec: Hn100Codec | None = None,
+        policy: ErrorPolicy | str = ErrorPolicy.LOG,
+        source: str = "",
+    ) -> None:
+        super().__init__((codec or CODEC).spec, policy=policy, source=source, name="hn100")
+
+
+def _decode(frame: bytes) -> list[Any]:
+    return [CODEC.decode(frame)]
+
+
+FORMAT = Format(
+    name="hn100",
+    summary="an HN-100 INS binary capture (auvgw assumed layout, config/hn100.toml)",
+    framer=CODEC.framer,
+    decode=_decode,
+    encode=CODEC.encode,
+)

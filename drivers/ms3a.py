@@ -1,0 +1,110 @@
+"""MS3A triaxial fluxgate magnetometer ASCII lines, defined by a table in ``config/ms3a.toml``.
+
+No public protocol of the MS3A exists: the shipped table is the project's *assumed* line
+``$MS3A,<counter>,<Bx>,<By>,<Bz>*HH\\r\\n`` (``docs/protocols/ms3a.md``). A site with the vendor
+manual writes its own table and loads it with :meth:`Ms3aCodec.from_toml`.
+
+Decoded :data:`Ms3aSample` messages carry the sample ``counter`` and the flux density ``bx``,
+``by``, ``bz`` in **nT** along the sensor axes (``b_tesla`` gives the vector in T);
+``raw_value(msg, "bx")`` is the integer on the wire (last printed digit = 1).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from auvgw.drivers.formats import Format
+from auvgw.drivers.framing import ErrorPolicy
+from auvgw.drivers.tablecodec import (
+    AsciiLineCodec,
+    AsciiLineFramer,
+    AsciiLineSpec,
+    build_message_class,
+    load_toml,
+    parse_ascii_table,
+)
+
+from auvgw.paths import config_file
+
+__all__ = ["CODEC", "FORMAT", "REQUIRED_FIELDS", "Ms3aCodec", "Ms3aFramer", "Ms3aSample"]
+
+#: fields every MS3A table must declare: name -> decoded units ('' = integer count)
+REQUIRED_FIELDS: dict[str, str] = {"counter": "", "bx": "nT", "by": "nT", "bz": "nT"}
+
+_DOC = """MS3A magnetometer sample (one ASCII line).
+
+bx, by, bz: magnetic flux density in nT along the sensor x, y, z axes; counter: sample count."""
+
+
+def _b_nt(self: Any) -> np.ndarray:
+    return np.array([self.bx, self.by, self.bz], dtype=np.float64)
+
+
+def _b_tesla(self: Any) -> np.ndarray:
+    return _b_nt(self) * 1e-9
+
+
+_b_nt.__doc__ = "(bx, by, bz) in nT, sensor axes"
+_b_tesla.__doc__ = "(bx, by, bz) in T, sensor axes"
+_EXTRA = {"b_nt": property(_b_nt), "b_tesla": property(_b_tesla)}
+
+
+class Ms3aCodec(AsciiLineCodec):
+    """MS3A lines under one table: :meth:`framer`, :meth:`decode`, :meth:`encode`."""
+
+    @classmethod
+    def from_toml(cls, path: str | Path | None = None) -> Ms3aCodec:
+        """Load a table (default: the shipped ``config/ms3a.toml``); errors name file and entry."""
+        path = Path(path) if path is not None else config_file("ms3a.toml")
+        return cls.from_spec(parse_ascii_table(load_toml(path), str(path), REQUIRED_FIELDS))
+
+    @classmethod
+    def from_spec(cls, spec: AsciiLineSpec) -> Ms3aCodec:
+        msg_type = build_message_class(
+            "Ms3aSample",
+            spec.fields,
+            doc=f"{_DOC}\n\nTable: {spec.source}",
+            module=__name__,
+            namespace=_EXTRA,
+            source=spec.source,
+        )
+        return cls(spec, msg_type, name="ms3a")
+
+    def framer(
+        self, policy: ErrorPolicy | str = ErrorPolicy.LOG, source: str = "", **_ignored: Any
+    ) -> Ms3aFramer:
+        """A fresh framer for this codec's table."""
+        return Ms3aFramer(self, policy=policy, source=source)
+
+
+#: the codec of the shipped table
+CODEC: Ms3aCodec = Ms3aCodec.from_toml()
+#: message class of the shipped table (a site table builds its own class of the same name)
+Ms3aSample = CODEC.message_type
+
+
+class Ms3aFramer(AsciiLineFramer):
+    """MS3A framer: start char .. terminator; checksum, field count and number forms verified."""
+
+    def __init__(
+        self,
+        codec: Ms3aCodec | None = None,
+        policy: ErrorPolicy | str = ErrorPolicy.LOG,
+        source: str = "",
+    ) -> None:
+        super().__init__((codec or CODEC).spec, policy=policy, source=source, name="ms3a")
+
+
+def _decode(frame: bytes) -> list[Any]:
+    return [CODEC.decode(frame)]
+
+
+FORMAT = Format(
+    name="ms3a",
+    summary="an MS3A magnetometer ASCII capture (auvgw assumed layout, config/ms3a.toml)",
+    framer=CODEC.framer,
+    decode=_decode,
+    encode=CODEC.encode,
+)
