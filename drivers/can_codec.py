@@ -371,3 +371,32 @@ def hn100_can(path: str | Path | None = None) -> DbcCodec:
 def ms3a_can(path: str | Path | None = None) -> DbcCodec:
     """The MS3A CAN codec (default: the shipped ``config/ms3a.dbc``); samples MS3A_Sample."""
     return DbcCodec(path or config_file("ms3a.dbc"), sample_name="MS3A_Sample")
+
+
+class CanDeviceCodec:
+    """A DBC codec as one CAN device's decoder: frames that belong to an epoch are grouped and
+    decode to the whole sample once complete (``None`` until then); other frames decode alone."""
+
+    def __init__(self, codec: DbcCodec) -> None:
+        self.codec = codec
+        self.assembler = codec.assembler() if codec.sample_type is not None else None
+        self._epoch = set(codec.epoch_types) if self.assembler is not None else set()
+
+    def decode(self, arbitration_id: int, data: bytes | bytearray, is_extended_id: bool) -> Any:
+        msg = self.codec.decode(arbitration_id, data, is_extended_id)
+        if self.assembler is None or type(msg) not in self._epoch:
+            return msg
+        return self.assembler.add(msg)
+
+
+def load_can_codec(dbc: str | Path) -> CanDeviceCodec:
+    """The device codec of a DBC named in a configuration: a file shipped in ``config/``
+    (``"hn100.dbc"``) or a path. The shipped HN-100 and MS3A DBCs get their sample names."""
+    path = Path(dbc)
+    if not path.is_file():
+        shipped = config_file(str(dbc))
+        if not shipped.is_file():
+            raise FileNotFoundError(f"{dbc}: no such DBC file (neither a path nor in config/)")
+        path = shipped
+    names = {"hn100.dbc": "HN100_Sample", "ms3a.dbc": "MS3A_Sample"}
+    return CanDeviceCodec(DbcCodec(path, sample_name=names.get(path.name)))

@@ -66,3 +66,25 @@ def get_format(name: str) -> Format:
         raise KeyError(f"unknown format {name!r}; known: {', '.join(FORMATS)}") from None
     module, attr = target.split(":")
     return getattr(importlib.import_module(module), attr)
+
+
+def format_from_table(name: str, table: str | Path) -> Format:
+    """The ``hn100`` or ``ms3a`` format under a site's own table file (no code change needed)."""
+    if name == "hn100":
+        from auvgw.drivers.hn100 import Hn100Codec
+
+        codec: Any = Hn100Codec.from_toml(table)
+    elif name == "ms3a":
+        from auvgw.drivers.ms3a import Ms3aCodec
+
+        codec = Ms3aCodec.from_toml(table)
+    else:
+        raise KeyError(f"format {name!r} has no replaceable table (only hn100, ms3a)")
+    base = get_format(name)
+    return Format(
+        name=name,
+        summary=f"{base.summary} [table {table}]",
+        framer=codec.framer,
+        decode=lambda frame: [codec.decode(frame)],
+        encode=codec.encode,
+    )
