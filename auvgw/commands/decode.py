@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from auvgw.cli import UserError
-from auvgw.drivers.formats import FORMATS, get_format
+from auvgw.drivers.formats import FORMATS, format_from_table, get_format
 from auvgw.drivers.framing import DecodeError
 from auvgw.drivers.spec import WireError, to_jsonable
 
@@ -24,6 +24,9 @@ def register(sub: Any) -> None:
     p = sub.add_parser("decode", help="decode a capture file to JSON lines")
     p.add_argument("--format", "-f", required=True, choices=sorted(FORMATS), help="wire format")
     p.add_argument("file", type=Path, help="capture file (raw bytes as received, or a .V4LOG)")
+    p.add_argument(
+        "--table", type=Path, default=None, help="site table (TOML) for hn100/ms3a"
+    )
     p.add_argument("--limit", type=int, default=0, help="stop after N messages (0: all)")
     p.add_argument("--quiet", "-q", action="store_true", help="summary only, no JSON lines")
     p.set_defaults(func=run)
@@ -33,7 +36,13 @@ def run(args: argparse.Namespace) -> int:
     path: Path = args.file
     if not path.is_file():
         raise UserError(f"{path}: no such file")
-    fmt = get_format(args.format)
+    if args.table is not None:
+        try:
+            fmt = format_from_table(args.format, args.table)
+        except (OSError, ValueError, KeyError) as exc:
+            raise UserError(f"--table {args.table}: {exc}") from exc
+    else:
+        fmt = get_format(args.format)
     per_type: Counter[str] = Counter()
     decode_errors = 0
     out = sys.stdout
