@@ -21,7 +21,14 @@ import math
 from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    ValidationInfo,
+    model_validator,
+)
 
 __all__ = [
     "AcousticBeacon",
@@ -37,6 +44,7 @@ __all__ = [
     "Terrain",
     "Vehicle",
     "load_scenario",
+    "resolve_ref",
 ]
 
 XY = tuple[float, float]
@@ -50,10 +58,42 @@ class _Model(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
 
-class Vehicle(_Model):
-    """Route and speed. Waypoints are (x north, y east) in metres, visited in order."""
+def resolve_ref(ref: str, source: str | None = None, label: str | None = None) -> Path:
+    """A path named in a scenario: ``shared:rel`` is ``rel`` in ../shared/data; anything else is
+    relative to the scenario file ``source`` (or absolute). ``label`` names the scenario in
+    errors."""
+    if ref.startswith("shared:"):
+        from auvgw.paths import shared_dir
 
-    waypoints: list[XY] = Field(min_length=2)
+        root = shared_dir()
+        if root is None:
+            raise ScenarioError(
+                f"{source or label or '<scenario>'}: {ref!r} needs ../shared/data, not found "
+                "(set AUVGW_SHARED)"
+            )
+        return root / "data" / ref.removeprefix("shared:")
+    p = Path(ref)
+    if not p.is_absolute() and source:
+        p = Path(source).parent / p
+    return p
+
+
+class Vehicle(_Model):
+    """Route and speed. Waypoints are (x north, y east) in metres, visited in order.
+
+    ``waypoints_file`` (e.g. ``shared:bailey/webmap.json``) names a JSON file with a
+    ``waypoints`` list of [x, y]; it fills ``waypoints`` when the scenario is validated (give one
+    or the other; a relative path is relative to the scenario file when loaded with
+    :func:`load_scenario`, else to the working directory). ``current_mps`` is a uniform water
+    current over ground (north, east): the vehicle keeps its speed through the water and crabs
+    into the current, so its body sway velocity ``v`` is not zero. ``dt_s`` is the integration
+    step of the motion model.
+    """
+
+    waypoints: list[XY] = Field(default_factory=list)
+    waypoints_file: str | None = Field(
+        None, description="JSON with a 'waypoints' list of [x, y]; replaces 'waypoints'"
+    )
     speed_mps: float = Field(1.5, gt=0, le=10)
     depth_m: float = Field(5.0, ge=0, description="commanded depth; ignored if altitude_m is set")
     altitude_m: float | None = Field(None, gt=0, description="terrain-following altitude")
@@ -64,6 +104,45 @@ class Vehicle(_Model):
     start: tuple[float, float, float] | None = Field(
         None, description="initial (x, y, heading_deg); default: first waypoint facing the second"
     )
+    lookahead_m: float = Field(10.0, gt=0, description="line-of-sight guidance lookahead")
+    max_depth_rate_mps: float = Field(0.5, gt=0, description="vertical speed limit, m/s")
+    current_mps: XY = Field((0.0, 0.0), description="water current (north, east), m/s")
+    dt_s: float = Field(0.02, gt=0, le=1.0, description="motion model integration step, s")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _load_waypoints_file(cls, data: object, info: ValidationInfo) -> object:
+        if not isinstance(data, dict) or not data.get("waypoints_file"):
+            return data
+        ref = str(data["waypoints_file"])
+        source = (info.context or {}).get("source")
+        path = resolve_ref(ref, source)
+        try:
+            wps = [(float(p[0]), float(p[1])) for p in json.loads(path.read_text())["waypoints"]]
+        except (OSError, ValueError, KeyError, TypeError, IndexError) as exc:
+            raise ValueError(
+                f"waypoints_file {ref!r} ({path}): cannot read waypoints: {exc}"
+            ) from exc
+        given = data.get("waypoints")
+        if given:  # allowed only as the same list (a dumped scenario validated again)
+            try:
+                same = [(float(p[0]), float(p[1])) for p in given] == wps
+            except (TypeError, ValueError, IndexError):
+                same = False
+            if not same:
+                raise ValueError("give 'waypoints' or 'waypoints_file', not both")
+        return {**data, "waypoints": wps}
+
+    @model_validator(mode="after")
+    def _enough_waypoints(self) -> Vehicle:
+        if len(self.waypoints) < 2:
+            raise ValueError(
+                f"needs at least 2 waypoints ('waypoints' or 'waypoints_file'), got "
+                f"{len(self.waypoints)}"
+            )
+        if math.hypot(*self.current_mps) >= self.speed_mps:
+            raise ValueError("current_mps must be slower than speed_mps (the vehicle makes way)")
+        return self
 
 
 class BicycleMotion(_Model):
@@ -82,10 +161,14 @@ class ObservationSettings(_Model):
     """Range-bearing observations of point features (the SLAM papers' eq. 4)."""
 
     max_range_m: float = 30.0
+    field_of_view_deg: float = Field(
+        180.0, gt=0, le=360, description="seen within +-fov/2 of the heading (Bailey: 180)"
+    )
     sigma_range_m: float = 0.1
     sigma_bearing_deg: float = 1.0
     every_n_steps: int = Field(8, ge=1, description="observe every n motion steps")
-    #: the VB paper's dynamic noise: with probability p the covariance is n times R0
+    #: the VB paper's dynamic noise: for each observation, with probability p its covariance
+    #: is n times R0
     burst_p: float = Field(0.0, ge=0, le=1)
     burst_n: float = Field(1.0, ge=1)
 
@@ -95,6 +178,9 @@ class Features(_Model):
 
     points: list[XY] = []
     lines: list[tuple[float, float, float, float]] = []
+    point_radius_m: float = Field(
+        0.5, gt=0, description="radius of every point feature as a sonar target (piles, rocks)"
+    )
     points_file: str | None = Field(
         None,
         description="JSON with a 'landmarks' list of [x, y] (e.g. 'shared:bailey/webmap.json', "
@@ -106,14 +192,18 @@ class Terrain(_Model):
     """Seabed depth below the surface, metres (positive down).
 
     ``flat``: ``depth_m`` everywhere. ``procedural``: ``depth_m`` plus a seeded sum of sinusoids
-    of ``relief_m`` amplitude and ``wavelength_m``. ``grid``: a depth grid from ``file`` (``.npy``
-    or JSON list of rows) with cell size ``cell_m`` and its (x, y) origin at ``origin``.
+    of ``relief_m`` amplitude and ``wavelength_m``; ``octaves`` > 1 adds finer, weaker layers
+    (each half the wavelength and half the amplitude) for rough terrain, the total deviation
+    staying within +-``relief_m``. ``grid``: a depth grid from ``file`` (``.npy`` or JSON list of
+    rows) with cell size ``cell_m`` and its (x, y) origin at ``origin``; row i is
+    x = origin_x + i cell_m, column j is y = origin_y + j cell_m.
     """
 
     kind: Literal["flat", "procedural", "grid"] = "flat"
     depth_m: float = Field(50.0, gt=0)
     relief_m: float = Field(0.0, ge=0)
     wavelength_m: float = Field(80.0, gt=0)
+    octaves: int = Field(1, ge=1, le=8, description="procedural detail layers")
     seed: int = 0
     file: str | None = None
     cell_m: float = Field(1.0, gt=0)
@@ -123,6 +213,11 @@ class Terrain(_Model):
     def _grid_needs_file(self) -> Terrain:
         if self.kind == "grid" and not self.file:
             raise ValueError("terrain kind 'grid' needs 'file'")
+        if self.kind == "procedural" and self.relief_m >= self.depth_m:
+            raise ValueError(
+                f"relief_m ({self.relief_m}) must be less than depth_m ({self.depth_m}): "
+                "the seabed must stay below the surface"
+            )
         return self
 
 
@@ -209,20 +304,7 @@ class Scenario(_Model):
     def resolve_path(self, ref: str) -> Path:
         """A path named in the scenario: ``shared:rel`` is in ../shared/data, else relative to
         the scenario file (or absolute)."""
-        if ref.startswith("shared:"):
-            from auvgw.paths import shared_dir
-
-            root = shared_dir()
-            if root is None:
-                raise ScenarioError(
-                    f"{self.source or self.name}: {ref!r} needs ../shared/data, not found "
-                    "(set AUVGW_SHARED)"
-                )
-            return root / "data" / ref.removeprefix("shared:")
-        p = Path(ref)
-        if not p.is_absolute() and self.source:
-            p = Path(self.source).parent / p
-        return p
+        return resolve_ref(ref, self.source, self.name)
 
     def point_features(self) -> list[XY]:
         """All point features: ``features.points`` plus those of ``features.points_file``."""
@@ -269,7 +351,7 @@ def load_scenario(path: str | Path) -> Scenario:
         raise ScenarioError(f"{path}: top level must be a JSON object")
     data.pop("source", None)
     try:
-        scn = Scenario.model_validate({**data, "source": str(path)})
+        scn = Scenario.model_validate({**data, "source": str(path)}, context={"source": str(path)})
     except ValidationError as exc:
         raise ScenarioError(_format_errors(str(path), exc)) from exc
     return scn

@@ -1,0 +1,349 @@
+"""One simulation clock (vehicle time) for every emulator, at real time, k x faster, or as fast
+as possible.
+
+Vehicle time is in seconds from the scenario start. With ``speed`` k > 0 it advances k times
+faster than the host's monotonic clock once :meth:`SimClock.start` is called. With ``speed`` 0
+it is a discrete-event clock: time jumps to the earliest pending wake-up as soon as every
+*participant* thread is waiting, so a run completes as fast as the CPU allows while every
+device still sees a consistent time. Threads that drive the clock (the scheduler, an emulator
+loop calling :meth:`SimClock.sleep_until`) register with :meth:`SimClock.participant`; a
+thread that is not registered is only accounted for while it sleeps.
+
+Periodic device ticks are scheduled in one place, :meth:`SimClock.every` / :meth:`SimClock.at`,
+and dispatched in time order by :meth:`SimClock.run` (in the calling thread) or
+:meth:`SimClock.start_thread`. A tick callback receives its exact scheduled vehicle time
+(``t0 + n period``, no drift), so device timestamps stay exact even when a callback runs late;
+late ticks are never skipped, they are counted (:attr:`SimClock.late_ticks`, :attr:`max_lag`).
+
+Everything is thread-safe (one condition variable).
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+
+__all__ = ["ClockStopped", "SimClock", "Task"]
+
+log = logging.getLogger(__name__)
+
+
+class ClockStopped(RuntimeError):
+    """The clock was stopped while a thread waited on it."""
+
+
+@dataclass(eq=False)
+class Task:
+    """A scheduled callback: ``callback(t)`` at vehicle time ``t``; periodic if ``period``."""
+
+    callback: Callable[[float], object]
+    t0: float
+    period: float | None = None
+    name: str = ""
+    count: int = 0  # ticks dispatched so far
+    cancelled: bool = False
+    _clock: SimClock | None = field(default=None, repr=False)
+
+    @property
+    def next_time(self) -> float:
+        """Vehicle time of the next tick, s."""
+        return self.t0 + self.count * (self.period or 0.0)
+
+    def cancel(self) -> None:
+        """Stop this task (a tick already running finishes)."""
+        self.cancelled = True
+        if self._clock is not None:
+            self._clock._wake()
+
+
+class SimClock:
+    """Vehicle time at ``speed`` x real time (0: as fast as possible), with a scheduler.
+
+    ``start_time`` is the vehicle time at :meth:`start`; before it, :meth:`now` returns it and
+    sleepers wait. ``time_fn`` is the host monotonic clock in seconds (injectable for tests).
+    """
+
+    def __init__(
+        self,
+        speed: float = 1.0,
+        start_time: float = 0.0,
+        time_fn: Callable[[], float] = time.monotonic,
+    ) -> None:
+        if speed < 0 or not math.isfinite(speed):
+            raise ValueError(f"clock speed must be >= 0 (0 = as fast as possible), got {speed}")
+        self._cv = threading.Condition(threading.RLock())
+        self._speed = float(speed)
+        self._time_fn = time_fn
+        self._t_anchor = float(start_time)  # vehicle time at _real_anchor (or virtual time)
+        self._real_anchor = 0.0
+        self._started = False
+        self._stopped = False
+        self._actors: dict[int, int] = {}  # thread id -> nesting depth
+        self._waiting: dict[int, float] = {}  # thread id -> wake-up time (inf: external event)
+        self._heap: list[tuple[float, int, Task]] = []
+        self._seq = itertools.count()
+        self._thread: threading.Thread | None = None
+        self._error: BaseException | None = None
+        self.late_ticks = 0
+        self.max_lag = 0.0
+
+    # -- time ---------------------------------------------------------------------------------
+    @property
+    def speed(self) -> float:
+        """Vehicle seconds per real second; 0 means as fast as possible."""
+        return self._speed
+
+    @property
+    def started(self) -> bool:
+        return self._started
+
+    @property
+    def stopped(self) -> bool:
+        return self._stopped
+
+    def start(self) -> None:
+        """Let vehicle time run (anchors it to the host clock)."""
+        with self._cv:
+            if not self._started:
+                self._real_anchor = self._time_fn()
+                self._started = True
+                self._cv.notify_all()
+
+    def stop(self) -> None:
+        """Stop the clock: sleepers return ``False``, the scheduler loop ends."""
+        with self._cv:
+            self._stopped = True
+            self._cv.notify_all()
+
+    def _now(self) -> float:
+        if not self._started or self._speed == 0:
+            return self._t_anchor
+        return self._t_anchor + (self._time_fn() - self._real_anchor) * self._speed
+
+    def now(self) -> float:
+        """Current vehicle time, s."""
+        with self._cv:
+            return self._now()
+
+    def set_speed(self, speed: float) -> None:
+        """Change the speed factor at run time; vehicle time continues from where it is."""
+        if speed < 0 or not math.isfinite(speed):
+            raise ValueError(f"clock speed must be >= 0, got {speed}")
+        with self._cv:
+            self._t_anchor = self._now()
+            self._real_anchor = self._time_fn()
+            self._speed = float(speed)
+            self._maybe_advance()
+            self._cv.notify_all()
+
+    def real_duration(self, vehicle_s: float) -> float:
+        """Host seconds that ``vehicle_s`` vehicle seconds take at the current speed (0 when
+        running as fast as possible)."""
+        return 0.0 if self._speed == 0 else vehicle_s / self._speed
+
+    # -- participants and waiting (the discrete-event part) -----------------------------------
+    @contextmanager
+    def participant(self) -> Iterator[None]:
+        """Register the calling thread as one that drives time (speed 0: time only advances
+        while every participant waits). Nestable."""
+        me = threading.get_ident()
+        with self._cv:
+            self._actors[me] = self._actors.get(me, 0) + 1
+        try:
+            yield
+        finally:
+            with self._cv:
+                self._actors[me] -= 1
+                if self._actors[me] == 0:
+                    del self._actors[me]
+                self._maybe_advance()
+                self._cv.notify_all()
+
+    def _maybe_advance(self) -> None:
+        """Speed 0: jump to the earliest wake-up once no participant is busy."""
+        if self._speed != 0 or not self._started or self._stopped:
+            return
+        if any(a not in self._waiting for a in self._actors):
+            return
+        pending = [t for t in self._waiting.values() if math.isfinite(t)]
+        if not pending:
+            return
+        target = min(pending)
+        if target > self._t_anchor:
+            self._t_anchor = target
+            self._cv.notify_all()
+
+    def _wait(self, deadline: float, interrupt: Callable[[], bool] | None = None) -> bool:
+        """Block (lock held) until vehicle time reaches ``deadline``, ``interrupt()`` is true or
+        the clock stops. Returns False if stopped."""
+        me = threading.get_ident()
+        self._waiting[me] = deadline
+        try:
+            while True:
+                if self._stopped:
+                    return False
+                if interrupt is not None and interrupt():
+                    return True
+                if self._started and self._now() >= deadline:
+                    return True
+                if not self._started:
+                    self._cv.wait()
+                elif self._speed == 0:
+                    self._maybe_advance()
+                    if self._now() < deadline and not (interrupt is not None and interrupt()):
+                        self._cv.wait()
+                else:
+                    remaining = (deadline - self._now()) / self._speed
+                    self._cv.wait(min(remaining, 3600.0) if math.isfinite(remaining) else None)
+        finally:
+            del self._waiting[me]
+            if self._speed == 0:
+                self._maybe_advance()
+
+    def sleep_until(self, t: float) -> bool:
+        """Sleep until vehicle time ``t``; False if the clock was stopped meanwhile."""
+        with self._cv:
+            return self._wait(t)
+
+    def sleep(self, dt: float) -> bool:
+        """Sleep ``dt`` vehicle seconds; False if the clock was stopped meanwhile."""
+        with self._cv:
+            return self._wait(self._now() + dt)
+
+    def wait_for(self, predicate: Callable[[], bool], timeout: float | None = None) -> bool:
+        """Wait (real time) until ``predicate()`` is true, e.g. for a host request, without
+        holding up vehicle time. Returns the predicate's last value."""
+        end = None if timeout is None else time.monotonic() + timeout
+        with self._cv:
+            me = threading.get_ident()
+            self._waiting[me] = math.inf
+            try:
+                self._maybe_advance()
+                while not predicate() and not self._stopped:
+                    left = None if end is None else end - time.monotonic()
+                    if left is not None and left <= 0:
+                        break
+                    self._cv.wait(left)
+                return predicate()
+            finally:
+                del self._waiting[me]
+
+    def notify(self) -> None:
+        """Wake threads blocked in :meth:`wait_for` (call after changing what they test)."""
+        self._wake()
+
+    def _wake(self) -> None:
+        with self._cv:
+            self._cv.notify_all()
+
+    # -- scheduler ----------------------------------------------------------------------------
+    def _push(self, task: Task) -> Task:
+        task._clock = self
+        with self._cv:
+            heapq.heappush(self._heap, (task.next_time, next(self._seq), task))
+            self._cv.notify_all()
+        return task
+
+    def every(
+        self,
+        period: float,
+        callback: Callable[[float], object],
+        start: float | None = None,
+        name: str = "",
+    ) -> Task:
+        """Call ``callback(t)`` at ``t = start + n period`` (vehicle s; ``start`` defaults to
+        now). Rate in Hz is ``1 / period``."""
+        if not period > 0:
+            raise ValueError(f"period must be > 0, got {period}")
+        t0 = self.now() if start is None else float(start)
+        label = name or getattr(callback, "__name__", "")
+        return self._push(Task(callback, t0, float(period), label))
+
+    def at(self, t: float, callback: Callable[[float], object], name: str = "") -> Task:
+        """Call ``callback(t)`` once at vehicle time ``t`` (now if it has passed)."""
+        label = name or getattr(callback, "__name__", "")
+        return self._push(Task(callback, float(t), None, label))
+
+    def run(self, until: float | None = None) -> None:
+        """Dispatch scheduled ticks in time order in this thread until vehicle time ``until``
+        (or until :meth:`stop`). Starts the clock if needed. A callback that raises stops the
+        clock and the exception propagates from here."""
+        self.start()
+        with self.participant():
+            while True:
+                with self._cv:
+                    task = self._next_task(until)
+                    if task is None:
+                        return
+                t = task.next_time
+                lag = self.now() - t
+                if self._speed > 0 and lag > 0:
+                    self.max_lag = max(self.max_lag, lag)
+                    if lag > (task.period or 0.1):
+                        self.late_ticks += 1
+                try:
+                    task.callback(t)
+                except BaseException as exc:
+                    self._error = exc
+                    self.stop()
+                    raise
+                with self._cv:
+                    task.count += 1
+                    if task.period is not None and not task.cancelled:
+                        heapq.heappush(self._heap, (task.next_time, next(self._seq), task))
+
+    def _next_task(self, until: float | None) -> Task | None:
+        """Pop the next task once it is due, sleeping until then (lock held); None when the
+        clock stops or nothing is due before ``until``."""
+        end = math.inf if until is None else until
+        while True:
+            while self._heap and self._heap[0][2].cancelled:
+                heapq.heappop(self._heap)
+            if self._stopped:
+                return None
+            head = self._heap[0][2] if self._heap else None
+            head_t = self._heap[0][0] if self._heap else math.inf
+            if head is not None and head_t <= end and self._now() >= head_t:
+                heapq.heappop(self._heap)
+                return head
+            if head_t > end and self._started and self._now() >= end:
+                return None
+
+            def changed(head: Task | None = head) -> bool:
+                new = self._heap[0][2] if self._heap else None
+                return new is not head or (head is not None and head.cancelled)
+
+            self._wait(min(head_t, end), changed)
+
+    def start_thread(self, until: float | None = None, name: str = "sim-clock") -> threading.Thread:
+        """Run :meth:`run` in a daemon thread; :meth:`join` waits for it and re-raises."""
+        th = threading.Thread(target=self._run_quietly, args=(until,), name=name, daemon=True)
+        self._thread = th
+        th.start()
+        return th
+
+    def _run_quietly(self, until: float | None) -> None:
+        try:
+            self.run(until)
+        except BaseException:
+            log.exception("simulation clock: a scheduled callback failed")
+
+    def join(self, timeout: float | None = None) -> None:
+        """Wait for the scheduler thread; re-raise a callback's exception."""
+        if self._thread is not None:
+            self._thread.join(timeout)
+        if self._error is not None:
+            raise self._error
+
+    def close(self) -> None:
+        """Stop the clock and wait for the scheduler thread."""
+        self.stop()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(5.0)

@@ -1,0 +1,666 @@
+"""The simulated world: seabed, sonar targets, magnetic and acoustic beacons, water.
+
+Frames and units follow :mod:`auvgw.config.scenario`: a local NED frame in metres (``x`` north,
+``y`` east, ``z`` down), headings in radians from north towards east, magnetic fields in tesla
+(NED components). Everything is pure numpy and vectorised; nothing here holds a clock or a port.
+
+* :class:`FlatTerrain`, :class:`ProceduralTerrain`, :class:`GridTerrain`: seabed depth
+  ``z(x, y)`` (positive down) and its gradient, for arrays of any shape.
+* :func:`cast_rays`: horizontal rays against line segments (walls, piers) and point features
+  (circles of a radius), the first hit per ray with its range and incidence angle: the MSIS beam.
+* :func:`cast_swath`: a fan of beams across track intersected with the terrain: depth, across,
+  along per beam, GeoSwath-like (swath up to ``swath_factor`` x altitude, port and starboard).
+* :func:`dipole_field`: the field of magnetic dipoles, ``B = mu0/(4 pi) (3 (m.r^) r^ - m) / r^3``.
+* :class:`World`: all of the above built from a :class:`~auvgw.config.scenario.Scenario`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+from auvgw.config.scenario import ObservationSettings, Scenario, ScenarioError, Terrain
+
+__all__ = [
+    "MU0_OVER_4PI",
+    "FlatTerrain",
+    "GridTerrain",
+    "ProceduralTerrain",
+    "RayHits",
+    "Swath",
+    "SwathGeometry",
+    "TerrainModel",
+    "World",
+    "body_to_ned",
+    "cast_rays",
+    "cast_swath",
+    "dipole_field",
+    "terrain_from_settings",
+    "wrap_angle",
+]
+
+#: mu0 / (4 pi) in T m / A
+MU0_OVER_4PI = 1e-7
+
+FArray = np.ndarray
+
+
+def wrap_angle(a: FArray | float) -> FArray | float:
+    """Angle(s) wrapped to [-pi, pi), radians."""
+    return (np.asarray(a) + math.pi) % (2 * math.pi) - math.pi
+
+
+# -- terrain ---------------------------------------------------------------------------------
+
+
+class TerrainModel:
+    """Seabed depth below the surface, metres (positive down), as a function of (x, y)."""
+
+    def depth(self, x: FArray | float, y: FArray | float) -> FArray:
+        """Seabed depth at (x north, y east), metres, broadcast over array inputs."""
+        raise NotImplementedError
+
+    def gradient(self, x: FArray | float, y: FArray | float) -> tuple[FArray, FArray]:
+        """(dz/dx, dz/dy) of the seabed depth, dimensionless, broadcast over array inputs."""
+        raise NotImplementedError
+
+    @property
+    def bounds(self) -> tuple[float, float]:
+        """(shallowest, deepest) seabed depth anywhere, metres."""
+        raise NotImplementedError
+
+
+@dataclass(frozen=True)
+class FlatTerrain(TerrainModel):
+    """A flat seabed at ``depth_m``."""
+
+    depth_m: float
+
+    def depth(self, x: FArray | float, y: FArray | float) -> FArray:
+        return np.full(np.broadcast(np.asarray(x), np.asarray(y)).shape, float(self.depth_m))
+
+    def gradient(self, x: FArray | float, y: FArray | float) -> tuple[FArray, FArray]:
+        shape = np.broadcast(np.asarray(x), np.asarray(y)).shape
+        return np.zeros(shape), np.zeros(shape)
+
+    @property
+    def bounds(self) -> tuple[float, float]:
+        return (float(self.depth_m), float(self.depth_m))
+
+
+class ProceduralTerrain(TerrainModel):
+    """``depth_m`` plus a seeded sum of plane sinusoids (6 per octave).
+
+    Octave ``o`` has wavelengths around ``wavelength_m / 2**o`` (jittered 0.7-1.4x), random
+    directions and phases, and amplitude weight ``0.5**o``; all amplitudes are scaled so their
+    absolute sum is ``relief_m``, hence the depth stays within ``depth_m +- relief_m``.
+    """
+
+    PER_OCTAVE = 6
+
+    def __init__(
+        self, depth_m: float, relief_m: float, wavelength_m: float, seed: int, octaves: int = 1
+    ) -> None:
+        rng = np.random.default_rng(seed)
+        n = self.PER_OCTAVE * octaves
+        octave = np.repeat(np.arange(octaves), self.PER_OCTAVE)
+        lam = wavelength_m / 2.0**octave * rng.uniform(0.7, 1.4, n)
+        theta = rng.uniform(0.0, math.pi, n)
+        self.kx = 2 * math.pi / lam * np.cos(theta)
+        self.ky = 2 * math.pi / lam * np.sin(theta)
+        self.phase = rng.uniform(0.0, 2 * math.pi, n)
+        self._kmat = np.stack([self.kx, self.ky, self.phase])  # (3, K)
+        weights = 0.5**octave
+        self.amp = relief_m * weights / weights.sum()
+        self.depth_m = float(depth_m)
+        self.relief_m = float(relief_m)
+
+    def _arg(self, x: FArray, y: FArray) -> FArray:
+        """Phases of every component at every point: (..., K), one matrix product."""
+        xy1 = np.stack([x, y, np.ones_like(x)], axis=-1)
+        return xy1 @ self._kmat
+
+    def depth(self, x: FArray | float, y: FArray | float) -> FArray:
+        x, y = np.broadcast_arrays(np.asarray(x, float), np.asarray(y, float))
+        return self.depth_m + np.sin(self._arg(x, y)) @ self.amp
+
+    def gradient(self, x: FArray | float, y: FArray | float) -> tuple[FArray, FArray]:
+        x, y = np.broadcast_arrays(np.asarray(x, float), np.asarray(y, float))
+        c = np.cos(self._arg(x, y))
+        return c @ (self.amp * self.kx), c @ (self.amp * self.ky)
+
+    @property
+    def bounds(self) -> tuple[float, float]:
+        return (self.depth_m - self.relief_m, self.depth_m + self.relief_m)
+
+
+class GridTerrain(TerrainModel):
+    """A depth grid, bilinear between nodes, clamped to the edge values outside.
+
+    ``grid[i, j]`` is the depth at ``x = origin[0] + i cell_m``, ``y = origin[1] + j cell_m``.
+    """
+
+    def __init__(self, grid: FArray, cell_m: float, origin: tuple[float, float] = (0, 0)) -> None:
+        g = np.asarray(grid, dtype=float)
+        if g.ndim != 2 or min(g.shape) < 2:
+            raise ValueError(f"depth grid must be 2-D with at least 2x2 nodes, got {g.shape}")
+        if not np.all(np.isfinite(g)) or np.any(g <= 0):
+            raise ValueError("depth grid must be finite and positive (metres below the surface)")
+        self.grid = g
+        self.cell_m = float(cell_m)
+        self.origin = (float(origin[0]), float(origin[1]))
+        self._gx, self._gy = np.gradient(g, self.cell_m)
+
+    def _interp(self, table: FArray, x: FArray | float, y: FArray | float) -> FArray:
+        n, m = table.shape
+        fi = np.clip((np.asarray(x, float) - self.origin[0]) / self.cell_m, 0, n - 1)
+        fj = np.clip((np.asarray(y, float) - self.origin[1]) / self.cell_m, 0, m - 1)
+        i0 = np.minimum(np.floor(fi).astype(int), n - 2)
+        j0 = np.minimum(np.floor(fj).astype(int), m - 2)
+        ti, tj = fi - i0, fj - j0
+        return (
+            table[i0, j0] * (1 - ti) * (1 - tj)
+            + table[i0 + 1, j0] * ti * (1 - tj)
+            + table[i0, j0 + 1] * (1 - ti) * tj
+            + table[i0 + 1, j0 + 1] * ti * tj
+        )
+
+    def depth(self, x: FArray | float, y: FArray | float) -> FArray:
+        return self._interp(self.grid, x, y)
+
+    def gradient(self, x: FArray | float, y: FArray | float) -> tuple[FArray, FArray]:
+        return self._interp(self._gx, x, y), self._interp(self._gy, x, y)
+
+    @property
+    def bounds(self) -> tuple[float, float]:
+        return (float(self.grid.min()), float(self.grid.max()))
+
+
+def _load_grid(path: Path) -> FArray:
+    try:
+        if path.suffix == ".npy":
+            return np.load(path, allow_pickle=False)
+        return np.asarray(json.loads(path.read_text()), dtype=float)
+    except (OSError, ValueError, TypeError) as exc:
+        raise ScenarioError(f"terrain.file {path}: cannot read a depth grid: {exc}") from exc
+
+
+def terrain_from_settings(
+    settings: Terrain, resolve: Callable[[str], Path] = Path
+) -> TerrainModel:
+    """The terrain model a scenario's ``terrain`` section describes (``resolve`` finds files)."""
+    if settings.kind == "flat":
+        return FlatTerrain(settings.depth_m)
+    if settings.kind == "procedural":
+        return ProceduralTerrain(
+            settings.depth_m, settings.relief_m, settings.wavelength_m, settings.seed,
+            settings.octaves,
+        )
+    assert settings.file is not None  # the scenario model enforces it
+    path = resolve(settings.file)
+    try:
+        return GridTerrain(_load_grid(path), settings.cell_m, settings.origin)
+    except ValueError as exc:
+        raise ScenarioError(f"terrain.file {path}: {exc}") from exc
+
+
+# -- horizontal ray casting (MSIS) -----------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class RayHits:
+    """First hit of each ray: range (m, ``inf`` if none), incidence angle between the ray and
+    the surface normal (rad, ``nan`` if none), what was hit (``kind`` 0 nothing, 1 line,
+    2 point) and its index in the world's line or point list (-1 if none)."""
+
+    range_m: FArray
+    incidence: FArray
+    kind: FArray
+    index: FArray
+
+    @property
+    def hit(self) -> FArray:
+        return self.kind > 0
+
+
+def _cross(ax: FArray, ay: FArray, bx: FArray, by: FArray) -> FArray:
+    return ax * by - ay * bx
+
+
+def cast_rays(
+    origin: tuple[float, float] | FArray,
+    angles: FArray | float,
+    lines: FArray,
+    points: FArray,
+    radius: float,
+    max_range: float = math.inf,
+) -> RayHits:
+    """Cast horizontal rays from ``origin`` (x, y) in directions ``angles`` (rad from north
+    towards east) against line segments ``lines`` (M, 4: x1, y1, x2, y2) and circles of
+    ``radius`` around ``points`` (P, 2); return the first hit within ``max_range`` per ray.
+
+    A ray starting inside a circle does not see that circle.
+    """
+    ang = np.atleast_1d(np.asarray(angles, float))
+    ox, oy = float(origin[0]), float(origin[1])
+    dx, dy = np.cos(ang)[:, None], np.sin(ang)[:, None]
+    n = ang.size
+    best = np.full(n, math.inf)
+    inc = np.full(n, math.nan)
+    kind = np.zeros(n, np.int8)
+    index = np.full(n, -1, np.int64)
+
+    lines = np.asarray(lines, float).reshape(-1, 4)
+    if len(lines):
+        px, py = lines[:, 0], lines[:, 1]
+        ex, ey = lines[:, 2] - px, lines[:, 3] - py
+        wx, wy = px - ox, py - oy
+        denom = _cross(dx, dy, ex, ey)  # (n, M)
+        ok = np.abs(denom) > 1e-12
+        safe = np.where(ok, denom, 1.0)
+        t = _cross(wx, wy, ex, ey) / safe
+        s = _cross(wx, wy, dx, dy) / safe
+        t = np.where(ok & (t > 1e-9) & (s >= 0.0) & (s <= 1.0), t, math.inf)
+        j = np.argmin(t, axis=1)
+        tj = t[np.arange(n), j]
+        hit = tj < best
+        best = np.where(hit, tj, best)
+        elen = np.hypot(ex, ey)[j]
+        cos_inc = np.abs(denom[np.arange(n), j]) / np.where(elen > 0, elen, 1.0)
+        inc = np.where(hit, np.arccos(np.clip(cos_inc, 0.0, 1.0)), inc)
+        kind = np.where(hit, 1, kind).astype(np.int8)
+        index = np.where(hit, j, index)
+
+    points = np.asarray(points, float).reshape(-1, 2)
+    if len(points):
+        fx, fy = ox - points[:, 0], oy - points[:, 1]  # (P,)
+        b = dx * fx + dy * fy  # (n, P)
+        c = fx * fx + fy * fy - radius * radius
+        disc = b * b - c
+        t = -b - np.sqrt(np.maximum(disc, 0.0))
+        t = np.where((disc >= 0) & (c > 0) & (t > 1e-9), t, math.inf)
+        j = np.argmin(t, axis=1)
+        tj = t[np.arange(n), j]
+        hit = tj < best
+        best = np.where(hit, tj, best)
+        tf = np.where(hit, tj, 0.0)
+        hx = ox + dx[:, 0] * tf - points[j, 0]
+        hy = oy + dy[:, 0] * tf - points[j, 1]
+        cos_inc = np.abs(dx[:, 0] * hx + dy[:, 0] * hy) / radius
+        inc = np.where(hit, np.arccos(np.clip(cos_inc, 0.0, 1.0)), inc)
+        kind = np.where(hit, 2, kind).astype(np.int8)
+        index = np.where(hit, j, index)
+
+    far = best > max_range
+    return RayHits(
+        range_m=np.where(far, math.inf, best),
+        incidence=np.where(far, math.nan, inc),
+        kind=np.where(far, 0, kind).astype(np.int8),
+        index=np.where(far, -1, index),
+    )
+
+
+# -- multibeam swath -------------------------------------------------------------------------
+
+
+def body_to_ned(heading: float, pitch: float = 0.0, roll: float = 0.0) -> FArray:
+    """Rotation matrix from body axes (x forward, y starboard, z down) to NED, ZYX Euler
+    angles in radians (``R = Rz(heading) Ry(pitch) Rx(roll)``)."""
+    ch, sh = math.cos(heading), math.sin(heading)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cr, sr = math.cos(roll), math.sin(roll)
+    return np.array(
+        [
+            [ch * cp, ch * sp * sr - sh * cr, ch * sp * cr + sh * sr],
+            [sh * cp, sh * sp * sr + ch * cr, sh * sp * cr - ch * sr],
+            [-sp, cp * sr, cp * cr],
+        ]
+    )
+
+
+@dataclass(frozen=True)
+class SwathGeometry:
+    """Beam layout of an interferometric (GeoSwath-like) swath across track.
+
+    ``n_beams`` across the whole swath, from port to starboard; on a flat seabed the outermost
+    beams reach ``swath_factor / 2`` times the altitude on each side (GeoSwath: up to 12x water
+    depth). ``equidistant`` spaces beams evenly in across-track distance on a flat seabed (the
+    interferometric bins); ``equiangular`` evenly in angle. ``nadir_gap_deg`` leaves out beams
+    closer to vertical than that (interferometers resolve nadir poorly). Hits beyond
+    ``max_range_m`` slant range or beyond the swath width are invalid. ``samples`` is how many
+    points per beam search the seabed's depth band for the first crossing (cost grows with it;
+    a crest thinner than one step at grazing incidence can be missed).
+    """
+
+    n_beams: int = 256
+    swath_factor: float = 12.0
+    max_range_m: float = 300.0
+    spacing: Literal["equidistant", "equiangular"] = "equidistant"
+    nadir_gap_deg: float = 0.0
+    samples: int = 16
+
+    def beam_angles(self) -> FArray:
+        """Beam angles from the body vertical, radians, positive to starboard."""
+        half = self.swath_factor / 2.0
+        if self.spacing == "equidistant":
+            a = np.arctan(np.linspace(-half, half, self.n_beams))
+        else:
+            a = np.linspace(-math.atan(half), math.atan(half), self.n_beams)
+        return a[np.abs(a) >= math.radians(self.nadir_gap_deg)]
+
+
+@dataclass(frozen=True)
+class Swath:
+    """One ping: per beam (port to starboard) the beam angle (rad, + starboard, body frame),
+    ``depth`` of the hit below the transducer (m, + down), ``across`` (m, + starboard) and
+    ``along`` (m, + forward) in the heading-aligned horizontal frame, slant ``range_m``,
+    two-way travel time ``twtt_s`` at the world's sound speed, ``incidence`` angle on the
+    seabed (rad), the hit point ``x, y, z`` (NED), ``side`` (-1 port, +1 starboard) and
+    ``valid`` (NaN in the float fields where not valid)."""
+
+    angle: FArray
+    depth: FArray
+    across: FArray
+    along: FArray
+    range_m: FArray
+    twtt_s: FArray
+    incidence: FArray
+    x: FArray
+    y: FArray
+    z: FArray
+    side: FArray
+    valid: FArray
+    altitude: float
+
+
+def cast_swath(
+    terrain: TerrainModel,
+    position: FArray | tuple[float, float, float],
+    heading: float,
+    geometry: SwathGeometry,
+    pitch: float = 0.0,
+    roll: float = 0.0,
+    sound_speed: float = 1500.0,
+) -> Swath:
+    """Intersect the swath fan of a transducer at ``position`` (NED, m) with the terrain.
+
+    Each beam leaves in the body y-z plane at its angle from the body vertical; the first
+    crossing with the seabed is bracketed between the terrain's depth bounds, sampled at
+    ``geometry.samples`` points and refined by regula falsi. Straight rays (no refraction).
+    """
+    p = np.asarray(position, float)
+    ang = geometry.beam_angles()
+    r = body_to_ned(heading, pitch, roll)
+    d = r @ np.stack([np.zeros_like(ang), np.sin(ang), np.cos(ang)])  # (3, n) unit NED
+    dx, dy, dz = d
+    zmin, zmax = terrain.bounds
+    down = dz > 1e-9
+    dzs = np.where(down, dz, 1.0)
+    s_lo = np.clip((zmin - p[2]) / dzs, 0.0, None)
+    s_hi = np.clip((zmax - p[2]) / dzs, 0.0, None) * (1 + 1e-9) + 1e-6  # rounding margin
+    s_hi = np.minimum(s_hi, geometry.max_range_m)
+    s_lo = np.minimum(s_lo, s_hi)
+
+    def excess(sv: FArray, dxv: FArray, dyv: FArray, dzv: FArray) -> FArray:
+        """How far the ray point is below the seabed (>= 0 once the ray has hit), m."""
+        return p[2] + sv * dzv - terrain.depth(p[0] + sv * dxv, p[1] + sv * dyv)
+
+    # sample the bracket, (n, k), then refine the first crossing
+    k = max(2, geometry.samples)
+    s = s_lo[:, None] + (s_hi - s_lo)[:, None] * np.linspace(0.0, 1.0, k)
+
+    g = excess(s, dx[:, None], dy[:, None], dz[:, None])
+    crossed = g >= 0
+    found = crossed.any(axis=1) & down
+    first = np.argmax(crossed, axis=1)
+    rows = np.arange(ang.size)
+    hi_i = first
+    lo_i = np.maximum(first - 1, 0)
+    a, b = s[rows, lo_i], s[rows, hi_i]
+    ga, gb = g[rows, lo_i], g[rows, hi_i]
+    for _ in range(12):
+        span = gb - ga
+        m = np.where(np.abs(span) > 1e-12, a - ga * (b - a) / np.where(span == 0, 1, span), b)
+        m = np.clip(m, np.minimum(a, b), np.maximum(a, b))
+        gm = excess(m, dx, dy, dz)
+        right = gm >= 0
+        b = np.where(right, m, b)
+        gb = np.where(right, gm, gb)
+        a = np.where(right, a, m)
+        ga = np.where(right, ga, gm)
+    span = gb - ga
+    sh = np.where(np.abs(span) > 1e-12, a - ga * (b - a) / np.where(span == 0, 1, span), b)
+
+    hx, hy, hz = p[0] + sh * dx, p[1] + sh * dy, p[2] + sh * dz
+    ch, sn = math.cos(heading), math.sin(heading)
+    along = (hx - p[0]) * ch + (hy - p[1]) * sn
+    across = -(hx - p[0]) * sn + (hy - p[1]) * ch
+    altitude = float(terrain.depth(p[0], p[1])) - p[2]
+    valid = (
+        found
+        & (sh <= geometry.max_range_m)
+        & (np.abs(across) <= geometry.swath_factor / 2.0 * max(altitude, 0.0) * (1 + 1e-9) + 1e-9)
+    )
+    gx, gy = terrain.gradient(hx, hy)
+    nrm = np.sqrt(gx * gx + gy * gy + 1.0)
+    cos_inc = np.abs(-gx * dx - gy * dy + dz) / nrm
+    nan = np.where(valid, 1.0, math.nan)
+    return Swath(
+        angle=ang,
+        depth=(hz - p[2]) * nan,
+        across=across * nan,
+        along=along * nan,
+        range_m=sh * nan,
+        twtt_s=2.0 * sh / sound_speed * nan,
+        incidence=np.arccos(np.clip(cos_inc, 0.0, 1.0)) * nan,
+        x=hx * nan,
+        y=hy * nan,
+        z=hz * nan,
+        side=np.where(ang < 0, -1, 1).astype(np.int8),
+        valid=valid,
+        altitude=altitude,
+    )
+
+
+# -- magnetic dipoles ------------------------------------------------------------------------
+
+
+def dipole_field(points: FArray, positions: FArray, moments: FArray) -> FArray:
+    """Field of each dipole at each point, tesla, NED: shape (B, N, 3) for ``points`` (N, 3),
+    dipole ``positions`` (B, 3) in metres and ``moments`` (B, 3) in A m^2.
+
+    ``B = mu0/(4 pi) (3 (m.r^) r^ - m) / r^3``; ranges below 1 mm are clamped to 1 mm.
+    """
+    pts = np.asarray(points, float).reshape(-1, 3)
+    pos = np.asarray(positions, float).reshape(-1, 3)
+    mom = np.asarray(moments, float).reshape(-1, 3)
+    rvec = pts[None, :, :] - pos[:, None, :]
+    rn = np.maximum(np.linalg.norm(rvec, axis=-1, keepdims=True), 1e-3)
+    rhat = rvec / rn
+    mdotr = np.sum(mom[:, None, :] * rhat, axis=-1, keepdims=True)
+    return MU0_OVER_4PI * (3.0 * mdotr * rhat - mom[:, None, :]) / rn**3
+
+
+# -- the world -------------------------------------------------------------------------------
+
+
+def _empty(n: int) -> FArray:
+    return np.zeros((0, n))
+
+
+@dataclass
+class World:
+    """The static world of a scenario (see the module docstring for frames and units).
+
+    ``beacon_moments`` are dipole moment vectors (A m^2, NED), ``earth_field`` is in tesla.
+    """
+
+    terrain: TerrainModel = field(default_factory=lambda: FlatTerrain(50.0))
+    lines: FArray = field(default_factory=lambda: _empty(4))
+    points: FArray = field(default_factory=lambda: _empty(2))
+    point_radius: float = 0.5
+    beacon_positions: FArray = field(default_factory=lambda: _empty(3))
+    beacon_moments: FArray = field(default_factory=lambda: _empty(3))
+    beacon_frequencies: FArray = field(default_factory=lambda: np.zeros(0))
+    earth_field: FArray = field(default_factory=lambda: np.array([20e-6, 0.0, 45e-6]))
+    acoustic_beacon: FArray | None = None
+    acoustic_sigma: float = 0.5
+    sound_speed: float = 1500.0
+
+    def __post_init__(self) -> None:
+        self.lines = np.asarray(self.lines, float).reshape(-1, 4)
+        self.points = np.asarray(self.points, float).reshape(-1, 2)
+        self.beacon_positions = np.asarray(self.beacon_positions, float).reshape(-1, 3)
+        self.beacon_moments = np.asarray(self.beacon_moments, float).reshape(-1, 3)
+        self.beacon_frequencies = np.asarray(self.beacon_frequencies, float).reshape(-1)
+        self.earth_field = np.asarray(self.earth_field, float).reshape(3)
+        if self.acoustic_beacon is not None:
+            self.acoustic_beacon = np.asarray(self.acoustic_beacon, float).reshape(3)
+        nb = len(self.beacon_positions)
+        if len(self.beacon_moments) != nb or len(self.beacon_frequencies) not in (0, nb):
+            raise ValueError("beacon positions, moments and frequencies differ in number")
+        if len(self.beacon_frequencies) == 0:
+            self.beacon_frequencies = np.zeros(nb)
+
+    @classmethod
+    def from_scenario(cls, scn: Scenario) -> World:
+        """Build the world a scenario describes (reads its points file and terrain grid)."""
+        beacons = scn.magnetic_beacons
+        moments = []
+        for b in beacons:
+            axis = np.asarray(b.axis, float)
+            norm = np.linalg.norm(axis)
+            if norm == 0:
+                raise ScenarioError(f"{scn.source or scn.name}: a magnetic beacon axis is zero")
+            moments.append(b.moment_am2 * axis / norm)
+        ab = scn.acoustic_beacon
+        return cls(
+            terrain=terrain_from_settings(scn.terrain, scn.resolve_path),
+            lines=np.asarray(scn.features.lines, float).reshape(-1, 4),
+            points=np.asarray(scn.point_features(), float).reshape(-1, 2),
+            point_radius=scn.features.point_radius_m,
+            beacon_positions=np.array([(b.x, b.y, b.z) for b in beacons]).reshape(-1, 3),
+            beacon_moments=np.asarray(moments, float).reshape(-1, 3),
+            beacon_frequencies=np.array([b.frequency_hz for b in beacons], float),
+            earth_field=np.asarray(scn.earth_field_nt, float) * 1e-9,
+            acoustic_beacon=None if ab is None else np.array([ab.x, ab.y, ab.z]),
+            acoustic_sigma=0.5 if ab is None else ab.sigma_range_m,
+            sound_speed=scn.sound_speed_mps,
+        )
+
+    # seabed
+    def depth(self, x: FArray | float, y: FArray | float) -> FArray:
+        """Seabed depth at (x, y), metres below the surface."""
+        return self.terrain.depth(x, y)
+
+    def altitude(self, x: FArray | float, y: FArray | float, z: FArray | float) -> FArray:
+        """Height above the seabed of points at depth ``z``, metres."""
+        return self.terrain.depth(x, y) - np.asarray(z, float)
+
+    def swath(
+        self,
+        position: FArray | tuple[float, float, float],
+        heading: float,
+        geometry: SwathGeometry,
+        pitch: float = 0.0,
+        roll: float = 0.0,
+    ) -> Swath:
+        """One multibeam ping from ``position`` (see :func:`cast_swath`)."""
+        return cast_swath(
+            self.terrain, position, heading, geometry, pitch, roll, self.sound_speed
+        )
+
+    # sonar targets
+    def cast(
+        self, origin: tuple[float, float] | FArray, angles: FArray | float, max_range: float
+    ) -> RayHits:
+        """Horizontal rays against the world's walls and point features (see
+        :func:`cast_rays`)."""
+        return cast_rays(origin, angles, self.lines, self.points, self.point_radius, max_range)
+
+    def beam(
+        self,
+        origin: tuple[float, float] | FArray,
+        bearing: float,
+        width: float,
+        max_range: float,
+        n_rays: int = 7,
+    ) -> tuple[FArray, RayHits]:
+        """A horizontal beam of angular ``width`` (rad) centred on ``bearing`` (rad from north),
+        sampled by ``n_rays`` rays: (ray angles, hits)."""
+        angles = bearing + np.linspace(-width / 2, width / 2, n_rays)
+        return angles, self.cast(origin, angles, max_range)
+
+    def observe_points(
+        self,
+        pose: tuple[float, float, float] | FArray,
+        max_range: float,
+        field_of_view: float = 2 * math.pi,
+    ) -> tuple[FArray, FArray, FArray]:
+        """Point features closer than ``max_range`` and within +-``field_of_view``/2 (rad) of
+        the heading of ``pose`` (x, y, heading): (indices, ranges in m, bearings in rad
+        relative to the heading, clockwise positive), noise-free. Bailey's sensor sees a
+        half-plane: ``field_of_view = pi``."""
+        x, y, h = (float(v) for v in pose)
+        dx, dy = self.points[:, 0] - x, self.points[:, 1] - y
+        r = np.hypot(dx, dy)
+        b = wrap_angle(np.arctan2(dy, dx) - h)
+        seen = r < max_range
+        if field_of_view < 2 * math.pi:
+            seen &= np.abs(b) < field_of_view / 2
+        idx = np.flatnonzero(seen)
+        return idx, r[idx], b[idx]
+
+    def observe_points_noisy(
+        self,
+        pose: tuple[float, float, float] | FArray,
+        settings: ObservationSettings,
+        rng: np.random.Generator,
+    ) -> tuple[FArray, FArray, FArray, FArray]:
+        """Range-bearing observations with the scenario's noise: (indices, ranges, bearings,
+        burst mask). Each observation is, with probability ``burst_p``, a burst whose
+        covariance is ``burst_n`` times larger (the VB paper's dynamic noise, its table 3)."""
+        fov = math.radians(settings.field_of_view_deg)
+        idx, r, b = self.observe_points(pose, settings.max_range_m, fov)
+        burst = rng.random(idx.size) < settings.burst_p
+        k = np.where(burst, math.sqrt(settings.burst_n), 1.0)
+        r = r + rng.normal(0.0, 1.0, r.size) * settings.sigma_range_m * k
+        sb = math.radians(settings.sigma_bearing_deg)
+        b = wrap_angle(b + rng.normal(0.0, 1.0, b.size) * sb * k)
+        return idx, r, b, burst
+
+    # magnetics
+    def beacon_fields(self, points: FArray, t: float | None = None) -> FArray:
+        """Field of each magnetic beacon at ``points`` (N, 3), tesla NED, shape (B, N, 3).
+
+        Beacons with a frequency are coils driven at it: at time ``t`` (s) their moment is
+        scaled by ``cos(2 pi f t)``; ``t=None`` gives the amplitude (moment at full scale).
+        """
+        f = dipole_field(points, self.beacon_positions, self.beacon_moments)
+        if t is not None:
+            f = f * np.cos(2 * math.pi * self.beacon_frequencies * t)[:, None, None]
+        return f
+
+    def magnetic_field(self, points: FArray, t: float | None = None) -> FArray:
+        """Total field at ``points`` ((3,) or (N, 3)), tesla NED: Earth field plus all
+        beacons (see :meth:`beacon_fields`)."""
+        pts = np.asarray(points, float)
+        total = self.earth_field + self.beacon_fields(pts, t).sum(axis=0)
+        return total.reshape(pts.shape)
+
+    # acoustics
+    def acoustic_range(self, points: FArray) -> FArray:
+        """Slant range from ``points`` ((3,) or (N, 3), NED) to the acoustic beacon, metres."""
+        if self.acoustic_beacon is None:
+            raise ValueError("the scenario has no acoustic beacon")
+        pts = np.asarray(points, float)
+        return np.linalg.norm(pts - self.acoustic_beacon, axis=-1)
+
+    def acoustic_travel_time(self, points: FArray) -> FArray:
+        """One-way acoustic travel time to the beacon at the world's sound speed, seconds."""
+        return self.acoustic_range(points) / self.sound_speed
