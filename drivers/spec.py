@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import functools
 import math
 import struct
 import types
@@ -454,6 +455,10 @@ def _none_to_nan(value: Any) -> Any:
     return math.nan if value is None else value
 
 
+#: resolved annotations per message class (evaluating them dominates from_jsonable otherwise)
+_type_hints = functools.cache(typing.get_type_hints)
+
+
 def from_jsonable(data: Mapping[str, Any], cls: type | None = None) -> Any:
     """Rebuild a typed message from :func:`to_jsonable` output (inverse up to JSON's limits:
     NaN travels as null, arrays as lists; integer arrays come back as int64)."""
@@ -462,7 +467,7 @@ def from_jsonable(data: Mapping[str, Any], cls: type | None = None) -> Any:
         if name not in MESSAGE_TYPES:
             raise KeyError(f"unknown message type {name!r}")
         cls = MESSAGE_TYPES[name]
-    hints = typing.get_type_hints(cls)
+    hints = _type_hints(cls)
     kwargs = {}
     for f in dataclasses.fields(cls):
         if f.name in data:
