@@ -1,0 +1,106 @@
+"""Configuration of the navigation fusion (pydantic, frozen): mounting, noise, buffering.
+
+Defaults are the HN-100 and Pathfinder figures of Mu et al. 2022, Table 1 (yaw 0.3 deg RMS,
+pitch/roll 0.02 deg RMS at 100 Hz; DVL +-0.2 cm/s; pressure sensor 0.01 % of range), with the
+INS attitude errors modelled as first-order Gauss-Markov processes (see ``docs/fusion.md``).
+Angles in the configuration are degrees (fields end in ``_deg``); everything else is SI.
+"""
+
+from __future__ import annotations
+
+import math
+
+from pydantic import BaseModel, ConfigDict, Field
+
+__all__ = ["DvlMount", "FusionConfig", "InitialState"]
+
+Vec3 = tuple[float, float, float]
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class DvlMount(_Model):
+    """Where and how the DVL sits on the vehicle.
+
+    ``lever_arm_m``: transducer centre relative to the vehicle reference point (the INS), body
+    axes (x forward, y starboard, z down), metres. ``rotation_deg``: (roll, pitch, yaw) of the
+    instrument axes relative to body axes, ZYX order, degrees; a vector in instrument axes maps
+    to body axes as ``Rz(yaw) Ry(pitch) Rx(roll) v``.
+    """
+
+    lever_arm_m: Vec3 = (0.0, 0.0, 0.0)
+    rotation_deg: Vec3 = (0.0, 0.0, 0.0)
+
+
+class InitialState(_Model):
+    """Start of dead reckoning: position NED (m), body velocity (m/s) and their 1-sigma."""
+
+    position_m: Vec3 = (0.0, 0.0, 0.0)
+    position_sigma_m: Vec3 = Field((0.1, 0.1, 1.0), description="x, y, z 1-sigma, m")
+    velocity_body_mps: Vec3 = (0.0, 0.0, 0.0)
+    velocity_sigma_mps: float = Field(2.0, gt=0, description="per body axis, m/s")
+
+
+class FusionConfig(_Model):
+    """Everything the dead-reckoning filter needs besides the data (see ``docs/fusion.md``)."""
+
+    dvl: DvlMount = DvlMount()
+    depth_lever_arm_m: Vec3 = Field(
+        (0.0, 0.0, 0.0), description="stand-alone pressure sensor, body axes from the INS, m"
+    )
+    initial: InitialState = InitialState()
+
+    # measurement noise
+    dvl_velocity_sigma_mps: float = Field(0.002, gt=0, description="per axis, 1-sigma, m/s")
+    depth_sigma_m: float = Field(0.02, gt=0, description="pressure depth 1-sigma, m")
+
+    # INS attitude error processes (Gauss-Markov: tau 0 = white, inf = constant bias)
+    heading_error_sigma_deg: float = Field(0.3, ge=0, description="INS heading error RMS, deg")
+    heading_error_tau_s: float = Field(300.0, ge=0, description="its correlation time, s")
+    pitch_error_sigma_deg: float = Field(0.02, ge=0, description="INS pitch error RMS, deg")
+    pitch_error_tau_s: float = Field(300.0, ge=0, description="its correlation time, s")
+
+    # velocity process noise: random walk of the body velocity, m/s per sqrt(s)
+    velocity_random_walk: float = Field(
+        0.02, ge=0, description="while bottom-locked (manoeuvres between DVL fixes)"
+    )
+    coast_velocity_random_walk: float = Field(
+        0.03, ge=0, description="while coasting (no bottom lock): trust in the held velocity"
+    )
+    use_accelerations: bool = Field(
+        False,
+        description="propagate the body velocity with the INS specific force between DVL fixes "
+        "(held constant otherwise and always while coasting)",
+    )
+    gravity_mps2: float = Field(9.80665, gt=0)
+
+    # bottom-lock policy and gating
+    dvl_timeout_s: float = Field(
+        1.0, gt=0, description="coasting when no DVL velocity was accepted for this long"
+    )
+    dvl_gate_probability: float | None = Field(
+        0.9999, gt=0, lt=1, description="chi-square gate on DVL innovations; None disables"
+    )
+    dvl_gate_max_rejections: int = Field(
+        5, ge=1, description="after this many consecutive rejections the next fix is accepted"
+    )
+
+    # time alignment
+    max_latency_s: float = Field(
+        0.2,
+        ge=0,
+        description="fixed lag: a sample may arrive up to this long (in sample time) after the "
+        "newest INS sample and still be used; output is delayed by the same amount",
+    )
+    max_pending: int = Field(4096, ge=1, description="bound of the aiding-sample buffer")
+    max_ins_gap_s: float = Field(0.5, gt=0, description="longer INS intervals are flagged")
+
+    def gm(self, which: str) -> tuple[float, float]:
+        """(sigma rad, tau s) of the ``"heading"`` or ``"pitch"`` error process."""
+        if which == "heading":
+            return math.radians(self.heading_error_sigma_deg), self.heading_error_tau_s
+        if which == "pitch":
+            return math.radians(self.pitch_error_sigma_deg), self.pitch_error_tau_s
+        raise ValueError(f"unknown error process {which!r}")

@@ -1,0 +1,108 @@
+"""Rotations, lever arms and angle wrapping (NED / body axes, radians).
+
+Conventions (``config/scenario.py``): NED local frame; body axes x forward, y starboard, z down;
+attitude = ZYX Euler (heading psi from north towards east, pitch theta nose up, roll phi
+starboard down); ``C = Rz(psi) Ry(theta) Rx(phi)`` maps body vectors into NED.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+from auvgw.fusion.config import DvlMount
+from auvgw.fusion.samples import DvlSample, InsSample
+
+__all__ = [
+    "body_to_ned",
+    "dcm_body_to_ned",
+    "dvl_to_body_velocity",
+    "dvl_velocity_ned",
+    "lever_arm_velocity",
+    "mount_matrix",
+    "rot_x",
+    "rot_y",
+    "rot_z",
+    "wrap_angle",
+    "wrap_angles",
+]
+
+TWO_PI = 2.0 * math.pi
+
+
+def wrap_angle(a: float) -> float:
+    """Angle wrapped into [-pi, pi), rad."""
+    return (a + math.pi) % TWO_PI - math.pi
+
+
+def wrap_angles(a: np.ndarray) -> np.ndarray:
+    """Array of angles wrapped into [-pi, pi), rad."""
+    return (np.asarray(a) + math.pi) % TWO_PI - math.pi
+
+
+def rot_x(a: float) -> np.ndarray:
+    """Rotation about x by ``a`` rad (roll)."""
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def rot_y(a: float) -> np.ndarray:
+    """Rotation about y by ``a`` rad (pitch)."""
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def rot_z(a: float) -> np.ndarray:
+    """Rotation about z by ``a`` rad (heading)."""
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def dcm_body_to_ned(roll: float, pitch: float, heading: float) -> np.ndarray:
+    """``C = Rz(heading) Ry(pitch) Rx(roll)``: body-axes vector -> NED (angles in rad)."""
+    return rot_z(heading) @ rot_y(pitch) @ rot_x(roll)
+
+
+def body_to_ned(v_body: Sequence[float], roll: float, pitch: float, heading: float) -> np.ndarray:
+    """A body-axes vector (e.g. velocity, m/s) expressed in NED."""
+    return dcm_body_to_ned(roll, pitch, heading) @ np.asarray(v_body, dtype=float)
+
+
+def mount_matrix(mount: DvlMount) -> np.ndarray:
+    """``M``: DVL instrument axes -> body axes, from ``mount.rotation_deg`` (roll, pitch, yaw)."""
+    r, p, y = (math.radians(a) for a in mount.rotation_deg)
+    return rot_z(y) @ rot_y(p) @ rot_x(r)
+
+
+def lever_arm_velocity(omega: Sequence[float], lever_arm: Sequence[float]) -> np.ndarray:
+    """``omega x r``: extra velocity (m/s, body axes) of a point at ``lever_arm`` (m, body axes)
+    on a body rotating at ``omega`` (rad/s, body axes)."""
+    return np.cross(np.asarray(omega, dtype=float), np.asarray(lever_arm, dtype=float))
+
+
+def dvl_to_body_velocity(sample: DvlSample, omega: Sequence[float], mount: DvlMount) -> np.ndarray:
+    """Vehicle (reference point) velocity in body axes from a DVL velocity, m/s.
+
+    Inverts ``v_dvl = M^T (v + omega x r)`` (instrument frame) or ``v_dvl = v + omega x r``
+    (body frame); ``omega`` is the body rate at the DVL's own time.
+    """
+    v = np.asarray(sample.velocity, dtype=float)
+    if sample.frame == "instrument":
+        v = mount_matrix(mount) @ v
+    return v - lever_arm_velocity(omega, mount.lever_arm_m)
+
+
+def dvl_velocity_ned(sample: DvlSample, ins_at_t: InsSample, mount: DvlMount) -> np.ndarray:
+    """A DVL fix as vehicle velocity in NED (m/s), rotated by the attitude at the DVL's time.
+
+    ``ins_at_t`` must be the INS state at ``sample.t`` (see
+    :func:`auvgw.fusion.align.interpolate_ins`), never simply the latest INS sample.
+    """
+    if abs(ins_at_t.t - sample.t) > 1e-9:
+        raise ValueError(
+            f"INS attitude at t={ins_at_t.t!r} s used for a DVL fix at t={sample.t!r} s; "
+            "interpolate the INS to the DVL time first"
+        )
+    v_body = dvl_to_body_velocity(sample, ins_at_t.rates, mount)
+    return body_to_ned(v_body, ins_at_t.roll, ins_at_t.pitch, ins_at_t.heading)
