@@ -196,6 +196,35 @@ def test_sample_encode_decode_within_resolution(seq: int, k: float) -> None:
     assert HN.encode_sample(got) == frames  # decoded values are fixed points
 
 
+@pytest.mark.parametrize("codec", [HN, MAG], ids=["hn100", "ms3a"])
+@settings(max_examples=60, deadline=None)
+@given(data=st.data())
+def test_codec_checked_encode_equals_cantools_strict(codec: DbcCodec, data) -> None:
+    for m in codec.db.messages:
+        raw = {s.name: data.draw(_raw_strategy(s), label=s.name) for s in m.signals}
+        msg = codec.decode(m.frame_id, m.encode(raw, scaling=False), m.is_extended_frame)
+        assert codec.encode(msg, strict=False) == codec.encode(msg)
+
+
+def test_codec_checked_encode_rejects_what_strict_rejects() -> None:
+    att = HN.types["HN100_Attitude"]
+    with pytest.raises(
+        CanCodecError, match=r"HN100_Attitude: signal Roll = 4\.0 outside the DBC range \[-3\.1416"
+    ):
+        HN.encode(att(seq=1, roll=4.0, pitch=0.0, heading=0.0), strict=False)
+    with pytest.raises(CanCodecError, match=r"signal Latitude = -180\.0 outside the DBC range"):
+        HN.encode(HN.types["HN100_Position"](seq=1, latitude=-math.pi, depth=0.0), strict=False)
+    with pytest.raises(CanCodecError, match=r"signal Seq = 256 outside the DBC range \[0, 255\]"):
+        HN.encode(att(seq=256, roll=0.0, pitch=0.0, heading=0.0), strict=False)
+    status = HN.types["HN100_Status"]
+    with pytest.raises(CanCodecError, match=r"\(signal Alignment\) = 'SUPER': expected"):
+        HN.encode(
+            status(seq=1, alignment="SUPER", gnss_aided=0, dvl_aided=0, error="OK", reserved=0),
+            strict=False,
+        )
+    assert HN.encode_sample(hn_sample(9), strict=False) == HN.encode_sample(hn_sample(9))
+
+
 def test_assembler_groups_any_order_and_counts_incomplete() -> None:
     rnd = random.Random(7)
     samples = [hn_sample(seq) for seq in (250, 251, 252, 253, 254, 255, 0, 1)]

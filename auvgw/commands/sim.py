@@ -1,0 +1,171 @@
+"""``auvgw sim --scenario FILE``: the emulated vehicle on virtual ports.
+
+Builds the scenario's world and ground truth, starts every enabled device emulator on its own
+virtual port (serial ptys paced at their baud, emulated USB-CAN adapters speaking SLCAN, UDP on
+loopback), prints the ports, writes a gateway configuration that points at them (stable
+symlinks in ``OUT/ports/``, so a gateway finds a replugged device again) and runs until Ctrl-C
+/ SIGTERM or ``--duration`` vehicle seconds (default: the end of the route). Then it prints
+each device's counters and exits 0.
+
+Files in ``OUT`` (``--out``, default a new temporary folder): ``gateway.toml`` (run it with
+``auvgw run --config OUT/gateway.toml``), ``truth.jsonl`` (ground truth at ``--truth-rate``
+Hz, one JSON object per line: t, x, y, z, heading, roll, pitch, ... in SI / NED / radians) and
+the fault control file ``faults.json``: write ``{"ins": {"corrupt_p": 0.1}, "dvl":
+{"unplug": [[30, 40]]}}`` (the scenario's FaultSettings fields; windows in vehicle seconds)
+and each device's faults become the scenario's plus those; delete the file to restore them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import tempfile
+import threading
+from pathlib import Path
+from typing import Any
+
+from auvgw.cli import UserError
+
+log = logging.getLogger(__name__)
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser(
+        "sim",
+        help="run the emulated vehicle (world + device emulators on virtual ports)",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--scenario", "-s", required=True, type=Path, help="scenario file (JSON)")
+    p.add_argument("--speed", type=float, default=1.0,
+                   help="vehicle seconds per real second (default 1; 0: as fast as possible)")
+    p.add_argument("--duration", type=float, default=None, metavar="S",
+                   help="stop after S vehicle seconds (default: the end of the route)")
+    p.add_argument("--out", "-o", type=Path, default=None, metavar="DIR",
+                   help="folder for ports, gateway.toml, truth log (default: a new temp folder)")
+    p.add_argument("--devices", default=None, metavar="LIST",
+                   help="comma-separated subset of ins,dvl,msis,multibeam,magnetometer")
+    p.add_argument("--vehicle", default="auv1", help="vehicle name in the gateway configuration")
+    p.add_argument("--truth-rate", type=float, default=10.0, metavar="HZ",
+                   help="ground-truth log rate, vehicle Hz (default 10)")
+    p.add_argument("--no-truth-log", action="store_true", help="do not write truth.jsonl")
+    p.add_argument("--processes", action="store_true",
+                   help="run each device in its own process on one shared clock (uses every "
+                        "core; one Python process runs on about one)")
+    p.set_defaults(func=run)  # fmt: skip
+
+
+def _stop_on_signals(stop: threading.Event) -> dict[int, Any]:
+    old = {}
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        old[sig] = signal.signal(sig, lambda *_: stop.set())
+    return old
+
+
+def _print_ports(runner: Any) -> None:
+    print(f"  {'device':18s} {'format':9s} {'transport':9s} {'open this':44s} now", flush=True)
+    for ep in runner.endpoints():
+        print(f"  {ep.name:18s} {ep.format:9s} {ep.kind:9s} {ep.target:44s} {ep.path or '-'}")
+    for name, why in runner.unavailable.items():
+        print(f"  {name:18s} not emulated: {why}")
+
+
+def _print_stats(runner: Any) -> None:
+    st = runner.stats()
+    print(f"stopped at vehicle time {st['vehicle_time']:.2f} s "
+          f"(clock max lag {st['max_lag_s']:.3f} s, late ticks {st['late_ticks']})")  # fmt: skip
+    for d in st["devices"].values():
+        for ch, cs in d["channels"].items():
+            f, p = cs["faults"], cs["port"]
+            faults = {
+                k: f[k]
+                for k in ("dropped", "stalled", "unplugged", "garbage_events", "corrupted",
+                          "truncated")
+                if f[k]
+            }  # fmt: skip
+            print(f"  {ch:18s} samples {d['ticks']:7d} sent {f['frames_sent']:7d} "
+                  f"bytes {p['bytes_written']:9d} dropped bytes {p['bytes_dropped']:7d}"
+                  + (f" faults {faults}" if faults else "")
+                  + (f" noise bursts {d['noise_bursts']}" if d["noise_bursts"] else "")
+                  + (f" ERRORS {d['errors']}" if d["errors"] else ""))  # fmt: skip
+
+
+def run(args: argparse.Namespace) -> int:
+    from auvgw.config.scenario import ScenarioError, load_scenario
+    from auvgw.sim_devices.runner import DeviceProcesses, Runner
+
+    if args.speed < 0:
+        raise UserError(f"--speed must be >= 0, got {args.speed}")
+    if args.duration is not None and not args.duration > 0:
+        raise UserError(f"--duration must be > 0 vehicle seconds, got {args.duration}")
+    if not args.truth_rate > 0:
+        raise UserError(f"--truth-rate must be > 0, got {args.truth_rate}")
+    try:
+        scn = load_scenario(args.scenario)
+    except ScenarioError as exc:
+        raise UserError(str(exc).replace("\n", "; ")) from exc
+    devices = None
+    if args.devices:
+        devices = [d.strip() for d in args.devices.split(",") if d.strip()]
+    out = args.out if args.out is not None else Path(tempfile.mkdtemp(prefix="auvgw-sim-"))
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UserError(f"--out {out}: cannot create: {exc.strerror}") from exc
+    truth_log = None if args.no_truth_log else out / "truth.jsonl"
+    control = out / "faults.json"
+    if args.processes and args.speed == 0:
+        raise UserError("--processes needs a real-time clock: --speed > 0")
+    try:
+        if args.processes:
+            runner: Any = DeviceProcesses(
+                args.scenario,
+                out_dir=out,
+                speed=args.speed,
+                devices=devices,
+                truth_log=truth_log,
+                truth_rate_hz=args.truth_rate,
+                control=control,
+            )
+        else:
+            runner = Runner(
+                scn,
+                out_dir=out,
+                speed=args.speed,
+                devices=devices,
+                truth_log=truth_log,
+                truth_rate_hz=args.truth_rate,
+            )
+    except (ScenarioError, ValueError, OSError) as exc:
+        raise UserError(f"{args.scenario}: {exc}") from exc
+    stop = threading.Event()
+    old = _stop_on_signals(stop)
+    try:
+        until = args.duration if args.duration is not None else runner.route_duration
+        pace = "as fast as possible" if args.speed == 0 else f"{args.speed:g}x real time"
+        if args.processes:
+            pace += ", one process per device"
+        print(f"auvgw sim: scenario '{scn.name}' (route {runner.route_duration:.1f} s), {pace}, "
+              f"until vehicle time {until:.1f} s", flush=True)  # fmt: skip
+        _print_ports(runner)
+        try:
+            cfg = runner.write_gateway_config(out / "gateway.toml", vehicle=args.vehicle)
+        except ValueError as exc:
+            raise UserError(f"gateway configuration: {exc}") from exc
+        runner.watch_control(control)
+        print(f"gateway config: {cfg}")
+        if truth_log is not None:
+            print(f"truth log: {truth_log}")
+        print(f"fault control: {control} (JSON {{device: {{fault settings}}}}, applied on change)")
+        print("running; Ctrl-C to stop", flush=True)
+        runner.start(duration=until)
+        while not stop.is_set() and runner.running:
+            stop.wait(0.2)
+        runner.stop()
+        _print_stats(runner)
+    finally:
+        runner.close()
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+    return 0

@@ -1,0 +1,311 @@
+"""Every emulator of a scenario at k x real time, with readers draining every port.
+
+    .venv/bin/python benchmarks/bench_emulators.py [--scenario harbour] [--speed 10]
+        [--duration 60] [--runs 3]
+
+One :class:`~auvgw.sim_devices.runner.Runner` per run builds the world and every available
+emulator of the scenario and runs them for ``--duration`` vehicle seconds at ``--speed`` x real
+time. A reader process (this script with ``--reader``, so it has its own core and GIL, like a
+gateway) opens every port with the real client library before the run starts: pyserial on the
+serial ptys (framed and decoded with the drivers; the MSIS is polled by the gateway's own
+:class:`~auvgw.msis_host.SeaNetHost`), the USB-CAN adapters' ptys read in bulk (opened with the
+Lawicel commands, lines decoded with the DBC, counted in complete epochs; python-can's own
+``slcan`` reads one byte per call, too slow for 10x an INS's bursts) and a UDP socket for the
+multibeam.
+
+The table: per port, the nominal rate (vehicle Hz), the rate the emulator ticked at and the
+rate the reader decoded at (messages per vehicle second, i.e. per real second / speed), the
+reader/nominal ratio, bytes dropped by the port (a full pty or queue); then the clock's lag
+(how far the dispatch of a tick ran behind its vehicle time, in vehicle seconds) and the real
+time the run took against duration / speed. Medians over ``--runs`` runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+# -- the reader process ------------------------------------------------------------------------
+
+
+def _read_serial(
+    ep: dict[str, Any], counts: dict[str, int], stop: threading.Event, opened: threading.Event
+) -> None:
+    import serial
+    from auvgw.drivers.formats import get_format
+
+    fmt = get_format(ep["format"])
+    framer = fmt.framer()
+    s = serial.Serial(ep["target"], ep["transport"]["baud"], timeout=0.02)
+    opened.set()
+    host = None
+    write = s.write
+    if ep["format"] == "seanet":
+        from auvgw.config.gateway import MsisPolling
+
+        from auvgw.msis_host import SeaNetHost
+
+        host = SeaNetHost(MsisPolling(**ep.get("msis", {})))
+        host.on_connect(write, time.monotonic())
+    try:
+        while not stop.is_set():
+            data = s.read(max(1, s.in_waiting))
+            for fr in framer.feed(data):
+                for msg in fmt.decode(fr.data):
+                    if host is None:
+                        counts[ep["name"]] += 1
+                        continue
+                    counts[ep["name"] + (":pings" if type(msg).__name__ == "HeadData" else "")] += 1
+                    host.on_message(msg, write, time.monotonic())
+            if host is not None:
+                host.on_idle(write, time.monotonic())
+    finally:
+        s.close()
+    counts[ep["name"] + ":bad"] = framer.stats.bad_frames
+
+
+def _read_can(
+    ep: dict[str, Any], counts: dict[str, int], stop: threading.Event, opened: threading.Event
+) -> None:
+    """The adapter's pty read in bulk, its SLCAN lines parsed as the adapter parses the host's
+    (python-can's ``slcan`` reads one byte per call and cannot drain 10x an INS's bursts)."""
+    import serial
+    from auvgw.drivers.can_codec import load_can_codec
+    from auvgw.sim_devices.slcan import BITRATES, _parse_frame
+
+    codec = load_can_codec(ep["dbc"])
+    code = {v: k for k, v in BITRATES.items()}[ep["transport"]["bitrate"]]
+    s = serial.Serial(ep["target"], 115200, timeout=0.02)
+    s.write(f"C\rS{code}\rO\r".encode())
+    s.flush()
+    opened.set()
+    buf = b""
+    try:
+        while not stop.is_set():
+            buf += s.read(max(1, s.in_waiting))
+            *lines, buf = buf.split(b"\r")
+            for line in lines:
+                text = line.decode("ascii", "replace")
+                if not text or text[0] not in "tT":
+                    continue
+                msg = _parse_frame(text)
+                if msg is None:
+                    counts[ep["name"] + ":bad"] += 1
+                    continue
+                counts[ep["name"] + ":frames"] += 1
+                if codec.decode(msg.arbitration_id, msg.data, msg.is_extended_id) is not None:
+                    counts[ep["name"]] += 1
+    finally:
+        s.close()
+
+
+def _read_udp(
+    ep: dict[str, Any], counts: dict[str, int], stop: threading.Event, opened: threading.Event
+) -> None:
+    import socket
+
+    from auvgw.drivers.kongsberg import KongsbergFramer, decode
+
+    framer = KongsbergFramer()
+    tr = ep["transport"]
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
+        sock.bind((tr["host"], tr["port"]))
+        sock.settimeout(0.02)
+        opened.set()
+        while not stop.is_set():
+            try:
+                data = sock.recv(1 << 16)
+            except TimeoutError:
+                continue
+            for fr in framer.feed(data):
+                counts[ep["name"]] += len(decode(fr.data))
+
+
+def reader_main(spec: str) -> int:
+    """Open every endpoint, say 'ready', drain until 'stop' on stdin, print the counts."""
+    from collections import Counter
+
+    eps = json.loads(spec)
+    counts: Counter[str] = Counter()
+    stop = threading.Event()
+    kinds = {"serial": _read_serial, "can": _read_can, "udp": _read_udp}
+
+    opened = [threading.Event() for _ in eps]
+
+    def guarded(ep: dict[str, Any], ready: threading.Event) -> None:
+        try:
+            kinds[ep["kind"]](ep, counts, stop, ready)
+        except Exception as exc:
+            counts[ep["name"] + ":error"] += 1
+            print(f"reader {ep['name']}: {exc!r}", file=sys.stderr, flush=True)
+            ready.set()
+
+    threads = [
+        threading.Thread(target=guarded, args=(ep, ev), daemon=True)
+        for ep, ev in zip(eps, opened, strict=True)
+    ]
+    for th in threads:
+        th.start()
+    for ev in opened:
+        ev.wait(30)
+    time.sleep(0.2)  # the adapters have processed their open commands
+    print("ready", flush=True)
+    sys.stdin.readline()
+    end = time.monotonic() + 20.0
+    while time.monotonic() < end:  # drain what is still on the way: until 0.5 s of quiet
+        before = sum(counts.values())
+        time.sleep(0.5)
+        if sum(counts.values()) == before:
+            break
+    stop.set()
+    for th in threads:
+        th.join(5.0)
+    print(json.dumps(dict(counts)), flush=True)
+    return 0
+
+
+# -- the emulator side -------------------------------------------------------------------------
+
+
+def one_run(scenario: Path, speed: float, duration: float, processes: bool) -> dict[str, Any]:
+    from auvgw.config.scenario import load_scenario
+    from auvgw.sim_devices.runner import DeviceProcesses, Runner
+
+    with tempfile.TemporaryDirectory() as tmp:
+        if processes:
+            runner: Any = DeviceProcesses(scenario, out_dir=tmp, speed=speed)
+        else:
+            runner = Runner(load_scenario(scenario), out_dir=tmp, speed=speed)
+        with runner:
+            eps = []
+            for ep in runner.endpoints():
+                d = {"name": ep.name, "format": ep.format, "kind": ep.kind, "target": ep.target,
+                     "transport": ep.transport, **ep.extra}  # fmt: skip
+                eps.append(d)
+            reader = subprocess.Popen(
+                [sys.executable, __file__, "--reader", json.dumps(eps)],
+                stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE,
+                text=True,
+            )
+            assert reader.stdout is not None and reader.stdin is not None
+            if reader.stdout.readline().strip() != "ready":
+                raise RuntimeError("reader process failed to start")
+            t0 = time.perf_counter()
+            runner.start(duration=duration)
+            runner.wait()
+            real = time.perf_counter() - t0
+            if not processes:
+                runner.flush(drain_timeout=2.0)
+            reader.stdin.write("stop\n")  # the reader drains until its ports are quiet
+            reader.stdin.flush()
+            counts = json.loads(reader.stdout.readline())
+            reader.wait(10)
+            runner.stop()
+            stats = runner.stats()
+            unavailable = dict(runner.unavailable)
+    ports: dict[str, dict[str, Any]] = {}
+    for dev, st in stats["devices"].items():
+        for ch, cs in st["channels"].items():
+            ps = cs["port"]
+            nominal, ticks, received = st["rate_hz"], st["ticks"], counts.get(ch, 0)
+            if "ping_duration_s" in st:  # polled: as fast as pings last (travel time + step)
+                d = st["ping_duration_s"]
+                nominal = 1.0 / d if d > 0 else math.nan
+                ticks = st["head"]["head_data"]
+                received = counts.get(ch + ":pings", 0)
+            ports[ch] = {
+                "device": dev,
+                "nominal": nominal,
+                "ticks": ticks,
+                "received": received,
+                "dropped_bytes": ps.get("bytes_dropped", 0),
+                "dropped_frames": ps.get("dropped_port", 0) + ps.get("dropped_closed", 0),
+            }
+    return {
+        "real_s": real,
+        "cpu_s": stats["process_cpu_s"],
+        "load": os.getloadavg()[0],
+        "max_lag_s": stats["max_lag_s"],
+        "ports": ports,
+        "unavailable": unavailable,
+        "reader_errors": {k: v for k, v in counts.items() if k.endswith(":error")},
+    }
+
+
+def report(label: str, runs: list[dict[str, Any]], dur: float, k: float) -> None:
+    print(f"\n{label}")
+    if runs[0]["unavailable"]:
+        for name, why in runs[0]["unavailable"].items():
+            print(f"  not run: {name}: {why}")
+    head = f"{'port':18s} {'nominal Hz':>10s} {'ticked Hz':>10s} {'read Hz':>9s} {'read/nom':>9s}"
+    print(head + f" {'dropped B':>10s} {'dropped fr':>10s}")
+    for name in runs[0]["ports"]:
+        rows = [r["ports"][name] for r in runs if name in r["ports"]]
+        nominal = statistics.median(r["nominal"] for r in rows)
+        ticked = statistics.median(r["ticks"] for r in rows) / dur
+        read = statistics.median(r["received"] for r in rows) / dur
+        drop_b = statistics.median(r["dropped_bytes"] for r in rows)
+        drop_f = statistics.median(r["dropped_frames"] for r in rows)
+        print(f"{name:18s} {nominal:10.2f} {ticked:10.2f} {read:9.2f} {read / nominal:9.3f} "
+              f"{drop_b:10.0f} {drop_f:10.0f}")  # fmt: skip
+    real = statistics.median(r["real_s"] for r in runs)
+    lag = statistics.median(r["max_lag_s"] for r in runs)
+    cpu = statistics.median(r["cpu_s"] for r in runs)
+    load = statistics.median(r["load"] for r in runs)
+    print(f"real time {real:.2f} s for {dur / k:.2f} s expected (ratio {real * k / dur:.3f}); "
+          f"clock max lag {lag * 1000:.0f} ms vehicle ({lag / k * 1000:.0f} ms real)")  # fmt: skip
+    print(f"emulator CPU {cpu:.2f} s ({cpu / real:.2f} cores); host load average {load:.1f} "
+          f"on {os.cpu_count()} cores")  # fmt: skip
+    errors = [e for r in runs for e in r["reader_errors"]]
+    if errors:
+        print(f"reader errors: {errors}")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenario", default="harbour", help="name in config/scenarios or a path")
+    ap.add_argument("--speed", type=float, default=10.0, help="k x real time")
+    ap.add_argument("--duration", type=float, default=60.0, help="vehicle seconds per run")
+    ap.add_argument("--runs", type=int, default=3)
+    ap.add_argument("--reader", default=None, help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.reader is not None:
+        return reader_main(args.reader)
+    path = Path(args.scenario)
+    if not path.exists():
+        path = REPO / "config" / "scenarios" / f"{args.scenario}.json"
+    dur, k = args.duration, args.speed
+    print(f"scenario {path.name}: {dur:g} vehicle s at {k:g}x real time, {args.runs} runs per "
+          f"mode (medians); readers in a second process")  # fmt: skip
+    modes = {"one process": False, "one process per device (--processes)": True}
+    results: dict[str, list[dict[str, Any]]] = {m: [] for m in modes}
+    for _ in range(args.runs):  # interleaved, so a change of machine load hits both modes
+        for label, processes in modes.items():
+            results[label].append(one_run(path, k, dur, processes))
+    for label, runs in results.items():
+        report(label, runs, dur, k)
+    print("\n(msis is polled: its nominal rate is one ping per ping duration (two-way travel "
+          "time over the range plus a motor step), 'ticked' the HeadData it sent, 'read' those "
+          "the host decoded; the host polls in real time and each round trip adds its real "
+          "latency x speed, while a clock running behind real time lets more pings fit in a "
+          "vehicle second)")  # fmt: skip
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

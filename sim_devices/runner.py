@@ -1,0 +1,820 @@
+"""Run a scenario's emulated vehicle: world, ground truth, one clock, every enabled device.
+
+:class:`Runner` builds the :class:`~auvgw.sim_devices.world.World` and the ground-truth
+trajectory of a :class:`~auvgw.config.scenario.Scenario`, one
+:class:`~auvgw.sim_devices.clock.SimClock` (real time x ``speed``), and one emulator per enabled
+device (:data:`FACTORIES`), each on its own virtual port with a stable symlink in
+``<out_dir>/ports/``. It publishes nothing itself: ground truth goes to an ``on_truth`` callback
+and/or a truth log (``.jsonl``: one JSON object per sample with the fields of
+:data:`~auvgw.sim_devices.vehicle.TRUTH_FIELDS`; ``.npz``: one array per field), at
+``truth_rate_hz`` on the vehicle clock.
+
+Faults come from each device's ``faults`` in the scenario and can be switched at run time:
+
+* :meth:`Runner.set_faults` (``runner.set_faults("ins", corrupt_p=0.1)``), :meth:`unplug_for`
+  and :meth:`stall_for` (a window starting now);
+* a control file (:meth:`Runner.watch_control`, ``auvgw sim`` watches ``<out>/faults.json``):
+  a JSON object ``{"<device>": {<FaultSettings fields>}}``; whenever the file changes, each
+  device's faults become the scenario's plus the file's entries for it (a device left out
+  returns to the scenario's). Windows (``unplug``, ``stall``, ...) are in vehicle seconds.
+
+Devices: ``ins`` (:class:`~auvgw.sim_devices.ins.InsEmulator`), ``magnetometer``
+(:class:`~auvgw.sim_devices.magnetometer.MagnetometerEmulator`), ``multibeam``
+(:class:`~auvgw.sim_devices.multibeam.MultibeamEmulator`), ``msis`` (the SeaNet head of
+:mod:`auvgw.sim_devices.msis` in a :class:`~auvgw.sim_devices.emulator.PolledEmulator`) and
+``dvl`` (``auvgw.sim_devices.dvl.DvlEmulator(ctx, settings)``, an
+:class:`~auvgw.sim_devices.emulator.Emulator`). A device whose module is not installed is
+listed in :attr:`Runner.unavailable` with the reason.
+
+One Python process runs its threads on about one core (the GIL). :class:`DeviceProcesses` runs
+each device in its own process instead (each a :class:`Runner` of one device, built from the
+same scenario file, so the same world and truth), all on one clock: vehicle time 0 is the same
+host ``time.monotonic()`` instant everywhere (:meth:`Runner.start` ``start_at``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import importlib
+import json
+import logging
+import math
+import resource
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterable
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+import numpy as np
+from auvgw.config.scenario import DeviceSettings, FaultSettings, Scenario
+from auvgw.sim_devices.clock import SimClock
+from auvgw.sim_devices.emulator import (
+    DEFAULT_EPOCH,
+    Emulator,
+    Endpoint,
+    PolledEmulator,
+    SimContext,
+    device_option,
+)
+from auvgw.sim_devices.ins import InsEmulator
+from auvgw.sim_devices.magnetometer import MagnetometerEmulator
+from auvgw.sim_devices.multibeam import MultibeamEmulator
+from auvgw.sim_devices.vehicle import TRUTH_FIELDS, TruthSample, simulate
+from auvgw.sim_devices.world import World
+
+__all__ = [
+    "DEVICE_ORDER",
+    "FACTORIES",
+    "DeviceProcesses",
+    "DeviceUnavailable",
+    "Runner",
+    "child_main",
+    "gateway_config",
+    "gateway_toml",
+    "make_dvl",
+    "make_msis",
+    "write_gateway_config",
+]
+
+log = logging.getLogger(__name__)
+
+#: devices in the order they are built and listed (the scenario's ``devices`` keys)
+DEVICE_ORDER = ("ins", "dvl", "msis", "multibeam", "magnetometer")
+
+#: fields of the gateway's MSIS polling table that a scenario's msis options may set
+_MSIS_POLLING = (
+    "range_m", "gain", "step_deg", "left_limit_deg", "right_limit_deg", "continuous", "n_bins",
+    "adc8", "reply_timeout_s",
+)  # fmt: skip
+
+
+class DeviceUnavailable(RuntimeError):
+    """A device of the scenario whose emulator module is not installed."""
+
+
+def _optional_module(name: str) -> ModuleType | None:
+    full = f"auvgw.sim_devices.{name}"
+    try:
+        return importlib.import_module(full)
+    except ModuleNotFoundError as exc:
+        if exc.name == full:
+            return None
+        raise
+
+
+def make_dvl(ctx: SimContext, settings: DeviceSettings) -> Emulator:
+    """The Pathfinder DVL: ``auvgw.sim_devices.dvl.DvlEmulator(ctx, settings)``."""
+    mod = _optional_module("dvl")
+    if mod is None or not hasattr(mod, "DvlEmulator"):
+        raise DeviceUnavailable("no DVL emulator (auvgw.sim_devices.dvl.DvlEmulator)")
+    return mod.DvlEmulator(ctx, settings)
+
+
+def make_msis(ctx: SimContext, settings: DeviceSettings) -> Emulator:
+    """The Tritech head: :class:`auvgw.sim_devices.msis.MsisHead` with
+    :func:`~auvgw.sim_devices.msis.make_echo` on the world's ray caster, host-polled on a pty.
+
+    Options: ``baud`` (115200), ``beam_width_deg`` (3), ``noise_floor`` (0.1), ``speckle``
+    (1), ``mount_offset_deg`` (0), ``inverted`` (false), ``alive_period_s`` (1),
+    ``tick_hz`` (20: how often the head's own clock is served), ``ping_delay`` (true: a
+    HeadData reply leaves after the ping's duration); gateway polling keys (``range_m``,
+    ``gain``, ``step_deg``, ``left_limit_deg``, ``right_limit_deg``, ``continuous``,
+    ``n_bins``, ``adc8``, ``reply_timeout_s``) go to the gateway configuration's ``msis`` table.
+    """
+    mod = _optional_module("msis")
+    if mod is None or not hasattr(mod, "MsisHead"):
+        raise DeviceUnavailable("no MSIS head (auvgw.sim_devices.msis.MsisHead)")
+    from auvgw.drivers.seanet import SeaNetFramer
+
+    def opt(key: str, default: Any) -> Any:
+        return device_option(settings, "msis", key, default)
+
+    pose_time = [0.0]
+
+    def pose() -> tuple[float, float, float]:
+        return ctx.sampler.at(pose_time[0]).pose
+
+    echo = mod.make_echo(
+        ctx.world,
+        pose,
+        ctx.rng("msis/echo"),
+        beam_width_deg=opt("beam_width_deg", 3.0),
+        noise_floor=opt("noise_floor", 0.1),
+        speckle=opt("speckle", 1.0),
+        mount_offset=math.radians(opt("mount_offset_deg", 0.0)),
+        inverted=opt("inverted", False),
+    )
+    head = mod.MsisHead(
+        echo, sound_speed=ctx.world.sound_speed, alive_period_s=opt("alive_period_s", 1.0)
+    )
+    polling = {k: settings.options[k] for k in _MSIS_POLLING if k in settings.options}
+    em = PolledEmulator(
+        ctx,
+        settings,
+        head,
+        kind="msis",
+        fmt="seanet",
+        framer=SeaNetFramer,
+        baud=opt("baud", 115200),
+        rate_hz=opt("tick_hz", 20.0),
+        extra={"msis": polling} if polling else None,
+        reply_delay=head.ping_duration_s if opt("ping_delay", True) else None,
+    )
+    em.before_feed = lambda t: pose_time.__setitem__(0, t)
+    return em
+
+
+#: device key -> factory(ctx, settings) -> emulator (raises DeviceUnavailable)
+FACTORIES: dict[str, Callable[[SimContext, DeviceSettings], Emulator]] = {
+    "ins": InsEmulator,
+    "dvl": make_dvl,
+    "msis": make_msis,
+    "multibeam": MultibeamEmulator,
+    "magnetometer": MagnetometerEmulator,
+}
+
+
+# -- gateway configuration as TOML ---------------------------------------------------------------
+
+
+def _toml_key(k: str) -> str:
+    return k if k and all(c.isalnum() or c in "_-" for c in k) else json.dumps(k)
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int | float):
+        if isinstance(v, float) and not math.isfinite(v):
+            raise ValueError(f"TOML cannot hold {v}")
+        return repr(v)
+    if isinstance(v, str | Path):
+        return json.dumps(str(v))
+    if isinstance(v, list | tuple):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{ " + ", ".join(f"{_toml_key(k)} = {_toml_value(x)}" for k, x in v.items()) + " }"
+    raise TypeError(f"cannot write {type(v).__name__} as TOML")
+
+
+def gateway_toml(data: dict[str, Any], header: str = "") -> str:
+    """TOML text of a gateway configuration mapping: top-level keys, then one table per
+    second-level mapping (``[bus]``, ``[devices.<name>]``), deeper mappings inline."""
+    lines = [f"# {h}" if h else "#" for h in header.splitlines()]
+    lines += [
+        f"{_toml_key(k)} = {_toml_value(v)}" for k, v in data.items() if not isinstance(v, dict)
+    ]
+    for k, v in data.items():
+        if not isinstance(v, dict):
+            continue
+        if all(isinstance(x, dict) for x in v.values()) and v:
+            for name, table in v.items():
+                lines += ["", f"[{_toml_key(k)}.{_toml_key(name)}]"]
+                lines += [f"{_toml_key(a)} = {_toml_value(b)}" for a, b in table.items()]
+        else:
+            lines += ["", f"[{_toml_key(k)}]"]
+            lines += [f"{_toml_key(a)} = {_toml_value(b)}" for a, b in v.items()]
+    return "\n".join(lines) + "\n"
+
+
+def _process_cpu_s() -> float:
+    ru = resource.getrusage(resource.RUSAGE_SELF)
+    return ru.ru_utime + ru.ru_stime
+
+
+def gateway_config(endpoints: Iterable[Endpoint], vehicle: str = "auv1") -> dict[str, Any]:
+    """A gateway configuration mapping (``config/gateway.py``'s model) for ``endpoints``."""
+    return {"vehicle": vehicle, "devices": {ep.name: ep.gateway_device() for ep in endpoints}}
+
+
+def write_gateway_config(
+    path: str | Path,
+    endpoints: Iterable[Endpoint],
+    vehicle: str,
+    scenario_name: str,
+    port_dir: Path,
+) -> Path:
+    """Validate the configuration with the gateway's own model, then write it as TOML."""
+    from auvgw.config.gateway import parse_gateway_config
+
+    data = gateway_config(endpoints, vehicle)
+    parse_gateway_config(data, source=str(path))  # raises ConfigError naming the field
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    header = (
+        f"auvgw gateway configuration for the emulated vehicle of scenario '{scenario_name}'\n"
+        f"(written by auvgw sim; ports are stable symlinks in {port_dir})"
+    )
+    path.write_text(gateway_toml(data, header))
+    return path
+
+
+# -- the runner ----------------------------------------------------------------------------------
+
+
+class Runner:
+    """World + truth + clock + emulators of one scenario (see the module docstring).
+
+    ``speed``: vehicle seconds per real second (0: as fast as possible). ``out_dir``: port
+    symlinks go to ``out_dir/ports``. ``devices``: build only these (default: every enabled
+    device). ``epoch``: UTC POSIX time of vehicle time 0 (device clocks that carry a date).
+    ``on_truth(sample)``: called with the ground truth at ``truth_rate_hz`` (clock thread; keep
+    it short). ``truth_log``: a ``.jsonl`` or ``.npz`` path.
+    """
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        *,
+        out_dir: str | Path,
+        speed: float = 1.0,
+        devices: Iterable[str] | None = None,
+        epoch: float = DEFAULT_EPOCH,
+        udp_host: str = "127.0.0.1",
+        truth_rate_hz: float = 10.0,
+        on_truth: Callable[[TruthSample], object] | None = None,
+        truth_log: str | Path | None = None,
+    ) -> None:
+        wanted = None if devices is None else list(devices)
+        unknown = sorted(set(wanted or ()) - set(DEVICE_ORDER))
+        if unknown:
+            raise ValueError(
+                f"unknown device(s) {', '.join(unknown)}; known: {', '.join(DEVICE_ORDER)}"
+            )
+        if truth_log is not None and Path(truth_log).suffix not in (".jsonl", ".npz"):
+            raise ValueError(f"truth log {truth_log}: use a .jsonl or .npz file name")
+        if not truth_rate_hz > 0:
+            raise ValueError(f"truth_rate_hz must be > 0, got {truth_rate_hz}")
+        self.scenario = scenario
+        self.out_dir = Path(out_dir)
+        self.world = World.from_scenario(scenario)
+        self.truth = simulate(scenario, self.world)
+        self._anchor: float | None = None
+        self.clock = SimClock(speed, time_fn=self._host_time)
+        self.ctx = SimContext(
+            scenario, self.world, self.truth, self.clock, self.out_dir / "ports", epoch, udp_host
+        )
+        self.truth_rate_hz = float(truth_rate_hz)
+        self.on_truth = on_truth
+        self.truth_log = Path(truth_log) if truth_log is not None else None
+        self.emulators: dict[str, Emulator] = {}
+        self.unavailable: dict[str, str] = {}
+        self._base_faults: dict[str, FaultSettings] = {}
+        self._truth_rows: list[list[float]] = []
+        self._truth_file: Any = None
+        self._truth_task: Any = None
+        self._watch_stop = threading.Event()
+        self._watch_thread: threading.Thread | None = None
+        self._clock_thread: threading.Thread | None = None
+        self._started = False
+        self._closed = False
+        self._stopped_at: float | None = None
+        self._cpu0 = 0.0
+        self._cpu_end: float | None = None
+        self.until: float | None = None
+        try:
+            for kind in DEVICE_ORDER:
+                settings: DeviceSettings = getattr(scenario.devices, kind)
+                if wanted is not None and kind not in wanted:
+                    continue
+                if not settings.enabled:
+                    continue
+                try:
+                    em = FACTORIES[kind](self.ctx, settings)
+                except DeviceUnavailable as exc:
+                    self.unavailable[kind] = str(exc)
+                    continue
+                self.emulators[kind] = em
+                self._base_faults[kind] = settings.faults
+        except BaseException:
+            self.close()
+            raise
+
+    def _host_time(self) -> float:
+        # the clock reads its anchor once, in SimClock.start(): a start_at instant goes there
+        if self._anchor is not None:
+            t, self._anchor = self._anchor, None
+            return t
+        return time.monotonic()
+
+    # -- information ------------------------------------------------------------------------------
+    @property
+    def route_duration(self) -> float:
+        """Vehicle seconds until the route ends."""
+        return self.ctx.sampler.duration
+
+    def endpoints(self) -> list[Endpoint]:
+        """Every port a host opens, device by device."""
+        return [ep for em in self.emulators.values() for ep in em.endpoints()]
+
+    def gateway_config(self, vehicle: str = "auv1") -> dict[str, Any]:
+        """A gateway configuration (``config/gateway.py``'s model as a mapping) pointing at
+        every emulated port (stable symlinks, so the gateway finds replugged ports)."""
+        return gateway_config(self.endpoints(), vehicle)
+
+    def write_gateway_config(self, path: str | Path, vehicle: str = "auv1") -> Path:
+        """Validate :meth:`gateway_config` with the gateway's own model and write it as TOML."""
+        return write_gateway_config(
+            path, self.endpoints(), vehicle, self.scenario.name, self.ctx.port_dir
+        )
+
+    def emulator(self, name: str) -> Emulator:
+        try:
+            return self.emulators[name]
+        except KeyError:
+            raise ValueError(
+                f"no running device {name!r}; running: {', '.join(self.emulators) or 'none'}"
+            ) from None
+
+    @property
+    def vehicle_time(self) -> float:
+        """Vehicle time now, or where the run ended (its duration, or where it was stopped)."""
+        if self._stopped_at is not None:
+            return self._stopped_at
+        now = self.clock.now()
+        return min(now, self.until) if self.until is not None else now
+
+    def stats(self) -> dict[str, Any]:
+        """Per-device counters, the clock's lag figures and the CPU seconds this process
+        used since :meth:`start` (user + system, every thread)."""
+        cpu = _process_cpu_s() - self._cpu0 if self._started else 0.0
+        if self._cpu_end is not None:
+            cpu = self._cpu_end - self._cpu0
+        return {
+            "vehicle_time": self.vehicle_time,
+            "process_cpu_s": cpu,
+            "late_ticks": self.clock.late_ticks,
+            "max_lag_s": self.clock.max_lag,
+            "devices": {k: em.stats() for k, em in self.emulators.items()},
+        }
+
+    # -- faults at run time -----------------------------------------------------------------------
+    def set_faults(self, device: str, **changes: Any) -> FaultSettings:
+        """Change fault knobs of one device now (validated like the scenario file)."""
+        return self.emulator(device).set_faults(**changes)
+
+    def _window_now(self, device: str, key: str, seconds: float) -> FaultSettings:
+        em = self.emulator(device)
+        now = self.clock.now()
+        current = list(getattr(em.faults.settings, key))
+        return em.set_faults(**{key: [*current, (now, now + float(seconds))]})
+
+    def unplug_for(self, device: str, seconds: float) -> FaultSettings:
+        """Unplug the device's ports from now for ``seconds`` vehicle seconds."""
+        return self._window_now(device, "unplug", seconds)
+
+    def stall_for(self, device: str, seconds: float) -> FaultSettings:
+        """Silence the device from now for ``seconds`` vehicle seconds."""
+        return self._window_now(device, "stall", seconds)
+
+    def apply_control(
+        self, control: dict[str, Any], only_mine: bool = False
+    ) -> dict[str, FaultSettings]:
+        """Each device's faults := the scenario's + ``control[device]`` (all validated first;
+        a ValueError names the device and the field). ``only_mine``: entries for devices this
+        runner does not run are skipped (one runner per process) if they name a device."""
+        from pydantic import ValidationError
+
+        if not isinstance(control, dict):
+            raise ValueError("fault control: expected a JSON object {device: {field: value}}")
+        new: dict[str, FaultSettings] = {}
+        for name in control:
+            if only_mine and name in DEVICE_ORDER:
+                continue
+            if name not in self.emulators:
+                raise ValueError(
+                    f"fault control: no running device {name!r}; running: "
+                    f"{', '.join(self.emulators)}"
+                )
+        for name, base in self._base_faults.items():
+            changes = control.get(name, {})
+            if not isinstance(changes, dict):
+                raise ValueError(f"fault control: {name}: expected an object of fault settings")
+            try:
+                new[name] = FaultSettings.model_validate({**base.model_dump(), **changes})
+            except ValidationError as exc:
+                err = exc.errors()[0]
+                field = ".".join(str(p) for p in err["loc"])
+                raise ValueError(f"fault control: {name}.{field}: {err['msg']}") from None
+        for name, fs in new.items():
+            self.emulators[name].set_faults(fs)
+        return new
+
+    def watch_control(
+        self, path: str | Path, interval_s: float = 0.5, only_mine: bool = False
+    ) -> None:
+        """Apply the control file at ``path`` whenever it changes (polled every ``interval_s``
+        real seconds; a bad file is logged and ignored; ``only_mine``: see
+        :meth:`apply_control`)."""
+        path = Path(path)
+
+        def loop() -> None:
+            seen: tuple[int, int] | None = None
+            while not self._watch_stop.wait(interval_s):
+                try:
+                    st = path.stat()
+                except FileNotFoundError:
+                    if seen is not None:
+                        seen = None
+                        self.apply_control({}, only_mine)
+                        log.info("fault control %s removed: scenario faults restored", path)
+                    continue
+                key = (st.st_mtime_ns, st.st_size)
+                if key == seen:
+                    continue
+                seen = key
+                try:
+                    self.apply_control(json.loads(path.read_text() or "{}"), only_mine)
+                    log.warning("fault control %s applied", path)
+                except (OSError, ValueError) as exc:
+                    log.error("fault control %s ignored: %s", path, exc)
+
+        self._watch_thread = threading.Thread(target=loop, name="sim-faults", daemon=True)
+        self._watch_thread.start()
+
+    # -- truth ------------------------------------------------------------------------------------
+    def _truth_tick(self, t: float) -> None:
+        s = self.ctx.sampler.at(t)
+        if self.on_truth is not None:
+            try:
+                self.on_truth(s)
+            except Exception:
+                log.exception("on_truth callback failed")
+        if self.truth_log is None:
+            return
+        if self._truth_file is not None:
+            rec = {f: getattr(s, f) for f in TRUTH_FIELDS}
+            self._truth_file.write(json.dumps(rec, separators=(",", ":")) + "\n")
+        else:
+            self._truth_rows.append([getattr(s, f) for f in TRUTH_FIELDS])
+
+    def _finish_truth_log(self) -> None:
+        if self._truth_file is not None:
+            self._truth_file.close()
+            self._truth_file = None
+        elif self.truth_log is not None and self.truth_log.suffix == ".npz" and self._started:
+            rows = np.asarray(self._truth_rows, float).reshape(-1, len(TRUTH_FIELDS))
+            np.savez(self.truth_log, **{f: rows[:, i] for i, f in enumerate(TRUTH_FIELDS)})
+
+    # -- run --------------------------------------------------------------------------------------
+    def start(self, duration: float | None = None, start_at: float | None = None) -> None:
+        """Start every emulator at vehicle time 0 and run the clock in a thread until
+        ``duration`` vehicle seconds (default: the end of the route). ``start_at``: the host
+        ``time.monotonic()`` instant of vehicle time 0 (runners in several processes share
+        one clock that way; default: now)."""
+        if self._started:
+            raise RuntimeError("the runner was already started")
+        self._started = True
+        self.until = float(duration) if duration is not None else self.route_duration
+        if self.truth_log is not None:
+            self.truth_log.parent.mkdir(parents=True, exist_ok=True)
+            if self.truth_log.suffix == ".jsonl":
+                self._truth_file = self.truth_log.open("w", encoding="utf-8")
+        if self.on_truth is not None or self.truth_log is not None:
+            self._truth_task = self.clock.every(
+                1.0 / self.truth_rate_hz, self._truth_tick, start=0.0, name="truth"
+            )
+        self._cpu0 = _process_cpu_s()
+        for em in self.emulators.values():
+            em.start(0.0)
+        self._anchor = start_at
+        self.clock.start()
+        self._anchor = None
+        self._clock_thread = self.clock.start_thread(until=self.until)
+
+    @property
+    def running(self) -> bool:
+        th = self._clock_thread
+        return th is not None and th.is_alive()
+
+    def wait(self, timeout: float | None = None) -> bool:
+        """Wait (real seconds) for the run to reach its end; True if it did."""
+        th = self._clock_thread
+        if th is None:
+            return False
+        th.join(timeout)
+        return not th.is_alive()
+
+    def stop(self) -> None:
+        """Stop the clock and every emulator (ports stay open, so readers can drain them)."""
+        if self._started and self._stopped_at is None:
+            self._stopped_at = self.vehicle_time
+            self._cpu_end = _process_cpu_s()
+        for em in self.emulators.values():
+            em.stop()
+        if self._truth_task is not None:
+            self._truth_task.cancel()
+        self.clock.close()
+
+    def flush(self, drain_timeout: float = 5.0) -> None:
+        """After :meth:`stop`: send the held-back bad frames and wait (real seconds) until the
+        ports have delivered everything queued."""
+        for em in self.emulators.values():
+            em.flush()
+        for em in self.emulators.values():
+            for ch in em.channels:
+                port = getattr(ch.port, "port", ch.port)  # an SLCAN adapter's pty
+                if hasattr(port, "wait_drained"):
+                    port.wait_drained(drain_timeout)
+
+    def close(self) -> None:
+        """Stop everything, release the ports and write the truth log."""
+        if self._closed:
+            return
+        self._closed = True
+        self._watch_stop.set()
+        if self._watch_thread is not None:
+            self._watch_thread.join(2.0)
+        self.stop()
+        for em in self.emulators.values():
+            with contextlib.suppress(Exception):
+                em.close()
+        self._finish_truth_log()
+
+    def __enter__(self) -> Runner:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+# -- one process per device ----------------------------------------------------------------------
+
+_CHILD = "from auvgw.sim_devices.runner import child_main; child_main()"
+
+
+def _endpoint_dict(ep: Endpoint) -> dict[str, Any]:
+    return dataclasses.asdict(ep)
+
+
+def child_main(argv: list[str] | None = None) -> None:
+    """One device's process of :class:`DeviceProcesses` (stdin/stdout JSON lines protocol):
+    build, print ``{"endpoints", "unavailable"}`` (or ``{"error"}``), wait for ``start T0
+    UNTIL`` (T0 a host monotonic instant) or ``stop``, run until UNTIL (ports open until
+    ``stop``/EOF) or ``stop``/EOF, print ``{"stats"}`` and exit. SIGINT is ignored (the
+    parent stops its children)."""
+    import signal
+
+    from auvgw.config.scenario import ScenarioError, load_scenario
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    args = json.loads((argv or sys.argv[1:])[0])
+    try:
+        scn = load_scenario(args["scenario"])
+        runner = Runner(
+            scn,
+            out_dir=args["out_dir"],
+            speed=args["speed"],
+            devices=[args["device"]],
+            epoch=args["epoch"],
+            udp_host=args["udp_host"],
+        )
+    except (ScenarioError, ValueError, OSError) as exc:
+        print(json.dumps({"error": str(exc)}), flush=True)
+        return
+    try:
+        eps = [_endpoint_dict(ep) for ep in runner.endpoints()]
+        print(json.dumps({"endpoints": eps, "unavailable": runner.unavailable}), flush=True)
+        cmd = sys.stdin.readline().split()
+        if cmd and cmd[0] == "start":
+            runner.start(duration=float(cmd[2]), start_at=float(cmd[1]))
+            if args.get("control"):
+                runner.watch_control(args["control"], only_mine=True)
+            # the ports stay open after the run's end until the parent says stop (or goes
+            # away), so readers can drain them
+            sys.stdin.readline()
+        runner.stop()
+        print(json.dumps({"stats": runner.stats()}), flush=True)
+    finally:
+        runner.close()
+
+
+class DeviceProcesses:
+    """Every device of a scenario in its own process, on one shared clock (vehicle time 0 at
+    the same host instant in every process), so a run uses every core instead of one Python
+    interpreter's. The same surface as :class:`Runner` for ``auvgw sim``: :meth:`endpoints`,
+    :meth:`write_gateway_config`, :meth:`start`, :attr:`running`, :meth:`stop`,
+    :meth:`stats`, :meth:`close`; ground truth (callback, log) stays in this process. The
+    control file is watched by every device process (each applies its own entries)."""
+
+    def __init__(
+        self,
+        scenario_path: str | Path,
+        *,
+        out_dir: str | Path,
+        speed: float = 1.0,
+        devices: Iterable[str] | None = None,
+        epoch: float = DEFAULT_EPOCH,
+        udp_host: str = "127.0.0.1",
+        truth_rate_hz: float = 10.0,
+        on_truth: Callable[[TruthSample], object] | None = None,
+        truth_log: str | Path | None = None,
+        control: str | Path | None = None,
+        startup_timeout_s: float = 120.0,
+    ) -> None:
+        from auvgw.config.scenario import load_scenario
+
+        if speed <= 0:
+            raise ValueError("one process per device needs a real-time clock: speed > 0")
+        unknown = sorted(set(devices or ()) - set(DEVICE_ORDER))
+        if unknown:
+            raise ValueError(
+                f"unknown device(s) {', '.join(unknown)}; known: {', '.join(DEVICE_ORDER)}"
+            )
+        self.scenario_path = Path(scenario_path)
+        self.scenario = load_scenario(self.scenario_path)
+        self.out_dir = Path(out_dir)
+        self.speed = float(speed)
+        self.control = str(control) if control is not None else None
+        # ground truth here (no device): the same world and trajectory as every child builds
+        self.truth_runner = Runner(
+            self.scenario, out_dir=out_dir, speed=speed, devices=[], epoch=epoch,
+            truth_rate_hz=truth_rate_hz, on_truth=on_truth, truth_log=truth_log,
+        )  # fmt: skip
+        wanted = DEVICE_ORDER if devices is None else [d for d in DEVICE_ORDER if d in devices]
+        self.unavailable: dict[str, str] = {}
+        self._endpoints: dict[str, list[Endpoint]] = {}
+        self._stats: dict[str, Any] = {}
+        self.procs: dict[str, subprocess.Popen[str]] = {}
+        try:
+            for kind in wanted:
+                if not getattr(self.scenario.devices, kind).enabled:
+                    continue
+                args = {"scenario": str(self.scenario_path), "out_dir": str(out_dir),
+                        "speed": speed, "device": kind, "epoch": epoch, "udp_host": udp_host,
+                        "control": self.control}  # fmt: skip
+                self.procs[kind] = subprocess.Popen(
+                    [sys.executable, "-c", _CHILD, json.dumps(args)],
+                    stdin=subprocess.PIPE,
+                    stdout=subprocess.PIPE,
+                    text=True,
+                )
+            for kind, proc in list(self.procs.items()):
+                msg = self._read(proc, startup_timeout_s)
+                if msg is None or "error" in msg:
+                    why = "exited" if msg is None else msg["error"]
+                    raise ValueError(f"device process {kind}: {why}")
+                self.unavailable.update(msg["unavailable"])
+                self._endpoints[kind] = [Endpoint(**d) for d in msg["endpoints"]]
+                if not msg["endpoints"]:
+                    self._finish(kind)
+        except BaseException:
+            self.close()
+            raise
+
+    @staticmethod
+    def _read(proc: subprocess.Popen[str], timeout: float) -> dict[str, Any] | None:
+        assert proc.stdout is not None
+        box: list[str] = []
+        th = threading.Thread(target=lambda: box.append(proc.stdout.readline()), daemon=True)  # type: ignore[union-attr]
+        th.start()
+        th.join(timeout)
+        if not box or not box[0]:
+            return None
+        return json.loads(box[0])
+
+    @staticmethod
+    def _send(proc: subprocess.Popen[str], line: str, last: bool = False) -> None:
+        if proc.stdin is None or proc.poll() is not None:
+            return
+        with contextlib.suppress(OSError, ValueError):
+            proc.stdin.write(line + "\n")
+            proc.stdin.flush()
+            if last:
+                proc.stdin.close()
+
+    def _finish(self, kind: str, timeout: float = 30.0) -> None:
+        proc = self.procs.pop(kind)
+        self._send(proc, "stop", last=True)
+        msg = self._read(proc, timeout)
+        if msg is not None and "stats" in msg:
+            self._stats[kind] = msg["stats"]
+        try:
+            proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+    # -- the Runner surface -------------------------------------------------------------------
+    @property
+    def route_duration(self) -> float:
+        return self.truth_runner.route_duration
+
+    @property
+    def emulators(self) -> dict[str, list[Endpoint]]:
+        """Device -> its endpoints (the devices run in other processes)."""
+        return dict(self._endpoints)
+
+    def endpoints(self) -> list[Endpoint]:
+        return [ep for eps in self._endpoints.values() for ep in eps]
+
+    def write_gateway_config(self, path: str | Path, vehicle: str = "auv1") -> Path:
+        return write_gateway_config(
+            path, self.endpoints(), vehicle, self.scenario.name, self.out_dir / "ports"
+        )
+
+    def watch_control(self, path: str | Path, interval_s: float = 0.5) -> None:
+        """The device processes watch the control file given at construction."""
+        if self.control is None or Path(path) != Path(self.control):
+            raise ValueError("give the control file to DeviceProcesses(control=...)")
+
+    def start(self, duration: float | None = None, lead_s: float = 0.5) -> None:
+        """Vehicle time 0 in ``lead_s`` real seconds, in every process."""
+        until = float(duration) if duration is not None else self.route_duration
+        t0 = time.monotonic() + lead_s
+        for proc in self.procs.values():
+            self._send(proc, f"start {t0!r} {until!r}")
+        self.truth_runner.start(duration=until, start_at=t0)
+
+    @property
+    def running(self) -> bool:
+        """Until the shared clock reaches the end (the device processes keep their ports open
+        until :meth:`stop`)."""
+        return self.truth_runner.running and any(p.poll() is None for p in self.procs.values())
+
+    def wait(self, timeout: float | None = None) -> bool:
+        end = None if timeout is None else time.monotonic() + timeout
+        while self.running:
+            if end is not None and time.monotonic() > end:
+                return False
+            time.sleep(0.05)
+        return True
+
+    def stop(self) -> None:
+        """Stop every device process (collecting its counters) and the truth clock."""
+        self.truth_runner.stop()
+        for kind in list(self.procs):
+            self._finish(kind)
+
+    def stats(self) -> dict[str, Any]:
+        """Per-device counters as :meth:`Runner.stats` (after :meth:`stop`), merged."""
+        out: dict[str, Any] = {
+            "vehicle_time": self.truth_runner.vehicle_time,
+            "process_cpu_s": self.truth_runner.stats()["process_cpu_s"],
+            "late_ticks": 0,
+            "max_lag_s": 0.0,
+            "devices": {},
+        }
+        for st in self._stats.values():
+            out["process_cpu_s"] += st["process_cpu_s"]
+            out["late_ticks"] += st["late_ticks"]
+            out["max_lag_s"] = max(out["max_lag_s"], st["max_lag_s"])
+            out["devices"].update(st["devices"])
+        return out
+
+    def close(self) -> None:
+        for kind in list(self.procs):
+            with contextlib.suppress(Exception):
+                self._finish(kind, timeout=5.0)
+        self.truth_runner.close()
+
+    def __enter__(self) -> DeviceProcesses:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
