@@ -1,0 +1,7 @@
+"""``python -m auvgw``: the same as the ``auvgw`` console script."""
+
+import sys
+
+from auvgw.cli import main
+
+sys.exit(main())
