@@ -15,6 +15,13 @@ import sys
 #: command modules, in the order ``auvgw --help`` lists them
 COMMANDS: list[str] = [
     "auvgw.commands.decode",
+    "auvgw.commands.router",
+    "auvgw.commands.run",
+    "auvgw.commands.record",
+    "auvgw.commands.replay",
+    "auvgw.commands.viz",
+    "auvgw.commands.sim",
+    "auvgw.commands.fusion",
 ]
 
 

@@ -45,6 +45,7 @@ def _read_serial(
     ep: dict[str, Any], counts: dict[str, int], stop: threading.Event, opened: threading.Event
 ) -> None:
     import serial
+
     from auvgw.drivers.formats import get_format
 
     fmt = get_format(ep["format"])
@@ -55,7 +56,6 @@ def _read_serial(
     write = s.write
     if ep["format"] == "seanet":
         from auvgw.config.gateway import MsisPolling
-
         from auvgw.msis_host import SeaNetHost
 
         host = SeaNetHost(MsisPolling(**ep.get("msis", {})))
@@ -83,6 +83,7 @@ def _read_can(
     """The adapter's pty read in bulk, its SLCAN lines parsed as the adapter parses the host's
     (python-can's ``slcan`` reads one byte per call and cannot drain 10x an INS's bursts)."""
     import serial
+
     from auvgw.drivers.can_codec import load_can_codec
     from auvgw.sim_devices.slcan import BITRATES, _parse_frame
 

@@ -20,6 +20,7 @@ import statistics
 import time
 
 import numpy as np
+
 from auvgw.fusion import DvlMount, FusionConfig, InitialState, NavFilter, run_filter_arrays
 from auvgw.fusion.synthetic import lawnmower, simulate_sensors
 

@@ -35,7 +35,6 @@ import time
 from pathlib import Path
 
 from auvgw.drivers import pd0
-
 from auvgw.paths import REPO_ROOT, shared_dir
 
 VENV = REPO_ROOT / ".bench" / "dolfyn-venv"

@@ -28,9 +28,9 @@ from pathlib import Path
 from typing import Any
 
 import cantools
+
 from auvgw.drivers.spec import message
 from auvgw.drivers.tablecodec import UNITS
-
 from auvgw.paths import config_file
 
 __all__ = [

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
 from auvgw.drivers.formats import Format
 from auvgw.drivers.framing import ErrorPolicy
 from auvgw.drivers.tablecodec import (
@@ -27,7 +28,6 @@ from auvgw.drivers.tablecodec import (
     load_toml,
     parse_binary_table,
 )
-
 from auvgw.paths import config_file
 
 __all__ = [

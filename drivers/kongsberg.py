@@ -37,6 +37,7 @@ from collections.abc import Collection, Mapping
 from typing import Any, ClassVar
 
 import numpy as np
+
 from auvgw.drivers.formats import Format
 from auvgw.drivers.framing import BadFrame, DecodeError, ErrorPolicy, Framer
 from auvgw.drivers.spec import (

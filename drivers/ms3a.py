@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
 from auvgw.drivers.formats import Format
 from auvgw.drivers.framing import ErrorPolicy
 from auvgw.drivers.tablecodec import (
@@ -25,7 +26,6 @@ from auvgw.drivers.tablecodec import (
     load_toml,
     parse_ascii_table,
 )
-
 from auvgw.paths import config_file
 
 __all__ = ["CODEC", "FORMAT", "REQUIRED_FIELDS", "Ms3aCodec", "Ms3aFramer", "Ms3aSample"]

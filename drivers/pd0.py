@@ -53,6 +53,7 @@ from enum import IntEnum
 from typing import Any, ClassVar
 
 import numpy as np
+
 from auvgw.drivers.formats import Format
 from auvgw.drivers.framing import BadFrame, DecodeError, Framer
 from auvgw.drivers.spec import (

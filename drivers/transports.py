@@ -41,6 +41,8 @@ from typing import Any, ClassVar, NoReturn, Self
 
 import can
 import serial
+from serial.urlhandler import protocol_socket
+
 from auvgw.config.transport import (
     CAN_EXT_MAX,
     CAN_STD_MAX,
@@ -51,7 +53,6 @@ from auvgw.config.transport import (
     UdpTransportConfig,
     parse_transport_config,
 )
-from serial.urlhandler import protocol_socket
 
 __all__ = [
     "CanTransport",

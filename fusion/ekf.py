@@ -47,10 +47,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.stats import chi2
+
 from auvgw.fusion.config import FusionConfig
 from auvgw.fusion.frames import mount_matrix, wrap_angle
 from auvgw.fusion.samples import DvlFrame, InsSample
-from scipy.stats import chi2
 
 __all__ = ["N_STATE", "STATE_NAMES", "DeadReckoningEKF", "arc_weights", "gm_factor"]
 

@@ -11,6 +11,7 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
+
 from auvgw.fusion.config import DvlMount
 from auvgw.fusion.samples import DvlSample, InsSample
 

@@ -20,6 +20,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+
 from auvgw.fusion.align import AidingSample, BufferStats, ReorderBuffer, interpolate_ins
 from auvgw.fusion.config import FusionConfig
 from auvgw.fusion.ekf import DeadReckoningEKF

@@ -11,6 +11,7 @@ import math
 from typing import ClassVar
 
 import numpy as np
+
 from auvgw.drivers.spec import message
 from auvgw.fusion.ekf import STATE_NAMES
 

@@ -13,6 +13,7 @@ from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+
 from auvgw.fusion.config import FusionConfig
 from auvgw.fusion.navfilter import FusionStats, NavFilter
 from auvgw.fusion.odometry import Odometry

@@ -18,10 +18,11 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.signal import lfilter
+
 from auvgw.fusion.config import DvlMount
 from auvgw.fusion.frames import mount_matrix, wrap_angles
 from auvgw.fusion.samples import DepthSample, DvlFrame, DvlSample, InsSample
-from scipy.signal import lfilter
 
 __all__ = ["SensorNoise", "SimulatedSensors", "Trajectory", "lawnmower", "simulate_sensors"]
 

@@ -67,6 +67,7 @@ from typing import Any, ClassVar, Protocol
 
 import can
 import numpy as np
+
 from auvgw.config.scenario import DeviceSettings, FaultSettings, Scenario
 from auvgw.drivers.can_codec import CanFrame
 from auvgw.drivers.framing import ErrorPolicy, Framer

@@ -37,6 +37,7 @@ from dataclasses import asdict, dataclass
 from typing import Any, Protocol
 
 import numpy as np
+
 from auvgw.config.scenario import FaultSettings
 from auvgw.drivers.framing import ErrorPolicy, Framer
 

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+
 from auvgw.config.scenario import DeviceSettings
 from auvgw.drivers import hn100
 from auvgw.drivers.can_codec import hn100_can

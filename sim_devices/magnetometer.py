@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+
 from auvgw.config.scenario import DeviceSettings
 from auvgw.drivers import ms3a
 from auvgw.drivers.can_codec import ms3a_can

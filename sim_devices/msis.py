@@ -44,6 +44,7 @@ from dataclasses import asdict, dataclass
 from typing import Any, Protocol
 
 import numpy as np
+
 from auvgw.drivers import seanet as sn
 from auvgw.drivers.framing import DecodeError, ErrorPolicy
 

@@ -27,6 +27,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
 from auvgw.config.scenario import DeviceSettings
 from auvgw.drivers import kongsberg
 from auvgw.sim_devices.emulator import Emulator, SimContext

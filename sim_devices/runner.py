@@ -51,6 +51,7 @@ from types import ModuleType
 from typing import Any
 
 import numpy as np
+
 from auvgw.config.scenario import DeviceSettings, FaultSettings, Scenario
 from auvgw.sim_devices.clock import SimClock
 from auvgw.sim_devices.emulator import (

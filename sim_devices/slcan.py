@@ -27,6 +27,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import can
+
 from auvgw.sim_devices.clock import SimClock
 from auvgw.sim_devices.ports import PtyPort
 

@@ -25,6 +25,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+
 from auvgw.config.scenario import Scenario, Vehicle
 from auvgw.sim_devices.world import TerrainModel, World, wrap_angle
 

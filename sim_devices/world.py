@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
+
 from auvgw.config.scenario import ObservationSettings, Scenario, ScenarioError, Terrain
 
 __all__ = [

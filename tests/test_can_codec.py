@@ -12,12 +12,12 @@ from pathlib import Path
 import can
 import cantools
 import pytest
-from auvgw.drivers.can_codec import CanCodecError, CanFrame, DbcCodec, hn100_can, ms3a_can
-from auvgw.drivers.ms3a import CODEC as MS3A_ASCII
-from auvgw.drivers.spec import to_jsonable
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from auvgw.drivers.can_codec import CanCodecError, CanFrame, DbcCodec, hn100_can, ms3a_can
+from auvgw.drivers.ms3a import CODEC as MS3A_ASCII
+from auvgw.drivers.spec import to_jsonable
 from auvgw.paths import config_file
 
 HN = hn100_can()

@@ -17,6 +17,7 @@ import can
 import numpy as np
 import pytest
 import serial
+
 from auvgw.config.gateway import load_gateway_config
 from auvgw.config.scenario import Scenario
 from auvgw.drivers import hn100, kongsberg, ms3a

@@ -8,13 +8,14 @@ import threading
 import numpy as np
 import pytest
 import serial
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from pydantic import ValidationError
+
 from auvgw.config.scenario import FaultSettings
 from auvgw.drivers.framing import BadFrame, ErrorPolicy, Framer
 from auvgw.sim_devices.faults import FaultInjector, in_windows
 from auvgw.sim_devices.ports import PtyPort
-from hypothesis import given, settings
-from hypothesis import strategies as st
-from pydantic import ValidationError
 
 
 class ToyFramer(Framer):

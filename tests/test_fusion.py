@@ -14,6 +14,11 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.integrate import quad
+from scipy.spatial.transform import Rotation
+
 from auvgw.drivers.spec import from_jsonable, to_jsonable
 from auvgw.fusion import (
     DepthSample,
@@ -32,10 +37,6 @@ from auvgw.fusion.align import ReorderBuffer, interp_angle, interpolate_ins
 from auvgw.fusion.ekf import arc_weights, gm_factor
 from auvgw.fusion.frames import dvl_to_body_velocity, dvl_velocity_ned, mount_matrix, wrap_angle
 from auvgw.fusion.synthetic import lawnmower, simulate_sensors
-from hypothesis import given, settings
-from hypothesis import strategies as st
-from scipy.integrate import quad
-from scipy.spatial.transform import Rotation
 
 T0 = 1000.0  # a non-zero start time on purpose
 RATE = 100.0

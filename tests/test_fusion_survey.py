@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from auvgw.fusion import DvlMount, FusionConfig, InitialState, run_filter_arrays
 from auvgw.fusion.offline import OdometryArrays
 from auvgw.fusion.synthetic import SensorNoise, Trajectory, lawnmower, simulate_sensors

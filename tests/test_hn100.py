@@ -13,14 +13,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
 from auvgw.drivers.formats import get_format
 from auvgw.drivers.framing import DecodeError, ErrorPolicy, FrameError
 from auvgw.drivers.hn100 import CODEC, FORMAT, Hn100Codec, Hn100Framer, Hn100Nav
 from auvgw.drivers.spec import WireError, raw_value, to_jsonable
 from auvgw.drivers.tablecodec import CHECKSUMS, TableError
-from hypothesis import HealthCheck, given, settings
-from hypothesis import strategies as st
-
 from auvgw.paths import REPO_ROOT, config_file
 
 SHIPPED = config_file("hn100.toml")

@@ -14,11 +14,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
 from auvgw.drivers import kongsberg as kb
 from auvgw.drivers.framing import BadFrame, DecodeError, ErrorPolicy, FrameError
 from auvgw.drivers.spec import WireError, raw_value, to_jsonable
-from hypothesis import given, settings
-from hypothesis import strategies as st
 
 AUVGW = Path(sys.executable).parent / "auvgw"
 CLI = [str(AUVGW)] if AUVGW.exists() else [sys.executable, "-m", "auvgw.cli"]

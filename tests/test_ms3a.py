@@ -11,14 +11,14 @@ from functools import reduce
 from pathlib import Path
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
 from auvgw.drivers.formats import get_format
 from auvgw.drivers.framing import DecodeError, ErrorPolicy, FrameError
 from auvgw.drivers.ms3a import CODEC, FORMAT, Ms3aCodec, Ms3aFramer, Ms3aSample
 from auvgw.drivers.spec import WireError, raw_value, to_jsonable
 from auvgw.drivers.tablecodec import TableError
-from hypothesis import given, settings
-from hypothesis import strategies as st
-
 from auvgw.paths import REPO_ROOT, config_file
 
 SHIPPED_TEXT = config_file("ms3a.toml").read_text()

@@ -8,12 +8,13 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
 from auvgw.drivers import seanet as sn
 from auvgw.drivers.spec import raw_value
 from auvgw.sim_devices.msis import MsisHead, make_echo, quantise
 from auvgw.sim_devices.world import World
-from hypothesis import given, settings
-from hypothesis import strategies as st
 
 UNITS = sn.ANGLE_UNITS_PER_TURN
 

@@ -15,17 +15,17 @@ import tty
 import numpy as np
 import pytest
 import serial
+
 from auvgw.config.gateway import MsisPolling
 from auvgw.config.scenario import FaultSettings
 from auvgw.drivers import seanet as sn
 from auvgw.drivers.spec import raw_value
+from auvgw.msis_host import HostState, SeaNetHost, command_from_config
 from auvgw.sim_devices.clock import SimClock
 from auvgw.sim_devices.faults import FaultInjector
 from auvgw.sim_devices.msis import MsisHead, make_echo, serve_on_port
 from auvgw.sim_devices.ports import PtyPort
 from auvgw.sim_devices.world import World
-
-from auvgw.msis_host import HostState, SeaNetHost, command_from_config
 
 UNITS = sn.ANGLE_UNITS_PER_TURN
 

@@ -14,6 +14,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
+
 from auvgw.drivers import pd0
 from auvgw.drivers.formats import get_format
 from auvgw.drivers.framing import DecodeError, ErrorPolicy, FrameError, read_file_frames
@@ -26,9 +30,6 @@ from auvgw.drivers.spec import (
     raw_value,
     to_jsonable,
 )
-from hypothesis import HealthCheck, given, settings
-from hypothesis import strategies as st
-from hypothesis.extra import numpy as hnp
 
 KNOWN = tuple(pd0._TABLES)  # data type IDs this module decodes
 CELL_IDS = (pd0.ID_VELOCITY, pd0.ID_CORRELATION, pd0.ID_ECHO_INTENSITY, pd0.ID_PERCENT_GOOD)

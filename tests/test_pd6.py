@@ -13,12 +13,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
 from auvgw.drivers import pd6
 from auvgw.drivers.formats import get_format
 from auvgw.drivers.framing import DecodeError, ErrorPolicy, FrameError
 from auvgw.drivers.spec import WireError, to_jsonable
-from hypothesis import given, settings
-from hypothesis import strategies as st
 
 #: one Pathfinder PD6 ensemble, fields at the widths of the guide's Table 50
 LINES = [

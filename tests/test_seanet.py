@@ -10,11 +10,12 @@ import struct
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
 from auvgw.drivers import seanet as sn
 from auvgw.drivers.framing import DecodeError, ErrorPolicy, FrameError
 from auvgw.drivers.spec import WireError, from_jsonable, raw_value, table_rows, to_jsonable
-from hypothesis import HealthCheck, given, settings
-from hypothesis import strategies as st
 
 # -- helpers ----------------------------------------------------------------------------------
 

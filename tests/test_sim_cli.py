@@ -14,6 +14,7 @@ from pathlib import Path
 import can
 import pytest
 import serial
+
 from auvgw.config.gateway import load_gateway_config
 from auvgw.drivers import hn100, ms3a
 from auvgw.drivers.can_codec import hn100_can

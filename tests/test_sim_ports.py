@@ -11,6 +11,7 @@ import can
 import numpy as np
 import pytest
 import serial
+
 from auvgw.sim_devices.clock import SimClock
 from auvgw.sim_devices.ports import Pacer, PtyPort, UdpSender
 from auvgw.sim_devices.slcan import SlcanAdapter, can_frame_bits, encode_frame

@@ -10,7 +10,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
 from auvgw.config.scenario import ObservationSettings, Scenario, ScenarioError, load_scenario
+from auvgw.paths import config_file
 from auvgw.sim_devices.clock import SimClock
 from auvgw.sim_devices.vehicle import (
     bicycle_step,
@@ -30,10 +34,6 @@ from auvgw.sim_devices.world import (
     cast_swath,
     dipole_field,
 )
-from hypothesis import given, settings
-from hypothesis import strategies as st
-
-from auvgw.paths import config_file
 
 SCENARIOS = sorted(Path(str(config_file("scenarios"))).glob("*.json"))
 NEEDS_SHARED = {"webmap", "densemap"}

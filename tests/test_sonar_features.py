@@ -8,8 +8,12 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
+
 from auvgw.config.scenario import load_scenario
 from auvgw.drivers import seanet as sn
+from auvgw.paths import config_file
 from auvgw.sim_devices.msis import MsisHead, make_echo
 from auvgw.sim_devices.vehicle import simulate
 from auvgw.sim_devices.world import World
@@ -39,10 +43,6 @@ from auvgw.slam.features import (
 )
 from auvgw.slam.features.points import segment_distance
 from auvgw.slam.models import LineFeature, RangeBearing
-from hypothesis import assume, given, settings
-from hypothesis import strategies as st
-
-from auvgw.paths import config_file
 
 DEG = math.pi / 180.0
 

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+
 from auvgw.drivers.framing import BadFrame, ErrorPolicy, FrameError, Framer
 from auvgw.drivers.spec import (
     WireError,

@@ -17,6 +17,8 @@ import uuid
 from pathlib import Path
 
 import pytest
+from pydantic import BaseModel, ValidationError
+
 from auvgw.config.transport import (
     FileTransportConfig,
     TransportConfig,
@@ -39,7 +41,6 @@ from auvgw.drivers.transports import (
     open_transport,
     replay_schedule,
 )
-from pydantic import BaseModel, ValidationError
 
 DOCS = Path(__file__).resolve().parent.parent / "docs" / "transports.md"
 

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from auvgw.drivers import seanet as sn
 from auvgw.drivers import v4log as v4
 from auvgw.drivers.framing import ErrorPolicy
