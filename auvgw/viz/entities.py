@@ -1,0 +1,98 @@
+"""Entity paths of an auvgw recording (one place, shared by the logger, the blueprint and docs).
+
+``map/...`` is the 2-D map (horizontal = east, vertical = north up; see ``docs/viz.md``),
+``world/...`` the 3-D scene in NED metres, ``sonar/...`` the MSIS fan image in pixels, and
+``ins``, ``dvl``, ``mag``, ``health`` hold time series.
+"""
+
+from __future__ import annotations
+
+import functools
+
+__all__ = [
+    "APPLICATION_ID",
+    "DVL_ALTITUDE",
+    "DVL_BOTTOM_LOCK",
+    "DVL_VELOCITY",
+    "INS_ATTITUDE",
+    "MAG_FIELD",
+    "MAG_MAGNITUDE",
+    "MAP",
+    "MAP_BATHYMETRY",
+    "MEAN_DEPTH",
+    "SONAR",
+    "SONAR_BEAM",
+    "SONAR_FAN",
+    "SOUNDINGS",
+    "TIMELINE",
+    "VEHICLE",
+    "VEHICLE_MAG",
+    "VIZ_DROPPED",
+    "WORLD",
+    "events_path",
+    "health_path",
+    "map_path",
+    "track_segment",
+    "world_path",
+]
+
+#: the Rerun application id of every auvgw recording (blueprints are matched to it)
+APPLICATION_ID = "auvgw"
+#: the timeline every entity is logged on: device time, s (a timestamp unless told otherwise)
+TIMELINE = "sensor_time"
+
+MAP = "map"
+WORLD = "world"
+SONAR = "sonar"
+
+#: gridded mean depth on the map: the cells updated since the previous log, as discs in depth
+#: colours (the layout accumulates them)
+MAP_BATHYMETRY = f"{MAP}/bathymetry"
+#: the gridded mean depths at the end of the recording (DepthImage, m, 0 = no sounding; pixel
+#: (col, row) at map coordinates translation + (col, row) x cell); outside the views
+MEAN_DEPTH = "bathymetry/mean_depth"
+#: vehicle body frame: Transform3D (INS attitude, position of the navigation track)
+VEHICLE = f"{WORLD}/vehicle"
+#: magnetic field vector in the vehicle frame (Arrows3D, scaled)
+VEHICLE_MAG = f"{VEHICLE}/magnetometer"
+#: every multibeam sounding, NED (Points3D coloured by depth, accumulated by the blueprint)
+SOUNDINGS = f"{WORLD}/multibeam/soundings"
+SONAR_FAN = f"{SONAR}/fan"
+SONAR_BEAM = f"{SONAR}/beam"
+INS_ATTITUDE = "ins/attitude"
+DVL_VELOCITY = "dvl/velocity"
+DVL_ALTITUDE = "dvl/altitude"
+DVL_BOTTOM_LOCK = "dvl/bottom_lock"
+MAG_FIELD = "mag/field"
+MAG_MAGNITUDE = "mag/magnitude"
+#: the logger's own drop counter (the stage's counters are the device ``viz`` health)
+VIZ_DROPPED = "health/viz/logger_dropped"
+
+
+@functools.lru_cache(maxsize=4096)
+def track_segment(name: str) -> str:
+    """Path segment of a trajectory name (``truth``, ``dead_reckoning``, ``slam/fastslam2``):
+    lower case, characters other than letters, digits, ``_``, ``-`` and ``/`` become ``_``."""
+    out = "".join(c if c.isalnum() or c in "_-/" else "_" for c in name.strip().lower())
+    out = "/".join(p for p in out.split("/") if p)
+    return out or "unnamed"
+
+
+def map_path(name: str, what: str) -> str:
+    """2-D map entity of trajectory ``name``: ``map/<name>/<what>``."""
+    return f"{MAP}/{track_segment(name)}/{what}"
+
+
+def world_path(name: str, what: str) -> str:
+    """3-D entity of trajectory ``name``: ``world/<name>/<what>``."""
+    return f"{WORLD}/{track_segment(name)}/{what}"
+
+
+def health_path(device: str) -> str:
+    """Health series of one device (one series per metric): ``health/<device>/status``."""
+    return f"health/{track_segment(device)}/status"
+
+
+def events_path(device: str) -> str:
+    """Text events of one device: ``health/<device>/events``."""
+    return f"health/{track_segment(device)}/events"

@@ -1,0 +1,90 @@
+"""Read an auvgw ``.rrd`` back (tests, benchmarks, quick checks of a recording).
+
+:func:`read_recording` gives, per entity path, the rows on the ``sensor_time`` timeline in time
+order (each component as a list of per-row values) and the static components;
+:func:`read_views` lists the views of the layout stored with the recording.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+from rerun.chunk import RrdReader
+
+from auvgw.viz.entities import TIMELINE
+
+__all__ = ["EntityRows", "read_recording", "read_views"]
+
+
+@dataclass
+class EntityRows:
+    """Rows of one entity: ``times`` (ns on ``sensor_time``, sorted), ``columns`` (component
+    name such as ``Scalars:scalars`` -> one value per row) and ``static`` components."""
+
+    times: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    columns: dict[str, list[Any]] = field(default_factory=dict)
+    static: dict[str, Any] = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.times)
+
+    def values(self, component: str) -> list[Any]:
+        """Per-row values of ``component`` (``None`` where a row lacks it)."""
+        return self.columns.get(component, [None] * len(self))
+
+
+def _component_names(rb: pa.RecordBatch) -> list[str]:
+    return [n for n in rb.schema.names if ":" in n and not n.startswith("rerun.")]
+
+
+def read_recording(path: str | Path, timeline: str = TIMELINE) -> dict[str, EntityRows]:
+    """Entity path (without the leading ``/``) -> :class:`EntityRows` of the first recording."""
+    parts: dict[str, list[tuple[np.ndarray, dict[str, list[Any]]]]] = {}
+    out: dict[str, EntityRows] = {}
+    for chunk in RrdReader(str(path)).stream():
+        entity = chunk.entity_path.lstrip("/")
+        rb = chunk.to_record_batch()
+        rows = out.setdefault(entity, EntityRows())
+        if chunk.is_static:
+            for name in _component_names(rb):
+                rows.static[name] = rb.column(name).to_pylist()[-1]
+            continue
+        if timeline not in rb.schema.names:
+            continue
+        times = rb.column(timeline).cast(pa.int64()).to_numpy(zero_copy_only=False)
+        cols = {name: rb.column(name).to_pylist() for name in _component_names(rb)}
+        parts.setdefault(entity, []).append((times, cols))
+    for entity, chunks in parts.items():
+        times = np.concatenate([t for t, _ in chunks])
+        names = sorted({n for _, c in chunks for n in c})
+        merged = {n: [v for t, c in chunks for v in c.get(n, [None] * len(t))] for n in names}
+        order = np.argsort(times, kind="stable")
+        rows = out[entity]
+        rows.times = times[order]
+        rows.columns = {n: [vals[i] for i in order] for n, vals in merged.items()}
+    return out
+
+
+def read_views(path: str | Path) -> list[tuple[str, str, str]]:
+    """(class, display name, origin) of every view in the last layout stored in ``path``."""
+    reader = RrdReader(str(path))
+    stores = reader.blueprints()
+    if not stores:
+        return []
+    views: list[tuple[str, str, str]] = []
+    for chunk in reader.stream(store=stores[-1]):
+        rb = chunk.to_record_batch()
+        if "ViewBlueprint:class_identifier" not in rb.schema.names:
+            continue
+        for cls, name, origin in zip(
+            rb.column("ViewBlueprint:class_identifier").to_pylist(),
+            rb.column("ViewBlueprint:display_name").to_pylist(),
+            rb.column("ViewBlueprint:space_origin").to_pylist(),
+            strict=True,
+        ):
+            views.append((cls[0], name[0] if name else "", origin[0] if origin else ""))
+    return views

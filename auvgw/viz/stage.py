@@ -1,0 +1,662 @@
+"""The Rerun bus stage: bus messages in, :class:`~auvgw.viz.logger.RerunLogger` calls out.
+
+Subscribes to ``auv/<v>/{sensor,nav,slam,truth,status}/**`` (raw frames are not needed: the
+decoded envelopes carry everything shown) and maps each message to logger calls:
+
+============================================  ==================================================
+``sensor/<dev>/xyz88``, ``depth`` (Kongsberg)  swath points + bathymetric grid, placed at the
+                                               latest navigation pose (``nav``, else ``truth``)
+``sensor/<dev>/ensemble`` (PD0)                DVL velocity (bottom track, vehicle over bottom),
+                                               altitude, bottom lock
+``sensor/<dev>/headdata`` (SeaNet mtHeadData)  MSIS scan line into the sonar fan
+any message with ``roll, pitch, heading``      INS attitude (HN-100 binary or CAN sample)
+any message with ``bx, by, bz`` (nT)           magnetometer (MS3A ASCII or CAN sample)
+``nav/odometry``                               ``dead_reckoning`` trajectory with its covariance
+``slam/<p>/pose``                              ``slam/<p>`` trajectory (+ particles if carried)
+``slam/<p>/landmarks``, ``slam/<p>/map``       landmarks with covariances, line features
+``truth/<what>``                               ``truth`` trajectory, true landmarks and lines
+``status/<device>``                            per-device health series + connection events
+============================================  ==================================================
+
+Messages of other types are skipped and counted per type (:attr:`StageStats.unknown`); a
+message that fails to map is counted (:attr:`StageStats.errors`) and never stops the stage.
+The JSON accepted on ``slam/``, ``truth/`` and ``nav/`` is documented in ``docs/viz.md``.
+
+Time: each message goes on ``sensor_time`` at its device time where the wire carries a UTC
+clock that agrees with the host (Kongsberg, PD0), else at the device time mapped onto the host
+clock (:class:`DeviceClock`: INS time since power-up, simulation time, an emulator's epoch),
+else at the gateway's receive time.
+
+The Zenoh callback only copies the payload into a bounded queue (dropping with a counter when
+full); a stage thread does the JSON decoding and mapping.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import math
+import queue
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from auvgw.bus import SCHEMA_VERSION, Keys
+from auvgw.drivers.spec import MESSAGE_TYPES, from_jsonable
+from auvgw.viz.logger import RerunLogger, VizOptions
+
+__all__ = ["SECTIONS", "DeviceClock", "StageStats", "VizRunner", "VizStage", "open_viz"]
+
+log = logging.getLogger(__name__)
+
+#: bus sections the stage subscribes to
+SECTIONS: tuple[str, ...] = ("sensor", "nav", "slam", "truth", "status")
+#: device clocks later than this (2001-09-09, POSIX s) are taken as absolute UTC
+ABSOLUTE_CLOCK_S = 1e9
+
+#: sensor message types that carry nothing to show (replies, configuration, raw blocks)
+IGNORED_TYPES = frozenset(
+    {
+        "mtAlive", "mtVersionData", "mtSendData", "mtHeadCommand", "mtReBoot", "mtSendVersion",
+        "mtSendBBUser", "SeaNetRaw", "KongsbergDatagram", "pd0.RawBlock", "MotionIncrement",
+    }
+)  # fmt: skip
+
+#: driver modules whose message classes the stage rebuilds from JSON (imported lazily, so a
+#: codec module that is missing or broken only loses its own messages)
+_CODEC_MODULES = (
+    "auvgw.drivers.kongsberg",
+    "auvgw.drivers.pd0",
+    "auvgw.drivers.seanet",
+)
+
+
+class _Obj:
+    """Attribute access to a JSON object (for messages without a registered class)."""
+
+    __slots__ = ("_d",)
+
+    def __init__(self, d: Mapping[str, Any]) -> None:
+        self._d = d
+
+    def __getattr__(self, name: str) -> Any:
+        try:
+            return self._d[name]
+        except KeyError:
+            raise AttributeError(name) from None
+
+
+class DeviceClock:
+    """Maps one source's device clock (s) onto the host clock (POSIX s).
+
+    A UTC clock that agrees with the host within ``sync_s`` (a GPS-disciplined sonar, a DVL
+    set at dive start) passes through. Any other clock (time since power-up, simulation time,
+    an RTC set to another epoch) gets the smallest host-minus-device offset seen so far (the
+    least delayed sample), re-anchored when the offset grows by more than ``jump_s`` (clock
+    reset or jump): the samples keep the device's own spacing on the host's time line.
+    """
+
+    def __init__(self, jump_s: float = 1.0, sync_s: float = 60.0) -> None:
+        self.jump_s = jump_s
+        self.sync_s = sync_s
+        self.offset: float | None = None
+
+    def __call__(self, t_device: float | None, t_host: float) -> float:
+        if t_device is None or not math.isfinite(t_device):
+            return t_host
+        d = t_host - t_device
+        if t_device > ABSOLUTE_CLOCK_S and abs(d) <= self.sync_s:
+            return t_device
+        if self.offset is None or d < self.offset or d > self.offset + self.jump_s:
+            self.offset = d
+        return t_device + self.offset
+
+
+@dataclass
+class StageStats:
+    """Counters: samples received, dropped (queue full), mapped to the logger, skipped as
+    uninteresting (``ignored``), unknown types (per type) and mapping errors."""
+
+    received: int = 0
+    dropped: int = 0
+    logged: int = 0
+    ignored: int = 0
+    errors: int = 0
+    unknown: Counter[str] = field(default_factory=Counter)
+    last_error: str = ""
+
+
+def _float(v: Any, default: float = math.nan) -> float:
+    try:
+        return float(v) if v is not None else default
+    except (TypeError, ValueError):
+        return default
+
+
+def _get(obj: Any, *names: str) -> Any:
+    """First attribute or key of ``obj`` among ``names`` (None if none)."""
+    for n in names:
+        v = obj.get(n) if isinstance(obj, Mapping) else getattr(obj, n, None)
+        if v is not None:
+            return v
+    return None
+
+
+def _numeric_leaves(body: Mapping[str, Any], limit: int = 16) -> dict[str, float]:
+    """Numbers of a status object, nested objects flattened as ``a.b`` (two levels), at most
+    ``limit``; the schema version and times in ns are left out."""
+    out: dict[str, float] = {}
+
+    def walk(obj: Mapping[str, Any], prefix: str, depth: int) -> None:
+        for k, v in obj.items():
+            if len(out) >= limit:
+                return
+            name = f"{prefix}{k}"
+            if isinstance(v, bool | int | float) and k != "v" and not k.endswith("_ns"):
+                out[name] = float(v)
+            elif isinstance(v, Mapping) and depth < 2:
+                walk(v, f"{name}.", depth + 1)
+
+    walk(body, "", 1)
+    return out
+
+
+def _points(value: Any) -> tuple[np.ndarray, np.ndarray | None]:
+    """Points (L, 2) and ids from a list of [x, y] / {"x", "y", "id"} / an (L, 2) array."""
+    if isinstance(value, Mapping):
+        value = value.get("mean", value.get("points"))
+    items = list(value or [])
+    if items and isinstance(items[0], Mapping):
+        xy = np.array([[_float(p.get("x")), _float(p.get("y"))] for p in items])
+        ids = [p.get("id") for p in items]
+        return xy.reshape(-1, 2), (None if any(i is None for i in ids) else np.array(ids))
+    return np.asarray(items, dtype=np.float64).reshape(-1, 2), None
+
+
+def _lines(value: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """(rho, theta, cov, endpoints) from a list of {"rho", "theta", "cov"?, "p0"?, "p1"?} or
+    [rho, theta] pairs, or {"rho": [...], "theta": [...], "cov": [...]}."""
+    if isinstance(value, Mapping):
+        rho = np.asarray(value.get("rho", []), dtype=np.float64).reshape(-1)
+        theta = np.asarray(value.get("theta", []), dtype=np.float64).reshape(-1)
+        cov = value.get("cov")
+        c = None if cov is None else np.asarray(cov, dtype=np.float64).reshape(-1, 2, 2)
+        return rho, theta, c, None
+    items = list(value or [])
+    if items and isinstance(items[0], Mapping):
+        rho = np.array([_float(v.get("rho")) for v in items])
+        theta = np.array([_float(v.get("theta")) for v in items])
+        covs = [v.get("cov") for v in items]
+        c = None if any(x is None for x in covs) else np.asarray(covs, dtype=np.float64)
+        ends = [(v.get("p0"), v.get("p1")) for v in items]
+        e = None
+        if all(a is not None and b is not None for a, b in ends):
+            e = np.asarray(ends, dtype=np.float64).reshape(-1, 2, 2)
+        return rho, theta, None if c is None else c.reshape(-1, 2, 2), e
+    arr = np.asarray(items, dtype=np.float64).reshape(-1, 2)
+    return arr[:, 0], arr[:, 1], None, None
+
+
+class VizStage:
+    """Maps the bus of one vehicle to a :class:`RerunLogger` (see the module docstring).
+
+    :meth:`attach` subscribes on a Zenoh session and :meth:`start` runs the mapping thread;
+    :meth:`handle_sample` maps one payload synchronously (tests, replay) and
+    :meth:`on_message` one typed message (in-process, e.g. ``Gateway(on_message=...)``).
+    """
+
+    def __init__(
+        self,
+        logger: RerunLogger,
+        vehicle: str = "auv1",
+        *,
+        root: str = "auv",
+        queue_size: int = 20_000,
+        health_period_s: float = 1.0,
+    ) -> None:
+        self.logger = logger
+        self.keys = Keys(vehicle, root)
+        self.stats = StageStats()
+        self.health_period_s = health_period_s
+        self._q: queue.Queue[Any] = queue.Queue(maxsize=max(1, queue_size))
+        self._subs: list[Any] = []
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._lock = threading.Lock()  # counters
+        self._map_lock = threading.Lock()  # mapping state (clocks, poses): bus and in-process
+        self._clocks: dict[str, DeviceClock] = {}
+        self._nav: tuple[float, float, float, float] | None = None
+        self._truth: tuple[float, float, float, float] | None = None
+        self._status: dict[str, tuple[Any, Any]] = {}
+        self._t_last = 0.0
+        self._sensor_handlers: dict[str, Callable[[str, Any, float], None]] = {
+            "XYZ88": self._swath,
+            "Depth": self._swath,
+            "pd0.Ensemble": self._dvl,
+            "mtHeadData": self._msis,
+        }
+        self._classes: dict[str, type] = {}
+        self._load_codecs()
+
+    def _load_codecs(self) -> None:
+        import importlib
+
+        for name in _CODEC_MODULES:
+            try:
+                importlib.import_module(name)
+            except Exception as exc:  # a codec being written must not stop the stage
+                log.warning("viz stage: %s unavailable (%s); its messages are skipped", name, exc)
+        for type_name in self._sensor_handlers:
+            if type_name in MESSAGE_TYPES:
+                self._classes[type_name] = MESSAGE_TYPES[type_name]
+
+    # -- bus side --------------------------------------------------------------------------
+    def attach(self, session: Any, sections: Iterable[str] = SECTIONS) -> None:
+        """Subscribe to this vehicle's ``sections`` on ``session`` (a ``zenoh.Session``)."""
+        for section in sections:
+            key = self.keys.all(f"{section}/**")
+            self._subs.append(session.declare_subscriber(key, self._on_sample))
+
+    def _on_sample(self, sample: Any) -> None:
+        """Zenoh callback: copy and queue (never block the network thread)."""
+        item = (str(sample.key_expr), sample.payload.to_bytes(), time.time_ns())
+        try:
+            self._q.put_nowait(item)
+        except queue.Full:
+            with self._lock:
+                self.stats.dropped += 1
+
+    def start(self) -> None:
+        """Start the mapping thread (idempotent)."""
+        if self._thread is None:
+            self._thread = threading.Thread(target=self._run, name="viz-stage", daemon=True)
+            self._thread.start()
+
+    def stop(self, timeout_s: float = 10.0) -> None:
+        """Undeclare the subscribers, map what is queued, stop the thread (the logger stays
+        open: close it afterwards)."""
+        for sub in self._subs:
+            with contextlib.suppress(Exception):
+                sub.undeclare()
+        self._subs.clear()
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout_s)
+            if self._thread.is_alive():
+                log.warning("viz stage: mapping thread still busy after %.0f s", timeout_s)
+                return
+        self._drain()
+        self._log_own_health()
+
+    def _drain(self) -> None:
+        while True:
+            try:
+                key, payload, t_ns = self._q.get_nowait()
+            except queue.Empty:
+                return
+            self.handle_sample(key, payload, t_ns)
+
+    def _run(self) -> None:
+        next_health = time.monotonic() + self.health_period_s
+        while not self._stop.is_set():
+            try:
+                key, payload, t_ns = self._q.get(timeout=0.2)
+                self.handle_sample(key, payload, t_ns)
+            except queue.Empty:
+                pass
+            if time.monotonic() >= next_health:
+                next_health = time.monotonic() + self.health_period_s
+                self._log_own_health()
+
+    def _log_own_health(self) -> None:
+        if not self._t_last:
+            return
+        s = self.stats
+        self.logger.health(
+            "viz",
+            self._t_last,
+            {
+                "stage_dropped": float(s.dropped),
+                "unknown": float(sum(s.unknown.values())),
+                "errors": float(s.errors),
+            },
+        )
+
+    # -- mapping ---------------------------------------------------------------------------
+    def _clock(self, source: str) -> DeviceClock:
+        c = self._clocks.get(source)
+        if c is None:
+            c = self._clocks[source] = DeviceClock()
+        return c
+
+    def handle_sample(self, key: str, payload: bytes, t_arrival_ns: int | None = None) -> str:
+        """Map one bus sample; returns ``logged``, ``ignored``, ``unknown`` or ``error``."""
+        with self._lock:
+            self.stats.received += 1
+        t_host = (t_arrival_ns if t_arrival_ns is not None else time.time_ns()) / 1e9
+        try:
+            with self._map_lock:
+                outcome = self._handle(key, payload, t_host)
+        except Exception as exc:
+            return self._error(key, exc)
+        return self._count(outcome)
+
+    def _error(self, what: str, exc: Exception) -> str:
+        with self._lock:
+            self.stats.errors += 1
+            self.stats.last_error = f"{what}: {type(exc).__name__}: {exc}"
+            n = self.stats.errors
+        if n <= 5:
+            log.warning("viz stage: %s", self.stats.last_error)
+        return "error"
+
+    def _count(self, outcome: str) -> str:
+        """Count a handler's outcome: ``logged``, ``ignored`` or the reason it is unknown."""
+        with self._lock:
+            if outcome == "logged":
+                self.stats.logged += 1
+                return outcome
+            if outcome == "ignored":
+                self.stats.ignored += 1
+                return outcome
+            self.stats.unknown[outcome] += 1
+        return "unknown"
+
+    def _handle(self, key: str, payload: bytes, t_host: float) -> str:
+        base = self.keys.base + "/"
+        if not key.startswith(base):
+            return "unknown:key"
+        parts = key[len(base) :].split("/")
+        section = parts[0]
+        data = json.loads(payload)
+        type_name, device, body = "", parts[1] if len(parts) > 1 else "", data
+        if isinstance(data, Mapping) and "msg" in data and "v" in data:
+            if data["v"] != SCHEMA_VERSION:
+                raise ValueError(f"schema version {data['v']!r}, expected {SCHEMA_VERSION}")
+            type_name = str(data.get("type", ""))
+            device = str(data.get("device", device))
+            body = data["msg"]
+            t_host = _float(data.get("t_recv_ns"), t_host * 1e9) / 1e9
+        elif isinstance(data, Mapping):
+            type_name = str(data.get("type", ""))
+        if not isinstance(body, Mapping):
+            return f"unknown:{section}"
+        self._t_last = t_host
+        if section == "sensor":
+            return self._sensor_json(device, type_name, body, t_host)
+        if section == "nav":
+            return self._odometry(body, t_host)
+        if section == "slam" and len(parts) >= 3:
+            return self._slam(parts[1], parts[2], body, t_host)
+        if section == "truth":
+            return self._truth_msg(body, t_host)
+        if section == "status" and len(parts) >= 2:
+            return self._health(parts[1], body, t_host)
+        return f"unknown:{section}"
+
+    def _sensor_json(self, device: str, type_name: str, body: Mapping[str, Any], t: float) -> str:
+        cls = self._classes.get(type_name)
+        if type_name == "pd0.Ensemble" and cls is not None:
+            msg = self._ensemble(body)
+        elif cls is not None:
+            msg = from_jsonable(body, cls)
+        else:
+            msg = _Obj(body)
+        return self._sensor(device, type_name, msg, t)
+
+    def _ensemble(self, body: Mapping[str, Any]) -> Any:
+        """A PD0 ensemble with only the blocks shown (the profiles are not rebuilt)."""
+        from auvgw.drivers import pd0
+
+        parts: dict[str, Any] = {}
+        for name, cls in (
+            ("fixed_leader", pd0.FixedLeader),
+            ("variable_leader", pd0.VariableLeader),
+            ("bottom_track", pd0.BottomTrack),
+            ("bt_high_res", pd0.BottomTrackHighRes),
+            ("bt_range", pd0.BottomTrackRange),
+        ):
+            if body.get(name) is not None:
+                parts[name] = from_jsonable(body[name], cls)
+        return pd0.Ensemble(**parts)
+
+    def on_message(self, device: str, t_recv_ns: int, msg: Any) -> str:
+        """Map one typed message (in-process: ``Gateway(on_message=stage.on_message)``)."""
+        with self._lock:
+            self.stats.received += 1
+        type_name = getattr(msg, "TYPE", type(msg).__name__)
+        t_host = t_recv_ns / 1e9
+        self._t_last = t_host
+        try:
+            with self._map_lock:
+                outcome = self._sensor(device, type_name, msg, t_host)
+        except Exception as exc:
+            return self._error(f"{device}/{type_name}", exc)
+        return self._count(outcome)
+
+    def _sensor(self, device: str, type_name: str, msg: Any, t_host: float) -> str:
+        handler = self._sensor_handlers.get(type_name)
+        if handler is not None:
+            handler(device, msg, t_host)
+            return "logged"
+        if type_name in IGNORED_TYPES:
+            return "ignored"
+        if all(hasattr(msg, n) for n in ("roll", "pitch", "heading")):
+            t = self._clock(device)(_float(getattr(msg, "time", None)), t_host)
+            self.logger.attitude(t, _float(msg.roll), _float(msg.pitch), _float(msg.heading))
+            return "logged"
+        if all(hasattr(msg, n) for n in ("bx", "by", "bz")):
+            b = (_float(msg.bx), _float(msg.by), _float(msg.bz))
+            self.logger.magnetometer(self._clock(device)(None, t_host), b)
+            return "logged"
+        return f"sensor:{type_name or '?'}"
+
+    # sensor handlers (typed messages) -------------------------------------------------------
+    def _pose_for_swath(self, heading: float) -> tuple[float, float, float, float]:
+        pose = self._nav or self._truth
+        if pose is None:
+            return (0.0, 0.0, 0.0, heading)
+        return pose
+
+    def _swath(self, device: str, msg: Any, t_host: float) -> None:
+        t = self._clock(device)(_float(getattr(msg, "device_time", None)), t_host)
+        xyz = np.asarray(msg.xyz, dtype=np.float64)
+        beams = msg.beams
+        valid = beams.valid if hasattr(beams, "valid") else np.asarray(beams.depth) != 0
+        x, y, z, h = self._pose_for_swath(_float(getattr(msg, "heading", 0.0), 0.0))
+        draft = _float(getattr(msg, "transducer_depth_total", None))
+        if math.isnan(draft):
+            draft = _float(getattr(msg, "transducer_depth", None), 0.0)
+        z0 = draft if draft != 0.0 else z
+        self.logger.swath(
+            t, xyz[:, 0], xyz[:, 1], xyz[:, 2], x=x, y=y, z=z0, heading=h, valid=valid
+        )
+
+    _FRAME_AXES: Mapping[int, tuple[str, str, str]] = {
+        0: ("beam 1", "beam 2", "beam 3"),
+        1: ("x", "y", "z"),
+        2: ("starboard", "forward", "up"),
+        3: ("east", "north", "up"),
+    }
+
+    def _dvl(self, device: str, ens: Any, t_host: float) -> None:
+        vl = ens.variable_leader
+        t = self._clock(device)(None if vl is None else vl.device_time_s, t_host)
+        bt, hr, rng = ens.bottom_track, ens.bt_high_res, ens.bt_range
+        v = np.full(3, np.nan)
+        if hr is not None:
+            v = np.asarray(hr.vehicle_velocity, dtype=np.float64)[:3]
+        if not np.all(np.isfinite(v)) and bt is not None:
+            v = np.asarray(bt.vehicle_velocity, dtype=np.float64)[:3]
+        altitude = math.nan
+        if rng is not None and math.isfinite(_float(rng.vertical_range)):
+            altitude = float(rng.vertical_range)
+        elif bt is not None and np.any(np.isfinite(bt.range)):
+            altitude = float(np.nanmean(bt.range))
+        lock = bt is not None and bool(np.all(np.isfinite(np.asarray(bt.velocity, dtype=float))))
+        frame = ens.coordinate_frame
+        names = self._FRAME_AXES.get(int(frame) if frame is not None else 1, ("x", "y", "z"))
+        self.logger.dvl(t, v, altitude, names, lock)
+
+    def _msis(self, device: str, msg: Any, t_host: float) -> None:
+        t = self._clock(device)(None, t_host)
+        max_value = 255 if msg.adc8on else 15
+        self.logger.msis_ping(t, msg.bearing, msg.bins, msg.range_m, msg.step, max_value)
+
+    # nav, slam, truth, status (JSON objects) ------------------------------------------------
+    def _odometry(self, body: Mapping[str, Any], t_host: float) -> str:
+        if "x" not in body or "y" not in body:
+            return "nav:?"
+        t = self._clock("nav")(_float(body.get("t")), t_host)
+        x, y = _float(body["x"]), _float(body["y"])
+        z, h = _float(body.get("z"), 0.0), _float(body.get("heading"))
+        cov = body.get("covariance")
+        cxy = None if cov is None else np.asarray(cov, dtype=np.float64)[:2, :2]
+        self._nav = (x, y, z, h)
+        self.logger.trajectory("dead_reckoning", t, x, y, z, h, cxy)
+        return "logged"
+
+    def _pose_of(self, body: Mapping[str, Any]) -> tuple[float, float, float, float] | None:
+        pose = body.get("pose")
+        if isinstance(pose, list | tuple) and len(pose) >= 2:
+            h = _float(pose[2]) if len(pose) > 2 else math.nan
+            return _float(pose[0]), _float(pose[1]), _float(body.get("z"), 0.0), h
+        if "x" in body and "y" in body:
+            return (
+                _float(body["x"]), _float(body["y"]), _float(body.get("z"), 0.0),
+                _float(body.get("heading")),
+            )  # fmt: skip
+        return None
+
+    def _map_features(self, name: str, body: Mapping[str, Any], t: float) -> bool:
+        shown = False
+        pts = _get(body, "mean", "landmarks", "points", "features")
+        if pts is not None:
+            mean, ids = _points(pts)
+            cov = body.get("cov")
+            c = None if cov is None else np.asarray(cov, dtype=np.float64).reshape(-1, 2, 2)
+            raw_ids = body.get("ids")
+            if raw_ids is not None:
+                ids = np.asarray(raw_ids)
+            if c is not None and len(c) != len(mean):
+                c = None
+            self.logger.landmarks(name, t, mean, c, ids)
+            shown = True
+        lines = body.get("lines")
+        if lines is not None:
+            rho, theta, lcov, ends = _lines(lines)
+            self.logger.lines(name, t, rho, theta, lcov, ends)
+            shown = True
+        return shown
+
+    def _slam(self, pipeline: str, what: str, body: Mapping[str, Any], t_host: float) -> str:
+        name = f"slam/{pipeline}"
+        t = self._clock(name)(_float(body.get("t")), t_host)
+        shown = False
+        pose = self._pose_of(body)
+        if what == "pose" and pose is not None:
+            cov = body.get("cov", body.get("covariance"))
+            cxy = None if cov is None else np.asarray(cov, dtype=np.float64)[:2, :2]
+            self.logger.trajectory(name, t, *pose, cxy)
+            shown = True
+        particles = body.get("particles")
+        if particles is not None:
+            self.logger.particles(name, t, particles, body.get("weights"))
+            shown = True
+        if what in ("landmarks", "map"):
+            shown |= self._map_features(name, body, t)
+        return "logged" if shown else f"slam:{what}"
+
+    def _truth_msg(self, body: Mapping[str, Any], t_host: float) -> str:
+        t = self._clock("truth")(_float(body.get("t")), t_host)
+        shown = False
+        pose = self._pose_of(body)
+        if pose is not None:
+            self._truth = pose
+            self.logger.trajectory("truth", t, *pose)
+            shown = True
+        shown |= self._map_features("truth", body, t)
+        return "logged" if shown else "truth:?"
+
+    _HEALTH_KEYS = ("rate_hz", "bad_frames", "decode_errors", "skipped_bytes", "silent_s")
+    _HEALTH_FLAGS = ("connected", "stale")
+
+    def _health(self, device: str, body: Mapping[str, Any], t: float) -> str:
+        if device == "gateway" or "devices" in body:
+            return "ignored"  # the gateway summary repeats the per-device status
+        if not any(k in body for k in (*self._HEALTH_KEYS, *self._HEALTH_FLAGS)):
+            # another component's status (fusion, SLAM, ...): its numbers, one series each
+            leaves = _numeric_leaves(body)
+            if not leaves:
+                return f"status:{device}"
+            self.logger.health(device, t, leaves)
+            return "logged"
+        # always the same metrics (NaN when absent), so the series stay the same
+        metrics = {k: _float(body.get(k)) for k in self._HEALTH_KEYS}
+        for flag in self._HEALTH_FLAGS:
+            metrics[flag] = math.nan if body.get(flag) is None else float(bool(body[flag]))
+        self.logger.health(device, t, metrics)
+        state = (body.get("connected"), body.get("last_error"))
+        prev = self._status.get(device)
+        if prev != state:
+            self._status[device] = state
+            if prev is None or prev[0] != state[0]:
+                word = "connected" if state[0] else "disconnected"
+                text = f"{device} {word}" + (f": {state[1]}" if state[1] and not state[0] else "")
+                self.logger.event(device, t, text, "INFO" if state[0] else "WARN")
+            elif state[1]:
+                self.logger.event(device, t, f"{device}: {state[1]}", "WARN")
+        return "logged"
+
+
+@dataclass
+class VizRunner:
+    """A logger and the stage feeding it, as a command runs them (see :func:`open_viz`)."""
+
+    logger: RerunLogger
+    stage: VizStage
+
+    @property
+    def on_message(self) -> Callable[[str, int, Any], str]:
+        """In-process hook for ``Gateway(on_message=...)`` (then attach without ``sensor``)."""
+        return self.stage.on_message
+
+    def close(self, timeout_s: float = 30.0) -> None:
+        """Stop the stage (mapping what is queued), then close the logger (writes the footer)."""
+        try:
+            self.stage.stop(timeout_s)
+        finally:
+            self.logger.close(timeout_s)
+
+
+def open_viz(
+    session: Any,
+    vehicle: str,
+    *,
+    rrd: str | Path | None = None,
+    connect: str | None = None,
+    options: VizOptions | None = None,
+    sections: Iterable[str] = SECTIONS,
+) -> VizRunner:
+    """Start Rerun logging of ``vehicle``'s bus on ``session`` to ``rrd`` and/or a viewer at
+    ``connect``; ``close()`` the result before closing the session.
+
+    For a gateway in the same process, pass ``sections`` without ``"sensor"`` and give the
+    gateway ``on_message=runner.on_message`` (no JSON round trip for sensor data).
+    """
+    logger = RerunLogger(rrd=rrd, connect=connect, options=options)
+    stage = VizStage(logger, vehicle)
+    try:
+        stage.attach(session, sections)
+    except Exception:
+        logger.close()
+        raise
+    stage.start()
+    return VizRunner(logger, stage)
