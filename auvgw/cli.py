@@ -14,6 +14,7 @@ import sys
 
 #: command modules, in the order ``auvgw --help`` lists them
 COMMANDS: list[str] = [
+    "auvgw.commands.demo",
     "auvgw.commands.decode",
     "auvgw.commands.router",
     "auvgw.commands.run",
