@@ -2,7 +2,9 @@
 lever arms. See ``docs/fusion.md``.
 
 Algorithms only: no transports, no Zenoh, no Rerun. The same :class:`NavFilter` serves the bus
-stage (online) and :func:`run_filter` (offline, recordings or arrays).
+stage (online, ``auvgw.stages.fusion``) and :func:`run_filter` (offline, recordings or arrays);
+:mod:`auvgw.fusion.adapters` turns decoded HN-100 and PD0 messages into its samples and maps the
+device clocks onto the host clock.
 """
 
 from auvgw.fusion.config import DvlMount, FusionConfig, InitialState

@@ -289,7 +289,9 @@ def _run_stages(
         cfg = FusionStageConfig(
             vehicle=gw_cfg.vehicle, ins_device="ins", dvl_device="dvl", filter=filt
         )
-        return FusionStage(cfg, session=session, on_odometry=on_odometry)
+        stage = FusionStage(cfg, session=session, on_odometry=on_odometry)
+        stage.start(subscribe=False)  # fed in-process, publishes odometry and status
+        return stage
 
     def on_message(device: str, t_recv_ns: int, msg: Any) -> None:
         if not fusion_box and device == "ins" and hasattr(msg, "time"):
@@ -339,13 +341,18 @@ def _run_stages(
         gateway.stop()
         fusion_counters = None
         if fusion_box:
-            fusion_box[0].flush()
+            fusion_box[0].stop(flush=True)
             fusion_counters = fusion_box[0].counters()
         if viz is not None:
             viz.close()
         session.close()
     wall = time.monotonic() - t_start
-    _print_summary(status, fusion_counters, truth, dead_reckoning, rrd, wall)
+    nav = _path_error(dead_reckoning, truth)
+    _print_summary(status, fusion_counters, nav, rrd, wall)
+    summary = {"devices": status["devices"], "fusion": fusion_counters,
+               "navigation": {"dead_reckoning": nav}, "rrd": str(rrd) if rrd else None,
+               "wall_s": wall, "speed": speed}  # fmt: skip
+    (args.out / "summary.json").write_text(json.dumps(summary, indent=1, default=str))
     return 0
 
 
@@ -365,8 +372,7 @@ def _log_true_map(viz: Any, keys: Keys, scenario: Path) -> None:
 def _print_summary(
     status: dict[str, Any],
     fusion: dict[str, Any] | None,
-    truth: _Track,
-    dead_reckoning: _Track,
+    err: dict[str, float] | None,
     rrd: Path | None,
     wall_s: float,
 ) -> None:
@@ -383,7 +389,6 @@ def _print_summary(
         st = fusion["stage"]
         print(f"fusion: {st.get('received', 0)} messages in, {st.get('published', 0)} "
               f"odometry out; filter {json.dumps(fusion['filter'])}")  # fmt: skip
-    err = _path_error(dead_reckoning, truth)
     if err is None:
         print("navigation error: not enough odometry or truth to compare")
     else:

@@ -1,0 +1,208 @@
+"""``auvgw fusion``: INS + DVL dead reckoning, on the bus or over a recording.
+
+Online (the fusion stage as its own process)::
+
+    auvgw fusion --vehicle auv1 --connect tcp/127.0.0.1:7447 [--settings fusion.toml]
+
+subscribes to the gateway's decoded HN-100 and PD0 messages (``auv/<V>/sensor/...``) and
+publishes odometry on ``auv/<V>/nav/odometry`` and counters on ``auv/<V>/status/fusion`` until
+SIGINT/SIGTERM (or ``--duration`` seconds); prints ``fusion running`` on stdout once its
+subscriptions are declared.
+
+Offline (the same stage, no bus) over a recording made by ``auvgw record``::
+
+    auvgw fusion --recording run.mcap [--out odometry.jsonl]
+
+decodes the recorded raw frames exactly as the gateway did (:func:`auvgw.recording.iter_recording`),
+feeds them in recorded order with their receive times, and prints a summary; ``--out`` writes
+every odometry sample as one JSON object per line (the bus payload's ``msg``).
+
+``--settings FILE`` (TOML or JSON): :class:`~auvgw.stages.fusion.FusionStageConfig`, with the
+filter's :class:`~auvgw.fusion.FusionConfig` under ``[filter]`` (see docs/fusion.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import sys
+import threading
+from pathlib import Path
+from typing import Any
+
+from auvgw.bus import add_bus_arguments, bus_from_args
+from auvgw.cli import UserError
+
+log = logging.getLogger(__name__)
+
+__all__ = ["register", "run"]
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser(
+        "fusion",
+        help="INS + DVL dead reckoning: odometry on the bus, or over a recording",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--vehicle", default=None, help="vehicle name (default: settings, auv1)")
+    p.add_argument("--settings", type=Path, default=None, metavar="FILE",
+                   help="stage and filter settings (TOML or JSON)")
+    p.add_argument("--ins", default=None, metavar="DEVICE",
+                   help="gateway device of the INS (default: the first seen)")
+    p.add_argument("--dvl", default=None, metavar="DEVICE",
+                   help="gateway device of the DVL (default: the first seen)")
+    p.add_argument("--duration", type=float, default=None, metavar="S",
+                   help="online: stop after S seconds (default: until SIGINT/SIGTERM)")
+    p.add_argument("--recording", type=Path, default=None, metavar="FILE.mcap",
+                   help="offline: run over this recording instead of the bus")
+    p.add_argument("--config", type=Path, default=None, metavar="GATEWAY.toml",
+                   help="offline: gateway configuration replacing the recorded one")
+    p.add_argument("--out", type=Path, default=None, metavar="FILE.jsonl",
+                   help="offline: write every odometry sample (JSON lines)")
+    add_bus_arguments(p)
+    p.set_defaults(func=run)
+
+
+def _settings(args: argparse.Namespace) -> Any:
+    from auvgw.stages.fusion import FusionStageConfig, SettingsError, load_stage_config
+
+    try:
+        cfg = load_stage_config(args.settings) if args.settings else FusionStageConfig()
+    except SettingsError as exc:
+        raise UserError(str(exc)) from None
+    update = {
+        k: v
+        for k, v in (("vehicle", args.vehicle), ("ins_device", args.ins), ("dvl_device", args.dvl))
+        if v is not None
+    }
+    return cfg.model_copy(update=update) if update else cfg
+
+
+def run(args: argparse.Namespace) -> int:
+    cfg = _settings(args)
+    if args.recording is not None:
+        return _offline(args, cfg)
+    if args.out is not None or args.config is not None:
+        raise UserError("--out and --config are for --recording (offline) runs")
+    return _online(args, cfg)
+
+
+def _online(args: argparse.Namespace, cfg: Any) -> int:
+    import zenoh
+
+    from auvgw.bus import open_session
+    from auvgw.commands.run import handle_stop_signals
+    from auvgw.stages.fusion import FusionStage
+
+    if args.duration is not None and not args.duration > 0:
+        raise UserError(f"--duration must be > 0, got {args.duration}")
+    try:
+        bus = bus_from_args(args)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    try:
+        session = open_session(bus)
+    except zenoh.ZError as exc:
+        raise UserError(
+            f"bus: cannot open the Zenoh session ({exc}); check --listen/--connect"
+        ) from exc
+    stop = threading.Event()
+    try:
+        stage = FusionStage(cfg, session)
+        with handle_stop_signals(stop):
+            stage.start()
+            print(f"fusion running: vehicle {cfg.vehicle}, odometry on {stage.keys.odometry()}",
+                  flush=True)
+            try:
+                stop.wait(args.duration)
+            finally:
+                stage.stop()
+        _print_counters(stage.counters())
+    finally:
+        session.close()
+    return 0
+
+
+def _offline(args: argparse.Namespace, cfg: Any) -> int:
+    from auvgw.recording import RecordingError, iter_recording
+    from auvgw.stages.fusion import FusionStage
+
+    gw_cfg = None
+    if args.config is not None:
+        from auvgw.commands.run import load_or_fail
+
+        gw_cfg = load_or_fail(args.config)
+    out_file = None
+    if args.out is not None:
+        try:
+            out_file = open(args.out, "w")  # noqa: SIM115 - closed in finally
+        except OSError as exc:
+            raise UserError(f"{args.out}: cannot write: {exc.strerror}") from exc
+    summary = _Summary()
+
+    def on_odometry(o: Any) -> None:
+        summary.add(o)
+        if out_file is not None:
+            from auvgw.drivers.spec import to_jsonable
+
+            out_file.write(json.dumps(to_jsonable(o), separators=(",", ":")) + "\n")
+
+    stage = FusionStage(cfg, on_odometry=on_odometry)
+    try:
+        for rec in iter_recording(args.recording, config=gw_cfg):
+            device = rec.key.rsplit("/", 1)[-1]
+            for msg in rec.messages:
+                stage.feed(device, rec.t_recv_ns, msg)
+        stage.flush()
+    except RecordingError as exc:
+        raise UserError(str(exc)) from None
+    finally:
+        if out_file is not None:
+            out_file.close()
+    summary.print(args.recording)
+    _print_counters(stage.counters())
+    if summary.n == 0:
+        print("no odometry: the recording has no usable INS messages", file=sys.stderr)
+        return 1
+    return 0
+
+
+class _Summary:
+    """Running summary of an offline run (no list of every sample kept)."""
+
+    def __init__(self) -> None:
+        self.n = 0
+        self.first: Any = None
+        self.last: Any = None
+        self.distance = 0.0
+        self.coasting = 0
+
+    def add(self, o: Any) -> None:
+        if self.first is None:
+            self.first = o
+        if o.increment is not None:
+            self.distance += math.hypot(o.increment.dx, o.increment.dy)
+        self.coasting += bool(o.coasting)
+        self.last = o
+        self.n += 1
+
+    def print(self, path: Path) -> None:
+        if self.n == 0:
+            return
+        a, b = self.first, self.last
+        sig = math.sqrt(max(float(b.cov_xy.trace()), 0.0))
+        print(f"{path}: {self.n} odometry samples over {b.t - a.t:.1f} s")
+        print(f"  distance travelled   {self.distance:.1f} m")
+        print(f"  final position       x {b.x:.2f} m, y {b.y:.2f} m, z {b.z:.2f} m, "
+              f"heading {math.degrees(b.heading):.1f} deg")
+        print(f"  final horizontal 1-sigma (rss) {sig:.3f} m "
+              f"({100.0 * sig / self.distance if self.distance else math.nan:.3f} % of distance)")
+        print(f"  coasting             {100.0 * self.coasting / self.n:.1f} % of samples")
+
+
+def _print_counters(c: dict[str, Any]) -> None:
+    keep = {k: c[k] for k in ("stage", "adapter", "ins_device", "dvl_device", "filter", "buffer")}
+    print(f"fusion counters: {json.dumps(keep)}", file=sys.stderr)

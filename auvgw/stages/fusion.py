@@ -1,0 +1,397 @@
+"""The fusion stage: the gateway's decoded INS and DVL messages in, dead-reckoning odometry out.
+
+Online it subscribes to ``auv/<v>/sensor/*/*`` (one subscription, so the arrival order across
+devices is kept) and keeps the INS kinds ``hn100nav`` (serial HN-100) and ``hn100_sample``
+(HN-100 on CAN) and the DVL kind ``ensemble`` (PD0) of the configured devices, or of any device
+(then the first device seen sending each kind of message is used:
+:class:`~auvgw.fusion.adapters.MessageAdapter`), rebuilds the typed messages
+from the JSON envelopes (:func:`auvgw.drivers.spec.from_jsonable`, the values the gateway
+decoded), maps each device's clock onto the host clock, feeds a
+:class:`~auvgw.fusion.NavFilter`, and publishes one :class:`~auvgw.fusion.Odometry` envelope per
+INS sample on ``auv/<v>/nav/odometry`` (``CongestionControl.DROP``: a slow subscriber never
+stalls the stage). Its counters go to ``auv/<v>/status/fusion`` (published every
+``status_period_s`` and answered as a query); the liveliness token ``auv/<v>/alive/fusion`` is
+declared once its subscriptions are.
+
+In-process (``auvgw demo``, tests, offline recordings) the same object is fed directly with
+:meth:`FusionStage.feed` ``(device, t_recv_ns, message)`` (the gateway's ``on_message``
+signature); with no session it publishes nothing and returns the odometry it produced.
+
+Zenoh callbacks only queue the payloads; one worker thread decodes and filters them in arrival
+order, so the callbacks stay short and the filter sees one sequence of messages.
+
+Odometry times are the host clock (POSIX s): INS time stamps mapped through the INS clock's
+offset (:class:`~auvgw.fusion.adapters.DeviceClock`), so an odometry sample's ``t`` is when the
+INS measured it, not when it was received.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import queue
+import threading
+import time
+import tomllib
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import zenoh
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from auvgw.bus import SCHEMA_VERSION, Keys, decode_envelope, encode_envelope, json_encoding
+from auvgw.fusion import FusionConfig, NavFilter, Odometry
+from auvgw.fusion.adapters import INS_TYPES, PD0_TYPES, MessageAdapter
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "COMPONENT",
+    "FusionStage",
+    "FusionStageConfig",
+    "SettingsError",
+    "StageStats",
+    "load_stage_config",
+    "sensor_kinds",
+]
+
+#: the stage's component name (status, liveliness, envelope device)
+COMPONENT = "fusion"
+_DROP = zenoh.CongestionControl.DROP
+
+
+def sensor_kinds(type_names: frozenset[str]) -> list[str]:
+    """The ``<kind>`` key segments of message type names, as the gateway builds them (type name
+    without its codec prefix, lower case: ``pd0.Ensemble`` -> ``ensemble``)."""
+    return sorted({t.rsplit(".", 1)[-1].lower() for t in type_names})
+
+
+class SettingsError(ValueError):
+    """A fusion settings file that cannot be used (names the file and the field)."""
+
+
+class FusionStageConfig(BaseModel):
+    """Settings of the fusion stage (TOML: top-level keys, the filter under ``[filter]``).
+
+    ``ins_device`` / ``dvl_device``: gateway device names (None: the first device seen sending
+    an HN-100 solution / a PD0 ensemble). ``latency_s``: per device, the fixed delay between the
+    device's time stamp and the host's receive time (e.g. the frame's transmission time, bytes x
+    10 / baud), subtracted when mapping its clock. ``clock_skew`` (s/s) and ``clock_jump_s``:
+    see :class:`~auvgw.fusion.adapters.DeviceClock`. ``require_aligned``: drop INS solutions
+    flagged not aligned or in error. ``high_res``: prefer the PD0 0x5803 velocity.
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    vehicle: str = "auv1"
+    ins_device: str | None = None
+    dvl_device: str | None = None
+    latency_s: dict[str, float] = Field(default_factory=dict)
+    clock_skew: float = Field(1e-4, ge=0)
+    clock_jump_s: float = Field(1.0, gt=0)
+    require_aligned: bool = True
+    high_res: bool = True
+    status_period_s: float = Field(1.0, gt=0)
+    queue_size: int = Field(100_000, ge=1)
+    filter: FusionConfig = FusionConfig()
+
+
+def load_stage_config(path: str | Path) -> FusionStageConfig:
+    """Read a TOML (or JSON) settings file; :class:`SettingsError` names the file and field."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise SettingsError(f"{path}: cannot read: {exc.strerror}") from exc
+    try:
+        data = json.loads(text) if path.suffix == ".json" else tomllib.loads(text)
+    except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
+        kind = "JSON" if path.suffix == ".json" else "TOML"
+        raise SettingsError(f"{path}: not valid {kind}: {exc}") from exc
+    try:
+        return FusionStageConfig.model_validate(data)
+    except ValidationError as exc:
+        lines = [
+            f"{path}: field '{'.'.join(str(p) for p in e['loc']) or '(top level)'}': {e['msg']}"
+            for e in exc.errors()
+        ]
+        raise SettingsError("\n".join(lines)) from None
+
+
+@dataclass
+class StageStats:
+    """Counters of the stage (messages and odometry samples)."""
+
+    received: int = 0  #: envelopes / fed messages
+    bad_payloads: int = 0  #: envelopes that could not be parsed or rebuilt
+    queue_dropped: int = 0  #: payloads dropped because the worker fell behind
+    published: int = 0  #: odometry samples produced (published when on the bus)
+
+
+class FusionStage:
+    """INS + DVL messages -> :class:`Odometry` (see the module docstring).
+
+    ``session``: publish odometry and status on it (None: in-process only). ``on_odometry``:
+    called with every odometry sample produced (on the feeding thread).
+    """
+
+    def __init__(
+        self,
+        config: FusionStageConfig | None = None,
+        session: zenoh.Session | None = None,
+        on_odometry: Callable[[Odometry], object] | None = None,
+    ) -> None:
+        self.config = cfg = config or FusionStageConfig()
+        self.keys = Keys(cfg.vehicle)
+        self.adapter = MessageAdapter(
+            ins_device=cfg.ins_device,
+            dvl_device=cfg.dvl_device,
+            latency_s=cfg.latency_s,
+            clock={"skew": cfg.clock_skew, "jump_s": cfg.clock_jump_s},
+            require_aligned=cfg.require_aligned,
+            high_res=cfg.high_res,
+        )
+        self.nav = NavFilter(cfg.filter)
+        self.stats = StageStats()
+        self.session = session
+        self.on_odometry = on_odometry
+        self.last: Odometry | None = None
+        self._lock = threading.RLock()
+        self._pub: zenoh.Publisher | None = None
+        self._status_pub: zenoh.Publisher | None = None
+        self._decls: list[Any] = []
+        self._queue: queue.Queue[tuple[str, bytes] | None] = queue.Queue(cfg.queue_size)
+        self._worker: threading.Thread | None = None
+        self._ins_kinds = frozenset(sensor_kinds(INS_TYPES))
+        self._dvl_kinds = frozenset(sensor_kinds(PD0_TYPES))
+        self._started = False
+        self._stopped = False
+        _register_can_types()
+
+    # -- in-process use -----------------------------------------------------------------------
+    def feed(self, device: str, t_recv_ns: int, message: Any) -> list[Odometry]:
+        """One decoded message of ``device`` received at ``t_recv_ns`` (host ns since the Unix
+        epoch); returns (and publishes, with a session) the odometry that became final."""
+        with self._lock:
+            self.stats.received += 1
+            sample = self.adapter.adapt(device, t_recv_ns / 1e9, message)
+            if sample is None:
+                return []
+            out = self.nav.push(sample)
+            self._emit(out)
+            return out
+
+    def flush(self) -> list[Odometry]:
+        """Release (and publish) everything the filter still holds (end of data, shutdown)."""
+        with self._lock:
+            out = self.nav.flush()
+            self._emit(out)
+            return out
+
+    def _emit(self, out: list[Odometry]) -> None:
+        for o in out:
+            self.stats.published += 1
+            self.last = o
+            if self._pub is not None:
+                payload, enc = encode_envelope(o, COMPONENT, time.time_ns(), self.stats.published)
+                try:
+                    self._pub.put(payload, encoding=enc)
+                except zenoh.ZError as exc:
+                    log.warning("fusion: cannot publish odometry: %s", exc)
+            if self.on_odometry is not None:
+                self.on_odometry(o)
+
+    def counters(self) -> dict[str, Any]:
+        """Every counter (stage, adapter, device clocks, filter, reorder buffer), JSON-ready."""
+        with self._lock:
+            a = self.adapter
+            last = self.last
+            return {
+                "v": SCHEMA_VERSION,
+                "component": COMPONENT,
+                "vehicle": self.config.vehicle,
+                "t_ns": time.time_ns(),
+                "stage": asdict(self.stats),
+                "adapter": asdict(a.stats),
+                "ins_device": a.ins_device,
+                "dvl_device": a.dvl_device,
+                "clocks": {
+                    d: {"offset_s": c.offset, **asdict(c.stats)} for d, c in a.clocks.items()
+                },
+                "filter": asdict(self.nav.stats),
+                "buffer": asdict(self.nav.buffer_stats),
+                "last": None
+                if last is None
+                else {
+                    "t": last.t,
+                    "x": last.x,
+                    "y": last.y,
+                    "z": last.z,
+                    "heading": last.heading,
+                    "sigma_xy_m": float(last.cov_xy.trace()) ** 0.5,
+                    "bottom_lock": last.bottom_lock,
+                    "coasting": last.coasting,
+                },
+            }
+
+    # -- on the bus ---------------------------------------------------------------------------
+    def subscription_key(self) -> str:
+        """The one key expression the stage subscribes to: every decoded message of the vehicle.
+
+        One subscription, not one per device and kind: Zenoh may deliver the samples of two
+        subscriptions in any relative order, and the filter's fixed lag only absorbs so much.
+        The callback keeps the wanted ones (:meth:`wanted`) before anything is parsed.
+        """
+        return self.keys.sensor("*", "*")
+
+    def wanted(self, key: str) -> bool:
+        """Whether a sensor key carries an INS or DVL message of a device the stage uses (the
+        configured one, or the one bound by the first message of its kind, or any while none
+        is bound yet)."""
+        device, _, kind = key.rpartition("/")
+        device = device.rpartition("/")[2]
+        a = self.adapter
+        if kind in self._ins_kinds:
+            return a.ins_device is None or device == a.ins_device
+        if kind in self._dvl_kinds:
+            return a.dvl_device is None or device == a.dvl_device
+        return False
+
+    def start(self, subscribe: bool = True) -> None:
+        """Declare the publishers, status queryable and liveliness token and, with
+        ``subscribe``, the subscription and its worker thread (needs a session).
+
+        ``subscribe=False`` is for a stage fed in-process (``Gateway(..., on_message=stage.feed)``
+        in ``auvgw demo``) that still publishes odometry and status on the bus."""
+        if self.session is None:
+            raise RuntimeError("FusionStage.start needs a Zenoh session (in-process: use feed)")
+        if self._started:
+            return
+        self._started = True
+        s = self.session
+        self._pub = s.declare_publisher(
+            self.keys.odometry(), encoding=json_encoding("Odometry"), congestion_control=_DROP
+        )
+        status_key = self.keys.status(COMPONENT)
+        self._status_pub = s.declare_publisher(status_key, congestion_control=_DROP)
+        self._decls.append(s.declare_queryable(status_key, self._answer_status))
+        self._worker = threading.Thread(target=self._run, name="fusion-stage", daemon=True)
+        self._worker.start()
+        if subscribe:
+            self._decls.append(s.declare_subscriber(self.subscription_key(), self._on_sample))
+        # declarations travel in order: once this token is seen, the subscription is in place
+        self._decls.append(s.liveliness().declare_token(self.keys.alive(COMPONENT)))
+        log.info("fusion stage for vehicle %r: %s", self.config.vehicle,
+                 f"subscribed to {self.subscription_key()}" if subscribe else "fed in-process")
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        if not self.wanted(key):
+            return
+        try:
+            self._queue.put_nowait((key, sample.payload.to_bytes()))
+        except queue.Full:
+            self.stats.queue_dropped += 1
+
+    def _run(self) -> None:
+        """Worker: parse and feed the queued samples in arrival order; publish the status
+        every ``status_period_s`` (also when fed in-process)."""
+        period = self.config.status_period_s
+        next_status = time.monotonic() + period
+        while True:
+            timeout = max(0.0, next_status - time.monotonic())
+            try:
+                item = self._queue.get(timeout=timeout)
+            except queue.Empty:
+                item = ()
+            if item is None:
+                break
+            if item:
+                self._handle(*item)
+            if time.monotonic() >= next_status:
+                self._publish_status()
+                next_status = time.monotonic() + period
+
+    def _handle(self, key: str, payload: bytes) -> None:
+        from auvgw.subscribe import typed_message
+
+        try:
+            env = decode_envelope(payload, key)
+            msg = typed_message(env.type, env.body)
+        except (ValueError, KeyError, TypeError) as exc:
+            msg, env = None, None
+            log.debug("fusion: %s: bad payload: %s", key, exc)
+        if msg is None or env is None:
+            with self._lock:
+                self.stats.bad_payloads += 1
+            return
+        try:
+            self.feed(env.device, int(env.t_recv_ns), msg)
+        except Exception:  # one bad message must not stop the stage
+            log.exception("fusion: message of %s at %s failed", env.device, env.t_recv_ns)
+
+    def _publish_status(self) -> None:
+        if self._status_pub is None:
+            return
+        with contextlib.suppress(zenoh.ZError):
+            self._status_pub.put(
+                json.dumps(self.counters()).encode(), encoding=json_encoding("FusionStatus")
+            )
+
+    def _answer_status(self, query: zenoh.Query) -> None:
+        query.reply(
+            self.keys.status(COMPONENT),
+            json.dumps(self.counters()).encode(),
+            encoding=json_encoding("FusionStatus"),
+        )
+
+    def stop(self, flush: bool = True, timeout_s: float = 5.0) -> None:
+        """Drain the queue, flush the filter (``flush``: publish the held-back odometry),
+        publish a last status and withdraw every declaration. Safe to call more than once."""
+        if self._stopped:
+            return
+        self._stopped = True
+        for d in self._decls:
+            if isinstance(d, zenoh.Subscriber):
+                with contextlib.suppress(zenoh.ZError):
+                    d.undeclare()
+        if self._worker is not None:
+            self._queue.put(None)
+            self._worker.join(timeout_s)
+        if flush:
+            self.flush()
+        self._publish_status()
+        for d in self._decls:
+            if not isinstance(d, zenoh.Subscriber):
+                with contextlib.suppress(zenoh.ZError):
+                    d.undeclare()
+        for p in (self._pub, self._status_pub):
+            if p is not None:
+                with contextlib.suppress(zenoh.ZError):
+                    p.undeclare()
+        self._pub = self._status_pub = None
+
+    def __enter__(self) -> FusionStage:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+
+def _register_can_types() -> None:
+    """Load the shipped HN-100 DBC once so ``HN100_Sample`` envelopes can be rebuilt (a site
+    DBC with other signals arrives untyped and is counted as a bad payload)."""
+    from auvgw.drivers.spec import MESSAGE_TYPES
+
+    if "HN100_Sample" in MESSAGE_TYPES:
+        return
+    try:
+        from auvgw.drivers.can_codec import hn100_can
+
+        hn100_can()
+    except Exception as exc:  # cantools missing or the DBC unreadable: CAN INS unavailable
+        log.warning("fusion: HN-100 CAN types not available: %s", exc)

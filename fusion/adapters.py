@@ -1,0 +1,485 @@
+"""Adapters: decoded device messages -> fusion samples, and device clocks -> the common clock.
+
+Pure functions and small state machines over the codecs' immutable messages (no transports):
+
+* :func:`ins_from_hn100`: an HN-100 solution, serial (:data:`auvgw.drivers.hn100.Hn100Nav`) or CAN
+  (the DBC's epoch sample ``HN100_Sample``; same field names) -> :class:`InsSample` at the
+  DEVICE time (``time``, s since power-up).
+* :func:`dvl_from_pd0`: a PD0 :class:`~auvgw.drivers.pd0.Ensemble` -> :class:`DvlSample` at the
+  device time of the variable leader's RTC, with the velocity in the frame the fixed leader names
+  (EX bits 3-4), bottom lock from the valid beams, altitude and the DVL's pressure depth.
+* :class:`DeviceClock`: maps one device's own clock onto the common clock (host receive time)
+  from (device time, receive time) pairs; :class:`MessageAdapter` does all of it per device, as
+  the bus stage and the offline recording mode both use it (so both give identical samples).
+
+PD0 frames (Pathfinder DVL Guide, coordinate transformation; ``sim_devices/dvl.py`` follows it):
+
+==========  ===========================================  =========================================
+EX frame    0x0600 / 0x5803 velocity axes                DvlSample
+==========  ===========================================  =========================================
+beam        closing speed along beams 1-4 (+ toward      ``"instrument"``: least squares over the
+            the transducer, whoever moves; no negation)  valid beams (3 or 4) with the Janus
+                                                         geometry (beam angle, convex/concave)
+instrument  X (beam 1 -> 2), Y (beam 4 -> 3), Z (up,     ``"instrument"``: RDI instrument axes;
+            toward the face), error                      the mounting rotation maps them to body
+                                                         axes (:data:`RDI_DOWN_BEAM3_FORWARD_DEG`)
+ship        starboard, forward, mast, error; levelled    ``"body"``: un-levelled with the variable
+            by pitch and roll when tilts are used (EX    leader's pitch and roll (what the DVL
+            bit 2)                                       used), then (forward, starboard, down)
+earth       east, north, up, error                       ``"body"``: un-rotated with the variable
+                                                         leader's heading (and tilts)
+==========  ===========================================  =========================================
+
+0x0600 carries the bottom moving relative to the instrument in the transformed frames, so its
+three axes are negated (:attr:`~auvgw.drivers.pd0.BottomTrack.vehicle_velocity`); 0x5803 (the
+high-resolution velocity, 0.01 mm/s, preferred when present and valid) is already the instrument
+over the bottom. Ship and earth velocities become ``"body"`` axes on the assumption that the
+DVL's own heading alignment (EA) makes its ship axes the vehicle's; the filter still applies the
+configured lever arm to them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from auvgw.drivers import pd0
+from auvgw.drivers.spec import WIRE_TYPES
+from auvgw.fusion.samples import DvlSample, InsSample
+
+__all__ = [
+    "INS_TYPES",
+    "PD0_TYPES",
+    "RDI_DOWN_BEAM3_FORWARD_DEG",
+    "AdapterError",
+    "AdapterStats",
+    "ClockStats",
+    "DeviceClock",
+    "MessageAdapter",
+    "beam_matrix",
+    "dvl_from_pd0",
+    "ins_from_hn100",
+    "ins_time_wrap",
+    "ins_usable",
+    "janus_angle",
+]
+
+#: message type names (``TYPE`` or class name) of INS solutions this module adapts
+INS_TYPES = frozenset({"Hn100Nav", "HN100_Sample"})
+#: message type names of DVL messages this module adapts
+PD0_TYPES = frozenset({"pd0.Ensemble"})
+
+#: ``DvlMount.rotation_deg`` (roll, pitch, yaw) of RDI instrument axes (X starboard, Y forward,
+#: Z up) for a down-facing DVL with beam 3 forward: ``Rz(90) Ry(0) Rx(180)`` maps (X, Y, Z) to
+#: body (forward, starboard, down)
+RDI_DOWN_BEAM3_FORWARD_DEG = (180.0, 0.0, 90.0)
+
+#: body (forward, starboard, down) <-> RDI ship (starboard, forward, mast), NED <-> ENU
+_SWAP = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+#: Janus angle of the fixed leader's system configuration bits 8-9 (Pathfinder/Workhorse guides)
+_BEAM_ANGLES_DEG = {0: 15.0, 1: 20.0, 2: 30.0}
+#: EZ sensor source bit of the depth sensor (ED computed from the pressure sensor)
+_EZ_DEPTH = 0x40
+
+
+class AdapterError(ValueError):
+    """A message the fusion cannot use as it is (names the message and what is missing)."""
+
+
+# -- INS -----------------------------------------------------------------------------------------
+
+
+def _field(msg: Any, name: str) -> Any:
+    try:
+        return getattr(msg, name)
+    except AttributeError:
+        raise AdapterError(
+            f"{type(msg).__name__}: no field {name!r} (an HN-100 solution needs time, roll, "
+            "pitch, heading, rate_x/y/z, accel_x/y/z)"
+        ) from None
+
+
+def ins_usable(msg: Any) -> bool:
+    """The INS says its attitude is good: binary frame ``aligned`` and not ``error``; CAN
+    ``alignment`` FINE and ``error`` OK. Messages without these flags count as usable."""
+    if hasattr(msg, "aligned") and not msg.aligned:
+        return False
+    alignment = getattr(msg, "alignment", "FINE")
+    if alignment not in ("FINE", 2):
+        return False
+    error = getattr(msg, "error", False)
+    return error in (False, 0, "OK")
+
+
+def ins_from_hn100(msg: Any, t: float | None = None) -> InsSample:
+    """An HN-100 solution (serial ``Hn100Nav`` or CAN ``HN100_Sample``, SI) as an InsSample.
+
+    ``t``: the sample's time on the common clock; default the DEVICE time ``msg.time`` (s).
+    Heading is passed on as the INS reports it (0..2 pi; the filter wraps). The specific force
+    is None when any component is invalid (NaN); NaN attitude or rates make the sample unusable
+    (:meth:`InsSample.is_finite`), which the filter counts and drops.
+    """
+    accel = (
+        float(_field(msg, "accel_x")),
+        float(_field(msg, "accel_y")),
+        float(_field(msg, "accel_z")),
+    )
+    return InsSample(
+        t=float(_field(msg, "time")) if t is None else float(t),
+        roll=float(_field(msg, "roll")),
+        pitch=float(_field(msg, "pitch")),
+        heading=float(_field(msg, "heading")),
+        rates=(
+            float(_field(msg, "rate_x")),
+            float(_field(msg, "rate_y")),
+            float(_field(msg, "rate_z")),
+        ),
+        accel=accel if all(math.isfinite(a) for a in accel) else None,
+    )
+
+
+def ins_time_wrap(msg_type: type) -> float | None:
+    """Period (s) after which the ``time`` field of an HN-100 message class wraps: ``2^bits x
+    scale`` of an unsigned integer wire field (the shipped table: u32 of 100 us, 4.97 days);
+    None when the class does not say (CAN: a 48-bit microsecond counter, 8.9 years)."""
+    if not dataclasses.is_dataclass(msg_type):
+        return None
+    for f in dataclasses.fields(msg_type):
+        if f.name != "time":
+            continue
+        w = f.metadata.get("wire")
+        if w is None or not w.type.startswith("u") or w.type not in WIRE_TYPES:
+            return None
+        return float(2 ** int(w.type[1:])) * float(w.scale)
+    return None
+
+
+# -- DVL -----------------------------------------------------------------------------------------
+
+
+def janus_angle(fixed: pd0.FixedLeader) -> float:
+    """Beam angle from the vertical, rad: the fixed leader's beam angle (Workhorse), else the
+    system configuration bits 8-9 (15, 20, 30 deg)."""
+    if fixed.beam_angle is not None and fixed.beam_angle > 0.0:
+        return float(fixed.beam_angle)
+    code = (fixed.system_config >> 8) & 3
+    if code not in _BEAM_ANGLES_DEG:
+        raise AdapterError(
+            "pd0 fixed leader: system configuration says 'other' beam angle (bits 8-9 = 3) and "
+            "the block has no beam-angle byte; beam coordinates cannot be converted"
+        )
+    return math.radians(_BEAM_ANGLES_DEG[code])
+
+
+def beam_matrix(angle: float, convex: bool = True) -> np.ndarray:
+    """4 x 3 outward unit vectors of beams 1-4 in RDI instrument axes (X beam 1 -> 2, Y beam
+    4 -> 3, Z toward the face): a closing speed along beam i is ``row_i . v_instrument``.
+    ``convex``: beam 1 points to -X, beam 3 to +Y (concave: crossed)."""
+    s, c = math.sin(angle), math.cos(angle)
+    k = 1.0 if convex else -1.0
+    return np.array(
+        [[-k * s, 0.0, -c], [k * s, 0.0, -c], [0.0, k * s, -c], [0.0, -k * s, -c]]
+    )
+
+
+def _rot_body_to_level(heading: float, pitch: float, roll: float) -> np.ndarray:
+    """``Rz(heading) Ry(pitch) Rx(roll)`` (body -> NED, or body -> level with heading 0)."""
+    ch, sh = math.cos(heading), math.sin(heading)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cr, sr = math.cos(roll), math.sin(roll)
+    return np.array(
+        [
+            [ch * cp, ch * sp * sr - sh * cr, ch * sp * cr + sh * sr],
+            [sh * cp, sh * sp * sr + ch * cr, sh * sp * cr - ch * sr],
+            [-sp, cp * sr, cp * cr],
+        ]
+    )
+
+
+def _bt_velocity(ens: pd0.Ensemble, frame: pd0.CoordinateFrame, high_res: bool) -> np.ndarray:
+    """The 4 bottom-track components as the instrument moving over the bottom (beam: closing
+    speeds as on the wire), preferring 0x5803 when valid; NaN when bad."""
+    hr = ens.bt_high_res
+    if high_res and hr is not None:
+        v = np.asarray(hr.vehicle_velocity, dtype=float)
+        beam = frame is pd0.CoordinateFrame.BEAM
+        if (np.isfinite(v).sum() >= 3) if beam else np.isfinite(v[:3]).all():
+            return v
+    bt = ens.bottom_track
+    if bt is None:
+        return np.full(4, math.nan)
+    if frame is pd0.CoordinateFrame.BEAM:
+        return np.asarray(bt.velocity, dtype=float)
+    return np.asarray(bt.vehicle_velocity, dtype=float)
+
+
+def _altitude(ens: pd0.Ensemble) -> float:
+    r = ens.bt_range
+    if r is not None and math.isfinite(r.vertical_range):
+        return float(r.vertical_range)
+    bt = ens.bottom_track
+    if bt is None:
+        return math.nan
+    ranges = bt.range
+    good = ranges[np.isfinite(ranges)]
+    return float(good.mean()) if len(good) else math.nan
+
+
+def dvl_from_pd0(ens: pd0.Ensemble, t: float | None = None, high_res: bool = True) -> DvlSample:
+    """A PD0 ensemble as a DvlSample (see the module docstring for the frames).
+
+    ``t``: the sample's time on the common clock; default the device time of the variable
+    leader's RTC (POSIX s). Bottom lock: three valid axes (transformed frames) or at least three
+    valid beams (beam frame); without lock the velocity is NaN. ``altitude``: the 0x5804
+    vertical range, else the mean of the valid per-beam 0x0600 ranges (m). ``depth``: the
+    variable leader's transducer depth when the fixed leader says it comes from the DVL's
+    pressure sensor (EZ depth bit), else NaN.
+
+    Raises :class:`AdapterError` without a fixed leader (the frame is unknown), without a
+    variable leader when the frame or time needs it, or with an invalid clock and no ``t``.
+    """
+    fixed = ens.fixed_leader
+    if fixed is None:
+        raise AdapterError("pd0 ensemble without a fixed leader: coordinate frame unknown")
+    var = ens.variable_leader
+    if t is None:
+        t = math.nan if var is None else var.device_time_s
+        if not math.isfinite(t):
+            raise AdapterError(
+                "pd0 ensemble without a valid variable-leader clock (RTC); no device time"
+            )
+    frame = fixed.coordinate_frame
+    raw = _bt_velocity(ens, frame, high_res)
+    if frame is pd0.CoordinateFrame.BEAM:
+        good = np.isfinite(raw)
+        lock = int(good.sum()) >= 3
+        vel = np.full(3, math.nan)
+        if lock:
+            B = beam_matrix(janus_angle(fixed), convex=bool(fixed.system_config & 0x08))
+            vel = np.linalg.lstsq(B[good], raw[good], rcond=None)[0]
+        out_frame = "instrument"
+    else:
+        vel = raw[:3]
+        lock = bool(np.isfinite(vel).all())
+        if frame is pd0.CoordinateFrame.INSTRUMENT:
+            out_frame = "instrument"
+        else:
+            if var is None:
+                raise AdapterError(
+                    f"pd0 ensemble in {frame.name.lower()} coordinates without a variable "
+                    "leader: the attitude the DVL used is unknown"
+                )
+            pitch, roll = (var.pitch, var.roll) if fixed.tilts_used else (0.0, 0.0)
+            heading = var.heading if frame is pd0.CoordinateFrame.EARTH else 0.0
+            # ship/earth = SWAP R(heading, pitch, roll) v_body  =>  v_body = R^T SWAP v
+            vel = _rot_body_to_level(heading, pitch, roll).T @ (_SWAP @ vel)
+            out_frame = "body"
+    if not lock:
+        vel = np.full(3, math.nan)
+    depth = math.nan
+    if var is not None and fixed.sensor_source & _EZ_DEPTH:
+        depth = float(var.depth)
+    a, b, c = (float(x) for x in vel)
+    return DvlSample(
+        t=float(t),
+        velocity=(a, b, c),
+        bottom_lock=lock,
+        frame=out_frame,  # type: ignore[arg-type]
+        altitude=_altitude(ens),
+        depth=depth,
+    )
+
+
+# -- clocks --------------------------------------------------------------------------------------
+
+
+@dataclass
+class ClockStats:
+    """Counters of one :class:`DeviceClock`."""
+
+    samples: int = 0
+    wraps: int = 0  #: device-clock wraps unwrapped
+    resets: int = 0  #: offset re-estimated after a backward device-clock jump
+
+
+class DeviceClock:
+    """Maps one device's own clock onto the common clock (host receive time, s).
+
+    The offset ``t_recv - t_device`` of a sample is its transport latency plus the clocks'
+    offset; the smallest seen is the best estimate of the clocks' offset (latency only adds).
+    So the estimate follows ``offset_k = min(offset_{k-1} + skew * dt_recv, d_k)``: it drops at
+    once to a smaller difference (a faster device clock, a forward jump) and may creep up by at
+    most ``skew`` s/s (a slower device clock). A device clock that jumps backward makes every
+    difference exceed the estimate; once they have exceeded it by more than ``jump_s`` for
+    ``confirm`` samples AND ``confirm_s`` seconds of receive time (so a backlog after a stall is
+    not taken for a jump), the estimate restarts from the current difference. ``wrap_s``: the
+    device time wraps after this many seconds (unwrapped here). ``latency_s``: a known fixed
+    delay between the device's time stamp and reception (e.g. frame bytes x 10 / baud),
+    subtracted from every mapped time.
+    """
+
+    def __init__(
+        self,
+        latency_s: float = 0.0,
+        skew: float = 1e-4,
+        jump_s: float = 1.0,
+        confirm: int = 3,
+        confirm_s: float = 0.5,
+        wrap_s: float | None = None,
+    ) -> None:
+        self.latency_s = float(latency_s)
+        self.skew = float(skew)
+        self.jump_s = float(jump_s)
+        self.confirm = int(confirm)
+        self.confirm_s = float(confirm_s)
+        self.wrap_s = wrap_s
+        self.offset: float | None = None
+        self.stats = ClockStats()
+        self._last_recv = math.nan
+        self._last_dev = math.nan
+        self._wrap_base = 0.0
+        self._excess_n = 0
+        self._excess_since = math.nan
+
+    def _unwrap(self, t_device: float) -> float:
+        w = self.wrap_s
+        if w is not None and math.isfinite(self._last_dev):
+            t = t_device + self._wrap_base
+            if t < self._last_dev - 0.5 * w:
+                self._wrap_base += w
+                self.stats.wraps += 1
+                t += w
+            return t
+        return t_device
+
+    def to_common(self, t_device: float, t_recv: float) -> float:
+        """The common-clock time (s) of a sample stamped ``t_device`` (device s) and received at
+        ``t_recv`` (common clock s)."""
+        t_dev = self._unwrap(t_device)
+        d = t_recv - t_dev
+        off = self.offset
+        if off is None:
+            off = d
+        else:
+            off += self.skew * max(t_recv - self._last_recv, 0.0)
+            if d <= off:
+                off = d
+                self._excess_n = 0
+            elif d - off > self.jump_s:
+                if self._excess_n == 0:
+                    self._excess_since = t_recv
+                self._excess_n += 1
+                if (
+                    self._excess_n >= self.confirm
+                    and t_recv - self._excess_since >= self.confirm_s
+                ):
+                    off = d
+                    self._excess_n = 0
+                    self.stats.resets += 1
+            else:
+                self._excess_n = 0
+        self.offset = off
+        self._last_recv = t_recv
+        self._last_dev = t_dev
+        self.stats.samples += 1
+        return t_dev + off - self.latency_s
+
+
+# -- per-device adapter ---------------------------------------------------------------------------
+
+
+@dataclass
+class AdapterStats:
+    """Counters of a :class:`MessageAdapter` (messages)."""
+
+    ins: int = 0  #: INS samples produced
+    dvl: int = 0  #: DVL samples produced
+    ins_not_aligned: int = 0  #: INS solutions flagged not aligned / in error (dropped)
+    ignored: int = 0  #: messages of a second INS/DVL device or of another type
+    errors: int = 0  #: messages an adapter rejected (AdapterError)
+    last_error: str = ""
+    devices: dict[str, str] = field(default_factory=dict)  #: device -> role ("ins", "dvl")
+
+
+class MessageAdapter:
+    """Decoded messages of named devices -> samples on the common clock (host receive time, s).
+
+    Roles: ``ins_device`` / ``dvl_device`` name the devices to use; None means the first
+    device seen sending that kind of message (an HN-100 on serial AND CAN is one sensor: only
+    one INS and one DVL feed the filter, the others are counted as ignored). Every device has its
+    own :class:`DeviceClock` (``latency_s[device]`` its fixed delay, ``clock`` keyword arguments
+    for all). ``require_aligned``: drop INS solutions the INS flags as not aligned or in error.
+    """
+
+    def __init__(
+        self,
+        ins_device: str | None = None,
+        dvl_device: str | None = None,
+        latency_s: Mapping[str, float] | None = None,
+        clock: Mapping[str, Any] | None = None,
+        require_aligned: bool = True,
+        high_res: bool = True,
+    ) -> None:
+        self.ins_device = ins_device
+        self.dvl_device = dvl_device
+        self.latency_s = dict(latency_s or {})
+        self.clock_args = dict(clock or {})
+        self.require_aligned = require_aligned
+        self.high_res = high_res
+        self.clocks: dict[str, DeviceClock] = {}
+        self.stats = AdapterStats()
+
+    def role(self, device: str, msg: Any) -> str | None:
+        """``"ins"``, ``"dvl"`` or None (ignored) for a message of ``device``; binds a role to
+        the first device seen when it is not configured."""
+        name = str(getattr(msg, "TYPE", type(msg).__name__))
+        if name in INS_TYPES:
+            if self.ins_device is None:
+                self.ins_device = device
+            return "ins" if device == self.ins_device else None
+        if name in PD0_TYPES:
+            if self.dvl_device is None:
+                self.dvl_device = device
+            return "dvl" if device == self.dvl_device else None
+        return None
+
+    def _clock(self, device: str, msg_type: type, role: str) -> DeviceClock:
+        c = self.clocks.get(device)
+        if c is None:
+            args = dict(self.clock_args)
+            if role == "ins":
+                args.setdefault("wrap_s", ins_time_wrap(msg_type))
+            c = DeviceClock(latency_s=self.latency_s.get(device, 0.0), **args)
+            self.clocks[device] = c
+            self.stats.devices[device] = role
+        return c
+
+    def adapt(self, device: str, t_recv_s: float, msg: Any) -> InsSample | DvlSample | None:
+        """The sample of one decoded message received at ``t_recv_s`` (s), or None when it is
+        ignored or unusable (counted)."""
+        role = self.role(device, msg)
+        if role is None:
+            self.stats.ignored += 1
+            return None
+        try:
+            if role == "ins":
+                if self.require_aligned and not ins_usable(msg):
+                    self.stats.ins_not_aligned += 1
+                    return None
+                s = ins_from_hn100(msg)
+                t = self._clock(device, type(msg), role).to_common(s.t, t_recv_s)
+                self.stats.ins += 1
+                return s._replace(t=t)
+            d = dvl_from_pd0(msg, high_res=self.high_res)
+            t = self._clock(device, type(msg), role).to_common(d.t, t_recv_s)
+            self.stats.dvl += 1
+            return d._replace(t=t)
+        except AdapterError as exc:
+            self.stats.errors += 1
+            self.stats.last_error = f"{device}: {exc}"
+            return None
