@@ -22,18 +22,21 @@ import json
 import struct
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any
 
 import zenoh
-from pydantic import BaseModel, ConfigDict, Field
 
+from auvgw.config.bus import BusConfig
 from auvgw.drivers.spec import to_jsonable
 
 __all__ = [
     "RAW_ATTACHMENT",
     "SCHEMA_VERSION",
     "BusConfig",
+    "Envelope",
     "Keys",
+    "add_bus_arguments",
+    "bus_from_args",
     "decode_envelope",
     "encode_envelope",
     "json_encoding",
@@ -48,35 +51,12 @@ SCHEMA_VERSION = 1
 RAW_ATTACHMENT = struct.Struct("<qQQ")
 
 
-class BusConfig(BaseModel):
-    """How this process joins the Zenoh network.
-
-    ``peer`` (default) with explicit ``listen``/``connect`` endpoints; ``client`` connects to a
-    router (``connect`` must name it); ``router`` is what ``auvgw router`` runs. Multicast scouting
-    is off unless asked for; gossip is on so peers behind a router find each other.
-    """
-
-    model_config = ConfigDict(extra="forbid")
-
-    mode: Literal["peer", "client", "router"] = "peer"
-    listen: list[str] = Field(default_factory=list, description="e.g. tcp/127.0.0.1:7447")
-    connect: list[str] = Field(default_factory=list, description="e.g. tcp/192.168.1.10:7447")
-    multicast_scouting: bool = False
-    gossip: bool = True
-
-    def zenoh_config(self) -> zenoh.Config:
-        conf = zenoh.Config()
-        conf.insert_json5("mode", json.dumps(self.mode))
-        conf.insert_json5("listen/endpoints", json.dumps(self.listen))
-        conf.insert_json5("connect/endpoints", json.dumps(self.connect))
-        conf.insert_json5("scouting/multicast/enabled", json.dumps(self.multicast_scouting))
-        conf.insert_json5("scouting/gossip/enabled", json.dumps(self.gossip))
-        return conf
-
-
 def open_session(cfg: BusConfig | None = None) -> zenoh.Session:
     """Open a Zenoh session; close it (``with`` or ``finally``) or the process hangs at exit."""
-    return zenoh.open((cfg or BusConfig()).zenoh_config())
+    conf = zenoh.Config()
+    for key, value in (cfg or BusConfig()).zenoh_json5().items():
+        conf.insert_json5(key, value)
+    return zenoh.open(conf)
 
 
 @dataclass(frozen=True)
@@ -133,7 +113,9 @@ def json_encoding(type_name: str) -> zenoh.Encoding:
 
 @dataclass(frozen=True)
 class Envelope:
-    """A decoded message as it travels: source device, receive time, sequence, device message."""
+    """A decoded message as it travels: its type name, source device, host receive time (ns
+    since the Unix epoch), the sequence of the raw frame it came from, the message's JSON body
+    (SI units) and, where rebuilt (:mod:`auvgw.subscribe`), the typed immutable ``message``."""
 
     type: str
     device: str
@@ -141,6 +123,7 @@ class Envelope:
     seq: int
     body: Mapping[str, Any] = field(default_factory=dict)
     message: Any = None
+    key: str = ""
 
 
 def encode_envelope(
@@ -160,9 +143,44 @@ def encode_envelope(
     return json.dumps(env, separators=(",", ":")).encode(), json_encoding(type_name)
 
 
-def decode_envelope(payload: bytes) -> Envelope:
+def decode_envelope(payload: bytes, key: str = "") -> Envelope:
     """Parse a JSON envelope; raises ValueError on another schema version."""
     env = json.loads(payload)
     if env.get("v") != SCHEMA_VERSION:
         raise ValueError(f"payload schema version {env.get('v')!r}, expected {SCHEMA_VERSION}")
-    return Envelope(env["type"], env["device"], env["t_recv_ns"], env["seq"], env["msg"])
+    return Envelope(env["type"], env["device"], env["t_recv_ns"], env["seq"], env["msg"], key=key)
+
+
+def add_bus_arguments(parser: Any) -> None:
+    """``--mode/--connect/--listen`` options of a command that joins the bus."""
+    g = parser.add_argument_group("Zenoh bus (default: a peer with no endpoints)")
+    g.add_argument("--mode", choices=("peer", "client"), default="peer", help="session mode")
+    g.add_argument(
+        "--connect",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)",
+    )
+    g.add_argument(
+        "--listen",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="endpoint to listen on (repeatable)",
+    )
+
+
+def bus_from_args(args: Any) -> BusConfig:
+    """The :class:`BusConfig` of :func:`add_bus_arguments` options (raises ValueError, one line
+    per problem)."""
+    from pydantic import ValidationError
+
+    try:
+        return BusConfig(mode=args.mode, connect=args.connect, listen=args.listen)
+    except ValidationError as exc:
+        lines = []
+        for e in exc.errors():
+            opt = ".".join(str(p) for p in e["loc"]) or "bus"
+            lines.append(f"--{opt}: {e['msg'].removeprefix('Value error, ')}")
+        raise ValueError("\n".join(lines)) from exc

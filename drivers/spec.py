@@ -371,6 +371,11 @@ def table_rows(cls: type) -> list[dict[str, Any]]:
 
 
 def _jsonable(value: Any) -> Any:
+    t = type(value)
+    if t is int or t is str or t is bool or value is None:  # most fields: nothing to convert
+        return value
+    if t is float:
+        return None if math.isnan(value) or math.isinf(value) else value
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
         return to_jsonable(value)
     if isinstance(value, np.ndarray):

@@ -1,0 +1,158 @@
+"""``auvgw record --vehicle V --out FILE.mcap [--duration S]``: record the raw bus traffic.
+
+Subscribes to ``auv/<V>/raw/**`` (every device's frames with their attachments) and
+``auv/<V>/truth/**`` (simulation ground truth), and writes them to an MCAP file with the gateway's
+configuration (queried from ``auv/<V>/config/gateway``), so ``auvgw replay FILE`` needs nothing
+else. Records until SIGINT/SIGTERM or ``--duration`` seconds; prints ``recording ...`` on stdout
+once its subscriptions have reached the gateway. Layout and rationale: auvgw/recording.py,
+docs/gateway.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+from auvgw.bus import Keys, add_bus_arguments, bus_from_args, open_session
+from auvgw.cli import UserError
+from auvgw.commands.run import handle_stop_signals
+from auvgw.recording import McapRecorder
+
+log = logging.getLogger(__name__)
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser(
+        "record",
+        help="record a vehicle's raw bus traffic (all devices, receive times) to an MCAP file",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--vehicle", default="auv1", help="vehicle name (default auv1)")
+    p.add_argument("--out", "-o", required=True, type=Path, metavar="FILE.mcap", help="output file")
+    p.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        metavar="S",
+        help="stop after S seconds (default: until SIGINT/SIGTERM)",
+    )
+    p.add_argument(
+        "--wait-gateway",
+        type=float,
+        default=10.0,
+        metavar="S",
+        help="wait up to S seconds for the gateway before recording anyway (default 10)",
+    )
+    add_bus_arguments(p)
+    p.set_defaults(func=run)
+
+
+def _query_config(session: zenoh.Session, keys: Keys, timeout: float) -> str | None:
+    for reply in session.get(keys.config("gateway"), timeout=timeout):
+        if reply.ok is not None:
+            text = reply.ok.payload.to_bytes().decode()
+            json.loads(text)  # a valid document, or the recorder logs and retries
+            return text
+    return None
+
+
+def _wait_gateway(
+    session: zenoh.Session, keys: Keys, stop: threading.Event, timeout: float
+) -> bool:
+    """Wait for a gateway status sample: proves the subscriptions declared before reached it."""
+    got = threading.Event()
+    sub = session.declare_subscriber(keys.status("gateway"), lambda _s: got.set())
+    deadline = time.monotonic() + timeout
+    try:
+        while not stop.is_set() and time.monotonic() < deadline:
+            if got.wait(0.05):
+                return True
+        return False
+    finally:
+        sub.undeclare()
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        bus = bus_from_args(args)
+    except ValueError as exc:
+        raise UserError(str(exc)) from exc
+    out: Path = args.out
+    if not out.parent.is_dir():
+        raise UserError(f"{out}: folder {out.parent} does not exist")
+    if args.duration is not None and args.duration <= 0:
+        raise UserError(f"--duration must be > 0 seconds, got {args.duration}")
+    keys = Keys(args.vehicle)
+    stop = threading.Event()
+    try:
+        session = open_session(bus)
+    except zenoh.ZError as exc:
+        raise UserError(f"cannot open the Zenoh session ({exc}); check --connect/--listen") from exc
+    try:
+        try:
+            rec = McapRecorder(out, args.vehicle)
+        except OSError as exc:
+            raise UserError(f"{out}: cannot write: {exc.strerror}") from exc
+
+        def on_sample(s: zenoh.Sample) -> None:
+            att = s.attachment
+            rec.add(
+                str(s.key_expr),
+                s.payload.to_bytes(),
+                None if att is None else att.to_bytes(),
+                str(s.encoding),
+            )
+
+        subs = [
+            session.declare_subscriber(keys.all(f"{sec}/**"), on_sample) for sec in ("raw", "truth")
+        ]
+        with handle_stop_signals(stop):
+            try:
+                if not _wait_gateway(session, keys, stop, args.wait_gateway) and not stop.is_set():
+                    log.warning(
+                        "no status from a gateway of vehicle %r within %.0f s; recording anyway",
+                        args.vehicle,
+                        args.wait_gateway,
+                    )
+                print(
+                    f"recording {keys.all('raw/**')}, {keys.all('truth/**')} to {out}", flush=True
+                )
+                t_end = None if args.duration is None else time.monotonic() + args.duration
+                next_query = 0.0
+                while not stop.is_set() and (t_end is None or time.monotonic() < t_end):
+                    if not rec.has_config and time.monotonic() >= next_query:
+                        try:
+                            cfg = _query_config(session, keys, timeout=1.0)
+                        except ValueError as exc:
+                            log.warning("gateway configuration is not JSON: %s", exc)
+                            cfg = None
+                        if cfg is not None:
+                            rec.set_gateway_config(cfg)
+                        next_query = time.monotonic() + 1.0
+                    wait = 0.1 if t_end is None else max(0.0, min(0.1, t_end - time.monotonic()))
+                    stop.wait(wait)
+            finally:
+                for s in subs:
+                    s.undeclare()
+                if not rec.has_config:
+                    log.warning(
+                        "%s: the gateway configuration was never obtained; replay will need "
+                        "--config",
+                        out,
+                    )
+                rec.close()
+    finally:
+        session.close()
+    total = sum(rec.counts.values())
+    per_key = ", ".join(f"{k}: {n}" for k, n in sorted(rec.counts.items()))
+    print(f"recorded {total} messages to {out} ({per_key or 'nothing'})", file=sys.stderr)
+    return 0

@@ -1,0 +1,201 @@
+"""``auvgw replay FILE.mcap [--speed k] [--vehicle V]``: republish a recording as if live.
+
+Every raw frame goes back on ``auv/<V>/raw/<device>`` with its original attachment (receive
+time, sequence, offset), and is decoded through the gateway's own decoder
+(:meth:`~auvgw.decoding.DeviceDecoder.decode_raw`, devices and formats from the recorded gateway
+configuration) and republished on ``auv/<V>/sensor/<device>/<kind>`` with the same envelope the
+live gateway published, so everything downstream runs as if live. ``truth/`` samples are
+republished as recorded. ``--speed k`` replays at k times the recorded pace (1: real time,
+0: as fast as possible). The recorded configuration is served on ``auv/<V>/config/gateway`` (a
+replay can itself be recorded) and ``auv/<V>/alive/replay`` is held while it runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import threading
+import time
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+from auvgw.bus import (
+    RAW_ATTACHMENT,
+    Keys,
+    add_bus_arguments,
+    bus_from_args,
+    encode_envelope,
+    json_encoding,
+    open_session,
+    unpack_raw_attachment,
+)
+from auvgw.cli import UserError
+from auvgw.commands.run import handle_stop_signals, load_or_fail
+from auvgw.decoding import message_kind
+from auvgw.recording import RecordingError, decoders_for, iter_samples, key_section, read_info
+
+log = logging.getLogger(__name__)
+
+_BLOCK = zenoh.CongestionControl.BLOCK
+_OCTETS = zenoh.Encoding.APPLICATION_OCTET_STREAM
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser(
+        "replay",
+        help="republish an MCAP recording (raw and decoded) as if live",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("file", type=Path, help="recording made by auvgw record (.mcap)")
+    p.add_argument(
+        "--speed",
+        type=float,
+        default=1.0,
+        metavar="K",
+        help="K x the recorded pace; 0 = as fast as possible (default 1)",
+    )
+    p.add_argument("--vehicle", default=None, help="publish as this vehicle (default: recorded)")
+    p.add_argument(
+        "--config",
+        type=Path,
+        default=None,
+        metavar="TOML",
+        help="gateway configuration to decode with, instead of the recorded one",
+    )
+    p.add_argument(
+        "--wait-for",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="start once the liveliness token auv/<V>/alive/NAME exists (repeatable)",
+    )
+    p.add_argument(
+        "--wait-timeout",
+        type=float,
+        default=30.0,
+        metavar="S",
+        help="give up waiting for --wait-for after S seconds (default 30)",
+    )
+    add_bus_arguments(p)
+    p.set_defaults(func=run)
+
+
+def _wait_for_tokens(
+    session: zenoh.Session, keys: Keys, names: list[str], stop: threading.Event, timeout: float
+) -> None:
+    missing = set(names)
+    deadline = time.monotonic() + timeout
+    while missing and not stop.is_set():
+        for reply in session.liveliness().get(keys.alive("*"), timeout=0.5):
+            if reply.ok is not None:
+                missing.discard(str(reply.ok.key_expr).rsplit("/", 1)[-1])
+        if missing and time.monotonic() > deadline:
+            raise UserError(
+                f"--wait-for: no liveliness token {', '.join(sorted(missing))} under "
+                f"{keys.alive('*')} within {timeout:g} s"
+            )
+        if missing:
+            stop.wait(0.1)
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.speed < 0:
+        raise UserError(f"--speed must be >= 0 (0 = as fast as possible), got {args.speed}")
+    try:
+        bus = bus_from_args(args)
+    except ValueError as exc:
+        raise UserError(str(exc)) from exc
+    override = load_or_fail(args.config) if args.config is not None else None
+    try:
+        info = read_info(args.file)
+        decoders = decoders_for(info, override)
+    except RecordingError as exc:
+        raise UserError(str(exc)) from exc
+    cfg = override or info.config
+    assert cfg is not None
+    vehicle = args.vehicle or info.vehicle or cfg.vehicle
+    keys = Keys(vehicle)
+    served = cfg.model_copy(update={"vehicle": vehicle}).model_dump_json().encode()
+    stop = threading.Event()
+    try:
+        session = open_session(bus)
+    except zenoh.ZError as exc:
+        raise UserError(f"cannot open the Zenoh session ({exc}); check --connect/--listen") from exc
+    sent: Counter[str] = Counter()
+    errors = 0
+    pubs: dict[str, zenoh.Publisher] = {}
+
+    def publisher(key: str) -> zenoh.Publisher:
+        pub = pubs.get(key)
+        if pub is None:  # replay may wait; dropping would make it differ from the live run
+            pub = pubs[key] = session.declare_publisher(key, congestion_control=_BLOCK)
+        return pub
+
+    try:
+        token = session.liveliness().declare_token(keys.alive("replay"))
+        queryable = session.declare_queryable(
+            keys.config("gateway"),
+            lambda q: q.reply(
+                keys.config("gateway"), served, encoding=json_encoding("GatewayConfig")
+            ),
+        )
+        with handle_stop_signals(stop):
+            _wait_for_tokens(session, keys, args.wait_for, stop, args.wait_timeout)
+            print(
+                f"replaying {args.file} as vehicle {vehicle!r} at speed {args.speed:g}", flush=True
+            )
+            t0_wall: float | None = None
+            t0_log = 0
+            for s in iter_samples(args.file):
+                if stop.is_set():
+                    break
+                try:
+                    _v, section, rest = key_section(s.key)
+                except ValueError:
+                    continue
+                if t0_wall is None:
+                    t0_wall, t0_log = time.monotonic(), s.log_time_ns
+                if args.speed > 0:
+                    wait = t0_wall + (s.log_time_ns - t0_log) / 1e9 / args.speed - time.monotonic()
+                    if wait > 10:
+                        log.warning("recorded gap: next sample (%s) in %.0f s", s.key, wait)
+                    if wait > 0 and stop.wait(wait):
+                        break
+                key = keys.all(f"{section}/{rest}")
+                if section != "raw":
+                    publisher(key).put(s.payload, encoding=s.zenoh_encoding or None)
+                    sent[key] += 1
+                    continue
+                dec = decoders.get(rest)
+                if dec is None or s.attachment is None or len(s.attachment) != RAW_ATTACHMENT.size:
+                    log.warning(
+                        "%s: frame without a configured device or attachment; skipped", s.key
+                    )
+                    continue
+                t_ns, seq, offset = unpack_raw_attachment(s.attachment)
+                publisher(key).put(s.payload, attachment=s.attachment, encoding=_OCTETS)
+                sent[key] += 1
+                item = dec.item(s.payload, offset)
+                if item.error is not None:
+                    errors += 1
+                    log.warning("%s", item.error)
+                for msg in item.messages:
+                    skey = keys.sensor(rest, message_kind(msg))
+                    payload, enc = encode_envelope(msg, rest, t_ns, seq)
+                    publisher(skey).put(payload, encoding=enc)
+                    sent[skey] += 1
+        queryable.undeclare()
+        token.undeclare()
+    finally:
+        session.close()
+    per_key = ", ".join(f"{k}: {n}" for k, n in sorted(sent.items()))
+    print(
+        f"replayed {sum(sent.values())} messages ({errors} decode errors): {per_key or 'nothing'}",
+        file=sys.stderr,
+    )
+    return 0

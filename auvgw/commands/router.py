@@ -1,0 +1,54 @@
+"""``auvgw router``: a Zenoh router in a Python process (no separate zenohd needed).
+
+Peers and clients on the vehicle network connect to it; it routes between processes and hosts.
+Prints ``auvgw router <zid> listening on ...`` once up; exits 0 on SIGINT/SIGTERM.
+"""
+
+from __future__ import annotations
+
+import argparse
+import threading
+from typing import Any
+
+import zenoh
+from pydantic import ValidationError
+
+from auvgw.bus import open_session
+from auvgw.cli import UserError
+from auvgw.commands.run import handle_stop_signals
+from auvgw.config.bus import BusConfig
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser("router", help="run a Zenoh router (for multi-process / multi-host buses)")
+    p.add_argument(
+        "--listen",
+        action="append",
+        default=None,
+        help="endpoint to listen on (repeatable), default tcp/0.0.0.0:7447",
+    )
+    p.add_argument("--connect", action="append", default=[], help="other routers to join")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        cfg = BusConfig(
+            mode="router", listen=args.listen or ["tcp/0.0.0.0:7447"], connect=args.connect
+        )
+    except ValidationError as exc:
+        raise UserError(
+            "; ".join(e["msg"].removeprefix("Value error, ") for e in exc.errors())
+        ) from exc
+    stop = threading.Event()
+    try:
+        session = open_session(cfg)
+    except zenoh.ZError as exc:
+        raise UserError(f"cannot start the router ({exc}); is the port free?") from exc
+    try:
+        with handle_stop_signals(stop):
+            print(f"auvgw router {session.zid()} listening on {', '.join(cfg.listen)}", flush=True)
+            stop.wait()
+    finally:
+        session.close()
+    return 0

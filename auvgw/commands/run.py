@@ -1,0 +1,141 @@
+"""``auvgw run --config FILE``: the gateway daemon.
+
+Loads and validates the TOML configuration (every problem is one line naming the file, the field
+and what is expected; exit code 2), opens every device, publishes raw and decoded data on Zenoh
+until SIGINT or SIGTERM, then withdraws its liveliness tokens and closes its session (exit code
+0). Device connects and disconnects are logged (stderr). docs/gateway.md is the reference.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from types import FrameType
+from typing import Any
+
+import zenoh
+
+from auvgw.cli import UserError
+from auvgw.config.gateway import ConfigError, GatewayConfig, load_gateway_config
+from auvgw.gateway import Gateway
+
+log = logging.getLogger(__name__)
+
+__all__ = ["RunSettings", "handle_stop_signals", "load_or_fail", "serve"]
+
+
+@dataclass(frozen=True)
+class RunSettings:
+    """What ``auvgw run`` was asked to do.
+
+    ``viz_rrd`` (a ``.rrd`` file to write) and ``viz_connect`` (a Rerun viewer URL) are carried
+    for the Rerun logging stage; None means no such output.
+    """
+
+    config: GatewayConfig
+    viz_rrd: Path | None = None
+    viz_connect: str | None = None
+    exit_when_done: bool = False
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser(
+        "run",
+        help="run the gateway daemon (devices -> Zenoh) from a TOML configuration",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--config", "-c", required=True, type=Path, help="gateway configuration (TOML)")
+    p.add_argument(
+        "--viz-rrd",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="Rerun stage: write the session to this .rrd file",
+    )
+    p.add_argument(
+        "--viz-connect",
+        default=None,
+        metavar="URL",
+        help="Rerun stage: stream to a running viewer at this URL",
+    )
+    p.add_argument(
+        "--exit-when-done",
+        action="store_true",
+        help="exit once every device's finite source (file replay) has ended",
+    )
+    p.set_defaults(func=run)
+
+
+def load_or_fail(path: Path) -> GatewayConfig:
+    """The validated configuration, or a :class:`UserError` listing every problem."""
+    try:
+        return load_gateway_config(path)
+    except ConfigError as exc:
+        raise UserError(str(exc)) from exc
+
+
+@contextmanager
+def handle_stop_signals(stop: threading.Event) -> Iterator[None]:
+    """Within the block, SIGINT and SIGTERM set ``stop`` (main thread only; restored after)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def on_signal(signum: int, _frame: FrameType | None) -> None:
+        log.info("%s received: stopping", signal.Signals(signum).name)
+        stop.set()
+
+    old = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+
+
+def serve(settings: RunSettings, stop: threading.Event | None = None) -> int:
+    """Run the gateway until ``stop`` is set (or a signal, or the end of finite sources)."""
+    cfg = settings.config
+    stop = stop or threading.Event()
+    try:
+        gateway = Gateway(cfg)
+    except ConfigError as exc:
+        raise UserError(str(exc)) from exc
+    except zenoh.ZError as exc:
+        raise UserError(
+            f"{cfg.source}: bus: cannot open the Zenoh session ({exc}); check bus.mode, "
+            "bus.listen (port free?) and bus.connect (router reachable?)"
+        ) from exc
+    if settings.viz_rrd is not None or settings.viz_connect is not None:
+        log.warning("no Rerun stage is installed yet: --viz-rrd/--viz-connect have no effect")
+    with handle_stop_signals(stop):
+        try:
+            gateway.start()
+            while not stop.wait(0.2):
+                if settings.exit_when_done and gateway.finished.is_set():
+                    log.info("every device's source has ended")
+                    break
+        finally:
+            gateway.stop()
+    return 0
+
+
+def run(args: argparse.Namespace) -> int:
+    for name in ("auvgw.gateway", __name__):  # connects/disconnects are always worth a line
+        lg = logging.getLogger(name)
+        if lg.getEffectiveLevel() > logging.INFO:
+            lg.setLevel(logging.INFO)
+    settings = RunSettings(
+        config=load_or_fail(args.config),
+        viz_rrd=args.viz_rrd,
+        viz_connect=args.viz_connect,
+        exit_when_done=args.exit_when_done,
+    )
+    return serve(settings)

@@ -1,0 +1,191 @@
+"""From transport chunks to (raw frame, decoded messages): the one decode path shared by the
+gateway, ``auvgw replay`` and offline tools, so a replay decodes exactly as the live run did.
+
+Byte-stream devices go through their format's framer; CAN devices deliver one frame per chunk,
+carried raw as ``u32 arbitration id | u8 flags (bit0 extended) | data`` (:func:`pack_can_raw`).
+The raw frame is what goes on the bus (``auv/<v>/raw/<device>``); :meth:`DeviceDecoder.decode_raw`
+turns it into messages, live and in replay alike.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Any
+
+from auvgw.config.gateway import ConfigError, DeviceConfig, GatewayConfig
+from auvgw.drivers.formats import Format, get_format
+from auvgw.drivers.framing import ErrorPolicy, Framer
+
+__all__ = [
+    "DecodedItem",
+    "DecoderCounts",
+    "DeviceDecoder",
+    "make_decoder",
+    "make_decoders",
+    "message_kind",
+    "message_type",
+    "pack_can_raw",
+    "unpack_can_raw",
+]
+
+_CAN_HEAD = struct.Struct("<IB")
+
+
+def pack_can_raw(can_id: int, is_extended_id: bool, data: bytes) -> bytes:
+    """Raw bus form of one CAN frame."""
+    return _CAN_HEAD.pack(can_id, 1 if is_extended_id else 0) + bytes(data)
+
+
+def unpack_can_raw(raw: bytes) -> tuple[int, bool, bytes]:
+    """(arbitration id, is_extended_id, data) of a raw CAN frame."""
+    can_id, flags = _CAN_HEAD.unpack_from(raw)
+    return can_id, bool(flags & 1), raw[_CAN_HEAD.size :]
+
+
+def message_type(msg: Any) -> str:
+    """A decoded message's type name (its ``TYPE`` or class name), as in ``to_jsonable``."""
+    return str(getattr(msg, "TYPE", type(msg).__name__))
+
+
+def message_kind(msg: Any) -> str:
+    """The ``<kind>`` key segment of a decoded message: its type name without the codec prefix,
+    in lower case (``pd0.Ensemble`` -> ``ensemble``)."""
+    return message_type(msg).rsplit(".", 1)[-1].lower()
+
+
+@dataclass(frozen=True, slots=True)
+class DecodedItem:
+    """One frame: its raw bytes, stream offset, decoded messages, or the decode error text."""
+
+    raw: bytes
+    offset: int
+    messages: tuple[Any, ...] = ()
+    error: str | None = None
+
+
+@dataclass
+class DecoderCounts:
+    """Framing counters of a device since its decoder was made (all connections)."""
+
+    frames: int = 0
+    bad_frames: int = 0
+    skipped_bytes: int = 0
+    reasons: Counter[str] = field(default_factory=Counter)
+
+
+class DeviceDecoder:
+    """Stateful framing + stateless decoding of one device's stream.
+
+    Bad frames are counted (with their reasons), never logged one by one: a garbage stream
+    would flood the log; the gateway reports the counts in the device status instead.
+    """
+
+    def __init__(self, name: str, fmt: Format | None, can_codec: Any = None) -> None:
+        if (fmt is None) == (can_codec is None):
+            raise ValueError("a device decoder needs a format or a CAN codec, not both")
+        self.name = name
+        self.format = fmt
+        self.can = can_codec
+        self._framer: Framer | None = None
+        self._closed = DecoderCounts()
+        self.reset()
+
+    def reset(self) -> None:
+        """Start a new stream (after a reconnect): forget a partial frame; counters carry on."""
+        if self._framer is not None:
+            s = self._framer.stats
+            self._closed.frames += s.frames
+            self._closed.bad_frames += s.bad_frames
+            self._closed.skipped_bytes += s.skipped_bytes
+            self._closed.reasons.update(s.reasons)
+        self._framer = (
+            self.format.framer(policy=ErrorPolicy.IGNORE, source=self.name)
+            if self.format is not None
+            else None
+        )
+
+    def counts(self) -> DecoderCounts:
+        """Totals since creation: (frames, bad frames, skipped bytes, bad-frame reasons)."""
+        c = self._closed
+        if self._framer is None:
+            return DecoderCounts(c.frames, c.bad_frames, c.skipped_bytes, Counter(c.reasons))
+        s = self._framer.stats
+        return DecoderCounts(
+            c.frames + s.frames,
+            c.bad_frames + s.bad_frames,
+            c.skipped_bytes + s.skipped_bytes,
+            c.reasons + s.reasons,
+        )
+
+    def decode_raw(self, raw: bytes) -> tuple[Any, ...]:
+        """Messages of one raw frame as published on the bus (raises on undecodable content)."""
+        if self.can is not None:
+            can_id, ext, data = unpack_can_raw(raw)
+            msg = self.can.decode(can_id, data, is_extended_id=ext)
+            return () if msg is None else (msg,)
+        assert self.format is not None
+        return tuple(self.format.decode(raw))
+
+    def item(self, raw: bytes, offset: int = 0) -> DecodedItem:
+        """Decode one raw frame; an error (any exception of the codec) becomes the item's text."""
+        try:
+            return DecodedItem(raw, offset, self.decode_raw(raw))
+        except Exception as exc:  # a codec failing on odd content must not stop the device
+            where = f"frame at byte offset {offset}" if self.can is None else "CAN frame"
+            return DecodedItem(
+                raw, offset, (), f"{self.name}: {where}: {type(exc).__name__}: {exc}"
+            )
+
+    def feed(self, chunk: Any) -> list[DecodedItem]:
+        """Items completed by one transport chunk (a :class:`~auvgw.drivers.transports.Chunk`)."""
+        if self.can is not None:
+            raw = pack_can_raw(chunk.can_id, chunk.is_extended_id, chunk.data)
+            self._closed.frames += 1
+            return [self.item(raw, 0)]
+        assert self._framer is not None
+        return [self.item(f.data, f.offset) for f in self._framer.feed(chunk.data)]
+
+    def finish(self) -> list[DecodedItem]:
+        """End of a finite stream: judge the bytes left (an incomplete frame is a bad frame)."""
+        if self._framer is None:
+            return []
+        return [self.item(f.data, f.offset) for f in self._framer.finish()]
+
+
+def make_decoder(cfg: DeviceConfig, name: str = "") -> DeviceDecoder:
+    """The decoder a device's configuration asks for (site tables and DBCs resolved here)."""
+    if cfg.format == "can":
+        from auvgw.drivers.can_codec import load_can_codec
+
+        return DeviceDecoder(name, None, load_can_codec(cfg.dbc))
+    if cfg.table and cfg.format in ("hn100", "ms3a"):
+        from auvgw.drivers.formats import format_from_table
+
+        return DeviceDecoder(name, format_from_table(cfg.format, cfg.table))
+    return DeviceDecoder(name, get_format(cfg.format))
+
+
+def make_decoders(cfg: GatewayConfig) -> dict[str, DeviceDecoder]:
+    """A decoder per enabled device; a format, table or DBC that cannot be loaded is a
+    :class:`ConfigError` naming the file and the device's field."""
+    out: dict[str, DeviceDecoder] = {}
+    src = cfg.source or "<config>"
+    for name, dcfg in cfg.devices.items():
+        if not dcfg.enabled:
+            continue
+        what = "dbc" if dcfg.format == "can" else "table" if dcfg.table else "format"
+        try:
+            out[name] = make_decoder(dcfg, name)
+        except ImportError as exc:
+            raise ConfigError(
+                f"{src}: devices.{name}.{what}: format {dcfg.format!r} is not available in this "
+                f"build ({exc})"
+            ) from exc
+        except (OSError, ValueError, KeyError) as exc:
+            value = getattr(dcfg, what)
+            raise ConfigError(
+                f"{src}: devices.{name}.{what}: cannot load {value!r}: {type(exc).__name__}: {exc}"
+            ) from exc
+    return out

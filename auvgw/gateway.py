@@ -1,0 +1,381 @@
+"""The gateway daemon: one reader thread per device, raw then decoded on Zenoh, health, liveliness.
+
+Per device: open the transport (retrying with exponential backoff while it is missing), feed every
+chunk to the format's framer, publish each verified frame raw (bytes + attachment: receive time,
+sequence, stream offset) *before* decoding it, then publish the decoded messages as JSON
+envelopes. A device that disappears is reported (status ``connected: false``, its liveliness token
+withdrawn) and picked up again when it returns, while the other devices keep flowing. A finite
+source (a file replayed without ``loop``) ends its device cleanly (status ``ended: true``).
+Sensor data uses ``CongestionControl.DROP`` so a subscriber that stops reading never stalls the
+gateway. Behaviour and payloads are documented in docs/gateway.md and docs/bus.md.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import zenoh
+
+from auvgw.bus import (
+    SCHEMA_VERSION,
+    Keys,
+    encode_envelope,
+    json_encoding,
+    open_session,
+    pack_raw_attachment,
+)
+from auvgw.config.gateway import DeviceConfig, GatewayConfig
+from auvgw.decoding import DecodedItem, DeviceDecoder, make_decoders, message_kind, message_type
+from auvgw.drivers.transports import (
+    Disconnected,
+    EndOfStream,
+    Transport,
+    TransportError,
+    make_transport,
+)
+from auvgw.health import Backoff, DeviceHealth
+from auvgw.hostdrivers import HostDriver, make_host_driver
+
+log = logging.getLogger(__name__)
+
+__all__ = ["READ_TIMEOUT_S", "Gateway"]
+
+#: how long a reader waits for data before checking for stop and calling the host driver (s)
+READ_TIMEOUT_S = 0.05
+_DROP = zenoh.CongestionControl.DROP
+
+
+@dataclass
+class _Device:
+    name: str
+    cfg: DeviceConfig
+    health: DeviceHealth
+    decoder: DeviceDecoder
+    thread: threading.Thread | None = None
+    pubs: dict[str, zenoh.Publisher] = field(default_factory=dict)
+    seq: int = 0
+    reported_bad: int = 0
+
+
+class Gateway:
+    """Runs every enabled device of a configuration against one Zenoh session.
+
+    ``session`` may be passed in (stages sharing one embedded peer); otherwise one is opened from
+    ``cfg.bus`` and closed by :meth:`stop`. ``on_message(device, t_recv_ns, message)`` lets an
+    in-process stage see decoded messages without a Zenoh hop (it runs on the device's reader
+    thread: keep it short). Decoders are built first, so a format, table or DBC that cannot be
+    loaded raises :class:`~auvgw.config.gateway.ConfigError` before any session is opened.
+    """
+
+    def __init__(
+        self,
+        cfg: GatewayConfig,
+        session: zenoh.Session | None = None,
+        on_message: Callable[[str, int, Any], None] | None = None,
+    ) -> None:
+        self.cfg = cfg
+        self.keys = Keys(cfg.vehicle)
+        decoders = make_decoders(cfg)
+        self.devices: dict[str, _Device] = {
+            name: _Device(
+                name,
+                cfg.devices[name],
+                DeviceHealth(
+                    name, cfg.devices[name].format, port=cfg.devices[name].transport.describe()
+                ),
+                decoder,
+            )
+            for name, decoder in decoders.items()
+        }
+        self.on_message = on_message
+        self.stop_event = threading.Event()
+        self.finished = threading.Event()
+        self._own_session = session is None
+        self.session = session if session is not None else open_session(cfg.bus)
+        self._t0_ns = time.time_ns()
+        self._threads: list[threading.Thread] = []
+        self._decls: list[Any] = []
+        self._status_pubs: dict[str, zenoh.Publisher] = {}
+        self._started = False
+        self._stopped = False
+        self._ended_lock = threading.Lock()
+        self._ended = 0
+
+    # -- lifecycle --------------------------------------------------------------------------
+    def start(self) -> None:
+        """Declare tokens, queryables and publishers, then start a reader thread per device."""
+        if self._started:
+            return
+        self._started = True
+        s = self.session
+        self._decls.append(s.liveliness().declare_token(self.keys.alive("gateway")))
+        self._decls.append(s.declare_queryable(self.keys.config("gateway"), self._answer_config))
+        for component in ("gateway", *self.devices):
+            key = self.keys.status(component)
+            self._decls.append(
+                s.declare_queryable(key, lambda q, c=component: self._answer_status(q, c))
+            )
+            self._status_pubs[component] = s.declare_publisher(key, congestion_control=_DROP)
+        for dev in self.devices.values():
+            dev.pubs["raw"] = s.declare_publisher(
+                self.keys.raw(dev.name),
+                encoding=zenoh.Encoding.APPLICATION_OCTET_STREAM,
+                congestion_control=_DROP,
+            )
+            dev.thread = threading.Thread(
+                target=self._run_device, args=(dev,), name=f"dev-{dev.name}"
+            )
+            self._threads.append(dev.thread)
+        self._threads.append(threading.Thread(target=self._run_status, name="status", daemon=True))
+        if not self.devices:
+            self.finished.set()
+        log.info(
+            "gateway for vehicle %r starting: %d device(s), bus %s",
+            self.cfg.vehicle,
+            len(self.devices),
+            self.cfg.bus.mode,
+        )
+        for t in self._threads:
+            t.start()
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        """Stop readers, withdraw tokens and declarations, close the session if this gateway
+        opened it. Safe to call more than once."""
+        if self._stopped:
+            return
+        self._stopped = True
+        self.stop_event.set()
+        for t in self._threads:
+            t.join(timeout_s)
+            if t.is_alive():
+                log.warning("thread %s did not stop within %.1f s", t.name, timeout_s)
+        for d in [*self._decls, *self._status_pubs.values()]:
+            with contextlib.suppress(zenoh.ZError):
+                d.undeclare()
+        for dev in self.devices.values():
+            for pub in dev.pubs.values():
+                with contextlib.suppress(zenoh.ZError):
+                    pub.undeclare()
+        if self._own_session:
+            self.session.close()
+        log.info("gateway stopped")
+
+    def __enter__(self) -> Gateway:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    # -- status -----------------------------------------------------------------------------
+    def device_status(self, name: str, now_ns: int | None = None) -> dict[str, Any]:
+        """One device's status (JSON-ready, fields in docs/gateway.md)."""
+        d = self.devices[name]
+        return d.health.snapshot(now_ns, stale_after_s=d.cfg.stale_after_s)
+
+    def status(self) -> dict[str, Any]:
+        """The gateway's status: vehicle, time, uptime and every device's status."""
+        now = time.time_ns()
+        return {
+            "v": SCHEMA_VERSION,
+            "vehicle": self.cfg.vehicle,
+            "t_ns": now,
+            "uptime_s": round((now - self._t0_ns) / 1e9, 3),
+            "bus": self._bus_status(),
+            "devices": {name: self.device_status(name, now) for name in self.devices},
+        }
+
+    def _bus_status(self) -> dict[str, Any]:
+        """This session's Zenoh id, mode and the peers and routers it is connected to."""
+        try:
+            info = self.session.info
+            return {
+                "zid": str(self.session.zid()),
+                "mode": self.cfg.bus.mode,
+                "peers": sorted(str(z) for z in info.peers_zid()),
+                "routers": sorted(str(z) for z in info.routers_zid()),
+            }
+        except zenoh.ZError:  # session closing
+            return {"zid": "", "mode": self.cfg.bus.mode, "peers": [], "routers": []}
+
+    def _run_status(self) -> None:
+        period = self.cfg.status_period_s
+        while not self.stop_event.wait(period):
+            st = self.status()
+            try:
+                self._status_pubs["gateway"].put(
+                    json.dumps(st).encode(), encoding=json_encoding("GatewayStatus")
+                )
+                for name, snap in st["devices"].items():
+                    self._status_pubs[name].put(
+                        json.dumps(snap).encode(), encoding=json_encoding("DeviceStatus")
+                    )
+            except zenoh.ZError:  # session closing
+                return
+            for dev in self.devices.values():
+                self._log_bad_frames(dev, period)
+
+    def _log_bad_frames(self, dev: _Device, period_s: float) -> None:
+        h = dev.health
+        new = h.bad_frames - dev.reported_bad
+        if new > 0:
+            dev.reported_bad = h.bad_frames
+            reasons = ", ".join(f"{r}: {n}" for r, n in sorted(h.bad_frame_reasons.items()))
+            log.warning(
+                "%s: %d bad frame(s) in the last %.1f s (totals %s; %d bytes skipped)",
+                dev.name,
+                new,
+                period_s,
+                reasons,
+                h.skipped_bytes,
+            )
+
+    def _answer_status(self, query: zenoh.Query, component: str) -> None:
+        key = self.keys.status(component)
+        if component == "gateway":
+            query.reply(
+                key, json.dumps(self.status()).encode(), encoding=json_encoding("GatewayStatus")
+            )
+        else:
+            snap = self.device_status(component)
+            query.reply(key, json.dumps(snap).encode(), encoding=json_encoding("DeviceStatus"))
+
+    def _answer_config(self, query: zenoh.Query) -> None:
+        query.reply(
+            self.keys.config("gateway"),
+            self.cfg.model_dump_json().encode(),
+            encoding=json_encoding("GatewayConfig"),
+        )
+
+    # -- one device -------------------------------------------------------------------------
+    def _publish(self, dev: _Device, msg: Any, t_ns: int, seq: int) -> None:
+        kind = message_kind(msg)
+        pub = dev.pubs.get(kind)
+        if pub is None:
+            pub = self.session.declare_publisher(
+                self.keys.sensor(dev.name, kind), congestion_control=_DROP
+            )
+            dev.pubs[kind] = pub
+        payload, enc = encode_envelope(msg, dev.name, t_ns, seq)
+        pub.put(payload, encoding=enc)
+
+    def _handle_items(
+        self,
+        dev: _Device,
+        items: list[DecodedItem],
+        t_recv_ns: int,
+        transport: Transport,
+        host: HostDriver | None,
+    ) -> None:
+        for item in items:
+            dev.seq += 1
+            seq = dev.seq
+            dev.pubs["raw"].put(
+                item.raw, attachment=pack_raw_attachment(t_recv_ns, seq, item.offset)
+            )
+            if item.error is not None:
+                dev.health.decode_error(item.error)
+                continue
+            for msg in item.messages:
+                dev.health.seen(t_recv_ns, message_type(msg))
+                self._publish(dev, msg, t_recv_ns, seq)
+                if self.on_message is not None:
+                    try:
+                        self.on_message(dev.name, t_recv_ns, msg)
+                    except Exception:  # an in-process stage's bug must not reopen the device
+                        log.exception("%s: on_message callback failed", dev.name)
+                if host is not None:
+                    host.on_message(msg, transport.write, time.monotonic())
+
+    def _update_framing(self, dev: _Device) -> None:
+        c = dev.decoder.counts()
+        dev.health.set_framing(c.frames, c.bad_frames, c.skipped_bytes, c.reasons)
+
+    def _serve(self, dev: _Device, transport: Transport) -> bool:
+        """Read one connection until it drops or stop; True when a finite source has ended."""
+        host = make_host_driver(dev.cfg)
+        token = None
+        try:
+            token = self.session.liveliness().declare_token(self.keys.alive(dev.name))
+            if host is not None:
+                host.on_connect(transport.write, time.monotonic())
+            while not self.stop_event.is_set():
+                chunk = transport.read(READ_TIMEOUT_S)
+                if chunk is not None:
+                    self._handle_items(
+                        dev, dev.decoder.feed(chunk), chunk.t_recv_ns, transport, host
+                    )
+                    self._update_framing(dev)
+                if host is not None:
+                    host.on_idle(transport.write, time.monotonic())
+        except EndOfStream as exc:
+            self._handle_items(dev, dev.decoder.finish(), time.time_ns(), transport, None)
+            dev.health.set_ended(str(exc))
+            log.info("%s: end of stream (%s)", dev.name, exc)
+            return True
+        except Disconnected as exc:
+            dev.health.set_connected(False, str(exc))
+            log.warning("%s: disconnected (%s)", dev.name, exc)
+        except TransportError as exc:  # e.g. a host driver's write timed out: reopen
+            dev.health.set_connected(False, str(exc))
+            log.warning("%s: transport error (%s); reopening", dev.name, exc)
+        except zenoh.ZError as exc:
+            if not self.stop_event.is_set():
+                dev.health.set_connected(False, f"bus: {exc}")
+                log.error("%s: bus error (%s)", dev.name, exc)
+        except Exception as exc:  # a reader must never take the daemon down
+            dev.health.set_connected(False, f"{type(exc).__name__}: {exc}")
+            log.exception("%s: reader error; reopening", dev.name)
+        finally:
+            self._update_framing(dev)
+            dev.decoder.reset()
+            if token is not None:
+                with contextlib.suppress(zenoh.ZError):
+                    token.undeclare()
+            transport.close()
+        return False
+
+    def _run_device(self, dev: _Device) -> None:
+        cfg = dev.cfg
+        backoff = Backoff(cfg.backoff_initial_s, cfg.backoff_max_s)
+        failures = 0
+        while not self.stop_event.is_set():
+            transport = make_transport(cfg.transport)
+            try:
+                transport.open()
+            except TransportError as exc:
+                delay = backoff.next_delay()
+                dev.health.set_connected(False, str(exc), retry_in_s=delay)
+                failures += 1
+                level = logging.WARNING if failures == 1 else logging.DEBUG
+                log.log(
+                    level,
+                    "%s: not available (%s); retrying every %.1f-%.1f s",
+                    dev.name,
+                    exc,
+                    cfg.backoff_initial_s,
+                    cfg.backoff_max_s,
+                )
+                self.stop_event.wait(delay)
+                continue
+            failures = 0
+            backoff.reset()
+            dev.health.set_connected(True)
+            log.info("%s: connected on %s", dev.name, transport.describe())
+            if self._serve(dev, transport):
+                with self._ended_lock:
+                    self._ended += 1
+                    if self._ended == len(self.devices):
+                        self.finished.set()
+                return
+            if not self.stop_event.is_set():
+                delay = backoff.next_delay()
+                dev.health.set_retry(delay)
+                self.stop_event.wait(delay)

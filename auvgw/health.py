@@ -1,0 +1,170 @@
+"""Per-device health: counters, message rates, last seen, connection state, backoff.
+
+A device's reader thread updates its :class:`DeviceHealth`; the status publisher and the status
+queryable read :meth:`DeviceHealth.snapshot` (the JSON fields are listed in docs/gateway.md).
+Times are host wall-clock ns since the Unix epoch (``time.time_ns()``); rates are per second.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import Counter, deque
+from dataclasses import dataclass, field
+from typing import Any
+
+__all__ = ["Backoff", "DeviceHealth"]
+
+
+@dataclass
+class Backoff:
+    """Exponential retry delay in seconds: ``initial_s`` doubling up to ``max_s``; reset on
+    success."""
+
+    initial_s: float = 0.2
+    max_s: float = 5.0
+    _next: float = 0.0
+
+    def next_delay(self) -> float:
+        self._next = self.initial_s if self._next == 0.0 else min(self._next * 2, self.max_s)
+        return self._next
+
+    def reset(self) -> None:
+        self._next = 0.0
+
+
+@dataclass
+class DeviceHealth:
+    """What the gateway knows about one device; updated by its reader, read by the status task.
+
+    Rates are messages per second over the last ``window_s`` seconds of host time.
+    """
+
+    name: str
+    format: str
+    port: str = ""
+    window_s: float = 5.0
+    connected: bool = False
+    ended: bool = False
+    frames: int = 0
+    bad_frames: int = 0
+    skipped_bytes: int = 0
+    bad_frame_reasons: Counter[str] = field(default_factory=Counter)
+    decode_errors: int = 0
+    messages: Counter[str] = field(default_factory=Counter)
+    connects: int = 0
+    outages: int = 0
+    last_seen_ns: int | None = None
+    connected_since_ns: int | None = None
+    next_retry_s: float | None = None
+    last_error: str = ""
+    _times: dict[str, deque[int]] = field(default_factory=dict)
+    _lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def seen(self, t_ns: int, type_name: str) -> None:
+        """A message of ``type_name`` decoded from a chunk received at ``t_ns``."""
+        with self._lock:
+            self.messages[type_name] += 1
+            self.last_seen_ns = t_ns
+            self._times.setdefault(type_name, deque()).append(t_ns)
+
+    def decode_error(self, text: str) -> None:
+        """A frame passed its checksum but could not be decoded."""
+        with self._lock:
+            self.decode_errors += 1
+            self.last_error = text
+
+    def set_connected(
+        self, connected: bool, error: str = "", retry_in_s: float | None = None
+    ) -> None:
+        """Record a connect (``connected=True``) or a failed open / disconnect with its reason."""
+        with self._lock:
+            if self.connected and not connected:
+                self.outages += 1
+            if connected and not self.connected:
+                self.connects += 1
+                self.connected_since_ns = time.time_ns()
+            if not connected:
+                self.connected_since_ns = None
+            self.connected = connected
+            self.next_retry_s = None if connected else retry_in_s
+            if error:
+                self.last_error = error
+
+    def set_retry(self, delay_s: float) -> None:
+        """The next reopen attempt is ``delay_s`` seconds away."""
+        with self._lock:
+            self.next_retry_s = delay_s
+
+    def set_ended(self, reason: str) -> None:
+        """A finite source (a file replayed without loop) is over; no reconnect follows."""
+        with self._lock:
+            self.connected = False
+            self.connected_since_ns = None
+            self.ended = True
+            self.next_retry_s = None
+            self.last_error = reason
+
+    def set_framing(
+        self, frames: int, bad_frames: int, skipped_bytes: int, reasons: Counter[str]
+    ) -> None:
+        """Framing totals since the gateway started (all connections)."""
+        with self._lock:
+            self.frames = frames
+            self.bad_frames = bad_frames
+            self.skipped_bytes = skipped_bytes
+            self.bad_frame_reasons = reasons
+
+    def _rates(self, now_ns: int) -> dict[str, float]:
+        cutoff = now_ns - int(self.window_s * 1e9)
+        out = {}
+        for name, times in self._times.items():
+            while times and times[0] < cutoff:
+                times.popleft()
+            out[name] = round(len(times) / self.window_s, 3)
+        return out
+
+    def rate_hz(self, now_ns: int | None = None) -> float:
+        """Messages per second (all types) over the last ``window_s`` seconds."""
+        now_ns = time.time_ns() if now_ns is None else now_ns
+        with self._lock:
+            return round(sum(self._rates(now_ns).values()), 3)
+
+    def snapshot(
+        self, now_ns: int | None = None, stale_after_s: float | None = None
+    ) -> dict[str, Any]:
+        """The JSON-ready status of the device (fields documented in docs/gateway.md)."""
+        now_ns = time.time_ns() if now_ns is None else now_ns
+        with self._lock:
+            rates = self._rates(now_ns)
+            silent = (
+                None if self.last_seen_ns is None else round((now_ns - self.last_seen_ns) / 1e9, 3)
+            )
+            stale = (
+                not self.connected
+                or silent is None
+                or (stale_after_s is not None and silent > stale_after_s)
+            )
+            return {
+                "device": self.name,
+                "format": self.format,
+                "port": self.port,
+                "connected": self.connected,
+                "ended": self.ended,
+                "stale": stale,
+                "rate_hz": round(sum(rates.values()), 3),
+                "rates_hz": rates,
+                "frames": self.frames,
+                "bad_frames": self.bad_frames,
+                "bad_frame_reasons": dict(self.bad_frame_reasons),
+                "skipped_bytes": self.skipped_bytes,
+                "decode_errors": self.decode_errors,
+                "messages": dict(self.messages),
+                "connects": self.connects,
+                "outages": self.outages,
+                "connected_since_ns": self.connected_since_ns,
+                "last_seen_ns": self.last_seen_ns,
+                "silent_s": silent,
+                "next_retry_s": self.next_retry_s,
+                "last_error": self.last_error,
+            }

@@ -1,0 +1,280 @@
+"""Subscribe to a gateway's data as typed messages, from any process on the vehicle or on shore.
+
+::
+
+    from auvgw.subscribe import GatewaySubscriber
+    from auvgw.config.bus import BusConfig
+
+    bus = BusConfig(mode="client", connect=["tcp/192.168.1.10:7447"])
+    with GatewaySubscriber("auv1", bus) as sub:
+        for env in sub.messages(device="dvl", timeout=5.0):
+            print(env.t_recv_ns, env.message.bottom_track)   # a typed, immutable pd0.Ensemble
+
+How messages are rebuilt: from the JSON envelope the gateway publishes
+(``auv/<v>/sensor/<device>/<kind>``) with :func:`auvgw.drivers.spec.from_jsonable`, not by
+decoding the raw frame again. That needs no device configuration, DBC or site table on the
+subscriber's side (a shore laptop only needs the codec modules for the types), and it gives the
+same values the gateway decoded (JSON keeps every float exactly; NaN travels as null and comes
+back NaN). A type no installed codec defines (e.g. a CAN message built from a DBC the subscriber
+has not loaded) arrives with ``message = None`` and its fields in ``body``.
+
+Streams queue samples in the Zenoh callback and never block it: when a consumer falls behind by
+more than ``queue_size`` samples, new ones are dropped and counted (``Stream.dropped``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import queue
+import threading
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from types import TracebackType
+from typing import Any, Self
+
+import zenoh
+
+from auvgw.bus import Envelope, Keys, decode_envelope, open_session, unpack_raw_attachment
+from auvgw.config.bus import BusConfig
+from auvgw.drivers.formats import FORMATS, get_format
+from auvgw.drivers.spec import MESSAGE_TYPES, from_jsonable
+
+log = logging.getLogger(__name__)
+
+__all__ = ["GatewaySubscriber", "RawFrame", "Stream", "typed_message"]
+
+_codecs_loaded = False
+_codecs_lock = threading.Lock()
+
+
+def _load_codecs() -> None:
+    """Import every codec module of the registry once (they register their message types)."""
+    global _codecs_loaded
+    with _codecs_lock:
+        if _codecs_loaded:
+            return
+        _codecs_loaded = True
+        for name in FORMATS:
+            try:
+                get_format(name)
+            except Exception as exc:  # a codec that cannot load only loses its own types
+                log.debug("codec %s not loaded: %s", name, exc)
+
+
+def typed_message(type_name: str, body: Any) -> Any:
+    """The typed, immutable message of an envelope's body, or None for an unknown type."""
+    if type_name not in MESSAGE_TYPES:
+        _load_codecs()
+    cls = MESSAGE_TYPES.get(type_name)
+    if cls is None:
+        return None
+    try:
+        return from_jsonable(body, cls)
+    except (TypeError, ValueError, KeyError) as exc:
+        log.warning("cannot rebuild a %s from its JSON body: %s", type_name, exc)
+        return None
+
+
+@dataclass(frozen=True, slots=True)
+class RawFrame:
+    """A raw frame as the gateway published it: bytes exactly as received, host receive time
+    (ns since the Unix epoch), per-device sequence and the stream byte offset of its first byte
+    (since the device's connection opened)."""
+
+    device: str
+    t_recv_ns: int
+    seq: int
+    offset: int
+    data: bytes
+    key: str
+
+
+class Stream:
+    """A declared subscription whose samples queue up until iterated (see :meth:`get`)."""
+
+    def __init__(self, session: zenoh.Session, key: str, raw: bool, queue_size: int) -> None:
+        self.key = key
+        self.raw = raw
+        self.dropped = 0
+        self._q: queue.Queue[tuple[str, bytes, bytes | None]] = queue.Queue(queue_size)
+        self._sub = session.declare_subscriber(key, self._on_sample)
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        att = sample.attachment
+        item = (
+            str(sample.key_expr),
+            sample.payload.to_bytes(),
+            None if att is None else att.to_bytes(),
+        )
+        try:
+            self._q.put_nowait(item)
+        except queue.Full:
+            self.dropped += 1
+
+    def _convert(self, item: tuple[str, bytes, bytes | None]) -> Envelope | RawFrame | None:
+        key, payload, att = item
+        if self.raw:
+            if att is None:
+                return None
+            t_ns, seq, offset = unpack_raw_attachment(att)
+            return RawFrame(key.rsplit("/", 1)[-1], t_ns, seq, offset, payload, key)
+        try:
+            env = decode_envelope(payload, key)
+        except (ValueError, KeyError) as exc:
+            log.warning("%s: not a gateway envelope: %s", key, exc)
+            return None
+        return Envelope(
+            env.type,
+            env.device,
+            env.t_recv_ns,
+            env.seq,
+            env.body,
+            typed_message(env.type, env.body),
+            key,
+        )
+
+    def get(self, timeout: float | None = None) -> Any:
+        """The next envelope (or raw frame), or None when nothing arrives within ``timeout`` s."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
+            left = None if deadline is None else max(0.0, deadline - time.monotonic())
+            try:
+                item = self._q.get(timeout=left)
+            except queue.Empty:
+                return None
+            out = self._convert(item)
+            if out is not None:
+                return out
+
+    def __iter__(self) -> Iterator[Any]:
+        return self.iter()
+
+    def iter(self, timeout: float | None = None) -> Iterator[Any]:
+        """Items until none arrives for ``timeout`` seconds (None: until closed)."""
+        while (item := self.get(timeout)) is not None:
+            yield item
+
+    def close(self) -> None:
+        with contextlib.suppress(zenoh.ZError):
+            self._sub.undeclare()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class GatewaySubscriber:
+    """A Zenoh session joined to a vehicle's bus, with typed access to the gateway's data.
+
+    ``vehicle`` is the gateway's ``vehicle`` name; ``bus`` how to join (e.g. a client of the
+    vehicle's router). Close it (``with``) or the process hangs at exit.
+    """
+
+    def __init__(
+        self,
+        vehicle: str = "auv1",
+        bus: BusConfig | None = None,
+        session: zenoh.Session | None = None,
+        queue_size: int = 100_000,
+    ) -> None:
+        self.keys = Keys(vehicle)
+        self.queue_size = queue_size
+        self._own = session is None
+        self.session = session if session is not None else open_session(bus)
+        self._streams: list[Stream] = []
+        self._tokens: list[zenoh.LivelinessToken] = []
+
+    # -- data -------------------------------------------------------------------------------
+    def stream(
+        self, device: str | None = None, kind: str | None = None, raw: bool = False
+    ) -> Stream:
+        """Declare a subscription now (decoded envelopes, or raw frames with ``raw=True``).
+
+        ``device``/``kind`` None mean all. Samples published before the declaration reaches the
+        gateway are not seen: call :meth:`wait_ready` after declaring.
+        """
+        key = self.keys.raw(device or "*") if raw else self.keys.sensor(device or "*", kind or "*")
+        s = Stream(self.session, key, raw, self.queue_size)
+        self._streams.append(s)
+        return s
+
+    def messages(
+        self, device: str | None = None, kind: str | None = None, timeout: float | None = None
+    ) -> Iterator[Envelope]:
+        """Decoded envelopes (``.message`` typed) until none arrives for ``timeout`` seconds."""
+        with self.stream(device, kind) as s:
+            yield from s.iter(timeout)
+
+    def frames(self, device: str | None = None, timeout: float | None = None) -> Iterator[RawFrame]:
+        """Raw frames with their attachments until none arrives for ``timeout`` seconds."""
+        with self.stream(device, raw=True) as s:
+            yield from s.iter(timeout)
+
+    def wait_ready(self, timeout: float = 10.0) -> bool:
+        """Wait for a gateway status sample; True once one arrived.
+
+        The status subscription is declared after every stream declared so far, and Zenoh keeps
+        declarations in order, so a status sample arriving proves those streams reached the
+        gateway too: data published from then on is delivered.
+        """
+        got = threading.Event()
+        sub = self.session.declare_subscriber(self.keys.status("gateway"), lambda _s: got.set())
+        try:
+            return got.wait(timeout)
+        finally:
+            sub.undeclare()
+
+    # -- health -----------------------------------------------------------------------------
+    def _get_json(self, key: str, timeout: float) -> dict[str, Any] | None:
+        for reply in self.session.get(key, timeout=timeout):
+            if reply.ok is not None:
+                return json.loads(reply.ok.payload.to_bytes())
+        return None
+
+    def status(self, device: str | None = None, timeout: float = 2.0) -> dict[str, Any] | None:
+        """The gateway's status (``device=None``) or one device's, from the status queryable;
+        None when no gateway answers within ``timeout`` seconds."""
+        return self._get_json(self.keys.status(device or "gateway"), timeout)
+
+    def config(self, timeout: float = 2.0) -> dict[str, Any] | None:
+        """The running gateway configuration (JSON), or None when no gateway answers."""
+        return self._get_json(self.keys.config("gateway"), timeout)
+
+    def alive(self, timeout: float = 2.0) -> set[str]:
+        """Components with a liveliness token: ``gateway`` and each connected device."""
+        out = set()
+        for reply in self.session.liveliness().get(self.keys.alive("*"), timeout=timeout):
+            if reply.ok is not None:
+                out.add(str(reply.ok.key_expr).rsplit("/", 1)[-1])
+        return out
+
+    def announce(self, name: str) -> None:
+        """Declare the liveliness token ``auv/<v>/alive/<name>`` until closed (e.g. so
+        ``auvgw replay --wait-for <name>`` starts once this subscriber's streams are declared)."""
+        self._tokens.append(self.session.liveliness().declare_token(self.keys.alive(name)))
+
+    # -- lifecycle --------------------------------------------------------------------------
+    def close(self) -> None:
+        for s in self._streams:
+            s.close()
+        for t in self._tokens:
+            with contextlib.suppress(zenoh.ZError):
+                t.undeclare()
+        if self._own:
+            self.session.close()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()

@@ -1,0 +1,339 @@
+"""Gateway latency, CPU use and losses, beside bare Zenoh measured in the same run.
+
+    .venv/bin/python benchmarks/bench_gateway.py [--rate 10] [--factor 10] [--seconds 15]
+                                                 [--quick]
+
+Set-up: ``auvgw run`` (its own process) reads a raw pty that this script writes real PD0
+ensembles into (RDI_withBT.000, 581 B each), one ``os.write`` per ensemble at a fixed rate; this
+script also subscribes to the decoded ``auv/bench/sensor/dvl/ensemble`` samples (a Zenoh peer
+connected to the gateway by TCP on 127.0.0.1).
+
+* **gateway latency**: from ``os.write`` of an ensemble's last byte returning to its decoded
+  sample arriving in this process's Zenoh callback (``time.time_ns`` on both ends, one process),
+  split at the gateway's receive stamp (``t_recv_ns`` in the envelope) into "pty + read" and
+  "decode + publish + deliver".
+* **bare Zenoh**: a separate publisher process puts payloads of the same size as the envelopes
+  (about 3.7 kB) at the same rate to this process (``time.time_ns`` in the payload; one system
+  clock). Gateway overhead = gateway p50 - bare p50.
+* **CPU**: utime + stime of the gateway process (``/proc/<pid>/stat``) over each phase, as % of
+  one core; idle = device connected, no data.
+* **lost**: ensembles written minus decoded samples received (by sequence number).
+* **stalled**: the 10x phase again with a second subscriber process whose callback never returns.
+
+Nominal rate: 10 Hz (a Pathfinder's top ping rate); 10x = 100 Hz. Latencies are medians and
+99th percentiles over every ensemble of a phase. Timings depend on the machine's load: compare
+the rows of one run, not runs of different days.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import tty
+from dataclasses import dataclass
+from pathlib import Path
+
+import zenoh
+
+from auvgw.bus import open_session
+from auvgw.config.bus import BusConfig
+from auvgw.drivers.formats import get_format
+from auvgw.paths import REPO_ROOT, shared_dir
+
+BIN = REPO_ROOT / ".venv" / "bin"
+VEHICLE = "bench"
+CLK_TCK = os.sysconf("SC_CLK_TCK")
+
+BARE_PUBLISHER = r"""
+import struct, sys, time
+from auvgw.bus import open_session
+from auvgw.config.bus import BusConfig
+ep, rate, count, size = sys.argv[1], float(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4])
+import zenoh
+with open_session(BusConfig(connect=[ep])) as s:
+    pub = s.declare_publisher("bench/bare", congestion_control=zenoh.CongestionControl.DROP)
+    while not pub.matching_status.matching:
+        time.sleep(0.01)
+    time.sleep(0.5)
+    pad = bytes(size - 16)
+    t0 = time.perf_counter()
+    for i in range(count):
+        due = t0 + i / rate
+        while (d := due - time.perf_counter()) > 0:
+            time.sleep(d)
+        pub.put(struct.pack("<qQ", time.time_ns(), i) + pad)
+    time.sleep(0.5)
+"""
+
+STALLED = r"""
+import sys, time
+from auvgw.bus import open_session
+from auvgw.config.bus import BusConfig
+s = open_session(BusConfig(connect=[sys.argv[1]]))
+sub = s.declare_subscriber(sys.argv[2], lambda sample: time.sleep(3600))
+print("READY", flush=True)
+time.sleep(3600)
+"""
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def cpu_ticks(pid: int) -> int:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return int(fields[11]) + int(fields[12])  # utime, stime (fields 14 and 15 of stat)
+
+
+def pct(values: list[float], q: float) -> float:
+    if not values:
+        return float("nan")
+    s = sorted(values)
+    return s[min(len(s) - 1, round(q * (len(s) - 1)))]
+
+
+@dataclass
+class Row:
+    name: str
+    rate_hz: float
+    sent: int
+    received: int
+    p50_us: float
+    p99_us: float
+    read_p50_us: float = float("nan")
+    rest_p50_us: float = float("nan")
+    cpu_pct: float = float("nan")
+
+    @property
+    def lost(self) -> int:
+        return self.sent - self.received
+
+
+class Bench:
+    def __init__(self, tmp: Path, frames: list[bytes]) -> None:
+        self.tmp = tmp
+        self.frames = frames
+        self.gw_ep = f"tcp/127.0.0.1:{free_port()}"
+        self.my_ep = f"tcp/127.0.0.1:{free_port()}"
+        master, slave = os.openpty()
+        tty.setraw(slave)
+        self.master, self.slave = master, slave
+        self.link = tmp / "dvl"
+        self.link.symlink_to(os.ttyname(slave))
+        cfg = tmp / "gw.toml"
+        cfg.write_text(
+            f'vehicle = "{VEHICLE}"\nstatus_period_s = 1.0\n[bus]\nlisten = ["{self.gw_ep}"]\n'
+            f'[devices.dvl]\nformat = "pd0"\n'
+            f'transport = {{ kind = "serial", url = "{self.link}" }}\n'
+        )
+        self.gw_log = open(tmp / "gateway.log", "wb")  # noqa: SIM115 - closed in close()
+        self.gw = subprocess.Popen(
+            [str(BIN / "auvgw"), "run", "--config", str(cfg)], stderr=self.gw_log, cwd=REPO_ROOT
+        )
+        self.children: list[subprocess.Popen[bytes]] = []
+        self.session = open_session(BusConfig(listen=[self.my_ep], connect=[self.gw_ep]))
+        self.arrivals: list[tuple[int, bytes]] = []
+        self.lock = threading.Lock()
+        self.sub = self.session.declare_subscriber(
+            f"auv/{VEHICLE}/sensor/dvl/ensemble", self._on_sample
+        )
+        self.bare = self.session.declare_subscriber("bench/bare", self._on_sample)
+        self.seq = 0  # ensembles written so far (the gateway's sequence counts from 1)
+        self._wait_connected()
+
+    def _on_sample(self, s: zenoh.Sample) -> None:
+        t = time.time_ns()
+        self.arrivals.append((t, s.payload.to_bytes()))
+
+    def _wait_connected(self) -> None:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            for r in self.session.get(f"auv/{VEHICLE}/status/dvl", timeout=1.0):
+                if r.ok is not None and json.loads(r.ok.payload.to_bytes())["connected"]:
+                    # one ensemble through, so every route is set up before measuring
+                    self.write_paced(1, 10.0)
+                    time.sleep(1.0)
+                    self.arrivals.clear()
+                    return
+            time.sleep(0.2)
+        raise SystemExit(f"gateway did not connect; see {self.tmp / 'gateway.log'}")
+
+    def write_paced(self, n: int, rate: float) -> dict[int, int]:
+        """Write n ensembles at ``rate``; {sequence: time the last byte was written}."""
+        written: dict[int, int] = {}
+        t0 = time.perf_counter()
+        for i in range(n):
+            due = t0 + i / rate
+            while (d := due - time.perf_counter()) > 0:
+                time.sleep(d)
+            frame = self.frames[self.seq % len(self.frames)]
+            view = memoryview(frame)
+            while view:
+                view = view[os.write(self.master, view) :]
+            self.seq += 1
+            written[self.seq] = time.time_ns()
+        return written
+
+    def gateway_phase(self, name: str, rate: float, n: int) -> Row:
+        self.arrivals.clear()
+        c0, w0 = cpu_ticks(self.gw.pid), time.monotonic()
+        written = self.write_paced(n, rate)
+        time.sleep(1.0)  # let the last samples arrive
+        c1, w1 = cpu_ticks(self.gw.pid), time.monotonic()
+        lat, read, rest = [], [], []
+        seen = set()
+        for t_arr, payload in list(self.arrivals):
+            env = json.loads(payload)
+            t_w = written.get(env["seq"])
+            if t_w is None or env["seq"] in seen:
+                continue
+            seen.add(env["seq"])
+            lat.append((t_arr - t_w) / 1e3)
+            read.append((env["t_recv_ns"] - t_w) / 1e3)
+            rest.append((t_arr - env["t_recv_ns"]) / 1e3)
+        cpu = (c1 - c0) / CLK_TCK / (w1 - w0) * 100
+        return Row(
+            name,
+            rate,
+            n,
+            len(seen),
+            pct(lat, 0.5),
+            pct(lat, 0.99),
+            pct(read, 0.5),
+            pct(rest, 0.5),
+            cpu,
+        )
+
+    def idle_phase(self, seconds: float) -> Row:
+        c0, w0 = cpu_ticks(self.gw.pid), time.monotonic()
+        time.sleep(seconds)
+        cpu = (cpu_ticks(self.gw.pid) - c0) / CLK_TCK / (time.monotonic() - w0) * 100
+        nan = float("nan")
+        return Row("gateway idle (connected, no data)", 0.0, 0, 0, nan, nan, cpu_pct=cpu)
+
+    def bare_phase(self, name: str, rate: float, n: int, size: int) -> Row:
+        self.arrivals.clear()
+        p = subprocess.Popen(
+            [str(BIN / "python"), "-c", BARE_PUBLISHER, self.my_ep, str(rate), str(n), str(size)],
+            cwd=REPO_ROOT,
+        )
+        self.children.append(p)
+        p.wait(timeout=60 + n / rate * 2)
+        lat = []
+        seen = set()
+        for t_arr, payload in list(self.arrivals):
+            t_sent = int.from_bytes(payload[:8], "little", signed=True)
+            i = int.from_bytes(payload[8:16], "little")
+            if i not in seen:
+                seen.add(i)
+                lat.append((t_arr - t_sent) / 1e3)
+        return Row(name, rate, n, len(seen), pct(lat, 0.5), pct(lat, 0.99))
+
+    def start_stalled(self) -> subprocess.Popen[bytes]:
+        p = subprocess.Popen(
+            [str(BIN / "python"), "-c", STALLED, self.gw_ep, f"auv/{VEHICLE}/**"],
+            stdout=subprocess.PIPE,
+            cwd=REPO_ROOT,
+        )
+        self.children.append(p)
+        assert p.stdout is not None
+        p.stdout.readline()
+        time.sleep(2.0)  # its subscription reaches the gateway; the first status sample stalls it
+        return p
+
+    def close(self) -> None:
+        for p in [*self.children, self.gw]:
+            if p.poll() is None:
+                p.send_signal(signal.SIGTERM)
+                try:
+                    p.wait(10)
+                except subprocess.TimeoutExpired:
+                    p.kill()
+                    p.wait()
+        self.sub.undeclare()
+        self.bare.undeclare()
+        self.session.close()
+        self.gw_log.close()
+        os.close(self.master)
+        os.close(self.slave)
+
+
+def fmt(v: float, spec: str = ".0f") -> str:
+    return "-" if v != v else format(v, spec)  # NaN -> "-"
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--rate", type=float, default=10.0, help="nominal ensemble rate, Hz")
+    ap.add_argument("--factor", type=float, default=10.0, help="fast phase = factor x rate")
+    ap.add_argument("--seconds", type=float, default=15.0, help="length of each phase, s")
+    ap.add_argument("--quick", action="store_true", help="5 s phases")
+    args = ap.parse_args()
+    seconds = 5.0 if args.quick else args.seconds
+    shared = shared_dir()
+    if shared is None:
+        print("../shared/data not found (set AUVGW_SHARED)", file=sys.stderr)
+        return 1
+    fmt_pd0 = get_format("pd0")
+    frames_iter, _ = fmt_pd0.frames_of_file(shared / "data" / "pd0" / "RDI_withBT.000")
+    frames = [f.data for f in frames_iter]
+    from auvgw.bus import encode_envelope
+
+    env_size = len(encode_envelope(fmt_pd0.decode(frames[0])[0], "dvl", time.time_ns(), 1)[0])
+    nominal, fast = args.rate, args.rate * args.factor
+    n_nom, n_fast = round(nominal * seconds), round(fast * seconds)
+    rows: list[Row] = []
+    with tempfile.TemporaryDirectory(prefix="bench-gw-") as tmp:
+        b = Bench(Path(tmp), frames)
+        try:
+            rows.append(b.idle_phase(min(seconds, 5.0)))
+            rows.append(b.bare_phase("bare Zenoh (same payload size)", nominal, n_nom, env_size))
+            rows.append(b.gateway_phase("gateway, pty -> decoded sample", nominal, n_nom))
+            rows.append(b.bare_phase("bare Zenoh (same payload size)", fast, n_fast, env_size))
+            rows.append(b.gateway_phase("gateway, pty -> decoded sample", fast, n_fast))
+            b.start_stalled()
+            rows.append(b.gateway_phase("gateway + a stalled subscriber", fast, n_fast))
+        finally:
+            b.close()
+
+    print(
+        f"\nGateway benchmark: PD0 ensembles of {len(frames[0])} B -> JSON envelopes of "
+        f"{env_size} B; {seconds:g} s per phase; machine load {os.getloadavg()[0]:.1f}\n"
+    )
+    head = (
+        f"{'phase':34} {'rate Hz':>7} {'sent':>5} {'lost':>5} {'p50 us':>7} {'p99 us':>8} "
+        f"{'read p50':>8} {'pub p50':>8} {'CPU %':>6}"
+    )
+    print(head)
+    print("-" * len(head))
+    for r in rows:
+        print(
+            f"{r.name:34} {fmt(r.rate_hz, 'g'):>7} {r.sent:>5} {r.lost if r.sent else '-':>5} "
+            f"{fmt(r.p50_us):>7} {fmt(r.p99_us):>8} {fmt(r.read_p50_us):>8} "
+            f"{fmt(r.rest_p50_us):>8} {fmt(r.cpu_pct, '.1f'):>6}"
+        )
+    by = {(r.name, r.rate_hz): r for r in rows}
+    print()
+    for rate in (nominal, fast):
+        gw = by[("gateway, pty -> decoded sample", rate)]
+        bare = by[("bare Zenoh (same payload size)", rate)]
+        print(
+            f"at {rate:g} Hz: gateway overhead over bare Zenoh at p50 = "
+            f"{(gw.p50_us - bare.p50_us) / 1e3:.2f} ms (target < 1 ms); "
+            f"ratio p50 {gw.p50_us / bare.p50_us:.1f}x; gateway CPU {gw.cpu_pct:.1f} % of a core"
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,279 @@
+"""Gateway configuration (``auvgw run --config vehicle.toml``), validated with pydantic.
+
+Every error names the file, the field path and what was expected (see :func:`load_gateway_config`).
+Relative paths in a configuration file (a file transport's ``path``, ``dbc``, ``table``) are
+relative to the file's folder; a ``dbc``/``table`` name not found there is one shipped in
+``config/``. Example (the full reference is docs/gateway.md)::
+
+    vehicle = "auv1"
+
+    [bus]
+    mode = "peer"
+    listen = ["tcp/127.0.0.1:7447"]
+
+    [devices.dvl]
+    format = "pd0"
+    transport = { kind = "serial", url = "/dev/ttyUSB0", baud = 115200 }
+
+    [devices.ins_can]
+    format = "can"
+    dbc = "hn100.dbc"
+    transport = { kind = "can", interface = "slcan", channel = "/dev/ttyACM0", bitrate = 500000 }
+"""
+
+from __future__ import annotations
+
+import tomllib
+import types
+import typing
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
+
+from auvgw.config.bus import BusConfig
+from auvgw.config.transport import KINDS, FileTransportConfig, TransportConfig
+
+__all__ = [
+    "DEVICE_FORMATS",
+    "ConfigError",
+    "DeviceConfig",
+    "GatewayConfig",
+    "MsisPolling",
+    "format_validation_error",
+    "load_gateway_config",
+    "parse_gateway_config",
+]
+
+#: formats a device may speak; "can" decodes CAN frames with the device's DBC
+DEVICE_FORMATS = ("pd0", "pd6", "seanet", "kongsberg", "hn100", "ms3a", "can")
+
+_NAME_CHARS = "letters, digits, '_' or '-'"
+
+
+class ConfigError(ValueError):
+    """An unusable configuration; one line per problem, each naming the file and the field."""
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class MsisPolling(_Model):
+    """How the gateway drives a Tritech head (SeaNet is host-polled). Angles in degrees."""
+
+    range_m: float = Field(30.0, gt=0, le=300, description="range scale, m")
+    gain: float = Field(0.4, ge=0, le=1, description="initial gain, 0..1")
+    step_deg: float = Field(1.8, gt=0, le=7.2, description="angular step per ping, deg")
+    left_limit_deg: float = Field(0.0, ge=0, lt=360)
+    right_limit_deg: float = Field(360.0, gt=0, le=360)
+    continuous: bool = True
+    n_bins: int = Field(300, ge=8, le=1500)
+    adc8: bool = True
+    reply_timeout_s: float = Field(1.0, gt=0, description="resend mtSendData after this, s")
+
+
+class DeviceConfig(_Model):
+    """One device: its wire format, its transport, and format-specific options."""
+
+    format: Literal["pd0", "pd6", "seanet", "kongsberg", "hn100", "ms3a", "can"]
+    transport: TransportConfig
+    enabled: bool = True
+    dbc: str | None = Field(
+        None, description="CAN database (format 'can'); file in config/ or path"
+    )
+    table: str | None = Field(None, description="site table replacing the shipped hn100/ms3a one")
+    msis: MsisPolling | None = None
+    stale_after_s: float = Field(2.0, gt=0, description="report the device silent after this, s")
+    backoff_initial_s: float = Field(0.2, gt=0, description="first reconnect delay, s")
+    backoff_max_s: float = Field(5.0, gt=0, description="reconnect delay cap, s")
+
+    @model_validator(mode="after")
+    def _format_options(self) -> DeviceConfig:
+        kind = self.transport.kind
+        if self.format == "can" and not self.dbc:
+            raise ValueError("format 'can' needs 'dbc' (e.g. dbc = \"hn100.dbc\")")
+        if self.format == "can" and kind != "can":
+            raise ValueError(f"format 'can' needs a transport of kind 'can', not {kind!r}")
+        if self.format != "can" and kind == "can":
+            raise ValueError(
+                f"transport kind 'can' carries CAN frames: set format = \"can\" "
+                f"(not {self.format!r}) and name the device's dbc"
+            )
+        if self.dbc and self.format != "can":
+            raise ValueError(f"'dbc' only applies to format 'can', not {self.format!r}")
+        if self.table and self.format not in ("hn100", "ms3a"):
+            raise ValueError(
+                f"'table' only applies to formats 'hn100' and 'ms3a', not {self.format!r}"
+            )
+        if self.msis is not None and self.format != "seanet":
+            raise ValueError(f"'msis' only applies to format 'seanet', not {self.format!r}")
+        if self.backoff_max_s < self.backoff_initial_s:
+            raise ValueError("'backoff_max_s' must be >= 'backoff_initial_s'")
+        if self.format == "seanet" and self.msis is None:
+            self.msis = MsisPolling()
+        return self
+
+
+class GatewayConfig(_Model):
+    """The whole gateway: vehicle name (a Zenoh key segment), bus, status period, devices."""
+
+    vehicle: str = "auv1"
+    bus: BusConfig = Field(default_factory=BusConfig)
+    status_period_s: float = Field(1.0, gt=0, description="status publication period, s")
+    devices: dict[str, DeviceConfig] = Field(min_length=1)
+    source: str | None = Field(None, exclude=True)
+
+    @field_validator("vehicle")
+    @classmethod
+    def _vehicle_name(cls, v: str) -> str:
+        if not _is_name(v):
+            raise ValueError(f"vehicle name {v!r}: use {_NAME_CHARS} (it is a Zenoh key segment)")
+        return v
+
+    @field_validator("devices")
+    @classmethod
+    def _device_names(cls, v: dict[str, DeviceConfig]) -> dict[str, DeviceConfig]:
+        for name in v:
+            if not _is_name(name):
+                raise ValueError(
+                    f"device name {name!r}: use {_NAME_CHARS} (it is a Zenoh key segment)"
+                )
+            if name == "gateway":
+                raise ValueError("'gateway' is reserved (the gateway's own status and liveliness)")
+        return v
+
+
+def _is_name(s: str) -> bool:
+    return bool(s) and s.isascii() and s.replace("_", "").replace("-", "").isalnum()
+
+
+# -- error messages ----------------------------------------------------------------------------
+
+
+def _unwrap(ann: Any) -> list[Any]:
+    """Members of a union annotation (without None), or the annotation alone."""
+    if typing.get_origin(ann) is typing.Annotated:
+        ann = typing.get_args(ann)[0]
+    if typing.get_origin(ann) in (typing.Union, types.UnionType):
+        return [a for a in typing.get_args(ann) if a is not type(None)]
+    return [ann]
+
+
+def _model_at(loc: tuple[str, ...]) -> type[BaseModel] | None:
+    """The model whose fields live at ``loc`` (dict keys and union tags included), if any."""
+    model: type[BaseModel] = GatewayConfig
+    parts = list(loc)
+    while parts:
+        fld = model.model_fields.get(parts.pop(0))
+        if fld is None:
+            return None
+        members = _unwrap(fld.annotation)
+        if typing.get_origin(members[0]) is dict:
+            if not parts:
+                return None
+            parts.pop(0)  # the dict key (a device name)
+            members = _unwrap(typing.get_args(members[0])[1])
+        models = [m for m in members if isinstance(m, type) and issubclass(m, BaseModel)]
+        if len(models) > 1:  # a union tagged by 'kind': pydantic puts the tag in the path
+            tag = parts.pop(0) if parts else None
+            models = [m for m in models if m.model_fields["kind"].default == tag]
+        if len(models) != 1:
+            return None
+        model = models[0]
+    return model
+
+
+def _where(loc: tuple[Any, ...]) -> tuple[str, ...]:
+    parts = [str(p) for p in loc]
+    return tuple(
+        p for i, p in enumerate(parts) if not (p in KINDS and i > 0 and parts[i - 1] == "transport")
+    )
+
+
+def format_validation_error(path: str, exc: ValidationError) -> str:
+    """One line per problem: ``file: field.path: what is wrong / expected (got ...)``."""
+    lines = []
+    kinds = ", ".join(repr(k) for k in KINDS)
+    for err in exc.errors():
+        raw_loc = tuple(str(p) for p in err["loc"])
+        loc = _where(raw_loc)
+        typ = err["type"]
+        got = err.get("input")
+        show_got = not isinstance(got, Mapping) and typ not in ("missing", "extra_forbidden")
+        msg = err["msg"].removeprefix("Value error, ")
+        if show_got and repr(got) in msg:
+            show_got = False
+        if loc in (("devices",),) and typ in ("missing", "too_short"):
+            msg, show_got = "no device configured: add a [devices.<name>] table per device", False
+        elif typ == "missing":
+            msg = "missing (required)"
+        elif typ == "extra_forbidden":
+            model = _model_at(raw_loc[:-1])
+            known = ", ".join(k for k in model.model_fields if k != "source") if model else ""
+            msg = f"unknown key {loc[-1]!r}" + (f"; expected one of: {known}" if known else "")
+        elif typ == "union_tag_not_found":
+            loc, msg = (*loc, "kind"), f"missing; must be one of {kinds}"
+        elif typ == "union_tag_invalid":
+            tag = err.get("ctx", {}).get("tag")
+            loc, msg, show_got = (*loc, "kind"), f"must be one of {kinds}, got {tag!r}", False
+        field = ".".join(loc) or "(top level)"
+        tail = f" (got {got!r:.60})" if show_got else ""
+        lines.append(f"{path}: {field}: {msg}{tail}")
+    return "\n".join(lines)
+
+
+# -- loading -----------------------------------------------------------------------------------
+
+
+def parse_gateway_config(
+    data: Mapping[str, Any], source: str = "<config>", base_dir: Path | None = None
+) -> GatewayConfig:
+    """Validate a mapping; relative paths resolve against ``base_dir`` when given."""
+    try:
+        cfg = GatewayConfig.model_validate(dict(data))
+    except ValidationError as exc:
+        raise ConfigError(format_validation_error(source, exc)) from exc
+    cfg.source = source
+    if base_dir is not None:
+        _resolve_paths(cfg, base_dir)
+    return cfg
+
+
+def _resolve_paths(cfg: GatewayConfig, base: Path) -> None:
+    for dev in cfg.devices.values():
+        t = dev.transport
+        if isinstance(t, FileTransportConfig) and not t.path.is_absolute():
+            dev.transport = t.model_copy(update={"path": base / t.path})
+        for attr in ("dbc", "table"):
+            name = getattr(dev, attr)
+            if name and not Path(name).is_absolute() and (base / name).is_file():
+                setattr(dev, attr, str(base / name))
+
+
+def load_gateway_config(path: str | Path) -> GatewayConfig:
+    """Read and validate a gateway TOML file; :class:`ConfigError` names file and field."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError as exc:
+        raise ConfigError(f"{path}: no such configuration file") from exc
+    except IsADirectoryError as exc:
+        raise ConfigError(f"{path}: is a directory, not a configuration file") from exc
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{path}: not a text (UTF-8) file: {exc.reason}") from exc
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read: {exc.strerror}") from exc
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML: {exc}") from exc
+    return parse_gateway_config(data, str(path), base_dir=path.resolve().parent)

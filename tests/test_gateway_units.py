@@ -1,0 +1,212 @@
+"""The gateway's parts in one process: backoff, health accounting, the shared decode path,
+configuration loading (paths, bus checks), the subscriber's typed rebuild, and the
+in-process gateway reconnecting to a ``socket://`` device that drops the link."""
+
+from __future__ import annotations
+
+import json
+import threading
+
+import pytest
+from gateway_support import local_decoded, pd0_frames, wait_until
+
+from auvgw.bus import decode_envelope, encode_envelope
+from auvgw.config.gateway import (
+    ConfigError,
+    load_gateway_config,
+    parse_gateway_config,
+)
+from auvgw.decoding import (
+    DeviceDecoder,
+    make_decoders,
+    message_kind,
+    pack_can_raw,
+    unpack_can_raw,
+)
+from auvgw.drivers.formats import get_format
+from auvgw.drivers.spec import to_jsonable
+from auvgw.drivers.transports import Chunk
+from auvgw.health import Backoff, DeviceHealth
+from auvgw.subscribe import typed_message
+
+
+def test_backoff_doubles_to_the_cap_and_resets():
+    b = Backoff(0.2, 1.0)
+    assert [b.next_delay() for _ in range(5)] == [0.2, 0.4, 0.8, 1.0, 1.0]
+    b.reset()
+    assert b.next_delay() == 0.2
+
+
+def test_health_counts_outages_connects_and_rates():
+    h = DeviceHealth("dvl", "pd0", window_s=2.0)
+    h.set_connected(False, "cannot open", retry_in_s=0.4)
+    assert h.snapshot()["next_retry_s"] == 0.4 and h.outages == 0  # never up: no outage
+    h.set_connected(True)
+    t = 1_000_000_000_000
+    for i in range(10):
+        h.seen(t + i * 100_000_000, "pd0.Ensemble")
+    snap = h.snapshot(t + 1_000_000_000, stale_after_s=2.0)
+    assert snap["rate_hz"] == 5.0 and snap["messages"] == {"pd0.Ensemble": 10}
+    assert snap["silent_s"] == pytest.approx(0.1) and snap["stale"] is False
+    assert h.snapshot(t + 5_000_000_000, stale_after_s=2.0)["stale"] is True
+    assert h.snapshot(t + 5_000_000_000)["rate_hz"] == 0.0  # outside the window
+    h.set_connected(False, "disconnected")
+    h.set_connected(True)
+    assert (h.connects, h.outages) == (2, 1)
+    h.set_ended("end of file")
+    snap = h.snapshot()
+    assert snap["ended"] and not snap["connected"] and snap["last_error"] == "end of file"
+
+
+def test_decoder_counts_survive_reconnects_and_name_the_offset(shared_data):
+    frames = pd0_frames(shared_data, 4)
+    dec = DeviceDecoder("dvl", get_format("pd0"))
+    items = dec.feed(Chunk(b"junk" + frames[0] + frames[1][:100], 1))
+    assert [i.raw for i in items] == [frames[0]] and items[0].offset == 4
+    dec.reset()  # a reconnect: the partial frame is forgotten, counts carry on
+    items = dec.feed(Chunk(frames[2] + frames[3], 2))
+    assert [i.raw for i in items] == frames[2:] and items[0].offset == 0
+    c = dec.counts()
+    assert (c.frames, c.skipped_bytes) == (3, 4)
+    # checksum-valid frame whose content the codec rejects: an error naming the offset
+    bad = dec.item(b"\x7f\x7f\x04\x00", 1234)
+    assert bad.messages == () and "byte offset 1234" in bad.error
+
+
+def test_can_raw_form_round_trips():
+    raw = pack_can_raw(0x18FF1234, True, b"\x01\x02\x03")
+    assert unpack_can_raw(raw) == (0x18FF1234, True, b"\x01\x02\x03")
+    assert unpack_can_raw(pack_can_raw(0x123, False, b"")) == (0x123, False, b"")
+
+
+def test_envelope_round_trip_gives_the_typed_message(shared_data):
+    frame = pd0_frames(shared_data, 1)[0]
+    msg = get_format("pd0").decode(frame)[0]
+    assert message_kind(msg) == "ensemble"
+    payload, enc = encode_envelope(msg, "dvl", 123, 7)
+    assert str(enc) == "application/json;auvgw/1/pd0.Ensemble"
+    env = decode_envelope(payload, "auv/x/sensor/dvl/ensemble")
+    assert (env.type, env.device, env.t_recv_ns, env.seq) == ("pd0.Ensemble", "dvl", 123, 7)
+    typed = typed_message(env.type, env.body)
+    assert type(typed) is type(msg)
+    assert json.loads(json.dumps(to_jsonable(typed))) == local_decoded([frame])[0]
+    assert typed_message("NoSuchType", {}) is None
+    with pytest.raises(ValueError, match="schema version"):
+        decode_envelope(json.dumps({"v": 99}).encode())
+
+
+def test_relative_paths_resolve_next_to_the_config_file(tmp_path):
+    (tmp_path / "site.dbc").write_text('VERSION ""\n')
+    cfg_path = tmp_path / "vehicle.toml"
+    cfg_path.write_text(
+        '[devices.dvl]\nformat = "pd0"\ntransport = { kind = "file", path = "cap/dvl.bin" }\n'
+        '[devices.ins]\nformat = "can"\ndbc = "site.dbc"\n'
+        'transport = { kind = "can", interface = "virtual", channel = "c" }\n'
+        '[devices.mag]\nformat = "can"\ndbc = "ms3a.dbc"\n'
+        'transport = { kind = "can", interface = "virtual", channel = "c" }\n'
+    )
+    cfg = load_gateway_config(cfg_path)
+    assert cfg.devices["dvl"].transport.path == tmp_path / "cap" / "dvl.bin"
+    assert cfg.devices["ins"].dbc == str(tmp_path / "site.dbc")
+    assert cfg.devices["mag"].dbc == "ms3a.dbc"  # not next to the file: a shipped database
+    assert cfg.source == str(cfg_path)
+    assert cfg.devices["dvl"].msis is None
+
+
+def test_config_defaults_and_seanet_polling():
+    cfg = parse_gateway_config(
+        {"devices": {"sonar": {"format": "seanet", "transport": {"kind": "serial", "url": "x"}}}}
+    )
+    assert cfg.vehicle == "auv1" and cfg.bus.mode == "peer" and cfg.bus.listen == []
+    assert cfg.devices["sonar"].msis is not None and cfg.devices["sonar"].msis.range_m == 30.0
+    with pytest.raises(ConfigError, match="'gateway' is reserved"):
+        parse_gateway_config(
+            {"devices": {"gateway": {"format": "pd0", "transport": {"kind": "serial", "url": "x"}}}}
+        )
+
+
+def test_a_format_that_cannot_load_is_a_config_error_naming_the_field():
+    cfg = parse_gateway_config(
+        {
+            "devices": {
+                "ins": {
+                    "format": "can",
+                    "dbc": "surely-missing.dbc",
+                    "transport": {"kind": "can", "interface": "virtual", "channel": "c"},
+                }
+            }
+        },
+        "v.toml",
+    )
+    with pytest.raises(ConfigError, match=r"^v\.toml: devices\.ins\.dbc: "):
+        make_decoders(cfg)
+
+
+def test_in_process_gateway_reopens_after_a_reader_error(shared_data):
+    """``socket://`` to a local server that drops the connection: the device is reported
+    disconnected, reopened with backoff, and frames from the second connection still flow."""
+    import socket
+
+    from auvgw.gateway import Gateway
+
+    frames = pd0_frames(shared_data, 6)
+    srv = socket.socket()
+    srv.bind(("127.0.0.1", 0))
+    srv.listen()
+    port = srv.getsockname()[1]
+    served = []
+
+    gws = []
+
+    def serve() -> None:
+        for k, part in enumerate((frames[:3], frames[3:]), start=1):
+            conn, _ = srv.accept()
+            served.append(conn)
+            # pyserial's open() discards what arrived before it finished: send once connected
+            wait_until(lambda k=k: gws and gws[0].device_status("dvl")["connects"] == k)
+            first = k == 1
+            conn.sendall(b"".join(part))
+            if first:  # the device drops the link once its frames are through
+                wait_until(lambda: len(got) >= 3, what="first part decoded")
+                conn.close()
+
+    got = []
+    cfg = parse_gateway_config(
+        {
+            "vehicle": "unit1",
+            "devices": {
+                "dvl": {
+                    "format": "pd0",
+                    "transport": {"kind": "serial", "url": f"socket://127.0.0.1:{port}"},
+                    "backoff_initial_s": 0.05,
+                }
+            },
+        }
+    )
+    t = threading.Thread(target=serve, daemon=True)
+    t.start()
+    try:
+        with Gateway(cfg, on_message=lambda d, ts, m: got.append(to_jsonable(m))) as gw:
+            gws.append(gw)
+            wait_until(lambda: len(got) == 6, what="both connections' frames")
+            st = gw.device_status("dvl")
+    finally:
+        for c in served:
+            c.close()
+        srv.close()
+    assert [json.loads(json.dumps(m)) for m in got] == local_decoded(frames)
+    assert st["connects"] == 2 and st["outages"] == 1 and st["frames"] == 6
+
+
+def test_the_documented_example_configuration_is_valid():
+    import re
+    import tomllib
+
+    from auvgw.paths import REPO_ROOT
+
+    text = (REPO_ROOT / "docs" / "gateway.md").read_text()
+    block = re.findall(r"```toml\n(.*?)```", text, re.S)[0]
+    cfg = parse_gateway_config(tomllib.loads(block), "docs/gateway.md")
+    assert set(cfg.devices) == {"dvl", "sonar", "mbes", "ins", "mag_can", "replayed"}
+    assert {d.transport.kind for d in cfg.devices.values()} == {"serial", "udp", "can", "file"}
+    assert cfg.devices["sonar"].msis is not None and cfg.devices["sonar"].msis.n_bins == 300
