@@ -113,8 +113,20 @@ def serve(settings: RunSettings, stop: threading.Event | None = None) -> int:
             f"{cfg.source}: bus: cannot open the Zenoh session ({exc}); check bus.mode, "
             "bus.listen (port free?) and bus.connect (router reachable?)"
         ) from exc
+    viz = None
     if settings.viz_rrd is not None or settings.viz_connect is not None:
-        log.warning("no Rerun stage is installed yet: --viz-rrd/--viz-connect have no effect")
+        from auvgw.viz.stage import open_viz
+
+        # sensor data reaches the Rerun stage in-process (no JSON round trip); estimates and
+        # status come from the bus
+        viz = open_viz(
+            gateway.session,
+            cfg.vehicle,
+            rrd=settings.viz_rrd,
+            connect=settings.viz_connect,
+            sections=("nav", "slam", "truth", "status"),
+        )
+        gateway.on_message = viz.on_message
     with handle_stop_signals(stop):
         try:
             gateway.start()
@@ -123,6 +135,8 @@ def serve(settings: RunSettings, stop: threading.Event | None = None) -> int:
                     log.info("every device's source has ended")
                     break
         finally:
+            if viz is not None:
+                viz.close()
             gateway.stop()
     return 0
 
