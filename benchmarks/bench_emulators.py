@@ -17,7 +17,12 @@ The table: per port, the nominal rate (vehicle Hz), the rate the emulator ticked
 rate the reader decoded at (messages per vehicle second, i.e. per real second / speed), the
 reader/nominal ratio, bytes dropped by the port (a full pty or queue); then the clock's lag
 (how far the dispatch of a tick ran behind its vehicle time, in vehicle seconds) and the real
-time the run took against duration / speed. Medians over ``--runs`` runs.
+time the run took against duration / speed. Then per device the CPU seconds it used: producing
+samples (its ticks in the clock thread, delayed replies), its prefetch worker, its ports' I/O
+threads (pacing, writes into the ptys, host requests such as the MSIS polls), and with one
+process per device that whole process (imports and set-up excluded: from the start of the run);
+and the clock thread's total (dispatch plus every device's ticks). Medians over ``--runs``
+runs.
 """
 
 from __future__ import annotations
@@ -42,7 +47,11 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def _read_serial(
-    ep: dict[str, Any], counts: dict[str, int], stop: threading.Event, opened: threading.Event
+    ep: dict[str, Any],
+    counts: dict[str, int],
+    stop: threading.Event,
+    opened: threading.Event,
+    draining: threading.Event,
 ) -> None:
     import serial
 
@@ -69,8 +78,9 @@ def _read_serial(
                         counts[ep["name"]] += 1
                         continue
                     counts[ep["name"] + (":pings" if type(msg).__name__ == "HeadData" else "")] += 1
-                    host.on_message(msg, write, time.monotonic())
-            if host is not None:
+                    if not draining.is_set():  # the run is over: no more polls
+                        host.on_message(msg, write, time.monotonic())
+            if host is not None and not draining.is_set():
                 host.on_idle(write, time.monotonic())
     finally:
         s.close()
@@ -78,7 +88,11 @@ def _read_serial(
 
 
 def _read_can(
-    ep: dict[str, Any], counts: dict[str, int], stop: threading.Event, opened: threading.Event
+    ep: dict[str, Any],
+    counts: dict[str, int],
+    stop: threading.Event,
+    opened: threading.Event,
+    draining: threading.Event,
 ) -> None:
     """The adapter's pty read in bulk, its SLCAN lines parsed as the adapter parses the host's
     (python-can's ``slcan`` reads one byte per call and cannot drain 10x an INS's bursts)."""
@@ -114,7 +128,11 @@ def _read_can(
 
 
 def _read_udp(
-    ep: dict[str, Any], counts: dict[str, int], stop: threading.Event, opened: threading.Event
+    ep: dict[str, Any],
+    counts: dict[str, int],
+    stop: threading.Event,
+    opened: threading.Event,
+    draining: threading.Event,
 ) -> None:
     import socket
 
@@ -143,13 +161,14 @@ def reader_main(spec: str) -> int:
     eps = json.loads(spec)
     counts: Counter[str] = Counter()
     stop = threading.Event()
+    draining = threading.Event()
     kinds = {"serial": _read_serial, "can": _read_can, "udp": _read_udp}
 
     opened = [threading.Event() for _ in eps]
 
     def guarded(ep: dict[str, Any], ready: threading.Event) -> None:
         try:
-            kinds[ep["kind"]](ep, counts, stop, ready)
+            kinds[ep["kind"]](ep, counts, stop, ready, draining)
         except Exception as exc:
             counts[ep["name"] + ":error"] += 1
             print(f"reader {ep['name']}: {exc!r}", file=sys.stderr, flush=True)
@@ -165,7 +184,9 @@ def reader_main(spec: str) -> int:
         ev.wait(30)
     time.sleep(0.2)  # the adapters have processed their open commands
     print("ready", flush=True)
+    cpu0 = time.process_time()
     sys.stdin.readline()
+    draining.set()
     end = time.monotonic() + 20.0
     while time.monotonic() < end:  # drain what is still on the way: until 0.5 s of quiet
         before = sum(counts.values())
@@ -175,7 +196,8 @@ def reader_main(spec: str) -> int:
     stop.set()
     for th in threads:
         th.join(5.0)
-    print(json.dumps(dict(counts)), flush=True)
+    cpu = time.process_time() - cpu0
+    print(json.dumps({**counts, "reader_cpu_s": cpu}), flush=True)
     return 0
 
 
@@ -206,10 +228,11 @@ def one_run(scenario: Path, speed: float, duration: float, processes: bool) -> d
             assert reader.stdout is not None and reader.stdin is not None
             if reader.stdout.readline().strip() != "ready":
                 raise RuntimeError("reader process failed to start")
-            t0 = time.perf_counter()
             runner.start(duration=duration)
             runner.wait()
-            real = time.perf_counter() - t0
+            # from vehicle time 0 (one process per device: a short lead after start())
+            clock = runner.truth_runner.clock if processes else runner.clock
+            real = time.monotonic() - clock.started_at
             if not processes:
                 runner.flush(drain_timeout=2.0)
             reader.stdin.write("stop\n")  # the reader drains until its ports are quiet
@@ -219,14 +242,20 @@ def one_run(scenario: Path, speed: float, duration: float, processes: bool) -> d
             runner.stop()
             stats = runner.stats()
             unavailable = dict(runner.unavailable)
+    bauds = {ep["name"]: ep["transport"].get("baud", 0) for ep in eps}
     ports: dict[str, dict[str, Any]] = {}
+    cpu: dict[str, dict[str, float]] = {}
     for dev, st in stats["devices"].items():
+        cpu[dev] = {**st["cpu_s"], "process": st.get("process_cpu_s", math.nan)}
         for ch, cs in st["channels"].items():
             ps = cs["port"]
             nominal, ticks, received = st["rate_hz"], st["ticks"], counts.get(ch, 0)
-            if "ping_duration_s" in st:  # polled: as fast as pings last (travel time + step)
-                d = st["ping_duration_s"]
-                nominal = 1.0 / d if d > 0 else math.nan
+            if "ping_duration_s" in st:  # polled: one request and one ping at a time
+                polls, replies = st["head"]["polls"], st["poll"]["replies"]
+                line_b = ps["bytes_received"] / max(polls, 1)
+                line_b += ps["bytes_written"] / max(replies, 1)
+                cycle = st["ping_duration_s"] + line_b * 10 / bauds[ch]
+                nominal = 1.0 / cycle if cycle > 0 else math.nan
                 ticks = st["head"]["head_data"]
                 received = counts.get(ch + ":pings", 0)
             ports[ch] = {
@@ -240,11 +269,14 @@ def one_run(scenario: Path, speed: float, duration: float, processes: bool) -> d
     return {
         "real_s": real,
         "cpu_s": stats["process_cpu_s"],
+        "clock_cpu_s": stats["clock_cpu_s"],
+        "device_cpu": cpu,
         "load": os.getloadavg()[0],
         "max_lag_s": stats["max_lag_s"],
         "ports": ports,
         "unavailable": unavailable,
         "reader_errors": {k: v for k, v in counts.items() if k.endswith(":error")},
+        "reader_cpu_s": counts["reader_cpu_s"],
     }
 
 
@@ -264,13 +296,25 @@ def report(label: str, runs: list[dict[str, Any]], dur: float, k: float) -> None
         drop_f = statistics.median(r["dropped_frames"] for r in rows)
         print(f"{name:18s} {nominal:10.2f} {ticked:10.2f} {read:9.2f} {read / nominal:9.3f} "
               f"{drop_b:10.0f} {drop_f:10.0f}")  # fmt: skip
+    print(f"{'CPU s per device':18s} {'samples':>10s} {'worker':>10s} {'port I/O':>9s} "
+          f"{'total':>9s} {'process':>10s} {'% core':>10s}")  # fmt: skip
     real = statistics.median(r["real_s"] for r in runs)
+    for dev in runs[0]["device_cpu"]:
+        rows = [r["device_cpu"][dev] for r in runs if dev in r["device_cpu"]]
+        med = {k: statistics.median(c[k] for c in rows) for k in rows[0]}
+        total = med["samples"] + med["worker"] + med["io"]
+        proc = "-" if math.isnan(med["process"]) else f"{med['process']:.2f}"
+        print(f"{dev:18s} {med['samples']:10.2f} {med['worker']:10.2f} {med['io']:9.2f} "
+              f"{total:9.2f} {proc:>10s} {100 * total / real:10.1f}")  # fmt: skip
+    clock_cpu = statistics.median(r["clock_cpu_s"] for r in runs)
     lag = statistics.median(r["max_lag_s"] for r in runs)
     cpu = statistics.median(r["cpu_s"] for r in runs)
     load = statistics.median(r["load"] for r in runs)
     print(f"real time {real:.2f} s for {dur / k:.2f} s expected (ratio {real * k / dur:.3f}); "
           f"clock max lag {lag * 1000:.0f} ms vehicle ({lag / k * 1000:.0f} ms real)")  # fmt: skip
-    print(f"emulator CPU {cpu:.2f} s ({cpu / real:.2f} cores); host load average {load:.1f} "
+    reader = statistics.median(r["reader_cpu_s"] for r in runs)
+    print(f"emulator CPU {cpu:.2f} s ({cpu / real:.2f} cores; clock thread(s) {clock_cpu:.2f} s); "
+          f"reader CPU {reader:.2f} s ({reader / real:.2f} cores); host load average {load:.1f} "
           f"on {os.cpu_count()} cores")  # fmt: skip
     errors = [e for r in runs for e in r["reader_errors"]]
     if errors:
@@ -300,10 +344,11 @@ def main() -> int:
             results[label].append(one_run(path, k, dur, processes))
     for label, runs in results.items():
         report(label, runs, dur, k)
-    print("\n(msis is polled: its nominal rate is one ping per ping duration (two-way travel "
-          "time over the range plus a motor step), 'ticked' the HeadData it sent, 'read' those "
-          "the host decoded; the host polls in real time and each round trip adds its real "
-          "latency x speed, while a clock running behind real time lets more pings fit in a "
+    print("\n(msis is polled, one request at a time: its nominal rate is one cycle of "
+          "mtSendData on the line, the ping (two-way travel time over the range plus a motor "
+          "step) and mtHeadData on the line; 'ticked' the HeadData it sent, 'read' those the "
+          "host decoded. The host polls in real time, so each round trip also adds its real "
+          "latency x speed, and a clock running behind real time lets more pings fit in a "
           "vehicle second)")  # fmt: skip
     return 0
 

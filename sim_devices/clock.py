@@ -24,15 +24,31 @@ import heapq
 import itertools
 import logging
 import math
+import os
 import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
-__all__ = ["ClockStopped", "SimClock", "Task"]
+__all__ = ["ClockStopped", "SimClock", "Task", "thread_cpu_s"]
 
 log = logging.getLogger(__name__)
+_CLK_TCK = os.sysconf("SC_CLK_TCK")
+
+
+def thread_cpu_s(native_id: int | None) -> float:
+    """CPU seconds (user + system) a running thread of this process has used so far, read
+    from ``/proc`` (``native_id`` from ``threading.get_native_id()``; clock-tick resolution,
+    10 ms); 0 when the thread is gone."""
+    if native_id is None:
+        return 0.0
+    try:
+        with open(f"/proc/self/task/{native_id}/stat", "rb") as f:
+            fields = f.read().rsplit(b")", 1)[1].split()
+    except OSError:
+        return 0.0
+    return (int(fields[11]) + int(fields[12])) / _CLK_TCK  # utime, stime
 
 
 class ClockStopped(RuntimeError):
@@ -81,6 +97,7 @@ class SimClock:
         self._cv = threading.Condition(threading.RLock())
         self._speed = float(speed)
         self._time_fn = time_fn
+        self._start_time = float(start_time)
         self._t_anchor = float(start_time)  # vehicle time at _real_anchor (or virtual time)
         self._real_anchor = 0.0
         self._started = False
@@ -91,6 +108,8 @@ class SimClock:
         self._seq = itertools.count()
         self._thread: threading.Thread | None = None
         self._error: BaseException | None = None
+        self._thread_tid: int | None = None
+        self._thread_cpu = 0.0
         self.late_ticks = 0
         self.max_lag = 0.0
 
@@ -108,11 +127,25 @@ class SimClock:
     def stopped(self) -> bool:
         return self._stopped
 
-    def start(self) -> None:
-        """Let vehicle time run (anchors it to the host clock)."""
+    @property
+    def started_at(self) -> float | None:
+        """The host instant (``time_fn`` seconds) of vehicle time ``start_time`` at the
+        current speed (None before :meth:`start`)."""
         with self._cv:
             if not self._started:
-                self._real_anchor = self._time_fn()
+                return None
+            if self._speed == 0:
+                return self._real_anchor
+            return self._real_anchor - (self._t_anchor - self._start_time) / self._speed
+
+    def start(self, at: float | None = None) -> None:
+        """Let vehicle time run: ``start_time`` is the vehicle time at the host instant ``at``
+        (``time_fn`` seconds; default now). With ``at`` in the future, :meth:`now` is earlier
+        than ``start_time`` until then and ticks wait for their time as usual (clocks in
+        several processes share one ``at``). A second call changes nothing."""
+        with self._cv:
+            if not self._started:
+                self._real_anchor = self._time_fn() if at is None else float(at)
                 self._started = True
                 self._cv.notify_all()
 
@@ -273,8 +306,8 @@ class SimClock:
 
     def run(self, until: float | None = None) -> None:
         """Dispatch scheduled ticks in time order in this thread until vehicle time ``until``
-        (or until :meth:`stop`). Starts the clock if needed. A callback that raises stops the
-        clock and the exception propagates from here."""
+        (or until :meth:`stop`). Starts the clock (now) if needed. A callback that raises
+        stops the clock and the exception propagates from here."""
         self.start()
         with self.participant():
             while True:
@@ -330,10 +363,19 @@ class SimClock:
         return th
 
     def _run_quietly(self, until: float | None) -> None:
+        self._thread_tid = threading.get_native_id()
         try:
             self.run(until)
         except BaseException:
             log.exception("simulation clock: a scheduled callback failed")
+        finally:
+            self._thread_cpu = time.thread_time()
+            self._thread_tid = None
+
+    @property
+    def thread_cpu_s(self) -> float:
+        """CPU seconds the :meth:`start_thread` thread used (dispatch and every callback)."""
+        return self._thread_cpu + thread_cpu_s(self._thread_tid)
 
     def join(self, timeout: float | None = None) -> None:
         """Wait for the scheduler thread; re-raise a callback's exception."""

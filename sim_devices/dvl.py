@@ -14,9 +14,10 @@ forward, mast, levelled by pitch and roll when tilts are used (EX bit 2); earth 
 north, up.
 
 Geometry and lock: each of the four beams (30 deg from the instrument vertical, rotated by the
-true attitude) is intersected with the world's terrain (:func:`cast_beams`: first crossing,
-not a flat-seabed approximation). A beam detects the bottom when its vertical range (slant
-range x cos 30 deg, in instrument axes, not tilt-corrected, as the 0x0600 "BT Range") lies in
+true attitude) is intersected with the world's terrain
+(:func:`~auvgw.sim_devices.world.first_crossing`: sampled every 0.25 m, not a flat-seabed
+approximation). A beam detects the bottom when its vertical range (slant range x cos 30 deg,
+in instrument axes, not tilt-corrected, as the 0x0600 "BT Range") lies in
 [``min_altitude_m`` 0.2, ``max_altitude_m`` 89]. Bottom lock needs four detecting beams, or
 three when 3-beam solutions are allowed (EX bit 1; the error velocity is then 0, as the
 Pathfinder stops computing it). Without lock the four velocities are bad (-32768 on the wire);
@@ -72,7 +73,7 @@ import numpy as np
 from auvgw.config.scenario import DeviceSettings
 from auvgw.drivers import pd0
 from auvgw.sim_devices.emulator import Emulator, SimContext
-from auvgw.sim_devices.world import TerrainModel, body_to_ned
+from auvgw.sim_devices.world import body_to_ned, first_crossing
 
 __all__ = [
     "BEAMS_BODY",
@@ -85,7 +86,6 @@ __all__ = [
     "SYSTEM_CONFIG",
     "DvlEmulator",
     "DvlPing",
-    "cast_beams",
     "frame_matrix",
 ]
 
@@ -135,66 +135,6 @@ _NAN4 = np.full(4, math.nan)
 
 
 # -- geometry ------------------------------------------------------------------------------------
-
-
-def cast_beams(
-    terrain: TerrainModel,
-    position: np.ndarray | tuple[float, float, float],
-    directions: np.ndarray,
-    max_slant: float,
-    step: float = 0.25,
-    iterations: int = 10,
-) -> np.ndarray:
-    """Slant range (m) from ``position`` (NED, m) along each unit vector of ``directions``
-    (N, 3; NED) to its first crossing of the seabed, NaN when none within ``max_slant`` m.
-
-    The ray is sampled every ``step`` m between the depths of the terrain's shallowest and
-    deepest points, then the first bracketed crossing is refined (Illinois regula falsi).
-    Straight rays, no refraction. A feature thinner than ``step`` along the ray can be missed.
-    """
-    p = np.asarray(position, float)
-    d = np.asarray(directions, float).reshape(-1, 3)
-    dx, dy, dz = d[:, 0], d[:, 1], d[:, 2]
-    zmin, zmax = terrain.bounds
-    down = dz > 1e-9
-    dzs = np.where(down, dz, 1.0)
-    s_lo = np.clip((zmin - p[2]) / dzs, 0.0, None)
-    s_hi = np.minimum(np.clip((zmax - p[2]) / dzs, 0.0, None) * (1 + 1e-9) + 1e-6, max_slant)
-    s_lo = np.minimum(s_lo, s_hi)
-    k = int(min(max(math.ceil(float(np.max(s_hi - s_lo)) / step), 1), 4096)) + 1
-    s = s_lo[:, None] + (s_hi - s_lo)[:, None] * np.linspace(0.0, 1.0, k)
-
-    def below(sv: np.ndarray, ddx: np.ndarray, ddy: np.ndarray, ddz: np.ndarray) -> np.ndarray:
-        """How far the ray point is below the seabed, m (>= 0 once the ray has hit)."""
-        return p[2] + sv * ddz - terrain.depth(p[0] + sv * ddx, p[1] + sv * ddy)
-
-    g = below(s, dx[:, None], dy[:, None], dz[:, None])
-    crossed = g >= 0.0
-    found = crossed.any(axis=1) & down
-    rows = np.arange(len(d))
-    hi = np.argmax(crossed, axis=1)
-    lo = np.maximum(hi - 1, 0)
-    a, b = s[rows, lo], s[rows, hi]
-    ga, gb = g[rows, lo], g[rows, hi]
-    side = np.zeros(len(d), np.int8)
-    for _ in range(iterations):
-        span = gb - ga
-        ok = span > 1e-12
-        m = np.where(ok, a - ga * (b - a) / np.where(ok, span, 1.0), b)
-        gm = below(m, dx, dy, dz)
-        right = gm >= 0.0
-        # Illinois: an end point kept twice in a row has its value halved
-        ga = np.where(right & (side == 1), ga * 0.5, ga)
-        gb = np.where(~right & (side == -1), gb * 0.5, gb)
-        b, gb = np.where(right, m, b), np.where(right, gm, gb)
-        a, ga = np.where(right, a, m), np.where(right, ga, gm)
-        side = np.where(right, 1, -1).astype(np.int8)
-        if float(np.max(np.abs(gm))) < 1e-6:  # within a micrometre of the seabed
-            break
-    span = gb - ga
-    ok = span > 1e-12
-    hit = np.where(ok, a - ga * (b - a) / np.where(ok, span, 1.0), b)
-    return np.where(found, hit, math.nan)
 
 
 def frame_matrix(
@@ -387,7 +327,9 @@ class DvlEmulator(Emulator):
 
         # beams against the terrain
         max_slant = self.max_altitude / _C * 1.01 + 0.01
-        slant = cast_beams(self.ctx.world.terrain, pos, BEAMS_BODY @ rot.T, max_slant)
+        slant = first_crossing(
+            self.ctx.world.terrain, pos, BEAMS_BODY @ rot.T, max_slant, step=0.25, iterations=10
+        )
         vertical = slant * _C
         with np.errstate(invalid="ignore"):
             detected = (vertical >= self.min_altitude) & (vertical <= self.max_altitude)

@@ -44,6 +44,10 @@ constructs every emulator as ``cls(ctx, settings)``)::
             lost = self.faults.bottom_lock_lost(t)
             self.serial.send(encode_pd0(..., time=self.device_time(t)), t)
 
+A device that sends each sample on a serial line and on CAN (the INS, the magnetometer)
+subclasses :class:`SerialCanEmulator` and implements ``measure``, ``encode_serial`` and
+``encode_can``.
+
 A device whose sample is numpy-heavy sets ``prefetch`` and implements ``prepare(t)`` (compute
 the encoded sample, may run ahead in a worker thread) and ``send(prepared, t)`` instead of
 ``tick`` (the multibeam does).
@@ -54,10 +58,9 @@ A host-polled device (the MSIS head: a byte state machine with ``power_up(t)``,
 
 from __future__ import annotations
 
-import bisect
 import logging
-import math
 import threading
+import time
 import zlib
 from collections import deque
 from collections.abc import Callable, Sequence
@@ -71,11 +74,11 @@ import numpy as np
 from auvgw.config.scenario import DeviceSettings, FaultSettings, Scenario
 from auvgw.drivers.can_codec import CanFrame
 from auvgw.drivers.framing import ErrorPolicy, Framer
-from auvgw.sim_devices.clock import SimClock, Task
+from auvgw.sim_devices.clock import SimClock, Task, thread_cpu_s
 from auvgw.sim_devices.faults import FaultInjector
 from auvgw.sim_devices.ports import PtyPort, UdpSender
-from auvgw.sim_devices.slcan import SlcanAdapter, can_frame_bits, encode_frame
-from auvgw.sim_devices.vehicle import TRUTH_FIELDS, Truth, TruthSample
+from auvgw.sim_devices.slcan import SlcanAdapter
+from auvgw.sim_devices.vehicle import Truth, TruthSample
 from auvgw.sim_devices.world import World
 
 __all__ = [
@@ -86,9 +89,9 @@ __all__ = [
     "Endpoint",
     "PolledEmulator",
     "PolledHead",
+    "SerialCanEmulator",
     "SerialChannel",
     "SimContext",
-    "TruthSampler",
     "UdpChannel",
     "device_option",
     "free_udp_port",
@@ -99,50 +102,6 @@ log = logging.getLogger(__name__)
 #: UTC POSIX time of vehicle time 0 unless a run names another (2024-06-01 08:00:00 UTC)
 DEFAULT_EPOCH = 1717228800.0
 
-_ANGLES = frozenset({"heading", "roll", "pitch", "steer"})
-_TWO_PI = 2.0 * math.pi
-
-
-# -- ground truth at any time, fast ------------------------------------------------------------
-
-
-class TruthSampler:
-    """Ground truth at any vehicle time, linear between motion steps (angles the short way),
-    held at the ends; the same values as :meth:`Truth.at`, without re-unwrapping the whole
-    trajectory on every call (emulators sample it thousands of times a second)."""
-
-    def __init__(self, truth: Truth) -> None:
-        self.truth = truth
-        self._t = [float(v) for v in truth.t]
-        cols = []
-        for f in TRUTH_FIELDS:
-            a = np.asarray(getattr(truth, f), float)
-            cols.append(np.unwrap(a) if f in _ANGLES else a)
-        self._rows = np.stack(cols, axis=1)
-        self._angle_idx = [i for i, f in enumerate(TRUTH_FIELDS) if f in _ANGLES]
-
-    @property
-    def duration(self) -> float:
-        """Vehicle time of the last motion step, s."""
-        return self._t[-1]
-
-    def at(self, t: float) -> TruthSample:
-        """The truth at vehicle time ``t`` (s)."""
-        n = len(self._t)
-        if n == 1:
-            row = self._rows[0].copy()
-        else:
-            i = min(max(bisect.bisect_right(self._t, t) - 1, 0), n - 2)
-            t0, t1 = self._t[i], self._t[i + 1]
-            w = min(max((t - t0) / (t1 - t0), 0.0), 1.0)
-            row = self._rows[i] + w * (self._rows[i + 1] - self._rows[i])
-        vals = row.tolist()
-        for k in self._angle_idx:
-            vals[k] = (vals[k] + math.pi) % _TWO_PI - math.pi
-        vals[0] = float(t)
-        return TruthSample(*vals)
-
-
 # -- the context every emulator is built from --------------------------------------------------
 
 
@@ -150,7 +109,8 @@ class TruthSampler:
 class SimContext:
     """What every emulator of one run shares: the scenario, its world and ground truth, the one
     simulation clock, the folder of stable port symlinks, the UTC time of vehicle time 0
-    (``epoch``, s) and the host UDP streams go to."""
+    (``epoch``, s) and the host UDP streams go to. ``truth.at(t)`` samples the ground truth
+    at any vehicle time (``sampler`` is the same object, kept for callers of that name)."""
 
     scenario: Scenario
     world: World
@@ -159,12 +119,16 @@ class SimContext:
     port_dir: Path
     epoch: float = DEFAULT_EPOCH
     udp_host: str = "127.0.0.1"
-    sampler: TruthSampler = field(init=False)
 
     def __post_init__(self) -> None:
         self.port_dir = Path(self.port_dir)
         self.port_dir.mkdir(parents=True, exist_ok=True)
-        self.sampler = TruthSampler(self.truth)
+        self.truth.at(0.0)  # builds the sampling table now, not in the first tick of a run
+
+    @property
+    def sampler(self) -> Truth:
+        """The ground truth (:meth:`Truth.at` at any vehicle time)."""
+        return self.truth
 
     def rng(self, name: str) -> np.random.Generator:
         """A generator seeded by the scenario seed and ``name`` (reproducible per device)."""
@@ -247,6 +211,12 @@ class Channel:
     def port_stats(self) -> dict[str, int]:
         return self.port.stats.as_dict()
 
+    @property
+    def io_cpu_s(self) -> float:
+        """CPU seconds of this wire's own I/O thread (0 for a wire without one)."""
+        port = getattr(self.port, "port", self.port)  # an SLCAN adapter's pty
+        return float(getattr(port, "io_cpu_s", 0.0))
+
     def stats(self) -> dict[str, Any]:
         """Fault counts and port counters of this wire."""
         return {"faults": self.injector.counts.as_dict(), "port": self.port_stats()}
@@ -277,10 +247,11 @@ class SerialChannel(Channel):
     def port(self) -> PtyPort:
         return self._port
 
-    def send(self, frame: bytes, t: float) -> bool:
-        """One frame at vehicle time ``t``; True if any byte went to the port."""
+    def send(self, frame: bytes, t: float, at: float | None = None) -> bool:
+        """One frame at vehicle time ``t`` (on the line from host time ``at``, default now;
+        see :meth:`PtyPort.write`); True if any byte went to the port."""
         data = self.injector.process(frame, t)
-        return bool(data) and self._port.write(data)
+        return bool(data) and self._port.write(data, at=at)
 
     def send_raw(self, data: bytes) -> bool:
         """Bytes on the line without fault injection (replies already processed)."""
@@ -325,33 +296,24 @@ class CanChannel(Channel):
     def send(self, frames: Sequence[CanFrame], t: float) -> bool:
         """One burst at vehicle time ``t``; True if the adapter took every frame.
 
-        The burst goes to the adapter's pty as one write (the SLCAN lines of every frame,
-        paced at the sum of their bus times), as :meth:`SlcanAdapter.send` would frame by
-        frame: dropped (counted in the adapter's stats) while the host has not opened the
-        channel or the pty cannot take it."""
+        The burst goes to the adapter's pty as one write (:meth:`SlcanAdapter.send_many`):
+        dropped (counted in the adapter's stats) while the host has not opened the channel
+        or the pty cannot take it."""
         if not self.injector.process(b"\x00", t):  # one token per burst: the window/dropout draw
             return False
-        ad = self.adapter
-        if not ad.is_open:
-            ad.stats.dropped_closed += len(frames)
-            return False
-        lines = []
-        bits = 0
-        for f in frames:
-            msg = can.Message(
+        msgs = [
+            can.Message(
                 arbitration_id=f.arbitration_id,
                 data=f.data,
                 dlc=len(f.data),
                 is_extended_id=f.is_extended_id,
             )
-            lines.append(encode_frame(msg, ad._timestamp_ms() if ad.timestamps else None))
-            bits += can_frame_bits(msg.dlc, msg.is_extended_id)
-        if ad.port.write(b"".join(lines), line_time_s=bits / ad.bitrate):
-            ad.stats.frames_to_host += len(frames)
-            self.frames_sent += len(frames)
-            return True
-        ad.stats.dropped_port += len(frames)
-        return False
+            for f in frames
+        ]
+        if not self.adapter.send_many(msgs):
+            return False
+        self.frames_sent += len(frames)
+        return True
 
     def endpoint(self) -> Endpoint:
         target = self.adapter.device
@@ -449,6 +411,8 @@ class Emulator:
         self.channels: list[Channel] = []
         self.ticks = 0
         self.errors = 0
+        #: CPU seconds spent producing samples (ticks, delayed replies), in whatever thread
+        self.cpu_s = 0.0
         self._task: Task | None = None
         self._prefetcher: _Prefetcher | None = None
         self._lock = threading.RLock()
@@ -530,7 +494,7 @@ class Emulator:
     # -- truth and noise ------------------------------------------------------------------------
     def truth(self, t: float) -> TruthSample:
         """Ground truth at vehicle time ``t``."""
-        return self.ctx.sampler.at(t)
+        return self.ctx.truth.at(t)
 
     def sigma_scale(self) -> float:
         """Noise sigma multiplier of this sample: ``sqrt(n)`` in a noise burst, else 1."""
@@ -570,6 +534,7 @@ class Emulator:
             self._prefetcher.stop()
 
     def _tick(self, t: float) -> None:
+        c0 = time.thread_time()
         with self._lock:
             try:
                 for ch in self.channels:
@@ -584,6 +549,7 @@ class Emulator:
                 if self.errors == 1:
                     log.exception("%s: tick at t=%.3f failed", self.name, t)
             self.ticks += 1
+            self.cpu_s += time.thread_time() - c0
 
     def tick(self, t: float) -> None:
         """Produce and send one sample at vehicle time ``t``: ``send(prepare(t), t)``
@@ -613,8 +579,12 @@ class Emulator:
                 ch.close()
 
     def stats(self) -> dict[str, Any]:
-        """Ticks, errors, noise bursts and each wire's fault and port counters."""
+        """Ticks, errors, noise bursts, each wire's fault and port counters, and CPU seconds:
+        producing samples (``samples``: ticks in the clock thread, delayed replies), the
+        prefetch worker (``worker``) and the ports' I/O threads (``io``, with the host
+        requests a polled device answers there)."""
         c = self.faults.counts
+        worker = self._prefetcher.cpu_s if self._prefetcher is not None else 0.0
         return {
             "device": self.kind,
             "rate_hz": self.rate_hz,
@@ -622,8 +592,68 @@ class Emulator:
             "errors": self.errors,
             "noise_samples": c.noise_samples,
             "noise_bursts": c.noise_bursts,
+            "cpu_s": {
+                "samples": self.cpu_s,
+                "worker": worker,
+                "io": sum(ch.io_cpu_s for ch in self.channels),
+            },
             "channels": {ch.name: ch.stats() for ch in self.channels},
         }
+
+
+class SerialCanEmulator(Emulator):
+    """A device that sends each sample on a serial line (a table codec) and on CAN (a DBC):
+    the HN-100 INS, the MS3A magnetometer.
+
+    Options: ``serial`` and ``can`` (true: open that wire), ``baud`` (:attr:`default_baud`),
+    ``can_bitrate`` (500000), ``table`` (a site table replacing the shipped one of the serial
+    codec, TOML; the gateway configuration then names it too). A subclass sets
+    :attr:`serial_format`, :attr:`default_baud` and :attr:`dbc`, calls :meth:`add_wires` with
+    its codecs, and implements ``measure(t)`` and the two encoders; each tick sends one sample
+    on both wires.
+    """
+
+    serial_format: ClassVar[str] = ""
+    default_baud: ClassVar[int] = 115200
+    dbc: ClassVar[str] = ""
+
+    def add_wires(
+        self, codec_type: Any, default_codec: Any, can_codec: Callable[[], Any]
+    ) -> None:
+        """Set :attr:`codec` (``codec_type.from_toml(table)`` or ``default_codec``) and open
+        the wires the options ask for: :attr:`serial` and :attr:`can` (with
+        :attr:`can_codec` from ``can_codec()``), None when off."""
+        table = self.option("table", "")
+        self.codec = codec_type.from_toml(table) if table else default_codec
+        self.serial: SerialChannel | None = None
+        self.can: CanChannel | None = None
+        self.can_codec: Any = None
+        if self.option("serial", True):
+            extra = {"table": str(table)} if table else None
+            baud = self.option("baud", self.default_baud)
+            self.serial = self.add_serial(self.serial_format, self.codec.framer, baud, extra=extra)
+        if self.option("can", True):
+            self.can_codec = can_codec()
+            self.can = self.add_can(self.dbc, self.option("can_bitrate", 500_000))
+
+    def measure(self, t: float) -> Any:
+        """The device's output at vehicle time ``t`` (truth plus noise)."""
+        raise NotImplementedError
+
+    def encode_serial(self, m: Any) -> bytes:
+        """The serial frame of one sample."""
+        raise NotImplementedError
+
+    def encode_can(self, m: Any) -> list[CanFrame]:
+        """The CAN frames of one sample."""
+        raise NotImplementedError
+
+    def tick(self, t: float) -> None:
+        m = self.measure(t)
+        if self.serial is not None:
+            self.serial.send(self.encode_serial(m), t)
+        if self.can is not None:
+            self.can.send(self.encode_can(m), t)
 
 
 class _Prefetcher:
@@ -640,10 +670,25 @@ class _Prefetcher:
         self._queue: deque[tuple[float, Any, BaseException | None]] = deque()
         self._cv = threading.Condition()
         self._stopped = False
+        self._tid: int | None = None
+        self._cpu = 0.0
         self._thread = threading.Thread(target=self._run, name=f"prefetch-{name}", daemon=True)
         self._thread.start()
 
+    @property
+    def cpu_s(self) -> float:
+        """CPU seconds of the worker thread so far."""
+        return self._cpu + thread_cpu_s(self._tid)
+
     def _run(self) -> None:
+        self._tid = threading.get_native_id()
+        try:
+            self._work()
+        finally:
+            self._cpu = time.thread_time()
+            self._tid = None
+
+    def _work(self) -> None:
         k = 0
         while True:
             with self._cv:
@@ -710,8 +755,9 @@ class PolledEmulator(Emulator):
     ``head.feed(data, now)``, its reply frames go back through the fault injector; every tick
     (``rate_hz``, vehicle time) ``head.tick(t)`` may speak on its own (e.g. mtAlive).
     ``framer`` splits replies into frames, so each frame meets the injector alone.
-    ``reply_delay()`` (vehicle s, e.g. the ping's duration) holds a reply back (real time / speed,
-    or on the clock when it runs as fast as possible);
+    ``reply_delay()`` (vehicle s, e.g. the ping's duration) holds a reply back: in real time
+    (``delay / speed``: the port starts writing it then, no extra thread), or on the clock when
+    it runs as fast as possible;
     ``before_feed(t)`` is called with the vehicle time just before each ``feed``."""
 
     def __init__(
@@ -740,13 +786,13 @@ class PolledEmulator(Emulator):
         self.serial = self.add_serial(fmt, framer, baud, on_receive=self._on_host, extra=extra)
         self._powered = False
 
-    def _send_reply(self, data: bytes, t: float) -> None:
+    def _send_reply(self, data: bytes, t: float, at: float | None = None) -> None:
         if not data:
             return
         self.poll.replies += 1
         for fr in self._splitter.feed(bytes(data)):
             self.poll.reply_frames += 1
-            self.serial.send(fr.data, t)
+            self.serial.send(fr.data, t, at)
 
     def _on_host(self, data: bytes) -> None:
         with self._lock:
@@ -768,17 +814,15 @@ class PolledEmulator(Emulator):
             elif self.clock.speed > 0:
                 # real time, not the scheduler: a host waits in real time, and a scheduler
                 # running behind must not hold the head's answers back
-                timer = threading.Timer(
-                    delay / self.clock.speed, self._send_later, args=(reply, t + delay)
-                )
-                timer.daemon = True
-                timer.start()
+                self._send_reply(reply, t + delay, time.monotonic() + delay / self.clock.speed)
             else:
                 self.clock.at(t + delay, lambda tr: self._send_later(reply, tr), name=self.name)
 
     def _send_later(self, reply: bytes, t: float) -> None:
+        c0 = time.thread_time()
         with self._lock:
             self._send_reply(reply, t)
+            self.cpu_s += time.thread_time() - c0
 
     def start(self, t0: float | None = None) -> None:
         t = self.clock.now() if t0 is None else t0

@@ -16,8 +16,10 @@ scenario's ``devices.ins.noise``, each multiplied by ``sqrt(n)`` in a VB noise b
 * time: the device clock since power-up (vehicle time plus clock jumps), status aligned and
   DVL-aided.
 
-Options: ``serial`` (true), ``can`` (true), ``baud`` (115200), ``can_bitrate`` (500000),
-``table`` (a site HN-100 table, TOML; the gateway configuration then names it too).
+Options (:class:`~auvgw.sim_devices.emulator.SerialCanEmulator`): ``serial`` (true), ``can``
+(true), ``baud`` (115200), ``can_bitrate`` (500000), ``table`` (a site HN-100 table, TOML; the
+gateway configuration then names it too), ``origin_lat_deg`` / ``origin_lon_deg`` (59.43,
+10.47).
 Wires: serial ``<port_dir>/ins`` (format hn100), CAN adapter ``<port_dir>/ins_can`` (DBC
 ``hn100.dbc``, one burst of 8 frames per epoch).
 """
@@ -33,7 +35,7 @@ import numpy as np
 from auvgw.config.scenario import DeviceSettings
 from auvgw.drivers import hn100
 from auvgw.drivers.can_codec import hn100_can
-from auvgw.sim_devices.emulator import Emulator, SimContext
+from auvgw.sim_devices.emulator import SerialCanEmulator, SimContext
 from auvgw.sim_devices.vehicle import GRAVITY, TruthSample
 from auvgw.sim_devices.world import body_to_ned
 
@@ -108,11 +110,14 @@ class InsSample:
     burst: bool
 
 
-class InsEmulator(Emulator):
+class InsEmulator(SerialCanEmulator):
     """The HN-100 INS (see the module docstring)."""
 
     kind = "ins"
     nominal_rate_hz = 100.0
+    serial_format = "hn100"
+    default_baud = 115200
+    dbc = "hn100.dbc"
 
     def __init__(
         self, ctx: SimContext, settings: DeviceSettings | None = None, name: str | None = None
@@ -123,21 +128,9 @@ class InsEmulator(Emulator):
             math.radians(self.option("origin_lat_deg", 59.43)),
             math.radians(self.option("origin_lon_deg", 10.47)),
         )
-        table = self.option("table", "")
-        self.codec = hn100.Hn100Codec.from_toml(table) if table else hn100.CODEC
+        self.add_wires(hn100.Hn100Codec, hn100.CODEC, hn100_can)
         self.status = self.codec.status_word(aligned=True, dvl_aided=True)
         self.seq = 0
-        self.serial = None
-        self.can = None
-        self.can_codec = None
-        if self.option("serial", True):
-            extra = {"table": str(table)} if table else None
-            self.serial = self.add_serial(
-                "hn100", self.codec.framer, self.option("baud", 115200), extra=extra
-            )
-        if self.option("can", True):
-            self.can_codec = hn100_can()
-            self.can = self.add_can("hn100.dbc", self.option("can_bitrate", 500_000))
 
     def measure(self, t: float) -> InsSample:
         """The INS output at vehicle time ``t`` (truth plus noise); advances ``seq``."""
@@ -212,10 +205,3 @@ class InsEmulator(Emulator):
             **self._fields(m),
         )
         return self.can_codec.encode_sample(sample, strict=False)  # ranges checked by the codec
-
-    def tick(self, t: float) -> None:
-        m = self.measure(t)
-        if self.serial is not None:
-            self.serial.send(self.encode_serial(m), t)
-        if self.can is not None:
-            self.can.send(self.encode_can(m), t)

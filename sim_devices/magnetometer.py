@@ -8,9 +8,10 @@ true attitude, ``B_body = R(heading, pitch, roll)^T B_ned``, plus white noise of
 ``noise.field_nt`` (1 nT, times ``sqrt(n)`` in a VB noise burst) per axis, reported in nT. A
 field beyond the line format's +-999999.9 nT saturates (CAN status ``OVERRANGE``).
 
-Options: ``serial`` (true), ``can`` (true), ``baud`` (38400), ``can_bitrate`` (500000),
-``table`` (a site MS3A table, TOML). Wires: serial ``<port_dir>/magnetometer`` (format ms3a),
-CAN adapter ``<port_dir>/magnetometer_can`` (DBC ``ms3a.dbc``, two frames per sample).
+Options (:class:`~auvgw.sim_devices.emulator.SerialCanEmulator`): ``serial`` (true), ``can``
+(true), ``baud`` (38400), ``can_bitrate`` (500000), ``table`` (a site MS3A table, TOML).
+Wires: serial ``<port_dir>/magnetometer`` (format ms3a), CAN adapter
+``<port_dir>/magnetometer_can`` (DBC ``ms3a.dbc``, two frames per sample).
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ import numpy as np
 from auvgw.config.scenario import DeviceSettings
 from auvgw.drivers import ms3a
 from auvgw.drivers.can_codec import ms3a_can
-from auvgw.sim_devices.emulator import Emulator, SimContext
+from auvgw.sim_devices.emulator import SerialCanEmulator, SimContext
 from auvgw.sim_devices.world import body_to_ned
 
 __all__ = ["DEFAULT_NOISE", "FULL_SCALE_NT", "MagSample", "MagnetometerEmulator"]
@@ -48,31 +49,22 @@ class MagSample:
     burst: bool
 
 
-class MagnetometerEmulator(Emulator):
+class MagnetometerEmulator(SerialCanEmulator):
     """The MS3A magnetometer (see the module docstring)."""
 
     kind = "magnetometer"
     nominal_rate_hz = 20.0
+    serial_format = "ms3a"
+    default_baud = 38400
+    dbc = "ms3a.dbc"
 
     def __init__(
         self, ctx: SimContext, settings: DeviceSettings | None = None, name: str | None = None
     ) -> None:
         super().__init__(ctx, settings, name)
         self.sigma_nt = self.noise("field_nt", DEFAULT_NOISE["field_nt"])
-        table = self.option("table", "")
-        self.codec = ms3a.Ms3aCodec.from_toml(table) if table else ms3a.CODEC
+        self.add_wires(ms3a.Ms3aCodec, ms3a.CODEC, ms3a_can)
         self.counter = 0
-        self.serial = None
-        self.can = None
-        self.can_codec = None
-        if self.option("serial", True):
-            extra = {"table": str(table)} if table else None
-            self.serial = self.add_serial(
-                "ms3a", self.codec.framer, self.option("baud", 38400), extra=extra
-            )
-        if self.option("can", True):
-            self.can_codec = ms3a_can()
-            self.can = self.add_can("ms3a.dbc", self.option("can_bitrate", 500_000))
 
     def field_body(self, t: float) -> np.ndarray:
         """The noise-free field at the sensor at vehicle time ``t``, nT, sensor (body) axes."""
@@ -118,10 +110,3 @@ class MagnetometerEmulator(Emulator):
             status="OVERRANGE" if m.overrange else "OK",
         )
         return self.can_codec.encode_sample(sample, strict=False)  # ranges checked by the codec
-
-    def tick(self, t: float) -> None:
-        m = self.measure(t)
-        if self.serial is not None:
-            self.serial.send(self.encode_serial(m), t)
-        if self.can is not None:
-            self.can.send(self.encode_can(m), t)

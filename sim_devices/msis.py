@@ -47,6 +47,7 @@ import numpy as np
 
 from auvgw.drivers import seanet as sn
 from auvgw.drivers.framing import DecodeError, ErrorPolicy
+from auvgw.sim_devices.clock import SimClock
 
 __all__ = [
     "REFERENCE_GAIN",
@@ -387,20 +388,6 @@ class _Port(Protocol):
     def write(self, data: bytes) -> bool: ...
 
 
-class _Clock(Protocol):
-    def now(self) -> float: ...
-
-    def at(self, t: float, callback: Callable[[float], object], name: str = "") -> Any: ...
-
-    def every(
-        self,
-        period: float,
-        callback: Callable[[float], object],
-        start: float | None = None,
-        name: str = "",
-    ) -> Any: ...
-
-
 class _Faults(Protocol):
     def process(self, frame: bytes, t: float) -> bytes: ...
 
@@ -410,7 +397,7 @@ class _Faults(Protocol):
 def serve_on_port(
     head: MsisHead,
     port: _Port,
-    clock: _Clock,
+    clock: SimClock,
     *,
     faults: _Faults | None = None,
     tick_period_s: float = 0.05,

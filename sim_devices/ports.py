@@ -8,6 +8,18 @@ opens the slave side, or better the stable symlink :attr:`PtyPort.link`, with py
 Bytes the host writes arrive through ``on_receive`` (called in the I/O thread) or
 :meth:`PtyPort.read`.
 
+Pacing (:class:`Pacer`): a write starts on the line when it was made or when the line frees
+from the previous one, whichever is later, and byte ``k`` of ``n`` is due ``k / n`` of its line
+time after that start. The I/O thread does not write byte by byte: it writes in chunks of at
+most :attr:`PtyPort.PACING_QUANTUM_S` real seconds of line time, each chunk as one write when
+its last byte is due. So no byte reaches the host before its time on a real line, none later
+than one quantum (plus thread scheduling) after it, a frame shorter than the quantum arrives in
+one piece (an INS frame at 10 x real time: one write instead of one per byte), the line rate
+over any stretch is the baud's, and a thread that wakes late catches up with one bigger write
+(due times follow the write times, not the thread's wake-ups). The emulator's
+:meth:`PtyPort.write` wakes the I/O thread only when it is idle; a busy thread takes the next
+write when the current one is on the line.
+
 pty facts this module is built around (Linux):
 
 * ``tty.setraw`` on the slave: no echo, no line editing, 8-bit clean. The port keeps its own
@@ -44,7 +56,7 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from auvgw.sim_devices.clock import SimClock
+from auvgw.sim_devices.clock import SimClock, thread_cpu_s
 
 __all__ = ["Pacer", "PortStats", "PtyPort", "UdpSender"]
 
@@ -57,6 +69,7 @@ class PortStats:
 
     writes: int = 0  # write() calls accepted into the queue
     bytes_written: int = 0  # bytes delivered into the pty / socket
+    chunks: int = 0  # writes into the pty (or datagrams) that delivered bytes
     bytes_dropped: int = 0  # bytes never delivered (full pty, full queue, unplugged)
     writes_dropped: int = 0  # writes of which nothing was delivered
     writes_cut: int = 0  # writes cut short because the reader stalled mid-write
@@ -114,7 +127,7 @@ class PtyPort:
     ``speed`` is used. ``link`` is the stable symlink path (created, re-pointed on replug).
     """
 
-    #: real seconds of bytes written per wake-up while pacing
+    #: most real seconds of line time written as one chunk (see the module docstring)
     PACING_QUANTUM_S = 0.002
 
     def __init__(
@@ -141,9 +154,13 @@ class PtyPort:
         self.block_timeout_s = block_timeout_s
         self.stats = PortStats()
         self._cv = threading.Condition()
-        self._queue: deque[tuple[bytes, float]] = deque()
+        # (data, line time in vehicle s, host time of the write)
+        self._queue: deque[tuple[bytes, float, float]] = deque()
         self._queued = 0
         self._busy = False  # the I/O thread holds a write in progress
+        self._idle = False  # the I/O thread may be asleep with nothing to send: wake it
+        self._io_cpu_s = 0.0  # CPU of the I/O threads that have ended (unplugs)
+        self._io_tid: int | None = None
         self._rx = bytearray()
         self._wake_r, self._wake_w = os.pipe()
         for fd in (self._wake_r, self._wake_w):
@@ -174,6 +191,12 @@ class PtyPort:
     @property
     def speed(self) -> float:
         return self.clock.speed if self.clock is not None else self._speed
+
+    @property
+    def io_cpu_s(self) -> float:
+        """CPU seconds the port's I/O thread(s) used so far (pacing, writes, host bytes and
+        the ``on_receive`` work done in that thread)."""
+        return self._io_cpu_s + thread_cpu_s(self._io_tid)
 
     def line_time(self, nbytes: int) -> float:
         """Vehicle seconds ``nbytes`` take on the line at the port's baud (0 if unpaced)."""
@@ -218,7 +241,7 @@ class PtyPort:
         self._master = self._slave = -1
         self._path = ""
         with self._cv:
-            dropped = sum(len(d) for d, _ in self._queue)
+            dropped = sum(len(d) for d, _, _ in self._queue)
             if dropped:
                 self.stats.bytes_dropped += dropped
                 self.stats.writes_dropped += len(self._queue)
@@ -260,22 +283,29 @@ class PtyPort:
         self.close()
 
     # -- device side API ----------------------------------------------------------------------
-    def write(self, data: bytes, line_time_s: float | None = None) -> bool:
+    def write(
+        self, data: bytes, line_time_s: float | None = None, at: float | None = None
+    ) -> bool:
         """Queue ``data`` for the host; False (and counted) if it was dropped because the port
         is unplugged or the queue is full. ``line_time_s`` overrides the baud-derived line
-        time in vehicle seconds (e.g. a CAN frame's bus time)."""
+        time in vehicle seconds (e.g. a CAN frame's bus time); ``at`` (host
+        ``time.monotonic()`` seconds, default now) holds the write back until then, e.g. a
+        reply that leaves after a ping (later writes queue behind it)."""
         if not data:
             return True
         line = self.line_time(len(data)) if line_time_s is None else line_time_s
+        now = time.monotonic() if at is None else at
         with self._cv:
             if not self.plugged or self._queued + len(data) > self.max_queue_bytes:
                 self.stats.bytes_dropped += len(data)
                 self.stats.writes_dropped += 1
                 return False
-            self._queue.append((bytes(data), line))
+            self._queue.append((bytes(data), line, now))
             self._queued += len(data)
             self.stats.writes += 1
-        self._kick()
+            wake, self._idle = self._idle, False
+        if wake:
+            self._kick()
         return True
 
     def read(self, size: int = -1, timeout: float | None = 0.0) -> bytes:
@@ -325,56 +355,74 @@ class PtyPort:
                 self._cv.notify_all()
 
     def _io_loop(self, master: int, stop: threading.Event) -> None:
+        self._io_tid = threading.get_native_id()
+        try:
+            self._pace(master, stop)
+        finally:
+            self._io_cpu_s += time.thread_time()
+            self._io_tid = None
+
+    def _pace(self, master: int, stop: threading.Event) -> None:
+        """The I/O thread: take writes one by one, put each on the line in chunks (module
+        docstring), wait for host bytes, the next chunk or a wake-up in between."""
         pacer = Pacer()
+        rlist = [master, self._wake_r]
         cur: bytes | None = None
         pos = 0
-        blocked_since: float | None = None
-        overflow = False
+        chunk = 1  # bytes per chunk of the current write
+        blocked_since: float | None = None  # the pty has been full since then
+        overflow = False  # a write was dropped and the pty has not taken a byte since
+        finished = False  # the previous write is done: tell wait_drained
         while not stop.is_set():
-            now = time.monotonic()
             if cur is None:
                 with self._cv:
+                    if finished:
+                        finished = self._busy = False
+                        self._cv.notify_all()
                     if self._queue:
-                        cur, line = self._queue.popleft()
+                        cur, line, t_write = self._queue.popleft()
                         self._queued -= len(cur)
                         self._busy = True
+                    else:
+                        self._idle = True
                 if cur is not None:
                     speed = self.speed
-                    pacer.begin(now, len(cur), 0.0 if speed == 0 else line / speed)
+                    pacer.begin(t_write, len(cur), 0.0 if speed == 0 else line / speed)
                     pos = 0
-            timeout: float | None = None
-            want_write = False
-            if cur is not None:
-                due = pacer.due(now)
-                if due > pos:
-                    want_write = True
-                else:
-                    # wake when a few ms worth of bytes are due, not once per byte
-                    quantum = max(1, int(self.PACING_QUANTUM_S / pacer.per_byte))
-                    timeout = max(0.0, pacer.when(min(pos + quantum, len(cur)) - 1) - now)
-            if want_write:  # try at once; if the pty was full, wait for room (bounded)
-                timeout = 0.0
-                if blocked_since is not None:
-                    timeout = max(0.0, blocked_since + self.block_timeout_s - now)
-            try:
-                readable, _, _ = select.select(
-                    [master, self._wake_r], [master] if want_write else [], [], timeout
-                )
-            except (OSError, ValueError):
-                return  # fds closed under us (unplug)
-            if stop.is_set():
-                return
-            if self._wake_r in readable:
-                with contextlib.suppress(OSError):
-                    os.read(self._wake_r, 4096)
-            if master in readable:
-                self._receive(master)
-            if not want_write or cur is None:
-                continue
+                    chunk = len(cur)
+                    if pacer.per_byte > 0:
+                        chunk = max(1, int(self.PACING_QUANTUM_S / pacer.per_byte))
             now = time.monotonic()
-            due = pacer.due(now)
+            timeout: float | None = None
+            wlist: list[int] = []
+            if cur is not None:
+                if blocked_since is not None:  # wait for room, bounded
+                    timeout = max(0.0, blocked_since + self.block_timeout_s - now)
+                    wlist = rlist[:1]
+                else:
+                    last = min(pos + chunk, len(cur))  # the chunk goes when its last byte is due
+                    if pacer.due(now) < last:
+                        timeout = max(0.0, pacer.when(last - 1) - now)
+            if timeout is not None or cur is None:
+                try:
+                    readable, writable, _ = select.select(rlist, wlist, [], timeout)
+                except (OSError, ValueError):
+                    return  # fds closed under us (unplug)
+                if stop.is_set():
+                    return
+                self._idle = False
+                if self._wake_r in readable:
+                    with contextlib.suppress(OSError):
+                        os.read(self._wake_r, 4096)
+                if master in readable:
+                    self._receive(master)
+                if cur is None or blocked_since is None:
+                    continue  # re-evaluate: the chunk may be due now
+                now = time.monotonic()
+                if not writable and now - blocked_since < self.block_timeout_s:
+                    continue
             try:
-                n = os.write(master, cur[pos:due])
+                n = os.write(master, cur[pos : pacer.due(now)])
             except BlockingIOError:
                 n = 0
             except OSError:
@@ -385,23 +433,20 @@ class PtyPort:
                 if blocked_since is not None:
                     pacer.delay(now - blocked_since)
                 blocked_since = None
-                with self._cv:
-                    self.stats.bytes_written += n
-            elif overflow and pos == 0:
+                self.stats.bytes_written += n  # only this thread counts written bytes
+                self.stats.chunks += 1
+            elif overflow and pos == 0:  # still full since the last drop: drop it whole
                 self._drop(cur, pos)
-                cur = None
+                cur, finished = None, True
                 continue
             elif blocked_since is None:
                 blocked_since = now
             elif now - blocked_since >= self.block_timeout_s:
                 self._drop(cur, pos)
-                cur, blocked_since, overflow = None, None, True
+                cur, blocked_since, overflow, finished = None, None, True, True
                 continue
-            if cur is not None and pos >= len(cur):
-                with self._cv:
-                    self._busy = False
-                    self._cv.notify_all()
-                cur = None
+            if pos >= len(cur):
+                cur, finished = None, True
 
     def _drop(self, cur: bytes, pos: int) -> None:
         with self._cv:
@@ -410,8 +455,6 @@ class PtyPort:
                 self.stats.writes_dropped += 1
             else:
                 self.stats.writes_cut += 1
-            self._busy = False
-            self._cv.notify_all()
 
 
 class UdpSender:
@@ -452,6 +495,7 @@ class UdpSender:
                 self.stats.writes_dropped += 1
                 return False
             self.stats.writes += 1
+            self.stats.chunks += 1
             self.stats.bytes_written += n
             return True
 

@@ -138,7 +138,7 @@ def make_msis(ctx: SimContext, settings: DeviceSettings) -> Emulator:
     pose_time = [0.0]
 
     def pose() -> tuple[float, float, float]:
-        return ctx.sampler.at(pose_time[0]).pose
+        return ctx.truth.at(pose_time[0]).pose
 
     echo = mod.make_echo(
         ctx.world,
@@ -295,8 +295,7 @@ class Runner:
         self.out_dir = Path(out_dir)
         self.world = World.from_scenario(scenario)
         self.truth = simulate(scenario, self.world)
-        self._anchor: float | None = None
-        self.clock = SimClock(speed, time_fn=self._host_time)
+        self.clock = SimClock(speed)
         self.ctx = SimContext(
             scenario, self.world, self.truth, self.clock, self.out_dir / "ports", epoch, udp_host
         )
@@ -336,18 +335,11 @@ class Runner:
             self.close()
             raise
 
-    def _host_time(self) -> float:
-        # the clock reads its anchor once, in SimClock.start(): a start_at instant goes there
-        if self._anchor is not None:
-            t, self._anchor = self._anchor, None
-            return t
-        return time.monotonic()
-
     # -- information ------------------------------------------------------------------------------
     @property
     def route_duration(self) -> float:
         """Vehicle seconds until the route ends."""
-        return self.ctx.sampler.duration
+        return self.truth.duration
 
     def endpoints(self) -> list[Endpoint]:
         """Every port a host opens, device by device."""
@@ -389,6 +381,7 @@ class Runner:
         return {
             "vehicle_time": self.vehicle_time,
             "process_cpu_s": cpu,
+            "clock_cpu_s": self.clock.thread_cpu_s,
             "late_ticks": self.clock.late_ticks,
             "max_lag_s": self.clock.max_lag,
             "devices": {k: em.stats() for k, em in self.emulators.items()},
@@ -480,7 +473,7 @@ class Runner:
 
     # -- truth ------------------------------------------------------------------------------------
     def _truth_tick(self, t: float) -> None:
-        s = self.ctx.sampler.at(t)
+        s = self.truth.at(t)
         if self.on_truth is not None:
             try:
                 self.on_truth(s)
@@ -523,9 +516,7 @@ class Runner:
         self._cpu0 = _process_cpu_s()
         for em in self.emulators.values():
             em.start(0.0)
-        self._anchor = start_at
-        self.clock.start()
-        self._anchor = None
+        self.clock.start(at=start_at)
         self._clock_thread = self.clock.start_thread(until=self.until)
 
     @property
@@ -793,19 +784,24 @@ class DeviceProcesses:
             self._finish(kind)
 
     def stats(self) -> dict[str, Any]:
-        """Per-device counters as :meth:`Runner.stats` (after :meth:`stop`), merged."""
+        """Per-device counters as :meth:`Runner.stats` (after :meth:`stop`), merged; each
+        device's entry also carries its process's CPU seconds (``process_cpu_s``)."""
+        truth = self.truth_runner.stats()
         out: dict[str, Any] = {
             "vehicle_time": self.truth_runner.vehicle_time,
-            "process_cpu_s": self.truth_runner.stats()["process_cpu_s"],
+            "process_cpu_s": truth["process_cpu_s"],
+            "clock_cpu_s": truth["clock_cpu_s"],
             "late_ticks": 0,
             "max_lag_s": 0.0,
             "devices": {},
         }
         for st in self._stats.values():
             out["process_cpu_s"] += st["process_cpu_s"]
+            out["clock_cpu_s"] += st["clock_cpu_s"]
             out["late_ticks"] += st["late_ticks"]
             out["max_lag_s"] = max(out["max_lag_s"], st["max_lag_s"])
-            out["devices"].update(st["devices"])
+            for name, dev in st["devices"].items():
+                out["devices"][name] = {**dev, "process_cpu_s": st["process_cpu_s"]}
         return out
 
     def close(self) -> None:

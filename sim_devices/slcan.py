@@ -5,9 +5,10 @@ The host opens the adapter's pty with python-can's own interface,
 sends ``C``, ``Sn``, an empty line and ``O`` (each ended by CR) when a bitrate is given, or
 just ``O``; the adapter answers like a CANUSB / CAN232: CR for OK, BELL (``\\a``) for an error
 or a command not valid in the current state. Once open, frames the emulated devices
-:meth:`SlcanAdapter.send` go to the host as ``tIIILDD..`` / ``TIIIIIIIILDD..`` lines (plus a
-4-hex-digit millisecond timestamp 0-59999 after ``Z1``), paced at the CAN bitrate (nominal
-frame bits, no stuffing) scaled by the clock's speed; frames the host sends arrive through
+:meth:`SlcanAdapter.send` (or :meth:`SlcanAdapter.send_many`, a burst as one write) go to the
+host as ``tIIILDD..`` / ``TIIIIIIIILDD..`` lines (plus a 4-hex-digit millisecond timestamp
+0-59999 after ``Z1``), paced at the CAN bitrate (nominal frame bits, no stuffing) scaled by the
+clock's speed; frames the host sends arrive through
 :meth:`SlcanAdapter.recv` or ``on_frame``, and are acknowledged with ``z`` / ``Z``.
 
 Commands: ``Sn`` (n 0-8: 10k, 20k, 50k, 100k, 125k, 250k, 500k, 800k, 1M; closed only),
@@ -22,7 +23,7 @@ from __future__ import annotations
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -201,25 +202,39 @@ class SlcanAdapter:
         self.close()
 
     # -- device side --------------------------------------------------------------------------
-    def _timestamp_ms(self) -> int:
-        t = self.clock.now() if self.clock is not None else time.monotonic()
-        return int(t * 1000) % 60000
-
     def send(self, msg: can.Message) -> bool:
         """Put a device's frame on the bus towards the host. False (counted) if the channel
         is closed (nobody receives it) or the pty could not take it."""
+        return self.send_many((msg,))
+
+    def send_many(self, msgs: Sequence[can.Message]) -> bool:
+        """Put a burst of frames on the bus back to back (e.g. one sample's epoch), as one
+        write of their lines to the host, paced at the sum of their bus times; with ``Z1``
+        each frame is stamped when it ends on the bus. All or nothing: False (each frame
+        counted) if the channel is closed or the pty could not take the burst."""
+        n = len(msgs)
+        if not n:
+            return True
+        bits = [can_frame_bits(m.dlc, m.is_extended_id, m.is_remote_frame) for m in msgs]
         with self._lock:
             if not self.is_open:
-                self.stats.dropped_closed += 1
+                self.stats.dropped_closed += n
                 return False
-            line = encode_frame(msg, self._timestamp_ms() if self.timestamps else None)
-        bits = can_frame_bits(msg.dlc, msg.is_extended_id, msg.is_remote_frame)
-        ok = self.port.write(line, line_time_s=bits / self.bitrate)
+            if self.timestamps:
+                t = self.clock.now() if self.clock is not None else time.monotonic()
+                lines, on_bus = [], 0
+                for m, b in zip(msgs, bits, strict=True):
+                    on_bus += b
+                    lines.append(encode_frame(m, int((t + on_bus / self.bitrate) * 1000)))
+            else:
+                lines = [encode_frame(m) for m in msgs]
+            line_s = sum(bits) / self.bitrate
+        ok = self.port.write(b"".join(lines), line_time_s=line_s)
         with self._lock:
             if ok:
-                self.stats.frames_to_host += 1
+                self.stats.frames_to_host += n
             else:
-                self.stats.dropped_port += 1
+                self.stats.dropped_port += n
                 self._flags |= FLAG_DATA_OVERRUN
         return ok
 

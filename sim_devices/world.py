@@ -8,6 +8,8 @@ Frames and units follow :mod:`auvgw.config.scenario`: a local NED frame in metre
   ``z(x, y)`` (positive down) and its gradient, for arrays of any shape.
 * :func:`cast_rays`: horizontal rays against line segments (walls, piers) and point features
   (circles of a radius), the first hit per ray with its range and incidence angle: the MSIS beam.
+* :func:`first_crossing`: straight rays against the terrain, the slant range to the first
+  crossing of each (the DVL's beams, the multibeam's fan).
 * :func:`cast_swath`: a fan of beams across track intersected with the terrain: depth, across,
   along per beam, GeoSwath-like (swath up to ``swath_factor`` x altitude, port and starboard).
 * :func:`dipole_field`: the field of magnetic dipoles, ``B = mu0/(4 pi) (3 (m.r^) r^ - m) / r^3``.
@@ -41,6 +43,7 @@ __all__ = [
     "cast_rays",
     "cast_swath",
     "dipole_field",
+    "first_crossing",
     "terrain_from_settings",
     "wrap_angle",
 ]
@@ -379,6 +382,79 @@ class Swath:
     altitude: float
 
 
+def first_crossing(
+    terrain: TerrainModel,
+    position: FArray | tuple[float, float, float],
+    directions: FArray,
+    max_range: float,
+    *,
+    samples: int | None = None,
+    step: float = 0.25,
+    iterations: int = 12,
+    tol: float = 1e-6,
+) -> FArray:
+    """Slant range (m) from ``position`` (NED, m) along each unit vector of ``directions``
+    ((N, 3), NED) to its first crossing of the seabed; NaN where there is none within
+    ``max_range`` m (a ray that does not point down never crosses).
+
+    Each ray is sampled between the depths of the terrain's shallowest and deepest points, at
+    ``samples`` points (or every ``step`` m, at most 4097 points), and the first bracketed
+    crossing is refined by regula falsi (Illinois) until it is within ``tol`` m of the seabed
+    or after ``iterations`` steps. Straight rays, no refraction; a crest thinner than one
+    sampling step along the ray can be missed.
+    """
+    p = np.asarray(position, float)
+    d = np.asarray(directions, float).reshape(-1, 3)
+    dx, dy, dz = d[:, 0], d[:, 1], d[:, 2]
+    zmin, zmax = terrain.bounds
+    down = dz > 1e-9
+    dzs = np.where(down, dz, 1.0)
+    s_lo = np.clip((zmin - p[2]) / dzs, 0.0, None)
+    s_hi = np.clip((zmax - p[2]) / dzs, 0.0, None) * (1 + 1e-9) + 1e-6  # rounding margin
+    s_hi = np.minimum(s_hi, max_range)
+    s_lo = np.minimum(s_lo, s_hi)
+    if samples is None:
+        k = int(min(max(math.ceil(float(np.max(s_hi - s_lo, initial=0.0)) / step), 1), 4096)) + 1
+    else:
+        k = max(2, samples)
+    s = s_lo[:, None] + (s_hi - s_lo)[:, None] * np.linspace(0.0, 1.0, k)
+
+    def below(sv: FArray, ddx: FArray, ddy: FArray, ddz: FArray) -> FArray:
+        """How far the ray point is below the seabed, m (>= 0 once the ray has hit)."""
+        return p[2] + sv * ddz - terrain.depth(p[0] + sv * ddx, p[1] + sv * ddy)
+
+    g = below(s, dx[:, None], dy[:, None], dz[:, None])
+    crossed = g >= 0.0
+    out = np.full(len(d), math.nan)
+    rows = np.flatnonzero(crossed.any(axis=1) & down)
+    if not len(rows):
+        return out
+    hi = np.argmax(crossed[rows], axis=1)
+    lo = np.maximum(hi - 1, 0)
+    a, b = s[rows, lo], s[rows, hi]
+    ga, gb = g[rows, lo], g[rows, hi]
+    rx, ry, rz = dx[rows], dy[rows], dz[rows]
+    side = np.zeros(len(rows), np.int8)
+    for _ in range(iterations):
+        span = gb - ga
+        ok = span > 1e-12
+        m = np.where(ok, a - ga * (b - a) / np.where(ok, span, 1.0), b)
+        gm = below(m, rx, ry, rz)
+        right = gm >= 0.0
+        # Illinois: an end point kept twice in a row has its value halved
+        ga = np.where(right & (side == 1), ga * 0.5, ga)
+        gb = np.where(~right & (side == -1), gb * 0.5, gb)
+        b, gb = np.where(right, m, b), np.where(right, gm, gb)
+        a, ga = np.where(right, a, m), np.where(right, ga, gm)
+        side = np.where(right, 1, -1).astype(np.int8)
+        if float(np.max(np.abs(gm))) < tol:
+            break
+    span = gb - ga
+    ok = span > 1e-12
+    out[rows] = np.where(ok, a - ga * (b - a) / np.where(ok, span, 1.0), b)
+    return out
+
+
 def cast_swath(
     terrain: TerrainModel,
     position: FArray | tuple[float, float, float],
@@ -390,52 +466,20 @@ def cast_swath(
 ) -> Swath:
     """Intersect the swath fan of a transducer at ``position`` (NED, m) with the terrain.
 
-    Each beam leaves in the body y-z plane at its angle from the body vertical; the first
-    crossing with the seabed is bracketed between the terrain's depth bounds, sampled at
-    ``geometry.samples`` points and refined by regula falsi. Straight rays (no refraction).
+    Each beam leaves in the body y-z plane at its angle from the body vertical; its first
+    crossing with the seabed comes from :func:`first_crossing` with ``geometry.samples``
+    points per beam. Straight rays (no refraction).
     """
     p = np.asarray(position, float)
     ang = geometry.beam_angles()
     r = body_to_ned(heading, pitch, roll)
     d = r @ np.stack([np.zeros_like(ang), np.sin(ang), np.cos(ang)])  # (3, n) unit NED
     dx, dy, dz = d
-    zmin, zmax = terrain.bounds
-    down = dz > 1e-9
-    dzs = np.where(down, dz, 1.0)
-    s_lo = np.clip((zmin - p[2]) / dzs, 0.0, None)
-    s_hi = np.clip((zmax - p[2]) / dzs, 0.0, None) * (1 + 1e-9) + 1e-6  # rounding margin
-    s_hi = np.minimum(s_hi, geometry.max_range_m)
-    s_lo = np.minimum(s_lo, s_hi)
-
-    def excess(sv: FArray, dxv: FArray, dyv: FArray, dzv: FArray) -> FArray:
-        """How far the ray point is below the seabed (>= 0 once the ray has hit), m."""
-        return p[2] + sv * dzv - terrain.depth(p[0] + sv * dxv, p[1] + sv * dyv)
-
-    # sample the bracket, (n, k), then refine the first crossing
-    k = max(2, geometry.samples)
-    s = s_lo[:, None] + (s_hi - s_lo)[:, None] * np.linspace(0.0, 1.0, k)
-
-    g = excess(s, dx[:, None], dy[:, None], dz[:, None])
-    crossed = g >= 0
-    found = crossed.any(axis=1) & down
-    first = np.argmax(crossed, axis=1)
-    rows = np.arange(ang.size)
-    hi_i = first
-    lo_i = np.maximum(first - 1, 0)
-    a, b = s[rows, lo_i], s[rows, hi_i]
-    ga, gb = g[rows, lo_i], g[rows, hi_i]
-    for _ in range(12):
-        span = gb - ga
-        m = np.where(np.abs(span) > 1e-12, a - ga * (b - a) / np.where(span == 0, 1, span), b)
-        m = np.clip(m, np.minimum(a, b), np.maximum(a, b))
-        gm = excess(m, dx, dy, dz)
-        right = gm >= 0
-        b = np.where(right, m, b)
-        gb = np.where(right, gm, gb)
-        a = np.where(right, a, m)
-        ga = np.where(right, ga, gm)
-    span = gb - ga
-    sh = np.where(np.abs(span) > 1e-12, a - ga * (b - a) / np.where(span == 0, 1, span), b)
+    slant = first_crossing(
+        terrain, p, d.T, geometry.max_range_m, samples=geometry.samples, iterations=12
+    )
+    found = np.isfinite(slant)
+    sh = np.where(found, slant, 0.0)  # the geometry below stays finite; invalid beams are NaN
 
     hx, hy, hz = p[0] + sh * dx, p[1] + sh * dy, p[2] + sh * dz
     ch, sn = math.cos(heading), math.sin(heading)

@@ -24,9 +24,9 @@ from auvgw.drivers.framing import ErrorPolicy
 from auvgw.drivers.spec import raw_value
 from auvgw.sim_devices.clock import SimClock
 from auvgw.sim_devices.dvl import DvlEmulator
-from auvgw.sim_devices.emulator import DEFAULT_EPOCH, SimContext, TruthSampler
+from auvgw.sim_devices.emulator import DEFAULT_EPOCH, SimContext
 from auvgw.sim_devices.runner import Runner
-from auvgw.sim_devices.vehicle import simulate
+from auvgw.sim_devices.vehicle import Truth, simulate
 from auvgw.sim_devices.world import World, body_to_ned
 
 S30, C30 = math.sin(math.radians(30)), math.cos(math.radians(30))
@@ -65,13 +65,13 @@ def scenario(dvl: dict[str, Any] | None = None, **changes: Any) -> Scenario:
     return Scenario.model_validate(data)
 
 
-def offline(scn: Scenario, tmp_path: Path) -> tuple[DvlEmulator, TruthSampler, World]:
+def offline(scn: Scenario, tmp_path: Path) -> tuple[DvlEmulator, Truth, World]:
     """The emulator without a clock or a port (``frame_at(t)`` gives the bytes of one ping),
     and the ground truth at any time."""
     world = World.from_scenario(scn)
     truth = simulate(scn, world)
     ctx = SimContext(scn, world, truth, SimClock(0), tmp_path / "ports")
-    return DvlEmulator(ctx), ctx.sampler, world
+    return DvlEmulator(ctx), ctx.truth, world
 
 
 def run(
@@ -90,12 +90,12 @@ def run(
     return stream, ens
 
 
-def ping_times(truth: TruthSampler, rate: float, t_end: float | None = None) -> np.ndarray:
+def ping_times(truth: Truth, rate: float, t_end: float | None = None) -> np.ndarray:
     end = truth.duration if t_end is None else t_end
     return np.arange(int(end * rate) + 1) / rate
 
 
-def expected_velocity(frame: str, truth: TruthSampler, t: float) -> np.ndarray:
+def expected_velocity(frame: str, truth: Truth, t: float) -> np.ndarray:
     """The vehicle's velocity over ground in ``frame`` (3 axes, or the 4 beams' closing
     speeds), from the truth alone."""
     s = truth.at(t)
@@ -541,7 +541,7 @@ def test_runner_serves_the_dvl_on_a_pty(tmp_path: Path) -> None:
         lost = 8.0 <= t < 12.0
         assert np.isnan(e.bottom_track.velocity).all() == lost, t
         if not lost:
-            exp = expected_velocity("ship", em.ctx.sampler, t)
+            exp = expected_velocity("ship", em.ctx.truth, t)
             errs.append(e.bottom_track.vehicle_velocity[:3] - exp)
     errs = np.array(errs)
     assert len(errs) == 101 - 20

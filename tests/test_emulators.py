@@ -24,7 +24,7 @@ from auvgw.drivers import hn100, kongsberg, ms3a
 from auvgw.drivers import seanet as sn
 from auvgw.drivers.can_codec import hn100_can, ms3a_can
 from auvgw.drivers.framing import ErrorPolicy
-from auvgw.sim_devices.emulator import DEFAULT_EPOCH, TruthSampler
+from auvgw.sim_devices.emulator import DEFAULT_EPOCH
 from auvgw.sim_devices.ins import body_rates, latlon, specific_force
 from auvgw.sim_devices.runner import Runner, gateway_toml
 from auvgw.sim_devices.vehicle import TRUTH_FIELDS
@@ -168,19 +168,28 @@ def rms(a: np.ndarray) -> float:
 # -- ground truth sampling ---------------------------------------------------------------------
 
 
-def test_truth_sampler_matches_the_trajectory_interpolation(tmp_path: Path) -> None:
+def test_truth_at_matches_a_reference_interpolation(tmp_path: Path) -> None:
     r = Runner(make_scenario(), out_dir=tmp_path, devices=[])
     truth = r.truth
-    sampler = TruthSampler(truth)
+    assert r.ctx.sampler is truth
     ts = np.random.default_rng(1).uniform(-1.0, truth.duration + 1.0, 300)
+    ts = np.concatenate([ts, truth.t[[0, 1, len(truth) // 2, -1]]])
     for t in ts:
-        a, b = sampler.at(float(t)), truth.at(float(t))
-        for f in TRUTH_FIELDS:
-            va, vb = getattr(a, f), getattr(b, f)
-            if f in ("heading", "roll", "pitch", "steer"):
-                assert abs(wrap_angle(va - vb)) < 1e-9, f
+        s = truth.at(float(t))
+        assert s.t == t
+        for f in TRUTH_FIELDS[1:]:
+            a = getattr(truth, f)
+            if f in ("heading", "roll", "pitch", "steer"):  # the short way round
+                ref = np.interp(t, truth.t, np.unwrap(a))
+                assert abs(wrap_angle(getattr(s, f) - ref)) < 1e-9, f
+                assert -math.pi <= getattr(s, f) < math.pi
             else:
-                assert va == pytest.approx(vb, abs=1e-9), f
+                assert getattr(s, f) == pytest.approx(np.interp(t, truth.t, a), abs=1e-9), f
+    assert truth.at(-3.0).x == truth.x[0] and truth.at(1e9).y == truth.y[-1]
+    many = truth.interp(ts)
+    for k in (0, 100, 303):
+        assert many.x[k] == pytest.approx(truth.at(float(ts[k])).x, abs=1e-9)
+        assert abs(wrap_angle(many.heading[k] - truth.at(float(ts[k])).heading)) < 1e-9
     r.close()
 
 
@@ -205,7 +214,7 @@ def test_ins_serial_frames_match_the_truth_within_the_seed_noise(tmp_path: Path)
         for m in msgs:
             t = m.seq * em.period
             assert m.time == pytest.approx(t, abs=1e-4)
-            s = r.ctx.sampler.at(t)
+            s = r.truth.at(t)
             assert m.aligned and m.dvl_aided and not m.error
             err["h"].append(math.degrees(wrap_angle(m.heading - s.heading)))
             err["r"].append(math.degrees(m.roll - s.roll))
@@ -261,7 +270,7 @@ def test_ins_can_bursts_through_python_can_slcan_with_exact_dropouts(tmp_path: P
             t = s.time  # device clock = vehicle time (no clock jumps)
             k = round(t / period)
             assert t == pytest.approx(k * period, abs=1e-6) and s.seq == k & 0xFF
-            tr = r.ctx.sampler.at(k * period)
+            tr = r.truth.at(k * period)
             herr.append(math.degrees(wrap_angle(s.heading - tr.heading)))
             rerr.append(math.degrees(s.roll - tr.roll))
             assert s.alignment == "FINE" and s.error == "OK" and s.dvl_aided == 1
@@ -275,7 +284,7 @@ def test_ins_can_bursts_through_python_can_slcan_with_exact_dropouts(tmp_path: P
 
 
 def _expected_mag(r: Runner, t: float) -> np.ndarray:
-    s = r.ctx.sampler.at(t)
+    s = r.truth.at(t)
     b = r.world.magnetic_field(np.array([s.x, s.y, s.z]), t)
     return body_to_ned(s.heading, s.pitch, s.roll).T @ b * 1e9
 
@@ -326,7 +335,7 @@ def test_magnetometer_field_falls_with_the_cube_of_the_range_to_a_beacon(tmp_pat
     assert len(msgs) == em.ticks
     rng_m, mag = [], []
     for m in msgs:
-        s = r.ctx.sampler.at(m.counter * em.period)
+        s = r.truth.at(m.counter * em.period)
         rng_m.append(math.dist((s.x, s.y, s.z), (0.0, 0.0, 5.0)))
         mag.append(float(np.linalg.norm(m.b_nt)))
         # on the axis the dipole field is along the axis: body x (the AUV heads north)
@@ -379,7 +388,7 @@ def test_multibeam_xyz88_over_udp_follows_the_terrain(tmp_path: Path) -> None:
         assert isinstance(p, kongsberg.XYZ88) and p.counter == k and p.n_beams == 128
         t = p.device_time - DEFAULT_EPOCH
         assert t == pytest.approx(k * em.period, abs=1e-3)
-        s = r.ctx.sampler.at(t)
+        s = r.truth.at(t)
         assert p.transducer_depth == pytest.approx(s.z, abs=1e-5)
         assert p.sound_speed == pytest.approx(1500.0)
         b = p.beams
@@ -481,7 +490,7 @@ def test_noise_bursts_multiply_the_covariance(tmp_path: Path) -> None:
         em = r.emulators["ins"]
         samples = [em.measure(k * 0.01) for k in range(6000)]
     bursts = np.array([s.burst for s in samples])
-    err = np.array([math.degrees(wrap_angle(s.heading - r.ctx.sampler.at(s.t).heading))
+    err = np.array([math.degrees(wrap_angle(s.heading - r.truth.at(s.t).heading))
                     for s in samples])  # fmt: skip
     assert bursts.mean() == pytest.approx(0.3, abs=0.03)
     assert rms(err[~bursts]) == pytest.approx(0.3, rel=0.06)
@@ -587,7 +596,7 @@ def test_msis_head_is_silent_until_polled_and_pings_the_walls(tmp_path: Path) ->
     # the strongest bin sits at the range of the wall/pile the beam points at
     errors = []
     for t, h in pings:
-        s = r.ctx.sampler.at(t)
+        s = r.truth.at(t)
         hit = r.world.cast((s.x, s.y), np.array([s.heading + h.bearing]), 40.0)
         if hit.kind[0] == 1:
             bin_len = 40.0 / 400

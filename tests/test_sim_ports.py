@@ -103,6 +103,26 @@ def test_pty_is_paced_at_the_baud_scaled_by_the_clock() -> None:
         assert reads > 3, "the bytes trickle in, not all at once"
 
 
+def test_short_frames_go_out_whole_and_long_ones_in_quantum_chunks() -> None:
+    clock = SimClock(speed=10.0)
+    frame = bytes(range(74))  # an INS frame: 6.4 ms on a 115200 line, 0.64 ms at 10 x
+    with PtyPort("ins", 115200, clock=clock) as port:
+        chunk = int(port.PACING_QUANTUM_S / (port.line_time(1) / 10.0))
+        assert chunk > len(frame)
+        with serial.Serial(port.device, timeout=0.05) as s:
+            for _ in range(20):
+                assert port.write(frame)
+            assert port.wait_drained(10.0)
+            assert _read_exactly(s, 20 * len(frame)) == frame * 20
+            assert port.stats.chunks == 20, "one write into the pty per frame"
+            long = bytes(5 * chunk)  # five quanta of line time
+            port.write(long)
+            assert port.wait_drained(10.0)
+            assert _read_exactly(s, len(long)) == long
+        assert port.stats.chunks - 20 <= 5, "never more writes than quanta"
+        assert port.stats.bytes_written == 20 * len(frame) + len(long)
+
+
 def test_unplug_gives_serial_exception_and_replug_comes_back_on_the_symlink(tmp_path: Path) -> None:
     link = tmp_path / "run" / "dvl"
     with PtyPort("dvl", 115200, speed=0, link=link) as port:

@@ -548,6 +548,25 @@ def test_clock_speed_factor_with_an_injected_host_clock() -> None:
         SimClock(speed=-1)
 
 
+def test_clock_start_at_a_given_host_instant() -> None:
+    host = [100.0]
+    c = SimClock(speed=10.0, time_fn=lambda: host[0])
+    assert c.started_at is None
+    c.start(at=100.5)  # vehicle time 0 half a real second from now
+    assert c.now() == pytest.approx(-5.0) and c.started_at == 100.5
+    host[0] = 101.0
+    assert c.now() == pytest.approx(5.0)
+    c.start(at=200.0)  # already running: no change
+    assert c.now() == pytest.approx(5.0)
+    # a tick at vehicle time 0 waits for the instant (a real clock, 50 x real time)
+    real = SimClock(speed=50.0)
+    real.start(at=time.monotonic() + 0.2)
+    fired: list[float] = []
+    real.at(0.0, lambda t: (fired.append(real.now()), real.stop()))
+    real.run()
+    assert fired and fired[0] >= 0.0, "not dispatched before vehicle time 0"
+
+
 def test_clock_as_fast_as_possible_dispatches_every_tick_in_order() -> None:
     c = SimClock(speed=0)
     log: list[tuple[str, float, float]] = []
