@@ -38,6 +38,8 @@ from auvgw.config.scenario import ScenarioError, load_scenario
 from auvgw.paths import config_file
 
 DEFAULT_SCENARIO = "harbour"
+#: RMSE / distance x 100 of VB-AUFastSLAM in the sea trial of Mu et al. 2022 (INS + DVL + MSIS)
+VB_PAPER_RMSE_PCT = 0.742
 
 
 def register(sub: Any) -> None:
@@ -53,11 +55,12 @@ def register(sub: Any) -> None:
         help="shipped scenario name (harbour, survey, beacons) or a scenario JSON file",
     )
     p.add_argument("--duration", type=float, default=180.0, help="vehicle seconds (default 180)")
-    p.add_argument("--speed", type=float, default=4.0, help="x real time (default 4)")
+    p.add_argument("--speed", type=float, default=2.0, help="x real time (default 2)")
     p.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder")
     p.add_argument("--rrd", type=Path, default=None, help="Rerun file (default OUT/demo.rrd)")
     p.add_argument("--connect", default=None, help="also stream to a Rerun viewer at this URL")
     p.add_argument("--no-viz", action="store_true", help="no Rerun recording")
+    p.add_argument("--no-slam", action="store_true", help="no SLAM stage")
     p.set_defaults(func=run)
 
 
@@ -235,6 +238,7 @@ def _run_stages(
     from auvgw.fusion.config import FusionConfig, InitialState
     from auvgw.gateway import Gateway
     from auvgw.stages.fusion import FusionStage, FusionStageConfig
+    from auvgw.stages.slam import SlamStage, SlamStageConfig
 
     try:
         gw_cfg = load_gateway_config(sim_dir / "gateway.toml")
@@ -242,8 +246,9 @@ def _run_stages(
         raise UserError(str(exc)) from exc
     keys = Keys(gw_cfg.vehicle)
     clock = _VehicleClock(speed)
-    truth, dead_reckoning = _Track(), _Track()
+    truth, dead_reckoning, slam_track = _Track(), _Track(), _Track()
     lock = threading.Lock()
+    scn = load_scenario(scenario)
 
     session = open_session(BusConfig())
     viz = None
@@ -253,14 +258,43 @@ def _run_stages(
         viz = open_viz(session, gw_cfg.vehicle, rrd=rrd, connect=args.connect,
                        sections=("slam", "status"))  # fmt: skip
 
+    def on_slam(key: str, payload: bytes, t_ns: int) -> None:
+        if key.endswith("/pose"):
+            p = json.loads(payload)
+            with lock:
+                slam_track.add(clock.vehicle_s(p["t"]), p["x"], p["y"])
+        if viz is not None:
+            viz.stage.handle_sample(key, payload, t_ns)
+
+    # SLAM on the MSIS point features and the fusion odometry, fed in-process (publishes on
+    # auv/<v>/slam/<pipeline>/{pose,landmarks} too)
+    msis = [n for n, d in gw_cfg.devices.items() if d.format == "seanet" and d.enabled]
+    slam = (
+        None
+        if args.no_slam
+        else SlamStage(
+            SlamStageConfig(
+                vehicle=gw_cfg.vehicle,
+                msis_device=msis[0] if msis else None,
+                sound_speed_mps=scn.sound_speed_mps,
+                target_radius_m=scn.features.point_radius_m,
+            ),
+            session=session,
+            on_publish=on_slam,
+        )
+    )
+    if slam is not None:
+        slam.start(subscribe=False)
+
     def on_odometry(o: Any) -> None:
         with lock:
             dead_reckoning.add(clock.vehicle_s(o.t), o.x, o.y)
         if viz is not None:
             payload, _ = encode_envelope(o, "fusion", int(o.t * 1e9), 0)
             viz.stage.handle_sample(keys.odometry(), payload, int(o.t * 1e9))
+        if slam is not None:
+            slam.post_odometry(o)
 
-    scn = load_scenario(scenario)
     fusion_box: list[Any] = []
 
     def start_fusion(t_vehicle: float) -> Any:
@@ -293,13 +327,20 @@ def _run_stages(
         stage.start(subscribe=False)  # fed in-process, publishes odometry and status
         return stage
 
+    ins_span: list[float] = []  # device time of the first and the latest INS sample, s
+
     def on_message(device: str, t_recv_ns: int, msg: Any) -> None:
-        if not fusion_box and device == "ins" and hasattr(msg, "time"):
-            clock.anchor(t_recv_ns, float(msg.time))
-            fusion_box.append(start_fusion(float(msg.time)))
+        if device == "ins" and hasattr(msg, "time"):
+            ins_span[1:] = [float(msg.time)]
+            if not fusion_box:
+                ins_span[:] = [float(msg.time), float(msg.time)]
+                clock.anchor(t_recv_ns, float(msg.time))
+                fusion_box.append(start_fusion(float(msg.time)))
         t = clock(t_recv_ns)
         if fusion_box:
             fusion_box[0].feed(device, t, msg)
+        if slam is not None:
+            slam.post(device, t, msg)
         if viz is not None:
             viz.on_message(device, t, msg)
 
@@ -343,15 +384,26 @@ def _run_stages(
         if fusion_box:
             fusion_box[0].stop(flush=True)
             fusion_counters = fusion_box[0].counters()
+        slam_counters = None
+        if slam is not None:
+            slam.stop(flush=True)
+            slam_counters = slam.counters()
         if viz is not None:
             viz.close()
         session.close()
     wall = time.monotonic() - t_start
     nav = _path_error(dead_reckoning, truth)
+    slam_err = _path_error(slam_track, truth)
     _print_summary(status, fusion_counters, nav, rrd, wall)
-    summary = {"devices": status["devices"], "fusion": fusion_counters,
-               "navigation": {"dead_reckoning": nav}, "rrd": str(rrd) if rrd else None,
-               "wall_s": wall, "speed": speed}  # fmt: skip
+    navigation: dict[str, Any] = {"dead_reckoning": nav}
+    if slam is not None and slam_counters is not None:
+        _print_slam(slam.config.display_name, slam_counters, slam_err)
+        navigation.update(slam=slam_err, slam_algorithm=slam.config.display_name,
+                          paper_rmse_pct_distance=VB_PAPER_RMSE_PCT)  # fmt: skip
+    summary = {"devices": status["devices"], "fusion": fusion_counters, "slam": slam_counters,
+               "navigation": navigation,
+               "rrd": str(rrd) if rrd else None, "wall_s": wall, "speed": speed,
+               "ins_time_span_s": ins_span[1] - ins_span[0] if ins_span else 0.0}  # fmt: skip
     (args.out / "summary.json").write_text(json.dumps(summary, indent=1, default=str))
     return 0
 
@@ -401,3 +453,19 @@ def _print_summary(
         size = rrd.stat().st_size / 1e6 if rrd.is_file() else 0.0
         print(f"Rerun recording: {rrd} ({size:.1f} MB) - open it with: rerun {rrd}")
     print(f"wall time {wall_s:.0f} s")
+
+
+def _print_slam(name: str, counters: dict[str, Any], err: dict[str, float] | None) -> None:
+    st = counters["stage"]
+    print(f"slam: {st['pings']} scan lines, {st['point_features']} point and "
+          f"{st['line_features']} line features, {st['updates']} updates, "
+          f"{counters['landmarks']} landmarks")  # fmt: skip
+    if err is None:
+        print(f"SLAM ({name}) vs truth: not enough SLAM poses or truth to compare")
+        return
+    print(
+        f"SLAM ({name}) vs truth over {err['distance_m']:.0f} m: RMSE {err['rmse_m']:.2f} m "
+        f"(x {err['rmse_x_m']:.2f}, y {err['rmse_y_m']:.2f}), final {err['final_m']:.2f} m, "
+        f"RMSE/distance x 100 {err['rmse_pct_distance']:.3f} % "
+        f"(VB paper sea trial: {VB_PAPER_RMSE_PCT} %)"
+    )

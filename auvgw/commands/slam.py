@@ -1,0 +1,184 @@
+"""``auvgw slam eval``: Monte Carlo evaluation of the landmark SLAM filters on a scenario.
+
+Example (the VB paper's Table 4 first row on Bailey's dense map)::
+
+    auvgw slam eval --scenario config/scenarios/densemap.json \\
+        --algorithms fastslam2,ufastslam,vb-afastslam,vb-aufastslam --runs 30 \\
+        --noise n=2,p=0.1 --jobs 2 --out docs/results/table4
+
+``--noise`` may be repeated: one table per setting. Prints the tables as text; with ``--out`` also
+writes ``tables.md`` (with the command line), ``results.json`` (the summaries) and one PNG per
+noise setting (trajectories of run 0, mean Neff over time).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import sys
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+from auvgw.cli import UserError
+
+__all__ = ["command_line", "parse_noise", "register", "run"]
+
+
+def parse_noise(text: str) -> tuple[float, float]:
+    """``n=2,p=0.3`` -> ``(2.0, 0.3)``: with probability p an observation has covariance n R0."""
+    vals: dict[str, float] = {}
+    for part in text.split(","):
+        key, sep, val = part.partition("=")
+        key = key.strip()
+        if not sep or key not in ("n", "p"):
+            raise UserError(f"--noise {text!r}: expected n=FACTOR,p=PROBABILITY")
+        try:
+            vals[key] = float(val)
+        except ValueError:
+            raise UserError(f"--noise {text!r}: {key} must be a number, got {val!r}") from None
+    n, p = vals.get("n", 1.0), vals.get("p", 0.0)
+    if n < 1.0 or not 0.0 <= p <= 1.0:
+        raise UserError(f"--noise {text!r}: need n >= 1 and 0 <= p <= 1")
+    return n, p
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser("slam", help="SLAM tools (evaluation against simulated ground truth)")
+    ssub = p.add_subparsers(dest="slam_command", required=True, metavar="SUBCOMMAND")
+    e = ssub.add_parser("eval", help="Monte Carlo comparison of landmark SLAM filters")
+    e.add_argument("--scenario", required=True, type=Path, help="scenario JSON file")
+    e.add_argument(
+        "--algorithms",
+        default="fastslam1,fastslam2,ufastslam,vb-afastslam,vb-aufastslam",
+        help="comma-separated algorithm names",
+    )
+    e.add_argument("--runs", type=int, default=10, help="Monte Carlo runs per noise setting")
+    e.add_argument(
+        "--noise",
+        action="append",
+        default=None,
+        metavar="n=N,p=P",
+        help="dynamic observation noise (repeatable); default: the scenario's",
+    )
+    e.add_argument("--jobs", type=int, default=1, help="worker processes")
+    e.add_argument("--particles", type=int, default=100, help="particles per filter")
+    e.add_argument("--association", default="known", choices=["known", "nn", "jcbb"])
+    e.add_argument("--seed", type=int, default=0, help="base seed of the study")
+    e.add_argument(
+        "--r0-scale",
+        type=float,
+        default=1.0,
+        help="the filters assume this multiple of the true R0 (mis-specified noise)",
+    )
+    e.add_argument("--max-steps", type=int, default=None, help="truncate each run (steps)")
+    e.add_argument("--out", type=Path, default=None, help="directory for tables.md, JSON, PNG")
+    e.add_argument("--no-progress", action="store_true", help="no progress bar")
+    e.set_defaults(func=run)
+
+
+def command_line(args: argparse.Namespace) -> str:
+    """The ``auvgw slam eval`` command line equivalent to ``args`` (recorded with the tables)."""
+    parts = ["auvgw", "slam", "eval", "--scenario", str(args.scenario)]
+    parts += ["--algorithms", args.algorithms, "--runs", str(args.runs)]
+    for t in args.noise or []:
+        parts += ["--noise", t]
+    parts += ["--jobs", str(args.jobs), "--particles", str(args.particles)]
+    parts += ["--association", args.association, "--seed", str(args.seed)]
+    if args.r0_scale != 1.0:
+        parts += ["--r0-scale", f"{args.r0_scale:g}"]
+    if args.max_steps is not None:
+        parts += ["--max-steps", str(args.max_steps)]
+    if args.out is not None:
+        parts += ["--out", str(args.out)]
+    return " ".join(shlex.quote(p) for p in parts)
+
+
+def _advance(bar: Any) -> Any:
+    return lambda _result: bar.update(1)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the study and print the tables; returns the exit code."""
+    from auvgw.config.scenario import ScenarioError, load_scenario
+    from auvgw.slam.evaluation.report import format_table, plot_results, summaries_by_algorithm
+    from auvgw.slam.evaluation.runner import Study, monte_carlo
+    from auvgw.slam.landmark.registry import ALGORITHMS
+
+    algorithms = tuple(a.strip() for a in args.algorithms.split(",") if a.strip())
+    unknown = [a for a in algorithms if a not in ALGORITHMS]
+    if not algorithms or unknown:
+        raise UserError(f"unknown algorithm(s) {unknown}; choose from {', '.join(ALGORITHMS)}")
+    if args.runs < 1 or args.jobs < 1 or args.particles < 1:
+        raise UserError("--runs, --jobs and --particles must be at least 1")
+    if args.association == "jcbb" and any(not a.endswith("ekf") for a in algorithms):
+        raise UserError("--association jcbb is for the EKF family (ekf, shekf, stekf, caekf)")
+    try:
+        scenario = load_scenario(args.scenario)
+        scenario.point_features()
+    except ScenarioError as exc:
+        raise UserError(str(exc)) from None
+    if scenario.motion != "bicycle":
+        raise UserError(
+            f"{args.scenario}: slam eval simulates Bailey's vehicle: set motion 'bicycle'"
+        )
+    settings = (
+        [parse_noise(t) for t in args.noise]
+        if args.noise
+        else [(scenario.observations.burst_n, scenario.observations.burst_p)]
+    )
+    command = command_line(args)
+    blocks_txt: list[str] = []
+    blocks_md: list[str] = []
+    summary_json: list[dict[str, Any]] = []
+    for n, p in settings:
+        study = Study(
+            scenario=scenario,
+            algorithms=algorithms,
+            runs=args.runs,
+            burst_n=n,
+            burst_p=p,
+            n_particles=args.particles,
+            association=args.association,
+            seed=args.seed,
+            r0_scale=args.r0_scale,
+            max_steps=args.max_steps,
+        )
+        total = args.runs * len(algorithms)
+        if args.no_progress:
+            results = monte_carlo(study, jobs=args.jobs)
+        else:
+            from tqdm import tqdm
+
+            with tqdm(total=total, desc=f"n={n:g}, p={p:g}", unit="run", file=sys.stderr) as bar:
+                results = monte_carlo(study, jobs=args.jobs, progress=_advance(bar))
+        sums = summaries_by_algorithm(results, algorithms)
+        title = (
+            f"{scenario.name}: n = {n:g}, p = {p:g} ({args.runs} runs, {args.particles} particles,"
+            f" {args.association} association"
+            + (f", filters assume {args.r0_scale:g} R0" if args.r0_scale != 1.0 else "")
+            + ")"
+        )
+        txt = format_table(title, sums)
+        print(txt)
+        blocks_txt.append(txt)
+        blocks_md.append(format_table(title, sums, markdown=True))
+        summary_json.append({"n": n, "p": p, "summaries": [asdict(s) for s in sums]})
+        if args.out is not None:
+            png = args.out / f"{scenario.name}_n{n:g}_p{p:g}.png"
+            try:
+                plot_results(results, algorithms, png, title)
+            except ImportError:
+                print("matplotlib is not installed: no plot written", file=sys.stderr)
+            else:
+                print(f"plot: {png}", file=sys.stderr)
+    if args.out is not None:
+        args.out.mkdir(parents=True, exist_ok=True)
+        md = [f"Made by:\n\n```\n{command}\n```\n", *blocks_md]
+        (args.out / "tables.md").write_text("\n".join(md))
+        (args.out / "results.json").write_text(
+            json.dumps({"command": command, "settings": summary_json}, indent=1)
+        )
+        print(f"tables: {args.out / 'tables.md'}", file=sys.stderr)
+    return 0

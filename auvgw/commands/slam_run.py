@@ -1,0 +1,186 @@
+"""``auvgw slam-run``: the online SLAM stage over a recording, offline.
+
+    auvgw slam-run --recording run.mcap [--algorithm vb-aufastslam] [--out slam.jsonl]
+
+Decodes the recorded raw frames exactly as the gateway did
+(:func:`auvgw.recording.iter_recording`), runs the fusion stage on the INS and DVL messages and
+feeds its odometry and the MSIS scan lines to the same :class:`~auvgw.stages.slam.SlamStage` as
+online (no bus). ``--out`` writes every published SLAM pose (and the last map) as JSON lines.
+Prints the counters, the distance travelled and the SLAM-minus-dead-reckoning difference; with
+``truth/pose`` samples in the recording (``auvgw record`` of an emulated run) it also reports
+both paths' error against the truth (placed on the INS clock: truth time = INS time).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from auvgw.cli import UserError
+
+
+def register(sub: Any) -> None:
+    from auvgw.slam.landmark.registry import ALGORITHMS
+
+    p = sub.add_parser(
+        "slam-run",
+        help="run the SLAM stage (fusion odometry + MSIS features) over a recording",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--recording", type=Path, required=True, metavar="FILE.mcap")
+    p.add_argument("--algorithm", default="vb-aufastslam", choices=sorted(ALGORITHMS))
+    p.add_argument("--particles", type=int, default=50, help="particles (default 50)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--msis", default=None, help="gateway device of the MSIS (default: first)")
+    p.add_argument("--ins", default=None, help="gateway device of the INS (default: first)")
+    p.add_argument("--dvl", default=None, help="gateway device of the DVL (default: first)")
+    p.add_argument("--sound-speed", type=float, default=1500.0, help="m/s (default 1500)")
+    p.add_argument(
+        "--fusion-settings",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="fusion stage settings (TOML/JSON, as auvgw fusion --settings)",
+    )
+    p.add_argument("--out", type=Path, default=None, help="JSON lines of the SLAM output")
+    p.set_defaults(func=run)
+
+
+class _Paths:
+    """Dead-reckoning and SLAM tracks (s, x, y) and the truth, for the summary."""
+
+    def __init__(self) -> None:
+        self.dr: list[tuple[float, float, float]] = []
+        self.slam: list[tuple[float, float, float]] = []
+        self.truth: list[tuple[float, float, float]] = []
+
+
+def _error(est: list[tuple[float, float, float]], truth: np.ndarray) -> dict[str, float] | None:
+    if len(est) < 2 or len(truth) < 2:
+        return None
+    e = np.asarray(est)
+    keep = (e[:, 0] >= truth[0, 0]) & (e[:, 0] <= truth[-1, 0])
+    if keep.sum() < 2:
+        return None
+    e = e[keep]
+    err = np.hypot(e[:, 1] - np.interp(e[:, 0], truth[:, 0], truth[:, 1]),
+                   e[:, 2] - np.interp(e[:, 0], truth[:, 0], truth[:, 2]))  # fmt: skip
+    seg = (truth[:, 0] >= e[0, 0]) & (truth[:, 0] <= e[-1, 0])
+    dist = float(np.sum(np.hypot(*np.diff(truth[seg, 1:], axis=0).T)))
+    rmse = float(np.sqrt(np.mean(err**2)))
+    return {"distance_m": dist, "rmse_m": rmse, "final_m": float(err[-1]),
+            "rmse_pct_distance": 100 * rmse / dist if dist > 0 else math.nan}  # fmt: skip
+
+
+def _fusion_settings(args: argparse.Namespace) -> Any:
+    from auvgw.stages.fusion import FusionStageConfig, SettingsError, load_stage_config
+
+    cfg = FusionStageConfig()
+    if args.fusion_settings is not None:
+        try:
+            cfg = load_stage_config(args.fusion_settings)
+        except SettingsError as exc:
+            raise UserError(str(exc)) from None
+    named = {k: v for k, v in (("ins_device", args.ins), ("dvl_device", args.dvl)) if v}
+    return cfg.model_copy(update=named)
+
+
+def run(args: argparse.Namespace) -> int:
+    from auvgw.recording import RecordingError, iter_recording
+    from auvgw.stages.fusion import FusionStage
+    from auvgw.stages.slam import SlamStage, SlamStageConfig
+
+    if args.particles < 1:
+        raise UserError("--particles must be >= 1")
+    if not args.recording.is_file():
+        raise UserError(f"{args.recording}: no such file")
+    paths = _Paths()
+    out_file = None
+    if args.out is not None:
+        try:
+            out_file = open(args.out, "w")  # noqa: SIM115 - closed in finally
+        except OSError as exc:
+            raise UserError(f"{args.out}: cannot write: {exc.strerror}") from exc
+    last_map: list[bytes] = []
+
+    def on_publish(key: str, payload: bytes, _t_ns: int) -> None:
+        if key.endswith("/pose"):
+            p = json.loads(payload)
+            paths.slam.append((p["t"], p["x"], p["y"]))
+            if out_file is not None:
+                out_file.write(payload.decode() + "\n")
+        else:
+            last_map[:] = [payload]
+
+    slam = SlamStage(
+        SlamStageConfig(algorithm=args.algorithm, n_particles=args.particles, seed=args.seed,
+                        msis_device=args.msis, sound_speed_mps=args.sound_speed),
+        on_publish=on_publish,
+    )  # fmt: skip
+
+    def on_odometry(o: Any) -> None:
+        paths.dr.append((o.t, o.x, o.y))
+        slam.feed_odometry(o)
+
+    fusion = FusionStage(_fusion_settings(args), on_odometry=on_odometry)
+    try:
+        for rec in iter_recording(args.recording, truth=True):
+            if "/truth/" in rec.key:
+                s = rec.messages[0] if rec.messages else None
+                if rec.key.endswith("/pose") and isinstance(s, dict) and "t" in s:
+                    paths.truth.append((float(s["t"]), float(s["x"]), float(s["y"])))
+                continue
+            device = rec.key.rsplit("/", 1)[-1]
+            for msg in rec.messages:
+                fusion.feed(device, rec.t_recv_ns, msg)
+                slam.feed(device, rec.t_recv_ns, msg)
+        fusion.flush()
+        slam.flush()
+    except RecordingError as exc:
+        raise UserError(str(exc)) from None
+    finally:
+        if out_file is not None:
+            if last_map:
+                out_file.write(last_map[0].decode() + "\n")
+            out_file.close()
+    return _report(args.recording, slam, fusion, paths)
+
+
+def _report(path: Path, slam: Any, fusion: Any, paths: _Paths) -> int:
+    c = slam.counters()
+    st = c["stage"]
+    print(f"{path}: {c['algorithm']} over {st['odometry']} odometry samples, {st['pings']} scan "
+          f"lines of {c['msis_device']}: {st['point_features']} point and {st['line_features']} "
+          f"line features, {st['updates']} updates, {c['landmarks']} landmarks, "
+          f"{st['published']} poses published")  # fmt: skip
+    if not paths.dr:
+        print("no odometry: the recording has no usable INS messages")
+        return 1
+    dr = np.asarray(paths.dr)
+    dist = float(np.sum(np.hypot(*np.diff(dr[:, 1:], axis=0).T)))
+    if paths.slam:
+        s = np.asarray(paths.slam)
+        dx = s[:, 1] - np.interp(s[:, 0], dr[:, 0], dr[:, 1])
+        dy = s[:, 2] - np.interp(s[:, 0], dr[:, 0], dr[:, 2])
+        print(f"  distance travelled {dist:.1f} m; SLAM - dead reckoning: RMS "
+              f"{float(np.sqrt(np.mean(dx**2 + dy**2))):.2f} m, final "
+              f"{float(math.hypot(dx[-1], dy[-1])):.2f} m")  # fmt: skip
+    if paths.truth:
+        ins = fusion.adapter.ins_device
+        offset = fusion.adapter.clocks[ins].offset if ins in fusion.adapter.clocks else None
+        if offset is not None:
+            truth = np.asarray(sorted(paths.truth))
+            truth[:, 0] += offset  # INS time (= simulation time) -> odometry clock
+            for name, track in (("dead reckoning", paths.dr), ("SLAM", paths.slam)):
+                e = _error(track, truth)
+                if e is not None:
+                    print(f"  {name} vs truth over {e['distance_m']:.0f} m: RMSE "
+                          f"{e['rmse_m']:.2f} m, final {e['final_m']:.2f} m, RMSE/distance x 100 "
+                          f"{e['rmse_pct_distance']:.3f} %")  # fmt: skip
+    return 0

@@ -1,0 +1,114 @@
+"""VB noise estimation against hand-computed Sarkka-Nummenmaa (2009) steps."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from auvgw.slam.landmark.association import KnownAssociation
+from auvgw.slam.landmark.vb import VBAFastSLAM, VBAUFastSLAM, VBSettings, vb_noise_step
+from auvgw.slam.models import BicycleModel, RangeBearing
+
+
+def test_noise_step_matches_scalar_sarkka_nummenmaa():
+    # scalar random walk, H = 2: m- = 1, P- = 0.5, y = 3.7; alpha- = 3, beta- = 0.6
+    h, m_prior, p_prior, y = 2.0, 1.0, 0.5, 3.7
+    alpha = 3.0 + 0.5
+    beta_prior = 0.6
+    beta = beta_prior
+    for _ in range(4):  # the paper's loop, written out by hand
+        sigma2 = beta / alpha
+        s = h * h * p_prior + sigma2
+        k = p_prior * h / s
+        m = m_prior + k * (y - h * m_prior)
+        p = p_prior - k * k * s
+        beta_hand = beta_prior + 0.5 * (y - h * m) ** 2 + 0.5 * h * h * p
+        e, pzz = vb_noise_step(
+            np.array([[h * h * p_prior]]), np.array([y - h * m_prior]), np.array([beta / alpha])
+        )
+        np.testing.assert_allclose(pzz, [[s]])
+        beta = beta_prior + 0.5 * e[0]
+        np.testing.assert_allclose(beta, beta_hand, rtol=1e-12)
+    assert beta > beta_prior
+
+
+def one_landmark_filter(cls, settings, pose_cov):
+    f = cls(
+        BicycleModel(4.0),
+        RangeBearing(),
+        np.diag([0.09, 0.003]),
+        np.diag([0.01, 3e-4]),
+        n_particles=1,
+        association=KnownAssociation(),
+        vb=settings,
+    )
+    f.update(np.array([[10.0, 0.3]]), np.random.default_rng(0), np.array([7]))
+    f.pcov[:] = pose_cov
+    f.cov[0, 0] = np.array([[0.04, 0.01], [0.01, 0.02]])
+    return f
+
+
+def test_pose_stage_is_sarkka_nummenmaa_with_tied_components():
+    settings = VBSettings(rho=0.9, eta0=10.0, pose_iterations=3, feature_iterations=0)
+    pose_cov = np.array([[0.05, 0.01, 0.0], [0.01, 0.08, 0.002], [0.0, 0.002, 0.004]])
+    f = one_landmark_filter(VBAFastSLAM, settings, pose_cov)
+    eta_prior, xi_prior = 0.9 * f.eta[0].copy(), 0.9 * f.xi[0].copy()
+    x, mu, sig = f.x[0].copy(), f.mu[0, 0].copy(), f.cov[0, 0].copy()
+    z = np.array([9.2, 0.42])  # a 0.8 m range error: the noise estimate must grow
+    obs = RangeBearing()
+    hx, hm = obs.jacobians(x, mu)
+    s = hx @ pose_cov @ hx.T + hm @ sig @ hm.T
+    v = obs.residual(z, obs.h(x, mu))
+    eta = eta_prior + 0.5
+    xi = xi_prior.copy()
+    for _ in range(3):
+        pzz = s + np.diag(xi / eta)
+        g = np.linalg.solve(pzz, v)
+        r = v - s @ g
+        c = s - s @ np.linalg.solve(pzz, s)
+        xi = xi_prior + 0.5 * (r * r + np.diag(c))
+    f.update(z[None], np.random.default_rng(1), np.array([7]))
+    np.testing.assert_allclose(f.eta[0], eta)
+    np.testing.assert_allclose(f.xi[0], xi, rtol=1e-10)
+    assert f.noise_estimate()[0, 0] > 0.0102  # the range variance adapted upwards from R0
+
+
+def test_feature_stage_continues_the_iteration_and_updates_with_the_estimate():
+    settings = VBSettings(rho=0.95, eta0=20.0, pose_iterations=3, feature_iterations=2)
+    for cls in (VBAFastSLAM, VBAUFastSLAM):
+        f = one_landmark_filter(cls, settings, np.zeros((3, 3)))  # exact pose: both stages alike
+        eta_prior, xi_prior = 0.95 * f.eta[0].copy(), 0.95 * f.xi[0].copy()
+        x, mu, sig = f.x[0].copy(), f.mu[0, 0].copy(), f.cov[0, 0].copy()
+        z = np.array([10.4, 0.28])
+        obs = RangeBearing()
+        _, hm = obs.jacobians(x, mu)
+        s = hm @ sig @ hm.T
+        v = obs.residual(z, obs.h(x, mu))
+        eta = eta_prior + 0.5
+        xi = xi_prior.copy()
+        for _ in range(5):
+            pzz = s + np.diag(xi / eta)
+            r = v - s @ np.linalg.solve(pzz, v)
+            c = s - s @ np.linalg.solve(pzz, s)
+            xi = xi_prior + 0.5 * (r * r + np.diag(c))
+        pzz = s + np.diag(xi / eta)
+        k = sig @ hm.T @ np.linalg.inv(pzz)
+        f.update(z[None], np.random.default_rng(2), np.array([7]))
+        tol = 1e-9 if cls is VBAFastSLAM else 2e-3  # the UKF keeps second-order terms
+        np.testing.assert_allclose(f.xi[0], xi, rtol=tol * 10)
+        np.testing.assert_allclose(f.mu[0, 0], mu + k @ v, atol=tol)
+        np.testing.assert_allclose(f.cov[0, 0], sig - k @ pzz @ k.T, atol=tol)
+
+
+def test_default_start_is_r0_and_explicit_xi0_follows_eq19():
+    r0 = np.diag([0.01, 3e-4])
+    f = VBAFastSLAM(BicycleModel(), RangeBearing(), np.eye(2) * 1e-4, r0, n_particles=3)
+    np.testing.assert_allclose(f.noise_estimate(), np.tile(np.diag(r0), (3, 1)))
+    g = VBAFastSLAM(
+        BicycleModel(),
+        RangeBearing(),
+        np.eye(2) * 1e-4,
+        r0,
+        n_particles=3,
+        vb=VBSettings(eta0=50.0, xi0=(5.0, 5.0)),
+    )
+    np.testing.assert_allclose(g.noise_estimate(), 0.1)  # eq. (19): xi / eta
