@@ -23,6 +23,7 @@ COMMANDS: list[str] = [
     "auvgw.commands.viz",
     "auvgw.commands.sim",
     "auvgw.commands.fusion",
+    "auvgw.commands.slam",
     "auvgw.commands.slam_run",
 ]
 
