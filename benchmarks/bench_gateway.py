@@ -20,6 +20,21 @@ connected to the gateway by TCP on 127.0.0.1).
 * **lost**: ensembles written minus decoded samples received (by sequence number).
 * **stalled**: the 10x phase again with a second subscriber process whose callback never returns.
 
+Second table, **all five emulated devices** (``--all-seconds``, 0 to skip): ``auvgw sim
+--processes`` runs the harbour scenario (INS on serial, DVL, MSIS polled by the gateway,
+multibeam on UDP, MS3A magnetometer on serial and on its SLCAN adapter) at nominal rate (speed 1)
+and at 10x, and a fresh ``auvgw run`` reads every port. The INS CAN form is left off
+(``devices.ins.options.can = false`` in a temporary copy of the scenario): at 10x its 8000
+frames/s exceed what python-can's ``slcan`` interface reads (about 1400 frames/s), a limit of
+the host library, not of the gateway. The copy also stalls every device for the first few
+seconds (the gateway starts and opens its ports) and the last ones (every byte read before the
+ports close), so every frame an emulator sends falls in the measured run.
+
+* **CPU**: utime + stime of the ``auvgw run`` process over the sending window, % of one core.
+* **lost**: frames each emulator sent (the sim's printed counters; on CAN the sim counts a
+  sample's burst once, so its count times the DBC's frames per epoch) minus the frames the
+  gateway counted (``frames`` of its status queryable); the bar is none.
+
 Nominal rate: 10 Hz (a Pathfinder's top ping rate); 10x = 100 Hz. Latencies are medians and
 99th percentiles over every ensemble of a phase. Timings depend on the machine's load: compare
 the rows of one run, not runs of different days.
@@ -37,6 +52,7 @@ import sys
 import tempfile
 import threading
 import time
+import tomllib
 import tty
 from dataclasses import dataclass
 from pathlib import Path
@@ -268,6 +284,177 @@ class Bench:
         os.close(self.slave)
 
 
+ALL_DEVICES = ("ins", "dvl", "msis", "multibeam", "magnetometer")
+
+
+@dataclass
+class AllRow:
+    """One port of the all-devices run: frames sent by the emulator and counted by the gateway."""
+
+    port: str
+    sent: int
+    counted: int
+    bad: int
+    dropped_bytes: int
+
+    @property
+    def lost(self) -> int:
+        return self.sent - self.counted
+
+
+@dataclass
+class AllPhase:
+    speed: float
+    seconds: float
+    cpu_pct: float
+    rows: list[AllRow]
+    sim_rc: int
+
+
+def all_devices_scenario(path: Path, t_open: float, t_close: float) -> Path:
+    """A copy of the harbour scenario: INS CAN off; every device silent before ``t_open`` and
+    from ``t_close`` (vehicle s)."""
+    scn = json.loads((REPO_ROOT / "config" / "scenarios" / "harbour.json").read_text())
+    devices = scn.setdefault("devices", {})
+    for name in ALL_DEVICES:
+        faults = devices.setdefault(name, {}).setdefault("faults", {})
+        faults["stall"] = [*faults.get("stall", []), [0.0, t_open], [t_close, 1e9]]
+    devices["ins"].setdefault("options", {})["can"] = False
+    path.write_text(json.dumps(scn))
+    return path
+
+
+def sim_counters(lines: list[str]) -> dict[str, tuple[int, int]]:
+    """{port: (frames sent, dropped bytes)} from the counters ``auvgw sim`` prints at exit."""
+    out = {}
+    for line in lines:
+        f = line.split()
+        if len(f) >= 10 and f[1] == "samples" and f[3] == "sent" and f[7] == "dropped":
+            out[f[0]] = (int(f[4]), int(f[9]))
+    return out
+
+
+def all_devices_phase(
+    tmp: Path, speed: float, seconds: float, warm_s: float = 8.0, tail_s: float = 3.0
+) -> AllPhase:
+    """Every emulated device at ``speed`` for ``seconds`` of wall time, read by ``auvgw run``."""
+    from auvgw.drivers.can_codec import DbcCodec
+    from auvgw.paths import config_file
+    from auvgw.sim_devices.runner import gateway_toml
+    from auvgw.subscribe import GatewaySubscriber
+
+    out = tmp / f"all-{speed:g}x"
+    out.mkdir()
+    t_open, t_close = warm_s * speed, (warm_s + seconds) * speed
+    scn = all_devices_scenario(tmp / f"harbour-{speed:g}x.json", t_open, t_close)
+    duration = t_close + tail_s * speed
+    sim_log = open(out / "sim.log", "wb")  # noqa: SIM115 - closed below
+    sim = subprocess.Popen(
+        [str(BIN / "auvgw"), "sim", "--scenario", str(scn), "--processes", "--speed",
+         f"{speed:g}", "--duration", f"{duration:g}", "--out", str(out), "--vehicle", "benchall",
+         "--no-truth-log"],
+        stdout=subprocess.PIPE, stderr=sim_log, text=True, cwd=REPO_ROOT,
+    )  # fmt: skip
+    assert sim.stdout is not None
+    lines: list[str] = []
+    for line in sim.stdout:
+        lines.append(line.rstrip("\n"))
+        if line.startswith("running"):
+            break
+    else:
+        raise SystemExit(f"auvgw sim failed; see {out / 'sim.log'}")
+    t_start = time.monotonic() + 0.5  # vehicle time 0 (DeviceProcesses.start's lead)
+    reader = threading.Thread(target=lambda: lines.extend(x.rstrip("\n") for x in sim.stdout))
+    reader.start()
+    cfg = tomllib.loads((out / "gateway.toml").read_text())
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    cfg["status_period_s"] = 1.0
+    cfg["bus"] = {"listen": [ep]}
+    (out / "gw.toml").write_text(gateway_toml(cfg, "benchmark: all five emulated devices"))
+    gw_log = open(out / "gateway.log", "wb")  # noqa: SIM115 - closed below
+    gw = subprocess.Popen(
+        [str(BIN / "auvgw"), "run", "--config", str(out / "gw.toml")], stderr=gw_log,
+        cwd=REPO_ROOT,
+    )  # fmt: skip
+    ports = list(cfg["devices"])
+    try:
+        with GatewaySubscriber("benchall", BusConfig(connect=[ep])) as me:
+            deadline = time.monotonic() + 60
+            while not all((me.status(p) or {}).get("connected") for p in ports):
+                if time.monotonic() > deadline:
+                    raise SystemExit(f"gateway did not connect every port; see {out}")
+                time.sleep(0.2)
+            if time.monotonic() > t_start + warm_s:
+                print(f"warning: {speed:g}x: gateway connected after the devices started",
+                      file=sys.stderr)  # fmt: skip
+            # CPU over the sending window, half a second inside each end
+            w0 = t_start + warm_s + 0.5
+            time.sleep(max(0.0, w0 - time.monotonic()))
+            c0, m0 = cpu_ticks(gw.pid), time.monotonic()
+            time.sleep(max(0.0, t_start + warm_s + seconds - 0.5 - time.monotonic()))
+            c1, m1 = cpu_ticks(gw.pid), time.monotonic()
+            # the devices are silent from t_close: everything sent has been read by mid-tail
+            time.sleep(max(0.0, t_start + warm_s + seconds + tail_s / 2 - time.monotonic()))
+            status = {p: me.status(p, timeout=5.0) or {} for p in ports}
+        sim_rc = sim.wait(60 + duration / speed)
+        reader.join(10)
+    finally:
+        for p in (sim, gw):
+            if p.poll() is None:
+                p.send_signal(signal.SIGTERM)
+                try:
+                    p.wait(15)
+                except subprocess.TimeoutExpired:
+                    p.kill()
+                    p.wait()
+        sim_log.close()
+        gw_log.close()
+    counters = sim_counters(lines)
+    rows = []
+    for p in ports:
+        sent, dropped = counters.get(p, (-1, 0))
+        dbc = cfg["devices"][p].get("dbc")
+        if dbc is not None:  # the sim counts a CAN sample's burst once: its frames per epoch
+            sent *= len(DbcCodec(config_file(dbc)).epoch_types)
+        st = status[p]
+        rows.append(AllRow(p, sent, int(st.get("frames", -1)), int(st.get("bad_frames", 0)),
+                           dropped))  # fmt: skip
+    cpu = (c1 - c0) / CLK_TCK / (m1 - m0) * 100
+    return AllPhase(speed, seconds, cpu, rows, sim_rc)
+
+
+def print_all_devices(phases: list[AllPhase]) -> None:
+    print(
+        "\nAll five emulated devices (harbour scenario, auvgw sim --processes; INS CAN off, "
+        f"see the docstring); machine load {os.getloadavg()[0]:.1f}\n"
+    )
+    head = (
+        f"{'speed':>5} {'port':18} {'sent':>7} {'counted':>8} {'lost':>5} {'bad':>4} "
+        f"{'sim dropped B':>13}"
+    )
+    print(head)
+    print("-" * len(head))
+    for ph in phases:
+        for r in ph.rows:
+            print(
+                f"{ph.speed:>4g}x {r.port:18} {r.sent:>7} {r.counted:>8} {r.lost:>5} "
+                f"{r.bad:>4} {r.dropped_bytes:>13}"
+            )
+    print()
+    for ph in phases:
+        lost = sum(r.lost for r in ph.rows)
+        print(
+            f"at {ph.speed:g}x ({ph.seconds:g} s sending): gateway CPU {ph.cpu_pct:.1f} % of a "
+            f"core (target < 25 % at 1x); frames lost {lost} (bar: 0); sim exit {ph.sim_rc}"
+        )
+
+
+def all_devices_run(args: argparse.Namespace) -> list[AllPhase]:
+    seconds = 10.0 if args.quick else args.all_seconds
+    with tempfile.TemporaryDirectory(prefix="bench-gw-all-") as tmp:
+        return [all_devices_phase(Path(tmp), k, seconds) for k in (1.0, args.all_factor)]
+
+
 def fmt(v: float, spec: str = ".0f") -> str:
     return "-" if v != v else format(v, spec)  # NaN -> "-"
 
@@ -278,6 +465,14 @@ def main() -> int:
     ap.add_argument("--factor", type=float, default=10.0, help="fast phase = factor x rate")
     ap.add_argument("--seconds", type=float, default=15.0, help="length of each phase, s")
     ap.add_argument("--quick", action="store_true", help="5 s phases")
+    ap.add_argument(
+        "--all-seconds",
+        type=float,
+        default=25.0,
+        help="wall seconds per phase of the all-devices run (0: skip it)",
+    )
+    ap.add_argument("--all-factor", type=float, default=10.0, help="its fast speed")
+    ap.add_argument("--only-all", action="store_true", help="only the all-devices run")
     args = ap.parse_args()
     seconds = 5.0 if args.quick else args.seconds
     shared = shared_dir()
@@ -293,6 +488,9 @@ def main() -> int:
     nominal, fast = args.rate, args.rate * args.factor
     n_nom, n_fast = round(nominal * seconds), round(fast * seconds)
     rows: list[Row] = []
+    if args.only_all:
+        print_all_devices(all_devices_run(args))
+        return 0
     with tempfile.TemporaryDirectory(prefix="bench-gw-") as tmp:
         b = Bench(Path(tmp), frames)
         try:
@@ -332,6 +530,8 @@ def main() -> int:
             f"{(gw.p50_us - bare.p50_us) / 1e3:.2f} ms (target < 1 ms); "
             f"ratio p50 {gw.p50_us / bare.p50_us:.1f}x; gateway CPU {gw.cpu_pct:.1f} % of a core"
         )
+    if args.all_seconds > 0:
+        print_all_devices(all_devices_run(args))
     return 0
 
 
