@@ -25,3 +25,27 @@ def shared_data() -> Path:
 @pytest.fixture(scope="session")
 def papers_dir(shared_data: Path) -> Path:
     return shared_data.parent / "papers"
+
+
+@pytest.fixture
+def procs(tmp_path):
+    """Child processes of a test (gateway, router, subscriber), all stopped at its end."""
+    from gateway_support import Procs
+
+    p = Procs(tmp_path)
+    try:
+        yield p
+    finally:
+        p.stop_all()
+
+
+@pytest.fixture
+def dvl(tmp_path):
+    """A pty standing in for the DVL's serial port (stable symlink path)."""
+    from gateway_support import PtyDevice
+
+    d = PtyDevice(tmp_path / "dvl")
+    try:
+        yield d
+    finally:
+        d.close()

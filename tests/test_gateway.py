@@ -10,8 +10,6 @@ import signal
 import pytest
 from gateway_support import (
     AUVGW,
-    Procs,
-    PtyDevice,
     endpoint,
     free_port,
     local_decoded,
@@ -23,24 +21,6 @@ from gateway_support import (
 
 from auvgw.config.bus import BusConfig
 from auvgw.subscribe import GatewaySubscriber
-
-
-@pytest.fixture
-def procs(tmp_path):
-    p = Procs(tmp_path)
-    try:
-        yield p
-    finally:
-        p.stop_all()
-
-
-@pytest.fixture
-def dvl(tmp_path):
-    d = PtyDevice(tmp_path / "dvl")
-    try:
-        yield d
-    finally:
-        d.close()
 
 
 @pytest.fixture

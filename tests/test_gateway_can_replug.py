@@ -10,7 +10,6 @@ from __future__ import annotations
 import can
 import pytest
 from gateway_support import (
-    Procs,
     endpoint,
     free_port,
     read_jsonl,
@@ -26,15 +25,6 @@ N_BEFORE = 20  # samples sent before the unplug (40 frames)
 N_UNPLUGGED = 5  # samples the magnetometer produces while the adapter is out (never delivered)
 N_AFTER = 30  # samples sent once the gateway has reopened the adapter
 FIRST_AFTER = 1000  # counter of the first sample after the replug (a visible jump)
-
-
-@pytest.fixture
-def procs(tmp_path):
-    p = Procs(tmp_path)
-    try:
-        yield p
-    finally:
-        p.stop_all()
 
 
 @pytest.fixture

@@ -3,11 +3,8 @@ the same symlink, and a subscriber that stops reading."""
 
 from __future__ import annotations
 
-import pytest
 from gateway_support import (
     PYTHON,
-    Procs,
-    PtyDevice,
     endpoint,
     free_port,
     local_decoded,
@@ -19,24 +16,6 @@ from gateway_support import (
 
 from auvgw.config.bus import BusConfig
 from auvgw.subscribe import GatewaySubscriber
-
-
-@pytest.fixture
-def procs(tmp_path):
-    p = Procs(tmp_path)
-    try:
-        yield p
-    finally:
-        p.stop_all()
-
-
-@pytest.fixture
-def dvl(tmp_path):
-    d = PtyDevice(tmp_path / "dvl")
-    try:
-        yield d
-    finally:
-        d.close()
 
 
 def test_unplug_and_replug_reported_and_resumed_without_loss(procs, tmp_path, dvl, shared_data):

@@ -12,7 +12,6 @@ import time
 import pytest
 from gateway_support import (
     AUVGW,
-    Procs,
     PtyDevice,
     endpoint,
     free_port,
@@ -36,15 +35,6 @@ from auvgw.recording import (
     read_info,
 )
 from auvgw.subscribe import GatewaySubscriber
-
-
-@pytest.fixture
-def procs(tmp_path):
-    p = Procs(tmp_path)
-    try:
-        yield p
-    finally:
-        p.stop_all()
 
 
 def gateway_config_json(vehicle: str, url: str) -> str:

@@ -112,3 +112,27 @@ def test_default_start_is_r0_and_explicit_xi0_follows_eq19():
         vb=VBSettings(eta0=50.0, xi0=(5.0, 5.0)),
     )
     np.testing.assert_allclose(g.noise_estimate(), 0.1)  # eq. (19): xi / eta
+
+
+def test_low_rank_innovation_algebra_matches_dense_matrices():
+    from auvgw.slam.landmark.fastslam import LowRank
+
+    rng = np.random.default_rng(9)
+    n, m, k = 4, 5, 7
+    u = rng.normal(size=(n, 2 * m, k)) * 0.3
+    a = rng.normal(size=(n, m, 2, 2))
+    blocks = a @ np.swapaxes(a, -1, -2) + 0.1 * np.eye(2)
+    v = rng.normal(size=(n, m, 2))
+    lr = LowRank(u, blocks, v)
+    for i in range(n):
+        b = np.zeros((2 * m, 2 * m))
+        for j in range(m):
+            b[2 * j : 2 * j + 2, 2 * j : 2 * j + 2] = blocks[i, j]
+        pzz = b + u[i] @ u[i].T
+        vi = v[i].reshape(-1)
+        pinv = np.linalg.inv(pzz)
+        np.testing.assert_allclose(lr.pzz_inv_v()[i], pinv @ vi, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(lr.pzz_inv_diag()[i], np.diag(pinv), rtol=1e-9)
+        np.testing.assert_allclose(lr.quad()[i], vi @ pinv @ vi, rtol=1e-9)
+        np.testing.assert_allclose(lr.logdet()[i], np.linalg.slogdet(pzz)[1], rtol=1e-9)
+        np.testing.assert_allclose(lr.z[i], u[i].T @ pinv @ vi, rtol=1e-9, atol=1e-12)
