@@ -370,17 +370,24 @@ def table_rows(cls: type) -> list[dict[str, Any]]:
     ]
 
 
+def _nan_to_none(value: Any) -> Any:
+    """Nested lists of floats with NaN/inf replaced by None (JSON has no NaN)."""
+    if type(value) is list:
+        return [_nan_to_none(v) for v in value]
+    return None if value != value or value in (math.inf, -math.inf) else value
+
+
 def _jsonable(value: Any) -> Any:
     t = type(value)
     if t is int or t is str or t is bool or value is None:  # most fields: nothing to convert
         return value
     if t is float:
         return None if math.isnan(value) or math.isinf(value) else value
-    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+    if hasattr(t, "__dataclass_fields__"):  # a nested message (an instance, t is its class)
         return to_jsonable(value)
     if isinstance(value, np.ndarray):
-        if value.dtype.kind == "f":
-            return np.where(np.isnan(value), None, value.astype(object)).tolist()
+        if value.dtype.kind == "f" and not np.isfinite(value).all():
+            return _nan_to_none(value.tolist())
         return value.tolist()
     if isinstance(value, np.generic):
         return _jsonable(value.item())
@@ -403,9 +410,14 @@ def to_jsonable(msg: Any) -> dict[str, Any]:
     NaN (invalid on the wire) becomes ``null``; bytes become hex strings; nested messages nest.
     """
     out: dict[str, Any] = {"type": getattr(msg, "TYPE", type(msg).__name__)}
-    for f in dataclasses.fields(msg):
-        out[f.name] = _jsonable(getattr(msg, f.name))
+    for name in _field_names(type(msg)):
+        out[name] = _jsonable(getattr(msg, name))
     return out
+
+
+@functools.cache
+def _field_names(cls: type) -> tuple[str, ...]:
+    return tuple(f.name for f in dataclasses.fields(cls))
 
 
 
