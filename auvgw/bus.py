@@ -18,9 +18,10 @@ do not understand without guessing from the key.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import struct
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -42,6 +43,7 @@ __all__ = [
     "json_encoding",
     "open_session",
     "pack_raw_attachment",
+    "undeclare",
     "unpack_raw_attachment",
 ]
 
@@ -49,6 +51,14 @@ SCHEMA_VERSION = 1
 #: attachment of a raw frame: host receive time (ns since the Unix epoch), per-device sequence,
 #: stream byte offset of the frame's first byte
 RAW_ATTACHMENT = struct.Struct("<qQQ")
+
+
+def undeclare(entities: Iterable[Any]) -> None:
+    """Undeclare Zenoh entities (publishers, subscribers, queryables, tokens), ignoring the ones a
+    closing session has already dropped."""
+    for e in entities:
+        with contextlib.suppress(zenoh.ZError):
+            e.undeclare()
 
 
 def open_session(cfg: BusConfig | None = None) -> zenoh.Session:

@@ -42,7 +42,14 @@ from typing import Any
 import zenoh
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from auvgw.bus import SCHEMA_VERSION, Keys, decode_envelope, encode_envelope, json_encoding
+from auvgw.bus import (
+    SCHEMA_VERSION,
+    Keys,
+    decode_envelope,
+    encode_envelope,
+    json_encoding,
+    undeclare,
+)
 from auvgw.fusion import FusionConfig, NavFilter, Odometry
 from auvgw.fusion.adapters import INS_TYPES, PD0_TYPES, MessageAdapter
 
@@ -354,24 +361,15 @@ class FusionStage:
         if self._stopped:
             return
         self._stopped = True
-        for d in self._decls:
-            if isinstance(d, zenoh.Subscriber):
-                with contextlib.suppress(zenoh.ZError):
-                    d.undeclare()
+        undeclare(d for d in self._decls if isinstance(d, zenoh.Subscriber))
         if self._worker is not None:
             self._queue.put(None)
             self._worker.join(timeout_s)
         if flush:
             self.flush()
         self._publish_status()
-        for d in self._decls:
-            if not isinstance(d, zenoh.Subscriber):
-                with contextlib.suppress(zenoh.ZError):
-                    d.undeclare()
-        for p in (self._pub, self._status_pub):
-            if p is not None:
-                with contextlib.suppress(zenoh.ZError):
-                    p.undeclare()
+        undeclare(d for d in self._decls if not isinstance(d, zenoh.Subscriber))
+        undeclare(p for p in (self._pub, self._status_pub) if p is not None)
         self._pub = self._status_pub = None
 
     def __enter__(self) -> FusionStage:

@@ -58,7 +58,7 @@ import numpy as np
 import zenoh
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from auvgw.bus import SCHEMA_VERSION, Keys, decode_envelope, json_encoding
+from auvgw.bus import SCHEMA_VERSION, Keys, decode_envelope, json_encoding, undeclare
 from auvgw.drivers import seanet as sn
 from auvgw.fusion.odometry import MotionIncrement, Odometry
 from auvgw.slam.features import (
@@ -578,21 +578,13 @@ class SlamStage:
         if self._stopped:
             return
         self._stopped = True
-        for d in self._decls:
-            if isinstance(d, zenoh.Subscriber):
-                with contextlib.suppress(zenoh.ZError):
-                    d.undeclare()
+        undeclare(d for d in self._decls if isinstance(d, zenoh.Subscriber))
         if self._worker is not None:
             self._queue.put(None)
             self._worker.join(timeout_s)
         if flush:
             self.flush()
         self._publish_status()
-        for d in self._decls:
-            if not isinstance(d, zenoh.Subscriber):
-                with contextlib.suppress(zenoh.ZError):
-                    d.undeclare()
-        for p in self._pubs.values():
-            with contextlib.suppress(zenoh.ZError):
-                p.undeclare()
+        undeclare(d for d in self._decls if not isinstance(d, zenoh.Subscriber))
+        undeclare(self._pubs.values())
         self._pubs.clear()
