@@ -6,6 +6,9 @@ sequence, stream offset) *before* decoding it, then publish the decoded messages
 envelopes. A device that disappears is reported (status ``connected: false``, its liveliness token
 withdrawn) and picked up again when it returns, while the other devices keep flowing. A finite
 source (a file replayed without ``loop``) ends its device cleanly (status ``ended: true``).
+Receive times are the host clock, or with a ``[clock]`` section (``time_scale`` != 1, an
+emulated vehicle faster than real time) the vehicle-paced ``epoch + (t_recv - epoch) *
+time_scale``, on envelopes and raw attachments alike; health keeps the host clock.
 Sensor data uses ``CongestionControl.DROP`` so a subscriber that stops reading never stalls the
 gateway. Behaviour and payloads are documented in docs/gateway.md and docs/bus.md.
 """
@@ -65,13 +68,15 @@ class _Device:
 
 
 class Gateway:
-    """Runs every enabled device of a configuration against one Zenoh session.
-
-    ``session`` may be passed in (stages sharing one embedded peer); otherwise one is opened from
-    ``cfg.bus`` and closed by :meth:`stop`. ``on_message(device, t_recv_ns, message)`` lets an
-    in-process stage see decoded messages without a Zenoh hop (it runs on the device's reader
-    thread: keep it short). Decoders are built first, so a format, table or DBC that cannot be
-    loaded raises :class:`~auvgw.config.gateway.ConfigError` before any session is opened.
+    """Runs every enabled device of a configuration against one Zenoh session. ``session`` may be
+    passed in (stages sharing one embedded peer); otherwise one is opened from ``cfg.bus`` and
+    closed by :meth:`stop`. ``on_message(device, t_recv_ns, message)`` lets an in-process stage see
+    decoded messages without a Zenoh hop (it runs on the device's reader thread: keep it short);
+    ``t_recv_ns`` is the time published with the message (the host receive time, or the
+    vehicle-paced time of ``cfg.clock``: :meth:`ClockConfig.stamp
+    <auvgw.config.gateway.ClockConfig.stamp>`). Decoders are built first, so a format, table or DBC
+    that cannot be loaded raises :class:`~auvgw.config.gateway.ConfigError` before any session is
+    opened.
     """
 
     def __init__(
@@ -100,6 +105,7 @@ class Gateway:
         self._own_session = session is None
         self.session = session if session is not None else open_session(cfg.bus)
         self._t0_ns = time.time_ns()
+        self._stamp = cfg.clock.stamp
         self._threads: list[threading.Thread] = []
         self._decls: list[Any] = []
         self._status_pubs: dict[str, zenoh.Publisher] = {}
@@ -274,21 +280,20 @@ class Gateway:
         transport: Transport,
         host: HostDriver | None,
     ) -> None:
+        t_ns = self._stamp(t_recv_ns)  # published time (vehicle-paced with [clock])
         for item in items:
             dev.seq += 1
             seq = dev.seq
-            dev.pubs["raw"].put(
-                item.raw, attachment=pack_raw_attachment(t_recv_ns, seq, item.offset)
-            )
+            dev.pubs["raw"].put(item.raw, attachment=pack_raw_attachment(t_ns, seq, item.offset))
             if item.error is not None:
                 dev.health.decode_error(item.error)
                 continue
             for msg in item.messages:
-                dev.health.seen(t_recv_ns, message_type(msg))
-                self._publish(dev, msg, t_recv_ns, seq)
+                dev.health.seen(t_recv_ns, message_type(msg))  # health stays on the host clock
+                self._publish(dev, msg, t_ns, seq)
                 if self.on_message is not None:
                     try:
-                        self.on_message(dev.name, t_recv_ns, msg)
+                        self.on_message(dev.name, t_ns, msg)
                     except Exception:  # an in-process stage's bug must not reopen the device
                         log.exception("%s: on_message callback failed", dev.name)
                 if host is not None:

@@ -19,6 +19,10 @@ relative to the file's folder; a ``dbc``/``table`` name not found there is one s
     format = "can"
     dbc = "hn100.dbc"
     transport = { kind = "can", interface = "slcan", channel = "/dev/ttyACM0", bitrate = 500000 }
+
+    [clock]          # optional: vehicle-paced receive times (an emulated vehicle at k x real time)
+    time_scale = 4.0
+    epoch_ns = 1767225600000000000
 """
 
 from __future__ import annotations
@@ -44,6 +48,7 @@ from auvgw.config.transport import KINDS, FileTransportConfig, TransportConfig
 
 __all__ = [
     "DEVICE_FORMATS",
+    "ClockConfig",
     "ConfigError",
     "DeviceConfig",
     "GatewayConfig",
@@ -123,11 +128,51 @@ class DeviceConfig(_Model):
         return self
 
 
+class ClockConfig(_Model):
+    """The receive time the gateway stamps on every envelope and raw attachment.
+
+    Default (``time_scale = 1``): the host receive time, ns since the Unix epoch. An emulated
+    vehicle running ``k`` times faster than real time (``auvgw sim --speed k``) sets
+    ``time_scale = k`` and ``epoch_ns``, the host time (ns since the Unix epoch) of vehicle time
+    0; the gateway then stamps ``epoch_ns + (t_recv_ns - epoch_ns) * time_scale``, a
+    *vehicle-paced* time: it advances one second per vehicle second, every device clock keeps a
+    constant offset to it, and ``(t - epoch_ns) / 1e9`` is the vehicle time in seconds.
+    """
+
+    time_scale: float = Field(1.0, gt=0, description="stamped seconds per host second")
+    epoch_ns: int | None = Field(
+        None, ge=0, description="host time of vehicle time 0, ns since the Unix epoch"
+    )
+
+    @model_validator(mode="after")
+    def _epoch_when_scaled(self) -> ClockConfig:
+        if self.time_scale != 1.0 and self.epoch_ns is None:
+            raise ValueError(
+                "time_scale != 1 needs 'epoch_ns' (host ns since the Unix epoch of vehicle "
+                "time 0, the instant the scaled clock pivots on)"
+            )
+        return self
+
+    def stamp(self, t_recv_ns: int) -> int:
+        """The time the gateway publishes for a host receive time (both ns)."""
+        if self.time_scale == 1.0 or self.epoch_ns is None:
+            return t_recv_ns
+        return self.epoch_ns + round((t_recv_ns - self.epoch_ns) * self.time_scale)
+
+    def vehicle_s(self, t_ns: int) -> float:
+        """Vehicle seconds of a stamped time (needs ``epoch_ns``)."""
+        if self.epoch_ns is None:
+            raise ValueError("clock.epoch_ns is not set: vehicle time 0 is unknown")
+        return (t_ns - self.epoch_ns) / 1e9
+
+
 class GatewayConfig(_Model):
-    """The whole gateway: vehicle name (a Zenoh key segment), bus, status period, devices."""
+    """The whole gateway: vehicle name (a Zenoh key segment), bus, status period, devices,
+    and the receive-time clock."""
 
     vehicle: str = "auv1"
     bus: BusConfig = Field(default_factory=BusConfig)
+    clock: ClockConfig = Field(default_factory=ClockConfig)
     status_period_s: float = Field(1.0, gt=0, description="status publication period, s")
     devices: dict[str, DeviceConfig] = Field(min_length=1)
     source: str | None = Field(None, exclude=True)

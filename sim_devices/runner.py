@@ -75,6 +75,7 @@ __all__ = [
     "DeviceUnavailable",
     "Runner",
     "child_main",
+    "gateway_clock",
     "gateway_config",
     "gateway_toml",
     "make_dvl",
@@ -228,9 +229,30 @@ def _process_cpu_s() -> float:
     return ru.ru_utime + ru.ru_stime
 
 
-def gateway_config(endpoints: Iterable[Endpoint], vehicle: str = "auv1") -> dict[str, Any]:
-    """A gateway configuration mapping (``config/gateway.py``'s model) for ``endpoints``."""
-    return {"vehicle": vehicle, "devices": {ep.name: ep.gateway_device() for ep in endpoints}}
+def gateway_clock(speed: float, start_at: float) -> dict[str, Any] | None:
+    """The gateway's ``[clock]`` section for a run at ``speed`` x real time whose vehicle time 0
+    is the host ``time.monotonic()`` instant ``start_at``: ``time_scale = speed`` and
+    ``epoch_ns``, that instant on the Unix clock (ns), so the gateway stamps vehicle-paced
+    receive times and ``(t_recv_ns - epoch_ns) / 1e9`` is vehicle seconds (docs/gateway.md).
+    None at speed 0 (as fast as possible: no fixed mapping to host time)."""
+    if not speed > 0:
+        return None
+    epoch_ns = time.time_ns() + round((start_at - time.monotonic()) * 1e9)
+    return {"time_scale": float(speed), "epoch_ns": epoch_ns}
+
+
+def gateway_config(
+    endpoints: Iterable[Endpoint], vehicle: str = "auv1", clock: dict[str, Any] | None = None
+) -> dict[str, Any]:
+    """A gateway configuration mapping (``config/gateway.py``'s model) for ``endpoints``, with
+    the ``[clock]`` section ``clock`` (:func:`gateway_clock`) if given."""
+    data: dict[str, Any] = {
+        "vehicle": vehicle,
+        "devices": {ep.name: ep.gateway_device() for ep in endpoints},
+    }
+    if clock is not None:
+        data["clock"] = clock
+    return data
 
 
 def write_gateway_config(
@@ -239,11 +261,12 @@ def write_gateway_config(
     vehicle: str,
     scenario_name: str,
     port_dir: Path,
+    clock: dict[str, Any] | None = None,
 ) -> Path:
     """Validate the configuration with the gateway's own model, then write it as TOML."""
     from auvgw.config.gateway import parse_gateway_config
 
-    data = gateway_config(endpoints, vehicle)
+    data = gateway_config(endpoints, vehicle, clock)
     parse_gateway_config(data, source=str(path))  # raises ConfigError naming the field
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -345,15 +368,24 @@ class Runner:
         """Every port a host opens, device by device."""
         return [ep for em in self.emulators.values() for ep in em.endpoints()]
 
-    def gateway_config(self, vehicle: str = "auv1") -> dict[str, Any]:
+    def gateway_config(
+        self, vehicle: str = "auv1", start_at: float | None = None
+    ) -> dict[str, Any]:
         """A gateway configuration (``config/gateway.py``'s model as a mapping) pointing at
-        every emulated port (stable symlinks, so the gateway finds replugged ports)."""
-        return gateway_config(self.endpoints(), vehicle)
+        every emulated port (stable symlinks, so the gateway finds replugged ports). With
+        ``start_at`` (the host ``time.monotonic()`` instant that will be passed to
+        :meth:`start`) it carries the ``[clock]`` section of vehicle-paced receive times
+        (:func:`gateway_clock`)."""
+        clock = None if start_at is None else gateway_clock(self.clock.speed, start_at)
+        return gateway_config(self.endpoints(), vehicle, clock)
 
-    def write_gateway_config(self, path: str | Path, vehicle: str = "auv1") -> Path:
+    def write_gateway_config(
+        self, path: str | Path, vehicle: str = "auv1", start_at: float | None = None
+    ) -> Path:
         """Validate :meth:`gateway_config` with the gateway's own model and write it as TOML."""
+        clock = None if start_at is None else gateway_clock(self.clock.speed, start_at)
         return write_gateway_config(
-            path, self.endpoints(), vehicle, self.scenario.name, self.ctx.port_dir
+            path, self.endpoints(), vehicle, self.scenario.name, self.ctx.port_dir, clock
         )
 
     def emulator(self, name: str) -> Emulator:
@@ -745,9 +777,12 @@ class DeviceProcesses:
     def endpoints(self) -> list[Endpoint]:
         return [ep for eps in self._endpoints.values() for ep in eps]
 
-    def write_gateway_config(self, path: str | Path, vehicle: str = "auv1") -> Path:
+    def write_gateway_config(
+        self, path: str | Path, vehicle: str = "auv1", start_at: float | None = None
+    ) -> Path:
+        clock = None if start_at is None else gateway_clock(self.speed, start_at)
         return write_gateway_config(
-            path, self.endpoints(), vehicle, self.scenario.name, self.out_dir / "ports"
+            path, self.endpoints(), vehicle, self.scenario.name, self.out_dir / "ports", clock
         )
 
     def watch_control(self, path: str | Path, interval_s: float = 0.5) -> None:
@@ -755,10 +790,13 @@ class DeviceProcesses:
         if self.control is None or Path(path) != Path(self.control):
             raise ValueError("give the control file to DeviceProcesses(control=...)")
 
-    def start(self, duration: float | None = None, lead_s: float = 0.5) -> None:
-        """Vehicle time 0 in ``lead_s`` real seconds, in every process."""
+    def start(
+        self, duration: float | None = None, lead_s: float = 0.5, start_at: float | None = None
+    ) -> None:
+        """Vehicle time 0 in ``lead_s`` real seconds (or at the host ``time.monotonic()``
+        instant ``start_at``), in every process."""
         until = float(duration) if duration is not None else self.route_duration
-        t0 = time.monotonic() + lead_s
+        t0 = time.monotonic() + lead_s if start_at is None else float(start_at)
         for proc in self.procs.values():
             self._send(proc, f"start {t0!r} {until!r}")
         self.truth_runner.start(duration=until, start_at=t0)

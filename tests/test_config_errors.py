@@ -66,7 +66,15 @@ _ALL: dict[str, tuple[str, list[str]]] = {
     ),
     "unknown_top_level_key": (
         'vehicel = "auv1"\n' + DVL,
-        ["vehicel: unknown key 'vehicel'; expected one of: vehicle, bus, status_period_s, devices"],
+        ["vehicel: unknown key 'vehicel'; expected one of: vehicle, bus, clock, status_period_s"],
+    ),
+    "scaled_clock_without_epoch": (
+        "[clock]\ntime_scale = 4.0\n" + DVL,
+        ["clock: time_scale != 1 needs 'epoch_ns'"],
+    ),
+    "zero_time_scale": (
+        "[clock]\ntime_scale = 0\nepoch_ns = 0\n" + DVL,
+        ["clock.time_scale: Input should be greater than 0"],
     ),
     "bad_vehicle_name": (
         'vehicle = "my auv"\n' + DVL,

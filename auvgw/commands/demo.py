@@ -3,14 +3,23 @@
 Starts the emulated vehicle (``auvgw sim`` on a shipped scenario, in its own process, every device
 on its own virtual port), then in this process the gateway (embedded Zenoh peer), the navigation
 fusion, the SLAM stage where one is installed, and the Rerun recording; runs a few minutes of
-vehicle time faster than real time; writes ``demo.rrd`` and prints a summary: messages per device,
-errors, and navigation error against ground truth.
+vehicle time faster than real time; writes ``demo.rrd`` and ``summary.json`` and prints a summary:
+messages per device, errors, and navigation error against ground truth.
+
+``--processes``: the same chain as it runs on a vehicle, every part its own OS process joined by
+Zenoh over loopback TCP: ``auvgw sim``, the gateway (``auvgw run``), the fusion stage (``auvgw
+fusion``) and the SLAM stage (``auvgw slam-run``, live). This process only listens (the bus hub
+the others connect to), publishes the ground truth on ``auv/<v>/truth/pose``, collects odometry
+and SLAM poses and the components' status, stops the children (SIGINT, then kill) and reports
+their exit codes. Vehicle time 0 is held back until every part is up (``auvgw sim
+--start-delay``), so dead reckoning starts from the scenario's start pose.
 
 Time: the emulators run ``speed`` times faster than the host clock, so the device clocks advance
-``speed`` vehicle seconds per host second. The stages here are fed a *vehicle-paced* receive time
-(``t0 + (t_recv - t0) * speed``, where ``t0`` is the host instant of vehicle time 0 estimated from
-the first INS sample), so every device clock keeps a constant offset to it, exactly as on a real
-vehicle at speed 1.
+``speed`` vehicle seconds per host second. ``auvgw sim`` writes the gateway's ``[clock]`` section
+(``time_scale = speed``, ``epoch_ns`` = host time of vehicle time 0), so the gateway stamps
+*vehicle-paced* receive times (``epoch + (t_recv - epoch) * speed``) and every device clock keeps
+a constant offset to them, exactly as on a real vehicle at speed 1; the stages take their time
+from those stamps only, in this process or their own. Vehicle seconds = stamp - epoch.
 """
 
 from __future__ import annotations
@@ -20,6 +29,7 @@ import json
 import logging
 import math
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -38,6 +48,8 @@ from auvgw.config.scenario import ScenarioError, load_scenario
 from auvgw.paths import config_file
 
 DEFAULT_SCENARIO = "harbour"
+#: the emulated vehicle's name (the <v> key segment)
+VEHICLE = "auv1"
 #: RMSE / distance x 100 of VB-AUFastSLAM in the sea trial of Mu et al. 2022 (INS + DVL + MSIS)
 VB_PAPER_RMSE_PCT = 0.742
 
@@ -61,6 +73,19 @@ def register(sub: Any) -> None:
     p.add_argument("--connect", default=None, help="also stream to a Rerun viewer at this URL")
     p.add_argument("--no-viz", action="store_true", help="no Rerun recording")
     p.add_argument("--no-slam", action="store_true", help="no SLAM stage")
+    p.add_argument(
+        "--processes",
+        action="store_true",
+        help="sim, gateway, fusion and SLAM each in its own OS process (this one only collects)",
+    )
+    p.add_argument(
+        "--start-delay",
+        type=float,
+        default=10.0,
+        metavar="S",
+        help="--processes: host seconds from the sim's gateway.toml to vehicle time 0, for the "
+        "gateway process to start and open every port (default 10)",
+    )
     p.set_defaults(func=run)
 
 
@@ -94,28 +119,6 @@ def _demo_scenario(src: Path, out: Path) -> Path:
     path = out / f"{scn.name}-demo.json"
     path.write_text(json.dumps(data, indent=1))
     return path
-
-
-@dataclass
-class _VehicleClock:
-    """Host receive time -> vehicle-paced time (see the module docstring), ns."""
-
-    speed: float
-    t0_ns: int | None = None
-
-    def anchor(self, t_recv_ns: int, vehicle_s: float) -> None:
-        if self.t0_ns is None:
-            self.t0_ns = t_recv_ns - int(vehicle_s / self.speed * 1e9)
-
-    def __call__(self, t_recv_ns: int) -> int:
-        if self.t0_ns is None:
-            return t_recv_ns
-        return self.t0_ns + int((t_recv_ns - self.t0_ns) * self.speed)
-
-    def vehicle_s(self, t_s: float) -> float:
-        """Vehicle seconds of a vehicle-paced time in seconds."""
-        assert self.t0_ns is not None
-        return t_s - self.t0_ns / 1e9
 
 
 @dataclass
@@ -194,6 +197,11 @@ def _wait_for(path: Path, proc: subprocess.Popen[bytes], timeout_s: float) -> No
         time.sleep(0.1)
 
 
+def _sim_argv(scenario: Path, speed: float, duration: float, sim_dir: Path) -> list[str]:
+    return ["sim", "--scenario", str(scenario), "--speed", str(speed), "--duration",
+            str(duration), "--out", str(sim_dir), "--vehicle", VEHICLE]  # fmt: skip
+
+
 def run(args: argparse.Namespace) -> int:
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
@@ -205,13 +213,17 @@ def run(args: argparse.Namespace) -> int:
     speed = float(args.speed)
     if speed <= 0:
         raise UserError("--speed must be > 0 (the gateway reads the devices in real time)")
+    if not 0 <= args.start_delay <= 600:
+        raise UserError(f"--start-delay must be 0 to 600 s, got {args.start_delay}")
 
     print(f"auvgw demo: scenario {scenario.name}, {args.duration:.0f} s of vehicle time at "
-          f"{speed:g}x real time", flush=True)  # fmt: skip
+          f"{speed:g}x real time" + (", one process per part" if args.processes else ""),
+          flush=True)  # fmt: skip
+    if args.processes:
+        return _run_processes(args, sim_dir, scenario, rrd, speed)
     sim_log = open(out / "sim.log", "wb")  # noqa: SIM115 (closed in finally)
     sim = subprocess.Popen(
-        [sys.executable, "-m", "auvgw", "sim", "--scenario", str(scenario), "--speed", str(speed),
-         "--duration", str(args.duration), "--out", str(sim_dir)],
+        [sys.executable, "-m", "auvgw", *_sim_argv(scenario, speed, args.duration, sim_dir)],
         stdout=sim_log, stderr=subprocess.STDOUT,
     )  # fmt: skip
     try:
@@ -227,6 +239,43 @@ def run(args: argparse.Namespace) -> int:
         sim_log.close()
 
 
+def _load_sim_config(sim_dir: Path) -> Any:
+    """The gateway configuration ``auvgw sim`` wrote, with its vehicle-paced clock."""
+    try:
+        gw_cfg = load_gateway_config(sim_dir / "gateway.toml")
+    except ConfigError as exc:
+        raise UserError(str(exc)) from exc
+    if gw_cfg.clock.epoch_ns is None:
+        raise UserError(f"{gw_cfg.source}: no [clock] epoch_ns (vehicle time 0) from auvgw sim")
+    return gw_cfg
+
+
+def _fusion_config(vehicle: str, position_m: tuple[float, float, float]) -> Any:
+    """The demo's fusion stage: dead reckoning starts from the true position (what a GNSS fix at
+    the surface gives a real vehicle); the emulated INS heading noise is white, hence tau = 0."""
+    from auvgw.fusion.config import FusionConfig, InitialState
+    from auvgw.stages.fusion import FusionStageConfig
+
+    filt = FusionConfig(
+        initial=InitialState(position_m=position_m, position_sigma_m=(0.5, 0.5, 0.5)),
+        heading_error_tau_s=0.0,
+        pitch_error_tau_s=0.0,
+    )
+    return FusionStageConfig(vehicle=vehicle, ins_device="ins", dvl_device="dvl", filter=filt)
+
+
+def _slam_config(vehicle: str, msis: str | None, scn: Any) -> Any:
+    """The demo's SLAM stage on the MSIS point features (scenario sound speed, target size)."""
+    from auvgw.stages.slam import SlamStageConfig
+
+    return SlamStageConfig(
+        vehicle=vehicle,
+        msis_device=msis,
+        sound_speed_mps=scn.sound_speed_mps,
+        target_radius_m=scn.features.point_radius_m,
+    )
+
+
 def _run_stages(
     args: argparse.Namespace,
     sim: subprocess.Popen[bytes],
@@ -235,17 +284,14 @@ def _run_stages(
     rrd: Path | None,
     speed: float,
 ) -> int:
-    from auvgw.fusion.config import FusionConfig, InitialState
     from auvgw.gateway import Gateway
-    from auvgw.stages.fusion import FusionStage, FusionStageConfig
-    from auvgw.stages.slam import SlamStage, SlamStageConfig
+    from auvgw.stages.fusion import FusionStage
+    from auvgw.stages.slam import SlamStage
 
-    try:
-        gw_cfg = load_gateway_config(sim_dir / "gateway.toml")
-    except ConfigError as exc:
-        raise UserError(str(exc)) from exc
+    gw_cfg = _load_sim_config(sim_dir)
     keys = Keys(gw_cfg.vehicle)
-    clock = _VehicleClock(speed)
+    epoch_ns: int = gw_cfg.clock.epoch_ns
+    epoch_s = epoch_ns / 1e9  # stamps (s) - epoch_s = vehicle seconds
     truth, dead_reckoning, slam_track = _Track(), _Track(), _Track()
     lock = threading.Lock()
     scn = load_scenario(scenario)
@@ -262,7 +308,7 @@ def _run_stages(
         if key.endswith("/pose"):
             p = json.loads(payload)
             with lock:
-                slam_track.add(clock.vehicle_s(p["t"]), p["x"], p["y"])
+                slam_track.add(p["t"] - epoch_s, p["x"], p["y"])
         if viz is not None:
             viz.stage.handle_sample(key, payload, t_ns)
 
@@ -273,12 +319,7 @@ def _run_stages(
         None
         if args.no_slam
         else SlamStage(
-            SlamStageConfig(
-                vehicle=gw_cfg.vehicle,
-                msis_device=msis[0] if msis else None,
-                sound_speed_mps=scn.sound_speed_mps,
-                target_radius_m=scn.features.point_radius_m,
-            ),
+            _slam_config(gw_cfg.vehicle, msis[0] if msis else None, scn),
             session=session,
             on_publish=on_slam,
         )
@@ -288,7 +329,7 @@ def _run_stages(
 
     def on_odometry(o: Any) -> None:
         with lock:
-            dead_reckoning.add(clock.vehicle_s(o.t), o.x, o.y)
+            dead_reckoning.add(o.t - epoch_s, o.x, o.y)
         if viz is not None:
             payload, _ = encode_envelope(o, "fusion", int(o.t * 1e9), 0)
             viz.stage.handle_sample(keys.odometry(), payload, int(o.t * 1e9))
@@ -298,9 +339,7 @@ def _run_stages(
     fusion_box: list[Any] = []
 
     def start_fusion(t_vehicle: float) -> Any:
-        """Dead reckoning starts at the first INS sample from the true position then (what a
-        GNSS fix at the surface gives a real vehicle); the emulated INS heading noise is white,
-        hence tau = 0."""
+        """Dead reckoning from the true position at the first INS sample the gateway got."""
         deadline = time.monotonic() + 3.0
         while True:  # the truth log trails the vehicle by its write buffer
             tail.poll()
@@ -313,36 +352,26 @@ def _run_stages(
             x0, y0 = float(np.interp(t_vehicle, tt, xt)), float(np.interp(t_vehicle, tt, yt))
         else:
             x0, y0, _ = scn.start_pose
-        filt = FusionConfig(
-            initial=InitialState(
-                position_m=(x0, y0, scn.vehicle.depth_m), position_sigma_m=(0.5, 0.5, 0.5)
-            ),
-            heading_error_tau_s=0.0,
-            pitch_error_tau_s=0.0,
-        )
-        cfg = FusionStageConfig(
-            vehicle=gw_cfg.vehicle, ins_device="ins", dvl_device="dvl", filter=filt
-        )
+        cfg = _fusion_config(gw_cfg.vehicle, (x0, y0, scn.vehicle.depth_m))
         stage = FusionStage(cfg, session=session, on_odometry=on_odometry)
         stage.start(subscribe=False)  # fed in-process, publishes odometry and status
         return stage
 
     ins_span: list[float] = []  # device time of the first and the latest INS sample, s
 
-    def on_message(device: str, t_recv_ns: int, msg: Any) -> None:
+    def on_message(device: str, t_ns: int, msg: Any) -> None:
+        # t_ns: the gateway's vehicle-paced stamp (its [clock] section)
         if device == "ins" and hasattr(msg, "time"):
             ins_span[1:] = [float(msg.time)]
             if not fusion_box:
                 ins_span[:] = [float(msg.time), float(msg.time)]
-                clock.anchor(t_recv_ns, float(msg.time))
                 fusion_box.append(start_fusion(float(msg.time)))
-        t = clock(t_recv_ns)
         if fusion_box:
-            fusion_box[0].feed(device, t, msg)
+            fusion_box[0].feed(device, t_ns, msg)
         if slam is not None:
-            slam.post(device, t, msg)
+            slam.post(device, t_ns, msg)
         if viz is not None:
-            viz.on_message(device, t, msg)
+            viz.on_message(device, t_ns, msg)
 
     truth_pub = session.declare_publisher(keys.truth("pose"))
 
@@ -351,8 +380,8 @@ def _run_stages(
             truth.add(sample["t"], sample["x"], sample["y"])
         body = json.dumps(sample).encode()
         truth_pub.put(body)
-        if viz is not None and clock.t0_ns is not None:
-            viz.stage.handle_sample(keys.truth("pose"), body, clock.t0_ns + int(sample["t"] * 1e9))
+        if viz is not None:
+            viz.stage.handle_sample(keys.truth("pose"), body, epoch_ns + int(sample["t"] * 1e9))
 
     tail = _TruthTail(sim_dir / "truth.jsonl", on_truth)
     gateway = Gateway(gw_cfg, session=session, on_message=on_message)
@@ -364,16 +393,11 @@ def _run_stages(
     t_start = time.monotonic()
     gateway.start()
     try:
-        last_print = 0.0
+        progress = _Progress(epoch_ns, speed, args.duration)
         while sim.poll() is None and not stop.is_set():
-            if clock.t0_ns is not None:
-                tail.poll()
+            tail.poll()
             stop.wait(0.2)
-            now = time.monotonic()
-            if now - last_print > 5.0:
-                last_print = now
-                vt = (time.time_ns() - clock.t0_ns) * speed / 1e9 if clock.t0_ns else 0.0
-                print(f"  vehicle t = {vt:6.1f} s / {args.duration:.0f} s", flush=True)
+            progress.tick()
         # the emulators closed their ports: what follows is shutdown, not an outage
         logging.getLogger("auvgw.gateway").setLevel(logging.ERROR)
         tail.poll()
@@ -391,20 +415,334 @@ def _run_stages(
         if viz is not None:
             viz.close()
         session.close()
-    wall = time.monotonic() - t_start
+    _report(
+        args, status, fusion_counters,
+        None if slam is None else (slam.config.display_name, slam_counters),
+        dead_reckoning, slam_track, truth, rrd, time.monotonic() - t_start, speed,
+        {"ins_time_span_s": ins_span[1] - ins_span[0] if ins_span else 0.0},
+    )  # fmt: skip
+    return 0
+
+
+@dataclass
+class _Progress:
+    """Prints the vehicle time every 5 host seconds."""
+
+    epoch_ns: int
+    speed: float
+    duration: float
+    last: float = 0.0
+
+    def tick(self) -> None:
+        now = time.monotonic()
+        if now - self.last > 5.0:
+            self.last = now
+            vt = max(0.0, (time.time_ns() - self.epoch_ns) * self.speed / 1e9)
+            print(f"  vehicle t = {vt:6.1f} s / {self.duration:.0f} s", flush=True)
+
+
+def _report(
+    args: argparse.Namespace,
+    status: dict[str, Any],
+    fusion_counters: dict[str, Any] | None,
+    slam: tuple[str, dict[str, Any] | None] | None,
+    dead_reckoning: _Track,
+    slam_track: _Track,
+    truth: _Track,
+    rrd: Path | None,
+    wall: float,
+    speed: float,
+    extra: dict[str, Any],
+) -> dict[str, Any]:
+    """Print the summary and write ``summary.json`` (both modes); returns the summary."""
     nav = _path_error(dead_reckoning, truth)
-    slam_err = _path_error(slam_track, truth)
     _print_summary(status, fusion_counters, nav, rrd, wall)
     navigation: dict[str, Any] = {"dead_reckoning": nav}
-    if slam is not None and slam_counters is not None:
-        _print_slam(slam.config.display_name, slam_counters, slam_err)
-        navigation.update(slam=slam_err, slam_algorithm=slam.config.display_name,
+    slam_counters = None
+    if slam is not None and slam[1] is not None:
+        name, slam_counters = slam
+        slam_err = _path_error(slam_track, truth)
+        _print_slam(name, slam_counters, slam_err)
+        navigation.update(slam=slam_err, slam_algorithm=name,
                           paper_rmse_pct_distance=VB_PAPER_RMSE_PCT)  # fmt: skip
     summary = {"devices": status["devices"], "fusion": fusion_counters, "slam": slam_counters,
                "navigation": navigation,
                "rrd": str(rrd) if rrd else None, "wall_s": wall, "speed": speed,
-               "ins_time_span_s": ins_span[1] - ins_span[0] if ins_span else 0.0}  # fmt: skip
+               **extra}  # fmt: skip
     (args.out / "summary.json").write_text(json.dumps(summary, indent=1, default=str))
+    return summary
+
+
+# -- one OS process per part ------------------------------------------------------------------
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _endpoint() -> str:
+    return f"tcp/127.0.0.1:{_free_port()}"
+
+
+class _Children:
+    """The demo's child processes (``python -m auvgw ...``), each logging to ``OUT/<name>.log``;
+    stopped with SIGINT, then killed after a grace period; exit codes kept."""
+
+    def __init__(self, out: Path) -> None:
+        self.out = out
+        self.procs: dict[str, subprocess.Popen[bytes]] = {}
+        self.exit_codes: dict[str, int | None] = {}
+        self.killed: list[str] = []
+        self._logs: list[Any] = []
+
+    def start(self, name: str, argv: list[str]) -> subprocess.Popen[bytes]:
+        log_file = open(self.out / f"{name}.log", "wb")  # noqa: SIM115 (closed in close)
+        self._logs.append(log_file)
+        proc = subprocess.Popen([sys.executable, "-m", "auvgw", *argv], stdout=log_file,
+                                stderr=subprocess.STDOUT)  # fmt: skip
+        self.procs[name] = proc
+        return proc
+
+    def check(self) -> None:
+        """A :class:`UserError` if a child other than the sim has exited."""
+        for name, proc in self.procs.items():
+            if name != "sim" and proc.poll() is not None:
+                raise UserError(f"{name} stopped early (exit {proc.returncode}): "
+                                f"{self.tail(name)}")  # fmt: skip
+
+    def tail(self, name: str, n: int = 400) -> str:
+        try:
+            text = (self.out / f"{name}.log").read_text(errors="replace")
+        except OSError:
+            return ""
+        return text[-n:].strip().replace("\n", " | ")
+
+    def stop(self, name: str, grace_s: float = 15.0) -> int | None:
+        """SIGINT, then SIGKILL after ``grace_s``; the exit code (negative: signal)."""
+        proc = self.procs.get(name)
+        if proc is None:
+            return None
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            try:
+                proc.wait(grace_s)
+            except subprocess.TimeoutExpired:
+                self.killed.append(name)
+                proc.kill()
+                proc.wait()
+        self.exit_codes[name] = proc.returncode
+        return proc.returncode
+
+    def close(self) -> None:
+        for name in list(self.procs):
+            self.stop(name, grace_s=5.0)
+        for f in self._logs:
+            f.close()
+
+    def report(self) -> dict[str, Any]:
+        return {n: {"pid": p.pid, "exit_code": self.exit_codes.get(n, p.returncode),
+                    "killed": n in self.killed} for n, p in self.procs.items()}  # fmt: skip
+
+
+class _Collector:
+    """This process's subscriptions in ``--processes`` mode: odometry (stamped time, vehicle
+    time, host arrival), SLAM poses and the latest status of every component."""
+
+    def __init__(self, session: Any, keys: Keys, epoch_s: float) -> None:
+        self.epoch_s = epoch_s
+        self.lock = threading.Lock()
+        self.dead_reckoning, self.slam, self.truth = _Track(), _Track(), _Track()
+        self.odometry_stamps: list[tuple[float, float]] = []  # (envelope stamp s, host s)
+        self.status: dict[str, dict[str, Any]] = {}
+        self._subs = [
+            session.declare_subscriber(keys.odometry(), self._on_odometry),
+            session.declare_subscriber(keys.slam("*", "pose"), self._on_slam),
+            session.declare_subscriber(keys.status("*"), self._on_status),
+        ]
+
+    def _on_odometry(self, sample: Any) -> None:
+        env = json.loads(sample.payload.to_bytes())
+        o = env["msg"]
+        with self.lock:
+            self.dead_reckoning.add(o["t"] - self.epoch_s, o["x"], o["y"])
+            self.odometry_stamps.append((env["t_recv_ns"] / 1e9, time.time()))
+
+    def _on_slam(self, sample: Any) -> None:
+        p = json.loads(sample.payload.to_bytes())
+        with self.lock:
+            self.slam.add(p["t"] - self.epoch_s, p["x"], p["y"])
+
+    def _on_status(self, sample: Any) -> None:
+        component = str(sample.key_expr).rsplit("/", 1)[-1]
+        with self.lock:
+            self.status[component] = json.loads(sample.payload.to_bytes())
+
+    def close(self) -> None:
+        from auvgw.bus import undeclare
+
+        undeclare(self._subs)
+
+    def timing(self) -> dict[str, Any]:
+        """How the odometry envelopes' stamps advanced: the vehicle time of the first, their
+        span (vehicle s) and their rate against the host clock of their arrival (stamped s per
+        host s, a least-squares slope; the samples flushed at shutdown, all stamped with the
+        last input's time, left out): ``speed`` when the stamps are vehicle-paced."""
+        with self.lock:
+            st = np.asarray(self.odometry_stamps, float).reshape(-1, 2)
+        if len(st) < 2:
+            return {"samples": len(st)}
+        live = st[st[:, 0] < st[:, 0].max()]
+        rate = float(np.polyfit(live[:, 1] - live[0, 1], live[:, 0] - live[0, 0], 1)[0])
+        return {
+            "samples": len(st),
+            "first_vehicle_s": float(st[0, 0] - self.epoch_s),
+            "stamp_span_s": float(st[-1, 0] - st[0, 0]),
+            "stamp_rate": rate if len(live) > 1 else None,
+        }
+
+
+def _wait_alive(
+    sub: Any, wanted: set[str], children: _Children, timeout_s: float, what: str
+) -> float:
+    """Wait until every component in ``wanted`` holds its liveliness token; host time then."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        children.check()
+        missing = wanted - sub.alive(timeout=0.5)
+        if not missing:
+            return time.time()
+        if time.monotonic() > deadline:
+            raise UserError(f"{what}: no {', '.join(sorted(missing))} on the bus after "
+                            f"{timeout_s:.0f} s")  # fmt: skip
+        time.sleep(0.1)
+
+
+def _gateway_toml(sim_dir: Path, out: Path, listen: str, hub: str) -> Path:
+    """The sim's gateway.toml joined to this demo's bus (listen on its own port, connect to the
+    hub); everything else, the [clock] included, as the sim wrote it."""
+    import tomllib
+
+    from auvgw.config.gateway import parse_gateway_config
+    from auvgw.sim_devices.runner import gateway_toml
+
+    data = tomllib.loads((sim_dir / "gateway.toml").read_text())
+    data["bus"] = {"mode": "peer", "listen": [listen], "connect": [hub]}
+    path = out / "gateway.toml"
+    try:
+        parse_gateway_config(data, source=str(path))
+    except ConfigError as exc:
+        raise UserError(str(exc)) from exc
+    path.write_text(gateway_toml(data, f"auvgw demo --processes: {sim_dir / 'gateway.toml'} "
+                                       "on the demo's bus"))  # fmt: skip
+    return path
+
+
+def _run_processes(
+    args: argparse.Namespace, sim_dir: Path, scenario: Path, rrd: Path | None, speed: float
+) -> int:
+    from auvgw.subscribe import GatewaySubscriber
+
+    out: Path = args.out
+    scn = load_scenario(scenario)
+    keys = Keys(VEHICLE)
+    hub = _endpoint()
+    session = open_session(BusConfig(listen=[hub]))
+    sub = GatewaySubscriber(VEHICLE, session=session)
+    children = _Children(out)
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    t_start = time.monotonic()
+    collector: _Collector | None = None
+    truth_pub = session.declare_publisher(keys.truth("pose"))
+    try:
+        # the stages first (they need nothing from the sim), so they are up before vehicle t = 0
+        x0, y0, _ = scn.start_pose
+        settings = out / "fusion.json"
+        settings.write_text(_fusion_config(VEHICLE, (x0, y0, scn.vehicle.depth_m))
+                            .model_dump_json(indent=1))  # fmt: skip
+        children.start("fusion", ["fusion", "--settings", str(settings),
+                                  "--connect", hub, "--listen", _endpoint()])  # fmt: skip
+        wanted = {"fusion", "gateway", "ins", "dvl"}
+        slam_cfg = None
+        if not args.no_slam:
+            slam_cfg = _slam_config(VEHICLE, "msis", scn)
+            children.start("slam", [
+                "slam-run", "--vehicle", VEHICLE, "--msis", "msis",
+                "--algorithm", slam_cfg.algorithm, "--particles", str(slam_cfg.n_particles),
+                "--seed", str(slam_cfg.seed), "--sound-speed", str(slam_cfg.sound_speed_mps),
+                "--target-radius", str(slam_cfg.target_radius_m),
+                "--connect", hub, "--listen", _endpoint(),
+            ])  # fmt: skip
+            wanted |= {"msis", f"slam-{slam_cfg.pipeline_name}"}
+        sim = children.start("sim", [*_sim_argv(scenario, speed, args.duration, sim_dir),
+                                     "--start-delay", str(args.start_delay)])  # fmt: skip
+        _wait_for(sim_dir / "gateway.toml", sim, 120.0)
+        gw_cfg = _load_sim_config(sim_dir)
+        epoch_ns: int = gw_cfg.clock.epoch_ns
+        collector = _Collector(session, keys, epoch_ns / 1e9)
+        gw_argv = ["run", "--config", str(_gateway_toml(sim_dir, out, _endpoint(), hub))]
+        if rrd is not None:
+            gw_argv += ["--viz-rrd", str(rrd)]
+        if args.connect:
+            gw_argv += ["--viz-connect", args.connect]
+        children.start("gateway", gw_argv)
+        ready = _wait_alive(sub, wanted, children, 120.0, "--processes")
+        ready_vehicle_s = (ready - epoch_ns / 1e9) * speed
+        if ready_vehicle_s > 0:
+            print(f"  warning: every part was up only at vehicle t = {ready_vehicle_s:.1f} s "
+                  "(dead reckoning starts from the pose at t = 0)", flush=True)  # fmt: skip
+
+        def on_truth(sample: dict[str, Any]) -> None:
+            assert collector is not None
+            with collector.lock:
+                collector.truth.add(sample["t"], sample["x"], sample["y"])
+            truth_pub.put(json.dumps(sample).encode())
+
+        tail = _TruthTail(sim_dir / "truth.jsonl", on_truth)
+        progress = _Progress(epoch_ns, speed, args.duration)
+        while sim.poll() is None and not stop.is_set():
+            tail.poll()
+            children.check()
+            stop.wait(0.2)
+            progress.tick()
+        tail.poll()
+        # the gateway drains the closed ports; then stop in data-flow order: gateway, fusion
+        # (flushes its held-back odometry), SLAM (drains its queue, publishes its last pose)
+        time.sleep(0.5)
+        status = sub.status(timeout=2.0) or collector.status.get("gateway") or {"devices": {}}
+        for name in ("sim", "gateway", "fusion", "slam"):
+            children.stop(name)
+        time.sleep(0.5)  # the stages' last status samples
+    finally:
+        children.close()
+        if collector is not None:
+            collector.close()
+        truth_pub.undeclare()
+        sub.close()
+        session.close()
+    wall = time.monotonic() - t_start
+    procs = children.report()
+    print()
+    print("processes: " + ", ".join(
+        f"{n} pid {p['pid']} exit {p['exit_code']}" + (" (killed)" if p["killed"] else "")
+        for n, p in procs.items()))  # fmt: skip
+    c = collector
+    assert c is not None
+    slam = None
+    if slam_cfg is not None:
+        slam = (slam_cfg.display_name, c.status.get(f"slam-{slam_cfg.pipeline_name}"))
+    _report(
+        args, status, c.status.get("fusion"), slam, c.dead_reckoning, c.slam, c.truth, rrd, wall,
+        speed, {"processes": procs, "odometry_timing": c.timing(),
+                "ready_vehicle_s": ready_vehicle_s},
+    )  # fmt: skip
+    bad = [n for n, p in procs.items() if p["exit_code"] != 0]
+    if bad:
+        print(f"not every part exited cleanly: {', '.join(bad)}", file=sys.stderr)
+        return 1
     return 0
 
 

@@ -7,12 +7,15 @@ symlinks in ``OUT/ports/``, so a gateway finds a replugged device again) and run
 / SIGTERM or ``--duration`` vehicle seconds (default: the end of the route). Then it prints
 each device's counters and exits 0.
 
-Files in ``OUT`` (``--out``, default a new temporary folder): ``gateway.toml`` (run it with
-``auvgw run --config OUT/gateway.toml``), ``truth.jsonl`` (ground truth at ``--truth-rate``
-Hz, one JSON object per line: t, x, y, z, heading, roll, pitch, ... in SI / NED / radians) and
-the fault control file ``faults.json``: write ``{"ins": {"corrupt_p": 0.1}, "dvl":
-{"unplug": [[30, 40]]}}`` (the scenario's FaultSettings fields; windows in vehicle seconds)
-and each device's faults become the scenario's plus those; delete the file to restore them.
+Files in ``OUT`` (``--out``, default a new temporary folder): ``gateway.toml`` (run it with ``auvgw
+run --config OUT/gateway.toml``; at ``--speed k`` > 0 its ``[clock]`` section has ``time_scale = k``
+and ``epoch_ns``, the host time of vehicle time 0, so the gateway stamps vehicle-paced receive
+times: vehicle seconds = ``(t_recv_ns - epoch_ns) / 1e9``; vehicle time 0 is ``--start-delay`` host
+seconds after the file is written), ``truth.jsonl`` (ground truth at ``--truth-rate`` Hz, one JSON
+object per line: t, x, y, z, heading, roll, pitch, ... in SI / NED / radians) and the fault control
+file ``faults.json``: write ``{"ins": {"corrupt_p": 0.1}, "dvl": {"unplug": [[30, 40]]}}`` (the
+scenario's FaultSettings fields; windows in vehicle seconds) and each device's faults become the
+scenario's plus those; delete the file to restore them.
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ import logging
 import signal
 import tempfile
 import threading
+import time
 from pathlib import Path
 from typing import Any
 
@@ -38,21 +42,56 @@ def register(sub: Any) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--scenario", "-s", required=True, type=Path, help="scenario file (JSON)")
-    p.add_argument("--speed", type=float, default=1.0,
-                   help="vehicle seconds per real second (default 1; 0: as fast as possible)")
-    p.add_argument("--duration", type=float, default=None, metavar="S",
-                   help="stop after S vehicle seconds (default: the end of the route)")
-    p.add_argument("--out", "-o", type=Path, default=None, metavar="DIR",
-                   help="folder for ports, gateway.toml, truth log (default: a new temp folder)")
-    p.add_argument("--devices", default=None, metavar="LIST",
-                   help="comma-separated subset of ins,dvl,msis,multibeam,magnetometer")
+    p.add_argument(
+        "--speed",
+        type=float,
+        default=1.0,
+        help="vehicle seconds per real second (default 1; 0: as fast as possible)",
+    )
+    p.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        metavar="S",
+        help="stop after S vehicle seconds (default: the end of the route)",
+    )
+    p.add_argument(
+        "--out",
+        "-o",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="folder for ports, gateway.toml, truth log (default: a new temp folder)",
+    )
+    p.add_argument(
+        "--devices",
+        default=None,
+        metavar="LIST",
+        help="comma-separated subset of ins,dvl,msis,multibeam,magnetometer",
+    )
     p.add_argument("--vehicle", default="auv1", help="vehicle name in the gateway configuration")
-    p.add_argument("--truth-rate", type=float, default=10.0, metavar="HZ",
-                   help="ground-truth log rate, vehicle Hz (default 10)")
+    p.add_argument(
+        "--truth-rate",
+        type=float,
+        default=10.0,
+        metavar="HZ",
+        help="ground-truth log rate, vehicle Hz (default 10)",
+    )
     p.add_argument("--no-truth-log", action="store_true", help="do not write truth.jsonl")
-    p.add_argument("--processes", action="store_true",
-                   help="run each device in its own process on one shared clock (uses every "
-                        "core; one Python process runs on about one)")
+    p.add_argument(
+        "--start-delay",
+        type=float,
+        default=0.5,
+        metavar="S",
+        help="host seconds from writing gateway.toml to vehicle time 0 (default 0.5; "
+        "time to start a gateway and stages that should see the whole run)",
+    )
+    p.add_argument(
+        "--processes",
+        action="store_true",
+        help="run each device in its own process on one shared clock (uses every "
+        "core; one Python process runs on about one)",
+    )
     p.set_defaults(func=run)  # fmt: skip
 
 
@@ -99,6 +138,8 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--speed must be >= 0, got {args.speed}")
     if args.duration is not None and not args.duration > 0:
         raise UserError(f"--duration must be > 0 vehicle seconds, got {args.duration}")
+    if not 0 <= args.start_delay <= 3600:
+        raise UserError(f"--start-delay must be 0 to 3600 s, got {args.start_delay}")
     if not args.truth_rate > 0:
         raise UserError(f"--truth-rate must be > 0, got {args.truth_rate}")
     try:
@@ -149,8 +190,12 @@ def run(args: argparse.Namespace) -> int:
         print(f"auvgw sim: scenario '{scn.name}' (route {runner.route_duration:.1f} s), {pace}, "
               f"until vehicle time {until:.1f} s", flush=True)  # fmt: skip
         _print_ports(runner)
+        # vehicle time 0 is fixed now, so the gateway configuration can carry its epoch
+        start_at = time.monotonic() + args.start_delay if args.speed > 0 else None
         try:
-            cfg = runner.write_gateway_config(out / "gateway.toml", vehicle=args.vehicle)
+            cfg = runner.write_gateway_config(
+                out / "gateway.toml", vehicle=args.vehicle, start_at=start_at
+            )
         except ValueError as exc:
             raise UserError(f"gateway configuration: {exc}") from exc
         runner.watch_control(control)
@@ -159,7 +204,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"truth log: {truth_log}")
         print(f"fault control: {control} (JSON {{device: {{fault settings}}}}, applied on change)")
         print("running; Ctrl-C to stop", flush=True)
-        runner.start(duration=until)
+        runner.start(duration=until, start_at=start_at)
         while not stop.is_set() and runner.running:
             stop.wait(0.2)
         runner.stop()

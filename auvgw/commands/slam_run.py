@@ -1,4 +1,17 @@
-"""``auvgw slam-run``: the online SLAM stage over a recording, offline.
+"""``auvgw slam-run``: the online SLAM stage, live on the bus or over a recording.
+
+Live (the SLAM stage as its own process)::
+
+    auvgw slam-run --vehicle auv1 --connect tcp/127.0.0.1:7447 [--msis msis] [--algorithm A]
+
+subscribes to the fusion stage's odometry (``auv/<V>/nav/odometry``) and the MSIS scan lines
+(``auv/<V>/sensor/<msis>/mtheaddata``), publishes ``auv/<V>/slam/<algorithm>/{pose,landmarks}``
+and its counters on ``auv/<V>/status/slam-<algorithm>`` until SIGINT/SIGTERM (or ``--duration``
+seconds), then flushes (publishes the last estimate) and prints its counters; prints ``slam
+running`` on stdout once its subscriptions are declared. Its times are those of the messages
+(the gateway's receive stamps, vehicle-paced under a gateway ``[clock]``), never the host clock.
+
+Offline::
 
     auvgw slam-run --recording run.mcap [--algorithm vb-aufastslam] [--out slam.jsonl]
 
@@ -21,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from auvgw.bus import add_bus_arguments, bus_from_args
 from auvgw.cli import UserError
 
 
@@ -33,7 +47,28 @@ def register(sub: Any) -> None:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("--recording", type=Path, required=True, metavar="FILE.mcap")
+    p.add_argument(
+        "--recording",
+        type=Path,
+        default=None,
+        metavar="FILE.mcap",
+        help="offline: run over this recording (default: live on the bus)",
+    )
+    p.add_argument("--vehicle", default="auv1", help="live: vehicle name (default auv1)")
+    p.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        metavar="S",
+        help="live: stop after S seconds (default: until SIGINT/SIGTERM)",
+    )
+    p.add_argument(
+        "--target-radius",
+        type=float,
+        default=0.6,
+        metavar="M",
+        help="radius of the point targets, m (default 0.6)",
+    )
     p.add_argument("--algorithm", default="vb-aufastslam", choices=sorted(ALGORITHMS))
     p.add_argument("--particles", type=int, default=50, help="particles (default 50)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
@@ -48,8 +83,9 @@ def register(sub: Any) -> None:
         metavar="FILE",
         help="fusion stage settings (TOML/JSON, as auvgw fusion --settings)",
     )
-    p.add_argument("--out", type=Path, default=None, help="JSON lines of the SLAM output")
-    p.set_defaults(func=run)
+    p.add_argument("--out", type=Path, default=None, help="offline: JSON lines of the SLAM output")
+    add_bus_arguments(p)
+    p.set_defaults(func=run)  # fmt: skip
 
 
 class _Paths:
@@ -91,13 +127,82 @@ def _fusion_settings(args: argparse.Namespace) -> Any:
     return cfg.model_copy(update=named)
 
 
-def run(args: argparse.Namespace) -> int:
-    from auvgw.recording import RecordingError, iter_recording
-    from auvgw.stages.fusion import FusionStage
-    from auvgw.stages.slam import SlamStage, SlamStageConfig
+def _stage_config(args: argparse.Namespace, vehicle: str = "auv1") -> Any:
+    from pydantic import ValidationError
+
+    from auvgw.stages.slam import SlamStageConfig
 
     if args.particles < 1:
         raise UserError("--particles must be >= 1")
+    try:
+        return SlamStageConfig(
+            vehicle=vehicle, algorithm=args.algorithm, n_particles=args.particles,
+            seed=args.seed, msis_device=args.msis, sound_speed_mps=args.sound_speed,
+            target_radius_m=args.target_radius,
+        )  # fmt: skip
+    except ValidationError as exc:
+        opts = {"sound_speed_mps": "--sound-speed", "target_radius_m": "--target-radius",
+                "vehicle": "--vehicle"}  # fmt: skip
+        raise UserError("\n".join(
+            f"{opts.get(str(e['loc'][0]), e['loc'][0]) if e['loc'] else 'settings'}: {e['msg']}"
+            for e in exc.errors()
+        )) from None  # fmt: skip
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.recording is None:
+        if args.out is not None or args.fusion_settings is not None:
+            raise UserError("--out and --fusion-settings are for --recording (offline) runs")
+        return _live(args)
+    return _offline(args)
+
+
+def _live(args: argparse.Namespace) -> int:
+    import sys
+    import threading
+
+    import zenoh
+
+    from auvgw.bus import open_session
+    from auvgw.commands.run import handle_stop_signals
+    from auvgw.stages.slam import SlamStage
+
+    cfg = _stage_config(args, args.vehicle)
+    if args.duration is not None and not args.duration > 0:
+        raise UserError(f"--duration must be > 0, got {args.duration}")
+    try:
+        bus = bus_from_args(args)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    try:
+        session = open_session(bus)
+    except zenoh.ZError as exc:
+        raise UserError(
+            f"bus: cannot open the Zenoh session ({exc}); check --listen/--connect"
+        ) from exc
+    stop = threading.Event()
+    try:
+        stage = SlamStage(cfg, session)
+        with handle_stop_signals(stop):
+            stage.start()
+            print(f"slam running: vehicle {cfg.vehicle}, {cfg.display_name} on "
+                  f"{stage.key('pose')}", flush=True)  # fmt: skip
+            try:
+                stop.wait(args.duration)
+            finally:
+                stage.stop(flush=True)
+        print(f"slam counters: {json.dumps(stage.counters())}", file=sys.stderr)
+    finally:
+        session.close()
+    return 0
+
+
+def _offline(args: argparse.Namespace) -> int:
+    from auvgw.recording import RecordingError, iter_recording
+    from auvgw.stages.fusion import FusionStage
+    from auvgw.stages.slam import SlamStage
+
+    cfg = _stage_config(args)
     if not args.recording.is_file():
         raise UserError(f"{args.recording}: no such file")
     paths = _Paths()
@@ -118,11 +223,7 @@ def run(args: argparse.Namespace) -> int:
         else:
             last_map[:] = [payload]
 
-    slam = SlamStage(
-        SlamStageConfig(algorithm=args.algorithm, n_particles=args.particles, seed=args.seed,
-                        msis_device=args.msis, sound_speed_mps=args.sound_speed),
-        on_publish=on_publish,
-    )  # fmt: skip
+    slam = SlamStage(cfg, on_publish=on_publish)
 
     def on_odometry(o: Any) -> None:
         paths.dr.append((o.t, o.x, o.y))

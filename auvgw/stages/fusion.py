@@ -20,9 +20,13 @@ signature); with no session it publishes nothing and returns the odometry it pro
 Zenoh callbacks only queue the payloads; one worker thread decodes and filters them in arrival
 order, so the callbacks stay short and the filter sees one sequence of messages.
 
-Odometry times are the host clock (POSIX s): INS time stamps mapped through the INS clock's
-offset (:class:`~auvgw.fusion.adapters.DeviceClock`), so an odometry sample's ``t`` is when the
-INS measured it, not when it was received.
+Odometry times are the clock of the gateway's receive stamps (POSIX s: the host clock, or the
+vehicle-paced clock of a gateway ``[clock]`` section, docs/gateway.md): INS time stamps mapped
+through the INS clock's offset (:class:`~auvgw.fusion.adapters.DeviceClock`), so an odometry
+sample's ``t`` is when the INS measured it, not when it was received. The stage never reads the
+host clock for data: an odometry envelope's ``t_recv_ns`` is the receive stamp of the input
+message that released it, so the stage runs the same at any emulation speed (status
+publication and the counters' ``t_ns`` are host-clock health).
 """
 
 from __future__ import annotations
@@ -166,6 +170,7 @@ class FusionStage:
         self.session = session
         self.on_odometry = on_odometry
         self.last: Odometry | None = None
+        self._now_ns = 0  # latest input receive stamp, ns (the stage's "now")
         self._lock = threading.RLock()
         self._pub: zenoh.Publisher | None = None
         self._status_pub: zenoh.Publisher | None = None
@@ -184,6 +189,7 @@ class FusionStage:
         epoch); returns (and publishes, with a session) the odometry that became final."""
         with self._lock:
             self.stats.received += 1
+            self._now_ns = max(self._now_ns, t_recv_ns)
             sample = self.adapter.adapt(device, t_recv_ns / 1e9, message)
             if sample is None:
                 return []
@@ -203,7 +209,8 @@ class FusionStage:
             self.stats.published += 1
             self.last = o
             if self._pub is not None:
-                payload, enc = encode_envelope(o, COMPONENT, time.time_ns(), self.stats.published)
+                t_ns = self._now_ns or time.time_ns()  # the stamp clock; host before any input
+                payload, enc = encode_envelope(o, COMPONENT, t_ns, self.stats.published)
                 try:
                     self._pub.put(payload, encoding=enc)
                 except zenoh.ZError as exc:
@@ -291,8 +298,11 @@ class FusionStage:
             self._decls.append(s.declare_subscriber(self.subscription_key(), self._on_sample))
         # declarations travel in order: once this token is seen, the subscription is in place
         self._decls.append(s.liveliness().declare_token(self.keys.alive(COMPONENT)))
-        log.info("fusion stage for vehicle %r: %s", self.config.vehicle,
-                 f"subscribed to {self.subscription_key()}" if subscribe else "fed in-process")
+        log.info(
+            "fusion stage for vehicle %r: %s",
+            self.config.vehicle,
+            f"subscribed to {self.subscription_key()}" if subscribe else "fed in-process",
+        )
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)

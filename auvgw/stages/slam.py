@@ -26,8 +26,12 @@ on ``auv/<v>/slam/<pipeline>/landmarks``: ``t``, ``mean``, ``cov``, ``ids`` and 
 (``rho``, ``theta``, ``cov``, ``p0``, ``p1`` in the map frame). Counters on
 ``auv/<v>/status/slam-<pipeline>``.
 
-Times are seconds on the odometry clock (the host clock online: the fusion stage maps the INS
-clock onto it; a ping's time is its receive time, SeaNet heads carry no clock).
+Times are seconds on the odometry clock (the clock of the gateway's receive stamps online: the
+host clock, or the vehicle-paced one of a gateway ``[clock]`` section; the fusion stage maps the
+INS clock onto it; a ping's time is its receive stamp, SeaNet heads carry no clock). Nothing
+here reads the host clock for data (prediction, publication period, ping matching all follow
+those times), so the stage runs the same at any emulation speed; only the status period and the
+counters' ``t_ns`` are host-clock health.
 
 In-process (``auvgw slam-run``, tests) call :meth:`SlamStage.feed_odometry` and
 :meth:`SlamStage.feed` (the work happens on the calling thread); ``auvgw demo`` uses
