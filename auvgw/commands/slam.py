@@ -6,6 +6,12 @@ Example (the VB paper's Table 4 first row on Bailey's dense map)::
         --algorithms fastslam2,ufastslam,vb-afastslam,vb-aufastslam --runs 30 \\
         --noise n=2,p=0.1 --jobs 2 --out docs/results/table4
 
+The VR paper's claims on the harbour with line features (quay walls observed as (rho, theta)
+lines, the AUV on its waypoints)::
+
+    auvgw slam eval --scenario config/scenarios/harbour.json --features lines \\
+        --algorithms fastslam1,fastslam2,vrfastslam --runs 10 --out docs/results/vr_harbour
+
 ``--noise`` may be repeated: one table per setting. Prints the tables as text; with ``--out`` also
 writes ``tables.md`` (with the command line), ``results.json`` (the summaries) and one PNG per
 noise setting (trajectories of run 0, mean Neff over time).
@@ -56,6 +62,13 @@ def register(sub: Any) -> None:
     )
     e.add_argument("--runs", type=int, default=10, help="Monte Carlo runs per noise setting")
     e.add_argument(
+        "--features",
+        default="points",
+        choices=["points", "lines"],
+        help="observe the point features (range, bearing) or the walls (features.lines) as "
+        "(rho, theta) lines",
+    )
+    e.add_argument(
         "--noise",
         action="append",
         default=None,
@@ -81,6 +94,7 @@ def register(sub: Any) -> None:
 def command_line(args: argparse.Namespace) -> str:
     """The ``auvgw slam eval`` command line equivalent to ``args`` (recorded with the tables)."""
     parts = ["auvgw", "slam", "eval", "--scenario", str(args.scenario)]
+    parts += ["--features", args.features] if args.features != "points" else []
     parts += ["--algorithms", args.algorithms, "--runs", str(args.runs)]
     for t in args.noise or []:
         parts += ["--noise", t]
@@ -95,6 +109,18 @@ def command_line(args: argparse.Namespace) -> str:
     return " ".join(shlex.quote(p) for p in parts)
 
 
+def _monte_carlo(study: Any, jobs: int, progress: Any) -> Any:
+    """:func:`~auvgw.slam.evaluation.runner.monte_carlo` with scenario errors (a route the
+    vehicle cannot drive) as user errors."""
+    from auvgw.config.scenario import ScenarioError
+    from auvgw.slam.evaluation.runner import monte_carlo
+
+    try:
+        return monte_carlo(study, jobs=jobs, progress=progress)
+    except ScenarioError as exc:
+        raise UserError(str(exc)) from None
+
+
 def _advance(bar: Any) -> Any:
     return lambda _result: bar.update(1)
 
@@ -103,7 +129,7 @@ def run(args: argparse.Namespace) -> int:
     """Run the study and print the tables; returns the exit code."""
     from auvgw.config.scenario import ScenarioError, load_scenario
     from auvgw.slam.evaluation.report import format_table, plot_results, summaries_by_algorithm
-    from auvgw.slam.evaluation.runner import Study, monte_carlo
+    from auvgw.slam.evaluation.runner import Study
     from auvgw.slam.landmark.registry import ALGORITHMS
 
     algorithms = tuple(a.strip() for a in args.algorithms.split(",") if a.strip())
@@ -116,12 +142,15 @@ def run(args: argparse.Namespace) -> int:
         raise UserError("--association jcbb is for the EKF family (ekf, shekf, stekf, caekf)")
     try:
         scenario = load_scenario(args.scenario)
-        scenario.point_features()
+        pts = scenario.point_features()
     except ScenarioError as exc:
         raise UserError(str(exc)) from None
-    if scenario.motion != "bicycle":
+    if args.features == "lines" and not scenario.features.lines:
+        raise UserError(f"{args.scenario}: --features lines needs walls in features.lines")
+    if args.features == "points" and not pts:
         raise UserError(
-            f"{args.scenario}: slam eval simulates Bailey's vehicle: set motion 'bicycle'"
+            f"{args.scenario}: no point features (features.points / points_file); "
+            "use --features lines for walls"
         )
     settings = (
         [parse_noise(t) for t in args.noise]
@@ -144,18 +173,21 @@ def run(args: argparse.Namespace) -> int:
             seed=args.seed,
             r0_scale=args.r0_scale,
             max_steps=args.max_steps,
+            features=args.features,
         )
         total = args.runs * len(algorithms)
         if args.no_progress:
-            results = monte_carlo(study, jobs=args.jobs)
+            results = _monte_carlo(study, args.jobs, None)
         else:
             from tqdm import tqdm
 
             with tqdm(total=total, desc=f"n={n:g}, p={p:g}", unit="run", file=sys.stderr) as bar:
-                results = monte_carlo(study, jobs=args.jobs, progress=_advance(bar))
+                results = _monte_carlo(study, args.jobs, _advance(bar))
         sums = summaries_by_algorithm(results, algorithms)
         title = (
-            f"{scenario.name}: n = {n:g}, p = {p:g} ({args.runs} runs, {args.particles} particles,"
+            f"{scenario.name}"
+            + (f", {args.features}" if args.features != "points" else "")
+            + f": n = {n:g}, p = {p:g} ({args.runs} runs, {args.particles} particles,"
             f" {args.association} association"
             + (f", filters assume {args.r0_scale:g} R0" if args.r0_scale != 1.0 else "")
             + ")"
@@ -166,7 +198,8 @@ def run(args: argparse.Namespace) -> int:
         blocks_md.append(format_table(title, sums, markdown=True))
         summary_json.append({"n": n, "p": p, "summaries": [asdict(s) for s in sums]})
         if args.out is not None:
-            png = args.out / f"{scenario.name}_n{n:g}_p{p:g}.png"
+            tag = f"_{args.features}" if args.features != "points" else ""
+            png = args.out / f"{scenario.name}{tag}_n{n:g}_p{p:g}.png"
             try:
                 plot_results(results, algorithms, png, title)
             except ImportError:

@@ -1,11 +1,20 @@
-"""Accuracy metrics of the papers' tables: path RMSE (total, x, y), feature RMSE, mean Neff,
-run time, real-time factor and the VB paper's accuracy ``RMSE / distance x 100`` (eq. 50).
+"""Accuracy metrics of the papers' tables: path RMSE (total, x, y), feature RMSE (points: distance
+m; lines: the VR paper's Table 1 errors of ``rho`` in m and ``theta`` in deg, in the map frame),
+mean Neff, run time, real-time factor and the VB paper's accuracy ``RMSE / distance x 100``
+(eq. 50).
 
 Pooling over Monte Carlo runs: an RMSE over several runs is the root of the mean squared error
 over all runs and all epochs (scans) of the runs, i.e. ``sqrt(mean of per-run MSE)`` for runs of
 equal length. The pose error is taken after every scan's update. The feature error matches each
 estimated feature to its true feature: by id with known association, otherwise by a minimum-cost
-assignment (Hungarian) on distance; it is computed on the final map.
+assignment (Hungarian) on distance (lines: on ``drho^2 + (10 m x dtheta)^2``, the angle error
+weighted as the displacement it makes 10 m along the line); it is computed on the final map.
+
+Neff (eq. 8 of the VR paper, ``1 / sum w^2`` of the normalised weights) is taken at every scan
+after the weight update and *before* resampling or variance reduction, for every filter
+(``Mean Neff``). ``Neff after`` is the same after resampling / variance reduction (``N`` right
+after a resampling, whose particles are copies); ``Distinct`` the number of distinct particles
+then (the VR paper's Fig. 8 "diversity").
 """
 
 from __future__ import annotations
@@ -16,13 +25,18 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-__all__ = ["RunResult", "Summary", "feature_errors", "summarise"]
+__all__ = ["RunResult", "Summary", "feature_errors", "line_errors", "summarise"]
+
+#: metres per radian of theta error in the assignment cost of unlabelled lines
+LINE_ASSIGN_LEVER_M = 10.0
 
 
 @dataclass
 class RunResult:
     """One filter on one simulated run. Arrays are per scan: ``est``/``truth (n, 3)``,
-    ``neff (n,)``; ``map_mean (L, 2)`` and ``map_ids (L,)`` the final map."""
+    ``neff (n,)`` (before resampling / variance reduction), ``neff_post``, ``distinct (n,)``
+    (after); ``map_mean (L, 2)`` and ``map_ids (L,)`` the final map, ``landmarks`` the true
+    features (``features``: ``points`` (x, y) or ``lines`` (rho, theta), map frame)."""
 
     algorithm: str
     run: int
@@ -39,6 +53,11 @@ class RunResult:
     #: vehicle time of each scan, seconds
     t: np.ndarray | None = None
     extra: dict[str, float] = field(default_factory=dict)
+    features: str = "points"
+    neff_post: np.ndarray | None = None
+    distinct: np.ndarray | None = None
+    #: wall segments (x1, y1, x2, y2) of line features, for plots
+    segments: np.ndarray | None = None
 
     def path_errors(self) -> np.ndarray:
         """``(n, 2)`` position errors (x, y) in metres."""
@@ -56,6 +75,33 @@ def feature_errors(mean: np.ndarray, ids: np.ndarray, truth: np.ndarray) -> np.n
     return d[r, c]
 
 
+def line_errors(mean: np.ndarray, ids: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """``(L, 2)`` errors ``(rho m, theta rad wrapped)`` of estimated lines ``(rho, theta)``
+    against the true ones (by id, else by assignment, see the module docstring)."""
+    if len(mean) == 0:
+        return np.zeros((0, 2))
+
+    def diff(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        d = a - b
+        d[..., 1] = (d[..., 1] + np.pi) % (2 * np.pi) - np.pi
+        return d
+
+    if np.all(ids >= 0):
+        return diff(mean, truth[ids])
+    d = diff(mean[:, None, :], truth[None, :, :])
+    cost = d[..., 0] ** 2 + (LINE_ASSIGN_LEVER_M * d[..., 1]) ** 2
+    r, c = linear_sum_assignment(cost)
+    return d[r, c]
+
+
+def _nanmean(arrays: list[np.ndarray | None]) -> float:
+    vals = [a for a in arrays if a is not None]
+    if not vals:
+        return math.nan
+    v = np.concatenate(vals)
+    return float(np.nanmean(v)) if np.any(np.isfinite(v)) else math.nan
+
+
 @dataclass(frozen=True)
 class Summary:
     """Pooled metrics of one algorithm over runs (metres, seconds)."""
@@ -70,6 +116,12 @@ class Summary:
     runtime_s: float
     realtime_factor: float
     accuracy_pct: float
+    #: line features: RMSE of rho (m) and theta (deg); nan for points
+    feature_rho: float = math.nan
+    feature_theta_deg: float = math.nan
+    #: mean Neff after resampling / variance reduction, mean number of distinct particles
+    neff_post: float = math.nan
+    distinct: float = math.nan
 
 
 def summarise(results: list[RunResult]) -> Summary:
@@ -77,7 +129,14 @@ def summarise(results: list[RunResult]) -> Summary:
     if not results:
         raise ValueError("no runs to summarise")
     e = np.concatenate([r.path_errors() for r in results])
-    fe = np.concatenate([feature_errors(r.map_mean, r.map_ids, r.landmarks) for r in results])
+    lines = [r for r in results if r.features == "lines"]
+    points = [r for r in results if r.features != "lines"]
+    fe = np.concatenate(
+        [np.zeros(0)] + [feature_errors(r.map_mean, r.map_ids, r.landmarks) for r in points]
+    )
+    le = np.concatenate(
+        [np.zeros((0, 2))] + [line_errors(r.map_mean, r.map_ids, r.landmarks) for r in lines]
+    )
     neff = np.concatenate([r.neff for r in results])
     runtime = float(np.mean([r.runtime_s for r in results]))
     duration = float(np.mean([r.duration_s for r in results]))
@@ -94,4 +153,10 @@ def summarise(results: list[RunResult]) -> Summary:
         runtime_s=runtime,
         realtime_factor=duration / runtime if runtime > 0 else math.inf,
         accuracy_pct=100.0 * path / distance if distance > 0 else math.nan,
+        feature_rho=float(np.sqrt(np.mean(le[:, 0] ** 2))) if len(le) else math.nan,
+        feature_theta_deg=(
+            math.degrees(float(np.sqrt(np.mean(le[:, 1] ** 2)))) if len(le) else math.nan
+        ),
+        neff_post=_nanmean([r.neff_post for r in results]),
+        distinct=_nanmean([r.distinct for r in results]),
     )

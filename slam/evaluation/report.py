@@ -1,6 +1,8 @@
 """Tables in the layout of the VB paper (Tables 4-5: one block per noise setting, rows Path,
-Path-X, Path-Y, Feature; one column per algorithm), extended with mean Neff, run time, real-time
-factor and accuracy (eq. 50); and a PNG of trajectories and Neff over time."""
+Path-X, Path-Y, Feature; one column per algorithm), extended with the VR paper's line-feature
+errors (rho, theta), Neff before and after resampling / variance reduction, distinct particles,
+run time, real-time factor and accuracy (eq. 50); rows without a value in any column are left
+out. And a PNG of trajectories and Neff over time."""
 
 from __future__ import annotations
 
@@ -20,7 +22,11 @@ ROWS: list[tuple[str, str, str]] = [
     ("Path-X", "path_x", "{:.4f}"),
     ("Path-Y", "path_y", "{:.4f}"),
     ("Feature", "feature", "{:.4f}"),
+    ("Feature rho (m)", "feature_rho", "{:.4f}"),
+    ("Feature theta (deg)", "feature_theta_deg", "{:.4f}"),
     ("Mean Neff", "neff", "{:.1f}"),
+    ("Neff after", "neff_post", "{:.1f}"),
+    ("Distinct particles", "distinct", "{:.1f}"),
     ("Run time (s)", "runtime_s", "{:.2f}"),
     ("Real-time factor", "realtime_factor", "{:.0f}x"),
     ("Accuracy (%)", "accuracy_pct", "{:.3f}"),
@@ -46,6 +52,7 @@ def format_table(title: str, summaries: Sequence[Summary], markdown: bool = Fals
     rows = [
         [label] + [_cell(fmt, getattr(s, attr)) for s in summaries] for label, attr, fmt in ROWS
     ]
+    rows = [r for r in rows if any(c != "-" for c in r[1:])]
     if markdown:
         out = [f"**{title}**", "", "| | " + " | ".join(names) + " |"]
         out.append("|---" * (len(names) + 1) + "|")
@@ -70,8 +77,9 @@ def format_table(title: str, summaries: Sequence[Summary], markdown: bool = Fals
 def plot_results(
     results: list[RunResult], algorithms: Sequence[str], path: Path, title: str
 ) -> None:
-    """PNG: the first run's true and estimated trajectories with the true features, and the mean
-    Neff over the runs per scan for the particle filters."""
+    """PNG: the first run's true and estimated trajectories with the true features (points or
+    wall segments), and the mean Neff over the runs per scan for the particle filters, before
+    (solid) and after (dotted) resampling / variance reduction."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -82,7 +90,11 @@ def plot_results(
     shown = [r for r in results if r.run == first]
     if shown:
         r0 = shown[0]
-        ax1.plot(r0.landmarks[:, 1], r0.landmarks[:, 0], "k+", ms=5, label="features (truth)")
+        if r0.segments is not None:
+            for i, (x1, y1, x2, y2) in enumerate(r0.segments):
+                ax1.plot([y1, y2], [x1, x2], color="0.4", lw=3, label="walls" if i == 0 else None)
+        else:
+            ax1.plot(r0.landmarks[:, 1], r0.landmarks[:, 0], "k+", ms=5, label="features (truth)")
         ax1.plot(r0.truth[:, 1], r0.truth[:, 0], "k-", lw=2, label="truth")
     for r in shown:
         ax1.plot(r.est[:, 1], r.est[:, 0], lw=1, label=DISPLAY_NAMES.get(r.algorithm, r.algorithm))
@@ -98,10 +110,20 @@ def plot_results(
         n = min(len(r.neff) for r in mine)
         mean = np.mean([r.neff[:n] for r in mine], axis=0)
         t = mine[0].t[:n] if mine[0].t is not None else np.arange(n)
-        ax2.plot(t, mean, lw=0.8, label=DISPLAY_NAMES.get(a, a))
+        (line,) = ax2.plot(t, mean, lw=0.8, label=DISPLAY_NAMES.get(a, a) + " (before)")
+        posts = [r.neff_post[:n] for r in mine if r.neff_post is not None]
+        if posts:
+            ax2.plot(
+                t,
+                np.mean(posts, axis=0),
+                ":",
+                color=line.get_color(),
+                lw=0.8,
+                label=DISPLAY_NAMES.get(a, a) + " (after)",
+            )
     ax2.set_xlabel("vehicle time (s)" if shown and shown[0].t is not None else "scan")
     ax2.set_ylabel("Neff (mean over runs)")
-    ax2.set_title("effective sample size")
+    ax2.set_title("Neff before / after resampling or variance reduction")
     if ax2.get_lines():
         ax2.legend(fontsize=8)
     else:

@@ -19,18 +19,18 @@ import numpy as np
 
 from auvgw.config.scenario import Scenario
 from auvgw.slam.evaluation.metrics import RunResult
-from auvgw.slam.evaluation.simulate import SimRun, simulate
-from auvgw.slam.landmark.base import LandmarkFilter
+from auvgw.slam.evaluation.simulate import FeatureKind, SimRun, simulate
+from auvgw.slam.landmark.base import LandmarkFilter, ParticleFilterSLAM
 from auvgw.slam.landmark.registry import make_filter
-from auvgw.slam.models import BicycleModel, RangeBearing
 
 __all__ = ["Study", "drive", "monte_carlo", "run_one"]
 
 
 @dataclass(frozen=True)
 class Study:
-    """What to run: algorithms on ``runs`` simulations of ``scenario`` with dynamic noise
-    ``(burst_n, burst_p)``; the filters assume ``r0_scale * R0`` as their nominal noise."""
+    """What to run: algorithms on ``runs`` simulations of ``scenario`` observing ``features``
+    (``points`` or ``lines``) with dynamic noise ``(burst_n, burst_p)``; the filters assume
+    ``r0_scale * R0`` as their nominal noise."""
 
     scenario: Scenario
     algorithms: tuple[str, ...]
@@ -42,16 +42,31 @@ class Study:
     seed: int = 0
     r0_scale: float = 1.0
     max_steps: int | None = None
+    features: FeatureKind = "points"
 
 
 def drive(
-    f: LandmarkFilter, sim: SimRun, rng: np.random.Generator
+    f: LandmarkFilter,
+    sim: SimRun,
+    rng: np.random.Generator,
+    extra: dict[str, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, float]:
     """Run filter ``f`` through ``sim``: ``(estimates after each scan (n, 3), Neff (n,),
-    seconds spent in the filter)``."""
+    seconds spent in the filter)``.
+
+    ``Neff`` (eq. 8 of the VR paper) is the filter's :attr:`~LandmarkFilter.neff`: the effective
+    sample size of the normalised weights after the scan's weight update, *before* resampling or
+    variance reduction; the same definition for every particle filter. If ``extra`` is given it
+    receives, per scan and after resampling or variance reduction, ``neff_post`` (Neff of the
+    weights the filter carries on: ``N`` right after a resampling) and ``distinct`` (the number
+    of distinct particle poses: resampling duplicates particles, variance reduction does not);
+    ``nan`` for filters without particles."""
     n_scans = len(sim.obs_step)
     est = np.empty((n_scans, 3))
     neff = np.empty(n_scans)
+    post = np.full(n_scans, np.nan)
+    distinct = np.full(n_scans, np.nan)
+    pf = f if isinstance(f, ParticleFilterSLAM) and extra is not None else None
     is_scan = np.zeros(len(sim.controls) + 1, dtype=bool)
     is_scan[sim.obs_step] = True
     controls = sim.controls
@@ -66,9 +81,15 @@ def drive(
             spent += time.perf_counter() - t0
             est[oi] = f.estimate()
             neff[oi] = f.neff
+            if pf is not None:
+                post[oi] = pf.neff_of_weights()
+                distinct[oi] = len(np.unique(pf.x, axis=0))
             oi += 1
             t0 = time.perf_counter()
     spent += time.perf_counter() - t0
+    if extra is not None:
+        extra["neff_post"] = post
+        extra["distinct"] = distinct
     return est, neff, spent
 
 
@@ -84,18 +105,20 @@ def run_one(study: Study, run: int, algorithm: str) -> RunResult:
         burst_n=study.burst_n,
         burst_p=study.burst_p,
         max_steps=study.max_steps,
+        features=study.features,
     )
     f = make_filter(
         algorithm,
-        BicycleModel(sim.wheelbase),
-        RangeBearing(),
+        sim.motion_model(),
+        sim.obs_model(),
         sim.q,
         sim.r * study.r0_scale,
         n_particles=study.n_particles,
         x0=sim.truth[0],
         association=study.association,
     )
-    est, neff, spent = drive(f, sim, _filter_seed(study.seed, run, algorithm))
+    extra: dict[str, np.ndarray] = {}
+    est, neff, spent = drive(f, sim, _filter_seed(study.seed, run, algorithm), extra)
     lm = f.landmarks()
     return RunResult(
         algorithm=algorithm,
@@ -111,6 +134,10 @@ def run_one(study: Study, run: int, algorithm: str) -> RunResult:
         distance_m=sim.distance_m,
         noise=(study.burst_n, study.burst_p),
         t=sim.obs_step * sim.dt,
+        features=sim.features,
+        neff_post=extra["neff_post"],
+        distinct=extra["distinct"],
+        segments=sim.segments,
     )
 
 

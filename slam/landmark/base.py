@@ -206,6 +206,12 @@ class ParticleFilterSLAM(LandmarkFilter):
             mu = self.mu[:, :k]
             mean = np.einsum("p,pli->li", w, mu)
             d = mu - mean
+            for i, ang in enumerate(self.obs.feature_angular):
+                if ang:  # circular mean: line angles near +-pi must not average to 0
+                    s = np.einsum("p,pl->l", w, np.sin(mu[..., i]))
+                    c = np.einsum("p,pl->l", w, np.cos(mu[..., i]))
+                    mean[:, i] = np.arctan2(s, c)
+                    d[..., i] = wrap_angle(mu[..., i] - mean[:, i])
             cov = np.einsum("p,plij->lij", w, self.cov[:, :k]) + np.einsum(
                 "p,pli,plj->lij", w, d, d
             )
