@@ -29,9 +29,19 @@ Choices where the paper is inconsistent or garbled, following Sarkka and Nummenm
   statistical linearisation of the stage's (unscented or Jacobian) terms:
   ``r = v - S Pzz^-1 v`` and ``C = S - S Pzz^-1 S`` with ``S`` the state part of the innovation
   covariance (pose and feature uncertainty), ``E = r^2 + diag(C)``.
-* All observations of one scan share the particle's two variances (the Sarkka-Nummenmaa update
-  with tied components): ``eta`` grows by ``m/2`` per scan of ``m`` known observations. The
-  per-observation noise of eq. (30) is then the same for every observation of the scan.
+* Per-observation noise (eq. 30, ``R^{[i][j]}``: "the noise of each observed feature is
+  estimated"). Sarkka-Nummenmaa's recursion with a prior worth ``eta ~ 50`` observations cannot
+  move for one observation, so a sonar multipath return or reverberation spike (the anomalies the
+  paper targets) would be averaged into the particle's level ``R`` of the whole scan. Each
+  observation therefore has noise ``lambda_j R`` with ``lambda_j ~ IG(nu/2, nu/2)``
+  (``outlier_dof = nu``, default 4; the Student-t extension of the same VB scheme by Piche,
+  Sarkka and Hartikainen 2012): in each pass ``1/E[1/lambda_j] = (nu + sum_c E_jc / R_c) /
+  (nu + 2)``, and the level's scale grows by ``E[1/lambda_j] E_j / 2``. ``eta`` grows by ``m/2``
+  per scan of ``m`` known observations (tied range/bearing level), so the level still tracks
+  slow changes of the noise while a single bad return is discounted on its own. On densemap
+  with the paper's ``R0 = diag(0.001, 0.001)`` and 10-sigma returns (``n = 100, p = 0.05``;
+  one loop, 6 runs) VB-AFastSLAM's path RMSE is 2.3 m with it, 9.3 m without and 8.9 m for
+  FastSLAM 2.0. ``outlier_dof = None`` gives the plain tied recursion.
 * The forgetting is applied once per scan (the filter's "time step" for the noise).
 * Eq. (47) is dimensionally inconsistent as printed; the weight is the FastSLAM 2.0 / UFastSLAM
   marginal likelihood ``N(v; 0, S_x + S_f + R)`` with the estimated ``R`` (eq. 46).
@@ -64,6 +74,9 @@ class VBSettings:
     floor: float = 1e-3
     #: weigh particles with the noise known before the scan (see the module docstring)
     predictive_weights: bool = True
+    #: degrees of freedom ``nu`` of the per-observation noise scale (Student-t, see the module
+    #: docstring); ``None``: every observation of a scan has the particle's noise level
+    outlier_dof: float | None = 4.0
 
 
 def _diag2(d: np.ndarray) -> np.ndarray:
@@ -116,6 +129,7 @@ class _VBNoise:
         self._eta_post = self.eta
         self._xi_prior = self.xi
         self._xi_stage = self.xi
+        self._lam_stage = np.ones((self.n, 0))
 
     def noise_estimate(self) -> np.ndarray:
         """Current noise variances ``(N, 2)`` of every particle (eq. 19)."""
@@ -146,26 +160,43 @@ class _VBNoise:
         n, m = known.shape
         k4 = known[..., None, None]
         self._eta_post = self._eta_prior_plus(known)
-        mask = np.repeat(known, 2, axis=1).astype(float)  # (N, 2m)
+        kf = known[..., None].astype(float)
         xi = self._xi_prior
+        lam = np.ones((n, m))  # per-observation scale 1 / E[1/lambda_j]
         for _ in range(self.vb.pose_iterations):
-            rd = self._rdiag(xi)
-            lr = LowRank(terms.u, np.where(k4, terms.sf + _diag2(rd)[:, None], np.eye(2)), terms.v)
-            rvec = np.tile(rd, (1, m)) * mask
-            e = _expectation(rvec, lr.pzz_inv_v(), lr.pzz_inv_diag())
-            xi = self._xi_prior + 0.5 * e.reshape(n, m, 2).sum(axis=1)
+            level = self._rdiag(xi)
+            rj = level[:, None, :] * lam[..., None]  # (N, m, 2) noise of each observation
+            lr = LowRank(terms.u, np.where(k4, terms.sf + _diag2(rj), np.eye(2)), terms.v)
+            e = _expectation((rj * kf).reshape(n, 2 * m), lr.pzz_inv_v(), lr.pzz_inv_diag())
+            e = e.reshape(n, m, 2)
+            lam = self._scale_step(e, level, known)
+            xi = self._xi_prior + 0.5 * (kf * e / lam[..., None]).sum(axis=1)
+        self._lam_stage = lam
         self._xi_stage = xi
-        blocks = np.where(k4, terms.sf + _diag2(self._rdiag(xi))[:, None], np.eye(2))
+        rj = self._rdiag(xi)[:, None, :] * lam[..., None]
+        blocks = np.where(k4, terms.sf + _diag2(rj), np.eye(2))
         mean, cov, ll_post = self._joint_update(terms, blocks, known)  # type: ignore[attr-defined]
         if not self.vb.predictive_weights:
             return mean, cov, ll_post
-        # importance weight: the predictive likelihood of the scan under the noise known before
-        # it (prior R = xi-/eta-); weighing with the posterior R would let every particle
-        # explain its own residuals away and flatten the weights
-        r_prior = np.maximum(self._xi_prior / self.eta, self._rfloor)
-        lr = LowRank(terms.u, np.where(k4, terms.sf + _diag2(r_prior)[:, None], np.eye(2)), terms.v)
+        # importance weight: the predictive likelihood of the scan under the level known before
+        # it (prior R = xi-/eta-; weighing with the posterior level would let every particle
+        # explain its own residuals away and flatten the weights), each observation scaled by
+        # its lambda_j (a heavy-tailed likelihood: one bad return does not decide the weight)
+        r_prior = np.maximum(self._xi_prior / self.eta, self._rfloor)[:, None, :] * lam[..., None]
+        lr = LowRank(terms.u, np.where(k4, terms.sf + _diag2(r_prior), np.eye(2)), terms.v)
         ll = -0.5 * lr.quad() - 0.5 * lr.logdet() - LOG_2PI * known.sum(axis=1)
         return mean, cov, ll
+
+    def _scale_step(self, e: np.ndarray, level: np.ndarray, known: np.ndarray) -> np.ndarray:
+        """Per-observation noise scale ``1 / E[1/lambda_j] = (nu + E_j^T R^-1) / (nu + d)``
+        (Student-t observation noise ``lambda_j R``, ``lambda_j ~ IG(nu/2, nu/2)``; Piche,
+        Sarkka and Hartikainen 2012); all ones without ``outlier_dof``. ``e (N, m, 2)``,
+        ``level (N, 2)``."""
+        nu = self.vb.outlier_dof
+        if nu is None:
+            return np.ones(known.shape)
+        lam = (nu + (e / level[:, None, :]).sum(axis=-1)) / (nu + e.shape[-1])
+        return np.where(known, lam, 1.0)
 
     def _eta_prior_plus(self, known: np.ndarray) -> np.ndarray:
         """Eq. (31) with tied components: ``eta = eta_prior + m/2``."""
@@ -178,14 +209,17 @@ class _VBNoise:
         v, sf, pmz = self._feature_terms(self.x, mu, cov, z)  # type: ignore[attr-defined]
         k = known[..., None]
         xi = self._xi_stage
+        lam = self._lam_stage if self._lam_stage.shape == known.shape else np.ones(known.shape)
         for _ in range(self.vb.feature_iterations):
-            rd = np.broadcast_to(self._rdiag(xi)[:, None, :], v.shape)
+            level = self._rdiag(xi)
+            rd = np.broadcast_to(level[:, None, :] * lam[..., None], v.shape)
             pinv = inv2(sf + _diag2(rd))
             e = _expectation(rd, np.einsum("...ij,...j->...i", pinv, v), _diagonal(pinv))
-            xi = self._xi_prior + 0.5 * np.where(k, e, 0.0).sum(axis=1)
+            lam = self._scale_step(e, level, known)
+            xi = self._xi_prior + 0.5 * np.where(k, e / lam[..., None], 0.0).sum(axis=1)
         self.eta = self._eta_post
         self.xi = xi
-        rmat = _diag2(self._rdiag(xi))[:, None]
+        rmat = _diag2(self._rdiag(xi)[:, None, :] * lam[..., None])
         return self._feature_apply(mu, cov, v, sf, pmz, rmat)  # type: ignore[attr-defined]
 
 
