@@ -264,3 +264,22 @@ def test_map_of_lines_averages_angles_on_the_circle():
     assert lm.ids.tolist() == [7]
     assert abs(wrap_angle(lm.mean[0, 1] - math.pi)) < 1e-9
     assert lm.cov[0, 1, 1] == pytest.approx(1e-4 + 1e-4, rel=1e-3)  # + spread 0.01^2
+
+
+def test_slam_run_is_also_a_slam_subcommand(tmp_path):
+    """``auvgw slam run`` (the issue's spelling) and ``auvgw slam-run`` are one command; a missing
+    recording is one line naming the file, exit 2."""
+    import subprocess
+    import sys
+
+    from auvgw.cli import build_parser
+
+    a = build_parser().parse_args(["slam", "run", "--recording", "x.mcap", "--particles", "7"])
+    b = build_parser().parse_args(["slam-run", "--recording", "x.mcap", "--particles", "7"])
+    assert a.func is b.func
+    assert (a.recording, a.particles, a.algorithm) == (b.recording, b.particles, b.algorithm)
+    missing = tmp_path / "nope.mcap"
+    r = subprocess.run([sys.executable, "-m", "auvgw", "slam", "run", "--recording", str(missing)],
+                       capture_output=True, text=True, timeout=60)  # fmt: skip
+    assert r.returncode == 2
+    assert str(missing) in r.stderr

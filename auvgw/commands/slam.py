@@ -89,6 +89,16 @@ def register(sub: Any) -> None:
     e.add_argument("--out", type=Path, default=None, help="directory for tables.md, JSON, PNG")
     e.add_argument("--no-progress", action="store_true", help="no progress bar")
     e.set_defaults(func=run)
+    from auvgw.commands import slam_run
+
+    slam_run.configure(
+        ssub.add_parser(
+            "run",
+            help=slam_run.HELP,
+            description=slam_run.__doc__,
+            formatter_class=argparse.RawDescriptionHelpFormatter,
+        )
+    )
 
 
 def command_line(args: argparse.Namespace) -> str:

@@ -37,16 +37,25 @@ import numpy as np
 from auvgw.bus import add_bus_arguments, bus_from_args
 from auvgw.cli import UserError
 
+HELP = "run the SLAM stage (fusion odometry + MSIS features), live or over a recording"
+
 
 def register(sub: Any) -> None:
+    """``auvgw slam-run`` (also ``auvgw slam run``, :func:`configure`)."""
+    configure(
+        sub.add_parser(
+            "slam-run",
+            help=HELP,
+            description=__doc__,
+            formatter_class=argparse.RawDescriptionHelpFormatter,
+        )
+    )
+
+
+def configure(p: argparse.ArgumentParser) -> None:
+    """The options of the SLAM stage command on parser ``p``."""
     from auvgw.slam.landmark.registry import ALGORITHMS
 
-    p = sub.add_parser(
-        "slam-run",
-        help="run the SLAM stage (fusion odometry + MSIS features) over a recording",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
     p.add_argument(
         "--recording",
         type=Path,
