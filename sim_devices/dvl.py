@@ -37,6 +37,16 @@ coordinates; the error velocity of a 4-beam solution is that noise alone), times
 in a VB noise burst (the burst scales every noise of that ping). A component beyond +-10 m/s
 is bad (the Pathfinder's velocity range; BQ-32768).
 
+Instrument errors (off by default; ``devices.dvl.noise``): ``scale_factor_pct`` (a Doppler
+scale-factor error: every velocity times ``1 + pct / 100``) and ``misalignment_deg`` (the
+reported velocity turned by this angle about the vehicle's vertical, positive clockwise seen
+from above, i.e. to starboard: an instrument mounted turned by minus that angle whose alignment
+was not calibrated). Both act on the instrument-axes velocity over the bottom and through the
+water before anything else, so every output frame (beam, instrument, ship, earth), the water
+mass layer, the water profile and the distances made good carry the same error, and a
+dead reckoning on them drifts like one on a real Pathfinder (long-term accuracy +-0.4 %
++-0.2 cm/s). They are constant over a run and draw nothing from the generators.
+
 Other contents: ranges with ``noise.range_m`` (0.01 m); the variable leader's depth (dm) and
 pressure (daPa) from the optional pressure sensor: true depth + ``noise.depth_m`` (0.02 m);
 attitude = truth + ``noise.heading_deg/pitch_deg/roll_deg`` (0 by default: the AUV feeds its
@@ -80,6 +90,7 @@ __all__ = [
     "BEAMS_INSTRUMENT",
     "DEFAULT_NOISE",
     "FIRMWARE_VERSION",
+    "INSTRUMENT_ERROR",
     "JANUS_ANGLE",
     "MAX_VELOCITY",
     "SWAP",
@@ -87,6 +98,7 @@ __all__ = [
     "DvlEmulator",
     "DvlPing",
     "frame_matrix",
+    "instrument_error_matrix",
 ]
 
 #: Janus angle of the Pathfinder's beams from the instrument vertical, rad
@@ -123,6 +135,10 @@ DEFAULT_NOISE: dict[str, float] = {
     "roll_deg": 0.0,
 }
 
+#: constant instrument errors (off by default): Doppler scale factor in percent, heading
+#: misalignment in deg (see the module docstring)
+INSTRUMENT_ERROR: dict[str, float] = {"scale_factor_pct": 0.0, "misalignment_deg": 0.0}
+
 _FRAMES = {f.name.lower(): f for f in pd0.CoordinateFrame}
 #: EZ sensor source / sensors available bits of the Pathfinder (8 bits: EC, ED, EH, EP, ER, ES,
 #: ET, EU from bit 7 down)
@@ -150,6 +166,18 @@ def frame_matrix(
     p, r = (pitch, roll) if tilts else (0.0, 0.0)
     h = heading if frame is pd0.CoordinateFrame.EARTH else 0.0
     return SWAP @ body_to_ned(h, p, r) @ SWAP
+
+
+def instrument_error_matrix(scale_factor_pct: float, misalignment_deg: float) -> np.ndarray:
+    """3x3 matrix, RDI instrument axes (X starboard, Y forward, Z up) to themselves, taking the
+    true velocity to the measured one: scaled by ``1 + scale_factor_pct / 100`` and turned by
+    ``misalignment_deg`` about the vertical, clockwise seen from above (forward toward
+    starboard)."""
+    a = math.radians(misalignment_deg)
+    c, s = math.cos(a), math.sin(a)
+    # clockwise from above in body axes (x forward, y starboard, z down) is +a about z down
+    rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return (1.0 + scale_factor_pct / 100.0) * (SWAP @ rz @ SWAP)
 
 
 # -- one ping --------------------------------------------------------------------------------------
@@ -204,7 +232,16 @@ class DvlEmulator(Emulator):
         self, ctx: SimContext, settings: DeviceSettings | None = None, name: str | None = None
     ) -> None:
         super().__init__(ctx, settings, name)
+        self.check_noise_keys([*DEFAULT_NOISE, *INSTRUMENT_ERROR])
         self.sigma = {k: self.noise(k, v) for k, v in DEFAULT_NOISE.items()}
+        sf = self.noise("scale_factor_pct", 0.0)
+        mis = self.noise("misalignment_deg", 0.0)
+        if not -50.0 < sf < 50.0:
+            raise ValueError(f"devices.dvl.noise.scale_factor_pct: within +-50 %, got {sf}")
+        #: true -> measured velocity in instrument axes (None: no instrument error)
+        self.instrument_error = (
+            instrument_error_matrix(sf, mis) if sf != 0.0 or mis != 0.0 else None
+        )
         frame_name = str(self.option("frame", "ship")).lower()
         if frame_name not in _FRAMES:
             raise ValueError(
@@ -353,6 +390,10 @@ class DvlEmulator(Emulator):
         # velocities: instrument axes, then the configured frame
         v_inst = SWAP @ rot.T @ np.array([s.vn, s.ve, s.vd])
         cur_inst = SWAP @ rot.T @ self.current_ned
+        through_water = v_inst - cur_inst
+        if self.instrument_error is not None:  # scale factor and misalignment: every frame
+            v_inst = self.instrument_error @ v_inst
+            through_water = self.instrument_error @ through_water
         velocity = _NAN4.copy()
         if lock:
             velocity = self._solution(v_inst, heading, pitch, roll, g[9:13] * sig["velocity_mps"])
@@ -360,7 +401,6 @@ class DvlEmulator(Emulator):
                 velocity[~detected] = math.nan
             elif n_good == 3:
                 velocity[3] = 0.0  # 3-beam solution: no error velocity
-        through_water = v_inst - cur_inst
         water = _NAN4.copy()
         if self.water_mass and self._layer_valid(rng_m):
             water = self._solution(

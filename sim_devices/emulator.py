@@ -63,7 +63,7 @@ import threading
 import time
 import zlib
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar, Protocol
@@ -281,9 +281,7 @@ class CanChannel(Channel):
     kind = "can"
     masked: ClassVar[dict[str, float]] = {"garbage_p": 0.0, "corrupt_p": 0.0, "truncate_p": 0.0}
 
-    def __init__(
-        self, name: str, adapter: SlcanAdapter, injector: FaultInjector, dbc: str
-    ) -> None:
+    def __init__(self, name: str, adapter: SlcanAdapter, injector: FaultInjector, dbc: str) -> None:
         super().__init__(name, "can", injector)
         self.adapter = adapter
         self.dbc = dbc
@@ -435,6 +433,18 @@ class Emulator:
     def noise(self, key: str, default: float) -> float:
         """Noise figure ``settings.noise[key]`` (SI or ``*_deg``), else ``default``."""
         return float(self.settings.noise.get(key, default))
+
+    def check_noise_keys(self, known: Iterable[str]) -> None:
+        """A ValueError naming ``devices.<kind>.noise.<key>`` and the known keys when the
+        scenario gives a noise figure this device does not have (a typo would otherwise be
+        ignored silently)."""
+        names = set(known)
+        unknown = sorted(set(self.settings.noise) - names)
+        if unknown:
+            raise ValueError(
+                f"devices.{self.kind}.noise.{unknown[0]}: unknown noise figure; this device "
+                f"knows {', '.join(sorted(names))}"
+            )
 
     # -- channels -------------------------------------------------------------------------------
     def injector(
@@ -617,9 +627,7 @@ class SerialCanEmulator(Emulator):
     default_baud: ClassVar[int] = 115200
     dbc: ClassVar[str] = ""
 
-    def add_wires(
-        self, codec_type: Any, default_codec: Any, can_codec: Callable[[], Any]
-    ) -> None:
+    def add_wires(self, codec_type: Any, default_codec: Any, can_codec: Callable[[], Any]) -> None:
         """Set :attr:`codec` (``codec_type.from_toml(table)`` or ``default_codec``) and open
         the wires the options ask for: :attr:`serial` and :attr:`can` (with
         :attr:`can_codec` from ``can_codec()``), None when off."""
@@ -758,7 +766,10 @@ class PolledEmulator(Emulator):
     ``reply_delay()`` (vehicle s, e.g. the ping's duration) holds a reply back: in real time
     (``delay / speed``: the port starts writing it then, no extra thread), or on the clock when
     it runs as fast as possible;
-    ``before_feed(t)`` is called with the vehicle time just before each ``feed``."""
+    ``before_feed(t)`` is called with the vehicle time just before each ``feed``.
+    A head with an ``attach(emulator)`` method is given this emulator once, when wrapped: the
+    MSIS head takes its noise figures (``devices.msis.noise``), a generator and the per-ping
+    noise-burst multiplier (:meth:`Emulator.sigma_scale`, counted in the fault counters)."""
 
     def __init__(
         self,
@@ -779,6 +790,9 @@ class PolledEmulator(Emulator):
         self.nominal_rate_hz = rate_hz  # type: ignore[misc]
         super().__init__(ctx, settings, name)
         self.head = head
+        attach = getattr(head, "attach", None)
+        if callable(attach):  # the head takes its noise figures and burst multiplier from us
+            attach(self)
         self.reply_delay = reply_delay
         self.before_feed: Callable[[float], object] | None = None
         self.poll = _PollStats()

@@ -16,6 +16,21 @@ scenario's ``devices.ins.noise``, each multiplied by ``sqrt(n)`` in a VB noise b
 * time: the device clock since power-up (vehicle time plus clock jumps), status aligned and
   DVL-aided.
 
+Slowly varying heading error (off by default). The white heading noise above averages out over
+a few samples, so a dead reckoning on it hardly drifts; a real INS/AHRS heading error is
+correlated over minutes (gyro bias instability, the alignment's residual). With
+``heading_bias_deg`` > 0 the reported heading also carries a first-order Gauss-Markov error
+``b``: ``db/dt = -b / tau + w``, discretised exactly between samples
+(``b_k = e^{-dt/tau} b_{k-1} + sqrt(1 - e^{-2 dt/tau}) sigma w_k``), started from its
+stationary distribution ``N(0, sigma^2)``: ``heading_bias_deg`` is the steady-state RMS
+``sigma`` (deg) and ``heading_bias_tau_s`` the correlation time ``tau`` (s, default 300).
+``heading_offset_deg`` adds a constant heading error (deg, default 0; e.g. a misaligned
+mounting: it turns a SLAM map together with the track, so nothing but an absolute reference
+can remove it). The error ``offset + b`` (rad, :attr:`InsSample.heading_error`) turns the
+heading and the NED velocity (the INS resolves its velocity with its own heading); body rates,
+specific force, position and depth are unaffected. It is drawn from its own generator and is
+not scaled in noise bursts, so switching it on leaves every other draw unchanged.
+
 Options (:class:`~auvgw.sim_devices.emulator.SerialCanEmulator`): ``serial`` (true), ``can``
 (true), ``baud`` (115200), ``can_bitrate`` (500000), ``table`` (a site HN-100 table, TOML; the
 gateway configuration then names it too), ``origin_lat_deg`` / ``origin_lon_deg`` (59.43,
@@ -39,7 +54,15 @@ from auvgw.sim_devices.emulator import SerialCanEmulator, SimContext
 from auvgw.sim_devices.vehicle import GRAVITY, TruthSample
 from auvgw.sim_devices.world import body_to_ned
 
-__all__ = ["DEFAULT_NOISE", "InsEmulator", "InsSample", "body_rates", "latlon", "specific_force"]
+__all__ = [
+    "DEFAULT_NOISE",
+    "HEADING_ERROR",
+    "InsEmulator",
+    "InsSample",
+    "body_rates",
+    "latlon",
+    "specific_force",
+]
 
 #: noise sigmas (RMS) of the seed: angles in deg, rates deg/s, SI otherwise
 DEFAULT_NOISE: dict[str, float] = {
@@ -51,6 +74,14 @@ DEFAULT_NOISE: dict[str, float] = {
     "vel_mps": 0.01,
     "pos_m": 0.5,
     "depth_m": 0.02,
+}
+
+#: the slowly varying heading error (off by default): steady-state RMS and constant offset in
+#: deg, correlation time in s (see the module docstring)
+HEADING_ERROR: dict[str, float] = {
+    "heading_bias_deg": 0.0,
+    "heading_bias_tau_s": 300.0,
+    "heading_offset_deg": 0.0,
 }
 
 #: the device clock field wraps (u32 of 100 us ticks in the shipped table)
@@ -93,7 +124,8 @@ class InsSample:
     """One INS output in SI: ``time`` device clock s; ``roll, pitch, heading`` rad;
     ``rates`` body rad/s; ``accel`` body specific force m/s^2; ``vel_ned`` m/s;
     ``latitude, longitude`` rad; ``depth`` m; ``seq`` the epoch counter; ``burst`` whether
-    this sample's noise was a VB noise burst."""
+    this sample's noise was a VB noise burst; ``heading_error`` the slowly varying part of the
+    heading error (offset + Gauss-Markov bias, rad; the white noise not included)."""
 
     seq: int
     t: float
@@ -108,6 +140,7 @@ class InsSample:
     longitude: float
     depth: float
     burst: bool
+    heading_error: float = 0.0
 
 
 class InsEmulator(SerialCanEmulator):
@@ -123,7 +156,23 @@ class InsEmulator(SerialCanEmulator):
         self, ctx: SimContext, settings: DeviceSettings | None = None, name: str | None = None
     ) -> None:
         super().__init__(ctx, settings, name)
+        self.check_noise_keys([*DEFAULT_NOISE, *HEADING_ERROR])
         self.sigma = {k: self.noise(k, v) for k, v in DEFAULT_NOISE.items()}
+        d2r = math.pi / 180.0
+        self.bias_sigma = self.noise("heading_bias_deg", 0.0) * d2r
+        self.bias_tau = self.noise("heading_bias_tau_s", HEADING_ERROR["heading_bias_tau_s"])
+        self.heading_offset = self.noise("heading_offset_deg", 0.0) * d2r
+        if self.bias_sigma < 0:
+            raise ValueError("devices.ins.noise.heading_bias_deg: must be >= 0 (an RMS)")
+        if self.bias_sigma > 0 and not self.bias_tau > 0:
+            raise ValueError(
+                "devices.ins.noise.heading_bias_tau_s: the correlation time must be > 0 s, got "
+                f"{self.bias_tau}"
+            )
+        #: the Gauss-Markov heading bias (rad) at vehicle time ``_bias_t`` (None: not drawn yet)
+        self.heading_bias = 0.0
+        self._bias_t: float | None = None
+        self._bias_rng = self.ctx.rng(self.name + "/heading_bias")
         self.origin = (
             math.radians(self.option("origin_lat_deg", 59.43)),
             math.radians(self.option("origin_lon_deg", 10.47)),
@@ -132,19 +181,39 @@ class InsEmulator(SerialCanEmulator):
         self.status = self.codec.status_word(aligned=True, dvl_aided=True)
         self.seq = 0
 
+    def heading_error(self, t: float) -> float:
+        """The slowly varying heading error at vehicle time ``t``, rad: the constant offset plus
+        the Gauss-Markov bias, propagated from the previous call (exact discretisation; a call
+        with an earlier ``t`` keeps the bias)."""
+        if self.bias_sigma > 0:
+            if self._bias_t is None:  # stationary start
+                self.heading_bias = float(self._bias_rng.normal(0.0, self.bias_sigma))
+            elif t > self._bias_t:
+                phi = math.exp(-(t - self._bias_t) / self.bias_tau)
+                w = float(self._bias_rng.normal())
+                self.heading_bias = phi * self.heading_bias + math.sqrt(1.0 - phi * phi) * (
+                    self.bias_sigma * w
+                )
+            if self._bias_t is None or t > self._bias_t:
+                self._bias_t = t
+        return self.heading_offset + self.heading_bias
+
     def measure(self, t: float) -> InsSample:
         """The INS output at vehicle time ``t`` (truth plus noise); advances ``seq``."""
         s = self.truth(t)
+        err = self.heading_error(t)
         k = self.sigma_scale()
         g = self.rng.normal(0.0, 1.0, 15) * k
         sig = self.sigma
         d2r = math.pi / 180.0
         rates = body_rates(s) + g[3:6] * sig["rate_dps"] * d2r
         accel = specific_force(s) + g[6:9] * sig["accel_mps2"]
-        vel = np.array([s.vn, s.ve, s.vd]) + g[9:12] * sig["vel_mps"]
-        lat, lon = latlon(
-            s.x + g[12] * sig["pos_m"], s.y + g[13] * sig["pos_m"], *self.origin
-        )
+        vn, ve = s.vn, s.ve
+        if err != 0.0:  # the velocity resolved with the erroneous heading
+            ce, se = math.cos(err), math.sin(err)
+            vn, ve = ce * s.vn - se * s.ve, se * s.vn + ce * s.ve
+        vel = np.array([vn, ve, s.vd]) + g[9:12] * sig["vel_mps"]
+        lat, lon = latlon(s.x + g[12] * sig["pos_m"], s.y + g[13] * sig["pos_m"], *self.origin)
         ticks = round(self.device_time(t) * _TIME_TICKS) % _TIME_WRAP
         roll = (s.roll + g[0] * sig["roll_deg"] * d2r + math.pi) % (2 * math.pi) - math.pi
         out = InsSample(
@@ -153,7 +222,7 @@ class InsEmulator(SerialCanEmulator):
             time=ticks / _TIME_TICKS,
             roll=roll,
             pitch=s.pitch + g[1] * sig["pitch_deg"] * d2r,
-            heading=(s.heading + g[2] * sig["heading_deg"] * d2r) % (2 * math.pi),
+            heading=(s.heading + err + g[2] * sig["heading_deg"] * d2r) % (2 * math.pi),
             rates=tuple(rates.tolist()),  # type: ignore[arg-type]
             accel=tuple(accel.tolist()),  # type: ignore[arg-type]
             vel_ned=tuple(vel.tolist()),  # type: ignore[arg-type]
@@ -161,6 +230,7 @@ class InsEmulator(SerialCanEmulator):
             longitude=lon,
             depth=s.z + g[14] * sig["depth_m"],
             burst=k > 1.0,
+            heading_error=err,
         )
         self.seq += 1
         return out
@@ -187,9 +257,7 @@ class InsEmulator(SerialCanEmulator):
 
     def encode_serial(self, m: InsSample) -> bytes:
         """The binary frame of one sample (the codec's table)."""
-        msg = self.codec.message_type(
-            seq=m.seq & 0xFFFF, status=self.status, **self._fields(m)
-        )
+        msg = self.codec.message_type(seq=m.seq & 0xFFFF, status=self.status, **self._fields(m))
         return self.codec.encode(msg)
 
     def encode_can(self, m: InsSample) -> list[Any]:

@@ -29,6 +29,24 @@ range at the reference gain (0.4). The head adds its receiver gain (``gain`` x 8
 the reference) and quantises: 8-bit bins 0..255 = 0..80 dB; 4-bit bins map ADLow..ADLow+ADSpan
 onto 0..15. :func:`make_echo` builds the callable from the world's ray caster.
 
+Measurement noise and the VB paper's noise bursts. The echo model places every target at its
+exact ray-cast range; the sonar's own spread (pulse length, bin quantisation, speckle moving
+the peak) is all the range noise it has. On top, each ping may carry a range error ``dr`` ~
+``N(0, range_sigma_m^2)`` and a bearing error ``db`` ~ ``N(0, bearing_sigma_deg^2)`` (sound
+speed and multipath errors, transducer position feedback): the bins are filled with
+``echo(bearing + db, ranges - dr)``, so the head reports every target of that ping ``dr``
+farther and ``db`` anticlockwise (in its own bearing sense) of where it is. A head given a
+``noise_scale`` callable (the emulator's
+:meth:`~auvgw.sim_devices.emulator.Emulator.sigma_scale`: ``sqrt(n)`` in a burst, else 1)
+calls it once per ping and multiplies both sigmas by it, so a burst ping's range and bearing
+error variances are ``n`` times the clean ones; burst pings are counted in
+:attr:`MsisHeadStats.burst_pings` (and in the emulator's ``noise_samples`` /
+``noise_bursts``). Both sigmas are 0 by default (no draw at all: the bins are as before);
+inside the simulator they come from the scenario's ``devices.msis.noise`` (``range_m``,
+``bearing_deg``) through :meth:`MsisHead.attach`, and bursts from
+``devices.msis.faults.noise_burst_n`` / ``noise_burst_p``. With both sigmas 0 a burst changes
+nothing (the emulator logs a warning when bursts are switched on so).
+
 Times ``t`` are seconds on the simulation clock. The head returns its replies at once; a runner
 that wants the real ping duration delays them by :meth:`MsisHead.ping_duration_s`, as
 :func:`serve_on_port` does (the head on a :class:`~auvgw.sim_devices.ports.PtyPort`, driven by
@@ -37,6 +55,7 @@ the :class:`~auvgw.sim_devices.clock.SimClock`, optionally through a fault injec
 
 from __future__ import annotations
 
+import logging
 import math
 import threading
 from collections.abc import Callable
@@ -49,7 +68,10 @@ from auvgw.drivers import seanet as sn
 from auvgw.drivers.framing import DecodeError, ErrorPolicy
 from auvgw.sim_devices.clock import SimClock
 
+log = logging.getLogger(__name__)
+
 __all__ = [
+    "DEFAULT_NOISE",
     "REFERENCE_GAIN",
     "Caster",
     "Echo",
@@ -68,6 +90,8 @@ Echo = Callable[[float, np.ndarray], np.ndarray]
 REFERENCE_GAIN = 0.4
 #: receiver dynamic range, dB (8-bit bins 0..255 = 0..80 dB; gain 0..1 = 0..80 dB)
 RECEIVER_RANGE_DB = 80.0
+#: the head's per-ping measurement noise (1 sigma), off by default: range m, bearing deg
+DEFAULT_NOISE: dict[str, float] = {"range_m": 0.0, "bearing_deg": 0.0}
 #: seconds per motor step (Tritech's MoTime default: 25 x 10 us), used for the ping duration
 _STEP_TIME_S = 250e-6
 
@@ -115,6 +139,7 @@ class MsisHeadStats:
     decode_errors: int = 0  # packets that framed but did not decode
     bad_frames: int = 0  # framer: candidates that failed a check (garbage, corruption)
     skipped_bytes: int = 0  # framer: bytes outside valid packets
+    burst_pings: int = 0  # mtHeadData whose range / bearing noise was a VB noise burst
 
     def as_dict(self) -> dict[str, int]:
         return asdict(self)
@@ -128,6 +153,10 @@ class MsisHead:
     period while idle; ``config_delay_s`` the re-centring time after mtHeadCommand. The head is
     thread-safe (host bytes and clock ticks may come from different threads). It starts
     powered off: call :meth:`power_up`.
+
+    Per-ping noise (see the module docstring): ``range_sigma_m`` (m) and ``bearing_sigma_deg``
+    (deg), drawn from ``rng`` (needed when either is > 0), times ``noise_scale()`` per ping when
+    given (the noise-burst multiplier). :meth:`attach` sets all four from an emulator.
     """
 
     def __init__(
@@ -141,8 +170,15 @@ class MsisHead:
         device_type: int = 11,
         serial_number: int = 1234,
         software_version: int = 17,
+        range_sigma_m: float = 0.0,
+        bearing_sigma_deg: float = 0.0,
+        rng: np.random.Generator | None = None,
+        noise_scale: Callable[[], float] | None = None,
     ) -> None:
         self.echo = echo if echo is not None else silent_echo
+        self.set_noise(range_sigma_m, bearing_sigma_deg, rng, noise_scale)
+        #: (range error m, bearing error rad, noise multiplier) of the latest ping
+        self.last_ping_noise = (0.0, 0.0, 1.0)
         self.sound_speed = sound_speed
         self.node = node
         self.alive_period_s = alive_period_s
@@ -156,6 +192,61 @@ class MsisHead:
         self._framer_base = (0, 0)
         self.powered = False
         self._reset(0.0)
+
+    def set_noise(
+        self,
+        range_sigma_m: float,
+        bearing_sigma_deg: float,
+        rng: np.random.Generator | None = None,
+        noise_scale: Callable[[], float] | None = None,
+    ) -> None:
+        """Set the per-ping range / bearing noise (m, deg, 1 sigma), its generator and the
+        noise-burst multiplier callable (None: always 1)."""
+        if range_sigma_m < 0 or bearing_sigma_deg < 0:
+            raise ValueError(
+                f"MSIS noise sigmas must be >= 0, got range {range_sigma_m} m, bearing "
+                f"{bearing_sigma_deg} deg"
+            )
+        if (range_sigma_m > 0 or bearing_sigma_deg > 0) and rng is None:
+            raise ValueError("MSIS range / bearing noise needs a random generator (rng)")
+        self.range_sigma_m = float(range_sigma_m)
+        self.bearing_sigma = math.radians(bearing_sigma_deg)
+        self.rng = rng
+        self.noise_scale = noise_scale
+
+    def attach(self, emulator: Any) -> None:
+        """Take the noise settings from the
+        :class:`~auvgw.sim_devices.emulator.PolledEmulator` wrapping this head:
+        ``devices.msis.noise`` ``range_m`` / ``bearing_deg`` (unknown keys are an error), its
+        generator and its :meth:`~auvgw.sim_devices.emulator.Emulator.sigma_scale`."""
+        emulator.check_noise_keys(DEFAULT_NOISE)
+        self.set_noise(
+            emulator.noise("range_m", DEFAULT_NOISE["range_m"]),
+            emulator.noise("bearing_deg", DEFAULT_NOISE["bearing_deg"]),
+            emulator.rng,
+            emulator.sigma_scale,
+        )
+        faults = emulator.settings.faults
+        if faults.noise_burst_p > 0 and faults.noise_burst_n > 1 and not self._noisy():
+            log.warning(
+                "%s: noise bursts are on but devices.%s.noise.range_m and bearing_deg are 0: "
+                "the bursts change nothing",
+                getattr(emulator, "name", "msis"),
+                getattr(emulator, "kind", "msis"),
+            )
+
+    def _noisy(self) -> bool:
+        return self.range_sigma_m > 0 or self.bearing_sigma > 0
+
+    def _ping_noise(self) -> tuple[float, float, float]:
+        """(range error m, bearing error rad, multiplier) of one ping."""
+        k = float(self.noise_scale()) if self.noise_scale is not None else 1.0
+        if k > 1.0:
+            self.stats.burst_pings += 1
+        if not self._noisy() or self.rng is None:
+            return 0.0, 0.0, k
+        g = self.rng.standard_normal(2) * k
+        return float(g[0] * self.range_sigma_m), float(g[1] * self.bearing_sigma), k
 
     # -- state --------------------------------------------------------------------------------
     def _reset(self, t: float) -> None:
@@ -351,7 +442,13 @@ class MsisHead:
             elif offset == span:
                 sweep = sn.SweepCode.AT_RIGHT_LIMIT
         bearing = self.bearing
-        intensity = np.asarray(self.echo(bearing, self.bin_ranges()), float)
+        dr, db, k = self._ping_noise()
+        self.last_ping_noise = (dr, db, k)
+        ranges = self.bin_ranges()
+        if dr != 0.0 or db != 0.0:  # every target reported dr farther, db anticlockwise
+            intensity = np.asarray(self.echo(bearing + db, ranges - dr), float)
+        else:
+            intensity = np.asarray(self.echo(bearing, ranges), float)
         bins = quantise(intensity, cfg)
         self.stats.head_data += 1
         reply = sn.head_data(

@@ -548,3 +548,54 @@ def test_runner_serves_the_dvl_on_a_pty(tmp_path: Path) -> None:
     assert np.abs(errs).max() < 5 * SIGMA_V + MM
     assert np.abs(errs.mean(axis=0)).max() < 5 * SIGMA_V / math.sqrt(len(errs)) + MM / 2
     assert json.dumps(em.stats())  # counters are plain JSON
+
+
+# -- instrument errors: scale factor and misalignment ---------------------------------------------
+
+
+@pytest.mark.parametrize("frame", ["ship", "instrument", "earth", "beam"])
+def test_scale_factor_and_misalignment_reach_every_frame(tmp_path: Path, frame: str) -> None:
+    """1 % scale factor and 2 deg misalignment, no white noise: every frame reports the body
+    velocity scaled by 1.01 and turned 2 deg clockwise (to starboard), within the wire's mm."""
+    noise = {"velocity_mps": 0.0, "scale_factor_pct": 1.0, "misalignment_deg": 2.0}
+    em, truth, _ = offline(scenario({"options": {"frame": frame}, "noise": noise}), tmp_path)
+    a = math.radians(2.0)
+    turn = 1.01 * np.array([[math.cos(a), -math.sin(a), 0.0], [math.sin(a), math.cos(a), 0.0],
+                            [0.0, 0.0, 1.0]])  # fmt: skip
+    got, exp = [], []
+    for t in np.arange(2.0, 110.0, 3.7):
+        s = truth.at(float(t))
+        rot = body_to_ned(s.heading, s.pitch, s.roll)
+        body = turn @ rot.T @ np.array([s.vn, s.ve, s.vd])  # the measured body velocity
+        if frame == "beam":
+            exp.append(BEAMS @ body)
+            got.append(pd0.decode(em.frame_at(float(t))).bottom_track.velocity)
+            continue
+        if frame == "earth":
+            v = rot @ body
+            exp.append([v[1], v[0], -v[2]])
+        elif frame == "ship":  # levelled body axes: starboard, forward, up
+            lev = body_to_ned(0.0, s.pitch, s.roll) @ body
+            exp.append([lev[1], lev[0], -lev[2]])
+        else:
+            exp.append([body[1], body[0], -body[2]])
+        got.append(pd0.decode(em.frame_at(float(t))).bottom_track.vehicle_velocity[:3])
+    got, exp = np.array(got), np.array(exp)
+    np.testing.assert_allclose(got, exp, atol=0.6 * MM)
+    if frame == "earth":  # over ground: 1 % faster and 2 deg to starboard of the truth
+        tv = np.array([[truth.at(float(t)).ve, truth.at(float(t)).vn]
+                       for t in np.arange(2.0, 110.0, 3.7)])  # fmt: skip
+        ratio = np.hypot(got[:, 0], got[:, 1]) / np.hypot(tv[:, 0], tv[:, 1])
+        np.testing.assert_allclose(ratio, 1.01, atol=2e-3)
+        turned = np.arctan2(got[:, 0], got[:, 1]) - np.arctan2(tv[:, 0], tv[:, 1])
+        np.testing.assert_allclose(np.degrees((turned + np.pi) % (2 * np.pi) - np.pi), 2.0,
+                                   atol=0.1)  # fmt: skip
+
+
+def test_instrument_errors_are_off_by_default_and_checked(tmp_path: Path) -> None:
+    em, _, _ = offline(scenario(), tmp_path)
+    assert em.instrument_error is None
+    with pytest.raises(ValueError, match=r"devices\.dvl\.noise\.scale_factor_pct"):
+        offline(scenario({"noise": {"scale_factor_pct": 80.0}}), tmp_path)
+    with pytest.raises(ValueError, match=r"devices\.dvl\.noise\.scale_factor.*scale_factor_pct"):
+        offline(scenario({"noise": {"scale_factor": 0.003}}), tmp_path)

@@ -368,3 +368,115 @@ def test_echo_follows_pose_bearing_and_beam_width():
         world, lambda: (0.0, 0.0, math.pi / 2), rng, speckle=0.0, noise_floor=0.0, inverted=True
     )
     assert int(np.argmax(inv(math.radians(90.0), r))) == 97  # inverted: the bearing turns back
+
+
+# -- range / bearing noise and the VB noise bursts -----------------------------------------------
+
+
+def test_noise_bursts_multiply_the_range_error_variance_by_n():
+    """A target at 12.33 m in every direction (a clean, narrow echo) and fine bins (2 cm): the
+    brightest bin's range minus the truth is the ping's range error. With 0.1 m range noise
+    and bursts (n = 3, p = 0.2) from the emulator's fault injector, the burst pings' error
+    variance is ~3 times the clean pings' (seeded; 3 standard errors of tolerance)."""
+    from auvgw.config.scenario import FaultSettings
+    from auvgw.sim_devices.faults import FaultInjector
+
+    def echo(bearing: float, ranges: np.ndarray) -> np.ndarray:
+        return np.exp(-0.5 * ((ranges - 12.33) / 0.03) ** 2)
+
+    faults = FaultInjector(FaultSettings(noise_burst_n=3.0, noise_burst_p=0.2),
+                           np.random.default_rng(8))  # fmt: skip
+    head = MsisHead(echo, config_delay_s=0.0, range_sigma_m=0.1, rng=np.random.default_rng(9),
+                    noise_scale=faults.sigma_multiplier)  # fmt: skip
+    head.power_up(0.0)
+    head.feed(sn.encode(sn.head_command(range_m=20.0, n_bins=1000)), 0.0)
+    head.tick(0.0)
+    err, burst = [], []
+    for i in range(2500):
+        hd = ping(head, 0.1 + i * 0.03)
+        r = (int(np.argmax(hd.bins)) + 0.5) * hd.bin_length(1500.0)
+        err.append(r - 12.33)
+        burst.append(head.last_ping_noise[2] > 1.0)
+        assert head.last_ping_noise[1] == 0.0  # no bearing noise asked for
+    err, burst = np.array(err), np.array(burst)
+    # the counters: every ping drew once, the bursts are counted by the head and the injector
+    assert faults.counts.noise_samples == 2500
+    assert head.stats.burst_pings == faults.counts.noise_bursts == burst.sum()
+    assert 0.17 < burst.mean() < 0.23
+    clean, noisy = err[~burst].var(), err[burst].var()
+    assert clean == pytest.approx(0.1**2, rel=0.1)
+    se = math.sqrt(2 / burst.sum() + 2 / (~burst).sum())  # relative SE of the ratio
+    assert noisy / clean == pytest.approx(3.0, rel=3 * se)
+    # without noise figures nothing moves: the echo is placed exactly, bursts or not
+    quiet = MsisHead(echo, config_delay_s=0.0, noise_scale=faults.sigma_multiplier)
+    quiet.power_up(0.0)
+    quiet.feed(sn.encode(sn.head_command(range_m=20.0, n_bins=1000)), 0.0)
+    quiet.tick(0.0)
+    hds = [ping(quiet, 0.1 + 0.03 * i) for i in range(50)]
+    peaks = {int(np.argmax(hd.bins)) for hd in hds}
+    assert len(peaks) == 1
+    assert abs((peaks.pop() + 0.5) * hds[0].bin_length(1500.0) - 12.33) < hds[0].bin_length(1500.0)
+
+
+def test_bearing_noise_turns_the_beam_but_not_the_reported_bearing():
+    """The echo is asked for the nominal bearing plus the ping's bearing error; the head still
+    reports the nominal bearing: 2 deg of noise gives a 2 deg spread, none gives none."""
+    for sigma in (0.0, 2.0):
+        asked: list[float] = []
+
+        def echo(bearing: float, ranges: np.ndarray, asked=asked) -> np.ndarray:
+            asked.append(bearing)
+            return np.zeros(len(ranges))
+
+        head = MsisHead(echo, config_delay_s=0.0, bearing_sigma_deg=sigma,
+                        rng=np.random.default_rng(4))  # fmt: skip
+        head.power_up(0.0)
+        head.feed(sn.encode(sn.head_command(range_m=20.0, n_bins=200)), 0.0)
+        head.tick(0.0)
+        reported = [ping(head, 0.1 + 0.03 * i).bearing for i in range(400)]
+        d = np.degrees((np.array(asked) - np.array(reported) + math.pi) % (2 * math.pi) - math.pi)
+        assert d.std() == pytest.approx(sigma, rel=0.1, abs=1e-9), sigma
+        # the reported bearings are the transducer's steps (1.8 deg by default)
+        steps = np.degrees(np.diff(np.unwrap(reported)))
+        np.testing.assert_allclose(steps, 32 * 0.05625, atol=1e-6)
+
+
+def test_emulated_head_takes_scenario_noise_and_bursts(tmp_path, caplog):
+    """Through the simulator (``make_msis``): ``devices.msis.noise`` and the per-ping burst
+    multiplier of the emulator (counted in its ``noise_samples``); unknown noise keys are an
+    error; bursts without any noise to scale log a warning."""
+    from auvgw.config.scenario import Scenario
+    from auvgw.sim_devices.clock import SimClock
+    from auvgw.sim_devices.emulator import SimContext
+    from auvgw.sim_devices.runner import make_msis
+    from auvgw.sim_devices.vehicle import simulate
+
+    def emulator(msis: dict, sub: str):
+        scn = Scenario.model_validate({
+            "name": "msis-noise", "vehicle": {"waypoints": [[0, 0], [50, 0]]},
+            "features": {"lines": [[20, -10, 20, 10]]}, "devices": {"msis": msis},
+        })  # fmt: skip
+        world = World.from_scenario(scn)
+        ctx = SimContext(scn, world, simulate(scn, world), SimClock(0), tmp_path / sub)
+        return make_msis(ctx, scn.devices.msis)
+
+    em = emulator({"noise": {"range_m": 0.2, "bearing_deg": 0.5},
+                   "faults": {"noise_burst_n": 4.0, "noise_burst_p": 1.0}}, "a")  # fmt: skip
+    try:
+        head = em.head
+        assert head.range_sigma_m == 0.2 and head.bearing_sigma == pytest.approx(math.radians(0.5))
+        head.power_up(0.0)
+        head.feed(sn.encode(sn.head_command(range_m=30.0, n_bins=300)), 0.0)
+        head.tick(0.5)  # the motor re-centred: ready
+        for i in range(5):
+            ping(head, 0.6 + 0.1 * i)
+            assert head.last_ping_noise[2] == 2.0  # sqrt(4): every ping a burst
+        assert em.stats()["noise_samples"] == em.stats()["noise_bursts"] == 5
+        assert head.stats.burst_pings == 5
+    finally:
+        em.close()
+    with pytest.raises(ValueError, match=r"devices\.msis\.noise\.sigma_range_m.*range_m"):
+        emulator({"noise": {"sigma_range_m": 0.05}}, "b")
+    with caplog.at_level("WARNING"):
+        emulator({"faults": {"noise_burst_n": 3.0, "noise_burst_p": 0.2}}, "c").close()
+    assert "bursts change nothing" in caplog.text

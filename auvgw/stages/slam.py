@@ -95,9 +95,17 @@ class SlamStageConfig(BaseModel):
 
     Noise: the filter's control noise ``Q = diag(sigma_v^2, sigma_v^2, sigma_yaw_rate^2)``
     (m/s, m/s, deg/s) and nominal observation noise ``R0 = diag(sigma_range^2,
-    sigma_bearing^2)`` (m, deg; the VB filters adapt it). Features: ``threshold_db`` of the
-    beam preprocessing (receiver dB), ``target_radius_m`` of point targets, ``sound_speed_mps``
-    for the bin length, ``mount`` of the head (x, y m; yaw deg; inverted).
+    sigma_bearing^2)`` (m, deg; the VB filters adapt it). ``Q`` is what the odometry's errors
+    add per prediction step (``predict_period_s``): the defaults (0.01 m/s, 0.05 deg/s) suit the
+    INS + DVL fusion odometry (DVL 0.2 cm/s and a few tenths of a percent of scale; a heading
+    error of a few tenths of a degree changing over minutes: 0.4 deg RMS with a 400 s
+    correlation time changes by ~0.02 deg per 0.5 s step). A much larger ``Q`` (the former 0.3
+    deg/s: a 5 deg heading random walk over 10 minutes) lets the particles wander off a good
+    odometry between the few point features, so SLAM ends worse than the dead reckoning it is
+    given; raise it for a poorer odometry (a gyro with a large uncompensated bias).
+    Features: ``threshold_db`` of the beam preprocessing (receiver dB), ``target_radius_m``
+    of point targets, ``sound_speed_mps`` for the bin length, ``mount`` of the head (x, y m;
+    yaw deg; inverted).
     """
 
     model_config = ConfigDict(extra="forbid")
@@ -109,8 +117,8 @@ class SlamStageConfig(BaseModel):
     n_particles: int = Field(50, ge=1)
     seed: int = 0
     association: str = "nn"
-    sigma_v_mps: float = Field(0.03, gt=0)
-    sigma_yaw_rate_dps: float = Field(0.3, gt=0)
+    sigma_v_mps: float = Field(0.01, gt=0)
+    sigma_yaw_rate_dps: float = Field(0.05, gt=0)
     sigma_range_m: float = Field(0.3, gt=0)
     sigma_bearing_deg: float = Field(1.5, gt=0)
     threshold_db: float = 20.0
