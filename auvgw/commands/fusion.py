@@ -28,11 +28,10 @@ import json
 import logging
 import math
 import sys
-import threading
 from pathlib import Path
 from typing import Any
 
-from auvgw.bus import add_bus_arguments, bus_from_args
+from auvgw.bus import add_bus_arguments
 from auvgw.cli import UserError
 
 log = logging.getLogger(__name__)
@@ -48,20 +47,53 @@ def register(sub: Any) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--vehicle", default=None, help="vehicle name (default: settings, auv1)")
-    p.add_argument("--settings", type=Path, default=None, metavar="FILE",
-                   help="stage and filter settings (TOML or JSON)")
-    p.add_argument("--ins", default=None, metavar="DEVICE",
-                   help="gateway device of the INS (default: the first seen)")
-    p.add_argument("--dvl", default=None, metavar="DEVICE",
-                   help="gateway device of the DVL (default: the first seen)")
-    p.add_argument("--duration", type=float, default=None, metavar="S",
-                   help="online: stop after S seconds (default: until SIGINT/SIGTERM)")
-    p.add_argument("--recording", type=Path, default=None, metavar="FILE.mcap",
-                   help="offline: run over this recording instead of the bus")
-    p.add_argument("--config", type=Path, default=None, metavar="GATEWAY.toml",
-                   help="offline: gateway configuration replacing the recorded one")
-    p.add_argument("--out", type=Path, default=None, metavar="FILE.jsonl",
-                   help="offline: write every odometry sample (JSON lines)")
+    p.add_argument(
+        "--settings",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="stage and filter settings (TOML or JSON)",
+    )
+    p.add_argument(
+        "--ins",
+        default=None,
+        metavar="DEVICE",
+        help="gateway device of the INS (default: the first seen)",
+    )
+    p.add_argument(
+        "--dvl",
+        default=None,
+        metavar="DEVICE",
+        help="gateway device of the DVL (default: the first seen)",
+    )
+    p.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        metavar="S",
+        help="online: stop after S seconds (default: until SIGINT/SIGTERM)",
+    )
+    p.add_argument(
+        "--recording",
+        type=Path,
+        default=None,
+        metavar="FILE.mcap",
+        help="offline: run over this recording instead of the bus",
+    )
+    p.add_argument(
+        "--config",
+        type=Path,
+        default=None,
+        metavar="GATEWAY.toml",
+        help="offline: gateway configuration replacing the recorded one",
+    )
+    p.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        metavar="FILE.jsonl",
+        help="offline: write every odometry sample (JSON lines)",
+    )
     add_bus_arguments(p)
     p.set_defaults(func=run)
 
@@ -91,38 +123,15 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _online(args: argparse.Namespace, cfg: Any) -> int:
-    import zenoh
-
-    from auvgw.bus import open_session
-    from auvgw.commands.run import handle_stop_signals
+    from auvgw.commands.run import serve_stage
     from auvgw.stages.fusion import FusionStage
 
-    if args.duration is not None and not args.duration > 0:
-        raise UserError(f"--duration must be > 0, got {args.duration}")
-    try:
-        bus = bus_from_args(args)
-    except ValueError as exc:
-        raise UserError(str(exc)) from None
-    try:
-        session = open_session(bus)
-    except zenoh.ZError as exc:
-        raise UserError(
-            f"bus: cannot open the Zenoh session ({exc}); check --listen/--connect"
-        ) from exc
-    stop = threading.Event()
-    try:
-        stage = FusionStage(cfg, session)
-        with handle_stop_signals(stop):
-            stage.start()
-            print(f"fusion running: vehicle {cfg.vehicle}, odometry on {stage.keys.odometry()}",
-                  flush=True)
-            try:
-                stop.wait(args.duration)
-            finally:
-                stage.stop()
-        _print_counters(stage.counters())
-    finally:
-        session.close()
+    stage = serve_stage(
+        args,
+        lambda session: FusionStage(cfg, session),
+        lambda st: f"fusion running: vehicle {cfg.vehicle}, odometry on {st.keys.odometry()}",
+    )
+    _print_counters(stage.counters())
     return 0
 
 
@@ -196,10 +205,14 @@ class _Summary:
         sig = math.sqrt(max(float(b.cov_xy.trace()), 0.0))
         print(f"{path}: {self.n} odometry samples over {b.t - a.t:.1f} s")
         print(f"  distance travelled   {self.distance:.1f} m")
-        print(f"  final position       x {b.x:.2f} m, y {b.y:.2f} m, z {b.z:.2f} m, "
-              f"heading {math.degrees(b.heading):.1f} deg")
-        print(f"  final horizontal 1-sigma (rss) {sig:.3f} m "
-              f"({100.0 * sig / self.distance if self.distance else math.nan:.3f} % of distance)")
+        print(
+            f"  final position       x {b.x:.2f} m, y {b.y:.2f} m, z {b.z:.2f} m, "
+            f"heading {math.degrees(b.heading):.1f} deg"
+        )
+        print(
+            f"  final horizontal 1-sigma (rss) {sig:.3f} m "
+            f"({100.0 * sig / self.distance if self.distance else math.nan:.3f} % of distance)"
+        )
         print(f"  coasting             {100.0 * self.coasting / self.n:.1f} % of samples")
 
 

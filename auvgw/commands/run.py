@@ -12,7 +12,7 @@ import argparse
 import logging
 import signal
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -98,6 +98,44 @@ def handle_stop_signals(stop: threading.Event) -> Iterator[None]:
     finally:
         for sig, handler in old.items():
             signal.signal(sig, handler)
+
+
+def serve_stage(
+    args: argparse.Namespace,
+    make: Callable[[zenoh.Session], Any],
+    banner: Callable[[Any], str],
+) -> Any:
+    """Run a bus stage from a command line: open the session of the bus options (``--listen``,
+    ``--connect``, ...), ``make(session)`` the stage, start it, print ``banner(stage)``, run
+    until ``--duration`` seconds or SIGINT/SIGTERM, stop it (flushing) and close the session.
+    Returns the stopped stage (for its counters); bad options are a :class:`UserError`."""
+    from auvgw.bus import bus_from_args, open_session
+
+    if args.duration is not None and not args.duration > 0:
+        raise UserError(f"--duration must be > 0, got {args.duration}")
+    try:
+        bus = bus_from_args(args)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    try:
+        session = open_session(bus)
+    except zenoh.ZError as exc:
+        raise UserError(
+            f"bus: cannot open the Zenoh session ({exc}); check --listen/--connect"
+        ) from exc
+    stop = threading.Event()
+    try:
+        stage = make(session)
+        with handle_stop_signals(stop):
+            stage.start()
+            print(banner(stage), flush=True)
+            try:
+                stop.wait(args.duration)
+            finally:
+                stage.stop(flush=True)
+        return stage
+    finally:
+        session.close()
 
 
 def serve(settings: RunSettings, stop: threading.Event | None = None) -> int:

@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from auvgw.bus import add_bus_arguments, bus_from_args
+from auvgw.bus import add_bus_arguments
 from auvgw.cli import UserError
 
 HELP = "run the SLAM stage (fusion odometry + MSIS features), live or over a recording"
@@ -168,41 +168,17 @@ def run(args: argparse.Namespace) -> int:
 
 def _live(args: argparse.Namespace) -> int:
     import sys
-    import threading
 
-    import zenoh
-
-    from auvgw.bus import open_session
-    from auvgw.commands.run import handle_stop_signals
+    from auvgw.commands.run import serve_stage
     from auvgw.stages.slam import SlamStage
 
     cfg = _stage_config(args, args.vehicle)
-    if args.duration is not None and not args.duration > 0:
-        raise UserError(f"--duration must be > 0, got {args.duration}")
-    try:
-        bus = bus_from_args(args)
-    except ValueError as exc:
-        raise UserError(str(exc)) from None
-    try:
-        session = open_session(bus)
-    except zenoh.ZError as exc:
-        raise UserError(
-            f"bus: cannot open the Zenoh session ({exc}); check --listen/--connect"
-        ) from exc
-    stop = threading.Event()
-    try:
-        stage = SlamStage(cfg, session)
-        with handle_stop_signals(stop):
-            stage.start()
-            print(f"slam running: vehicle {cfg.vehicle}, {cfg.display_name} on "
-                  f"{stage.key('pose')}", flush=True)  # fmt: skip
-            try:
-                stop.wait(args.duration)
-            finally:
-                stage.stop(flush=True)
-        print(f"slam counters: {json.dumps(stage.counters())}", file=sys.stderr)
-    finally:
-        session.close()
+    stage = serve_stage(
+        args,
+        lambda session: SlamStage(cfg, session),
+        lambda st: f"slam running: vehicle {cfg.vehicle}, {cfg.display_name} on {st.key('pose')}",
+    )
+    print(f"slam counters: {json.dumps(stage.counters())}", file=sys.stderr)
     return 0
 
 
