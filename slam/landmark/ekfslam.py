@@ -1,21 +1,53 @@
 """EKF-SLAM and the adaptive variants the VR paper compares against (Cui et al. 2020, section 4).
 
-One joint Gaussian over ``[x, y, heading, m1x, m1y, ...]`` (metres, radians). Variants:
+One joint Gaussian over ``[x, y, heading, m1x, m1y, ...]`` (metres, radians).
+
+The VR paper names SHEKF-SLAM (its ref. [20], Sage and Husa 1969), STEKF-SLAM (refs. [21-24])
+and CAEKF-SLAM ("combining" the two) but gives none of their equations or parameters (no
+forgetting factor, fading factor or softening factor) and no wrong-``R0`` experiment: its Table 1
+compares them with the noise statistics of its eq. (25) and says CAEKF-SLAM "estimates better
+when the initial value of measurement noise is selected properly". The equations below are
+therefore those of the cited originals:
 
 * ``none`` - plain EKF-SLAM;
-* ``sage-husa`` (SHEKF-SLAM) - the Sage-Husa noise statistics estimator with fading memory
-  ``b``: ``R_k = (1 - d_k) R_{k-1} + d_k diag(v v^T - H P^- H^T)``, ``d_k = (1 - b) /
-  (1 - b^(k+1))``, averaged over the scan's observations, per component (range, bearing),
-  floored at ``floor * R0`` (the raw estimate can go negative). Applied to the observation noise
-  ``R``, the quantity the sonar's noise changes;
-* ``strong-tracking`` (STEKF-SLAM) - a suboptimal fading factor ``lambda_k = max(1, N_k / M_k)``
-  (Zhou's strong tracking filter) with ``V_k = (rho V_{k-1} + a_k) / (1 + rho)``,
-  ``a_k = mean_j v_j^T R0^-1 v_j``, ``N_k = V_k - beta tr(R0^-1 R)``,
-  ``M_k = mean_j tr(R0^-1 H_j P^- H_j^T)``. The fading scales the vehicle block of the predicted
-  covariance (``P <- D P D``, ``D = diag(sqrt(lambda) I3, I)``) - inflating the static map would
-  discard map information - and is computed at each scan on the covariance accumulated since the
-  last one;
-* ``combined`` (CAEKF-SLAM) - Sage-Husa ``R`` first, then strong tracking with it.
+* ``sage-husa`` (SHEKF-SLAM) - Sage and Husa's noise statistics estimator with fading memory
+  (forgetting factor ``b``, 0.95-0.99 in the literature, default 0.98), applied to the
+  observation noise ``R``, the quantity the sonar's noise changes::
+
+      d_k = (1 - b) / (1 - b^(k+1))
+      R_k = (1 - d_k) R_{k-1} + d_k (v_k v_k^T - H_k P_k^- H_k^T)
+
+  per component (range, bearing: ``R`` is diagonal for this sensor), ``v v^T - H P^- H^T``
+  averaged over the scan's observations, one step per scan. The bracket can be negative (it is
+  a difference) and is used as it is (unbiased); the *result* ``R_k`` is floored at
+  ``floor * R0`` (default 0.01) so it stays positive definite. (Flooring each raw sample biases
+  ``R`` upwards, +17 % on a linear-Gaussian toy with one observation per step.) New landmarks
+  are initialised with the current ``R_k``;
+* ``strong-tracking`` (STEKF-SLAM) - Zhou and Frank's suboptimal fading factor (strong tracking
+  filter, 1996), with the process noise accumulated since the last scan ``Q_acc`` and
+  ``A = Phi P Phi^T = P^- - Q_acc`` the propagated covariance::
+
+      V_1 = v_1 v_1^T,  V_k = (rho V_{k-1} + v_k v_k^T) / (1 + rho)   (rho = 0.95)
+      N_k = V_k - H Q_acc H^T - beta R_k                               (beta >= 1, softening)
+      M_k = H A H^T
+      lambda_k = max(1, tr N_k / tr M_k)
+      P_k^- = lambda_k A + Q_acc
+
+  The innovation dimension changes from scan to scan, so the traces are means over the scan's
+  observations of traces weighted by ``R0^-1`` (range and bearing made dimensionless). The
+  fading is applied to the vehicle rows and columns of ``A`` only (``D A D``, ``D =
+  diag(sqrt(lambda) I3, I)``): fading the static map discards map information, and fading the
+  whole state diverged (``lambda`` grew without bound) when ``R0`` was too small. ``beta = 3``:
+  with ``beta = 1`` the factor fires on the ordinary scatter of single-observation scans.
+  ``lambda >= 1`` by construction, so the fading can only *inflate* ``P``: when the assumed
+  ``R`` is too large the innovations are smaller than predicted, ``N_k < M_k`` and strong
+  tracking is plain EKF. When the assumed ``R`` is too small it fires at every scan and
+  inflates the pose covariance until ``H P H^T`` explains the missing noise, which raises a
+  gain that is already too large (in a scalar random walk the error variance grows with the
+  gain beyond the optimal one), so it is worse than EKF there: strong tracking is a remedy for
+  model mismatch (abrupt changes, drift at loop closure), not for a wrong ``R``;
+* ``combined`` (CAEKF-SLAM) - Sage-Husa first, then strong tracking with the adapted ``R_k``
+  in ``N_k`` (the usual combination of the two estimators).
 
 Association: ``known``, ``nn`` (eq. 49 with the full joint covariance) or ``jcbb``.
 """
@@ -34,9 +66,65 @@ from auvgw.slam.landmark.association import (
 from auvgw.slam.landmark.base import LandmarkFilter, LandmarkMap, inv2, quad2
 from auvgw.slam.models import MotionModel, ObservationModel, wrap_angle
 
-__all__ = ["ADAPTIVE_MODES", "EKFSLAM"]
+__all__ = [
+    "ADAPTIVE_MODES",
+    "EKFSLAM",
+    "fading_factor",
+    "innovation_power",
+    "sage_husa_gain",
+    "sage_husa_step",
+]
 
 ADAPTIVE_MODES = ("none", "sage-husa", "strong-tracking", "combined")
+
+
+def sage_husa_gain(k: int, b: float) -> float:
+    """Sage-Husa fading-memory weight ``d_k = (1 - b) / (1 - b^(k+1))`` for step ``k >= 1`` and
+    forgetting factor ``0 < b < 1`` (``d_1 = 1 / (1 + b)``, tending to ``1 - b``)."""
+    if not 0.0 < b < 1.0:
+        raise ValueError(f"the Sage-Husa forgetting factor b must be in (0, 1), got {b}")
+    return (1.0 - b) / (1.0 - b ** (k + 1))
+
+
+def sage_husa_step(
+    rdiag: np.ndarray, v: np.ndarray, hph_diag: np.ndarray, d: float, floor: np.ndarray
+) -> np.ndarray:
+    """One Sage-Husa update of a diagonal observation noise.
+
+    ``rdiag (n,)`` the current variances, ``v (m, n)`` the innovations of one step's ``m``
+    observations, ``hph_diag (m, n)`` the diagonals of their predicted covariances
+    ``H P^- H^T`` (without ``R``), ``d`` the weight :func:`sage_husa_gain`, ``floor (n,)`` the
+    lowest raw estimate accepted (keeps ``R`` positive definite). Returns
+    ``(1 - d) R + d max(mean(v^2 - diag(H P^- H^T)), floor)``.
+    """
+    r_hat = (v * v - hph_diag).mean(axis=0)
+    return np.maximum((1.0 - d) * rdiag + d * r_hat, floor)
+
+
+def innovation_power(v: np.ndarray, w: np.ndarray) -> float:
+    """``mean_j v_j^T diag(w) v_j``: the weighted trace of ``v v^T`` per observation,
+    ``v (m, n)``, weights ``w (n,)`` (inverse nominal variances)."""
+    return float(np.mean((v * v) @ w))
+
+
+def fading_factor(
+    v_k: float,
+    hah_diag: np.ndarray,
+    hqh_diag: np.ndarray,
+    rdiag: np.ndarray,
+    w: np.ndarray,
+    beta: float,
+) -> float:
+    """Zhou's suboptimal fading factor ``max(1, tr N / tr M)``, ``N = V - H Q H^T - beta R``,
+    ``M = H A H^T``, with traces weighted by ``w (n,)`` and averaged over the ``m``
+    observations: ``v_k`` the smoothed :func:`innovation_power`, ``hah_diag (m, n)`` and
+    ``hqh_diag (m, n)`` the diagonals of ``H A H^T`` and ``H Q_acc H^T``, ``rdiag (n,)`` the
+    observation noise the filter uses, ``beta`` the softening factor. 1 when ``M <= 0``."""
+    m_k = float(np.mean(hah_diag @ w))
+    if m_k <= 0.0:
+        return 1.0
+    n_k = v_k - float(np.mean(hqh_diag @ w)) - beta * float(w @ rdiag)
+    return max(1.0, n_k / m_k)
 
 
 class EKFSLAM(LandmarkFilter):
@@ -60,6 +148,12 @@ class EKFSLAM(LandmarkFilter):
     ) -> None:
         if adaptive not in ADAPTIVE_MODES:
             raise ValueError(f"adaptive must be one of {ADAPTIVE_MODES}, got {adaptive!r}")
+        if not 0.0 < sh_forgetting < 1.0:
+            raise ValueError(f"sh_forgetting (b) must be in (0, 1), got {sh_forgetting}")
+        if st_beta < 1.0:
+            raise ValueError(f"st_beta (softening factor) must be >= 1, got {st_beta}")
+        if not 0.0 < st_rho <= 1.0:
+            raise ValueError(f"st_rho must be in (0, 1], got {st_rho}")
         self.name = {"none": "ekf", "sage-husa": "shekf", "strong-tracking": "stekf"}.get(
             adaptive, "caekf"
         )
@@ -74,6 +168,7 @@ class EKFSLAM(LandmarkFilter):
         self.sh_floor = float(sh_floor)
         self.st_rho = float(st_rho)
         self.st_beta = float(st_beta)
+        self._qacc = np.zeros((3, 3))
         n = 3 + 2 * max(int(capacity), 4)
         self.xs = np.zeros(n)
         self.xs[:3] = np.asarray(x0, dtype=float)
@@ -110,7 +205,9 @@ class EKFSLAM(LandmarkFilter):
         fx, fu = self.motion.jacobians(self.xs[:3], u, dt)
         self.xs[:3] = self.motion.f(self.xs[:3], u, dt)
         p = self.p
-        p[:3, :3] = fx @ p[:3, :3] @ fx.T + fu @ self.q @ fu.T
+        qk = fu @ self.q @ fu.T
+        p[:3, :3] = fx @ p[:3, :3] @ fx.T + qk
+        self._qacc = fx @ self._qacc @ fx.T + qk
         if k > 3:
             p[:3, 3:k] = fx @ p[:3, 3:k]
             p[3:k, :3] = p[:3, 3:k].T
@@ -198,13 +295,19 @@ class EKFSLAM(LandmarkFilter):
         if self.adaptive in ("sage-husa", "combined"):
             self._sage_husa(v, hph)
         if self.adaptive in ("strong-tracking", "combined"):
-            lam = self._fading(v, hph)
+            # Zhou's N_k and M_k on A = P^- - Q_acc (module docstring)
+            hx_d = h[:, :3]
+            hqh = hx_d @ self._qacc @ hx_d.T
+            lam = self._fading(v, hph - hqh, hqh)
             self.last_lambda = lam
-            if lam > 1.0:
+            if lam > 1.0:  # P^- = D A D + Q_acc, D = diag(sqrt(lambda) I3, I)
+                p[:3, :3] -= self._qacc
                 dsc = np.ones(k)
                 dsc[:3] = np.sqrt(lam)
                 p *= dsc[:, None] * dsc[None, :]
+                p[:3, :3] += self._qacc
                 hph = h @ p @ h.T
+        self._qacc[:] = 0.0
         s = hph + np.kron(np.eye(m), np.diag(self.rdiag))
         pht = p @ h.T
         kg = np.linalg.solve(s, pht.T).T
@@ -214,20 +317,21 @@ class EKFSLAM(LandmarkFilter):
         self.p[:k, :k] = 0.5 * (pn + pn.T)
 
     def _sage_husa(self, v: np.ndarray, hph: np.ndarray) -> None:
-        d = (1.0 - self.sh_b) / (1.0 - self.sh_b ** (self._k + 1))
+        d = sage_husa_gain(self._k, self.sh_b)
         diag = np.diagonal(hph).reshape(-1, 2)
-        r_hat = (v * v - diag).mean(axis=0)
-        r_hat = np.maximum(r_hat, self.sh_floor * np.diag(self.r0))
-        self.rdiag = (1.0 - d) * self.rdiag + d * r_hat
+        self.rdiag = sage_husa_step(self.rdiag, v, diag, d, self.sh_floor * np.diag(self.r0))
 
-    def _fading(self, v: np.ndarray, hph: np.ndarray) -> float:
-        a = float(np.mean((v * v) @ self._w))
+    def _fading(self, v: np.ndarray, hah: np.ndarray, hqh: np.ndarray) -> float:
+        a = innovation_power(v, self._w)
         self._v_st = a if self._v_st is None else (self.st_rho * self._v_st + a) / (1 + self.st_rho)
-        n_k = self._v_st - self.st_beta * float(self._w @ self.rdiag)
-        m_k = float(np.mean(np.diagonal(hph).reshape(-1, 2) @ self._w))
-        if m_k <= 0:
-            return 1.0
-        return max(1.0, n_k / m_k)
+        return fading_factor(
+            self._v_st,
+            np.diagonal(hah).reshape(-1, 2),
+            np.diagonal(hqh).reshape(-1, 2),
+            self.rdiag,
+            self._w,
+            self.st_beta,
+        )
 
     def _add(self, z: np.ndarray, fid: int | None) -> None:
         k = 3 + 2 * self.n_lm
