@@ -47,7 +47,7 @@ def test_reduction_takes_the_first_step_of_the_schedule_that_reaches_the_thresho
     assert math.isclose(alpha, min(1.0, 0.8 / math.log2(k + 1)))
     if k > 1:  # the previous step of alpha = lambda / log2(k + k0) was not enough
         prev = min(1.0, 0.8 / math.log2(k))
-        assert neff_of(prev * (logw - logw.max())) < thr
+        assert neff_of(prev * (logw - logw.max())) < thr + 1e-9  # equal up to rounding
     # ordering of the weights is kept (principle 3)
     order = np.argsort(logw, kind="stable")
     assert np.all(np.diff(out[order]) >= -1e-12)

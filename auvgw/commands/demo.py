@@ -250,15 +250,30 @@ def _load_sim_config(sim_dir: Path) -> Any:
     return gw_cfg
 
 
-def _fusion_config(vehicle: str, position_m: tuple[float, float, float]) -> Any:
+def _fusion_config(
+    vehicle: str, position_m: tuple[float, float, float], ins_noise: dict[str, float] | None = None
+) -> Any:
     """The demo's fusion stage: dead reckoning starts from the true position (what a GNSS fix at
-    the surface gives a real vehicle); the emulated INS heading noise is white, hence tau = 0."""
+    the surface gives a real vehicle). The INS heading error model follows the emulated INS
+    (``ins_noise``: the scenario's ``devices.ins.noise``): with ``heading_bias_deg`` > 0 its
+    heading error is Gauss-Markov (RMS ``heading_bias_deg``, correlation time
+    ``heading_bias_tau_s``, default 300 s), and so is the filter's (``heading_error_sigma_deg``,
+    ``heading_error_tau_s``); otherwise it is white (``heading_deg``, default 0.3 deg), tau = 0."""
     from auvgw.fusion.config import FusionConfig, InitialState
+    from auvgw.sim_devices.ins import DEFAULT_NOISE, HEADING_ERROR
     from auvgw.stages.fusion import FusionStageConfig
 
+    noise = ins_noise or {}
+    bias = float(noise.get("heading_bias_deg", 0.0))
+    if bias > 0:
+        sigma = bias
+        tau = float(noise.get("heading_bias_tau_s", HEADING_ERROR["heading_bias_tau_s"]))
+    else:
+        sigma, tau = float(noise.get("heading_deg", DEFAULT_NOISE["heading_deg"])), 0.0
     filt = FusionConfig(
         initial=InitialState(position_m=position_m, position_sigma_m=(0.5, 0.5, 0.5)),
-        heading_error_tau_s=0.0,
+        heading_error_sigma_deg=sigma,
+        heading_error_tau_s=tau,
         pitch_error_tau_s=0.0,
     )
     return FusionStageConfig(vehicle=vehicle, ins_device="ins", dvl_device="dvl", filter=filt)
@@ -352,7 +367,7 @@ def _run_stages(
             x0, y0 = float(np.interp(t_vehicle, tt, xt)), float(np.interp(t_vehicle, tt, yt))
         else:
             x0, y0, _ = scn.start_pose
-        cfg = _fusion_config(gw_cfg.vehicle, (x0, y0, scn.vehicle.depth_m))
+        cfg = _fusion_config(gw_cfg.vehicle, (x0, y0, scn.vehicle.depth_m), scn.devices.ins.noise)
         stage = FusionStage(cfg, session=session, on_odometry=on_odometry)
         stage.start(subscribe=False)  # fed in-process, publishes odometry and status
         return stage
@@ -661,7 +676,8 @@ def _run_processes(
         # the stages first (they need nothing from the sim), so they are up before vehicle t = 0
         x0, y0, _ = scn.start_pose
         settings = out / "fusion.json"
-        settings.write_text(_fusion_config(VEHICLE, (x0, y0, scn.vehicle.depth_m))
+        settings.write_text(_fusion_config(VEHICLE, (x0, y0, scn.vehicle.depth_m),
+                                           scn.devices.ins.noise)
                             .model_dump_json(indent=1))  # fmt: skip
         children.start("fusion", ["fusion", "--settings", str(settings),
                                   "--connect", hub, "--listen", _endpoint()])  # fmt: skip

@@ -13,8 +13,17 @@ What it does, per input:
   the odometry increments up to the reference ping (their composition, as eq. (3) controls
   ``(v_forward, v_starboard, yaw_rate)`` over sub-steps of at most ``predict_period_s``), then
   updated with the points' range-bearing measurements (all the landmark filters take
-  :class:`~auvgw.slam.models.RangeBearing` points; line features are kept as a map layer,
-  placed with the SLAM pose at their reference ping);
+  :class:`~auvgw.slam.models.RangeBearing` points);
+* when it completes **line features** (quay walls: Hough ``(rho, theta)`` in the vehicle frame
+  at the reference ping, with the fit's covariance), the filter is predicted the same way and,
+  with ``use_lines`` (particle filters), updated with them as
+  :class:`~auvgw.slam.models.LineFeature` observations of *line landmarks* on the same
+  particles (``update(z, rng, model=LineFeature(), r=...)``): nearest-neighbour association
+  with the Mahalanobis gate among the line landmarks only (a wall seen again), noise the fit's
+  covariance plus ``line_sigma_*`` added in quadrature (the VB filters keep their noise
+  posteriors for the points); lines shorter than ``line_min_length_m`` are not used (corner
+  artefacts). Every line is also kept in the map's line layer, placed with the
+  SLAM pose at its reference ping;
 * without features the filter is still predicted every ``predict_period_s`` of odometry, and
   the estimate is published every ``publish_period_s`` of odometry time (a steady rate on the
   vehicle clock, the same online and over a recording).
@@ -72,7 +81,7 @@ from auvgw.slam.features import (
     SonarFeatureExtractor,
     SonarMount,
 )
-from auvgw.slam.landmark.base import LandmarkFilter
+from auvgw.slam.landmark.base import LandmarkFilter, LandmarkMap, ParticleFilterSLAM
 from auvgw.slam.landmark.registry import ALGORITHMS, DISPLAY_NAMES, make_filter
 from auvgw.slam.models import LineFeature, RangeBearing, VelocityModel, wrap_angle
 
@@ -105,7 +114,13 @@ class SlamStageConfig(BaseModel):
     given; raise it for a poorer odometry (a gyro with a large uncompensated bias).
     Features: ``threshold_db`` of the beam preprocessing (receiver dB), ``target_radius_m``
     of point targets, ``sound_speed_mps`` for the bin length, ``mount`` of the head (x, y m;
-    yaw deg; inverted).
+    yaw deg; inverted). ``use_lines``: line features (walls) update the filter too (particle
+    filters; the EKF family takes points only), with the line fit's covariance plus
+    ``line_sigma_rho_m`` and ``line_sigma_theta_deg`` in quadrature (what the fit does not
+    see: the odometry's error over the scan that placed the returns, a wall's roughness); only
+    lines whose supported segment is at least ``line_min_length_m`` long (shorter fits are
+    where wall corners and pier ends give lines 5-25 deg off any wall; they stay in the map's
+    line layer).
     """
 
     model_config = ConfigDict(extra="forbid")
@@ -128,6 +143,10 @@ class SlamStageConfig(BaseModel):
     mount_y_m: float = 0.0
     mount_yaw_deg: float = 0.0
     mount_inverted: bool = False
+    use_lines: bool = True
+    line_sigma_rho_m: float = Field(0.05, ge=0)
+    line_sigma_theta_deg: float = Field(0.2, ge=0)
+    line_min_length_m: float = Field(10.0, ge=0)
     predict_period_s: float = Field(0.5, gt=0)
     publish_period_s: float = Field(0.5, gt=0)
     max_particles_published: int = Field(100, ge=0)
@@ -186,9 +205,16 @@ class SlamStats:
     pings_dropped: int = 0  #: scan lines dropped because too many waited for odometry
     predictions: int = 0  #: filter prediction steps
     updates: int = 0  #: filter updates (scans with point features)
+    line_updates: int = 0  #: filter updates with line features
     point_features: int = 0
     line_features: int = 0
     published: int = 0  #: pose + landmark publications
+
+
+def _length(ln: Any) -> float:
+    """Length of a line observation's supported segment, m."""
+    e = np.asarray(ln.endpoints, float)
+    return float(np.hypot(*(e[1] - e[0])))
 
 
 def compose_increments(incs: list[MotionIncrement]) -> tuple[float, float, float, float]:
@@ -223,6 +249,7 @@ class SlamStage:
         self.extractor = SonarFeatureExtractor(cfg.feature_settings())
         self.rng = np.random.default_rng(cfg.seed)
         self.filter: LandmarkFilter | None = None
+        self._line_model = LineFeature()
         self.msis_device = cfg.msis_device
         #: SLAM poses at every publication: (t s, x, y, heading)
         self.track: list[tuple[float, float, float, float]] = []
@@ -365,9 +392,22 @@ class SlamStage:
             z = np.array([p.z for p in feats.points])
             assert self.filter is not None
             self.filter.update(z, self.rng)
+        c = self.config
+        use = [ln for ln in feats.lines if _length(ln) >= c.line_min_length_m]
+        if use and self._lines_to_filter():
+            self.stats.line_updates += 1
+            z = np.array([ln.z for ln in use])
+            floor = np.diag([c.line_sigma_rho_m**2, math.radians(c.line_sigma_theta_deg) ** 2])
+            r = np.array([np.asarray(ln.covariance, float) for ln in use]) + floor
+            assert self.filter is not None
+            self.filter.update(z, self.rng, model=self._line_model, r=r)
         for ln in feats.lines:
             self.stats.line_features += 1
             self.lines.append(self._map_line(ln))
+
+    def _lines_to_filter(self) -> bool:
+        """Whether line features update the filter (``use_lines``, a particle filter)."""
+        return self.config.use_lines and isinstance(self.filter, ParticleFilterSLAM)
 
     def _map_line(self, ln: Any) -> dict[str, Any]:
         """A line observation placed with the SLAM pose: (rho, theta) and its end points (the
@@ -446,16 +486,29 @@ class SlamStage:
         body["neff"] = None if not math.isfinite(neff) else float(neff)
         return body
 
-    def landmarks_message(self, t: float) -> dict[str, Any]:
-        """The map JSON: point landmarks with covariances, and the line layer."""
+    def _maps(self) -> tuple[LandmarkMap, LandmarkMap]:
+        """The filter's point landmarks and line landmarks (``(rho, theta)``, map frame)."""
         assert self.filter is not None
         lm = self.filter.landmarks()
+        models = getattr(self.filter, "models", [])
+        kind = next((i for i, m in enumerate(models) if isinstance(m, LineFeature)), -1)
+        return lm.of_kind(0), lm.of_kind(kind if kind > 0 else -1)
+
+    def landmarks_message(self, t: float) -> dict[str, Any]:
+        """The map JSON: point landmarks with covariances, the line layer (observations placed
+        with the SLAM pose) and the filter's wall landmarks (``line_landmarks``: ``rho``,
+        ``theta`` and their 2 x 2 covariance in the map frame)."""
+        pts, walls = self._maps()
         return {
             "t": t,
-            "mean": np.asarray(lm.mean, float).tolist(),
-            "cov": np.asarray(lm.cov, float).tolist(),
-            "ids": np.asarray(lm.ids).astype(int).tolist(),
+            "mean": np.asarray(pts.mean, float).tolist(),
+            "cov": np.asarray(pts.cov, float).tolist(),
+            "ids": np.asarray(pts.ids).astype(int).tolist(),
             "lines": list(self.lines),
+            "line_landmarks": [
+                {"rho": float(m[0]), "theta": float(m[1]), "cov": np.asarray(c).tolist()}
+                for m, c in zip(walls.mean, walls.cov, strict=True)
+            ],
         }
 
     def _publish(self, t: float) -> None:
@@ -480,7 +533,7 @@ class SlamStage:
         """Every counter, JSON-ready."""
         with self._lock:
             f = self.filter
-            n_lm = 0 if f is None else len(f.landmarks().mean)
+            pts, walls = (None, None) if f is None else self._maps()
             return {
                 "v": SCHEMA_VERSION,
                 "component": self.component,
@@ -490,7 +543,8 @@ class SlamStage:
                 "msis_device": self.msis_device,
                 "stage": asdict(self.stats),
                 "extractor": {"pings": self.extractor.pings, "votes": self.extractor.votes},
-                "landmarks": n_lm,
+                "landmarks": 0 if pts is None else len(pts.mean),
+                "line_landmarks": 0 if walls is None else len(walls.mean),
                 "lines": len(self.lines),
                 "neff": None if f is None or not math.isfinite(f.neff) else float(f.neff),
                 "resamples": getattr(f, "resample_count", None),

@@ -7,13 +7,22 @@ Every filter has the same life cycle, driven by the caller with numpy arrays onl
   :class:`~auvgw.slam.models.VelocityModel`) over ``dt`` seconds;
 * ``update(z, rng, ids=None)``: one scan of ``m`` feature observations ``z (m, 2)`` (range m,
   bearing rad for points); ``ids`` are the true feature identities, used only by the ``known``
-  association (simulation);
+  association (simulation). The particle filters also take the keywords ``model`` and ``r``:
+  ``model`` (default: the filter's own observation model) is the *kind* of the observations;
+  each landmark keeps the kind it was created with and is only associated with, predicted and
+  updated by observations of its kind, so one filter carries e.g.
+  :class:`~auvgw.slam.models.RangeBearing` points and :class:`~auvgw.slam.models.LineFeature`
+  walls on the same particles (both are 2-vectors in the same arrays). ``r`` gives the
+  observations' own noise covariances ``(m, 2, 2)`` (e.g. a line fit's covariance) instead of
+  the filter's ``R0``; the VB filters then use it as given and keep their noise posteriors for
+  the filter's own kind;
 * ``estimate()`` the pose ``(x, y, heading)``; ``landmarks()`` the map with covariances;
   ``neff`` the effective sample size at the last update (``nan`` for the EKF family).
 
 Particle filters keep their state in preallocated arrays: poses ``x (N, 3)``, log weights
 ``logw (N,)``, landmark means ``mu (N, C, 2)``, covariances ``cov (N, C, 2, 2)``, landmark count
-``n_lm (N,)`` and feature identities ``lm_id (N, C)`` (``-1`` when unknown); the capacity ``C``
+``n_lm (N,)``, feature identities ``lm_id (N, C)`` (``-1`` when unknown) and kinds
+``lm_kind (N, C)`` (index into ``models``; 0 is the filter's own model); the capacity ``C``
 doubles when full. Nothing loops over particles in Python.
 """
 
@@ -48,11 +57,23 @@ LOG_2PI = float(np.log(2.0 * np.pi))
 @dataclass(frozen=True)
 class LandmarkMap:
     """Estimated features: ``mean (L, 2)``, ``cov (L, 2, 2)`` and the feature ids ``ids (L,)``
-    (``-1`` where the filter does not know the identity, i.e. without known association)."""
+    (``-1`` where the filter does not know the identity, i.e. without known association);
+    ``kinds (L,)`` the observation-model index of each feature (0: the filter's own model;
+    ``None``: all of the filter's own model)."""
 
     mean: np.ndarray
     cov: np.ndarray
     ids: np.ndarray
+    kinds: np.ndarray | None = None
+
+    def of_kind(self, kind: int) -> LandmarkMap:
+        """The features of one kind only."""
+        if self.kinds is None:
+            return self if kind == 0 else LandmarkMap(
+                self.mean[:0], self.cov[:0], self.ids[:0], self.kinds
+            )  # fmt: skip
+        k = self.kinds == kind
+        return LandmarkMap(self.mean[k], self.cov[k], self.ids[k], self.kinds[k])
 
 
 class LandmarkFilter(ABC):
@@ -70,7 +91,8 @@ class LandmarkFilter(ABC):
         self, z: np.ndarray, rng: np.random.Generator, ids: np.ndarray | None = None
     ) -> None:
         """Fuse one scan of observations ``z (m, 2)``; ``ids`` are true feature ids (known
-        association only)."""
+        association only). The particle filters also take ``model`` and ``r`` (other feature
+        kinds, per-observation noise: :meth:`ParticleFilterSLAM.update`)."""
 
     @abstractmethod
     def estimate(self) -> np.ndarray:
@@ -123,10 +145,12 @@ def mahalanobis_all(
     obs: ObservationModel, x: np.ndarray, mu: np.ndarray, s: np.ndarray, z: np.ndarray
 ) -> np.ndarray:
     """Eq. (49): ``D[p, j, l] = v^T S^-1 v`` for observation ``j`` against landmark ``l`` of
-    particle ``p``; ``x (N, 3)``, ``mu (N, L, 2)``, ``s (N, L, 2, 2)``, ``z (m, 2)``."""
+    particle ``p``; ``x (N, 3)``, ``mu (N, L, 2)``, ``s (N, L, 2, 2)`` (or ``(N, m, L, 2, 2)``
+    with per-observation noise), ``z (m, 2)``."""
     zhat = obs.h(x[:, None, :], mu)  # (N, L, 2)
     v = obs.residual(z[None, :, None, :], zhat[:, None, :, :])  # (N, m, L, 2)
-    return quad2(v, inv2(s)[:, None])
+    s_inv = inv2(s)
+    return quad2(v, s_inv if s_inv.ndim == 5 else s_inv[:, None])
 
 
 # ----------------------------------------------------------------------------- particle base
@@ -134,8 +158,9 @@ class ParticleFilterSLAM(LandmarkFilter):
     """Rao-Blackwellised particle filter base: storage, association, weights, resampling.
 
     ``q`` is the control-noise covariance (``n_u x n_u``), ``r`` the nominal observation-noise
-    covariance ``R0`` (2 x 2). Resampling happens when ``Neff < resample_fraction * N`` (Bailey:
-    75 of 100; the VB paper: 75 %)."""
+    covariance ``R0`` (2 x 2) of ``obs``. Other observation models (kinds) join ``models`` at
+    their first :meth:`update` (see the module docstring). Resampling happens when
+    ``Neff < resample_fraction * N`` (Bailey: 75 of 100; the VB paper: 75 %)."""
 
     #: whether this filter carries a pose covariance per particle (EKF/UKF proposal)
     has_pose_cov: bool = False
@@ -168,8 +193,14 @@ class ParticleFilterSLAM(LandmarkFilter):
         self.mu = np.zeros((n, cap, 2))
         self.cov = np.zeros((n, cap, 2, 2))
         self.lm_id = np.full((n, cap), -1, dtype=np.int64)
+        self.lm_kind = np.zeros((n, cap), dtype=np.int8)
         self.n_lm = np.zeros(n, dtype=np.int64)
-        self._id_slot: dict[int, int] = {}
+        #: observation models by kind; ``obs`` (kind 0) is the one of the current update
+        self.models: list[ObservationModel] = [obs]
+        self._kind = 0
+        #: the current update's noise is the caller's ``r`` (the VB filters then keep theirs)
+        self._noise_given = False
+        self._id_slot: dict[tuple[int, int], int] = {}
         self._neff = float(n)
         self._rows = np.arange(n)
         self._lq = sqrt_psd(self.q, jitter=0.0)
@@ -204,32 +235,76 @@ class ParticleFilterSLAM(LandmarkFilter):
         if isinstance(self.association, KnownAssociation):
             k = int(self.n_lm[0])
             mu = self.mu[:, :k]
+            kinds = self.lm_kind[0, :k].astype(np.int64)
             mean = np.einsum("p,pli->li", w, mu)
             d = mu - mean
-            for i, ang in enumerate(self.obs.feature_angular):
-                if ang:  # circular mean: line angles near +-pi must not average to 0
+            for i in range(2):
+                ang = np.array([m.feature_angular[i] for m in self.models])[kinds]  # (k,)
+                if ang.any():  # circular mean: line angles near +-pi must not average to 0
                     s = np.einsum("p,pl->l", w, np.sin(mu[..., i]))
                     c = np.einsum("p,pl->l", w, np.cos(mu[..., i]))
-                    mean[:, i] = np.arctan2(s, c)
-                    d[..., i] = wrap_angle(mu[..., i] - mean[:, i])
+                    mean[:, i] = np.where(ang, np.arctan2(s, c), mean[:, i])
+                    d[..., i] = np.where(ang, wrap_angle(mu[..., i] - mean[:, i]), d[..., i])
             cov = np.einsum("p,plij->lij", w, self.cov[:, :k]) + np.einsum(
                 "p,pli,plj->lij", w, d, d
             )
-            return LandmarkMap(mean, cov, self.lm_id[0, :k].copy())
+            return LandmarkMap(mean, cov, self.lm_id[0, :k].copy(), kinds)
         b = int(np.argmax(w))
         k = int(self.n_lm[b])
-        return LandmarkMap(self.mu[b, :k].copy(), self.cov[b, :k].copy(), self.lm_id[b, :k].copy())
+        return LandmarkMap(
+            self.mu[b, :k].copy(), self.cov[b, :k].copy(), self.lm_id[b, :k].copy(),
+            self.lm_kind[b, :k].astype(np.int64),
+        )  # fmt: skip
 
     def update(
-        self, z: np.ndarray, rng: np.random.Generator, ids: np.ndarray | None = None
+        self,
+        z: np.ndarray,
+        rng: np.random.Generator,
+        ids: np.ndarray | None = None,
+        *,
+        model: ObservationModel | None = None,
+        r: np.ndarray | None = None,
     ) -> None:
+        """Fuse one scan of observations ``z (m, 2)`` of kind ``model`` (default: the filter's
+        own model) with noise ``r (m, 2, 2)`` (default ``R0``; required for another kind)."""
         z = np.asarray(z, dtype=float).reshape(-1, 2)
-        if z.shape[0] == 0:
+        m = z.shape[0]
+        if m == 0:
             return
         ids_arr = None if ids is None else np.asarray(ids, dtype=np.int64).reshape(-1)
-        slots = self._associate(z, ids_arr)
-        self._observe(z, slots, ids_arr, rng)
+        kind = self.kind_of(model)
+        if r is None and kind != 0:
+            raise ValueError(
+                f"observations of {type(model).__name__} (not the filter's own model) need "
+                "their noise covariances r (m, 2, 2)"
+            )
+        rr = self.r if r is None else np.asarray(r, dtype=float)
+        if rr.shape not in ((2, 2), (m, 2, 2)):
+            raise ValueError(f"r: one 2 x 2 noise covariance per observation, ({m}, 2, 2)")
+        # the update runs with the kind's model and noise in ``obs`` / ``r`` (every subclass
+        # hook reads them there), on the landmarks of that kind only
+        saved = self.obs, self.r
+        self.obs, self.r, self._kind, self._noise_given = self.models[kind], rr, kind, r is not None
+        try:
+            slots = self._associate(z, ids_arr)
+            self._observe(z, slots, ids_arr, rng)
+        finally:
+            self.obs, self.r = saved
+            self._kind, self._noise_given = 0, False
         self._normalise_and_resample(rng)
+
+    def kind_of(self, model: ObservationModel | None) -> int:
+        """The kind index of observations of ``model`` (registered on first use; ``None``: the
+        filter's own model, 0). Models of the same class are the same kind."""
+        if model is None:
+            return 0
+        for i, known in enumerate(self.models):
+            if type(known) is type(model):
+                return i
+        if len(self.models) >= 127:
+            raise ValueError("too many observation models for one filter")
+        self.models.append(model)
+        return len(self.models) - 1
 
     # ---------------------------------------------------------------- association
     def _associate(self, z: np.ndarray, ids: np.ndarray | None) -> np.ndarray:
@@ -238,7 +313,8 @@ class ParticleFilterSLAM(LandmarkFilter):
         if isinstance(a, KnownAssociation):
             if ids is None:
                 raise ValueError("known association needs the observation ids")
-            row = np.array([self._id_slot.get(int(i), -1) for i in ids], dtype=np.int64)
+            k = self._kind
+            row = np.array([self._id_slot.get((k, int(i)), -1) for i in ids], dtype=np.int64)
             return np.broadcast_to(row, (self.n, row.shape[0])).copy()
         if isinstance(a, NearestNeighbour):
             lmax = int(self.n_lm.max())
@@ -247,6 +323,7 @@ class ParticleFilterSLAM(LandmarkFilter):
             s = self._association_cov(lmax)
             d = mahalanobis_all(self.obs, self._association_pose(), self.mu[:, :lmax], s, z)
             valid = np.arange(lmax)[None, :] < self.n_lm[:, None]
+            valid &= self.lm_kind[:, :lmax] == self._kind
             d = np.where(valid[:, None, :], d, np.inf)
             slots, best = a.assign(d)
             return resolve_conflicts(slots, best)
@@ -256,14 +333,17 @@ class ParticleFilterSLAM(LandmarkFilter):
         return self.x
 
     def _association_cov(self, lmax: int) -> np.ndarray:
-        """Innovation covariances ``(N, lmax, 2, 2)`` of every landmark (for eq. 49)."""
+        """Innovation covariances ``(N, lmax, 2, 2)`` of every landmark (for eq. 49);
+        ``(N, m, lmax, 2, 2)`` with per-observation noise ``r (m, 2, 2)``."""
         mu = self.mu[:, :lmax]
         x = self._association_pose()[:, None, :]
         hx, hm = self.obs.jacobians(x, mu)
-        s = hm @ self.cov[:, :lmax] @ np.swapaxes(hm, -1, -2) + self.r
+        s = hm @ self.cov[:, :lmax] @ np.swapaxes(hm, -1, -2)
         if self.pcov is not None:
             s = s + hx @ self.pcov[:, None] @ np.swapaxes(hx, -1, -2)
-        return s
+        if self.r.ndim == 3:
+            return s[:, None] + self.r[None, :, None]
+        return s + self.r
 
     # ---------------------------------------------------------------- subclass hooks
     @abstractmethod
@@ -330,7 +410,8 @@ class ParticleFilterSLAM(LandmarkFilter):
         r: np.ndarray | None = None,
     ) -> None:
         """Initialise the features of observations with slot ``-1`` at each particle's pose
-        (inverse model; covariance ``G R G^T``, ``r (N, 2, 2)`` per particle or nominal)."""
+        (inverse model; covariance ``G R G^T``, ``r (N, 2, 2)`` per particle, else the scan's
+        ``R``: per observation or nominal)."""
         new = slots == -1
         if not new.any():
             return
@@ -339,24 +420,31 @@ class ParticleFilterSLAM(LandmarkFilter):
         pos = self.n_lm[:, None] + np.cumsum(new, axis=1) - 1
         ri, ji = np.nonzero(new)
         si = pos[ri, ji]
-        mean, cov = self._init_features(ri, z[ji], r)
+        if r is not None:
+            rr = r[ri]
+        elif self.r.ndim == 3:
+            rr = self.r[ji]
+        else:
+            rr = np.broadcast_to(self.r, (ri.size, 2, 2))
+        mean, cov = self._init_features(ri, z[ji], rr)
         self.mu[ri, si] = mean
         self.cov[ri, si] = cov
+        self.lm_kind[ri, si] = self._kind
         if ids is not None and isinstance(self.association, KnownAssociation):
             self.lm_id[ri, si] = ids[ji]
             for j in np.nonzero(new[0])[0]:
-                self._id_slot[int(ids[j])] = int(pos[0, j])
+                self._id_slot[(self._kind, int(ids[j]))] = int(pos[0, j])
         self.n_lm += cnt
 
     def _init_features(
-        self, ri: np.ndarray, z: np.ndarray, r: np.ndarray | None
+        self, ri: np.ndarray, z: np.ndarray, r: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Mean and covariance of new features for particles ``ri`` observed as ``z``."""
+        """Mean and covariance of new features for particles ``ri`` observed as ``z (M, 2)``
+        with noise ``r (M, 2, 2)``."""
         x = self.x[ri]
         g = self.obs.inverse_jacobian(x, z)
-        rr = self.r if r is None else r[ri]
         mean = self.obs.inverse(x, z)
-        return mean, g @ rr @ np.swapaxes(g, -1, -2)
+        return mean, g @ r @ np.swapaxes(g, -1, -2)
 
     def _ensure_capacity(self, need: int) -> None:
         cap = self.mu.shape[1]
@@ -367,8 +455,10 @@ class ParticleFilterSLAM(LandmarkFilter):
         mu = np.zeros((n, new_cap, 2))
         cov = np.zeros((n, new_cap, 2, 2))
         ids = np.full((n, new_cap), -1, dtype=np.int64)
+        kinds = np.zeros((n, new_cap), dtype=np.int8)
         mu[:, :cap], cov[:, :cap], ids[:, :cap] = self.mu, self.cov, self.lm_id
-        self.mu, self.cov, self.lm_id = mu, cov, ids
+        kinds[:, :cap] = self.lm_kind
+        self.mu, self.cov, self.lm_id, self.lm_kind = mu, cov, ids, kinds
 
     def _normalise_and_resample(self, rng: np.random.Generator) -> None:
         lw = self.logw - self.logw.max()
@@ -390,6 +480,7 @@ class ParticleFilterSLAM(LandmarkFilter):
         self.mu = self.mu[idx]
         self.cov = self.cov[idx]
         self.lm_id = self.lm_id[idx]
+        self.lm_kind = self.lm_kind[idx]
         self.n_lm = self.n_lm[idx]
         self.logw = np.full(self.n, -np.log(self.n))
         self._resample_extra(idx)

@@ -118,11 +118,10 @@ class UFastSLAM(FastSLAM2):
         return self.obs.residual(z[None], zhat), sf, pmz
 
     def _init_features(
-        self, ri: np.ndarray, z: np.ndarray, r: np.ndarray | None
+        self, ri: np.ndarray, z: np.ndarray, r: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         """Eqs. (33)-(36): unscented transform of ``N(z, R)`` through the inverse model."""
-        rr = np.broadcast_to(self.r if r is None else r[ri], (z.shape[0], 2, 2))
-        gam = sigma_points(z, rr, self.feature_ut)  # (M, 5, 2)
+        gam = sigma_points(z, r, self.feature_ut)  # (M, 5, 2)
         y = self.obs.inverse(self.x[ri][:, None, :], gam)
         mean, cov, _, _ = ut_moments(y, self.feature_ut, self.obs.feature_angular)
         return mean, cov

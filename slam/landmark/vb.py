@@ -46,6 +46,14 @@ Choices where the paper is inconsistent or garbled, following Sarkka and Nummenm
 * Eq. (47) is dimensionally inconsistent as printed; the weight is the FastSLAM 2.0 / UFastSLAM
   marginal likelihood ``N(v; 0, S_x + S_f + R)`` with the estimated ``R`` (eq. 46).
 * A floor ``R >= floor * R0`` keeps the estimate positive definite when residuals vanish.
+
+Other feature kinds (``update(..., model=LineFeature(), r=...)``, see
+:mod:`~auvgw.slam.landmark.base`): the noise posteriors above are those of the filter's own
+observation model (MSIS point targets' range and bearing). An update whose noise the caller gives
+(``r``, e.g. the (rho, theta) covariance of each Hough line fit, computed from its returns'
+geometry) runs as the filter without VB (UFastSLAM / FastSLAM 2.0: eqs. 22-29 and 37-47 with
+``R = r``) and leaves ``eta``, ``xi`` untouched (no forgetting step either): a second
+inverse-Gamma level for lines would have to learn what the line fit already states per line.
 """
 
 from __future__ import annotations
@@ -118,6 +126,7 @@ class _VBNoise:
     r: np.ndarray
     x: np.ndarray
     pcov: np.ndarray | None
+    _noise_given: bool
 
     def _vb_init(self, settings: VBSettings | None) -> None:
         self.vb = settings or VBSettings()
@@ -139,15 +148,17 @@ class _VBNoise:
         return np.maximum(xi / self._eta_post, self._rfloor)
 
     def _noise_predict(self) -> None:
-        """Eqs. (20)-(21)."""
+        """Eqs. (20)-(21) (not for an update with the caller's noise)."""
+        if self._noise_given:
+            return
         self.eta = self.vb.rho * self.eta
         self.xi = self.vb.rho * self.xi
         self._eta_post = self.eta
         self._xi_prior = self.xi
         self._xi_stage = self.xi
 
-    def _new_feature_noise(self) -> np.ndarray:
-        return _diag2(self.noise_estimate())
+    def _new_feature_noise(self) -> np.ndarray | None:
+        return None if self._noise_given else _diag2(self.noise_estimate())
 
     def _resample_extra(self, idx: np.ndarray) -> None:
         self.eta = self.eta[idx]
@@ -157,6 +168,8 @@ class _VBNoise:
     def _pose_update(
         self, terms: ProposalTerms, known: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        if self._noise_given:  # the caller's noise: the plain proposal (eqs. 22-29, 46)
+            return super()._pose_update(terms, known)  # type: ignore[misc]
         n, m = known.shape
         k4 = known[..., None, None]
         self._eta_post = self._eta_prior_plus(known)
@@ -206,6 +219,8 @@ class _VBNoise:
     def _feature_update(
         self, mu: np.ndarray, cov: np.ndarray, z: np.ndarray, known: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
+        if self._noise_given:  # the caller's noise: the plain feature update (eqs. 37-45)
+            return super()._feature_update(mu, cov, z, known)  # type: ignore[misc]
         v, sf, pmz = self._feature_terms(self.x, mu, cov, z)  # type: ignore[attr-defined]
         k = known[..., None]
         xi = self._xi_stage
