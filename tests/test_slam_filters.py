@@ -202,3 +202,36 @@ def test_velocity_model_of_eq3_drives_the_filters(name):
     lm = f.landmarks()
     assert len(lm.ids) > 5
     np.testing.assert_allclose(lm.mean, lms[lm.ids], atol=1e-3)
+
+
+def test_absolute_heading_conditions_the_pose_gaussian_and_weighs_particles():
+    """``observe_heading``: a Kalman update with ``H = [0, 0, 1]`` on each particle's pose
+    Gaussian (FastSLAM 2.0, UFastSLAM) and weights ``N(v; 0, P_hh + var)``; FastSLAM 1.0 only
+    weighs (``N(v; 0, var)``)."""
+    rng = np.random.default_rng(0)
+    q, r = np.diag([0.01, 0.01, 1e-4]), np.diag([0.01, 3e-4])
+    for name in ("fastslam2", "ufastslam"):
+        f = make_filter(name, VelocityModel(), RangeBearing(), q, r, n_particles=2,
+                        x0=(0.0, 0.0, 0.1))  # fmt: skip
+        p = np.array([[0.04, 0.0, 0.002], [0.0, 0.05, 0.001], [0.002, 0.001, 0.01]])
+        f.pcov[:] = p
+        f.x[1, 2] = 0.3
+        f.logw[:] = 0.0
+        var = 0.0025
+        f.observe_heading(0.2, var, rng)
+        s = p[2, 2] + var
+        k = p[:, 2] / s
+        for i, h in enumerate((0.1, 0.3)):
+            v = 0.2 - h
+            np.testing.assert_allclose(f.x[i], np.array([0.0, 0.0, h]) + k * v, atol=1e-12)
+            np.testing.assert_allclose(f.pcov[i], p - np.outer(k, p[2]), atol=1e-12)
+        w = np.exp(f.logw - f.logw.max())
+        assert w[0] == pytest.approx(1.0) and w[1] == pytest.approx(1.0)  # |v| equal: 0.1
+    f1 = make_filter("fastslam1", VelocityModel(), RangeBearing(), q, r, n_particles=3,
+                     x0=(0.0, 0.0, 0.0), resample_fraction=0.0)  # fmt: skip
+    f1.x[:, 2] = [0.0, 0.05, -0.2]
+    f1.logw[:] = 0.0
+    f1.observe_heading(0.05, 0.01, rng)
+    w = np.exp(f1.logw - f1.logw.max())
+    np.testing.assert_allclose(w, np.exp(-0.5 * (np.array([0.05, 0.0, 0.25]) ** 2 / 0.01)),
+                               rtol=1e-9)  # fmt: skip

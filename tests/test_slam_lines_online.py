@@ -173,7 +173,9 @@ def test_stage_feeds_the_walls_to_the_filter_and_holds_the_heading(harbour_run):
     assert {"rho", "theta", "cov"} <= set(lm) and np.array(lm["cov"]).shape == (2, 2)
     runs = {}
     for lines in (True, False):
-        cfg2 = cfg.model_copy(update={"use_lines": lines, "sigma_yaw_rate_dps": 0.3})
+        cfg2 = cfg.model_copy(
+            update={"use_lines": lines, "sigma_yaw_rate_dps": 0.3, "heading_sigma_deg": None}
+        )  # a biased gyro: no reference
         runs[lines], _ = test_slam_stage.run_events(cfg2, events)
     assert runs[False].counters()["stage"]["line_updates"] == 0
     assert runs[False].counters()["line_landmarks"] == 0

@@ -148,6 +148,11 @@ class SlamStageConfig(BaseModel):
     line_sigma_theta_deg: float = Field(0.2, ge=0)
     line_min_length_m: float = Field(10.0, ge=0)
     predict_period_s: float = Field(0.5, gt=0)
+    #: absolute heading aiding: the odometry heading (the INS yaw, which eq. (3) of the VB
+    #: paper drives its motion model with) as a measurement of this sigma every
+    #: ``heading_period_s`` (None: off, the map keeps the INS's initial heading error)
+    heading_sigma_deg: float | None = Field(1.0, gt=0)
+    heading_period_s: float = Field(10.0, gt=0)
     publish_period_s: float = Field(0.5, gt=0)
     max_particles_published: int = Field(100, ge=0)
     max_lines: int = Field(200, ge=0)
@@ -206,6 +211,7 @@ class SlamStats:
     predictions: int = 0  #: filter prediction steps
     updates: int = 0  #: filter updates (scans with point features)
     line_updates: int = 0  #: filter updates with line features
+    heading_updates: int = 0  #: absolute heading measurements (``heading_sigma_deg``)
     point_features: int = 0
     line_features: int = 0
     published: int = 0  #: pose + landmark publications
@@ -260,6 +266,7 @@ class SlamStage:
         self._pings: deque[tuple[float, sn.HeadData]] = deque()
         self._t_filter: float | None = None
         self._t_pub: float | None = None
+        self._t_heading: float | None = None
         self._lock = threading.RLock()
         self._pubs: dict[str, zenoh.Publisher] = {}
         self._decls: list[Any] = []
@@ -294,6 +301,7 @@ class SlamStage:
             assert self._t_filter is not None
             if o.t - self._t_filter >= self.config.predict_period_s:
                 self._predict_to(o.t)
+            self._aid_heading(o)
             if self._t_pub is None or o.t - self._t_pub >= self.config.publish_period_s:
                 self._predict_to(o.t)
                 self._publish(o.t)
@@ -423,6 +431,20 @@ class SlamStage:
         return {"rho": float(m[0]), "theta": float(m[1]),
                 "cov": np.asarray(ln.covariance, float).tolist(),
                 "p0": ends[0].tolist(), "p1": ends[1].tolist()}  # fmt: skip
+
+    def _aid_heading(self, o: Odometry) -> None:
+        """Every ``heading_period_s`` of odometry time, the odometry's heading as an absolute
+        heading measurement (``heading_sigma_deg``), after predicting to its time."""
+        c = self.config
+        f = self.filter
+        if c.heading_sigma_deg is None or not hasattr(f, "observe_heading"):
+            return
+        if self._t_heading is not None and o.t - self._t_heading < c.heading_period_s:
+            return
+        self._t_heading = o.t
+        self._predict_to(o.t)
+        f.observe_heading(o.heading, math.radians(c.heading_sigma_deg) ** 2, self.rng)
+        self.stats.heading_updates += 1
 
     def _predict_to(self, t: float) -> None:
         """Predict the filter with the increments ending by ``t``, in sub-steps of at most

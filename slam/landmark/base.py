@@ -293,6 +293,23 @@ class ParticleFilterSLAM(LandmarkFilter):
             self._kind, self._noise_given = 0, False
         self._normalise_and_resample(rng)
 
+    def observe_heading(self, psi: float, var: float, rng: np.random.Generator) -> None:
+        """An absolute heading measurement ``psi`` (rad, from north towards east; e.g. the INS
+        yaw that eq. (3) of the VB paper drives its motion model with) of variance ``var``
+        (rad^2): filters with a pose Gaussian per particle (EKF/UKF proposals) condition it
+        (``H = [0, 0, 1]``) and weigh with ``N(v; 0, P_hh + var)``, FastSLAM 1.0 weighs with
+        ``N(v; 0, var)``; then the usual resampling test."""
+        v = wrap_angle(psi - self.x[:, 2])  # (N,)
+        s = np.full(self.n, float(var))
+        if self.pcov is not None:
+            s = s + self.pcov[:, 2, 2]
+            k = self.pcov[:, :, 2] / s[:, None]  # (N, 3) Kalman gain
+            self.x = self.x + k * v[:, None]
+            self.x[:, 2] = wrap_angle(self.x[:, 2])
+            self.pcov = self.pcov - k[:, :, None] * self.pcov[:, None, 2, :]
+        self.logw = self.logw - 0.5 * (v * v / s + np.log(2 * np.pi * s))
+        self._normalise_and_resample(rng)
+
     def kind_of(self, model: ObservationModel | None) -> int:
         """The kind index of observations of ``model`` (registered on first use; ``None``: the
         filter's own model, 0). Models of the same class are the same kind."""
