@@ -11,6 +11,8 @@ import argparse
 import importlib
 import logging
 import sys
+from pathlib import Path
+from typing import TextIO
 
 #: command modules, in the order ``auvgw --help`` lists them
 COMMANDS: list[str] = [
@@ -30,6 +32,17 @@ COMMANDS: list[str] = [
 
 class UserError(Exception):
     """A problem the user can fix (bad file, bad config); printed as one line, exit code 2."""
+
+
+def open_output(path: Path | None) -> TextIO | None:
+    """``path`` opened for writing text (``None``: none); a :class:`UserError` naming the file if
+    it cannot be. The caller closes it."""
+    if path is None:
+        return None
+    try:
+        return open(path, "w")
+    except OSError as exc:
+        raise UserError(f"{path}: cannot write: {exc.strerror}") from exc
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from auvgw.bus import add_bus_arguments
-from auvgw.cli import UserError
+from auvgw.cli import UserError, open_output
 
 log = logging.getLogger(__name__)
 
@@ -144,12 +144,7 @@ def _offline(args: argparse.Namespace, cfg: Any) -> int:
         from auvgw.commands.run import load_or_fail
 
         gw_cfg = load_or_fail(args.config)
-    out_file = None
-    if args.out is not None:
-        try:
-            out_file = open(args.out, "w")  # noqa: SIM115 - closed in finally
-        except OSError as exc:
-            raise UserError(f"{args.out}: cannot write: {exc.strerror}") from exc
+    out_file = open_output(args.out)  # closed in finally
     summary = _Summary()
 
     def on_odometry(o: Any) -> None:

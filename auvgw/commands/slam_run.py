@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from auvgw.bus import add_bus_arguments
-from auvgw.cli import UserError
+from auvgw.cli import UserError, open_output
 
 HELP = "run the SLAM stage (fusion odometry + MSIS features), live or over a recording"
 
@@ -191,12 +191,7 @@ def _offline(args: argparse.Namespace) -> int:
     if not args.recording.is_file():
         raise UserError(f"{args.recording}: no such file")
     paths = _Paths()
-    out_file = None
-    if args.out is not None:
-        try:
-            out_file = open(args.out, "w")  # noqa: SIM115 - closed in finally
-        except OSError as exc:
-            raise UserError(f"{args.out}: cannot write: {exc.strerror}") from exc
+    out_file = open_output(args.out)  # closed in finally
     last_map: list[bytes] = []
 
     def on_publish(key: str, payload: bytes, _t_ns: int) -> None:
