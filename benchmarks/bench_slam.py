@@ -18,7 +18,6 @@ The scenario is ``config/scenarios/<map>.json`` when shipped, else built from
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import sys
 import tempfile
@@ -27,39 +26,17 @@ from pathlib import Path
 
 import numpy as np
 
-from auvgw.config.scenario import load_scenario
-from auvgw.paths import REPO_ROOT, shared_dir
+from auvgw.paths import shared_dir
 from auvgw.slam.evaluation.runner import drive
 from auvgw.slam.evaluation.simulate import simulate
 from auvgw.slam.landmark.registry import ALGORITHMS, DISPLAY_NAMES, make_filter
 from auvgw.slam.models import BicycleModel, RangeBearing
 
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+
+from slam_helpers import bailey_scenario
+
 BARS = {"fastslam1": 100.0, "vb-aufastslam": 20.0}
-
-
-def scenario_path(name: str) -> Path:
-    shipped = REPO_ROOT / "config" / "scenarios" / f"{name}.json"
-    if shipped.is_file():
-        return shipped
-    root = shared_dir()
-    if root is None:
-        sys.exit("../shared/data not found (set AUVGW_SHARED)")
-    d = json.loads((root / "data" / "bailey" / f"{name}.json").read_text())
-    scn = {
-        "name": name,
-        "motion": "bicycle",
-        "vehicle": {
-            "waypoints": d["waypoints"],
-            "loops": 2,
-            "accept_radius_m": 1.0,
-            "speed_mps": 3.0,
-            "start": [0.0, 0.0, 0.0],
-        },
-        "features": {"points_file": f"shared:bailey/{name}.json"},
-    }
-    tmp = Path(tempfile.mkdtemp()) / f"{name}.json"
-    tmp.write_text(json.dumps(scn))
-    return tmp
 
 
 def main() -> int:
@@ -69,7 +46,10 @@ def main() -> int:
     ap.add_argument("--particles", type=int, default=100)
     ap.add_argument("--algorithms", default=",".join(ALGORITHMS))
     args = ap.parse_args()
-    scn = load_scenario(scenario_path(args.map))
+    root = shared_dir()
+    if root is None:
+        sys.exit("../shared/data not found (set AUVGW_SHARED)")
+    scn = bailey_scenario(root / "data", Path(tempfile.mkdtemp()), args.map)
     sim = simulate(scn, np.random.default_rng(0))
     print(
         f"{args.map}: {sim.duration_s:.1f} s vehicle time, {len(sim.controls)} steps, "
