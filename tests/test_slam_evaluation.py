@@ -170,3 +170,47 @@ def test_eval_command_rejects_bad_input(tmp_path, web):
         slam_cmd.run(parse(["--scenario", "x.json", "--algorithms", "fastslam9"]))
     with pytest.raises(UserError, match="cannot read"):
         slam_cmd.run(parse(["--scenario", str(tmp_path / "missing.json")]))
+
+
+def test_a_diverged_run_is_counted_and_kept_out_of_the_metrics(web, monkeypatch):
+    """A filter that fails numerically (here: singular S at the 5th scan, NaN pose at the 3rd)
+    does not stop the study: its run is marked with the scan and time, its scans before the
+    failure are kept, the summary pools the other runs and the table shows the count."""
+    from auvgw.slam.evaluation import runner
+    from auvgw.slam.evaluation.report import format_table, summaries_by_algorithm
+    from auvgw.slam.landmark.registry import make_filter
+
+    def failing(name: str, *args: object, **kw: object) -> object:
+        f = make_filter("ekf", *args, **kw)
+        calls = {"n": 0}
+        update = f.update
+
+        def bad_update(z: np.ndarray, rng: np.random.Generator, ids: object = None) -> None:
+            calls["n"] += 1
+            update(z, rng, ids)
+            if name == "ekf" and calls["n"] == 5:
+                raise np.linalg.LinAlgError("Singular matrix")
+            if name == "shekf" and calls["n"] == 3:
+                f.xs[0] = np.nan
+
+        f.update = bad_update  # type: ignore[method-assign]
+        return f
+
+    study = runner.Study(web, ("ekf", "shekf"), runs=2, max_steps=400)
+    good = runner.run_one(study, 1, "ekf")
+    monkeypatch.setattr(runner, "make_filter", failing)
+    bad = runner.run_one(study, 0, "ekf")
+    nan = runner.run_one(study, 0, "shekf")
+    assert bad.diverged.startswith("diverged at ") and "(scan 4): Singular matrix" in bad.diverged
+    assert len(bad.est) == len(bad.truth) == 4 and np.all(np.isfinite(bad.est))
+    assert "(scan 2): non-finite pose" in nan.diverged and len(nan.est) == 2
+    assert good.diverged == "" and len(good.est) > 4
+    s_ekf, s_sh = summaries_by_algorithm([bad, good, nan], ("ekf", "shekf"))
+    assert s_ekf.diverged == 1 and s_ekf.runs == 1
+    assert s_ekf.path == pytest.approx(summarise([good]).path)
+    assert s_sh.diverged == 1 and s_sh.runs == 0 and math.isnan(s_sh.path)
+    table = format_table("t", [s_ekf, s_sh])
+    assert [ln.split()[-2:] for ln in table.splitlines() if ln.startswith("Diverged")] == [
+        ["1", "1"]
+    ]
+    assert "Diverged" not in format_table("t", [summarise([good])])

@@ -20,7 +20,7 @@ then (the VR paper's Fig. 8 "diversity").
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -58,6 +58,9 @@ class RunResult:
     distinct: np.ndarray | None = None
     #: wall segments (x1, y1, x2, y2) of line features, for plots
     segments: np.ndarray | None = None
+    #: why and when the filter failed numerically (:class:`FilterDiverged`); ``""`` if not.
+    #: The arrays then stop at that scan and the map is empty.
+    diverged: str = ""
 
     def path_errors(self) -> np.ndarray:
         """``(n, 2)`` position errors (x, y) in metres."""
@@ -122,12 +125,22 @@ class Summary:
     #: mean Neff after resampling / variance reduction, mean number of distinct particles
     neff_post: float = math.nan
     distinct: float = math.nan
+    #: runs in which the filter failed numerically; the metrics pool the other runs
+    diverged: int = 0
 
 
 def summarise(results: list[RunResult]) -> Summary:
-    """Pool the runs of one algorithm (see the module docstring)."""
+    """Pool the runs of one algorithm (see the module docstring); runs in which the filter
+    diverged are counted in ``diverged`` and left out of the metrics."""
     if not results:
         raise ValueError("no runs to summarise")
+    failed = sum(1 for r in results if r.diverged)
+    if failed == len(results):
+        nan = math.nan
+        return Summary(results[0].algorithm, 0, nan, nan, nan, nan, nan, nan, nan, nan,
+                       diverged=failed)  # fmt: skip
+    if failed:
+        return replace(summarise([r for r in results if not r.diverged]), diverged=failed)
     e = np.concatenate([r.path_errors() for r in results])
     lines = [r for r in results if r.features == "lines"]
     points = [r for r in results if r.features != "lines"]

@@ -30,6 +30,7 @@ ROWS: list[tuple[str, str, str]] = [
     ("Run time (s)", "runtime_s", "{:.2f}"),
     ("Real-time factor", "realtime_factor", "{:.0f}x"),
     ("Accuracy (%)", "accuracy_pct", "{:.3f}"),
+    ("Diverged runs", "diverged", "{:d}"),
 ]
 
 
@@ -52,7 +53,7 @@ def format_table(title: str, summaries: Sequence[Summary], markdown: bool = Fals
     rows = [
         [label] + [_cell(fmt, getattr(s, attr)) for s in summaries] for label, attr, fmt in ROWS
     ]
-    rows = [r for r in rows if any(c != "-" for c in r[1:])]
+    rows = [r for r in rows if any(c not in ("-", "0") for c in r[1:])]
     if markdown:
         out = [f"**{title}**", "", "| | " + " | ".join(names) + " |"]
         out.append("|---" * (len(names) + 1) + "|")
@@ -104,7 +105,7 @@ def plot_results(
     ax1.set_title(f"trajectories, run {first}")
     ax1.legend(fontsize=8)
     for a in algorithms:
-        mine = [r for r in results if r.algorithm == a]
+        mine = [r for r in results if r.algorithm == a and not r.diverged]
         if not mine or not np.any(np.isfinite(mine[0].neff)):
             continue
         n = min(len(r.neff) for r in mine)

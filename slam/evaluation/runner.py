@@ -9,6 +9,7 @@ are timed.
 
 from __future__ import annotations
 
+import math
 import time
 import zlib
 from collections.abc import Callable, Iterator
@@ -23,7 +24,19 @@ from auvgw.slam.evaluation.simulate import FeatureKind, SimRun, simulate
 from auvgw.slam.landmark.base import LandmarkFilter, ParticleFilterSLAM
 from auvgw.slam.landmark.registry import make_filter
 
-__all__ = ["Study", "drive", "monte_carlo", "run_one"]
+__all__ = ["FilterDiverged", "Study", "drive", "monte_carlo", "run_one"]
+
+
+class FilterDiverged(RuntimeError):
+    """A filter failed numerically (singular innovation covariance, non-finite estimate) at
+    scan ``scan`` (vehicle time ``t_s``); ``est``/``neff`` hold the scans before it."""
+
+    def __init__(
+        self, scan: int, t_s: float, reason: str, est: np.ndarray, neff: np.ndarray
+    ) -> None:
+        super().__init__(f"diverged at {t_s:.1f} s (scan {scan}): {reason}")
+        self.scan, self.t_s, self.reason = scan, t_s, reason
+        self.est, self.neff = est, neff
 
 
 @dataclass(frozen=True)
@@ -75,11 +88,17 @@ def drive(
     spent = 0.0
     t0 = time.perf_counter()
     for k in range(len(controls)):
-        f.predict(controls[k], dt, rng)
+        try:
+            f.predict(controls[k], dt, rng)
+            if is_scan[k + 1]:
+                f.update(sim.obs_z[oi], rng, sim.obs_ids[oi])
+        except (np.linalg.LinAlgError, FloatingPointError) as e:
+            raise FilterDiverged(oi, (k + 1) * dt, str(e), est[:oi], neff[:oi]) from e
         if is_scan[k + 1]:
-            f.update(sim.obs_z[oi], rng, sim.obs_ids[oi])
             spent += time.perf_counter() - t0
             est[oi] = f.estimate()
+            if not np.all(np.isfinite(est[oi])):
+                raise FilterDiverged(oi, (k + 1) * dt, "non-finite pose", est[:oi], neff[:oi])
             neff[oi] = f.neff
             if pf is not None:
                 post[oi] = pf.neff_of_weights()
@@ -118,16 +137,24 @@ def run_one(study: Study, run: int, algorithm: str) -> RunResult:
         association=study.association,
     )
     extra: dict[str, np.ndarray] = {}
-    est, neff, spent = drive(f, sim, _filter_seed(study.seed, run, algorithm), extra)
-    lm = f.landmarks()
+    diverged = ""
+    try:
+        est, neff, spent = drive(f, sim, _filter_seed(study.seed, run, algorithm), extra)
+        lm = f.landmarks()
+        map_mean, map_ids = lm.mean, lm.ids
+    except FilterDiverged as e:
+        est, neff, spent, diverged = e.est, e.neff, math.nan, str(e)
+        map_mean, map_ids = np.zeros((0, 2)), np.zeros(0, dtype=np.int64)
+        n = len(est)
+        extra = {"neff_post": np.full(n, np.nan), "distinct": np.full(n, np.nan)}
     return RunResult(
         algorithm=algorithm,
         run=run,
         est=est,
-        truth=sim.truth[sim.obs_step],
+        truth=sim.truth[sim.obs_step][: len(est)],
         neff=neff,
-        map_mean=lm.mean,
-        map_ids=lm.ids,
+        map_mean=map_mean,
+        map_ids=map_ids,
         landmarks=sim.landmarks,
         runtime_s=spent,
         duration_s=sim.duration_s,
@@ -138,6 +165,7 @@ def run_one(study: Study, run: int, algorithm: str) -> RunResult:
         neff_post=extra["neff_post"],
         distinct=extra["distinct"],
         segments=sim.segments,
+        diverged=diverged,
     )
 
 
