@@ -10,6 +10,7 @@ from auvgw.slam.landmark.ekfslam import (
     EKFSLAM,
     fading_factor,
     innovation_power,
+    observed_fading,
     sage_husa_gain,
     sage_husa_step,
 )
@@ -88,6 +89,31 @@ def test_fading_factor_only_when_innovations_exceed_the_prediction() -> None:
     # tr(W(HAH + HQH + R)) = 1 + 0.4 + 2 = 3.4 on average; N / M = (3.4 - 0.4 - 0.2) / 1
     assert lam == pytest.approx(2.8, rel=0.1)
     assert fading_factor(vk, 0.0 * hah, hqh, 0.1 * R_TRUE, w, beta=1.0) == 1.0
+
+
+def test_fading_scales_only_the_observed_vehicle_directions() -> None:
+    """A line observes 2 of the 3 pose directions: T A T^T scales H A H^T by lambda and leaves
+    the rest (the covariance given H x: along the wall) as it was; scaling the whole vehicle
+    block instead let the along-wall variance grow by lambda at every scan until S was singular."""
+    rng = np.random.default_rng(0)
+    g = rng.standard_normal((3, 3))
+    a = g @ g.T + 0.1 * np.eye(3)
+    hv = rng.standard_normal((2, 3))
+    lam = 7.0
+    t = observed_fading(a, hv, lam)
+    a2 = t @ a @ t.T
+    np.testing.assert_allclose(hv @ a2 @ hv.T, lam * (hv @ a @ hv.T), rtol=1e-10)
+    # what the scan cannot see, the covariance conditioned on Hv x, is unchanged
+    def conditional(c: np.ndarray) -> np.ndarray:
+        return c - c @ hv.T @ np.linalg.solve(hv @ c @ hv.T, hv @ c)
+
+    np.testing.assert_allclose(conditional(a2), conditional(a), atol=1e-10)
+    assert np.linalg.eigvalsh(a2 - a).min() > -1e-10  # only inflated
+    assert np.linalg.matrix_rank(a2 - a, tol=1e-9) == 2
+    # three independent rows observe everything: plain scaling
+    np.testing.assert_allclose(
+        (t3 := observed_fading(a, np.eye(3), lam)) @ a @ t3.T, lam * a, rtol=1e-10
+    )
 
 
 def _stationary_toy(

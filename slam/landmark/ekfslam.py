@@ -35,9 +35,15 @@ therefore those of the cited originals:
 
   The innovation dimension changes from scan to scan, so the traces are means over the scan's
   observations of traces weighted by ``R0^-1`` (range and bearing made dimensionless). The
-  fading is applied to the vehicle rows and columns of ``A`` only (``D A D``, ``D =
-  diag(sqrt(lambda) I3, I)``): fading the static map discards map information, and fading the
-  whole state diverged (``lambda`` grew without bound) when ``R0`` was too small. ``beta = 3``:
+  fading is applied to the vehicle rows and columns of ``A`` only, and there only in the
+  directions the scan observes: ``P^- = T A T^T + Q_acc`` with ``T = diag(I3 + (sqrt(lambda)
+  - 1) Pi, I)``, ``Pi = A_vv Hv^T (Hv A_vv Hv^T)^+ Hv`` (:func:`observed_fading`), which
+  scales ``Hv A_vv Hv^T`` by ``lambda`` as Zhou's ``lambda A`` does and keeps the vehicle
+  covariance given ``Hv x``. Fading the static map discards map information; fading the whole
+  vehicle block (``D A D``, ``D = diag(sqrt(lambda) I3, I)``) grew the variance along a wall
+  seen only as a line by ``lambda`` at every scan (harbour lines: path RMSE 2.24 m against
+  EKF-SLAM's 1.10 m with the true ``R0``; singular ``S`` in 28 of 30 runs with ``0.1 R0``);
+  fading the whole state diverged even on points when ``R0`` was too small. ``beta = 3``:
   with ``beta = 1`` the factor fires on the ordinary scatter of single-observation scans.
   ``lambda >= 1`` by construction, so the fading can only *inflate* ``P``: when the assumed
   ``R`` is too large the innovations are smaller than predicted, ``N_k < M_k`` and strong
@@ -71,6 +77,7 @@ __all__ = [
     "EKFSLAM",
     "fading_factor",
     "innovation_power",
+    "observed_fading",
     "sage_husa_gain",
     "sage_husa_step",
 ]
@@ -125,6 +132,16 @@ def fading_factor(
         return 1.0
     n_k = v_k - float(np.mean(hqh_diag @ w)) - beta * float(w @ rdiag)
     return max(1.0, n_k / m_k)
+
+
+def observed_fading(a: np.ndarray, hv: np.ndarray, lam: float) -> np.ndarray:
+    """``T = I + (sqrt(lambda) - 1) Pi`` with ``Pi = A Hv^T (Hv A Hv^T)^+ Hv`` the
+    ``A``-orthogonal projector onto the vehicle directions the scan observes: ``T A T^T = A +
+    (lambda - 1) Pi A`` scales ``Hv A Hv^T`` by ``lambda`` and leaves unobserved directions (along
+    a wall seen as a line) alone. ``a (3, 3)`` the vehicle block of ``A``, ``hv (2m, 3)``."""
+    ah = a @ hv.T
+    pi = ah @ np.linalg.pinv(hv @ ah, hermitian=True) @ hv
+    return np.eye(3) + (np.sqrt(lam) - 1.0) * pi
 
 
 class EKFSLAM(LandmarkFilter):
@@ -300,11 +317,11 @@ class EKFSLAM(LandmarkFilter):
             hqh = hx_d @ self._qacc @ hx_d.T
             lam = self._fading(v, hph - hqh, hqh)
             self.last_lambda = lam
-            if lam > 1.0:  # P^- = D A D + Q_acc, D = diag(sqrt(lambda) I3, I)
+            if lam > 1.0:  # P^- = T A T^T + Q_acc on the vehicle rows (module docstring)
                 p[:3, :3] -= self._qacc
-                dsc = np.ones(k)
-                dsc[:3] = np.sqrt(lam)
-                p *= dsc[:, None] * dsc[None, :]
+                t = observed_fading(p[:3, :3], hx_d, lam)
+                p[:3, :] = t @ p[:3, :]
+                p[:, :3] = p[:, :3] @ t.T
                 p[:3, :3] += self._qacc
                 hph = h @ p @ h.T
         self._qacc[:] = 0.0
