@@ -214,3 +214,42 @@ def test_a_diverged_run_is_counted_and_kept_out_of_the_metrics(web, monkeypatch)
         ["1", "1"]
     ]
     assert "Diverged" not in format_table("t", [summarise([good])])
+
+
+def test_bursts_are_recorded_and_an_oracle_filter_is_told_them(web, monkeypatch):
+    """``obs_scale`` holds the variance multiple each observation was drawn with, and with
+    ``oracle_noise`` the particle filters get ``R0 x scale`` per observation."""
+    sim = simulate(web, np.random.default_rng(4), burst_n=100.0, burst_p=0.3, max_steps=3000)
+    scale = np.concatenate(sim.obs_scale)
+    assert set(np.unique(scale)) == {1.0, 100.0}
+    assert abs(np.mean(scale == 100.0) - 0.3) < 0.05
+    clean = simulate(web, np.random.default_rng(4), max_steps=3000, sensor_noise=False)
+    err = np.concatenate(sim.obs_z) - np.concatenate(clean.obs_z)
+    err[:, 1] = (err[:, 1] + np.pi) % (2 * np.pi) - np.pi
+    z = err / np.sqrt(np.diag(sim.r)) / np.sqrt(scale)[:, None]  # unit normal if scale is right
+    assert np.std(z[scale == 100.0]) == pytest.approx(1.0, abs=0.1)
+    assert np.std(z[scale == 1.0]) == pytest.approx(1.0, abs=0.1)
+
+    from auvgw.slam.evaluation import runner
+    from auvgw.slam.landmark.base import ParticleFilterSLAM
+
+    seen: list[np.ndarray | None] = []
+    update = ParticleFilterSLAM.update
+
+    def spy(
+        self: ParticleFilterSLAM, *a: object, r: np.ndarray | None = None, **kw: object
+    ) -> None:
+        seen.append(r)
+        update(self, *a, r=r, **kw)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(ParticleFilterSLAM, "update", spy)
+    study = runner.Study(web, ("fastslam2",), runs=1, burst_n=100.0, burst_p=0.3, max_steps=400)
+    runner.run_one(study, 0, "fastslam2")
+    assert seen and all(r is None for r in seen)
+    seen.clear()
+    oracle = runner.Study(web, ("fastslam2",), 1, 100.0, 0.3, max_steps=400, oracle_noise=True)
+    runner.run_one(oracle, 0, "fastslam2")
+    sim0 = simulate(web, np.random.default_rng([0, 0]), burst_n=100.0, burst_p=0.3, max_steps=400)
+    assert len(seen) == len(sim0.obs_scale)
+    for r, s in zip(seen, sim0.obs_scale, strict=True):
+        np.testing.assert_array_equal(r, sim0.r * s[:, None, None])

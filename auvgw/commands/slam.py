@@ -85,6 +85,12 @@ def register(sub: Any) -> None:
         default=1.0,
         help="the filters assume this multiple of the true R0 (mis-specified noise)",
     )
+    e.add_argument(
+        "--oracle-noise",
+        action="store_true",
+        help="tell the particle filters each observation's true covariance (n R0 in a burst):"
+        " the most any noise adaptation can gain",
+    )
     e.add_argument("--max-steps", type=int, default=None, help="truncate each run (steps)")
     e.add_argument("--out", type=Path, default=None, help="directory for tables.md, JSON, PNG")
     e.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -112,6 +118,8 @@ def command_line(args: argparse.Namespace) -> str:
     parts += ["--association", args.association, "--seed", str(args.seed)]
     if args.r0_scale != 1.0:
         parts += ["--r0-scale", f"{args.r0_scale:g}"]
+    if args.oracle_noise:
+        parts += ["--oracle-noise"]
     if args.max_steps is not None:
         parts += ["--max-steps", str(args.max_steps)]
     if args.out is not None:
@@ -184,6 +192,7 @@ def run(args: argparse.Namespace) -> int:
             r0_scale=args.r0_scale,
             max_steps=args.max_steps,
             features=args.features,
+            oracle_noise=args.oracle_noise,
         )
         total = args.runs * len(algorithms)
         if args.no_progress:
@@ -200,6 +209,7 @@ def run(args: argparse.Namespace) -> int:
             + f": n = {n:g}, p = {p:g} ({args.runs} runs, {args.particles} particles,"
             f" {args.association} association"
             + (f", filters assume {args.r0_scale:g} R0" if args.r0_scale != 1.0 else "")
+            + (", oracle noise" if args.oracle_noise else "")
             + ")"
         )
         txt = format_table(title, sums)

@@ -43,7 +43,9 @@ class FilterDiverged(RuntimeError):
 class Study:
     """What to run: algorithms on ``runs`` simulations of ``scenario`` observing ``features``
     (``points`` or ``lines``) with dynamic noise ``(burst_n, burst_p)``; the filters assume
-    ``r0_scale * R0`` as their nominal noise."""
+    ``r0_scale * R0`` as their nominal noise; with ``oracle_noise`` the particle filters are
+    also told each observation's true covariance (the bound of what noise adaptation can
+    gain)."""
 
     scenario: Scenario
     algorithms: tuple[str, ...]
@@ -56,6 +58,7 @@ class Study:
     r0_scale: float = 1.0
     max_steps: int | None = None
     features: FeatureKind = "points"
+    oracle_noise: bool = False
 
 
 def drive(
@@ -63,6 +66,7 @@ def drive(
     sim: SimRun,
     rng: np.random.Generator,
     extra: dict[str, np.ndarray] | None = None,
+    oracle_noise: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, float]:
     """Run filter ``f`` through ``sim``: ``(estimates after each scan (n, 3), Neff (n,),
     seconds spent in the filter)``.
@@ -80,6 +84,7 @@ def drive(
     post = np.full(n_scans, np.nan)
     distinct = np.full(n_scans, np.nan)
     pf = f if isinstance(f, ParticleFilterSLAM) and extra is not None else None
+    oracle = f if isinstance(f, ParticleFilterSLAM) and oracle_noise else None
     is_scan = np.zeros(len(sim.controls) + 1, dtype=bool)
     is_scan[sim.obs_step] = True
     controls = sim.controls
@@ -90,7 +95,10 @@ def drive(
     for k in range(len(controls)):
         try:
             f.predict(controls[k], dt, rng)
-            if is_scan[k + 1]:
+            if is_scan[k + 1] and oracle is not None:
+                r = sim.r * sim.obs_scale[oi][:, None, None]
+                oracle.update(sim.obs_z[oi], rng, sim.obs_ids[oi], r=r)
+            elif is_scan[k + 1]:
                 f.update(sim.obs_z[oi], rng, sim.obs_ids[oi])
         except (np.linalg.LinAlgError, FloatingPointError) as e:
             raise FilterDiverged(oi, (k + 1) * dt, str(e), est[:oi], neff[:oi]) from e
@@ -139,7 +147,8 @@ def run_one(study: Study, run: int, algorithm: str) -> RunResult:
     extra: dict[str, np.ndarray] = {}
     diverged = ""
     try:
-        est, neff, spent = drive(f, sim, _filter_seed(study.seed, run, algorithm), extra)
+        rng = _filter_seed(study.seed, run, algorithm)
+        est, neff, spent = drive(f, sim, rng, extra, study.oracle_noise)
         lm = f.landmarks()
         map_mean, map_ids = lm.mean, lm.ids
     except FilterDiverged as e:

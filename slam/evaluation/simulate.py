@@ -40,7 +40,7 @@ so the filters are timed alone.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
@@ -103,7 +103,9 @@ class SimRun:
     (range m / bearing rad for points, ``(rho_v m, theta_v rad)`` for lines) of the features
     ``obs_ids[i] (m,)``. ``landmarks (L, 2)`` are the true features: points ``(x, y)`` or lines
     ``(rho, theta)`` in the map frame; ``segments (S, 4)`` the wall segments of the lines and
-    ``segment_line (S,)`` the line (index into ``landmarks``) of each segment."""
+    ``segment_line (S,)`` the line (index into ``landmarks``) of each segment; ``obs_scale[i]
+    (m,)`` the variance multiple each observation was drawn with (``burst_n`` in a burst, else
+    1): what an oracle would know of the dynamic noise."""
 
     dt: float
     truth: np.ndarray
@@ -122,6 +124,7 @@ class SimRun:
     features: str = "points"
     segments: np.ndarray | None = None
     segment_line: np.ndarray | None = None
+    obs_scale: list[np.ndarray] = field(default_factory=list)
 
     @property
     def duration_s(self) -> float:
@@ -361,6 +364,7 @@ def simulate(
     steps = np.arange(every, len(tu) + 1, every)
     obs_z: list[np.ndarray] = []
     obs_ids: list[np.ndarray] = []
+    obs_scale: list[np.ndarray] = []
     obs_model: ObservationModel
     if features == "lines":
         assert segments is not None and segment_line is not None
@@ -384,10 +388,12 @@ def simulate(
                 bearing = wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - p[2])
                 vis = np.nonzero(in_range & (np.abs(bearing) < half_fov))[0]
         z = obs_model.h(p, lm[vis])
+        scale = np.ones(len(vis))
         if sensor_noise and len(vis):
             scale = np.where(rng.random(len(vis)) < bp, math.sqrt(bn), 1.0)
             z = z + rng.standard_normal(z.shape) * np.array([sr, sb]) * scale[:, None]
             z[:, 1] = wrap_angle(z[:, 1])
+        obs_scale.append(scale * scale)
         obs_z.append(z)
         obs_ids.append(vis)
     return SimRun(
@@ -408,4 +414,5 @@ def simulate(
         features=features,
         segments=segments,
         segment_line=segment_line,
+        obs_scale=obs_scale,
     )
