@@ -208,6 +208,7 @@ def test_a_diverged_run_is_counted_and_kept_out_of_the_metrics(web, monkeypatch)
     s_ekf, s_sh = summaries_by_algorithm([bad, good, nan], ("ekf", "shekf"))
     assert s_ekf.diverged == 1 and s_ekf.runs == 1
     assert s_ekf.path == pytest.approx(summarise([good]).path)
+    assert s_ekf.path_runs == pytest.approx((s_ekf.path,)) and s_sh.path_runs == ()
     assert s_sh.diverged == 1 and s_sh.runs == 0 and math.isnan(s_sh.path)
     table = format_table("t", [s_ekf, s_sh])
     assert [ln.split()[-2:] for ln in table.splitlines() if ln.startswith("Diverged")] == [

@@ -127,6 +127,8 @@ class Summary:
     distinct: float = math.nan
     #: runs in which the filter failed numerically; the metrics pool the other runs
     diverged: int = 0
+    #: path RMSE (m) of each pooled run, in run order (for paired comparisons between filters)
+    path_runs: tuple[float, ...] = ()
 
 
 def summarise(results: list[RunResult]) -> Summary:
@@ -172,4 +174,7 @@ def summarise(results: list[RunResult]) -> Summary:
         ),
         neff_post=_nanmean([r.neff_post for r in results]),
         distinct=_nanmean([r.distinct for r in results]),
+        path_runs=tuple(
+            float(np.sqrt(np.mean(np.sum(r.path_errors() ** 2, axis=1)))) for r in results
+        ),
     )
