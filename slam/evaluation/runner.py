@@ -77,7 +77,9 @@ def drive(
     receives, per scan and after resampling or variance reduction, ``neff_post`` (Neff of the
     weights the filter carries on: ``N`` right after a resampling) and ``distinct`` (the number
     of distinct particle poses: resampling duplicates particles, variance reduction does not);
-    ``nan`` for filters without particles."""
+    ``nan`` for filters without particles. With ``oracle_noise`` a particle filter gets each
+    observation's true covariance ``R0 x sim.obs_scale``. Raises :class:`FilterDiverged` when the
+    filter fails numerically."""
     n_scans = len(sim.obs_step)
     est = np.empty((n_scans, 3))
     neff = np.empty(n_scans)
