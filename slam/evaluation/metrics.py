@@ -143,7 +143,8 @@ def summarise(results: list[RunResult]) -> Summary:
                        diverged=failed)  # fmt: skip
     if failed:
         return replace(summarise([r for r in results if not r.diverged]), diverged=failed)
-    e = np.concatenate([r.path_errors() for r in results])
+    errs = [r.path_errors() for r in results]
+    e = np.concatenate(errs)
     lines = [r for r in results if r.features == "lines"]
     points = [r for r in results if r.features != "lines"]
     fe = np.concatenate(
@@ -174,7 +175,5 @@ def summarise(results: list[RunResult]) -> Summary:
         ),
         neff_post=_nanmean([r.neff_post for r in results]),
         distinct=_nanmean([r.distinct for r in results]),
-        path_runs=tuple(
-            float(np.sqrt(np.mean(np.sum(r.path_errors() ** 2, axis=1)))) for r in results
-        ),
+        path_runs=tuple(float(np.sqrt(np.mean(np.sum(x * x, axis=1)))) for x in errs),
     )

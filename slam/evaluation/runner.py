@@ -86,7 +86,7 @@ def drive(
     post = np.full(n_scans, np.nan)
     distinct = np.full(n_scans, np.nan)
     pf = f if isinstance(f, ParticleFilterSLAM) and extra is not None else None
-    oracle = f if isinstance(f, ParticleFilterSLAM) and oracle_noise else None
+    oracle = oracle_noise and isinstance(f, ParticleFilterSLAM)
     is_scan = np.zeros(len(sim.controls) + 1, dtype=bool)
     is_scan[sim.obs_step] = True
     controls = sim.controls
@@ -97,11 +97,9 @@ def drive(
     for k in range(len(controls)):
         try:
             f.predict(controls[k], dt, rng)
-            if is_scan[k + 1] and oracle is not None:
-                r = sim.r * sim.obs_scale[oi][:, None, None]
-                oracle.update(sim.obs_z[oi], rng, sim.obs_ids[oi], r=r)
-            elif is_scan[k + 1]:
-                f.update(sim.obs_z[oi], rng, sim.obs_ids[oi])
+            if is_scan[k + 1]:
+                kw = {"r": sim.r * sim.obs_scale[oi][:, None, None]} if oracle else {}
+                f.update(sim.obs_z[oi], rng, sim.obs_ids[oi], **kw)
         except (np.linalg.LinAlgError, FloatingPointError) as e:
             raise FilterDiverged(oi, (k + 1) * dt, str(e), est[:oi], neff[:oi]) from e
         if is_scan[k + 1]:
