@@ -36,7 +36,7 @@ def endpoint(port: int) -> str:
     return f"tcp/127.0.0.1:{port}"
 
 
-def wait_until(pred, timeout: float = 20.0, interval: float = 0.05, what: str = "condition"):
+def wait_until(pred, timeout: float = 60.0, interval: float = 0.05, what: str = "condition"):
     """Poll ``pred`` until it returns a truthy value; fail with ``what`` after ``timeout`` s."""
     deadline = time.monotonic() + timeout
     while True:

@@ -74,7 +74,19 @@ def test_live_record_then_replay_gives_the_same_decoded_stream(procs, tmp_path, 
             str(live_out),
         )
         recorder = procs.start(
-            [AUVGW, "record", "--vehicle", "rec1", "--out", str(mcap), "--connect", ep], "recorder"
+            [
+                AUVGW,
+                "record",
+                "--vehicle",
+                "rec1",
+                "--out",
+                str(mcap),
+                "--connect",
+                ep,
+                "--wait-gateway",
+                "120",
+            ],
+            "recorder",
         )
         with GatewaySubscriber("rec1", BusConfig(connect=[ep])) as me:
             wait_until(lambda: (me.status("dvl") or {}).get("connected"), what="dvl connected")
@@ -83,7 +95,7 @@ def test_live_record_then_replay_gives_the_same_decoded_stream(procs, tmp_path, 
             dvl.write(wire)
             assert live.wait_line("DONE", 60).startswith(f"DONE {len(frames)} dropped=0")
             wait_until(lambda: me.status("dvl")["frames"] == len(frames), what="frames counted")
-            assert me.wait_ready(10)  # one more status round after the last frame
+            assert me.wait_ready(60)  # one more status round after the last frame
         recorder.signal(signal.SIGINT)
         assert recorder.wait(60) == 0, recorder.stderr()
     finally:
