@@ -318,6 +318,10 @@ class Gateway:
                         dev, dev.decoder.feed(chunk), chunk.t_recv_ns, transport, host
                     )
                     self._update_framing(dev)
+                if dev.decoder.has_stale(time.monotonic()):  # a partial frame waited too long
+                    stale = dev.decoder.expire(time.monotonic())
+                    self._handle_items(dev, stale, time.time_ns(), transport, host)
+                    self._update_framing(dev)
                 if host is not None:
                     host.on_idle(transport.write, time.monotonic())
         except EndOfStream as exc:

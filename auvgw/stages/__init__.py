@@ -3,6 +3,7 @@ publish derived data on the bus (:mod:`auvgw.stages.fusion`: dead-reckoning odom
 
 from __future__ import annotations
 
+import logging
 import queue
 import threading
 import time
@@ -21,3 +22,13 @@ def join_draining(worker: threading.Thread, q: queue.Queue, stall_s: float) -> b
         elif time.monotonic() > deadline:
             return False
     return True
+
+
+def log_bad_payload(stage: str, key: str, exc: BaseException, seen: int) -> None:
+    """Log a malformed bus payload: the first one and every 100th as a warning (a flood of
+    them must not flood the log; the stage's status counts them all)."""
+    level = logging.WARNING if seen % 100 == 0 else logging.DEBUG
+    logging.getLogger(f"auvgw.stages.{stage}").log(
+        level, "%s: malformed payload on %s (%d so far): %s: %s",
+        stage, key, seen + 1, type(exc).__name__, exc,
+    )  # fmt: skip

@@ -56,7 +56,7 @@ from auvgw.bus import (
 )
 from auvgw.fusion import FusionConfig, NavFilter, Odometry
 from auvgw.fusion.adapters import INS_TYPES, PD0_TYPES, MessageAdapter
-from auvgw.stages import join_draining
+from auvgw.stages import join_draining, log_bad_payload
 
 log = logging.getLogger(__name__)
 
@@ -339,9 +339,9 @@ class FusionStage:
         try:
             env = decode_envelope(payload, key)
             msg = typed_message(env.type, env.body)
-        except (ValueError, KeyError, TypeError) as exc:
+        except Exception as exc:  # any malformed payload ([] on a sensor key...): count, go on
             msg, env = None, None
-            log.debug("fusion: %s: bad payload: %s", key, exc)
+            log_bad_payload("fusion", key, exc, self.stats.bad_payloads)
         if msg is None or env is None:
             with self._lock:
                 self.stats.bad_payloads += 1

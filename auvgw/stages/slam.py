@@ -84,7 +84,7 @@ from auvgw.slam.features import (
 from auvgw.slam.landmark.base import LandmarkFilter, LandmarkMap, ParticleFilterSLAM
 from auvgw.slam.landmark.registry import ALGORITHMS, DISPLAY_NAMES, make_filter
 from auvgw.slam.models import LineFeature, RangeBearing, VelocityModel, wrap_angle
-from auvgw.stages import join_draining
+from auvgw.stages import join_draining, log_bad_payload
 
 log = logging.getLogger(__name__)
 
@@ -636,8 +636,8 @@ class SlamStage:
         try:
             env = decode_envelope(payload, key)
             msg = typed_message(env.type, env.body)
-        except (ValueError, KeyError, TypeError) as exc:
-            log.debug("slam: %s: bad payload: %s", key, exc)
+        except Exception as exc:  # any malformed payload ([] on a sensor key...): count, go on
+            log_bad_payload("slam", key, exc, self.stats.bad_payloads)
             msg = env = None
         if msg is None or env is None:
             with self._lock:
