@@ -89,3 +89,41 @@ def test_malformed_bus_payloads_are_counted_logged_and_survived(stage_kind, capl
     warnings = [r for r in caplog.records if r.levelno == logging.WARNING]
     assert any("malformed payload on " + key in r.getMessage() for r in warnings)
     assert not any(r.levelno >= logging.ERROR for r in caplog.records)
+
+
+def test_raw_sequence_numbers_are_unique_across_a_gateway_restart(tmp_path, shared_data) -> None:
+    """Two runs of a gateway over the same capture: the second run's raw sequence numbers
+    (``session_id << 32 | n``) repeat none of the first run's."""
+    from gateway_support import frame_counters, pd0_frames
+
+    from auvgw.bus import unpack_raw_attachment
+    from auvgw.gateway import Gateway
+
+    frames = pd0_frames(shared_data, 5)
+    capture = tmp_path / "dvl.pd0"
+    capture.write_bytes(b"".join(frames))
+    cfg = parse_gateway_config(
+        {"vehicle": "restart1",
+         "devices": {"dvl": {"format": "pd0", "transport": {"kind": "file", "path": str(capture)}}}}
+    )  # fmt: skip
+    session = open_session(BusConfig())
+    runs: list[list[int]] = []
+    try:
+        for _ in range(2):
+            seqs: list[int] = []
+            sub = session.declare_subscriber(
+                "auv/restart1/raw/dvl",
+                lambda s, seqs=seqs: seqs.append(unpack_raw_attachment(s.attachment.to_bytes())[1]),
+            )
+            started = int(time.time())
+            with Gateway(cfg, session=session) as gw:
+                _wait(gw.finished.is_set, "end of the capture")
+                _wait(lambda seqs=seqs: len(seqs) == len(frames), "every raw frame")
+                assert gw.status()["session_id"] == gw.session_id
+            sub.undeclare()
+            runs.append(seqs)
+            _wait(lambda started=started: int(time.time()) > started, "the next second")
+    finally:
+        session.close()
+    assert frame_counters(runs[0]) == frame_counters(runs[1]) == [1, 2, 3, 4, 5]
+    assert not set(runs[0]) & set(runs[1])
