@@ -25,7 +25,7 @@ def demo_run(tmp_path_factory):
         capture_output=True, text=True, timeout=240,
     )  # fmt: skip
     assert res.returncode == 0, res.stdout + res.stderr
-    return out, res.stdout, json.loads((out / "summary.json").read_text())
+    return out, res.stdout + res.stderr, json.loads((out / "summary.json").read_text())
 
 
 def test_every_device_delivers_clean_frames(demo_run) -> None:
@@ -43,6 +43,15 @@ def test_every_device_delivers_clean_frames(demo_run) -> None:
     assert abs(devices["dvl"]["messages"]["pd0.Ensemble"] - 5 * span) <= 2
     assert devices["msis"]["messages"]["mtHeadData"] > 50  # polled by the gateway
     assert "dead reckoning vs truth" in stdout
+
+
+def test_a_normal_run_ends_connected_without_warnings(demo_run) -> None:
+    """The demo stops the gateway before the emulators close their ports: no outage warnings,
+    and the summary's devices are still connected."""
+    _, stdout, summary = demo_run
+    assert "WARNING" not in stdout, stdout
+    for name, d in summary["devices"].items():
+        assert d["connected"] is True, (name, d)
 
 
 def test_dead_reckoning_follows_the_truth(demo_run) -> None:
