@@ -29,11 +29,11 @@ from tqdm import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
-from format_samples import STREAM_FORMATS, samples, v4log_records  # noqa: E402
+from format_samples import STREAM_FORMATS, samples, v4log_records
 
-from auvgw.drivers.formats import get_format  # noqa: E402
-from auvgw.drivers.framing import ErrorPolicy  # noqa: E402
-from auvgw.paths import REPO_ROOT, shared_dir  # noqa: E402
+from auvgw.drivers.formats import get_format
+from auvgw.drivers.framing import ErrorPolicy
+from auvgw.paths import REPO_ROOT, shared_dir
 
 Corrupt = Callable[[bytes, np.random.Generator], bytes]
 
@@ -88,7 +88,7 @@ def trial(fmt: str, good: list[bytes], head: bytes, corrupt: Corrupt, rng: np.ra
         try:
             f.decode(fr)
             passed += 1
-        except Exception:  # noqa: BLE001 - any decode failure is a rejection
+        except Exception:  # any decode failure is a rejection
             pass
     return passed == 0, lost
 
