@@ -189,7 +189,11 @@ class Gateway:
     def device_status(self, name: str, now_ns: int | None = None) -> dict[str, Any]:
         """One device's status (JSON-ready, fields in docs/gateway.md)."""
         d = self.devices[name]
-        return d.health.snapshot(now_ns, stale_after_s=d.cfg.stale_after_s)
+        snap = d.health.snapshot(now_ns, stale_after_s=d.cfg.stale_after_s)
+        # the stamp clock of the data ([clock]: vehicle-paced in emulation), so a viewer puts
+        # the health next to the data it describes at any sim speed
+        snap["t_stamp_ns"] = self._stamp(now_ns if now_ns is not None else time.time_ns())
+        return snap
 
     def status(self) -> dict[str, Any]:
         """The gateway's status: vehicle, time, uptime and every device's status."""
@@ -198,6 +202,7 @@ class Gateway:
             "v": SCHEMA_VERSION,
             "vehicle": self.cfg.vehicle,
             "t_ns": now,
+            "t_stamp_ns": self._stamp(now),
             "uptime_s": round((now - self._t0_ns) / 1e9, 3),
             "session_id": self.session_id,
             "bus": self._bus_status(),
