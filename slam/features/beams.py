@@ -115,7 +115,8 @@ class ScanLines:
         inten = np.full((len(rows), width), np.nan)
         for i, r in enumerate(rows):
             inten[i, : r.size] = r
-        return cls(np.asarray(t, float), np.asarray(bearing, float), inten, bin_length, bin_offset)
+        blen = np.asarray(bin_length, float)
+        return cls(np.asarray(t, float), np.asarray(bearing, float), inten, blen, bin_offset)
 
     def ranges(self) -> FArray:
         """(N, B) range of every bin, m."""
