@@ -14,6 +14,7 @@ import pytest
 from auvgw.viz.readback import read_recording
 
 DURATION_S = 30.0
+HARBOUR_SPEED_MPS = 1.0  # config/scenarios/harbour.json vehicle.speed_mps
 
 
 @pytest.fixture(scope="module")
@@ -57,7 +58,8 @@ def test_a_normal_run_ends_connected_without_warnings(demo_run) -> None:
 def test_dead_reckoning_follows_the_truth(demo_run) -> None:
     _, _, summary = demo_run
     nav = summary["navigation"]["dead_reckoning"]
-    assert nav["distance_m"] > 20.0
+    # over the span the gateway saw (it starts later on a busy machine), at the route's 1 m/s
+    assert nav["distance_m"] > 0.8 * summary["ins_time_span_s"] * HARBOUR_SPEED_MPS > 8.0
     assert nav["rmse_m"] < 1.0, nav  # DVL-aided DR over tens of metres: decimetres
     assert summary["fusion"]["filter"]["dvl_updates"] > 50
 
