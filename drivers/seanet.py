@@ -738,6 +738,12 @@ def _plausible(buf: bytes | bytearray, start: int, total: int) -> None:
         raise BadFrame(f"bearing: bearing {bearing}, limits {left}..{right} (1/16 grad)")
 
 
+def check_plausible(packet: bytes | bytearray) -> None:
+    """:class:`BadFrame` when a whole packet's fields contradict each other (see
+    :func:`_plausible`; the V4LOG framer judges its records' packets the same way)."""
+    _plausible(packet, 0, len(packet))
+
+
 def _check(buf: bytes | bytearray, start: int, max_size: int, plausible: bool = False) -> int:
     """Total size of the valid packet at ``start``, 0 if more bytes are needed, or BadFrame.
 
