@@ -78,8 +78,9 @@ def match_weights(
     """Per row (particle): ``(weight, gated_in, mse)``. ``z_pmap`` is the IDW of the Pmap at the
     Mmap points, ``z_mmap`` their own depths, ``valid`` (rows, M) the points inside the Pmap
     coverage; ``n_mmap`` the Mmap size of each row; ``fallback`` the weight of an unmatched
-    particle (1/N), towards which alpha flattens with ``alpha_towards='fallback'``. Rows failing the gates (I > I_min and
-    mse < mse_max, eq. 6) get ``gated_in = False`` (the caller gives them 1/N)."""
+    particle (1/N), towards which alpha flattens with ``alpha_towards='fallback'``. Rows
+    failing the gates (I > I_min and mse < mse_max, eq. 6) get ``gated_in = False`` (the
+    caller gives them 1/N)."""
     n = valid.sum(1)
     dz2 = np.where(valid, (z_pmap - z_mmap) ** 2, 0.0)
     mse = dz2.sum(1) / np.maximum(n, 1)  # eq. (6)
