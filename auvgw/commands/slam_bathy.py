@@ -84,8 +84,9 @@ def run(args: argparse.Namespace) -> int:
         raise UserError("--runs, --jobs and --particles must be at least 1")
     try:
         cfg = BathyConfig(**{"n_particles": args.particles, **parse_sets(args.set)})
-    except (ValidationError, TypeError) as exc:
-        raise UserError(f"--set: {exc}") from None
+    except ValidationError as exc:
+        bad = "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())
+        raise UserError(f"--set: {bad} (see BathyConfig in docs/slam_bathymetric.md)") from None
     try:
         scenario = load_scenario(args.scenario)
     except ScenarioError as exc:
