@@ -15,27 +15,8 @@ from auvgw.config.scenario import Scenario
 from auvgw.slam.bathymetric.config import BathyConfig
 from auvgw.slam.bathymetric.study import BathyStudy, monte_carlo
 from auvgw.slam.evaluation.executor import open_executor
+from tests.bathy_helpers import TINY, local_cluster
 from tests.slam_helpers import bailey_scenario
-
-TINY = {
-    "name": "tiny_survey",
-    "vehicle": {
-        "waypoints": [[0, 0], [200, 0], [200, 60], [60, 60], [60, -40]],
-        "speed_mps": 2.0,
-        "depth_m": 0.5,
-        "dt_s": 0.1,
-    },
-    "terrain": {
-        "kind": "mixed",
-        "depth_m": 30,
-        "relief_m": 3,
-        "wavelength_m": 80,
-        "octaves": 3,
-        "seed": 2,
-        "extent_m": [-50, 250, -50, 100],
-    },
-    "devices": {"multibeam": {"rate_hz": 1.0, "options": {"n_beams": 61}}},
-}
 
 
 def _study() -> BathyStudy:
@@ -55,7 +36,7 @@ def _same(a: list, b: list) -> None:
 
 
 def test_bathymetric_trials_are_identical_here_in_processes_and_on_dask() -> None:
-    distributed = pytest.importorskip("distributed")
+    pytest.importorskip("distributed")
     study = _study()
     here = monte_carlo(study)
     assert len(here) == 6 and {r.algorithm for r in here} == {"mtm-pf", "bpslam", "dr"}
@@ -64,28 +45,18 @@ def test_bathymetric_trials_are_identical_here_in_processes_and_on_dask() -> Non
     assert here[0].final_error_m != here[3].final_error_m  # runs differ
     with open_executor(jobs=2) as ex:
         _same(here, monte_carlo(study, ex))
-    with (
-        distributed.LocalCluster(
-            n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None
-        ) as cluster,
-        open_executor(dask=cluster.scheduler_address) as ex,
-    ):
+    with local_cluster() as address, open_executor(dask=address) as ex:
         _same(here, monte_carlo(study, ex))
 
 
 def test_landmark_trials_on_dask_match_the_serial_ones(shared_data, tmp_path) -> None:
-    distributed = pytest.importorskip("distributed")
+    pytest.importorskip("distributed")
     from auvgw.slam.evaluation import runner
 
     web = bailey_scenario(shared_data, tmp_path, "webmap")
     study = runner.Study(web, ("fastslam2", "ekf"), runs=2, max_steps=300, n_particles=20)
     serial = runner.monte_carlo(study)
-    with (
-        distributed.LocalCluster(
-            n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None
-        ) as cluster,
-        open_executor(dask=cluster.scheduler_address) as ex,
-    ):
+    with local_cluster() as address, open_executor(dask=address) as ex:
         remote = runner.monte_carlo(study, executor=ex)
     assert [(r.run, r.algorithm) for r in serial] == [(r.run, r.algorithm) for r in remote]
     for a, b in zip(serial, remote, strict=True):

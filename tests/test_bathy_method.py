@@ -17,6 +17,7 @@ from auvgw.slam.bathymetric.filters import MTMPF, jitter_variance
 from auvgw.slam.bathymetric.loops import LCCD, LoopClosure, correction_ramp
 from auvgw.slam.bathymetric.matching import alpha_exponent, idw, match_weights
 from auvgw.slam.bathymetric.simulate import DRModel, simulate_survey, swath_offsets
+from tests.bathy_helpers import TINY
 
 
 def test_idw_hand_computed() -> None:
@@ -156,27 +157,7 @@ def test_lccd_rejects_a_planted_inconsistent_closure() -> None:
 
 
 def _small_scenario() -> Scenario:
-    return Scenario.model_validate(
-        {
-            "name": "tiny",
-            "vehicle": {
-                "waypoints": [[0, 0], [150, 0], [150, 60], [60, 60], [60, -40]],
-                "speed_mps": 2.0,
-                "depth_m": 0.5,
-                "dt_s": 0.1,
-            },
-            "terrain": {
-                "kind": "mixed",
-                "depth_m": 30,
-                "relief_m": 3,
-                "wavelength_m": 80,
-                "octaves": 3,
-                "seed": 2,
-                "extent_m": [-50, 200, -50, 100],
-            },
-            "devices": {"multibeam": {"rate_hz": 1.0, "options": {"n_beams": 41}}},
-        }
-    )
+    return Scenario.model_validate(TINY)
 
 
 def test_one_noise_free_particle_reproduces_the_truth() -> None:

@@ -80,6 +80,19 @@ class BathyFilter:
     def step(self, u: np.ndarray, offsets: np.ndarray, depth: np.ndarray) -> None:
         raise NotImplementedError
 
+    def _advance(
+        self, u: np.ndarray, offsets: np.ndarray, depth: np.ndarray, var: float
+    ) -> np.ndarray:
+        """Next ping: store DR and swath; return the particles' motion of eq. (2),
+        u + omega + N(0, var), (N, 2)."""
+        cfg, rng, n = self.cfg, self.rng, self.cfg.n_particles
+        self.t += 1
+        self.dr[self.t] = self.dr[self.t - 1] + u
+        self._store(offsets, depth)
+        return (
+            u + rng.normal(0.0, cfg.omega_sigma_m, (n, 2)) + rng.normal(0.0, np.sqrt(var), (n, 2))
+        )
+
     def trajectory(self) -> np.ndarray:
         """Final estimate of every ping so far, (t + 1, 2) m."""
         raise NotImplementedError
@@ -137,15 +150,9 @@ class MTMPF(BathyFilter):
 
     # -- one ping -----------------------------------------------------------------------------
     def step(self, u: np.ndarray, offsets: np.ndarray, depth: np.ndarray) -> None:
-        cfg, rng, n = self.cfg, self.rng, self.cfg.n_particles
-        self.t += 1
+        cfg, n = self.cfg, self.cfg.n_particles
+        self.x += self._advance(u, offsets, depth, jitter_variance(self.t_r, cfg))  # eq. (2)
         t = self.t
-        self.dr[t] = self.dr[t - 1] + u
-        self._store(offsets, depth)
-        s2 = jitter_variance(self.t_r, cfg)
-        self.x += (  # eq. (2)
-            u + rng.normal(0.0, cfg.omega_sigma_m, (n, 2)) + rng.normal(0.0, np.sqrt(s2), (n, 2))
-        )
         self.t_r += 1
         self.traj[t] = self.x.mean(0)  # S_p, unweighted centroid (A7)
         w, tlp = self.weights()
@@ -272,16 +279,9 @@ class BPSLAM(BathyFilter):
 
     def step(self, u: np.ndarray, offsets: np.ndarray, depth: np.ndarray) -> None:
         cfg, rng, n = self.cfg, self.rng, self.cfg.n_particles
-        self.t += 1
+        step = self._advance(u, offsets, depth, cfg.sigma_c2)  # eq. (2), sigma_m^2 = sigma_c^2
         t = self.t
-        self.dr[t] = self.dr[t - 1] + u
-        self._store(offsets, depth)
-        self.trajs[t] = (  # eq. (2) with sigma_m^2 = sigma_c^2
-            self.trajs[t - 1]
-            + u
-            + rng.normal(0.0, cfg.omega_sigma_m, (n, 2))
-            + rng.normal(0.0, np.sqrt(cfg.sigma_c2), (n, 2))
-        )
+        self.trajs[t] = self.trajs[t - 1] + step
         w = self.weights()
         if w is not None:
             self.w = w
