@@ -70,8 +70,8 @@ def label_loops(f: BathyFilter, truth: np.ndarray) -> list[bool]:
     out = []
     for lc in f.loops:
         true_d = truth[lc.t_end] - truth[lc.t_loop]
-        before = np.linalg.norm((lc.s_end_before - lc.s_loop) - true_d)
-        after = np.linalg.norm((lc.s_end - lc.s_loop) - true_d)
+        before = float(np.linalg.norm((lc.s_end_before - lc.s_loop) - true_d))
+        after = float(np.linalg.norm((lc.s_end - lc.s_loop) - true_d))
         out.append(bool(after <= max(3.0, 0.5 * before)))
     return out
 

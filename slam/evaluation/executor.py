@@ -20,7 +20,7 @@ class ExecutorError(RuntimeError):
 
 
 @contextmanager
-def open_executor(jobs: int = 1, dask: str | None = None) -> Iterator[Executor | None]:
+def open_executor(jobs: int = 1, dask: Any = None) -> Iterator[Executor | None]:
     """``None`` (run in this process) for ``jobs <= 1`` without ``dask``; a process pool of
     ``jobs`` workers; or, with ``dask`` = ``tcp://host:8786`` (or a ``distributed.Client``),
     the cluster's ``concurrent.futures`` executor."""
@@ -32,11 +32,12 @@ def open_executor(jobs: int = 1, dask: str | None = None) -> Iterator[Executor |
             yield ex
         return
     try:
-        from distributed import Client
+        from distributed import Client as _Client
     except ImportError as exc:  # pragma: no cover - dask[distributed] is a dependency
         raise ExecutorError(
             "--dask needs dask[distributed]: pip install 'dask[distributed]'"
         ) from exc
+    Client: Any = _Client  # distributed is untyped
     if isinstance(dask, Client):
         yield dask.get_executor(pure=False)
         return
