@@ -64,6 +64,13 @@ class BathyConfig(BaseModel):
     mmap_beam_stride: int = Field(4, ge=1, description="every n-th beam in Mmap (speed; ours)")
     mmap_ping_stride: int = Field(2, ge=1, description="every n-th swath in Mmap (speed; ours)")
     neff_fraction: float = Field(2 / 3, gt=0, le=1, description="resample if Neff < f N, eq. (13)")
+    min_ramp_pings: int = Field(
+        0,
+        ge=0,
+        description="ours, off by default: spread an accepted correction over at least this "
+        "many recent pings even when earlier loops cover them (eq. 15 leaves a repeated "
+        "closure only the newest ping, a kink inside the next Pmaps); T_p is the natural value",
+    )
     lccd: bool = Field(True, description="loop-closure consistency determination (Sec. IV-B)")
     lccd_tau_m: float = Field(3.0, gt=0, description="clustering cut distance (A15)")
     lccd_linkage: str = Field("single", description="scipy linkage method (A15)")

@@ -251,7 +251,11 @@ class MTMPF(BathyFilter):
         if not valid:  # A18: restore the particles, map unchanged
             self.x = before
             return
-        t_a, delta = correction_ramp(self.covered, t_loop, t, m)  # eqs. (15)-(22)
+        covered = self.covered
+        if cfg.min_ramp_pings > 0:  # ours: never a kink inside the recent pings
+            covered = covered.copy()
+            covered[max(t - cfg.min_ramp_pings + 1, 0) : t + 1] = False
+        t_a, delta = correction_ramp(covered, t_loop, t, m)  # eqs. (15)-(22)
         self.traj[t_a : t + 1] += delta
         self.covered[t_loop : t + 1] = True  # A19
         self.t_r = 1
