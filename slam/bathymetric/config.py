@@ -65,9 +65,10 @@ class BathyConfig(BaseModel):
     mmap_ping_stride: int = Field(2, ge=1, description="every n-th swath in Mmap (speed; ours)")
     neff_fraction: float = Field(2 / 3, gt=0, le=1, description="resample if Neff < f N, eq. (13)")
     min_ramp_pings: int = Field(
-        20,
+        0,
         ge=0,
-        description="ours (0 = eq. 15 as written): spread an accepted correction over at least "
+        description="ours, 0 = eq. 15 as written (default): spread an accepted correction over "
+        "at least "
         "this many recent pings (T_p) even when earlier loops cover them; literally a repeated "
         "closure moves only the newest ping, a kink inside the next Pmaps",
     )
