@@ -24,6 +24,7 @@ recording outlives this project. Layout of an auvgw recording:
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import queue
@@ -114,12 +115,23 @@ class McapRecorder:
     callbacks; :meth:`close` drains the queue, writes the closing metadata and the MCAP summary.
     """
 
-    def __init__(self, path: str | Path, vehicle: str, chunk_size: int = 256 * 1024) -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        vehicle: str,
+        chunk_size: int = 256 * 1024,
+        file: IO[bytes] | None = None,
+    ) -> None:
         self.path = Path(path)
         self.vehicle = vehicle
         self.counts: Counter[str] = Counter()
         self.t_start_ns = time.time_ns()
-        self._f: IO[bytes] = open(self.path, "wb")  # noqa: SIM115 - closed by close()
+        #: the write error (disk full...) that stopped the recording; samples after it are
+        #: counted in ``lost`` and the file stays readable up to its last complete chunk
+        self.error: OSError | None = None
+        self.lost = 0
+        self.failed = threading.Event()
+        self._f: IO[bytes] = file if file is not None else open(self.path, "wb")  # noqa: SIM115
         self._w = Writer(self._f, chunk_size=chunk_size, compression=CompressionType.ZSTD)
         self._w.start(profile="", library=f"auvgw (schema {SCHEMA_VERSION})")
         self._channels: dict[str, int] = {}
@@ -130,7 +142,11 @@ class McapRecorder:
         self._thread.start()
 
     def add(self, key: str, payload: bytes, attachment: bytes | None, encoding: str = "") -> None:
-        """Queue one sample (``encoding`` is the Zenoh encoding string of the payload)."""
+        """Queue one sample (``encoding`` is the Zenoh encoding string of the payload); after a
+        write error it is only counted as lost (nothing piles up in memory)."""
+        if self.failed.is_set():
+            self.lost += 1
+            return
         self._q.put(_Pending(key, payload, attachment, encoding, time.time_ns()))
 
     def set_gateway_config(self, config_json: str) -> None:
@@ -188,13 +204,20 @@ class McapRecorder:
             p = self._q.get()
             if p == _STOP:
                 return
-            if isinstance(p, str):
-                self._w.add_metadata(GATEWAY_METADATA, json.loads(p))
+            if self.failed.is_set():
+                self.lost += not isinstance(p, str)
                 continue
             try:
-                self._write(p)
+                if isinstance(p, str):
+                    self._w.add_metadata(GATEWAY_METADATA, json.loads(p))
+                else:
+                    self._write(p)
             except (ValueError, struct.error) as exc:
-                log.warning("%s: sample not recorded: %s", p.key, exc)
+                log.warning("%s: sample not recorded: %s", getattr(p, "key", "metadata"), exc)
+            except OSError as exc:  # disk full, I/O error: stop writing, keep draining
+                self.error = exc
+                self.lost += not isinstance(p, str)
+                self.failed.set()
 
     def close(self) -> None:
         """Flush everything, write the closing metadata and the summary, close the file."""
@@ -203,17 +226,27 @@ class McapRecorder:
         self._closed = True
         self._q.put(_STOP)
         self._thread.join()
-        self._w.add_metadata(
-            RECORDING_METADATA,
-            {
-                "vehicle": self.vehicle,
-                "t_start_ns": str(self.t_start_ns),
-                "t_stop_ns": str(time.time_ns()),
-                "counts": json.dumps(dict(self.counts)),
-            },
-        )
-        self._w.finish()
-        self._f.close()
+        if self.failed.is_set():  # no summary: the file is read up to its last whole chunk
+            with contextlib.suppress(OSError):
+                self._f.close()
+            return
+        try:
+            self._w.add_metadata(
+                RECORDING_METADATA,
+                {
+                    "vehicle": self.vehicle,
+                    "t_start_ns": str(self.t_start_ns),
+                    "t_stop_ns": str(time.time_ns()),
+                    "counts": json.dumps(dict(self.counts)),
+                },
+            )
+            self._w.finish()
+            self._f.close()
+        except OSError as exc:  # the summary did not fit: readable up to the last chunk
+            self.error = exc
+            self.failed.set()
+            with contextlib.suppress(OSError):
+                self._f.close()
 
 
 # -- reading -----------------------------------------------------------------------------------

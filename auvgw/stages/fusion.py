@@ -56,6 +56,7 @@ from auvgw.bus import (
 )
 from auvgw.fusion import FusionConfig, NavFilter, Odometry
 from auvgw.fusion.adapters import INS_TYPES, PD0_TYPES, MessageAdapter
+from auvgw.stages import join_draining, log_bad_payload
 
 log = logging.getLogger(__name__)
 
@@ -338,9 +339,9 @@ class FusionStage:
         try:
             env = decode_envelope(payload, key)
             msg = typed_message(env.type, env.body)
-        except (ValueError, KeyError, TypeError) as exc:
+        except Exception as exc:  # any malformed payload ([] on a sensor key...): count, go on
             msg, env = None, None
-            log.debug("fusion: %s: bad payload: %s", key, exc)
+            log_bad_payload("fusion", key, exc, self.stats.bad_payloads)
         if msg is None or env is None:
             with self._lock:
                 self.stats.bad_payloads += 1
@@ -366,7 +367,8 @@ class FusionStage:
         )
 
     def stop(self, flush: bool = True, timeout_s: float = 5.0) -> None:
-        """Drain the queue, flush the filter (``flush``: publish the held-back odometry),
+        """Drain the queue (as long as the worker makes progress; ``timeout_s`` without any
+        gives up on it), flush the filter (``flush``: publish the held-back odometry),
         publish a last status and withdraw every declaration. Safe to call more than once."""
         if self._stopped:
             return
@@ -374,7 +376,9 @@ class FusionStage:
         undeclare(d for d in self._decls if isinstance(d, zenoh.Subscriber))
         if self._worker is not None:
             self._queue.put(None)
-            self._worker.join(timeout_s)
+            if not join_draining(self._worker, self._queue, timeout_s):
+                log.warning("%s: the worker made no progress for %.1f s; stopping without it",
+                            self.__class__.__name__, timeout_s)  # fmt: skip
         if flush:
             self.flush()
         self._publish_status()
