@@ -21,7 +21,9 @@ from __future__ import annotations
 import contextlib
 import json
 import struct
-from collections.abc import Iterable, Mapping
+import sys
+import threading
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -35,6 +37,7 @@ __all__ = [
     "SCHEMA_VERSION",
     "BusConfig",
     "Envelope",
+    "InputWatch",
     "Keys",
     "add_bus_arguments",
     "bus_from_args",
@@ -161,9 +164,59 @@ def decode_envelope(payload: bytes, key: str = "") -> Envelope:
     return Envelope(env["type"], env["device"], env["t_recv_ns"], env["seq"], env["msg"], key=key)
 
 
+class InputWatch:
+    """Says on stderr, once per key, when no sample arrived on an input key expression within
+    ``bus.no_publisher_after_s`` seconds (naming the key and the bus endpoints), so a stage
+    started without a gateway does not wait silently. A key's subscription is dropped at its
+    first sample; :attr:`silent` lists the keys that never had one."""
+
+    def __init__(
+        self, session: zenoh.Session, keys: Iterable[str], what: str, bus: BusConfig
+    ) -> None:
+        self.what = what
+        self.bus = bus
+        self.silent: set[str] = set(keys)
+        self._lock = threading.Lock()
+        self._subs = {k: session.declare_subscriber(k, self._seen(k)) for k in self.silent}
+        self._timer = threading.Timer(bus.no_publisher_after_s, self._report)
+        self._timer.daemon = True
+        self._timer.start()
+
+    def _seen(self, key: str) -> Callable[[zenoh.Sample], None]:
+        def on_sample(_s: zenoh.Sample) -> None:
+            with self._lock:
+                self.silent.discard(key)
+
+        return on_sample
+
+    def _report(self) -> None:
+        with self._lock:
+            silent = sorted(self.silent)
+        for key in silent:
+            print(
+                f"{self.what}: no publisher on {key} after {self.bus.no_publisher_after_s:g} s "
+                f"(bus: {self.bus.describe()}); is the gateway (auvgw run) running there?",
+                file=sys.stderr,
+                flush=True,
+            )
+        with self._lock:
+            heard = [k for k in self._subs if k not in self.silent]
+        undeclare(self._subs.pop(k) for k in heard)
+
+    def close(self) -> None:
+        self._timer.cancel()
+        undeclare(self._subs.values())
+        self._subs.clear()
+
+
 def add_bus_arguments(parser: Any) -> None:
     """``--mode/--connect/--listen`` options of a command that joins the bus."""
-    g = parser.add_argument_group("Zenoh bus (default: a peer with no endpoints)")
+    from auvgw.config.bus import DEFAULT_ENDPOINT, ENDPOINT_ENV
+
+    g = parser.add_argument_group(
+        f"Zenoh bus (default: a peer meeting the gateway at {DEFAULT_ENDPOINT}, "
+        f"or ${ENDPOINT_ENV}; docs/bus.md)"
+    )
     g.add_argument("--mode", choices=("peer", "client"), default="peer", help="session mode")
     g.add_argument(
         "--connect",
@@ -181,13 +234,15 @@ def add_bus_arguments(parser: Any) -> None:
     )
 
 
-def bus_from_args(args: Any) -> BusConfig:
+def bus_from_args(args: Any, hub: bool = False) -> BusConfig:
     """The :class:`BusConfig` of :func:`add_bus_arguments` options (raises ValueError, one line
-    per problem)."""
+    per problem). With no endpoint given, the one-machine default: listen on the default
+    endpoint (``hub``: the gateway's role, e.g. ``auvgw replay``) or connect to it."""
     from pydantic import ValidationError
 
     try:
-        return BusConfig(mode=args.mode, connect=args.connect, listen=args.listen)
+        bus = BusConfig(mode=args.mode, connect=args.connect, listen=args.listen)
+        return bus.as_hub() if hub else bus.as_spoke()
     except ValidationError as exc:
         lines = []
         for e in exc.errors():
