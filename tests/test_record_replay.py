@@ -88,7 +88,7 @@ def test_live_record_then_replay_gives_the_same_decoded_stream(procs, tmp_path, 
         assert recorder.wait(60) == 0, recorder.stderr()
     finally:
         dvl.close()
-    assert f"recorded {len(frames)} messages" in recorder.stderr()
+    assert f"auv/rec1/raw/dvl: {len(frames)}," in recorder.stderr()
 
     # the file: one raw channel, the gateway configuration, every frame with its attachment
     info = read_info(mcap)
