@@ -46,8 +46,10 @@ __all__ = [
     "json_encoding",
     "open_session",
     "pack_raw_attachment",
+    "raw_encoding",
     "undeclare",
     "unpack_raw_attachment",
+    "wire_format_of",
 ]
 
 SCHEMA_VERSION = 1
@@ -118,6 +120,21 @@ def pack_raw_attachment(t_recv_ns: int, seq: int, offset: int = 0) -> bytes:
 def unpack_raw_attachment(data: bytes) -> tuple[int, int, int]:
     """(t_recv_ns, seq, stream offset) of a raw frame's attachment."""
     return RAW_ATTACHMENT.unpack(data)
+
+
+def raw_encoding(wire_format: str) -> zenoh.Encoding:
+    """Encoding of a raw frame: octets, schema ``auvgw/<v>/raw/<wire format>`` (``pd0``,
+    ``hn100``, ``can``, ...), so a consumer knows the bytes without the gateway configuration."""
+    return zenoh.Encoding.APPLICATION_OCTET_STREAM.with_schema(
+        f"auvgw/{SCHEMA_VERSION}/raw/{wire_format}"
+    )
+
+
+def wire_format_of(encoding: str) -> str:
+    """The wire format named by a raw frame's encoding string ('' when it names none)."""
+    _, _, schema = encoding.partition(";")
+    head, sep, fmt = schema.rpartition("/raw/")
+    return fmt if sep and head.startswith("auvgw/") else ""
 
 
 def json_encoding(type_name: str) -> zenoh.Encoding:

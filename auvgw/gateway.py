@@ -33,6 +33,7 @@ from auvgw.bus import (
     json_encoding,
     open_session,
     pack_raw_attachment,
+    raw_encoding,
 )
 from auvgw.config.gateway import DeviceConfig, GatewayConfig
 from auvgw.decoding import DecodedItem, DeviceDecoder, make_decoders, message_kind, message_type
@@ -132,7 +133,7 @@ class Gateway:
         for dev in self.devices.values():
             dev.pubs["raw"] = s.declare_publisher(
                 self.keys.raw(dev.name),
-                encoding=zenoh.Encoding.APPLICATION_OCTET_STREAM,
+                encoding=raw_encoding(dev.cfg.format),
                 congestion_control=_DROP,
             )
             dev.thread = threading.Thread(

@@ -33,6 +33,7 @@ from auvgw.bus import (
     encode_envelope,
     json_encoding,
     open_session,
+    raw_encoding,
     unpack_raw_attachment,
 )
 from auvgw.cli import UserError
@@ -184,7 +185,8 @@ def run(args: argparse.Namespace) -> int:
                     )
                     continue
                 t_ns, seq, offset = unpack_raw_attachment(s.attachment)
-                publisher(key).put(s.payload, attachment=s.attachment, encoding=_OCTETS)
+                enc = raw_encoding(cfg.devices[rest].format) if rest in cfg.devices else _OCTETS
+                publisher(key).put(s.payload, attachment=s.attachment, encoding=enc)
                 sent[key] += 1
                 item = dec.item(s.payload, offset)
                 if item.error is not None:
