@@ -229,7 +229,7 @@ def sample_to_ros(
 
     if section in ("sensor", "nav"):
         env = decode_envelope(payload)
-        _load_can_types()
+        _load_types()
         msg = typed_message(env.type, env.body)
         if msg is None:
             msg = _Fields(env.type, env.body)
@@ -256,8 +256,10 @@ def sample_to_ros(
     return [ros2.decoded_msg(f"{section}/{rest}", source, str(type_name), t_ns, 0, text)], t_ns, 0
 
 
-def _load_can_types() -> None:
-    """The shipped HN-100 and MS3A DBCs' message types, so CAN envelopes become typed."""
+def _load_types() -> None:
+    """The fusion odometry type and the shipped HN-100 and MS3A DBCs' message types, so their
+    envelopes become typed."""
+    import auvgw.fusion.odometry  # noqa: F401 - registers Odometry
     from auvgw.drivers.spec import MESSAGE_TYPES
 
     if "HN100_Sample" in MESSAGE_TYPES and "MS3A_Sample" in MESSAGE_TYPES:

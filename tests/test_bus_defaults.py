@@ -21,8 +21,11 @@ from auvgw.recording import iter_samples, read_info
 SCENARIO = str(REPO / "config" / "scenarios" / "harbour.json")
 
 
-def _count_on_bus(stop: threading.Event, counts: Counter) -> threading.Thread:
-    """Count samples per section of the default bus (a spoke, as every stage), until stop."""
+def _count_on_bus(
+    stop: threading.Event, counts: Counter, envelopes: list[tuple[str, bytes]]
+) -> threading.Thread:
+    """Count samples per section of the default bus (a spoke, as every stage) and keep the
+    decoded envelopes (sensor/, nav/), until stop."""
 
     def run() -> None:
         with open_session(BusConfig().as_spoke()) as s:
@@ -30,7 +33,10 @@ def _count_on_bus(stop: threading.Event, counts: Counter) -> threading.Thread:
 
             def on_sample(smp) -> None:
                 key = str(smp.key_expr)
-                counts[key.split("/")[2]] += 1
+                section = key.split("/")[2]
+                counts[section] += 1
+                if section in ("sensor", "nav"):
+                    envelopes.append((key, smp.payload.to_bytes()))
                 if "/slam/" in key and key.endswith("/pose"):
                     counts["slam_pose"] += 1
 
@@ -55,8 +61,9 @@ def test_default_endpoints_connect_sim_gateway_record_fusion_slam(procs, tmp_pat
     fusion = procs.start([AUVGW, "fusion"], "fusion")
     slam = procs.start([AUVGW, "slam", "run"], "slam")
     counts: Counter = Counter()
+    envelopes: list[tuple[str, bytes]] = []
     stop = threading.Event()
-    counter = _count_on_bus(stop, counts)
+    counter = _count_on_bus(stop, counts, envelopes)
     try:
         rec.wait_line("recording", timeout=60)
         fusion.wait_line("fusion running", timeout=60)
@@ -84,6 +91,104 @@ def test_default_endpoints_connect_sim_gateway_record_fusion_slam(procs, tmp_pat
         assert sections[want] > 0, (want, sections)
     assert any(k.startswith("slam/") and n > 0 for k, n in sections.items()), sections
     assert any(k.endswith("/pose") for k in info.counts if "/slam/" in k), info.counts
+    _check_ros2_readers(rec_path, envelopes)
+
+
+#: ROS 2 types the recording must hold (topic suffix -> type)
+WANTED = {
+    "/auv1/sensor/ins/imu": "sensor_msgs/msg/Imu",
+    "/auv1/sensor/ins_can/imu": "sensor_msgs/msg/Imu",
+    "/auv1/sensor/dvl/twist": "geometry_msgs/msg/TwistWithCovarianceStamped",
+    "/auv1/sensor/dvl/altitude": "sensor_msgs/msg/Range",
+    "/auv1/sensor/multibeam/points": "sensor_msgs/msg/PointCloud2",
+    "/auv1/sensor/msis/returns": "sensor_msgs/msg/PointCloud2",
+    "/auv1/sensor/magnetometer/magnetic_field": "sensor_msgs/msg/MagneticField",
+    "/auv1/nav/odometry": "nav_msgs/msg/Odometry",
+    "/auv1/slam/vb-aufastslam/pose": "geometry_msgs/msg/PoseWithCovarianceStamped",
+    "/auv1/raw/dvl": "auvgw_msgs/msg/RawFrame",
+}
+
+
+def _stamp(h) -> int:
+    return h.stamp.sec * 1_000_000_000 + h.stamp.nanosec
+
+
+def _check_ros2_readers(path: Path, envelopes: list[tuple[str, bytes]]) -> None:
+    """rosbags' AnyReader lists the topics with their ROS 2 types and deserialises every
+    message; the mcap ROS 2 decoder's values agree field for field with the gateway's."""
+    import numpy as np
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+    from rosbags.highlevel import AnyReader
+
+    import auvgw.fusion.odometry  # noqa: F401 - the Odometry type
+    from auvgw.bus import decode_envelope
+    from auvgw.drivers.can_codec import hn100_can, ms3a_can
+    from auvgw.ros2 import enu_from_ned, flu_from_frd, quaternion_enu_flu
+    from auvgw.subscribe import typed_message
+
+    with AnyReader([path]) as reader:
+        types = {c.topic: c.msgtype for c in reader.connections}
+        n = sum(1 for c, _t, raw in reader.messages() if reader.deserialize(raw, c.msgtype))
+    for topic, ros_type in WANTED.items():
+        assert types.get(topic) == ros_type, (topic, types)
+    assert n == sum(read_info(path).counts.values())
+
+    # the gateway's values, by (device or section, receive time)
+    hn100_can(), ms3a_can()  # the CAN devices' message types
+    gw: dict[tuple[str, int], list] = {}  # several messages of one chunk share a time
+    for key, payload in envelopes:
+        env = decode_envelope(payload, key)
+        gw.setdefault((key.split("/")[3], env.t_recv_ns), []).append(
+            typed_message(env.type, env.body)
+        )
+
+    def expected(name: str, msg) -> tuple:
+        if name == "imu":
+            return (quaternion_enu_flu(msg.heading, msg.pitch, msg.roll),
+                    flu_from_frd((msg.rate_x, msg.rate_y, msg.rate_z)),
+                    flu_from_frd((msg.accel_x, msg.accel_y, msg.accel_z)))  # fmt: skip
+        if name == "magnetic_field":
+            return tuple(np.asarray(flu_from_frd((msg.bx, msg.by, msg.bz))) * 1e-9)
+        if name == "points":
+            b = msg.beams
+            xyzi = np.column_stack([b.along, -b.across, -b.depth, b.reflectivity])
+            return tuple(xyzi.astype("<f4").reshape(-1))
+        if name == "odometry":
+            return (
+                enu_from_ned((msg.x, msg.y, msg.z)),
+                quaternion_enu_flu(msg.heading, msg.pitch, msg.roll),
+                flu_from_frd(msg.velocity_body),
+            )
+        raise KeyError(name)
+
+    def got(name: str, ros) -> tuple:
+        if name == "imu":
+            o, w, a = ros.orientation, ros.angular_velocity, ros.linear_acceleration
+            return (o.x, o.y, o.z, o.w), (w.x, w.y, w.z), (a.x, a.y, a.z)
+        if name == "magnetic_field":
+            b = ros.magnetic_field
+            return b.x, b.y, b.z
+        if name == "points":
+            assert [f.name for f in ros.fields] == ["x", "y", "z", "intensity"]
+            return tuple(np.frombuffer(bytes(ros.data), dtype="<f4"))
+        p, o, v = ros.pose.pose.position, ros.pose.pose.orientation, ros.twist.twist.linear
+        return (p.x, p.y, p.z), (o.x, o.y, o.z, o.w), (v.x, v.y, v.z)
+
+    checked = Counter()
+    with open(path, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        for _s, ch, _m, ros in reader.iter_decoded_messages():
+            parts = ch.topic.split("/")  # /auv1/<section>/<device or stream>/...
+            name = parts[-1]
+            candidates = gw.get((parts[3], _stamp(ros.header)))
+            if candidates is None or name not in ("imu", "magnetic_field", "points", "odometry"):
+                continue
+            # field for field, bit for bit (NaN-free here: NaN != NaN would fail loudly)
+            assert got(name, ros) in [expected(name, m) for m in candidates], ch.topic
+            checked[name] += 1
+    for name in ("imu", "magnetic_field", "points", "odometry"):
+        assert checked[name] > 0, checked
 
 
 def test_a_stage_without_gateway_says_no_publisher_and_recorder_fails(procs, tmp_path: Path):
