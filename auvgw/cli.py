@@ -22,6 +22,7 @@ COMMANDS: list[str] = [
     "auvgw.commands.run",
     "auvgw.commands.record",
     "auvgw.commands.replay",
+    "auvgw.commands.export",
     "auvgw.commands.viz",
     "auvgw.commands.sim",
     "auvgw.commands.fusion",
