@@ -270,7 +270,7 @@ class Gateway:
                 self.keys.sensor(dev.name, kind), congestion_control=_DROP
             )
             dev.pubs[kind] = pub
-        payload, enc = encode_envelope(msg, dev.name, t_ns, seq)
+        payload, enc = encode_envelope(msg, dev.name, t_ns, seq, wire=dev.cfg.format)
         pub.put(payload, encoding=enc)
 
     def _handle_items(

@@ -194,7 +194,9 @@ def run(args: argparse.Namespace) -> int:
                     log.warning("%s", item.error)
                 for msg in item.messages:
                     skey = keys.sensor(rest, message_kind(msg))
-                    payload, enc = encode_envelope(msg, rest, t_ns, seq)
+                    payload, enc = encode_envelope(
+                        msg, rest, t_ns, seq, wire=cfg.devices[rest].format
+                    )
                     publisher(skey).put(payload, encoding=enc)
                     sent[skey] += 1
         queryable.undeclare()
