@@ -16,7 +16,8 @@ How messages are rebuilt: from the envelope the gateway publishes
 device configuration, DBC or site table on the subscriber's side (a shore laptop only needs the
 codec modules for the types), and it gives the same values the gateway decoded (floats and
 arrays travel in binary, NaN included). A type no installed codec defines (e.g. a CAN message
-built from a DBC the subscriber has not loaded) arrives with ``message = None`` and its fields in ``body``.
+built from a DBC the subscriber has not loaded) arrives with ``message = None`` and its fields
+in ``body``.
 
 Streams queue samples in the Zenoh callback and never block it: when a consumer falls behind by
 more than ``queue_size`` samples, new ones are dropped and counted (``Stream.dropped``).
