@@ -304,15 +304,20 @@ class InputWatch:
         self._subs.clear()
 
 
-def add_bus_arguments(parser: Any) -> None:
-    """``--mode/--connect/--listen`` options of a command that joins the bus."""
+def add_bus_arguments(parser: Any, title: str | None = None, mode: bool = True) -> None:
+    """``--mode/--connect/--listen`` options of a command that joins the bus (``mode=False``:
+    no ``--mode``, e.g. ``auvgw run`` whose configuration has it)."""
     from auvgw.config.bus import DEFAULT_ENDPOINT, ENDPOINT_ENV
 
     g = parser.add_argument_group(
-        f"Zenoh bus (default: a peer meeting the gateway at {DEFAULT_ENDPOINT}, "
-        f"or ${ENDPOINT_ENV}; docs/bus.md)"
+        title
+        or (
+            f"Zenoh bus (default: a peer meeting the gateway at {DEFAULT_ENDPOINT}, "
+            f"or ${ENDPOINT_ENV}; docs/bus.md)"
+        )
     )
-    g.add_argument("--mode", choices=("peer", "client"), default="peer", help="session mode")
+    if mode:
+        g.add_argument("--mode", choices=("peer", "client"), default="peer", help="session mode")
     g.add_argument(
         "--connect",
         action="append",

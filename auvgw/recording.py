@@ -117,15 +117,6 @@ def unpack_raw_record(data: bytes) -> tuple[bytes, bytes]:
 # -- writing -----------------------------------------------------------------------------------
 
 
-@dataclass
-class _Pending:
-    key: str
-    payload: bytes
-    attachment: bytes | None
-    encoding: str
-    t_rx_ns: int
-
-
 class Ros2McapWriter:
     """Writes bus samples to an MCAP file in the ROS 2 profile, synchronously (one thread).
 

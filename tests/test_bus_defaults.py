@@ -210,3 +210,20 @@ def test_a_stage_without_gateway_says_no_publisher_and_recorder_fails(procs, tmp
     assert "nothing recorded" in rec.stderr()
     fusion.signal(signal.SIGTERM)
     assert fusion.wait(60) == 0
+
+
+def test_run_listen_option_replaces_the_configuration_endpoints(procs, tmp_path: Path):
+    from gateway_support import endpoint, free_port
+
+    from auvgw.subscribe import GatewaySubscriber
+
+    cfg = tmp_path / "gw.toml"
+    cfg.write_text('vehicle = "lv"\nstatus_period_s = 0.2\n[bus]\nlisten = ["tcp/127.0.0.1:1"]\n'
+                   '[devices.dvl]\nformat = "pd0"\n'
+                   f'transport = {{ kind = "serial", url = "{tmp_path / "no"}" }}\n')  # fmt: skip
+    ep = endpoint(free_port())
+    gw = procs.start([AUVGW, "-v", "run", "--config", str(cfg), "--listen", ep], "gateway")
+    with GatewaySubscriber("lv", BusConfig(connect=[ep])) as me:
+        st = wait_until(lambda: me.status("dvl"), timeout=60, what="the gateway's status")
+    assert st["connected"] is False  # the device is absent; the gateway answers on --listen
+    assert f"listen {ep}" in gw.stderr()

@@ -70,23 +70,13 @@ def register(sub: Any) -> None:
         action="store_true",
         help="exit once every device's finite source (file replay) has ended",
     )
-    g = p.add_argument_group(
+    from auvgw.bus import add_bus_arguments
+
+    add_bus_arguments(
+        p,
         "Zenoh bus (replace the configuration's [bus] endpoints; with none anywhere the gateway "
-        "listens on tcp/127.0.0.1:7447 or $AUVGW_BUS_ENDPOINT: docs/bus.md)"
-    )
-    g.add_argument(
-        "--listen",
-        action="append",
-        default=[],
-        metavar="ENDPOINT",
-        help="endpoint to listen on (repeatable)",
-    )
-    g.add_argument(
-        "--connect",
-        action="append",
-        default=[],
-        metavar="ENDPOINT",
-        help="endpoint to connect to, e.g. a router (repeatable)",
+        "listens on tcp/127.0.0.1:7447 or $AUVGW_BUS_ENDPOINT: docs/bus.md)",
+        mode=False,
     )
     p.set_defaults(func=run)  # fmt: skip
 
