@@ -3,18 +3,19 @@
     .venv/bin/python benchmarks/bench_gateway.py [--rate 10] [--factor 10] [--seconds 15]
                                                  [--quick]
 
-Set-up: ``auvgw run`` (its own process) reads a raw pty that this script writes real PD0
-ensembles into (RDI_withBT.000, 581 B each), one ``os.write`` per ensemble at a fixed rate; this
-script also subscribes to the decoded ``auv/bench/sensor/dvl/ensemble`` samples (a Zenoh peer
-connected to the gateway by TCP on 127.0.0.1).
+Set-up, once per device (PD0: real ensembles of RDI_withBT.000, 581 B each; HN-100: binary
+solutions of 74 B): ``auvgw run`` (its own process) reads a raw pty that this script writes the
+frames into, one ``os.write`` per frame at a fixed rate; this script also subscribes to the
+decoded samples (``auv/bench/sensor/dvl/<kind>``, a Zenoh peer connected to the gateway by TCP
+on 127.0.0.1).
 
 * **gateway latency**: from ``os.write`` of an ensemble's last byte returning to its decoded
   sample arriving in this process's Zenoh callback (``time.time_ns`` on both ends, one process),
   split at the gateway's receive stamp (``t_recv_ns`` in the envelope) into "pty + read" and
   "decode + publish + deliver".
 * **bare Zenoh**: a separate publisher process puts payloads of the same size as the envelopes
-  (about 3.7 kB) at the same rate to this process (``time.time_ns`` in the payload; one system
-  clock). Gateway overhead = gateway p50 - bare p50.
+  (MessagePack, docs/bus.md#payloads) at the same rate to this process (``time.time_ns`` in
+  the payload; one system clock). Gateway overhead = gateway p50 - bare p50.
 * **CPU**: utime + stime of the gateway process (``/proc/<pid>/stat``) over each phase, as % of
   one core; idle = device connected, no data.
 * **lost**: ensembles written minus decoded samples received (by sequence number).
@@ -31,6 +32,8 @@ seconds (the gateway starts and opens its ports) and the last ones (every byte r
 ports close), so every frame an emulator sends falls in the measured run.
 
 * **CPU**: utime + stime of the ``auvgw run`` process over the sending window, % of one core.
+* **payload size**: bytes of every decoded envelope and raw frame the bus carried in the 1x
+  phase, per port (target: envelope <= 1.5x its raw frame).
 * **lost**: frames each emulator sent (the sim's printed counters; on CAN the sim counts a
   sample's burst once, so its count times the DBC's frames per epoch) minus the frames the
   gateway counted (``frames`` of its status queryable); the bar is none.
