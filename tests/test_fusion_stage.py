@@ -145,17 +145,17 @@ def test_stage_keeps_the_keys_of_its_devices():
     any_dev = FusionStage(FusionStageConfig(vehicle="v"))
     assert any_dev.subscription_key() == "auv/v/sensor/*/*"
     for key in (
-        "auv/v/sensor/ins/hn100nav",
-        "auv/v/sensor/x/hn100_sample",
+        "auv/v/sensor/ins/ins",
+        "auv/v/sensor/x/ins",
         "auv/v/sensor/d/ensemble",
     ):
         assert any_dev.wanted(key)
     assert not any_dev.wanted(keys.sensor("mbes", "xyz88")) and not any_dev.wanted("auv/v/sensor")
     named = FusionStage(FusionStageConfig(vehicle="v", ins_device="ins", dvl_device="dvl"))
-    assert named.wanted(keys.sensor("ins", "hn100nav")) and named.wanted(
+    assert named.wanted(keys.sensor("ins", "ins")) and named.wanted(
         keys.sensor("dvl", "ensemble")
     )
-    assert not named.wanted(keys.sensor("ins_can", "hn100_sample"))
+    assert not named.wanted(keys.sensor("ins_can", "ins"))
     assert not named.wanted(keys.sensor("dvl2", "ensemble"))
 
 
@@ -165,7 +165,7 @@ def test_sensor_kinds_are_the_gateway_key_segments(data):
     from auvgw.fusion.adapters import INS_TYPES, PD0_TYPES
 
     assert kinds <= set(sensor_kinds(INS_TYPES)) | set(sensor_kinds(PD0_TYPES))
-    assert kinds == {"hn100nav", "hn100_sample", "ensemble"}
+    assert kinds == {"ins", "ensemble"}  # one INS kind whatever the wire (serial or CAN)
 
 
 def test_settings_file_errors_name_the_file_and_field(tmp_path):
@@ -321,12 +321,12 @@ def test_stage_process_publishes_the_offline_odometry(data, tmp_path):
         for seq, (t_ns, device, msg) in enumerate(msgs):
             payload, _ = encode_envelope(msg, device, t_ns, seq)
             key = keys.sensor(device, message_kind(msg))
-            item = {"key": key, "type": message_type(msg), "payload": payload.decode()}
+            item = {"key": key, "type": message_type(msg), "payload": payload.hex()}
             f.write(json.dumps(item) + "\n")
     # what the stage process will see: the envelopes' messages rebuilt from JSON, in order
     rebuilt = []
     for line in env_file.read_text().splitlines():
-        env = decode_envelope(json.loads(line)["payload"].encode())
+        env = decode_envelope(bytes.fromhex(json.loads(line)["payload"]))
         rebuilt.append((env.t_recv_ns, env.device, typed_message(env.type, env.body)))
     expected, _ = offline(rebuilt, cfg)
     assert len(expected) == n_ins

@@ -130,6 +130,7 @@ def _online(args: argparse.Namespace, cfg: Any) -> int:
         args,
         lambda session: FusionStage(cfg, session),
         lambda st: f"fusion running: vehicle {cfg.vehicle}, odometry on {st.keys.odometry()}",
+        lambda st: [st.subscription_key()],
     )
     _print_counters(stage.counters())
     return 0

@@ -1,12 +1,11 @@
 """The fusion stage: the gateway's decoded INS and DVL messages in, dead-reckoning odometry out.
 
 Online it subscribes to ``auv/<v>/sensor/*/*`` (one subscription, so the arrival order across
-devices is kept) and keeps the INS kinds ``hn100nav`` (serial HN-100) and ``hn100_sample``
-(HN-100 on CAN) and the DVL kind ``ensemble`` (PD0) of the configured devices, or of any device
-(then the first device seen sending each kind of message is used:
-:class:`~auvgw.fusion.adapters.MessageAdapter`), rebuilds the typed messages
-from the JSON envelopes (:func:`auvgw.drivers.spec.from_jsonable`, the values the gateway
-decoded), maps each device's clock onto the host clock, feeds a
+devices is kept) and keeps the INS kind ``ins`` (HN-100 on serial or CAN) and the DVL kind
+``ensemble`` (PD0) of the configured devices, or of any device (then the first device seen
+sending each kind of message is used: :class:`~auvgw.fusion.adapters.MessageAdapter`), rebuilds
+the typed messages from the envelopes (:func:`auvgw.drivers.spec.from_jsonable`, the values
+the gateway decoded), maps each device's clock onto the host clock, feeds a
 :class:`~auvgw.fusion.NavFilter`, and publishes one :class:`~auvgw.fusion.Odometry` envelope per
 INS sample on ``auv/<v>/nav/odometry`` (``CongestionControl.DROP``: a slow subscriber never
 stalls the stage). Its counters go to ``auv/<v>/status/fusion`` (published every
@@ -51,6 +50,7 @@ from auvgw.bus import (
     Keys,
     decode_envelope,
     encode_envelope,
+    envelope_encoding,
     json_encoding,
     undeclare,
 )
@@ -76,9 +76,11 @@ _DROP = zenoh.CongestionControl.DROP
 
 
 def sensor_kinds(type_names: frozenset[str]) -> list[str]:
-    """The ``<kind>`` key segments of message type names, as the gateway builds them (type name
-    without its codec prefix, lower case: ``pd0.Ensemble`` -> ``ensemble``)."""
-    return sorted({t.rsplit(".", 1)[-1].lower() for t in type_names})
+    """The ``<kind>`` key segments of message type names, as the gateway builds them
+    (:func:`auvgw.decoding.kind_of`: ``Hn100Nav`` -> ``ins``, ``pd0.Ensemble`` -> ``ensemble``)."""
+    from auvgw.decoding import kind_of
+
+    return sorted({kind_of(t) for t in type_names})
 
 
 class SettingsError(ValueError):
@@ -288,7 +290,7 @@ class FusionStage:
         self._started = True
         s = self.session
         self._pub = s.declare_publisher(
-            self.keys.odometry(), encoding=json_encoding("Odometry"), congestion_control=_DROP
+            self.keys.odometry(), encoding=envelope_encoding("Odometry"), congestion_control=_DROP
         )
         status_key = self.keys.status(COMPONENT)
         self._status_pub = s.declare_publisher(status_key, congestion_control=_DROP)

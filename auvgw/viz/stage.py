@@ -48,7 +48,7 @@ from typing import Any
 
 import numpy as np
 
-from auvgw.bus import SCHEMA_VERSION, Keys
+from auvgw.bus import SCHEMA_VERSION, Keys, decode_envelope
 from auvgw.drivers.spec import MESSAGE_TYPES, from_jsonable
 from auvgw.viz.logger import RerunLogger, VizOptions
 
@@ -375,7 +375,12 @@ class VizStage:
             return "unknown:key"
         parts = key[len(base) :].split("/")
         section = parts[0]
-        data = json.loads(payload)
+        if section in ("sensor", "nav"):  # envelopes (MessagePack; JSON of the previous release)
+            env = decode_envelope(payload, key)
+            data: Any = {"v": SCHEMA_VERSION, "type": env.type, "device": env.device,
+                         "msg": env.body, "t_recv_ns": env.t_recv_ns}  # fmt: skip
+        else:
+            data = json.loads(payload)
         type_name, device, body = "", parts[1] if len(parts) > 1 else "", data
         if isinstance(data, Mapping) and "msg" in data and "v" in data:
             if data["v"] != SCHEMA_VERSION:
