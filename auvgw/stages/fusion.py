@@ -44,7 +44,7 @@ from pathlib import Path
 from typing import Any
 
 import zenoh
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import AliasChoices, BaseModel, ConfigDict, Field, ValidationError
 
 from auvgw.bus import (
     SCHEMA_VERSION,
@@ -55,7 +55,7 @@ from auvgw.bus import (
     undeclare,
 )
 from auvgw.fusion import FusionConfig, NavFilter, Odometry
-from auvgw.fusion.adapters import INS_TYPES, PD0_TYPES, MessageAdapter
+from auvgw.fusion.adapters import ATTITUDE_TYPES, VELOCITY_TYPES, MessageAdapter
 
 log = logging.getLogger(__name__)
 
@@ -87,19 +87,21 @@ class SettingsError(ValueError):
 class FusionStageConfig(BaseModel):
     """Settings of the fusion stage (TOML: top-level keys, the filter under ``[filter]``).
 
-    ``ins_device`` / ``dvl_device``: gateway device names (None: the first device seen sending
-    an HN-100 solution / a PD0 ensemble). ``latency_s``: per device, the fixed delay between the
+    ``attitude`` / ``velocity`` (also spelled ``ins_device`` / ``dvl_device``): the gateway
+    device names of the attitude source (an INS, or a DVL's compass) and of the velocity source
+    (a PD0 or PD6 DVL), default ``"ins"`` and ``"dvl"``; never "the first seen", so live, replay
+    and offline choose the same sources. ``latency_s``: per device, the fixed delay between the
     device's time stamp and the host's receive time (e.g. the frame's transmission time, bytes x
     10 / baud), subtracted when mapping its clock. ``clock_skew`` (s/s) and ``clock_jump_s``:
     see :class:`~auvgw.fusion.adapters.DeviceClock`. ``require_aligned``: drop INS solutions
     flagged not aligned or in error. ``high_res``: prefer the PD0 0x5803 velocity.
     """
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", populate_by_name=True)
 
     vehicle: str = "auv1"
-    ins_device: str | None = None
-    dvl_device: str | None = None
+    ins_device: str = Field("ins", validation_alias=AliasChoices("attitude", "ins_device"))
+    dvl_device: str = Field("dvl", validation_alias=AliasChoices("velocity", "dvl_device"))
     latency_s: dict[str, float] = Field(default_factory=dict)
     clock_skew: float = Field(1e-4, ge=0)
     clock_jump_s: float = Field(1.0, gt=0)
@@ -122,6 +124,9 @@ def load_stage_config(path: str | Path) -> FusionStageConfig:
     except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
         kind = "JSON" if path.suffix == ".json" else "TOML"
         raise SettingsError(f"{path}: not valid {kind}: {exc}") from exc
+    if isinstance(data, dict) and isinstance(data.get("fusion"), dict):
+        # a [fusion] table (e.g. inside a larger vehicle file) holds the same keys
+        data = data["fusion"]
     try:
         return FusionStageConfig.model_validate(data)
     except ValidationError as exc:
@@ -177,8 +182,8 @@ class FusionStage:
         self._decls: list[Any] = []
         self._queue: queue.Queue[tuple[str, bytes] | None] = queue.Queue(cfg.queue_size)
         self._worker: threading.Thread | None = None
-        self._ins_kinds = frozenset(sensor_kinds(INS_TYPES))
-        self._dvl_kinds = frozenset(sensor_kinds(PD0_TYPES))
+        self._ins_kinds = frozenset(sensor_kinds(ATTITUDE_TYPES))
+        self._dvl_kinds = frozenset(sensor_kinds(VELOCITY_TYPES))
         self._started = False
         self._stopped = False
         _register_can_types()
@@ -190,10 +195,9 @@ class FusionStage:
         with self._lock:
             self.stats.received += 1
             self._now_ns = max(self._now_ns, t_recv_ns)
-            sample = self.adapter.adapt(device, t_recv_ns / 1e9, message)
-            if sample is None:
-                return []
-            out = self.nav.push(sample)
+            out = []
+            for sample in self.adapter.adapt_all(device, t_recv_ns / 1e9, message):
+                out += self.nav.push(sample)
             self._emit(out)
             return out
 
@@ -237,6 +241,7 @@ class FusionStage:
                 },
                 "filter": asdict(self.nav.stats),
                 "buffer": asdict(self.nav.buffer_stats),
+                "diagnostics": self.nav.diagnostics.summary(),
                 "last": None
                 if last is None
                 else {
@@ -262,17 +267,14 @@ class FusionStage:
         return self.keys.sensor("*", "*")
 
     def wanted(self, key: str) -> bool:
-        """Whether a sensor key carries an INS or DVL message of a device the stage uses (the
-        configured one, or the one bound by the first message of its kind, or any while none
-        is bound yet)."""
+        """Whether a sensor key carries an attitude or velocity message of a configured source
+        device."""
         device, _, kind = key.rpartition("/")
         device = device.rpartition("/")[2]
         a = self.adapter
-        if kind in self._ins_kinds:
-            return a.ins_device is None or device == a.ins_device
-        if kind in self._dvl_kinds:
-            return a.dvl_device is None or device == a.dvl_device
-        return False
+        return (kind in self._ins_kinds and device == a.ins_device) or (
+            kind in self._dvl_kinds and device == a.dvl_device
+        )
 
     def start(self, subscribe: bool = True) -> None:
         """Declare the publishers, status queryable and liveliness token and, with
