@@ -52,9 +52,9 @@ def main() -> None:
         f"Command: `python benchmarks/study_fusion_lowcost.py --seeds {args.seeds} --out "
         "docs/results/fusion_lowcost`",
         "",
-        "| seed | default final | true-noise final | old-defaults final | plain final | default RMS "
-        "| true RMS | plain RMS | default/true (RMS) | default/plain (RMS) | adapted sigma (m/s) "
-        "| accepted | rejected | coasting |",
+        "| seed | default final | true-noise final | old-defaults final | plain final "
+        "| default RMS | true RMS | plain RMS | default/true (RMS) | default/plain (RMS) "
+        "| adapted sigma (m/s) | accepted | rejected | coasting |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for seed, r, sig, d in rows:
@@ -72,7 +72,9 @@ def main() -> None:
         return statistics.fmean(getattr(r[key], field) for _, r, _, _ in rows)
 
     sigs = [s for _, _, s, _ in rows]
-    old_rej = statistics.fmean(r["old_diagnostics"]["total"]["rejected_share"] for _, r, _, _ in rows)
+    old_rej = statistics.fmean(
+        r["old_diagnostics"]["total"]["rejected_share"] for _, r, _, _ in rows
+    )
     old_coast = statistics.fmean(
         r["old_diagnostics"]["total"]["coasting_share"] for _, r, _, _ in rows
     )
