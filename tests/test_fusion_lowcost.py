@@ -55,3 +55,37 @@ def test_diagnostics_show_shares_and_warn_only_when_starved(runs):
         old = r["old_diagnostics"]
         assert old["total"]["rejected_share"] > 0.5 and old["total"]["coasting_share"] > 0.5
         assert any(w.startswith("dvl_rejections") for w in old["warnings"])
+
+
+def test_rerun_shows_the_diagnostics_and_warns(runs, tmp_path):
+    """The fusion status (as FusionStage.counters publishes it) through the Rerun stage: the
+    shares, NIS and adapted noise as series, each new warning as one WARN event."""
+    import json
+
+    from auvgw.viz.logger import RerunLogger
+    from auvgw.viz.readback import read_recording
+    from auvgw.viz.stage import VizStage
+
+    _, rs = runs
+    path = tmp_path / "diag.rrd"
+    logger = RerunLogger(rrd=path)
+    stage = VizStage(logger, "auv1")
+    t0 = 1_763_800_000.0
+    for i, diag in enumerate((rs[0]["diagnostics"], rs[0]["old_diagnostics"],
+                              rs[1]["old_diagnostics"])):
+        body = {"v": 1, "component": "fusion", "t_ns": 5, "stage": {"published": i},
+                "diagnostics": diag}
+        assert stage.handle_sample("auv/auv1/status/fusion", json.dumps(body).encode(),
+                                   int((t0 + i) * 1e9)) == "logged"
+    stage.stop()
+    logger.close()
+    rec = read_recording(path)
+    series = rec["health/fusion_diagnostics/status"]
+    names = [n.removeprefix("fusion_diagnostics ") for n in series.static["SeriesLines:names"]]
+    rows = [dict(zip(names, v, strict=True)) for v in series.values("Scalars:scalars")]
+    assert len(rows) == 3
+    assert rows[0]["rejected_share"] < 0.1 and rows[1]["rejected_share"] > 0.5
+    assert rows[0]["dvl_noise_x_mps"] == pytest.approx(rs[0]["adapted_sigma"][0])
+    events = [e[0] for e in rec["health/fusion/events"].values("TextLog:text")]
+    # the default run has no warning; the starved one warns once (not again while it lasts)
+    assert len([e for e in events if "dvl_rejections" in e]) == 1

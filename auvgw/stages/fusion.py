@@ -186,6 +186,7 @@ class FusionStage:
         self._dvl_kinds = frozenset(sensor_kinds(VELOCITY_TYPES))
         self._started = False
         self._stopped = False
+        self._warned: set[str] = set()
         _register_can_types()
 
     # -- in-process use -----------------------------------------------------------------------
@@ -355,9 +356,14 @@ class FusionStage:
     def _publish_status(self) -> None:
         if self._status_pub is None:
             return
+        counters = self.counters()
+        warnings = {w.split(":", 1)[0]: w for w in counters["diagnostics"]["warnings"]}
+        for kind in sorted(warnings.keys() - self._warned):  # log each kind once while it lasts
+            log.warning("fusion: %s", warnings[kind])
+        self._warned = set(warnings)
         with contextlib.suppress(zenoh.ZError):
             self._status_pub.put(
-                json.dumps(self.counters()).encode(), encoding=json_encoding("FusionStatus")
+                json.dumps(counters).encode(), encoding=json_encoding("FusionStatus")
             )
 
     def _answer_status(self, query: zenoh.Query) -> None:
