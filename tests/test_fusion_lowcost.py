@@ -89,3 +89,30 @@ def test_rerun_shows_the_diagnostics_and_warns(runs, tmp_path):
     events = [e[0] for e in rec["health/fusion/events"].values("TextLog:text")]
     # the default run has no warning; the starved one warns once (not again while it lasts)
     assert len([e for e in events if "dvl_rejections" in e]) == 1
+
+
+def test_device_emulators_play_the_lowcost_scenario(tmp_path):
+    """The scenario's low-cost figures also drive the HN-100 and DVL emulators (auvgw sim /
+    demo): compass deviation in the INS heading, spikes in the DVL's velocities."""
+    import math
+
+    from fusion_emulated import emulate
+
+    scn = lowcost_scenario()
+    data = scn.model_dump()
+    data["devices"]["ins"]["options"] = {"serial": False, "can": False}
+    data["devices"]["dvl"]["options"] = {"serial": False, "frame": "instrument"}
+    data["duration_s"] = 400.0
+    em = emulate(type(scn).model_validate(data), tmp_path)
+    ins = scn.devices.ins.noise
+    for t in (10.0, 150.0, 300.0):
+        m = em.ins.measure(t)
+        h = em.ctx.sampler.at(t).heading
+        dev = math.radians(ins["deviation_a1_deg"] * math.sin(h) + ins["deviation_b1_deg"]
+                           * math.cos(h) + ins["deviation_a2_deg"] * math.sin(2 * h))
+        assert m.heading_error == pytest.approx(dev, abs=1e-9)
+    pings = [em.dvl.measure(t) for t in np.arange(1.0, 400.0, 1 / 1.5)]
+    speed = np.array([np.linalg.norm(p.velocity[:3]) for p in pings if p.lock])
+    assert len(speed) > 500
+    spikes = speed > 0.8  # 0.2 m/s + 0.17 m/s noise per axis: a spike beyond 0.8 is rare
+    assert 0.005 < spikes.mean() < 0.05
