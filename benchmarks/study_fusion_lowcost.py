@@ -87,8 +87,17 @@ def main() -> None:
     ]
     for key in ("default", "true", "old", "plain"):
         summary.append(f"| {key} | {mean(key, 'final_m'):.2f} m | {mean(key, 'rms_m'):.2f} m |")
+    def paired(a: str, b: str) -> str:
+        r = [x[a].rms_m / x[b].rms_m for _, x, _, _ in rows]
+        se = statistics.stdev(r) / len(r) ** 0.5 if len(r) > 1 else float("nan")
+        wins = sum(v < 1 for v in r)
+        return f"per-seed RMS ratio {statistics.fmean(r):.3f} +- {se:.3f} (s.e.), below 1 in {wins}"
+
     summary += [
         "",
+        f"- paired, default / true: {paired('default', 'true')} of {len(rows)} seeds",
+        f"- paired, default / plain: {paired('default', 'plain')} of {len(rows)} seeds",
+        f"- paired, true / plain: {paired('true', 'plain')} of {len(rows)} seeds",
         f"- default / true noise: final {mean('default', 'final_m') / mean('true', 'final_m'):.3f}"
         f", RMS {mean('default', 'rms_m') / mean('true', 'rms_m'):.3f} (bar: <= 1.1)",
         f"- default / plain integration: final "

@@ -1,9 +1,10 @@
-"""The fusion stage: the gateway's decoded INS and DVL messages in, dead-reckoning odometry out.
+"""The fusion stage: the gateway's decoded attitude and DVL messages in, odometry out.
 
 Online it subscribes to ``auv/<v>/sensor/*/*`` (one subscription, so the arrival order across
-devices is kept) and keeps the INS kinds ``hn100nav`` (serial HN-100) and ``hn100_sample``
-(HN-100 on CAN) and the DVL kind ``ensemble`` (PD0) of the configured devices, or of any device
-(then the first device seen sending each kind of message is used:
+devices is kept) and keeps the attitude kinds (``hn100nav`` serial HN-100, ``hn100_sample``
+HN-100 on CAN, a DVL's ``sa`` / ``ensemble`` compass) of the configured ``attitude`` device and
+the velocity kinds (``ensemble`` PD0, ``bi`` / ``bs`` / ``be`` PD6) of the configured
+``velocity`` device (never "the first seen":
 :class:`~auvgw.fusion.adapters.MessageAdapter`), rebuilds the typed messages
 from the JSON envelopes (:func:`auvgw.drivers.spec.from_jsonable`, the values the gateway
 decoded), maps each device's clock onto the host clock, feeds a
