@@ -167,3 +167,43 @@ def test_position_fix_pulls_the_estimate_and_outliers_are_gated():
     assert math.hypot(at[11.9].x - truth_n - 10.0, at[11.9].y - truth_e - 3.0) < 0.2
     assert math.hypot(at[12.0].x - truth_n, at[12.0].y - truth_e) < 0.6
     assert at[12.0].cov_xy.trace() < 0.6 < at[11.9].cov_xy.trace()
+
+
+def test_replay_of_a_two_ins_recording_chooses_the_same_source(two_ins, tmp_path, capsys):
+    """The same traffic recorded (``auvgw record``'s MCAP: raw frames, receive-time
+    attachments, the gateway configuration with both INS) and run by ``auvgw fusion
+    --recording``: the named INS, and odometry identical to the live (in-process) run."""
+    import json
+
+    from auvgw.bus import Keys, pack_raw_attachment
+    from auvgw.cli import main as cli_main
+    from auvgw.drivers import hn100, pd0
+    from auvgw.drivers.spec import from_jsonable
+    from auvgw.recording import McapRecorder
+
+    a, b, d, lat, filt = two_ins
+    live = sorted(b + a + d, key=lambda m: m[0])  # ins_b first at every tick
+    cfg = FusionStageConfig(vehicle="rec2", latency_s=lat, filter=filt)
+    expected, _ = _run(live, cfg)
+    serial = {"kind": "serial", "url": "/dev/null"}
+    rec = McapRecorder(tmp_path / "two.mcap", "rec2")
+    rec.set_gateway_config(json.dumps({"vehicle": "rec2", "devices": {
+        "ins_b": {"format": "hn100", "transport": serial},
+        "ins": {"format": "hn100", "transport": serial},
+        "dvl": {"format": "pd0", "transport": serial}}}))  # fmt: skip
+    keys = Keys("rec2")
+    offsets = {"ins": 0, "ins_b": 0, "dvl": 0}
+    for seq, (t, dev, m) in enumerate(live):
+        raw = pd0.encode(m) if dev == "dvl" else hn100.CODEC.encode(m)
+        rec.add(keys.raw(dev), raw, pack_raw_attachment(round(t * 1e9), seq, offsets[dev]),
+                "application/octet-stream")
+        offsets[dev] += len(raw)
+    rec.close()
+    settings = tmp_path / "fusion.json"
+    settings.write_text(cfg.model_dump_json())
+    out = tmp_path / "odo.jsonl"
+    assert cli_main(["fusion", "--recording", str(tmp_path / "two.mcap"), "--settings",
+                     str(settings), "--out", str(out)]) == 0
+    got = [from_jsonable(json.loads(x)) for x in out.read_text().splitlines()]
+    assert got == expected and len(got) > 900
+    assert '"ins_device": "ins"' in capsys.readouterr().err
