@@ -207,3 +207,34 @@ def test_replay_of_a_two_ins_recording_chooses_the_same_source(two_ins, tmp_path
     got = [from_jsonable(json.loads(x)) for x in out.read_text().splitlines()]
     assert got == expected and len(got) > 900
     assert '"ins_device": "ins"' in capsys.readouterr().err
+
+
+def test_diagnostics_warn_on_rejections_and_on_a_minute_of_inconsistent_nis():
+    from auvgw.fusion.diagnostics import FixRecord, FusionDiagnostics
+
+    d = FusionDiagnostics(window_s=60.0)
+    ok = (0.5, -0.5, 1.0)
+    for i in range(60):  # a minute of fixes with NIS 3 per 3 dof: consistent
+        d.add_fix(FixRecord(float(i), True, False, 3.0, 3, ok))
+    s = d.summary()
+    assert s["warnings"] == [] and s["window"]["nis_consistent"] is True
+    assert s["window"]["nis_mean_per_dof"] == pytest.approx(1.0)
+    # NIS 10 times too large, but not yet for a whole window after the start: no warning
+    d2 = FusionDiagnostics(window_s=60.0)
+    for i in range(30):
+        d2.add_fix(FixRecord(float(i), True, False, 30.0, 3, ok))
+    assert d2.summary()["window"]["nis_consistent"] is False and d2.summary()["warnings"] == []
+    for i in range(30, 62):
+        d2.add_fix(FixRecord(float(i), True, False, 30.0, 3, ok))
+    assert [w.split(":")[0] for w in d2.summary()["warnings"]] == ["nis_inconsistent"]
+    # rejections: a third is tolerated, more is not
+    d3 = FusionDiagnostics(window_s=60.0)
+    for i in range(30):
+        d3.add_fix(FixRecord(float(i), i % 3 != 0, False, 3.0, 3, ok))
+    assert d3.summary()["warnings"] == []
+    d3.add_fix(FixRecord(30.0, False, False, 50.0, 3, ok))
+    w = d3.summary()["warnings"]
+    assert len(w) == 1 and w[0].startswith("dvl_rejections: 11 of 31")
+    # the window forgets: 61 s later only the new fixes count
+    d3.add_fix(FixRecord(91.5, True, False, 3.0, 3, ok))
+    assert d3.summary()["window"]["fixes"] == 1 and d3.summary()["total"]["fixes"] == 32
