@@ -212,8 +212,11 @@ class NavFilter:
         k = 1.0 / mount.scale_factor
         frame = e.frame
         if frame == "beam":
-            v = beam_to_instrument(e.velocity, math.radians(mount.beam_angle_deg),
-                                   mount.beam_convex)
+            if len(e.velocity) != 4:  # not a 4-beam record: no valid component (no lock)
+                return (math.nan, math.nan, math.nan), "instrument"
+            v = beam_to_instrument(
+                e.velocity, math.radians(mount.beam_angle_deg), mount.beam_convex
+            )
             return tuple((k * v).tolist()), "instrument"
         if frame == "earth":
             ekf = self.ekf

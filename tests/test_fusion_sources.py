@@ -130,9 +130,13 @@ def _line(frame, n=200, heading=0.7, speed=1.2, beam_angle_deg=30.0):
     return ins, dvl, t
 
 
-@pytest.mark.parametrize("frame", ["body", "earth", "beam"])
+@pytest.mark.parametrize("frame", ["body", "earth", "beam", "beam3"])
 def test_beam_and_earth_frames_give_the_body_velocity(frame):
-    ins, dvl, t = _line(frame)
+    ins, dvl, t = _line(frame.removesuffix("3"))
+    if frame == "beam3":  # beam 2 bad in every fix: the 3-beam solution; a 3-tuple: no lock
+        dvl = [d._replace(velocity=(d.velocity[0], math.nan, *d.velocity[2:])) for d in dvl]
+        bad = run_filter(ins[:50], [DvlSample(1.0, (0.1, 0.2, 0.3), frame="beam")])
+        assert not bad[-1].bottom_lock
     out = run_filter(ins, dvl, FusionConfig(max_latency_s=0.0))
     last = out[-1]
     assert last.velocity_body == pytest.approx((1.2, 0.0, 0.0), abs=1e-3)
