@@ -21,7 +21,8 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2
+
+from auvgw.geometry import chi2_ppf
 
 __all__ = ["FixRecord", "FusionDiagnostics"]
 
@@ -113,7 +114,7 @@ class FusionDiagnostics:
         full = self.last_t - self.first_t >= self.window_s
         if dof > 0:
             q = 0.5 * (1.0 - self.nis_probability)
-            lo, hi = float(chi2.ppf(q, dof)), float(chi2.ppf(1.0 - q, dof))
+            lo, hi = float(chi2_ppf(q, dof)), float(chi2_ppf(1.0 - q, dof))
             consistent = lo <= nis_sum <= hi
         warnings = []
         if n and rejected / n > self.max_reject_share:
