@@ -1,10 +1,12 @@
-"""``auvgw fusion``: INS + DVL dead reckoning, on the bus or over a recording.
+"""``auvgw fusion``: attitude + DVL dead reckoning, on the bus, over a recording or a log.
 
 Online (the fusion stage as its own process)::
 
     auvgw fusion --vehicle auv1 --connect tcp/127.0.0.1:7447 [--settings fusion.toml]
 
-subscribes to the gateway's decoded HN-100 and PD0 messages (``auv/<V>/sensor/...``) and
+subscribes to the gateway's decoded messages (``auv/<V>/sensor/...``) of the attitude source
+(``attitude``, default device ``ins``: HN-100 serial/CAN, or a DVL's compass) and the velocity
+source (``velocity``, default ``dvl``: PD0 or PD6), never "the first seen", and
 publishes odometry on ``auv/<V>/nav/odometry`` and counters on ``auv/<V>/status/fusion`` until
 SIGINT/SIGTERM (or ``--duration`` seconds); prints ``fusion running`` on stdout once its
 subscriptions are declared.
