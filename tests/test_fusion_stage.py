@@ -366,14 +366,14 @@ def test_stage_process_publishes_the_offline_odometry(data, tmp_path):
         # CAN copy of the INS is dropped by key, before it is parsed)
         n_used = n_ins + n_dvl
         wait_until(lambda: (s := status()) is not None and s["stage"]["received"] == n_used,
-                   30.0, "the stage to receive every envelope")  # fmt: skip
+                   90.0, "the stage to receive every envelope")  # fmt: skip
         st = status()
         assert st["adapter"]["ins"] == n_ins and st["adapter"]["dvl"] == n_dvl
         assert st["adapter"]["ignored"] == 0 and st["stage"]["bad_payloads"] == 0
         assert st["ins_device"] == "ins" and st["dvl_device"] == "dvl"
         assert all(v == 0 for v in st["buffer"].values()), st["buffer"]  # none arrived too late
         # all but the fixed-lag tail (0.2 s of INS samples) is published already
-        wait_until(lambda: len(received) >= n_ins - 25, 30.0, "odometry")
+        wait_until(lambda: len(received) >= n_ins - 25, 90.0, "odometry")
         # SIGTERM: the stage flushes the filter and publishes the held-back tail
         assert stage.stop() == 0
         wait_until(lambda: len(received) == n_ins, 10.0, "the flushed odometry")
