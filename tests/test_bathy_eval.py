@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -67,23 +68,16 @@ def test_unreachable_dask_scheduler_is_a_user_error(tmp_path) -> None:
     pytest.importorskip("distributed")
     from auvgw.cli import UserError
 
-    scn = tmp_path / "tiny.json"
-    scn.write_text(json.dumps(TINY))
-    args = _parse(
-        [
-            "--pipeline",
-            "bathymetric",
-            "--scenario",
-            str(scn),
-            "--runs",
-            "1",
-            "--dask",
-            "tcp://127.0.0.1:1",
-            "--no-progress",
-        ]
-    )
+    args = _bathy_args(tmp_path, "--runs", "1", "--dask", "tcp://127.0.0.1:1", "--no-progress")
     with pytest.raises(UserError, match="cannot reach the Dask scheduler"):
         slam_cmd.run(args)
+
+
+def _bathy_args(tmp_path: Path, *argv: str) -> argparse.Namespace:
+    """``slam eval --pipeline bathymetric --scenario <TINY written to tmp_path> *argv``."""
+    scn = tmp_path / "tiny.json"
+    scn.write_text(json.dumps(TINY))
+    return _parse(["--pipeline", "bathymetric", "--scenario", str(scn), *argv])
 
 
 def _parse(argv: list[str]) -> argparse.Namespace:
@@ -95,25 +89,18 @@ def _parse(argv: list[str]) -> argparse.Namespace:
 
 def test_eval_command_bathymetric_prints_the_measures_and_writes_plots(tmp_path, capsys) -> None:
     pytest.importorskip("matplotlib")
-    scn = tmp_path / "tiny.json"
-    scn.write_text(json.dumps(TINY))
     out = tmp_path / "res"
-    args = _parse(
-        [
-            "--pipeline",
-            "bathymetric",
-            "--scenario",
-            str(scn),
-            "--runs",
-            "1",
-            "--particles",
-            "30",
-            "--set",
-            "t_l=30",
-            "--no-progress",
-            "--out",
-            str(out),
-        ]
+    args = _bathy_args(
+        tmp_path,
+        "--runs",
+        "1",
+        "--particles",
+        "30",
+        "--set",
+        "t_l=30",
+        "--no-progress",
+        "--out",
+        str(out),
     )
     assert slam_cmd.run(args) == 0
     text = capsys.readouterr().out
@@ -135,16 +122,4 @@ def test_eval_command_bathymetric_prints_the_measures_and_writes_plots(tmp_path,
     from auvgw.cli import UserError
 
     with pytest.raises(UserError, match=r"--set: .*n_particle"):
-        slam_cmd.run(
-            _parse(
-                [
-                    "--pipeline",
-                    "bathymetric",
-                    "--scenario",
-                    str(scn),
-                    "--set",
-                    "n_particle=3",
-                    "--no-progress",
-                ]
-            )
-        )
+        slam_cmd.run(_bathy_args(tmp_path, "--set", "n_particle=3", "--no-progress"))
