@@ -72,7 +72,7 @@ def test_unsynchronised_mode_keeps_magnitude() -> None:
     beacons = np.array([[5.0, 5.0, 6.0]])
     moments = np.array([[0.0, 0.0, 500.0]])
     freqs = np.array([2.0])
-    t, b_body, h, p, r, amp = _turning_run(beacons, freqs, moments)
+    t, b_body, h, p, r, _amp = _turning_run(beacons, freqs, moments)
     b_ned = rotate_to_ned(b_body, h, p, r)
     sync = demodulate(t, b_ned, freqs)
     free = demodulate(t, b_ned, freqs, DemodConfig(phase="unsynchronised"))
@@ -91,7 +91,7 @@ def test_adjacent_channels_do_not_leak(amp_order: int, spacing: float) -> None:
     beacons = np.array([[8.0, 4.0, 6.0], [900.0, 900.0, 6.0]])  # the second is out of range
     moments = np.array([[0.0, 0.0, 500.0], [0.0, 0.0, 500.0]])
     freqs = np.array([1.5, 1.5 + spacing])
-    t, b_body, h, p, r, amp = _turning_run(beacons, freqs, moments, seed=4)
+    t, b_body, h, p, r, _amp = _turning_run(beacons, freqs, moments, seed=4)
     b_ned = rotate_to_ned(b_body, h, p, r)
     out = demodulate(t, b_ned, freqs, DemodConfig(amp_order=amp_order))
     strong = np.linalg.norm(out.amp[:, 0], axis=1)

@@ -56,8 +56,8 @@ __all__ = [
     "DemodConfig",
     "demodulate",
     "plan_frequencies",
-    "rotation_body_to_ned",
     "rotate_to_ned",
+    "rotation_body_to_ned",
 ]
 
 
