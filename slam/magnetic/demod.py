@@ -127,9 +127,9 @@ def plan_frequencies(
 ) -> np.ndarray:
     """Frequencies (Hz) for beacons at ``positions (B, 2|3)``: channels ``f0 + k spacing``
     (default 1.0-8.5 Hz, below the 20 Hz MS3A's 10 Hz Nyquist; spacing ``(amp_order + 1) / T``),
-    ``k < n_channels``, assigned greedily (beacons in order) so that two beacons closer than
-    ``reuse_distance_m`` never share a channel. Raises ``ValueError`` when the channels do not
-    suffice."""
+    ``k < n_channels``, assigned greedily (beacons in order, the least used free channel) so
+    that two beacons closer than ``reuse_distance_m`` never share a channel. Raises
+    ``ValueError`` when the channels do not suffice."""
     pos = np.asarray(positions, float)[:, :2]
     chans = f0_hz + np.arange(n_channels) * spacing_hz
     d = np.hypot(*(pos[:, None, :] - pos[None, :, :]).transpose(2, 0, 1))
@@ -142,7 +142,7 @@ def plan_frequencies(
                 f"beacon {i}: {n_channels} channels are not enough for a reuse distance of "
                 f"{reuse_distance_m} m; add channels or shorten the distance"
             )
-        out[i] = free[0]
+        out[i] = min(free, key=lambda k: (int(np.sum(out[:i] == k)), k))  # spread the load
     return chans[out]
 
 

@@ -4,7 +4,9 @@
 Weihai; we generate them from the world's dipole model
 (:func:`auvgw.sim_devices.world.dipole_field`) in the paper's geometry: the AUV ~6 m above a
 beacon on the seabed (Sec. 3.1; ``altitude_m`` +- ``altitude_spread_m`` for the 14.6-15.4 m
-seabed), horizontal offsets uniform in a disc of ``max_range_m`` (25 m, Table 4), a
+seabed), horizontal offsets uniform in a disc of ``max_range_m`` (40 m: beyond Table 4's 25 m
+sensor range, so that a beacon at 25-40 m, still above the demodulator's quality gate, is ranged
+and then rejected by the range gate instead of being folded into the 25 m disc), a
 ``moment_am2`` vertical coil (``beacons.json``, A4) with a relative moment spread and an axis
 tilt, the INS attitude error rotating the measured NED vector, and the demodulator's noise
 (:mod:`~auvgw.slam.magnetic.demod`: median sigma ~0.4 nT per axis at 1 nT sensor noise, plus its
@@ -54,7 +56,7 @@ class RangingGeometry:
     """The training geometry and error model (module docstring); angles in degrees, field
     noise in nT."""
 
-    max_range_m: float = 25.0
+    max_range_m: float = 40.0
     altitude_m: float = 6.0
     altitude_spread_m: float = 0.6
     moment_am2: float = 500.0
@@ -106,7 +108,7 @@ def fit_ranger(
     cfg: TrainConfig,
     rng: np.random.Generator,
     holdout: float = 0.1,
-    bins: tuple[float, ...] = (0.0, 9.0, 13.0, 17.0, 21.0, 25.0, np.inf),
+    bins: tuple[float, ...] = (0.0, 9.0, 13.0, 17.0, 21.0, 25.0, 30.0, np.inf),
 ) -> tuple[MLP, np.ndarray]:
     """Train on ``1 - holdout`` of the data (the paper's 90/10 split) and attach the residual
     covariance of the held-out 10 % per bin of predicted ``|beacon - vehicle|`` (m):
