@@ -40,7 +40,13 @@ import numpy as np
 
 from auvgw.config.scenario import Scenario
 from auvgw.slam.evaluation.simulate import SimRun, simulate
-from auvgw.slam.magnetic.demod import DemodConfig, demodulate, rotate_to_ned, rotation_body_to_ned
+from auvgw.slam.magnetic.demod import (
+    BeaconAmplitudes,
+    DemodConfig,
+    demodulate,
+    rotate_to_ned,
+    rotation_body_to_ned,
+)
 from auvgw.slam.magnetic.filters import MAGNETIC_ALGORITHMS, MagneticSLAM, make_magnetic
 from auvgw.slam.magnetic.mlp import MLP
 from auvgw.slam.magnetic.ranging import to_range_bearing
@@ -188,16 +194,15 @@ def _gauss_markov(
     return out
 
 
-def _mlp_observations(
+def magnetometer_stream(
     scn: Scenario, sim: SimRun, v: Variant, rng: np.random.Generator, keep: np.ndarray
-) -> tuple[list[np.ndarray], list[np.ndarray | None], float]:
-    """The ``mlp`` track's per-scan observations (module docstring)."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The ``mlp`` track's emulated MS3A stream (module docstring): ``(t (N,) s, b_body (N, 3)
+    nT, INS attitude (N, 3) heading/pitch/roll rad, beacon frequencies (F,) Hz)``."""
     from auvgw.sim_devices.world import World, dipole_field
 
-    t0 = time.perf_counter()
     world = World.from_scenario(scn)
-    cfg = DemodConfig()
-    stride = max(round(1.0 / (cfg.rate_hz * sim.dt)), 1)
+    stride = max(round(1.0 / (DemodConfig().rate_hz * sim.dt)), 1)
     idx = np.arange(0, len(sim.truth), stride)
     ts = idx * sim.dt
     tr = sim.truth[idx]
@@ -230,29 +235,48 @@ def _mlp_observations(
 
     h_ins = tr[:, 2] + gm(v.ins_heading_deg)
     tilt = [gm(v.ins_tilt_deg) for _ in range(2)]
-    meas = rotate_to_ned(b_body, h_ins, pitch + tilt[0], roll + tilt[1])
-    dem = demodulate(ts, meas, np.unique(world.beacon_frequencies), cfg)
-    net = MLP.load(v.model)
+    att = np.stack([h_ins, pitch + tilt[0], roll + tilt[1]], axis=1)
+    return ts, b_body, att, np.unique(world.beacon_frequencies)
+
+
+def gate_observations(
+    dem: BeaconAmplitudes, net: MLP, heading: np.ndarray, v: Variant
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Demodulated windows -> MLP observations passing the gates (``snr_min``, ``ghost_ratio``,
+    range ``min_range_m`` .. ``max_range_m``): ``(window index (M,), z (M, 2) range m / bearing
+    rad relative to ``heading`` at each window (W,), R (M, 2, 2))``."""
+    mag = np.linalg.norm(dem.amp, axis=-1)
+    strong = mag >= v.ghost_ratio * mag.max(axis=1, keepdims=True)
+    w, c = np.nonzero((dem.snr >= v.snr_min) & strong)
+    if len(w) == 0:
+        return w, np.zeros((0, 2)), np.zeros((0, 2, 2))
+    delta = net.predict(dem.amp[w, c])
+    z, r = to_range_bearing(delta, net.covariance(delta), 0.0)
+    z[:, 1] = wrap_angle(z[:, 1] - heading[w])
+    ok = (z[:, 0] >= v.min_range_m) & (z[:, 0] <= v.max_range_m)
+    return w[ok], z[ok], r[ok]
+
+
+def _mlp_observations(
+    scn: Scenario, sim: SimRun, v: Variant, rng: np.random.Generator, keep: np.ndarray
+) -> tuple[list[np.ndarray], list[np.ndarray | None], float]:
+    """The ``mlp`` track's per-scan observations (module docstring)."""
+    t0 = time.perf_counter()
+    cfg = DemodConfig()
+    ts, b_body, att, channels = magnetometer_stream(scn, sim, v, rng, keep)
+    meas = rotate_to_ned(b_body, att[:, 0], att[:, 1], att[:, 2])
+    dem = demodulate(ts, meas, channels, cfg)
+    w, z, r = gate_observations(dem, MLP.load(v.model), np.interp(dem.t, ts, att[:, 0]), v)
     n_scans = len(sim.obs_step)
     scan_of_step = np.full(len(sim.truth) + 1, -1)
     scan_of_step[sim.obs_step] = np.arange(n_scans)
     zs: list[list[np.ndarray]] = [[] for _ in range(n_scans)]
     rs: list[list[np.ndarray]] = [[] for _ in range(n_scans)]
-    mag = np.linalg.norm(dem.amp, axis=-1)
-    strong = mag >= v.ghost_ratio * mag.max(axis=1, keepdims=True)
-    w, c = np.nonzero((dem.snr >= v.snr_min) & strong)
-    if len(w):
-        delta = net.predict(dem.amp[w, c])
-        cov = net.covariance(delta)
-        steps = np.clip(np.round(dem.t[w] / sim.dt).astype(int), 0, len(sim.truth))
-        heading = np.interp(dem.t[w], ts, h_ins)
-        for j in range(len(w)):
-            si = scan_of_step[steps[j]]
-            z, r = to_range_bearing(delta[j], cov[j], float(heading[j]))
-            if si < 0 or not v.min_range_m <= z[0, 0] <= v.max_range_m:
-                continue
-            zs[si].append(z[0])
-            rs[si].append(r[0])
+    steps = np.clip(np.round(dem.t[w] / sim.dt).astype(int), 0, len(sim.truth))
+    for j, si in enumerate(scan_of_step[steps]):
+        if si >= 0:
+            zs[si].append(z[j])
+            rs[si].append(r[j])
     z_out = [np.array(a).reshape(-1, 2) for a in zs]
     r_out: list[np.ndarray | None] = [np.array(a).reshape(-1, 2, 2) for a in rs]
     return z_out, r_out, time.perf_counter() - t0
