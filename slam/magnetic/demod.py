@@ -161,12 +161,17 @@ def _design(dt: np.ndarray, t: np.ndarray, freqs: np.ndarray, cfg: DemodConfig) 
 
 
 def demodulate(
-    t: np.ndarray, b_ned: np.ndarray, freqs: np.ndarray, cfg: DemodConfig = DemodConfig()
+    t: np.ndarray,
+    b_ned: np.ndarray,
+    freqs: np.ndarray,
+    cfg: DemodConfig = DemodConfig(),
+    centres: np.ndarray | None = None,
 ) -> BeaconAmplitudes:
     """Sliding least squares of NED samples ``b_ned (N, 3)`` (nT) at times ``t (N,)`` (s,
     increasing; the beacons' phase reference is t = 0) at channels ``freqs (F,)`` (Hz); see
     the module docstring. Windows with fewer than ``min_fill`` of their nominal samples are
-    skipped."""
+    skipped. ``centres`` (s) overrides the windows (default: every ``hop_s`` from the first
+    full window)."""
     t = np.asarray(t, float).reshape(-1)
     b = np.asarray(b_ned, float).reshape(-1, 3)
     freqs = np.unique(np.asarray(freqs, float).reshape(-1))
@@ -181,9 +186,11 @@ def demodulate(
         np.zeros(0), freqs, *(np.zeros((0, len(freqs), 3)),) * 3, np.zeros((0, len(freqs))),
         np.zeros(0, int),
     )  # fmt: skip
-    if len(t) == 0 or t[-1] - t[0] < cfg.window_s:
+    if len(t) == 0:
         return empty
-    centres = np.arange(t[0] + half, t[-1] - half + 1e-9, cfg.hop_s)
+    if centres is None:
+        centres = np.arange(t[0] + half, t[-1] - half + 1e-9, cfg.hop_s)
+    centres = np.asarray(centres, float).reshape(-1)
     lo = np.searchsorted(t, centres - half, side="left")
     hi = np.searchsorted(t, centres + half, side="left")
     n = hi - lo

@@ -241,20 +241,20 @@ def magnetometer_stream(
 
 def gate_observations(
     dem: BeaconAmplitudes, net: MLP, heading: np.ndarray, v: Variant
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Demodulated windows -> MLP observations passing the gates (``snr_min``, ``ghost_ratio``,
-    range ``min_range_m`` .. ``max_range_m``): ``(window index (M,), z (M, 2) range m / bearing
-    rad relative to ``heading`` at each window (W,), R (M, 2, 2))``."""
+    range ``min_range_m`` .. ``max_range_m``): ``(window index (M,), channel index (M,),
+    z (M, 2) range m / bearing rad relative to ``heading`` at each window (W,), R (M, 2, 2))``."""
     mag = np.linalg.norm(dem.amp, axis=-1)
     strong = mag >= v.ghost_ratio * mag.max(axis=1, keepdims=True)
     w, c = np.nonzero((dem.snr >= v.snr_min) & strong)
     if len(w) == 0:
-        return w, np.zeros((0, 2)), np.zeros((0, 2, 2))
+        return w, c, np.zeros((0, 2)), np.zeros((0, 2, 2))
     delta = net.predict(dem.amp[w, c])
     z, r = to_range_bearing(delta, net.covariance(delta), 0.0)
     z[:, 1] = wrap_angle(z[:, 1] - heading[w])
     ok = (z[:, 0] >= v.min_range_m) & (z[:, 0] <= v.max_range_m)
-    return w[ok], z[ok], r[ok]
+    return w[ok], c[ok], z[ok], r[ok]
 
 
 def _mlp_observations(
@@ -266,7 +266,7 @@ def _mlp_observations(
     ts, b_body, att, channels = magnetometer_stream(scn, sim, v, rng, keep)
     meas = rotate_to_ned(b_body, att[:, 0], att[:, 1], att[:, 2])
     dem = demodulate(ts, meas, channels, cfg)
-    w, z, r = gate_observations(dem, MLP.load(v.model), np.interp(dem.t, ts, att[:, 0]), v)
+    w, _, z, r = gate_observations(dem, MLP.load(v.model), np.interp(dem.t, ts, att[:, 0]), v)
     n_scans = len(sim.obs_step)
     scan_of_step = np.full(len(sim.truth) + 1, -1)
     scan_of_step[sim.obs_step] = np.arange(n_scans)
