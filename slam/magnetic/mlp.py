@@ -25,7 +25,7 @@ import itertools
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -105,14 +105,14 @@ class MLP:
 
     def save(self, path: str | Path) -> None:
         """Weights, scalers and residual covariances to one ``.npz``."""
-        arrays = {f"w{i}": w for i, w in enumerate(self.w)} | {
-            f"b{i}": b for i, b in enumerate(self.b)
-        }
-        np.savez(
-            path, n_layers=len(self.w), x_lo=self.x_lo, x_hi=self.x_hi, y_lo=self.y_lo,
-            y_hi=self.y_hi, transform=self.transform, resid_bins=self.resid_bins,
-            resid_cov=self.resid_cov, **arrays,
-        )  # fmt: skip
+        arrays: dict[str, Any] = {f"w{i}": w for i, w in enumerate(self.w)}
+        arrays |= {f"b{i}": b for i, b in enumerate(self.b)}
+        arrays |= {
+            "n_layers": len(self.w), "x_lo": self.x_lo, "x_hi": self.x_hi, "y_lo": self.y_lo,
+            "y_hi": self.y_hi, "transform": self.transform, "resid_bins": self.resid_bins,
+            "resid_cov": self.resid_cov,
+        }  # fmt: skip
+        np.savez(path, **arrays)
 
     @classmethod
     def load(cls, path: str | Path) -> MLP:

@@ -75,7 +75,9 @@ class MagneticOnline:
         """One magnetometer sample; returns the observations of the windows it completed."""
         if self._t and t <= self._t[-1]:
             raise ValueError(f"magnetometer sample at {t} s after {self._t[-1]} s: out of order")
-        ned = rotate_to_ned(np.asarray(b_body, float), [heading], [pitch], [roll])[0]
+        ned = rotate_to_ned(
+            np.asarray(b_body, float), np.array([heading]), np.array([pitch]), np.array([roll])
+        )[0]
         self._t.append(float(t))
         self._b.append(ned)
         self._h.append(float(heading))
@@ -123,7 +125,9 @@ class MagneticOnline:
     def _window(self, centre: float) -> list[BeaconObservation]:
         t = np.array(self._t)
         sel = (t >= centre - self.cfg.window_s / 2) & (t < centre + self.cfg.window_s / 2)
-        dem = demodulate(t[sel], np.array(self._b)[sel], self.channels, self.cfg, [centre])
+        dem = demodulate(
+            t[sel], np.array(self._b)[sel], self.channels, self.cfg, np.array([centre])
+        )
         if len(dem.t) == 0:
             return []
         heading = np.interp(dem.t, t, np.unwrap(np.array(self._h)))
@@ -133,7 +137,7 @@ class MagneticOnline:
             self._push(float(dem.t[w[j]]), 2, (z[j], r[j]))
             out.append(BeaconObservation(
                 t=float(dem.t[w[j]]), freq=float(dem.freqs[c[j]]),
-                amp_nt=tuple(dem.amp[w[j], c[j]].tolist()),  # type: ignore[arg-type]
+                amp_nt=tuple(dem.amp[w[j], c[j]].tolist()),
                 snr=float(dem.snr[w[j], c[j]]), z=(float(z[j, 0]), float(z[j, 1])),
                 r=((float(r[j, 0, 0]), float(r[j, 0, 1])), (float(r[j, 1, 0]), float(r[j, 1, 1]))),
             ))  # fmt: skip
