@@ -220,8 +220,10 @@ def main(argv: list[str] | None = None) -> int:
         md = [
             "# MLP ranging: configuration search and 10-fold cross-validation",
             "",
-            f"Made by: `python -m auvgw.slam.magnetic.ranging --out {a.out} --cv {a.cv}`"
-            f" (seed {a.seed}, optimiser {a.optimiser}).",
+            f"Made by: `python -m auvgw.slam.magnetic.ranging --out {a.out} --cv {a.cv}"
+            f"{' --cv-only' if a.cv_only else ''}` (seed {a.seed}, optimiser {a.optimiser});"
+            f" data: horizontal offsets within --cv-range {a.cv_range:g} m (Table 4's sensor"
+            " range), otherwise `RangingGeometry`'s defaults. RMSE in metres.",
             "",
             "## Configuration search (90/10 holdout, 5000 samples)",
             "",
