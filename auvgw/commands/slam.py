@@ -56,6 +56,19 @@ def register(sub: Any) -> None:
     e = ssub.add_parser("eval", help="Monte Carlo comparison of landmark SLAM filters")
     e.add_argument("--scenario", required=True, type=Path, help="scenario JSON file")
     e.add_argument(
+        "--pipeline",
+        default="landmark",
+        choices=["landmark", "magnetic"],
+        help="landmark filters, or the magnetic-beacon pipeline (amb-slam, mb-slam, dr)",
+    )
+    e.add_argument(
+        "--variant",
+        action="append",
+        default=None,
+        metavar="KEY=VAL,...",
+        help="magnetic pipeline: a study variant (repeatable), e.g. track=mlp,density=first-half",
+    )
+    e.add_argument(
         "--algorithms",
         default="fastslam1,fastslam2,ufastslam,vb-afastslam,vb-aufastslam",
         help="comma-separated algorithm names",
@@ -110,6 +123,9 @@ def register(sub: Any) -> None:
 def command_line(args: argparse.Namespace) -> str:
     """The ``auvgw slam eval`` command line equivalent to ``args`` (recorded with the tables)."""
     parts = ["auvgw", "slam", "eval", "--scenario", str(args.scenario)]
+    parts += ["--pipeline", args.pipeline] if args.pipeline != "landmark" else []
+    for t in args.variant or []:
+        parts += ["--variant", t]
     parts += ["--features", args.features] if args.features != "points" else []
     parts += ["--algorithms", args.algorithms, "--runs", str(args.runs)]
     for t in args.noise or []:
@@ -145,6 +161,10 @@ def _advance(bar: Any) -> Any:
 
 def run(args: argparse.Namespace) -> int:
     """Run the study and print the tables; returns the exit code."""
+    if args.pipeline == "magnetic":
+        from auvgw.slam.magnetic.evaluation import run_cli
+
+        return run_cli(args, command_line(args))
     from auvgw.config.scenario import ScenarioError, load_scenario
     from auvgw.slam.evaluation.report import format_table, plot_results, summaries_by_algorithm
     from auvgw.slam.evaluation.runner import Study
