@@ -296,6 +296,8 @@ class Devices(_Model):
     msis: DeviceSettings = DeviceSettings()
     multibeam: DeviceSettings = DeviceSettings()
     magnetometer: DeviceSettings = DeviceSettings()
+    #: the acoustic beacon transceiver: off unless a scenario with an acoustic_beacon enables it
+    acoustic: DeviceSettings = DeviceSettings(enabled=False)
 
 
 class Scenario(_Model):

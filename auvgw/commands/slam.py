@@ -61,9 +61,17 @@ def register(sub: Any) -> None:
     e.add_argument(
         "--pipeline",
         default="landmark",
-        choices=["landmark", "bathymetric"],
-        help="landmark filters on point/line features, or bathymetric PF-SLAM on multibeam "
-        "swaths (mtm-pf, bpslam, dr; docs/slam_bathymetric.md)",
+        choices=["landmark", "bathymetric", "magnetic"],
+        help="landmark filters on point/line features; bathymetric PF-SLAM on multibeam "
+        "swaths (mtm-pf, bpslam, dr; docs/slam_bathymetric.md); or the magnetic-beacon "
+        "pipeline (amb-slam, mb-slam, dr)",
+    )
+    e.add_argument(
+        "--variant",
+        action="append",
+        default=None,
+        metavar="KEY=VAL,...",
+        help="magnetic pipeline: a study variant (repeatable), e.g. track=mlp,density=first-half",
     )
     e.add_argument(
         "--algorithms",
@@ -139,6 +147,9 @@ def command_line(args: argparse.Namespace) -> str:
 
         return bathy_command_line(args)
     parts = ["auvgw", "slam", "eval", "--scenario", str(args.scenario)]
+    parts += ["--pipeline", args.pipeline] if args.pipeline != "landmark" else []
+    for t in args.variant or []:
+        parts += ["--variant", t]
     parts += ["--features", args.features] if args.features != "points" else []
     parts += ["--algorithms", args.algorithms, "--runs", str(args.runs)]
     for t in args.noise or []:
@@ -182,6 +193,10 @@ def run(args: argparse.Namespace) -> int:
         return run_bathy(args)
     if args.algorithms is None:
         args.algorithms = LANDMARK_DEFAULT
+    if args.pipeline == "magnetic":
+        from auvgw.slam.magnetic.evaluation import run_cli
+
+        return run_cli(args, command_line(args))
     from contextlib import ExitStack
 
     from auvgw.slam.evaluation.executor import ExecutorError, open_executor
