@@ -50,10 +50,26 @@ def message_type(msg: Any) -> str:
     return str(getattr(msg, "TYPE", type(msg).__name__))
 
 
+#: one ``<kind>`` per physical quantity, whatever the wire: an HN-100 solution is ``ins`` from
+#: its serial frame (Hn100Nav) and from its CAN epoch (HN100_Sample), an MS3A sample is
+#: ``magnetometer`` from ASCII and from CAN; the envelope names the type and the wire
+QUANTITY_KINDS: dict[str, str] = {
+    "Hn100Nav": "ins",
+    "HN100_Sample": "ins",
+    "Ms3aSample": "magnetometer",
+    "MS3A_Sample": "magnetometer",
+}
+
+
+def kind_of(type_name: str) -> str:
+    """The ``<kind>`` key segment of a message type name: its quantity (:data:`QUANTITY_KINDS`),
+    else the type name without its codec prefix, lower case (``pd0.Ensemble`` -> ``ensemble``)."""
+    return QUANTITY_KINDS.get(type_name) or type_name.rsplit(".", 1)[-1].lower()
+
+
 def message_kind(msg: Any) -> str:
-    """The ``<kind>`` key segment of a decoded message: its type name without the codec prefix,
-    in lower case (``pd0.Ensemble`` -> ``ensemble``)."""
-    return message_type(msg).rsplit(".", 1)[-1].lower()
+    """The ``<kind>`` key segment of a decoded message (:func:`kind_of` its type name)."""
+    return kind_of(message_type(msg))
 
 
 @dataclass(frozen=True, slots=True)

@@ -33,6 +33,7 @@ from auvgw.bus import (
     json_encoding,
     open_session,
     pack_raw_attachment,
+    raw_encoding,
 )
 from auvgw.config.gateway import DeviceConfig, GatewayConfig
 from auvgw.decoding import DecodedItem, DeviceDecoder, make_decoders, message_kind, message_type
@@ -137,7 +138,7 @@ class Gateway:
         for dev in self.devices.values():
             dev.pubs["raw"] = s.declare_publisher(
                 self.keys.raw(dev.name),
-                encoding=zenoh.Encoding.APPLICATION_OCTET_STREAM,
+                encoding=raw_encoding(dev.cfg.format),
                 congestion_control=_DROP,
             )
             dev.thread = threading.Thread(
@@ -280,7 +281,7 @@ class Gateway:
                 self.keys.sensor(dev.name, kind), congestion_control=_DROP
             )
             dev.pubs[kind] = pub
-        payload, enc = encode_envelope(msg, dev.name, t_ns, seq)
+        payload, enc = encode_envelope(msg, dev.name, t_ns, seq, wire=dev.cfg.format)
         pub.put(payload, encoding=enc)
 
     def _handle_items(

@@ -19,7 +19,8 @@ Faults come from each device's ``faults`` in the scenario and can be switched at
   returns to the scenario's). Windows (``unplug``, ``stall``, ...) are in vehicle seconds.
 
 Devices: ``ins`` (:class:`~auvgw.sim_devices.ins.InsEmulator`), ``magnetometer``
-(:class:`~auvgw.sim_devices.magnetometer.MagnetometerEmulator`), ``multibeam``
+(:class:`~auvgw.sim_devices.magnetometer.MagnetometerEmulator`), ``acoustic``
+(:class:`~auvgw.sim_devices.acoustic.AcousticEmulator`, off unless enabled), ``multibeam``
 (:class:`~auvgw.sim_devices.multibeam.MultibeamEmulator`), ``msis`` (the SeaNet head of
 :mod:`auvgw.sim_devices.msis` in a :class:`~auvgw.sim_devices.emulator.PolledEmulator`) and
 ``dvl`` (``auvgw.sim_devices.dvl.DvlEmulator(ctx, settings)``, an
@@ -53,6 +54,7 @@ from typing import Any
 import numpy as np
 
 from auvgw.config.scenario import DeviceSettings, FaultSettings, Scenario
+from auvgw.sim_devices.acoustic import AcousticEmulator
 from auvgw.sim_devices.clock import SimClock
 from auvgw.sim_devices.emulator import (
     DEFAULT_EPOCH,
@@ -86,7 +88,7 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 #: devices in the order they are built and listed (the scenario's ``devices`` keys)
-DEVICE_ORDER = ("ins", "dvl", "msis", "multibeam", "magnetometer")
+DEVICE_ORDER = ("ins", "dvl", "msis", "multibeam", "magnetometer", "acoustic")
 
 #: fields of the gateway's MSIS polling table that a scenario's msis options may set
 _MSIS_POLLING = (
@@ -178,6 +180,7 @@ FACTORIES: dict[str, Callable[[SimContext, DeviceSettings], Emulator]] = {
     "msis": make_msis,
     "multibeam": MultibeamEmulator,
     "magnetometer": MagnetometerEmulator,
+    "acoustic": AcousticEmulator,
 }
 
 
@@ -245,9 +248,14 @@ def gateway_config(
     endpoints: Iterable[Endpoint], vehicle: str = "auv1", clock: dict[str, Any] | None = None
 ) -> dict[str, Any]:
     """A gateway configuration mapping (``config/gateway.py``'s model) for ``endpoints``, with
-    the ``[clock]`` section ``clock`` (:func:`gateway_clock`) if given."""
+    the ``[clock]`` section ``clock`` (:func:`gateway_clock`) if given, and a ``[bus]`` section
+    listening on the one-machine default endpoint, where every other command connects by
+    default (docs/bus.md)."""
+    from auvgw.config.bus import default_endpoint
+
     data: dict[str, Any] = {
         "vehicle": vehicle,
+        "bus": {"mode": "peer", "listen": [default_endpoint()]},
         "devices": {ep.name: ep.gateway_device() for ep in endpoints},
     }
     if clock is not None:

@@ -101,14 +101,15 @@ def test_live_record_then_replay_gives_the_same_decoded_stream(procs, tmp_path, 
         assert recorder.wait(60) == 0, recorder.stderr()
     finally:
         dvl.close()
-    assert f"recorded {len(frames)} messages" in recorder.stderr()
+    assert f"/rec1/raw/dvl: {len(frames)}," in recorder.stderr()
 
-    # the file: one raw channel, the gateway configuration, every frame with its attachment
+    # the file: the raw channel, the gateway configuration, every frame with its attachment
     info = read_info(mcap)
     assert info.vehicle == "rec1"
     assert info.config is not None and info.config.devices["dvl"].format == "pd0"
-    assert info.counts == {"auv/rec1/raw/dvl": len(frames)}
-    samples = list(iter_samples(mcap))
+    assert info.counts["/rec1/raw/dvl"] == len(frames)
+    assert info.counts["/rec1/sensor/dvl/twist"] == len(frames)
+    samples = [s for s in iter_samples(mcap) if s.key == "auv/rec1/raw/dvl"]
     assert [s.payload for s in samples] == frames
     assert {s.message_encoding for s in samples} == {RAW_ENCODING}
     atts = [unpack_raw_attachment(s.attachment) for s in samples]
@@ -238,8 +239,9 @@ def test_recorder_file_layout_and_offline_iterator(tmp_path, shared_data):
         reader = make_reader(f)
         channels = {c.topic: c for c in reader.get_summary().channels.values()}
         metas = {m.name: m.metadata for m in reader.iter_metadata()}
-    assert channels["auv/v1/raw/dvl"].message_encoding == RAW_ENCODING
-    assert channels["auv/v1/truth/pose"].message_encoding == "json"
+    assert channels["/v1/raw/dvl"].message_encoding == "cdr"
+    assert channels["/v1/raw/dvl"].metadata["key"] == "auv/v1/raw/dvl"
+    assert channels["/v1/truth/pose"].message_encoding == "cdr"
     assert json.loads(metas[GATEWAY_METADATA]["config"])["devices"]["dvl"]["format"] == "pd0"
     assert metas["auvgw.recording"]["vehicle"] == "v1"
 

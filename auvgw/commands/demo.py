@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from auvgw.bus import Keys, encode_envelope, open_session
+from auvgw.bus import Keys, decode_envelope, encode_envelope, open_session
 from auvgw.cli import UserError
 from auvgw.config.bus import BusConfig
 from auvgw.config.gateway import ConfigError, load_gateway_config
@@ -594,11 +594,11 @@ class _Collector:
         ]
 
     def _on_odometry(self, sample: Any) -> None:
-        env = json.loads(sample.payload.to_bytes())
-        o = env["msg"]
+        env = decode_envelope(sample.payload.to_bytes())
+        o = env.body
         with self.lock:
             self.dead_reckoning.add(o["t"] - self.epoch_s, o["x"], o["y"])
-            self.odometry_stamps.append((env["t_recv_ns"] / 1e9, time.time()))
+            self.odometry_stamps.append((env.t_recv_ns / 1e9, time.time()))
 
     def _on_slam(self, sample: Any) -> None:
         p = json.loads(sample.payload.to_bytes())

@@ -1,11 +1,12 @@
 """``auvgw record --vehicle V --out FILE.mcap [--duration S]``: record the raw bus traffic.
 
-Subscribes to ``auv/<V>/raw/**`` (every device's frames with their attachments) and
-``auv/<V>/truth/**`` (simulation ground truth), and writes them to an MCAP file with the gateway's
+Subscribes to ``auv/<V>/**``: raw frames with their attachments, decoded sensors, odometry,
+SLAM outputs, status and simulation ground truth, and writes them to an MCAP file with the gateway's
 configuration (queried from ``auv/<V>/config/gateway``), so ``auvgw replay FILE`` needs nothing
 else. Records until SIGINT/SIGTERM or ``--duration`` seconds; prints ``recording ...`` on stdout
-once its subscriptions have reached the gateway. Layout and rationale: auvgw/recording.py,
-docs/gateway.md.
+once its subscriptions have reached the gateway; says so on stderr when no raw frame arrives
+within a few seconds, and exits 1 when it recorded nothing. Layout and rationale:
+auvgw/recording.py, docs/gateway.md.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from typing import Any
 
 import zenoh
 
-from auvgw.bus import Keys, add_bus_arguments, bus_from_args, open_session
+from auvgw.bus import InputWatch, Keys, add_bus_arguments, bus_from_args, open_session
 from auvgw.cli import UserError
 from auvgw.commands.run import handle_stop_signals
 from auvgw.recording import McapRecorder
@@ -115,9 +116,8 @@ def run(args: argparse.Namespace) -> int:
                 str(s.encoding),
             )
 
-        subs = [
-            session.declare_subscriber(keys.all(f"{sec}/**"), on_sample) for sec in ("raw", "truth")
-        ]
+        subs = [session.declare_subscriber(keys.all("**"), on_sample)]
+        watch = InputWatch(session, [keys.all("raw/**")], "auvgw record", bus)
         with handle_stop_signals(stop):
             try:
                 if not _wait_gateway(session, keys, stop, args.wait_gateway) and not stop.is_set():
@@ -126,9 +126,7 @@ def run(args: argparse.Namespace) -> int:
                         args.vehicle,
                         args.wait_gateway,
                     )
-                print(
-                    f"recording {keys.all('raw/**')}, {keys.all('truth/**')} to {out}", flush=True
-                )
+                print(f"recording {keys.all('**')} to {out}", flush=True)
                 t_end = None if args.duration is None else time.monotonic() + args.duration
                 next_query = 0.0
                 while (
@@ -148,6 +146,7 @@ def run(args: argparse.Namespace) -> int:
                     wait = 0.1 if t_end is None else max(0.0, min(0.1, t_end - time.monotonic()))
                     stop.wait(wait)
             finally:
+                watch.close()
                 for s in subs:
                     s.undeclare()
                 if not rec.has_config:
@@ -168,4 +167,11 @@ def run(args: argparse.Namespace) -> int:
         )
     per_key = ", ".join(f"{k}: {n}" for k, n in sorted(rec.counts.items()))
     print(f"recorded {total} messages to {out} ({per_key or 'nothing'})", file=sys.stderr)
+    if total == 0:
+        print(
+            f"auvgw record: nothing recorded: no publisher on {keys.all('**')} "
+            f"(bus: {bus.describe()})",
+            file=sys.stderr,
+        )
+        return 1
     return 0

@@ -574,6 +574,11 @@ class SlamStage:
             }
 
     # -- on the bus ---------------------------------------------------------------------------
+    def input_keys(self) -> list[str]:
+        """The key expressions the stage subscribes to: odometry and the MSIS scan lines."""
+        return [self.keys.odometry(), self.keys.sensor(self.config.msis_device or "*",
+                                                       HEADDATA_KIND)]  # fmt: skip
+
     def start(self, subscribe: bool = True) -> None:
         """Declare the publishers, the status queryable and liveliness token and, with
         ``subscribe``, the subscriptions (odometry, MSIS scan lines) and their worker."""
@@ -591,8 +596,7 @@ class SlamStage:
         self._worker = threading.Thread(target=self._run, name="slam-stage", daemon=True)
         self._worker.start()
         if subscribe:
-            dev = self.config.msis_device or "*"
-            for key in (self.keys.odometry(), self.keys.sensor(dev, HEADDATA_KIND)):
+            for key in self.input_keys():
                 self._decls.append(s.declare_subscriber(key, self._on_sample))
         self._decls.append(s.liveliness().declare_token(self.keys.alive(self.component)))
 
