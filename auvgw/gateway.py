@@ -145,10 +145,11 @@ class Gateway:
         if not self.devices:
             self.finished.set()
         log.info(
-            "gateway for vehicle %r starting: %d device(s), bus %s",
+            "gateway for vehicle %r starting: %d device(s), bus %s, Zenoh id %s",
             self.cfg.vehicle,
             len(self.devices),
             self.cfg.bus.mode,
+            self.session.zid(),
         )
         for t in self._threads:
             t.start()

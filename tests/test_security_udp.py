@@ -59,8 +59,13 @@ def test_udp_transport_drops_and_counts_datagrams_from_other_senders():
 
 def test_udp_default_allows_the_configured_device_address_only():
     port = free_port()
-    cfg = {"kind": "udp", "host": "127.0.0.1", "port": port,
-           "remote_host": "127.0.0.3", "remote_port": 9}
+    cfg = {
+        "kind": "udp",
+        "host": "127.0.0.1",
+        "port": port,
+        "remote_host": "127.0.0.3",
+        "remote_port": 9,
+    }
     assert parse_transport_config(cfg).sender_filter() == ["127.0.0.3"]
     assert "from 127.0.0.3" in parse_transport_config(cfg).describe()
     with open_transport(cfg) as t, _sender(ATTACKER) as bad, _sender("127.0.0.3") as dev:
@@ -95,11 +100,22 @@ def _flood(sock: socket.socket, port: int, start: int, n: int, done, what: str) 
 
 def test_udp_flood_memory_is_flat_when_rejected_and_bounded_when_allowed():
     port = free_port()
-    cfg = parse_gateway_config({
-        "vehicle": "sec1",
-        "devices": {"mbes": {"format": "kongsberg", "transport": {
-            "kind": "udp", "host": "127.0.0.1", "port": port, "allowed_senders": ["127.0.0.1"]}}},
-    })
+    cfg = parse_gateway_config(
+        {
+            "vehicle": "sec1",
+            "devices": {
+                "mbes": {
+                    "format": "kongsberg",
+                    "transport": {
+                        "kind": "udp",
+                        "host": "127.0.0.1",
+                        "port": port,
+                        "allowed_senders": ["127.0.0.1"],
+                    },
+                }
+            },
+        }
+    )
     tracemalloc.start()
     try:
         with Gateway(cfg) as gw, _sender(ATTACKER) as bad, _sender("127.0.0.1") as good:
@@ -125,8 +141,10 @@ def test_udp_flood_memory_is_flat_when_rejected_and_bounded_when_allowed():
             assert kongsberg.depth_beam_table.cache_info().currsize <= (
                 kongsberg.DEPTH_TABLE_CACHE_SIZE
             )
-            print(f"traced MB: start {m0:.2f}, after {N_REJECTED} rejected {m1:.2f}, "
-                  f"after {N_ALLOWED} allowed {m2:.2f}")
+            print(
+                f"traced MB: start {m0:.2f}, after {N_REJECTED} rejected {m1:.2f}, "
+                f"after {N_ALLOWED} allowed {m2:.2f}"
+            )
             # unbounded, 1,500 new tables cost about 27 MB (18 kB each)
             assert m2 - m1 < 8.0, f"allowed flood grew traced memory by {m2 - m1:.2f} MB"
     finally:
