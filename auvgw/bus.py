@@ -23,6 +23,7 @@ import json
 import struct
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import zenoh
@@ -41,6 +42,7 @@ __all__ = [
     "decode_envelope",
     "encode_envelope",
     "json_encoding",
+    "load_bus_table",
     "open_session",
     "pack_raw_attachment",
     "undeclare",
@@ -164,7 +166,15 @@ def decode_envelope(payload: bytes, key: str = "") -> Envelope:
 def add_bus_arguments(parser: Any) -> None:
     """``--mode/--connect/--listen`` options of a command that joins the bus."""
     g = parser.add_argument_group("Zenoh bus (default: a peer with no endpoints)")
-    g.add_argument("--mode", choices=("peer", "client"), default="peer", help="session mode")
+    g.add_argument(
+        "--bus-config",
+        type=Path,
+        default=None,
+        metavar="TOML",
+        help="take the [bus] table (endpoints, tls, auth, access_control) of this file, e.g. "
+        "the gateway's configuration; --mode/--connect/--listen override it",
+    )
+    g.add_argument("--mode", choices=("peer", "client"), default=None, help="session mode")
     g.add_argument(
         "--connect",
         action="append",
@@ -181,13 +191,35 @@ def add_bus_arguments(parser: Any) -> None:
     )
 
 
+def load_bus_table(path: Path) -> dict[str, Any]:
+    """The ``[bus]`` table of a TOML file (empty if it has none); ValueError names the file."""
+    import tomllib
+
+    try:
+        data = tomllib.loads(path.read_text())
+    except OSError as exc:
+        raise ValueError(f"--bus-config {path}: {exc.strerror}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"--bus-config {path}: not valid TOML ({exc})") from None
+    table = data.get("bus", {})
+    if not isinstance(table, dict):
+        raise ValueError(f"--bus-config {path}: 'bus' is not a table")
+    return table
+
+
 def bus_from_args(args: Any) -> BusConfig:
     """The :class:`BusConfig` of :func:`add_bus_arguments` options (raises ValueError, one line
     per problem)."""
     from pydantic import ValidationError
 
+    base: dict[str, Any] = {}
+    path: Path | None = getattr(args, "bus_config", None)
+    if path is not None:
+        base = load_bus_table(path)
+    given = {"mode": args.mode, "connect": args.connect, "listen": args.listen}
     try:
-        return BusConfig(mode=args.mode, connect=args.connect, listen=args.listen)
+        cfg = BusConfig(**{**base, **{k: v for k, v in given.items() if v}})
+        return cfg if path is None else cfg.rebased(path.resolve().parent)
     except ValidationError as exc:
         lines = []
         for e in exc.errors():

@@ -294,6 +294,7 @@ def parse_gateway_config(
 
 
 def _resolve_paths(cfg: GatewayConfig, base: Path) -> None:
+    cfg.bus = cfg.bus.rebased(base)
     for dev in cfg.devices.values():
         t = dev.transport
         if isinstance(t, FileTransportConfig) and not t.path.is_absolute():
