@@ -141,3 +141,87 @@ def test_user_password_authentication(tmp_path, procs):
     ):
         with pytest.raises(zenoh.ZError, match="Unable to connect"):
             open_session(BusConfig(mode="client", connect=ep, auth=auth))
+
+
+def test_gateway_record_fusion_and_slam_run_over_mutual_tls_with_acl(secure_bus, procs):
+    """The emulated vehicle's gateway, the fusion and SLAM stages and the recorder, each in its
+    own process with the vehicle identity's [bus] (``--bus-config``), through the mTLS router
+    with access control on; the shore identity sees odometry and SLAM poses; the recording holds
+    raw frames and the gateway's configuration."""
+    import json
+    import tomllib
+
+    from auvgw.recording import read_info
+    from auvgw.sim_devices.runner import gateway_toml
+    from auvgw.subscribe import GatewaySubscriber
+
+    _port, vehicle, shore, tmp = secure_bus
+    sim_dir = tmp / "sim"
+    scenario = config_file("scenarios/harbour.json")
+    bus_arg = ["--bus-config", str(vehicle)]
+    with GatewaySubscriber("auv1", _bus(shore)) as station:
+        odom = station.session.declare_subscriber("auv/auv1/nav/odometry")
+        pose = station.session.declare_subscriber("auv/auv1/slam/**")
+        procs.start([AUVGW, "fusion", "--vehicle", "auv1", "--duration", "60", *bus_arg], "fusion")
+        procs.start(
+            [
+                AUVGW,
+                "slam-run",
+                "--vehicle",
+                "auv1",
+                "--msis",
+                "msis",
+                "--duration",
+                "60",
+                *bus_arg,
+            ],
+            "slam",
+        )
+        rec = procs.start(
+            [
+                AUVGW,
+                "record",
+                "--vehicle",
+                "auv1",
+                "-o",
+                str(tmp / "trip.mcap"),
+                "--duration",
+                "20",
+                *bus_arg,
+            ],
+            "record",
+        )
+        procs.start(
+            [
+                AUVGW,
+                "sim",
+                "--scenario",
+                str(scenario),
+                "--speed",
+                "1",
+                "--duration",
+                "40",
+                "--out",
+                str(sim_dir),
+                "--vehicle",
+                "auv1",
+            ],
+            "sim",
+        )
+        wait_until(lambda: (sim_dir / "gateway.toml").is_file(), timeout=120, what="sim up")
+        data = tomllib.loads((sim_dir / "gateway.toml").read_text())
+        data["bus"] = json.loads(
+            _bus(vehicle).model_dump_json(exclude={"access_control"}, exclude_none=True)
+        )
+        (tmp / "gateway.toml").write_text(gateway_toml(data, "sim gateway on the secure bus"))
+        procs.start([AUVGW, "run", "--config", str(tmp / "gateway.toml")], "gateway")
+        got_odom = wait_until(odom.try_recv, timeout=120, what="odometry at the shore")
+        got_pose = wait_until(pose.try_recv, timeout=120, what="a SLAM sample at the shore")
+        assert json.loads(got_odom.payload.to_bytes())["type"]
+        assert str(got_pose.key_expr).startswith("auv/auv1/slam/")
+        assert rec.p.wait(120) == 0, rec.stderr()
+        odom.undeclare()
+        pose.undeclare()
+    info = read_info(tmp / "trip.mcap")
+    assert info.config is not None and set(info.config.devices) >= {"ins", "dvl", "msis"}
+    assert sum(n for k, n in info.counts.items() if "/raw/" in k) > 50
