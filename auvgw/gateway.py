@@ -270,7 +270,7 @@ class Gateway:
     def _answer_config(self, query: zenoh.Query) -> None:
         query.reply(
             self.keys.config("gateway"),
-            self.cfg.model_dump_json().encode(),
+            self.cfg.model_dump_json(exclude={"bus": {"auth": {"password"}}}).encode(),
             encoding=json_encoding("GatewayConfig"),
         )
 
