@@ -153,11 +153,13 @@ class DbcCodec:
     ) -> None:
         self.path = Path(path)
         try:
-            self.db = cantools.database.load_file(str(self.path), database_format="dbc")
+            db = cantools.database.load_file(str(self.path), database_format="dbc")
         except OSError as exc:
             raise CanCodecError(f"{self.path}: cannot load DBC: {exc.strerror or exc}") from None
-        except (UnicodeDecodeError, cantools.database.Error) as exc:
+        except (UnicodeDecodeError, cantools.database.Error) as exc:  # type: ignore[attr-defined]
             raise CanCodecError(f"{self.path}: cannot load DBC: {_where(exc)}") from None
+        assert isinstance(db, cantools.database.can.Database)  # database_format="dbc"
+        self.db = db
         if not self.db.messages:
             raise CanCodecError(f"{self.path}: the DBC defines no message (BO_)")
         self._by_id: dict[tuple[int, bool], _Message] = {}
@@ -187,7 +189,7 @@ class DbcCodec:
         return str(attr.value) if attr is not None and attr.value else None
 
     def _build_sample(self, name: str, module: str) -> None:
-        seq = self.sequence_signal
+        seq = str(self.sequence_signal)
         members = tuple(
             info for info in self._by_type.values() if any(s.name == seq for s in info.signals)
         )
