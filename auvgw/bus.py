@@ -21,35 +21,48 @@ from __future__ import annotations
 import contextlib
 import json
 import struct
-from collections.abc import Iterable, Mapping
+import sys
+import threading
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import msgspec
+import numpy as np
 import zenoh
 
 from auvgw.config.bus import BusConfig
-from auvgw.drivers.spec import to_jsonable
 
 __all__ = [
+    "ENVELOPE_VERSION",
     "RAW_ATTACHMENT",
     "SCHEMA_VERSION",
     "BusConfig",
     "Envelope",
+    "InputWatch",
     "Keys",
     "add_bus_arguments",
     "bus_from_args",
     "decode_envelope",
     "encode_envelope",
+    "envelope_encoding",
     "json_encoding",
     "load_bus_table",
     "open_session",
     "pack_raw_attachment",
+    "raw_encoding",
     "undeclare",
     "unpack_raw_attachment",
+    "wire_format_of",
 ]
 
+#: version of the JSON documents (status, configuration, SLAM outputs, truth)
 SCHEMA_VERSION = 1
+#: version of the decoded-message envelope (MessagePack); 1 was JSON, still read for a release
+ENVELOPE_VERSION = 2
+#: MessagePack extension code of a numpy array: ``<dtype.str>;<d0,d1,...>`` NUL then the bytes
+EXT_NDARRAY = 1
 #: attachment of a raw frame: host receive time (ns since the Unix epoch), per-device sequence,
 #: stream byte offset of the frame's first byte
 RAW_ATTACHMENT = struct.Struct("<qQQ")
@@ -119,6 +132,21 @@ def unpack_raw_attachment(data: bytes) -> tuple[int, int, int]:
     return RAW_ATTACHMENT.unpack(data)
 
 
+def raw_encoding(wire_format: str) -> zenoh.Encoding:
+    """Encoding of a raw frame: octets, schema ``auvgw/<v>/raw/<wire format>`` (``pd0``,
+    ``hn100``, ``can``, ...), so a consumer knows the bytes without the gateway configuration."""
+    return zenoh.Encoding.APPLICATION_OCTET_STREAM.with_schema(
+        f"auvgw/{SCHEMA_VERSION}/raw/{wire_format}"
+    )
+
+
+def wire_format_of(encoding: str) -> str:
+    """The wire format named by a raw frame's encoding string ('' when it names none)."""
+    _, _, schema = encoding.partition(";")
+    head, sep, fmt = schema.rpartition("/raw/")
+    return fmt if sep and head.startswith("auvgw/") else ""
+
+
 def json_encoding(type_name: str) -> zenoh.Encoding:
     return zenoh.Encoding.APPLICATION_JSON.with_schema(f"auvgw/{SCHEMA_VERSION}/{type_name}")
 
@@ -126,8 +154,10 @@ def json_encoding(type_name: str) -> zenoh.Encoding:
 @dataclass(frozen=True)
 class Envelope:
     """A decoded message as it travels: its type name, source device, host receive time (ns
-    since the Unix epoch), the sequence of the raw frame it came from, the message's JSON body
-    (SI units) and, where rebuilt (:mod:`auvgw.subscribe`), the typed immutable ``message``."""
+    since the Unix epoch), the sequence of the raw frame it came from, the message's body (SI
+    units; numpy arrays, bytes and NaN as they are) and, where rebuilt (:mod:`auvgw.subscribe`),
+    the typed immutable ``message``; ``wire`` the gateway format it was decoded from (``hn100``,
+    ``can``, ...; empty for derived messages such as odometry)."""
 
     type: str
     device: str
@@ -136,45 +166,168 @@ class Envelope:
     body: Mapping[str, Any] = field(default_factory=dict)
     message: Any = None
     key: str = ""
+    wire: str = ""
+
+
+_ARRAY_HEADS: dict[tuple[Any, tuple[int, ...]], bytes] = {}
+
+
+def _enc_hook(obj: Any) -> Any:
+    if isinstance(obj, np.ndarray):
+        key = (obj.dtype, obj.shape)
+        head = _ARRAY_HEADS.get(key)
+        if head is None:  # a few (dtype, shape) per codec: cached
+            head = f"{obj.dtype.str};{','.join(map(str, obj.shape))}".encode() + b"\0"
+            if len(_ARRAY_HEADS) < 4096:
+                _ARRAY_HEADS[key] = head
+        return msgspec.msgpack.Ext(EXT_NDARRAY, head + obj.tobytes())
+    if isinstance(obj, np.generic):
+        return obj.item()
+    raise NotImplementedError(f"cannot encode a {type(obj).__name__} in an envelope")
+
+
+def _ext_hook(code: int, data: memoryview) -> Any:
+    if code != EXT_NDARRAY:
+        raise ValueError(f"unknown MessagePack extension {code} in an envelope")
+    raw = bytes(data)
+    head, _, body = raw.partition(b"\0")
+    dtype, _, shape = head.decode().partition(";")
+    dims = tuple(int(x) for x in shape.split(",") if x)
+    return np.frombuffer(body, dtype=np.dtype(dtype)).reshape(dims)  # read-only, like messages
+
+
+_ENCODER = msgspec.msgpack.Encoder(enc_hook=_enc_hook)
+_DECODER = msgspec.msgpack.Decoder(ext_hook=_ext_hook)
+
+
+def envelope_encoding(type_name: str) -> zenoh.Encoding:
+    """``application/msgpack;auvgw/2/<Type>``: the encoding of every envelope sample."""
+    return zenoh.Encoding(f"application/msgpack;auvgw/{ENVELOPE_VERSION}/{type_name}")
 
 
 def encode_envelope(
-    msg: Any, device: str, t_recv_ns: int, seq: int, body: Mapping[str, Any] | None = None
+    msg: Any,
+    device: str,
+    t_recv_ns: int,
+    seq: int,
+    body: Mapping[str, Any] | None = None,
+    wire: str = "",
 ) -> tuple[bytes, zenoh.Encoding]:
-    """JSON payload and encoding of a decoded message (``body`` overrides the message dict)."""
-    d = dict(body) if body is not None else to_jsonable(msg)
-    type_name = d.pop("type", type(msg).__name__)
+    """MessagePack envelope and its encoding (docs/bus.md#payloads) of a decoded message
+    (``body`` replaces the message's fields; ``wire``: the gateway format it came from)."""
+    if body is not None:
+        body = dict(body)
+        type_name = str(body.pop("type", None) or getattr(msg, "TYPE", type(msg).__name__))
+    else:
+        type_name = str(getattr(msg, "TYPE", type(msg).__name__))
     env = {
-        "v": SCHEMA_VERSION,
+        "v": ENVELOPE_VERSION,
         "type": type_name,
+        "wire": wire,
         "device": device,
-        "t_recv_ns": t_recv_ns,
+        "t": t_recv_ns,
         "seq": seq,
-        "msg": d,
+        "msg": msg if body is None else body,
     }
-    return json.dumps(env, separators=(",", ":")).encode(), json_encoding(type_name)
+    return _ENCODER.encode(env), envelope_encoding(type_name)
 
 
 def decode_envelope(payload: bytes, key: str = "") -> Envelope:
-    """Parse a JSON envelope; raises ValueError on another schema version."""
-    env = json.loads(payload)
-    if env.get("v") != SCHEMA_VERSION:
-        raise ValueError(f"payload schema version {env.get('v')!r}, expected {SCHEMA_VERSION}")
-    return Envelope(env["type"], env["device"], env["t_recv_ns"], env["seq"], env["msg"], key=key)
+    """Parse an envelope (MessagePack v2; JSON v1 of the previous release is still read);
+    raises ValueError on anything else."""
+    if payload[:1] == b"{":  # v1: JSON
+        env = json.loads(payload)
+        if env.get("v") != 1:
+            raise ValueError(f"JSON envelope version {env.get('v')!r}, expected 1")
+        return Envelope(
+            env["type"], env["device"], env["t_recv_ns"], env["seq"], env["msg"], key=key
+        )
+    try:
+        env = _DECODER.decode(payload)
+    except msgspec.DecodeError as exc:
+        raise ValueError(f"not an envelope: {exc}") from None
+    if not isinstance(env, dict) or env.get("v") != ENVELOPE_VERSION:
+        v = env.get("v") if isinstance(env, dict) else None
+        raise ValueError(f"envelope version {v!r}, expected {ENVELOPE_VERSION}")
+    return Envelope(
+        env["type"], env["device"], env["t"], env["seq"], env["msg"], key=key, wire=env["wire"]
+    )
 
 
-def add_bus_arguments(parser: Any) -> None:
-    """``--mode/--connect/--listen`` options of a command that joins the bus."""
-    g = parser.add_argument_group("Zenoh bus (default: a peer with no endpoints)")
+class InputWatch:
+    """Says on stderr, once per key, when no sample arrived on an input key expression within
+    ``bus.no_publisher_after_s`` seconds (naming the key and the bus endpoints), so a stage
+    started without a gateway does not wait silently, and once more when such a key's first
+    sample arrives. :attr:`silent` lists the keys that never had one."""
+
+    def __init__(
+        self, session: zenoh.Session, keys: Iterable[str], what: str, bus: BusConfig
+    ) -> None:
+        self.what = what
+        self.bus = bus
+        self.silent: set[str] = set(keys)
+        self._lock = threading.Lock()
+        self._reported: set[str] = set()
+        self._subs = {k: session.declare_subscriber(k, self._seen(k)) for k in self.silent}
+        self._timer = threading.Timer(bus.no_publisher_after_s, self._report)
+        self._timer.daemon = True
+        self._timer.start()
+
+    def _seen(self, key: str) -> Callable[[zenoh.Sample], None]:
+        def on_sample(_s: zenoh.Sample) -> None:
+            with self._lock:
+                if key not in self.silent:
+                    return
+                self.silent.discard(key)
+                late = key in self._reported
+            if late:  # said "no publisher" before: say it is fine now
+                print(f"{self.what}: {key}: receiving now", file=sys.stderr, flush=True)
+
+        return on_sample
+
+    def _report(self) -> None:
+        with self._lock:
+            silent = sorted(self.silent)
+            self._reported.update(silent)
+        for key in silent:
+            print(
+                f"{self.what}: no publisher on {key} after {self.bus.no_publisher_after_s:g} s "
+                f"(bus: {self.bus.describe()}); is the gateway (auvgw run) running there?",
+                file=sys.stderr,
+                flush=True,
+            )
+        with self._lock:
+            heard = [k for k in self._subs if k not in self.silent]
+        undeclare(self._subs.pop(k) for k in heard)
+
+    def close(self) -> None:
+        self._timer.cancel()
+        undeclare(self._subs.values())
+        self._subs.clear()
+
+
+def add_bus_arguments(parser: Any, title: str | None = None, mode: bool = True) -> None:
+    """``--mode/--connect/--listen`` options of a command that joins the bus (``mode=False``:
+    no ``--mode``, e.g. ``auvgw run`` whose configuration has it)."""
+    from auvgw.config.bus import DEFAULT_ENDPOINT, ENDPOINT_ENV
+
+    g = parser.add_argument_group(
+        title
+        or (
+            f"Zenoh bus (default: a peer meeting the gateway at {DEFAULT_ENDPOINT}, "
+            f"or ${ENDPOINT_ENV}; docs/bus.md)"
+        )
+    )
     g.add_argument(
         "--bus-config",
         type=Path,
         default=None,
         metavar="TOML",
         help="take the [bus] table (endpoints, tls, auth, access_control) of this file, e.g. "
-        "the gateway's configuration; --mode/--connect/--listen override it",
+        "the gateway's configuration; --mode/--connect/--listen override it (docs/security.md)",
     )
-    g.add_argument("--mode", choices=("peer", "client"), default=None, help="session mode")
+    if mode:
+        g.add_argument("--mode", choices=("peer", "client"), default=None, help="session mode")
     g.add_argument(
         "--connect",
         action="append",
@@ -207,19 +360,22 @@ def load_bus_table(path: Path) -> dict[str, Any]:
     return table
 
 
-def bus_from_args(args: Any) -> BusConfig:
+def bus_from_args(args: Any, hub: bool = False) -> BusConfig:
     """The :class:`BusConfig` of :func:`add_bus_arguments` options (raises ValueError, one line
-    per problem)."""
+    per problem). With no endpoint given, the one-machine default: listen on the default
+    endpoint (``hub``: the gateway's role, e.g. ``auvgw replay``) or connect to it."""
     from pydantic import ValidationError
 
     base: dict[str, Any] = {}
     path: Path | None = getattr(args, "bus_config", None)
     if path is not None:
         base = load_bus_table(path)
-    given = {"mode": args.mode, "connect": args.connect, "listen": args.listen}
+    given = {"mode": getattr(args, "mode", None), "connect": args.connect, "listen": args.listen}
     try:
-        cfg = BusConfig(**{**base, **{k: v for k, v in given.items() if v}})
-        return cfg if path is None else cfg.rebased(path.resolve().parent)
+        bus = BusConfig(**{**base, **{k: v for k, v in given.items() if v}})
+        if path is not None:
+            bus = bus.rebased(path.resolve().parent)
+        return bus.as_hub() if hub else bus.as_spoke()
     except ValidationError as exc:
         lines = []
         for e in exc.errors():

@@ -36,6 +36,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "record a vehicle's raw bus traffic (all devices, receive times) to an MCAP file",
     ),
     "replay": ("auvgw.commands.replay", "republish an MCAP recording (raw and decoded) as if live"),
+    "export": (
+        "auvgw.commands.export",
+        "convert a recording of the earlier layout to the ROS 2 profile (--ros2)",
+    ),
     "viz": ("auvgw.commands.viz", "log the bus to Rerun (a .rrd file or a running viewer)"),
     "sim": (
         "auvgw.commands.sim",

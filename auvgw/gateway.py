@@ -33,6 +33,7 @@ from auvgw.bus import (
     json_encoding,
     open_session,
     pack_raw_attachment,
+    raw_encoding,
 )
 from auvgw.config.gateway import DeviceConfig, GatewayConfig
 from auvgw.decoding import DecodedItem, DeviceDecoder, make_decoders, message_kind, message_type
@@ -107,6 +108,11 @@ class Gateway:
         self._own_session = session is None
         self.session = session if session is not None else open_session(cfg.bus)
         self._t0_ns = time.time_ns()
+        #: raw sequence numbers are ``session_id << 32 | n`` (n counts a device's frames from
+        #: 1): unique across gateway restarts (the start second; restarts take longer than that)
+        self.session_id = (self._t0_ns // 1_000_000_000) & 0xFFFFFFFF
+        for dev in self.devices.values():
+            dev.seq = self.session_id << 32
         self._stamp = cfg.clock.stamp
         self._threads: list[threading.Thread] = []
         self._decls: list[Any] = []
@@ -134,7 +140,7 @@ class Gateway:
         for dev in self.devices.values():
             dev.pubs["raw"] = s.declare_publisher(
                 self.keys.raw(dev.name),
-                encoding=zenoh.Encoding.APPLICATION_OCTET_STREAM,
+                encoding=raw_encoding(dev.cfg.format),
                 congestion_control=_DROP,
             )
             dev.thread = threading.Thread(
@@ -197,6 +203,7 @@ class Gateway:
             "vehicle": self.cfg.vehicle,
             "t_ns": now,
             "uptime_s": round((now - self._t0_ns) / 1e9, 3),
+            "session_id": self.session_id,
             "bus": self._bus_status(),
             "devices": {name: self.device_status(name, now) for name in self.devices},
         }
@@ -283,7 +290,7 @@ class Gateway:
                 self.keys.sensor(dev.name, kind), congestion_control=_DROP
             )
             dev.pubs[kind] = pub
-        payload, enc = encode_envelope(msg, dev.name, t_ns, seq)
+        payload, enc = encode_envelope(msg, dev.name, t_ns, seq, wire=dev.cfg.format)
         pub.put(payload, encoding=enc)
 
     def _handle_items(
@@ -340,6 +347,10 @@ class Gateway:
                     self._handle_items(
                         dev, dev.decoder.feed(chunk), chunk.t_recv_ns, transport, host
                     )
+                    self._update_framing(dev)
+                if dev.decoder.has_stale(time.monotonic()):  # a partial frame waited too long
+                    stale = dev.decoder.expire(time.monotonic())
+                    self._handle_items(dev, stale, time.time_ns(), transport, host)
                     self._update_framing(dev)
                 if host is not None:
                     host.on_idle(transport.write, time.monotonic())

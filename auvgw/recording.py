@@ -1,29 +1,33 @@
-"""Recordings of the raw bus traffic in MCAP files (``auvgw record`` / ``auvgw replay``).
+"""Recordings of the bus in MCAP files with the ROS 2 profile (``auvgw record`` / ``replay``).
 
-MCAP (https://mcap.dev) is the log container Foxglove Studio opens directly and ROS 2's rosbag2
-reads through its default ``mcap`` storage plugin; it is indexed (seek by time, per-channel
-counts without a full scan), chunked and compressed, and its records are documented, so a
-recording outlives this project. Layout of an auvgw recording:
+MCAP (https://mcap.dev) is the log container Foxglove opens directly and ROS 2's rosbag2 reads
+through its default ``mcap`` storage plugin; it is indexed, chunked and compressed, and its
+records are documented, so a recording outlives this project. An auvgw recording is written in
+MCAP's **ROS 2 profile** (profile ``ros2``, schemas ``ros2msg``, messages ``cdr``), so
+``ros2 bag``, ``rosbags`` and Foxglove decode every message:
 
-* one channel per Zenoh key (``auv/<v>/raw/<device>``, ``auv/<v>/truth/<what>``); the channel's
-  metadata holds the key and the payload's Zenoh encoding.
-* raw channels (message encoding :data:`RAW_ENCODING`): each message's data is
-  ``u16 attachment length (LE) | attachment | frame bytes exactly as received``, so the
-  gateway's attachment (receive time, sequence, stream offset) is kept byte for byte;
-  ``log_time`` = the host receive time from the attachment (ns since the Unix epoch),
-  ``publish_time`` = when the recorder got it, ``sequence`` = the frame's sequence (mod 2^32).
-* other channels: the payload as published (message encoding ``json`` for JSON payloads), log
-  time = when the recorder got it.
+* one channel per ROS 2 topic ``/<vehicle>/<section>/...`` (the mapping and frames are
+  :mod:`auvgw.ros2`'s); the channel's metadata holds the Zenoh ``key`` it came from and the
+  payload's ``zenoh_encoding``.
+* raw frames: ``auvgw_msgs/msg/RawFrame`` (device, wire format, receive time, sequence, stream
+  offset, the bytes exactly as received), so ``auvgw replay`` republishes and decodes them
+  bit-exactly; ``log_time`` = the receive time, ``sequence`` = the frame's sequence (mod 2^32).
+* decoded sensors, odometry, SLAM outputs: their standard ROS 2 types, ``log_time`` = the
+  receive time they carry; status, truth and types with no standard counterpart:
+  ``auvgw_msgs/msg/Decoded`` (type name + the JSON body, byte for byte).
 * a metadata record :data:`GATEWAY_METADATA` with the vehicle name and the running gateway
   configuration (device -> format, DBC, table), so a replay needs nothing else; and a closing
-  metadata record :data:`RECORDING_METADATA` (keys, start/stop times, message counts).
+  metadata record :data:`RECORDING_METADATA` (topics, start/stop times, message counts).
 
-:func:`iter_recording` decodes a recording offline through the same
-:meth:`~auvgw.decoding.DeviceDecoder.decode_raw` as the gateway and ``auvgw replay``.
+Recordings of earlier versions (no profile; raw channels in :data:`RAW_ENCODING`, the rest JSON)
+are still read, and ``auvgw export --ros2`` converts them. :func:`iter_recording` decodes a
+recording offline through the same :meth:`~auvgw.decoding.DeviceDecoder.decode_raw` as the
+gateway and ``auvgw replay``.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import queue
@@ -31,7 +35,7 @@ import struct
 import threading
 import time
 from collections import Counter
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any, NamedTuple
@@ -41,7 +45,15 @@ from mcap.reader import NonSeekingReader, make_reader
 from mcap.writer import CompressionType, Writer
 from pydantic import ValidationError
 
-from auvgw.bus import RAW_ATTACHMENT, SCHEMA_VERSION, unpack_raw_attachment
+from auvgw import ros2
+from auvgw.bus import (
+    RAW_ATTACHMENT,
+    SCHEMA_VERSION,
+    decode_envelope,
+    pack_raw_attachment,
+    unpack_raw_attachment,
+    wire_format_of,
+)
 from auvgw.config.gateway import ConfigError, GatewayConfig, format_validation_error
 from auvgw.decoding import DeviceDecoder, make_decoders
 from auvgw.paths import config_file
@@ -50,6 +62,8 @@ log = logging.getLogger(__name__)
 
 __all__ = [
     "GATEWAY_METADATA",
+    "MESSAGE_ENCODING",
+    "PROFILE",
     "RAW_ENCODING",
     "RECORDING_METADATA",
     "McapRecorder",
@@ -57,6 +71,7 @@ __all__ = [
     "RecordedSample",
     "RecordingError",
     "RecordingInfo",
+    "Ros2McapWriter",
     "iter_recording",
     "iter_samples",
     "key_section",
@@ -64,8 +79,12 @@ __all__ = [
     "recorded_paths",
 ]
 
-#: MCAP message encoding of raw channels (see the module docstring for the layout)
+#: MCAP message encoding of raw channels in recordings of earlier versions (read, not written)
 RAW_ENCODING = "auvgw.raw.v1"
+#: MCAP profile, schema and message encodings of a recording
+PROFILE = "ros2"
+SCHEMA_ENCODING = "ros2msg"
+MESSAGE_ENCODING = "cdr"
 #: MCAP metadata record holding the vehicle and the gateway configuration
 GATEWAY_METADATA = "auvgw.gateway"
 #: MCAP metadata record written when a recording is closed
@@ -100,6 +119,153 @@ def unpack_raw_record(data: bytes) -> tuple[bytes, bytes]:
 # -- writing -----------------------------------------------------------------------------------
 
 
+class Ros2McapWriter:
+    """Writes bus samples to an MCAP file in the ROS 2 profile, synchronously (one thread).
+
+    :meth:`write` takes a Zenoh sample as published (key, payload, attachment, encoding) and
+    writes its ROS 2 messages (:func:`sample_to_ros`); :meth:`write_ros` writes ready ones.
+    ``wire_formats`` (device -> gateway format) names raw frames whose encoding does not.
+    """
+
+    def __init__(self, f: IO[bytes], vehicle: str, chunk_size: int = 256 * 1024) -> None:
+        self.vehicle = vehicle
+        self.counts: Counter[str] = Counter()
+        self.wire_formats: dict[str, str] = {}
+        self._w = Writer(f, chunk_size=chunk_size, compression=CompressionType.ZSTD)
+        self._w.start(profile=PROFILE, library=f"auvgw (bus schema {SCHEMA_VERSION})")
+        self._schemas: dict[str, int] = {}
+        self._channels: dict[tuple[str, str], int] = {}
+
+    def _channel(self, topic: str, type_name: str, key: str, encoding: str) -> int:
+        cid = self._channels.get((topic, type_name))
+        if cid is None:
+            sid = self._schemas.get(type_name)
+            if sid is None:
+                sid = self._w.register_schema(
+                    type_name, SCHEMA_ENCODING, ros2.msgdef(type_name).encode()
+                )
+                self._schemas[type_name] = sid
+            meta = {"key": key, "zenoh_encoding": encoding}
+            cid = self._w.register_channel(topic, MESSAGE_ENCODING, schema_id=sid, metadata=meta)
+            self._channels[(topic, type_name)] = cid
+        return cid
+
+    def write_ros(
+        self,
+        key: str,
+        msgs: list[ros2.RosMessage],
+        log_time: int,
+        publish_time: int,
+        sequence: int = 0,
+        encoding: str = "",
+    ) -> None:
+        """Write ROS 2 messages that came from the Zenoh ``key``."""
+        for m in msgs:
+            topic = f"/{self.vehicle}/{m.topic}"
+            self._w.add_message(
+                channel_id=self._channel(topic, m.type, key, encoding),
+                log_time=log_time,
+                data=ros2.serialize(m),
+                publish_time=publish_time,
+                sequence=sequence & 0xFFFFFFFF,
+            )
+            self.counts[topic] += 1
+
+    def write(
+        self, key: str, payload: bytes, attachment: bytes | None, encoding: str, t_rx_ns: int
+    ) -> None:
+        """Write one bus sample (raises ValueError when it cannot be converted)."""
+        _vehicle, section, rest = key_section(key)
+        if section == "raw":
+            wire = wire_format_of(encoding) or self.wire_formats.get(rest, "")
+            t_ns, seq, offset = t_rx_ns, 0, 0
+            if attachment is not None and len(attachment) == RAW_ATTACHMENT.size:
+                t_ns, seq, offset = unpack_raw_attachment(attachment)
+            msg = ros2.raw_frame_msg(rest, wire, t_ns, seq, offset, payload)
+            self.write_ros(key, [msg], t_ns, t_rx_ns, seq, encoding)
+            return
+        msgs, t_ns, seq = sample_to_ros(section, rest, payload, t_rx_ns)
+        self.write_ros(key, msgs, t_ns, t_rx_ns, seq, encoding)
+
+    def add_metadata(self, name: str, data: dict[str, str]) -> None:
+        self._w.add_metadata(name, data)
+
+    def finish(self, t_start_ns: int) -> None:
+        """Write the closing metadata record and the MCAP summary."""
+        self._w.add_metadata(
+            RECORDING_METADATA,
+            {
+                "vehicle": self.vehicle,
+                "t_start_ns": str(t_start_ns),
+                "t_stop_ns": str(time.time_ns()),
+                "counts": json.dumps(dict(self.counts)),
+            },
+        )
+        self._w.finish()
+
+
+class _Fields:
+    """Attribute access to a JSON body (a decoded message whose type is not loaded here)."""
+
+    def __init__(self, type_name: str, body: Mapping[str, Any]) -> None:
+        self.TYPE = type_name
+        self.__dict__.update(body)
+
+
+def sample_to_ros(
+    section: str, rest: str, payload: bytes, t_rx_ns: int
+) -> tuple[list[ros2.RosMessage], int, int]:
+    """(ROS 2 messages, stamp ns, sequence) of a non-raw bus sample: an envelope (``sensor/``,
+    ``nav/``: stamped with its receive time) or a JSON document (SLAM outputs stamped with their
+    ``t`` on the odometry clock; status and truth with ``t_rx_ns``, when the recorder got it)."""
+    from auvgw.subscribe import typed_message
+
+    if section in ("sensor", "nav"):
+        env = decode_envelope(payload)
+        _load_types()
+        msg = typed_message(env.type, env.body)
+        if msg is None:
+            msg = _Fields(env.type, env.body)
+        kind = rest.rpartition("/")[2]
+        source = rest.partition("/")[0] if section == "sensor" else rest
+        try:
+            msgs = ros2.to_ros(section, source, msg, env.t_recv_ns, env.seq, kind)
+        except (AttributeError, TypeError, ValueError) as exc:  # no standard form: keep the body
+            log.debug("%s/%s: %s; recorded as %s", section, rest, exc, ros2.DECODED_TYPE)
+            msgs = [ros2.decoded_msg(f"{section}/{rest}", source, env.type, env.t_recv_ns,
+                                     env.seq, dict(env.body))]  # fmt: skip
+        return msgs, env.t_recv_ns, env.seq
+    text = payload.decode("utf-8", errors="replace")
+    try:
+        body: Any = json.loads(text)
+    except ValueError:
+        body = None
+    t_ns = t_rx_ns
+    if section == "slam" and isinstance(body, dict) and isinstance(body.get("t"), int | float):
+        t_ns = round(body["t"] * 1e9)
+        return ros2.to_ros(section, rest, body, t_ns), t_ns, 0
+    type_name = body.get("type", section) if isinstance(body, dict) else section
+    source = rest.rpartition("/")[2] if section == "status" else rest
+    return [ros2.decoded_msg(f"{section}/{rest}", source, str(type_name), t_ns, 0, text)], t_ns, 0
+
+
+def _load_types() -> None:
+    """The fusion odometry type and the shipped HN-100 and MS3A DBCs' message types, so their
+    envelopes become typed."""
+    import auvgw.fusion.odometry  # noqa: F401 - registers Odometry
+    from auvgw.drivers.spec import MESSAGE_TYPES
+
+    if "HN100_Sample" in MESSAGE_TYPES and "MS3A_Sample" in MESSAGE_TYPES:
+        return
+    try:
+        from auvgw.drivers.can_codec import hn100_can, ms3a_can
+
+        hn100_can()
+        ms3a_can()
+    except Exception as exc:  # cantools or a DBC missing: CAN samples stay untyped
+        log.debug("CAN message types not available: %s", exc)
+
+
 @dataclass
 class _Pending:
     key: str
@@ -110,29 +276,49 @@ class _Pending:
 
 
 class McapRecorder:
-    """Writes samples to an MCAP file from a background thread.
+    """Writes samples to an MCAP file (ROS 2 profile, :class:`Ros2McapWriter`) from a
+    background thread.
 
     :meth:`add` is cheap and thread-safe (it only queues), so it can be called from Zenoh
     callbacks; :meth:`close` drains the queue, writes the closing metadata and the MCAP summary.
+    A sample that cannot be converted is logged and skipped (:attr:`skipped`), never the file.
     """
 
-    def __init__(self, path: str | Path, vehicle: str, chunk_size: int = 256 * 1024) -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        vehicle: str,
+        chunk_size: int = 256 * 1024,
+        file: IO[bytes] | None = None,
+    ) -> None:
         self.path = Path(path)
         self.vehicle = vehicle
-        self.counts: Counter[str] = Counter()
         self.t_start_ns = time.time_ns()
-        self._f: IO[bytes] = open(self.path, "wb")  # noqa: SIM115 - closed by close()
-        self._w = Writer(self._f, chunk_size=chunk_size, compression=CompressionType.ZSTD)
-        self._w.start(profile="", library=f"auvgw (schema {SCHEMA_VERSION})")
-        self._channels: dict[str, int] = {}
+        #: the write error (disk full...) that stopped the recording; samples after it are
+        #: counted in ``lost`` and the file stays readable up to its last complete chunk
+        self.error: OSError | None = None
+        self.lost = 0
+        self.failed = threading.Event()
+        self.skipped = 0
+        self._f: IO[bytes] = file if file is not None else open(self.path, "wb")  # noqa: SIM115
+        self._w = Ros2McapWriter(self._f, vehicle, chunk_size)
         self._q: queue.SimpleQueue[_Pending | str] = queue.SimpleQueue()
         self._config_written = False
         self._closed = False
         self._thread = threading.Thread(target=self._drain, name="mcap-writer", daemon=True)
         self._thread.start()
 
+    @property
+    def counts(self) -> Counter[str]:
+        """Messages written per ROS 2 topic."""
+        return self._w.counts
+
     def add(self, key: str, payload: bytes, attachment: bytes | None, encoding: str = "") -> None:
-        """Queue one sample (``encoding`` is the Zenoh encoding string of the payload)."""
+        """Queue one sample (``encoding`` is the Zenoh encoding string of the payload); after a
+        write error it is only counted as lost (nothing piles up in memory)."""
+        if self.failed.is_set():
+            self.lost += 1
+            return
         self._q.put(_Pending(key, payload, attachment, encoding, time.time_ns()))
 
     def set_gateway_config(self, config_json: str) -> None:
@@ -151,52 +337,30 @@ class McapRecorder:
     def has_config(self) -> bool:
         return self._config_written
 
-    def _channel(self, p: _Pending) -> int:
-        cid = self._channels.get(p.key)
-        if cid is None:
-            raw = key_section(p.key)[1] == "raw"
-            if raw:
-                encoding = RAW_ENCODING
-            elif p.encoding.startswith("application/json"):
-                encoding = "json"
-            else:
-                encoding = "auvgw.bytes"
-            meta = {"key": p.key, "zenoh_encoding": p.encoding}
-            if raw:
-                meta["attachment"] = f"struct {RAW_ATTACHMENT.format}: t_recv_ns, seq, offset"
-            cid = self._w.register_channel(p.key, encoding, schema_id=0, metadata=meta)
-            self._channels[p.key] = cid
-        return cid
-
-    def _write(self, p: _Pending) -> None:
-        cid = self._channel(p)
-        log_time, seq, data = p.t_rx_ns, 0, p.payload
-        if key_section(p.key)[1] == "raw":
-            att = p.attachment or b""
-            if len(att) == RAW_ATTACHMENT.size:
-                log_time, seq, _ = unpack_raw_attachment(att)
-            data = pack_raw_record(att, p.payload)
-        self._w.add_message(
-            channel_id=cid,
-            log_time=log_time,
-            data=data,
-            publish_time=p.t_rx_ns,
-            sequence=seq & 0xFFFFFFFF,
-        )
-        self.counts[p.key] += 1
-
     def _drain(self) -> None:
         while True:
             p = self._q.get()
             if p == _STOP:
                 return
-            if isinstance(p, str):
-                self._w.add_metadata(GATEWAY_METADATA, json.loads(p))
+            if self.failed.is_set():
+                self.lost += not isinstance(p, str)
                 continue
             try:
-                self._write(p)
-            except (ValueError, struct.error) as exc:
-                log.warning("%s: sample not recorded: %s", p.key, exc)
+                if isinstance(p, str):
+                    meta = json.loads(p)
+                    with contextlib.suppress(ValueError, KeyError, AttributeError):
+                        devices = json.loads(meta["config"]).get("devices", {})
+                        self._w.wire_formats.update({k: d["format"] for k, d in devices.items()})
+                    self._w.add_metadata(GATEWAY_METADATA, meta)
+                else:
+                    self._w.write(p.key, p.payload, p.attachment, p.encoding, p.t_rx_ns)
+            except (ValueError, KeyError, TypeError, struct.error) as exc:
+                self.skipped += 1
+                log.warning("%s: sample not recorded: %s", getattr(p, "key", "metadata"), exc)
+            except OSError as exc:  # disk full, I/O error: stop writing, keep draining
+                self.error = exc
+                self.lost += not isinstance(p, str)
+                self.failed.set()
 
     def close(self) -> None:
         """Flush everything, write the closing metadata and the summary, close the file."""
@@ -205,17 +369,18 @@ class McapRecorder:
         self._closed = True
         self._q.put(_STOP)
         self._thread.join()
-        self._w.add_metadata(
-            RECORDING_METADATA,
-            {
-                "vehicle": self.vehicle,
-                "t_start_ns": str(self.t_start_ns),
-                "t_stop_ns": str(time.time_ns()),
-                "counts": json.dumps(dict(self.counts)),
-            },
-        )
-        self._w.finish()
-        self._f.close()
+        if self.failed.is_set():  # no summary: the file is read up to its last whole chunk
+            with contextlib.suppress(OSError):
+                self._f.close()
+            return
+        try:
+            self._w.finish(self.t_start_ns)
+            self._f.close()
+        except OSError as exc:  # the summary did not fit: readable up to the last chunk
+            self.error = exc
+            self.failed.set()
+            with contextlib.suppress(OSError):
+                self._f.close()
 
 
 # -- reading -----------------------------------------------------------------------------------
@@ -319,9 +484,11 @@ def iter_samples(path: str | Path) -> Iterator[RecordedSample]:
     with _open(path) as f:
         _check_magic(path, f)
         try:
-            for _schema, channel, msg in NonSeekingReader(f).iter_messages(log_time_order=False):
+            for schema, channel, msg in NonSeekingReader(f).iter_messages(log_time_order=False):
                 zenc = channel.metadata.get("zenoh_encoding", "")
-                if channel.message_encoding == RAW_ENCODING:
+                if channel.message_encoding == MESSAGE_ENCODING and schema is not None:
+                    yield _ros2_sample(schema.name, channel.metadata, channel.topic, msg, zenc)
+                elif channel.message_encoding == RAW_ENCODING:
                     att, payload = unpack_raw_record(msg.data)
                     yield RecordedSample(
                         channel.topic, msg.log_time, att or None, payload, RAW_ENCODING, zenc
@@ -354,6 +521,23 @@ def recorded_paths(cfg: GatewayConfig) -> dict[str, str]:
             if dev.enabled and value and not _shipped(value):
                 out[f"{name}.{attr}"] = value
     return out
+
+
+def _ros2_sample(
+    type_name: str, meta: Mapping[str, str], topic: str, msg: Any, zenc: str
+) -> RecordedSample:
+    """A recorded ROS 2 message as the bus sample it came from: raw frames with their
+    attachment, Decoded messages with their JSON text, standard types as CDR bytes."""
+    key = meta.get("key", topic)
+    if type_name == ros2.RAW_FRAME_TYPE:
+        m = ros2.typestore().deserialize_cdr(msg.data, type_name)
+        t_ns = m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
+        att = pack_raw_attachment(t_ns, m.seq, m.stream_offset)
+        return RecordedSample(key, msg.log_time, att, bytes(m.data), RAW_ENCODING, zenc)
+    if type_name == ros2.DECODED_TYPE:
+        m = ros2.typestore().deserialize_cdr(msg.data, type_name)
+        return RecordedSample(key, msg.log_time, None, m.json.encode(), "json", zenc)
+    return RecordedSample(key, msg.log_time, None, msg.data, MESSAGE_ENCODING, zenc)
 
 
 def decoders_for(

@@ -10,13 +10,14 @@
         for env in sub.messages(device="dvl", timeout=5.0):
             print(env.t_recv_ns, env.message.bottom_track)   # a typed, immutable pd0.Ensemble
 
-How messages are rebuilt: from the JSON envelope the gateway publishes
-(``auv/<v>/sensor/<device>/<kind>``) with :func:`auvgw.drivers.spec.from_jsonable`, not by
-decoding the raw frame again. That needs no device configuration, DBC or site table on the
-subscriber's side (a shore laptop only needs the codec modules for the types), and it gives the
-same values the gateway decoded (JSON keeps every float exactly; NaN travels as null and comes
-back NaN). A type no installed codec defines (e.g. a CAN message built from a DBC the subscriber
-has not loaded) arrives with ``message = None`` and its fields in ``body``.
+How messages are rebuilt: from the envelope the gateway publishes
+(``auv/<v>/sensor/<device>/<kind>``, MessagePack, docs/bus.md#payloads) with
+:func:`auvgw.drivers.spec.from_jsonable`, not by decoding the raw frame again. That needs no
+device configuration, DBC or site table on the subscriber's side (a shore laptop only needs the
+codec modules for the types), and it gives the same values the gateway decoded (floats and
+arrays travel in binary, NaN included). A type no installed codec defines (e.g. a CAN message
+built from a DBC the subscriber has not loaded) arrives with ``message = None`` and its fields
+in ``body``.
 
 Streams queue samples in the Zenoh callback and never block it: when a consumer falls behind by
 more than ``queue_size`` samples, new ones are dropped and counted (``Stream.dropped``).

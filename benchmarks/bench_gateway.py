@@ -3,18 +3,19 @@
     .venv/bin/python benchmarks/bench_gateway.py [--rate 10] [--factor 10] [--seconds 15]
                                                  [--quick]
 
-Set-up: ``auvgw run`` (its own process) reads a raw pty that this script writes real PD0
-ensembles into (RDI_withBT.000, 581 B each), one ``os.write`` per ensemble at a fixed rate; this
-script also subscribes to the decoded ``auv/bench/sensor/dvl/ensemble`` samples (a Zenoh peer
-connected to the gateway by TCP on 127.0.0.1).
+Set-up, once per device (PD0: real ensembles of RDI_withBT.000, 581 B each; HN-100: binary
+solutions of 74 B): ``auvgw run`` (its own process) reads a raw pty that this script writes the
+frames into, one ``os.write`` per frame at a fixed rate; this script also subscribes to the
+decoded samples (``auv/bench/sensor/dvl/<kind>``, a Zenoh peer connected to the gateway by TCP
+on 127.0.0.1).
 
 * **gateway latency**: from ``os.write`` of an ensemble's last byte returning to its decoded
   sample arriving in this process's Zenoh callback (``time.time_ns`` on both ends, one process),
   split at the gateway's receive stamp (``t_recv_ns`` in the envelope) into "pty + read" and
   "decode + publish + deliver".
 * **bare Zenoh**: a separate publisher process puts payloads of the same size as the envelopes
-  (about 3.7 kB) at the same rate to this process (``time.time_ns`` in the payload; one system
-  clock). Gateway overhead = gateway p50 - bare p50.
+  (MessagePack, docs/bus.md#payloads) at the same rate to this process (``time.time_ns`` in
+  the payload; one system clock). Gateway overhead = gateway p50 - bare p50.
 * **CPU**: utime + stime of the gateway process (``/proc/<pid>/stat``) over each phase, as % of
   one core; idle = device connected, no data.
 * **lost**: ensembles written minus decoded samples received (by sequence number).
@@ -31,6 +32,8 @@ seconds (the gateway starts and opens its ports) and the last ones (every byte r
 ports close), so every frame an emulator sends falls in the measured run.
 
 * **CPU**: utime + stime of the ``auvgw run`` process over the sending window, % of one core.
+* **payload size**: bytes of every decoded envelope and raw frame the bus carried in the 1x
+  phase, per port (target: envelope <= 1.5x its raw frame).
 * **lost**: frames each emulator sent (the sim's printed counters; on CAN the sim counts a
   sample's burst once, so its count times the DBC's frames per epoch) minus the frames the
   gateway counted (``frames`` of its status queryable); the bar is none.
@@ -59,7 +62,7 @@ from pathlib import Path
 
 import zenoh
 
-from auvgw.bus import open_session
+from auvgw.bus import decode_envelope, open_session
 from auvgw.config.bus import BusConfig
 from auvgw.drivers.formats import get_format
 from auvgw.paths import REPO_ROOT, shared_dir
@@ -70,7 +73,7 @@ CLK_TCK = os.sysconf("SC_CLK_TCK")
 
 BARE_PUBLISHER = r"""
 import struct, sys, time
-from auvgw.bus import open_session
+from auvgw.bus import decode_envelope, open_session
 from auvgw.config.bus import BusConfig
 ep, rate, count, size = sys.argv[1], float(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4])
 import zenoh
@@ -91,7 +94,7 @@ with open_session(BusConfig(connect=[ep])) as s:
 
 STALLED = r"""
 import sys, time
-from auvgw.bus import open_session
+from auvgw.bus import decode_envelope, open_session
 from auvgw.config.bus import BusConfig
 s = open_session(BusConfig(connect=[sys.argv[1]]))
 sub = s.declare_subscriber(sys.argv[2], lambda sample: time.sleep(3600))
@@ -136,9 +139,15 @@ class Row:
 
 
 class Bench:
-    def __init__(self, tmp: Path, frames: list[bytes]) -> None:
+    """One device (``fmt``: pd0 or hn100) on a raw pty, read by its own ``auvgw run``."""
+
+    def __init__(self, tmp: Path, frames: list[bytes], fmt: str = "pd0") -> None:
+        from auvgw.decoding import message_kind
+
         self.tmp = tmp
         self.frames = frames
+        self.fmt = fmt
+        kind = message_kind(get_format(fmt).decode(frames[0])[0])
         self.gw_ep = f"tcp/127.0.0.1:{free_port()}"
         self.my_ep = f"tcp/127.0.0.1:{free_port()}"
         master, slave = os.openpty()
@@ -149,7 +158,7 @@ class Bench:
         cfg = tmp / "gw.toml"
         cfg.write_text(
             f'vehicle = "{VEHICLE}"\nstatus_period_s = 1.0\n[bus]\nlisten = ["{self.gw_ep}"]\n'
-            f'[devices.dvl]\nformat = "pd0"\n'
+            f'[devices.dvl]\nformat = "{fmt}"\n'
             f'transport = {{ kind = "serial", url = "{self.link}" }}\n'
         )
         self.gw_log = open(tmp / "gateway.log", "wb")  # noqa: SIM115 - closed in close()
@@ -161,7 +170,7 @@ class Bench:
         self.arrivals: list[tuple[int, bytes]] = []
         self.lock = threading.Lock()
         self.sub = self.session.declare_subscriber(
-            f"auv/{VEHICLE}/sensor/dvl/ensemble", self._on_sample
+            f"auv/{VEHICLE}/sensor/dvl/{kind}", self._on_sample
         )
         self.bare = self.session.declare_subscriber("bench/bare", self._on_sample)
         self.seq = 0  # ensembles written so far (the gateway's sequence counts from 1)
@@ -209,14 +218,14 @@ class Bench:
         lat, read, rest = [], [], []
         seen = set()
         for t_arr, payload in list(self.arrivals):
-            env = json.loads(payload)
-            t_w = written.get(env["seq"])
-            if t_w is None or env["seq"] in seen:
+            env = decode_envelope(payload)
+            t_w = written.get(env.seq)
+            if t_w is None or env.seq in seen:
                 continue
-            seen.add(env["seq"])
+            seen.add(env.seq)
             lat.append((t_arr - t_w) / 1e3)
-            read.append((env["t_recv_ns"] - t_w) / 1e3)
-            rest.append((t_arr - env["t_recv_ns"]) / 1e3)
+            read.append((env.t_recv_ns - t_w) / 1e3)
+            rest.append((t_arr - env.t_recv_ns) / 1e3)
         cpu = (c1 - c0) / CLK_TCK / (w1 - w0) * 100
         return Row(
             name,
@@ -309,6 +318,8 @@ class AllPhase:
     cpu_pct: float
     rows: list[AllRow]
     sim_rc: int
+    #: per port: [raw frames, raw bytes, decoded envelopes, envelope bytes] seen on the bus
+    sizes: dict[str, list[int]]
 
 
 def all_devices_scenario(path: Path, t_open: float, t_close: float) -> Path:
@@ -379,6 +390,17 @@ def all_devices_phase(
     ports = list(cfg["devices"])
     try:
         with GatewaySubscriber("benchall", BusConfig(connect=[ep])) as me:
+            sizes: dict[str, list[int]] = {}
+
+            def on_sample(smp: zenoh.Sample) -> None:
+                parts = str(smp.key_expr).split("/")
+                c = sizes.setdefault(parts[3], [0, 0, 0, 0])
+                i = 0 if parts[2] == "raw" else 2
+                c[i] += 1
+                c[i + 1] += len(smp.payload.to_bytes())
+
+            size_subs = [me.session.declare_subscriber(f"auv/benchall/{sec}/**", on_sample)
+                         for sec in ("raw", "sensor")]  # fmt: skip
             deadline = time.monotonic() + 60
             while not all((me.status(p) or {}).get("connected") for p in ports):
                 if time.monotonic() > deadline:
@@ -396,6 +418,8 @@ def all_devices_phase(
             # the devices are silent from t_close: everything sent has been read by mid-tail
             time.sleep(max(0.0, t_start + warm_s + seconds + tail_s / 2 - time.monotonic()))
             status = {p: me.status(p, timeout=5.0) or {} for p in ports}
+            for sub in size_subs:
+                sub.undeclare()
         sim_rc = sim.wait(60 + duration / speed)
         reader.join(10)
     finally:
@@ -420,7 +444,7 @@ def all_devices_phase(
         rows.append(AllRow(p, sent, int(st.get("frames", -1)), int(st.get("bad_frames", 0)),
                            dropped))  # fmt: skip
     cpu = (c1 - c0) / CLK_TCK / (m1 - m0) * 100
-    return AllPhase(speed, seconds, cpu, rows, sim_rc)
+    return AllPhase(speed, seconds, cpu, rows, sim_rc, sizes)
 
 
 def print_all_devices(phases: list[AllPhase]) -> None:
@@ -440,12 +464,21 @@ def print_all_devices(phases: list[AllPhase]) -> None:
                 f"{ph.speed:>4g}x {r.port:18} {r.sent:>7} {r.counted:>8} {r.lost:>5} "
                 f"{r.bad:>4} {r.dropped_bytes:>13}"
             )
+    print("\nPayload size per message on the bus (MessagePack envelope v2) against its raw frame")
+    print("(CAN: several raw frames per decoded epoch), from the first phase's traffic:\n")
+    head = f"{'port':18} {'raw B/frame':>11} {'env B/msg':>10} {'env/raw':>8} {'env B/raw B':>11}"
+    print(head)
+    print("-" * len(head))
+    for port, (nr, br, ne, be) in sorted(phases[0].sizes.items()) if phases else []:
+        if nr and ne:
+            print(f"{port:18} {br / nr:>11.0f} {be / ne:>10.0f} {be / ne / (br / nr):>7.2f}x "
+                  f"{be / br:>10.2f}x")  # fmt: skip
     print()
     for ph in phases:
         lost = sum(r.lost for r in ph.rows)
         print(
             f"at {ph.speed:g}x ({ph.seconds:g} s sending): gateway CPU {ph.cpu_pct:.1f} % of a "
-            f"core (target < 25 % at 1x); frames lost {lost} (bar: 0); sim exit {ph.sim_rc}"
+            f"core (target < 35 % at 10x); frames lost {lost} (bar: 0); sim exit {ph.sim_rc}"
         )
 
 
@@ -453,6 +486,23 @@ def all_devices_run(args: argparse.Namespace) -> list[AllPhase]:
     seconds = 10.0 if args.quick else args.all_seconds
     with tempfile.TemporaryDirectory(prefix="bench-gw-all-") as tmp:
         return [all_devices_phase(Path(tmp), k, seconds) for k in (1.0, args.all_factor)]
+
+
+def hn100_frames(n: int) -> list[bytes]:
+    """``n`` HN-100 binary frames (100 Hz solutions of a vehicle turning slowly)."""
+    from auvgw.drivers import hn100
+
+    status = hn100.CODEC.status_word(aligned=True, gnss_aided=False, dvl_aided=True, error=False)
+    out = []
+    for i in range(n):
+        msg = hn100.Hn100Nav(
+            seq=i % 65536, status=status, time=10.0 + i / 100, roll=0.01, pitch=-0.02,
+            heading=(0.5 + i * 1e-3) % 6.28, rate_x=0.0, rate_y=0.0, rate_z=0.1, accel_x=0.01,
+            accel_y=0.0, accel_z=-9.81, vel_n=1.0, vel_e=0.1, vel_d=0.0, latitude=0.7,
+            longitude=0.1, depth=20.0,
+        )  # fmt: skip
+        out.append(hn100.CODEC.encode(msg))
+    return out
 
 
 def fmt(v: float, spec: str = ".0f") -> str:
@@ -481,55 +531,63 @@ def main() -> int:
         return 1
     fmt_pd0 = get_format("pd0")
     frames_iter, _ = fmt_pd0.frames_of_file(shared / "data" / "pd0" / "RDI_withBT.000")
-    frames = [f.data for f in frames_iter]
+    devices = {"pd0": [f.data for f in frames_iter], "hn100": hn100_frames(200)}
     from auvgw.bus import encode_envelope
 
-    env_size = len(encode_envelope(fmt_pd0.decode(frames[0])[0], "dvl", time.time_ns(), 1)[0])
     nominal, fast = args.rate, args.rate * args.factor
     n_nom, n_fast = round(nominal * seconds), round(fast * seconds)
-    rows: list[Row] = []
     if args.only_all:
         print_all_devices(all_devices_run(args))
         return 0
-    with tempfile.TemporaryDirectory(prefix="bench-gw-") as tmp:
-        b = Bench(Path(tmp), frames)
-        try:
-            rows.append(b.idle_phase(min(seconds, 5.0)))
-            rows.append(b.bare_phase("bare Zenoh (same payload size)", nominal, n_nom, env_size))
-            rows.append(b.gateway_phase("gateway, pty -> decoded sample", nominal, n_nom))
-            rows.append(b.bare_phase("bare Zenoh (same payload size)", fast, n_fast, env_size))
-            rows.append(b.gateway_phase("gateway, pty -> decoded sample", fast, n_fast))
-            b.start_stalled()
-            rows.append(b.gateway_phase("gateway + a stalled subscriber", fast, n_fast))
-        finally:
-            b.close()
+    results: dict[str, list[Row]] = {}
+    sizes: dict[str, tuple[int, int]] = {}
+    for fmt_name, frames in devices.items():
+        msg = get_format(fmt_name).decode(frames[0])[0]
+        env_size = len(encode_envelope(msg, "dvl", time.time_ns(), 1, wire=fmt_name)[0])
+        sizes[fmt_name] = (len(frames[0]), env_size)
+        rows: list[Row] = results.setdefault(fmt_name, [])
+        with tempfile.TemporaryDirectory(prefix="bench-gw-") as tmp:
+            b = Bench(Path(tmp), frames, fmt_name)
+            try:
+                rows.append(b.idle_phase(min(seconds, 5.0)))
+                for rate, n in ((nominal, n_nom), (fast, n_fast)):
+                    rows.append(b.bare_phase("bare Zenoh (same payload size)", rate, n, env_size))
+                    rows.append(b.gateway_phase("gateway, pty -> decoded sample", rate, n))
+                if fmt_name == "pd0":
+                    b.start_stalled()
+                    rows.append(b.gateway_phase("gateway + a stalled subscriber", fast, n_fast))
+            finally:
+                b.close()
 
-    print(
-        f"\nGateway benchmark: PD0 ensembles of {len(frames[0])} B -> JSON envelopes of "
-        f"{env_size} B; {seconds:g} s per phase; machine load {os.getloadavg()[0]:.1f}\n"
-    )
-    head = (
-        f"{'phase':34} {'rate Hz':>7} {'sent':>5} {'lost':>5} {'p50 us':>7} {'p99 us':>8} "
-        f"{'read p50':>8} {'pub p50':>8} {'CPU %':>6}"
-    )
-    print(head)
-    print("-" * len(head))
-    for r in rows:
+    for fmt_name, rows in results.items():
+        raw_b, env_b = sizes[fmt_name]
         print(
-            f"{r.name:34} {fmt(r.rate_hz, 'g'):>7} {r.sent:>5} {r.lost if r.sent else '-':>5} "
-            f"{fmt(r.p50_us):>7} {fmt(r.p99_us):>8} {fmt(r.read_p50_us):>8} "
-            f"{fmt(r.rest_p50_us):>8} {fmt(r.cpu_pct, '.1f'):>6}"
+            f"\nGateway benchmark, {fmt_name}: frames of {raw_b} B -> envelopes of {env_b} B "
+            f"({env_b / raw_b:.2f}x); {seconds:g} s per phase; load {os.getloadavg()[0]:.1f}\n"
         )
-    by = {(r.name, r.rate_hz): r for r in rows}
+        head = (
+            f"{'phase':34} {'rate Hz':>7} {'sent':>5} {'lost':>5} {'p50 us':>7} {'p99 us':>8} "
+            f"{'read p50':>8} {'pub p50':>8} {'CPU %':>6}"
+        )
+        print(head)
+        print("-" * len(head))
+        for r in rows:
+            print(
+                f"{r.name:34} {fmt(r.rate_hz, 'g'):>7} {r.sent:>5} {r.lost if r.sent else '-':>5} "
+                f"{fmt(r.p50_us):>7} {fmt(r.p99_us):>8} {fmt(r.read_p50_us):>8} "
+                f"{fmt(r.rest_p50_us):>8} {fmt(r.cpu_pct, '.1f'):>6}"
+            )
     print()
-    for rate in (nominal, fast):
-        gw = by[("gateway, pty -> decoded sample", rate)]
-        bare = by[("bare Zenoh (same payload size)", rate)]
-        print(
-            f"at {rate:g} Hz: gateway overhead over bare Zenoh at p50 = "
-            f"{(gw.p50_us - bare.p50_us) / 1e3:.2f} ms (target < 1 ms); "
-            f"ratio p50 {gw.p50_us / bare.p50_us:.1f}x; gateway CPU {gw.cpu_pct:.1f} % of a core"
-        )
+    for fmt_name, rows in results.items():
+        by = {(r.name, r.rate_hz): r for r in rows}
+        for rate in (nominal, fast):
+            gw = by[("gateway, pty -> decoded sample", rate)]
+            bare = by[("bare Zenoh (same payload size)", rate)]
+            print(
+                f"{fmt_name} at {rate:g} Hz: gateway overhead over bare Zenoh at p50 = "
+                f"{(gw.p50_us - bare.p50_us) / 1e3:.2f} ms (target < 0.3 ms); ratio p50 "
+                f"{gw.p50_us / bare.p50_us:.1f}x; gateway CPU {gw.cpu_pct:.1f} % of a core"
+            )
     if args.all_seconds > 0:
         print_all_devices(all_devices_run(args))
     return 0

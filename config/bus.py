@@ -4,13 +4,39 @@ gateway and every bus stage. Security settings are documented in docs/security.m
 from __future__ import annotations
 
 import json
+import os
 import re
 from pathlib import Path
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-__all__ = ["BusAuthConfig", "BusConfig", "BusTlsConfig"]
+__all__ = [
+    "DEFAULT_ENDPOINT",
+    "ENDPOINT_ENV",
+    "NO_PUBLISHER_AFTER_S",
+    "STAGE_LISTEN",
+    "BusAuthConfig",
+    "BusConfig",
+    "BusTlsConfig",
+    "default_endpoint",
+]
+
+#: where ``auvgw run`` listens and every other command connects when told nothing (one machine)
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+#: environment variable replacing :data:`DEFAULT_ENDPOINT` (e.g. two vehicles on one desk, tests)
+ENDPOINT_ENV = "AUVGW_BUS_ENDPOINT"
+#: a stage's own listen endpoint by default: loopback, any free port, so the gateway's gossip
+#: lets the stages reach each other directly (Zenoh peers do not route between other peers)
+STAGE_LISTEN = "tcp/127.0.0.1:0"
+#: seconds without a sample on an input before a command says "no publisher" on stderr
+NO_PUBLISHER_AFTER_S = 5.0
+
+
+def default_endpoint() -> str:
+    """The one-machine rendezvous endpoint: ``$AUVGW_BUS_ENDPOINT`` or :data:`DEFAULT_ENDPOINT`."""
+    return os.environ.get(ENDPOINT_ENV) or DEFAULT_ENDPOINT
+
 
 _ENDPOINT = re.compile(r"^[a-z][a-z0-9-]*/\S+$")
 
@@ -124,6 +150,9 @@ class BusConfig(BaseModel):
         description="Zenoh's access_control section (enabled, default_permission, rules, "
         "subjects, policies), passed as is; see docs/security.md",
     )
+    no_publisher_after_s: float = Field(
+        NO_PUBLISHER_AFTER_S, gt=0, description="say 'no publisher' after this many seconds"
+    )
 
     @field_validator("listen", "connect")
     @classmethod
@@ -153,6 +182,34 @@ class BusConfig(BaseModel):
                 "auth": None if self.auth is None else self.auth.rebased(base),
             }
         )
+
+    @property
+    def has_endpoints(self) -> bool:
+        """Whether any listen or connect endpoint is configured."""
+        return bool(self.listen or self.connect)
+
+    def as_hub(self) -> BusConfig:
+        """This configuration, or where it names no endpoint (a peer told nothing), a peer
+        listening on :func:`default_endpoint`: what ``auvgw run`` and ``auvgw replay`` use."""
+        if self.has_endpoints or self.mode != "peer":
+            return self
+        return self.model_copy(update={"listen": [default_endpoint()]})
+
+    def as_spoke(self) -> BusConfig:
+        """This configuration, or where it names no endpoint, a peer connecting to
+        :func:`default_endpoint` (and listening on :data:`STAGE_LISTEN`): every other command."""
+        if self.has_endpoints or self.mode != "peer":
+            return self
+        return self.model_copy(update={"connect": [default_endpoint()], "listen": [STAGE_LISTEN]})
+
+    def describe(self) -> str:
+        """One line: mode and endpoints, for messages."""
+        parts = [f"mode {self.mode}"]
+        if self.connect:
+            parts.append("connect " + ", ".join(self.connect))
+        if self.listen:
+            parts.append("listen " + ", ".join(self.listen))
+        return "; ".join(parts)
 
     def zenoh_json5(self) -> dict[str, str]:
         """Zenoh configuration entries (key path -> JSON5 value)."""

@@ -245,9 +245,14 @@ def gateway_config(
     endpoints: Iterable[Endpoint], vehicle: str = "auv1", clock: dict[str, Any] | None = None
 ) -> dict[str, Any]:
     """A gateway configuration mapping (``config/gateway.py``'s model) for ``endpoints``, with
-    the ``[clock]`` section ``clock`` (:func:`gateway_clock`) if given."""
+    the ``[clock]`` section ``clock`` (:func:`gateway_clock`) if given, and a ``[bus]`` section
+    listening on the one-machine default endpoint, where every other command connects by
+    default (docs/bus.md)."""
+    from auvgw.config.bus import default_endpoint
+
     data: dict[str, Any] = {
         "vehicle": vehicle,
+        "bus": {"mode": "peer", "listen": [default_endpoint()]},
         "devices": {ep.name: ep.gateway_device() for ep in endpoints},
     }
     if clock is not None:

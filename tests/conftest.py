@@ -82,3 +82,20 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             item.add_marker(pytest.mark.real_data)
         else:
             item.add_marker(pytest.mark.unit)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _bus_endpoint():
+    """A free loopback port as the one-machine default bus endpoint of this test session (so
+    parallel test runs on one machine never meet on tcp/127.0.0.1:7447)."""
+    from gateway_support import endpoint, free_port
+
+    from auvgw.config.bus import ENDPOINT_ENV
+
+    old = os.environ.get(ENDPOINT_ENV)
+    os.environ[ENDPOINT_ENV] = endpoint(free_port())
+    yield os.environ[ENDPOINT_ENV]
+    if old is None:
+        os.environ.pop(ENDPOINT_ENV, None)
+    else:
+        os.environ[ENDPOINT_ENV] = old

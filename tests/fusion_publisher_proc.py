@@ -2,8 +2,8 @@
 
 ``python fusion_publisher_proc.py --connect EP --vehicle V --file ENVELOPES.jsonl``: joins the
 bus as a client of EP, waits for the fusion stage's liveliness token (its subscriptions are
-declared before it), publishes every ``{"key": ..., "payload": ...}`` line in file order (JSON
-envelopes, ``CongestionControl.BLOCK`` so none is dropped), prints ``published N matched
+declared before it), publishes every ``{"key": ..., "payload": hex}`` line in file order
+(envelopes, ``CongestionControl.BLOCK`` so none is dropped), prints ``published N matched
 KEYS`` (the keys that had a subscriber) and exits.
 """
 
@@ -59,7 +59,7 @@ def main() -> int:
             time.sleep(0.05)
         matched = sorted(k for k, p in pubs.items() if p.matching_status.matching)
         for item in lines:
-            pubs[item["key"]].put(item["payload"].encode())
+            pubs[item["key"]].put(bytes.fromhex(item["payload"]))
         print(f"published {len(lines)} matched {','.join(matched)}", flush=True)
         time.sleep(0.5)  # let the last samples leave before the session closes
     finally:

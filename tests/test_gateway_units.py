@@ -83,16 +83,21 @@ def test_envelope_round_trip_gives_the_typed_message(shared_data):
     frame = pd0_frames(shared_data, 1)[0]
     msg = get_format("pd0").decode(frame)[0]
     assert message_kind(msg) == "ensemble"
-    payload, enc = encode_envelope(msg, "dvl", 123, 7)
-    assert str(enc) == "application/json;auvgw/1/pd0.Ensemble"
+    payload, enc = encode_envelope(msg, "dvl", 123, 7, wire="pd0")
+    assert str(enc) == "application/msgpack;auvgw/2/pd0.Ensemble"
+    v1 = json.dumps({"v": 1, "msg": to_jsonable(msg)}, separators=(",", ":")).encode()
+    assert len(payload) < 0.9 * len(v1)  # binary numbers and arrays, not text
     env = decode_envelope(payload, "auv/x/sensor/dvl/ensemble")
     assert (env.type, env.device, env.t_recv_ns, env.seq) == ("pd0.Ensemble", "dvl", 123, 7)
+    assert env.wire == "pd0"
     typed = typed_message(env.type, env.body)
     assert type(typed) is type(msg)
     assert json.loads(json.dumps(to_jsonable(typed))) == local_decoded([frame])[0]
     assert typed_message("NoSuchType", {}) is None
-    with pytest.raises(ValueError, match="schema version"):
+    with pytest.raises(ValueError, match="envelope version"):
         decode_envelope(json.dumps({"v": 99}).encode())
+    with pytest.raises(ValueError, match="not an envelope"):
+        decode_envelope(b"\xc1 not msgpack")
 
 
 def test_relative_paths_resolve_next_to_the_config_file(tmp_path):

@@ -1,11 +1,12 @@
 """``auvgw record --vehicle V --out FILE.mcap [--duration S]``: record the raw bus traffic.
 
-Subscribes to ``auv/<V>/raw/**`` (every device's frames with their attachments) and
-``auv/<V>/truth/**`` (simulation ground truth), and writes them to an MCAP file with the gateway's
+Subscribes to ``auv/<V>/**``: raw frames with their attachments, decoded sensors, odometry,
+SLAM outputs, status and simulation ground truth, and writes them to an MCAP file with the gateway's
 configuration (queried from ``auv/<V>/config/gateway``), so ``auvgw replay FILE`` needs nothing
 else. Records until SIGINT/SIGTERM or ``--duration`` seconds; prints ``recording ...`` on stdout
-once its subscriptions have reached the gateway. Layout and rationale: auvgw/recording.py,
-docs/gateway.md.
+once its subscriptions have reached the gateway; says so on stderr when no raw frame arrives
+within a few seconds, and exits 1 when it recorded nothing. Layout and rationale:
+auvgw/recording.py, docs/gateway.md.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from typing import Any
 
 import zenoh
 
-from auvgw.bus import Keys, add_bus_arguments, bus_from_args, open_session
+from auvgw.bus import InputWatch, Keys, add_bus_arguments, bus_from_args, open_session
 from auvgw.cli import UserError
 from auvgw.commands.run import handle_stop_signals
 from auvgw.recording import McapRecorder
@@ -58,6 +59,7 @@ def register(sub: Any) -> None:
         metavar="ZID",
         help="store only the configuration answered by this Zenoh session id (the gateway's)",
     )
+    p.add_argument("--force", action="store_true", help="overwrite FILE.mcap if it exists")
     add_bus_arguments(p)
     p.set_defaults(func=run)
 
@@ -125,6 +127,8 @@ def run(args: argparse.Namespace) -> int:
     out: Path = args.out
     if not out.parent.is_dir():
         raise UserError(f"{out}: folder {out.parent} does not exist")
+    if out.exists() and not args.force:
+        raise UserError(f"{out}: exists; choose another --out or pass --force to overwrite it")
     if args.duration is not None and args.duration <= 0:
         raise UserError(f"--duration must be > 0 seconds, got {args.duration}")
     keys = Keys(args.vehicle)
@@ -148,9 +152,8 @@ def run(args: argparse.Namespace) -> int:
                 str(s.encoding),
             )
 
-        subs = [
-            session.declare_subscriber(keys.all(f"{sec}/**"), on_sample) for sec in ("raw", "truth")
-        ]
+        subs = [session.declare_subscriber(keys.all("**"), on_sample)]
+        watch = InputWatch(session, [keys.all("raw/**")], "auvgw record", bus)
         with handle_stop_signals(stop):
             try:
                 if not _wait_gateway(session, keys, stop, args.wait_gateway) and not stop.is_set():
@@ -159,12 +162,14 @@ def run(args: argparse.Namespace) -> int:
                         args.vehicle,
                         args.wait_gateway,
                     )
-                print(
-                    f"recording {keys.all('raw/**')}, {keys.all('truth/**')} to {out}", flush=True
-                )
+                print(f"recording {keys.all('**')} to {out}", flush=True)
                 t_end = None if args.duration is None else time.monotonic() + args.duration
                 next_query = 0.0
-                while not stop.is_set() and (t_end is None or time.monotonic() < t_end):
+                while (
+                    not stop.is_set()
+                    and not rec.failed.is_set()
+                    and (t_end is None or time.monotonic() < t_end)
+                ):
                     if not rec.has_config and time.monotonic() >= next_query:
                         try:
                             cfg = _query_config(session, keys, 1.0, args.gateway_zid)
@@ -177,6 +182,7 @@ def run(args: argparse.Namespace) -> int:
                     wait = 0.1 if t_end is None else max(0.0, min(0.1, t_end - time.monotonic()))
                     stop.wait(wait)
             finally:
+                watch.close()
                 for s in subs:
                     s.undeclare()
                 if not rec.has_config:
@@ -189,6 +195,19 @@ def run(args: argparse.Namespace) -> int:
     finally:
         session.close()
     total = sum(rec.counts.values())
+    if rec.error is not None:
+        why = rec.error.strerror or str(rec.error)
+        raise UserError(
+            f"{out}: recording stopped: {why} after {total} messages ({rec.lost} not written); "
+            "the file is readable up to the last complete chunk"
+        )
     per_key = ", ".join(f"{k}: {n}" for k, n in sorted(rec.counts.items()))
     print(f"recorded {total} messages to {out} ({per_key or 'nothing'})", file=sys.stderr)
+    if total == 0:
+        print(
+            f"auvgw record: nothing recorded: no publisher on {keys.all('**')} "
+            f"(bus: {bus.describe()})",
+            file=sys.stderr,
+        )
+        return 1
     return 0

@@ -5,9 +5,11 @@ time, sequence, offset), and is decoded through the gateway's own decoder
 (:meth:`~auvgw.decoding.DeviceDecoder.decode_raw`, devices and formats from the recorded gateway
 configuration) and republished on ``auv/<V>/sensor/<device>/<kind>`` with the same envelope the
 live gateway published, so everything downstream runs as if live. ``truth/`` samples are
-republished as recorded. ``--speed k`` replays at k times the recorded pace (1: real time,
-0: as fast as possible). The recorded configuration is served on ``auv/<V>/config/gateway`` (a
-replay can itself be recorded) and ``auv/<V>/alive/replay`` is held while it runs.
+republished as recorded; the recorded decoded, odometry, SLAM and status samples are not (they
+are rebuilt). With no bus option it listens where the gateway would (docs/bus.md).
+``--speed k`` replays at k times the recorded pace (1: real time, 0: as fast as possible). The
+recorded configuration is served on ``auv/<V>/config/gateway`` (a replay can itself be
+recorded) and ``auv/<V>/alive/replay`` is held while it runs.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ from auvgw.bus import (
     encode_envelope,
     json_encoding,
     open_session,
+    raw_encoding,
     unpack_raw_attachment,
 )
 from auvgw.cli import UserError
@@ -41,6 +44,8 @@ from auvgw.recording import RecordingError, decoders_for, iter_samples, key_sect
 log = logging.getLogger(__name__)
 
 _BLOCK = zenoh.CongestionControl.BLOCK
+#: recorded sections a replay does not republish: decoded again from raw, or made by stages
+DERIVED_SECTIONS = frozenset({"sensor", "nav", "slam", "status"})
 _OCTETS = zenoh.Encoding.APPLICATION_OCTET_STREAM
 
 
@@ -113,7 +118,7 @@ def run(args: argparse.Namespace) -> int:
     if args.speed < 0:
         raise UserError(f"--speed must be >= 0 (0 = as fast as possible), got {args.speed}")
     try:
-        bus = bus_from_args(args)
+        bus = bus_from_args(args, hub=True)  # replay stands in for the gateway
     except ValueError as exc:
         raise UserError(str(exc)) from exc
     override = load_or_fail(args.config) if args.config is not None else None
@@ -173,6 +178,8 @@ def run(args: argparse.Namespace) -> int:
                     if wait > 0 and stop.wait(wait):
                         break
                 key = keys.all(f"{section}/{rest}")
+                if section in DERIVED_SECTIONS:
+                    continue  # rebuilt: sensor/ from the raw frames, the rest by live stages
                 if section != "raw":
                     publisher(key).put(s.payload, encoding=s.zenoh_encoding or None)
                     sent[key] += 1
@@ -181,7 +188,8 @@ def run(args: argparse.Namespace) -> int:
                     log.warning("%s: frame without its attachment; skipped", s.key)
                     continue
                 t_ns, seq, offset = unpack_raw_attachment(s.attachment)
-                publisher(key).put(s.payload, attachment=s.attachment, encoding=_OCTETS)
+                enc = raw_encoding(cfg.devices[rest].format) if rest in cfg.devices else _OCTETS
+                publisher(key).put(s.payload, attachment=s.attachment, encoding=enc)
                 sent[key] += 1
                 dec = decoders.get(rest)
                 if dec is None:  # not configured, or its table/DBC not trusted: raw only
@@ -192,7 +200,9 @@ def run(args: argparse.Namespace) -> int:
                     log.warning("%s", item.error)
                 for msg in item.messages:
                     skey = keys.sensor(rest, message_kind(msg))
-                    payload, enc = encode_envelope(msg, rest, t_ns, seq)
+                    payload, enc = encode_envelope(
+                        msg, rest, t_ns, seq, wire=cfg.devices[rest].format
+                    )
                     publisher(skey).put(payload, encoding=enc)
                     sent[skey] += 1
         queryable.undeclare()

@@ -70,7 +70,15 @@ def register(sub: Any) -> None:
         action="store_true",
         help="exit once every device's finite source (file replay) has ended",
     )
-    p.set_defaults(func=run)
+    from auvgw.bus import add_bus_arguments
+
+    add_bus_arguments(
+        p,
+        "Zenoh bus (replace the configuration's [bus] endpoints; with none anywhere the gateway "
+        "listens on tcp/127.0.0.1:7447 or $AUVGW_BUS_ENDPOINT: docs/bus.md)",
+        mode=False,
+    )
+    p.set_defaults(func=run)  # fmt: skip
 
 
 def load_or_fail(path: Path) -> GatewayConfig:
@@ -104,12 +112,15 @@ def serve_stage(
     args: argparse.Namespace,
     make: Callable[[zenoh.Session], Any],
     banner: Callable[[Any], str],
+    inputs: Callable[[Any], list[str]] | None = None,
 ) -> Any:
     """Run a bus stage from a command line: open the session of the bus options (``--listen``,
     ``--connect``, ...), ``make(session)`` the stage, start it, print ``banner(stage)``, run
     until ``--duration`` seconds or SIGINT/SIGTERM, stop it (flushing) and close the session.
-    Returns the stopped stage (for its counters); bad options are a :class:`UserError`."""
-    from auvgw.bus import bus_from_args, open_session
+    ``inputs(stage)``: its input key expressions, watched for "no publisher"
+    (:class:`~auvgw.bus.InputWatch`). Returns the stopped stage (for its counters); bad options
+    are a :class:`UserError`."""
+    from auvgw.bus import InputWatch, bus_from_args, open_session
 
     if args.duration is not None and not args.duration > 0:
         raise UserError(f"--duration must be > 0, got {args.duration}")
@@ -128,10 +139,14 @@ def serve_stage(
         stage = make(session)
         with handle_stop_signals(stop):
             stage.start()
+            what = f"auvgw {getattr(args, 'command', 'stage')}"
+            watch = None if inputs is None else InputWatch(session, inputs(stage), what, bus)
             print(banner(stage), flush=True)
             try:
                 stop.wait(args.duration)
             finally:
+                if watch is not None:
+                    watch.close()
                 stage.stop(flush=True)
         return stage
     finally:
@@ -184,8 +199,18 @@ def run(args: argparse.Namespace) -> int:
         lg = logging.getLogger(name)
         if lg.getEffectiveLevel() > logging.INFO:
             lg.setLevel(logging.INFO)
+    cfg = load_or_fail(args.config)
+    if args.listen or args.connect:
+        try:
+            bus = cfg.bus.model_copy(update={"listen": args.listen, "connect": args.connect})
+            bus = type(cfg.bus).model_validate(bus.model_dump())
+        except ValueError as exc:
+            raise UserError(f"--listen/--connect: {exc}") from None
+        cfg = cfg.model_copy(update={"bus": bus})
+    cfg = cfg.model_copy(update={"bus": cfg.bus.as_hub()})
+    log.info("%s: bus: %s", args.config, cfg.bus.describe())
     settings = RunSettings(
-        config=load_or_fail(args.config),
+        config=cfg,
         viz_rrd=args.viz_rrd,
         viz_connect=args.viz_connect,
         exit_when_done=args.exit_when_done,

@@ -177,6 +177,7 @@ def _live(args: argparse.Namespace) -> int:
         args,
         lambda session: SlamStage(cfg, session),
         lambda st: f"slam running: vehicle {cfg.vehicle}, {cfg.display_name} on {st.key('pose')}",
+        lambda st: st.input_keys(),
     )
     print(f"slam counters: {json.dumps(stage.counters())}", file=sys.stderr)
     return 0

@@ -163,7 +163,7 @@ def _bus(args: argparse.Namespace) -> tuple[str, BusConfig]:
         update["listen"] = args.bus_listen
     if update:
         bus = BusConfig(**{**bus.model_dump(), **update})
-    return args.vehicle or vehicle, bus
+    return args.vehicle or vehicle, bus.as_spoke()
 
 
 def _synthetic(args: argparse.Namespace, options: VizOptions) -> int:

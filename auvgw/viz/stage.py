@@ -48,7 +48,7 @@ from typing import Any
 
 import numpy as np
 
-from auvgw.bus import SCHEMA_VERSION, Keys
+from auvgw.bus import SCHEMA_VERSION, Keys, decode_envelope
 from auvgw.drivers.spec import MESSAGE_TYPES, from_jsonable
 from auvgw.viz.logger import RerunLogger, VizOptions
 
@@ -375,7 +375,12 @@ class VizStage:
             return "unknown:key"
         parts = key[len(base) :].split("/")
         section = parts[0]
-        data = json.loads(payload)
+        if section in ("sensor", "nav"):  # envelopes (MessagePack; JSON of the previous release)
+            env = decode_envelope(payload, key)
+            data: Any = {"v": SCHEMA_VERSION, "type": env.type, "device": env.device,
+                         "msg": env.body, "t_recv_ns": env.t_recv_ns}  # fmt: skip
+        else:
+            data = json.loads(payload)
         type_name, device, body = "", parts[1] if len(parts) > 1 else "", data
         if isinstance(data, Mapping) and "msg" in data and "v" in data:
             if data["v"] != SCHEMA_VERSION:
@@ -585,6 +590,29 @@ class VizStage:
         shown |= self._map_features("truth", body, t)
         return "logged" if shown else "truth:?"
 
+    #: fusion diagnostics shown as one series each (``<device>_diagnostics``), window shares
+    _DIAG_KEYS = ("accepted_share", "rejected_share", "coasting_share", "nis_mean_per_dof")
+
+    def _diagnostics(self, device: str, diag: Mapping[str, Any], t: float) -> None:
+        """A fusion status's diagnostics: the window's shares, NIS and the adapted DVL noise as
+        series, and each new warning as a WARN event (docs/fusion.md, Diagnostics)."""
+        win = diag.get("window")
+        win = win if isinstance(win, Mapping) else {}
+        metrics = {k: _float(win.get(k)) for k in self._DIAG_KEYS}
+        sig = diag.get("dvl_noise_sigma_mps")
+        sig = list(sig) if isinstance(sig, list | tuple) and len(sig) == 3 else [None] * 3
+        for axis, v in zip("xyz", sig, strict=True):
+            metrics[f"dvl_noise_{axis}_mps"] = _float(v)
+        self.logger.health(f"{device}_diagnostics", t, metrics)
+        warnings = tuple(str(w) for w in diag.get("warnings") or ())
+        key = f"{device}_diagnostics"
+        prev = self._status.get(key)
+        if prev is None or prev[0] != warnings:
+            self._status[key] = (warnings, None)
+            for w in warnings:
+                if prev is None or w.split(":", 1)[0] not in {p.split(":", 1)[0] for p in prev[0]}:
+                    self.logger.event(device, t, f"{device}: {w}", "WARN")
+
     _HEALTH_KEYS = ("rate_hz", "bad_frames", "decode_errors", "skipped_bytes", "silent_s")
     _HEALTH_FLAGS = ("connected", "stale")
 
@@ -594,6 +622,9 @@ class VizStage:
         if not any(k in body for k in (*self._HEALTH_KEYS, *self._HEALTH_FLAGS)):
             # another component's status (fusion, SLAM, ...): its numbers, one series each
             leaves = _numeric_leaves(body)
+            diag = body.get("diagnostics")
+            if isinstance(diag, Mapping):
+                self._diagnostics(device, diag, t)
             if not leaves:
                 return f"status:{device}"
             self.logger.health(device, t, leaves)

@@ -1,0 +1,451 @@
+"""ROS 2 message types of every auvgw stream, CDR-encoded with ``rosbags`` (docs/bus.md#ros-2).
+
+Frames follow REP 103 / REP 105: ``map`` and ``odom`` are ENU (x east, y north, z up), ``base_link``
+is FLU (x forward, y left, z up), a sensor's frame is named after its gateway device (``ins``,
+``dvl``, ``multibeam``, ...) with FLU axes where the sensor's axes are the vehicle's (the static
+transform ``base_link`` -> device is its lever arm). auvgw itself is NED / FRD throughout; this
+module is the one place that converts:
+
+* positions and velocities: NED (n, e, d) -> ENU (e, n, -d); body FRD (f, s, d) -> FLU (f, -s, -d)
+* attitude (heading from north towards east, pitch nose up, roll starboard down; body -> NED)
+  -> the quaternion of FLU -> ENU: ``R_enu_flu = S R_ned_frd(heading, pitch, roll) F`` with
+  ``S`` the NED/ENU swap and ``F = diag(1, -1, -1)``, which is the ZYX Euler triple
+  (yaw = pi/2 - heading, pitch = -pitch, roll = roll).
+
+Mapping (decoded message type -> ROS 2 type, topic ``/<vehicle>/<section>/<device>/<name>``):
+
+===============================  ==========================================  =================
+auvgw                            ROS 2                                       topic name
+===============================  ==========================================  =================
+HN-100 solution (serial or CAN)  sensor_msgs/msg/Imu (frame ``<device>``)    ``imu``
+MS3A sample (serial or CAN)      sensor_msgs/msg/MagneticField (T)           ``magnetic_field``
+PD0 ensemble                     geometry_msgs/msg/TwistWithCovarianceStamped ``twist``
+                                 sensor_msgs/msg/Range (altitude)            ``altitude``
+XYZ 88 / Depth (multibeam)       sensor_msgs/msg/PointCloud2 (x y z intensity) ``points``
+SeaNet mtHeadData (MSIS)         sensor_msgs/msg/PointCloud2 (one scan line)  ``returns``
+fusion Odometry                  nav_msgs/msg/Odometry (``odom`` -> ``base_link``) ``odometry``
+SLAM pose                        geometry_msgs/msg/PoseWithCovarianceStamped ``pose``
+SLAM landmarks                   sensor_msgs/msg/PointCloud2 (``map``)       ``landmarks``
+raw frame                        auvgw_msgs/msg/RawFrame (:data:`RAW_FRAME_MSG`)
+anything else (status, truth,    auvgw_msgs/msg/Decoded (:data:`DECODED_MSG`: type name
+PD6, SeaNet control, ...)        and the JSON body)
+===============================  ==========================================  =================
+
+The DVL twist is in the frame the DVL reports: RDI instrument axes in frame ``<device>`` (beam
+and instrument coordinates), or ``base_link`` FLU (ship and earth coordinates, made body by
+:func:`auvgw.fusion.adapters.dvl_from_pd0`). Covariances the devices do not give are zero
+(ROS: unknown). Header stamps are the gateway's receive times (vehicle-paced under a ``[clock]``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from collections.abc import Mapping
+from functools import cache
+from typing import Any, NamedTuple
+
+import numpy as np
+
+__all__ = [
+    "DECODED_MSG",
+    "DECODED_TYPE",
+    "RAW_FRAME_MSG",
+    "RAW_FRAME_TYPE",
+    "RosMessage",
+    "decoded_msg",
+    "enu_from_ned",
+    "flu_from_frd",
+    "msgdef",
+    "quaternion_enu_flu",
+    "raw_frame_msg",
+    "serialize",
+    "to_ros",
+    "typestore",
+]
+
+#: ROS type of raw frames and its definition (ros2msg)
+RAW_FRAME_TYPE = "auvgw_msgs/msg/RawFrame"
+RAW_FRAME_MSG = """\
+# One frame exactly as a device sent it (auvgw raw bus traffic).
+std_msgs/Header header  # stamp: receive time; frame_id: the gateway device name
+string device           # gateway device name (ins, dvl, ...)
+string wire_format      # gateway format of the bytes (hn100, pd0, seanet, kongsberg, can...)
+uint64 seq              # the device's frame sequence, from 1 since the gateway started
+uint64 stream_offset    # byte offset of the frame's first byte since the connection opened
+uint8[] data            # the frame's bytes (CAN: u32 LE id | u8 flags | data)
+"""
+#: ROS type of messages without a standard type, and its definition
+DECODED_TYPE = "auvgw_msgs/msg/Decoded"
+DECODED_MSG = """\
+# A message with no standard ROS 2 type: its auvgw type name and fields as JSON (SI units).
+std_msgs/Header header  # stamp: receive time of the frame it came from; frame_id: device/component
+string source           # gateway device or stage component
+string type             # auvgw message type (pd6.BS, mtAlive, GatewayStatus, ...)
+uint64 seq              # sequence of the raw frame (sensors) or of the publisher
+string json             # the message's fields, JSON (NaN as null)
+"""
+
+FRAME_MAP = "map"
+FRAME_ODOM = "odom"
+FRAME_BASE = "base_link"
+#: sound speed (m/s) placing MSIS bins in range when the message does not say
+DEFAULT_SOUND_SPEED = 1500.0
+
+#: NED <-> ENU (its own inverse) and FRD <-> FLU
+_S = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+_F = np.diag([1.0, -1.0, -1.0])
+
+
+class RosMessage(NamedTuple):
+    """One ROS 2 message: topic name under ``/<vehicle>``, ROS type and the message object."""
+
+    topic: str
+    type: str
+    msg: Any
+
+
+@cache
+def typestore() -> Any:
+    """The rosbags type store (ROS 2 Humble) with the auvgw_msgs types registered."""
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    types: dict[str, Any] = {}
+    types.update(get_types_from_msg(RAW_FRAME_MSG, RAW_FRAME_TYPE))
+    types.update(get_types_from_msg(DECODED_MSG, DECODED_TYPE))
+    ts.register(types)
+    return ts
+
+
+@cache
+def msgdef(type_name: str) -> str:
+    """The ros2msg schema text of a type (with its dependencies), as MCAP stores it."""
+    text, _ = typestore().generate_msgdef(type_name, ros_version=2)
+    return text
+
+
+def serialize(m: RosMessage) -> bytes:
+    """CDR (little endian) bytes of a message."""
+    return bytes(typestore().serialize_cdr(m.msg, m.type))
+
+
+def _t(name: str) -> Any:
+    return typestore().types[name]
+
+
+# -- frames ----------------------------------------------------------------------------------------
+
+
+def enu_from_ned(v: Any) -> tuple[float, float, float]:
+    """A NED vector (north, east, down) as ENU (east, north, up)."""
+    n, e, d = (float(x) for x in v)
+    return e, n, -d
+
+
+def flu_from_frd(v: Any) -> tuple[float, float, float]:
+    """A body FRD vector (forward, starboard, down) as FLU (forward, left, up)."""
+    f, s, d = (float(x) for x in v)
+    return f, -s, -d
+
+
+def quaternion_enu_flu(
+    heading: float, pitch: float, roll: float
+) -> tuple[float, float, float, float]:
+    """(x, y, z, w) of the rotation FLU body -> ENU for an NED attitude (rad; heading from north
+    towards east, pitch nose up, roll starboard down): ZYX Euler (pi/2 - heading, -pitch, roll)."""
+    yaw, p, r = math.pi / 2 - heading, -pitch, roll
+    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
+    cp, sp = math.cos(p / 2), math.sin(p / 2)
+    cr, sr = math.cos(r / 2), math.sin(r / 2)
+    return (
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+        cr * cp * cy + sr * sp * sy,
+    )
+
+
+# -- building blocks -------------------------------------------------------------------------------
+
+
+def _header(t_ns: int, frame_id: str) -> Any:
+    t = _t("builtin_interfaces/msg/Time")(
+        sec=int(t_ns // 1_000_000_000), nanosec=int(t_ns % 1_000_000_000)
+    )
+    return _t("std_msgs/msg/Header")(stamp=t, frame_id=frame_id)
+
+
+def _vec3(v: Any) -> Any:
+    x, y, z = (float(a) for a in v)
+    return _t("geometry_msgs/msg/Vector3")(x=x, y=y, z=z)
+
+
+def _quat(q: tuple[float, float, float, float]) -> Any:
+    return _t("geometry_msgs/msg/Quaternion")(x=q[0], y=q[1], z=q[2], w=q[3])
+
+
+def _point(v: Any) -> Any:
+    x, y, z = (float(a) for a in v)
+    return _t("geometry_msgs/msg/Point")(x=x, y=y, z=z)
+
+
+def _cloud(t_ns: int, frame: str, xyz: np.ndarray, intensity: np.ndarray | None) -> Any:
+    """PointCloud2 of float32 x, y, z, intensity (NaN points kept: ``is_dense`` False)."""
+    PF = _t("sensor_msgs/msg/PointField")
+    n = len(xyz)
+    cols = np.empty((n, 4), dtype="<f4")
+    cols[:, :3] = xyz
+    cols[:, 3] = 0.0 if intensity is None else intensity
+    fields = [PF(name=c, offset=4 * i, datatype=PF.FLOAT32, count=1) for i, c in enumerate("xyz")]
+    fields.append(PF(name="intensity", offset=12, datatype=PF.FLOAT32, count=1))
+    return _t("sensor_msgs/msg/PointCloud2")(
+        header=_header(t_ns, frame), height=1, width=n, fields=fields, is_bigendian=False,
+        point_step=16, row_step=16 * n, data=cols.reshape(-1).view(np.uint8),
+        is_dense=bool(np.isfinite(cols).all()),
+    )  # fmt: skip
+
+
+def _cov6(block: np.ndarray | None) -> np.ndarray:
+    out = np.zeros(36)
+    if block is not None:
+        out[:] = np.nan_to_num(np.asarray(block, float)).reshape(36)
+    return out
+
+
+def raw_frame_msg(
+    device: str, wire_format: str, t_ns: int, seq: int, offset: int, data: bytes
+) -> RosMessage:
+    """A raw frame as ``auvgw_msgs/msg/RawFrame`` on topic ``raw/<device>``."""
+    m = _t(RAW_FRAME_TYPE)(
+        header=_header(t_ns, device), device=device, wire_format=wire_format, seq=int(seq),
+        stream_offset=int(offset), data=np.frombuffer(data, dtype=np.uint8),
+    )  # fmt: skip
+    return RosMessage(f"raw/{device}", RAW_FRAME_TYPE, m)
+
+
+def decoded_msg(
+    topic: str, source: str, type_name: str, t_ns: int, seq: int, body: Any
+) -> RosMessage:
+    """Any message as ``auvgw_msgs/msg/Decoded`` (``body``: a JSON-ready mapping or JSON text)."""
+    text = body if isinstance(body, str) else json.dumps(body, separators=(",", ":"))
+    m = _t(DECODED_TYPE)(
+        header=_header(t_ns, source), source=source, type=type_name, seq=int(seq), json=text
+    )
+    return RosMessage(topic, DECODED_TYPE, m)
+
+
+# -- per stream ------------------------------------------------------------------------------------
+
+
+def imu_msg(msg: Any, device: str, t_ns: int) -> Any:
+    """An HN-100 solution (serial or CAN) as sensor_msgs/Imu in frame ``device`` (FLU)."""
+    q = quaternion_enu_flu(msg.heading, msg.pitch, msg.roll)
+    zeros = np.zeros(9)
+    return _t("sensor_msgs/msg/Imu")(
+        header=_header(t_ns, device), orientation=_quat(q), orientation_covariance=zeros,
+        angular_velocity=_vec3(flu_from_frd((msg.rate_x, msg.rate_y, msg.rate_z))),
+        angular_velocity_covariance=zeros,
+        linear_acceleration=_vec3(flu_from_frd((msg.accel_x, msg.accel_y, msg.accel_z))),
+        linear_acceleration_covariance=zeros,
+    )  # fmt: skip
+
+
+def magnetic_field_msg(msg: Any, device: str, t_ns: int) -> Any:
+    """An MS3A sample (nT, sensor FRD axes) as sensor_msgs/MagneticField (T, FLU)."""
+    b = flu_from_frd((msg.bx, msg.by, msg.bz))
+    return _t("sensor_msgs/msg/MagneticField")(
+        header=_header(t_ns, device), magnetic_field=_vec3(np.asarray(b) * 1e-9),
+        magnetic_field_covariance=np.zeros(9),
+    )  # fmt: skip
+
+
+def dvl_msgs(msg: Any, device: str, t_ns: int) -> list[RosMessage]:
+    """A PD0 ensemble as a twist (the DVL's frame, see the module docstring) and an altitude."""
+    from auvgw.fusion.adapters import AdapterError, dvl_from_pd0
+
+    try:
+        s = dvl_from_pd0(msg, t=0.0)
+    except AdapterError:
+        return []
+    if s.frame == "body":
+        frame, v = FRAME_BASE, flu_from_frd(s.velocity)
+    else:
+        frame, v = device, tuple(float(a) for a in s.velocity)
+    twist = _t("geometry_msgs/msg/Twist")(linear=_vec3(v), angular=_vec3((0.0, 0.0, 0.0)))
+    cov = np.zeros(36)
+    if not s.bottom_lock:
+        cov[0] = -1.0  # ROS convention: this field is not valid
+    tw = _t("geometry_msgs/msg/TwistWithCovarianceStamped")(
+        header=_header(t_ns, frame),
+        twist=_t("geometry_msgs/msg/TwistWithCovariance")(twist=twist, covariance=cov),
+    )
+    R = _t("sensor_msgs/msg/Range")
+    beam = msg.fixed_leader.beam_angle if msg.fixed_leader is not None else None
+    rng = R(
+        header=_header(t_ns, device), radiation_type=R.ULTRASOUND,
+        field_of_view=float(2 * math.radians(beam)) if beam else 0.0,
+        min_range=0.0, max_range=float("inf"), range=float(s.altitude),
+    )  # fmt: skip
+    return [
+        RosMessage(f"sensor/{device}/twist", "geometry_msgs/msg/TwistWithCovarianceStamped", tw),
+        RosMessage(f"sensor/{device}/altitude", "sensor_msgs/msg/Range", rng),
+    ]
+
+
+def swath_msg(msg: Any, device: str, t_ns: int) -> Any:
+    """Multibeam beams (along x forward, across y starboard, depth z down, m from the transmit
+    transducer) as a PointCloud2 in frame ``device`` (FLU), intensity = reflectivity (dB)."""
+    b = msg.beams
+    xyz = np.column_stack(
+        [np.asarray(b.along, float), -np.asarray(b.across, float), -np.asarray(b.depth, float)]
+    )
+    refl = getattr(b, "reflectivity", None)
+    return _cloud(t_ns, device, xyz, None if refl is None else np.asarray(refl, float))
+
+
+def scanline_msg(msg: Any, device: str, t_ns: int, sound_speed: float = DEFAULT_SOUND_SPEED) -> Any:
+    """One MSIS scan line: a point per bin at the bin's centre range along the transducer
+    bearing (rad, clockwise from forward seen from above, i.e. towards starboard), FLU frame
+    ``device``, intensity = the bin's amplitude."""
+    bins = np.asarray(msg.bins, float)
+    r = (np.arange(len(bins)) + 0.5) * msg.bin_length(sound_speed)
+    xyz = np.column_stack(
+        [r * math.cos(msg.bearing), -r * math.sin(msg.bearing), np.zeros(len(bins))]
+    )
+    return _cloud(t_ns, device, xyz, bins)
+
+
+#: Odometry state (x, y, z, heading, pitch, u, v, w) -> ROS pose (x, y, z, roll, pitch, yaw) ENU
+#: and twist (vx, vy, vz) FLU: linear, so covariances map as J C J^T
+_J_POSE = np.zeros((6, 8))
+_J_POSE[0, 1] = _J_POSE[1, 0] = 1.0
+_J_POSE[2, 2] = _J_POSE[4, 4] = _J_POSE[5, 3] = -1.0
+_J_TWIST = np.zeros((6, 8))
+_J_TWIST[0, 5] = 1.0
+_J_TWIST[1, 6] = _J_TWIST[2, 7] = -1.0
+
+
+def odometry_msg(o: Any, t_ns: int) -> Any:
+    """fusion Odometry (NED, body FRD) as nav_msgs/Odometry: pose of ``base_link`` in ``odom``
+    (ENU), twist in ``base_link`` (FLU)."""
+    cov = np.asarray(o.covariance, float)
+    pose = _t("geometry_msgs/msg/Pose")(
+        position=_point(enu_from_ned((o.x, o.y, o.z))),
+        orientation=_quat(quaternion_enu_flu(o.heading, o.pitch, o.roll)),
+    )
+    twist = _t("geometry_msgs/msg/Twist")(
+        linear=_vec3(flu_from_frd(o.velocity_body)), angular=_vec3(flu_from_frd(o.angular_rate))
+    )
+    pose_cov = _cov6(_J_POSE @ cov @ _J_POSE.T)
+    twist_cov = _cov6(_J_TWIST @ cov @ _J_TWIST.T)
+    return _t("nav_msgs/msg/Odometry")(
+        header=_header(t_ns, FRAME_ODOM),
+        child_frame_id=FRAME_BASE,
+        pose=_t("geometry_msgs/msg/PoseWithCovariance")(pose=pose, covariance=pose_cov),
+        twist=_t("geometry_msgs/msg/TwistWithCovariance")(twist=twist, covariance=twist_cov),
+    )
+
+
+def slam_pose_msg(body: Mapping[str, Any], t_ns: int) -> Any:
+    """A SLAM pose (map NED x, y, heading and its 3 x 3 covariance) as PoseWithCovarianceStamped
+    in ``map`` (ENU; z 0: the pipelines are 2-D)."""
+    cov6 = np.zeros((6, 6))
+    c = body.get("cov")
+    if c is not None:
+        c = np.asarray(c, float)  # (x, y, heading) -> (y_enu, x_enu, -yaw)
+        idx, sign = [1, 0, 5], np.array([1.0, 1.0, -1.0])
+        cov6[np.ix_(idx, idx)] = c * np.outer(sign, sign)
+    pose = _t("geometry_msgs/msg/Pose")(
+        position=_point(enu_from_ned((body["x"], body["y"], 0.0))),
+        orientation=_quat(quaternion_enu_flu(float(body["heading"]), 0.0, 0.0)),
+    )
+    return _t("geometry_msgs/msg/PoseWithCovarianceStamped")(
+        header=_header(t_ns, FRAME_MAP),
+        pose=_t("geometry_msgs/msg/PoseWithCovariance")(pose=pose, covariance=_cov6(cov6)),
+    )
+
+
+def landmarks_msg(body: Mapping[str, Any], t_ns: int) -> Any:
+    """SLAM point landmarks (map NED x, y) as a PointCloud2 in ``map`` (ENU), intensity = id."""
+    mean = np.asarray(body.get("mean") or np.zeros((0, 2)), float).reshape(-1, 2)
+    xyz = np.column_stack([mean[:, 1], mean[:, 0], np.zeros(len(mean))])
+    ids = np.asarray(body.get("ids") or np.zeros(len(mean)), float)
+    return _cloud(t_ns, FRAME_MAP, xyz, ids)
+
+
+# -- dispatch --------------------------------------------------------------------------------------
+
+_INS = frozenset({"Hn100Nav", "HN100_Sample"})
+_MAG = frozenset({"Ms3aSample", "MS3A_Sample"})
+_SWATH = frozenset({"XYZ88", "Depth"})
+
+
+def _type_name(msg: Any) -> str:
+    return getattr(msg, "TYPE", type(msg).__name__)
+
+
+def _jsonable(msg: Any) -> Any:
+    from auvgw.drivers.spec import to_jsonable
+
+    if dataclasses.is_dataclass(msg) and not isinstance(msg, type):
+        return to_jsonable(msg)
+    return msg
+
+
+def to_ros(
+    section: str, source: str, msg: Any, t_ns: int, seq: int = 0, kind: str = ""
+) -> list[RosMessage]:
+    """The ROS 2 messages of one auvgw message on the bus.
+
+    ``section``: the key section (``sensor``, ``nav``, ``slam``, ``status``, ``truth``);
+    ``source``: the device (sensor) or what follows the section in the key (``odometry``,
+    ``<pipeline>/pose``, ``gateway``...); ``msg``: the typed message (sensor, Odometry) or the
+    parsed JSON body (SLAM, status, truth); ``kind``: the key's last part, naming the topic of a
+    message without a standard type.
+    """
+    if section == "sensor":
+        name = _type_name(msg)
+        if name in _INS:
+            return [
+                RosMessage(
+                    f"sensor/{source}/imu", "sensor_msgs/msg/Imu", imu_msg(msg, source, t_ns)
+                )
+            ]
+        if name in _MAG:
+            return [RosMessage(f"sensor/{source}/magnetic_field", "sensor_msgs/msg/MagneticField",
+                               magnetic_field_msg(msg, source, t_ns))]  # fmt: skip
+        if name == "pd0.Ensemble":
+            return dvl_msgs(msg, source, t_ns)
+        if name in _SWATH:
+            return [
+                RosMessage(
+                    f"sensor/{source}/points",
+                    "sensor_msgs/msg/PointCloud2",
+                    swath_msg(msg, source, t_ns),
+                )
+            ]
+        if name == "mtHeadData":
+            return [RosMessage(f"sensor/{source}/returns", "sensor_msgs/msg/PointCloud2",
+                               scanline_msg(msg, source, t_ns))]  # fmt: skip
+        return [
+            decoded_msg(
+                f"sensor/{source}/{kind or name.lower()}", source, name, t_ns, seq, _jsonable(msg)
+            )
+        ]
+    if section == "nav" and _type_name(msg) == "Odometry":
+        return [RosMessage(f"nav/{source}", "nav_msgs/msg/Odometry", odometry_msg(msg, t_ns))]
+    if section == "slam" and isinstance(msg, Mapping):
+        if source.endswith("/pose") and "x" in msg:
+            return [RosMessage(f"slam/{source}", "geometry_msgs/msg/PoseWithCovarianceStamped",
+                               slam_pose_msg(msg, t_ns))]  # fmt: skip
+        if source.endswith("/landmarks") and "mean" in msg:
+            return [
+                RosMessage(
+                    f"slam/{source}", "sensor_msgs/msg/PointCloud2", landmarks_msg(msg, t_ns)
+                )
+            ]
+    body = _jsonable(msg)
+    type_name = body.get("type", section) if isinstance(body, Mapping) else section
+    return [decoded_msg(f"{section}/{source}", source, str(type_name), t_ns, seq, body)]

@@ -1,0 +1,229 @@
+"""Processes find each other with the shipped defaults (issue 16): sim, gateway, recorder, fusion
+and SLAM each in its own process, started as the README says, with no bus option at all.
+
+The one-machine default endpoint is this test session's free port (``$AUVGW_BUS_ENDPOINT``,
+set by conftest.py) so parallel test runs never meet; the commands themselves get no option.
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+from collections import Counter
+from pathlib import Path
+
+from gateway_support import AUVGW, REPO, wait_until
+
+from auvgw.bus import Keys, open_session
+from auvgw.config.bus import BusConfig, default_endpoint
+from auvgw.recording import iter_samples, read_info
+
+SCENARIO = str(REPO / "config" / "scenarios" / "harbour.json")
+
+
+def _count_on_bus(
+    stop: threading.Event, counts: Counter, envelopes: list[tuple[str, bytes]]
+) -> threading.Thread:
+    """Count samples per section of the default bus (a spoke, as every stage) and keep the
+    decoded envelopes (sensor/, nav/), until stop."""
+
+    def run() -> None:
+        with open_session(BusConfig().as_spoke()) as s:
+            keys = Keys("auv1")
+
+            def on_sample(smp) -> None:
+                key = str(smp.key_expr)
+                section = key.split("/")[2]
+                counts[section] += 1
+                if section in ("sensor", "nav"):
+                    envelopes.append((key, smp.payload.to_bytes()))
+                if "/slam/" in key and key.endswith("/pose"):
+                    counts["slam_pose"] += 1
+
+            sub = s.declare_subscriber(keys.all("**"), on_sample)
+            stop.wait()
+            sub.undeclare()
+
+    t = threading.Thread(target=run, daemon=True)
+    t.start()
+    return t
+
+
+def test_default_endpoints_connect_sim_gateway_record_fusion_slam(procs, tmp_path: Path):
+    sim_dir = tmp_path / "sim"
+    sim = procs.start([AUVGW, "sim", "--scenario", SCENARIO, "--speed", "4", "--out",
+                       str(sim_dir), "--start-delay", "3"], "sim")  # fmt: skip
+    cfg = sim.wait_line("gateway config:", timeout=60).split(":", 1)[1].strip()
+    assert default_endpoint() in Path(cfg).read_text()  # the sim wrote the rendezvous endpoint
+    gw = procs.start([AUVGW, "run", "--config", cfg], "gateway")
+    rec_path = tmp_path / "run.mcap"
+    rec = procs.start([AUVGW, "record", "--out", str(rec_path)], "record")
+    fusion = procs.start([AUVGW, "fusion"], "fusion")
+    slam = procs.start([AUVGW, "slam", "run"], "slam")
+    counts: Counter = Counter()
+    envelopes: list[tuple[str, bytes]] = []
+    stop = threading.Event()
+    counter = _count_on_bus(stop, counts, envelopes)
+    try:
+        rec.wait_line("recording", timeout=60)
+        fusion.wait_line("fusion running", timeout=60)
+        slam.wait_line("slam running", timeout=60)
+        wait_until(lambda: counts["slam_pose"] >= 3 and counts["nav"] >= 50, timeout=120,
+                   what=f"SLAM poses and odometry on the default bus (seen {counts})")  # fmt: skip
+        rec.signal(signal.SIGTERM)
+        assert rec.wait(60) == 0, rec.stderr()
+    finally:
+        stop.set()
+        counter.join(10)
+        for p in (slam, fusion, gw, sim):
+            p.signal(signal.SIGINT)
+    for p in (slam, fusion, gw):
+        assert p.wait(60) == 0, p.stderr()
+        # a stage up before the data flows may say "no publisher", then must see it arrive
+        for line in p.stderr().splitlines():
+            if "no publisher on " in line:
+                key = line.split("no publisher on ", 1)[1].split()[0]
+                assert f"{key}: receiving now" in p.stderr(), p.stderr()
+
+    info = read_info(rec_path)
+    assert info.config is not None  # the recorder reached the gateway's config queryable
+    sections = Counter()
+    for s in iter_samples(rec_path):
+        sections["/".join(s.key.split("/")[2:4])] += 1
+    for want in ("sensor/ins", "sensor/dvl", "sensor/multibeam", "sensor/magnetometer",
+                 "nav/odometry", "raw/ins", "raw/dvl", "raw/multibeam"):  # fmt: skip
+        assert sections[want] > 0, (want, sections)
+    assert any(k.startswith("slam/") and n > 0 for k, n in sections.items()), sections
+    assert any(k.endswith("/pose") for k in info.counts if "/slam/" in k), info.counts
+    _check_ros2_readers(rec_path, envelopes)
+
+
+#: ROS 2 types the recording must hold (topic suffix -> type)
+WANTED = {
+    "/auv1/sensor/ins/imu": "sensor_msgs/msg/Imu",
+    "/auv1/sensor/ins_can/imu": "sensor_msgs/msg/Imu",
+    "/auv1/sensor/dvl/twist": "geometry_msgs/msg/TwistWithCovarianceStamped",
+    "/auv1/sensor/dvl/altitude": "sensor_msgs/msg/Range",
+    "/auv1/sensor/multibeam/points": "sensor_msgs/msg/PointCloud2",
+    "/auv1/sensor/msis/returns": "sensor_msgs/msg/PointCloud2",
+    "/auv1/sensor/magnetometer/magnetic_field": "sensor_msgs/msg/MagneticField",
+    "/auv1/nav/odometry": "nav_msgs/msg/Odometry",
+    "/auv1/slam/vb-aufastslam/pose": "geometry_msgs/msg/PoseWithCovarianceStamped",
+    "/auv1/raw/dvl": "auvgw_msgs/msg/RawFrame",
+}
+
+
+def _stamp(h) -> int:
+    return h.stamp.sec * 1_000_000_000 + h.stamp.nanosec
+
+
+def _check_ros2_readers(path: Path, envelopes: list[tuple[str, bytes]]) -> None:
+    """rosbags' AnyReader lists the topics with their ROS 2 types and deserialises every
+    message; the mcap ROS 2 decoder's values agree field for field with the gateway's."""
+    import numpy as np
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+    from rosbags.highlevel import AnyReader
+
+    import auvgw.fusion.odometry  # noqa: F401 - the Odometry type
+    from auvgw.bus import decode_envelope
+    from auvgw.drivers.can_codec import hn100_can, ms3a_can
+    from auvgw.ros2 import enu_from_ned, flu_from_frd, quaternion_enu_flu
+    from auvgw.subscribe import typed_message
+
+    with AnyReader([path]) as reader:
+        types = {c.topic: c.msgtype for c in reader.connections}
+        n = sum(1 for c, _t, raw in reader.messages() if reader.deserialize(raw, c.msgtype))
+    for topic, ros_type in WANTED.items():
+        assert types.get(topic) == ros_type, (topic, types)
+    assert n == sum(read_info(path).counts.values())
+
+    # the gateway's values, by (device or section, receive time)
+    hn100_can(), ms3a_can()  # the CAN devices' message types
+    gw: dict[tuple[str, int], list] = {}  # several messages of one chunk share a time
+    for key, payload in envelopes:
+        env = decode_envelope(payload, key)
+        gw.setdefault((key.split("/")[3], env.t_recv_ns), []).append(
+            typed_message(env.type, env.body)
+        )
+
+    def expected(name: str, msg) -> tuple:
+        if name == "imu":
+            return (quaternion_enu_flu(msg.heading, msg.pitch, msg.roll),
+                    flu_from_frd((msg.rate_x, msg.rate_y, msg.rate_z)),
+                    flu_from_frd((msg.accel_x, msg.accel_y, msg.accel_z)))  # fmt: skip
+        if name == "magnetic_field":
+            return tuple(np.asarray(flu_from_frd((msg.bx, msg.by, msg.bz))) * 1e-9)
+        if name == "points":
+            b = msg.beams
+            xyzi = np.column_stack([b.along, -b.across, -b.depth, b.reflectivity])
+            return tuple(xyzi.astype("<f4").reshape(-1))
+        if name == "odometry":
+            return (
+                enu_from_ned((msg.x, msg.y, msg.z)),
+                quaternion_enu_flu(msg.heading, msg.pitch, msg.roll),
+                flu_from_frd(msg.velocity_body),
+            )
+        raise KeyError(name)
+
+    def got(name: str, ros) -> tuple:
+        if name == "imu":
+            o, w, a = ros.orientation, ros.angular_velocity, ros.linear_acceleration
+            return (o.x, o.y, o.z, o.w), (w.x, w.y, w.z), (a.x, a.y, a.z)
+        if name == "magnetic_field":
+            b = ros.magnetic_field
+            return b.x, b.y, b.z
+        if name == "points":
+            assert [f.name for f in ros.fields] == ["x", "y", "z", "intensity"]
+            return tuple(np.frombuffer(bytes(ros.data), dtype="<f4"))
+        p, o, v = ros.pose.pose.position, ros.pose.pose.orientation, ros.twist.twist.linear
+        return (p.x, p.y, p.z), (o.x, o.y, o.z, o.w), (v.x, v.y, v.z)
+
+    checked = Counter()
+    with open(path, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        for _s, ch, _m, ros in reader.iter_decoded_messages():
+            parts = ch.topic.split("/")  # /auv1/<section>/<device or stream>/...
+            name = parts[-1]
+            candidates = gw.get((parts[3], _stamp(ros.header)))
+            if candidates is None or name not in ("imu", "magnetic_field", "points", "odometry"):
+                continue
+            # field for field, bit for bit (NaN-free here: NaN != NaN would fail loudly)
+            assert got(name, ros) in [expected(name, m) for m in candidates], ch.topic
+            checked[name] += 1
+    for name in ("imu", "magnetic_field", "points", "odometry"):
+        assert checked[name] > 0, checked
+
+
+def test_a_stage_without_gateway_says_no_publisher_and_recorder_fails(procs, tmp_path: Path):
+    rec = procs.start([AUVGW, "record", "--out", str(tmp_path / "empty.mcap")], "record")
+    fusion = procs.start([AUVGW, "fusion"], "fusion")
+    fusion.wait_line("fusion running", timeout=60)
+    endpoint = default_endpoint()
+    wait_until(lambda: "no publisher on auv/auv1/sensor/*/*" in fusion.stderr(), timeout=60,
+               what="the fusion stage's 'no publisher' line")  # fmt: skip
+    assert endpoint in fusion.stderr()
+    wait_until(lambda: "no publisher on auv/auv1/raw/**" in rec.stderr(), timeout=60,
+               what="the recorder's 'no publisher' line")  # fmt: skip
+    rec.signal(signal.SIGTERM)
+    assert rec.wait(60) == 1, rec.stderr()
+    assert "nothing recorded" in rec.stderr()
+    fusion.signal(signal.SIGTERM)
+    assert fusion.wait(60) == 0
+
+
+def test_run_listen_option_replaces_the_configuration_endpoints(procs, tmp_path: Path):
+    from gateway_support import endpoint, free_port
+
+    from auvgw.subscribe import GatewaySubscriber
+
+    cfg = tmp_path / "gw.toml"
+    cfg.write_text('vehicle = "lv"\nstatus_period_s = 0.2\n[bus]\nlisten = ["tcp/127.0.0.1:1"]\n'
+                   '[devices.dvl]\nformat = "pd0"\n'
+                   f'transport = {{ kind = "serial", url = "{tmp_path / "no"}" }}\n')  # fmt: skip
+    ep = endpoint(free_port())
+    gw = procs.start([AUVGW, "-v", "run", "--config", str(cfg), "--listen", ep], "gateway")
+    with GatewaySubscriber("lv", BusConfig(connect=[ep])) as me:
+        st = wait_until(lambda: me.status("dvl"), timeout=60, what="the gateway's status")
+    assert st["connected"] is False  # the device is absent; the gateway answers on --listen
+    assert f"listen {ep}" in gw.stderr()

@@ -1,0 +1,133 @@
+"""ROS 2 conversion (auvgw/ros2.py): REP 103/105 frames from the project's NED/FRD, CDR round
+trips through rosbags, and the mapping of every stream to its ROS 2 type."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from auvgw import ros2
+from auvgw.drivers.hn100 import Hn100Nav
+from auvgw.fusion.odometry import Odometry
+
+S = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])  # NED <-> ENU
+F = np.diag([1.0, -1.0, -1.0])  # FRD <-> FLU
+
+
+def _odometry(heading: float, v_body=(1.0, 0.0, 0.0), xyz=(10.0, 20.0, 5.0)) -> Odometry:
+    c, s = math.cos(heading), math.sin(heading)
+    v_ned = (c * v_body[0] - s * v_body[1], s * v_body[0] + c * v_body[1], v_body[2])
+    cov = np.diag([1.0, 4.0, 0.25, 0.01, 0.02, 0.1, 0.2, 0.3])
+    cov[0, 1] = cov[1, 0] = 0.5
+    return Odometry(t=1.0, x=xyz[0], y=xyz[1], z=xyz[2], roll=0.0, pitch=0.0, heading=heading,
+                    velocity_ned=v_ned, velocity_body=tuple(v_body), angular_rate=(0.0, 0.0, 0.1),
+                    covariance=cov, bottom_lock=True, coasting=False, dvl_age_s=0.1,
+                    depth_age_s=0.1, ins_gap=False, increment=None)  # fmt: skip
+
+
+def _rot(q) -> np.ndarray:
+    return Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
+
+
+def _roundtrip(m: ros2.RosMessage):
+    return ros2.typestore().deserialize_cdr(ros2.serialize(m), m.type)
+
+
+def test_heading_east_at_one_metre_per_second_is_plus_x_in_enu():
+    (m,) = ros2.to_ros("nav", "odometry", _odometry(math.pi / 2), t_ns=1_500_000_000)
+    assert (m.topic, m.type) == ("nav/odometry", "nav_msgs/msg/Odometry")
+    o = _roundtrip(m)
+    assert (o.header.frame_id, o.child_frame_id) == ("odom", "base_link")
+    assert (o.header.stamp.sec, o.header.stamp.nanosec) == (1, 500_000_000)
+    # position NED (10 north, 20 east, 5 down) -> ENU (20, 10, -5)
+    p = o.pose.pose.position
+    assert (p.x, p.y, p.z) == (20.0, 10.0, -5.0)
+    # twist in base_link (FLU): forward; in odom (ENU) that is +x (east)
+    lin = o.twist.twist.linear
+    assert (lin.x, lin.y, lin.z) == (1.0, -0.0, -0.0)
+    v_enu = _rot(o.pose.pose.orientation) @ [lin.x, lin.y, lin.z]
+    np.testing.assert_allclose(v_enu, [1.0, 0.0, 0.0], atol=1e-12)
+    # yaw rate: NED r = +0.1 (turning to starboard) is FLU z = -0.1
+    assert o.twist.twist.angular.z == pytest.approx(-0.1)
+    # covariance: x_enu = y_ned, y_enu = x_ned, yaw = -heading
+    cov = np.asarray(o.pose.covariance).reshape(6, 6)
+    assert (cov[0, 0], cov[1, 1], cov[2, 2], cov[0, 1]) == (4.0, 1.0, 0.25, 0.5)
+    assert (cov[5, 5], cov[4, 4]) == (0.01, 0.02)
+    tw = np.asarray(o.twist.covariance).reshape(6, 6)
+    assert (tw[0, 0], tw[1, 1], tw[2, 2]) == (0.1, 0.2, 0.3)
+
+
+@pytest.mark.parametrize(
+    ("heading", "pitch", "roll"),
+    [
+        (0.0, 0.0, 0.0),
+        (math.pi / 2, 0.0, 0.0),
+        (0.3, 0.2, -0.1),
+        (-2.5, -0.4, 0.7),
+        (math.pi, 0.1, 0.3),
+    ],
+)
+def test_quaternion_is_ned_attitude_seen_in_enu_flu(heading, pitch, roll):
+    q = ros2.quaternion_enu_flu(heading, pitch, roll)
+    r_ned_frd = Rotation.from_euler("ZYX", [heading, pitch, roll]).as_matrix()
+    np.testing.assert_allclose(Rotation.from_quat(q).as_matrix(), S @ r_ned_frd @ F, atol=1e-12)
+    assert math.isclose(float(np.dot(q, q)), 1.0)
+
+
+def test_quaternion_named_cases():
+    def fwd(q):
+        return Rotation.from_quat(q).apply([1.0, 0.0, 0.0])
+
+    np.testing.assert_allclose(fwd(ros2.quaternion_enu_flu(0.0, 0.0, 0.0)), [0, 1, 0], atol=1e-12)
+    np.testing.assert_allclose(
+        fwd(ros2.quaternion_enu_flu(math.pi / 2, 0, 0)), [1, 0, 0], atol=1e-12
+    )
+    # nose up 0.3 rad: forward points up in ENU
+    assert fwd(ros2.quaternion_enu_flu(0.0, 0.3, 0.0))[2] == pytest.approx(math.sin(0.3))
+    # roll starboard down: the left (FLU +y) axis points up
+    left = Rotation.from_quat(ros2.quaternion_enu_flu(0.0, 0.0, 0.2)).apply([0.0, 1.0, 0.0])
+    assert left[2] == pytest.approx(math.sin(0.2))
+
+
+def test_ins_imu_message():
+    nav = Hn100Nav(seq=1, status=0, time=12.5, roll=0.1, pitch=-0.05, heading=1.2,
+                   rate_x=0.01, rate_y=0.02, rate_z=0.03, accel_x=0.1, accel_y=0.2, accel_z=-9.81,
+                   vel_n=1.0, vel_e=0.0, vel_d=0.0, latitude=0.7, longitude=0.1, depth=5.0,
+                   aligned=None, gnss_aided=None, dvl_aided=None, error=None)  # fmt: skip
+    (m,) = ros2.to_ros("sensor", "ins", nav, t_ns=5)
+    assert (m.topic, m.type) == ("sensor/ins/imu", "sensor_msgs/msg/Imu")
+    imu = _roundtrip(m)
+    assert imu.header.frame_id == "ins"
+    a, w = imu.linear_acceleration, imu.angular_velocity
+    assert (a.x, a.y, a.z) == (0.1, -0.2, 9.81)  # FRD specific force -> FLU: +g up at rest
+    assert (w.x, w.y, w.z) == (0.01, -0.02, -0.03)
+    np.testing.assert_allclose(
+        _rot(imu.orientation),
+        S @ Rotation.from_euler("ZYX", [1.2, -0.05, 0.1]).as_matrix() @ F,
+        atol=1e-12,
+    )
+
+
+def test_slam_pose_raw_and_fallback_messages():
+    body = {"t": 3.0, "x": 5.0, "y": -2.0, "heading": 0.0, "cov": [[1, 0, 0], [0, 2, 0], [0, 0, 3]]}
+    (m,) = ros2.to_ros("slam", "vb-aufastslam/pose", body, t_ns=3_000_000_000)
+    assert m.type == "geometry_msgs/msg/PoseWithCovarianceStamped"
+    p = _roundtrip(m)
+    assert p.header.frame_id == "map"
+    assert (p.pose.pose.position.x, p.pose.pose.position.y) == (-2.0, 5.0)
+    cov = np.asarray(p.pose.covariance).reshape(6, 6)
+    assert (cov[0, 0], cov[1, 1], cov[5, 5]) == (2.0, 1.0, 3.0)
+
+    raw = ros2.raw_frame_msg("dvl", "pd0", 7, 42, 1000, b"\x7f\x7f\x00\x01")
+    r = _roundtrip(raw)
+    assert (r.device, r.wire_format, r.seq, r.stream_offset) == ("dvl", "pd0", 42, 1000)
+    assert bytes(r.data) == b"\x7f\x7f\x00\x01"
+    assert "uint8[] data" in ros2.msgdef(ros2.RAW_FRAME_TYPE)
+
+    (st,) = ros2.to_ros("status", "gateway", {"v": 1, "vehicle": "auv1"}, t_ns=1)
+    d = _roundtrip(st)
+    assert (st.topic, st.type, d.source) == ("status/gateway", ros2.DECODED_TYPE, "gateway")
+    assert d.json == '{"v":1,"vehicle":"auv1"}'
