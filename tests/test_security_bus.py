@@ -13,7 +13,7 @@ import pytest
 import zenoh
 from gateway_support import AUVGW, free_port, wait_until
 
-from auvgw.bus import load_bus_table, open_session
+from auvgw.bus import decode_envelope, load_bus_table, open_session
 from auvgw.config.bus import BusConfig
 from auvgw.paths import config_file
 from auvgw.security import make_identity
@@ -217,7 +217,8 @@ def test_gateway_record_fusion_and_slam_run_over_mutual_tls_with_acl(secure_bus,
         procs.start([AUVGW, "run", "--config", str(tmp / "gateway.toml")], "gateway")
         got_odom = wait_until(odom.try_recv, timeout=120, what="odometry at the shore")
         got_pose = wait_until(pose.try_recv, timeout=120, what="a SLAM sample at the shore")
-        assert json.loads(got_odom.payload.to_bytes())["type"]
+        env = decode_envelope(got_odom.payload.to_bytes())
+        assert env.device == "fusion" and env.t_recv_ns > 0
         assert str(got_pose.key_expr).startswith("auv/auv1/slam/")
         assert rec.p.wait(120) == 0, rec.stderr()
         odom.undeclare()
