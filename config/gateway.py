@@ -59,7 +59,7 @@ __all__ = [
 ]
 
 #: formats a device may speak; "can" decodes CAN frames with the device's DBC
-DEVICE_FORMATS = ("pd0", "pd6", "seanet", "kongsberg", "hn100", "ms3a", "can")
+DEVICE_FORMATS = ("pd0", "pd6", "seanet", "kongsberg", "hn100", "ms3a", "acoustic", "can")
 
 _NAME_CHARS = "letters, digits, '_' or '-'"
 
@@ -90,7 +90,7 @@ class MsisPolling(_Model):
 class DeviceConfig(_Model):
     """One device: its wire format, its transport, and format-specific options."""
 
-    format: Literal["pd0", "pd6", "seanet", "kongsberg", "hn100", "ms3a", "can"]
+    format: Literal["pd0", "pd6", "seanet", "kongsberg", "hn100", "ms3a", "acoustic", "can"]
     transport: TransportConfig
     enabled: bool = True
     dbc: str | None = Field(

@@ -55,6 +55,7 @@ FORMATS: dict[str, str] = {
     "kongsberg": "auvgw.drivers.kongsberg:FORMAT",
     "hn100": "auvgw.drivers.hn100:FORMAT",
     "ms3a": "auvgw.drivers.ms3a:FORMAT",
+    "acoustic": "auvgw.drivers.acoustic:FORMAT",
 }
 
 

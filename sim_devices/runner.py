@@ -19,7 +19,8 @@ Faults come from each device's ``faults`` in the scenario and can be switched at
   returns to the scenario's). Windows (``unplug``, ``stall``, ...) are in vehicle seconds.
 
 Devices: ``ins`` (:class:`~auvgw.sim_devices.ins.InsEmulator`), ``magnetometer``
-(:class:`~auvgw.sim_devices.magnetometer.MagnetometerEmulator`), ``multibeam``
+(:class:`~auvgw.sim_devices.magnetometer.MagnetometerEmulator`), ``acoustic``
+(:class:`~auvgw.sim_devices.acoustic.AcousticEmulator`, off unless enabled), ``multibeam``
 (:class:`~auvgw.sim_devices.multibeam.MultibeamEmulator`), ``msis`` (the SeaNet head of
 :mod:`auvgw.sim_devices.msis` in a :class:`~auvgw.sim_devices.emulator.PolledEmulator`) and
 ``dvl`` (``auvgw.sim_devices.dvl.DvlEmulator(ctx, settings)``, an
@@ -53,6 +54,7 @@ from typing import Any
 import numpy as np
 
 from auvgw.config.scenario import DeviceSettings, FaultSettings, Scenario
+from auvgw.sim_devices.acoustic import AcousticEmulator
 from auvgw.sim_devices.clock import SimClock
 from auvgw.sim_devices.emulator import (
     DEFAULT_EPOCH,
@@ -86,7 +88,7 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 #: devices in the order they are built and listed (the scenario's ``devices`` keys)
-DEVICE_ORDER = ("ins", "dvl", "msis", "multibeam", "magnetometer")
+DEVICE_ORDER = ("ins", "dvl", "msis", "multibeam", "magnetometer", "acoustic")
 
 #: fields of the gateway's MSIS polling table that a scenario's msis options may set
 _MSIS_POLLING = (
@@ -178,6 +180,7 @@ FACTORIES: dict[str, Callable[[SimContext, DeviceSettings], Emulator]] = {
     "msis": make_msis,
     "multibeam": MultibeamEmulator,
     "magnetometer": MagnetometerEmulator,
+    "acoustic": AcousticEmulator,
 }
 
 

@@ -1,0 +1,133 @@
+"""AMB-SLAM, MB-SLAM and dead reckoning (Hou et al. 2019, Sec. 2.4) on the project's EKF-SLAM.
+
+The state is eqs. (14)-(18): vehicle ``(x, y, phi)`` and the 2-D beacons; beacons are static,
+eq. (13). The paper's equations are used with its errors corrected (reading notes A14-A16):
+
+* prediction, eqs. (19)-(20): the filter's motion model (Table 4's bicycle,
+  :class:`~auvgw.slam.models.BicycleModel`, or :class:`~auvgw.slam.models.VelocityModel`) with
+  its own Jacobian; eq. (20)'s ``Dy cos(phi)`` entry should read ``Dx cos(phi)`` (A14);
+* beacon observation, eq. (21) range and bearing, with the correct Jacobian of eq. (22)
+  (:class:`~auvgw.slam.models.RangeBearing`; the printed signs are wrong, A15);
+* EKF update, eqs. (23)-(27), with the prior ``P^-`` where the paper prints ``P^-1`` and
+  ``P+ = P- - W S W^T`` where it prints ``+`` (A16); symmetrised;
+* augmentation, eqs. (28)-(29), with the standard covariance ``G_v P_vv G_v^T + G_z R G_z^T`` and
+  cross-covariances ``G_v P_vx`` (the paper gives none);
+* unknown association: nearest neighbour with Table 4's gates read as Bailey's squared
+  Mahalanobis distances (A12, A13): accept ``D^2 < 8``, new beacon ``D^2 > 28``, otherwise ignored.
+
+The acoustic beacon (Sec. 2.4.2, no equation) is a range-bearing observation of a *known, fixed*
+position (A17, A23): :meth:`MagneticSLAM.anchor_update` applies eqs. (23)-(27) with ``H`` non-zero
+in the vehicle columns only (the anchor is not in the state). ``range-only`` is the
+Conclusions' variant. AMB-SLAM uses it; MB-SLAM is the same filter without it (Sec. 3.4);
+dead reckoning (``dr``) only predicts.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from auvgw.slam.landmark.association import NearestNeighbour
+from auvgw.slam.landmark.ekfslam import EKFSLAM
+from auvgw.slam.models import MotionModel, RangeBearing, wrap_angle
+
+__all__ = ["GATE_AUGMENT", "GATE_REJECT", "MAGNETIC_ALGORITHMS", "MagneticSLAM", "make_magnetic"]
+
+#: Table 4 "maximum distance for association 8 m": Bailey's GATE_REJECT, squared Mahalanobis (A12)
+GATE_REJECT = 8.0
+#: Table 4 "augment distance 28 m": Bailey's GATE_AUGMENT, squared Mahalanobis (A13)
+GATE_AUGMENT = 28.0
+MAGNETIC_ALGORITHMS = ("amb-slam", "mb-slam", "dr")
+
+
+class MagneticSLAM(EKFSLAM):
+    """EKF-SLAM over magnetic beacons with an optional known-position acoustic anchor.
+
+    ``anchor_xy`` (m, NED) is the acoustic beacon; ``use_beacons=False`` ignores the magnetic
+    beacons (dead reckoning when there is no anchor either)."""
+
+    def __init__(
+        self,
+        motion: MotionModel,
+        q: np.ndarray,
+        r: np.ndarray,
+        *,
+        x0: np.ndarray | tuple[float, float, float] = (0.0, 0.0, 0.0),
+        anchor_xy: tuple[float, float] | None = None,
+        use_beacons: bool = True,
+        gates: tuple[float, float] = (GATE_REJECT, GATE_AUGMENT),
+        name: str = "amb-slam",
+    ) -> None:
+        super().__init__(
+            motion, RangeBearing(), q, r, x0=x0,
+            association=NearestNeighbour(gate_accept=gates[0], gate_new=gates[1]),
+        )  # fmt: skip
+        self.name = name
+        self.anchor = None if anchor_xy is None else np.asarray(anchor_xy, float).reshape(2)
+        self.use_beacons = use_beacons
+
+    def update_each(self, z: np.ndarray, r: np.ndarray | None = None) -> None:
+        """Beacon observations ``z (m, 2)`` (range m, bearing rad), one at a time, each with
+        its own covariance ``r (m, 2, 2)`` (e.g. the MLP's; default the filter's ``R0``).
+        Association and augmentation use that covariance."""
+        if not self.use_beacons:
+            return
+        z = np.asarray(z, float).reshape(-1, 2)
+        for j in range(len(z)):
+            self.rdiag = np.diag(self.r0).copy() if r is None else np.diag(r[j]).copy()
+            self.update(z[j : j + 1], np.random.default_rng(0))
+        self.rdiag = np.diag(self.r0).copy()
+
+    def anchor_update(self, z: np.ndarray, r: np.ndarray) -> float:
+        """Acoustic beacon observation ``z`` = (horizontal range m, bearing rad) or (range,)
+        with covariance ``r`` (2x2 or 1x1): eqs. (23)-(27) with a vehicle-only Jacobian.
+        Returns the squared Mahalanobis distance of the innovation."""
+        if self.anchor is None:
+            raise ValueError(f"{self.name}: no acoustic beacon position configured")
+        z = np.atleast_1d(np.asarray(z, float))
+        m = len(z)
+        k = 3 + 2 * self.n_lm
+        xv = self.xs[:3]
+        rb = self.obs
+        zhat = rb.h(xv, self.anchor[None])[0][:m]  # eq. (21) with a known landmark
+        hx = rb.jacobians(xv, self.anchor[None])[0][0][:m]  # eq. (22), vehicle columns only
+        v = z - zhat  # eq. (23)
+        if m == 2:
+            v[1] = wrap_angle(v[1])
+        p = self.p[:k, :k]
+        pht = p[:, :3] @ hx.T
+        s = hx @ p[:3, :3] @ hx.T + np.asarray(r, float).reshape(m, m)  # eq. (24), P^- not P^-1
+        w = np.linalg.solve(s, pht.T).T  # eq. (25)
+        self.xs[:k] += w @ v  # eq. (26)
+        self.xs[2] = wrap_angle(self.xs[2])
+        pn = p - w @ s @ w.T  # eq. (27), minus (the paper prints +)
+        self.p[:k, :k] = 0.5 * (pn + pn.T)
+        return float(v @ np.linalg.solve(s, v))
+
+    def forget_landmarks(self) -> None:
+        """Drop every beacon from the state (the open-loop study: a revisit cannot close the
+        loop because the earlier beacons are gone)."""
+        k = 3 + 2 * self.n_lm
+        self.p[3:k, :] = 0.0
+        self.p[:, 3:k] = 0.0
+        self.xs[3:k] = 0.0
+        self.n_lm = 0
+        self.ids.clear()
+        self._id_index.clear()
+
+
+def make_magnetic(
+    name: str,
+    motion: MotionModel,
+    q: np.ndarray,
+    r: np.ndarray,
+    x0: np.ndarray | tuple[float, float, float],
+    anchor_xy: tuple[float, float],
+    gates: tuple[float, float] = (GATE_REJECT, GATE_AUGMENT),
+) -> MagneticSLAM:
+    """``amb-slam`` (beacons + acoustic anchor), ``mb-slam`` (beacons only) or ``dr``."""
+    if name not in MAGNETIC_ALGORITHMS:
+        raise ValueError(f"unknown magnetic algorithm {name!r}; choose from {MAGNETIC_ALGORITHMS}")
+    return MagneticSLAM(
+        motion, q, r, x0=x0, anchor_xy=anchor_xy if name == "amb-slam" else None,
+        use_beacons=name != "dr", gates=gates, name=name,
+    )  # fmt: skip
