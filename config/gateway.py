@@ -315,6 +315,7 @@ def _relative_port(path: str) -> bool:
 def _resolve_paths(cfg: GatewayConfig, base: Path) -> None:
     """Relative file, device (serial url, slcan channel), DBC and table paths name files next
     to the configuration file, wherever the gateway is started from (systemd: ``/``)."""
+    cfg.bus = cfg.bus.rebased(base)
     for dev in cfg.devices.values():
         t = dev.transport
         if isinstance(t, FileTransportConfig) and not t.path.is_absolute():
