@@ -30,6 +30,11 @@ from auvgw.recording import McapRecorder
 log = logging.getLogger(__name__)
 
 
+#: at a stop, the recorder keeps listening until no sample came for DRAIN_QUIET_S seconds
+#: (at most DRAIN_MAX_S), so what was published before the stop is in the file
+DRAIN_QUIET_S = 0.3
+DRAIN_MAX_S = 2.0
+
 def register(sub: Any) -> None:
     p = sub.add_parser(
         "record",
@@ -143,7 +148,10 @@ def run(args: argparse.Namespace) -> int:
         except OSError as exc:
             raise UserError(f"{out}: cannot write: {exc.strerror}") from exc
 
+        last_sample = [time.monotonic()]
+
         def on_sample(s: zenoh.Sample) -> None:
+            last_sample[0] = time.monotonic()
             att = s.attachment
             rec.add(
                 str(s.key_expr),
@@ -181,6 +189,15 @@ def run(args: argparse.Namespace) -> int:
                         next_query = time.monotonic() + 1.0
                     wait = 0.1 if t_end is None else max(0.0, min(0.1, t_end - time.monotonic()))
                     stop.wait(wait)
+                # samples published before the stop may still be on their way (a decoded
+                # message follows its raw frame): keep listening until the bus is quiet
+                drain_end = time.monotonic() + DRAIN_MAX_S
+                while (
+                    not rec.failed.is_set()
+                    and time.monotonic() < drain_end
+                    and time.monotonic() - last_sample[0] < DRAIN_QUIET_S
+                ):
+                    time.sleep(0.02)
             finally:
                 watch.close()
                 for s in subs:
