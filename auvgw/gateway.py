@@ -147,7 +147,7 @@ class Gateway:
             "gateway for vehicle %r starting: %d device(s), bus %s",
             self.cfg.vehicle,
             len(self.devices),
-            self.cfg.bus.mode,
+            self.cfg.bus.describe(),
         )
         for t in self._threads:
             t.start()

@@ -208,7 +208,6 @@ def run(args: argparse.Namespace) -> int:
             raise UserError(f"--listen/--connect: {exc}") from None
         cfg = cfg.model_copy(update={"bus": bus})
     cfg = cfg.model_copy(update={"bus": cfg.bus.as_hub()})
-    log.info("bus: %s", cfg.bus.describe())
     settings = RunSettings(
         config=cfg,
         viz_rrd=args.viz_rrd,
