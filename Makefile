@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint bench
+.PHONY: demo test test-fast typecheck lint bench
 
 $(STAMP): pyproject.toml setup.py
 	@command -v socat >/dev/null 2>&1 || (command -v apt-get >/dev/null 2>&1 && (apt-get update -qq && apt-get install -y -qq socat >/dev/null) || true)
@@ -18,7 +18,19 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/ruff check .
+	$(MAKE) --no-print-directory typecheck
 	$(BIN)/python -m pytest -q
+
+test-fast: $(STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/python -m pytest -q -m "not e2e"
+
+# mypy sees the installed package (a plain, non-editable copy: the editable install maps folders
+# through an import hook no type checker follows); strict on drivers/ and slam/ (pyproject.toml)
+TYPED := $(VENV)/typecheck
+typecheck: $(STAMP)
+	rm -rf $(TYPED) && $(BIN)/python -m pip install -q --no-deps --target $(TYPED) . >/dev/null
+	cd $(TYPED) && $(CURDIR)/$(BIN)/mypy --config-file $(CURDIR)/pyproject.toml -p auvgw.drivers -p auvgw.slam
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

@@ -14,21 +14,44 @@ import sys
 from pathlib import Path
 from typing import TextIO
 
-#: command modules, in the order ``auvgw --help`` lists them
-COMMANDS: list[str] = [
-    "auvgw.commands.demo",
-    "auvgw.commands.decode",
-    "auvgw.commands.router",
-    "auvgw.commands.run",
-    "auvgw.commands.record",
-    "auvgw.commands.replay",
-    "auvgw.commands.export",
-    "auvgw.commands.viz",
-    "auvgw.commands.sim",
-    "auvgw.commands.fusion",
-    "auvgw.commands.slam",
-    "auvgw.commands.slam_run",
-]
+#: command name -> (module, one-line help), in the order ``auvgw --help`` lists them. Only the
+#: module of the command being run is imported, so ``auvgw --help`` imports none of them (no
+#: Zenoh, numpy or scipy at start-up).
+COMMANDS: dict[str, tuple[str, str]] = {
+    "demo": (
+        "auvgw.commands.demo",
+        "run the emulated vehicle, gateway, fusion, SLAM and Rerun recording (main job)",
+    ),
+    "decode": ("auvgw.commands.decode", "decode a capture file to JSON lines"),
+    "router": (
+        "auvgw.commands.router",
+        "run a Zenoh router (for multi-process / multi-host buses)",
+    ),
+    "run": (
+        "auvgw.commands.run",
+        "run the gateway daemon (devices -> Zenoh) from a TOML configuration",
+    ),
+    "record": (
+        "auvgw.commands.record",
+        "record a vehicle's bus (raw frames, decoded, odometry, SLAM) to a ROS 2 MCAP file",
+    ),
+    "replay": ("auvgw.commands.replay", "republish an MCAP recording (raw and decoded) as if live"),
+    "export": (
+        "auvgw.commands.export",
+        "convert a recording (earlier auvgw MCAP layout) to MCAP's ROS 2 profile",
+    ),
+    "viz": ("auvgw.commands.viz", "log the bus to Rerun (a .rrd file or a running viewer)"),
+    "sim": (
+        "auvgw.commands.sim",
+        "run the emulated vehicle (world + device emulators on virtual ports)",
+    ),
+    "fusion": (
+        "auvgw.commands.fusion",
+        "INS + DVL dead reckoning: odometry on the bus, or over a recording",
+    ),
+    "slam": ("auvgw.commands.slam", "SLAM tools: evaluation, and the SLAM stage (slam run)"),
+    "slam-run": ("auvgw.commands.slam_run", "run the SLAM stage (same as 'slam run')"),
+}
 
 
 class UserError(Exception):
@@ -46,19 +69,42 @@ def open_output(path: Path | None) -> TextIO | None:
         raise UserError(f"{path}: cannot write: {exc.strerror}") from exc
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The ``auvgw`` parser. With ``command`` (a key of :data:`COMMANDS`) only that command's
+    module is imported and registered; without, every command is (all options of all commands)."""
     parser = argparse.ArgumentParser(
         prog="auvgw", description="AUV sensor gateway: codecs, emulators, Zenoh bus, SLAM, Rerun"
     )
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more logging")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for name in COMMANDS:
-        importlib.import_module(name).register(sub)
+    for name, (module, _) in COMMANDS.items():
+        if command is None or name == command:
+            importlib.import_module(module).register(sub)
     return parser
 
 
+def _listing_parser() -> argparse.ArgumentParser:
+    """``auvgw --help`` (and unknown commands): the command list, importing no command module."""
+    parser = argparse.ArgumentParser(
+        prog="auvgw", description="AUV sensor gateway: codecs, emulators, Zenoh bus, SLAM, Rerun"
+    )
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more logging")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name, (_, text) in COMMANDS.items():
+        sub.add_parser(name, help=text, add_help=False)
+    return parser
+
+
+def _command_in(argv: list[str]) -> str | None:
+    """The command named in ``argv`` (the first word that is not an option), if it is one."""
+    word = next((a for a in argv if not a.startswith("-")), None)
+    return word if word in COMMANDS else None
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else argv
+    command = _command_in(argv)
+    parser = build_parser(command) if command else _listing_parser()
     args = parser.parse_args(argv)
     level = logging.WARNING - 10 * min(args.verbose, 2)
     logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")

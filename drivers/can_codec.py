@@ -141,9 +141,11 @@ class DbcCodec:
     ) -> None:
         self.path = Path(path)
         try:
-            self.db = cantools.database.load_file(str(self.path), database_format="dbc")
-        except (OSError, UnicodeDecodeError, cantools.database.Error) as exc:
+            db = cantools.database.load_file(str(self.path), database_format="dbc")
+        except (OSError, UnicodeDecodeError, cantools.database.Error) as exc:  # type: ignore[attr-defined]
             raise CanCodecError(f"{self.path}: cannot load DBC: {exc}") from None
+        assert isinstance(db, cantools.database.can.Database)  # database_format="dbc"
+        self.db = db
         if not self.db.messages:
             raise CanCodecError(f"{self.path}: the DBC defines no message (BO_)")
         self._by_id: dict[tuple[int, bool], _Message] = {}
@@ -173,7 +175,7 @@ class DbcCodec:
         return str(attr.value) if attr is not None and attr.value else None
 
     def _build_sample(self, name: str, module: str) -> None:
-        seq = self.sequence_signal
+        seq = str(self.sequence_signal)
         members = tuple(
             info for info in self._by_type.values() if any(s.name == seq for s in info.signals)
         )

@@ -555,7 +555,7 @@ def _decode_records(cls: type, buf: bytes, base: int, n: int, itemsize: int) -> 
 
 def _encode_records(records: Any, buf: bytearray, base: int, n: int, itemsize: int) -> None:
     cls = type(records)
-    rec = np.zeros(n, dtype=_record_dtype(cls, itemsize))
+    rec = np.zeros(n, dtype=_record_dtype(cls, itemsize))  # type: ignore[arg-type]
     for name, _ in _wire_rows(cls):
         raw = np.asarray(raw_value(records, name))
         if raw.shape != (n,):

@@ -45,7 +45,6 @@ from __future__ import annotations
 import copy
 import dataclasses
 import datetime as dt
-import itertools
 import math
 import struct
 from collections.abc import Mapping, Sequence
@@ -612,7 +611,7 @@ class Ensemble:
 _WIRES: dict[type, list[tuple[str, Wire]]] = {}
 
 
-def _wires(cls: type) -> list[tuple[str, Wire]]:
+def _wires(cls: type[Any]) -> list[tuple[str, Wire]]:
     rows = _WIRES.get(cls)
     if rows is None:
         rows = sorted(
@@ -640,7 +639,7 @@ class _Plan:
     #: scaled 1-D arrays up to this many elements are converted in Python (cheaper than numpy)
     SMALL = 8
 
-    def __init__(self, cls: type, ctx: Mapping[str, int], avail: int) -> None:
+    def __init__(self, cls: type[Any], ctx: Mapping[str, int], avail: int) -> None:
         fmt = ["<2x"]
         small_fmt = ["<2x"]
         self.small: list[tuple[str, int, int, float, float, int | None]] = []
@@ -724,7 +723,7 @@ class _Plan:
         values["extra"] = extra
         if self.absent:
             values.update(self.absent)
-        msg = object.__new__(self.cls)
+        msg: Any = object.__new__(self.cls)
         msg.__dict__.update(values)
         return msg
 
@@ -788,12 +787,12 @@ class _Plan:
         cols.append(extras)
         for name in self.absent:
             names.append(name)
-            cols.append(itertools.repeat(None, n))
+            cols.append([None] * n)
         new = object.__new__
         cls = self.cls
         out = []
         for row in zip(*cols, strict=True):
-            msg = new(cls)
+            msg: Any = new(cls)
             msg.__dict__.update(zip(names, row, strict=True))
             out.append(msg)
         return out
@@ -802,7 +801,7 @@ class _Plan:
 _PLANS: dict[tuple[type, int, int, int], _Plan] = {}
 
 
-def _plan(cls: type, ctx: Mapping[str, int], avail: int) -> _Plan:
+def _plan(cls: type[Any], ctx: Mapping[str, int], avail: int) -> _Plan:
     key = (cls, ctx.get("n_cells", -1), ctx.get("n_beams", -1), avail)
     plan = _PLANS.get(key)
     if plan is None:
@@ -895,7 +894,7 @@ def _parse_header(frame: bytes) -> _Header:
 
 
 _ENSEMBLE_DEFAULTS: dict[str, Any] = {
-    f.name: f.default for f in dataclasses.fields(Ensemble)  # type: ignore[arg-type]
+    f.name: f.default for f in dataclasses.fields(Ensemble)
 }
 
 
@@ -913,14 +912,14 @@ class _Template:
             base = hdr.offsets[i]
             fixed_ctx = {"n_beams": frame[base + 8], "n_cells": frame[base + 9]}
         #: (ensemble field or None for a raw block, plan, start, table stop, end, last)
-        self.steps: list[tuple[str | None, _Plan | None, int, int, int, bool]] = []
+        self.steps: list[tuple[str, _Plan | None, int, int, int, bool]] = []  # "": unknown ID
         self.trailer_start = hdr.nbytes
         seen: set[str] = set()
         for i, bid in enumerate(ids):
             start, end, last = hdr.offsets[i], hdr.ends[i], i == last_idx
             name = _FIELD_OF.get(bid)
             if name is None:
-                self.steps.append((None, None, start, end, end, last))
+                self.steps.append(("", None, start, end, end, last))
                 continue
             if name in seen:
                 raise DecodeError(f"PD0 data type 0x{bid:04X} at byte {start}: appears twice")

@@ -101,15 +101,16 @@ class Column:
         raw = int(digits)
         if sign == "-":
             raw = -raw
+        number: float
         if self.invalid is not None and raw == self.invalid:
-            value = math.nan
+            number = math.nan
         elif raw == 0 and sign == "-":
-            value = -0.0
+            number = -0.0
         else:
-            value = raw * self.scale
-        if self.format(value) != text:
+            number = raw * self.scale
+        if self.format(number) != text:
             raise ValueError(f"not in the table's format ({self.describe()})")
-        return value
+        return number
 
     def format(self, value: Any) -> str:
         """The text of ``value`` in this column's format."""

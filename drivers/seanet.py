@@ -51,6 +51,7 @@ from auvgw.drivers.spec import (
     decode_block,
     encode_block,
     message,
+    message_base,
     table_rows,
     wire,
 )
@@ -246,7 +247,7 @@ def _range_from_code(code: int) -> tuple[float, str, float]:
 
 
 # -- tables -----------------------------------------------------------------------------------
-@dataclasses.dataclass(frozen=True, eq=False)
+@message_base
 class _Packet:
     """Fields every SeaNet packet carries (bytes 7..12); the type byte is the class's."""
 
@@ -661,7 +662,7 @@ SeaNetMessage = (
 )
 
 #: message type code -> table
-_TABLES: dict[int, type] = {
+_TABLES: dict[int, type[Any]] = {
     cls.MSG_TYPE: cls
     for cls in (
         VersionData,
@@ -866,7 +867,7 @@ def _encode_bins(msg: HeadData, buf: bytearray) -> None:
 _SCALES: dict[type, dict[str, tuple[float, float]]] = {}
 
 
-def _from_raw(cls: type, raw: dict[str, Any], extra: dict[str, Any]) -> Any:
+def _from_raw(cls: type[Any], raw: dict[str, Any], extra: dict[str, Any]) -> Any:
     """Build ``cls`` from raw wire values (SI = raw * scale + add, exactly as decoding does),
     so a built message equals its own decode."""
     scales = _SCALES.get(cls)
@@ -879,7 +880,7 @@ def _from_raw(cls: type, raw: dict[str, Any], extra: dict[str, Any]) -> Any:
     return cls(**values, **extra)
 
 
-def _fill(cls: type, size: int, tx: int, rx: int, raw: dict[str, Any], **extra: Any) -> Any:
+def _fill(cls: type[Any], size: int, tx: int, rx: int, raw: dict[str, Any], **extra: Any) -> Any:
     header = {
         "tx_node": tx,
         "rx_node": rx,

@@ -28,7 +28,7 @@ import math
 import struct
 import types
 import typing
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any, TypeVar
 
 import numpy as np
@@ -178,6 +178,17 @@ def _eq(a: Any, b: Any) -> bool:
     return bool(a == b)
 
 
+@typing.dataclass_transform(frozen_default=True, field_specifiers=(wire, dataclasses.field))
+def message_base(cls: type[T]) -> type[T]:
+    """Class decorator for a table shared by several messages (fields only, not registered)."""
+    return dataclasses.dataclass(frozen=True, eq=False)(cls)
+
+
+@typing.overload
+def message(cls: type[T], /) -> type[T]: ...
+@typing.overload
+def message(*, endian: str = "<") -> Callable[[type[T]], type[T]]: ...
+@typing.dataclass_transform(frozen_default=True, field_specifiers=(wire, dataclasses.field))
 def message(cls: type[T] | None = None, *, endian: str = "<") -> Any:
     """Class decorator: a frozen, slotted dataclass with array-aware equality.
 
@@ -194,7 +205,7 @@ def message(cls: type[T] | None = None, *, endian: str = "<") -> Any:
                 return NotImplemented
             return all(
                 _eq(getattr(self, f.name), getattr(other, f.name))
-                for f in dataclasses.fields(self)
+                for f in dataclasses.fields(self)  # type: ignore[arg-type]
             )
 
         dc.__eq__ = __eq__  # type: ignore[method-assign]
@@ -205,7 +216,7 @@ def message(cls: type[T] | None = None, *, endian: str = "<") -> Any:
 
 
 def _endian(cls: type, w: Wire) -> str:
-    return w.endian or getattr(cls, "__wire_endian__", "<")
+    return str(w.endian or getattr(cls, "__wire_endian__", "<"))
 
 
 def block_size(cls: type, ctx: Mapping[str, int] | None = None) -> int:
@@ -410,7 +421,7 @@ def to_jsonable(msg: Any) -> dict[str, Any]:
     NaN (invalid on the wire) becomes ``null``; bytes become hex strings; nested messages nest.
     """
     out: dict[str, Any] = {"type": getattr(msg, "TYPE", type(msg).__name__)}
-    for name in _field_names(type(msg)):
+    for name in _field_names(type(msg)):  # type: ignore[arg-type]  # classes are hashable
         out[name] = _jsonable(getattr(msg, name))
     return out
 

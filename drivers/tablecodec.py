@@ -20,6 +20,7 @@ Every error in a table is a :class:`TableError` naming the file, the entry and w
 from __future__ import annotations
 
 import binascii
+import builtins
 import dataclasses
 import keyword
 import math
@@ -274,7 +275,7 @@ class FieldSpec:
     def nbytes(self) -> int:
         return self.size if self.type == "bytes" else struct.calcsize(WIRE_TYPES[self.type])
 
-    def python_type(self) -> type:
+    def python_type(self) -> builtins.type:
         if self.type == "bytes":
             return bytes
         if self.is_scaled or self.type.startswith("f"):

@@ -133,7 +133,7 @@ def _chain(exc: BaseException) -> Iterator[BaseException]:
 
 def _errnos(exc: BaseException) -> set[int]:
     """Every errno in an exception's chain."""
-    return {e.errno for e in _chain(exc) if isinstance(getattr(e, "errno", None), int)}
+    return {e.errno for e in _chain(exc) if isinstance(e, OSError) and isinstance(e.errno, int)}
 
 
 _OPEN_HINTS = {
@@ -765,7 +765,7 @@ def make_transport(cfg: TransportConfig | Mapping[str, Any]) -> Transport:
         cls = _KINDS[type(cfg)]
     except KeyError:
         raise TypeError(f"not a transport config: {type(cfg).__name__}") from None
-    return cls(cfg)  # type: ignore[arg-type]
+    return cls(cfg)  # type: ignore[call-arg]  # each kind takes its own config
 
 
 def open_transport(cfg: TransportConfig | Mapping[str, Any]) -> Transport:

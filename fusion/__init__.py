@@ -43,3 +43,6 @@ __all__ = [
     "run_filter",
     "run_filter_arrays",
 ]
+
+if __name__ != "auvgw.fusion":
+    raise ImportError(f"import auvgw.fusion, not {__name__}: the folder is mapped (setup.py)")

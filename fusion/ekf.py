@@ -47,11 +47,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.stats import chi2
 
 from auvgw.fusion.config import FusionConfig
 from auvgw.fusion.frames import mount_matrix, wrap_angle
 from auvgw.fusion.samples import DvlFrame, InsSample
+from auvgw.geometry import chi2_ppf
 
 __all__ = ["N_STATE", "STATE_NAMES", "DeadReckoningEKF", "arc_weights", "gm_factor"]
 
@@ -133,7 +133,7 @@ class DeadReckoningEKF:
         self._H_body[:, IU : IW + 1] = np.eye(3)
         self._r_dvl = config.dvl_velocity_sigma_mps**2
         p = config.dvl_gate_probability
-        self._gate = {k: (float(chi2.ppf(p, k)) if p is not None else math.inf) for k in (1, 2, 3)}
+        self._gate = {k: (float(chi2_ppf(p, k)) if p is not None else math.inf) for k in (1, 2, 3)}
         self._g = config.gravity_mps2
         self._eye = np.eye(N_STATE)
         # Work buffers of propagate. One product A Pa A^T gives the propagated covariance

@@ -14,6 +14,14 @@ import numpy as np
 
 from auvgw.fusion.config import DvlMount
 from auvgw.fusion.samples import DvlSample, InsSample
+from auvgw.geometry import (
+    dcm_body_to_ned,
+    rot_x,
+    rot_y,
+    rot_z,
+    wrap_angle,
+    wrap_angles,
+)
 
 __all__ = [
     "body_to_ned",
@@ -28,42 +36,6 @@ __all__ = [
     "wrap_angle",
     "wrap_angles",
 ]
-
-TWO_PI = 2.0 * math.pi
-
-
-def wrap_angle(a: float) -> float:
-    """Angle wrapped into [-pi, pi), rad."""
-    return (a + math.pi) % TWO_PI - math.pi
-
-
-def wrap_angles(a: np.ndarray) -> np.ndarray:
-    """Array of angles wrapped into [-pi, pi), rad."""
-    return (np.asarray(a) + math.pi) % TWO_PI - math.pi
-
-
-def rot_x(a: float) -> np.ndarray:
-    """Rotation about x by ``a`` rad (roll)."""
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
-
-
-def rot_y(a: float) -> np.ndarray:
-    """Rotation about y by ``a`` rad (pitch)."""
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-
-
-def rot_z(a: float) -> np.ndarray:
-    """Rotation about z by ``a`` rad (heading)."""
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
-def dcm_body_to_ned(roll: float, pitch: float, heading: float) -> np.ndarray:
-    """``C = Rz(heading) Ry(pitch) Rx(roll)``: body-axes vector -> NED (angles in rad)."""
-    return rot_z(heading) @ rot_y(pitch) @ rot_x(roll)
-
 
 def body_to_ned(v_body: Sequence[float], roll: float, pitch: float, heading: float) -> np.ndarray:
     """A body-axes vector (e.g. velocity, m/s) expressed in NED."""

@@ -561,6 +561,11 @@ class Runner:
         th = self._clock_thread
         return th is not None and th.is_alive()
 
+    @property
+    def ended(self) -> bool:
+        """The clock reached the run's end (not stopped before it)."""
+        return self._started and self._stopped_at is None and not self.running
+
     def wait(self, timeout: float | None = None) -> bool:
         """Wait (real seconds) for the run to reach its end; True if it did."""
         th = self._clock_thread
@@ -614,6 +619,8 @@ class Runner:
 
 # -- one process per device ----------------------------------------------------------------------
 
+#: real seconds a device process may take to catch up with the run's end after "finish"
+_FINISH_TIMEOUT_S = 60.0
 _CHILD = "from auvgw.sim_devices.runner import child_main; child_main()"
 
 
@@ -655,8 +662,11 @@ def child_main(argv: list[str] | None = None) -> None:
             if args.get("control"):
                 runner.watch_control(args["control"], only_mine=True)
             # the ports stay open after the run's end until the parent says stop (or goes
-            # away), so readers can drain them
-            sys.stdin.readline()
+            # away), so readers can drain them; "finish": the run reached its end, so this
+            # device's clock (behind the parent's on a busy machine) first sends every sample
+            # up to it
+            if sys.stdin.readline().strip() == "finish":
+                runner.wait(_FINISH_TIMEOUT_S)
         runner.stop()
         print(json.dumps({"stats": runner.stats()}), flush=True)
     finally:
@@ -757,9 +767,9 @@ class DeviceProcesses:
             if last:
                 proc.stdin.close()
 
-    def _finish(self, kind: str, timeout: float = 30.0) -> None:
+    def _finish(self, kind: str, timeout: float = 30.0, word: str = "stop") -> None:
         proc = self.procs.pop(kind)
-        self._send(proc, "stop", last=True)
+        self._send(proc, word, last=True)
         msg = self._read(proc, timeout)
         if msg is not None and "stats" in msg:
             self._stats[kind] = msg["stats"]
@@ -821,10 +831,13 @@ class DeviceProcesses:
         return True
 
     def stop(self) -> None:
-        """Stop every device process (collecting its counters) and the truth clock."""
+        """Stop every device process (collecting its counters) and the truth clock. After the
+        run's natural end each device first catches up to it (a busy machine delays a process's
+        clock), so every device sends every sample of the run."""
+        ended = self.truth_runner.ended
         self.truth_runner.stop()
         for kind in list(self.procs):
-            self._finish(kind)
+            self._finish(kind, timeout=_FINISH_TIMEOUT_S + 30.0, word="finish" if ended else "stop")
 
     def stats(self) -> dict[str, Any]:
         """Per-device counters as :meth:`Runner.stats` (after :meth:`stop`), merged; each

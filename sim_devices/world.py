@@ -28,6 +28,7 @@ from typing import Literal
 import numpy as np
 
 from auvgw.config.scenario import ObservationSettings, Scenario, ScenarioError, Terrain
+from auvgw.geometry import wrap_angles as wrap_angle  # arrays in, arrays out
 
 __all__ = [
     "MU0_OVER_4PI",
@@ -52,11 +53,6 @@ __all__ = [
 MU0_OVER_4PI = 1e-7
 
 FArray = np.ndarray
-
-
-def wrap_angle(a: FArray | float) -> FArray | float:
-    """Angle(s) wrapped to [-pi, pi), radians."""
-    return (np.asarray(a) + math.pi) % (2 * math.pi) - math.pi
 
 
 # -- terrain ---------------------------------------------------------------------------------

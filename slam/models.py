@@ -26,10 +26,11 @@ paper's augmented state (eqs. 5-6), so ``Q`` is ``n_u x n_u``.
 
 from __future__ import annotations
 
-import math
 from abc import ABC, abstractmethod
 
 import numpy as np
+
+from auvgw.geometry import wrap_angle
 
 __all__ = [
     "BicycleModel",
@@ -41,12 +42,6 @@ __all__ = [
     "wrap_angle",
 ]
 
-TWO_PI = 2.0 * math.pi
-
-
-def wrap_angle(a: np.ndarray | float) -> np.ndarray | float:
-    """Angle(s) wrapped into [-pi, pi)."""
-    return (a + math.pi) % TWO_PI - math.pi
 
 
 class MotionModel(ABC):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 
 import pytest
@@ -49,6 +50,38 @@ def dvl(tmp_path):
         yield d
     finally:
         d.close()
+
+
+#: a test whose own code contains one of these runs real processes, ports or a bus: ``e2e``
+_E2E_SIGNS = re.compile(r"subprocess\.|open_session\(|\bPty|SimRunner|zenoh\.|\bAUVGW\b")
+
+
+def _source(func: object) -> str:
+    import inspect
+
+    try:
+        return inspect.getsource(func)  # type: ignore[arg-type]
+    except (OSError, TypeError):
+        return ""
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Mark every test ``e2e`` (processes, ptys, a Zenoh session), ``real_data`` (recordings
+    from ../shared) or ``unit``, from what it uses, so ``make test-fast`` (``-m "not e2e"``)
+    needs no marker in the test files and a new test is classified by what it does."""
+    for item in items:
+        fixtures = set(getattr(item, "fixturenames", ()))
+        funcs = [getattr(item, "function", None)]
+        info = getattr(item, "_fixtureinfo", None)
+        for defs in (info.name2fixturedefs.values() if info else ()):
+            funcs += [d.func for d in defs if d.baseid]  # the project's fixtures, not pytest's
+        source = "".join(_source(f) for f in funcs)
+        if "procs" in fixtures or _E2E_SIGNS.search(source):
+            item.add_marker(pytest.mark.e2e)
+        elif fixtures & {"shared_data", "papers_dir"}:
+            item.add_marker(pytest.mark.real_data)
+        else:
+            item.add_marker(pytest.mark.unit)
 
 
 @pytest.fixture(scope="session", autouse=True)

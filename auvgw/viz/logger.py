@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 import rerun as rr
 
+from auvgw.geometry import TWO_PI, wrap_angle
 from auvgw.viz import entities as ent
 from auvgw.viz.blueprint import DEFAULT_TRACKS, default_blueprint
 from auvgw.viz.entities import APPLICATION_ID, TIMELINE
@@ -50,7 +51,6 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-_TWO_PI = 2.0 * math.pi
 _STOP = object()
 
 #: turbo-like colour scale (low values dark blue, high values dark red), 11 control points
@@ -116,7 +116,7 @@ def ellipse_strips(
     l11 = np.sqrt(a)
     l21 = np.divide(p[:, 1, 0], l11, out=np.zeros_like(l11), where=l11 > 0)
     l22 = np.sqrt(np.maximum(p[:, 1, 1] - l21 * l21, 0.0))
-    ang = np.linspace(0.0, _TWO_PI, vertices)
+    ang = np.linspace(0.0, TWO_PI, vertices)
     ca, sa = np.cos(ang), np.sin(ang)
     x = c[:, 0:1] + sigma * l11[:, None] * ca[None, :]
     y = c[:, 1:2] + sigma * (l21[:, None] * ca[None, :] + l22[:, None] * sa[None, :])
@@ -143,10 +143,6 @@ def _same_length(what: str, **arrays: np.ndarray | None) -> None:
         raise ValueError(f"{what}: arrays of different lengths {lengths}")
 
 
-def _wrap_pi(a: float) -> float:
-    return (a + math.pi) % _TWO_PI - math.pi
-
-
 # -- accumulated state (owned by the logging thread) --------------------------------------------
 class _Fan:
     """MSIS scan lines accumulated into a Cartesian fan image (forward up, starboard right).
@@ -161,7 +157,7 @@ class _Fan:
         rows, cols = np.mgrid[0:n, 0:n]
         dx, dy = cols - c, c - rows
         r = np.hypot(dx, dy) / (n / 2.0)
-        ang = np.mod(np.arctan2(dx, dy), _TWO_PI)
+        ang = np.mod(np.arctan2(dx, dy), TWO_PI)
         flat = np.flatnonzero(r.ravel() <= 1.0)
         order = np.argsort(ang.ravel()[flat], kind="stable")
         self.size = n
@@ -186,10 +182,10 @@ class _Fan:
         if self.prev is None:
             self.prev = bearing
             return False
-        d = _wrap_pi(bearing - self.prev)
+        d = wrap_angle(bearing - self.prev)
         direction = (1 if d > 0 else -1) if abs(d) > 1e-9 else self.direction
         reversed_ = self.direction != 0 and direction != self.direction
-        full = self.swept + abs(d) >= _TWO_PI - 1e-6
+        full = self.swept + abs(d) >= TWO_PI - 1e-6
         self.prev = bearing
         if changed or reversed_ or full:
             self.direction, self.swept = direction, 0.0
@@ -206,14 +202,14 @@ class _Fan:
         """Paint one scan line (``bins`` uint8, near to far) over ``bearing +- half_width``."""
         if len(bins) == 0:
             return
-        lo = (bearing - half_width) % _TWO_PI
+        lo = (bearing - half_width) % TWO_PI
         hi = lo + 2.0 * half_width
         s = int(np.searchsorted(self._ang, lo))
-        if hi <= _TWO_PI:
+        if hi <= TWO_PI:
             sel = slice(s, int(np.searchsorted(self._ang, hi)))
             idx, r = self._idx[sel], self._r[sel]
         else:
-            e = int(np.searchsorted(self._ang, hi - _TWO_PI))
+            e = int(np.searchsorted(self._ang, hi - TWO_PI))
             idx = np.concatenate([self._idx[s:], self._idx[:e]])
             r = np.concatenate([self._r[s:], self._r[:e]])
         k = np.minimum((r * len(bins)).astype(np.intp), len(bins) - 1)
@@ -1005,7 +1001,7 @@ class RerunLogger:
         if fan.new_sweep(bearing, range_m, len(bins)):
             self._log_fan(self._fan_t, prev)
             fan.clear()
-        d = abs(_wrap_pi(bearing - prev)) if prev is not None else 0.0
+        d = abs(wrap_angle(bearing - prev)) if prev is not None else 0.0
         half = max(step, d, math.radians(0.45)) / 2.0
         fan.paint(bearing, bins, half)
         self._fan_t = t

@@ -36,6 +36,8 @@ from typing import Protocol
 
 import numpy as np
 
+from auvgw.geometry import wrap_angles as wrap_angle  # arrays in, arrays out
+
 __all__ = [
     "BeamSettings",
     "HeadDataLike",
@@ -57,11 +59,6 @@ __all__ = [
 FArray = np.ndarray
 #: poses of the vehicle at given times: ``f(t (n,)) -> (n, 3)`` of (x, y, heading)
 PoseSource = Callable[[FArray], FArray]
-
-
-def wrap_angle(a: FArray | float) -> FArray:
-    """Angle(s) wrapped into [-pi, pi), rad."""
-    return (np.asarray(a, float) + math.pi) % (2.0 * math.pi) - math.pi
 
 
 # -- scan lines ---------------------------------------------------------------------------------
@@ -118,7 +115,8 @@ class ScanLines:
         inten = np.full((len(rows), width), np.nan)
         for i, r in enumerate(rows):
             inten[i, : r.size] = r
-        return cls(np.asarray(t, float), np.asarray(bearing, float), inten, bin_length, bin_offset)
+        blen = np.asarray(bin_length, float)
+        return cls(np.asarray(t, float), np.asarray(bearing, float), inten, blen, bin_offset)
 
     def ranges(self) -> FArray:
         """(N, B) range of every bin, m."""

@@ -13,7 +13,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2
+
+from auvgw.geometry import chi2_ppf
 
 __all__ = [
     "JCBB",
@@ -24,7 +25,7 @@ __all__ = [
     "resolve_conflicts",
 ]
 
-CHI2_2DOF_99 = float(chi2.ppf(0.99, 2))
+CHI2_2DOF_99 = float(chi2_ppf(0.99, 2))
 
 
 class Association:
@@ -107,7 +108,7 @@ def jcbb(
     ``-1``: the hypothesis with the most jointly compatible pairings (ties: smallest joint
     NIS), each landmark used at most once."""
     m = v.shape[0]
-    thresholds = [0.0] + [float(chi2.ppf(joint_prob, 2 * k)) for k in range(1, m + 1)]
+    thresholds = [0.0] + [float(chi2_ppf(joint_prob, 2 * k)) for k in range(1, m + 1)]
     cand = [np.nonzero(individual[i])[0] for i in range(m)]
     best_pairs: list[tuple[int, int]] = []
     best_nis = np.inf
