@@ -33,12 +33,12 @@ COMMANDS: dict[str, tuple[str, str]] = {
     ),
     "record": (
         "auvgw.commands.record",
-        "record a vehicle's bus (raw frames, decoded, odometry, SLAM) to a ROS 2 MCAP file",
+        "record a vehicle's raw bus traffic (all devices, receive times) to an MCAP file",
     ),
     "replay": ("auvgw.commands.replay", "republish an MCAP recording (raw and decoded) as if live"),
     "export": (
         "auvgw.commands.export",
-        "convert a recording (earlier auvgw MCAP layout) to MCAP's ROS 2 profile",
+        "convert a recording of the earlier layout to the ROS 2 profile (--ros2)",
     ),
     "viz": ("auvgw.commands.viz", "log the bus to Rerun (a .rrd file or a running viewer)"),
     "sim": (

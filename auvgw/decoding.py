@@ -10,6 +10,7 @@ turns it into messages, live and in replay alike.
 from __future__ import annotations
 
 import struct
+import time
 from collections import Counter
 from dataclasses import dataclass, field
 from typing import Any
@@ -98,10 +99,21 @@ class DeviceDecoder:
     would flood the log; the gateway reports the counts in the device status instead.
     """
 
-    def __init__(self, name: str, fmt: Format | None, can_codec: Any = None) -> None:
+    def __init__(
+        self,
+        name: str,
+        fmt: Format | None,
+        can_codec: Any = None,
+        datagrams: bool = False,
+        max_partial_age_s: float | None = None,
+    ) -> None:
         if (fmt is None) == (can_codec is None):
             raise ValueError("a device decoder needs a format or a CAN codec, not both")
         self.name = name
+        #: each chunk is a datagram, framed on its own (UDP): a bad one costs itself only
+        self.datagrams = datagrams
+        #: host seconds a partial frame may wait for its bytes before :meth:`expire` drops it
+        self.max_partial_age_s = max_partial_age_s
         self.format = fmt
         self.can = can_codec
         self._framer: Framer | None = None
@@ -161,7 +173,26 @@ class DeviceDecoder:
             self._closed.frames += 1
             return [self.item(raw, 0)]
         assert self._framer is not None
-        return [self.item(f.data, f.offset) for f in self._framer.feed(chunk.data)]
+        if self.datagrams:
+            frames = self._framer.feed_datagram(chunk.data)
+        else:
+            frames = self._framer.feed(chunk.data, time.monotonic())
+        return [self.item(f.data, f.offset) for f in frames]
+
+    def has_stale(self, now: float) -> bool:
+        """A partial frame has waited more than ``max_age`` (host monotonic seconds ``now``)."""
+        if self._framer is None or self.max_partial_age_s is None:
+            return False
+        since = self._framer.waiting_s
+        return since is not None and now - since > self.max_partial_age_s
+
+    def expire(self, now: float) -> list[DecodedItem]:
+        """Drop a partial frame older than ``max_partial_age_s`` (host monotonic seconds ``now``;
+        counted, reason ``stale``) and return the frames that were queued behind it."""
+        if self._framer is None or self.max_partial_age_s is None:
+            return []
+        frames = self._framer.expire(now, self.max_partial_age_s)
+        return [self.item(f.data, f.offset) for f in frames]
 
     def finish(self) -> list[DecodedItem]:
         """End of a finite stream: judge the bytes left (an incomplete frame is a bad frame)."""
@@ -179,8 +210,13 @@ def make_decoder(cfg: DeviceConfig, name: str = "") -> DeviceDecoder:
     if cfg.table and cfg.format in ("hn100", "ms3a"):
         from auvgw.drivers.formats import format_from_table
 
-        return DeviceDecoder(name, format_from_table(cfg.format, cfg.table))
-    return DeviceDecoder(name, get_format(cfg.format))
+        fmt = format_from_table(cfg.format, cfg.table)
+    else:
+        fmt = get_format(cfg.format)
+    return DeviceDecoder(
+        name, fmt, datagrams=cfg.transport.kind == "udp",
+        max_partial_age_s=cfg.partial_frame_max_age_s,
+    )  # fmt: skip
 
 
 def make_decoders(cfg: GatewayConfig) -> dict[str, DeviceDecoder]:

@@ -106,6 +106,11 @@ class Gateway:
         self._own_session = session is None
         self.session = session if session is not None else open_session(cfg.bus)
         self._t0_ns = time.time_ns()
+        #: raw sequence numbers are ``session_id << 32 | n`` (n counts a device's frames from
+        #: 1): unique across gateway restarts (the start second; restarts take longer than that)
+        self.session_id = (self._t0_ns // 1_000_000_000) & 0xFFFFFFFF
+        for dev in self.devices.values():
+            dev.seq = self.session_id << 32
         self._stamp = cfg.clock.stamp
         self._threads: list[threading.Thread] = []
         self._decls: list[Any] = []
@@ -195,6 +200,7 @@ class Gateway:
             "vehicle": self.cfg.vehicle,
             "t_ns": now,
             "uptime_s": round((now - self._t0_ns) / 1e9, 3),
+            "session_id": self.session_id,
             "bus": self._bus_status(),
             "devices": {name: self.device_status(name, now) for name in self.devices},
         }
@@ -318,6 +324,10 @@ class Gateway:
                     self._handle_items(
                         dev, dev.decoder.feed(chunk), chunk.t_recv_ns, transport, host
                     )
+                    self._update_framing(dev)
+                if dev.decoder.has_stale(time.monotonic()):  # a partial frame waited too long
+                    stale = dev.decoder.expire(time.monotonic())
+                    self._handle_items(dev, stale, time.time_ns(), transport, host)
                     self._update_framing(dev)
                 if host is not None:
                     host.on_idle(transport.write, time.monotonic())

@@ -282,12 +282,23 @@ class McapRecorder:
     A sample that cannot be converted is logged and skipped (:attr:`skipped`), never the file.
     """
 
-    def __init__(self, path: str | Path, vehicle: str, chunk_size: int = 256 * 1024) -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        vehicle: str,
+        chunk_size: int = 256 * 1024,
+        file: IO[bytes] | None = None,
+    ) -> None:
         self.path = Path(path)
         self.vehicle = vehicle
         self.t_start_ns = time.time_ns()
+        #: the write error (disk full...) that stopped the recording; samples after it are
+        #: counted in ``lost`` and the file stays readable up to its last complete chunk
+        self.error: OSError | None = None
+        self.lost = 0
+        self.failed = threading.Event()
         self.skipped = 0
-        self._f: IO[bytes] = open(self.path, "wb")  # noqa: SIM115 - closed by close()
+        self._f: IO[bytes] = file if file is not None else open(self.path, "wb")  # noqa: SIM115
         self._w = Ros2McapWriter(self._f, vehicle, chunk_size)
         self._q: queue.SimpleQueue[_Pending | str] = queue.SimpleQueue()
         self._config_written = False
@@ -301,7 +312,11 @@ class McapRecorder:
         return self._w.counts
 
     def add(self, key: str, payload: bytes, attachment: bytes | None, encoding: str = "") -> None:
-        """Queue one sample (``encoding`` is the Zenoh encoding string of the payload)."""
+        """Queue one sample (``encoding`` is the Zenoh encoding string of the payload); after a
+        write error it is only counted as lost (nothing piles up in memory)."""
+        if self.failed.is_set():
+            self.lost += 1
+            return
         self._q.put(_Pending(key, payload, attachment, encoding, time.time_ns()))
 
     def set_gateway_config(self, config_json: str) -> None:
@@ -325,18 +340,25 @@ class McapRecorder:
             p = self._q.get()
             if p == _STOP:
                 return
-            if isinstance(p, str):
-                meta = json.loads(p)
-                with contextlib.suppress(ValueError, KeyError, AttributeError):
-                    devices = json.loads(meta["config"]).get("devices", {})
-                    self._w.wire_formats.update({k: d["format"] for k, d in devices.items()})
-                self._w.add_metadata(GATEWAY_METADATA, meta)
+            if self.failed.is_set():
+                self.lost += not isinstance(p, str)
                 continue
             try:
-                self._w.write(p.key, p.payload, p.attachment, p.encoding, p.t_rx_ns)
+                if isinstance(p, str):
+                    meta = json.loads(p)
+                    with contextlib.suppress(ValueError, KeyError, AttributeError):
+                        devices = json.loads(meta["config"]).get("devices", {})
+                        self._w.wire_formats.update({k: d["format"] for k, d in devices.items()})
+                    self._w.add_metadata(GATEWAY_METADATA, meta)
+                else:
+                    self._w.write(p.key, p.payload, p.attachment, p.encoding, p.t_rx_ns)
             except (ValueError, KeyError, TypeError, struct.error) as exc:
                 self.skipped += 1
-                log.warning("%s: sample not recorded: %s", p.key, exc)
+                log.warning("%s: sample not recorded: %s", getattr(p, "key", "metadata"), exc)
+            except OSError as exc:  # disk full, I/O error: stop writing, keep draining
+                self.error = exc
+                self.lost += not isinstance(p, str)
+                self.failed.set()
 
     def close(self) -> None:
         """Flush everything, write the closing metadata and the summary, close the file."""
@@ -345,8 +367,18 @@ class McapRecorder:
         self._closed = True
         self._q.put(_STOP)
         self._thread.join()
-        self._w.finish(self.t_start_ns)
-        self._f.close()
+        if self.failed.is_set():  # no summary: the file is read up to its last whole chunk
+            with contextlib.suppress(OSError):
+                self._f.close()
+            return
+        try:
+            self._w.finish(self.t_start_ns)
+            self._f.close()
+        except OSError as exc:  # the summary did not fit: readable up to the last chunk
+            self.error = exc
+            self.failed.set()
+            with contextlib.suppress(OSError):
+                self._f.close()
 
 
 # -- reading -----------------------------------------------------------------------------------

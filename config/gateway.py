@@ -69,7 +69,8 @@ class ConfigError(ValueError):
 
 
 class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    # every number finite (inf/nan rejected): an infinite period or delay kills a thread
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
 class MsisPolling(_Model):
@@ -83,7 +84,7 @@ class MsisPolling(_Model):
     continuous: bool = True
     n_bins: int = Field(300, ge=8, le=1500)
     adc8: bool = True
-    reply_timeout_s: float = Field(1.0, gt=0, description="resend mtSendData after this, s")
+    reply_timeout_s: float = Field(1.0, gt=0, le=60, description="resend mtSendData after this, s")
 
 
 class DeviceConfig(_Model):
@@ -97,9 +98,16 @@ class DeviceConfig(_Model):
     )
     table: str | None = Field(None, description="site table replacing the shipped hn100/ms3a one")
     msis: MsisPolling | None = None
-    stale_after_s: float = Field(2.0, gt=0, description="report the device silent after this, s")
-    backoff_initial_s: float = Field(0.2, gt=0, description="first reconnect delay, s")
-    backoff_max_s: float = Field(5.0, gt=0, description="reconnect delay cap, s")
+    stale_after_s: float = Field(
+        2.0, gt=0, le=3600, description="report the device silent after this, s"
+    )
+    backoff_initial_s: float = Field(0.2, gt=0, le=3600, description="first reconnect delay, s")
+    backoff_max_s: float = Field(5.0, gt=0, le=3600, description="reconnect delay cap, s")
+    partial_frame_max_age_s: float = Field(
+        2.0, gt=0, le=600,
+        description="drop a partial frame that waited this long for its bytes (host s); a "
+        "few frame periods of the slowest message, longer than its transmission time",
+    )  # fmt: skip
 
     @model_validator(mode="after")
     def _format_options(self) -> DeviceConfig:
@@ -139,7 +147,7 @@ class ClockConfig(_Model):
     constant offset to it, and ``(t - epoch_ns) / 1e9`` is the vehicle time in seconds.
     """
 
-    time_scale: float = Field(1.0, gt=0, description="stamped seconds per host second")
+    time_scale: float = Field(1.0, gt=0, le=1000, description="stamped s per host s")
     epoch_ns: int | None = Field(
         None, ge=0, description="host time of vehicle time 0, ns since the Unix epoch"
     )
@@ -173,7 +181,7 @@ class GatewayConfig(_Model):
     vehicle: str = "auv1"
     bus: BusConfig = Field(default_factory=BusConfig)
     clock: ClockConfig = Field(default_factory=ClockConfig)
-    status_period_s: float = Field(1.0, gt=0, description="status publication period, s")
+    status_period_s: float = Field(1.0, gt=0, le=3600, description="status publication period, s")
     devices: dict[str, DeviceConfig] = Field(min_length=1)
     source: str | None = Field(None, exclude=True)
 

@@ -5,6 +5,14 @@ format's :meth:`Framer.check` whether a whole valid frame starts there, and yiel
 check (bad length, bad checksum, bad terminator) resumes the search at sync+1, never trusting a
 corrupted length, so garbage, truncated and corrupted frames lose no valid frame around them.
 
+A candidate waiting for bytes inside which a complete valid frame starts is abandoned at once
+(reason ``inner_frame``): a corrupted length field claiming 65535 bytes must not delay every
+later frame until they have arrived (with a checksum it could never complete anyway; formats
+without one opt in to judging complete candidates the same way). And
+:meth:`Framer.expire` drops one that has waited longer than a bound (reason ``stale``; the
+gateway calls it with the host clock). Datagram transports frame each datagram on its own:
+:meth:`Framer.feed_datagram`.
+
 Counters (:class:`FramerStats`): ``frames`` delivered, ``bad_frames`` (sync candidates that
 failed a check, including a frame still incomplete at end of stream), ``skipped_bytes`` (every
 byte not delivered inside a valid frame). The error policy decides what a bad frame does besides
@@ -104,6 +112,9 @@ class Framer:
     sync: bytes = b""
     sync_offset: int = 0
     max_frame_size: int = 65536
+    #: also refuse a complete candidate inside which a complete valid frame starts (for formats
+    #: without a checksum; with one, a corrupted length cannot complete a valid frame)
+    judge_inner_of_complete: bool = False
 
     def __init__(
         self,
@@ -121,6 +132,13 @@ class Framer:
         self._buf = bytearray()
         self._base = 0  # absolute stream offset of _buf[0]
         self._pending: list[Frame] = []
+        self._waiting: int | None = None  # absolute offset of the candidate waiting for bytes
+        self._waiting_since: float | None = None  # host time (s) it started waiting
+        self._probed = 0  # absolute offset up to which inner syncs of _waiting were judged
+        #: abandon a waiting candidate when a complete frame starts inside it (off: wait for
+        #: the claimed length as before; the fault injector verifies its faults that way, so
+        #: they hold for any chunking)
+        self.abandon_on_inner = True
 
     # -- to implement -------------------------------------------------------------------------
     def check(self, buf: bytearray, start: int) -> int:
@@ -132,15 +150,84 @@ class Framer:
         raise NotImplementedError
 
     # -- driving ------------------------------------------------------------------------------
-    def feed(self, chunk: bytes | bytearray | memoryview) -> list[Frame]:
-        """Add a chunk; return every frame completed by it, in stream order."""
+    def feed(self, chunk: bytes | bytearray | memoryview, now: float | None = None) -> list[Frame]:
+        """Add a chunk; return every frame completed by it, in stream order. ``now`` (host
+        seconds, any monotonic clock) dates a frame left waiting for :meth:`expire`."""
         self.stats.bytes_in += len(chunk)
         self._buf += chunk
-        return self._scan(eof=False)
+        before = self._waiting
+        try:
+            return self._scan(eof=False)
+        finally:
+            if self._waiting is None or self._waiting != before:
+                self._waiting_since = now if self._waiting is not None else None
+
+    def feed_datagram(self, datagram: bytes | bytearray | memoryview) -> list[Frame]:
+        """One datagram framed on its own: what it leaves incomplete is a bad frame of that
+        datagram, never prepended to the next one."""
+        self.stats.bytes_in += len(datagram)
+        self._buf += datagram
+        return self._scan(eof=True)
 
     def finish(self) -> list[Frame]:
         """End of stream: judge what is left (an incomplete frame there is a bad frame)."""
         return self._scan(eof=True)
+
+    @property
+    def waiting_s(self) -> float | None:
+        """Host time (as given to :meth:`feed`) since the frame now waiting for bytes started
+        waiting; None when none waits."""
+        return self._waiting_since
+
+    def expire(self, now: float, max_age_s: float) -> list[Frame]:
+        """Drop the frame waiting for bytes when it has waited more than ``max_age_s`` (counted
+        as a bad frame, reason ``stale``) and resync one byte after its sync; the frames that
+        follows in the buffer come out."""
+        since = self._waiting_since
+        if self._waiting is None or since is None or now - since <= max_age_s:
+            return []
+        assert self._waiting == self._base  # a waiting candidate is always at the buffer start
+        self._waiting = self._waiting_since = None
+        self.stats.skipped_bytes += 1
+        del self._buf[:1]
+        self._base += 1
+        error = self._bad(0, f"stale: partial frame waited {now - since:.1f} s > {max_age_s} s")
+        if error is not None:
+            raise error
+        return self.feed(b"", now)
+
+    def _inner_frame(self, buf: bytearray, start: int, end: int | None = None) -> int | None:
+        """Offset (in ``buf``) of a complete valid frame starting inside the candidate at
+        ``start`` (``end``: its end when it is complete; None: it waits for bytes), or None;
+        -1 when the candidate is complete but a frame starting inside it still waits for bytes
+        (the candidate then waits too, so the outcome does not depend on the chunking). While
+        the same candidate waits, each inner sync is judged once; those that need more bytes
+        themselves are judged again later."""
+        sync, so = self.sync, self.sync_offset
+        waiting = end is None
+        if waiting and self._waiting != self._base + start:
+            self._probed = self._base + start + 1
+        lo = max(self._probed - self._base, start + 1) if waiting else start + 1
+        stop = len(buf) if end is None else end - 1 + so + len(sync)
+        q = buf.find(sync, lo + so, stop)
+        first_open: int | None = None
+        while q >= 0:
+            inner = q - so
+            try:
+                length = self.check(buf, inner)
+            except BadFrame:
+                length = -1
+            if 0 < length <= self.max_frame_size:
+                return inner
+            if length == 0 and first_open is None:
+                first_open = inner
+            q = buf.find(sync, q + 1, stop)
+        if waiting:
+            last = max(start + 1, len(buf) - so - len(sync) + 1)  # a sync cut by the chunk end
+            self._probed = self._base + (first_open if first_open is not None else last)
+        elif first_open is not None:
+            return -1  # complete, but a frame starting inside it is not judged yet: wait
+        return None
 
     def frames(self, chunks: Iterable[bytes]) -> Iterator[Frame]:
         """Frames of a whole stream of chunks, finishing at its end."""
@@ -193,11 +280,31 @@ class Framer:
                 if error is not None:
                     break
                 continue
+            inner = None
+            if not self.abandon_on_inner:
+                pass
+            elif length == 0 and not eof:
+                inner = self._inner_frame(buf, start)
+            elif length > 0 and self.judge_inner_of_complete:
+                inner = self._inner_frame(buf, start, start + length)
+            if inner == -1 and not eof:
+                length = 0
+            elif inner is not None and inner >= 0:
+                self.stats.skipped_bytes += 1
+                error = self._bad(start, "inner_frame: a complete frame starts inside this one")
+                self._waiting = None
+                i = start + 1
+                if error is not None:
+                    break
+                continue
             if length == 0:
+                self._waiting = self._base + start
                 break
             out.append(Frame(bytes(buf[start : start + length]), self._base + start))
             self.stats.frames += 1
             i = start + length
+        if self._waiting is not None and self._waiting != self._base + i:
+            self._waiting = None
         del buf[:i]
         self._base += i
         if error is not None:

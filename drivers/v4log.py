@@ -277,7 +277,57 @@ class V4LogFramer(Framer):
         lo, hi = self._times
         if not (math.isfinite(days) and lo <= days <= hi):
             raise BadFrame(f"record_time: TDateTime {days!r} outside the log's time span")
-        return length if avail >= length else 0
+        if avail < length:
+            return 0
+        # no checksum: the SeaNet packet inside must be consistent with the record's length
+        # (mtHeadData counts, fixed sizes), or a corrupted length swallows the next records
+        try:
+            decode(buf[start : start + length])
+        except DecodeError as exc:
+            raise BadFrame(f"record_content: {exc}") from None
+        return length
+
+    def _time_pattern(self) -> bytes | None:
+        """The two top bytes every TDateTime in the log's time span shares (sign, exponent and
+        high mantissa of a little-endian f64), or None when the span is too wide to have them."""
+        lo, hi = self._times
+        a, b = struct.pack("<d", max(lo, 1.0)), struct.pack("<d", hi)
+        return a[6:] if a[6:] == b[6:] else None
+
+    def _inner_record(self, buf: bytearray, start: int, end: int | None = None) -> bool | None:
+        """A complete plausible record starts inside the one at ``start`` (``end``: its end when
+        complete; None: it waits for bytes): its length field is the corrupted one. None when it
+        is complete but a record starting inside it still waits for bytes (it waits too).
+        Candidates are the positions whose TDateTime has the log's top bytes (found in C); a
+        waiting record without them is probed byte by byte, each position once while it waits
+        (those that wait for bytes themselves are judged again)."""
+        pat = self._time_pattern()
+        waiting = end is None
+        if waiting and self._waiting != self._base + start:
+            self._probed = self._base + start + 1
+        lo = max(start + 1, self._probed - self._base) if waiting else start + 1
+        last = len(buf) - MIN_RECORD_SIZE if end is None else end - 1
+        if pat is None and not waiting:
+            return False
+        first_open: int | None = None
+        q = lo if pat is None else buf.find(pat, lo + 8, last + 10) - 8
+        while lo <= q <= last:
+            try:
+                n = self.check(buf, q)
+            except BadFrame:
+                n = -1
+            if n > 0:
+                return True
+            if n == 0 and first_open is None:
+                first_open = q
+            q = q + 1 if pat is None else buf.find(pat, q + 9, last + 10) - 8
+        if not waiting and first_open is not None:
+            return None  # complete, but a record starting inside it still waits: wait too
+        if waiting:
+            self._probed = self._base + (
+                first_open if first_open is not None else max(last, start) + 1
+            )
+        return False
 
     def _scan(self, eof: bool) -> list[Frame]:
         buf = self._buf
@@ -314,12 +364,32 @@ class V4LogFramer(Framer):
                 if error is not None:
                     break
                 continue
+            inner: bool | None = False
+            if length > 0 or not eof:
+                inner = self._inner_record(buf, i, i + length if length else None)
+                if inner is None and eof:
+                    inner = False
+            if inner is None:
+                length = 0
+            elif inner:
+                self.stats.skipped_bytes += 1
+                if not self._resync:
+                    self._resync = True
+                    error = self._bad(i, "inner_frame: a complete record starts inside this one")
+                self._waiting = None
+                i += 1
+                if error is not None:
+                    break
+                continue
             if length == 0:
+                self._waiting = self._base + i
                 break
             out.append(Frame(bytes(buf[i : i + length]), pos))
             self.stats.frames += 1
             self._resync = False
             i += length
+        if self._waiting is not None and self._waiting != self._base + i:
+            self._waiting = None
         del buf[:i]
         self._base += i
         if error is not None:

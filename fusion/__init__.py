@@ -1,5 +1,6 @@
-"""Navigation fusion: INS + DVL (+ pressure depth) dead reckoning, time alignment, frames and
-lever arms. See ``docs/fusion.md``.
+"""Navigation fusion: attitude (INS, AHRS, DVL compass) + DVL (+ pressure depth, position
+fixes) dead reckoning with learned DVL noise, time alignment, frames, lever arms, diagnostics and
+DVL calibration. See ``docs/fusion.md``.
 
 Algorithms only: no transports, no Zenoh, no Rerun. The same :class:`NavFilter` serves the bus
 stage (online, ``auvgw.stages.fusion``) and :func:`run_filter` (offline, recordings or arrays);
@@ -8,6 +9,7 @@ device clocks onto the host clock.
 """
 
 from auvgw.fusion.config import DvlMount, FusionConfig, InitialState
+from auvgw.fusion.diagnostics import FusionDiagnostics
 from auvgw.fusion.ekf import STATE_NAMES, DeadReckoningEKF
 from auvgw.fusion.navfilter import FusionStats, NavFilter
 from auvgw.fusion.odometry import MotionIncrement, Odometry
@@ -20,15 +22,17 @@ from auvgw.fusion.offline import (
     run_filter,
     run_filter_arrays,
 )
-from auvgw.fusion.samples import DepthSample, DvlSample, InsSample
+from auvgw.fusion.samples import AttitudeSample, DepthSample, DvlSample, InsSample, PositionFix
 
 __all__ = [
     "STATE_NAMES",
+    "AttitudeSample",
     "DeadReckoningEKF",
     "DepthSample",
     "DvlMount",
     "DvlSample",
     "FusionConfig",
+    "FusionDiagnostics",
     "FusionStats",
     "InitialState",
     "InsSample",
@@ -36,6 +40,7 @@ __all__ = [
     "NavFilter",
     "Odometry",
     "OdometryArrays",
+    "PositionFix",
     "depth_from_arrays",
     "dvl_from_arrays",
     "ins_from_arrays",

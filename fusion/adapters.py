@@ -50,19 +50,26 @@ import numpy as np
 
 from auvgw.drivers import pd0
 from auvgw.drivers.spec import WIRE_TYPES
+from auvgw.fusion.frames import beam_matrix
 from auvgw.fusion.samples import DvlSample, InsSample
 
 __all__ = [
+    "ATTITUDE_TYPES",
     "INS_TYPES",
     "PD0_TYPES",
+    "PD6_VELOCITY_TYPES",
     "RDI_DOWN_BEAM3_FORWARD_DEG",
+    "VELOCITY_TYPES",
     "AdapterError",
     "AdapterStats",
     "ClockStats",
     "DeviceClock",
     "MessageAdapter",
+    "attitude_from_pd0",
+    "attitude_from_pd6",
     "beam_matrix",
     "dvl_from_pd0",
+    "dvl_from_pd6",
     "ins_from_hn100",
     "ins_time_wrap",
     "ins_usable",
@@ -73,6 +80,13 @@ __all__ = [
 INS_TYPES = frozenset({"Hn100Nav", "HN100_Sample"})
 #: message type names of DVL messages this module adapts
 PD0_TYPES = frozenset({"pd0.Ensemble"})
+#: PD6 bottom-track velocity sentences -> DvlSample frame
+PD6_VELOCITY_TYPES = {"pd6.BI": "instrument", "pd6.BS": "body", "pd6.BE": "earth"}
+#: every message type that can be an attitude source (INS; a DVL's compass: PD0 variable
+#: leader, PD6 ``:SA``)
+ATTITUDE_TYPES = INS_TYPES | PD0_TYPES | {"pd6.SA"}
+#: every message type that can be a velocity source
+VELOCITY_TYPES = PD0_TYPES | frozenset(PD6_VELOCITY_TYPES)
 
 #: ``DvlMount.rotation_deg`` (roll, pitch, yaw) of RDI instrument axes (X starboard, Y forward,
 #: Z up) for a down-facing DVL with beam 3 forward: ``Rz(90) Ry(0) Rx(180)`` maps (X, Y, Z) to
@@ -174,17 +188,6 @@ def janus_angle(fixed: pd0.FixedLeader) -> float:
             "the block has no beam-angle byte; beam coordinates cannot be converted"
         )
     return math.radians(_BEAM_ANGLES_DEG[code])
-
-
-def beam_matrix(angle: float, convex: bool = True) -> np.ndarray:
-    """4 x 3 outward unit vectors of beams 1-4 in RDI instrument axes (X beam 1 -> 2, Y beam
-    4 -> 3, Z toward the face): a closing speed along beam i is ``row_i . v_instrument``.
-    ``convex``: beam 1 points to -X, beam 3 to +Y (concave: crossed)."""
-    s, c = math.sin(angle), math.cos(angle)
-    k = 1.0 if convex else -1.0
-    return np.array(
-        [[-k * s, 0.0, -c], [k * s, 0.0, -c], [0.0, k * s, -c], [0.0, -k * s, -c]]
-    )
 
 
 def _rot_body_to_level(heading: float, pitch: float, roll: float) -> np.ndarray:
@@ -293,6 +296,45 @@ def dvl_from_pd0(ens: pd0.Ensemble, t: float | None = None, high_res: bool = Tru
         altitude=_altitude(ens),
         depth=depth,
     )
+
+
+def attitude_from_pd0(ens: pd0.Ensemble, t: float) -> InsSample | None:
+    """The DVL's own compass and tilts (PD0 variable leader, rad) as an attitude sample at
+    ``t`` (no rates); None without a variable leader."""
+    var = ens.variable_leader
+    if var is None:
+        return None
+    return InsSample(t=float(t), roll=float(var.roll), pitch=float(var.pitch),
+                     heading=float(var.heading))
+
+
+def attitude_from_pd6(msg: Any, t: float) -> InsSample:
+    """A PD6 ``:SA`` sentence (pitch, roll, heading in rad) as an attitude sample at ``t``."""
+    return InsSample(t=float(t), roll=float(msg.roll), pitch=float(msg.pitch),
+                     heading=float(msg.heading))
+
+
+def dvl_from_pd6(msg: Any, t: float) -> DvlSample:
+    """A PD6 bottom-track velocity sentence as a DvlSample at ``t`` (PD6 carries no per-sentence
+    device time: ``t`` is the receive time). ``:BI`` instrument X, Y, Z (transducer movement, as
+    the PD0 instrument frame); ``:BS`` ship (transverse = starboard, longitudinal = forward,
+    normal = up) -> body (forward, starboard, down), taken as not levelled; ``:BE`` (east, north,
+    up) -> NED, ``"earth"``. Status ``V`` or a missing component (NaN) means no bottom lock."""
+    name = str(getattr(msg, "TYPE", ""))
+    frame = PD6_VELOCITY_TYPES.get(name)
+    if frame is None:
+        raise AdapterError(f"{name or type(msg).__name__}: not a PD6 bottom-track velocity")
+    if frame == "instrument":
+        v = (msg.x, msg.y, msg.z)
+    elif frame == "body":
+        v = (msg.longitudinal, msg.transverse, -msg.normal)
+    else:
+        v = (msg.north, msg.east, -msg.up)
+    vel = tuple(float(c) for c in v)
+    lock = msg.status == "A" and all(math.isfinite(c) for c in vel)
+    if not lock:
+        vel = (math.nan, math.nan, math.nan)
+    return DvlSample(t=float(t), velocity=vel, bottom_lock=lock, frame=frame)  # type: ignore[arg-type]
 
 
 # -- clocks --------------------------------------------------------------------------------------
@@ -409,24 +451,29 @@ class AdapterStats:
 class MessageAdapter:
     """Decoded messages of named devices -> samples on the common clock (host receive time, s).
 
-    Roles: ``ins_device`` / ``dvl_device`` name the devices to use; None means the first
-    device seen sending that kind of message (an HN-100 on serial AND CAN is one sensor: only
-    one INS and one DVL feed the filter, the others are counted as ignored). Every device has its
-    own :class:`DeviceClock` (``latency_s[device]`` its fixed delay, ``clock`` keyword arguments
-    for all). ``require_aligned``: drop INS solutions the INS flags as not aligned or in error.
+    Sources are named, never guessed: ``ins_device`` (the attitude source, ``[fusion] attitude``)
+    and ``dvl_device`` (the velocity source, ``velocity``) are gateway device names, by default
+    ``"ins"`` and ``"dvl"``. Whatever order messages arrive in, only the named devices feed the
+    filter (an HN-100 on serial AND CAN, or two INS, is one source: the other is counted as
+    ignored), so live, replay and offline runs choose the same ones. The attitude source may be
+    an INS (HN-100 serial or CAN) or a DVL's compass (PD0 variable leader, PD6 ``:SA``); the
+    velocity source a PD0 or PD6 DVL. Every device has its own :class:`DeviceClock`
+    (``latency_s[device]`` its fixed delay, ``clock`` keyword arguments for all); PD6 sentences
+    carry no device time, so theirs is the receive time minus the latency.
+    ``require_aligned``: drop INS solutions the INS flags as not aligned or in error.
     """
 
     def __init__(
         self,
-        ins_device: str | None = None,
-        dvl_device: str | None = None,
+        ins_device: str | None = "ins",
+        dvl_device: str | None = "dvl",
         latency_s: Mapping[str, float] | None = None,
         clock: Mapping[str, Any] | None = None,
         require_aligned: bool = True,
         high_res: bool = True,
     ) -> None:
-        self.ins_device = ins_device
-        self.dvl_device = dvl_device
+        self.ins_device = ins_device or "ins"
+        self.dvl_device = dvl_device or "dvl"
         self.latency_s = dict(latency_s or {})
         self.clock_args = dict(clock or {})
         self.require_aligned = require_aligned
@@ -434,19 +481,19 @@ class MessageAdapter:
         self.clocks: dict[str, DeviceClock] = {}
         self.stats = AdapterStats()
 
-    def role(self, device: str, msg: Any) -> str | None:
-        """``"ins"``, ``"dvl"`` or None (ignored) for a message of ``device``; binds a role to
-        the first device seen when it is not configured."""
+    def roles(self, device: str, msg: Any) -> tuple[bool, bool]:
+        """``(attitude, velocity)``: what a message of ``device`` gives the filter."""
         name = str(getattr(msg, "TYPE", type(msg).__name__))
-        if name in INS_TYPES:
-            if self.ins_device is None:
-                self.ins_device = device
-            return "ins" if device == self.ins_device else None
-        if name in PD0_TYPES:
-            if self.dvl_device is None:
-                self.dvl_device = device
-            return "dvl" if device == self.dvl_device else None
-        return None
+        return (
+            device == self.ins_device and name in ATTITUDE_TYPES,
+            device == self.dvl_device and name in VELOCITY_TYPES,
+        )
+
+    def role(self, device: str, msg: Any) -> str | None:
+        """``"ins"``, ``"dvl"`` or None (ignored) for a message of ``device`` (attitude first
+        when a device is both)."""
+        att, vel = self.roles(device, msg)
+        return "ins" if att else "dvl" if vel else None
 
     def _clock(self, device: str, msg_type: type, role: str) -> DeviceClock:
         c = self.clocks.get(device)
@@ -460,26 +507,55 @@ class MessageAdapter:
         return c
 
     def adapt(self, device: str, t_recv_s: float, msg: Any) -> InsSample | DvlSample | None:
-        """The sample of one decoded message received at ``t_recv_s`` (s), or None when it is
+        """The (first) sample of one decoded message received at ``t_recv_s`` (s), or None
+        when it is ignored or unusable (counted); see :meth:`adapt_all`."""
+        out = self.adapt_all(device, t_recv_s, msg)
+        return out[0] if out else None
+
+    def adapt_all(
+        self, device: str, t_recv_s: float, msg: Any
+    ) -> list[InsSample | DvlSample]:
+        """The samples of one decoded message received at ``t_recv_s`` (s): attitude and/or
+        velocity (a PD0 ensemble of a DVL that is both sources gives both); empty when it is
         ignored or unusable (counted)."""
-        role = self.role(device, msg)
-        if role is None:
+        att, vel = self.roles(device, msg)
+        if not (att or vel):
             self.stats.ignored += 1
-            return None
+            return []
+        name = str(getattr(msg, "TYPE", type(msg).__name__))
+        out: list[InsSample | DvlSample] = []
         try:
-            if role == "ins":
+            if name in INS_TYPES:
                 if self.require_aligned and not ins_usable(msg):
                     self.stats.ins_not_aligned += 1
-                    return None
+                    return []
                 s = ins_from_hn100(msg)
-                t = self._clock(device, type(msg), role).to_common(s.t, t_recv_s)
+                t = self._clock(device, type(msg), "ins").to_common(s.t, t_recv_s)
                 self.stats.ins += 1
-                return s._replace(t=t)
-            d = dvl_from_pd0(msg, high_res=self.high_res)
-            t = self._clock(device, type(msg), role).to_common(d.t, t_recv_s)
+                return [s._replace(t=t)]
+            if name in PD0_TYPES:
+                d = dvl_from_pd0(msg, high_res=self.high_res)
+                role = "ins" if att else "dvl"
+                t = self._clock(device, type(msg), role).to_common(d.t, t_recv_s)
+                if att:
+                    a = attitude_from_pd0(msg, t)
+                    if a is not None:
+                        self.stats.ins += 1
+                        out.append(a)
+                if vel:
+                    self.stats.dvl += 1
+                    out.append(d._replace(t=t))
+                return out
+            # PD6: no device time in the sentence
+            t = self._clock(device, type(msg), "ins" if att else "dvl").to_common(
+                t_recv_s, t_recv_s
+            )
+            if att:
+                self.stats.ins += 1
+                return [attitude_from_pd6(msg, t)]
             self.stats.dvl += 1
-            return d._replace(t=t)
+            return [dvl_from_pd6(msg, t)]
         except AdapterError as exc:
             self.stats.errors += 1
             self.stats.last_error = f"{device}: {exc}"
-            return None
+            return []

@@ -22,14 +22,14 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 
 from auvgw.fusion.frames import wrap_angle
-from auvgw.fusion.samples import DepthSample, DvlSample, InsSample
+from auvgw.fusion.samples import DepthSample, DvlSample, InsSample, PositionFix
 
 __all__ = ["BufferStats", "ReorderBuffer", "interp_angle", "interpolate_ins"]
 
-AidingSample = DvlSample | DepthSample
+AidingSample = DvlSample | DepthSample | PositionFix
 
 #: order of aiding kinds that share one time stamp (deterministic whatever the arrival order)
-_KIND_RANK = {DvlSample: 0, DepthSample: 1}
+_KIND_RANK = {DvlSample: 0, DepthSample: 1, PositionFix: 2}
 
 
 def interp_angle(a0: float, a1: float, alpha: float) -> float:

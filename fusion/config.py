@@ -27,11 +27,17 @@ class DvlMount(_Model):
     ``lever_arm_m``: transducer centre relative to the vehicle reference point (the INS), body
     axes (x forward, y starboard, z down), metres. ``rotation_deg``: (roll, pitch, yaw) of the
     instrument axes relative to body axes, ZYX order, degrees; a vector in instrument axes maps
-    to body axes as ``Rz(yaw) Ry(pitch) Rx(roll) v``.
+    to body axes as ``Rz(yaw) Ry(pitch) Rx(roll) v``. ``scale_factor``: the DVL reports
+    ``scale_factor`` times the true velocity (1.01 = reads 1 % fast; the filter divides by it;
+    ``auvgw fusion calibrate`` estimates it with the mounting yaw). ``beam_angle_deg`` and
+    ``beam_convex``: Janus geometry for velocities given in beam coordinates.
     """
 
     lever_arm_m: Vec3 = (0.0, 0.0, 0.0)
     rotation_deg: Vec3 = (0.0, 0.0, 0.0)
+    scale_factor: float = Field(1.0, gt=0.5, lt=1.5)
+    beam_angle_deg: float = Field(30.0, gt=0, lt=90)
+    beam_convex: bool = True
 
 
 class InitialState(_Model):
@@ -52,8 +58,37 @@ class FusionConfig(_Model):
     )
     initial: InitialState = InitialState()
 
-    # measurement noise
-    dvl_velocity_sigma_mps: float = Field(0.002, gt=0, description="per axis, 1-sigma, m/s")
+    # attitude source calibration (added to the source's heading; true = magnetic + declination)
+    heading_offset_deg: float = Field(
+        0.0, ge=-180, le=180, description="added to the attitude source's heading, deg"
+    )
+    magnetic_declination_deg: float = Field(
+        0.0, ge=-180, le=180, description="true north = magnetic heading + declination, deg"
+    )
+
+    # measurement noise. DVL as a sensor spec: per-axis sigma = sqrt(floor^2 + (pct |v|)^2);
+    # the defaults are safe for a cheap DVL, and the noise is adapted online (VB, below)
+    dvl_velocity_sigma_mps: float = Field(
+        0.05, gt=0, description="DVL noise floor per axis, 1-sigma, m/s"
+    )
+    dvl_velocity_percent: float = Field(
+        1.0, ge=0, description="DVL noise proportional to speed, % of |v| (1-sigma)"
+    )
+    dvl_noise_adaptive: bool = Field(
+        True,
+        description="learn the DVL noise online (variational Bayes, Sarkka & Nummenmaa 2009); "
+        "the spec above is its prior",
+    )
+    dvl_noise_forgetting: float = Field(
+        0.99, gt=0, le=1, description="VB forgetting factor rho per DVL fix (window 1/(1-rho))"
+    )
+    dvl_noise_prior_dof: float = Field(
+        2.0, gt=0, description="VB prior strength: inverse-gamma shape alpha0 of the spec noise"
+    )
+    dvl_noise_iterations: int = Field(3, ge=1, description="VB fixed-point iterations per fix")
+    position_gate_probability: float | None = Field(
+        0.9999, gt=0, lt=1, description="chi-square gate on position fixes; None disables"
+    )
     depth_sigma_m: float = Field(0.02, gt=0, description="pressure depth 1-sigma, m")
 
     # INS attitude error processes (Gauss-Markov: tau 0 = white, inf = constant bias)
@@ -86,6 +121,9 @@ class FusionConfig(_Model):
     dvl_gate_max_rejections: int = Field(
         5, ge=1, description="after this many consecutive rejections the next fix is accepted"
     )
+    diagnostics_window_s: float = Field(
+        60.0, gt=0, description="window of the rejection share and NIS consistency warnings, s"
+    )
 
     # time alignment
     max_latency_s: float = Field(
@@ -96,6 +134,15 @@ class FusionConfig(_Model):
     )
     max_pending: int = Field(4096, ge=1, description="bound of the aiding-sample buffer")
     max_ins_gap_s: float = Field(0.5, gt=0, description="longer INS intervals are flagged")
+
+    def dvl_sigma(self, speed_mps: float) -> float:
+        """Spec DVL noise per axis (1-sigma, m/s) at ``speed_mps``."""
+        pct = 0.01 * self.dvl_velocity_percent * speed_mps
+        return math.sqrt(self.dvl_velocity_sigma_mps**2 + pct * pct)
+
+    def heading_correction(self) -> float:
+        """Added to the attitude source's heading: offset + declination, rad."""
+        return math.radians(self.heading_offset_deg + self.magnetic_declination_deg)
 
     def gm(self, which: str) -> tuple[float, float]:
         """(sigma rad, tau s) of the ``"heading"`` or ``"pitch"`` error process."""

@@ -131,9 +131,14 @@ class DeadReckoningEKF:
         self._H_instr[:, IU : IW + 1] = self._Mt
         self._H_body = np.zeros((3, N_STATE))
         self._H_body[:, IU : IW + 1] = np.eye(3)
-        self._r_dvl = config.dvl_velocity_sigma_mps**2
+        # VB inverse-gamma parameters of the DVL noise per measurement axis (set at the first
+        # fix from the spec noise at that time)
+        self._vb_a: np.ndarray = np.zeros(3)
+        self._vb_b: np.ndarray | None = None
         p = config.dvl_gate_probability
         self._gate = {k: (float(chi2_ppf(p, k)) if p is not None else math.inf) for k in (1, 2, 3)}
+        pp = config.position_gate_probability
+        self._pos_gate = float(chi2_ppf(pp, 2)) if pp is not None else math.inf
         self._g = config.gravity_mps2
         self._eye = np.eye(N_STATE)
         # Work buffers of propagate. One product A Pa A^T gives the propagated covariance
@@ -334,7 +339,7 @@ class DeadReckoningEKF:
         self.P = 0.5 * (P + P.T)
 
     def dvl_innovation(
-        self, velocity: tuple[float, float, float], frame: DvlFrame, rates: tuple[float, ...]
+        self, velocity: tuple[float, ...], frame: DvlFrame, rates: tuple[float, ...]
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(y, H, mask)`` of a DVL fix: innovation and Jacobian of its finite components."""
         z = np.array(velocity, dtype=float)
@@ -347,26 +352,101 @@ class DeadReckoningEKF:
         pred = H[:, _VEL] @ at_dvl
         return (z - pred)[mask], H[mask], mask
 
+    def dvl_noise_sigma(self) -> tuple[float, float, float]:
+        """Current DVL noise per measurement axis, 1-sigma m/s: the VB estimate ``sqrt(beta /
+        alpha)`` when adapting (NaN before the first fix), else the configured spec floor."""
+        if self._vb_b is None:
+            if self.config.dvl_noise_adaptive:
+                return (math.nan,) * 3
+            s = self.config.dvl_velocity_sigma_mps
+            return (s, s, s)
+        v = np.sqrt(self._vb_b / self._vb_a)
+        return (float(v[0]), float(v[1]), float(v[2]))
+
     def update_dvl(
         self,
-        velocity: tuple[float, float, float],
+        velocity: tuple[float, ...],
         frame: DvlFrame,
         rates: tuple[float, ...],
         force: bool = False,
-    ) -> tuple[bool, float]:
+        sigma: float | None = None,
+    ) -> tuple[bool, float, np.ndarray]:
         """DVL velocity update at the filter time, with the body ``rates`` (rad/s) at that time.
 
-        Returns ``(accepted, NIS)``; a fix whose normalised innovation squared exceeds the gate
-        is rejected unless ``force``. A fix without any finite component returns (False, nan).
+        ``sigma``: the spec noise of this fix (1-sigma per axis, m/s; default the configured
+        floor). Not adapting, it is the measurement noise. Adapting (``dvl_noise_adaptive``), the
+        noise of each axis is an inverse-gamma ``IG(alpha, beta)`` (Sarkka & Nummenmaa 2009,
+        "Recursive noise adaptive Kalman filtering by variational Bayesian approximations"):
+        started at the spec with shape ``dvl_noise_prior_dof``, forgotten by ``rho`` per fix
+        (``alpha <- rho alpha``, ``beta <- rho beta``), then ``alpha += 1/2`` and the fixed
+        point ``R = diag(beta / alpha)`` -> Kalman update ``(m, P)`` -> ``beta = beta^- +
+        (z - H m)^2 / 2 + diag(H P H^T) / 2`` iterated ``dvl_noise_iterations`` times.
+
+        The chi-square gate is applied against the (adapted) noise before the update; a rejected
+        fix changes nothing (a spike does not inflate the learned noise) unless ``force``.
+        Returns ``(accepted, NIS, innovation / sqrt(diag S))`` (NaN for missing components); a
+        fix without any finite component returns ``(False, nan, nans)``.
         """
-        y, H, _ = self.dvl_innovation(velocity, frame, rates)
+        y, H, mask = self.dvl_innovation(velocity, frame, rates)
         k = len(y)
+        norm = np.full(3, math.nan)
         if k == 0:
-            return False, math.nan
-        R = self._r_dvl * np.eye(k)
-        S_inv = np.linalg.inv(H @ self.P @ H.T + R)
+            return False, math.nan, norm
+        cfg = self.config
+        if sigma is None:
+            sigma = cfg.dvl_velocity_sigma_mps
+        adaptive = cfg.dvl_noise_adaptive
+        if adaptive:
+            if self._vb_b is None:
+                self._vb_a = np.full(3, cfg.dvl_noise_prior_dof)
+                self._vb_b = self._vb_a * sigma * sigma
+            rho = cfg.dvl_noise_forgetting
+            a_pri = rho * self._vb_a
+            b_pri = rho * self._vb_b
+            r_diag = b_pri[mask] / a_pri[mask]
+        else:
+            r_diag = np.full(k, sigma * sigma)
+        P = self.P
+        HP = H @ P
+        HPH = HP @ H.T
+        S = HPH + np.diag(r_diag)
+        S_inv = np.linalg.inv(S)
         nis = float(y @ S_inv @ y)
+        norm[mask] = y / np.sqrt(np.diag(S))
+        if adaptive:
+            self._vb_a, self._vb_b = a_pri, b_pri  # the forgetting step happens at every fix
         if not force and nis > self._gate[k]:
+            return False, nis, norm
+        if adaptive:
+            a_post = a_pri.copy()
+            a_post[mask] += 0.5
+            b_post = b_pri.copy()
+            for _ in range(cfg.dvl_noise_iterations):
+                r_diag = b_post[mask] / a_post[mask]
+                S = HPH + np.diag(r_diag)
+                S_inv = np.linalg.inv(S)
+                res = y - HPH @ S_inv @ y  # z - H m with m = x + K y
+                HPmH = HPH - HPH @ S_inv @ HPH  # H (P - K S K^T) H^T
+                b_post[mask] = b_pri[mask] + 0.5 * res * res + 0.5 * np.diag(HPmH)
+            r_diag = b_post[mask] / a_post[mask]
+            S_inv = np.linalg.inv(HPH + np.diag(r_diag))
+            self._vb_a, self._vb_b = a_post, b_post
+        self._update(H, y, np.diag(r_diag), S_inv)
+        return True, nis, norm
+
+    def update_position(
+        self, north: float, east: float, sigma: float, force: bool = False
+    ) -> tuple[bool, float]:
+        """Horizontal position fix (NED m, 1-sigma ``sigma`` m per axis) of the reference
+        point, chi-square gated (``position_gate_probability``) unless ``force``; returns
+        ``(accepted, NIS)``."""
+        H = np.zeros((2, N_STATE))
+        H[0, IX] = H[1, IY] = 1.0
+        y = np.array([north - self._x[IX], east - self._x[IY]])
+        R = sigma * sigma * np.eye(2)
+        S_inv = np.linalg.inv(self.P[0:2, 0:2] + R)
+        nis = float(y @ S_inv @ y)
+        if not force and nis > self._pos_gate:
             return False, nis
         self._update(H, y, R, S_inv)
         return True, nis

@@ -24,6 +24,8 @@ from auvgw.geometry import (
 )
 
 __all__ = [
+    "beam_matrix",
+    "beam_to_instrument",
     "body_to_ned",
     "dcm_body_to_ned",
     "dvl_to_body_velocity",
@@ -79,3 +81,28 @@ def dvl_velocity_ned(sample: DvlSample, ins_at_t: InsSample, mount: DvlMount) ->
         )
     v_body = dvl_to_body_velocity(sample, ins_at_t.rates, mount)
     return body_to_ned(v_body, ins_at_t.roll, ins_at_t.pitch, ins_at_t.heading)
+
+
+def beam_matrix(angle: float, convex: bool = True) -> np.ndarray:
+    """4 x 3 outward unit vectors of beams 1-4 in RDI instrument axes (X beam 1 -> 2, Y beam
+    4 -> 3, Z toward the face): a closing speed along beam i is ``row_i . v_instrument``.
+    ``angle``: Janus angle from the vertical, rad. ``convex``: beam 1 points to -X, beam 3 to
+    +Y (concave: crossed)."""
+    s, c = math.sin(angle), math.cos(angle)
+    k = 1.0 if convex else -1.0
+    return np.array(
+        [[-k * s, 0.0, -c], [k * s, 0.0, -c], [0.0, k * s, -c], [0.0, -k * s, -c]]
+    )
+
+
+def beam_to_instrument(beams: Sequence[float], angle: float, convex: bool = True) -> np.ndarray:
+    """Instrument-axes velocity (m/s) from 3 or 4 beam closing speeds (NaN = bad beam) by least
+    squares with the Janus geometry; all NaN with fewer than 3 good beams."""
+    raw = np.asarray(beams, dtype=float)
+    good = np.isfinite(raw)
+    if raw.shape != (4,):
+        raise ValueError(f"beam velocities: expected 4 beams (NaN = bad), got {raw.shape}")
+    if int(good.sum()) < 3:
+        return np.full(3, math.nan)
+    B = beam_matrix(angle, convex)
+    return np.linalg.lstsq(B[good], raw[good], rcond=None)[0]

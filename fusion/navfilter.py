@@ -23,10 +23,11 @@ import numpy as np
 
 from auvgw.fusion.align import AidingSample, BufferStats, ReorderBuffer, interpolate_ins
 from auvgw.fusion.config import FusionConfig
+from auvgw.fusion.diagnostics import FixRecord, FusionDiagnostics
 from auvgw.fusion.ekf import DeadReckoningEKF
-from auvgw.fusion.frames import wrap_angle
+from auvgw.fusion.frames import beam_to_instrument, dcm_body_to_ned, wrap_angle
 from auvgw.fusion.odometry import MotionIncrement, Odometry
-from auvgw.fusion.samples import DepthSample, DvlSample, InsSample
+from auvgw.fusion.samples import DepthSample, DvlSample, InsSample, PositionFix
 
 __all__ = ["FusionStats", "NavFilter"]
 
@@ -43,6 +44,8 @@ class FusionStats:
     dvl_reacquired: int = 0  #: forced acceptances after repeated rejections
     dvl_no_lock: int = 0  #: fixes without bottom lock or without a valid component
     depth_updates: int = 0
+    position_updates: int = 0
+    position_rejected: int = 0  #: position fixes that failed their gate
 
 
 class NavFilter:
@@ -63,17 +66,20 @@ class NavFilter:
         self._last_fix_t = -math.inf
         self._last_depth_t = -math.inf
         self._rejections = 0
+        self._pos_rejections = 0
+        self._heading_corr = self.config.heading_correction()
+        self.diagnostics = FusionDiagnostics(self.config.diagnostics_window_s)
 
     @property
     def buffer_stats(self) -> BufferStats:
         return self.buffer.stats
 
     # ---- input --------------------------------------------------------------------------
-    def push(self, sample: InsSample | DvlSample | DepthSample) -> list[Odometry]:
+    def push(self, sample: InsSample | DvlSample | DepthSample | PositionFix) -> list[Odometry]:
         """Buffer any sample; return the outputs that became final."""
         if isinstance(sample, InsSample):
             return self.push_ins(sample)
-        if isinstance(sample, DvlSample | DepthSample):
+        if isinstance(sample, DvlSample | DepthSample | PositionFix):
             self.buffer.add_aiding(sample)
             return []
         raise TypeError(f"NavFilter cannot use a {type(sample).__name__}")
@@ -84,6 +90,8 @@ class NavFilter:
         if not sample.is_finite():
             self.stats.ins_bad += 1
             return []
+        if self._heading_corr:
+            sample = sample._replace(heading=wrap_angle(sample.heading + self._heading_corr))
         self.buffer.add_ins(sample)
         return self._drain(flush=False)
 
@@ -147,14 +155,23 @@ class NavFilter:
         assert ekf is not None
         cfg = self.config
         if isinstance(e, DvlSample):
-            has_v = e.bottom_lock and any(math.isfinite(c) for c in e.velocity)
+            vel, frame = self._dvl_velocity(e, ins)
+            has_v = e.bottom_lock and any(math.isfinite(c) for c in vel)
             self._lock = has_v
             if has_v:
                 force = self._rejections >= cfg.dvl_gate_max_rejections
                 if force:
                     ekf.reset_velocity_covariance(cfg.initial.velocity_sigma_mps)
                     self.stats.dvl_reacquired += 1
-                ok, _ = ekf.update_dvl(e.velocity, e.frame, ins.rates, force=force)
+                speed = math.sqrt(sum(c * c for c in ekf.velocity_body()))
+                sigma = e.fom if math.isfinite(e.fom) else cfg.dvl_sigma(speed)
+                ok, nis, norm = ekf.update_dvl(vel, frame, ins.rates, force=force, sigma=sigma)
+                self.diagnostics.add_fix(
+                    FixRecord(
+                        e.t, ok, force, nis, int(np.isfinite(norm).sum()), tuple(norm.tolist())
+                    )
+                )
+                self.diagnostics.noise_sigma = ekf.dvl_noise_sigma()
                 if ok:
                     self._last_fix_t = e.t
                     self._rejections = 0
@@ -168,6 +185,17 @@ class NavFilter:
                 ekf.update_depth(e.depth, cfg.depth_sigma_m, cfg.dvl.lever_arm_m, ins)
                 self._last_depth_t = e.t
                 self.stats.depth_updates += 1
+        elif isinstance(e, PositionFix):
+            if not (math.isfinite(e.north) and math.isfinite(e.east) and e.sigma_m > 0):
+                return
+            force = self._pos_rejections >= cfg.dvl_gate_max_rejections
+            ok, _ = ekf.update_position(e.north, e.east, e.sigma_m, force=force)
+            if ok:
+                self._pos_rejections = 0
+                self.stats.position_updates += 1
+            else:
+                self._pos_rejections += 1
+                self.stats.position_rejected += 1
         else:
             if not math.isfinite(e.depth):
                 return
@@ -175,6 +203,30 @@ class NavFilter:
             ekf.update_depth(e.depth, sigma, cfg.depth_lever_arm_m, ins)
             self._last_depth_t = e.t
             self.stats.depth_updates += 1
+
+    def _dvl_velocity(self, e: DvlSample, ins: InsSample) -> tuple[tuple[float, ...], str]:
+        """A fix's velocity in the axes the EKF takes ("instrument" or "body"), corrected for
+        the scale factor: beam speeds by least squares (Janus geometry of the mount), earth
+        (NED) velocities turned into body axes with the filter's attitude at the fix time."""
+        mount = self.config.dvl
+        k = 1.0 / mount.scale_factor
+        frame = e.frame
+        if frame == "beam":
+            if len(e.velocity) != 4:  # not a 4-beam record: no valid component (no lock)
+                return (math.nan, math.nan, math.nan), "instrument"
+            v = beam_to_instrument(
+                e.velocity, math.radians(mount.beam_angle_deg), mount.beam_convex
+            )
+            return tuple((k * v).tolist()), "instrument"
+        if frame == "earth":
+            ekf = self.ekf
+            assert ekf is not None
+            C = dcm_body_to_ned(ins.roll, ekf.pitch(ins), ekf.heading(ins))
+            v = C.T @ np.asarray(e.velocity[:3], dtype=float)
+            return tuple((k * v).tolist()), "body"
+        if k != 1.0:
+            return tuple(k * c for c in e.velocity[:3]), frame
+        return e.velocity, frame
 
     def _output(self, s: InsSample, inc_cov: np.ndarray | None, gap: bool) -> Odometry:
         ekf = self.ekf
@@ -214,6 +266,7 @@ class NavFilter:
             ins_gap=gap,
             increment=inc,
         )
+        self.diagnostics.add_output(s.t, odo.coasting)
         self.last = odo
         return odo
 

@@ -17,7 +17,7 @@ import numpy as np
 from auvgw.fusion.config import FusionConfig
 from auvgw.fusion.navfilter import FusionStats, NavFilter
 from auvgw.fusion.odometry import Odometry
-from auvgw.fusion.samples import DepthSample, DvlFrame, DvlSample, InsSample
+from auvgw.fusion.samples import DepthSample, DvlFrame, DvlSample, InsSample, PositionFix
 
 __all__ = [
     "OdometryArrays",
@@ -29,7 +29,7 @@ __all__ = [
     "run_filter_arrays",
 ]
 
-Sample = InsSample | DvlSample | DepthSample
+Sample = InsSample | DvlSample | DepthSample | PositionFix
 
 
 def ins_from_arrays(
@@ -103,7 +103,7 @@ def iter_filter(
     ins: Iterable[InsSample],
     dvl: Iterable[DvlSample] = (),
     config: FusionConfig | None = None,
-    depth: Iterable[DepthSample] = (),
+    depth: Iterable[DepthSample | PositionFix] = (),
     nav: NavFilter | None = None,
 ) -> Iterator[Odometry]:
     """Run a :class:`NavFilter` over recorded samples (merged in time order), yielding each
@@ -157,9 +157,13 @@ def run_filter_arrays(
     config: FusionConfig | None = None,
     depth: Sequence[DepthSample] = (),
     full_covariance: bool = False,
+    nav: NavFilter | None = None,
+    fixes: Sequence[PositionFix] = (),
 ) -> OdometryArrays:
-    """:func:`run_filter` returning columns; keeps the full 8 x 8 covariance only if asked."""
-    nav = NavFilter(config)
+    """:func:`run_filter` returning columns; keeps the full 8 x 8 covariance only if asked.
+    ``nav``: run this filter (e.g. to read its diagnostics afterwards) instead of a new one
+    built from ``config``; ``fixes``: position fixes (GNSS, USBL) merged with the depths."""
+    nav = nav if nav is not None else NavFilter(config)
     rows: list[tuple[float, ...]] = []
     inc: list[tuple[float, float, float, float]] = []
     inc_cov: list[np.ndarray] = []
@@ -179,7 +183,9 @@ def run_filter_arrays(
                 covs.append(block)
             pending.clear()
 
-    for o in iter_filter(ins, dvl, config, depth, nav=nav):
+    aiding = heapq.merge(sorted(depth, key=lambda x: x.t), sorted(fixes, key=lambda x: x.t),
+                         key=lambda x: x.t)
+    for o in iter_filter(ins, dvl, config, aiding, nav=nav):
         vn, vb = o.velocity_ned, o.velocity_body
         rows.append(
             (o.t, o.x, o.y, o.z, o.roll, o.pitch, o.heading, vn[0], vn[1], vn[2], vb[0], vb[1],

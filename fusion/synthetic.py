@@ -22,7 +22,7 @@ from scipy.signal import lfilter
 
 from auvgw.fusion.config import DvlMount
 from auvgw.fusion.frames import mount_matrix, wrap_angles
-from auvgw.fusion.samples import DepthSample, DvlFrame, DvlSample, InsSample
+from auvgw.fusion.samples import DepthSample, DvlFrame, DvlSample, InsSample, PositionFix
 
 __all__ = ["SensorNoise", "SimulatedSensors", "Trajectory", "lawnmower", "simulate_sensors"]
 
@@ -140,6 +140,17 @@ class SensorNoise:
     accel_sigma_mps2: float = 0.005
     dvl_sigma_mps: float = 0.002
     depth_sigma_m: float = 0.02
+    #: share of DVL fixes that are spikes: a vector of random direction and a magnitude uniform
+    #: in ``dvl_spike_mps`` (m/s) added to the fix (a low-cost DVL's wild pings)
+    dvl_spike_p: float = 0.0
+    dvl_spike_mps: tuple[float, float] = (0.8, 1.5)
+    #: the DVL reads this multiple of the true velocity
+    dvl_scale_factor: float = 1.0
+    #: heading-dependent compass deviation, deg: ``a1 sin(psi) + b1 cos(psi) + a2 sin(2 psi) +
+    #: b2 cos(2 psi)`` added to the heading (a magnetic compass near iron)
+    heading_deviation_deg: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+    #: position fixes (GNSS at the surface), 1-sigma per axis, m
+    fix_sigma_m: float = 2.0
 
 
 @dataclass(frozen=True)
@@ -151,6 +162,8 @@ class SimulatedSensors:
     depth: list[DepthSample]
     truth: Trajectory
     ins_heading_error: np.ndarray = field(repr=False)
+    fixes: list[PositionFix] = field(default_factory=list)
+    spikes: np.ndarray = field(default_factory=lambda: np.zeros(0, bool), repr=False)
 
 
 def _gauss_markov(
@@ -189,6 +202,7 @@ def simulate_sensors(
     depth_lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.0),
     bottom_lock_loss: Sequence[tuple[float, float]] = (),
     gravity_mps2: float = 9.80665,
+    fix_times: Sequence[float] = (),
 ) -> SimulatedSensors:
     """INS samples at the truth times, DVL fixes every ``1/dvl_rate_hz`` s from
     ``dvl_offset_s`` (off the INS grid on purpose), pressure depths at ``depth_rate_hz``.
@@ -196,7 +210,10 @@ def simulate_sensors(
     DVL fixes are ``M^T (v + omega x r) + noise`` in instrument axes (or body axes); during
     ``bottom_lock_loss`` intervals ``[t0, t1)`` they carry no lock and NaN velocity. ``noise``
     defaults to :class:`SensorNoise` (HN-100 / Pathfinder), ``mount`` to a DVL at the INS with
-    its axes along the body axes.
+    its axes along the body axes. ``fix_times`` (s): horizontal position fixes of the truth
+    with ``noise.fix_sigma_m`` (GNSS at the surface). The spikes, scale factor and compass
+    deviation of ``noise`` are drawn after everything else, so switching them on leaves the
+    other draws unchanged.
     """
     noise = noise or SensorNoise()
     mount = mount or DvlMount()
@@ -216,7 +233,10 @@ def simulate_sensors(
     grav_body = gravity_mps2 * np.stack([-sp, sr * cp, cr * cp], axis=1)
     f = dv + np.cross(rates, v_body) - grav_body
     f = f + noise.accel_sigma_mps2 * rng.standard_normal(f.shape)
-    ins_heading = wrap_angles(heading + e_h)
+    a1, b1, a2, b2 = (math.radians(c) for c in noise.heading_deviation_deg)
+    deviation = a1 * np.sin(heading) + b1 * np.cos(heading)
+    deviation = deviation + a2 * np.sin(2 * heading) + b2 * np.cos(2 * heading)
+    ins_heading = wrap_angles(heading + e_h + deviation)
     ins = list(
         map(
             InsSample,
@@ -236,7 +256,7 @@ def simulate_sensors(
     vd = vd + np.cross(wd, np.asarray(mount.lever_arm_m, float))
     if dvl_frame == "instrument":
         vd = vd @ mount_matrix(mount)  # rows: M^T v
-    vd = vd + noise.dvl_sigma_mps * rng.standard_normal(vd.shape)
+    vd = noise.dvl_scale_factor * vd + noise.dvl_sigma_mps * rng.standard_normal(vd.shape)
     lock = np.ones(len(td), bool)
     for a, b in bottom_lock_loss:
         lock &= ~((td >= a) & (td < b))
@@ -253,4 +273,28 @@ def simulate_sensors(
     arm_z = -sp * rx + cp * sr * ry + cp * cr * rz
     zp = _interp(t, tp, truth.z + arm_z) + noise.depth_sigma_m * rng.standard_normal(len(tp))
     depth = [DepthSample(t=a, depth=d) for a, d in zip(tp.tolist(), zp.tolist(), strict=True)]
-    return SimulatedSensors(ins=ins, dvl=dvl, depth=depth, truth=truth, ins_heading_error=e_h)
+
+    tf = np.asarray(fix_times, dtype=float)
+    fn = _interp(t, tf, truth.x) + noise.fix_sigma_m * rng.standard_normal(len(tf))
+    fe = _interp(t, tf, truth.y) + noise.fix_sigma_m * rng.standard_normal(len(tf))
+    fixes = [
+        PositionFix(a, n, e, noise.fix_sigma_m)
+        for a, n, e in zip(tf.tolist(), fn.tolist(), fe.tolist(), strict=True)
+    ]
+    spikes = np.zeros(len(dvl), bool)
+    if noise.dvl_spike_p > 0 and dvl:
+        spikes = rng.random(len(dvl)) < noise.dvl_spike_p
+        k = int(spikes.sum())
+        direction = rng.standard_normal((k, 3))
+        direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+        size = rng.uniform(*noise.dvl_spike_mps, size=k)
+        for i, dv in zip(np.flatnonzero(spikes).tolist(), (direction * size[:, None]).tolist(),
+                         strict=True):
+            d = dvl[i]
+            if d.bottom_lock:
+                dvl[i] = d._replace(velocity=tuple(a + b for a, b in zip(d.velocity, dv,
+                                                                           strict=True)))
+    return SimulatedSensors(
+        ins=ins, dvl=dvl, depth=depth, truth=truth, ins_heading_error=e_h, fixes=fixes,
+        spikes=spikes,
+    )

@@ -139,6 +139,11 @@ DEFAULT_NOISE: dict[str, float] = {
 #: misalignment in deg (see the module docstring)
 INSTRUMENT_ERROR: dict[str, float] = {"scale_factor_pct": 0.0, "misalignment_deg": 0.0}
 
+#: velocity spikes of a low-cost DVL (off by default): probability per ping and the range of the
+#: spike's magnitude (m/s, random direction in instrument axes), drawn from their own stream so
+#: switching them on leaves every other draw unchanged
+SPIKES: dict[str, float] = {"spike_p": 0.0, "spike_min_mps": 0.8, "spike_max_mps": 1.5}
+
 _FRAMES = {f.name.lower(): f for f in pd0.CoordinateFrame}
 #: EZ sensor source / sensors available bits of the Pathfinder (8 bits: EC, ED, EH, EP, ER, ES,
 #: ET, EU from bit 7 down)
@@ -232,8 +237,14 @@ class DvlEmulator(Emulator):
         self, ctx: SimContext, settings: DeviceSettings | None = None, name: str | None = None
     ) -> None:
         super().__init__(ctx, settings, name)
-        self.check_noise_keys([*DEFAULT_NOISE, *INSTRUMENT_ERROR])
+        self.check_noise_keys([*DEFAULT_NOISE, *INSTRUMENT_ERROR, *SPIKES])
         self.sigma = {k: self.noise(k, v) for k, v in DEFAULT_NOISE.items()}
+        self.spikes = {k: self.noise(k, v) for k, v in SPIKES.items()}
+        if not 0.0 <= self.spikes["spike_p"] <= 1.0:
+            raise ValueError(
+                f"devices.dvl.noise.spike_p: a probability in [0, 1], got {self.spikes['spike_p']}"
+            )
+        self._spike_rng = self.ctx.rng(self.name + "/spikes")
         sf = self.noise("scale_factor_pct", 0.0)
         mis = self.noise("misalignment_deg", 0.0)
         if not -50.0 < sf < 50.0:
@@ -396,6 +407,11 @@ class DvlEmulator(Emulator):
             through_water = self.instrument_error @ through_water
         velocity = _NAN4.copy()
         if lock:
+            sp = self.spikes
+            if sp["spike_p"] > 0.0 and self._spike_rng.random() < sp["spike_p"]:
+                d = self._spike_rng.standard_normal(3)
+                size = self._spike_rng.uniform(sp["spike_min_mps"], sp["spike_max_mps"])
+                v_inst = v_inst + size * d / np.linalg.norm(d)
             velocity = self._solution(v_inst, heading, pitch, roll, g[9:13] * sig["velocity_mps"])
             if self.frame is pd0.CoordinateFrame.BEAM:
                 velocity[~detected] = math.nan

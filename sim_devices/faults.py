@@ -247,6 +247,9 @@ class FaultInjector:
         frame would be lost or a bogus one accepted."""
         assert self._framer_factory is not None
         f = self._framer_factory()
+        # judged as a framer that waits for every claimed length: what it rejects, a framer
+        # that also abandons waiting candidates rejects too, for any chunking of the stream
+        f.abandon_on_inner = False
         frames = f.feed(data)
         if good is None:
             frames += f.finish()

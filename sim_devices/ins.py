@@ -84,6 +84,15 @@ HEADING_ERROR: dict[str, float] = {
     "heading_offset_deg": 0.0,
 }
 
+#: heading-dependent compass deviation of a magnetic AHRS (off by default), deg:
+#: ``a1 sin(psi) + b1 cos(psi) + a2 sin(2 psi) + b2 cos(2 psi)`` of the true heading psi
+DEVIATION: dict[str, float] = {
+    "deviation_a1_deg": 0.0,
+    "deviation_b1_deg": 0.0,
+    "deviation_a2_deg": 0.0,
+    "deviation_b2_deg": 0.0,
+}
+
 #: the device clock field wraps (u32 of 100 us ticks in the shipped table)
 _TIME_TICKS = 10_000
 _TIME_WRAP = 1 << 32
@@ -156,7 +165,8 @@ class InsEmulator(SerialCanEmulator):
         self, ctx: SimContext, settings: DeviceSettings | None = None, name: str | None = None
     ) -> None:
         super().__init__(ctx, settings, name)
-        self.check_noise_keys([*DEFAULT_NOISE, *HEADING_ERROR])
+        self.check_noise_keys([*DEFAULT_NOISE, *HEADING_ERROR, *DEVIATION])
+        self.deviation = tuple(math.radians(self.noise(k, v)) for k, v in DEVIATION.items())
         self.sigma = {k: self.noise(k, v) for k, v in DEFAULT_NOISE.items()}
         d2r = math.pi / 180.0
         self.bias_sigma = self.noise("heading_bias_deg", 0.0) * d2r
@@ -202,6 +212,10 @@ class InsEmulator(SerialCanEmulator):
         """The INS output at vehicle time ``t`` (truth plus noise); advances ``seq``."""
         s = self.truth(t)
         err = self.heading_error(t)
+        if any(self.deviation):
+            a1, b1, a2, b2 = self.deviation
+            h = s.heading
+            err += a1 * math.sin(h) + b1 * math.cos(h) + a2 * math.sin(2 * h) + b2 * math.cos(2 * h)
         k = self.sigma_scale()
         g = self.rng.normal(0.0, 1.0, 15) * k
         sig = self.sigma

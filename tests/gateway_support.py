@@ -36,7 +36,7 @@ def endpoint(port: int) -> str:
     return f"tcp/127.0.0.1:{port}"
 
 
-def wait_until(pred, timeout: float = 20.0, interval: float = 0.05, what: str = "condition"):
+def wait_until(pred, timeout: float = 60.0, interval: float = 0.05, what: str = "condition"):
     """Poll ``pred`` until it returns a truthy value; fail with ``what`` after ``timeout`` s."""
     deadline = time.monotonic() + timeout
     while True:
@@ -234,3 +234,11 @@ def local_decoded(frames: list[bytes]) -> list[dict]:
 
 if __name__ == "__main__":  # pragma: no cover - manual use
     sys.exit("helpers only")
+
+
+def frame_counters(seqs: list[int]) -> list[int]:
+    """The per-device frame counters of raw sequence numbers (``session_id << 32 | n``), after
+    checking they all carry the same non-zero gateway session id."""
+    sessions = {s >> 32 for s in seqs}
+    assert len(sessions) <= 1 and 0 not in sessions, sessions
+    return [s & 0xFFFFFFFF for s in seqs]

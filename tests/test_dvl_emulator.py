@@ -497,7 +497,7 @@ class Reader:
             if data:
                 self.chunks.append(data)
 
-    def finish(self, quiet: float = 0.3, timeout: float = 10.0) -> bytes:
+    def finish(self, quiet: float = 1.0, timeout: float = 10.0) -> bytes:
         end = time.monotonic() + timeout
         n = -1
         while time.monotonic() < end and len(self.chunks) != n:

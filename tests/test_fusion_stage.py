@@ -142,15 +142,19 @@ def test_odometry_round_trips_through_json(data):
 
 def test_stage_keeps_the_keys_of_its_devices():
     keys = Keys("v")
-    any_dev = FusionStage(FusionStageConfig(vehicle="v"))
-    assert any_dev.subscription_key() == "auv/v/sensor/*/*"
-    for key in (
-        "auv/v/sensor/ins/ins",
-        "auv/v/sensor/x/ins",
-        "auv/v/sensor/d/ensemble",
-    ):
-        assert any_dev.wanted(key)
-    assert not any_dev.wanted(keys.sensor("mbes", "xyz88")) and not any_dev.wanted("auv/v/sensor")
+    default = FusionStage(FusionStageConfig(vehicle="v"))  # sources "ins" and "dvl"
+    assert default.subscription_key() == "auv/v/sensor/*/*"
+    for key in ("auv/v/sensor/ins/ins", "auv/v/sensor/dvl/ensemble", "auv/v/sensor/dvl/bi",
+                "auv/v/sensor/dvl/be"):  # fmt: skip
+        assert default.wanted(key)
+    # never "the first seen": other devices are not wanted, whatever arrives first
+    for key in ("auv/v/sensor/x/ins", "auv/v/sensor/d/ensemble"):
+        assert not default.wanted(key)
+    assert not default.wanted(keys.sensor("mbes", "xyz88")) and not default.wanted("auv/v/sensor")
+    # the DVL's compass as the attitude source: its PD6 :SA and PD0 ensembles are wanted
+    compass = FusionStage(FusionStageConfig.model_validate({"attitude": "dvl"}))
+    assert compass.wanted("auv/v/sensor/dvl/sa") and compass.wanted("auv/v/sensor/dvl/ensemble")
+    assert not compass.wanted("auv/v/sensor/ins/ins")
     named = FusionStage(FusionStageConfig(vehicle="v", ins_device="ins", dvl_device="dvl"))
     assert named.wanted(keys.sensor("ins", "ins")) and named.wanted(
         keys.sensor("dvl", "ensemble")
@@ -362,14 +366,14 @@ def test_stage_process_publishes_the_offline_odometry(data, tmp_path):
         # CAN copy of the INS is dropped by key, before it is parsed)
         n_used = n_ins + n_dvl
         wait_until(lambda: (s := status()) is not None and s["stage"]["received"] == n_used,
-                   30.0, "the stage to receive every envelope")  # fmt: skip
+                   90.0, "the stage to receive every envelope")  # fmt: skip
         st = status()
         assert st["adapter"]["ins"] == n_ins and st["adapter"]["dvl"] == n_dvl
         assert st["adapter"]["ignored"] == 0 and st["stage"]["bad_payloads"] == 0
         assert st["ins_device"] == "ins" and st["dvl_device"] == "dvl"
         assert all(v == 0 for v in st["buffer"].values()), st["buffer"]  # none arrived too late
         # all but the fixed-lag tail (0.2 s of INS samples) is published already
-        wait_until(lambda: len(received) >= n_ins - 25, 30.0, "odometry")
+        wait_until(lambda: len(received) >= n_ins - 25, 90.0, "odometry")
         # SIGTERM: the stage flushes the filter and publishes the held-back tail
         assert stage.stop() == 0
         wait_until(lambda: len(received) == n_ins, 10.0, "the flushed odometry")

@@ -6,6 +6,7 @@ from __future__ import annotations
 from gateway_support import (
     PYTHON,
     endpoint,
+    frame_counters,
     free_port,
     local_decoded,
     pd0_frames,
@@ -89,7 +90,7 @@ def test_unplug_and_replug_reported_and_resumed_without_loss(procs, tmp_path, dv
     assert done.startswith(f"DONE {len(frames)} dropped=0"), done
     got = read_jsonl(out)
     # nothing written after the replug is lost: the sequence runs on without a gap
-    assert [g["seq"] for g in got] == list(range(1, len(frames) + 1))
+    assert frame_counters([g["seq"] for g in got]) == list(range(1, len(frames) + 1))
     assert [g["msg"] for g in got] == local_decoded(frames)
     assert final["bad_frames"] == 0
     assert "dvl: disconnected" in gw.stderr() and gw.stderr().count("dvl: connected on") == 2
@@ -156,6 +157,6 @@ def test_a_stalled_subscriber_does_not_stall_the_gateway(procs, tmp_path, dvl, s
     assert stalled_zid in gw["bus"]["peers"]  # and still connected: shed samples, not the peer
     assert done.startswith(f"DONE {len(stream)} dropped=0"), done
     got = read_jsonl(out)
-    assert [g["seq"] for g in got] == list(range(1, len(stream) + 1))
+    assert frame_counters([g["seq"] for g in got]) == list(range(1, len(stream) + 1))
     assert [bytes.fromhex(g["data"]) for g in got] == stream
     assert st["connected"] is True

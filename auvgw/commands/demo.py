@@ -602,14 +602,20 @@ class _Collector:
     def timing(self) -> dict[str, Any]:
         """How the odometry envelopes' stamps advanced: the vehicle time of the first, their
         span (vehicle s) and their rate against the host clock of their arrival (stamped s per
-        host s, a least-squares slope; the samples flushed at shutdown, all stamped with the
-        last input's time, left out): ``speed`` when the stamps are vehicle-paced."""
+        host s; the samples flushed at shutdown, all stamped with the last input's time, left
+        out): ``speed`` when the stamps are vehicle-paced. The rate is the median slope over
+        pairs half the run apart, so a burst delivered late by a stalled process (a busy
+        machine) moves only the few pairs it is part of, where a least-squares fit would tilt."""
         with self.lock:
             st = np.asarray(self.odometry_stamps, float).reshape(-1, 2)
         if len(st) < 2:
             return {"samples": len(st)}
         live = st[st[:, 0] < st[:, 0].max()]
-        rate = float(np.polyfit(live[:, 1] - live[0, 1], live[:, 0] - live[0, 0], 1)[0])
+        half = len(live) // 2
+        dt_host = live[half:, 1] - live[: len(live) - half, 1]
+        ok = dt_host > 0
+        d_stamp = live[half:, 0] - live[: len(live) - half, 0]
+        rate = float(np.median(d_stamp[ok] / dt_host[ok])) if ok.any() else float("nan")
         return {
             "samples": len(st),
             "first_vehicle_s": float(st[0, 0] - self.epoch_s),

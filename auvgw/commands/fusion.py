@@ -1,10 +1,12 @@
-"""``auvgw fusion``: INS + DVL dead reckoning, on the bus or over a recording.
+"""``auvgw fusion``: attitude + DVL dead reckoning, on the bus, over a recording or a log.
 
 Online (the fusion stage as its own process)::
 
     auvgw fusion --vehicle auv1 --connect tcp/127.0.0.1:7447 [--settings fusion.toml]
 
-subscribes to the gateway's decoded HN-100 and PD0 messages (``auv/<V>/sensor/...``) and
+subscribes to the gateway's decoded messages (``auv/<V>/sensor/...``) of the attitude source
+(``attitude``, default device ``ins``: HN-100 serial/CAN, or a DVL's compass) and the velocity
+source (``velocity``, default ``dvl``: PD0 or PD6), never "the first seen", and
 publishes odometry on ``auv/<V>/nav/odometry`` and counters on ``auv/<V>/status/fusion`` until
 SIGINT/SIGTERM (or ``--duration`` seconds); prints ``fusion running`` on stdout once its
 subscriptions are declared.
@@ -16,6 +18,18 @@ Offline (the same stage, no bus) over a recording made by ``auvgw record``::
 decodes the recorded raw frames exactly as the gateway did (:func:`auvgw.recording.iter_recording`),
 feeds them in recorded order with their receive times, and prints a summary; ``--out`` writes
 every odometry sample as one JSON object per line (the bus payload's ``msg``).
+
+Offline over a log from any vehicle (CSV/text with a header row and a column map)::
+
+    auvgw fusion --csv log.csv --columns map.toml [--settings fusion.toml] [--out odometry.jsonl]
+
+DVL calibration (mounting yaw and scale factor, with 1-sigma) from a log with position fixes
+(GNSS at the surface, USBL)::
+
+    auvgw fusion calibrate --csv log.csv --columns map.toml [--settings fusion.toml]
+
+Every summary prints the fusion's diagnostics: accepted / rejected / coasting shares, NIS, the
+adapted DVL noise and the warnings (more than a third of the fixes rejected, NIS inconsistent).
 
 ``--settings FILE`` (TOML or JSON): :class:`~auvgw.stages.fusion.FusionStageConfig`, with the
 filter's :class:`~auvgw.fusion.FusionConfig` under ``[filter]`` (see docs/fusion.md).
@@ -46,6 +60,12 @@ def register(sub: Any) -> None:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+    p.add_argument(
+        "action",
+        nargs="?",
+        choices=["calibrate"],
+        help="calibrate: estimate the DVL mounting yaw and scale factor from --csv with fixes",
+    )
     p.add_argument("--vehicle", default=None, help="vehicle name (default: settings, auv1)")
     p.add_argument(
         "--settings",
@@ -58,13 +78,13 @@ def register(sub: Any) -> None:
         "--ins",
         default=None,
         metavar="DEVICE",
-        help="gateway device of the INS (default: the first seen)",
+        help="gateway device of the attitude source (default: settings, 'ins')",
     )
     p.add_argument(
         "--dvl",
         default=None,
         metavar="DEVICE",
-        help="gateway device of the DVL (default: the first seen)",
+        help="gateway device of the velocity source (default: settings, 'dvl')",
     )
     p.add_argument(
         "--duration",
@@ -79,6 +99,20 @@ def register(sub: Any) -> None:
         default=None,
         metavar="FILE.mcap",
         help="offline: run over this recording instead of the bus",
+    )
+    p.add_argument(
+        "--csv",
+        type=Path,
+        default=None,
+        metavar="LOG",
+        help="offline: run over a CSV/text log (needs --columns)",
+    )
+    p.add_argument(
+        "--columns",
+        type=Path,
+        default=None,
+        metavar="MAP.toml",
+        help="column map of --csv (see docs/fusion.md)",
     )
     p.add_argument(
         "--config",
@@ -115,11 +149,98 @@ def _settings(args: argparse.Namespace) -> Any:
 
 def run(args: argparse.Namespace) -> int:
     cfg = _settings(args)
+    if args.action == "calibrate":
+        return _calibrate(args, cfg)
+    if args.csv is not None:
+        return _csv(args, cfg)
     if args.recording is not None:
         return _offline(args, cfg)
     if args.out is not None or args.config is not None:
         raise UserError("--out and --config are for --recording (offline) runs")
     return _online(args, cfg)
+
+
+def _read_log(args: argparse.Namespace) -> Any:
+    from auvgw.fusion.csvlog import LogError, load_column_map, read_csv_log
+
+    if args.csv is None or args.columns is None:
+        raise UserError("a log needs --csv LOG and --columns MAP.toml")
+    try:
+        log_ = read_csv_log(args.csv, load_column_map(args.columns))
+    except LogError as exc:
+        raise UserError(str(exc)) from None
+    if log_.bad_cells:
+        print(f"warning: {log_.bad_cells} bad cells skipped; first: {log_.first_error}",
+              file=sys.stderr)
+    return log_
+
+
+def _calibrate(args: argparse.Namespace, cfg: Any) -> int:
+    from auvgw.fusion.calibrate import CalibrationError, calibrate_dvl
+    from auvgw.fusion.frames import wrap_angle
+
+    log_ = _read_log(args)
+    corr = cfg.filter.heading_correction()
+    ins = [s._replace(heading=wrap_angle(s.heading + corr)) for s in log_.ins]
+    try:
+        cal = calibrate_dvl(ins, log_.dvl, log_.fixes, cfg.filter.dvl)
+    except CalibrationError as exc:
+        raise UserError(f"{args.csv}: {exc}") from None
+    print(f"{args.csv}: {len(log_.ins)} attitude samples, {len(log_.dvl)} DVL fixes, "
+          f"{len(log_.fixes)} position fixes")
+    print(cal.describe())
+    return 0
+
+
+def _csv(args: argparse.Namespace, cfg: Any) -> int:
+    import heapq
+
+    from auvgw.drivers.spec import to_jsonable
+    from auvgw.fusion import NavFilter, iter_filter
+
+    log_ = _read_log(args)
+    nav = NavFilter(cfg.filter)
+    summary = _Summary()
+    aiding = heapq.merge(log_.depth, log_.fixes, key=lambda x: x.t)
+    out_file = open_output(args.out)
+    try:
+        for o in iter_filter(log_.ins, log_.dvl, depth=aiding, nav=nav):
+            summary.add(o)
+            if out_file is not None:
+                out_file.write(json.dumps(to_jsonable(o), separators=(",", ":")) + "\n")
+    finally:
+        if out_file is not None:
+            out_file.close()
+    summary.print(args.csv)
+    print_diagnostics(nav.diagnostics.summary())
+    print(f"fusion counters: {json.dumps({'filter': vars(nav.stats)})}", file=sys.stderr)
+    if summary.n == 0:
+        print(f"no odometry: {args.csv} has no usable attitude rows", file=sys.stderr)
+        return 1
+    return 0
+
+
+def print_diagnostics(d: dict[str, Any]) -> None:
+    """The fusion's diagnostics as a few readable lines (shares, NIS, noise, warnings)."""
+    tot, win = d["total"], d["window"]
+
+    def pct(x: float | None) -> str:
+        return "-" if x is None else f"{100.0 * x:.1f} %"
+
+    print(
+        f"  DVL fixes            {tot['fixes']}: accepted {pct(tot['accepted_share'])}, "
+        f"rejected {pct(tot['rejected_share'])}, forced {pct(tot['forced_share'])}; "
+        f"coasting {pct(tot['coasting_share'])} of epochs"
+    )
+    nis = win["nis_mean_per_dof"]
+    sig = ", ".join("-" if s is None else f"{s:.4f}" for s in d["dvl_noise_sigma_mps"])
+    print(
+        f"  last {d['window_s']:g} s        NIS per dof "
+        f"{'-' if nis is None else f'{nis:.2f}'} (consistent: {win['nis_consistent']}); "
+        f"DVL noise (m/s per axis) {sig}"
+    )
+    for w in d["warnings"]:
+        print(f"  WARNING: {w}")
 
 
 def _online(args: argparse.Namespace, cfg: Any) -> int:
@@ -168,6 +289,7 @@ def _offline(args: argparse.Namespace, cfg: Any) -> int:
         if out_file is not None:
             out_file.close()
     summary.print(args.recording)
+    print_diagnostics(stage.nav.diagnostics.summary())
     _print_counters(stage.counters())
     if summary.n == 0:
         print("no odometry: the recording has no usable INS messages", file=sys.stderr)

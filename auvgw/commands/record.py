@@ -53,6 +53,7 @@ def register(sub: Any) -> None:
         metavar="S",
         help="wait up to S seconds for the gateway before recording anyway (default 10)",
     )
+    p.add_argument("--force", action="store_true", help="overwrite FILE.mcap if it exists")
     add_bus_arguments(p)
     p.set_defaults(func=run)
 
@@ -90,6 +91,8 @@ def run(args: argparse.Namespace) -> int:
     out: Path = args.out
     if not out.parent.is_dir():
         raise UserError(f"{out}: folder {out.parent} does not exist")
+    if out.exists() and not args.force:
+        raise UserError(f"{out}: exists; choose another --out or pass --force to overwrite it")
     if args.duration is not None and args.duration <= 0:
         raise UserError(f"--duration must be > 0 seconds, got {args.duration}")
     keys = Keys(args.vehicle)
@@ -126,7 +129,11 @@ def run(args: argparse.Namespace) -> int:
                 print(f"recording {keys.all('**')} to {out}", flush=True)
                 t_end = None if args.duration is None else time.monotonic() + args.duration
                 next_query = 0.0
-                while not stop.is_set() and (t_end is None or time.monotonic() < t_end):
+                while (
+                    not stop.is_set()
+                    and not rec.failed.is_set()
+                    and (t_end is None or time.monotonic() < t_end)
+                ):
                     if not rec.has_config and time.monotonic() >= next_query:
                         try:
                             cfg = _query_config(session, keys, timeout=1.0)
@@ -152,6 +159,12 @@ def run(args: argparse.Namespace) -> int:
     finally:
         session.close()
     total = sum(rec.counts.values())
+    if rec.error is not None:
+        why = rec.error.strerror or str(rec.error)
+        raise UserError(
+            f"{out}: recording stopped: {why} after {total} messages ({rec.lost} not written); "
+            "the file is readable up to the last complete chunk"
+        )
     per_key = ", ".join(f"{k}: {n}" for k, n in sorted(rec.counts.items()))
     print(f"recorded {total} messages to {out} ({per_key or 'nothing'})", file=sys.stderr)
     if total == 0:

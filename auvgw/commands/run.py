@@ -208,6 +208,7 @@ def run(args: argparse.Namespace) -> int:
             raise UserError(f"--listen/--connect: {exc}") from None
         cfg = cfg.model_copy(update={"bus": bus})
     cfg = cfg.model_copy(update={"bus": cfg.bus.as_hub()})
+    log.info("%s: bus: %s", args.config, cfg.bus.describe())
     settings = RunSettings(
         config=cfg,
         viz_rrd=args.viz_rrd,

@@ -1,11 +1,12 @@
-"""The fusion stage: the gateway's decoded INS and DVL messages in, dead-reckoning odometry out.
+"""The fusion stage: the gateway's decoded attitude and DVL messages in, odometry out.
 
 Online it subscribes to ``auv/<v>/sensor/*/*`` (one subscription, so the arrival order across
-devices is kept) and keeps the INS kind ``ins`` (HN-100 on serial or CAN) and the DVL kind
-``ensemble`` (PD0) of the configured devices, or of any device (then the first device seen
-sending each kind of message is used: :class:`~auvgw.fusion.adapters.MessageAdapter`), rebuilds
-the typed messages from the envelopes (:func:`auvgw.drivers.spec.from_jsonable`, the values
-the gateway decoded), maps each device's clock onto the host clock, feeds a
+devices is kept) and keeps the attitude kinds (``ins``: HN-100 on serial or CAN; a DVL's ``sa`` /
+``ensemble`` compass) of the configured ``attitude`` device and the velocity kinds (``ensemble``
+PD0, ``bi`` / ``bs`` / ``be`` PD6) of the configured ``velocity`` device (never "the first seen":
+:class:`~auvgw.fusion.adapters.MessageAdapter`), rebuilds the typed messages from the envelopes
+(:func:`auvgw.drivers.spec.from_jsonable`, the values the gateway decoded), maps each device's
+clock onto the host clock, feeds a
 :class:`~auvgw.fusion.NavFilter`, and publishes one :class:`~auvgw.fusion.Odometry` envelope per
 INS sample on ``auv/<v>/nav/odometry`` (``CongestionControl.DROP``: a slow subscriber never
 stalls the stage). Its counters go to ``auv/<v>/status/fusion`` (published every
@@ -43,7 +44,7 @@ from pathlib import Path
 from typing import Any
 
 import zenoh
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import AliasChoices, BaseModel, ConfigDict, Field, ValidationError
 
 from auvgw.bus import (
     SCHEMA_VERSION,
@@ -55,7 +56,8 @@ from auvgw.bus import (
     undeclare,
 )
 from auvgw.fusion import FusionConfig, NavFilter, Odometry
-from auvgw.fusion.adapters import INS_TYPES, PD0_TYPES, MessageAdapter
+from auvgw.fusion.adapters import ATTITUDE_TYPES, VELOCITY_TYPES, MessageAdapter
+from auvgw.stages import join_draining, log_bad_payload
 
 log = logging.getLogger(__name__)
 
@@ -89,19 +91,21 @@ class SettingsError(ValueError):
 class FusionStageConfig(BaseModel):
     """Settings of the fusion stage (TOML: top-level keys, the filter under ``[filter]``).
 
-    ``ins_device`` / ``dvl_device``: gateway device names (None: the first device seen sending
-    an HN-100 solution / a PD0 ensemble). ``latency_s``: per device, the fixed delay between the
+    ``attitude`` / ``velocity`` (also spelled ``ins_device`` / ``dvl_device``): the gateway
+    device names of the attitude source (an INS, or a DVL's compass) and of the velocity source
+    (a PD0 or PD6 DVL), default ``"ins"`` and ``"dvl"``; never "the first seen", so live, replay
+    and offline choose the same sources. ``latency_s``: per device, the fixed delay between the
     device's time stamp and the host's receive time (e.g. the frame's transmission time, bytes x
     10 / baud), subtracted when mapping its clock. ``clock_skew`` (s/s) and ``clock_jump_s``:
     see :class:`~auvgw.fusion.adapters.DeviceClock`. ``require_aligned``: drop INS solutions
     flagged not aligned or in error. ``high_res``: prefer the PD0 0x5803 velocity.
     """
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", populate_by_name=True)
 
     vehicle: str = "auv1"
-    ins_device: str | None = None
-    dvl_device: str | None = None
+    ins_device: str = Field("ins", validation_alias=AliasChoices("attitude", "ins_device"))
+    dvl_device: str = Field("dvl", validation_alias=AliasChoices("velocity", "dvl_device"))
     latency_s: dict[str, float] = Field(default_factory=dict)
     clock_skew: float = Field(1e-4, ge=0)
     clock_jump_s: float = Field(1.0, gt=0)
@@ -124,6 +128,9 @@ def load_stage_config(path: str | Path) -> FusionStageConfig:
     except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
         kind = "JSON" if path.suffix == ".json" else "TOML"
         raise SettingsError(f"{path}: not valid {kind}: {exc}") from exc
+    if isinstance(data, dict) and isinstance(data.get("fusion"), dict):
+        # a [fusion] table (e.g. inside a larger vehicle file) holds the same keys
+        data = data["fusion"]
     try:
         return FusionStageConfig.model_validate(data)
     except ValidationError as exc:
@@ -179,10 +186,11 @@ class FusionStage:
         self._decls: list[Any] = []
         self._queue: queue.Queue[tuple[str, bytes] | None] = queue.Queue(cfg.queue_size)
         self._worker: threading.Thread | None = None
-        self._ins_kinds = frozenset(sensor_kinds(INS_TYPES))
-        self._dvl_kinds = frozenset(sensor_kinds(PD0_TYPES))
+        self._ins_kinds = frozenset(sensor_kinds(ATTITUDE_TYPES))
+        self._dvl_kinds = frozenset(sensor_kinds(VELOCITY_TYPES))
         self._started = False
         self._stopped = False
+        self._warned: set[str] = set()
         _register_can_types()
 
     # -- in-process use -----------------------------------------------------------------------
@@ -192,10 +200,9 @@ class FusionStage:
         with self._lock:
             self.stats.received += 1
             self._now_ns = max(self._now_ns, t_recv_ns)
-            sample = self.adapter.adapt(device, t_recv_ns / 1e9, message)
-            if sample is None:
-                return []
-            out = self.nav.push(sample)
+            out = []
+            for sample in self.adapter.adapt_all(device, t_recv_ns / 1e9, message):
+                out += self.nav.push(sample)
             self._emit(out)
             return out
 
@@ -239,6 +246,7 @@ class FusionStage:
                 },
                 "filter": asdict(self.nav.stats),
                 "buffer": asdict(self.nav.buffer_stats),
+                "diagnostics": self.nav.diagnostics.summary(),
                 "last": None
                 if last is None
                 else {
@@ -264,17 +272,14 @@ class FusionStage:
         return self.keys.sensor("*", "*")
 
     def wanted(self, key: str) -> bool:
-        """Whether a sensor key carries an INS or DVL message of a device the stage uses (the
-        configured one, or the one bound by the first message of its kind, or any while none
-        is bound yet)."""
+        """Whether a sensor key carries an attitude or velocity message of a configured source
+        device."""
         device, _, kind = key.rpartition("/")
         device = device.rpartition("/")[2]
         a = self.adapter
-        if kind in self._ins_kinds:
-            return a.ins_device is None or device == a.ins_device
-        if kind in self._dvl_kinds:
-            return a.dvl_device is None or device == a.dvl_device
-        return False
+        return (kind in self._ins_kinds and device == a.ins_device) or (
+            kind in self._dvl_kinds and device == a.dvl_device
+        )
 
     def start(self, subscribe: bool = True) -> None:
         """Declare the publishers, status queryable and liveliness token and, with
@@ -340,9 +345,9 @@ class FusionStage:
         try:
             env = decode_envelope(payload, key)
             msg = typed_message(env.type, env.body)
-        except (ValueError, KeyError, TypeError) as exc:
+        except Exception as exc:  # any malformed payload ([] on a sensor key...): count, go on
             msg, env = None, None
-            log.debug("fusion: %s: bad payload: %s", key, exc)
+            log_bad_payload("fusion", key, exc, self.stats.bad_payloads)
         if msg is None or env is None:
             with self._lock:
                 self.stats.bad_payloads += 1
@@ -355,9 +360,14 @@ class FusionStage:
     def _publish_status(self) -> None:
         if self._status_pub is None:
             return
+        counters = self.counters()
+        warnings = {w.split(":", 1)[0]: w for w in counters["diagnostics"]["warnings"]}
+        for kind in sorted(warnings.keys() - self._warned):  # log each kind once while it lasts
+            log.warning("fusion: %s", warnings[kind])
+        self._warned = set(warnings)
         with contextlib.suppress(zenoh.ZError):
             self._status_pub.put(
-                json.dumps(self.counters()).encode(), encoding=json_encoding("FusionStatus")
+                json.dumps(counters).encode(), encoding=json_encoding("FusionStatus")
             )
 
     def _answer_status(self, query: zenoh.Query) -> None:
@@ -368,7 +378,8 @@ class FusionStage:
         )
 
     def stop(self, flush: bool = True, timeout_s: float = 5.0) -> None:
-        """Drain the queue, flush the filter (``flush``: publish the held-back odometry),
+        """Drain the queue (as long as the worker makes progress; ``timeout_s`` without any
+        gives up on it), flush the filter (``flush``: publish the held-back odometry),
         publish a last status and withdraw every declaration. Safe to call more than once."""
         if self._stopped:
             return
@@ -376,7 +387,9 @@ class FusionStage:
         undeclare(d for d in self._decls if isinstance(d, zenoh.Subscriber))
         if self._worker is not None:
             self._queue.put(None)
-            self._worker.join(timeout_s)
+            if not join_draining(self._worker, self._queue, timeout_s):
+                log.warning("%s: the worker made no progress for %.1f s; stopping without it",
+                            self.__class__.__name__, timeout_s)  # fmt: skip
         if flush:
             self.flush()
         self._publish_status()

@@ -84,6 +84,7 @@ from auvgw.slam.features import (
 from auvgw.slam.landmark.base import LandmarkFilter, LandmarkMap, ParticleFilterSLAM
 from auvgw.slam.landmark.registry import ALGORITHMS, DISPLAY_NAMES, make_filter
 from auvgw.slam.models import LineFeature, RangeBearing, VelocityModel, wrap_angle
+from auvgw.stages import join_draining, log_bad_payload
 
 log = logging.getLogger(__name__)
 
@@ -639,8 +640,8 @@ class SlamStage:
         try:
             env = decode_envelope(payload, key)
             msg = typed_message(env.type, env.body)
-        except (ValueError, KeyError, TypeError) as exc:
-            log.debug("slam: %s: bad payload: %s", key, exc)
+        except Exception as exc:  # any malformed payload ([] on a sensor key...): count, go on
+            log_bad_payload("slam", key, exc, self.stats.bad_payloads)
             msg = env = None
         if msg is None or env is None:
             with self._lock:
@@ -665,7 +666,8 @@ class SlamStage:
                     encoding=json_encoding("SlamStatus"))  # fmt: skip
 
     def stop(self, flush: bool = True, timeout_s: float = 5.0) -> None:
-        """Drain the queue, publish the last estimate (``flush``) and status, withdraw every
+        """Drain the queue (as long as the worker makes progress; ``timeout_s`` without any
+        gives up on it), publish the last estimate (``flush``) and status, withdraw every
         declaration. Safe to call more than once."""
         if self._stopped:
             return
@@ -673,7 +675,9 @@ class SlamStage:
         undeclare(d for d in self._decls if isinstance(d, zenoh.Subscriber))
         if self._worker is not None:
             self._queue.put(None)
-            self._worker.join(timeout_s)
+            if not join_draining(self._worker, self._queue, timeout_s):
+                log.warning("%s: the worker made no progress for %.1f s; stopping without it",
+                            self.__class__.__name__, timeout_s)  # fmt: skip
         if flush:
             self.flush()
         self._publish_status()

@@ -590,6 +590,29 @@ class VizStage:
         shown |= self._map_features("truth", body, t)
         return "logged" if shown else "truth:?"
 
+    #: fusion diagnostics shown as one series each (``<device>_diagnostics``), window shares
+    _DIAG_KEYS = ("accepted_share", "rejected_share", "coasting_share", "nis_mean_per_dof")
+
+    def _diagnostics(self, device: str, diag: Mapping[str, Any], t: float) -> None:
+        """A fusion status's diagnostics: the window's shares, NIS and the adapted DVL noise as
+        series, and each new warning as a WARN event (docs/fusion.md, Diagnostics)."""
+        win = diag.get("window")
+        win = win if isinstance(win, Mapping) else {}
+        metrics = {k: _float(win.get(k)) for k in self._DIAG_KEYS}
+        sig = diag.get("dvl_noise_sigma_mps")
+        sig = list(sig) if isinstance(sig, list | tuple) and len(sig) == 3 else [None] * 3
+        for axis, v in zip("xyz", sig, strict=True):
+            metrics[f"dvl_noise_{axis}_mps"] = _float(v)
+        self.logger.health(f"{device}_diagnostics", t, metrics)
+        warnings = tuple(str(w) for w in diag.get("warnings") or ())
+        key = f"{device}_diagnostics"
+        prev = self._status.get(key)
+        if prev is None or prev[0] != warnings:
+            self._status[key] = (warnings, None)
+            for w in warnings:
+                if prev is None or w.split(":", 1)[0] not in {p.split(":", 1)[0] for p in prev[0]}:
+                    self.logger.event(device, t, f"{device}: {w}", "WARN")
+
     _HEALTH_KEYS = ("rate_hz", "bad_frames", "decode_errors", "skipped_bytes", "silent_s")
     _HEALTH_FLAGS = ("connected", "stale")
 
@@ -599,6 +622,9 @@ class VizStage:
         if not any(k in body for k in (*self._HEALTH_KEYS, *self._HEALTH_FLAGS)):
             # another component's status (fusion, SLAM, ...): its numbers, one series each
             leaves = _numeric_leaves(body)
+            diag = body.get("diagnostics")
+            if isinstance(diag, Mapping):
+                self._diagnostics(device, diag, t)
             if not leaves:
                 return f"status:{device}"
             self.logger.health(device, t, leaves)
