@@ -154,7 +154,7 @@ class Gateway:
             "gateway for vehicle %r starting: %d device(s), bus %s, Zenoh id %s",
             self.cfg.vehicle,
             len(self.devices),
-            self.cfg.bus.mode,
+            self.cfg.bus.describe(),
             self.session.zid(),
         )
         for t in self._threads:

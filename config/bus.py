@@ -133,7 +133,9 @@ class BusConfig(BaseModel):
     router (``connect`` must name it); ``router`` is what ``auvgw router`` runs. Multicast scouting
     is off unless asked for; gossip is on so peers behind a router find each other. Endpoints are
     Zenoh locators, ``<protocol>/<address>``: ``tcp/127.0.0.1:7447``, ``tcp/[::1]:7447``,
-    ``udp/10.0.0.2:7447``.
+    ``udp/10.0.0.2:7447``. A peer told no endpoint meets the others on one machine through
+    :func:`default_endpoint` (:meth:`as_hub` for the gateway, :meth:`as_spoke` for the rest;
+    docs/bus.md#finding-each-other).
     """
 
     model_config = ConfigDict(extra="forbid")
