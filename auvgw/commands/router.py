@@ -17,7 +17,7 @@ from pydantic import ValidationError
 from auvgw.bus import load_bus_table, open_session
 from auvgw.cli import UserError
 from auvgw.commands.run import handle_stop_signals
-from auvgw.config.bus import BusConfig
+from auvgw.config.bus import DEFAULT_ENDPOINT, BusConfig, default_endpoint
 
 
 def register(sub: Any) -> None:
@@ -26,7 +26,8 @@ def register(sub: Any) -> None:
         "--listen",
         action="append",
         default=None,
-        help="endpoint to listen on (repeatable), default tcp/0.0.0.0:7447",
+        help=f"endpoint to listen on (repeatable), default {DEFAULT_ENDPOINT} (loopback only: "
+        "give the vehicle network's address, e.g. tcp/0.0.0.0:7447, to serve other hosts)",
     )
     p.add_argument("--connect", action="append", default=[], help="other routers to join")
     p.add_argument(
@@ -46,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise UserError(str(exc)) from None
     base["mode"] = "router"
-    base["listen"] = args.listen or base.get("listen") or ["tcp/0.0.0.0:7447"]
+    base["listen"] = args.listen or base.get("listen") or [default_endpoint()]
     base["connect"] = args.connect or base.get("connect", [])
     try:
         cfg = BusConfig(**base)
