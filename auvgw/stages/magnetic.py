@@ -397,8 +397,9 @@ class MagneticStage:
         query.reply(self.keys.status(self.component), json.dumps(self.counters()).encode(),
                     encoding=json_encoding("MagneticStatus"))  # fmt: skip
 
-    def stop(self, timeout_s: float = 5.0) -> None:
-        """Drain the queue, publish status, withdraw every declaration. Safe to call twice."""
+    def stop(self, flush: bool = True, timeout_s: float = 5.0) -> None:
+        """Drain the queue, publish the current pose (``flush``) and status, withdraw every
+        declaration. Safe to call more than once."""
         if self._stopped:
             return
         self._stopped = True
@@ -407,6 +408,9 @@ class MagneticStage:
             self._queue.put(None)
             if not join_draining(self._worker, self._queue, timeout_s):
                 log.warning("magnetic stage: the worker made no progress for %.1f s", timeout_s)
+        if flush and self.online is not None and self._t_pub is not None:
+            with self._lock:
+                self._publish_pose(self._t_pub, landmarks=True)
         self._publish_status()
         undeclare(d for d in self._decls if not isinstance(d, zenoh.Subscriber))
         undeclare(self._pubs.values())
