@@ -194,12 +194,16 @@ class Terrain(_Model):
     ``flat``: ``depth_m`` everywhere. ``procedural``: ``depth_m`` plus a seeded sum of sinusoids
     of ``relief_m`` amplitude and ``wavelength_m``; ``octaves`` > 1 adds finer, weaker layers
     (each half the wavelength and half the amplitude) for rough terrain, the total deviation
-    staying within +-``relief_m``. ``grid``: a depth grid from ``file`` (``.npy`` or JSON list of
-    rows) with cell size ``cell_m`` and its (x, y) origin at ``origin``; row i is
-    x = origin_x + i cell_m, column j is y = origin_y + j cell_m.
+    staying within +-``relief_m``. ``mixed``: the procedural relief faded out over flat patches
+    (``flat_fraction`` of the area) plus ``n_ridges`` linear ridges and ``n_mounds`` Gaussian
+    mounds inside ``extent_m`` (varied relief for bathymetric SLAM). ``sandwaves``: one
+    dominant wave of ``wavelength_m`` across ``direction_deg`` with weak modulation
+    (self-similar relief that invites false loop closures). ``grid``: a depth grid from ``file``
+    (``.npy`` or JSON list of rows) with cell size ``cell_m`` and its (x, y) origin at
+    ``origin``; row i is x = origin_x + i cell_m, column j is y = origin_y + j cell_m.
     """
 
-    kind: Literal["flat", "procedural", "grid"] = "flat"
+    kind: Literal["flat", "procedural", "grid", "mixed", "sandwaves"] = "flat"
     depth_m: float = Field(50.0, gt=0)
     relief_m: float = Field(0.0, ge=0)
     wavelength_m: float = Field(80.0, gt=0)
@@ -208,15 +212,32 @@ class Terrain(_Model):
     file: str | None = None
     cell_m: float = Field(1.0, gt=0)
     origin: XY = (0.0, 0.0)
+    flat_fraction: float = Field(
+        0.3, ge=0, lt=1, description="mixed: share of the area that is a flat patch (no relief)"
+    )
+    n_ridges: int = Field(3, ge=0, le=50, description="mixed: linear ridges of relief_m height")
+    n_mounds: int = Field(12, ge=0, le=500, description="mixed: Gaussian mounds of relief_m")
+    extent_m: tuple[float, float, float, float] = Field(
+        (-200.0, 1000.0, -200.0, 1000.0),
+        description="mixed: (x_min, x_max, y_min, y_max) where ridges and mounds are placed",
+    )
+    direction_deg: float = Field(
+        30.0, description="sandwaves: crest-normal direction of the dominant wave, deg from north"
+    )
 
     @model_validator(mode="after")
     def _grid_needs_file(self) -> Terrain:
         if self.kind == "grid" and not self.file:
             raise ValueError("terrain kind 'grid' needs 'file'")
-        if self.kind == "procedural" and self.relief_m >= self.depth_m:
+        if self.kind in ("procedural", "sandwaves") and self.relief_m >= self.depth_m:
             raise ValueError(
                 f"relief_m ({self.relief_m}) must be less than depth_m ({self.depth_m}): "
                 "the seabed must stay below the surface"
+            )
+        if self.kind == "mixed" and 3 * self.relief_m >= self.depth_m:
+            raise ValueError(
+                f"mixed terrain: 3 x relief_m ({3 * self.relief_m}) must be less than depth_m "
+                f"({self.depth_m}): relief, ridges and mounds add up"
             )
         return self
 
@@ -251,6 +272,11 @@ class FaultSettings(_Model):
     garbage_max_bytes: int = Field(32, ge=1)
     corrupt_p: float = Field(0.0, ge=0, le=1, description="probability a frame is corrupted")
     truncate_p: float = Field(0.0, ge=0, le=1, description="probability a frame is cut short")
+    undetected_p: float = Field(
+        0.0, ge=0, le=1,
+        description="probability a frame is corrupted in a way its framer still accepts (what "
+        "no check can catch: a bit in the data, two changes that keep the checksum)",
+    )  # fmt: skip
     bottom_lock_loss: list[tuple[float, float]] = []
     unplug: list[tuple[float, float]] = []
     stall: list[tuple[float, float]] = []

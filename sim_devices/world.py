@@ -34,8 +34,10 @@ __all__ = [
     "MU0_OVER_4PI",
     "FlatTerrain",
     "GridTerrain",
+    "MixedTerrain",
     "ProceduralTerrain",
     "RayHits",
+    "SandWaveTerrain",
     "Swath",
     "SwathGeometry",
     "TerrainModel",
@@ -181,6 +183,112 @@ class GridTerrain(TerrainModel):
         return (float(self.grid.min()), float(self.grid.max()))
 
 
+class _NumericGradient(TerrainModel):
+    """Central-difference gradient for terrains defined by a depth formula only."""
+
+    GRAD_STEP_M = 0.05
+
+    def gradient(self, x: FArray | float, y: FArray | float) -> tuple[FArray, FArray]:
+        h = self.GRAD_STEP_M
+        x, y = np.broadcast_arrays(np.asarray(x, float), np.asarray(y, float))
+        gx = (self.depth(x + h, y) - self.depth(x - h, y)) / (2 * h)
+        gy = (self.depth(x, y + h) - self.depth(x, y - h)) / (2 * h)
+        return gx, gy
+
+
+class MixedTerrain(_NumericGradient):
+    """Varied relief for bathymetric SLAM: flat patches, rough ground, ridges and mounds.
+
+    depth = ``depth_m`` + mask(x, y) * procedural(relief_m, wavelength_m, octaves)
+    + ridges + mounds. ``mask`` is a smooth 0..1 field (three long waves of 4 x wavelength_m
+    through a steep logistic) that is 0 on about ``flat_fraction`` of the area: flat patches with
+    no information. Ridges (``n_ridges``, height ``relief_m``, 1/e half-width 25 m) run along
+    random directions, mounds (``n_mounds``, height ``relief_m``, sigma 15-40 m) sit at random
+    points of ``extent_m`` = (x_min, x_max, y_min, y_max); both are masked like the relief, so
+    flat patches stay flat. Metres, positive down; everything seeded by ``seed``.
+    """
+
+    def __init__(
+        self,
+        depth_m: float,
+        relief_m: float,
+        wavelength_m: float,
+        seed: int,
+        octaves: int = 3,
+        flat_fraction: float = 0.3,
+        n_ridges: int = 3,
+        n_mounds: int = 12,
+        extent_m: tuple[float, float, float, float] = (-200.0, 1000.0, -200.0, 1000.0),
+    ) -> None:
+        rng = np.random.default_rng([seed, 1])
+        self.rough = ProceduralTerrain(0.0, relief_m, wavelength_m, seed, octaves)
+        self.mask_field = ProceduralTerrain(0.0, 1.0, 4.0 * wavelength_m, seed + 7, 1)
+        # threshold of the logistic so that ~flat_fraction of the mask field is below it
+        probe = self.mask_field.depth(*rng.uniform(-5e3, 5e3, (2, 4000)))
+        self.mask_at = float(np.quantile(probe, flat_fraction))
+        x0, x1, y0, y1 = extent_m
+        self.ridge_pt = np.column_stack(
+            [rng.uniform(x0, x1, n_ridges), rng.uniform(y0, y1, n_ridges)]
+        )
+        a = rng.uniform(0, math.pi, n_ridges)
+        self.ridge_n = np.column_stack([-np.sin(a), np.cos(a)])  # unit normals
+        self.mound_pt = np.column_stack(
+            [rng.uniform(x0, x1, n_mounds), rng.uniform(y0, y1, n_mounds)]
+        )
+        self.mound_sigma = rng.uniform(15.0, 40.0, n_mounds)
+        self.mound_sign = rng.choice([-1.0, 1.0], n_mounds)
+        self.depth_m = float(depth_m)
+        self.relief_m = float(relief_m)
+
+    def mask(self, x: FArray | float, y: FArray | float) -> FArray:
+        """0 on flat patches, 1 on rough ground, smooth between."""
+        m = self.mask_field.depth(x, y)
+        return 1.0 / (1.0 + np.exp(-12.0 * (m - self.mask_at)))
+
+    def depth(self, x: FArray | float, y: FArray | float) -> FArray:
+        x, y = np.broadcast_arrays(np.asarray(x, float), np.asarray(y, float))
+        xy = np.stack([x, y], axis=-1)
+        dist = np.einsum("...kj,kj->...k", xy[..., None, :] - self.ridge_pt, self.ridge_n)
+        ridges = np.exp(-((dist / 25.0) ** 2)).sum(-1)
+        d2 = ((xy[..., None, :] - self.mound_pt) ** 2).sum(-1)
+        mounds = (self.mound_sign * np.exp(-d2 / (2 * self.mound_sigma**2))).sum(-1)
+        relief = self.rough.depth(x, y) - self.relief_m * (ridges + mounds)
+        return self.depth_m + self.mask(x, y) * relief
+
+    @property
+    def bounds(self) -> tuple[float, float]:
+        return (self.depth_m - 3 * self.relief_m, self.depth_m + 3 * self.relief_m)
+
+
+class SandWaveTerrain(_NumericGradient):
+    """Self-similar sand waves: ``depth_m`` + ``relief_m`` x a sine of ``wavelength_m`` across
+    ``direction_rad`` (from north towards east), crests slightly wavy (5 % of the wavelength over
+    8 wavelengths along the crest), amplitude modulated +-20 % over 10 wavelengths. Any shift by
+    a wavelength across the crests, or along them, matches almost as well as the truth: the
+    terrain of false loop closures. Metres, positive down."""
+
+    def __init__(
+        self, depth_m: float, relief_m: float, wavelength_m: float, direction_rad: float, seed: int
+    ) -> None:
+        rng = np.random.default_rng([seed, 2])
+        self.depth_m, self.relief_m, self.lam = float(depth_m), float(relief_m), float(wavelength_m)
+        self.n = np.array([math.cos(direction_rad), math.sin(direction_rad)])
+        self.phase = rng.uniform(0, 2 * math.pi, 3)
+
+    def depth(self, x: FArray | float, y: FArray | float) -> FArray:
+        x, y = np.broadcast_arrays(np.asarray(x, float), np.asarray(y, float))
+        s = x * self.n[0] + y * self.n[1]  # across crests
+        c = -x * self.n[1] + y * self.n[0]  # along crests
+        k = 2 * math.pi / self.lam
+        wav = 0.05 * self.lam * np.sin(k * c / 8 + self.phase[0])
+        amp = 1.0 + 0.2 * np.sin(k * (s + c) / 10 + self.phase[1])
+        return self.depth_m + self.relief_m * amp / 1.2 * np.sin(k * (s + wav) + self.phase[2])
+
+    @property
+    def bounds(self) -> tuple[float, float]:
+        return (self.depth_m - self.relief_m, self.depth_m + self.relief_m)
+
+
 def _load_grid(path: Path) -> FArray:
     try:
         if path.suffix == ".npy":
@@ -190,16 +298,37 @@ def _load_grid(path: Path) -> FArray:
         raise ScenarioError(f"terrain.file {path}: cannot read a depth grid: {exc}") from exc
 
 
-def terrain_from_settings(
-    settings: Terrain, resolve: Callable[[str], Path] = Path
-) -> TerrainModel:
+def terrain_from_settings(settings: Terrain, resolve: Callable[[str], Path] = Path) -> TerrainModel:
     """The terrain model a scenario's ``terrain`` section describes (``resolve`` finds files)."""
     if settings.kind == "flat":
         return FlatTerrain(settings.depth_m)
     if settings.kind == "procedural":
         return ProceduralTerrain(
-            settings.depth_m, settings.relief_m, settings.wavelength_m, settings.seed,
+            settings.depth_m,
+            settings.relief_m,
+            settings.wavelength_m,
+            settings.seed,
             settings.octaves,
+        )
+    if settings.kind == "mixed":
+        return MixedTerrain(
+            settings.depth_m,
+            settings.relief_m,
+            settings.wavelength_m,
+            settings.seed,
+            settings.octaves,
+            settings.flat_fraction,
+            settings.n_ridges,
+            settings.n_mounds,
+            settings.extent_m,
+        )
+    if settings.kind == "sandwaves":
+        return SandWaveTerrain(
+            settings.depth_m,
+            settings.relief_m,
+            settings.wavelength_m,
+            math.radians(settings.direction_deg),
+            settings.seed,
         )
     assert settings.file is not None  # the scenario model enforces it
     path = resolve(settings.file)
@@ -612,9 +741,7 @@ class World:
         roll: float = 0.0,
     ) -> Swath:
         """One multibeam ping from ``position`` (see :func:`cast_swath`)."""
-        return cast_swath(
-            self.terrain, position, heading, geometry, pitch, roll, self.sound_speed
-        )
+        return cast_swath(self.terrain, position, heading, geometry, pitch, roll, self.sound_speed)
 
     # sonar targets
     def cast(

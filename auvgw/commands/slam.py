@@ -31,6 +31,9 @@ from auvgw.cli import UserError
 
 __all__ = ["command_line", "parse_noise", "register", "run"]
 
+LANDMARK_DEFAULT = "fastslam1,fastslam2,ufastslam,vb-afastslam,vb-aufastslam"
+BATHY_DEFAULT = "mtm-pf,bpslam,dr"
+
 
 def parse_noise(text: str) -> tuple[float, float]:
     """``n=2,p=0.3`` -> ``(2.0, 0.3)``: with probability p an observation has covariance n R0."""
@@ -53,13 +56,15 @@ def parse_noise(text: str) -> tuple[float, float]:
 def register(sub: Any) -> None:
     p = sub.add_parser("slam", help="SLAM tools (evaluation against simulated ground truth)")
     ssub = p.add_subparsers(dest="slam_command", required=True, metavar="SUBCOMMAND")
-    e = ssub.add_parser("eval", help="Monte Carlo comparison of landmark SLAM filters")
+    e = ssub.add_parser("eval", help="Monte Carlo comparison of SLAM filters")
     e.add_argument("--scenario", required=True, type=Path, help="scenario JSON file")
     e.add_argument(
         "--pipeline",
         default="landmark",
-        choices=["landmark", "magnetic"],
-        help="landmark filters, or the magnetic-beacon pipeline (amb-slam, mb-slam, dr)",
+        choices=["landmark", "bathymetric", "magnetic"],
+        help="landmark filters on point/line features; bathymetric PF-SLAM on multibeam "
+        "swaths (mtm-pf, bpslam, dr; docs/slam_bathymetric.md); or the magnetic-beacon "
+        "pipeline (amb-slam, mb-slam, dr)",
     )
     e.add_argument(
         "--variant",
@@ -70,8 +75,9 @@ def register(sub: Any) -> None:
     )
     e.add_argument(
         "--algorithms",
-        default="fastslam1,fastslam2,ufastslam,vb-afastslam,vb-aufastslam",
-        help="comma-separated algorithm names",
+        default=None,
+        help="comma-separated algorithm names (default: landmark "
+        f"{LANDMARK_DEFAULT}; bathymetric {BATHY_DEFAULT})",
     )
     e.add_argument("--runs", type=int, default=10, help="Monte Carlo runs per noise setting")
     e.add_argument(
@@ -89,6 +95,20 @@ def register(sub: Any) -> None:
         help="dynamic observation noise (repeatable); default: the scenario's",
     )
     e.add_argument("--jobs", type=int, default=1, help="worker processes")
+    e.add_argument(
+        "--dask",
+        default=None,
+        metavar="ADDRESS",
+        help="run the trials on an existing Dask cluster (scheduler tcp://host:8786) instead "
+        "of local processes; same results for the same seed",
+    )
+    e.add_argument(
+        "--set",
+        action="append",
+        default=None,
+        metavar="KEY=VALUE",
+        help="bathymetric: override a BathyConfig value (repeatable), e.g. --set lccd=false",
+    )
     e.add_argument("--particles", type=int, default=100, help="particles per filter")
     e.add_argument("--association", default="known", choices=["known", "nn", "jcbb"])
     e.add_argument("--seed", type=int, default=0, help="base seed of the study")
@@ -122,6 +142,10 @@ def register(sub: Any) -> None:
 
 def command_line(args: argparse.Namespace) -> str:
     """The ``auvgw slam eval`` command line equivalent to ``args`` (recorded with the tables)."""
+    if getattr(args, "pipeline", "landmark") == "bathymetric":
+        from auvgw.commands.slam_bathy import command_line as bathy_command_line
+
+        return bathy_command_line(args)
     parts = ["auvgw", "slam", "eval", "--scenario", str(args.scenario)]
     parts += ["--pipeline", args.pipeline] if args.pipeline != "landmark" else []
     for t in args.variant or []:
@@ -138,19 +162,21 @@ def command_line(args: argparse.Namespace) -> str:
         parts += ["--oracle-noise"]
     if args.max_steps is not None:
         parts += ["--max-steps", str(args.max_steps)]
+    if getattr(args, "dask", None):
+        parts += ["--dask", args.dask]
     if args.out is not None:
         parts += ["--out", str(args.out)]
     return " ".join(shlex.quote(p) for p in parts)
 
 
-def _monte_carlo(study: Any, jobs: int, progress: Any) -> Any:
+def _monte_carlo(study: Any, jobs: int, progress: Any, executor: Any = None) -> Any:
     """:func:`~auvgw.slam.evaluation.runner.monte_carlo` with scenario errors (a route the
     vehicle cannot drive) as user errors."""
     from auvgw.config.scenario import ScenarioError
     from auvgw.slam.evaluation.runner import monte_carlo
 
     try:
-        return monte_carlo(study, jobs=jobs, progress=progress)
+        return monte_carlo(study, jobs=jobs, progress=progress, executor=executor)
     except ScenarioError as exc:
         raise UserError(str(exc)) from None
 
@@ -161,10 +187,29 @@ def _advance(bar: Any) -> Any:
 
 def run(args: argparse.Namespace) -> int:
     """Run the study and print the tables; returns the exit code."""
+    if args.pipeline == "bathymetric":
+        from auvgw.commands.slam_bathy import run as run_bathy
+
+        return run_bathy(args)
+    if args.algorithms is None:
+        args.algorithms = LANDMARK_DEFAULT
     if args.pipeline == "magnetic":
         from auvgw.slam.magnetic.evaluation import run_cli
 
         return run_cli(args, command_line(args))
+    from contextlib import ExitStack
+
+    from auvgw.slam.evaluation.executor import ExecutorError, open_executor
+
+    with ExitStack() as stack:
+        try:
+            executor = stack.enter_context(open_executor(1, args.dask)) if args.dask else None
+        except ExecutorError as exc:
+            raise UserError(str(exc)) from None
+        return _run_landmark(args, executor)
+
+
+def _run_landmark(args: argparse.Namespace, executor: Any) -> int:
     from auvgw.config.scenario import ScenarioError, load_scenario
     from auvgw.slam.evaluation.report import format_table, plot_results, summaries_by_algorithm
     from auvgw.slam.evaluation.runner import Study
@@ -216,12 +261,12 @@ def run(args: argparse.Namespace) -> int:
         )
         total = args.runs * len(algorithms)
         if args.no_progress:
-            results = _monte_carlo(study, args.jobs, None)
+            results = _monte_carlo(study, args.jobs, None, executor)
         else:
             from tqdm import tqdm
 
             with tqdm(total=total, desc=f"n={n:g}, p={p:g}", unit="run", file=sys.stderr) as bar:
-                results = _monte_carlo(study, args.jobs, _advance(bar))
+                results = _monte_carlo(study, args.jobs, _advance(bar), executor)
         sums = summaries_by_algorithm(results, algorithms)
         title = (
             f"{scenario.name}"

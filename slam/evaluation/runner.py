@@ -12,13 +12,14 @@ from __future__ import annotations
 import math
 import time
 import zlib
-from collections.abc import Callable, Iterator
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from collections.abc import Callable
+from concurrent.futures import Executor
 from dataclasses import dataclass
 
 import numpy as np
 
 from auvgw.config.scenario import Scenario
+from auvgw.slam.evaluation.executor import map_unordered, open_executor
 from auvgw.slam.evaluation.metrics import RunResult
 from auvgw.slam.evaluation.simulate import FeatureKind, SimRun, simulate
 from auvgw.slam.landmark.base import LandmarkFilter, ParticleFilterSLAM
@@ -186,24 +187,18 @@ def monte_carlo(
     study: Study,
     jobs: int = 1,
     progress: Callable[[RunResult], None] | None = None,
+    executor: Executor | None = None,
 ) -> list[RunResult]:
-    """All runs x algorithms of ``study`` on ``jobs`` processes; ``progress`` is called with
-    each finished result. Results come back ordered by (run, algorithm)."""
+    """All runs x algorithms of ``study`` on ``jobs`` processes, or on ``executor`` when given
+    (e.g. a Dask cluster's, :func:`~auvgw.slam.evaluation.executor.open_executor`);
+    ``progress`` is called with each finished result. Results come back ordered by (run,
+    algorithm), identical wherever they ran."""
     tasks = [(study, i, a) for i in range(study.runs) for a in study.algorithms]
-    results: list[RunResult] = []
-
-    def collect(it: Iterator[RunResult]) -> None:
-        for res in it:
-            results.append(res)
-            if progress is not None:
-                progress(res)
-
-    if jobs <= 1:
-        collect(_task(t) for t in tasks)
+    if executor is not None:
+        results = map_unordered(_task, tasks, executor, progress)
     else:
-        with ProcessPoolExecutor(max_workers=jobs) as ex:
-            futures = [ex.submit(_task, t) for t in tasks]
-            collect(f.result() for f in as_completed(futures))
+        with open_executor(jobs) as ex:
+            results = map_unordered(_task, tasks, ex, progress)
     order = {a: i for i, a in enumerate(study.algorithms)}
     results.sort(key=lambda r: (r.run, order[r.algorithm]))
     return results

@@ -1,0 +1,79 @@
+"""Named parameters of the bathymetric PF-SLAM filters, with their source (paper section and
+equation, or the resolution letter A1-A30 of the reading notes where the paper is silent)."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+__all__ = ["BathyConfig"]
+
+
+class BathyConfig(BaseModel):
+    """All lengths in metres, variances in m^2, windows counted in pings (swaths)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    n_particles: int = Field(400, ge=1, description="N (Sec. V-A)")
+    radius_m: float = Field(10.0, gt=0, description="R, overlap radius (Sec. V-A)")
+    sigma_c2: float = Field(1.0, ge=0, description="jitter floor sigma_c^2 per step, eq. (3)")
+    jitter_a: float = Field(1.0, ge=0, description="A, extra jitter after resampling, eq. (3)")
+    jitter_b: int = Field(10, ge=0, description="B, hold-off steps of A, eq. (3) (Fig. 2; A8)")
+    jitter_c: float = Field(10.0, gt=0, description="C, decay steps of A, eq. (3) (Fig. 2; A8)")
+    omega_sigma_m: float = Field(0.01, ge=0, description="omega std per axis, eq. (2) (A9)")
+    t_p: int = Field(20, ge=1, description="T_p, Pmap swaths (Sec. V-A)")
+    t_m: int = Field(20, ge=2, description="T_m, Mmap swaths (Sec. V-A)")
+    t_l: int = Field(60, ge=1, description="t_l, recent pings excluded from the overlap test (A10)")
+    mse_max_m2: float = Field(0.5, gt=0, description="MSE gate, eq. (6) (Sec. V-A)")
+    min_valid_fraction: float = Field(
+        0.25, gt=0, le=1, description="I threshold as a share of the Mmap points (A2)"
+    )
+    sigma_s_m: float = Field(0.3, gt=0, description="sigma_s, sensor std of eq. (8) (A3)")
+    sigma_map2: float = Field(
+        0.1,
+        ge=0,
+        description="sigma^2_pmap = sigma^2_mmap, map-error variance of eqs. (11)-(12) (A4)",
+    )
+    unmatched_weight: Literal["uniform", "neutral"] = Field(
+        "uniform",
+        description="weight of particles outside R or failing the gates: 'uniform' = 1/N as "
+        "written (Sec. III-C; A5), 'neutral' = the mean of the matched weights (ours)",
+    )
+    min_matched_fraction: float = Field(
+        0.1,
+        ge=0,
+        le=1,
+        description="weights count only when at least this share of the particles passes the "
+        "overlap test and the gates; below it every weight is 1/N (ours: a few outlier "
+        "particles touching an adjacent line are not evidence about the cloud)",
+    )
+    alpha_towards: Literal["one", "fallback"] = Field(
+        "fallback",
+        description="what alpha = 0 flattens a weight to: 'one' as eq. (9) is written "
+        "(w^alpha), or 'fallback' = the 1/N of unmatched particles, "
+        "w^alpha (1/N)^(1 - alpha) (ours: with the 1/N floor of A5, w^0 = 1 would make "
+        "featureless matches 400x likelier than no match at all)",
+    )
+    use_alpha: bool = Field(True, description="weight indexation, eqs. (9)-(12)")
+    idw_power: float = Field(2.0, gt=0, description="IDW power p (A1)")
+    idw_k: int = Field(8, ge=1, description="IDW neighbours (A1)")
+    idw_radius_m: float = Field(4.0, gt=0, description="IDW search radius (A1: ~2 x spacing)")
+    idw_min_neighbours: int = Field(3, ge=1, description="neighbours for a valid point (A1)")
+    pmap_beam_stride: int = Field(2, ge=1, description="every n-th beam in Pmap (speed; ours)")
+    mmap_beam_stride: int = Field(4, ge=1, description="every n-th beam in Mmap (speed; ours)")
+    mmap_ping_stride: int = Field(2, ge=1, description="every n-th swath in Mmap (speed; ours)")
+    neff_fraction: float = Field(2 / 3, gt=0, le=1, description="resample if Neff < f N, eq. (13)")
+    min_ramp_pings: int = Field(
+        0,
+        ge=0,
+        description="ours, 0 = eq. 15 as written (default): spread an accepted correction over "
+        "at least "
+        "this many recent pings (T_p) even when earlier loops cover them; literally a repeated "
+        "closure moves only the newest ping, a kink inside the next Pmaps",
+    )
+    lccd: bool = Field(True, description="loop-closure consistency determination (Sec. IV-B)")
+    lccd_tau_m: float = Field(3.0, gt=0, description="clustering cut distance (A15)")
+    lccd_linkage: str = Field("single", description="scipy linkage method (A15)")
+    lccd_disjoint_m: float = Field(1e6, gt=0, description="distance of disjoint loops (A14)")
+    grid_cell_m: float = Field(2.0, gt=0, description="DEM cell of the final map (ours)")

@@ -1,0 +1,348 @@
+"""The bathymetric filters: MTM-PF (Zhang 2021), the paper's BPSLAM comparator and dead
+reckoning. Each is fed one ping at a time, ``step(u, offsets, depth)``, with the DR displacement
+``u`` (2,) since the previous ping, the ping's sounding offsets (B, 2) from the vehicle (NED, m)
+and depths (B,) (m, down); ping 0 is given to ``start``. ``trajectory()`` is the final
+(corrected) estimate at every ping, ``estimates`` the online estimate after each ping.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from auvgw.slam.bathymetric.config import BathyConfig
+from auvgw.slam.bathymetric.loops import LCCD, LoopClosure, correction_ramp
+from auvgw.slam.bathymetric.matching import idw, match_weights
+
+__all__ = ["BPSLAM", "MTMPF", "BathyFilter", "DeadReckoning", "jitter_variance", "systematic"]
+
+
+def jitter_variance(t_r: int, cfg: BathyConfig) -> float:
+    """sigma_m^2 of eq. (3): sigma_c^2 + A exp(-t_r / C), with A = 0 while t_r < B (A8)."""
+    a = cfg.jitter_a if t_r >= cfg.jitter_b else 0.0
+    return cfg.sigma_c2 + a * float(np.exp(-t_r / cfg.jitter_c))
+
+
+def systematic(w: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Low-variance (systematic) resampling indices of normalised weights ``w`` (A20)."""
+    n = len(w)
+    c = np.cumsum(w)
+    c[-1] = 1.0
+    return np.searchsorted(c, (rng.random() + np.arange(n)) / n)
+
+
+def fill_weights(n: int, idx: np.ndarray, w_m: np.ndarray, cfg: BathyConfig) -> np.ndarray:
+    """Normalised weights of ``n`` particles: ``w_m`` for those in ``idx`` (matched and gated
+    in), the ``unmatched_weight`` rule for the rest (1/N as written, or the mean matched weight:
+    "no evidence" then neither favours nor penalises a particle, A5)."""
+    if len(w_m) < cfg.min_matched_fraction * n:
+        return np.full(n, 1.0 / n)
+    if cfg.unmatched_weight == "uniform" or len(w_m) == 0:
+        w = np.full(n, 1.0 / n)
+    else:
+        w = np.full(n, float(w_m.mean()))
+    w[idx] = w_m
+    s = w.sum()
+    return w / s if s > 0 else np.full(n, 1.0 / n)
+
+
+class BathyFilter:
+    """Common storage: the swaths (offsets, depths) of every ping, preallocated for ``n_pings``."""
+
+    name = "base"
+
+    def __init__(self, cfg: BathyConfig, n_pings: int, rng: np.random.Generator) -> None:
+        self.cfg, self.rng, self.T = cfg, rng, n_pings
+        self.t = -1
+        self.estimates = np.zeros((n_pings, 2))
+        self.dr = np.zeros((n_pings, 2))
+        self.offsets: np.ndarray | None = None
+        self.depths: np.ndarray | None = None
+        self.loops: list[LoopClosure] = []
+        self.matched = np.zeros(n_pings, dtype=np.int32)
+        self.neff_log = np.full(n_pings, np.nan)
+
+    def _store(self, offsets: np.ndarray, depth: np.ndarray) -> None:
+        if self.offsets is None:
+            self.offsets = np.zeros((self.T, len(depth), 2))
+            self.depths = np.zeros((self.T, len(depth)))
+        assert self.depths is not None
+        self.offsets[self.t] = offsets
+        self.depths[self.t] = depth
+
+    def start(self, x0: np.ndarray, offsets: np.ndarray, depth: np.ndarray) -> None:
+        """Ping 0 at the known start position ``x0`` (Sec. 1.3: no initial spread)."""
+        self.t = 0
+        self.dr[0] = x0
+        self._store(offsets, depth)
+        self.estimates[0] = x0
+
+    def step(self, u: np.ndarray, offsets: np.ndarray, depth: np.ndarray) -> None:
+        raise NotImplementedError
+
+    def _advance(
+        self, u: np.ndarray, offsets: np.ndarray, depth: np.ndarray, var: float
+    ) -> np.ndarray:
+        """Next ping: store DR and swath; return the particles' motion of eq. (2),
+        u + omega + N(0, var), (N, 2)."""
+        cfg, rng, n = self.cfg, self.rng, self.cfg.n_particles
+        self.t += 1
+        self.dr[self.t] = self.dr[self.t - 1] + u
+        self._store(offsets, depth)
+        return (
+            u + rng.normal(0.0, cfg.omega_sigma_m, (n, 2)) + rng.normal(0.0, np.sqrt(var), (n, 2))
+        )
+
+    def trajectory(self) -> np.ndarray:
+        """Final estimate of every ping so far, (t + 1, 2) m."""
+        raise NotImplementedError
+
+    def bytes_held(self) -> int:
+        """Bytes of the filter's state arrays (map, trajectories, particles)."""
+        return sum(v.nbytes for v in vars(self).values() if isinstance(v, np.ndarray))
+
+    def map_points(self) -> np.ndarray:
+        """Every sounding placed by :meth:`trajectory`: (P, 3) x, y, depth."""
+        assert self.offsets is not None and self.depths is not None
+        n = self.t + 1
+        xy = self.trajectory()[:, None, :] + self.offsets[:n]
+        return np.column_stack([xy.reshape(-1, 2), self.depths[:n].reshape(-1)])
+
+
+class DeadReckoning(BathyFilter):
+    """The DR track itself (the paper's eq. 28 input)."""
+
+    name = "dr"
+
+    def step(self, u: np.ndarray, offsets: np.ndarray, depth: np.ndarray) -> None:
+        self.t += 1
+        self.dr[self.t] = self.dr[self.t - 1] + u
+        self.estimates[self.t] = self.dr[self.t]
+        self._store(offsets, depth)
+
+    def trajectory(self) -> np.ndarray:
+        return self.dr[: self.t + 1]
+
+
+class MTMPF(BathyFilter):
+    """The mean-trajectory-map particle filter (Zhang 2021, Secs. III-IV).
+
+    Particles hold only their current position ``x`` (N, 2) (eq. 1); ``traj`` (T, 2) is the one
+    mean trajectory of unweighted centroids (A7) along which every swath is placed."""
+
+    name = "mtm-pf"
+
+    def __init__(self, cfg: BathyConfig, n_pings: int, rng: np.random.Generator) -> None:
+        super().__init__(cfg, n_pings, rng)
+        self.x = np.zeros((cfg.n_particles, 2))
+        self.traj = np.zeros((n_pings, 2))
+        self.covered = np.zeros(n_pings, dtype=bool)  # l^h, eq. (16)
+        self.t_r = 10**9  # "a large value" at mission start, eq. (3)
+        self.lccd = LCCD(cfg.lccd_tau_m, cfg.lccd_linkage, cfg.lccd_disjoint_m)
+
+    def start(self, x0: np.ndarray, offsets: np.ndarray, depth: np.ndarray) -> None:
+        super().start(x0, offsets, depth)
+        self.x[:] = x0
+        self.traj[0] = x0
+
+    def trajectory(self) -> np.ndarray:
+        return self.traj[: self.t + 1]
+
+    # -- one ping -----------------------------------------------------------------------------
+    def step(self, u: np.ndarray, offsets: np.ndarray, depth: np.ndarray) -> None:
+        cfg, n = self.cfg, self.cfg.n_particles
+        self.x += self._advance(u, offsets, depth, jitter_variance(self.t_r, cfg))  # eq. (2)
+        t = self.t
+        self.t_r += 1
+        self.traj[t] = self.x.mean(0)  # S_p, unweighted centroid (A7)
+        w, tlp = self.weights()
+        if w is None:
+            self.estimates[t] = self.traj[t]
+            return
+        neff = 1.0 / np.sum(w**2)  # eq. (13)
+        self.neff_log[t] = neff
+        if neff < cfg.neff_fraction * n:
+            self._resample(w, tlp)
+        self.estimates[t] = self.traj[t]
+
+    def _submap(self) -> tuple[cKDTree, np.ndarray]:
+        """Pmap as placed by the mean trajectory (eq. 4 with V_ec = 0): tree and depths."""
+        assert self.offsets is not None and self.depths is not None
+        cfg, t = self.cfg, self.t
+        lo = max(t - cfg.t_p + 1, 0)
+        sl = slice(None, None, cfg.pmap_beam_stride)
+        pts = self.traj[lo : t + 1, None, :] + self.offsets[lo : t + 1, sl]
+        return cKDTree(pts.reshape(-1, 2)), self.depths[lo : t + 1, sl].reshape(-1)
+
+    def _mmap_index(self, tlp: np.ndarray, h: int) -> tuple[np.ndarray, np.ndarray]:
+        """Swath indices (K, W) of each Mmap around ``tlp`` and their mask, clipped to < h (A25)."""
+        cfg = self.cfg
+        rel = np.arange(-(cfg.t_m // 2), cfg.t_m // 2 + 1, cfg.mmap_ping_stride)
+        idx = tlp[:, None] + rel[None, :]
+        ok = (idx >= 0) & (idx < h)
+        return np.clip(idx, 0, h - 1), ok
+
+    def weights(self) -> tuple[np.ndarray | None, np.ndarray]:
+        """Normalised weights (None: no particle overlaps the map) and each particle's t_lp."""
+        cfg, t, n = self.cfg, self.t, self.cfg.n_particles
+        h = t - cfg.t_l  # historical centroids: times < t - t_l (Sec. III-C)
+        if h < 2:
+            return None, np.zeros(n, dtype=int)
+        d, tlp = cKDTree(self.traj[:h]).query(self.x)
+        near = np.flatnonzero(d <= cfg.radius_m)  # overlap test
+        self.matched[t] = len(near)
+        if len(near) == 0:
+            return None, tlp
+        tree, z_p = self._submap()
+        v = self.x[near] - self.traj[t]  # V_ec, eq. (5)
+        idx, ok = self._mmap_index(tlp[near], h)
+        z_pm, z_mm, valid, n_m = self._mmap_vs_pmap(tree, z_p, idx, ok, v, self.traj)
+        w_m, gate, _ = match_weights(z_pm, z_mm, valid, n_m, cfg, fallback=1.0 / n)
+        return fill_weights(n, near[gate], w_m[gate], cfg), tlp
+
+    def _mmap_vs_pmap(
+        self,
+        tree: cKDTree,
+        z_p: np.ndarray,
+        idx: np.ndarray,
+        ok: np.ndarray,
+        shift: np.ndarray,
+        traj: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """IDW of the Pmap at each row's Mmap points. Shifting the Pmap by ``shift`` (eq. 4) is
+        querying the Mmap points shifted by ``-shift``: one tree serves every particle."""
+        assert self.offsets is not None and self.depths is not None
+        cfg = self.cfg
+        bsl = slice(None, None, cfg.mmap_beam_stride)
+        pts = traj[idx][:, :, None, :] + self.offsets[idx][:, :, bsl]  # (K, W, B', 2)
+        z_mm = self.depths[idx][:, :, bsl]
+        q = pts - shift[:, None, None, :]
+        z_pm, valid = idw(
+            tree, z_p, q, cfg.idw_k, cfg.idw_radius_m, cfg.idw_power, cfg.idw_min_neighbours
+        )
+        mask = np.broadcast_to(ok[:, :, None], valid.shape)
+        valid = (valid & mask).reshape(len(idx), -1)
+        n_m = mask.reshape(len(idx), -1).sum(1)
+        return z_pm.reshape(len(idx), -1), z_mm.reshape(len(idx), -1), valid, n_m
+
+    # -- resampling = loop closure ------------------------------------------------------------
+    def _resample(self, w: np.ndarray, tlp: np.ndarray) -> None:
+        cfg, t = self.cfg, self.t
+        before = self.x.copy()
+        s_before = self.traj[t].copy()
+        self.x = self.x[systematic(w, self.rng)]
+        s_after = self.x.mean(0)
+        m = s_after - s_before  # eq. (14)
+        h = t - cfg.t_l
+        t_loop = int(cKDTree(self.traj[:h]).query(s_after)[1])  # A11
+        loop = LoopClosure(
+            m=m,
+            t_loop=t_loop,
+            t_end=t,
+            dr_loop=self.dr[t_loop].copy(),
+            dr_end=self.dr[t].copy(),
+            s_loop=self.traj[t_loop].copy(),
+            s_end=s_after,
+            s_end_before=s_before,
+        )
+        self.loops.append(loop)
+        valid = self.lccd.judge(loop) if cfg.lccd else True
+        loop.accepted = valid
+        if not valid:  # A18: restore the particles, map unchanged
+            self.x = before
+            return
+        covered = self.covered
+        if cfg.min_ramp_pings > 0:  # ours: never a kink inside the recent pings
+            covered = covered.copy()
+            covered[max(t - cfg.min_ramp_pings + 1, 0) : t + 1] = False
+        t_a, delta = correction_ramp(covered, t_loop, t, m)  # eqs. (15)-(22)
+        self.traj[t_a : t + 1] += delta
+        self.covered[t_loop : t + 1] = True  # A19
+        self.t_r = 1
+
+
+class BPSLAM(BathyFilter):
+    """The paper's BPSLAM comparator (Sec. V-A, A24): every particle stores its own trajectory
+    (``trajs`` (T, N, 2): the m_j N of Table 1), Pmap and Mmap from its own trajectory, the
+    same IDW / MSE gate / eqs. (7)-(8) weights, no alpha, jitter floor only, no LCCD. Estimate:
+    the weighted mean of the particle trajectories."""
+
+    name = "bpslam"
+
+    def __init__(self, cfg: BathyConfig, n_pings: int, rng: np.random.Generator) -> None:
+        super().__init__(cfg, n_pings, rng)
+        self.trajs = np.zeros((n_pings, cfg.n_particles, 2))
+        self.w = np.full(cfg.n_particles, 1.0 / cfg.n_particles)
+
+    def start(self, x0: np.ndarray, offsets: np.ndarray, depth: np.ndarray) -> None:
+        super().start(x0, offsets, depth)
+        self.trajs[0] = x0
+
+    def trajectory(self) -> np.ndarray:
+        return np.einsum("tnk,n->tk", self.trajs[: self.t + 1], self.w)
+
+    def step(self, u: np.ndarray, offsets: np.ndarray, depth: np.ndarray) -> None:
+        cfg, rng, n = self.cfg, self.rng, self.cfg.n_particles
+        step = self._advance(u, offsets, depth, cfg.sigma_c2)  # eq. (2), sigma_m^2 = sigma_c^2
+        t = self.t
+        self.trajs[t] = self.trajs[t - 1] + step
+        w = self.weights()
+        if w is not None:
+            self.w = w
+            neff = 1.0 / np.sum(w**2)
+            self.neff_log[t] = neff
+            if neff < cfg.neff_fraction * n:
+                i = systematic(w, rng)
+                self.trajs[: t + 1] = self.trajs[: t + 1, i]
+                self.w = np.full(n, 1.0 / n)
+        self.estimates[t] = self.w @ self.trajs[t]
+
+    def weights(self) -> np.ndarray | None:
+        """Weights from each particle's own Pmap / Mmap; None when no particle overlaps."""
+        assert self.offsets is not None and self.depths is not None
+        cfg, t, n = self.cfg, self.t, self.cfg.n_particles
+        h = t - cfg.t_l
+        if h < 2:
+            return None
+        x = self.trajs[t]
+        d2 = ((self.trajs[:h] - x[None]) ** 2).sum(-1)  # (h, N): own history
+        tlp = d2.argmin(0)
+        near = np.flatnonzero(d2[tlp, np.arange(n)] <= cfg.radius_m**2)
+        self.matched[t] = len(near)
+        if len(near) == 0:
+            return None
+        k = len(near)
+        lo = max(t - cfg.t_p + 1, 0)
+        bsl = slice(None, None, cfg.pmap_beam_stride)
+        own = self.trajs[lo : t + 1][:, near]  # (Tp, K, 2)
+        pm = own[:, :, None, :] + self.offsets[lo : t + 1, None, bsl]  # (Tp, K, B', 2)
+        # one tree over every particle's Pmap: the particle index is a third coordinate far
+        # beyond any search radius, so a query only finds its own particle's points
+        sep = 1e7
+        lab = np.broadcast_to(np.arange(k)[None, :, None, None] * sep, (*pm.shape[:3], 1))
+        tree = cKDTree(np.concatenate([pm, lab], -1).reshape(-1, 3))
+        z_p = np.broadcast_to(self.depths[lo : t + 1, None, bsl], pm.shape[:3]).reshape(-1)
+        rel = np.arange(-(cfg.t_m // 2), cfg.t_m // 2 + 1, cfg.mmap_ping_stride)
+        idx = tlp[near][:, None] + rel[None, :]
+        ok = (idx >= 0) & (idx < h)
+        idx = np.clip(idx, 0, h - 1)
+        msl = slice(None, None, cfg.mmap_beam_stride)
+        own_h = self.trajs[idx, near[:, None]]  # (K, W, 2)
+        pts = own_h[:, :, None, :] + self.offsets[idx][:, :, msl]
+        q = np.concatenate(
+            [pts, np.broadcast_to(np.arange(k)[:, None, None, None] * sep, (*pts.shape[:3], 1))],
+            -1,
+        )
+        z_pm, valid = idw(
+            tree, z_p, q, cfg.idw_k, cfg.idw_radius_m, cfg.idw_power, cfg.idw_min_neighbours
+        )
+        mask = np.broadcast_to(ok[:, :, None], valid.shape)
+        valid = (valid & mask).reshape(k, -1)
+        z_mm = self.depths[idx][:, :, msl].reshape(k, -1)
+        w_m, gate, _ = match_weights(
+            z_pm.reshape(k, -1), z_mm, valid, mask.reshape(k, -1).sum(1), cfg, use_alpha=False
+        )
+        return fill_weights(n, near[gate], w_m[gate], cfg)
+
+
+FILTERS: dict[str, type[BathyFilter]] = {"mtm-pf": MTMPF, "bpslam": BPSLAM, "dr": DeadReckoning}

@@ -1,0 +1,100 @@
+"""Loop closures: the correction ramp along the loop interval (eqs. 15-22) and the loop-closure
+consistency determination, LCCD (eqs. 23-27, hierarchical clustering)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.cluster.hierarchy import fcluster, linkage
+from scipy.spatial.distance import squareform
+
+__all__ = ["LCCD", "LoopClosure", "correction_ramp"]
+
+
+@dataclass
+class LoopClosure:
+    """One resampling = one loop closure, eq. (14): jump ``m`` (m, NED) of the centroid,
+    interval ``[t_loop, t_end]`` (pings), and what eq. (25) needs: DR and SLAM positions at
+    both ends (SLAM at ``t_end`` after the resampling). ``accepted`` is the LCCD decision."""
+
+    m: np.ndarray
+    t_loop: int
+    t_end: int
+    dr_loop: np.ndarray
+    dr_end: np.ndarray
+    s_loop: np.ndarray
+    s_end: np.ndarray
+    s_end_before: np.ndarray
+    accepted: bool = False
+
+    @property
+    def v_end(self) -> np.ndarray:
+        """V_i at t_end, eq. (25): SLAM minus DR displacement over the loop."""
+        return self.dr_loop - self.dr_end + self.s_end - self.s_loop
+
+    def v(self, t: float) -> np.ndarray:
+        """V_i(t), eq. (25): linear in time from 0 at t_loop to :attr:`v_end` at t_end."""
+        span = max(self.t_end - self.t_loop, 1)
+        return (t - self.t_loop) / span * self.v_end
+
+
+def correction_ramp(
+    covered: np.ndarray, t_loop: int, t_end: int, m: np.ndarray
+) -> tuple[int, np.ndarray]:
+    """The corrections of eqs. (15)-(22): ``(t_a, delta)`` with ``delta`` (t_end - t_a + 1, 2)
+    to add to the mean trajectory from ``t_a`` to ``t_end``. ``covered`` (bool, >= t_end + 1)
+    marks times already corrected by earlier valid loops (l^h, eq. 16); U = [t_loop, t_end]
+    minus them (eq. 15). The ramp counts only U steps (eq. 21 with A12), so it rises from
+    ``m / |U|`` at t_a to ``m`` at t_b = t_end, and a solidified gap moves rigidly with the last
+    U step before it (eq. 22): continuous at both ends of every gap."""
+    in_u = ~covered[t_loop : t_end + 1]
+    if not in_u.any():
+        return t_end, np.asarray(m, float)[None, :]
+    first = int(np.argmax(in_u))
+    t_a = t_loop + first
+    in_u = in_u[first:]
+    a = np.cumsum(in_u)  # eq. (19)/(21): a_t over U steps only
+    return t_a, (a / a[-1])[:, None] * np.asarray(m, float)[None, :]  # eqs. (18), (21), (22)
+
+
+class LCCD:
+    """Loop-closure consistency determination (Sec. IV-B): the pool holds every loop closure so
+    far (A17); a new one is valid unless it ends up alone in its cluster when the single-linkage
+    (A15) dendrogram of D (eqs. 23-27) is cut at ``tau_m``."""
+
+    def __init__(self, tau_m: float = 3.0, method: str = "single", disjoint_m: float = 1e6) -> None:
+        self.tau_m, self.method, self.disjoint_m = tau_m, method, disjoint_m
+        self.pool: list[LoopClosure] = []
+
+    @staticmethod
+    def distance(a: LoopClosure, b: LoopClosure, disjoint_m: float = 1e6) -> float:
+        """d(i, j) of Fig. 7 for ``a`` earlier than ``b`` (t_end order)."""
+        i, j = a, b
+        if j.t_loop < i.t_loop:  # relation 1: l_i nested in l_j, eq. (26)
+            d = (j.v(i.t_end) - j.v(i.t_loop)) - i.v(i.t_end)
+        elif j.t_loop <= i.t_end:  # relation 2: partial overlap, eq. (27) over the overlap (A16)
+            d = (i.v(i.t_end) - i.v(j.t_loop)) - j.v(i.t_end)
+        else:  # relation 3: disjoint, not comparable (A14)
+            return disjoint_m
+        return float(np.linalg.norm(d))
+
+    def matrix(self) -> np.ndarray:
+        """D (M x M) over the pool, eqs. (23)-(24)."""
+        m = len(self.pool)
+        d = np.zeros((m, m))
+        for b in range(m):
+            for a in range(b):
+                d[a, b] = d[b, a] = self.distance(self.pool[a], self.pool[b], self.disjoint_m)
+        return d
+
+    def judge(self, loop: LoopClosure) -> bool:
+        """Add ``loop`` to the pool; True if it is consistent with at least one other."""
+        self.pool.append(loop)
+        if len(self.pool) < 2:
+            loop.accepted = False
+            return False
+        z = linkage(squareform(self.matrix(), checks=False), method=self.method)
+        labels = fcluster(z, t=self.tau_m, criterion="distance")
+        loop.accepted = bool((labels == labels[-1]).sum() > 1)
+        return loop.accepted

@@ -1,0 +1,173 @@
+"""Unit tests of the bathymetric PF-SLAM (slam/bathymetric): IDW, submap shift and overlap
+test, weight indexation, loop correction ramp, LCCD, and the noise-free single particle."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from auvgw.config.scenario import Scenario
+from auvgw.sim_devices.world import ProceduralTerrain
+from auvgw.slam.bathymetric.config import BathyConfig
+from auvgw.slam.bathymetric.evaluate import grid_dem, run_filter
+from auvgw.slam.bathymetric.filters import MTMPF, jitter_variance
+from auvgw.slam.bathymetric.loops import LCCD, LoopClosure, correction_ramp
+from auvgw.slam.bathymetric.matching import alpha_exponent, idw, match_weights
+from auvgw.slam.bathymetric.simulate import DRModel, simulate_survey, swath_offsets
+from tests.bathy_helpers import TINY
+
+
+def test_idw_hand_computed() -> None:
+    pts = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 2.0], [50.0, 50.0]])
+    z = np.array([1.0, 2.0, 4.0, 100.0])
+    tree = cKDTree(pts)
+    # at (0, 1): distances 1, sqrt 2, 1 -> weights 1, 1/2, 1 (p = 2); (50, 50) is out of range
+    got, ok = idw(tree, z, np.array([[0.0, 1.0], [1.0, 0.0], [30.0, 30.0]]), 4, 10.0, 2.0, 3)
+    assert got[0] == pytest.approx((1 * 1 + 0.5 * 2 + 1 * 4) / 2.5)
+    assert got[1] == 2.0  # a sample's own value at zero distance
+    assert ok.tolist() == [True, True, False]  # (30, 30) has no neighbour within 10 m
+
+
+def _crossing() -> tuple[MTMPF, np.ndarray]:
+    """Line 1 north along y = 0 (pings 0-99), then line 2 east along x = 50 (pings 100-199):
+    the mean trajectory of line 2 is off by (3, -2) m (drift), so the Pmap matches the older
+    map when shifted by (-3, 2)."""
+    terrain = ProceduralTerrain(30.0, 3.0, 40.0, seed=3, octaves=3)
+    truth = np.vstack(
+        [
+            np.column_stack([np.arange(100.0) - 20, np.zeros(100)]),
+            np.column_stack([np.full(100, 50.0), np.arange(100.0) - 60]),
+        ]
+    )
+    heading = np.r_[np.zeros(100), np.full(100, math.pi / 2)]
+    offsets = swath_offsets(heading, np.linspace(-40, 40, 81))
+    depth = terrain.depth(truth[:, None, 0] + offsets[..., 0], truth[:, None, 1] + offsets[..., 1])
+    cfg = BathyConfig(n_particles=4, t_l=30, min_matched_fraction=0.0, mmap_beam_stride=2)
+    f = MTMPF(cfg, 200, np.random.default_rng(0))
+    est = truth.copy()
+    est[100:] += (3.0, -2.0)
+    f.traj[:] = est
+    f.offsets, f.depths, f.t = offsets, depth, 160  # line 2 at (50, 0): over line 1
+    assert np.linalg.norm(truth[160] - (50.0, 0.0)) < 1.0
+    return f, est
+
+
+def test_submap_shift_and_overlap_on_a_crossing() -> None:
+    f, est = _crossing()
+    c = est[160]
+    # particles: the right shift, two wrong shifts (inside R) and one 30 m off the old line
+    f.x = c + np.array([(-3.0, 2.0), (2.0, 6.0), (-8.0, -4.0), (0.0, 30.0)])
+    w, tlp = f.weights()
+    assert w is not None
+    assert f.matched[160] == 3  # the overlap test leaves out the particle 30 m away
+    assert abs(tlp[0] - 70) <= 3  # nearest old centroid: line 1 at x = 50 (ping 70)
+    assert np.argmax(w) == 0 and w[0] > 1.5 * max(w[1], w[2])
+    assert w[0] > 2.5 * w[3]  # the unmatched particle keeps 1/N before normalisation
+
+
+def test_weight_indexation_flattens_on_flat_terrain_only() -> None:
+    rng = np.random.default_rng(1)
+    cfg = BathyConfig()
+    n = 300
+    flat = 30.0 + rng.normal(0, 0.05, (2, n))
+    rough = 30.0 + rng.normal(0, 2.0, (2, n))
+    valid = np.ones((2, n), dtype=bool)
+    for base, flattened in ((flat, True), (rough, False)):
+        z_m = base
+        z_good = base + rng.normal(0, 0.1, base.shape)
+        z_bad = base + rng.normal(0, 0.5, base.shape)
+        z_p = np.stack([z_good[0], z_bad[1]])
+        a = alpha_exponent(z_p, z_m, valid, cfg)
+        w, ok, _ = match_weights(z_p, z_m, valid, np.full(2, n), cfg, fallback=1 / 400)
+        w_raw, _, _ = match_weights(z_p, z_m, valid, np.full(2, n), cfg, use_alpha=False)
+        assert ok.all()
+        if flattened:
+            assert a.max() < 0.05
+            assert w[0] / w[1] < 1.1  # no preference left between a good and a bad match
+            assert w_raw[0] / w_raw[1] > 1.5
+        else:
+            assert a.min() > 0.95
+            assert w[0] / w[1] == pytest.approx(w_raw[0] / w_raw[1], rel=0.1)
+
+
+def test_alpha_is_one_without_map_error() -> None:
+    cfg = BathyConfig(sigma_map2=0.0)
+    z = 30.0 + np.random.default_rng(2).normal(0, 0.3, (1, 50))
+    assert alpha_exponent(z, z, np.ones_like(z, dtype=bool), cfg)[0] == pytest.approx(1.0)
+
+
+def test_jitter_variance_follows_fig2() -> None:
+    cfg = BathyConfig(sigma_c2=1.0, jitter_a=5.0, jitter_b=10, jitter_c=10.0)
+    got = [jitter_variance(t, cfg) for t in (1, 9, 10, 11, 15, 20, 30, 50)]
+    assert got == pytest.approx([1.0, 1.0, 2.839, 2.664, 2.116, 1.677, 1.249, 1.034], abs=1e-3)
+
+
+def test_loop_correction_ramp_is_continuous_at_both_ends() -> None:
+    covered = np.zeros(60, dtype=bool)
+    covered[:10] = True  # an earlier loop
+    covered[25:35] = True  # a solidified gap inside the new loop's interval
+    m = np.array([6.0, -3.0])
+    t_a, delta = correction_ramp(covered, 5, 50, m)
+    assert t_a == 10  # U starts after the earlier loop (eq. 15)
+    n_u = (~covered[10:51]).sum()
+    step = np.linalg.norm(m) / n_u
+    # start: the first corrected point moves by one ramp step from an unmoved neighbour
+    assert np.linalg.norm(delta[0]) == pytest.approx(step)
+    # end: the full jump, so the trajectory joins the resampled cloud
+    assert delta[-1] == pytest.approx(m)
+    # no jump anywhere: consecutive corrections differ by at most one ramp step
+    assert np.linalg.norm(np.diff(delta, axis=0), axis=1).max() <= step + 1e-12
+    # the gap moves rigidly with the last U time before it (eq. 22)
+    assert np.allclose(delta[25 - 10 : 35 - 10], delta[24 - 10])
+
+
+def _loop(t_loop: int, t_end: int, drift: np.ndarray, error: np.ndarray) -> LoopClosure:
+    """A loop of a run whose DR drifts by ``drift`` per ping; the SLAM positions are the truth
+    (truth = 0 at all times here) plus ``error`` at the end."""
+    dr = lambda t: drift * t  # noqa: E731
+    return LoopClosure(
+        m=-drift * (t_end - t_loop),
+        t_loop=t_loop,
+        t_end=t_end,
+        dr_loop=dr(t_loop),
+        dr_end=dr(t_end),
+        s_loop=np.zeros(2),
+        s_end=np.asarray(error, float),
+        s_end_before=dr(t_end),
+    )
+
+
+def test_lccd_rejects_a_planted_inconsistent_closure() -> None:
+    drift = np.array([0.012, 0.012])
+    lccd = LCCD(tau_m=3.0)
+    d_nested = LCCD.distance(_loop(100, 300, drift, (0, 0)), _loop(50, 400, drift, (0, 0)))
+    d_overlap = LCCD.distance(_loop(100, 300, drift, (0, 0)), _loop(200, 500, drift, (0, 0)))
+    assert d_nested == pytest.approx(0.0, abs=1e-9)  # eq. (26)
+    assert d_overlap == pytest.approx(0.0, abs=1e-9)  # eq. (27) over the overlap (A16)
+    decisions = [
+        lccd.judge(_loop(100, 300, drift, (0, 0))),
+        lccd.judge(_loop(101, 301, drift, (0.3, -0.2))),
+        lccd.judge(_loop(90, 330, drift, (15.0, -12.0))),  # a false match: 19 m off
+        lccd.judge(_loop(120, 340, drift, (-0.4, 0.5))),
+    ]
+    assert decisions == [False, True, False, True]  # the first waits for a partner (A17)
+
+
+def _small_scenario() -> Scenario:
+    return Scenario.model_validate(TINY)
+
+
+def test_one_noise_free_particle_reproduces_the_truth() -> None:
+    scn = _small_scenario()
+    sim = simulate_survey(scn, np.random.default_rng(4), dr=DRModel(0.0, 0.0))
+    cfg = BathyConfig(n_particles=1, sigma_c2=0.0, jitter_a=0.0, omega_sigma_m=0.0)
+    for name in ("mtm-pf", "bpslam"):
+        res, f = run_filter(name, sim, cfg, np.random.default_rng(0))
+        assert len(res.final) == len(sim.t) > 100
+        assert np.allclose(res.final, sim.truth, atol=1e-9)
+        assert np.allclose(res.online, sim.truth, atol=1e-9)
+    grid, _ = grid_dem(f.map_points(), 2.0)
+    assert np.nanmax(grid) < 40 and np.nanmin(grid) > 20
