@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -36,10 +37,14 @@ def _increment(t0: float, dt: float, a: np.ndarray, b: np.ndarray) -> MotionIncr
     )  # fmt: skip
 
 
-def test_stage_publishes_pose_map_and_observations_and_beats_dead_reckoning() -> None:
+def _run_data(
+    max_steps: int,
+) -> tuple[Any, Any, np.ndarray, np.ndarray, list[np.ndarray], np.ndarray]:
+    """A simulated run of the beacons scenario: ``(prep, sim, t, b_body, dead-reckoning poses,
+    attitude with unwrapped heading)``."""
     scn = load_scenario(SCENARIO)
     v = Variant(track="mlp")
-    prep = prepare(scn, v, seed=2, run=0, max_steps=4800)  # 120 s, 600 m
+    prep = prepare(scn, v, seed=2, run=0, max_steps=max_steps)
     sim = prep.sim
     ts, b_body, att, _ = magnetometer_stream(
         scn, sim, v, np.random.default_rng(9), np.ones(len(scn.magnetic_beacons), bool)
@@ -49,6 +54,11 @@ def test_stage_publishes_pose_map_and_observations_and_beats_dead_reckoning() ->
     for u in sim.controls:
         dr.append(np.asarray(model.f(dr[-1], u, sim.dt), float))
     att_u = np.column_stack([np.unwrap(att[:, 0]), att[:, 1], att[:, 2]])
+    return prep, sim, ts, b_body, dr, att_u
+
+
+def test_stage_publishes_pose_map_and_observations_and_beats_dead_reckoning() -> None:
+    prep, sim, ts, b_body, dr, att_u = _run_data(4800)  # 120 s, 600 m
     published: list[tuple[str, dict]] = []
     cfg = config_from_scenario(SCENARIO, x0=tuple(float(x) for x in sim.truth[0]))
     stage = MagneticStage(cfg, on_publish=lambda k, p, _t: published.append((k, json.loads(p))))
@@ -109,18 +119,7 @@ def test_stage_process_on_the_bus_publishes_poses_and_observations(tmp_path: Pat
     from auvgw.drivers.ms3a import Ms3aSample
     from tests.gateway_support import Proc, endpoint, free_port, wait_until
 
-    scn = load_scenario(SCENARIO)
-    v = Variant(track="mlp")
-    prep = prepare(scn, v, seed=2, run=0, max_steps=1200)  # 30 s, 150 m
-    sim = prep.sim
-    ts, b_body, att, _ = magnetometer_stream(
-        scn, sim, v, np.random.default_rng(9), np.ones(len(scn.magnetic_beacons), bool)
-    )
-    model = sim.motion_model()
-    dr = [np.asarray(sim.truth[0], float)]
-    for u in sim.controls:
-        dr.append(np.asarray(model.f(dr[-1], u, sim.dt), float))
-    att_u = np.column_stack([np.unwrap(att[:, 0]), att[:, 1], att[:, 2]])
+    prep, sim, ts, b_body, dr, att_u = _run_data(1200)  # 30 s, 150 m
     ep = endpoint(free_port())
     stage = Proc([sys.executable, "-m", "auvgw", "slam", "run", "--pipeline", "magnetic",
                   "--scenario", str(SCENARIO), "--listen", ep], tmp_path / "stage.log")  # fmt: skip
