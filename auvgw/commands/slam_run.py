@@ -79,6 +79,11 @@ def configure(p: argparse.ArgumentParser) -> None:
         help="radius of the point targets, m (default 0.6)",
     )
     p.add_argument("--algorithm", default="vb-aufastslam", choices=sorted(ALGORITHMS))
+    p.add_argument("--pipeline", default="landmark", choices=("landmark", "magnetic"),
+                   help="landmark: MSIS features (default); magnetic: AMB-SLAM on the MS3A and "
+                   "acoustic beacon (auvgw.commands.magnetic_run)")  # fmt: skip
+    p.add_argument("--scenario", type=Path, default=None, metavar="FILE.json",
+                   help="magnetic: beacons scenario giving the channels and the acoustic beacon")
     p.add_argument("--particles", type=int, default=50, help="particles (default 50)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--msis", default=None, help="gateway device of the MSIS (default: first)")
@@ -159,6 +164,10 @@ def _stage_config(args: argparse.Namespace, vehicle: str = "auv1") -> Any:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.pipeline == "magnetic":
+        from auvgw.commands import magnetic_run
+
+        return magnetic_run.run(args)
     if args.recording is None:
         if args.out is not None or args.fusion_settings is not None:
             raise UserError("--out and --fusion-settings are for --recording (offline) runs")
