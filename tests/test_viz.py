@@ -58,7 +58,8 @@ def _calls(calls, name):
 def test_entity_paths(recording) -> None:
     _, _, rec = recording
     expected = {
-        ent.INS_ATTITUDE, ent.VEHICLE, ent.DVL_VELOCITY, ent.DVL_ALTITUDE, ent.DVL_BOTTOM_LOCK,
+        ent.INS_ATTITUDE, ent.INS_HEADING, ent.VEHICLE, ent.DVL_VELOCITY, ent.DVL_ALTITUDE,
+        ent.DVL_BOTTOM_LOCK,
         ent.MAG_FIELD, ent.MAG_MAGNITUDE, ent.VEHICLE_MAG, ent.SOUNDINGS, ent.MAP_BATHYMETRY,
         ent.MEAN_DEPTH, ent.SONAR_FAN, ent.SONAR_BEAM, "map/truth/track", "world/truth/track",
         "map/truth/pose",
@@ -101,8 +102,11 @@ def test_values_against_truth(recording) -> None:
     att = np.array(rec[ent.INS_ATTITUDE].values("Scalars:scalars"))
     first = _calls(calls, "attitude")[100][0]
     assert rec[ent.INS_ATTITUDE].times[100] == pytest.approx(first[0] * NS, abs=1e3)
-    assert att[100] == pytest.approx([math.degrees(first[1]), math.degrees(first[2]),
-                                      math.degrees(first[3])], abs=1e-9)  # fmt: skip
+    assert att[100] == pytest.approx([math.degrees(first[1]), math.degrees(first[2])], abs=1e-9)
+    # the heading on its own axis, 0-360 deg, at the same time
+    hdg = np.array(rec[ent.INS_HEADING].values("Scalars:scalars"))
+    assert rec[ent.INS_HEADING].times[100] == rec[ent.INS_ATTITUDE].times[100]
+    assert hdg[100] == pytest.approx([math.degrees(first[3]) % 360.0], abs=1e-9)
     # vehicle transform: the attitude quaternion
     q = rec[ent.VEHICLE].values("Transform3D:quaternion")[20][0]
     assert rec[ent.VEHICLE].times[20] == rec[ent.INS_ATTITUDE].times[100]
@@ -224,7 +228,10 @@ def test_blueprint_names_its_views(tmp_path, recording) -> None:
     assert kinds["Map"] == ("2D", "map")
     assert kinds["Swath & bathymetry"] == ("3D", "world")
     assert kinds["Sonar fan"] == ("2D", "sonar")
-    assert kinds["INS attitude"] == ("TimeSeries", "ins")
+    assert kinds["Roll & pitch"] == ("TimeSeries", "ins/attitude")
+    assert kinds["Heading"] == ("TimeSeries", "ins/heading")
+    assert kinds["DVL velocity"] == ("TimeSeries", "dvl")  # all of dvl/ but the altitude
+    assert kinds["Altitude"] == ("TimeSeries", "dvl/altitude")
     # the recording carries the layout, re-sent with the SLAM track once it appeared
     path, _, _ = recording
     assert sorted(name for _, name, _ in read_views(path)) == sorted(VIEW_NAMES)

@@ -150,7 +150,10 @@ def test_ins_attitude_and_relative_clock(mapped) -> None:
     att = rec[ent.INS_ATTITUDE]
     assert len(att) == 2
     assert att.values("Scalars:scalars")[0] == pytest.approx(
-        [math.degrees(0.1), math.degrees(-0.05), math.degrees(1.0)], abs=1e-3
+        [math.degrees(0.1), math.degrees(-0.05)], abs=1e-3
+    )
+    assert rec[ent.INS_HEADING].values("Scalars:scalars")[0] == pytest.approx(
+        [math.degrees(1.0)], abs=1e-3
     )
     # time since power-up mapped onto the host clock by the least delayed sample
     assert att.times[0] == pytest.approx((T_RECV + 0.01) * NS, abs=1e4)
@@ -337,7 +340,8 @@ def test_cli_errors_and_blueprint(tmp_path, capsys) -> None:
     assert len(demo[ent.INS_ATTITUDE]) == 300 and len(demo[ent.SONAR_FAN]) >= 3
     assert main(["viz", "--save-blueprint", str(tmp_path / "auvgw.rbl")]) == 0
     names = {name for _, name, _ in read_views(tmp_path / "auvgw.rbl")}
-    assert {"Map", "Sonar fan", "Swath & bathymetry", "INS attitude"} <= names
+    assert {"Map", "Sonar fan", "Swath & bathymetry", "Roll & pitch", "Heading"} <= names
+    assert {"DVL velocity", "Altitude"} <= names
 
 
 def test_device_health_is_on_the_data_clock(tmp_path) -> None:

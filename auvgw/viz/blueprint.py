@@ -26,6 +26,9 @@ import rerun.blueprint as rrb
 
 from auvgw.viz.entities import (
     APPLICATION_ID,
+    DVL_ALTITUDE,
+    INS_ATTITUDE,
+    INS_HEADING,
     MAP,
     MAP_BATHYMETRY,
     SONAR,
@@ -46,8 +49,10 @@ VIEW_NAMES: tuple[str, ...] = (
     "Map",
     "Swath & bathymetry",
     "Sonar fan",
-    "INS attitude",
-    "DVL",
+    "Roll & pitch",
+    "Heading",
+    "DVL velocity",
+    "Altitude",
     "Magnetometer",
     "Device health",
     "Events",
@@ -95,12 +100,24 @@ def default_blueprint(
             column_shares=[2.0, 2.0, 1.4],
         ),
         rrb.Horizontal(
-            rrb.TimeSeriesView(name=VIEW_NAMES[3], origin="ins", time_ranges=window),
-            rrb.TimeSeriesView(name=VIEW_NAMES[4], origin="dvl", time_ranges=window),
-            rrb.TimeSeriesView(name=VIEW_NAMES[5], origin="mag", time_ranges=window),
+            # degrees of roll/pitch and of heading, m/s and metres: never on one axis
+            rrb.Vertical(
+                rrb.TimeSeriesView(name=VIEW_NAMES[3], origin=INS_ATTITUDE, time_ranges=window),
+                rrb.TimeSeriesView(name=VIEW_NAMES[4], origin=INS_HEADING, time_ranges=window),
+            ),
+            rrb.Vertical(
+                rrb.TimeSeriesView(
+                    name=VIEW_NAMES[5],
+                    origin="dvl",
+                    contents=["+ $origin/**", f"- {DVL_ALTITUDE}"],
+                    time_ranges=window,
+                ),
+                rrb.TimeSeriesView(name=VIEW_NAMES[6], origin=DVL_ALTITUDE, time_ranges=window),
+            ),
+            rrb.TimeSeriesView(name=VIEW_NAMES[7], origin="mag", time_ranges=window),
             rrb.Tabs(
-                rrb.TimeSeriesView(name=VIEW_NAMES[6], origin="health"),
-                rrb.TextLogView(name=VIEW_NAMES[7], origin="health"),
+                rrb.TimeSeriesView(name=VIEW_NAMES[8], origin="health"),
+                rrb.TextLogView(name=VIEW_NAMES[9], origin="health"),
             ),
         ),
         row_shares=[3.0, 2.0],

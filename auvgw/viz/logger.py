@@ -940,11 +940,10 @@ class RerunLogger:
         pos: tuple[float, ...] | None,
     ) -> None:
         self._attitude_seen = True
-        self._static(
-            ent.INS_ATTITUDE, lambda: rr.SeriesLines(names=["roll deg", "pitch deg", "heading deg"])
-        )
-        deg = (math.degrees(roll), math.degrees(pitch), math.degrees(heading) % 360.0)
-        self._append(ent.INS_ATTITUDE, "scalars", t, deg)
+        self._static(ent.INS_ATTITUDE, lambda: rr.SeriesLines(names=["roll deg", "pitch deg"]))
+        self._static(ent.INS_HEADING, lambda: rr.SeriesLines(names=["heading deg"]))
+        self._append(ent.INS_ATTITUDE, "scalars", t, (math.degrees(roll), math.degrees(pitch)))
+        self._append(ent.INS_HEADING, "scalars", t, (math.degrees(heading) % 360.0,))
         # 100 us slack: device times near 1.7e9 s carry about 0.2 us of float rounding
         if t - self._pose_t >= 1.0 / self.options.vehicle_pose_hz - 1e-4 or t < self._pose_t:
             self._pose_t = t
