@@ -7,7 +7,6 @@ STAMP := $(VENV)/.installed
 .PHONY: demo test test-fast typecheck lint bench
 
 $(STAMP): pyproject.toml setup.py
-	@command -v socat >/dev/null 2>&1 || (command -v apt-get >/dev/null 2>&1 && (apt-get update -qq && apt-get install -y -qq socat >/dev/null) || true)
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q -e '.[test]'

@@ -29,6 +29,8 @@ for name, folder in ROOTS.items():
 setup(
     packages=packages,
     package_dir=package_dir,
-    package_data={"auvgw.config": ["*.toml", "*.dbc", "*.json", "scenarios/*.json"]},
+    package_data={
+        "auvgw.config": ["*.toml", "*.dbc", "*.json", "scenarios/*.json", "security/*.toml"]
+    },
     include_package_data=True,
 )

@@ -25,6 +25,7 @@ import sys
 import threading
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import msgspec
@@ -47,6 +48,7 @@ __all__ = [
     "encode_envelope",
     "envelope_encoding",
     "json_encoding",
+    "load_bus_table",
     "open_session",
     "pack_raw_attachment",
     "raw_encoding",
@@ -316,8 +318,16 @@ def add_bus_arguments(parser: Any, title: str | None = None, mode: bool = True) 
             f"or ${ENDPOINT_ENV}; docs/bus.md)"
         )
     )
+    g.add_argument(
+        "--bus-config",
+        type=Path,
+        default=None,
+        metavar="TOML",
+        help="take the [bus] table (endpoints, tls, auth, access_control) of this file, e.g. "
+        "the gateway's configuration; --mode/--connect/--listen override it (docs/security.md)",
+    )
     if mode:
-        g.add_argument("--mode", choices=("peer", "client"), default="peer", help="session mode")
+        g.add_argument("--mode", choices=("peer", "client"), default=None, help="session mode")
     g.add_argument(
         "--connect",
         action="append",
@@ -334,14 +344,37 @@ def add_bus_arguments(parser: Any, title: str | None = None, mode: bool = True) 
     )
 
 
+def load_bus_table(path: Path) -> dict[str, Any]:
+    """The ``[bus]`` table of a TOML file (empty if it has none); ValueError names the file."""
+    import tomllib
+
+    try:
+        data = tomllib.loads(path.read_text())
+    except OSError as exc:
+        raise ValueError(f"--bus-config {path}: {exc.strerror}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"--bus-config {path}: not valid TOML ({exc})") from None
+    table = data.get("bus", {})
+    if not isinstance(table, dict):
+        raise ValueError(f"--bus-config {path}: 'bus' is not a table")
+    return table
+
+
 def bus_from_args(args: Any, hub: bool = False) -> BusConfig:
     """The :class:`BusConfig` of :func:`add_bus_arguments` options (raises ValueError, one line
     per problem). With no endpoint given, the one-machine default: listen on the default
     endpoint (``hub``: the gateway's role, e.g. ``auvgw replay``) or connect to it."""
     from pydantic import ValidationError
 
+    base: dict[str, Any] = {}
+    path: Path | None = getattr(args, "bus_config", None)
+    if path is not None:
+        base = load_bus_table(path)
+    given = {"mode": getattr(args, "mode", None), "connect": args.connect, "listen": args.listen}
     try:
-        bus = BusConfig(mode=args.mode, connect=args.connect, listen=args.listen)
+        bus = BusConfig(**{**base, **{k: v for k, v in given.items() if v}})
+        if path is not None:
+            bus = bus.rebased(path.resolve().parent)
         return bus.as_hub() if hub else bus.as_spoke()
     except ValidationError as exc:
         lines = []

@@ -66,6 +66,8 @@ class _Device:
     pubs: dict[str, zenoh.Publisher] = field(default_factory=dict)
     seq: int = 0
     reported_bad: int = 0
+    rejected_before: int = 0  # datagrams rejected on earlier connections (allowed senders)
+    reported_rejected: int = 0
 
 
 class Gateway:
@@ -149,10 +151,11 @@ class Gateway:
         if not self.devices:
             self.finished.set()
         log.info(
-            "gateway for vehicle %r starting: %d device(s), bus %s",
+            "gateway for vehicle %r starting: %d device(s), bus %s, Zenoh id %s",
             self.cfg.vehicle,
             len(self.devices),
-            self.cfg.bus.mode,
+            self.cfg.bus.describe(),
+            self.session.zid(),
         )
         for t in self._threads:
             t.start()
@@ -190,7 +193,11 @@ class Gateway:
     def device_status(self, name: str, now_ns: int | None = None) -> dict[str, Any]:
         """One device's status (JSON-ready, fields in docs/gateway.md)."""
         d = self.devices[name]
-        return d.health.snapshot(now_ns, stale_after_s=d.cfg.stale_after_s)
+        snap = d.health.snapshot(now_ns, stale_after_s=d.cfg.stale_after_s)
+        # the stamp clock of the data ([clock]: vehicle-paced in emulation), so a viewer puts
+        # the health next to the data it describes at any sim speed
+        snap["t_stamp_ns"] = self._stamp(now_ns if now_ns is not None else time.time_ns())
+        return snap
 
     def status(self) -> dict[str, Any]:
         """The gateway's status: vehicle, time, uptime and every device's status."""
@@ -199,6 +206,7 @@ class Gateway:
             "v": SCHEMA_VERSION,
             "vehicle": self.cfg.vehicle,
             "t_ns": now,
+            "t_stamp_ns": self._stamp(now),
             "uptime_s": round((now - self._t0_ns) / 1e9, 3),
             "session_id": self.session_id,
             "bus": self._bus_status(),
@@ -237,6 +245,17 @@ class Gateway:
 
     def _log_bad_frames(self, dev: _Device, period_s: float) -> None:
         h = dev.health
+        rejected = h.rejected_datagrams - dev.reported_rejected
+        if rejected > 0:
+            dev.reported_rejected = h.rejected_datagrams
+            log.warning(
+                "%s: %d datagram(s) from senders not allowed in the last %.1f s (last from %s; "
+                "allowed_senders in the device's transport)",
+                dev.name,
+                rejected,
+                period_s,
+                h.last_rejected_sender,
+            )
         new = h.bad_frames - dev.reported_bad
         if new > 0:
             dev.reported_bad = h.bad_frames
@@ -263,7 +282,7 @@ class Gateway:
     def _answer_config(self, query: zenoh.Query) -> None:
         query.reply(
             self.keys.config("gateway"),
-            self.cfg.model_dump_json().encode(),
+            self.cfg.model_dump_json(exclude={"bus": {"auth": {"password"}}}).encode(),
             encoding=json_encoding("GatewayConfig"),
         )
 
@@ -310,6 +329,14 @@ class Gateway:
         c = dev.decoder.counts()
         dev.health.set_framing(c.frames, c.bad_frames, c.skipped_bytes, c.reasons)
 
+    @staticmethod
+    def _update_rejected(dev: _Device, transport: Transport) -> None:
+        rejected = getattr(transport, "rejected_datagrams", 0)
+        if rejected:
+            dev.health.set_rejected(
+                dev.rejected_before + rejected, getattr(transport, "last_rejected_sender", None)
+            )
+
     def _serve(self, dev: _Device, transport: Transport) -> bool:
         """Read one connection until it drops or stop; True when a finite source has ended."""
         host = make_host_driver(dev.cfg)
@@ -320,6 +347,7 @@ class Gateway:
                 host.on_connect(transport.write, time.monotonic())
             while not self.stop_event.is_set():
                 chunk = transport.read(READ_TIMEOUT_S)
+                self._update_rejected(dev, transport)
                 if chunk is not None:
                     self._handle_items(
                         dev, dev.decoder.feed(chunk), chunk.t_recv_ns, transport, host
@@ -351,6 +379,7 @@ class Gateway:
             log.exception("%s: reader error; reopening", dev.name)
         finally:
             self._update_framing(dev)
+            dev.rejected_before += getattr(transport, "rejected_datagrams", 0)
             dev.decoder.reset()
             if token is not None:
                 with contextlib.suppress(zenoh.ZError):

@@ -18,6 +18,7 @@ __all__ = [
     "TWO_PI",
     "chi2_ppf",
     "dcm_body_to_ned",
+    "quaternion_zyx",
     "rot_x",
     "rot_y",
     "rot_z",
@@ -65,6 +66,19 @@ def rot_z(a: float) -> NDArray[np.float64]:
 def dcm_body_to_ned(roll: float, pitch: float, heading: float) -> NDArray[np.float64]:
     """``C = Rz(heading) Ry(pitch) Rx(roll)``: body-axes vector -> NED (angles in rad)."""
     return rot_z(heading) @ rot_y(pitch) @ rot_x(roll)
+
+
+def quaternion_zyx(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
+    """Quaternion ``(x, y, z, w)`` of ``Rz(yaw) Ry(pitch) Rx(roll)`` (angles in rad)."""
+    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
+    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
+    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
+    return (
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+        cr * cp * cy + sr * sp * sy,
+    )
 
 
 def chi2_ppf(p: float, dof: int) -> float:

@@ -13,7 +13,11 @@ from collections import Counter, deque
 from dataclasses import dataclass, field
 from typing import Any
 
-__all__ = ["Backoff", "DeviceHealth"]
+__all__ = ["RATE_SAMPLES", "Backoff", "DeviceHealth"]
+
+#: receive times kept per message type for the rate (bounds memory under a flood; above
+#: RATE_SAMPLES / window_s messages per second the rate is taken over the samples kept)
+RATE_SAMPLES = 4096
 
 
 @dataclass
@@ -58,6 +62,8 @@ class DeviceHealth:
     connected_since_ns: int | None = None
     next_retry_s: float | None = None
     last_error: str = ""
+    rejected_datagrams: int = 0
+    last_rejected_sender: str | None = None
     _times: dict[str, deque[int]] = field(default_factory=dict)
     _lock: threading.Lock = field(default_factory=threading.Lock)
 
@@ -66,7 +72,14 @@ class DeviceHealth:
         with self._lock:
             self.messages[type_name] += 1
             self.last_seen_ns = t_ns
-            self._times.setdefault(type_name, deque()).append(t_ns)
+            self._times.setdefault(type_name, deque(maxlen=RATE_SAMPLES)).append(t_ns)
+
+    def set_rejected(self, datagrams: int, sender: str | None) -> None:
+        """Datagrams dropped (since the gateway started) because their sender is not allowed."""
+        with self._lock:
+            self.rejected_datagrams = datagrams
+            if sender is not None:
+                self.last_rejected_sender = sender
 
     def decode_error(self, text: str) -> None:
         """A frame passed its checksum but could not be decoded."""
@@ -121,7 +134,10 @@ class DeviceHealth:
         for name, times in self._times.items():
             while times and times[0] < cutoff:
                 times.popleft()
-            out[name] = round(len(times) / self.window_s, 3)
+            if len(times) == times.maxlen and now_ns > times[0]:  # faster than the samples kept
+                out[name] = round(len(times) / ((now_ns - times[0]) / 1e9), 3)
+            else:
+                out[name] = round(len(times) / self.window_s, 3)
         return out
 
     def rate_hz(self, now_ns: int | None = None) -> float:
@@ -167,4 +183,6 @@ class DeviceHealth:
                 "silent_s": silent,
                 "next_retry_s": self.next_retry_s,
                 "last_error": self.last_error,
+                "rejected_datagrams": self.rejected_datagrams,
+                "last_rejected_sender": self.last_rejected_sender,
             }

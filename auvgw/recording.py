@@ -56,6 +56,7 @@ from auvgw.bus import (
 )
 from auvgw.config.gateway import ConfigError, GatewayConfig, format_validation_error
 from auvgw.decoding import DeviceDecoder, make_decoders
+from auvgw.paths import config_file
 
 log = logging.getLogger(__name__)
 
@@ -75,6 +76,7 @@ __all__ = [
     "iter_samples",
     "key_section",
     "read_info",
+    "recorded_paths",
 ]
 
 #: MCAP message encoding of raw channels in recordings of earlier versions (read, not written)
@@ -499,6 +501,28 @@ def iter_samples(path: str | Path) -> Iterator[RecordedSample]:
             log.warning("%s: recording truncated (%s); read up to there", path, exc)
 
 
+def _shipped(name: str) -> bool:
+    """Whether a recorded ``dbc``/``table`` names a file shipped in ``config/`` (a bare name, or
+    a path inside the shipped folder), the only files a recorded configuration may open."""
+    shipped_dir = config_file("").resolve()
+    p = Path(name)
+    if len(p.parts) == 1 and not name.startswith("."):
+        return (shipped_dir / name).is_file()
+    return p.is_absolute() and p.resolve().parent == shipped_dir and p.resolve().is_file()
+
+
+def recorded_paths(cfg: GatewayConfig) -> dict[str, str]:
+    """``device.field -> path`` of every file a (recorded) configuration would open to decode
+    (site tables and DBCs) that is not a shipped one."""
+    out: dict[str, str] = {}
+    for name, dev in cfg.devices.items():
+        for attr in ("dbc", "table"):
+            value = getattr(dev, attr)
+            if dev.enabled and value and not _shipped(value):
+                out[f"{name}.{attr}"] = value
+    return out
+
+
 def _ros2_sample(
     type_name: str, meta: Mapping[str, str], topic: str, msg: Any, zenc: str
 ) -> RecordedSample:
@@ -517,14 +541,32 @@ def _ros2_sample(
 
 
 def decoders_for(
-    info: RecordingInfo, config: GatewayConfig | None = None
+    info: RecordingInfo, config: GatewayConfig | None = None, *, trust_paths: bool = False
 ) -> dict[str, DeviceDecoder]:
-    """Decoders of a recording's devices (from ``config`` if given, else the recorded one)."""
+    """Decoders of a recording's devices (from ``config`` if given, else the recorded one).
+
+    A recording is data, not configuration: a table or DBC path in the *recorded* configuration is
+    opened only with ``trust_paths`` (or when it names a shipped file); a device that needs one
+    gets no decoder (its raw frames replay, undecoded) and one warning line names them.
+    """
     cfg = config or info.config
     if cfg is None:
         raise RecordingError(
             f"{info.path}: no gateway configuration recorded (the recorder never reached the "
             "gateway's config queryable); pass the gateway's configuration file explicitly"
+        )
+    skipped = {} if config is not None or trust_paths else recorded_paths(cfg)
+    if skipped:
+        devices = {k.split(".", 1)[0] for k in skipped}
+        cfg = cfg.model_copy(
+            update={"devices": {n: d for n, d in cfg.devices.items() if n not in devices}}
+        )
+        log.warning(
+            "%s: recorded configuration names files not opened (%s): %s replayed raw, not "
+            "decoded; pass --config FILE or --trust-recorded-paths to decode them",
+            info.path,
+            ", ".join(f"{k}={v!r}" for k, v in sorted(skipped.items())),
+            ", ".join(sorted(devices)),
         )
     try:
         return make_decoders(cfg)
@@ -533,20 +575,28 @@ def decoders_for(
 
 
 def iter_recording(
-    path: str | Path, config: GatewayConfig | None = None, truth: bool = False
+    path: str | Path,
+    config: GatewayConfig | None = None,
+    truth: bool = False,
+    *,
+    trust_paths: bool = False,
 ) -> Iterator[Recorded]:
     """Offline: every raw frame of a recording as ``(key, t_recv_ns, raw bytes, messages)``,
     decoded exactly as the gateway decodes live (a frame whose decoding fails has no messages and
     is logged). ``truth=True`` adds the ``truth/`` samples with their parsed JSON as the one
-    message. ``config`` replaces the recorded gateway configuration."""
+    message. ``config`` replaces the recorded gateway configuration; ``trust_paths`` lets the
+    recorded one open its tables and DBCs (:func:`decoders_for`)."""
     info = read_info(path)
-    decoders = decoders_for(info, config)
+    decoders = decoders_for(info, config, trust_paths=trust_paths)
+    unknown: set[str] = set()
     for s in iter_samples(path):
         _vehicle, section, rest = key_section(s.key)
         if section == "raw":
             dec = decoders.get(rest)
             if dec is None:
-                log.warning("%s: device %r not in the gateway configuration; skipped", path, rest)
+                if rest not in unknown:
+                    unknown.add(rest)
+                    log.warning("%s: device %r has no decoder; its frames skipped", path, rest)
                 continue
             t_ns, offset = s.log_time_ns, 0
             if s.attachment is not None and len(s.attachment) == RAW_ATTACHMENT.size:

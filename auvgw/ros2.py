@@ -48,6 +48,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from auvgw.geometry import quaternion_zyx
+
 __all__ = [
     "DECODED_MSG",
     "DECODED_TYPE",
@@ -155,16 +157,7 @@ def quaternion_enu_flu(
 ) -> tuple[float, float, float, float]:
     """(x, y, z, w) of the rotation FLU body -> ENU for an NED attitude (rad; heading from north
     towards east, pitch nose up, roll starboard down): ZYX Euler (pi/2 - heading, -pitch, roll)."""
-    yaw, p, r = math.pi / 2 - heading, -pitch, roll
-    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
-    cp, sp = math.cos(p / 2), math.sin(p / 2)
-    cr, sr = math.cos(r / 2), math.sin(r / 2)
-    return (
-        sr * cp * cy - cr * sp * sy,
-        cr * sp * cy + sr * cp * sy,
-        cr * cp * sy - sr * sp * cy,
-        cr * cp * cy + sr * sp * sy,
-    )
+    return quaternion_zyx(roll, -pitch, math.pi / 2 - heading)
 
 
 # -- building blocks -------------------------------------------------------------------------------

@@ -128,11 +128,11 @@ def _stage_messages() -> list[tuple[str, float, str, bytes]]:
     health = DeviceHealth("dvl", "pd0")
     health.set_connected(True)
     out = [
-        ("HN-100 Hn100Nav", 100.0, "auv/auv1/sensor/ins/hn100nav", env(ins, "ins")),
+        ("HN-100 Hn100Nav", 100.0, "auv/auv1/sensor/ins/ins", env(ins, "ins")),
         ("SeaNet mtHeadData 300 bins", 30.0, "auv/auv1/sensor/msis/headdata",
          env(seanet.head_data(bins, math.radians(30)), "msis")),
         ("Kongsberg XYZ88 256 beams", 5.0, "auv/auv1/sensor/mbes/xyz88", env(xyz, "mbes")),
-        ("MS3A Ms3aSample", 20.0, "auv/auv1/sensor/mag/ms3asample",
+        ("MS3A Ms3aSample", 20.0, "auv/auv1/sensor/mag/magnetometer",
          env(ms3a.Ms3aSample(counter=1, bx=2e4, by=-1e3, bz=4.4e4), "mag")),
         ("fusion Odometry", 10.0, "auv/auv1/nav/odometry", env(odo, "fusion")),
         ("gateway DeviceStatus x 5 devices", 5.0, "auv/auv1/status/dvl",

@@ -1,11 +1,13 @@
-"""Zenoh session settings (mode and endpoints); used by the gateway and every bus stage."""
+"""Zenoh session settings (mode, endpoints, TLS, authentication, access control); used by the
+gateway and every bus stage. Security settings are documented in docs/security.md."""
 
 from __future__ import annotations
 
 import json
 import os
 import re
-from typing import Literal
+from pathlib import Path
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
@@ -14,7 +16,9 @@ __all__ = [
     "ENDPOINT_ENV",
     "NO_PUBLISHER_AFTER_S",
     "STAGE_LISTEN",
+    "BusAuthConfig",
     "BusConfig",
+    "BusTlsConfig",
     "default_endpoint",
 ]
 
@@ -37,6 +41,91 @@ def default_endpoint() -> str:
 _ENDPOINT = re.compile(r"^[a-z][a-z0-9-]*/\S+$")
 
 
+def _rebase(value: str | None, base: Path) -> str | None:
+    if value is None or Path(value).is_absolute():
+        return value
+    return str(base / value)
+
+
+class BusTlsConfig(BaseModel):
+    """TLS on ``tls/<host>:<port>`` endpoints (Zenoh ``transport/link/tls``). Paths are PEM files
+    (relative ones resolve against the configuration file's folder). ``enable_mtls`` makes a
+    listener demand a client certificate signed by ``root_ca_certificate``: the certificate's
+    common name is then the identity access control rules match (``cert_common_names``)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    root_ca_certificate: str = Field(description="CA that signed the peers' certificates")
+    listen_certificate: str | None = None
+    listen_private_key: str | None = None
+    connect_certificate: str | None = None
+    connect_private_key: str | None = None
+    enable_mtls: bool = False
+    verify_name_on_connect: bool = True
+
+    @model_validator(mode="after")
+    def _pairs(self) -> BusTlsConfig:
+        for side in ("listen", "connect"):
+            if (getattr(self, f"{side}_certificate") is None) != (
+                getattr(self, f"{side}_private_key") is None
+            ):
+                raise ValueError(f"'{side}_certificate' and '{side}_private_key' go together")
+        return self
+
+    def rebased(self, base: Path) -> BusTlsConfig:
+        return self.model_copy(
+            update={k: _rebase(v, base) for k, v in self.model_dump().items() if isinstance(v, str)}
+        )
+
+
+class BusAuthConfig(BaseModel):
+    """User/password authentication (Zenoh ``transport/auth/usrpwd``): ``user`` and ``password``
+    (or ``password_file``, its first line) are what this session presents; ``dictionary_file``
+    (``user:password`` lines) is what a listener accepts. The usernames are identities for access
+    control (``usernames``). Passwords travel inside the link: use it with TLS."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    user: str | None = None
+    password: str | None = None
+    password_file: str | None = None
+    dictionary_file: str | None = None
+
+    @model_validator(mode="after")
+    def _one_password(self) -> BusAuthConfig:
+        if self.password is not None and self.password_file is not None:
+            raise ValueError("give 'password' or 'password_file', not both")
+        if self.user is not None and self.password is None and self.password_file is None:
+            raise ValueError(f"user {self.user!r} needs 'password' or 'password_file'")
+        return self
+
+    def rebased(self, base: Path) -> BusAuthConfig:
+        return self.model_copy(
+            update={
+                "password_file": _rebase(self.password_file, base),
+                "dictionary_file": _rebase(self.dictionary_file, base),
+            }
+        )
+
+    def zenoh(self) -> dict[str, str]:
+        out: dict[str, str] = {}
+        password = self.password
+        if self.password_file is not None:
+            try:
+                lines = Path(self.password_file).read_text().splitlines()
+            except OSError as exc:
+                raise ValueError(
+                    f"bus.auth.password_file {self.password_file}: {exc.strerror}"
+                ) from None
+            password = lines[0] if lines else ""
+        if self.user is not None:
+            out["user"] = self.user
+            out["password"] = password or ""
+        if self.dictionary_file is not None:
+            out["dictionary_file"] = self.dictionary_file
+        return out
+
+
 class BusConfig(BaseModel):
     """How this process joins the Zenoh network.
 
@@ -44,7 +133,9 @@ class BusConfig(BaseModel):
     router (``connect`` must name it); ``router`` is what ``auvgw router`` runs. Multicast scouting
     is off unless asked for; gossip is on so peers behind a router find each other. Endpoints are
     Zenoh locators, ``<protocol>/<address>``: ``tcp/127.0.0.1:7447``, ``tcp/[::1]:7447``,
-    ``udp/10.0.0.2:7447``.
+    ``udp/10.0.0.2:7447``. A peer told no endpoint meets the others on one machine through
+    :func:`default_endpoint` (:meth:`as_hub` for the gateway, :meth:`as_spoke` for the rest;
+    docs/bus.md#finding-each-other).
     """
 
     model_config = ConfigDict(extra="forbid")
@@ -54,6 +145,13 @@ class BusConfig(BaseModel):
     connect: list[str] = Field(default_factory=list, description="e.g. tcp/192.168.1.10:7447")
     multicast_scouting: bool = False
     gossip: bool = True
+    tls: BusTlsConfig | None = None
+    auth: BusAuthConfig | None = None
+    access_control: dict[str, Any] | None = Field(
+        None,
+        description="Zenoh's access_control section (enabled, default_permission, rules, "
+        "subjects, policies), passed as is; see docs/security.md",
+    )
     no_publisher_after_s: float = Field(
         NO_PUBLISHER_AFTER_S, gt=0, description="say 'no publisher' after this many seconds"
     )
@@ -76,6 +174,16 @@ class BusConfig(BaseModel):
                 '(e.g. connect = ["tcp/192.168.1.10:7447"])'
             )
         return self
+
+    def rebased(self, base: Path) -> BusConfig:
+        """This configuration with relative certificate, key and password paths resolved
+        against ``base`` (the configuration file's folder)."""
+        return self.model_copy(
+            update={
+                "tls": None if self.tls is None else self.tls.rebased(base),
+                "auth": None if self.auth is None else self.auth.rebased(base),
+            }
+        )
 
     @property
     def has_endpoints(self) -> bool:
@@ -107,10 +215,19 @@ class BusConfig(BaseModel):
 
     def zenoh_json5(self) -> dict[str, str]:
         """Zenoh configuration entries (key path -> JSON5 value)."""
-        return {
+        out = {
             "mode": json.dumps(self.mode),
             "listen/endpoints": json.dumps(self.listen),
             "connect/endpoints": json.dumps(self.connect),
             "scouting/multicast/enabled": json.dumps(self.multicast_scouting),
             "scouting/gossip/enabled": json.dumps(self.gossip),
         }
+        if self.tls is not None:
+            for k, v in self.tls.model_dump(exclude_none=True).items():
+                out[f"transport/link/tls/{k}"] = json.dumps(v)
+        if self.auth is not None:
+            for k, v in self.auth.zenoh().items():
+                out[f"transport/auth/usrpwd/{k}"] = json.dumps(v)
+        if self.access_control is not None:
+            out["access_control"] = json.dumps(self.access_control)
+        return out

@@ -44,7 +44,13 @@ from pydantic import (
 )
 
 from auvgw.config.bus import BusConfig
-from auvgw.config.transport import KINDS, FileTransportConfig, TransportConfig
+from auvgw.config.transport import (
+    KINDS,
+    CanTransportConfig,
+    FileTransportConfig,
+    SerialTransportConfig,
+    TransportConfig,
+)
 
 __all__ = [
     "DEVICE_FORMATS",
@@ -301,11 +307,28 @@ def parse_gateway_config(
     return cfg
 
 
+def _relative_port(path: str) -> bool:
+    """A device path relative to the working directory (not a URL, not absolute)."""
+    return bool(path) and "://" not in path and not Path(path).is_absolute()
+
+
 def _resolve_paths(cfg: GatewayConfig, base: Path) -> None:
+    """Relative file, device (serial url, slcan channel), DBC and table paths name files next
+    to the configuration file, wherever the gateway is started from (systemd: ``/``)."""
+    cfg.bus = cfg.bus.rebased(base)
     for dev in cfg.devices.values():
         t = dev.transport
         if isinstance(t, FileTransportConfig) and not t.path.is_absolute():
             dev.transport = t.model_copy(update={"path": base / t.path})
+        elif isinstance(t, SerialTransportConfig) and _relative_port(t.url):
+            dev.transport = t.model_copy(update={"url": str(base / t.url)})
+        elif (
+            isinstance(t, CanTransportConfig)
+            and t.interface == "slcan"
+            and isinstance(t.channel, str)
+            and _relative_port(t.channel)
+        ):
+            dev.transport = t.model_copy(update={"channel": str(base / t.channel)})
         for attr in ("dbc", "table"):
             name = getattr(dev, attr)
             if name and not Path(name).is_absolute() and (base / name).is_file():

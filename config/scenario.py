@@ -272,6 +272,11 @@ class FaultSettings(_Model):
     garbage_max_bytes: int = Field(32, ge=1)
     corrupt_p: float = Field(0.0, ge=0, le=1, description="probability a frame is corrupted")
     truncate_p: float = Field(0.0, ge=0, le=1, description="probability a frame is cut short")
+    undetected_p: float = Field(
+        0.0, ge=0, le=1,
+        description="probability a frame is corrupted in a way its framer still accepts (what "
+        "no check can catch: a bit in the data, two changes that keep the checksum)",
+    )  # fmt: skip
     bottom_lock_loss: list[tuple[float, float]] = []
     unplug: list[tuple[float, float]] = []
     stall: list[tuple[float, float]] = []

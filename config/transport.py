@@ -241,6 +241,11 @@ class UdpTransportConfig(_Model):
     receive_buffer_bytes: int | None = Field(
         None, ge=1024, description="SO_RCVBUF; the kernel caps it at net.core.rmem_max"
     )
+    allowed_senders: list[str] | None = Field(
+        None,
+        description="addresses or networks (10.0.0.5, 10.0.0.0/24, ::1) whose datagrams are "
+        "read, or ['any']; default: remote_host if set, else any sender",
+    )
 
     @field_validator("multicast_group")
     @classmethod
@@ -255,6 +260,27 @@ class UdpTransportConfig(_Model):
         _ipv4(v, "multicast_interface")
         return v
 
+    @field_validator("allowed_senders")
+    @classmethod
+    def _senders(cls, v: list[str] | None) -> list[str] | None:
+        for s in v or []:
+            if s == "any":
+                continue
+            try:
+                ipaddress.ip_network(s, strict=False)
+            except ValueError as exc:
+                raise ValueError(
+                    f"allowed sender {s!r} is not an IP address, a network (10.0.0.0/24) or 'any'"
+                ) from exc
+        return v
+
+    def sender_filter(self) -> list[str] | None:
+        """The sender addresses/networks to accept, or None for any sender (``allowed_senders``,
+        else ``[remote_host]`` when set)."""
+        if self.allowed_senders is not None:
+            return None if "any" in self.allowed_senders else list(self.allowed_senders)
+        return None if self.remote_host is None else [self.remote_host]
+
     @model_validator(mode="after")
     def _remote_pair(self) -> UdpTransportConfig:
         if (self.remote_host is None) != (self.remote_port is None):
@@ -268,6 +294,9 @@ class UdpTransportConfig(_Model):
             out += f" group {self.multicast_group} on {self.multicast_interface}"
         if self.remote_host is not None:
             out += f" -> {self.remote_host}:{self.remote_port}"
+        senders = self.sender_filter()
+        if senders is not None:
+            out += f" from {', '.join(senders)}"
         return out
 
 

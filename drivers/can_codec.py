@@ -43,6 +43,18 @@ __all__ = [
 ]
 
 
+
+_LINE_COL = re.compile(r"line (\d+), column (\d+)")
+
+
+def _where(exc: BaseException) -> str:
+    """A parse error's position without the file's text (cantools quotes the offending line; a
+    DBC path from an untrusted recording may point at any file, e.g. /etc/shadow)."""
+    m = _LINE_COL.search(str(exc))
+    if isinstance(exc, UnicodeDecodeError):
+        return f"not text (byte {exc.start} is not valid {exc.encoding})"
+    return "invalid DBC syntax" + (f" at line {m[1]}, column {m[2]}" if m else "")
+
 class CanCodecError(ValueError):
     """A CAN frame or message that the DBC cannot decode or encode (names message and signal)."""
 
@@ -142,8 +154,10 @@ class DbcCodec:
         self.path = Path(path)
         try:
             db = cantools.database.load_file(str(self.path), database_format="dbc")
-        except (OSError, UnicodeDecodeError, cantools.database.Error) as exc:  # type: ignore[attr-defined]
-            raise CanCodecError(f"{self.path}: cannot load DBC: {exc}") from None
+        except OSError as exc:
+            raise CanCodecError(f"{self.path}: cannot load DBC: {exc.strerror or exc}") from None
+        except (UnicodeDecodeError, cantools.database.Error) as exc:  # type: ignore[attr-defined]
+            raise CanCodecError(f"{self.path}: cannot load DBC: {_where(exc)}") from None
         assert isinstance(db, cantools.database.can.Database)  # database_format="dbc"
         self.db = db
         if not self.db.messages:

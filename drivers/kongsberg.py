@@ -22,8 +22,8 @@ the length field) and one per beam record (offsets inside one record; the record
 numpy structured array, so the per-beam values come out as read-only arrays of ``n_beams``).
 The Depth datagram scales its beam depth and distances by resolutions carried in its own header
 and stores the depth unsigned on EM 120 / EM 300; its beam table is therefore built per
-(z resolution, xy resolution, signedness) by :func:`depth_beam_table` (cached), so decoded values
-are metres and :func:`~auvgw.drivers.spec.raw_value` still gives the wire counts.
+(z resolution, xy resolution, signedness) by :func:`depth_beam_table` (bounded cache), so decoded
+values are metres and :func:`~auvgw.drivers.spec.raw_value` still gives the wire counts.
 """
 
 from __future__ import annotations
@@ -380,7 +380,14 @@ class DepthBeams:
         return len(self.depth)
 
 
-@functools.cache
+#: Depth beam tables kept (one per resolution pair and signedness seen). The resolutions come off
+#: the wire, so the cache is bounded: a flood of crafted datagrams must not grow memory (with an
+#: unbounded cache 30,000 of them cost 18 kB each). A table rebuilt after eviction is a new class,
+#: so messages decoded before and after compare unequal; real sonars use one or two resolutions.
+DEPTH_TABLE_CACHE_SIZE = 32
+
+
+@functools.lru_cache(maxsize=DEPTH_TABLE_CACHE_SIZE)
 def depth_beam_table(z_resolution_cm: int, xy_resolution_cm: int, unsigned_depth: bool) -> type:
     """The Depth beam table for one header's resolutions (cm) and depth signedness (cached).
 
@@ -524,7 +531,7 @@ def _wire_rows(cls: type) -> list[tuple[str, Wire]]:
     return [(f.name, f.metadata["wire"]) for f in dataclasses.fields(cls) if "wire" in f.metadata]
 
 
-@functools.cache
+@functools.lru_cache(maxsize=2 * DEPTH_TABLE_CACHE_SIZE)
 def _record_dtype(cls: type, itemsize: int) -> np.dtype:
     rows = _wire_rows(cls)
     return np.dtype(

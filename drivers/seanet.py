@@ -712,7 +712,39 @@ def _header(buf: bytes | bytearray, start: int, max_size: int) -> int:
     return total
 
 
-def _check(buf: bytes | bytearray, start: int, max_size: int) -> int:
+#: angles on the wire are 1/16 gradian: a full turn is 6400 units
+_FULL_TURN = 6400
+
+
+def _plausible(buf: bytes | bytearray, start: int, total: int) -> None:
+    """No checksum on the wire: refuse a whole packet whose fields contradict each other.
+    The node byte (12) names the sender (replies) or the addressee (commands), so it is the
+    Tx or the Rx node, and the two differ; an mtHeadData's byte count (offset 13) is the
+    packet's size less 14, its data bytes (42) fit in it, and its bearing and scan limits are
+    angles below a full turn. Reasons: ``node``, ``byte_count``, ``data_bytes``, ``bearing``."""
+    tx, rx, node = buf[start + 7], buf[start + 8], buf[start + 12]
+    if tx == rx or node not in (tx, rx):
+        raise BadFrame(f"node: node {node} with Tx {tx}, Rx {rx}")
+    if buf[start + 10] != MessageType.mtHeadData or total < HeadData.HEADER_SIZE + 1:
+        return
+    count, left, right, bearing, n_data = (
+        struct.unpack_from("<H", buf, start + off)[0] for off in (13, 35, 37, 40, 42)
+    )
+    if count != total - 14:
+        raise BadFrame(f"byte_count: mtHeadData count {count}, packet holds {total - 14}")
+    if HeadData.HEADER_SIZE + n_data > total - 1:
+        raise BadFrame(f"data_bytes: {n_data} data bytes in a {total}-byte mtHeadData")
+    if max(left, right, bearing) >= _FULL_TURN:
+        raise BadFrame(f"bearing: bearing {bearing}, limits {left}..{right} (1/16 grad)")
+
+
+def check_plausible(packet: bytes | bytearray) -> None:
+    """:class:`BadFrame` when a whole packet's fields contradict each other (see
+    :func:`_plausible`; the V4LOG framer judges its records' packets the same way)."""
+    _plausible(packet, 0, len(packet))
+
+
+def _check(buf: bytes | bytearray, start: int, max_size: int, plausible: bool = False) -> int:
     """Total size of the valid packet at ``start``, 0 if more bytes are needed, or BadFrame.
 
     What can be judged is judged as soon as it arrives, so garbage never holds the search.
@@ -722,6 +754,8 @@ def _check(buf: bytes | bytearray, start: int, max_size: int) -> int:
         return 0
     if buf[start + total - 1] != _LF:
         raise BadFrame(f"terminator: byte {total - 1} is {buf[start + total - 1]:#04x}, not LF")
+    if plausible:
+        _plausible(buf, start, total)
     # No checksum: a truncated packet followed by another can look complete. Refuse a candidate
     # inside which a whole packet header starts (real bins practically never hold one).
     stop = start + total - 9
@@ -755,9 +789,12 @@ class SeaNetFramer(Framer):
     name = "seanet"
     sync = b"@"
     max_frame_size = MAX_PACKET_SIZE
+    #: refuse packets whose fields contradict each other (:func:`_plausible`); off: only the
+    #: structure (lengths, terminator) is judged, as :func:`packet_length` does
+    plausibility = True
 
     def check(self, buf: bytearray, start: int) -> int:
-        return _check(buf, start, self.max_frame_size)
+        return _check(buf, start, self.max_frame_size, plausible=self.plausibility)
 
 
 # -- codec ------------------------------------------------------------------------------------

@@ -73,6 +73,9 @@ T = TypeVar("T")
 #: every class made with :func:`message`, by type name (``TYPE`` class attribute or class name);
 #: used to rebuild typed messages from their JSON form (:func:`from_jsonable`)
 MESSAGE_TYPES: dict[str, type] = {}
+#: message classes whose field names / type hints are cached (bounded: classes made from wire
+#: values, e.g. Kongsberg Depth beam tables, must not pin memory)
+CLASS_CACHE_SIZE = 256
 
 
 class WireError(ValueError):
@@ -426,7 +429,7 @@ def to_jsonable(msg: Any) -> dict[str, Any]:
     return out
 
 
-@functools.cache
+@functools.lru_cache(maxsize=CLASS_CACHE_SIZE)
 def _field_names(cls: type) -> tuple[str, ...]:
     return tuple(f.name for f in dataclasses.fields(cls))
 
@@ -484,7 +487,7 @@ def _none_to_nan(value: Any) -> Any:
 
 
 #: resolved annotations per message class (evaluating them dominates from_jsonable otherwise)
-_type_hints = functools.cache(typing.get_type_hints)
+_type_hints = functools.lru_cache(maxsize=CLASS_CACHE_SIZE)(typing.get_type_hints)
 
 
 def from_jsonable(data: Mapping[str, Any], cls: type | None = None) -> Any:

@@ -29,6 +29,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import io
+import ipaddress
 import os
 import select
 import socket
@@ -518,7 +519,9 @@ class UdpTransport(Transport):
     """A UDP socket bound to ``host:port``; one datagram per chunk (boundaries preserved).
 
     With ``multicast_group`` it joins that IPv4 group on ``multicast_interface``. ``write`` sends
-    to ``remote_host:remote_port``, or back to the sender of the last datagram read.
+    to ``remote_host:remote_port``, or back to the sender of the last datagram read. Datagrams
+    from a sender outside ``cfg.sender_filter()`` are dropped unread and counted
+    (``rejected_datagrams``, ``rejected_bytes``, ``last_rejected_sender``).
     """
 
     kind = "udp"
@@ -528,6 +531,11 @@ class UdpTransport(Transport):
         self.cfg = cfg
         self._sock: socket.socket | None = None
         self.last_sender: tuple[str, int] | None = None
+        #: datagrams (and their bytes) dropped because their sender is not allowed
+        self.rejected_datagrams = 0
+        self.rejected_bytes = 0
+        self.last_rejected_sender: str | None = None
+        self._allowed: list[ipaddress.IPv4Network | ipaddress.IPv6Network] | None = None
 
     @property
     def port(self) -> str:
@@ -574,6 +582,13 @@ class UdpTransport(Transport):
             sock.close()
             hint = _hint(exc, "check host, port and multicast settings")
             raise TransportOpenError(self._name(), f"cannot open: {hint} ({exc})") from exc
+        try:
+            self._allowed = _sender_networks(c.sender_filter())
+        except OSError as exc:
+            sock.close()
+            raise TransportOpenError(
+                self._name(), f"cannot open: cannot resolve an allowed sender ({exc})"
+            ) from exc
         self._sock = sock
 
     def read(self, timeout_s: float | None) -> Chunk | None:
@@ -581,16 +596,25 @@ class UdpTransport(Transport):
         sock = self._sock
         if sock is None:
             self._not_open()
-        try:
-            sock.settimeout(timeout_s)
-            data, addr = sock.recvfrom(UDP_MAX_DATAGRAM)
-        except TimeoutError:
-            return None
-        except OSError as exc:
-            self._gone(exc)
-        t_recv = time.time_ns()
-        self.last_sender = (addr[0], addr[1])
-        return self._chunk(Chunk(data, t_recv))
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        while True:
+            left = None if deadline is None else deadline - time.monotonic()
+            if left is not None and left <= 0 and self.rejected_datagrams:
+                return None  # only rejected datagrams arrived within timeout_s
+            try:
+                sock.settimeout(None if left is None else max(left, 1e-6))
+                data, addr = sock.recvfrom(UDP_MAX_DATAGRAM)
+            except (TimeoutError, BlockingIOError):
+                return None
+            except OSError as exc:
+                self._gone(exc)
+            t_recv = time.time_ns()
+            if self._allowed is None or _sender_allowed(addr[0], self._allowed):
+                self.last_sender = (addr[0], addr[1])
+                return self._chunk(Chunk(data, t_recv))
+            self.rejected_datagrams += 1
+            self.rejected_bytes += len(data)
+            self.last_rejected_sender = f"{addr[0]}:{addr[1]}"
 
     def write(self, data: bytes) -> None:
         """Send ``data`` as one datagram."""
@@ -628,6 +652,29 @@ class UdpTransport(Transport):
         if self._sock is not None and self.cfg.port == 0:
             out += f" (bound port {self.local_address[1]})"
         return out
+
+
+def _sender_networks(
+    senders: list[str] | None,
+) -> list[ipaddress.IPv4Network | ipaddress.IPv6Network] | None:
+    """Networks of the allowed senders (host names resolved now), or None for any sender."""
+    if senders is None:
+        return None
+    out: list[ipaddress.IPv4Network | ipaddress.IPv6Network] = []
+    for s in senders:
+        try:
+            out.append(ipaddress.ip_network(s, strict=False))
+        except ValueError:  # a host name (remote_host): every address it resolves to
+            for info in socket.getaddrinfo(s, None, type=socket.SOCK_DGRAM):
+                out.append(ipaddress.ip_network(info[4][0]))
+    return out
+
+
+def _sender_allowed(
+    host: str, allowed: list[ipaddress.IPv4Network | ipaddress.IPv6Network]
+) -> bool:
+    addr = ipaddress.ip_address(host)
+    return any(addr in net for net in allowed)
 
 
 def replay_schedule(

@@ -282,9 +282,11 @@ class V4LogFramer(Framer):
         # no checksum: the SeaNet packet inside must be consistent with the record's length
         # (mtHeadData counts, fixed sizes), or a corrupted length swallows the next records
         try:
-            decode(buf[start : start + length])
+            packet = record_to_packet(bytes(buf[start : start + length]))
+            seanet.decode(packet)
         except DecodeError as exc:
             raise BadFrame(f"record_content: {exc}") from None
+        seanet.check_plausible(packet)  # node ids, counts, angles: as the SeaNet framer judges
         return length
 
     def _time_pattern(self) -> bytes | None:

@@ -75,6 +75,8 @@ class FaultCounts:
     unverified: int = 0  # bad frames sent without the check (no framer, or too many pending)
     noise_samples: int = 0
     noise_bursts: int = 0
+    undetected: int = 0  # frames sent corrupted so that the framer accepts them (counted sent)
+    undetected_failed: int = 0  # planned undetected corruptions no draw achieved: sent intact
 
     @property
     def bad_frames(self) -> int:
@@ -313,6 +315,35 @@ class FaultInjector:
         self.counts.garbage_bytes += len(junk)
         return junk + tail
 
+    def _undetected(self, frame: bytes) -> bytes:
+        """``frame`` changed so that its framer still delivers it as one valid frame: one bit
+        flipped, or two bytes moved by +1 and -1 (a byte sum keeps its value), or the same bit
+        flipped in two bytes (an XOR keeps its value); drawn until the framer accepts it. Without
+        a framer, or when no draw passes (a CRC), the frame goes out intact (counted)."""
+        rng = self.rng
+        lo = self._hdr if self._hdr < len(frame) else 0
+        for attempt in range(self.max_tries * 4):
+            out = bytearray(frame)
+            i, j = (int(v) for v in rng.integers(lo, len(frame), 2))
+            if attempt % 3 == 0:
+                out[i] ^= 1 << int(rng.integers(0, 8))
+            elif attempt % 3 == 1 and i != j:
+                out[i], out[j] = (out[i] + 1) & 0xFF, (out[j] - 1) & 0xFF
+            elif i != j:
+                bit = 1 << int(rng.integers(0, 8))
+                out[i] ^= bit
+                out[j] ^= bit
+            if bytes(out) == frame or self._framer_factory is None:
+                continue
+            f = self._framer_factory()
+            f.abandon_on_inner = False
+            got = f.feed(bytes(out)) + f.finish()
+            if len(got) == 1 and got[0].data == out and f.stats.bad_frames == 0:
+                self.counts.undetected += 1
+                return bytes(out)
+        self.counts.undetected_failed += 1
+        return frame
+
     def process(self, frame: bytes, t: float) -> bytes:
         """The bytes to send for one encoded ``frame`` at vehicle time ``t`` (possibly empty,
         possibly with held-back bad frames and garbage before it)."""
@@ -347,6 +378,8 @@ class FaultInjector:
                         self._realize(b)
                     return self._emit_bads(bads, verified=False)
                 return b""
+            if s.undetected_p > 0 and rng.random() < s.undetected_p:  # goes out, wrong
+                frame = self._undetected(bytes(frame))
             c.frames_sent += 1
             if not self._pending and not garbage:
                 return bytes(frame)

@@ -182,15 +182,19 @@ def _check_ros2_readers(path: Path, envelopes: list[tuple[str, bytes]]) -> None:
     checked = Counter()
     with open(path, "rb") as f:
         reader = make_reader(f, decoder_factories=[DecoderFactory()])
-        for _s, ch, _m, ros in reader.iter_decoded_messages():
-            parts = ch.topic.split("/")  # /auv1/<section>/<device or stream>/...
-            name = parts[-1]
-            candidates = gw.get((parts[3], _stamp(ros.header)))
-            if candidates is None or name not in ("imu", "magnetic_field", "points", "odometry"):
-                continue
-            # field for field, bit for bit (NaN-free here: NaN != NaN would fail loudly)
-            assert got(name, ros) in [expected(name, m) for m in candidates], ch.topic
-            checked[name] += 1
+        recorded = [(ch.topic, ros) for _s, ch, _m, ros in reader.iter_decoded_messages()]
+    per_stamp = Counter((t, _stamp(r.header)) for t, r in recorded)
+    for topic, ros in recorded:
+        parts = topic.split("/")  # /auv1/<section>/<device or stream>/...
+        name = parts[-1]
+        candidates = gw.get((parts[3], _stamp(ros.header)))
+        if candidates is None or name not in ("imu", "magnetic_field", "points", "odometry"):
+            continue
+        if len(candidates) > 1 or per_stamp[(topic, _stamp(ros.header))] > 1:
+            continue  # several messages share this receive time: the pairing is ambiguous
+        # field for field, bit for bit (NaN-free here: NaN != NaN would fail loudly)
+        assert got(name, ros) == expected(name, candidates[0]), topic
+        checked[name] += 1
     for name in ("imu", "magnetic_field", "points", "odometry"):
         assert checked[name] > 0, checked
 

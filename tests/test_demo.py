@@ -14,6 +14,7 @@ import pytest
 from auvgw.viz.readback import read_recording
 
 DURATION_S = 30.0
+HARBOUR_SPEED_MPS = 1.0  # config/scenarios/harbour.json vehicle.speed_mps
 
 
 @pytest.fixture(scope="module")
@@ -25,7 +26,7 @@ def demo_run(tmp_path_factory):
         capture_output=True, text=True, timeout=240,
     )  # fmt: skip
     assert res.returncode == 0, res.stdout + res.stderr
-    return out, res.stdout, json.loads((out / "summary.json").read_text())
+    return out, res.stdout + res.stderr, json.loads((out / "summary.json").read_text())
 
 
 def test_every_device_delivers_clean_frames(demo_run) -> None:
@@ -45,10 +46,20 @@ def test_every_device_delivers_clean_frames(demo_run) -> None:
     assert "dead reckoning vs truth" in stdout
 
 
+def test_a_normal_run_ends_connected_without_warnings(demo_run) -> None:
+    """The demo stops the gateway before the emulators close their ports: no outage warnings,
+    and the summary's devices are still connected."""
+    _, stdout, summary = demo_run
+    assert "WARNING" not in stdout, stdout
+    for name, d in summary["devices"].items():
+        assert d["connected"] is True, (name, d)
+
+
 def test_dead_reckoning_follows_the_truth(demo_run) -> None:
     _, _, summary = demo_run
     nav = summary["navigation"]["dead_reckoning"]
-    assert nav["distance_m"] > 20.0
+    # over the span the gateway saw (it starts later on a busy machine), at the route's 1 m/s
+    assert nav["distance_m"] > 0.8 * summary["ins_time_span_s"] * HARBOUR_SPEED_MPS > 8.0
     assert nav["rmse_m"] < 1.0, nav  # DVL-aided DR over tens of metres: decimetres
     assert summary["fusion"]["filter"]["dvl_updates"] > 50
 

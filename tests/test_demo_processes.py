@@ -46,6 +46,9 @@ def test_every_part_ran_in_its_own_process_and_exited_cleanly(processes_run) -> 
     for name, p in procs.items():
         assert p["exit_code"] == 0 and not p["killed"], (name, p)
     assert re.search(r"processes: .*gateway pid \d+ exit 0", stdout)
+    # the gateway stopped before the emulators: its last status has every device connected
+    assert all(d["connected"] for d in summary["devices"].values()), summary["devices"]
+    assert "WARNING" not in (out / "gateway.log").read_text()
     # the gateway the demo ran is the sim's, joined to the demo's bus, with the sim's clock
     gw = (out / "gateway.toml").read_text()
     assert "[clock]" in gw and f"time_scale = {SPEED}" in gw and "connect = [" in gw

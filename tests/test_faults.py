@@ -266,3 +266,18 @@ def test_faults_switch_at_run_time() -> None:
     inj.settings = FaultSettings(dropout_p=1.0)
     assert inj.process(frames[12], 0.0) == b"" and inj.counts.dropped == 1
     assert math.isclose(inj.sigma_multiplier(), 1.0)
+
+
+@pytest.mark.parametrize("framer", [ToyFramer, WeakFramer], ids=["checksum", "terminator-only"])
+def test_undetected_corruption_passes_the_framer_and_is_counted(framer: type[Framer]) -> None:
+    """``undetected_p``: corruption no check can catch (a checksum kept by two changes, data
+    bits of a format without one) reaches the receiver as valid frames: exactly as many frames
+    differ from what the emulator encoded as the injector says, and none is lost."""
+    fs = FaultSettings(undetected_p=0.3, garbage_p=0.1, corrupt_p=0.05)
+    inj, wire, sent = _run(framer, fs, 1500, seed=11)
+    c = inj.counts
+    assert c.undetected > 300 and c.undetected_failed < c.undetected / 10
+    f = framer(policy=ErrorPolicy.IGNORE)
+    got = [fr.data for fr in f.frames(_chunks(bytes(wire), np.random.default_rng(5)))]
+    assert len(got) == len(sent) and f.stats.bad_frames == c.bad_frames
+    assert sum(g != s for g, s in zip(got, sent, strict=True)) == c.undetected

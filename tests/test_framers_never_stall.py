@@ -11,13 +11,7 @@ import time
 from pathlib import Path
 
 import pytest
-from gateway_support import pd0_frames
-from test_hn100 import good_frames as hn100_frames
-from test_kongsberg import G as KONGSBERG_FRAMES
-from test_ms3a import L as MS3A_LINES
-from test_pd6 import LINES as PD6_LINES
-from test_seanet import sample_messages
-from test_v4log import sample_items
+from format_samples import KONGSBERG_FRAMES, pd0_frames, samples, v4log_records
 
 from auvgw.config.transport import UdpTransportConfig
 from auvgw.decoding import DeviceDecoder
@@ -50,23 +44,6 @@ def _max_hn100(frame: bytes) -> bytes:
 
 def _unterminated(line: bytes) -> bytes:
     return line.rstrip(b"\r\n")  # a line claims everything up to its terminator
-
-
-def samples(fmt: str, shared_data: Path) -> list[bytes]:
-    """Good frames of a format, as its codec (or the real PD0 recording) makes them."""
-    if fmt == "pd0":
-        return pd0_frames(shared_data, 8)
-    if fmt == "seanet":
-        return [sn.encode(m) for m in sample_messages()]
-    if fmt == "kongsberg":
-        return list(KONGSBERG_FRAMES)
-    if fmt == "hn100":
-        return hn100_frames(8)
-    if fmt == "ms3a":
-        return list(MS3A_LINES)
-    if fmt == "pd6":
-        return list(PD6_LINES)
-    raise KeyError(fmt)
 
 
 MAXIMAL = {
@@ -102,20 +79,11 @@ def test_maximal_claimed_length_costs_that_frame_only(fmt: str, shared_data: Pat
 def test_v4log_maximal_record_length_costs_that_record_only(tmp_path: Path) -> None:
     """V4LOG records have no sync: the records after a maximal length field are found inside
     it and come out at once; every intact record is kept."""
-    path = tmp_path / "a.V4LOG"
-    v4.write_v4log(path, sample_items() * 3)
-    data = path.read_bytes()
-    hdr = v4.read_header(path)
-    spans, pos = [], hdr.data_offset
-    end = hdr.config_offset if hdr.config_offset > hdr.data_offset else len(data)
-    while pos < end:
-        (n,) = struct.unpack_from("<H", data, pos)
-        spans.append(data[pos : pos + n])
-        pos += n
+    head, spans = v4log_records(tmp_path / "a.V4LOG")
     bad = bytearray(spans[1])
     struct.pack_into("<H", bad, 0, v4.V4LogFramer.max_frame_size)
     framer = v4.V4LogFramer(policy=ErrorPolicy.IGNORE)
-    assert [f.data for f in framer.feed(data[: hdr.data_offset] + spans[0])] == [spans[0]]
+    assert [f.data for f in framer.feed(head + spans[0])] == [spans[0]]
     feed_one_per_chunk(framer, bytes(bad), spans[2:])
     assert framer.stats.frames == len(spans) - 1 and framer.stats.bad_frames == 1
 
@@ -123,12 +91,10 @@ def test_v4log_maximal_record_length_costs_that_record_only(tmp_path: Path) -> N
 def test_v4log_corrupted_length_keeps_every_intact_record(tmp_path: Path) -> None:
     """A length field off by a plausible amount (a bit flip): the record it names would swallow
     its neighbours; the SeaNet content check refuses it and every other record is delivered."""
-    path = tmp_path / "b.V4LOG"
-    v4.write_v4log(path, [(t + 10.0 * r, m) for r in range(4) for t, m in sample_items()])
-    data = bytearray(path.read_bytes())
-    hdr = v4.read_header(path)
-    intact = [f.data for f in v4.V4LogFramer(policy="ignore").frames([bytes(data)])]
-    starts, pos = [], hdr.data_offset
+    head, intact = v4log_records(tmp_path / "b.V4LOG", repeats=4)
+    data = head + b"".join(intact)
+    assert [f.data for f in v4.V4LogFramer(policy="ignore").frames([data])] == intact
+    starts, pos = [], len(head)
     for rec in intact:
         starts.append(pos)
         pos += len(rec)

@@ -127,3 +127,47 @@ def test_raw_sequence_numbers_are_unique_across_a_gateway_restart(tmp_path, shar
         session.close()
     assert frame_counters(runs[0]) == frame_counters(runs[1]) == [1, 2, 3, 4, 5]
     assert not set(runs[0]) & set(runs[1])
+
+
+def test_relative_device_paths_resolve_against_the_config_file(tmp_path, monkeypatch) -> None:
+    from auvgw.config.gateway import load_gateway_config
+
+    site = tmp_path / "site"
+    site.mkdir()
+    (site / "gw.toml").write_text(
+        '[devices.dvl]\nformat = "pd0"\ntransport = { kind = "serial", url = "ports/dvl" }\n'
+        '[devices.ins]\nformat = "can"\ndbc = "hn100.dbc"\n'
+        'transport = { kind = "can", interface = "slcan", channel = "ports/can" }\n'
+        '[devices.web]\nformat = "pd0"\ntransport = { kind = "serial", url = "socket://h:1" }\n'
+    )
+    monkeypatch.chdir(tmp_path)  # anywhere but the config's folder
+    cfg = load_gateway_config("site/gw.toml")
+    assert cfg.devices["dvl"].transport.url == str(site.resolve() / "ports/dvl")
+    assert cfg.devices["ins"].transport.channel == str(site.resolve() / "ports/can")
+    assert cfg.devices["web"].transport.url == "socket://h:1"
+
+
+def test_a_config_with_relative_ports_connects_from_another_directory(procs, tmp_path) -> None:
+    """A gateway started elsewhere (systemd starts in /) opens ``url = "ports/dvl"`` next to
+    its configuration file and delivers the device's frames."""
+    from gateway_support import AUVGW, PtyDevice, endpoint, free_port, wait_until
+
+    from auvgw.subscribe import GatewaySubscriber
+
+    site = tmp_path / "site"
+    (site / "ports").mkdir(parents=True)
+    dvl = PtyDevice(site / "ports" / "dvl")
+    ep = endpoint(free_port())
+    (site / "gw.toml").write_text(
+        f'vehicle = "rel1"\nstatus_period_s = 0.2\n[bus]\nlisten = ["{ep}"]\n'
+        '[devices.dvl]\nformat = "pd0"\ntransport = { kind = "serial", url = "ports/dvl" }\n'
+    )
+    try:
+        procs.start(["sh", "-c", f"cd / && exec {AUVGW} run --config {site / 'gw.toml'}"], "gw")
+        with GatewaySubscriber("rel1", BusConfig(connect=[ep])) as me:
+            st = wait_until(lambda: me.status("dvl"), what="dvl status")
+            wait_until(lambda: (me.status("dvl") or {}).get("connected"), what="dvl connected")
+            st = me.status("dvl")
+    finally:
+        dvl.close()
+    assert st["connected"] and str(site / "ports" / "dvl") in st["port"]

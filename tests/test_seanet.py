@@ -75,8 +75,11 @@ def head_data_payload(
     return bytes(body) + data + appended
 
 
-def feed(data: bytes, chunk: int, policy: ErrorPolicy = ErrorPolicy.IGNORE):
+def feed(
+    data: bytes, chunk: int, policy: ErrorPolicy = ErrorPolicy.IGNORE, plausibility: bool = True
+):
     f = sn.SeaNetFramer(policy=policy)
+    f.plausibility = plausibility
     chunks = [data[i : i + chunk] for i in range(0, len(data), chunk)]
     return list(f.frames(chunks)), f
 
@@ -253,6 +256,21 @@ def test_head_data_inconsistent_counts_are_decode_errors() -> None:
         sn.decode(b"hello")
     with pytest.raises(DecodeError, match=r"terminator"):
         sn.decode(packet(23, b"")[:-1] + b"\r")
+
+
+def test_plausibility_checks_name_their_reason() -> None:
+    """No checksum: fields that contradict each other make a bad frame, counted per reason."""
+    good = packet(2, head_data_payload(0x2301, bytes(10), bearing=3200))
+    cases = {"node": (12, 7), "bearing": (41, 0x19), "byte_count": (13, 3)}
+    wire = b""
+    for at, value in cases.values():
+        bad = bytearray(good)
+        bad[at] = value
+        wire += bytes(bad) + good
+    f = sn.SeaNetFramer(policy=ErrorPolicy.IGNORE)
+    got = [fr.data for fr in f.frames([wire[i : i + 7] for i in range(0, len(wire), 7)])]
+    assert got == [good] * 3
+    assert dict(f.stats.reasons) == {k: 1 for k in cases}
 
 
 def test_head_command_layout_and_settings() -> None:
@@ -630,7 +648,8 @@ def test_decode_then_encode_is_identity(raw: bytes) -> None:
 @settings(max_examples=60, deadline=None)
 @given(st.lists(raw_packets(), min_size=1, max_size=8), st.integers(1, 50))
 def test_framer_recovers_generated_streams(packets: list[bytes], chunk: int) -> None:
-    frames, f = feed(b"".join(packets), chunk)
+    # structure only: the generated packets carry arbitrary (implausible) node and angle fields
+    frames, f = feed(b"".join(packets), chunk, plausibility=False)
     assert [fr.data for fr in frames] == packets
     assert f.stats.bad_frames == 0 and f.stats.skipped_bytes == 0
 

@@ -338,3 +338,21 @@ def test_cli_errors_and_blueprint(tmp_path, capsys) -> None:
     assert main(["viz", "--save-blueprint", str(tmp_path / "auvgw.rbl")]) == 0
     names = {name for _, name, _ in read_views(tmp_path / "auvgw.rbl")}
     assert {"Map", "Sonar fan", "Swath & bathymetry", "INS attitude"} <= names
+
+
+def test_device_health_is_on_the_data_clock(tmp_path) -> None:
+    """At sim speed 2 the gateway's stamps run ahead of the host clock; its status carries its
+    stamp clock (``t_stamp_ns``), and the health rows land there, next to the data."""
+    path = tmp_path / "health.rrd"
+    logger = RerunLogger(rrd=path)
+    stage = VizStage(logger, "auv1")
+    for k in range(3):
+        h = DeviceHealth("dvl", "pd0")
+        h.set_connected(True, "")
+        snap = {**h.snapshot(), "t_stamp_ns": int((T_RECV + 20.0 * k) * NS)}
+        host = int((T_RECV + 10.0 * k) * NS)  # arrival on the host clock: half as fast
+        assert stage.handle_sample(f"{BASE}/status/dvl", json.dumps(snap).encode(), host)
+    stage.stop()
+    logger.close()
+    rows = read_recording(path)["health/dvl/status"]
+    assert list(rows.times) == [int((T_RECV + 20.0 * k) * NS) for k in range(3)]

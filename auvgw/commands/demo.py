@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import logging
 import math
 import signal
 import socket
@@ -34,6 +33,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -199,14 +199,30 @@ def _wait_for(path: Path, proc: subprocess.Popen[bytes], timeout_s: float) -> No
 
 def _sim_argv(scenario: Path, speed: float, duration: float, sim_dir: Path) -> list[str]:
     return ["sim", "--scenario", str(scenario), "--speed", str(speed), "--duration",
-            str(duration), "--out", str(sim_dir), "--vehicle", VEHICLE]  # fmt: skip
+            str(duration), "--out", str(sim_dir), "--vehicle", VEHICLE, "--hold"]  # fmt: skip
+
+
+def _sim_done(sim: subprocess.Popen[bytes], sim_dir: Path) -> bool:
+    """The emulated run is over: the sim wrote ``finished`` (ports still open) or exited."""
+    return sim.poll() is not None or (sim_dir / "finished").exists()
+
+
+def _wait_drained(frames: Callable[[], int], quiet_s: float = 0.5, limit_s: float = 10.0) -> None:
+    """Wait until the gateway's frame count has not moved for ``quiet_s`` (the last frames
+    read from the held-open ports), at most ``limit_s``."""
+    last, since, end = frames(), time.monotonic(), time.monotonic() + limit_s
+    while time.monotonic() < end and time.monotonic() - since < quiet_s:
+        time.sleep(0.05)
+        n = frames()
+        if n != last:
+            last, since = n, time.monotonic()
 
 
 def run(args: argparse.Namespace) -> int:
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
     sim_dir = out / "sim"
-    for stale in (sim_dir / "gateway.toml", sim_dir / "truth.jsonl"):
+    for stale in (sim_dir / "gateway.toml", sim_dir / "truth.jsonl", sim_dir / "finished"):
         stale.unlink(missing_ok=True)
     scenario = _demo_scenario(_scenario_path(args.scenario), out)
     rrd = None if args.no_viz else (args.rrd or out / "demo.rrd")
@@ -409,12 +425,12 @@ def _run_stages(
     gateway.start()
     try:
         progress = _Progress(epoch_ns, speed, args.duration)
-        while sim.poll() is None and not stop.is_set():
+        while not _sim_done(sim, sim_dir) and not stop.is_set():
             tail.poll()
             stop.wait(0.2)
             progress.tick()
-        # the emulators closed their ports: what follows is shutdown, not an outage
-        logging.getLogger("auvgw.gateway").setLevel(logging.ERROR)
+        # the emulators are silent but their ports open: drain, then stop the gateway first
+        _wait_drained(lambda: sum(d["frames"] for d in gateway.status()["devices"].values()))
         tail.poll()
     finally:
         status = gateway.status()
@@ -725,17 +741,20 @@ def _run_processes(
 
         tail = _TruthTail(sim_dir / "truth.jsonl", on_truth)
         progress = _Progress(epoch_ns, speed, args.duration)
-        while sim.poll() is None and not stop.is_set():
+        while not _sim_done(sim, sim_dir) and not stop.is_set():
             tail.poll()
             children.check()
             stop.wait(0.2)
             progress.tick()
         tail.poll()
-        # the gateway drains the closed ports; then stop in data-flow order: gateway, fusion
-        # (flushes its held-back odometry), SLAM (drains its queue, publishes its last pose)
-        time.sleep(0.5)
+        # the devices are silent, their ports still open: the gateway drains them; then stop in
+        # data-flow order: gateway, fusion (flushes its held-back odometry), SLAM (drains its
+        # queue, publishes its last pose), and the emulators last
+        _wait_drained(lambda: sum(d.get("frames", 0) for d in
+                                  (sub.status(timeout=2.0) or {"devices": {}})["devices"].values()),
+                      quiet_s=1.5)  # fmt: skip
         status = sub.status(timeout=2.0) or collector.status.get("gateway") or {"devices": {}}
-        for name in ("sim", "gateway", "fusion", "slam"):
+        for name in ("gateway", "fusion", "slam", "sim"):
             children.stop(name)
         time.sleep(0.5)  # the stages' last status samples
     finally:

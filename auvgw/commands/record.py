@@ -30,6 +30,11 @@ from auvgw.recording import McapRecorder
 log = logging.getLogger(__name__)
 
 
+#: at a stop, the recorder keeps listening until no sample came for DRAIN_QUIET_S seconds
+#: (at most DRAIN_MAX_S), so what was published before the stop is in the file
+DRAIN_QUIET_S = 0.3
+DRAIN_MAX_S = 2.0
+
 def register(sub: Any) -> None:
     p = sub.add_parser(
         "record",
@@ -53,18 +58,54 @@ def register(sub: Any) -> None:
         metavar="S",
         help="wait up to S seconds for the gateway before recording anyway (default 10)",
     )
+    p.add_argument(
+        "--gateway-zid",
+        default=None,
+        metavar="ZID",
+        help="store only the configuration answered by this Zenoh session id (the gateway's)",
+    )
     p.add_argument("--force", action="store_true", help="overwrite FILE.mcap if it exists")
     add_bus_arguments(p)
     p.set_defaults(func=run)
 
 
-def _query_config(session: zenoh.Session, keys: Keys, timeout: float) -> str | None:
-    for reply in session.get(keys.config("gateway"), timeout=timeout):
-        if reply.ok is not None:
-            text = reply.ok.payload.to_bytes().decode()
-            json.loads(text)  # a valid document, or the recorder logs and retries
-            return text
-    return None
+def _query_config(
+    session: zenoh.Session, keys: Keys, timeout: float, gateway_zid: str | None = None
+) -> str | None:
+    """The gateway's configuration (JSON text), from the one session that answers, or from
+    ``gateway_zid`` when given. Every answer is collected (no consolidation): answers from other
+    sessions are dropped with a warning, and several different answers without a pinned Zenoh id
+    are all refused (anyone on an open bus can declare a config queryable)."""
+    answers: dict[str, str] = {}
+    for reply in session.get(
+        keys.config("gateway"),
+        timeout=timeout,
+        target=zenoh.QueryTarget.ALL,
+        consolidation=zenoh.ConsolidationMode.NONE,
+    ):
+        if reply.ok is None:
+            continue
+        zid = str(reply.replier_id.zid) if reply.replier_id is not None else "?"
+        if gateway_zid is not None and zid != gateway_zid:
+            log.warning(
+                "configuration reply from Zenoh id %s ignored (not --gateway-zid %s)",
+                zid,
+                gateway_zid,
+            )
+            continue
+        text = reply.ok.payload.to_bytes().decode()
+        json.loads(text)  # a valid document, or the recorder logs and retries
+        answers[zid] = text
+    if len(set(answers.values())) > 1:
+        log.warning(
+            "%d sessions answered %s with different configurations (Zenoh ids %s); none stored: "
+            "pass --gateway-zid (the gateway's id is in its status and startup log)",
+            len(answers),
+            keys.config("gateway"),
+            ", ".join(sorted(answers)),
+        )
+        return None
+    return next(iter(answers.values()), None)
 
 
 def _wait_gateway(
@@ -107,7 +148,10 @@ def run(args: argparse.Namespace) -> int:
         except OSError as exc:
             raise UserError(f"{out}: cannot write: {exc.strerror}") from exc
 
+        last_sample = [time.monotonic()]
+
         def on_sample(s: zenoh.Sample) -> None:
+            last_sample[0] = time.monotonic()
             att = s.attachment
             rec.add(
                 str(s.key_expr),
@@ -136,7 +180,7 @@ def run(args: argparse.Namespace) -> int:
                 ):
                     if not rec.has_config and time.monotonic() >= next_query:
                         try:
-                            cfg = _query_config(session, keys, timeout=1.0)
+                            cfg = _query_config(session, keys, 1.0, args.gateway_zid)
                         except ValueError as exc:
                             log.warning("gateway configuration is not JSON: %s", exc)
                             cfg = None
@@ -145,6 +189,15 @@ def run(args: argparse.Namespace) -> int:
                         next_query = time.monotonic() + 1.0
                     wait = 0.1 if t_end is None else max(0.0, min(0.1, t_end - time.monotonic()))
                     stop.wait(wait)
+                # samples published before the stop may still be on their way (a decoded
+                # message follows its raw frame): keep listening until the bus is quiet
+                drain_end = time.monotonic() + DRAIN_MAX_S
+                while (
+                    not rec.failed.is_set()
+                    and time.monotonic() < drain_end
+                    and time.monotonic() - last_sample[0] < DRAIN_QUIET_S
+                ):
+                    time.sleep(0.02)
             finally:
                 watch.close()
                 for s in subs:

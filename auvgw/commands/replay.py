@@ -73,6 +73,12 @@ def register(sub: Any) -> None:
         help="gateway configuration to decode with, instead of the recorded one",
     )
     p.add_argument(
+        "--trust-recorded-paths",
+        action="store_true",
+        help="let the recorded configuration open its site tables and DBC files (by default a "
+        "recording is data: devices needing such a file replay raw, undecoded)",
+    )
+    p.add_argument(
         "--wait-for",
         action="append",
         default=[],
@@ -118,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
     override = load_or_fail(args.config) if args.config is not None else None
     try:
         info = read_info(args.file)
-        decoders = decoders_for(info, override)
+        decoders = decoders_for(info, override, trust_paths=args.trust_recorded_paths)
     except RecordingError as exc:
         raise UserError(str(exc)) from exc
     cfg = override or info.config
@@ -178,16 +184,16 @@ def run(args: argparse.Namespace) -> int:
                     publisher(key).put(s.payload, encoding=s.zenoh_encoding or None)
                     sent[key] += 1
                     continue
-                dec = decoders.get(rest)
-                if dec is None or s.attachment is None or len(s.attachment) != RAW_ATTACHMENT.size:
-                    log.warning(
-                        "%s: frame without a configured device or attachment; skipped", s.key
-                    )
+                if s.attachment is None or len(s.attachment) != RAW_ATTACHMENT.size:
+                    log.warning("%s: frame without its attachment; skipped", s.key)
                     continue
                 t_ns, seq, offset = unpack_raw_attachment(s.attachment)
                 enc = raw_encoding(cfg.devices[rest].format) if rest in cfg.devices else _OCTETS
                 publisher(key).put(s.payload, attachment=s.attachment, encoding=enc)
                 sent[key] += 1
+                dec = decoders.get(rest)
+                if dec is None:  # not configured, or its table/DBC not trusted: raw only
+                    continue
                 item = dec.item(s.payload, offset)
                 if item.error is not None:
                     errors += 1

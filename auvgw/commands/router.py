@@ -8,15 +8,16 @@ from __future__ import annotations
 
 import argparse
 import threading
+from pathlib import Path
 from typing import Any
 
 import zenoh
 from pydantic import ValidationError
 
-from auvgw.bus import open_session
+from auvgw.bus import load_bus_table, open_session
 from auvgw.cli import UserError
 from auvgw.commands.run import handle_stop_signals
-from auvgw.config.bus import BusConfig
+from auvgw.config.bus import DEFAULT_ENDPOINT, BusConfig, default_endpoint
 
 
 def register(sub: Any) -> None:
@@ -25,17 +26,33 @@ def register(sub: Any) -> None:
         "--listen",
         action="append",
         default=None,
-        help="endpoint to listen on (repeatable), default tcp/0.0.0.0:7447",
+        help=f"endpoint to listen on (repeatable), default {DEFAULT_ENDPOINT} (loopback only: "
+        "give the vehicle network's address, e.g. tcp/0.0.0.0:7447, to serve other hosts)",
     )
     p.add_argument("--connect", action="append", default=[], help="other routers to join")
+    p.add_argument(
+        "--bus-config",
+        type=Path,
+        default=None,
+        metavar="TOML",
+        help="take tls, auth and access_control (and endpoints unless given) from this file's "
+        "[bus] table (docs/security.md)",
+    )
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     try:
-        cfg = BusConfig(
-            mode="router", listen=args.listen or ["tcp/0.0.0.0:7447"], connect=args.connect
-        )
+        base = {} if args.bus_config is None else load_bus_table(args.bus_config)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    base["mode"] = "router"
+    base["listen"] = args.listen or base.get("listen") or [default_endpoint()]
+    base["connect"] = args.connect or base.get("connect", [])
+    try:
+        cfg = BusConfig(**base)
+        if args.bus_config is not None:
+            cfg = cfg.rebased(args.bus_config.resolve().parent)
     except ValidationError as exc:
         raise UserError(
             "; ".join(e["msg"].removeprefix("Value error, ") for e in exc.errors())

@@ -87,6 +87,12 @@ def register(sub: Any) -> None:
         "time to start a gateway and stages that should see the whole run)",
     )
     p.add_argument(
+        "--hold",
+        action="store_true",
+        help="at the end of the run keep the ports open (the devices silent) until SIGINT/"
+        "SIGTERM, and write DIR/finished: a gateway is stopped before its devices vanish",
+    )
+    p.add_argument(
         "--processes",
         action="store_true",
         help="run each device in its own process on one shared clock (uses every "
@@ -149,7 +155,9 @@ def run(args: argparse.Namespace) -> int:
     devices = None
     if args.devices:
         devices = [d.strip() for d in args.devices.split(",") if d.strip()]
-    out = args.out if args.out is not None else Path(tempfile.mkdtemp(prefix="auvgw-sim-"))
+    out = (
+        args.out.resolve() if args.out is not None else Path(tempfile.mkdtemp(prefix="auvgw-sim-"))
+    )
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -208,6 +216,11 @@ def run(args: argparse.Namespace) -> int:
         while not stop.is_set() and runner.running:
             stop.wait(0.2)
         runner.stop()
+        if args.hold and not stop.is_set():
+            runner.flush()
+            (out / "finished").write_text(f"{runner.vehicle_time:.3f}\n")
+            print("finished; ports held open until SIGINT/SIGTERM", flush=True)
+            stop.wait()
         _print_stats(runner)
     finally:
         runner.close()

@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 import rerun as rr
 
-from auvgw.geometry import TWO_PI, wrap_angle
+from auvgw.geometry import TWO_PI, quaternion_zyx, wrap_angle
 from auvgw.viz import entities as ent
 from auvgw.viz.blueprint import DEFAULT_TRACKS, default_blueprint
 from auvgw.viz.entities import APPLICATION_ID, TIMELINE
@@ -125,15 +125,7 @@ def ellipse_strips(
 
 def attitude_quaternion(roll: float, pitch: float, heading: float) -> tuple[float, ...]:
     """Quaternion (x, y, z, w) of body -> NED for roll, pitch, heading (rad, ZYX convention)."""
-    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
-    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
-    cy, sy = math.cos(heading / 2), math.sin(heading / 2)
-    return (
-        sr * cp * cy - cr * sp * sy,
-        cr * sp * cy + sr * cp * sy,
-        cr * cp * sy - sr * sp * cy,
-        cr * cp * cy + sr * sp * sy,
-    )
+    return quaternion_zyx(roll, pitch, heading)
 
 
 def _same_length(what: str, **arrays: np.ndarray | None) -> None:

@@ -619,6 +619,9 @@ class VizStage:
     def _health(self, device: str, body: Mapping[str, Any], t: float) -> str:
         if device == "gateway" or "devices" in body:
             return "ignored"  # the gateway summary repeats the per-device status
+        # on the data's timeline (the gateway's stamp clock, vehicle-paced in emulation), not
+        # the host clock of arrival, which falls behind it at speed != 1
+        t = _float(body.get("t_stamp_ns"), t * 1e9) / 1e9
         if not any(k in body for k in (*self._HEALTH_KEYS, *self._HEALTH_FLAGS)):
             # another component's status (fusion, SLAM, ...): its numbers, one series each
             leaves = _numeric_leaves(body)
