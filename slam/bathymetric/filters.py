@@ -50,6 +50,18 @@ class BathyFilter:
     """Common storage: the swaths (offsets, depths) of every ping, preallocated for ``n_pings``."""
 
     name = "base"
+    # arrays indexed by ping (first axis), grown by :meth:`reserve`
+    _PER_PING = (
+        "estimates",
+        "dr",
+        "offsets",
+        "depths",
+        "matched",
+        "neff_log",
+        "traj",
+        "covered",
+        "trajs",
+    )
 
     def __init__(self, cfg: BathyConfig, n_pings: int, rng: np.random.Generator) -> None:
         self.cfg, self.rng, self.T = cfg, rng, n_pings
@@ -69,6 +81,20 @@ class BathyFilter:
         assert self.depths is not None
         self.offsets[self.t] = offsets
         self.depths[self.t] = depth
+
+    def reserve(self, n_pings: int) -> None:
+        """Grow every per-ping array to hold ``n_pings`` pings (online use: the mission length
+        is not known up front). New rows are zero, ``False``, or NaN for ``neff_log``."""
+        if n_pings <= self.T:
+            return
+        old = self.T
+        for name in self._PER_PING:
+            v = getattr(self, name, None)
+            if isinstance(v, np.ndarray):
+                fill = np.nan if name == "neff_log" else 0
+                pad = np.full((n_pings - old, *v.shape[1:]), fill, dtype=v.dtype)
+                setattr(self, name, np.concatenate([v, pad]))
+        self.T = n_pings
 
     def start(self, x0: np.ndarray, offsets: np.ndarray, depth: np.ndarray) -> None:
         """Ping 0 at the known start position ``x0`` (Sec. 1.3: no initial spread)."""
