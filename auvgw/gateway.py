@@ -353,7 +353,9 @@ class Gateway:
                         dev, dev.decoder.feed(chunk), chunk.t_recv_ns, transport, host
                     )
                     self._update_framing(dev)
-                if dev.decoder.has_stale(time.monotonic()):  # a partial frame waited too long
+                # a partial frame waited too long on a quiet line (never while bytes arrive: a
+                # reader starved of CPU must not drop frames whose bytes wait in the port)
+                if chunk is None and dev.decoder.has_stale(time.monotonic()):
                     stale = dev.decoder.expire(time.monotonic())
                     self._handle_items(dev, stale, time.time_ns(), transport, host)
                     self._update_framing(dev)
