@@ -1,5 +1,6 @@
 """Bus stages: processes (or in-process objects) that consume the gateway's decoded messages and
-publish derived data on the bus (:mod:`auvgw.stages.fusion`: dead-reckoning odometry)."""
+publish derived data on the bus (:mod:`auvgw.stages.fusion`: dead-reckoning odometry). Each is a
+subclass of :class:`auvgw.stages.base.Stage` (queue, worker, status, liveliness, stop/flush)."""
 
 from __future__ import annotations
 
@@ -24,11 +25,14 @@ def join_draining(worker: threading.Thread, q: queue.Queue, stall_s: float) -> b
     return True
 
 
-def log_bad_payload(stage: str, key: str, exc: BaseException, seen: int) -> None:
+def log_bad_payload(
+    stage: str, key: str, exc: BaseException, seen: int, exc_info: bool = False
+) -> None:
     """Log a malformed bus payload: the first one and every 100th as a warning (a flood of
-    them must not flood the log; the stage's status counts them all)."""
+    them must not flood the log; the stage's status counts them all); ``exc_info``: with the
+    traceback (a message that decoded but failed in the stage's handling)."""
     level = logging.WARNING if seen % 100 == 0 else logging.DEBUG
     logging.getLogger(f"auvgw.stages.{stage}").log(
         level, "%s: malformed payload on %s (%d so far): %s: %s",
-        stage, key, seen + 1, type(exc).__name__, exc,
+        stage, key, seen + 1, type(exc).__name__, exc, exc_info=exc_info and level > logging.DEBUG,
     )  # fmt: skip

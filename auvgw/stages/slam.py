@@ -55,23 +55,18 @@ lock, from one thread at a time.
 from __future__ import annotations
 
 import bisect
-import contextlib
-import json
 import logging
 import math
-import queue
-import threading
-import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import zenoh
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from auvgw.bus import SCHEMA_VERSION, Keys, decode_envelope, json_encoding, undeclare
+from auvgw.bus import Keys
 from auvgw.drivers import seanet as sn
 from auvgw.fusion.odometry import MotionIncrement, Odometry
 from auvgw.slam.features import (
@@ -84,13 +79,12 @@ from auvgw.slam.features import (
 from auvgw.slam.landmark.base import LandmarkFilter, LandmarkMap, ParticleFilterSLAM
 from auvgw.slam.landmark.registry import ALGORITHMS, DISPLAY_NAMES, make_filter
 from auvgw.slam.models import LineFeature, RangeBearing, VelocityModel, wrap_angle
-from auvgw.stages import join_draining, log_bad_payload
+from auvgw.stages.base import BusCounters, Stage
 
 log = logging.getLogger(__name__)
 
 __all__ = ["SlamStage", "SlamStageConfig", "SlamStats", "compose_increments"]
 
-_DROP = zenoh.CongestionControl.DROP
 #: the gateway's key kind of SeaNet scan lines (type ``mtHeadData`` lower-cased)
 HEADDATA_KIND = "mtheaddata"
 
@@ -199,12 +193,9 @@ class SlamStageConfig(BaseModel):
 
 
 @dataclass
-class SlamStats:
-    """Counters of the stage."""
+class SlamStats(BusCounters):
+    """Counters of the stage (``received``: scan lines of the MSIS head)."""
 
-    received: int = 0  #: messages fed or envelopes received
-    bad_payloads: int = 0  #: envelopes that could not be parsed or rebuilt
-    queue_dropped: int = 0  #: payloads dropped because the worker fell behind
     odometry: int = 0  #: odometry samples used
     pings: int = 0  #: scan lines given to the feature extractor
     pings_before_odometry: int = 0  #: scan lines older than the odometry history (dropped)
@@ -235,12 +226,17 @@ def compose_increments(incs: list[MotionIncrement]) -> tuple[float, float, float
     return x, y, h, dt
 
 
-class SlamStage:
+class SlamStage(Stage):
     """Odometry + MSIS scan lines -> SLAM pose and map (see the module docstring).
 
     ``session``: publish on it (None: in-process only). ``on_publish``: called with ``(key,
     JSON payload bytes, t_ns)`` at every publication (the demo logs them into Rerun).
     """
+
+    name = "slam"
+    status_schema = "SlamStatus"
+    outputs = ("pose", "landmarks")
+    stats: SlamStats
 
     def __init__(
         self,
@@ -249,10 +245,9 @@ class SlamStage:
         on_publish: Callable[[str, bytes, int], object] | None = None,
     ) -> None:
         self.config = cfg = config or SlamStageConfig()
-        self.keys = Keys(cfg.vehicle)
-        self.session = session
-        self.on_publish = on_publish
-        self.stats = SlamStats()
+        super().__init__(Keys(cfg.vehicle), SlamStats(), session,
+                         status_period_s=cfg.status_period_s, queue_size=cfg.queue_size,
+                         on_publish=on_publish)  # fmt: skip
         self.extractor = SonarFeatureExtractor(cfg.feature_settings())
         self.rng = np.random.default_rng(cfg.seed)
         self.filter: LandmarkFilter | None = None
@@ -268,12 +263,6 @@ class SlamStage:
         self._t_filter: float | None = None
         self._t_pub: float | None = None
         self._t_heading: float | None = None
-        self._lock = threading.RLock()
-        self._pubs: dict[str, zenoh.Publisher] = {}
-        self._decls: list[Any] = []
-        self._queue: queue.Queue[tuple[Any, ...] | None] = queue.Queue(cfg.queue_size)
-        self._worker: threading.Thread | None = None
-        self._started = self._stopped = False
 
     @property
     def component(self) -> str:
@@ -283,6 +272,11 @@ class SlamStage:
     def key(self, what: str) -> str:
         """``auv/<v>/slam/<pipeline>/<what>``."""
         return self.keys.slam(self.config.pipeline_name, what)
+
+    def input_keys(self) -> list[str]:
+        """The key expressions the stage subscribes to: odometry and the MSIS scan lines."""
+        return [self.keys.odometry(), self.keys.sensor(self.config.msis_device or "*",
+                                                       HEADDATA_KIND)]  # fmt: skip
 
     # -- in-process use -----------------------------------------------------------------------
     def feed_odometry(self, o: Odometry) -> None:
@@ -328,24 +322,11 @@ class SlamStage:
                 self._pings.popleft()
                 self.stats.pings_dropped += 1
 
-    def post_odometry(self, o: Odometry) -> None:
-        """:meth:`feed_odometry` on the stage's worker thread (after :meth:`start`): returns at
-        once, so a feeding thread (the gateway's, the fusion's) is never held up by the filter."""
-        self._put(("odometry", o))
-
     def post(self, device: str, t_recv_ns: int, message: Any) -> None:
         """:meth:`feed` on the stage's worker thread (after :meth:`start`); only scan lines are
         queued."""
         if isinstance(message, sn.HeadData):
-            self._put(("message", device, t_recv_ns, message))
-
-    def _put(self, item: tuple[Any, ...]) -> None:
-        if self._worker is None:
-            raise RuntimeError("SlamStage.post needs start() (or use feed / feed_odometry)")
-        try:
-            self._queue.put_nowait(item)
-        except queue.Full:
-            self.stats.queue_dropped += 1
+            super().post(device, t_recv_ns, message)
 
     def flush(self) -> None:
         """End of data: publish the latest estimate (pings newer than the odometry stay out)."""
@@ -539,148 +520,20 @@ class SlamStage:
         pose = self.pose_message(t)
         self.track.append((t, pose["x"], pose["y"], pose["heading"]))
         self.stats.published += 1
-        t_ns = int(t * 1e9)
         for what, body in (("pose", pose), ("landmarks", self.landmarks_message(t))):
-            payload = json.dumps(body).encode()
-            key = self.key(what)
-            pub = self._pubs.get(what)
-            if pub is not None:
-                try:
-                    pub.put(payload, encoding=json_encoding(f"Slam{what.title()}"))
-                except zenoh.ZError as exc:
-                    log.warning("slam: cannot publish %s: %s", key, exc)
-            if self.on_publish is not None:
-                self.on_publish(key, payload, t_ns)
+            self.publish_json(what, body, t, f"Slam{what.title()}")
 
-    def counters(self) -> dict[str, Any]:
-        """Every counter, JSON-ready."""
-        with self._lock:
-            f = self.filter
-            pts, walls = (None, None) if f is None else self._maps()
-            return {
-                "v": SCHEMA_VERSION,
-                "component": self.component,
-                "vehicle": self.config.vehicle,
-                "algorithm": self.config.algorithm,
-                "t_ns": time.time_ns(),
-                "msis_device": self.msis_device,
-                "stage": asdict(self.stats),
-                "extractor": {"pings": self.extractor.pings, "votes": self.extractor.votes},
-                "landmarks": 0 if pts is None else len(pts.mean),
-                "line_landmarks": 0 if walls is None else len(walls.mean),
-                "lines": len(self.lines),
-                "neff": None if f is None or not math.isfinite(f.neff) else float(f.neff),
-                "resamples": getattr(f, "resample_count", None),
-            }
-
-    # -- on the bus ---------------------------------------------------------------------------
-    def input_keys(self) -> list[str]:
-        """The key expressions the stage subscribes to: odometry and the MSIS scan lines."""
-        return [self.keys.odometry(), self.keys.sensor(self.config.msis_device or "*",
-                                                       HEADDATA_KIND)]  # fmt: skip
-
-    def start(self, subscribe: bool = True) -> None:
-        """Declare the publishers, the status queryable and liveliness token and, with
-        ``subscribe``, the subscriptions (odometry, MSIS scan lines) and their worker."""
-        if self.session is None:
-            raise RuntimeError("SlamStage.start needs a Zenoh session (in-process: use feed)")
-        if self._started:
-            return
-        self._started = True
-        s = self.session
-        for what in ("pose", "landmarks"):
-            self._pubs[what] = s.declare_publisher(self.key(what), congestion_control=_DROP)
-        status_key = self.keys.status(self.component)
-        self._pubs["status"] = s.declare_publisher(status_key, congestion_control=_DROP)
-        self._decls.append(s.declare_queryable(status_key, self._answer_status))
-        self._worker = threading.Thread(target=self._run, name="slam-stage", daemon=True)
-        self._worker.start()
-        if subscribe:
-            for key in self.input_keys():
-                self._decls.append(s.declare_subscriber(key, self._on_sample))
-        self._decls.append(s.liveliness().declare_token(self.keys.alive(self.component)))
-
-    def _on_sample(self, sample: zenoh.Sample) -> None:
-        try:
-            self._queue.put_nowait(("bus", str(sample.key_expr), sample.payload.to_bytes()))
-        except queue.Full:
-            self.stats.queue_dropped += 1
-
-    def _run(self) -> None:
-        period = self.config.status_period_s
-        next_status = time.monotonic() + period
-        while True:
-            try:
-                item = self._queue.get(timeout=max(0.0, next_status - time.monotonic()))
-            except queue.Empty:
-                item = ()
-            if item is None:
-                break
-            if item:
-                self._dispatch(item)
-            if time.monotonic() >= next_status:
-                self._publish_status()
-                next_status = time.monotonic() + period
-
-    def _dispatch(self, item: tuple[Any, ...]) -> None:
-        kind = item[0]
-        try:
-            if kind == "bus":
-                self._handle(item[1], item[2])
-            elif kind == "odometry":
-                self.feed_odometry(item[1])
-            else:
-                self.feed(item[1], item[2], item[3])
-        except Exception:  # one bad message must not stop the stage
-            log.exception("slam: %s input failed", kind)
-
-    def _handle(self, key: str, payload: bytes) -> None:
-        from auvgw.subscribe import typed_message
-
-        try:
-            env = decode_envelope(payload, key)
-            msg = typed_message(env.type, env.body)
-        except Exception as exc:  # any malformed payload ([] on a sensor key...): count, go on
-            log_bad_payload("slam", key, exc, self.stats.bad_payloads)
-            msg = env = None
-        if msg is None or env is None:
-            with self._lock:
-                self.stats.bad_payloads += 1
-            return
-        try:
-            if isinstance(msg, Odometry):
-                self.feed_odometry(msg)
-            else:
-                self.feed(env.device, int(env.t_recv_ns), msg)
-        except Exception:  # one bad message must not stop the stage
-            log.exception("slam: message on %s failed", key)
-
-    def _publish_status(self) -> None:
-        pub = self._pubs.get("status")
-        if pub is not None:
-            with contextlib.suppress(zenoh.ZError):
-                pub.put(json.dumps(self.counters()).encode(), encoding=json_encoding("SlamStatus"))
-
-    def _answer_status(self, query: zenoh.Query) -> None:
-        query.reply(self.keys.status(self.component), json.dumps(self.counters()).encode(),
-                    encoding=json_encoding("SlamStatus"))  # fmt: skip
-
-    def stop(self, flush: bool = True, timeout_s: float = 5.0) -> None:
-        """Drain the queue (as long as the worker makes progress; ``timeout_s`` without any
-        gives up on it), publish the last estimate (``flush``) and status, withdraw every
-        declaration. Safe to call more than once."""
-        if self._stopped:
-            return
-        self._stopped = True
-        undeclare(d for d in self._decls if isinstance(d, zenoh.Subscriber))
-        if self._worker is not None:
-            self._queue.put(None)
-            if not join_draining(self._worker, self._queue, timeout_s):
-                log.warning("%s: the worker made no progress for %.1f s; stopping without it",
-                            self.__class__.__name__, timeout_s)  # fmt: skip
-        if flush:
-            self.flush()
-        self._publish_status()
-        undeclare(d for d in self._decls if not isinstance(d, zenoh.Subscriber))
-        undeclare(self._pubs.values())
-        self._pubs.clear()
+    def status_fields(self) -> dict[str, Any]:
+        """Algorithm, MSIS device, extractor, map sizes, Neff and resamples."""
+        f = self.filter
+        pts, walls = (None, None) if f is None else self._maps()
+        return {
+            "algorithm": self.config.algorithm,
+            "msis_device": self.msis_device,
+            "extractor": {"pings": self.extractor.pings, "votes": self.extractor.votes},
+            "landmarks": 0 if pts is None else len(pts.mean),
+            "line_landmarks": 0 if walls is None else len(walls.mean),
+            "lines": len(self.lines),
+            "neff": None if f is None or not math.isfinite(f.neff) else float(f.neff),
+            "resamples": getattr(f, "resample_count", None),
+        }

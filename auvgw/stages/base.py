@@ -1,0 +1,346 @@
+"""The stage base class: what every bus stage (fusion, SLAM, magnetic, bathymetric, Rerun) shares.
+
+A :class:`Stage` owns the plumbing; a subclass gives only what is its own:
+
+* **inputs**: :meth:`Stage.input_keys` (key expressions to subscribe to) and, optionally,
+  :meth:`Stage.wanted` (a cheap filter on a key, run in the Zenoh callback before anything is
+  parsed);
+* **per-message handling**: :meth:`Stage.feed` ``(device, t_recv_ns, message)`` (the gateway's
+  ``on_message`` signature) and, for stages that use the fusion's odometry,
+  :meth:`Stage.feed_odometry`; :meth:`Stage.dispatch` routes each decoded bus message to them
+  (override it for anything else);
+* **outputs**: the names in :attr:`Stage.outputs`, each published on :meth:`Stage.key`
+  ``(what)`` with :meth:`Stage.publish` / :meth:`Stage.publish_json` (which also call
+  ``on_publish(key, payload, t_ns)``, the in-process hook);
+* **status**: :attr:`Stage.status_schema` (None: no status, queryable nor liveliness on the bus)
+  and :meth:`Stage.status_fields`, merged into :meth:`Stage.counters` after the common fields;
+* **flush**: :meth:`Stage.flush`, called at :meth:`Stage.stop` after the queue is drained.
+
+The base does the rest. Zenoh callbacks only copy the payload into a bounded queue (counting
+``queue_dropped`` when it is full: a callback never blocks the network thread); one worker thread
+decodes the envelopes (:func:`auvgw.bus.decode_envelope`, then the typed message) and feeds them
+in arrival order, so the subclass's state is touched by one thread at a time (take
+``self._lock`` in ``feed`` when it is also fed in-process). A malformed payload, an unknown type
+or a message whose handling fails is counted (``bad_payloads``) and logged (the first and every
+100th), never stops the worker. The worker publishes :meth:`Stage.counters` on
+``auv/<v>/status/<component>`` every ``status_period_s`` (host clock: health, not data) and a
+queryable on the same key answers them on demand; the liveliness token
+``auv/<v>/alive/<component>`` is declared last, so once it is seen the subscriptions are in
+place. :meth:`Stage.stop` withdraws the subscriptions, lets the worker drain the queue for as long
+as it makes progress (:func:`~auvgw.stages.join_draining`), flushes, publishes a last status and
+withdraws everything else.
+
+In-process, a stage is fed on the calling thread (:meth:`Stage.feed`) or queued for its worker
+(:meth:`Stage.post`, :meth:`Stage.post_odometry`: the feeding thread is never held up).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import queue
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from typing import Any, ClassVar
+
+import zenoh
+
+from auvgw.bus import SCHEMA_VERSION, Envelope, Keys, decode_envelope, json_encoding, undeclare
+from auvgw.fusion.odometry import Odometry
+from auvgw.stages import join_draining, log_bad_payload
+
+__all__ = ["DROP", "BusCounters", "Stage"]
+
+log = logging.getLogger(__name__)
+
+#: outputs and status never stall the stage on a slow subscriber
+DROP = zenoh.CongestionControl.DROP
+
+_Item = tuple[Callable[..., object], tuple[Any, ...]]
+
+
+@dataclass
+class BusCounters:
+    """The counters every stage keeps (a stage's stats dataclass extends it)."""
+
+    received: int = 0  #: messages used or envelopes received (each stage says which)
+    bad_payloads: int = 0  #: envelopes that could not be parsed, rebuilt or handled
+    queue_dropped: int = 0  #: payloads dropped because the worker fell behind
+
+
+class Stage:
+    """Queue, worker, envelope decoding, status, liveliness and stop/flush of a bus stage (see
+    the module docstring for the subclass contract).
+
+    ``keys``: the vehicle's key expressions; ``stats``: the stage's counters (a
+    :class:`BusCounters`, published under ``"stage"``); ``session``: the Zenoh session (None:
+    in-process only); ``on_publish(key, payload, t_ns)``: called at every publication.
+    """
+
+    #: short name: logs, the worker thread, the default component
+    name: ClassVar[str] = "stage"
+    #: type name of the status JSON (``json_encoding``); None: no status, queryable, liveliness
+    status_schema: ClassVar[str | None] = None
+    #: output names, each declared as a publisher on :meth:`key` at :meth:`start`
+    outputs: ClassVar[tuple[str, ...]] = ()
+
+    def __init__(
+        self,
+        keys: Keys,
+        stats: BusCounters,
+        session: zenoh.Session | None = None,
+        *,
+        status_period_s: float = 1.0,
+        queue_size: int = 100_000,
+        on_publish: Callable[[str, bytes, int], object] | None = None,
+    ) -> None:
+        self.keys = keys
+        self.stats = stats
+        self.session = session
+        self.on_publish = on_publish
+        self.status_period_s = status_period_s
+        self._lock = threading.RLock()  # the subclass's state and the counters
+        self._drop_lock = threading.Lock()  # queue_dropped (Zenoh callbacks, never _lock)
+        self._queue: queue.Queue[_Item | None] = queue.Queue(max(1, queue_size))
+        self._pubs: dict[str, zenoh.Publisher] = {}
+        self._status_pub: zenoh.Publisher | None = None
+        self._decls: list[Any] = []
+        self._worker: threading.Thread | None = None
+        self._started = self._stopped = False
+
+    # -- what a subclass gives ------------------------------------------------------------------
+    @property
+    def component(self) -> str:
+        """Status / liveliness component name (default :attr:`name`)."""
+        return self.name
+
+    def key(self, what: str) -> str:
+        """The key expression of output ``what``."""
+        raise NotImplementedError(f"{type(self).__name__} has no output {what!r}")
+
+    def input_keys(self) -> list[str]:
+        """The key expressions the stage subscribes to."""
+        return []
+
+    def wanted(self, key: str) -> bool:
+        """Whether a sample on ``key`` is queued (runs in the Zenoh callback: keep it cheap)."""
+        return True
+
+    def feed(self, device: str, t_recv_ns: int, message: Any) -> object:
+        """One decoded message of ``device`` received at ``t_recv_ns`` (the stamp clock, ns)."""
+        return None
+
+    def feed_odometry(self, o: Odometry) -> None:
+        """One fusion odometry sample (stages that use it override this)."""
+
+    def dispatch(self, env: Envelope, message: Any) -> None:
+        """One decoded bus message: odometry to :meth:`feed_odometry`, the rest to
+        :meth:`feed` with the envelope's device and receive stamp."""
+        if isinstance(message, Odometry):
+            self.feed_odometry(message)
+        else:
+            self.feed(env.device, int(env.t_recv_ns), message)
+
+    def status_fields(self) -> dict[str, Any]:
+        """The stage's own status fields (JSON-ready), after the common ones."""
+        return {}
+
+    def flush(self) -> object:
+        """End of data: publish what is held back (called by :meth:`stop`)."""
+        return None
+
+    # -- in-process use -------------------------------------------------------------------------
+    def post(self, device: str, t_recv_ns: int, message: Any) -> None:
+        """:meth:`feed` on the worker thread (after :meth:`start`): returns at once."""
+        self._post(self.feed, (device, t_recv_ns, message))
+
+    def post_odometry(self, o: Odometry) -> None:
+        """:meth:`feed_odometry` on the worker thread (after :meth:`start`): returns at once."""
+        self._post(self.feed_odometry, (o,))
+
+    def _post(self, fn: Callable[..., object], args: tuple[Any, ...]) -> None:
+        if self._worker is None:
+            raise RuntimeError(f"{type(self).__name__}.post needs start() (or call feed)")
+        self._enqueue(fn, args)
+
+    def _enqueue(self, fn: Callable[..., object], args: tuple[Any, ...]) -> None:
+        try:
+            self._queue.put_nowait((fn, args))
+        except queue.Full:
+            with self._drop_lock:
+                self.stats.queue_dropped += 1
+
+    # -- outputs and status ---------------------------------------------------------------------
+    def publish(self, what: str, payload: bytes, encoding: zenoh.Encoding, t_ns: int) -> None:
+        """Put ``payload`` on output ``what`` (when started) and hand it to ``on_publish``."""
+        pub = self._pubs.get(what)
+        if pub is not None:
+            try:
+                pub.put(payload, encoding=encoding)
+            except zenoh.ZError as exc:
+                log.warning("%s: cannot publish %s: %s", self.name, self.key(what), exc)
+        if self.on_publish is not None:
+            self.on_publish(self.key(what), payload, t_ns)
+
+    def publish_json(self, what: str, body: dict[str, Any], t: float, schema: str) -> None:
+        """Publish ``body`` as JSON (type ``schema``) on output ``what``; ``t``: its time, s."""
+        self.publish(what, json.dumps(body).encode(), json_encoding(schema), int(t * 1e9))
+
+    def counters(self) -> dict[str, Any]:
+        """Every counter, JSON-ready: the common fields, then :meth:`status_fields`."""
+        with self._lock:
+            return {
+                "v": SCHEMA_VERSION,
+                "component": self.component,
+                "vehicle": self.keys.vehicle,
+                "t_ns": time.time_ns(),
+                "stage": asdict(self.stats),
+                **self.status_fields(),
+            }
+
+    def publish_status(self) -> None:
+        """Put :meth:`counters` on the status key (every ``status_period_s`` and at stop)."""
+        if self._status_pub is not None and self.status_schema is not None:
+            with contextlib.suppress(zenoh.ZError):
+                self._status_pub.put(json.dumps(self.counters()).encode(),
+                                     encoding=json_encoding(self.status_schema))  # fmt: skip
+
+    def _answer_status(self, query: zenoh.Query) -> None:
+        assert self.status_schema is not None
+        query.reply(self.keys.status(self.component), json.dumps(self.counters()).encode(),
+                    encoding=json_encoding(self.status_schema))  # fmt: skip
+
+    # -- on the bus -----------------------------------------------------------------------------
+    def start(self, subscribe: bool = True) -> None:
+        """Declare the outputs, the status publisher and queryable, start the worker and, with
+        ``subscribe``, the subscriptions; the liveliness token last. ``subscribe=False`` is for
+        a stage fed in-process that still publishes on the bus."""
+        if self.session is None:
+            raise RuntimeError(f"{type(self).__name__}.start needs a Zenoh session "
+                               "(in-process: use feed)")  # fmt: skip
+        if self._started:
+            return
+        self._started = True
+        s = self.session
+        for what in self.outputs:
+            self._pubs[what] = s.declare_publisher(self.key(what), congestion_control=DROP)
+        status_key = self.keys.status(self.component)
+        if self.status_schema is not None:
+            self._status_pub = s.declare_publisher(status_key, congestion_control=DROP)
+            self._decls.append(s.declare_queryable(status_key, self._answer_status))
+        self.start_worker()
+        if subscribe:
+            self.subscribe()
+        if self.status_schema is not None:
+            # declarations travel in order: once this token is seen, the subscriptions are in place
+            self._decls.append(s.liveliness().declare_token(self.keys.alive(self.component)))
+
+    def start_worker(self) -> None:
+        """Start the worker thread (idempotent)."""
+        if self._worker is None:
+            self._worker = threading.Thread(target=self._run, name=f"{self.name}-stage",
+                                            daemon=True)  # fmt: skip
+            self._worker.start()
+
+    def subscribe(self) -> None:
+        """Subscribe to :meth:`input_keys` on the session."""
+        assert self.session is not None
+        for key in self.input_keys():
+            self._decls.append(self.session.declare_subscriber(key, self._on_sample))
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        if self.wanted(key):
+            self._enqueue(self.handle_sample, (key, sample.payload.to_bytes(), time.time_ns()))
+
+    def _run(self) -> None:
+        period = self.status_period_s
+        next_status = time.monotonic() + period
+        while True:
+            try:
+                item = self._queue.get(timeout=max(0.0, next_status - time.monotonic()))
+            except queue.Empty:
+                item = ()  # type: ignore[assignment]
+            if item is None:
+                break
+            if item:
+                self._call(*item)
+            if time.monotonic() >= next_status:
+                self.publish_status()
+                next_status = time.monotonic() + period
+
+    def _call(self, fn: Callable[..., object], args: tuple[Any, ...]) -> None:
+        try:
+            fn(*args)
+        except Exception:  # one bad input must not stop the stage
+            log.exception("%s: %s failed", self.name, getattr(fn, "__name__", fn))
+
+    def handle_sample(self, key: str, payload: bytes, t_arrival_ns: int | None = None) -> object:
+        """One bus payload: its envelope decoded and the typed message given to
+        :meth:`dispatch`; a malformed payload, an unknown type or a failed handling is counted
+        (``bad_payloads``) and logged, never raised. ``t_arrival_ns``: host arrival time."""
+        from auvgw.subscribe import typed_message
+
+        try:
+            env = decode_envelope(payload, key)
+            msg = typed_message(env.type, env.body)
+            if msg is None:
+                raise ValueError(f"unknown or unusable message type {env.type!r}")
+        except Exception as exc:  # any malformed payload ([] on a sensor key...): count, go on
+            self._bad_payload(key, exc)
+            return None
+        try:
+            self.dispatch(env, msg)
+        except Exception as exc:  # one bad message must not stop the stage
+            self._bad_payload(key, exc, exc_info=True)
+        return None
+
+    def _bad_payload(self, key: str, exc: BaseException, exc_info: bool = False) -> None:
+        with self._lock:
+            log_bad_payload(self.name, key, exc, self.stats.bad_payloads, exc_info)
+            self.stats.bad_payloads += 1
+
+    def _drain(self) -> None:
+        """Run what is queued on the calling thread (a stage stopped without a worker)."""
+        while True:
+            try:
+                item = self._queue.get_nowait()
+            except queue.Empty:
+                return
+            if item is not None:
+                self._call(*item)
+
+    def stop(self, flush: bool = True, timeout_s: float = 5.0) -> None:
+        """Withdraw the subscriptions, drain the queue (on the worker for as long as it makes
+        progress, ``timeout_s`` without any gives up on it; without a worker on the calling
+        thread), :meth:`flush` (``flush``), publish a last status and withdraw every other
+        declaration. Safe to call more than once."""
+        if self._stopped:
+            return
+        self._stopped = True
+        undeclare(d for d in self._decls if isinstance(d, zenoh.Subscriber))
+        if self._worker is not None:
+            self._queue.put(None)
+            if not join_draining(self._worker, self._queue, timeout_s):
+                log.warning("%s: the worker made no progress for %.1f s; stopping without it",
+                            type(self).__name__, timeout_s)  # fmt: skip
+        else:
+            self._drain()
+        if flush:
+            self.flush()
+        self.publish_status()
+        undeclare(d for d in self._decls if not isinstance(d, zenoh.Subscriber))
+        undeclare(self._pubs.values())
+        undeclare([self._status_pub] if self._status_pub is not None else [])
+        self._pubs.clear()
+        self._status_pub = None
+
+    def __enter__(self) -> Stage:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
