@@ -31,11 +31,8 @@ publication and the counters' ``t_ns`` are host-clock health).
 
 from __future__ import annotations
 
-import contextlib
 import json
 import logging
-import queue
-import threading
 import time
 import tomllib
 from collections.abc import Callable
@@ -46,18 +43,10 @@ from typing import Any
 import zenoh
 from pydantic import AliasChoices, BaseModel, ConfigDict, Field, ValidationError
 
-from auvgw.bus import (
-    SCHEMA_VERSION,
-    Keys,
-    decode_envelope,
-    encode_envelope,
-    envelope_encoding,
-    json_encoding,
-    undeclare,
-)
+from auvgw.bus import Keys, encode_envelope
 from auvgw.fusion import FusionConfig, NavFilter, Odometry
 from auvgw.fusion.adapters import ATTITUDE_TYPES, VELOCITY_TYPES, MessageAdapter
-from auvgw.stages import join_draining, log_bad_payload
+from auvgw.stages.base import BusCounters, Stage
 
 log = logging.getLogger(__name__)
 
@@ -73,7 +62,6 @@ __all__ = [
 
 #: the stage's component name (status, liveliness, envelope device)
 COMPONENT = "fusion"
-_DROP = zenoh.CongestionControl.DROP
 
 
 def sensor_kinds(type_names: frozenset[str]) -> list[str]:
@@ -142,21 +130,23 @@ def load_stage_config(path: str | Path) -> FusionStageConfig:
 
 
 @dataclass
-class StageStats:
-    """Counters of the stage (messages and odometry samples)."""
+class StageStats(BusCounters):
+    """Counters of the stage (``received``: messages fed, on the bus or in-process)."""
 
-    received: int = 0  #: envelopes / fed messages
-    bad_payloads: int = 0  #: envelopes that could not be parsed or rebuilt
-    queue_dropped: int = 0  #: payloads dropped because the worker fell behind
     published: int = 0  #: odometry samples produced (published when on the bus)
 
 
-class FusionStage:
+class FusionStage(Stage):
     """INS + DVL messages -> :class:`Odometry` (see the module docstring).
 
     ``session``: publish odometry and status on it (None: in-process only). ``on_odometry``:
     called with every odometry sample produced (on the feeding thread).
     """
+
+    name = COMPONENT
+    status_schema = "FusionStatus"
+    outputs = ("odometry",)
+    stats: StageStats
 
     def __init__(
         self,
@@ -165,7 +155,10 @@ class FusionStage:
         on_odometry: Callable[[Odometry], object] | None = None,
     ) -> None:
         self.config = cfg = config or FusionStageConfig()
-        self.keys = Keys(cfg.vehicle)
+        super().__init__(
+            Keys(cfg.vehicle), StageStats(), session,
+            status_period_s=cfg.status_period_s, queue_size=cfg.queue_size,
+        )  # fmt: skip
         self.adapter = MessageAdapter(
             ins_device=cfg.ins_device,
             dvl_device=cfg.dvl_device,
@@ -175,23 +168,17 @@ class FusionStage:
             high_res=cfg.high_res,
         )
         self.nav = NavFilter(cfg.filter)
-        self.stats = StageStats()
-        self.session = session
         self.on_odometry = on_odometry
         self.last: Odometry | None = None
         self._now_ns = 0  # latest input receive stamp, ns (the stage's "now")
-        self._lock = threading.RLock()
-        self._pub: zenoh.Publisher | None = None
-        self._status_pub: zenoh.Publisher | None = None
-        self._decls: list[Any] = []
-        self._queue: queue.Queue[tuple[str, bytes] | None] = queue.Queue(cfg.queue_size)
-        self._worker: threading.Thread | None = None
         self._ins_kinds = frozenset(sensor_kinds(ATTITUDE_TYPES))
         self._dvl_kinds = frozenset(sensor_kinds(VELOCITY_TYPES))
-        self._started = False
-        self._stopped = False
         self._warned: set[str] = set()
         _register_can_types()
+
+    def key(self, what: str) -> str:
+        """``auv/<v>/nav/odometry`` (the one output)."""
+        return self.keys.odometry()
 
     # -- in-process use -----------------------------------------------------------------------
     def feed(self, device: str, t_recv_ns: int, message: Any) -> list[Odometry]:
@@ -217,49 +204,38 @@ class FusionStage:
         for o in out:
             self.stats.published += 1
             self.last = o
-            if self._pub is not None:
+            if self._pubs:
                 t_ns = self._now_ns or time.time_ns()  # the stamp clock; host before any input
                 payload, enc = encode_envelope(o, COMPONENT, t_ns, self.stats.published)
-                try:
-                    self._pub.put(payload, encoding=enc)
-                except zenoh.ZError as exc:
-                    log.warning("fusion: cannot publish odometry: %s", exc)
+                self.publish("odometry", payload, enc, t_ns)
             if self.on_odometry is not None:
                 self.on_odometry(o)
 
-    def counters(self) -> dict[str, Any]:
-        """Every counter (stage, adapter, device clocks, filter, reorder buffer), JSON-ready."""
-        with self._lock:
-            a = self.adapter
-            last = self.last
-            return {
-                "v": SCHEMA_VERSION,
-                "component": COMPONENT,
-                "vehicle": self.config.vehicle,
-                "t_ns": time.time_ns(),
-                "stage": asdict(self.stats),
-                "adapter": asdict(a.stats),
-                "ins_device": a.ins_device,
-                "dvl_device": a.dvl_device,
-                "clocks": {
-                    d: {"offset_s": c.offset, **asdict(c.stats)} for d, c in a.clocks.items()
-                },
-                "filter": asdict(self.nav.stats),
-                "buffer": asdict(self.nav.buffer_stats),
-                "diagnostics": self.nav.diagnostics.summary(),
-                "last": None
-                if last is None
-                else {
-                    "t": last.t,
-                    "x": last.x,
-                    "y": last.y,
-                    "z": last.z,
-                    "heading": last.heading,
-                    "sigma_xy_m": float(last.cov_xy.trace()) ** 0.5,
-                    "bottom_lock": last.bottom_lock,
-                    "coasting": last.coasting,
-                },
-            }
+    def status_fields(self) -> dict[str, Any]:
+        """Adapter, device clocks, filter, reorder buffer, diagnostics and the last sample."""
+        a = self.adapter
+        last = self.last
+        return {
+            "adapter": asdict(a.stats),
+            "ins_device": a.ins_device,
+            "dvl_device": a.dvl_device,
+            "clocks": {d: {"offset_s": c.offset, **asdict(c.stats)} for d, c in a.clocks.items()},
+            "filter": asdict(self.nav.stats),
+            "buffer": asdict(self.nav.buffer_stats),
+            "diagnostics": self.nav.diagnostics.summary(),
+            "last": None
+            if last is None
+            else {
+                "t": last.t,
+                "x": last.x,
+                "y": last.y,
+                "z": last.z,
+                "heading": last.heading,
+                "sigma_xy_m": float(last.cov_xy.trace()) ** 0.5,
+                "bottom_lock": last.bottom_lock,
+                "coasting": last.coasting,
+            },
+        }
 
     # -- on the bus ---------------------------------------------------------------------------
     def subscription_key(self) -> str:
@@ -281,128 +257,35 @@ class FusionStage:
             kind in self._dvl_kinds and device == a.dvl_device
         )
 
+    def input_keys(self) -> list[str]:
+        """:meth:`subscription_key`."""
+        return [self.subscription_key()]
+
     def start(self, subscribe: bool = True) -> None:
         """Declare the publishers, status queryable and liveliness token and, with
         ``subscribe``, the subscription and its worker thread (needs a session).
 
         ``subscribe=False`` is for a stage fed in-process (``Gateway(..., on_message=stage.feed)``
         in ``auvgw demo``) that still publishes odometry and status on the bus."""
-        if self.session is None:
-            raise RuntimeError("FusionStage.start needs a Zenoh session (in-process: use feed)")
-        if self._started:
-            return
-        self._started = True
-        s = self.session
-        self._pub = s.declare_publisher(
-            self.keys.odometry(), encoding=envelope_encoding("Odometry"), congestion_control=_DROP
-        )
-        status_key = self.keys.status(COMPONENT)
-        self._status_pub = s.declare_publisher(status_key, congestion_control=_DROP)
-        self._decls.append(s.declare_queryable(status_key, self._answer_status))
-        self._worker = threading.Thread(target=self._run, name="fusion-stage", daemon=True)
-        self._worker.start()
-        if subscribe:
-            self._decls.append(s.declare_subscriber(self.subscription_key(), self._on_sample))
-        # declarations travel in order: once this token is seen, the subscription is in place
-        self._decls.append(s.liveliness().declare_token(self.keys.alive(COMPONENT)))
-        log.info(
-            "fusion stage for vehicle %r: %s",
-            self.config.vehicle,
-            f"subscribed to {self.subscription_key()}" if subscribe else "fed in-process",
-        )
-
-    def _on_sample(self, sample: zenoh.Sample) -> None:
-        key = str(sample.key_expr)
-        if not self.wanted(key):
-            return
-        try:
-            self._queue.put_nowait((key, sample.payload.to_bytes()))
-        except queue.Full:
-            self.stats.queue_dropped += 1
-
-    def _run(self) -> None:
-        """Worker: parse and feed the queued samples in arrival order; publish the status
-        every ``status_period_s`` (also when fed in-process)."""
-        period = self.config.status_period_s
-        next_status = time.monotonic() + period
-        while True:
-            timeout = max(0.0, next_status - time.monotonic())
-            try:
-                item = self._queue.get(timeout=timeout)
-            except queue.Empty:
-                item = ()
-            if item is None:
-                break
-            if item:
-                self._handle(*item)
-            if time.monotonic() >= next_status:
-                self._publish_status()
-                next_status = time.monotonic() + period
-
-    def _handle(self, key: str, payload: bytes) -> None:
-        from auvgw.subscribe import typed_message
-
-        try:
-            env = decode_envelope(payload, key)
-            msg = typed_message(env.type, env.body)
-        except Exception as exc:  # any malformed payload ([] on a sensor key...): count, go on
-            msg, env = None, None
-            log_bad_payload("fusion", key, exc, self.stats.bad_payloads)
-        if msg is None or env is None:
-            with self._lock:
-                self.stats.bad_payloads += 1
-            return
-        try:
-            self.feed(env.device, int(env.t_recv_ns), msg)
-        except Exception:  # one bad message must not stop the stage
-            log.exception("fusion: message of %s at %s failed", env.device, env.t_recv_ns)
-
-    def _publish_status(self) -> None:
-        if self._status_pub is None:
-            return
-        counters = self.counters()
-        warnings = {w.split(":", 1)[0]: w for w in counters["diagnostics"]["warnings"]}
-        for kind in sorted(warnings.keys() - self._warned):  # log each kind once while it lasts
-            log.warning("fusion: %s", warnings[kind])
-        self._warned = set(warnings)
-        with contextlib.suppress(zenoh.ZError):
-            self._status_pub.put(
-                json.dumps(counters).encode(), encoding=json_encoding("FusionStatus")
+        first = not self._started
+        super().start(subscribe)
+        if first:
+            log.info(
+                "fusion stage for vehicle %r: %s",
+                self.config.vehicle,
+                f"subscribed to {self.subscription_key()}" if subscribe else "fed in-process",
             )
 
-    def _answer_status(self, query: zenoh.Query) -> None:
-        query.reply(
-            self.keys.status(COMPONENT),
-            json.dumps(self.counters()).encode(),
-            encoding=json_encoding("FusionStatus"),
-        )
-
-    def stop(self, flush: bool = True, timeout_s: float = 5.0) -> None:
-        """Drain the queue (as long as the worker makes progress; ``timeout_s`` without any
-        gives up on it), flush the filter (``flush``: publish the held-back odometry),
-        publish a last status and withdraw every declaration. Safe to call more than once."""
-        if self._stopped:
+    def publish_status(self) -> None:
+        """The status, after logging each new kind of diagnostics warning once while it lasts."""
+        if self._status_pub is None:
             return
-        self._stopped = True
-        undeclare(d for d in self._decls if isinstance(d, zenoh.Subscriber))
-        if self._worker is not None:
-            self._queue.put(None)
-            if not join_draining(self._worker, self._queue, timeout_s):
-                log.warning("%s: the worker made no progress for %.1f s; stopping without it",
-                            self.__class__.__name__, timeout_s)  # fmt: skip
-        if flush:
-            self.flush()
-        self._publish_status()
-        undeclare(d for d in self._decls if not isinstance(d, zenoh.Subscriber))
-        undeclare(p for p in (self._pub, self._status_pub) if p is not None)
-        self._pub = self._status_pub = None
-
-    def __enter__(self) -> FusionStage:
-        self.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
+        with self._lock:
+            warnings = {w.split(":", 1)[0]: w for w in self.nav.diagnostics.summary()["warnings"]}
+        for kind in sorted(warnings.keys() - self._warned):
+            log.warning("fusion: %s", warnings[kind])
+        self._warned = set(warnings)
+        super().publish_status()
 
 
 def _register_can_types() -> None:
