@@ -32,13 +32,8 @@ logged, never stops the worker.
 from __future__ import annotations
 
 import bisect
-import contextlib
-import json
 import logging
 import math
-import queue
-import threading
-import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -49,19 +44,18 @@ import numpy as np
 import zenoh
 from pydantic import BaseModel, ConfigDict, Field
 
-from auvgw.bus import Keys, decode_envelope, json_encoding, undeclare
+from auvgw.bus import Envelope, Keys
 from auvgw.fusion.odometry import Odometry
 from auvgw.slam.magnetic.filters import MAGNETIC_ALGORITHMS, make_magnetic
 from auvgw.slam.magnetic.mlp import MLP
 from auvgw.slam.magnetic.online import BeaconObservation, MagneticOnline
 from auvgw.slam.models import VelocityModel
-from auvgw.stages import join_draining, log_bad_payload
+from auvgw.stages.base import BusCounters, Stage
 
 log = logging.getLogger(__name__)
 
 __all__ = ["MagneticStage", "MagneticStageConfig", "MagneticStats", "config_from_scenario"]
 
-_DROP = zenoh.CongestionControl.DROP
 PIPELINE = "magnetic"
 MAG_KIND = "magnetometer"
 ACOUSTIC_KIND = "acousticreply"
@@ -115,12 +109,9 @@ def config_from_scenario(path: Path, **kw: Any) -> MagneticStageConfig:
 
 
 @dataclass
-class MagneticStats:
-    """Counters of the stage."""
+class MagneticStats(BusCounters):
+    """Counters of the stage (``received``: envelopes decoded)."""
 
-    received: int = 0  #: envelopes received or messages fed
-    bad_payloads: int = 0  #: envelopes that could not be parsed or used
-    queue_dropped: int = 0  #: payloads dropped because the worker fell behind
     odometry: int = 0  #: odometry samples used
     mag: int = 0  #: magnetometer samples given to the demodulator
     mag_before_odometry: int = 0  #: samples older than the odometry history (dropped)
@@ -130,11 +121,16 @@ class MagneticStats:
     published: int = 0  #: pose publications
 
 
-class MagneticStage:
+class MagneticStage(Stage):
     """Odometry + magnetometer + acoustic beacon -> AMB-SLAM (see the module docstring).
 
     ``session``: publish on it (None: in-process only); ``on_publish(key, payload, t_ns)`` is
     called at every publication."""
+
+    name = PIPELINE
+    status_schema = "MagneticStatus"
+    outputs = ("pose", "landmarks", "observations")
+    stats: MagneticStats
 
     def __init__(
         self,
@@ -147,10 +143,10 @@ class MagneticStage:
                 f"unknown algorithm {config.algorithm!r}; choose from {MAGNETIC_ALGORITHMS}"
             )
         self.config = cfg = config
-        self.keys = Keys(cfg.vehicle)
-        self.session = session
-        self.on_publish = on_publish
-        self.stats = MagneticStats()
+        super().__init__(
+            Keys(cfg.vehicle), MagneticStats(), session,
+            status_period_s=cfg.status_period_s, queue_size=cfg.queue_size, on_publish=on_publish,
+        )  # fmt: skip
         self.net = MLP.load(cfg.model)
         self.online: MagneticOnline | None = None
         self.observations: list[BeaconObservation] = []
@@ -161,14 +157,8 @@ class MagneticStage:
         self._pos: deque[tuple[float, float, float]] = deque()  # x, y, z
         self._mags: deque[tuple[float, np.ndarray]] = deque()
         self._t_pub: float | None = None
-        self._lock = threading.RLock()
-        self._pubs: dict[str, zenoh.Publisher] = {}
-        self._decls: list[Any] = []
-        self._queue: queue.Queue[tuple[str, bytes] | None] = queue.Queue(cfg.queue_size)
-        self._worker: threading.Thread | None = None
-        self._started = self._stopped = False
 
-    component = f"slam-{PIPELINE}"
+    component = f"slam-{PIPELINE}"  # type: ignore[assignment]
 
     def key(self, what: str) -> str:
         """``auv/<v>/slam/magnetic/<what>``."""
@@ -289,14 +279,7 @@ class MagneticStage:
 
     # -- outputs ---------------------------------------------------------------------------------
     def _put(self, what: str, body: dict[str, Any], t: float) -> None:
-        payload = json.dumps(body).encode()
-        t_ns = int(t * 1e9)
-        pub = self._pubs.get(what)
-        if pub is not None:
-            with contextlib.suppress(zenoh.ZError):
-                pub.put(payload, encoding=json_encoding(f"Magnetic{what.capitalize()}"))
-        if self.on_publish is not None:
-            self.on_publish(self.key(what), payload, t_ns)
+        self.publish_json(what, body, t, f"Magnetic{what.capitalize()}")
 
     def _publish_pose(self, t: float, landmarks: bool) -> None:
         assert self.online is not None
@@ -314,104 +297,23 @@ class MagneticStage:
             self._put("landmarks", {"t": t, "mean": mean.tolist(), "cov": cov,
                                     "ids": list(range(n))}, t)  # fmt: skip
 
-    def counters(self) -> dict[str, Any]:
-        """The stage's counters (JSON-able)."""
+    def status_fields(self) -> dict[str, Any]:
+        """Algorithm and the number of beacons mapped."""
+        n = self.online.filt.n_lm if self.online is not None else 0
+        return {"algorithm": self.config.algorithm, "landmarks": n}
+
+    def flush(self) -> None:
+        """Publish the current pose and beacon map (end of data)."""
         with self._lock:
-            n = self.online.filt.n_lm if self.online is not None else 0
-            return {"component": self.component, "algorithm": self.config.algorithm,
-                    "landmarks": n, "stage": asdict(self.stats),
-                    "t_ns": time.time_ns()}  # fmt: skip
+            if self.online is not None and self._t_pub is not None:
+                self._publish_pose(self._t_pub, landmarks=True)
 
     # -- on the bus ------------------------------------------------------------------------------
-    def start(self, subscribe: bool = True) -> None:
-        """Declare publishers, the status queryable, liveliness and (``subscribe``) the inputs
-        with their worker thread."""
-        if self.session is None:
-            raise RuntimeError("MagneticStage.start needs a Zenoh session (in-process: use feed)")
-        if self._started:
-            return
-        self._started = True
-        s = self.session
-        for what in ("pose", "landmarks", "observations"):
-            self._pubs[what] = s.declare_publisher(self.key(what), congestion_control=_DROP)
-        status_key = self.keys.status(self.component)
-        self._pubs["status"] = s.declare_publisher(status_key, congestion_control=_DROP)
-        self._decls.append(s.declare_queryable(status_key, self._answer_status))
-        self._worker = threading.Thread(target=self._run, name="magnetic-stage", daemon=True)
-        self._worker.start()
-        if subscribe:
-            for key in self.input_keys():
-                self._decls.append(s.declare_subscriber(key, self._on_sample))
-        self._decls.append(s.liveliness().declare_token(self.keys.alive(self.component)))
-
-    def _on_sample(self, sample: zenoh.Sample) -> None:
-        try:
-            self._queue.put_nowait((str(sample.key_expr), sample.payload.to_bytes()))
-        except queue.Full:
-            self.stats.queue_dropped += 1
-
-    def _run(self) -> None:
-        period = self.config.status_period_s
-        next_status = time.monotonic() + period
-        while True:
-            try:
-                item = self._queue.get(timeout=max(0.0, next_status - time.monotonic()))
-            except queue.Empty:
-                item = ("", b"")
-            if item is None:
-                break
-            if item[0]:
-                self.handle(*item)
-            if time.monotonic() >= next_status:
-                self._publish_status()
-                next_status = time.monotonic() + period
-
-    def handle(self, key: str, payload: bytes) -> None:
-        """One bus payload: decoded, dispatched; a malformed one is counted and logged."""
-        from auvgw.subscribe import typed_message
-
+    def dispatch(self, env: Envelope, message: Any) -> None:
+        """One decoded bus message (counted as received)."""
         with self._lock:
             self.stats.received += 1
-        try:
-            env = decode_envelope(payload, key)
-            msg = typed_message(env.type, env.body)
-            if msg is None:
-                raise ValueError(f"unknown or unusable message type {env.type!r}")
-            if isinstance(msg, Odometry):
-                self.feed_odometry(msg)
-            else:
-                self.feed(env.device, int(env.t_recv_ns), msg)
-        except Exception as exc:  # any malformed payload: count, log, go on
-            log_bad_payload(PIPELINE, key, exc, self.stats.bad_payloads)
-            with self._lock:
-                self.stats.bad_payloads += 1
+        super().dispatch(env, message)
 
-    def _publish_status(self) -> None:
-        pub = self._pubs.get("status")
-        if pub is not None:
-            with contextlib.suppress(zenoh.ZError):
-                pub.put(json.dumps(self.counters()).encode(),
-                        encoding=json_encoding("MagneticStatus"))  # fmt: skip
-
-    def _answer_status(self, query: zenoh.Query) -> None:
-        query.reply(self.keys.status(self.component), json.dumps(self.counters()).encode(),
-                    encoding=json_encoding("MagneticStatus"))  # fmt: skip
-
-    def stop(self, flush: bool = True, timeout_s: float = 5.0) -> None:
-        """Drain the queue, publish the current pose (``flush``) and status, withdraw every
-        declaration. Safe to call more than once."""
-        if self._stopped:
-            return
-        self._stopped = True
-        undeclare(d for d in self._decls if isinstance(d, zenoh.Subscriber))
-        if self._worker is not None:
-            self._queue.put(None)
-            if not join_draining(self._worker, self._queue, timeout_s):
-                log.warning("magnetic stage: the worker made no progress for %.1f s", timeout_s)
-        if flush and self.online is not None and self._t_pub is not None:
-            with self._lock:
-                self._publish_pose(self._t_pub, landmarks=True)
-        self._publish_status()
-        undeclare(d for d in self._decls if not isinstance(d, zenoh.Subscriber))
-        undeclare(self._pubs.values())
-        self._pubs.clear()
+    #: one bus payload: decoded, dispatched; a malformed one is counted and logged
+    handle = Stage.handle_sample
