@@ -244,7 +244,7 @@ def run(args: argparse.Namespace) -> int:
         "ignored": s.ignored,
         "unknown": dict(s.unknown),
         "errors": s.errors,
-        "stage_dropped": s.dropped,
+        "stage_dropped": s.queue_dropped,
         "logger_dropped": ls.dropped,
         "rrd": None if args.rrd is None else str(args.rrd),
     }

@@ -33,11 +33,9 @@ full); a stage thread does the JSON decoding and mapping.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import logging
 import math
-import queue
 import threading
 import time
 from collections import Counter
@@ -50,6 +48,7 @@ import numpy as np
 
 from auvgw.bus import SCHEMA_VERSION, Keys, decode_envelope
 from auvgw.drivers.spec import MESSAGE_TYPES, from_jsonable
+from auvgw.stages.base import BusCounters, Stage
 from auvgw.viz.logger import RerunLogger, VizOptions
 
 __all__ = ["SECTIONS", "DeviceClock", "StageStats", "VizRunner", "VizStage", "open_viz"]
@@ -120,17 +119,21 @@ class DeviceClock:
 
 
 @dataclass
-class StageStats:
-    """Counters: samples received, dropped (queue full), mapped to the logger, skipped as
-    uninteresting (``ignored``), unknown types (per type) and mapping errors."""
+class StageStats(BusCounters):
+    """Counters: samples received, dropped (``queue_dropped``: queue full), mapped to the
+    logger, skipped as uninteresting (``ignored``), unknown types (per type) and mapping errors
+    (``errors``: a payload that cannot be decoded is one; ``bad_payloads`` stays 0)."""
 
-    received: int = 0
-    dropped: int = 0
     logged: int = 0
     ignored: int = 0
     errors: int = 0
     unknown: Counter[str] = field(default_factory=Counter)
     last_error: str = ""
+
+    @property
+    def dropped(self) -> int:
+        """Samples dropped because the queue was full."""
+        return self.queue_dropped
 
 
 def _float(v: Any, default: float = math.nan) -> float:
@@ -204,13 +207,17 @@ def _lines(value: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.nd
     return arr[:, 0], arr[:, 1], None, None
 
 
-class VizStage:
+class VizStage(Stage):
     """Maps the bus of one vehicle to a :class:`RerunLogger` (see the module docstring).
 
     :meth:`attach` subscribes on a Zenoh session and :meth:`start` runs the mapping thread;
     :meth:`handle_sample` maps one payload synchronously (tests, replay) and
-    :meth:`on_message` one typed message (in-process, e.g. ``Gateway(on_message=...)``).
+    :meth:`on_message` one typed message (in-process, e.g. ``Gateway(on_message=...)``). Its
+    own health (every ``health_period_s`` and at :meth:`stop`) goes to the logger, not the bus.
     """
+
+    name = "viz"
+    stats: StageStats
 
     def __init__(
         self,
@@ -221,15 +228,10 @@ class VizStage:
         queue_size: int = 20_000,
         health_period_s: float = 1.0,
     ) -> None:
+        super().__init__(Keys(vehicle, root), StageStats(), status_period_s=health_period_s,
+                         queue_size=queue_size)  # fmt: skip
         self.logger = logger
-        self.keys = Keys(vehicle, root)
-        self.stats = StageStats()
-        self.health_period_s = health_period_s
-        self._q: queue.Queue[Any] = queue.Queue(maxsize=max(1, queue_size))
-        self._subs: list[Any] = []
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
-        self._lock = threading.Lock()  # counters
+        self.sections: tuple[str, ...] = SECTIONS
         self._map_lock = threading.Lock()  # mapping state (clocks, poses): bus and in-process
         self._clocks: dict[str, DeviceClock] = {}
         self._nav: tuple[float, float, float, float] | None = None
@@ -258,64 +260,27 @@ class VizStage:
                 self._classes[type_name] = MESSAGE_TYPES[type_name]
 
     # -- bus side --------------------------------------------------------------------------
+    def input_keys(self) -> list[str]:
+        """``auv/<v>/<section>/**`` of each attached section."""
+        return [self.keys.all(f"{section}/**") for section in self.sections]
+
     def attach(self, session: Any, sections: Iterable[str] = SECTIONS) -> None:
         """Subscribe to this vehicle's ``sections`` on ``session`` (a ``zenoh.Session``)."""
-        for section in sections:
-            key = self.keys.all(f"{section}/**")
-            self._subs.append(session.declare_subscriber(key, self._on_sample))
+        self.session = session
+        self.sections = tuple(sections)
+        self.subscribe()
 
-    def _on_sample(self, sample: Any) -> None:
-        """Zenoh callback: copy and queue (never block the network thread)."""
-        item = (str(sample.key_expr), sample.payload.to_bytes(), time.time_ns())
-        try:
-            self._q.put_nowait(item)
-        except queue.Full:
-            with self._lock:
-                self.stats.dropped += 1
+    def start(self, subscribe: bool = False) -> None:
+        """Start the mapping thread (idempotent; :meth:`attach` subscribes)."""
+        self.start_worker()
 
-    def start(self) -> None:
-        """Start the mapping thread (idempotent)."""
-        if self._thread is None:
-            self._thread = threading.Thread(target=self._run, name="viz-stage", daemon=True)
-            self._thread.start()
+    def stop(self, timeout_s: float = 10.0) -> None:  # type: ignore[override]
+        """Undeclare the subscribers, map what is queued (``timeout_s``: given up after that
+        long without progress), stop the thread (the logger stays open: close it afterwards)."""
+        super().stop(flush=True, timeout_s=timeout_s)
 
-    def stop(self, timeout_s: float = 10.0) -> None:
-        """Undeclare the subscribers, map what is queued, stop the thread (the logger stays
-        open: close it afterwards)."""
-        for sub in self._subs:
-            with contextlib.suppress(Exception):
-                sub.undeclare()
-        self._subs.clear()
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout_s)
-            if self._thread.is_alive():
-                log.warning("viz stage: mapping thread still busy after %.0f s", timeout_s)
-                return
-        self._drain()
-        self._log_own_health()
-
-    def _drain(self) -> None:
-        while True:
-            try:
-                key, payload, t_ns = self._q.get_nowait()
-            except queue.Empty:
-                return
-            self.handle_sample(key, payload, t_ns)
-
-    def _run(self) -> None:
-        next_health = time.monotonic() + self.health_period_s
-        while not self._stop.is_set():
-            try:
-                key, payload, t_ns = self._q.get(timeout=0.2)
-                self.handle_sample(key, payload, t_ns)
-            except queue.Empty:
-                pass
-            if time.monotonic() >= next_health:
-                next_health = time.monotonic() + self.health_period_s
-                self._log_own_health()
-
-    def _log_own_health(self) -> None:
+    def publish_status(self) -> None:
+        """The stage's own health into the logger (once something was mapped)."""
         if not self._t_last:
             return
         s = self.stats
@@ -323,7 +288,7 @@ class VizStage:
             "viz",
             self._t_last,
             {
-                "stage_dropped": float(s.dropped),
+                "stage_dropped": float(s.queue_dropped),
                 "unknown": float(sum(s.unknown.values())),
                 "errors": float(s.errors),
             },
