@@ -20,6 +20,7 @@ import json
 import logging
 import threading
 import time
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -44,7 +45,7 @@ from auvgw.drivers.transports import (
     TransportError,
     make_transport,
 )
-from auvgw.health import Backoff, DeviceHealth
+from auvgw.health import Backoff, DeviceHealth, device_time_s
 from auvgw.hostdrivers import HostDriver, make_host_driver
 
 log = logging.getLogger(__name__)
@@ -53,6 +54,8 @@ __all__ = ["READ_TIMEOUT_S", "Gateway"]
 
 #: how long a reader waits for data before checking for stop and calling the host driver (s)
 READ_TIMEOUT_S = 0.05
+#: how often a reader refreshes its transport's loss counters (s; an SLCAN adapter is asked)
+LOSS_POLL_S = 0.5
 _DROP = zenoh.CongestionControl.DROP
 
 
@@ -68,6 +71,7 @@ class _Device:
     reported_bad: int = 0
     rejected_before: int = 0  # datagrams rejected on earlier connections (allowed senders)
     reported_rejected: int = 0
+    losses_before: Counter[str] = field(default_factory=Counter)  # earlier connections' losses
 
 
 class Gateway:
@@ -193,10 +197,12 @@ class Gateway:
     def device_status(self, name: str, now_ns: int | None = None) -> dict[str, Any]:
         """One device's status (JSON-ready, fields in docs/gateway.md)."""
         d = self.devices[name]
-        snap = d.health.snapshot(now_ns, stale_after_s=d.cfg.stale_after_s)
+        now_ns = time.time_ns() if now_ns is None else now_ns
         # the stamp clock of the data ([clock]: vehicle-paced in emulation), so a viewer puts
         # the health next to the data it describes at any sim speed
-        snap["t_stamp_ns"] = self._stamp(now_ns if now_ns is not None else time.time_ns())
+        stamp = self._stamp(now_ns)
+        snap = d.health.snapshot(now_ns, stale_after_s=d.cfg.stale_after_s, now_stamp_ns=stamp)
+        snap["t_stamp_ns"] = stamp
         return snap
 
     def status(self) -> dict[str, Any]:
@@ -315,7 +321,8 @@ class Gateway:
                 dev.health.decode_error(item.error)
                 continue
             for msg in item.messages:
-                dev.health.seen(t_recv_ns, message_type(msg))  # health stays on the host clock
+                # rates on the host clock; lag from the device's own time against the stamp
+                dev.health.seen(t_recv_ns, message_type(msg), t_ns, device_time_s(msg))
                 self._publish(dev, msg, t_ns, seq)
                 if self.on_message is not None:
                     try:
@@ -337,6 +344,12 @@ class Gateway:
                 dev.rejected_before + rejected, getattr(transport, "last_rejected_sender", None)
             )
 
+    @staticmethod
+    def _update_losses(dev: _Device, transport: Transport) -> None:
+        now = transport.losses()
+        if now:  # a transport closing or without counters keeps the totals read so far
+            dev.health.set_transport_losses(dev.losses_before + Counter(now))
+
     def _serve(self, dev: _Device, transport: Transport) -> bool:
         """Read one connection until it drops or stop; True when a finite source has ended."""
         host = make_host_driver(dev.cfg)
@@ -345,9 +358,13 @@ class Gateway:
             token = self.session.liveliness().declare_token(self.keys.alive(dev.name))
             if host is not None:
                 host.on_connect(transport.write, time.monotonic())
+            next_loss_poll = 0.0
             while not self.stop_event.is_set():
                 chunk = transport.read(READ_TIMEOUT_S)
                 self._update_rejected(dev, transport)
+                if time.monotonic() >= next_loss_poll:
+                    next_loss_poll = time.monotonic() + LOSS_POLL_S
+                    self._update_losses(dev, transport)
                 if chunk is not None:
                     self._handle_items(
                         dev, dev.decoder.feed(chunk), chunk.t_recv_ns, transport, host
@@ -381,6 +398,9 @@ class Gateway:
             log.exception("%s: reader error; reopening", dev.name)
         finally:
             self._update_framing(dev)
+            with contextlib.suppress(Exception):  # counters of a connection that just failed
+                self._update_losses(dev, transport)
+                dev.losses_before = Counter(dev.health.transport_losses)
             dev.rejected_before += getattr(transport, "rejected_datagrams", 0)
             dev.decoder.reset()
             if token is not None:

@@ -7,13 +7,16 @@ Times are host wall-clock ns since the Unix epoch (``time.time_ns()``); rates ar
 
 from __future__ import annotations
 
+import datetime as dt
+import math
 import threading
 import time
 from collections import Counter, deque
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-__all__ = ["RATE_SAMPLES", "Backoff", "DeviceHealth"]
+__all__ = ["RATE_SAMPLES", "Backoff", "DeviceHealth", "LagTracker", "device_time_s"]
 
 #: receive times kept per message type for the rate (bounds memory under a flood; above
 #: RATE_SAMPLES / window_s messages per second the rate is taken over the samples kept)
@@ -35,6 +38,49 @@ class Backoff:
 
     def reset(self) -> None:
         self._next = 0.0
+
+
+def device_time_s(msg: Any) -> float | None:
+    """A decoded message's own clock in seconds (``device_time_s``, ``device_time`` or ``time``:
+    a float, or a datetime as its POSIX time), or None when its wire carries no time."""
+    for name in ("device_time_s", "device_time", "time"):
+        v = getattr(msg, name, None)
+        if isinstance(v, dt.datetime):
+            return v.timestamp()
+        if isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v):
+            return float(v)
+    return None
+
+
+@dataclass
+class LagTracker:
+    """Transport lag from a device's own clock: ``(t_recv - t_device) - min(t_recv - t_device)``.
+
+    The offset between the receive stamp and the device's time is the clocks' difference plus
+    the transport delay; its minimum over the connection is the clocks' difference plus the
+    best delay seen, so what a sample has on top of it is how far the reader has fallen behind
+    the device (seconds, on the stamp clock: vehicle-paced under ``[clock]``). The baseline
+    restarts when the device clock steps back (a wrap, a device reset): see :meth:`reset`.
+    A device clock drifting against the host shows up as a slowly growing lag (50 ppm: 0.18 s
+    an hour).
+    """
+
+    _min_offset: float | None = None
+    _last_device: float | None = None
+
+    def observe(self, t_stamp_s: float, t_device_s: float) -> float:
+        """The lag (s) of one sample stamped ``t_stamp_s`` whose device time is ``t_device_s``."""
+        if self._last_device is not None and t_device_s < self._last_device:
+            self._min_offset = None  # the device clock wrapped or restarted
+        self._last_device = t_device_s
+        offset = t_stamp_s - t_device_s
+        if self._min_offset is None or offset < self._min_offset:
+            self._min_offset = offset
+        return offset - self._min_offset
+
+    def reset(self) -> None:
+        """Forget the baseline (a new connection may be a new device clock)."""
+        self._min_offset = self._last_device = None
 
 
 @dataclass
@@ -64,15 +110,41 @@ class DeviceHealth:
     last_error: str = ""
     rejected_datagrams: int = 0
     last_rejected_sender: str | None = None
+    #: newest sample: its stamp (ns, the published clock) and transport lag (s, None: no time)
+    last_stamp_ns: int | None = None
+    lag_s: float | None = None
+    lag_max_s: float | None = None
+    #: data lost below the framer, per counter (:meth:`Transport.losses
+    #: <auvgw.drivers.transports.Transport.losses>`), since the gateway started
+    transport_losses: Counter[str] = field(default_factory=Counter)
+    lag: LagTracker = field(default_factory=LagTracker)
     _times: dict[str, deque[int]] = field(default_factory=dict)
     _lock: threading.Lock = field(default_factory=threading.Lock)
 
-    def seen(self, t_ns: int, type_name: str) -> None:
-        """A message of ``type_name`` decoded from a chunk received at ``t_ns``."""
+    def seen(
+        self,
+        t_ns: int,
+        type_name: str,
+        t_stamp_ns: int | None = None,
+        t_device_s: float | None = None,
+    ) -> None:
+        """A message of ``type_name`` decoded from a chunk received at ``t_ns`` (host clock),
+        published with the stamp ``t_stamp_ns`` (default ``t_ns``), carrying the device's own
+        time ``t_device_s`` (s) if its wire has one (for the lag)."""
+        stamp = t_ns if t_stamp_ns is None else t_stamp_ns
         with self._lock:
             self.messages[type_name] += 1
             self.last_seen_ns = t_ns
+            self.last_stamp_ns = stamp
             self._times.setdefault(type_name, deque(maxlen=RATE_SAMPLES)).append(t_ns)
+            if t_device_s is not None:
+                self.lag_s = self.lag.observe(stamp / 1e9, t_device_s)
+                self.lag_max_s = max(self.lag_s, self.lag_max_s or 0.0)
+
+    def set_transport_losses(self, losses: Mapping[str, int]) -> None:
+        """Totals of the transport's loss counters since the gateway started."""
+        with self._lock:
+            self.transport_losses = Counter(losses)
 
     def set_rejected(self, datagrams: int, sender: str | None) -> None:
         """Datagrams dropped (since the gateway started) because their sender is not allowed."""
@@ -97,6 +169,7 @@ class DeviceHealth:
             if connected and not self.connected:
                 self.connects += 1
                 self.connected_since_ns = time.time_ns()
+                self.lag.reset()
             if not connected:
                 self.connected_since_ns = None
             self.connected = connected
@@ -147,11 +220,19 @@ class DeviceHealth:
             return round(sum(self._rates(now_ns).values()), 3)
 
     def snapshot(
-        self, now_ns: int | None = None, stale_after_s: float | None = None
+        self,
+        now_ns: int | None = None,
+        stale_after_s: float | None = None,
+        now_stamp_ns: int | None = None,
     ) -> dict[str, Any]:
-        """The JSON-ready status of the device (fields documented in docs/gateway.md)."""
+        """The JSON-ready status of the device (fields documented in docs/gateway.md);
+        ``now_stamp_ns`` is now on the stamp clock (default ``now_ns``), for ``age_s``."""
         now_ns = time.time_ns() if now_ns is None else now_ns
+        now_stamp_ns = now_ns if now_stamp_ns is None else now_stamp_ns
         with self._lock:
+            age = None
+            if self.last_stamp_ns is not None:
+                age = round((now_stamp_ns - self.last_stamp_ns) / 1e9 + (self.lag_s or 0.0), 3)
             rates = self._rates(now_ns)
             silent = (
                 None if self.last_seen_ns is None else round((now_ns - self.last_seen_ns) / 1e9, 3)
@@ -181,6 +262,11 @@ class DeviceHealth:
                 "connected_since_ns": self.connected_since_ns,
                 "last_seen_ns": self.last_seen_ns,
                 "silent_s": silent,
+                "age_s": age,
+                "lag_s": None if self.lag_s is None else round(self.lag_s, 3),
+                "lag_max_s": None if self.lag_max_s is None else round(self.lag_max_s, 3),
+                "transport_losses": dict(self.transport_losses),
+                "transport_lost": sum(self.transport_losses.values()),
                 "next_retry_s": self.next_retry_s,
                 "last_error": self.last_error,
                 "rejected_datagrams": self.rejected_datagrams,

@@ -28,11 +28,13 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import fcntl
 import io
 import ipaddress
 import os
 import select
 import socket
+import struct
 import time
 from abc import ABC, abstractmethod
 from collections.abc import Iterator, Mapping
@@ -54,6 +56,7 @@ from auvgw.config.transport import (
     UdpTransportConfig,
     parse_transport_config,
 )
+from auvgw.drivers.slcanbus import BulkSlcanBus
 
 __all__ = [
     "CanTransport",
@@ -243,6 +246,12 @@ class Transport(ABC):
             f"disconnected ({': '.join(reasons)}); transport closed, open() again to reconnect",
         ) from exc
 
+    def losses(self) -> dict[str, int]:
+        """Data lost below the framer on this connection, per counter (none known: empty).
+        Serial: the UART's and the driver's overruns; CAN over SLCAN: the adapter's overrun
+        flags; UDP: datagrams the kernel dropped on a full receive buffer."""
+        return {}
+
     def _chunk(self, chunk: Chunk) -> Chunk:
         self.chunks_read += 1
         self.bytes_read += len(chunk.data)
@@ -271,6 +280,7 @@ class SerialTransport(Transport):
         self._ser: serial.SerialBase | None = None
         self._fd: int | None = None
         self._socket_like = False
+        self._icount0: tuple[int, ...] | None = None  # driver counters at open (None: no ioctl)
 
     @property
     def port(self) -> str:
@@ -306,6 +316,26 @@ class SerialTransport(Transport):
             self._fd = None
         self._socket_like = isinstance(ser, protocol_socket.Serial)
         self._ser = ser
+        self._icount0 = self._icount()
+
+    def _icount(self) -> tuple[int, ...] | None:
+        """The serial driver's (frame, overrun, parity, buffer overrun) error counters
+        (``TIOCGICOUNT``; None where the device has none, e.g. a pty)."""
+        if self._fd is None:
+            return None
+        try:
+            raw = fcntl.ioctl(self._fd, _TIOCGICOUNT, bytes(_ICOUNT.size))
+        except OSError:
+            return None
+        v = _ICOUNT.unpack(raw)
+        return (v[6], v[7], v[8], v[10])
+
+    def losses(self) -> dict[str, int]:
+        now, base = self._icount(), self._icount0
+        if now is None or base is None:
+            return {}
+        names = ("framing_errors", "uart_overruns", "parity_errors", "buffer_overruns")
+        return {n: a - b for n, a, b in zip(names, now, base, strict=True)}
 
     def _set_timeout(self, ser: serial.SerialBase, timeout_s: float | None) -> None:
         if ser.timeout != timeout_s:
@@ -371,6 +401,11 @@ class SerialTransport(Transport):
         return self.cfg.describe()
 
 
+#: Linux ``TIOCGICOUNT`` and ``struct serial_icounter_struct`` (cts dsr rng dcd rx tx frame
+#: overrun parity brk buf_overrun reserved[9])
+_TIOCGICOUNT = 0x545D
+_ICOUNT = struct.Struct("20i")
+
 _CAN_HINTS = {
     "socketcan": "check the interface exists and is up (ip link show {ch}); a vcan needs "
     "'modprobe vcan', which not every kernel has",
@@ -423,7 +458,11 @@ class CanTransport(Transport):
             kwargs["can_filters"] = [f.as_python_can() for f in c.filters]
         kwargs["receive_own_messages"] = c.receive_own_messages
         try:
-            self._bus = can.Bus(**kwargs)
+            if c.interface == "slcan":  # python-can's slcan, read in bulk (drivers/slcanbus.py)
+                del kwargs["interface"]
+                self._bus = BulkSlcanBus(**kwargs)
+            else:
+                self._bus = can.Bus(**kwargs)
         except (can.CanError, OSError, ValueError, ImportError, serial.SerialException) as exc:
             hint = _CAN_HINTS.get(c.interface)
             if hint is None:
@@ -460,6 +499,15 @@ class CanTransport(Transport):
                     t_device_s=msg.timestamp or None,
                 )
             )
+
+    def losses(self) -> dict[str, int]:
+        bus = self._bus
+        if not isinstance(bus, BulkSlcanBus):
+            return {}
+        # the reply is counted when read; a gone adapter shows on the next read
+        with contextlib.suppress(can.CanError, OSError, serial.SerialException):
+            bus.poll_status()
+        return {f"adapter_{k}": bus.flag_counts[k] for k in ("data_overrun", "rx_fifo_full")}
 
     def send_frame(self, can_id: int, data: bytes, *, is_extended_id: bool) -> None:
         """Send one frame; ``is_extended_id`` is required (29-bit when True, 11-bit when False)."""
@@ -511,6 +559,10 @@ class CanTransport(Transport):
         return self.cfg.describe()
 
 
+#: Linux SO_RXQ_OVFL: a u32 ancillary count of datagrams dropped on this socket so far
+_SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40)
+_ANC_SPACE = socket.CMSG_SPACE(4)
+
 #: send errors meaning the network itself is gone (interface down, no route)
 _LINK_GONE = frozenset({errno.ENETDOWN, errno.ENETUNREACH, errno.EHOSTUNREACH, errno.ENODEV})
 
@@ -535,6 +587,8 @@ class UdpTransport(Transport):
         self.rejected_datagrams = 0
         self.rejected_bytes = 0
         self.last_rejected_sender: str | None = None
+        #: datagrams the kernel dropped because the receive buffer was full (SO_RXQ_OVFL)
+        self.kernel_drops = 0
         self._allowed: list[ipaddress.IPv4Network | ipaddress.IPv6Network] | None = None
 
     @property
@@ -562,6 +616,8 @@ class UdpTransport(Transport):
             reuse = c.reuse_address if c.reuse_address is not None else bool(c.multicast_group)
             if reuse:
                 sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            with contextlib.suppress(OSError):  # Linux: drop counts on every datagram read
+                sock.setsockopt(socket.SOL_SOCKET, _SO_RXQ_OVFL, 1)
             if c.receive_buffer_bytes is not None:
                 sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, c.receive_buffer_bytes)
             sock.bind((c.host, c.port))
@@ -603,18 +659,24 @@ class UdpTransport(Transport):
                 return None  # only rejected datagrams arrived within timeout_s
             try:
                 sock.settimeout(None if left is None else max(left, 1e-6))
-                data, addr = sock.recvfrom(UDP_MAX_DATAGRAM)
+                data, anc, _, addr = sock.recvmsg(UDP_MAX_DATAGRAM, _ANC_SPACE)
             except (TimeoutError, BlockingIOError):
                 return None
             except OSError as exc:
                 self._gone(exc)
             t_recv = time.time_ns()
+            for level, kind, value in anc:
+                if level == socket.SOL_SOCKET and kind == _SO_RXQ_OVFL and len(value) >= 4:
+                    self.kernel_drops = struct.unpack_from("=I", value)[0]
             if self._allowed is None or _sender_allowed(addr[0], self._allowed):
                 self.last_sender = (addr[0], addr[1])
                 return self._chunk(Chunk(data, t_recv))
             self.rejected_datagrams += 1
             self.rejected_bytes += len(data)
             self.last_rejected_sender = f"{addr[0]}:{addr[1]}"
+
+    def losses(self) -> dict[str, int]:
+        return {"kernel_drops": self.kernel_drops}
 
     def write(self, data: bytes) -> None:
         """Send ``data`` as one datagram."""
