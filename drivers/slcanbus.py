@@ -12,7 +12,7 @@ It also asks the adapter for its status flags (Lawicel ``F``, SJA1000 style) whe
 :meth:`BulkSlcanBus.poll_status` is called, and counts the flags set in each reply
 (:attr:`BulkSlcanBus.flag_counts`): ``data_overrun`` (the adapter lost frames: its host link or
 its buffer could not keep up) and ``rx_fifo_full`` among them. Adapters without ``F`` answer
-BELL; polling then stops.
+BELL; polling stops after three.
 """
 
 from __future__ import annotations
@@ -44,8 +44,10 @@ class BulkSlcanBus(slcanBus):
 
     def __init__(self, channel: str, **kwargs: Any) -> None:
         self.flag_counts: Counter[str] = Counter()
-        #: ``F`` requests sent and not yet answered; None: the adapter has no ``F`` (BELL)
+        #: ``F`` requests not yet answered; None: the adapter has no ``F``
         self._status_pending: int | None = 0
+        self._status_supported = False
+        self._status_bells = 0
         super().__init__(channel, **kwargs)
 
     def poll_status(self) -> None:
@@ -65,21 +67,26 @@ class BulkSlcanBus(slcanBus):
         return None
 
     def _status_reply(self, line: str) -> bool:
-        """Consume an answer to :meth:`poll_status`; True if ``line`` was one."""
-        if not self._status_pending:
-            return False
-        if line == "\a":  # no F on this adapter (or not open): stop asking
-            self._status_pending = None
-            return True
-        if len(line) == 4 and line[0] == "F":
+        """Consume an answer to :meth:`poll_status`; True if ``line`` was one. ``Fxx`` is
+        never a data frame; a BELL is taken as "no ``F`` here" only while no ``F`` was ever
+        answered, three times (python-can's own open sequence draws BELLs too)."""
+        if len(line) == 4 and line[0] == "F" and line[3] == "\r":
             try:
                 flags = int(line[1:3], 16)
             except ValueError:
                 return False
-            self._status_pending -= 1
+            self._status_supported = True
+            if self._status_pending:
+                self._status_pending -= 1
             for bit, name in SLCAN_FLAGS.items():
                 if flags & bit:
                     self.flag_counts[name] += 1
+            return True
+        if line == "\a" and self._status_pending and not self._status_supported:
+            self._status_pending -= 1
+            self._status_bells += 1
+            if self._status_bells >= 3:
+                self._status_pending = None  # this adapter has no F: stop asking
             return True
         return False
 

@@ -587,7 +587,8 @@ class UdpTransport(Transport):
         self.rejected_datagrams = 0
         self.rejected_bytes = 0
         self.last_rejected_sender: str | None = None
-        #: datagrams the kernel dropped because the receive buffer was full (SO_RXQ_OVFL)
+        #: datagrams the kernel dropped because the receive buffer was full (SO_RXQ_OVFL; Linux
+        #: reports the count with the next datagram it queues after the drops)
         self.kernel_drops = 0
         self._allowed: list[ipaddress.IPv4Network | ipaddress.IPv6Network] | None = None
 
