@@ -360,3 +360,27 @@ def test_device_health_is_on_the_data_clock(tmp_path) -> None:
     logger.close()
     rows = read_recording(path)["health/dvl/status"]
     assert list(rows.times) == [int((T_RECV + 20.0 * k) * NS) for k in range(3)]
+
+
+def test_device_health_panel_shows_age_lag_and_transport_losses(tmp_path) -> None:
+    """The gateway's lag and loss numbers (``age_s``, ``lag_s``, ``transport_lost``) become
+    series of the device's health, next to the framer's skipped bytes."""
+    path = tmp_path / "lag.rrd"
+    logger = RerunLogger(rrd=path)
+    stage = VizStage(logger, "auv1")
+    h = DeviceHealth("ins", "hn100")
+    h.set_connected(True, "")
+    h.seen(int(T_RECV * NS), "Hn100Nav", int(T_RECV * NS), 10.0)
+    h.seen(int((T_RECV + 1) * NS), "Hn100Nav", int((T_RECV + 1) * NS), 10.25)  # 0.75 s late
+    h.set_transport_losses({"adapter_data_overrun": 2, "adapter_rx_fifo_full": 1})
+    snap = h.snapshot(int((T_RECV + 3) * NS))
+    snap.update(t_stamp_ns=int((T_RECV + 3) * NS), skipped_bytes=37)
+    assert stage.handle_sample(f"{BASE}/status/ins", json.dumps(snap).encode(), T_RECV + 3)
+    stage.stop()
+    logger.close()
+    health = read_recording(path)["health/ins/status"]
+    names = [n.removeprefix("ins ") for n in health.static["SeriesLines:names"]]
+    row = dict(zip(names, health.values("Scalars:scalars")[0], strict=True))
+    assert row["lag_s"] == pytest.approx(0.75) and row["age_s"] == pytest.approx(2.75)
+    assert row["transport_lost"] == 3.0 and row["skipped_bytes"] == 37.0
+    assert row["silent_s"] == pytest.approx(2.0)

@@ -578,7 +578,10 @@ class VizStage(Stage):
                 if prev is None or w.split(":", 1)[0] not in {p.split(":", 1)[0] for p in prev[0]}:
                     self.logger.event(device, t, f"{device}: {w}", "WARN")
 
-    _HEALTH_KEYS = ("rate_hz", "bad_frames", "decode_errors", "skipped_bytes", "silent_s")
+    _HEALTH_KEYS = (
+        "rate_hz", "bad_frames", "decode_errors", "skipped_bytes", "silent_s",
+        "age_s", "lag_s", "transport_lost",
+    )  # fmt: skip
     _HEALTH_FLAGS = ("connected", "stale")
 
     def _health(self, device: str, body: Mapping[str, Any], t: float) -> str:
