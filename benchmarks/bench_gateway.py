@@ -59,6 +59,7 @@ import tomllib
 import tty
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import zenoh
 
@@ -320,17 +321,23 @@ class AllPhase:
     sim_rc: int
     #: per port: [raw frames, raw bytes, decoded envelopes, envelope bytes] seen on the bus
     sizes: dict[str, list[int]]
+    #: per port: the device status at the end (lag_s, lag_max_s, transport_losses, ...)
+    status: dict[str, dict[str, Any]]
 
 
-def all_devices_scenario(path: Path, t_open: float, t_close: float) -> Path:
+def all_devices_scenario(path: Path, t_open: float, t_close: float, ins_can: bool = False) -> Path:
     """A copy of the harbour scenario: INS CAN off; every device silent before ``t_open`` and
-    from ``t_close`` (vehicle s)."""
+    from ``t_close`` (vehicle s). ``ins_can``: the INS alone, on its SLCAN adapter only."""
     scn = json.loads((REPO_ROOT / "config" / "scenarios" / "harbour.json").read_text())
     devices = scn.setdefault("devices", {})
     for name in ALL_DEVICES:
         faults = devices.setdefault(name, {}).setdefault("faults", {})
         faults["stall"] = [*faults.get("stall", []), [0.0, t_open], [t_close, 1e9]]
-    devices["ins"].setdefault("options", {})["can"] = False
+        if ins_can and name != "ins":
+            devices[name]["enabled"] = False
+    devices["ins"].setdefault("options", {}).update(
+        {"can": True, "serial": False} if ins_can else {"can": False}
+    )
     path.write_text(json.dumps(scn))
     return path
 
@@ -346,18 +353,25 @@ def sim_counters(lines: list[str]) -> dict[str, tuple[int, int]]:
 
 
 def all_devices_phase(
-    tmp: Path, speed: float, seconds: float, warm_s: float = 8.0, tail_s: float = 3.0
+    tmp: Path,
+    speed: float,
+    seconds: float,
+    warm_s: float = 8.0,
+    tail_s: float = 3.0,
+    ins_can: bool = False,
 ) -> AllPhase:
-    """Every emulated device at ``speed`` for ``seconds`` of wall time, read by ``auvgw run``."""
+    """Every emulated device (``ins_can``: the INS alone, on CAN) at ``speed`` for ``seconds``
+    of wall time, read by ``auvgw run``."""
     from auvgw.drivers.can_codec import DbcCodec
     from auvgw.paths import config_file
     from auvgw.sim_devices.runner import gateway_toml
     from auvgw.subscribe import GatewaySubscriber
 
-    out = tmp / f"all-{speed:g}x"
+    label = f"{'inscan' if ins_can else 'all'}-{speed:g}x"
+    out = tmp / label
     out.mkdir()
     t_open, t_close = warm_s * speed, (warm_s + seconds) * speed
-    scn = all_devices_scenario(tmp / f"harbour-{speed:g}x.json", t_open, t_close)
+    scn = all_devices_scenario(tmp / f"harbour-{label}.json", t_open, t_close, ins_can)
     duration = t_close + tail_s * speed
     sim_log = open(out / "sim.log", "wb")  # noqa: SIM115 - closed below
     sim = subprocess.Popen(
@@ -444,7 +458,7 @@ def all_devices_phase(
         rows.append(AllRow(p, sent, int(st.get("frames", -1)), int(st.get("bad_frames", 0)),
                            dropped))  # fmt: skip
     cpu = (c1 - c0) / CLK_TCK / (m1 - m0) * 100
-    return AllPhase(speed, seconds, cpu, rows, sim_rc, sizes)
+    return AllPhase(speed, seconds, cpu, rows, sim_rc, sizes, status)
 
 
 def print_all_devices(phases: list[AllPhase]) -> None:
@@ -480,6 +494,71 @@ def print_all_devices(phases: list[AllPhase]) -> None:
             f"at {ph.speed:g}x ({ph.seconds:g} s sending): gateway CPU {ph.cpu_pct:.1f} % of a "
             f"core (target < 35 % at 10x); frames lost {lost} (bar: 0); sim exit {ph.sim_rc}"
         )
+
+
+def print_ins_can(phases: list[AllPhase]) -> None:
+    print(
+        "\nINS over CAN alone (HN-100, 8 frames per 100 Hz epoch, emulated SLCAN adapter on a "
+        f"pty, python-can slcan read in bulk); machine load {os.getloadavg()[0]:.1f}\n"
+    )
+    head = (
+        f"{'speed':>5} {'frames/s':>8} {'sent':>7} {'received':>8} {'lost':>6} {'lost %':>6} "
+        f"{'sim dropped B':>13} {'adapter overruns':>16} {'lag max s':>9} {'CPU %':>6}"
+    )
+    print(head)
+    print("-" * len(head))
+    for ph in phases:
+        for r in ph.rows:
+            st = ph.status.get(r.port, {})
+            overruns = st.get("transport_losses", {}).get("adapter_data_overrun", "-")
+            lag = st.get("lag_max_s")
+            print(
+                f"{ph.speed:>4g}x {r.sent / ph.seconds:>8.0f} {r.sent:>7} {r.counted:>8} "
+                f"{r.lost:>6} {100 * r.lost / max(r.sent, 1):>6.1f} {r.dropped_bytes:>13} "
+                f"{overruns!s:>16} {'-' if lag is None else f'{lag:.3f}':>9} {ph.cpu_pct:>6.1f}"
+            )
+
+
+def slcan_reader_rates(frames: int = 6000) -> dict[str, float]:
+    """Frames per second python-can's own ``slcanBus`` and :class:`BulkSlcanBus` parse from a
+    pty a writer thread fills with extended 7-byte frames (one process, as fast as possible)."""
+    import can
+
+    from auvgw.drivers.slcanbus import BulkSlcanBus
+    from auvgw.sim_devices.slcan import encode_frame
+
+    line = encode_frame(can.Message(arbitration_id=0x8A100001, is_extended_id=True, data=bytes(7)))
+    out = {}
+    for name, cls in (("python-can slcanBus", can.interfaces.slcan.slcanBus),
+                      ("BulkSlcanBus", BulkSlcanBus)):  # fmt: skip
+        master, slave = os.openpty()
+        tty.setraw(slave)
+        bus = cls(channel=os.ttyname(slave), sleep_after_open=0)
+        os.read(master, 100)  # the open commands
+        data = line * frames
+
+        def write(data: bytes = data, master: int = master) -> None:
+            for i in range(0, len(data), 1024):
+                os.write(master, data[i : i + 1024])
+
+        w = threading.Thread(target=write, daemon=True)
+        t0 = time.perf_counter()
+        w.start()
+        n = 0
+        while n < frames and bus.recv(2.0) is not None:
+            n += 1
+        out[name] = n / (time.perf_counter() - t0)
+        w.join(5)
+        bus.shutdown()
+        os.close(master)
+        os.close(slave)
+    return out
+
+
+def ins_can_run(args: argparse.Namespace) -> list[AllPhase]:
+    seconds = 10.0 if args.quick else args.can_seconds
+    with tempfile.TemporaryDirectory(prefix="bench-gw-can-") as tmp:
+        return [all_devices_phase(Path(tmp), k, seconds, ins_can=True) for k in (1.0, 4.0, 10.0)]
 
 
 def all_devices_run(args: argparse.Namespace) -> list[AllPhase]:
@@ -523,6 +602,13 @@ def main() -> int:
     )
     ap.add_argument("--all-factor", type=float, default=10.0, help="its fast speed")
     ap.add_argument("--only-all", action="store_true", help="only the all-devices run")
+    ap.add_argument(
+        "--can-seconds",
+        type=float,
+        default=15.0,
+        help="wall seconds per phase of the INS-over-CAN run at 1x, 4x, 10x (0: skip it)",
+    )
+    ap.add_argument("--only-can", action="store_true", help="only the INS-over-CAN run")
     args = ap.parse_args()
     seconds = 5.0 if args.quick else args.seconds
     shared = shared_dir()
@@ -538,6 +624,12 @@ def main() -> int:
     n_nom, n_fast = round(nominal * seconds), round(fast * seconds)
     if args.only_all:
         print_all_devices(all_devices_run(args))
+        return 0
+    if args.only_can:
+        rates = slcan_reader_rates()
+        print("\nSLCAN reader, frames/s parsed from a pty: " + ", ".join(
+            f"{k} {v:,.0f}" for k, v in rates.items()))  # fmt: skip
+        print_ins_can(ins_can_run(args))
         return 0
     results: dict[str, list[Row]] = {}
     sizes: dict[str, tuple[int, int]] = {}
@@ -590,6 +682,8 @@ def main() -> int:
             )
     if args.all_seconds > 0:
         print_all_devices(all_devices_run(args))
+    if args.can_seconds > 0:
+        print_ins_can(ins_can_run(args))
     return 0
 
 

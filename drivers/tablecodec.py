@@ -300,11 +300,28 @@ class FieldSpec:
 @dataclass(frozen=True)
 class AsciiFieldSpec(FieldSpec):
     """An ASCII numeric field: ``width`` characters (0 = no padding), ``decimals`` after the
-    point, ``sign`` one of ``always`` (+/-), ``negative`` (only -), ``never`` (unsigned)."""
+    point, ``sign`` one of ``always`` (+/-), ``negative`` (only -), ``never`` (unsigned);
+    ``low`` .. ``high``: the physically plausible decoded values (decoded units, inclusive;
+    None: no bound), from the table's ``min`` / ``max``."""
 
     width: int = 0
     decimals: int = 0
     sign: str = "negative"
+    low: float | None = None
+    high: float | None = None
+
+    def value(self, raw: int) -> float | int:
+        """The decoded value (decoded units) of raw value ``raw``."""
+        return raw * self.scale + self.add if self.is_scaled else raw
+
+    def out_of_range(self, raw: int) -> str | None:
+        """Why ``raw`` is not plausible (its value outside ``low .. high``), or None."""
+        v = self.value(raw)
+        if (self.low is not None and v < self.low) or (self.high is not None and v > self.high):
+            lo = "-inf" if self.low is None else f"{self.low:.10g}"
+            hi = "inf" if self.high is None else f"{self.high:.10g}"
+            return f"{v:.10g} {self.units} outside {lo} .. {hi}".replace("  ", " ")
+        return None
 
     def format(self, raw: int) -> str:
         """The text of raw value ``raw``; ValueError when it does not fit the declared form."""
@@ -882,7 +899,17 @@ def parse_ascii_table(
         width = sec.get("width", (int,), "the field width in characters (0: no padding)", 0)
         decimals = sec.get("decimals", (int,), "digits after the decimal point", 0)
         sign = sec.get("sign", (str,), "'always', 'negative' or 'never'", "negative")
+        bounds = [
+            sec.get(k, (int, float), f"the {k}imum plausible value, in the table's units", None)
+            for k in ("min", "max")
+        ]
         sec.finish()
+        factor = UNITS[common["table_units"]][1]
+        low, high = (None if b is None else float(b) * factor for b in bounds)
+        if any(b is not None and not math.isfinite(b) for b in (low, high)):
+            raise sec.error(f"min = {bounds[0]!r}, max = {bounds[1]!r}; expected finite numbers")
+        if low is not None and high is not None and low > high:
+            raise sec.error(f"min = {bounds[0]!r} is above max = {bounds[1]!r}")
         if sign not in ("always", "negative", "never"):
             raise sec.error(f"sign = {sign!r}; expected 'always', 'negative' or 'never'")
         if not 0 <= decimals <= 9:
@@ -912,6 +939,8 @@ def parse_ascii_table(
                 width=width,
                 decimals=decimals,
                 sign=sign,
+                low=low,
+                high=high,
                 **common,
             )
         )
@@ -949,60 +978,69 @@ def _render(spec: AsciiLineSpec, texts: Sequence[str], checksum_hex: str | None 
 
 
 def parse_line(spec: AsciiLineSpec, line: bytes | bytearray | memoryview) -> list[int]:
-    """Raw integer values of every field of one whole line; :class:`LineError` if invalid."""
+    """Raw integer values of every field of one whole line; :class:`LineError` if invalid.
+
+    The error text starts with its reason, the key the framer counts it under: ``line``,
+    ``overlong``, ``character``, ``checksum``, ``fields``, ``header``, ``syntax`` (a field's
+    text is not the table's form) or ``range`` (a value outside the table's ``min`` .. ``max``).
+    """
     data = bytes(line)
     if len(data) > spec.max_length:
         raise LineError(f"overlong line: {len(data)} bytes > max_length {spec.max_length}")
     start, term = spec.start.encode(), spec.terminator.encode()
     if not data.startswith(start) or not data.endswith(term) or len(data) < 2:
-        raise LineError("bad line: not start character .. terminator")
+        raise LineError("line: not start character .. terminator")
     try:
         body = data[len(start) : len(data) - len(term)].decode("ascii")
     except UnicodeDecodeError as exc:
-        raise LineError(f"bad byte 0x{data[len(start) + exc.start]:02x}: not ASCII") from None
+        raise LineError(
+            f"character: byte 0x{data[len(start) + exc.start]:02x} is not ASCII"
+        ) from None
     if not body.isprintable():
-        raise LineError("bad character: control character inside the line")
+        raise LineError("character: control character inside the line")
     if spec.checksum is not None:
         payload, delim, hex_text = body.rpartition(spec.checksum_delimiter)
         n = 2 * spec.checksum.size
         if not delim or len(hex_text) != n:
-            raise LineError(
-                f"bad checksum field: expected {spec.checksum_delimiter} and {n} hex digits"
-            )
+            raise LineError(f"checksum: expected {spec.checksum_delimiter} and {n} hex digits")
         allowed = "0123456789ABCDEF" if spec.hex_upper else "0123456789abcdef"
         if any(c not in allowed for c in hex_text):
-            raise LineError(f"bad checksum digits {hex_text!r}")
+            raise LineError(f"checksum: digits {hex_text!r}")
         computed = spec.checksum.compute(payload.encode("ascii"))
         if int(hex_text, 16) != computed:
-            raise LineError(f"bad checksum: line says {hex_text}, computed {computed:0{n}X}")
+            raise LineError(f"checksum: line says {hex_text}, computed {computed:0{n}X}")
         body = payload
     parts = body.split(spec.separator)
     expected = len(spec.fields) + (1 if spec.header else 0)
     if len(parts) != expected:
-        raise LineError(f"bad field count {len(parts)}, expected {expected}")
+        raise LineError(f"fields: {len(parts)}, expected {expected}")
     if spec.header:
         if parts[0] != spec.header:
-            raise LineError(f"bad header {parts[0][:16]!r}, expected {spec.header!r}")
+            raise LineError(f"header: {parts[0][:16]!r}, expected {spec.header!r}")
         parts = parts[1:]
     raws: list[int] = []
     for f, text in zip(spec.fields, parts, strict=True):
         m = _NUMBER_RE.match(text)
         if m is None:
-            raise LineError(f"bad number in field {f.name}: {text[:16]!r}")
+            raise LineError(f"syntax: field {f.name}: {text[:16]!r} is not a number")
         frac = m.group(3) or ""
         if len(frac) != f.decimals:
             raise LineError(
-                f"bad decimals in field {f.name}: {text!r} has {len(frac)}, table says {f.decimals}"
+                f"syntax: field {f.name}: {text!r} has {len(frac)} decimals, table says "
+                f"{f.decimals}"
             )
         if len(m.group(2)) + len(frac) > _MAX_DIGITS:
-            raise LineError(f"bad number in field {f.name}: too many digits")
+            raise LineError(f"syntax: field {f.name}: too many digits")
         raw = int(m.group(1) + m.group(2) + frac)
         try:
             canonical = f.format(raw)
         except ValueError as exc:
-            raise LineError(f"bad form of field {f.name}: {exc}") from None
+            raise LineError(f"syntax: field {f.name}: {exc}") from None
         if canonical != text:
-            raise LineError(f"bad form of field {f.name}: {text!r}, expected {canonical!r}")
+            raise LineError(f"syntax: field {f.name}: {text!r}, expected {canonical!r}")
+        why = f.out_of_range(raw)
+        if why is not None:
+            raise LineError(f"range: field {f.name}: {why}")
         raws.append(raw)
     return raws
 
@@ -1068,7 +1106,7 @@ class AsciiLineCodec:
             raise DecodeError(f"{self.name}: {exc}") from None
         values: dict[str, Any] = {}
         for f, raw in zip(self.spec.fields, raws, strict=True):
-            values[f.name] = raw * f.scale + f.add if f.is_scaled else raw
+            values[f.name] = f.value(raw)
         return self.message_type(**values)
 
     def encode(self, msg: Any) -> bytes:

@@ -39,7 +39,7 @@ def test_reference_line_decodes_and_reencodes() -> None:
 @pytest.mark.parametrize("chunk", [1, 7, 40, 10_000])
 def test_any_line_roundtrips_and_corruption_loses_no_good_line(chunk: int) -> None:
     rng = np.random.default_rng(2)
-    lines = [_line(i, float(rng.uniform(0, 9999)), float(rng.uniform(-180, 180)),
+    lines = [_line(i, float(rng.uniform(0, 5000)), float(rng.uniform(-180, 180)),
                    float(rng.uniform(-90, 90))) for i in range(30)]  # fmt: skip
     for ln in lines:
         assert CODEC.encode(CODEC.decode(ln)) == ln
@@ -56,7 +56,7 @@ def test_any_line_roundtrips_and_corruption_loses_no_good_line(chunk: int) -> No
     good = [ln for i, ln in enumerate(lines) if i not in (3, 5, 8)]
     assert frames == good
     assert f.stats.bad_frames >= 2
-    with pytest.raises(FrameError, match=r"ac\.log: bad frame at byte offset 0: bad checksum"):
+    with pytest.raises(FrameError, match=r"ac\.log: bad frame at byte offset 0: checksum: line says"):
         AcousticFramer(policy=ErrorPolicy.RAISE, source="ac.log").feed(bad_sum)
 
 
