@@ -71,7 +71,7 @@ def test_reference_line_decodes() -> None:
 
 
 def test_extremes_and_zero() -> None:
-    for raws in [(0, 0, 0, 0), (999_999, 1_000_000, -1_000_000, 1)]:  # +-100000.0 nT: the table
+    for raws in [(0, 0, 0, 0), (999_999, 2_000_000, -2_000_000, 1)]:  # +-200000.0 nT: the table
         line = ref_line(*raws)
         m = CODEC.decode(line)
         assert [raw_value(m, n) for n in ("counter", "bx", "by", "bz")] == list(raws)
@@ -81,13 +81,13 @@ def test_extremes_and_zero() -> None:
 
 def test_values_outside_the_plausible_range_are_rejected_and_counted_as_range() -> None:
     """Well-formed lines with a good checksum but a field beyond the fluxgate's full scale
-    (+-100 uT, the table's min/max) are bad frames of reason ``range``; the lines around them
+    (+-200 uT, the table's min/max) are bad frames of reason ``range``; the lines around them
     come through."""
     good = [ref_line(i, 200_000, -10_000, 430_000) for i in range(3)]
-    high = ref_line(7, 1_000_001, 0, 0)  # +100000.1 nT
+    high = ref_line(7, 2_000_001, 0, 0)  # +200000.1 nT
     low = ref_line(8, 0, 0, -9_999_999)
     with pytest.raises(
-        DecodeError, match=r"range: field bx: 100000\.1 nT outside -100000 \.\. 100000$"
+        DecodeError, match=r"range: field bx: 200000\.1 nT outside -200000 \.\. 200000$"
     ):
         CODEC.decode(high)
     f = Ms3aFramer(policy=ErrorPolicy.IGNORE)
@@ -111,7 +111,7 @@ def test_encode_errors_name_field_and_form() -> None:
 
 # -- properties ---------------------------------------------------------------------------------
 
-raw_nt = st.integers(-1_000_000, 1_000_000)  # the table's plausible +-100000.0 nT
+raw_nt = st.integers(-2_000_000, 2_000_000)  # the table's plausible +-200000.0 nT
 
 
 @settings(max_examples=200, deadline=None)
@@ -125,7 +125,7 @@ def test_any_valid_line_roundtrips_exactly(counter: int, bx: int, by: int, bz: i
     assert Ms3aFramer(policy="raise").feed(line)[0].data == line
 
 
-field_nt = st.floats(-100_000.0, 100_000.0)
+field_nt = st.floats(-200_000.0, 200_000.0)
 
 
 @settings(max_examples=200, deadline=None)
