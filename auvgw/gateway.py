@@ -348,7 +348,9 @@ class Gateway:
     def _update_losses(dev: _Device, transport: Transport) -> None:
         now = transport.losses()
         if now:  # a transport closing or without counters keeps the totals read so far
-            dev.health.set_transport_losses(dev.losses_before + Counter(now))
+            total = Counter(dev.losses_before)
+            total.update(now)  # (not +: that drops the zero counters)
+            dev.health.set_transport_losses(total)
 
     def _serve(self, dev: _Device, transport: Transport) -> bool:
         """Read one connection until it drops or stop; True when a finite source has ended."""
