@@ -8,9 +8,14 @@ marker). Numbers are fixed-point text right-justified in their width; a decoded 
 (``"-2.31"`` -> -231), so ``encode(decode(line)) == line`` exactly. Decoding rejects a field
 whose text is not exactly what the table prints (wrong width, sign or decimals).
 
-PD6 carries NO checksum. The framer only checks structure: ``:`` + a known two-letter ID,
-the table's number of commas, printable characters and CR LF within 128 bytes. A corrupted
-digit that keeps the structure is not detectable.
+PD6 carries NO checksum. The framer checks what it can, and counts each rejection under its
+reason: structure (``:`` + a known two-letter ID, the table's number of commas, printable
+characters and CR LF within 128 bytes: ``sentence``, ``fields``, ``character``, ``length``,
+``terminator``), then every field's text against its column (``syntax``: width, sign, decimals,
+status letters, a real date and time in ``:TS``) and its physically plausible values
+(``range``: each column's ``low`` .. ``high`` in SI, e.g. pitch and roll within +-90 deg,
+heading below 360 deg, velocities within +-10 m/s, sound speed 1400..1600 m/s). A corrupted
+digit that keeps the form and a plausible value is still not detectable.
 
 Sign convention (Pathfinder DVL Guide, Table 50): unlike PD0's 0x0600 block, PD6 velocities are
 the INSTRUMENT (vehicle) moving relative to the bottom (B*) or the water mass (W*): :BI/:WI X
@@ -39,6 +44,7 @@ __all__ = [
     "BottomInstrumentVelocity",
     "BottomShipVelocity",
     "Column",
+    "FieldRejected",
     "HealthMonitor",
     "Pd6Framer",
     "SystemAttitude",
@@ -78,6 +84,19 @@ class Column:
     invalid: int | None = None
     choices: str = ""
     vendor: str = ""
+    #: physically plausible decoded values (SI, inclusive; None: no bound; NaN always passes)
+    low: float | None = None
+    high: float | None = None
+
+    def out_of_range(self, value: Any) -> str | None:
+        """Why a decoded ``value`` is not plausible, or None."""
+        if not isinstance(value, float) or math.isnan(value):
+            return None
+        if (self.low is not None and value < self.low) or (
+            self.high is not None and value > self.high
+        ):
+            return f"{value:.6g} {self.units} outside {self.low:.6g} .. {self.high:.6g}"
+        return None
 
     def parse(self, text: str) -> Any:
         """Value of ``text``; raises ValueError when it is not exactly this column's format."""
@@ -168,9 +187,14 @@ def column(
     invalid: int | None = None,
     choices: str = "",
     vendor: str = "",
+    low: float | None = None,
+    high: float | None = None,
 ) -> Any:
-    """Declare a dataclass field as column ``position`` (1 = first field after the ID)."""
-    c = Column(position, kind, width, decimals, signed, scale, units, invalid, choices, vendor)
+    """Declare a dataclass field as column ``position`` (1 = first field after the ID);
+    ``low`` / ``high``: the plausible decoded values (SI)."""
+    c = Column(
+        position, kind, width, decimals, signed, scale, units, invalid, choices, vendor, low, high
+    )
     return dataclasses.field(metadata={"pd6": c})
 
 
@@ -187,10 +211,15 @@ def _columns(cls: type) -> list[tuple[str, Column]]:
     return cached
 
 
+#: plausible velocity magnitude (m/s): a Pathfinder's velocity range is +-10 m/s
+_VMAX = 10.0
+
+
 def _velocity(position: int, vendor: str) -> Any:
     return column(
-        position, 6, signed=True, scale=1e-3, units="m/s", invalid=_BAD, vendor=vendor + ", mm/s"
-    )
+        position, 6, signed=True, scale=1e-3, units="m/s", invalid=_BAD,
+        vendor=vendor + ", mm/s", low=-_VMAX, high=_VMAX,
+    )  # fmt: skip
 
 
 def _status(position: int) -> Any:
@@ -209,9 +238,17 @@ class SystemAttitude:
     SENTENCE: ClassVar[str] = "SA"
     TYPE: ClassVar[str] = "pd6.SA"
 
-    pitch: float = column(1, 6, 2, signed=True, scale=_CDEG, units="rad", vendor="Pitch, deg")
-    roll: float = column(2, 6, 2, signed=True, scale=_CDEG, units="rad", vendor="Roll, deg")
-    heading: float = column(3, 6, 2, scale=_CDEG, units="rad", vendor="Heading, deg")
+    pitch: float = column(
+        1, 6, 2, signed=True, scale=_CDEG, units="rad", vendor="Pitch, deg",
+        low=-9000 * _CDEG, high=9000 * _CDEG,
+    )  # fmt: skip
+    roll: float = column(
+        2, 6, 2, signed=True, scale=_CDEG, units="rad", vendor="Roll, deg",
+        low=-9000 * _CDEG, high=9000 * _CDEG,
+    )  # fmt: skip
+    heading: float = column(
+        3, 6, 2, scale=_CDEG, units="rad", vendor="Heading, deg", low=0.0, high=35999 * _CDEG
+    )
 
 
 @message
@@ -222,12 +259,19 @@ class TimingScaling:
     TYPE: ClassVar[str] = "pd6.TS"
 
     timestamp: str = column(1, 14, kind="digits", vendor="YYMMDDHHmmsshh")
-    salinity: float = column(2, 4, 1, scale=0.1, units="ppt", vendor="Salinity, ppt")
-    temperature: float = column(
-        3, 5, 1, signed=True, scale=0.1, units="degC", vendor="Temperature, C"
+    salinity: float = column(
+        2, 4, 1, scale=0.1, units="ppt", vendor="Salinity, ppt", low=0.0, high=45.0
     )
-    depth: float = column(4, 6, 1, scale=0.1, units="m", vendor="Depth of transducer face, m")
-    speed_of_sound: float = column(5, 6, 1, scale=0.1, units="m/s", vendor="Speed of sound")
+    temperature: float = column(
+        3, 5, 1, signed=True, scale=0.1, units="degC", vendor="Temperature, C", low=-5.0,
+        high=45.0,
+    )  # fmt: skip
+    depth: float = column(
+        4, 6, 1, scale=0.1, units="m", vendor="Depth of transducer face, m", low=0.0, high=11000.0
+    )
+    speed_of_sound: float = column(
+        5, 6, 1, scale=0.1, units="m/s", vendor="Speed of sound", low=1400.0, high=1600.0
+    )
     bit: str = column(
         6, 3, kind="text", vendor="BIT result: number of errors then the 2-digit error code"
     )
@@ -283,7 +327,9 @@ class _EarthDistance:
     east: float = column(1, 12, 2, signed=True, scale=0.01, units="m", vendor="East distance")
     north: float = column(2, 12, 2, signed=True, scale=0.01, units="m", vendor="North distance")
     up: float = column(3, 12, 2, signed=True, scale=0.01, units="m", vendor="Upward distance")
-    range_to_bottom: float = column(4, 7, 2, scale=0.01, units="m", vendor="Range to bottom")
+    range_to_bottom: float = column(
+        4, 7, 2, scale=0.01, units="m", vendor="Range to bottom", low=0.0, high=1000.0
+    )
     time_since_good: float = column(
         5, 6, 2, scale=0.01, units="s", vendor="Time since last good-velocity estimate"
     )
@@ -397,11 +443,20 @@ _ALLOWED = frozenset(b"0123456789+-. ,ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnop
 # --------------------------------------------------------------------------------------------
 
 
+class FieldRejected(DecodeError):
+    """A PD6 field whose text is not its column's form (``reason`` ``syntax``) or whose value
+    is not plausible (``range``)."""
+
+    def __init__(self, reason: str, text: str) -> None:
+        super().__init__(text)
+        self.reason = reason
+
+
 def decode(line: bytes | bytearray | memoryview) -> Any:
     """Decode one PD6 line (``:`` to CR LF inclusive) into its sentence's message.
 
     Raises :class:`DecodeError` naming the sentence, field and byte offset when the line does not
-    match its table exactly.
+    match its table exactly (:class:`FieldRejected` when a field's text or value is wrong).
     """
     data = bytes(line)
     if not data.startswith(b":") or not data.endswith(b"\r\n"):
@@ -421,12 +476,20 @@ def decode(line: bytes | bytearray | memoryview) -> Any:
     values = {}
     pos = 1 + len(sid) + 1
     for (name, col), part in zip(cols, parts[1:], strict=True):
+        where = f"PD6 :{sid} field {name} at byte {pos}: {part!r}"
         try:
             values[name] = col.parse(part)
         except ValueError as exc:
-            raise DecodeError(f"PD6 :{sid} field {name} at byte {pos}: {part!r}: {exc}") from None
+            raise FieldRejected("syntax", f"{where}: {exc}") from None
+        why = col.out_of_range(values[name])
+        if why is not None:
+            raise FieldRejected("range", f"{where}: {why}")
         pos += len(part) + 1
-    return cls(**values)
+    msg = cls(**values)
+    if isinstance(msg, TimingScaling) and msg.device_time is None:
+        raise FieldRejected("syntax", f"PD6 :TS field timestamp at byte 4: {msg.timestamp!r}: "
+                            "not a date and time")  # fmt: skip
+    return msg
 
 
 def encode(msg: Any) -> bytes:
@@ -474,6 +537,10 @@ class Pd6Framer(Framer):
             raise BadFrame("character: not allowed in a PD6 line (':' of a next line?)")
         if body.count(b",") != _COMMAS[sid]:
             raise BadFrame(f"fields: {body.count(b',')} for :{sid}, the table has {_COMMAS[sid]}")
+        try:  # no checksum: every field's form and value is the only integrity there is
+            decode(buf[start : end + 2])
+        except DecodeError as exc:  # FieldRejected says syntax or range; the rest is syntax
+            raise BadFrame(f"{getattr(exc, 'reason', 'syntax')}: {exc}") from None
         return end + 2 - start
 
 

@@ -56,7 +56,7 @@ def test_any_line_roundtrips_and_corruption_loses_no_good_line(chunk: int) -> No
     good = [ln for i, ln in enumerate(lines) if i not in (3, 5, 8)]
     assert frames == good
     assert f.stats.bad_frames >= 2
-    with pytest.raises(FrameError, match=r"ac\.log: bad frame at byte offset 0: checksum: line says"):
+    with pytest.raises(FrameError, match=r"ac\.log: bad frame at byte offset 0: checksum: line"):
         AcousticFramer(policy=ErrorPolicy.RAISE, source="ac.log").feed(bad_sum)
 
 

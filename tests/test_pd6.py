@@ -141,13 +141,19 @@ def test_format_registry() -> None:
 def column_st(col: pd6.Column):
     if col.kind == "char":
         return st.sampled_from(col.choices)
-    if col.kind == "digits":
-        return st.text("0123456789", min_size=col.width, max_size=col.width)
+    if col.kind == "digits":  # the :TS timestamp: a real date and time (YYMMDDHHmmsshh)
+        when = st.datetimes(dt.datetime(1980, 1, 1), dt.datetime(2079, 12, 31, 23, 59, 59))
+        return when.map(lambda t: t.strftime("%y%m%d%H%M%S") + f"{t.microsecond // 10000:02d}")
     if col.kind == "text":
         return st.text("0123456789ABCDEF", min_size=1, max_size=col.width)
     digits = col.width - col.signed - (1 if col.decimals else 0)
     top = 10**digits - 1
-    raw = st.integers(-top if col.signed else 0, top)
+    lo, hi = -top if col.signed else 0, top
+    if col.low is not None:  # plausible values only: the framer rejects the others (range)
+        lo = max(lo, math.ceil(col.low / col.scale - 1e-9))
+    if col.high is not None:
+        hi = min(hi, math.floor(col.high / col.scale + 1e-9))
+    raw = st.integers(lo, hi)
     if col.invalid is not None:
         raw = st.one_of(raw, st.just(col.invalid))
     return raw.map(lambda r, c=col: math.nan if r == c.invalid else r * c.scale)
@@ -356,3 +362,25 @@ def test_cli_decode_not_pd6(tmp_path: Path) -> None:
     )
     assert out.returncode == 2 and "Traceback" not in out.stderr
     assert out.stderr.strip().splitlines()[-1].startswith("auvgw decode: error: ")
+
+
+@pytest.mark.parametrize("chunk", CHUNKS)
+def test_fixture_field_syntax_and_range_rejections_are_counted_per_reason(chunk: int) -> None:
+    """PD6 has no checksum: a line whose structure holds but whose field text is not the
+    table's form (``syntax``) or whose value is not physically plausible (``range``) is a bad
+    frame, counted under its reason; the lines around it come through."""
+    bad = [
+        b":SA,+95.00, +1.92, 75.20\r\n",  # pitch 95 deg: range
+        b":BI,+12000,    -6,   -20,    -4,A\r\n",  # 12 m/s over the bottom: range
+        b":TS,04081111563644,35.0,+21.0,   0.0,1924.0,  0\r\n",  # sound speed 1924 m/s: range
+        b":TS,04131111563644,35.0,+21.0,   0.0,1524.0,  0\r\n",  # month 13: syntax
+        b":BS,   -13,   +2x,   -20,A\r\n",  # not a number: syntax
+        b":BE,   +17,   +18,   -20,X\r\n",  # status not A/V: syntax
+    ]
+    stream = LINES[0] + b"".join(b + LINES[i + 1] for i, b in enumerate(bad))
+    frames, s = run_framer(stream, chunk)
+    assert frames == LINES[: len(bad) + 1]
+    assert (s.bad_frames, s.skipped_bytes) == (len(bad), sum(map(len, bad)))
+    assert dict(s.reasons) == {"range": 3, "syntax": 3}
+    with pytest.raises(pd6.FieldRejected, match=r":SA field pitch at byte 4: '\+95\.00': 1\.65"):
+        pd6.decode(bad[0])
