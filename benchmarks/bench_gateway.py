@@ -59,7 +59,6 @@ import tomllib
 import tty
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import zenoh
 
@@ -321,23 +320,17 @@ class AllPhase:
     sim_rc: int
     #: per port: [raw frames, raw bytes, decoded envelopes, envelope bytes] seen on the bus
     sizes: dict[str, list[int]]
-    #: per port: the device status at the end (lag_s, lag_max_s, transport_losses, ...)
-    status: dict[str, dict[str, Any]]
 
 
-def all_devices_scenario(path: Path, t_open: float, t_close: float, ins_can: bool = False) -> Path:
+def all_devices_scenario(path: Path, t_open: float, t_close: float) -> Path:
     """A copy of the harbour scenario: INS CAN off; every device silent before ``t_open`` and
-    from ``t_close`` (vehicle s). ``ins_can``: the INS alone, on its SLCAN adapter only."""
+    from ``t_close`` (vehicle s)."""
     scn = json.loads((REPO_ROOT / "config" / "scenarios" / "harbour.json").read_text())
     devices = scn.setdefault("devices", {})
     for name in ALL_DEVICES:
         faults = devices.setdefault(name, {}).setdefault("faults", {})
         faults["stall"] = [*faults.get("stall", []), [0.0, t_open], [t_close, 1e9]]
-        if ins_can and name != "ins":
-            devices[name]["enabled"] = False
-    devices["ins"].setdefault("options", {}).update(
-        {"can": True, "serial": False} if ins_can else {"can": False}
-    )
+    devices["ins"].setdefault("options", {})["can"] = False
     path.write_text(json.dumps(scn))
     return path
 
@@ -358,20 +351,17 @@ def all_devices_phase(
     seconds: float,
     warm_s: float = 8.0,
     tail_s: float = 3.0,
-    ins_can: bool = False,
 ) -> AllPhase:
-    """Every emulated device (``ins_can``: the INS alone, on CAN) at ``speed`` for ``seconds``
-    of wall time, read by ``auvgw run``."""
+    """Every emulated device at ``speed`` for ``seconds`` of wall time, read by ``auvgw run``."""
     from auvgw.drivers.can_codec import DbcCodec
     from auvgw.paths import config_file
     from auvgw.sim_devices.runner import gateway_toml
     from auvgw.subscribe import GatewaySubscriber
 
-    label = f"{'inscan' if ins_can else 'all'}-{speed:g}x"
-    out = tmp / label
+    out = tmp / f"all-{speed:g}x"
     out.mkdir()
     t_open, t_close = warm_s * speed, (warm_s + seconds) * speed
-    scn = all_devices_scenario(tmp / f"harbour-{label}.json", t_open, t_close, ins_can)
+    scn = all_devices_scenario(tmp / f"harbour-{speed:g}x.json", t_open, t_close)
     duration = t_close + tail_s * speed
     sim_log = open(out / "sim.log", "wb")  # noqa: SIM115 - closed below
     sim = subprocess.Popen(
@@ -458,7 +448,7 @@ def all_devices_phase(
         rows.append(AllRow(p, sent, int(st.get("frames", -1)), int(st.get("bad_frames", 0)),
                            dropped))  # fmt: skip
     cpu = (c1 - c0) / CLK_TCK / (m1 - m0) * 100
-    return AllPhase(speed, seconds, cpu, rows, sim_rc, sizes, status)
+    return AllPhase(speed, seconds, cpu, rows, sim_rc, sizes)
 
 
 def print_all_devices(phases: list[AllPhase]) -> None:
@@ -496,27 +486,149 @@ def print_all_devices(phases: list[AllPhase]) -> None:
         )
 
 
-def print_ins_can(phases: list[AllPhase]) -> None:
+@dataclass
+class CanPhase:
+    """INS over CAN at one speed: epochs and frames the adapter put on the pty or dropped,
+    what the gateway counted, and the lag and losses its status reported."""
+
+    speed: float
+    seconds: float
+    epochs: int
+    sent: int  # frames written to the pty (adapter frames_to_host)
+    dropped: int  # frames the adapter could not put on the pty (host link full)
+    received: int  # frames the gateway counted
+    lag_s: float | None
+    lag_max_s: float | None
+    overruns: int | None
+    cpu_pct: float
+    sender_late_s: float  # how far the sender itself fell behind its schedule (host s)
+
+
+def ins_can_phase(tmp: Path, speed: float, seconds: float) -> CanPhase:
+    """An emulated SLCAN adapter in this process sends HN-100 epochs (8 frames, 100 Hz vehicle
+    time, the device clock in the ``Time`` signal) at ``speed`` x real time for ``seconds``;
+    ``auvgw run`` (its own process, python-can's slcan read in bulk, ``[clock] time_scale =
+    speed``) reads them. Frames are pre-encoded, so the sender's cost is the adapter's."""
+    import can
+
+    from auvgw.drivers.can_codec import hn100_can
+    from auvgw.sim_devices.slcan import SlcanAdapter
+    from auvgw.subscribe import GatewaySubscriber
+
+    codec = hn100_can()
+    assert codec.sample_type is not None
+    n = round(100 * speed * seconds)
+    epochs = []
+    for i in range(n):
+        sample = codec.sample_type(
+            seq=i & 0xFF, time=10.0 + i / 100, roll=0.01, pitch=-0.02, heading=0.5, rate_x=0.0,
+            rate_y=0.0, rate_z=0.1, accel_x=0.01, accel_y=0.0, accel_z=-9.81, vel_n=1.0,
+            vel_e=0.1, vel_d=0.0, latitude=0.7, longitude=0.1, depth=20.0, alignment="FINE",
+            gnss_aided=0, dvl_aided=1, error="OK", reserved=0,
+        )  # fmt: skip
+        epochs.append([
+            can.Message(arbitration_id=f.arbitration_id, data=f.data, dlc=len(f.data),
+                        is_extended_id=f.is_extended_id)
+            for f in codec.encode_sample(sample, strict=False)
+        ])  # fmt: skip
+    out = tmp / f"can-{speed:g}x"
+    out.mkdir()
+    adapter = SlcanAdapter("ins_can", speed=speed, link=out / "ins_can", bitrate=500_000)
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    gw_toml = out / "gw.toml"
+    gw_log = open(out / "gateway.log", "wb")  # noqa: SIM115 - closed below
+    gw: subprocess.Popen[bytes] | None = None
+    try:
+        # the gateway's stamp clock must run at the vehicle's pace from the sender's start:
+        # start the gateway with an epoch slightly in the future and begin sending then
+        epoch_ns = time.time_ns() + 6 * 10**9
+        gw_toml.write_text(
+            f'vehicle = "benchcan"\nstatus_period_s = 1.0\n[bus]\nlisten = ["{ep}"]\n'
+            f"[clock]\ntime_scale = {speed}\nepoch_ns = {epoch_ns}\n"
+            f'[devices.ins_can]\nformat = "hn100"\ndbc = "hn100.dbc"\n'
+            f'transport = {{ kind = "can", interface = "slcan", channel = "{out / "ins_can"}", '
+            f"bitrate = 500000, options = {{ sleep_after_open = 0 }} }}\n"
+        )
+        gw = subprocess.Popen([str(BIN / "auvgw"), "run", "--config", str(gw_toml)],
+                              stderr=gw_log, cwd=REPO_ROOT)  # fmt: skip
+        with GatewaySubscriber("benchcan", BusConfig(connect=[ep])) as me:
+            deadline = time.monotonic() + 60
+            while not (adapter.is_open and (me.status("ins_can") or {}).get("connected")):
+                if time.monotonic() > deadline:
+                    raise SystemExit(f"gateway did not open the adapter; see {out}")
+                time.sleep(0.1)
+            while time.time_ns() < epoch_ns:
+                time.sleep(0.01)
+            t0 = time.perf_counter()
+            c0 = cpu_ticks(gw.pid)
+            late = 0.0
+            for i, msgs in enumerate(epochs):  # epoch i leaves at vehicle time i / 100
+                due = t0 + i / (100 * speed)
+                d = due - time.perf_counter()
+                if d > 0:
+                    time.sleep(d)
+                else:
+                    late = max(late, -d)
+                adapter.send_many(msgs)
+            t_sent = time.perf_counter()
+            c1 = cpu_ticks(gw.pid)
+            # drained: the gateway's count stops moving (the adapter's queue is empty first)
+            adapter.port.wait_drained(30)
+            last, still = -1, 0
+            while still < 3:
+                time.sleep(0.5)
+                st = me.status("ins_can") or {}
+                cur = int(st.get("frames", 0))
+                still = still + 1 if cur == last else 0
+                last = cur
+            st = me.status("ins_can", timeout=5.0) or {}
+    finally:
+        if gw is not None and gw.poll() is None:
+            gw.send_signal(signal.SIGTERM)
+            try:
+                gw.wait(15)
+            except subprocess.TimeoutExpired:
+                gw.kill()
+                gw.wait()
+        gw_log.close()
+        adapter.close()
+    losses = st.get("transport_losses") or {}
+    return CanPhase(
+        speed, seconds, n, adapter.stats.frames_to_host, adapter.stats.dropped_port,
+        int(st.get("frames", 0)), st.get("lag_s"), st.get("lag_max_s"),
+        losses.get("adapter_data_overrun"), (c1 - c0) / CLK_TCK / (t_sent - t0) * 100, late,
+    )  # fmt: skip
+
+
+def print_ins_can(phases: list[CanPhase], rates: dict[str, float]) -> None:
     print(
-        "\nINS over CAN alone (HN-100, 8 frames per 100 Hz epoch, emulated SLCAN adapter on a "
-        f"pty, python-can slcan read in bulk); machine load {os.getloadavg()[0]:.1f}\n"
+        "\nINS over CAN (HN-100: 8 frames per epoch, 100 Hz vehicle time; an emulated SLCAN "
+        "adapter on a pty; auvgw run with python-can's slcan read in bulk); machine load "
+        f"{os.getloadavg()[0]:.1f}"
     )
+    print("SLCAN reader alone, frames/s parsed from a pty: "
+          + ", ".join(f"{k} {v:,.0f}" for k, v in rates.items()) + "\n")  # fmt: skip
     head = (
-        f"{'speed':>5} {'frames/s':>8} {'sent':>7} {'received':>8} {'lost':>6} {'lost %':>6} "
-        f"{'sim dropped B':>13} {'adapter overruns':>16} {'lag max s':>9} {'CPU %':>6}"
+        f"{'speed':>5} {'frames/s':>8} {'epochs':>7} {'sent':>7} {'adapter drop':>12} "
+        f"{'received':>8} {'lost':>6} {'overrun flags':>13} {'lag s':>6} {'lag max s':>9} "
+        f"{'CPU %':>6} {'sender late s':>13}"
     )
     print(head)
     print("-" * len(head))
     for ph in phases:
-        for r in ph.rows:
-            st = ph.status.get(r.port, {})
-            overruns = st.get("transport_losses", {}).get("adapter_data_overrun", "-")
-            lag = st.get("lag_max_s")
-            print(
-                f"{ph.speed:>4g}x {r.sent / ph.seconds:>8.0f} {r.sent:>7} {r.counted:>8} "
-                f"{r.lost:>6} {100 * r.lost / max(r.sent, 1):>6.1f} {r.dropped_bytes:>13} "
-                f"{overruns!s:>16} {'-' if lag is None else f'{lag:.3f}':>9} {ph.cpu_pct:>6.1f}"
-            )
+        total = ph.epochs * 8
+        lost = total - ph.received
+        lag = "-" if ph.lag_s is None else f"{ph.lag_s:.3f}"
+        lmax = "-" if ph.lag_max_s is None else f"{ph.lag_max_s:.3f}"
+        print(
+            f"{ph.speed:>4g}x {total / ph.seconds:>8.0f} {ph.epochs:>7} {ph.sent:>7} "
+            f"{ph.dropped:>12} {ph.received:>8} {lost:>6} {ph.overruns!s:>13} {lag:>6} "
+            f"{lmax:>9} {ph.cpu_pct:>6.1f} {ph.sender_late_s:>13.3f}"
+        )
+    print(
+        "\nlost = epochs x 8 - received (adapter drops included); lag: vehicle seconds the "
+        "newest sample arrived behind the best seen (gateway status lag_s / lag_max_s)"
+    )
 
 
 def slcan_reader_rates(frames: int = 6000) -> dict[str, float]:
@@ -555,10 +667,12 @@ def slcan_reader_rates(frames: int = 6000) -> dict[str, float]:
     return out
 
 
-def ins_can_run(args: argparse.Namespace) -> list[AllPhase]:
-    seconds = 10.0 if args.quick else args.can_seconds
+def ins_can_run(args: argparse.Namespace) -> None:
+    seconds = 5.0 if args.quick else args.can_seconds
+    rates = slcan_reader_rates()
     with tempfile.TemporaryDirectory(prefix="bench-gw-can-") as tmp:
-        return [all_devices_phase(Path(tmp), k, seconds, ins_can=True) for k in (1.0, 4.0, 10.0)]
+        phases = [ins_can_phase(Path(tmp), k, seconds) for k in (1.0, 4.0, 10.0)]
+    print_ins_can(phases, rates)
 
 
 def all_devices_run(args: argparse.Namespace) -> list[AllPhase]:
@@ -626,10 +740,7 @@ def main() -> int:
         print_all_devices(all_devices_run(args))
         return 0
     if args.only_can:
-        rates = slcan_reader_rates()
-        print("\nSLCAN reader, frames/s parsed from a pty: " + ", ".join(
-            f"{k} {v:,.0f}" for k, v in rates.items()))  # fmt: skip
-        print_ins_can(ins_can_run(args))
+        ins_can_run(args)
         return 0
     results: dict[str, list[Row]] = {}
     sizes: dict[str, tuple[int, int]] = {}
@@ -683,7 +794,7 @@ def main() -> int:
     if args.all_seconds > 0:
         print_all_devices(all_devices_run(args))
     if args.can_seconds > 0:
-        print_ins_can(ins_can_run(args))
+        ins_can_run(args)
     return 0
 
 
