@@ -59,6 +59,7 @@ import tomllib
 import tty
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import zenoh
 
@@ -101,6 +102,17 @@ sub = s.declare_subscriber(sys.argv[2], lambda sample: time.sleep(3600))
 print("READY", flush=True)
 time.sleep(3600)
 """
+
+
+def stop_process(p: subprocess.Popen[Any]) -> None:
+    """SIGTERM, then SIGKILL after 15 s, a child still running."""
+    if p.poll() is None:
+        p.send_signal(signal.SIGTERM)
+        try:
+            p.wait(15)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
 
 
 def free_port() -> int:
@@ -428,13 +440,7 @@ def all_devices_phase(
         reader.join(10)
     finally:
         for p in (sim, gw):
-            if p.poll() is None:
-                p.send_signal(signal.SIGTERM)
-                try:
-                    p.wait(15)
-                except subprocess.TimeoutExpired:
-                    p.kill()
-                    p.wait()
+            stop_process(p)
         sim_log.close()
         gw_log.close()
     counters = sim_counters(lines)
@@ -512,6 +518,7 @@ def ins_can_phase(tmp: Path, speed: float, seconds: float) -> CanPhase:
     import can
 
     from auvgw.drivers.can_codec import hn100_can
+    from auvgw.paths import config_file
     from auvgw.sim_devices.slcan import SlcanAdapter
     from auvgw.subscribe import GatewaySubscriber
 
@@ -545,7 +552,7 @@ def ins_can_phase(tmp: Path, speed: float, seconds: float) -> CanPhase:
         gw_toml.write_text(
             f'vehicle = "benchcan"\nstatus_period_s = 1.0\n[bus]\nlisten = ["{ep}"]\n'
             f"[clock]\ntime_scale = {speed}\nepoch_ns = {epoch_ns}\n"
-            f'[devices.ins_can]\nformat = "hn100"\ndbc = "hn100.dbc"\n'
+            f'[devices.ins_can]\nformat = "can"\ndbc = "{config_file("hn100.dbc")}"\n'
             f'transport = {{ kind = "can", interface = "slcan", channel = "{out / "ins_can"}", '
             f"bitrate = 500000, options = {{ sleep_after_open = 0 }} }}\n"
         )
@@ -555,7 +562,11 @@ def ins_can_phase(tmp: Path, speed: float, seconds: float) -> CanPhase:
             deadline = time.monotonic() + 60
             while not (adapter.is_open and (me.status("ins_can") or {}).get("connected")):
                 if time.monotonic() > deadline:
-                    raise SystemExit(f"gateway did not open the adapter; see {out}")
+                    gw_log.flush()
+                    raise SystemExit(
+                        "gateway did not open the adapter:\n"
+                        + (out / "gateway.log").read_text(errors="replace")[-2000:]
+                    )
                 time.sleep(0.1)
             while time.time_ns() < epoch_ns:
                 time.sleep(0.01)
@@ -583,13 +594,8 @@ def ins_can_phase(tmp: Path, speed: float, seconds: float) -> CanPhase:
                 last = cur
             st = me.status("ins_can", timeout=5.0) or {}
     finally:
-        if gw is not None and gw.poll() is None:
-            gw.send_signal(signal.SIGTERM)
-            try:
-                gw.wait(15)
-            except subprocess.TimeoutExpired:
-                gw.kill()
-                gw.wait()
+        if gw is not None:
+            stop_process(gw)
         gw_log.close()
         adapter.close()
     losses = st.get("transport_losses") or {}

@@ -3,6 +3,7 @@ shared by tests/test_framers_never_stall.py and benchmarks/reliability.py."""
 
 from __future__ import annotations
 
+import math
 import struct
 from pathlib import Path
 
@@ -14,10 +15,11 @@ from test_pd6 import LINES as PD6_LINES
 from test_seanet import sample_messages
 from test_v4log import sample_items
 
+from auvgw.drivers import acoustic as ac
 from auvgw.drivers import seanet as sn
 from auvgw.drivers import v4log as v4
 
-STREAM_FORMATS = ("pd0", "pd6", "seanet", "kongsberg", "hn100", "ms3a")
+STREAM_FORMATS = ("pd0", "pd6", "seanet", "kongsberg", "hn100", "ms3a", "acoustic")
 
 
 def samples(fmt: str, shared_data: Path) -> list[bytes]:
@@ -34,6 +36,19 @@ def samples(fmt: str, shared_data: Path) -> list[bytes]:
         return list(MS3A_LINES)
     if fmt == "pd6":
         return list(PD6_LINES)
+    if fmt == "acoustic":  # beacon replies along a slow approach
+        return [
+            ac.CODEC.encode(
+                ac.AcousticReply(
+                    counter=i,
+                    range=812.5 - 37.25 * i,
+                    bearing=math.radians(-45.3 + 7.1 * i),
+                    depression=math.radians(12.0 + 1.5 * i),
+                    beacon=1 + i % 3,
+                )
+            )
+            for i in range(8)
+        ]
     raise KeyError(fmt)
 
 
