@@ -72,6 +72,7 @@ class _Device:
     rejected_before: int = 0  # datagrams rejected on earlier connections (allowed senders)
     reported_rejected: int = 0
     losses_before: Counter[str] = field(default_factory=Counter)  # earlier connections' losses
+    reported_lost: int = 0
 
 
 class Gateway:
@@ -262,6 +263,16 @@ class Gateway:
                 period_s,
                 h.last_rejected_sender,
             )
+        lost = sum(h.transport_losses.values())
+        if lost > dev.reported_lost:
+            log.warning(
+                "%s: the transport lost data in the last %.1f s (totals %s): the reader or the "
+                "host link does not keep up",
+                dev.name,
+                period_s,
+                ", ".join(f"{k}: {n}" for k, n in sorted(h.transport_losses.items()) if n),
+            )
+            dev.reported_lost = lost
         new = h.bad_frames - dev.reported_bad
         if new > 0:
             dev.reported_bad = h.bad_frames
@@ -402,7 +413,7 @@ class Gateway:
             self._update_framing(dev)
             with contextlib.suppress(Exception):  # counters of a connection that just failed
                 self._update_losses(dev, transport)
-                dev.losses_before = Counter(dev.health.transport_losses)
+            dev.losses_before = Counter(dev.health.transport_losses)
             dev.rejected_before += getattr(transport, "rejected_datagrams", 0)
             dev.decoder.reset()
             if token is not None:

@@ -508,6 +508,9 @@ class CanPhase:
     overruns: int | None
     cpu_pct: float
     sender_late_s: float  # how far the sender itself fell behind its schedule (host s)
+    closed: int  # frames sent while the channel was closed (the gateway reopening it)
+    outages: int
+    last_error: str
 
 
 def ins_can_phase(tmp: Path, speed: float, seconds: float) -> CanPhase:
@@ -603,6 +606,7 @@ def ins_can_phase(tmp: Path, speed: float, seconds: float) -> CanPhase:
         speed, seconds, n, adapter.stats.frames_to_host, adapter.stats.dropped_port,
         int(st.get("frames", 0)), st.get("lag_s"), st.get("lag_max_s"),
         losses.get("adapter_data_overrun"), (c1 - c0) / CLK_TCK / (t_sent - t0) * 100, late,
+        adapter.stats.dropped_closed, int(st.get("outages", 0)), str(st.get("last_error", "")),
     )  # fmt: skip
 
 
@@ -617,7 +621,7 @@ def print_ins_can(phases: list[CanPhase], rates: dict[str, float]) -> None:
     head = (
         f"{'speed':>5} {'frames/s':>8} {'epochs':>7} {'sent':>7} {'adapter drop':>12} "
         f"{'received':>8} {'lost':>6} {'overrun flags':>13} {'lag s':>6} {'lag max s':>9} "
-        f"{'CPU %':>6} {'sender late s':>13}"
+        f"{'CPU %':>6} {'sender late s':>13} {'closed':>6} {'outages':>7}"
     )
     print(head)
     print("-" * len(head))
@@ -629,11 +633,15 @@ def print_ins_can(phases: list[CanPhase], rates: dict[str, float]) -> None:
         print(
             f"{ph.speed:>4g}x {total / ph.seconds:>8.0f} {ph.epochs:>7} {ph.sent:>7} "
             f"{ph.dropped:>12} {ph.received:>8} {lost:>6} {ph.overruns!s:>13} {lag:>6} "
-            f"{lmax:>9} {ph.cpu_pct:>6.1f} {ph.sender_late_s:>13.3f}"
+            f"{lmax:>9} {ph.cpu_pct:>6.1f} {ph.sender_late_s:>13.3f} {ph.closed:>6} "
+            f"{ph.outages:>7}"
         )
+        if ph.last_error:
+            print(f"      last error: {ph.last_error}")
     print(
         "\nlost = epochs x 8 - received (adapter drops included); lag: vehicle seconds the "
-        "newest sample arrived behind the best seen (gateway status lag_s / lag_max_s)"
+        "newest sample arrived behind the best seen (gateway status lag_s / lag_max_s); closed: "
+        "frames sent while the gateway had the channel closed (reopening after an outage)"
     )
 
 
@@ -677,7 +685,7 @@ def ins_can_run(args: argparse.Namespace) -> None:
     seconds = 5.0 if args.quick else args.can_seconds
     rates = slcan_reader_rates()
     with tempfile.TemporaryDirectory(prefix="bench-gw-can-") as tmp:
-        phases = [ins_can_phase(Path(tmp), k, seconds) for k in (1.0, 4.0, 10.0)]
+        phases = [ins_can_phase(Path(tmp), k, seconds) for k in args.can_speeds]
     print_ins_can(phases, rates)
 
 
@@ -729,6 +737,7 @@ def main() -> int:
         help="wall seconds per phase of the INS-over-CAN run at 1x, 4x, 10x (0: skip it)",
     )
     ap.add_argument("--only-can", action="store_true", help="only the INS-over-CAN run")
+    ap.add_argument("--can-speeds", type=float, nargs="+", default=[1.0, 4.0, 10.0])
     args = ap.parse_args()
     seconds = 5.0 if args.quick else args.seconds
     shared = shared_dir()
