@@ -509,6 +509,9 @@ class CanPhase:
     cpu_pct: float
     sender_late_s: float  # how far the sender itself fell behind its schedule (host s)
     closed: int  # frames sent while the channel was closed (the gateway reopening it)
+    pty_dropped: int  # bytes the adapter's pty could not take in time (cut or dropped writes)
+    malformed: int  # lines the gateway dropped as malformed (cut by those drops)
+    cpu_s: float  # gateway CPU seconds over the sending window
     outages: int
     last_error: str
 
@@ -607,6 +610,8 @@ def ins_can_phase(tmp: Path, speed: float, seconds: float) -> CanPhase:
         int(st.get("frames", 0)), st.get("lag_s"), st.get("lag_max_s"),
         losses.get("adapter_data_overrun"), (c1 - c0) / CLK_TCK / (t_sent - t0) * 100, late,
         adapter.stats.dropped_closed, int(st.get("outages", 0)), str(st.get("last_error", "")),
+        adapter.port.stats.bytes_dropped, int(losses.get("malformed_lines", 0)),
+        (c1 - c0) / CLK_TCK,
     )  # fmt: skip
 
 
@@ -621,7 +626,8 @@ def print_ins_can(phases: list[CanPhase], rates: dict[str, float]) -> None:
     head = (
         f"{'speed':>5} {'frames/s':>8} {'epochs':>7} {'sent':>7} {'adapter drop':>12} "
         f"{'received':>8} {'lost':>6} {'overrun flags':>13} {'lag s':>6} {'lag max s':>9} "
-        f"{'CPU %':>6} {'sender late s':>13} {'closed':>6} {'outages':>7}"
+        f"{'CPU %':>6} {'us/fr':>6} {'sender late':>11} {'closed':>6} {'outages':>7} "
+        f"{'pty drop B':>9} {'malformed':>9}"
     )
     print(head)
     print("-" * len(head))
@@ -633,15 +639,18 @@ def print_ins_can(phases: list[CanPhase], rates: dict[str, float]) -> None:
         print(
             f"{ph.speed:>4g}x {total / ph.seconds:>8.0f} {ph.epochs:>7} {ph.sent:>7} "
             f"{ph.dropped:>12} {ph.received:>8} {lost:>6} {ph.overruns!s:>13} {lag:>6} "
-            f"{lmax:>9} {ph.cpu_pct:>6.1f} {ph.sender_late_s:>13.3f} {ph.closed:>6} "
-            f"{ph.outages:>7}"
+            f"{lmax:>9} {ph.cpu_pct:>6.1f} {1e6 * ph.cpu_s / max(ph.received, 1):>6.0f} "
+            f"{ph.sender_late_s:>11.3f} {ph.closed:>6} {ph.outages:>7} {ph.pty_dropped:>9} "
+            f"{ph.malformed:>9}"
         )
         if ph.last_error:
             print(f"      last error: {ph.last_error}")
     print(
         "\nlost = epochs x 8 - received (adapter drops included); lag: vehicle seconds the "
         "newest sample arrived behind the best seen (gateway status lag_s / lag_max_s); closed: "
-        "frames sent while the gateway had the channel closed (reopening after an outage)"
+        "frames sent while the gateway had the channel closed (reopening after an outage); "
+        "us/fr: gateway CPU per frame received; pty drop B: bytes the adapter's pty could not "
+        "take within its block timeout (lines cut), malformed: such lines the gateway dropped"
     )
 
 

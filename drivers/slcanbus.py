@@ -8,6 +8,11 @@ the emulated INS on CAN fell tens of vehicle seconds behind and its adapter drop
 the line parsing in ``_recv_internal``, ``send``, ``shutdown``) and replaces only ``_read``: it
 takes what the port has ready in one call and hands out one line at a time from its buffer.
 
+A line that is not a well-formed frame (a wrong length for its DLC, a bad digit: bytes lost on
+the host link cut lines and join their ends) is dropped and counted
+(:attr:`BulkSlcanBus.malformed_lines`) instead of reaching python-can's parser, which would
+raise on it or pass a frame with missing data bytes.
+
 It also asks the adapter for its status flags (Lawicel ``F``, SJA1000 style) when
 :meth:`BulkSlcanBus.poll_status` is called, and counts the flags set in each reply
 (:attr:`BulkSlcanBus.flag_counts`): ``data_overrun`` (the adapter lost frames: its host link or
@@ -44,6 +49,8 @@ class BulkSlcanBus(slcanBus):
 
     def __init__(self, channel: str, **kwargs: Any) -> None:
         self.flag_counts: Counter[str] = Counter()
+        #: received lines dropped because they are not a well-formed classic frame
+        self.malformed_lines = 0
         #: ``F`` requests not yet answered; None: the adapter has no ``F``
         self._status_pending: int | None = 0
         self._status_supported = False
@@ -98,6 +105,9 @@ class BulkSlcanBus(slcanBus):
             if line is not None:
                 if self._status_reply(line):
                     continue
+                if line[0] in "tTrR" and not _well_formed(line):
+                    self.malformed_lines += 1
+                    continue
                 return line
             # in bulk what is there; else one byte, waiting up to the port's timeout (1 ms)
             waiting = port.in_waiting
@@ -107,3 +117,24 @@ class BulkSlcanBus(slcanBus):
                 continue
             if deadline.expired():
                 return None
+
+
+_HEX = frozenset("0123456789abcdefABCDEF")
+
+
+def _well_formed(line: str) -> bool:
+    """A ``t T r R`` line (with its CR): id digits, a DLC 0-8, exactly its data digits, and
+    optionally a 4-digit timestamp."""
+    n_id = 8 if line[0] in "TR" else 3
+    head = 1 + n_id
+    if len(line) < head + 2 or line[-1] != "\r" or not line[head].isdigit():
+        return False
+    dlc = int(line[head])
+    body = line[head + 1 : -1]
+    n_data = 0 if line[0] in "rR" else 2 * dlc
+    return (
+        dlc <= 8
+        and len(body) in (n_data, n_data + 4)
+        and all(c in _HEX for c in line[1:head])
+        and all(c in _HEX for c in body)
+    )

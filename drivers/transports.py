@@ -507,7 +507,9 @@ class CanTransport(Transport):
         # the reply is counted when read; a gone adapter shows on the next read
         with contextlib.suppress(can.CanError, OSError, serial.SerialException):
             bus.poll_status()
-        return {f"adapter_{k}": bus.flag_counts[k] for k in ("data_overrun", "rx_fifo_full")}
+        out = {f"adapter_{k}": bus.flag_counts[k] for k in ("data_overrun", "rx_fifo_full")}
+        out["malformed_lines"] = bus.malformed_lines
+        return out
 
     def send_frame(self, can_id: int, data: bytes, *, is_extended_id: bool) -> None:
         """Send one frame; ``is_extended_id`` is required (29-bit when True, 11-bit when False)."""

@@ -157,6 +157,7 @@ class SlcanAdapter:
         self.timestamps = False
         self.stats = SlcanStats()
         self._flags = 0
+        self._port_dropped = 0  # the port's dropped bytes last seen (a full pty cuts lines)
         self._lock = threading.Condition()
         self._line = bytearray()
         self._rx: deque[can.Message] = deque(maxlen=max_rx)
@@ -217,6 +218,10 @@ class SlcanAdapter:
             return True
         bits = [can_frame_bits(m.dlc, m.is_extended_id, m.is_remote_frame) for m in msgs]
         with self._lock:
+            dropped = self.port.stats.bytes_dropped
+            if dropped != self._port_dropped:  # the host link lost bytes: the adapter overran
+                self._port_dropped = dropped
+                self._flags |= FLAG_DATA_OVERRUN
             if not self.is_open:
                 self.stats.dropped_closed += n
                 return False

@@ -7,6 +7,7 @@ from __future__ import annotations
 import os
 import socket
 import threading
+import tty
 from pathlib import Path
 
 import can
@@ -132,7 +133,11 @@ def test_slcan_adapter_overruns_are_counted(tmp_path: Path) -> None:
     try:
         wait_until(lambda: adapter.is_open, what="channel open")
         c0 = adapter.stats.commands
-        assert t.losses() == {"adapter_data_overrun": 0, "adapter_rx_fifo_full": 0}
+        assert t.losses() == {
+            "adapter_data_overrun": 0,
+            "adapter_rx_fifo_full": 0,
+            "malformed_lines": 0,
+        }
         wait_until(lambda: adapter.stats.commands > c0, what="the first F answered")
         sent = 3000
         msgs = [can.Message(arbitration_id=0x100 + i % 8, data=bytes(8), is_extended_id=False)
@@ -151,3 +156,30 @@ def test_slcan_adapter_overruns_are_counted(tmp_path: Path) -> None:
     finally:
         t.close()
         adapter.close()
+
+
+def test_malformed_slcan_lines_are_dropped_and_counted_not_a_reconnect() -> None:
+    """Lines cut by bytes lost on the host link (the end of one frame joined to the next, a
+    wrong length for the DLC, a bad digit) are dropped and counted; the frames around them
+    come through and the transport stays open."""
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    t = open_transport(
+        {"kind": "can", "interface": "slcan", "channel": os.ttyname(slave),
+         "options": {"sleep_after_open": 0}}
+    )  # fmt: skip
+    try:
+        os.read(master, 100)  # the open command
+        good = [b"T0A1000062AABB\r", b"t1232AABB\r", b"t12380102030405060708\r"]
+        cut = b"T0A10000682AB" + b"t1232AABB\r"  # a line cut short, joined to the next one
+        bad = [cut, b"t12X2AABB\r", b"t1239AABB\r", b"T0A100006\r"]
+        os.write(master, good[0] + b"".join(bad) + good[1] + good[2])
+        got = []
+        while (c := t.read(0.5)) is not None:
+            got.append((c.can_id, c.data))
+        assert got == [(0xA100006, b"\xaa\xbb"), (0x123, b"\xaa\xbb"), (0x123, bytes(range(1, 9)))]
+        assert t.losses()["malformed_lines"] == len(bad) and t.is_open
+    finally:
+        t.close()
+        os.close(master)
+        os.close(slave)
