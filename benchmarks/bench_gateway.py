@@ -606,12 +606,14 @@ def ins_can_phase(tmp: Path, speed: float, seconds: float) -> CanPhase:
         adapter.close()
     losses = st.get("transport_losses") or {}
     return CanPhase(
-        speed, seconds, n, adapter.stats.frames_to_host, adapter.stats.dropped_port,
-        int(st.get("frames", 0)), st.get("lag_s"), st.get("lag_max_s"),
-        losses.get("adapter_data_overrun"), (c1 - c0) / CLK_TCK / (t_sent - t0) * 100, late,
-        adapter.stats.dropped_closed, int(st.get("outages", 0)), str(st.get("last_error", "")),
-        adapter.port.stats.bytes_dropped, int(losses.get("malformed_lines", 0)),
-        (c1 - c0) / CLK_TCK,
+        speed=speed, seconds=seconds, epochs=n, sent=adapter.stats.frames_to_host,
+        dropped=adapter.stats.dropped_port, received=int(st.get("frames", 0)),
+        lag_s=st.get("lag_s"), lag_max_s=st.get("lag_max_s"),
+        overruns=losses.get("adapter_data_overrun"),
+        cpu_pct=(c1 - c0) / CLK_TCK / (t_sent - t0) * 100, sender_late_s=late,
+        closed=adapter.stats.dropped_closed, pty_dropped=adapter.port.stats.bytes_dropped,
+        malformed=int(losses.get("malformed_lines", 0)), cpu_s=(c1 - c0) / CLK_TCK,
+        outages=int(st.get("outages", 0)), last_error=str(st.get("last_error", "")),
     )  # fmt: skip
 
 
