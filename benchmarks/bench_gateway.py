@@ -25,9 +25,8 @@ Second table, **all five emulated devices** (``--all-seconds``, 0 to skip): ``au
 --processes`` runs the harbour scenario (INS on serial, DVL, MSIS polled by the gateway,
 multibeam on UDP, MS3A magnetometer on serial and on its SLCAN adapter) at nominal rate (speed 1)
 and at 10x, and a fresh ``auvgw run`` reads every port. The INS CAN form is left off
-(``devices.ins.options.can = false`` in a temporary copy of the scenario): at 10x its 8000
-frames/s exceed what python-can's ``slcan`` interface reads (about 1400 frames/s), a limit of
-the host library, not of the gateway. The copy also stalls every device for the first few
+(``devices.ins.options.can = false`` in a temporary copy of the scenario) and measured on its
+own in the third table. The copy also stalls every device for the first few
 seconds (the gateway starts and opens its ports) and the last ones (every byte read before the
 ports close), so every frame an emulator sends falls in the measured run.
 
@@ -37,6 +36,14 @@ ports close), so every frame an emulator sends falls in the measured run.
 * **lost**: frames each emulator sent (the sim's printed counters; on CAN the sim counts a
   sample's burst once, so its count times the DBC's frames per epoch) minus the frames the
   gateway counted (``frames`` of its status queryable); the bar is none.
+
+Third table, **INS over CAN** (``--can-seconds``, 0 to skip; ``--only-can``): an emulated
+SLCAN adapter in this process sends HN-100 epochs (8 frames per 100 Hz sample, pre-encoded) at
+1x, 4x and 10x (800, 3200, 8000 frames/s) to ``auvgw run``; per speed the frames sent, dropped
+by the adapter, counted by the gateway and lost, the adapter's overrun flags, the gateway's
+``lag_s`` / ``lag_max_s`` (vehicle s), its CPU (% of a core and per frame), outages and
+malformed lines. First the SLCAN reader alone: python-can's ``slcanBus`` (one ``read(1)`` per
+byte) against :class:`~auvgw.drivers.slcanbus.BulkSlcanBus`, frames/s parsed from a pty.
 
 Nominal rate: 10 Hz (a Pathfinder's top ping rate); 10x = 100 Hz. Latencies are medians and
 99th percentiles over every ensemble of a phase. Timings depend on the machine's load: compare
