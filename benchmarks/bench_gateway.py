@@ -297,13 +297,7 @@ class Bench:
 
     def close(self) -> None:
         for p in [*self.children, self.gw]:
-            if p.poll() is None:
-                p.send_signal(signal.SIGTERM)
-                try:
-                    p.wait(10)
-                except subprocess.TimeoutExpired:
-                    p.kill()
-                    p.wait()
+            stop_process(p)
         self.sub.undeclare()
         self.bare.undeclare()
         self.session.close()
