@@ -8,10 +8,9 @@ emulator of the scenario and runs them for ``--duration`` vehicle seconds at ``-
 time. A reader process (this script with ``--reader``, so it has its own core and GIL, like a
 gateway) opens every port with the real client library before the run starts: pyserial on the
 serial ptys (framed and decoded with the drivers; the MSIS is polled by the gateway's own
-:class:`~auvgw.msis_host.SeaNetHost`), the USB-CAN adapters' ptys read in bulk (opened with the
-Lawicel commands, lines decoded with the DBC, counted in complete epochs; python-can's own
-``slcan`` reads one byte per call, too slow for 10x an INS's bursts) and a UDP socket for the
-multibeam.
+:class:`~auvgw.msis_host.SeaNetHost`), the USB-CAN adapters with python-can's ``slcan`` interface
+read in bulk as the gateway opens them (:class:`~auvgw.drivers.slcanbus.BulkSlcanBus`; frames
+decoded with the DBC, counted in complete epochs) and a UDP socket for the multibeam.
 
 The table: per port, the nominal rate (vehicle Hz), the rate the emulator ticked at and the
 rate the reader decoded at (messages per vehicle second, i.e. per real second / speed), the
@@ -94,37 +93,25 @@ def _read_can(
     opened: threading.Event,
     draining: threading.Event,
 ) -> None:
-    """The adapter's pty read in bulk, its SLCAN lines parsed as the adapter parses the host's
-    (python-can's ``slcan`` reads one byte per call and cannot drain 10x an INS's bursts)."""
-    import serial
-
+    """The adapter opened as the gateway opens it: python-can's ``slcan`` interface read in bulk
+    (:class:`~auvgw.drivers.slcanbus.BulkSlcanBus`), frames decoded with the DBC."""
     from auvgw.drivers.can_codec import load_can_codec
-    from auvgw.sim_devices.slcan import BITRATES, _parse_frame
+    from auvgw.drivers.slcanbus import BulkSlcanBus
 
     codec = load_can_codec(ep["dbc"])
-    code = {v: k for k, v in BITRATES.items()}[ep["transport"]["bitrate"]]
-    s = serial.Serial(ep["target"], 115200, timeout=0.02)
-    s.write(f"C\rS{code}\rO\r".encode())
-    s.flush()
+    bus = BulkSlcanBus(channel=ep["target"], bitrate=ep["transport"]["bitrate"], sleep_after_open=0)
     opened.set()
-    buf = b""
     try:
         while not stop.is_set():
-            buf += s.read(max(1, s.in_waiting))
-            *lines, buf = buf.split(b"\r")
-            for line in lines:
-                text = line.decode("ascii", "replace")
-                if not text or text[0] not in "tT":
-                    continue
-                msg = _parse_frame(text)
-                if msg is None:
-                    counts[ep["name"] + ":bad"] += 1
-                    continue
-                counts[ep["name"] + ":frames"] += 1
-                if codec.decode(msg.arbitration_id, msg.data, msg.is_extended_id) is not None:
-                    counts[ep["name"]] += 1
+            msg = bus.recv(0.02)
+            if msg is None:
+                continue
+            counts[ep["name"] + ":frames"] += 1
+            if codec.decode(msg.arbitration_id, bytes(msg.data), msg.is_extended_id) is not None:
+                counts[ep["name"]] += 1
     finally:
-        s.close()
+        counts[ep["name"] + ":bad"] = bus.malformed_lines
+        bus.shutdown()
 
 
 def _read_udp(
