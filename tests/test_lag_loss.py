@@ -68,7 +68,7 @@ def test_a_stalled_device_ages_a_backlog_lags_and_garbage_is_skipped(tmp_path: P
             os.write(dev.master, b"".join(hn100_frame(i, 10 + i / 100) for i in range(10)))
             wait_until(lambda: gw.device_status("ins")["frames"] == 10, what="first burst")
             first = gw.device_status("ins")
-            assert first["lag_s"] == pytest.approx(0.0, abs=0.09)  # within the burst's span
+            assert first["lag_s"] < 0.5  # one burst: only a reader starved between its chunks lags
             threading.Event().wait(1.0)  # the device's next samples arrive a second late
             late = b"".join(hn100_frame(i, 10 + i / 100) for i in range(10, 20))
             os.write(dev.master, garbage + late)
