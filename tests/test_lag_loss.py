@@ -183,3 +183,46 @@ def test_malformed_slcan_lines_are_dropped_and_counted_not_a_reconnect() -> None
         t.close()
         os.close(master)
         os.close(slave)
+
+
+def test_gateway_status_counts_udp_kernel_drops_and_garbage_as_lost_bytes() -> None:
+    """The in-process gateway on a UDP port with a 2 KiB receive buffer: a flood of garbage
+    datagrams (1000 B, no Kongsberg frame in them) is either read, then skipped by the framer
+    (``skipped_bytes``), or dropped by the kernel (``transport_losses.kernel_drops``): every
+    datagram is accounted for in the device status."""
+    from auvgw.gateway import Gateway
+
+    probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    probe.bind(("127.0.0.1", 0))
+    port = probe.getsockname()[1]
+    probe.close()
+    cfg = parse_gateway_config(
+        {"vehicle": "loss1", "devices": {"mbes": {"format": "kongsberg", "transport": {
+            "kind": "udp", "host": "127.0.0.1", "port": port, "receive_buffer_bytes": 2048,
+            "allowed_senders": ["127.0.0.1"]}}}}
+    )  # fmt: skip
+    n, size = 400, 1000
+    tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        with Gateway(cfg) as gw:
+            wait_until(lambda: gw.device_status("mbes")["connected"], what="connected")
+            for _ in range(n):
+                tx.sendto(b"\x55" * size, ("127.0.0.1", port))
+
+            carriers = 0
+            while not gw.device_status("mbes")["transport_losses"].get("kernel_drops"):
+                assert carriers < 100, gw.device_status("mbes")
+                tx.sendto(b"\x55" * size, ("127.0.0.1", port))  # the next carries the count
+                carriers += 1
+                threading.Event().wait(0.6)  # the gateway reads the counters every 0.5 s
+
+            def counted() -> dict | None:
+                st = gw.device_status("mbes")
+                drops = st["transport_losses"]["kernel_drops"]
+                return st if st["skipped_bytes"] // size + drops == n + carriers else None
+
+            st = wait_until(counted, timeout=30, what="every datagram counted")
+            assert st["transport_lost"] == st["transport_losses"]["kernel_drops"] > 0
+            assert st["frames"] == 0 and st["skipped_bytes"] % size == 0
+    finally:
+        tx.close()
