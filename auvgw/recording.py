@@ -253,15 +253,15 @@ def _load_types() -> None:
     """The fusion odometry type and the shipped HN-100 and MS3A DBCs' message types, so their
     envelopes become typed."""
     import auvgw.fusion.odometry  # noqa: F401 - registers Odometry
+    from auvgw.drivers import registry
     from auvgw.drivers.spec import MESSAGE_TYPES
 
-    if "HN100_Sample" in MESSAGE_TYPES and "MS3A_Sample" in MESSAGE_TYPES:
+    if all(m.type in MESSAGE_TYPES for _, m in registry.message_types() if m.wire == "can"):
         return
     try:
-        from auvgw.drivers.can_codec import hn100_can, ms3a_can
+        from auvgw.drivers.can_codec import shipped_can_types
 
-        hn100_can()
-        ms3a_can()
+        shipped_can_types()
     except Exception as exc:  # cantools or a DBC missing: CAN samples stay untyped
         log.debug("CAN message types not available: %s", exc)
 

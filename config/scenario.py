@@ -27,8 +27,11 @@ from pydantic import (
     Field,
     ValidationError,
     ValidationInfo,
+    create_model,
     model_validator,
 )
+
+from auvgw.drivers import registry
 
 __all__ = [
     "AcousticBeacon",
@@ -295,14 +298,18 @@ class DeviceSettings(_Model):
     options: dict[str, float | int | str | bool] = {}
 
 
-class Devices(_Model):
-    ins: DeviceSettings = DeviceSettings()
-    dvl: DeviceSettings = DeviceSettings()
-    msis: DeviceSettings = DeviceSettings()
-    multibeam: DeviceSettings = DeviceSettings()
-    magnetometer: DeviceSettings = DeviceSettings()
-    #: the acoustic beacon transceiver: off unless a scenario with an acoustic_beacon enables it
-    acoustic: DeviceSettings = DeviceSettings(enabled=False)
+#: one settings table per emulator of the device registry, in its order (``ins``, ``dvl``,
+#: ``msis``, ``multibeam``, ``magnetometer``, ``acoustic``); a device that needs a scenario
+#: feature (the acoustic beacon) is off unless the scenario enables it
+Devices = create_model(
+    "Devices",
+    __base__=_Model,
+    __module__=__name__,
+    **{
+        em.key: (DeviceSettings, DeviceSettings(enabled=em.default_on))
+        for em in registry.emulators()
+    },  # type: ignore[call-overload]
+)
 
 
 class Scenario(_Model):

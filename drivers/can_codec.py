@@ -29,6 +29,7 @@ from typing import Any
 
 import cantools
 
+from auvgw.drivers import registry
 from auvgw.drivers.spec import message
 from auvgw.drivers.tablecodec import UNITS
 from auvgw.paths import config_file
@@ -40,6 +41,8 @@ __all__ = [
     "EpochAssembler",
     "hn100_can",
     "ms3a_can",
+    "shipped_can",
+    "shipped_can_types",
 ]
 
 
@@ -394,14 +397,31 @@ class EpochAssembler:
         return len(self._pending)
 
 
+def shipped_can(fmt: str, path: str | Path | None = None) -> DbcCodec:
+    """The CAN codec of a registered device (``hn100``, ``ms3a``): its DBC (default the shipped
+    one the registry names) with its samples named as the registry's CAN message type."""
+    dev = registry.device(fmt)
+    sample = next((m.type for m in dev.messages if m.wire == "can"), None)
+    if dev.dbc is None:
+        raise KeyError(f"format {fmt!r} has no CAN database in the registry")
+    return DbcCodec(path or config_file(dev.dbc), sample_name=sample)
+
+
+def shipped_can_types() -> None:
+    """Load every shipped DBC once, so its sample types are in ``MESSAGE_TYPES``."""
+    for dev in registry.DEVICES:
+        if dev.dbc is not None:
+            shipped_can(dev.format)
+
+
 def hn100_can(path: str | Path | None = None) -> DbcCodec:
     """The HN-100 CAN codec (default: the shipped ``config/hn100.dbc``); samples HN100_Sample."""
-    return DbcCodec(path or config_file("hn100.dbc"), sample_name="HN100_Sample")
+    return shipped_can("hn100", path)
 
 
 def ms3a_can(path: str | Path | None = None) -> DbcCodec:
     """The MS3A CAN codec (default: the shipped ``config/ms3a.dbc``); samples MS3A_Sample."""
-    return DbcCodec(path or config_file("ms3a.dbc"), sample_name="MS3A_Sample")
+    return shipped_can("ms3a", path)
 
 
 class CanDeviceCodec:
@@ -429,5 +449,5 @@ def load_can_codec(dbc: str | Path) -> CanDeviceCodec:
         if not shipped.is_file():
             raise FileNotFoundError(f"{dbc}: no such DBC file (neither a path nor in config/)")
         path = shipped
-    names = {"hn100.dbc": "HN100_Sample", "ms3a.dbc": "MS3A_Sample"}
+    names = {d.dbc: m.type for d, m in registry.message_types() if m.wire == "can" and d.dbc}
     return CanDeviceCodec(DbcCodec(path, sample_name=names.get(path.name)))

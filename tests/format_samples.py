@@ -15,7 +15,7 @@ from test_seanet import sample_messages
 from test_v4log import sample_items
 
 from auvgw.drivers import seanet as sn
-from auvgw.drivers import v4log as v4
+from auvgw.drivers.seanet import v4log as v4
 
 STREAM_FORMATS = ("pd0", "pd6", "seanet", "kongsberg", "hn100", "ms3a")
 

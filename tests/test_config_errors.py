@@ -32,7 +32,7 @@ _ALL: dict[str, tuple[str, list[str]]] = {
     ),
     "unknown_format": (
         '[devices.dvl]\nformat = "pd9"\ntransport = { kind = "serial", url = "/dev/x" }\n',
-        ["devices.dvl.format: Input should be 'pd0', 'pd6'", "(got 'pd9')"],
+        ["devices.dvl.format: Input should be 'hn100', 'pd0', 'pd6'", "(got 'pd9')"],
     ),
     "bad_transport_kind": (
         '[devices.dvl]\nformat = "pd0"\ntransport = { kind = "serail", url = "/dev/x" }\n',
