@@ -35,6 +35,7 @@ __all__ = [
     "kinds_with_role",
     "load",
     "message_types",
+    "roles_of",
     "types_with_role",
 ]
 
@@ -137,7 +138,7 @@ DEVICES: tuple[DeviceKind, ...] = (
     DeviceKind(
         "pd0", f"{_D}.pd0:FORMAT",
         emulator=Emulator("dvl", f"{_S}.dvl:DvlEmulator"), protocol_doc="pd0.md",
-        messages=(MessageType("pd0.Ensemble", roles=("attitude", "velocity")),),
+        messages=(MessageType("pd0.Ensemble", roles=("velocity", "attitude")),),
     ),
     DeviceKind(
         "pd6", f"{_D}.pd6:FORMAT", protocol_doc="pd6.md",
@@ -190,6 +191,12 @@ DEVICES: tuple[DeviceKind, ...] = (
 
 _BY_FORMAT = {d.format: d for d in DEVICES}
 _BY_TYPE = {m.type: m for d in DEVICES for m in d.messages}
+
+
+def roles_of(type_name: str) -> tuple[str, ...]:
+    """The roles of a message type, first the one it is shown by (empty: not registered)."""
+    m = _BY_TYPE.get(type_name)
+    return () if m is None else m.roles
 
 
 def kind_of(type_name: str) -> str:

@@ -48,7 +48,7 @@ from typing import Any
 
 import numpy as np
 
-from auvgw.drivers import pd0
+from auvgw.drivers import pd0, registry
 from auvgw.drivers.spec import WIRE_TYPES
 from auvgw.fusion.frames import beam_matrix
 from auvgw.fusion.samples import DvlSample, InsSample
@@ -76,17 +76,17 @@ __all__ = [
     "janus_angle",
 ]
 
-#: message type names (``TYPE`` or class name) of INS solutions this module adapts
-INS_TYPES = frozenset({"Hn100Nav", "HN100_Sample"})
+#: message type names (``TYPE`` or class name) of INS solutions (the registry's role ``ins``)
+INS_TYPES = registry.types_with_role("ins")
 #: message type names of DVL messages this module adapts
 PD0_TYPES = frozenset({"pd0.Ensemble"})
 #: PD6 bottom-track velocity sentences -> DvlSample frame
 PD6_VELOCITY_TYPES = {"pd6.BI": "instrument", "pd6.BS": "body", "pd6.BE": "earth"}
-#: every message type that can be an attitude source (INS; a DVL's compass: PD0 variable
-#: leader, PD6 ``:SA``)
-ATTITUDE_TYPES = INS_TYPES | PD0_TYPES | {"pd6.SA"}
-#: every message type that can be a velocity source
-VELOCITY_TYPES = PD0_TYPES | frozenset(PD6_VELOCITY_TYPES)
+#: every message type that can be an attitude source (the registry's role ``attitude``: INS;
+#: a DVL's compass: PD0 variable leader, PD6 ``:SA``)
+ATTITUDE_TYPES = registry.types_with_role("attitude")
+#: every message type that can be a velocity source (the registry's role ``velocity``)
+VELOCITY_TYPES = registry.types_with_role("velocity")
 
 #: ``DvlMount.rotation_deg`` (roll, pitch, yaw) of RDI instrument axes (X starboard, Y forward,
 #: Z up) for a down-facing DVL with beam 3 forward: ``Rz(90) Ry(0) Rx(180)`` maps (X, Y, Z) to
@@ -546,6 +546,8 @@ class MessageAdapter:
                     self.stats.dvl += 1
                     out.append(d._replace(t=t))
                 return out
+            if name not in PD6_VELOCITY_TYPES and name != "pd6.SA":
+                raise AdapterError(f"no fusion adapter for message type {name}")
             # PD6: no device time in the sentence
             t = self._clock(device, type(msg), "ins" if att else "dvl").to_common(
                 t_recv_s, t_recv_s

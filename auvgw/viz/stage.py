@@ -68,13 +68,10 @@ IGNORED_TYPES = frozenset(
     }
 )  # fmt: skip
 
-#: driver modules whose message classes the stage rebuilds from JSON (imported lazily, so a
-#: codec module that is missing or broken only loses its own messages)
-_CODEC_MODULES = (
-    "auvgw.drivers.kongsberg",
-    "auvgw.drivers.pd0",
-    "auvgw.drivers.seanet",
-)
+#: registry roles whose handlers need the typed message (rebuilt from JSON with the codec's
+#: class, its module imported lazily so a missing or broken codec only loses its own messages);
+#: the other roles' handlers read plain fields
+_TYPED_ROLES = ("swath", "velocity", "sonar")
 
 
 class _Obj:
@@ -238,11 +235,14 @@ class VizStage(Stage):
         self._truth: tuple[float, float, float, float] | None = None
         self._status: dict[str, tuple[Any, Any]] = {}
         self._t_last = 0.0
-        self._sensor_handlers: dict[str, Callable[[str, Any, float], None]] = {
-            "XYZ88": self._swath,
-            "Depth": self._swath,
-            "pd0.Ensemble": self._dvl,
-            "mtHeadData": self._msis,
+        #: device registry role -> handler; a message type is shown by the first of its roles
+        #: that has one (registry.MessageType.roles)
+        self._role_handlers: dict[str, Callable[[str, Any, float], bool]] = {
+            "swath": self._swath,
+            "velocity": self._dvl,
+            "sonar": self._msis,
+            "attitude": self._attitude,
+            "field": self._field,
         }
         self._classes: dict[str, type] = {}
         self._load_codecs()
@@ -250,14 +250,18 @@ class VizStage(Stage):
     def _load_codecs(self) -> None:
         import importlib
 
-        for name in _CODEC_MODULES:
+        from auvgw.drivers import registry
+
+        for dev, m in registry.message_types():
+            if m.wire != "stream" or not set(m.roles) & set(_TYPED_ROLES):
+                continue
+            name = dev.codec.partition(":")[0]
             try:
                 importlib.import_module(name)
             except Exception as exc:  # a codec being written must not stop the stage
                 log.warning("viz stage: %s unavailable (%s); its messages are skipped", name, exc)
-        for type_name in self._sensor_handlers:
-            if type_name in MESSAGE_TYPES:
-                self._classes[type_name] = MESSAGE_TYPES[type_name]
+            if m.type in MESSAGE_TYPES:
+                self._classes[m.type] = MESSAGE_TYPES[m.type]
 
     # -- bus side --------------------------------------------------------------------------
     def input_keys(self) -> list[str]:
@@ -412,21 +416,29 @@ class VizStage(Stage):
         return self._count(outcome)
 
     def _sensor(self, device: str, type_name: str, msg: Any, t_host: float) -> str:
-        handler = self._sensor_handlers.get(type_name)
-        if handler is not None:
-            handler(device, msg, t_host)
-            return "logged"
+        from auvgw.drivers import registry
+
         if type_name in IGNORED_TYPES:
             return "ignored"
-        if all(hasattr(msg, n) for n in ("roll", "pitch", "heading")):
-            t = self._clock(device)(_float(getattr(msg, "time", None)), t_host)
-            self.logger.attitude(t, _float(msg.roll), _float(msg.pitch), _float(msg.heading))
-            return "logged"
-        if all(hasattr(msg, n) for n in ("bx", "by", "bz")):
-            b = (_float(msg.bx), _float(msg.by), _float(msg.bz))
-            self.logger.magnetometer(self._clock(device)(None, t_host), b)
-            return "logged"
+        for role in registry.roles_of(type_name):
+            handler = self._role_handlers.get(role)
+            if handler is not None and handler(device, msg, t_host):
+                return "logged"
         return f"sensor:{type_name or '?'}"
+
+    def _attitude(self, device: str, msg: Any, t_host: float) -> bool:
+        if not all(hasattr(msg, n) for n in ("roll", "pitch", "heading")):
+            return False
+        t = self._clock(device)(_float(getattr(msg, "time", None)), t_host)
+        self.logger.attitude(t, _float(msg.roll), _float(msg.pitch), _float(msg.heading))
+        return True
+
+    def _field(self, device: str, msg: Any, t_host: float) -> bool:
+        if not all(hasattr(msg, n) for n in ("bx", "by", "bz")):
+            return False
+        b = (_float(msg.bx), _float(msg.by), _float(msg.bz))
+        self.logger.magnetometer(self._clock(device)(None, t_host), b)
+        return True
 
     # sensor handlers (typed messages) -------------------------------------------------------
     def _pose_for_swath(self, heading: float) -> tuple[float, float, float, float]:
@@ -435,7 +447,7 @@ class VizStage(Stage):
             return (0.0, 0.0, 0.0, heading)
         return pose
 
-    def _swath(self, device: str, msg: Any, t_host: float) -> None:
+    def _swath(self, device: str, msg: Any, t_host: float) -> bool:
         t = self._clock(device)(_float(getattr(msg, "device_time", None)), t_host)
         xyz = np.asarray(msg.xyz, dtype=np.float64)
         beams = msg.beams
@@ -448,6 +460,7 @@ class VizStage(Stage):
         self.logger.swath(
             t, xyz[:, 0], xyz[:, 1], xyz[:, 2], x=x, y=y, z=z0, heading=h, valid=valid
         )
+        return True
 
     _FRAME_AXES: Mapping[int, tuple[str, str, str]] = {
         0: ("beam 1", "beam 2", "beam 3"),
@@ -456,7 +469,9 @@ class VizStage(Stage):
         3: ("east", "north", "up"),
     }
 
-    def _dvl(self, device: str, ens: Any, t_host: float) -> None:
+    def _dvl(self, device: str, ens: Any, t_host: float) -> bool:
+        if not hasattr(ens, "bottom_track"):  # a PD0 ensemble; PD6 velocities are not shown
+            return False
         vl = ens.variable_leader
         t = self._clock(device)(None if vl is None else vl.device_time_s, t_host)
         bt, hr, rng = ens.bottom_track, ens.bt_high_res, ens.bt_range
@@ -474,11 +489,13 @@ class VizStage(Stage):
         frame = ens.coordinate_frame
         names = self._FRAME_AXES.get(int(frame) if frame is not None else 1, ("x", "y", "z"))
         self.logger.dvl(t, v, altitude, names, lock)
+        return True
 
-    def _msis(self, device: str, msg: Any, t_host: float) -> None:
+    def _msis(self, device: str, msg: Any, t_host: float) -> bool:
         t = self._clock(device)(None, t_host)
         max_value = 255 if msg.adc8on else 15
         self.logger.msis_ping(t, msg.bearing, msg.bins, msg.range_m, msg.step, max_value)
+        return True
 
     # nav, slam, truth, status (JSON objects) ------------------------------------------------
     def _odometry(self, body: Mapping[str, Any], t_host: float) -> str:
