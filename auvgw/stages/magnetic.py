@@ -45,6 +45,7 @@ import zenoh
 from pydantic import BaseModel, ConfigDict, Field
 
 from auvgw.bus import Envelope, Keys
+from auvgw.drivers import registry
 from auvgw.fusion.odometry import Odometry
 from auvgw.slam.magnetic.filters import MAGNETIC_ALGORITHMS, make_magnetic
 from auvgw.slam.magnetic.mlp import MLP
@@ -57,8 +58,10 @@ log = logging.getLogger(__name__)
 __all__ = ["MagneticStage", "MagneticStageConfig", "MagneticStats", "config_from_scenario"]
 
 PIPELINE = "magnetic"
-MAG_KIND = "magnetometer"
-ACOUSTIC_KIND = "acousticreply"
+#: the key kinds of the device registry's roles ``field`` (MS3A on serial and CAN) and ``range``
+#: (the acoustic beacon)
+(MAG_KIND,) = registry.kinds_with_role("field")
+(ACOUSTIC_KIND,) = registry.kinds_with_role("range")
 DEFAULT_MODEL = Path(__file__).resolve().parents[2] / "config" / "magnetic_mlp.npz"
 
 

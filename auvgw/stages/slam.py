@@ -67,6 +67,7 @@ import zenoh
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from auvgw.bus import Keys
+from auvgw.drivers import registry
 from auvgw.drivers import seanet as sn
 from auvgw.fusion.odometry import MotionIncrement, Odometry
 from auvgw.slam.features import (
@@ -85,8 +86,9 @@ log = logging.getLogger(__name__)
 
 __all__ = ["SlamStage", "SlamStageConfig", "SlamStats", "compose_increments"]
 
-#: the gateway's key kind of SeaNet scan lines (type ``mtHeadData`` lower-cased)
-HEADDATA_KIND = "mtheaddata"
+#: the gateway's key kind of imaging-sonar pings (the device registry's role ``sonar``: SeaNet
+#: ``mtHeadData``); a second sonar kind would make the stage subscribe to each
+(HEADDATA_KIND,) = registry.kinds_with_role("sonar")
 
 
 class SlamStageConfig(BaseModel):
