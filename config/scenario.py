@@ -19,7 +19,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, Literal
 
 from pydantic import (
     BaseModel,
@@ -298,18 +298,29 @@ class DeviceSettings(_Model):
     options: dict[str, float | int | str | bool] = {}
 
 
+class _DevicesBase(_Model):
+    """The scenario's ``devices``: one :class:`DeviceSettings` per emulator of the registry."""
+
+    if TYPE_CHECKING:  # the fields come from the registry: each is a DeviceSettings
+
+        def __getattr__(self, name: str) -> DeviceSettings: ...
+
+
 #: one settings table per emulator of the device registry, in its order (``ins``, ``dvl``,
 #: ``msis``, ``multibeam``, ``magnetometer``, ``acoustic``); a device that needs a scenario
 #: feature (the acoustic beacon) is off unless the scenario enables it
-Devices = create_model(
-    "Devices",
-    __base__=_Model,
-    __module__=__name__,
-    **{
-        em.key: (DeviceSettings, DeviceSettings(enabled=em.default_on))
-        for em in registry.emulators()
-    },  # type: ignore[call-overload]
-)
+if TYPE_CHECKING:
+    Devices = _DevicesBase
+else:
+    Devices = create_model(
+        "Devices",
+        __base__=_DevicesBase,
+        __module__=__name__,
+        **{
+            em.key: (DeviceSettings, DeviceSettings(enabled=em.default_on))
+            for em in registry.emulators()
+        },
+    )
 
 
 class Scenario(_Model):

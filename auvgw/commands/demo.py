@@ -345,7 +345,10 @@ def _run_stages(
 
     # SLAM on the MSIS point features and the fusion odometry, fed in-process (publishes on
     # auv/<v>/slam/<pipeline>/{pose,landmarks} too)
-    msis = [n for n, d in gw_cfg.devices.items() if d.format == "seanet" and d.enabled]
+    from auvgw.drivers import registry
+
+    sonar = {dev.format for dev, m in registry.message_types() if "sonar" in m.roles}
+    msis = [n for n, d in gw_cfg.devices.items() if d.format in sonar and d.enabled]
     slam = (
         None
         if args.no_slam
