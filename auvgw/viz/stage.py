@@ -1,16 +1,18 @@
 """The Rerun bus stage: bus messages in, :class:`~auvgw.viz.logger.RerunLogger` calls out.
 
 Subscribes to ``auv/<v>/{sensor,nav,slam,truth,status}/**`` (raw frames are not needed: the
-decoded envelopes carry everything shown) and maps each message to logger calls:
+decoded envelopes carry everything shown) and maps each message to logger calls. Sensor
+messages are shown by their device-registry role (:mod:`auvgw.drivers.registry`; the first of
+a type's roles that has a view):
 
 ============================================  ==================================================
-``sensor/<dev>/xyz88``, ``depth`` (Kongsberg)  swath points + bathymetric grid, placed at the
+role ``swath`` (Kongsberg XYZ 88, Depth)      swath points + bathymetric grid, placed at the
                                                latest navigation pose (``nav``, else ``truth``)
-``sensor/<dev>/ensemble`` (PD0)                DVL velocity (bottom track, vehicle over bottom),
+role ``velocity`` (PD0 ``ensemble``)           DVL velocity (bottom track, vehicle over bottom),
                                                altitude, bottom lock
-``sensor/<dev>/headdata`` (SeaNet mtHeadData)  MSIS scan line into the sonar fan
-any message with ``roll, pitch, heading``      INS attitude (HN-100 binary or CAN sample)
-any message with ``bx, by, bz`` (nT)           magnetometer (MS3A ASCII or CAN sample)
+role ``sonar`` (SeaNet ``mtheaddata``)         MSIS scan line into the sonar fan
+role ``attitude`` (``roll, pitch, heading``)   INS attitude (HN-100 binary or CAN, PD6 ``sa``)
+role ``field`` (``bx, by, bz`` in nT)          magnetometer (MS3A ASCII or CAN sample)
 ``nav/odometry``                               ``dead_reckoning`` trajectory with its covariance
 ``slam/<p>/pose``                              ``slam/<p>`` trajectory (+ particles if carried)
 ``slam/<p>/landmarks``, ``slam/<p>/map``       landmarks with covariances, line features
