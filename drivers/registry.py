@@ -104,8 +104,8 @@ class DeviceKind:
     ``from_toml(path)``); ``dbc``: the shipped CAN database of the same device; ``options``: the
     name of the device's own options table in the gateway configuration (``msis``);
     ``host_driver``: ``"module:callable"`` making the gateway's host driver from the device's
-    configuration (a polled device); ``emulator``: see :class:`Emulator`; ``messages``: the
-    message types it decodes (CAN ones included).
+    configuration (a polled device); ``emulator``: see :class:`Emulator`; ``protocol_doc``: its
+    page in ``docs/protocols/``; ``messages``: the message types it decodes (CAN ones included).
     """
 
     format: str
