@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from auvgw.cli import UserError
+from auvgw.drivers import registry
 
 log = logging.getLogger(__name__)
 
@@ -67,7 +68,8 @@ def register(sub: Any) -> None:
         "--devices",
         default=None,
         metavar="LIST",
-        help="comma-separated subset of ins,dvl,msis,multibeam,magnetometer",
+        help="comma-separated subset of "
+        + ",".join(em.key for em in registry.emulators()),
     )
     p.add_argument("--vehicle", default="auv1", help="vehicle name in the gateway configuration")
     p.add_argument(
