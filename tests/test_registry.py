@@ -84,3 +84,9 @@ def test_decode_help_lists_the_registered_formats() -> None:
         d.format for d in registry.DEVICES
     )
     assert "hn100/ms3a/acoustic" in out
+
+
+def test_sim_help_lists_the_emulators() -> None:
+    out = subprocess.run([sys.executable, "-m", "auvgw", "sim", "--help"],
+                         capture_output=True, text=True, check=True).stdout  # fmt: skip
+    assert "ins,dvl,msis,multibeam,magnetometer,acoustic" in "".join(out.split())
