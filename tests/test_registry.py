@@ -90,3 +90,22 @@ def test_sim_help_lists_the_emulators() -> None:
     out = subprocess.run([sys.executable, "-m", "auvgw", "sim", "--help"],
                          capture_output=True, text=True, check=True).stdout  # fmt: skip
     assert "ins,dvl,msis,multibeam,magnetometer,acoustic" in "".join(out.split())
+
+
+def test_gateway_checks_come_from_the_records(tmp_path: Path) -> None:
+    from auvgw.config.gateway import ConfigError, parse_gateway_config
+    from auvgw.decoding import make_decoders
+
+    def cfg(**dev: object) -> dict[str, object]:
+        return {"devices": {"d": {"transport": {"kind": "serial", "url": "/dev/null"}, **dev}}}
+
+    site = tmp_path / "ac.toml"
+    site.write_text((ROOT / "config" / "acoustic.toml").read_text())
+    dec = make_decoders(parse_gateway_config(cfg(format="acoustic", table=str(site))))["d"]
+    assert dec.format is not None and f"[table {site}]" in dec.format.summary
+    with pytest.raises(ConfigError, match=r"'table' only applies to formats 'hn100', 'ms3a', "
+                                          r"'acoustic', not 'pd0'"):  # fmt: skip
+        parse_gateway_config(cfg(format="pd0", table="x.toml"))
+    with pytest.raises(ConfigError, match=r"'msis' only applies to format 'seanet', not 'ms3a'"):
+        parse_gateway_config(cfg(format="ms3a", msis={}))
+    assert parse_gateway_config(cfg(format="seanet")).devices["d"].msis is not None
