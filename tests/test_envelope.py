@@ -144,10 +144,8 @@ def test_unknown_types_keep_their_body():
 def test_versions_two_and_one_are_still_read(shared_data):
     msg = hn100.CODEC.decode(hn100.CODEC.encode(_nav()))
     fields = {f.name: getattr(msg, f.name) for f in dataclasses.fields(msg)}
-    v2 = msgspec.msgpack.encode(
-        {"v": 2, "type": "Hn100Nav", "wire": "hn100", "device": "ins", "t": T_NS, "seq": 3,
-         "msg": fields}  # fmt: skip
-    )
+    head = {"v": 2, "type": "Hn100Nav", "wire": "hn100", "device": "ins", "t": T_NS, "seq": 3}
+    v2 = msgspec.msgpack.encode({**head, "msg": fields})
     env = decode_envelope(v2)
     assert (env.type, env.wire, env.t_recv_ns, env.seq, env.message) == (
         "Hn100Nav", "hn100", T_NS, 3, None,
