@@ -110,6 +110,10 @@ def _enc_float(v: float) -> Any:
     return msgspec.Raw(b"\xca" + b) if _F32.unpack(b)[0] == v else v
 
 
+def _enc_number(v: Any, trusted: bool) -> Any:
+    return _enc_float(v) if type(v) is float else v
+
+
 def _enc_any(v: Any, trusted: bool = False) -> Any:
     """A value with no table row to guide it."""
     t = type(v)
@@ -155,7 +159,7 @@ def _is_message_class(tp: Any) -> bool:
     return isinstance(tp, type) and dataclasses.is_dataclass(tp)
 
 
-def _hint_coders(tp: Any) -> tuple[Callable[[Any], Any], Callable[[Any], Any], str]:
+def _hint_coders(tp: Any) -> tuple[Callable[[Any, bool], Any] | None, Callable[[Any], Any], str]:
     """(encode, decode, schema text) of a field with no wire row, from its type hint."""
     origin, args = typing.get_origin(tp), typing.get_args(tp)
     if origin in (types.UnionType, typing.Union):
@@ -163,7 +167,7 @@ def _hint_coders(tp: Any) -> tuple[Callable[[Any], Any], Callable[[Any], Any], s
         if len(real) == 1 and len(args) == 2:
             enc, dec, desc = _hint_coders(real[0])
             return (
-                (lambda v, t: None if v is None else enc(v, t)),
+                None if enc is None else (lambda v, t: None if v is None else enc(v, t)),
                 (lambda v: None if v is None else dec(v)),
                 f"{desc}?",
             )
@@ -181,14 +185,15 @@ def _hint_coders(tp: Any) -> tuple[Callable[[Any], Any], Callable[[Any], Any], s
     if origin is tuple and len(args) == 2 and args[1] is Ellipsis:
         enc_el, dec_el, desc = _hint_coders(args[0])
         return (
-            (lambda v, t: [enc_el(x, t) for x in v]),
+            None if enc_el is None else (lambda v, t: [enc_el(x, t) for x in v]),
             (lambda v: tuple(dec_el(x) for x in v)),
             f"tuple[{desc}]",
         )
     if origin is tuple and args:
         coders = [_hint_coders(a) for a in args]
+        encs = [c[0] or _enc_number for c in coders]
         return (
-            (lambda v, t: [c[0](x, t) for c, x in zip(coders, v, strict=True)]),
+            (lambda v, t: [e(x, t) for e, x in zip(encs, v, strict=True)]),
             (lambda v: tuple(c[1](x) for c, x in zip(coders, v, strict=True))),
             f"tuple[{','.join(c[2] for c in coders)}]",
         )
@@ -202,7 +207,7 @@ def _hint_coders(tp: Any) -> tuple[Callable[[Any], Any], Callable[[Any], Any], s
     if tp is float:
         return (lambda v, t: _enc_float(v) if type(v) is float else _enc_any(v, t)), _dec_typed, "f"
     if tp is bytes:
-        return (lambda v, t: v), (lambda v: v if v is None else bytes(v)), "bytes"
+        return None, (lambda v: v if v is None else bytes(v)), "bytes"
     name = getattr(tp, "__name__", repr(tp))
     return _enc_any, _dec_typed, name
 
@@ -212,17 +217,17 @@ def _readonly(a: np.ndarray) -> np.ndarray:
     return a
 
 
-def _wire_coders(w: Wire) -> tuple[Callable[[Any], Any], Callable[[Any], Any], str]:
+def _wire_coders(w: Wire) -> tuple[Callable[[Any, bool], Any] | None, Callable[[Any], Any], str]:
     """(encode, decode, schema text) of a wire row: raw wire values where they give the exact
     SI value back (the codec's own ``raw * scale + add``), else the SI value itself."""
     desc = f"{w.type}{list(w.shape) if w.shape else ''}*{w.scale!r}+{w.add!r}!{w.invalid}"
     if w.type in ("bytes", "str"):
-        return (lambda v, t: v), (lambda v: v), desc
+        return None, (lambda v: v), desc
     is_int = not w.type.startswith("f")
     scale, add, invalid = w.scale, w.add, w.invalid
     if not w.is_array:
         if not (is_int and w.is_scaled):
-            return (lambda v, t: _enc_float(v) if type(v) is float else v), (lambda v: v), desc
+            return _enc_number, (lambda v: v), desc
         info = np.iinfo(np.dtype(WIRE_TYPES[w.type]))
         lo, hi = int(info.min), int(info.max)
 
@@ -301,9 +306,16 @@ class _Plan:
 
     cls: type
     names: tuple[str, ...]
-    encoders: tuple[Callable[[Any], Any], ...]
+    #: None where the value travels as it is (integers, strings, bytes)
+    encoders: tuple[Callable[[Any, bool], Any] | None, ...]
     decoders: tuple[Callable[[Any], Any], ...]
     schema: int
+
+    def pack(self, msg: Any, trusted: bool) -> list[Any]:
+        values = [getattr(msg, n) for n in self.names]
+        return [
+            v if e is None else e(v, trusted) for v, e in zip(values, self.encoders, strict=True)
+        ]
 
 
 _type_hints = functools.lru_cache(maxsize=CLASS_CACHE_SIZE)(typing.get_type_hints)
@@ -337,8 +349,7 @@ def pack_body(msg: Any, trusted: bool = False) -> list[Any]:
     """The positional body of a message (its class's table order; see the module docstring).
     ``trusted``: the message comes straight from its codec's decode, so every scaled array is
     ``raw * scale + add`` of integers and its raw values are recovered without checking."""
-    p = _plan(type(msg))
-    return [enc(getattr(msg, n), trusted) for n, enc in zip(p.names, p.encoders, strict=True)]
+    return _plan(type(msg)).pack(msg, trusted)
 
 
 def unpack_body(cls: type, body: list[Any]) -> Any:
@@ -403,6 +414,7 @@ _ENCODER = msgspec.msgpack.Encoder(enc_hook=_enc_hook)
 _DECODER = msgspec.msgpack.Decoder(ext_hook=_ext_hook)
 
 
+@functools.lru_cache(maxsize=CLASS_CACHE_SIZE)
 def envelope_encoding(type_name: str) -> zenoh.Encoding:
     """``application/msgpack;auvgw/3/<Type>``: the encoding of every envelope sample."""
     return zenoh.Encoding(f"application/msgpack;auvgw/{ENVELOPE_VERSION}/{type_name}")
@@ -428,8 +440,16 @@ def encode_envelope(
     else:
         type_name = str(getattr(msg, "TYPE", type(msg).__name__))
         p = _plan(type(msg))
-        packed = [enc(getattr(msg, n), decoded) for n, enc in zip(p.names, p.encoders, strict=True)]
-        env = [ENVELOPE_VERSION, type_name, p.schema, wire, device, t_recv_ns, seq, packed]
+        env = [
+            ENVELOPE_VERSION,
+            type_name,
+            p.schema,
+            wire,
+            device,
+            t_recv_ns,
+            seq,
+            p.pack(msg, decoded),
+        ]
     return _ENCODER.encode(env), envelope_encoding(type_name)
 
 

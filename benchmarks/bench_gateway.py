@@ -218,7 +218,7 @@ class Bench:
         lat, read, rest = [], [], []
         seen = set()
         for t_arr, payload in list(self.arrivals):
-            env = decode_envelope(payload)
+            env = decode_envelope(payload, typed=False)  # the stamps only
             t_w = written.get(env.seq)
             if t_w is None or env.seq in seen:
                 continue
@@ -464,7 +464,7 @@ def print_all_devices(phases: list[AllPhase]) -> None:
                 f"{ph.speed:>4g}x {r.port:18} {r.sent:>7} {r.counted:>8} {r.lost:>5} "
                 f"{r.bad:>4} {r.dropped_bytes:>13}"
             )
-    print("\nPayload size per message on the bus (MessagePack envelope v2) against its raw frame")
+    print("\nPayload size per message on the bus (MessagePack envelope v3) against its raw frame")
     print("(CAN: several raw frames per decoded epoch), from the first phase's traffic:\n")
     head = f"{'port':18} {'raw B/frame':>11} {'env B/msg':>10} {'env/raw':>8} {'env B/raw B':>11}"
     print(head)
