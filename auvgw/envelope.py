@@ -29,6 +29,7 @@ import dataclasses
 import enum
 import functools
 import json
+import keyword
 import logging
 import math
 import struct
@@ -174,9 +175,10 @@ def _hint_coders(tp: Any) -> tuple[Callable[[Any, bool], Any] | None, Callable[[
         return _enc_any, _dec_typed, "any"
     if _is_message_class(tp):
         cls: type = tp
+        pack_nested = _plan(cls).pack
 
         def enc_msg(v: Any, t: bool) -> Any:
-            return pack_body(v, t) if type(v) is cls else _typed_ext(v, t)
+            return pack_nested(v, t) if type(v) is cls else _typed_ext(v, t)
 
         def dec_msg(v: Any) -> Any:
             return unpack_body(cls, v) if isinstance(v, list) else _dec_typed(v)
@@ -310,12 +312,28 @@ class _Plan:
     encoders: tuple[Callable[[Any, bool], Any] | None, ...]
     decoders: tuple[Callable[[Any], Any], ...]
     schema: int
+    #: ``pack(msg, trusted) -> body``, generated for the class (see :func:`_packer`)
+    pack: Callable[[Any, bool], list[Any]]
 
-    def pack(self, msg: Any, trusted: bool) -> list[Any]:
-        values = [getattr(msg, n) for n in self.names]
-        return [
-            v if e is None else e(v, trusted) for v, e in zip(values, self.encoders, strict=True)
-        ]
+
+def _packer(
+    names: tuple[str, ...], encoders: tuple[Callable[[Any, bool], Any] | None, ...]
+) -> Callable[[Any, bool], list[Any]]:
+    """A function building the positional body of one class: one list display of attribute
+    reads and encoder calls (the gateway's hot path: no loop, no zip, no per-field lookup)."""
+    ns: dict[str, Any] = {}
+    items = []
+    for i, (name, enc) in enumerate(zip(names, encoders, strict=True)):
+        ok = name.isidentifier() and not keyword.iskeyword(name)
+        get = f"msg.{name}" if ok else f"getattr(msg, {name!r})"  # a site table's odd name
+        if enc is None:
+            items.append(get)
+        else:
+            ns[f"e{i}"] = enc
+            items.append(f"e{i}({get}, trusted)")
+    src = f"def pack(msg, trusted):\n    return [{', '.join(items)}]\n"
+    exec(src, ns)  # the source holds only identifiers and repr() of names
+    return ns["pack"]  # type: ignore[no-any-return]
 
 
 _type_hints = functools.lru_cache(maxsize=CLASS_CACHE_SIZE)(typing.get_type_hints)
@@ -335,7 +353,10 @@ def _plan(cls: type) -> _Plan:
         decs.append(dec)
         descs.append(f"{f.name}:{desc}")
     text = f"{getattr(cls, 'TYPE', cls.__name__)}({';'.join(descs)})"
-    return _Plan(cls, tuple(names), tuple(encs), tuple(decs), zlib.crc32(text.encode()) & 0xFFFF)
+    schema = zlib.crc32(text.encode()) & 0xFFFF
+    return _Plan(
+        cls, tuple(names), tuple(encs), tuple(decs), schema, _packer(tuple(names), tuple(encs))
+    )
 
 
 def schema_id(cls: type) -> int:
