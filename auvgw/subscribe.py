@@ -43,7 +43,7 @@ import zenoh
 from auvgw.bus import Envelope, Keys, decode_envelope, open_session, unpack_raw_attachment
 from auvgw.config.bus import BusConfig
 from auvgw.drivers.spec import from_jsonable
-from auvgw.envelope import message_class, typed_body
+from auvgw.envelope import SchemaError, message_class, typed_body
 
 log = logging.getLogger(__name__)
 
@@ -117,6 +117,9 @@ class Stream:
             return RawFrame(key.rsplit("/", 1)[-1], t_ns, seq, offset, payload, key)
         try:
             env = decode_envelope(payload, key)
+        except SchemaError as exc:  # another table than ours: the body as it came
+            log.warning("%s: %s", key, exc)
+            return decode_envelope(payload, key, typed=False)
         except (ValueError, KeyError) as exc:
             log.warning("%s: not a gateway envelope: %s", key, exc)
             return None
