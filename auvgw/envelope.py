@@ -238,6 +238,8 @@ def _wire_coders(w: Wire) -> tuple[Callable[[Any, bool], Any] | None, Callable[[
                 return v
             if v != v:
                 return invalid if invalid is not None else _F32_NAN
+            if v in (math.inf, -math.inf):
+                return _enc_float(v)
             raw = round((v - add) / scale)
             if raw * scale + add == v and lo <= raw <= hi and raw != invalid:
                 return raw
@@ -302,6 +304,26 @@ def _wire_coders(w: Wire) -> tuple[Callable[[Any, bool], Any] | None, Callable[[
     return enc_array, dec_array, desc
 
 
+def _linear_coders(
+    scale: float, offset: float, factor: float
+) -> tuple[Callable[[Any, bool], Any], Callable[[Any], Any], str]:
+    """A CAN signal decoded as ``float(raw * scale + offset) * factor`` (cantools, then the
+    codec's unit factor): its raw integer where that gives the value back exactly."""
+
+    def enc(v: Any, t: bool) -> Any:
+        if type(v) is not float:
+            return _enc_any(v, t)
+        if not math.isfinite(v):
+            return _enc_float(v)
+        raw = round((v / factor - offset) / scale)
+        return raw if float(raw * scale + offset) * factor == v else _enc_float(v)
+
+    def dec(v: Any) -> Any:
+        return float(v * scale + offset) * factor if type(v) is int else v
+
+    return enc, dec, f"lin*{scale!r}+{offset!r}*{factor!r}"
+
+
 @dataclass(frozen=True)
 class _Plan:
     """How one message class travels: a (name, encode, decode) per transmitted field."""
@@ -346,8 +368,13 @@ def _plan(cls: type) -> _Plan:
     for f in dataclasses.fields(cls):
         if "flag_bit" in f.metadata:  # derived from the status word on construction
             continue
-        w = f.metadata.get("wire")
-        enc, dec, desc = _wire_coders(w) if w is not None else _hint_coders(hints.get(f.name, Any))
+        w, linear = f.metadata.get("wire"), f.metadata.get("linear")
+        if w is not None:
+            enc, dec, desc = _wire_coders(w)
+        elif linear is not None:
+            enc, dec, desc = _linear_coders(*linear)
+        else:
+            enc, dec, desc = _hint_coders(hints.get(f.name, Any))
         names.append(f.name)
         encs.append(enc)
         decs.append(dec)

@@ -219,10 +219,11 @@ class Bench:
         seen = set()
         for t_arr, payload in list(self.arrivals):
             env = decode_envelope(payload, typed=False)  # the stamps only
-            t_w = written.get(env.seq)
-            if t_w is None or env.seq in seen:
+            n = env.seq & 0xFFFFFFFF  # seq = gateway session << 32 | frame count from 1
+            t_w = written.get(n)
+            if t_w is None or n in seen:
                 continue
-            seen.add(env.seq)
+            seen.add(n)
             lat.append((t_arr - t_w) / 1e3)
             read.append((env.t_recv_ns - t_w) / 1e3)
             rest.append((t_arr - env.t_recv_ns) / 1e3)
