@@ -49,6 +49,7 @@ log = logging.getLogger(__name__)
 
 __all__ = ["GatewaySubscriber", "RawFrame", "Stream", "envelope_message", "typed_message"]
 
+
 def typed_message(type_name: str, body: Any, schema: int | None = None) -> Any:
     """The typed, immutable message of an envelope's body (by name, or positional with the
     envelope's ``schema``), or None for an unknown type or a body that does not fit."""

@@ -434,6 +434,11 @@ def all_devices_phase(
                     p.wait()
         sim_log.close()
         gw_log.close()
+    for log_path in (out / "gateway.log", out / "sim.log"):  # what went wrong, if anything did
+        tail = [ln for ln in log_path.read_text(errors="replace").splitlines() if ln.strip()]
+        errors = [ln for ln in tail if "ERROR" in ln or "Traceback" in ln or "WARNING" in ln]
+        for ln in errors[-5:]:
+            print(f"{speed:g}x {log_path.name}: {ln}", file=sys.stderr)
     counters = sim_counters(lines)
     rows = []
     for p in ports:
@@ -486,7 +491,10 @@ def print_all_devices(phases: list[AllPhase]) -> None:
 def all_devices_run(args: argparse.Namespace) -> list[AllPhase]:
     seconds = 10.0 if args.quick else args.all_seconds
     with tempfile.TemporaryDirectory(prefix="bench-gw-all-") as tmp:
-        return [all_devices_phase(Path(tmp), k, seconds) for k in (1.0, args.all_factor)]
+        return [
+            all_devices_phase(Path(tmp), k, seconds, warm_s=args.all_warm)
+            for k in (1.0, args.all_factor)
+        ]
 
 
 def hn100_frames(n: int) -> list[bytes]:
@@ -523,6 +531,13 @@ def main() -> int:
         help="wall seconds per phase of the all-devices run (0: skip it)",
     )
     ap.add_argument("--all-factor", type=float, default=10.0, help="its fast speed")
+    ap.add_argument(
+        "--all-warm",
+        type=float,
+        default=8.0,
+        help="wall seconds the devices stay silent while the gateway starts and connects every "
+        "port (raise it on a loaded machine: frames sent before it connects count as lost)",
+    )
     ap.add_argument("--only-all", action="store_true", help="only the all-devices run")
     args = ap.parse_args()
     seconds = 5.0 if args.quick else args.seconds
