@@ -219,11 +219,11 @@ class Bench:
         seen = set()
         for t_arr, payload in list(self.arrivals):
             env = decode_envelope(payload, typed=False)  # the stamps only
-            n = env.seq & 0xFFFFFFFF  # seq = gateway session << 32 | frame count from 1
-            t_w = written.get(n)
-            if t_w is None or n in seen:
+            k = env.seq & 0xFFFFFFFF  # seq = gateway session << 32 | frame count from 1
+            t_w = written.get(k)
+            if t_w is None or k in seen:
                 continue
-            seen.add(n)
+            seen.add(k)
             lat.append((t_arr - t_w) / 1e3)
             read.append((env.t_recv_ns - t_w) / 1e3)
             rest.append((t_arr - env.t_recv_ns) / 1e3)
