@@ -295,7 +295,7 @@ class Gateway:
                 self.keys.sensor(dev.name, kind), congestion_control=_DROP
             )
             dev.pubs[kind] = pub
-        payload, enc = encode_envelope(msg, dev.name, t_ns, seq, wire=dev.cfg.format)
+        payload, enc = encode_envelope(msg, dev.name, t_ns, seq, wire=dev.cfg.format, decoded=True)
         pub.put(payload, encoding=enc)
 
     def _handle_items(

@@ -56,6 +56,7 @@ from auvgw.bus import (
 )
 from auvgw.config.gateway import ConfigError, GatewayConfig, format_validation_error
 from auvgw.decoding import DeviceDecoder, make_decoders
+from auvgw.drivers.spec import to_jsonable
 from auvgw.paths import config_file
 
 log = logging.getLogger(__name__)
@@ -218,22 +219,26 @@ def sample_to_ros(
     """(ROS 2 messages, stamp ns, sequence) of a non-raw bus sample: an envelope (``sensor/``,
     ``nav/``: stamped with its receive time) or a JSON document (SLAM outputs stamped with their
     ``t`` on the odometry clock; status and truth with ``t_rx_ns``, when the recorder got it)."""
-    from auvgw.subscribe import typed_message
+    from auvgw.subscribe import envelope_message
 
     if section in ("sensor", "nav"):
         env = decode_envelope(payload)
         _load_types()
-        msg = typed_message(env.type, env.body)
-        if msg is None:
-            msg = _Fields(env.type, env.body)
+        msg = envelope_message(env)
+        if msg is None:  # a type this recorder does not know: its fields if sent by name
+            msg = _Fields(env.type, env.body if isinstance(env.body, Mapping) else {})
         kind = rest.rpartition("/")[2]
         source = rest.partition("/")[0] if section == "sensor" else rest
         try:
             msgs = ros2.to_ros(section, source, msg, env.t_recv_ns, env.seq, kind)
         except (AttributeError, TypeError, ValueError) as exc:  # no standard form: keep the body
             log.debug("%s/%s: %s; recorded as %s", section, rest, exc, ros2.DECODED_TYPE)
+            typed = hasattr(msg, "__dataclass_fields__")
+            body = (
+                to_jsonable(msg) if typed else {k: v for k, v in vars(msg).items() if k != "TYPE"}
+            )
             msgs = [ros2.decoded_msg(f"{section}/{rest}", source, env.type, env.t_recv_ns,
-                                     env.seq, dict(env.body))]  # fmt: skip
+                                     env.seq, body)]  # fmt: skip
         return msgs, env.t_recv_ns, env.seq
     text = payload.decode("utf-8", errors="replace")
     try:

@@ -46,7 +46,6 @@ __all__ = [
 ]
 
 
-
 _LINE_COL = re.compile(r"line (\d+), column (\d+)")
 
 
@@ -57,6 +56,7 @@ def _where(exc: BaseException) -> str:
     if isinstance(exc, UnicodeDecodeError):
         return f"not text (byte {exc.start} is not valid {exc.encoding})"
     return "invalid DBC syntax" + (f" at line {m[1]}, column {m[2]}" if m else "")
+
 
 class CanCodecError(ValueError):
     """A CAN frame or message that the DBC cannot decode or encode (names message and signal)."""
@@ -93,6 +93,9 @@ class _Signal:
     maximum: float | None
     tolerance: float
     comment: str
+    #: (DBC scale, DBC offset): decoded = (raw * scale + offset) * factor; None when the
+    #: signal is an IEEE float or not scaled
+    linear: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -123,6 +126,7 @@ def _signal_info(sig: Any) -> _Signal:
         maximum=sig.maximum,
         tolerance=abs(conv.scale) * 1e-6,
         comment=(sig.comment or "").strip(),
+        linear=(conv.scale, conv.offset) if scaled and not conv.is_float else None,
     )
 
 
@@ -132,7 +136,10 @@ def _build_class(name: str, signals: Sequence[_Signal], doc: str, module: str) -
     lines = [doc, "", "Fields [decoded units]:"]
     for s in signals:
         annotations[s.field] = (str | int) if s.choices else (float if s.scaled else int)
-        ns[s.field] = dataclasses.field(metadata={"signal": s.name, "units": s.units})
+        meta: dict[str, Any] = {"signal": s.name, "units": s.units}
+        if s.linear is not None and not s.choices:  # how the envelope carries the raw value
+            meta["linear"] = (*s.linear, s.factor)
+        ns[s.field] = dataclasses.field(metadata=meta)
         lines.append(f"    {s.field} [{s.units or '1'}]: DBC signal {s.name}. {s.comment}".rstrip())
     ns["__annotations__"] = annotations
     ns["__doc__"] = "\n".join(lines)

@@ -42,6 +42,7 @@ __all__ = [
     "from_jsonable",
     "message",
     "raw_value",
+    "resolve_type",
     "table_rows",
     "to_jsonable",
     "wire",
@@ -73,6 +74,9 @@ T = TypeVar("T")
 #: every class made with :func:`message`, by type name (``TYPE`` class attribute or class name);
 #: used to rebuild typed messages from their JSON form (:func:`from_jsonable`)
 MESSAGE_TYPES: dict[str, type] = {}
+#: makers of message classes built from wire values (e.g. Kongsberg Depth beam tables): each
+#: takes a type name and returns its class, or None if the name is not one of its kind
+TYPE_FACTORIES: list[Callable[[str], type | None]] = []
 #: message classes whose field names / type hints are cached (bounded: classes made from wire
 #: values, e.g. Kongsberg Depth beam tables, must not pin memory)
 CLASS_CACHE_SIZE = 256
@@ -164,6 +168,18 @@ def _wire_fields(cls: type) -> list[tuple[str, Wire]]:
     ]
     cls.__wire_fields__ = out  # type: ignore[attr-defined]
     return out
+
+
+def resolve_type(name: str) -> type | None:
+    """The message class of a type name: registered, or made by a :data:`TYPE_FACTORIES` entry."""
+    cls = MESSAGE_TYPES.get(name)
+    if cls is not None:
+        return cls
+    for make in TYPE_FACTORIES:
+        cls = make(name)
+        if cls is not None:
+            return cls
+    return None
 
 
 def _eq(a: Any, b: Any) -> bool:

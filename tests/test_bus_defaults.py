@@ -7,6 +7,7 @@ set by conftest.py) so parallel test runs never meet; the commands themselves ge
 
 from __future__ import annotations
 
+import math
 import signal
 import threading
 from collections import Counter
@@ -128,7 +129,8 @@ def _check_ros2_readers(path: Path, envelopes: list[tuple[str, bytes]]) -> None:
     import auvgw.fusion.odometry  # noqa: F401 - the Odometry type
     from auvgw.bus import decode_envelope
     from auvgw.drivers.can_codec import hn100_can, ms3a_can
-    from auvgw.ros2 import enu_from_ned, flu_from_frd, quaternion_enu_flu
+    from auvgw.fusion.adapters import dvl_from_pd0
+    from auvgw.ros2 import DEFAULT_SOUND_SPEED, enu_from_ned, flu_from_frd, quaternion_enu_flu
     from auvgw.subscribe import typed_message
 
     with AnyReader([path]) as reader:
@@ -158,6 +160,22 @@ def _check_ros2_readers(path: Path, envelopes: list[tuple[str, bytes]]) -> None:
             b = msg.beams
             xyzi = np.column_stack([b.along, -b.across, -b.depth, b.reflectivity])
             return tuple(xyzi.astype("<f4").reshape(-1))
+        if name in ("twist", "altitude"):
+            # the DVL: bottom-track velocity in the frame it reports (ship here, levelled into
+            # base_link FLU), -1 in covariance[0] without bottom lock; altitude in metres
+            s = dvl_from_pd0(msg, t=0.0)
+            if name == "altitude":
+                return "dvl", s.altitude
+            frame = "base_link" if s.frame == "body" else "dvl"
+            v = flu_from_frd(s.velocity) if s.frame == "body" else s.velocity
+            return frame, tuple(v), (0.0, 0.0, 0.0), 0.0 if s.bottom_lock else -1.0
+        if name == "returns":
+            # the MSIS scan line: a point per bin at its centre range along the bearing
+            # (clockwise from forward, so starboard is -y in FLU), intensity = amplitude
+            r = (np.arange(len(msg.bins)) + 0.5) * (msg.ad_interval * DEFAULT_SOUND_SPEED / 2)
+            xyzi = np.column_stack([r * math.cos(msg.bearing), -r * math.sin(msg.bearing),
+                                    np.zeros(len(r)), msg.bins])  # fmt: skip
+            return "msis", tuple(xyzi.astype("<f4").reshape(-1))
         if name == "odometry":
             return (
                 enu_from_ned((msg.x, msg.y, msg.z)),
@@ -176,9 +194,29 @@ def _check_ros2_readers(path: Path, envelopes: list[tuple[str, bytes]]) -> None:
         if name == "points":
             assert [f.name for f in ros.fields] == ["x", "y", "z", "intensity"]
             return tuple(np.frombuffer(bytes(ros.data), dtype="<f4"))
+        if name == "altitude":
+            return ros.header.frame_id, ros.range
+        if name == "twist":
+            t, cov = ros.twist.twist, ros.twist.covariance
+            assert not cov[1:].any()
+            return (ros.header.frame_id, (t.linear.x, t.linear.y, t.linear.z),
+                    (t.angular.x, t.angular.y, t.angular.z), cov[0])  # fmt: skip
+        if name == "returns":
+            assert [f.name for f in ros.fields] == ["x", "y", "z", "intensity"]
+            assert (ros.height, ros.width, ros.point_step) == (1, len(ros.data) // 16, 16)
+            return ros.header.frame_id, tuple(np.frombuffer(bytes(ros.data), dtype="<f4"))
         p, o, v = ros.pose.pose.position, ros.pose.pose.orientation, ros.twist.twist.linear
         return (p.x, p.y, p.z), (o.x, o.y, o.z, o.w), (v.x, v.y, v.z)
 
+    def same(a, b) -> bool:
+        """Equal, bit for bit where numbers, NaN equal to NaN (a DVL without bottom lock)."""
+        if isinstance(a, tuple | list) and isinstance(b, tuple | list):
+            return len(a) == len(b) and all(same(x, y) for x, y in zip(a, b, strict=True))
+        if isinstance(a, float | np.floating) and isinstance(b, float | np.floating):
+            return (a != a and b != b) or a == b
+        return a == b
+
+    names = ("imu", "magnetic_field", "points", "odometry", "twist", "altitude", "returns")
     checked = Counter()
     with open(path, "rb") as f:
         reader = make_reader(f, decoder_factories=[DecoderFactory()])
@@ -188,14 +226,15 @@ def _check_ros2_readers(path: Path, envelopes: list[tuple[str, bytes]]) -> None:
         parts = topic.split("/")  # /auv1/<section>/<device or stream>/...
         name = parts[-1]
         candidates = gw.get((parts[3], _stamp(ros.header)))
-        if candidates is None or name not in ("imu", "magnetic_field", "points", "odometry"):
+        if candidates is None or name not in names:
             continue
         if len(candidates) > 1 or per_stamp[(topic, _stamp(ros.header))] > 1:
             continue  # several messages share this receive time: the pairing is ambiguous
-        # field for field, bit for bit (NaN-free here: NaN != NaN would fail loudly)
-        assert got(name, ros) == expected(name, candidates[0]), topic
+        # field for field, bit for bit
+        g, e = got(name, ros), expected(name, candidates[0])
+        assert same(g, e), (topic, g, e)
         checked[name] += 1
-    for name in ("imu", "magnetic_field", "points", "odometry"):
+    for name in names:
         assert checked[name] > 0, checked
 
 

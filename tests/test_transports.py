@@ -539,3 +539,31 @@ def test_error_format_for_a_model_embedding_transport():
         "vehicle.toml: devices.dvl.transport.port: "
         "Input should be greater than or equal to 0 (got -5)"
     )
+
+
+def test_can_slcan_reads_bursts_and_split_frames_in_order(pty_pair):
+    """The slcan port is read in bulk (transports._BufferedSerial): frames of a burst, and a
+    frame whose bytes arrive in two writes, come out whole and in order."""
+    fds, path = pty_pair
+    master = fds["master"]
+    t = open_transport(
+        {
+            "kind": "can",
+            "interface": "slcan",
+            "channel": path,
+            "bitrate": 500000,
+            "options": {"sleep_after_open": 0},
+        }
+    )
+    drain_master(master)
+    lines = [b"t3108%016X\r" % i for i in range(300)]
+    os.write(master, b"".join(lines[:200]))
+    os.write(master, lines[200][:7])  # half a frame: nothing to deliver yet from these bytes
+    got = [t.read(1.0) for _ in range(200)]
+    os.write(master, lines[200][7:] + b"".join(lines[201:]))
+    got += [t.read(1.0) for _ in range(100)]
+    assert [(c.can_id, int.from_bytes(c.data, "big")) for c in got] == [
+        (0x310, i) for i in range(300)
+    ]
+    assert t.read(0.05) is None
+    t.close()

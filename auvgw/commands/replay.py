@@ -201,7 +201,7 @@ def run(args: argparse.Namespace) -> int:
                 for msg in item.messages:
                     skey = keys.sensor(rest, message_kind(msg))
                     payload, enc = encode_envelope(
-                        msg, rest, t_ns, seq, wire=cfg.devices[rest].format
+                        msg, rest, t_ns, seq, wire=cfg.devices[rest].format, decoded=True
                     )
                     publisher(skey).put(payload, encoding=enc)
                     sent[skey] += 1

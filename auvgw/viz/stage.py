@@ -348,6 +348,9 @@ class VizStage(Stage):
         section = parts[0]
         if section in ("sensor", "nav"):  # envelopes (MessagePack; JSON of the previous release)
             env = decode_envelope(payload, key)
+            if section == "sensor" and env.message is not None:
+                self._t_last = env.t_recv_ns / 1e9
+                return self._sensor(env.device, env.type, env.message, self._t_last)
             data: Any = {"v": SCHEMA_VERSION, "type": env.type, "device": env.device,
                          "msg": env.body, "t_recv_ns": env.t_recv_ns}  # fmt: skip
         else:
