@@ -79,9 +79,11 @@ def configure(p: argparse.ArgumentParser) -> None:
         help="radius of the point targets, m (default 0.6)",
     )
     p.add_argument("--algorithm", default="vb-aufastslam", choices=sorted(ALGORITHMS))
-    p.add_argument("--pipeline", default="landmark", choices=("landmark", "magnetic"),
+    p.add_argument("--pipeline", default="landmark",
+                   choices=("landmark", "magnetic", "bathymetric"),
                    help="landmark: MSIS features (default); magnetic: AMB-SLAM on the MS3A and "
-                   "acoustic beacon (auvgw.commands.magnetic_run)")  # fmt: skip
+                   "acoustic beacon (auvgw.commands.magnetic_run); bathymetric: mtm-pf on the "
+                   "multibeam swaths (auvgw.commands.bathy_run)")  # fmt: skip
     p.add_argument("--scenario", type=Path, default=None, metavar="FILE.json",
                    help="magnetic: beacons scenario giving the channels and the acoustic beacon")
     p.add_argument("--particles", type=int, default=50, help="particles (default 50)")
@@ -98,8 +100,20 @@ def configure(p: argparse.ArgumentParser) -> None:
         help="fusion stage settings (TOML/JSON, as auvgw fusion --settings)",
     )
     p.add_argument("--out", type=Path, default=None, help="offline: JSON lines of the SLAM output")
+    _configure_bathymetric(p)
     add_bus_arguments(p)
     p.set_defaults(func=run)  # fmt: skip
+
+
+def _configure_bathymetric(p: argparse.ArgumentParser) -> None:
+    """The options only ``--pipeline bathymetric`` reads (auvgw.commands.bathy_run)."""
+    p.add_argument(
+        "--multibeam", default=None, help="bathymetric: gateway device of the multibeam (any)"
+    )
+    p.add_argument(
+        "--set", action="append", default=[], metavar="KEY=VALUE",
+        help="bathymetric: a stage or filter setting (repeatable), e.g. radius_m=40",
+    )  # fmt: skip
 
 
 class _Paths:
@@ -168,6 +182,10 @@ def run(args: argparse.Namespace) -> int:
         from auvgw.commands import magnetic_run
 
         return magnetic_run.run(args)
+    if args.pipeline == "bathymetric":
+        from auvgw.commands import bathy_run
+
+        return bathy_run.run(args)
     if args.recording is None:
         if args.out is not None or args.fusion_settings is not None:
             raise UserError("--out and --fusion-settings are for --recording (offline) runs")
