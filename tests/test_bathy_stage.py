@@ -220,3 +220,47 @@ def test_stage_process_on_the_bus(tmp_path: Path, tiny: BathyRun) -> None:
     world = World.from_scenario(Scenario.model_validate(TINY))
     pts = np.array(got["cloud"][-1]["points"])
     assert np.median(np.abs(pts[:, 2] - world.depth(pts[:, 0], pts[:, 1]))) < 0.5
+
+
+def test_stage_output_in_rerun(tmp_path: Path, tiny: BathyRun) -> None:
+    """The stage's pose, DEM tiles and clouds through the Rerun stage, read back from the .rrd:
+    the corrected trajectory, depth-coloured seabed points at the published positions and the
+    DEM discs."""
+    from auvgw.viz import entities as ent
+    from auvgw.viz.logger import RerunLogger
+    from auvgw.viz.readback import read_recording
+    from auvgw.viz.stage import VizStage
+
+    sim = tiny
+    path = tmp_path / "bathy.rrd"
+    logger = RerunLogger(rrd=path)
+    viz = VizStage(logger, "auv1")
+    outcomes: list[str] = []
+    published: list[tuple[str, dict]] = []
+
+    def on_publish(key: str, payload: bytes, t_ns: int) -> None:
+        published.append((key, json.loads(payload)))
+        outcomes.append(viz.handle_sample(key, payload, t_ns))
+
+    cfg = BathymetricStageConfig(n_particles=20, n_beams=sim.depth.shape[1],
+                                 min_ping_spacing_m=0.0, map_period_pings=40)  # fmt: skip
+    stage = BathymetricStage(cfg, on_publish=on_publish)
+    for k in range(120):
+        t = EPOCH + float(sim.t[k])
+        stage.feed("mb", int(t * 1e9), _swath(sim, k))
+        stage.feed_odometry(_odometry(t, float(sim.dr[k, 0]), float(sim.dr[k, 1]),
+                                      float(sim.heading[k])))  # fmt: skip
+    stage.flush()
+    logger.close()
+    assert outcomes and set(outcomes) == {"logged"}
+    rec = read_recording(path)
+    track = rec[ent.world_path("slam/bathymetric", "track")]
+    assert len(track) >= 1
+    seabed = rec[ent.world_path("slam/bathymetric", "seabed")]
+    pts = np.concatenate([np.asarray(v, float).reshape(-1, 3)
+                          for v in seabed.values("Points3D:positions") if v is not None])  # fmt: skip
+    sent = np.concatenate([np.array(b["points"]) for k, b in published if k.endswith("/cloud")])
+    assert len(pts) == len(sent) > 0
+    np.testing.assert_allclose(np.sort(pts[:, 2]), np.sort(sent[:, 2]), atol=1e-3)
+    dem = rec[ent.map_path("slam/bathymetric", "dem")]
+    assert len(dem) == 3 + 1  # 120 / 40 tiles and the whole map at flush
