@@ -257,8 +257,8 @@ def test_stage_output_in_rerun(tmp_path: Path, tiny: BathyRun) -> None:
     track = rec[ent.world_path("slam/bathymetric", "track")]
     assert len(track) >= 1
     seabed = rec[ent.world_path("slam/bathymetric", "seabed")]
-    pts = np.concatenate([np.asarray(v, float).reshape(-1, 3)
-                          for v in seabed.values("Points3D:positions") if v is not None])  # fmt: skip
+    rows = [v for v in seabed.values("Points3D:positions") if v is not None]
+    pts = np.concatenate([np.asarray(v, float).reshape(-1, 3) for v in rows])
     sent = np.concatenate([np.array(b["points"]) for k, b in published if k.endswith("/cloud")])
     assert len(pts) == len(sent) > 0
     np.testing.assert_allclose(np.sort(pts[:, 2]), np.sort(sent[:, 2]), atol=1e-3)

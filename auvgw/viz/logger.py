@@ -1104,8 +1104,9 @@ class RerunLogger:
         self._set_time(t)
         self._rec.log(
             ent.map_path(name, "dem"),
-            rr.Points2D(uv, colors=self._seabed_colours(grid[i, j]), radii=[0.6 * cell],
-                        draw_order=-5.0),  # fmt: skip
+            rr.Points2D(
+                uv, colors=self._seabed_colours(grid[i, j]), radii=[0.6 * cell], draw_order=-5.0
+            ),
         )
 
     def _do_mag(self, t: float, b: np.ndarray) -> None:
