@@ -343,18 +343,20 @@ def _run_stages(
         if viz is not None:
             viz.stage.handle_sample(key, payload, t_ns)
 
-    # SLAM on the MSIS point features and the fusion odometry, fed in-process (publishes on
-    # auv/<v>/slam/<pipeline>/{pose,landmarks} too)
+    # SLAM on the MSIS point features (or, on a survey, the multibeam swaths: bathymetric) and
+    # the fusion odometry, fed in-process (publishes on auv/<v>/slam/<pipeline>/... too)
     msis = [n for n, d in gw_cfg.devices.items() if d.format == "seanet" and d.enabled]
-    slam = (
-        None
-        if args.no_slam
-        else SlamStage(
+    slam: Any = None
+    if args.no_slam:
+        pass
+    elif _bathymetric_scenario(scn):
+        slam = _bathy_stage(gw_cfg, session, on_slam)
+    else:
+        slam = SlamStage(
             _slam_config(gw_cfg.vehicle, msis[0] if msis else None, scn),
             session=session,
             on_publish=on_slam,
         )
-    )
     if slam is not None:
         slam.start(subscribe=False)
 
@@ -448,7 +450,7 @@ def _run_stages(
         session.close()
     _report(
         args, status, fusion_counters,
-        None if slam is None else (slam.config.display_name, slam_counters),
+        None if slam is None else (_slam_display_name(slam), slam_counters),
         dead_reckoning, slam_track, truth, rrd, time.monotonic() - t_start, speed,
         {"ins_time_span_s": ins_span[1] - ins_span[0] if ins_span else 0.0},
     )  # fmt: skip
@@ -705,7 +707,12 @@ def _run_processes(
                                   "--connect", hub, "--listen", _endpoint()])  # fmt: skip
         wanted = {"fusion", "gateway", "ins", "dvl"}
         slam_cfg = None
-        if not args.no_slam:
+        bathy = not args.no_slam and _bathymetric_scenario(scn)
+        if bathy:
+            slam_cfg = _bathy_config(VEHICLE, "multibeam")
+            children.start("slam", _bathy_argv(slam_cfg, hub))
+            wanted |= {"multibeam", "slam-bathymetric"}
+        elif not args.no_slam:
             slam_cfg = _slam_config(VEHICLE, "msis", scn)
             children.start("slam", [
                 "slam-run", "--vehicle", VEHICLE, "--msis", "msis",
@@ -773,7 +780,9 @@ def _run_processes(
     c = collector
     assert c is not None
     slam = None
-    if slam_cfg is not None:
+    if bathy:
+        slam = (BATHY_NAME, c.status.get("slam-bathymetric"))
+    elif slam_cfg is not None:
         slam = (slam_cfg.display_name, c.status.get(f"slam-{slam_cfg.pipeline_name}"))
     _report(
         args, status, c.status.get("fusion"), slam, c.dead_reckoning, c.slam, c.truth, rrd, wall,
@@ -836,6 +845,9 @@ def _print_summary(
 
 def _print_slam(name: str, counters: dict[str, Any], err: dict[str, float] | None) -> None:
     st = counters["stage"]
+    if counters.get("component") == "slam-bathymetric":
+        _print_bathy(name, counters, err)
+        return
     print(f"slam: {st['pings']} scan lines, {st['point_features']} point and "
           f"{st['line_features']} line features, {st['updates']} updates, "
           f"{counters['landmarks']} landmarks")  # fmt: skip
@@ -847,4 +859,72 @@ def _print_slam(name: str, counters: dict[str, Any], err: dict[str, float] | Non
         f"(x {err['rmse_x_m']:.2f}, y {err['rmse_y_m']:.2f}), final {err['final_m']:.2f} m, "
         f"RMSE/distance x 100 {err['rmse_pct_distance']:.3f} % "
         f"(VB paper sea trial: {VB_PAPER_RMSE_PCT} %)"
+    )
+
+
+# -- the bathymetric pipeline on survey scenarios (issue 14) -----------------------------------
+
+#: the bathymetric stage's name in the summary
+BATHY_NAME = "mtm-pf (bathymetric PF-SLAM)"
+#: the demo's bathymetric stage settings (filter values by name, BathyConfig): the survey's
+#: lines are 80 m apart under a 180 m swath, so a line overlaps its neighbours' soundings; the
+#: overlap radius R takes them in (the paper's 10 m only sees crossings)
+BATHY_PARTICLES = 200
+BATHY_FILTER: dict[str, Any] = {"radius_m": 10.0}
+
+
+def _bathymetric_scenario(scn: Any) -> bool:
+    """A survey: multibeam on, no point or line features and no magnetic beacons to map, so the
+    demo's SLAM is the bathymetric pipeline."""
+    return bool(
+        scn.devices.multibeam.enabled
+        and not len(scn.point_features())
+        and not scn.features.lines
+        and not getattr(scn, "magnetic_beacons", None)
+    )
+
+
+def _bathy_config(vehicle: str, multibeam: str | None) -> Any:
+    from auvgw.stages.bathymetric import BathymetricStageConfig
+
+    return BathymetricStageConfig(
+        vehicle=vehicle, multibeam_device=multibeam, n_particles=BATHY_PARTICLES,
+        filter=dict(BATHY_FILTER),
+    )  # fmt: skip
+
+
+def _bathy_stage(gw_cfg: Any, session: Any, on_publish: Any) -> Any:
+    """The in-process bathymetric stage on the gateway's Kongsberg device."""
+    from auvgw.stages.bathymetric import BathymetricStage
+
+    mb = [n for n, d in gw_cfg.devices.items() if d.format == "kongsberg" and d.enabled]
+    cfg = _bathy_config(gw_cfg.vehicle, mb[0] if mb else None)
+    return BathymetricStage(cfg, session=session, on_publish=on_publish)
+
+
+def _bathy_argv(cfg: Any, hub: str) -> list[str]:
+    """``auvgw slam run --pipeline bathymetric`` with the demo's settings, on the hub."""
+    sets = [a for k, v in cfg.filter.items() for a in ("--set", f"{k}={json.dumps(v)}")]
+    return ["slam", "run", "--pipeline", "bathymetric", "--vehicle", cfg.vehicle,
+            "--multibeam", str(cfg.multibeam_device), "--particles", str(cfg.n_particles),
+            "--seed", str(cfg.seed), *sets, "--connect", hub, "--listen", _endpoint()]  # fmt: skip
+
+
+def _slam_display_name(stage: Any) -> str:
+    cfg = stage.config
+    return str(getattr(cfg, "display_name", BATHY_NAME))
+
+
+def _print_bathy(name: str, counters: dict[str, Any], err: dict[str, float] | None) -> None:
+    st = counters["stage"]
+    print(f"slam: {st['swaths']} swaths, {st['pings']} used, {st['bad_swaths']} bad, "
+          f"{counters['loops_accepted']} loop closures accepted, "
+          f"{counters['loops_rejected']} rejected; {st['maps']} maps")  # fmt: skip
+    if err is None:
+        print(f"SLAM ({name}) vs truth: not enough SLAM poses or truth to compare")
+        return
+    print(
+        f"SLAM ({name}) vs truth over {err['distance_m']:.0f} m: RMSE {err['rmse_m']:.2f} m "
+        f"(x {err['rmse_x_m']:.2f}, y {err['rmse_y_m']:.2f}), final {err['final_m']:.2f} m, "
+        f"RMSE/distance x 100 {err['rmse_pct_distance']:.3f} %"
     )
