@@ -335,7 +335,11 @@ def _run_stages(
         viz = open_viz(session, gw_cfg.vehicle, rrd=rrd, connect=args.connect,
                        sections=("slam", "status"))  # fmt: skip
 
+    bathy_map: list[bytes] = []  # the bathymetric stage's latest DEM tile (the whole map last)
+
     def on_slam(key: str, payload: bytes, t_ns: int) -> None:
+        if key.endswith("/bathymetric/map"):
+            bathy_map[:] = [payload]
         if key.endswith("/pose"):
             p = json.loads(payload)
             with lock:
@@ -452,7 +456,8 @@ def _run_stages(
         args, status, fusion_counters,
         None if slam is None else (_slam_display_name(slam), slam_counters),
         dead_reckoning, slam_track, truth, rrd, time.monotonic() - t_start, speed,
-        {"ins_time_span_s": ins_span[1] - ins_span[0] if ins_span else 0.0},
+        {"ins_time_span_s": ins_span[1] - ins_span[0] if ins_span else 0.0,
+         **_bathy_map_summary(bathy_map, scn)},
     )  # fmt: skip
     return 0
 
@@ -695,6 +700,7 @@ def _run_processes(
         signal.signal(sig, lambda *_: stop.set())
     t_start = time.monotonic()
     collector: _Collector | None = None
+    map_tap: _BathyMapTap | None = None
     truth_pub = session.declare_publisher(keys.truth("pose"))
     try:
         # the stages first (they need nothing from the sim), so they are up before vehicle t = 0
@@ -728,6 +734,8 @@ def _run_processes(
         gw_cfg = _load_sim_config(sim_dir)
         epoch_ns: int = gw_cfg.clock.epoch_ns
         collector = _Collector(session, keys, epoch_ns / 1e9)
+        if bathy:
+            map_tap = _BathyMapTap(session, keys)
         gw_argv = ["run", "--config", str(_gateway_toml(sim_dir, out, _endpoint(), hub))]
         if rrd is not None:
             gw_argv += ["--viz-rrd", str(rrd)]
@@ -768,6 +776,8 @@ def _run_processes(
         children.close()
         if collector is not None:
             collector.close()
+        if map_tap is not None:
+            map_tap.close()
         truth_pub.undeclare()
         sub.close()
         session.close()
@@ -787,7 +797,8 @@ def _run_processes(
     _report(
         args, status, c.status.get("fusion"), slam, c.dead_reckoning, c.slam, c.truth, rrd, wall,
         speed, {"processes": procs, "odometry_timing": c.timing(),
-                "ready_vehicle_s": ready_vehicle_s},
+                "ready_vehicle_s": ready_vehicle_s,
+                **_bathy_map_summary(map_tap.last if map_tap else [], scn)},
     )  # fmt: skip
     bad = [n for n, p in procs.items() if p["exit_code"] != 0]
     if bad:
@@ -928,3 +939,46 @@ def _print_bathy(name: str, counters: dict[str, Any], err: dict[str, float] | No
         f"(x {err['rmse_x_m']:.2f}, y {err['rmse_y_m']:.2f}), final {err['final_m']:.2f} m, "
         f"RMSE/distance x 100 {err['rmse_pct_distance']:.3f} %"
     )
+
+
+class _BathyMapTap:
+    """``--processes``: the bathymetric stage's latest ``slam/bathymetric/map`` payload (the
+    whole map once the stage has flushed)."""
+
+    def __init__(self, session: Any, keys: Keys) -> None:
+        self.last: list[bytes] = []
+        self._sub = session.declare_subscriber(keys.slam("bathymetric", "map"), self._on_map)
+
+    def _on_map(self, sample: Any) -> None:
+        self.last[:] = [sample.payload.to_bytes()]
+
+    def close(self) -> None:
+        from auvgw.bus import undeclare
+
+        undeclare([self._sub])
+
+
+def _bathy_map_summary(last: list[bytes], scn: Any) -> dict[str, Any]:
+    """``{"bathymetric_map": ...}``: the stage's last DEM against the scenario's true terrain
+    (depth of each cell centre): cells, mean / median |error| m, share under 2 m (the paper's
+    registration measure); empty when no map was published."""
+    if not last:
+        return {}
+    from auvgw.sim_devices.world import World
+
+    body = json.loads(last[-1])
+    grid = np.array([[math.nan if v is None else v for v in row] for row in body["depth"]], float)
+    i, j = np.nonzero(np.isfinite(grid))
+    cell = float(body["cell_m"])
+    x = float(body["x0"]) + (i + 0.5) * cell
+    y = float(body["y0"]) + (j + 0.5) * cell
+    err = np.abs(grid[i, j] - World.from_scenario(scn).depth(x, y))
+    out = {"cells": len(err), "pings": body.get("pings"), "loops": body.get("loops"),
+           "mean_abs_error_m": float(err.mean()) if len(err) else None,
+           "median_abs_error_m": float(np.median(err)) if len(err) else None,
+           "share_under_2m": float(np.mean(err < 2.0)) if len(err) else None}  # fmt: skip
+    if len(err):
+        print(f"bathymetric map vs true terrain: {out['cells']} cells of {cell:g} m, mean "
+              f"|error| {out['mean_abs_error_m']:.2f} m, {100 * out['share_under_2m']:.1f} % "
+              "under 2 m")  # fmt: skip
+    return {"bathymetric_map": out}
