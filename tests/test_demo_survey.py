@@ -35,7 +35,7 @@ def survey_run(tmp_path_factory):
 
 
 def test_bathymetric_stage_ran_in_its_own_process(survey_run) -> None:
-    out, stdout, summary = survey_run
+    out, _stdout, summary = survey_run
     procs = summary["processes"]
     assert set(procs) == {"sim", "gateway", "fusion", "slam"}
     assert all(p["exit_code"] == 0 and not p["killed"] for p in procs.values()), procs
