@@ -178,7 +178,8 @@ def test_one_closure_per_crossing() -> None:
     crossing's pings are accumulated and resampled once, where eq. (13) resamples at many
     consecutive pings of the same crossing; the one closure still pulls the track in."""
     sim = simulate_survey(Scenario.model_validate(TINY), np.random.default_rng(3))
-    per_ping, f1 = run_filter("mtm-pf", sim, BathyConfig(n_particles=100), np.random.default_rng(1))
+    cfg1 = BathyConfig(n_particles=100, closure="resampling")
+    per_ping, f1 = run_filter("mtm-pf", sim, cfg1, np.random.default_rng(1))
     cfg = BathyConfig(n_particles=100, closure="crossing")
     per_crossing, f2 = run_filter("mtm-pf", sim, cfg, np.random.default_rng(1))
     assert len(f1.loops) > 3  # many small resamplings in a row

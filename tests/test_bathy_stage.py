@@ -117,7 +117,10 @@ def test_stage_reproduces_the_batch_filter_and_maps_the_true_terrain(tiny: Bathy
     assert pts.shape[1] == 3
     assert np.median(np.abs(pts[:, 2] - world.depth(pts[:, 0], pts[:, 1]))) < 0.5
     c = stage.counters()
-    assert c["pings"] == len(sim.t) and c["loops_accepted"] >= 1
+    loops = stage.online.filter.loops
+    assert c["pings"] == len(sim.t)
+    assert c["loops_accepted"] + c["loops_rejected"] == len(loops) >= 1
+    assert last["loops"] == [c["loops_accepted"], c["loops_rejected"]]
 
 
 def test_stage_places_swaths_at_the_odometry_and_spaces_pings(tiny: BathyRun) -> None:

@@ -73,7 +73,7 @@ class BathyConfig(BaseModel):
         "closure moves only the newest ping, a kink inside the next Pmaps",
     )
     closure: Literal["resampling", "crossing"] = Field(
-        "resampling",
+        "crossing",
         description="what one loop closure is: 'resampling' = every resampling of eq. (13) as "
         "written (a crossing then makes many small consecutive ones); 'crossing' (ours) = the "
         "weights of consecutive matched pings are multiplied (log-summed) and the particles "
