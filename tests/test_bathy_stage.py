@@ -195,8 +195,10 @@ def test_stage_process_on_the_bus(tmp_path: Path, tiny: BathyRun) -> None:
         with zenoh.open(conf) as s:
             subs = [s.declare_subscriber("auv/auv1/slam/bathymetric/*", on),
                     s.declare_subscriber("auv/auv1/status/slam-bathymetric", on)]  # fmt: skip
-            odo = s.declare_publisher("auv/auv1/nav/odometry")
-            mb = s.declare_publisher("auv/auv1/sensor/mb/xyz88")
+            # BLOCK: a loaded machine must slow this publisher down, not drop its samples
+            block = zenoh.CongestionControl.BLOCK
+            odo = s.declare_publisher("auv/auv1/nav/odometry", congestion_control=block)
+            mb = s.declare_publisher("auv/auv1/sensor/mb/xyz88", congestion_control=block)
             wait_until(lambda: got["status"], what="the stage's status")
             mb.put(b"{not json")
             for k in range(n):
