@@ -856,20 +856,21 @@ def _print_summary(
 
 def _print_slam(name: str, counters: dict[str, Any], err: dict[str, float] | None) -> None:
     st = counters["stage"]
+    paper = f" (VB paper sea trial: {VB_PAPER_RMSE_PCT} %)"
     if counters.get("component") == "slam-bathymetric":
-        _print_bathy(name, counters, err)
-        return
-    print(f"slam: {st['pings']} scan lines, {st['point_features']} point and "
-          f"{st['line_features']} line features, {st['updates']} updates, "
-          f"{counters['landmarks']} landmarks")  # fmt: skip
+        _print_bathy(counters)
+        paper = ""
+    else:
+        print(f"slam: {st['pings']} scan lines, {st['point_features']} point and "
+              f"{st['line_features']} line features, {st['updates']} updates, "
+              f"{counters['landmarks']} landmarks")  # fmt: skip
     if err is None:
         print(f"SLAM ({name}) vs truth: not enough SLAM poses or truth to compare")
         return
     print(
         f"SLAM ({name}) vs truth over {err['distance_m']:.0f} m: RMSE {err['rmse_m']:.2f} m "
         f"(x {err['rmse_x_m']:.2f}, y {err['rmse_y_m']:.2f}), final {err['final_m']:.2f} m, "
-        f"RMSE/distance x 100 {err['rmse_pct_distance']:.3f} % "
-        f"(VB paper sea trial: {VB_PAPER_RMSE_PCT} %)"
+        f"RMSE/distance x 100 {err['rmse_pct_distance']:.3f} %{paper}"
     )
 
 
@@ -930,19 +931,11 @@ def _slam_display_name(stage: Any) -> str:
     return str(getattr(cfg, "display_name", BATHY_NAME))
 
 
-def _print_bathy(name: str, counters: dict[str, Any], err: dict[str, float] | None) -> None:
+def _print_bathy(counters: dict[str, Any]) -> None:
     st = counters["stage"]
     print(f"slam: {st['swaths']} swaths, {st['pings']} used, {st['bad_swaths']} bad, "
           f"{counters['loops_accepted']} loop closures accepted, "
           f"{counters['loops_rejected']} rejected; {st['maps']} maps")  # fmt: skip
-    if err is None:
-        print(f"SLAM ({name}) vs truth: not enough SLAM poses or truth to compare")
-        return
-    print(
-        f"SLAM ({name}) vs truth over {err['distance_m']:.0f} m: RMSE {err['rmse_m']:.2f} m "
-        f"(x {err['rmse_x_m']:.2f}, y {err['rmse_y_m']:.2f}), final {err['final_m']:.2f} m, "
-        f"RMSE/distance x 100 {err['rmse_pct_distance']:.3f} %"
-    )
 
 
 class _BathyMapTap:
