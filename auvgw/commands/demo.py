@@ -878,9 +878,9 @@ def _print_slam(name: str, counters: dict[str, Any], err: dict[str, float] | Non
 
 #: the bathymetric stage's name in the summary
 BATHY_NAME = "mtm-pf (bathymetric PF-SLAM)"
-#: the demo's bathymetric stage settings (filter values by name, BathyConfig), measured offline
-#: on survey.json (1530 pings at 2 m, N = 200, 3 surveys, DR drifting 0.003 m per ping and axis
-#: as the emulated INS + DVL does: RMS error 3.5-3.9 m; /tmp study in the issue 14 report):
+#: the demo's bathymetric stage settings (filter values by name, BathyConfig), checked offline
+#: by benchmarks/study_bathy_demo.py on survey.json (1530 pings at 2 m, N = 200, 3 surveys, DR
+#: drifting 0.003 m per ping and axis as the emulated INS + DVL does: RMS error 3.5-3.9 m):
 #: - mse_max_m2 = 4 (paper 0.5): the relief (8 m, four octaves) is rougher than the paper's; a
 #:   particle a few metres off fails the 0.5 m^2 gate, and no crossing ever matched;
 #: - lccd off: the tie line crosses each line once, and LCCD (a closure is accepted only when
@@ -888,8 +888,8 @@ BATHY_NAME = "mtm-pf (bathymetric PF-SLAM)"
 #: - sigma_c2 = 0.05 m^2, jitter_a = 0.1 m^2 (paper 1, 1, for its eq. 28 DR): the unweighted
 #:   centroid of N particles random-walks sqrt(T sigma_c2 / N) per axis, 3.7 m over this survey
 #:   with the paper's values, as much as the INS + DVL drift itself.
-#: RMS error 2.8 / 2.8 / 3.1 m against DR's 3.8 / 3.5 / 3.9 m (3.7 / 3.8 / 4.3 m without the
-#: last change).
+#: RMS error 2.76 / 2.56 / 3.65 m against DR's 3.79 / 3.53 / 3.88 m (paper values: 2.36 / 3.15 /
+#: 4.93 m, no closure at all: the centroid's random walk).
 BATHY_PARTICLES = 200
 BATHY_FILTER: dict[str, Any] = {"mse_max_m2": 4.0, "lccd": False, "sigma_c2": 0.05, "jitter_a": 0.1}
 
