@@ -91,8 +91,7 @@ def _live(args: argparse.Namespace) -> int:
 
 
 def _offline(args: argparse.Namespace) -> int:
-    from auvgw.commands.slam_run import _error, _fusion_settings
-    from auvgw.recording import RecordingError, iter_recording
+    from auvgw.commands.slam_run import _error, _fusion_settings, replay_recording
     from auvgw.stages.bathymetric import BathymetricStage
     from auvgw.stages.fusion import FusionStage
 
@@ -111,7 +110,6 @@ def _offline(args: argparse.Namespace) -> int:
 
     stage = BathymetricStage(cfg, on_publish=on_publish)
     dr: list[tuple[float, float, float]] = []
-    truth: list[tuple[float, float, float]] = []
 
     def on_odometry(o: Any) -> None:
         dr.append((o.t, o.x, o.y))
@@ -119,20 +117,7 @@ def _offline(args: argparse.Namespace) -> int:
 
     fusion = FusionStage(_fusion_settings(args), on_odometry=on_odometry)
     try:
-        for rec in iter_recording(args.recording, truth=True):
-            if "/truth/" in rec.key:
-                s = rec.messages[0] if rec.messages else None
-                if rec.key.endswith("/pose") and isinstance(s, dict) and "t" in s:
-                    truth.append((float(s["t"]), float(s["x"]), float(s["y"])))
-                continue
-            device = rec.key.rsplit("/", 1)[-1]
-            for msg in rec.messages:
-                fusion.feed(device, rec.t_recv_ns, msg)
-                stage.feed(device, rec.t_recv_ns, msg)
-        fusion.flush()
-        stage.flush()
-    except RecordingError as exc:
-        raise UserError(str(exc)) from None
+        truth = replay_recording(args.recording, [fusion, stage])
     finally:
         if out_file is not None:
             out_file.close()

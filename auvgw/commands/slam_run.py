@@ -142,6 +142,32 @@ def _error(est: list[tuple[float, float, float]], truth: np.ndarray) -> dict[str
             "rmse_pct_distance": 100 * rmse / dist if dist > 0 else math.nan}  # fmt: skip
 
 
+def replay_recording(path: Path, sinks: list[Any]) -> list[tuple[float, float, float]]:
+    """Every message of recording ``path``, decoded as the gateway did, to each sink's
+    ``feed(device, t_recv_ns, message)`` in recorded order, then each sink's ``flush()``;
+    returns the truth poses ``(t, x, y)`` it holds (simulation time). A damaged recording is a
+    :class:`UserError` naming it."""
+    from auvgw.recording import RecordingError, iter_recording
+
+    truth: list[tuple[float, float, float]] = []
+    try:
+        for rec in iter_recording(path, truth=True):
+            if "/truth/" in rec.key:
+                s = rec.messages[0] if rec.messages else None
+                if rec.key.endswith("/pose") and isinstance(s, dict) and "t" in s:
+                    truth.append((float(s["t"]), float(s["x"]), float(s["y"])))
+                continue
+            device = rec.key.rsplit("/", 1)[-1]
+            for msg in rec.messages:
+                for sink in sinks:
+                    sink.feed(device, rec.t_recv_ns, msg)
+        for sink in sinks:
+            sink.flush()
+    except RecordingError as exc:
+        raise UserError(str(exc)) from None
+    return truth
+
+
 def _fusion_settings(args: argparse.Namespace) -> Any:
     from auvgw.stages.fusion import FusionStageConfig, SettingsError, load_stage_config
 
