@@ -335,7 +335,11 @@ def _run_stages(
         viz = open_viz(session, gw_cfg.vehicle, rrd=rrd, connect=args.connect,
                        sections=("slam", "status"))  # fmt: skip
 
+    bathy_map: list[bytes] = []  # the bathymetric stage's latest DEM tile (the whole map last)
+
     def on_slam(key: str, payload: bytes, t_ns: int) -> None:
+        if key.endswith("/bathymetric/map"):
+            bathy_map[:] = [payload]
         if key.endswith("/pose"):
             p = json.loads(payload)
             with lock:
@@ -343,21 +347,23 @@ def _run_stages(
         if viz is not None:
             viz.stage.handle_sample(key, payload, t_ns)
 
-    # SLAM on the MSIS point features and the fusion odometry, fed in-process (publishes on
-    # auv/<v>/slam/<pipeline>/{pose,landmarks} too)
+    # SLAM on the MSIS point features (or, on a survey, the multibeam swaths: bathymetric) and
+    # the fusion odometry, fed in-process (publishes on auv/<v>/slam/<pipeline>/... too)
     from auvgw.drivers import registry
 
     sonar = {dev.format for dev, m in registry.message_types() if "sonar" in m.roles}
     msis = [n for n, d in gw_cfg.devices.items() if d.format in sonar and d.enabled]
-    slam = (
-        None
-        if args.no_slam
-        else SlamStage(
+    slam: Any = None
+    if args.no_slam:
+        pass
+    elif _bathymetric_scenario(scn):
+        slam = _bathy_stage(gw_cfg, session, on_slam)
+    else:
+        slam = SlamStage(
             _slam_config(gw_cfg.vehicle, msis[0] if msis else None, scn),
             session=session,
             on_publish=on_slam,
         )
-    )
     if slam is not None:
         slam.start(subscribe=False)
 
@@ -451,9 +457,10 @@ def _run_stages(
         session.close()
     _report(
         args, status, fusion_counters,
-        None if slam is None else (slam.config.display_name, slam_counters),
+        None if slam is None else (_slam_display_name(slam), slam_counters),
         dead_reckoning, slam_track, truth, rrd, time.monotonic() - t_start, speed,
-        {"ins_time_span_s": ins_span[1] - ins_span[0] if ins_span else 0.0},
+        {"ins_time_span_s": ins_span[1] - ins_span[0] if ins_span else 0.0,
+         **_bathy_map_summary(bathy_map, scn)},
     )  # fmt: skip
     return 0
 
@@ -497,8 +504,9 @@ def _report(
         name, slam_counters = slam
         slam_err = _path_error(slam_track, truth)
         _print_slam(name, slam_counters, slam_err)
+        paper = None if name == BATHY_NAME else VB_PAPER_RMSE_PCT  # the VB paper's figure
         navigation.update(slam=slam_err, slam_algorithm=name,
-                          paper_rmse_pct_distance=VB_PAPER_RMSE_PCT)  # fmt: skip
+                          paper_rmse_pct_distance=paper)  # fmt: skip
     summary = {"devices": status["devices"], "fusion": fusion_counters, "slam": slam_counters,
                "navigation": navigation,
                "rrd": str(rrd) if rrd else None, "wall_s": wall, "speed": speed,
@@ -696,6 +704,7 @@ def _run_processes(
         signal.signal(sig, lambda *_: stop.set())
     t_start = time.monotonic()
     collector: _Collector | None = None
+    map_tap: _BathyMapTap | None = None
     truth_pub = session.declare_publisher(keys.truth("pose"))
     try:
         # the stages first (they need nothing from the sim), so they are up before vehicle t = 0
@@ -708,7 +717,12 @@ def _run_processes(
                                   "--connect", hub, "--listen", _endpoint()])  # fmt: skip
         wanted = {"fusion", "gateway", "ins", "dvl"}
         slam_cfg = None
-        if not args.no_slam:
+        bathy = not args.no_slam and _bathymetric_scenario(scn)
+        if bathy:
+            slam_cfg = _bathy_config(VEHICLE, "multibeam")
+            children.start("slam", _bathy_argv(slam_cfg, hub))
+            wanted |= {"multibeam", "slam-bathymetric"}
+        elif not args.no_slam:
             slam_cfg = _slam_config(VEHICLE, "msis", scn)
             children.start("slam", [
                 "slam-run", "--vehicle", VEHICLE, "--msis", "msis",
@@ -724,6 +738,8 @@ def _run_processes(
         gw_cfg = _load_sim_config(sim_dir)
         epoch_ns: int = gw_cfg.clock.epoch_ns
         collector = _Collector(session, keys, epoch_ns / 1e9)
+        if bathy:
+            map_tap = _BathyMapTap(session, keys)
         gw_argv = ["run", "--config", str(_gateway_toml(sim_dir, out, _endpoint(), hub))]
         if rrd is not None:
             gw_argv += ["--viz-rrd", str(rrd)]
@@ -764,6 +780,8 @@ def _run_processes(
         children.close()
         if collector is not None:
             collector.close()
+        if map_tap is not None:
+            map_tap.close()
         truth_pub.undeclare()
         sub.close()
         session.close()
@@ -776,12 +794,15 @@ def _run_processes(
     c = collector
     assert c is not None
     slam = None
-    if slam_cfg is not None:
+    if bathy:
+        slam = (BATHY_NAME, c.status.get("slam-bathymetric"))
+    elif slam_cfg is not None:
         slam = (slam_cfg.display_name, c.status.get(f"slam-{slam_cfg.pipeline_name}"))
     _report(
         args, status, c.status.get("fusion"), slam, c.dead_reckoning, c.slam, c.truth, rrd, wall,
         speed, {"processes": procs, "odometry_timing": c.timing(),
-                "ready_vehicle_s": ready_vehicle_s},
+                "ready_vehicle_s": ready_vehicle_s,
+                **_bathy_map_summary(map_tap.last if map_tap else [], scn)},
     )  # fmt: skip
     bad = [n for n, p in procs.items() if p["exit_code"] != 0]
     if bad:
@@ -839,15 +860,131 @@ def _print_summary(
 
 def _print_slam(name: str, counters: dict[str, Any], err: dict[str, float] | None) -> None:
     st = counters["stage"]
-    print(f"slam: {st['pings']} scan lines, {st['point_features']} point and "
-          f"{st['line_features']} line features, {st['updates']} updates, "
-          f"{counters['landmarks']} landmarks")  # fmt: skip
+    paper = f" (VB paper sea trial: {VB_PAPER_RMSE_PCT} %)"
+    if counters.get("component") == "slam-bathymetric":
+        _print_bathy(counters)
+        paper = ""
+    else:
+        print(f"slam: {st['pings']} scan lines, {st['point_features']} point and "
+              f"{st['line_features']} line features, {st['updates']} updates, "
+              f"{counters['landmarks']} landmarks")  # fmt: skip
     if err is None:
         print(f"SLAM ({name}) vs truth: not enough SLAM poses or truth to compare")
         return
     print(
         f"SLAM ({name}) vs truth over {err['distance_m']:.0f} m: RMSE {err['rmse_m']:.2f} m "
         f"(x {err['rmse_x_m']:.2f}, y {err['rmse_y_m']:.2f}), final {err['final_m']:.2f} m, "
-        f"RMSE/distance x 100 {err['rmse_pct_distance']:.3f} % "
-        f"(VB paper sea trial: {VB_PAPER_RMSE_PCT} %)"
+        f"RMSE/distance x 100 {err['rmse_pct_distance']:.3f} %{paper}"
     )
+
+
+# -- the bathymetric pipeline on survey scenarios (issue 14) -----------------------------------
+
+#: the bathymetric stage's name in the summary
+BATHY_NAME = "mtm-pf (bathymetric PF-SLAM)"
+#: the demo's bathymetric stage settings (filter values by name, BathyConfig), checked offline
+#: by benchmarks/study_bathy_demo.py on survey.json (1530 pings at 2 m, N = 200, 3 surveys, DR
+#: drifting 0.003 m per ping and axis as the emulated INS + DVL does: RMS error 3.5-3.9 m):
+#: - mse_max_m2 = 4 (paper 0.5): the relief (8 m, four octaves) is rougher than the paper's; a
+#:   particle a few metres off fails the 0.5 m^2 gate, and no crossing ever matched;
+#: - lccd off: the tie line crosses each line once, and LCCD (a closure is accepted only when
+#:   another agrees with it) rejected every crossing;
+#: - sigma_c2 = 0.05 m^2, jitter_a = 0.1 m^2 (paper 1, 1, for its eq. 28 DR): the unweighted
+#:   centroid of N particles random-walks sqrt(T sigma_c2 / N) per axis, 3.7 m over this survey
+#:   with the paper's values, as much as the INS + DVL drift itself.
+#: RMS error 2.76 / 2.56 / 3.65 m against DR's 3.79 / 3.53 / 3.88 m (paper values: 2.36 / 3.15 /
+#: 4.93 m, no closure at all: the centroid's random walk).
+BATHY_PARTICLES = 200
+BATHY_FILTER: dict[str, Any] = {"mse_max_m2": 4.0, "lccd": False, "sigma_c2": 0.05, "jitter_a": 0.1}
+
+
+def _bathymetric_scenario(scn: Any) -> bool:
+    """A survey: multibeam on, no point or line features and no magnetic beacons to map, so the
+    demo's SLAM is the bathymetric pipeline."""
+    return bool(
+        scn.devices.multibeam.enabled
+        and not len(scn.point_features())
+        and not scn.features.lines
+        and not getattr(scn, "magnetic_beacons", None)
+    )
+
+
+def _bathy_config(vehicle: str, multibeam: str | None) -> Any:
+    from auvgw.stages.bathymetric import BathymetricStageConfig
+
+    return BathymetricStageConfig(
+        vehicle=vehicle, multibeam_device=multibeam, n_particles=BATHY_PARTICLES,
+        filter=dict(BATHY_FILTER),
+    )  # fmt: skip
+
+
+def _bathy_stage(gw_cfg: Any, session: Any, on_publish: Any) -> Any:
+    """The in-process bathymetric stage on the gateway's Kongsberg device."""
+    from auvgw.stages.bathymetric import BathymetricStage
+
+    mb = [n for n, d in gw_cfg.devices.items() if d.format == "kongsberg" and d.enabled]
+    cfg = _bathy_config(gw_cfg.vehicle, mb[0] if mb else None)
+    return BathymetricStage(cfg, session=session, on_publish=on_publish)
+
+
+def _bathy_argv(cfg: Any, hub: str) -> list[str]:
+    """``auvgw slam run --pipeline bathymetric`` with the demo's settings, on the hub."""
+    sets = [a for k, v in cfg.filter.items() for a in ("--set", f"{k}={json.dumps(v)}")]
+    return ["slam", "run", "--pipeline", "bathymetric", "--vehicle", cfg.vehicle,
+            "--multibeam", str(cfg.multibeam_device), "--particles", str(cfg.n_particles),
+            "--seed", str(cfg.seed), *sets, "--connect", hub, "--listen", _endpoint()]  # fmt: skip
+
+
+def _slam_display_name(stage: Any) -> str:
+    cfg = stage.config
+    return str(getattr(cfg, "display_name", BATHY_NAME))
+
+
+def _print_bathy(counters: dict[str, Any]) -> None:
+    st = counters["stage"]
+    print(f"slam: {st['swaths']} swaths, {st['pings']} used, {st['bad_swaths']} bad, "
+          f"{counters['loops_accepted']} loop closures accepted, "
+          f"{counters['loops_rejected']} rejected; {st['maps']} maps")  # fmt: skip
+
+
+class _BathyMapTap:
+    """``--processes``: the bathymetric stage's latest ``slam/bathymetric/map`` payload (the
+    whole map once the stage has flushed)."""
+
+    def __init__(self, session: Any, keys: Keys) -> None:
+        self.last: list[bytes] = []
+        self._sub = session.declare_subscriber(keys.slam("bathymetric", "map"), self._on_map)
+
+    def _on_map(self, sample: Any) -> None:
+        self.last[:] = [sample.payload.to_bytes()]
+
+    def close(self) -> None:
+        from auvgw.bus import undeclare
+
+        undeclare([self._sub])
+
+
+def _bathy_map_summary(last: list[bytes], scn: Any) -> dict[str, Any]:
+    """``{"bathymetric_map": ...}``: the stage's last DEM against the scenario's true terrain
+    (depth of each cell centre): cells, mean / median |error| m, share under 2 m (the paper's
+    registration measure); empty when no map was published."""
+    if not last:
+        return {}
+    from auvgw.sim_devices.world import World
+
+    body = json.loads(last[-1])
+    grid = np.array([[math.nan if v is None else v for v in row] for row in body["depth"]], float)
+    i, j = np.nonzero(np.isfinite(grid))
+    cell = float(body["cell_m"])
+    x = float(body["x0"]) + (i + 0.5) * cell
+    y = float(body["y0"]) + (j + 0.5) * cell
+    err = np.abs(grid[i, j] - World.from_scenario(scn).depth(x, y))
+    out = {"cells": len(err), "pings": body.get("pings"), "loops": body.get("loops"),
+           "mean_abs_error_m": float(err.mean()) if len(err) else None,
+           "median_abs_error_m": float(np.median(err)) if len(err) else None,
+           "share_under_2m": float(np.mean(err < 2.0)) if len(err) else None}  # fmt: skip
+    if len(err):
+        print(f"bathymetric map vs true terrain: {out['cells']} cells of {cell:g} m, mean "
+              f"|error| {out['mean_abs_error_m']:.2f} m, {100 * out['share_under_2m']:.1f} % "
+              "under 2 m")  # fmt: skip
+    return {"bathymetric_map": out}

@@ -79,9 +79,11 @@ def configure(p: argparse.ArgumentParser) -> None:
         help="radius of the point targets, m (default 0.6)",
     )
     p.add_argument("--algorithm", default="vb-aufastslam", choices=sorted(ALGORITHMS))
-    p.add_argument("--pipeline", default="landmark", choices=("landmark", "magnetic"),
+    p.add_argument("--pipeline", default="landmark",
+                   choices=("landmark", "magnetic", "bathymetric"),
                    help="landmark: MSIS features (default); magnetic: AMB-SLAM on the MS3A and "
-                   "acoustic beacon (auvgw.commands.magnetic_run)")  # fmt: skip
+                   "acoustic beacon (auvgw.commands.magnetic_run); bathymetric: mtm-pf on the "
+                   "multibeam swaths (auvgw.commands.bathy_run)")  # fmt: skip
     p.add_argument("--scenario", type=Path, default=None, metavar="FILE.json",
                    help="magnetic: beacons scenario giving the channels and the acoustic beacon")
     p.add_argument("--particles", type=int, default=50, help="particles (default 50)")
@@ -98,8 +100,20 @@ def configure(p: argparse.ArgumentParser) -> None:
         help="fusion stage settings (TOML/JSON, as auvgw fusion --settings)",
     )
     p.add_argument("--out", type=Path, default=None, help="offline: JSON lines of the SLAM output")
+    _configure_bathymetric(p)
     add_bus_arguments(p)
     p.set_defaults(func=run)  # fmt: skip
+
+
+def _configure_bathymetric(p: argparse.ArgumentParser) -> None:
+    """The options only ``--pipeline bathymetric`` reads (auvgw.commands.bathy_run)."""
+    p.add_argument(
+        "--multibeam", default=None, help="bathymetric: gateway device of the multibeam (any)"
+    )
+    p.add_argument(
+        "--set", action="append", default=[], metavar="KEY=VALUE",
+        help="bathymetric: a stage or filter setting (repeatable), e.g. radius_m=40",
+    )  # fmt: skip
 
 
 class _Paths:
@@ -126,6 +140,32 @@ def _error(est: list[tuple[float, float, float]], truth: np.ndarray) -> dict[str
     rmse = float(np.sqrt(np.mean(err**2)))
     return {"distance_m": dist, "rmse_m": rmse, "final_m": float(err[-1]),
             "rmse_pct_distance": 100 * rmse / dist if dist > 0 else math.nan}  # fmt: skip
+
+
+def replay_recording(path: Path, sinks: list[Any]) -> list[tuple[float, float, float]]:
+    """Every message of recording ``path``, decoded as the gateway did, to each sink's
+    ``feed(device, t_recv_ns, message)`` in recorded order, then each sink's ``flush()``;
+    returns the truth poses ``(t, x, y)`` it holds (simulation time). A damaged recording is a
+    :class:`UserError` naming it."""
+    from auvgw.recording import RecordingError, iter_recording
+
+    truth: list[tuple[float, float, float]] = []
+    try:
+        for rec in iter_recording(path, truth=True):
+            if "/truth/" in rec.key:
+                s = rec.messages[0] if rec.messages else None
+                if rec.key.endswith("/pose") and isinstance(s, dict) and "t" in s:
+                    truth.append((float(s["t"]), float(s["x"]), float(s["y"])))
+                continue
+            device = rec.key.rsplit("/", 1)[-1]
+            for msg in rec.messages:
+                for sink in sinks:
+                    sink.feed(device, rec.t_recv_ns, msg)
+        for sink in sinks:
+            sink.flush()
+    except RecordingError as exc:
+        raise UserError(str(exc)) from None
+    return truth
 
 
 def _fusion_settings(args: argparse.Namespace) -> Any:
@@ -168,6 +208,10 @@ def run(args: argparse.Namespace) -> int:
         from auvgw.commands import magnetic_run
 
         return magnetic_run.run(args)
+    if args.pipeline == "bathymetric":
+        from auvgw.commands import bathy_run
+
+        return bathy_run.run(args)
     if args.recording is None:
         if args.out is not None or args.fusion_settings is not None:
             raise UserError("--out and --fusion-settings are for --recording (offline) runs")

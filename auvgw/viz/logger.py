@@ -582,6 +582,25 @@ class RerunLogger:
         pose = (float(x), float(y), float(z), float(heading))
         return self._put("swath", (float(t), a[ok], c[ok], d[ok], pose), float(t))
 
+    # bathymetric SLAM map (slam/<p>/cloud and slam/<p>/map DEM tiles) ------------------------
+    def seabed(self, name: str, t: float, points: Any) -> bool:
+        """Soundings placed by a SLAM trajectory, ``points`` (P, 3) x, y (map frame, m), depth
+        (m, down): depth-coloured 3-D points on ``world/<name>/seabed`` (accumulated like the
+        multibeam soundings)."""
+        pts = np.array(points, dtype=np.float64).reshape(-1, 3)
+        pts = pts[np.all(np.isfinite(pts), axis=1)]
+        return self._put("seabed", (str(name), float(t), pts), float(t))
+
+    def dem(self, name: str, t: float, x0: float, y0: float, cell_m: float, depth: Any) -> bool:
+        """A DEM tile of a SLAM map: ``depth[i][j]`` (m, NaN = empty) the mean depth of the
+        ``cell_m`` cell centred at ``x0 + (i + 0.5) cell_m, y0 + (j + 0.5) cell_m`` (map
+        frame): depth-coloured discs on ``map/<name>/dem`` (each tile replaces the last)."""
+        grid = np.array(depth, dtype=np.float64)
+        if grid.ndim != 2:
+            raise ValueError(f"dem: depth must be a 2-D grid, got shape {grid.shape}")
+        args = (str(name), float(t), float(x0), float(y0), float(cell_m), grid)
+        return self._put("dem", args, float(t))
+
     def magnetometer(self, t: float, b_nt: Any) -> bool:
         """Magnetic flux density (nT, sensor axes = body axes): field series, magnitude and an
         arrow on the vehicle."""
@@ -1058,6 +1077,37 @@ class RerunLogger:
                 rr.Transform3D(translation=[u0, v0, 0.0], scale=self._grid.cell),
             )
         self._grid_logged_t = t
+
+    # bathymetric SLAM map ------------------------------------------------------------------
+    def _seabed_colours(self, depth: np.ndarray) -> np.ndarray:
+        if self._depth_range is None and len(depth):
+            lo, hi = float(np.min(depth)), float(np.max(depth))
+            pad = max(1.0, 0.5 * (hi - lo))
+            self._depth_range = (lo - pad, hi + pad)
+        lo, hi = self._depth_range or (0.0, 1.0)
+        return depth_colours(depth, lo, hi)
+
+    def _do_seabed(self, name: str, t: float, pts: np.ndarray) -> None:
+        if not len(pts):
+            return
+        path = ent.world_path(name, "seabed")
+        self._static(path, lambda: rr.Points3D.from_fields(radii=[-2.0]))
+        self._append(path, "points3", t, (pts, self._seabed_colours(pts[:, 2])))
+
+    def _do_dem(
+        self, name: str, t: float, x0: float, y0: float, cell: float, grid: np.ndarray
+    ) -> None:
+        i, j = np.nonzero(np.isfinite(grid))
+        if not len(i):
+            return
+        uv = self._to_map(x0 + (i + 0.5) * cell, y0 + (j + 0.5) * cell)
+        self._set_time(t)
+        self._rec.log(
+            ent.map_path(name, "dem"),
+            rr.Points2D(
+                uv, colors=self._seabed_colours(grid[i, j]), radii=[0.6 * cell], draw_order=-5.0
+            ),
+        )
 
     def _do_mag(self, t: float, b: np.ndarray) -> None:
         self._static(ent.MAG_FIELD, lambda: rr.SeriesLines(names=["x nT", "y nT", "z nT"]))

@@ -16,6 +16,7 @@ role ``field`` (``bx, by, bz`` in nT)          magnetometer (MS3A ASCII or CAN s
 ``nav/odometry``                               ``dead_reckoning`` trajectory with its covariance
 ``slam/<p>/pose``                              ``slam/<p>`` trajectory (+ particles if carried)
 ``slam/<p>/landmarks``, ``slam/<p>/map``       landmarks with covariances, line features
+``slam/<p>/cloud``, ``slam/<p>/map`` (DEM)     seabed points, DEM tile (bathymetric SLAM)
 ``truth/<what>``                               ``truth`` trajectory, true landmarks and lines
 ``status/<device>``                            per-device health series + connection events
 ============================================  ==================================================
@@ -562,9 +563,25 @@ class VizStage(Stage):
         if particles is not None:
             self.logger.particles(name, t, particles, body.get("weights"))
             shown = True
+        if what in ("cloud", "map"):
+            shown |= self._seabed_map(name, body, t)
         if what in ("landmarks", "map"):
             shown |= self._map_features(name, body, t)
         return "logged" if shown else f"slam:{what}"
+
+    def _seabed_map(self, name: str, body: Mapping[str, Any], t: float) -> bool:
+        """Bathymetric SLAM map (auvgw.stages.bathymetric): a ``cloud`` of ``points`` [[x, y,
+        depth]] as seabed points, a DEM tile (``depth`` grid, ``cell_m``, ``x0``, ``y0``)."""
+        if "cell_m" in body and "depth" in body:
+            grid = [[math.nan if v is None else v for v in row] for row in body["depth"]]
+            self.logger.dem(name, t, _float(body["x0"]), _float(body["y0"]),
+                            _float(body["cell_m"]), grid)  # fmt: skip
+            return True
+        pts = body.get("points")
+        if pts is not None and len(pts) and len(pts[0]) == 3:
+            self.logger.seabed(name, t, pts)
+            return True
+        return False
 
     def _truth_msg(self, body: Mapping[str, Any], t_host: float) -> str:
         t = self._clock("truth")(_float(body.get("t")), t_host)
