@@ -346,15 +346,17 @@ def _run_stages(
     # SLAM on the MSIS point features and the fusion odometry, fed in-process (publishes on
     # auv/<v>/slam/<pipeline>/{pose,landmarks} too)
     msis = [n for n, d in gw_cfg.devices.items() if d.format == "seanet" and d.enabled]
-    slam = (
-        None
-        if args.no_slam
-        else SlamStage(
+    slam: Any = None
+    if args.no_slam:
+        pass
+    elif _is_magnetic(scn):  # the magnetic beacons' AMB-SLAM instead of the MSIS features
+        slam = _magnetic_stage(scenario, scn, epoch_ns, session, on_slam)
+    else:
+        slam = SlamStage(
             _slam_config(gw_cfg.vehicle, msis[0] if msis else None, scn),
             session=session,
             on_publish=on_slam,
         )
-    )
     if slam is not None:
         slam.start(subscribe=False)
 
@@ -448,7 +450,7 @@ def _run_stages(
         session.close()
     _report(
         args, status, fusion_counters,
-        None if slam is None else (slam.config.display_name, slam_counters),
+        None if slam is None else (_slam_name(slam), slam_counters),
         dead_reckoning, slam_track, truth, rrd, time.monotonic() - t_start, speed,
         {"ins_time_span_s": ins_span[1] - ins_span[0] if ins_span else 0.0},
     )  # fmt: skip
@@ -493,7 +495,10 @@ def _report(
     if slam is not None and slam[1] is not None:
         name, slam_counters = slam
         slam_err = _path_error(slam_track, truth)
-        _print_slam(name, slam_counters, slam_err)
+        if slam_counters.get("component") == MAGNETIC_COMPONENT:
+            _print_magnetic(name, slam_counters, slam_err, nav)
+        else:
+            _print_slam(name, slam_counters, slam_err)
         navigation.update(slam=slam_err, slam_algorithm=name,
                           paper_rmse_pct_distance=VB_PAPER_RMSE_PCT)  # fmt: skip
     summary = {"devices": status["devices"], "fusion": fusion_counters, "slam": slam_counters,
@@ -705,7 +710,8 @@ def _run_processes(
                                   "--connect", hub, "--listen", _endpoint()])  # fmt: skip
         wanted = {"fusion", "gateway", "ins", "dvl"}
         slam_cfg = None
-        if not args.no_slam:
+        magnetic = not args.no_slam and _is_magnetic(scn)
+        if not args.no_slam and not magnetic:
             slam_cfg = _slam_config(VEHICLE, "msis", scn)
             children.start("slam", [
                 "slam-run", "--vehicle", VEHICLE, "--msis", "msis",
@@ -727,6 +733,9 @@ def _run_processes(
         if args.connect:
             gw_argv += ["--viz-connect", args.connect]
         children.start("gateway", gw_argv)
+        if magnetic:  # after gateway.toml: its [clock] epoch is the beacons' phase reference
+            children.start("slam", _magnetic_argv(scenario, scn, epoch_ns, hub))
+            wanted |= {"magnetometer", "acoustic", MAGNETIC_COMPONENT}
         ready = _wait_alive(sub, wanted, children, 120.0, "--processes")
         ready_vehicle_s = (ready - epoch_ns / 1e9) * speed
         if ready_vehicle_s > 0:
@@ -775,6 +784,8 @@ def _run_processes(
     slam = None
     if slam_cfg is not None:
         slam = (slam_cfg.display_name, c.status.get(f"slam-{slam_cfg.pipeline_name}"))
+    elif magnetic:
+        slam = (MAGNETIC_NAME, c.status.get(MAGNETIC_COMPONENT))
     _report(
         args, status, c.status.get("fusion"), slam, c.dead_reckoning, c.slam, c.truth, rrd, wall,
         speed, {"processes": procs, "odometry_timing": c.timing(),
@@ -848,3 +859,70 @@ def _print_slam(name: str, counters: dict[str, Any], err: dict[str, float] | Non
         f"RMSE/distance x 100 {err['rmse_pct_distance']:.3f} % "
         f"(VB paper sea trial: {VB_PAPER_RMSE_PCT} %)"
     )
+
+
+# -- the beacons scenario: AMB-SLAM on the magnetometer and the acoustic beacon -----------------
+
+#: the magnetic stage's status component and the name the summary gives it
+MAGNETIC_COMPONENT = "slam-magnetic"
+MAGNETIC_NAME = "AMB-SLAM"
+
+
+def _is_magnetic(scn: Any) -> bool:
+    """A scenario for the magnetic stage: magnetic beacons and an emulated magnetometer (the
+    MSIS SLAM stage otherwise)."""
+    return bool(scn.magnetic_beacons) and scn.devices.magnetometer.enabled
+
+
+def _mag_rate_hz(scn: Any) -> float:
+    from auvgw.sim_devices.magnetometer import MagnetometerEmulator
+
+    return float(scn.devices.magnetometer.rate_hz or MagnetometerEmulator.nominal_rate_hz)
+
+
+def _magnetic_stage(
+    scenario: Path, scn: Any, epoch_ns: int, session: Any, on_publish: Any
+) -> Any:
+    """The in-process magnetic stage: the scenario's channels and acoustic beacon, the serial
+    magnetometer timed by its counter from the gateway's epoch (the beacons' phase reference)."""
+    from auvgw.stages.magnetic import MagneticStage, config_from_scenario
+
+    cfg = config_from_scenario(
+        scenario, vehicle=VEHICLE, mag_device="magnetometer", mag_rate_hz=_mag_rate_hz(scn),
+        clock_epoch_s=epoch_ns / 1e9,
+    )  # fmt: skip
+    return MagneticStage(cfg, session=session, on_publish=on_publish)
+
+
+def _magnetic_argv(scenario: Path, scn: Any, epoch_ns: int, hub: str) -> list[str]:
+    """``auvgw slam run --pipeline magnetic`` as the demo's SLAM process (see
+    :func:`_magnetic_stage`)."""
+    return ["slam", "run", "--pipeline", "magnetic", "--vehicle", VEHICLE,
+            "--scenario", str(scenario), "--mag-device", "magnetometer",
+            "--mag-rate", str(_mag_rate_hz(scn)), "--clock-epoch-ns", str(epoch_ns),
+            "--connect", hub, "--listen", _endpoint()]  # fmt: skip
+
+
+def _slam_name(stage: Any) -> str:
+    cfg = stage.config
+    return str(getattr(cfg, "display_name", MAGNETIC_NAME))
+
+
+def _print_magnetic(
+    name: str, counters: dict[str, Any], err: dict[str, float] | None,
+    dr: dict[str, float] | None,
+) -> None:
+    """The magnetic stage's counters and its error against the truth beside dead reckoning's."""
+    st = counters["stage"]
+    print(f"magnetic stage: {st['mag']} magnetometer samples, {st['acoustic']} acoustic fixes, "
+          f"{st['observations']} beacon observations, {counters['landmarks']} beacons mapped, "
+          f"{st['bad_payloads']} bad payloads")  # fmt: skip
+    if err is None:
+        print(f"{name} vs truth: not enough poses or truth to compare")
+        return
+    print(f"{name} vs truth over {err['distance_m']:.0f} m: RMSE {err['rmse_m']:.2f} m "
+          f"(x {err['rmse_x_m']:.2f}, y {err['rmse_y_m']:.2f}), final {err['final_m']:.2f} m, "
+          f"RMSE/distance x 100 {err['rmse_pct_distance']:.3f} %")  # fmt: skip
+    if dr is not None:
+        print(f"  dead reckoning: RMSE/distance x 100 {dr['rmse_pct_distance']:.3f} %; "
+              f"{name} / dead reckoning RMSE: {err['rmse_m'] / dr['rmse_m']:.2f}")  # fmt: skip

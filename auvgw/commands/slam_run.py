@@ -98,6 +98,9 @@ def configure(p: argparse.ArgumentParser) -> None:
         help="fusion stage settings (TOML/JSON, as auvgw fusion --settings)",
     )
     p.add_argument("--out", type=Path, default=None, help="offline: JSON lines of the SLAM output")
+    from auvgw.commands import magnetic_run
+
+    magnetic_run.add_arguments(p)
     add_bus_arguments(p)
     p.set_defaults(func=run)  # fmt: skip
 
