@@ -499,8 +499,9 @@ def _report(
             _print_magnetic(name, slam_counters, slam_err, nav)
         else:
             _print_slam(name, slam_counters, slam_err)
-        navigation.update(slam=slam_err, slam_algorithm=name,
-                          paper_rmse_pct_distance=VB_PAPER_RMSE_PCT)  # fmt: skip
+        navigation.update(slam=slam_err, slam_algorithm=name)
+        if slam_counters.get("component") != MAGNETIC_COMPONENT:
+            navigation["paper_rmse_pct_distance"] = VB_PAPER_RMSE_PCT
     summary = {"devices": status["devices"], "fusion": fusion_counters, "slam": slam_counters,
                "navigation": navigation,
                "rrd": str(rrd) if rrd else None, "wall_s": wall, "speed": speed,
@@ -737,6 +738,9 @@ def _run_processes(
             children.start("slam", _magnetic_argv(scenario, scn, epoch_ns, hub))
             wanted |= {"magnetometer", "acoustic", MAGNETIC_COMPONENT}
         ready = _wait_alive(sub, wanted, children, 120.0, "--processes")
+        if magnetic and rrd is not None:  # the true beacons, for the gateway's Rerun recording
+            body = {"t": 0.0, **_true_beacons(scn)}
+            session.put(keys.truth("map"), json.dumps(body).encode())
         ready_vehicle_s = (ready - epoch_ns / 1e9) * speed
         if ready_vehicle_s > 0:
             print(f"  warning: every part was up only at vehicle t = {ready_vehicle_s:.1f} s "
@@ -808,6 +812,9 @@ def _log_true_map(viz: Any, keys: Keys, scenario: Path) -> None:
         for x1, y1, x2, y2 in scn.features.lines
     ]  # fmt: skip
     body = {"t": 0.0, "landmarks": [list(p) for p in scn.point_features()], "lines": lines}
+    beacons = _true_beacons(scn)
+    body["landmarks"] += beacons.pop("landmarks", [])
+    body.update(beacons)
     viz.stage.handle_sample(keys.truth("map"), json.dumps(body).encode(), time.time_ns())
 
 
@@ -926,3 +933,14 @@ def _print_magnetic(
     if dr is not None:
         print(f"  dead reckoning: RMSE/distance x 100 {dr['rmse_pct_distance']:.3f} %; "
               f"{name} / dead reckoning RMSE: {err['rmse_m'] / dr['rmse_m']:.2f}")  # fmt: skip
+
+
+def _true_beacons(scn: Any) -> dict[str, Any]:
+    """The scenario's magnetic beacons (``landmarks``, [x, y] m) and acoustic beacon
+    (``acoustic_beacon``) for ``truth/map`` (nothing without beacons)."""
+    out: dict[str, Any] = {}
+    if scn.magnetic_beacons:
+        out["landmarks"] = [[b.x, b.y] for b in scn.magnetic_beacons]
+    if scn.acoustic_beacon is not None:
+        out["acoustic_beacon"] = [scn.acoustic_beacon.x, scn.acoustic_beacon.y]
+    return out

@@ -31,7 +31,8 @@ output.
 Published (JSON, the shapes of ``docs/viz.md``): ``auv/<v>/slam/magnetic/pose`` (``t``, ``x``,
 ``y``, ``heading``, ``cov`` 3x3) after every demodulated window (every ``hop_s`` of magnetometer
 time) and at most every ``publish_period_s`` of odometry time; ``.../landmarks`` (``t``,
-``mean``, ``cov``, ``ids``: the beacons) with each pose after a window; ``.../observations``
+``mean``, ``cov``, ``ids``: the beacons; ``acoustic_beacon``: its known ``[x, y]``) with
+each pose after a window; ``.../observations``
 (one per demodulated beacon observation: ``t``, ``freq``, ``amp_nt``, ``snr``, ``z`` = [range m,
 bearing rad], ``r``, plus ``x``, ``y``, ``heading`` of the pose it is seen from, for range
 lines). Counters on ``auv/<v>/status/slam-magnetic``. A malformed payload is counted and
@@ -333,8 +334,11 @@ class MagneticStage(Stage):
             n = f.n_lm
             mean = f.xs[3 : 3 + 2 * n].reshape(n, 2)
             cov = [f.p[3 + 2 * i : 5 + 2 * i, 3 + 2 * i : 5 + 2 * i].tolist() for i in range(n)]
-            self._put("landmarks", {"t": t, "mean": mean.tolist(), "cov": cov,
-                                    "ids": list(range(n))}, t)  # fmt: skip
+            body: dict[str, Any] = {"t": t, "mean": mean.tolist(), "cov": cov,
+                                    "ids": list(range(n))}  # fmt: skip
+            if self.config.anchor_xy is not None:
+                body["acoustic_beacon"] = list(self.config.anchor_xy)
+            self._put("landmarks", body, t)
 
     def status_fields(self) -> dict[str, Any]:
         """Algorithm and the number of beacons mapped."""

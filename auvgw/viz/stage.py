@@ -236,6 +236,8 @@ class VizStage(Stage):
         self._clocks: dict[str, DeviceClock] = {}
         self._nav: tuple[float, float, float, float] | None = None
         self._truth: tuple[float, float, float, float] | None = None
+        #: magnetic-beacon ranges of the latest window: ((map name, t), beacon positions)
+        self._ranges: tuple[tuple[str, float], list[tuple[float, float]]] = (("", math.nan), [])
         self._status: dict[str, tuple[Any, Any]] = {}
         self._t_last = 0.0
         self._sensor_handlers: dict[str, Callable[[str, Any, float], None]] = {
@@ -519,6 +521,10 @@ class VizStage(Stage):
                 c = None
             self.logger.landmarks(name, t, mean, c, ids)
             shown = True
+        ab = body.get("acoustic_beacon")
+        if isinstance(ab, list | tuple) and len(ab) >= 2:
+            self.logger.acoustic_beacon(name, t, _float(ab[0]), _float(ab[1]))
+            shown = True
         lines = body.get("lines")
         if lines is not None:
             rho, theta, lcov, ends = _lines(lines)
@@ -542,7 +548,27 @@ class VizStage(Stage):
             shown = True
         if what in ("landmarks", "map"):
             shown |= self._map_features(name, body, t)
+        if what == "observations":
+            shown |= self._beacon_ranges(name, body, t)
         return "logged" if shown else f"slam:{what}"
+
+    def _beacon_ranges(self, name: str, body: Mapping[str, Any], t: float) -> bool:
+        """One magnetic-beacon observation (``slam/magnetic/observations``: ``z`` = [range m,
+        bearing rad from the heading] seen from ``x``, ``y``, ``heading``): a line from the
+        vehicle to where it places the beacon."""
+        z = body.get("z")
+        pose = self._pose_of(body)
+        if not isinstance(z, list | tuple) or len(z) < 2 or pose is None:
+            return False
+        x, y, _, h = pose
+        r, b = _float(z[0]), _float(z[1])
+        end = (x + r * math.cos(h + b), y + r * math.sin(h + b))
+        # the observations of one demodulated window share its time: drawn together
+        if self._ranges[0] != (name, t):
+            self._ranges = ((name, t), [])
+        self._ranges[1].append(end)
+        self.logger.ranges(name, t, (x, y), self._ranges[1])
+        return True
 
     def _truth_msg(self, body: Mapping[str, Any], t_host: float) -> str:
         t = self._clock("truth")(_float(body.get("t")), t_host)
