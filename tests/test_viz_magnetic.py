@@ -13,11 +13,13 @@ import numpy as np
 
 from auvgw.commands.demo import _true_beacons
 from auvgw.config.scenario import load_scenario
+from auvgw.slam.magnetic.stream import stage_inputs
 from auvgw.stages.magnetic import MagneticStage, config_from_scenario
 from auvgw.viz.logger import RerunLogger
 from auvgw.viz.readback import read_recording
 from auvgw.viz.stage import VizStage
-from tests.test_magnetic_stage import SCENARIO, _increment, _odometry, _run_data
+
+SCENARIO = Path(__file__).resolve().parents[1] / "config" / "scenarios" / "beacons_amb.json"
 
 
 def _to_map(x: float, y: float) -> tuple[float, float]:
@@ -25,7 +27,8 @@ def _to_map(x: float, y: float) -> tuple[float, float]:
 
 
 def test_beacons_ellipses_ranges_and_acoustic_beacon_read_back(tmp_path: Path) -> None:
-    prep, sim, ts, b_body, dr, att_u = _run_data(1200)  # 30 s, 150 m: the first beacon passed
+    inputs = stage_inputs(SCENARIO, 1200)  # 30 s, 150 m: the first beacon passed
+    sim = inputs.prep.sim
     path = tmp_path / "amb.rrd"
     logger = RerunLogger(rrd=path)
     viz = VizStage(logger, "auv1")
@@ -40,20 +43,7 @@ def test_beacons_ellipses_ranges_and_acoustic_beacon_read_back(tmp_path: Path) -
     scn = load_scenario(SCENARIO)
     truth_map = json.dumps({"t": 0.0, **_true_beacons(scn)}).encode()
     assert viz.handle_sample("auv/auv1/truth/map", truth_map, 0) == "logged"
-    scan_t = sim.obs_step * sim.dt
-    k_mag = 0
-    for k in range(len(sim.controls) + 1):
-        t = k * sim.dt
-        a = np.array([np.interp(t, ts, att_u[:, i]) for i in range(3)])
-        inc = _increment(t - sim.dt, sim.dt, dr[k - 1], dr[k]) if k else None
-        stage.feed_odometry(_odometry(t, dr[k], a, inc))
-        while k_mag < len(ts) and ts[k_mag] <= t:
-            stage.feed_mag(float(ts[k_mag]), b_body[k_mag])
-            k_mag += 1
-        i = int(np.searchsorted(scan_t, t - 1e-9))
-        if i < len(scan_t) and abs(scan_t[i] - t) < 1e-9 and not np.isnan(prep.acoustic_z[i, 0]):
-            rng_m, brg = prep.acoustic_z[i]
-            stage.feed_acoustic(t + 2 * rng_m / cfg.sound_speed_mps, rng_m, brg, 0.0)
+    inputs.feed(stage)
     stage.flush()
     viz.stop()
     logger.close()

@@ -109,20 +109,22 @@ class MagneticStageConfig(BaseModel):
     clock_epoch_s: float = 0.0
     publish_period_s: float = Field(0.2, gt=0)
     odometry_window_s: float = Field(30.0, gt=0)
+    odometry_period_s: float = Field(0.05, ge=0)
     max_pending_mag: int = Field(20_000, ge=1)
     status_period_s: float = Field(1.0, gt=0)
     queue_size: int = Field(100_000, ge=1)
 
 
 def config_from_scenario(path: Path, **kw: Any) -> MagneticStageConfig:
-    """Stage settings from a beacons scenario: the beacons' frequencies and the acoustic
-    beacon's horizontal position."""
+    """Stage settings from a beacons scenario: the beacons' frequencies, the acoustic beacon's
+    horizontal position and the sound speed (``kw``: the other settings)."""
     from auvgw.config.scenario import load_scenario
 
     scn = load_scenario(path)
     freqs = sorted({float(b.frequency_hz) for b in scn.magnetic_beacons})
     ab = scn.acoustic_beacon
     anchor = (float(ab.x), float(ab.y)) if ab is not None else None
+    kw.setdefault("sound_speed_mps", scn.sound_speed_mps)
     return MagneticStageConfig(channels_hz=freqs, anchor_xy=anchor, **kw)
 
 
@@ -175,6 +177,10 @@ class MagneticStage(Stage):
         self._pos: deque[tuple[float, float, float]] = deque()  # x, y, z
         self._mags: deque[tuple[float, np.ndarray]] = deque()
         self._t_pub: float | None = None
+        self._t_odo = -math.inf  # end of the odometry given to the filter (input clock, s)
+        self._t_mag = math.nan  # the newest magnetometer sample given to the filter
+        #: odometry being composed: dx, dy (m, body frame at its start), dheading, dt, count
+        self._acc: tuple[float, float, float, float, int] = (0.0, 0.0, 0.0, 0.0, 0)
         self._t0 = cfg.clock_epoch_s  # vehicle clock zero on the input clock, s
         self._mag_device = cfg.mag_device
         self._counter: tuple[int, int] | None = None  # (last raw counter, wraps * modulus)
@@ -209,10 +215,9 @@ class MagneticStage(Stage):
                 return
             if self.online is None:
                 self.online = self._make(o)
+                self._t_odo = o.t
             elif o.increment is not None:
-                inc = o.increment
-                u = np.array([inc.v_forward, inc.v_starboard, inc.yaw_rate])
-                self.online.add_odometry(o.t - self._t0, u, inc.dt)
+                self._compose(o.t, o.increment)
             h = o.heading
             if self._att:
                 h = self._att[-1][0] + math.remainder(h - self._att[-1][0], math.tau)
@@ -220,12 +225,28 @@ class MagneticStage(Stage):
             self._att.append((h, o.pitch, o.roll))
             self._pos.append((o.x, o.y, o.z))
             self._drain_mag()
-            if self._t_pub is None or o.t - self._t_pub >= self.config.publish_period_s:
-                self._publish_pose(o.t, landmarks=False)
+            if self._pose_due():
+                self._publish_pose(landmarks=False)
             while self._t_att and self._t_att[0] < o.t - self.config.odometry_window_s:
                 self._t_att.popleft()
                 self._att.popleft()
                 self._pos.popleft()
+
+    def _compose(self, t: float, inc: Any) -> None:
+        """Compose odometry increments (``dx`` forward, ``dy`` starboard in the body frame at
+        the start, m; ``dheading`` rad) over ``odometry_period_s`` into one filter prediction
+        ending at ``t``, its control noise scaled by ``1/n`` (the variance of ``n`` steps)."""
+        assert self.online is not None
+        dx, dy, dh, dt, n = self._acc
+        c, s = math.cos(dh), math.sin(dh)
+        self._acc = (dx + c * inc.dx - s * inc.dy, dy + s * inc.dx + c * inc.dy,
+                     dh + inc.dheading, dt + inc.dt, n + 1)  # fmt: skip
+        dx, dy, dh, dt, n = self._acc
+        if dt >= self.config.odometry_period_s - 1e-9 and dt > 0:
+            self.online.add_odometry(t - self._t0, np.array([dx / dt, dy / dt, dh / dt]), dt,
+                                     q_scale=1.0 / n)  # fmt: skip
+            self._acc = (0.0, 0.0, 0.0, 0.0, 0)
+            self._t_odo = t
 
     def feed_mag(self, t: float, b_body_nt: np.ndarray) -> None:
         """One magnetometer sample (body axes, nT) at ``t`` (odometry clock)."""
@@ -308,27 +329,36 @@ class MagneticStage(Stage):
                 self.stats.mag_before_odometry += 1
                 continue
             self.stats.mag += 1
+            self._t_mag = t
             x, y, hd = self.online.filt.xs[:3]
             for ob in obs:
                 self.stats.observations += 1
                 d = asdict(ob)
                 d.update(t=ob.t + self._t0, x=float(x), y=float(y), heading=float(hd))
                 self._put("observations", d, t)
-            if obs or self._t_pub is None or t - self._t_pub >= self.config.publish_period_s:
-                self._publish_pose(t, landmarks=True)
+            if obs or self._pose_due():
+                self._publish_pose(landmarks=True)
 
     # -- outputs ---------------------------------------------------------------------------------
     def _put(self, what: str, body: dict[str, Any], t: float) -> None:
         self.publish_json(what, body, t, f"Magnetic{what.capitalize()}")
 
-    def _publish_pose(self, t: float, landmarks: bool) -> None:
+    def _pose_due(self) -> bool:
+        p = self.config.publish_period_s
+        return self._t_pub is None or self._t_odo - self._t_pub >= p
+
+    def _publish_pose(self, landmarks: bool) -> None:
+        """The pose at the end of the odometry given to the filter (``t``) and, with
+        ``landmarks``, the beacon map."""
         assert self.online is not None
         x, p = self.online.pose()
+        t = self._t_odo
         self._t_pub = t
         self.stats.published += 1
         self.track.append((t, float(x[0]), float(x[1]), float(x[2])))
+        t_mag = None if math.isnan(self._t_mag) else self._t_mag
         self._put("pose", {"t": t, "x": float(x[0]), "y": float(x[1]), "heading": float(x[2]),
-                           "cov": p.tolist()}, t)  # fmt: skip
+                           "cov": p.tolist(), "t_mag": t_mag}, t)  # fmt: skip
         if landmarks:
             f = self.online.filt
             n = f.n_lm
@@ -349,7 +379,7 @@ class MagneticStage(Stage):
         """Publish the current pose and beacon map (end of data)."""
         with self._lock:
             if self.online is not None and self._t_pub is not None:
-                self._publish_pose(self._t_pub, landmarks=True)
+                self._publish_pose(landmarks=True)
 
     # -- on the bus ------------------------------------------------------------------------------
     def dispatch(self, env: Envelope, message: Any) -> None:
