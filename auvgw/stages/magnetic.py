@@ -29,10 +29,12 @@ the vehicle clock); every time is shifted by it before the demodulator and the f
 output.
 
 Published (JSON, the shapes of ``docs/viz.md``): ``auv/<v>/slam/magnetic/pose`` (``t``, ``x``,
-``y``, ``heading``, ``cov`` 3x3) after every demodulated window (every ``hop_s`` of magnetometer
-time) and at most every ``publish_period_s`` of odometry time; ``.../landmarks`` (``t``,
-``mean``, ``cov``, ``ids``: the beacons; ``acoustic_beacon``: its known ``[x, y]``) with
-each pose after a window; ``.../observations``
+``y``, ``heading``, ``cov`` 3x3; ``t`` the end of the odometry applied, odometry composed over
+``odometry_period_s`` per filter prediction) after every demodulated window (every ``hop_s`` of
+magnetometer time; ``t_mag``: the sample that completed it, for latency) and otherwise every
+``publish_period_s`` of odometry time (``t_mag`` null); ``.../landmarks`` (``t``, ``mean``,
+``cov``, ``ids``: the beacons; ``acoustic_beacon``: its known ``[x, y]``) with each pose after a
+window; ``.../observations``
 (one per demodulated beacon observation: ``t``, ``freq``, ``amp_nt``, ``snr``, ``z`` = [range m,
 bearing rad], ``r``, plus ``x``, ``y``, ``heading`` of the pose it is seen from, for range
 lines). Counters on ``auv/<v>/status/slam-magnetic``. A malformed payload is counted and
@@ -178,7 +180,6 @@ class MagneticStage(Stage):
         self._mags: deque[tuple[float, np.ndarray]] = deque()
         self._t_pub: float | None = None
         self._t_odo = -math.inf  # end of the odometry given to the filter (input clock, s)
-        self._t_mag = math.nan  # the newest magnetometer sample given to the filter
         #: odometry being composed: dx, dy (m, body frame at its start), dheading, dt, count
         self._acc: tuple[float, float, float, float, int] = (0.0, 0.0, 0.0, 0.0, 0)
         self._t0 = cfg.clock_epoch_s  # vehicle clock zero on the input clock, s
@@ -324,20 +325,20 @@ class MagneticStage(Stage):
                 a0, a1 = self._att[k - 1], self._att[k]
                 h, p, r = (a0[i] + w * (a1[i] - a0[i]) for i in range(3))
             try:
+                horizon = self.online.horizon
                 obs = self.online.add_mag(t - self._t0, b, h, p, r)
             except ValueError:  # out of order
                 self.stats.mag_before_odometry += 1
                 continue
             self.stats.mag += 1
-            self._t_mag = t
             x, y, hd = self.online.filt.xs[:3]
             for ob in obs:
                 self.stats.observations += 1
                 d = asdict(ob)
                 d.update(t=ob.t + self._t0, x=float(x), y=float(y), heading=float(hd))
                 self._put("observations", d, t)
-            if obs or self._pose_due():
-                self._publish_pose(landmarks=True)
+            if self.online.horizon != horizon:  # a window was demodulated
+                self._publish_pose(landmarks=True, t_mag=t)
 
     # -- outputs ---------------------------------------------------------------------------------
     def _put(self, what: str, body: dict[str, Any], t: float) -> None:
@@ -347,16 +348,16 @@ class MagneticStage(Stage):
         p = self.config.publish_period_s
         return self._t_pub is None or self._t_odo - self._t_pub >= p
 
-    def _publish_pose(self, landmarks: bool) -> None:
+    def _publish_pose(self, landmarks: bool, t_mag: float | None = None) -> None:
         """The pose at the end of the odometry given to the filter (``t``) and, with
-        ``landmarks``, the beacon map."""
+        ``landmarks``, the beacon map; ``t_mag``: the magnetometer sample that completed the
+        window it follows."""
         assert self.online is not None
         x, p = self.online.pose()
         t = self._t_odo
         self._t_pub = t
         self.stats.published += 1
         self.track.append((t, float(x[0]), float(x[1]), float(x[2])))
-        t_mag = None if math.isnan(self._t_mag) else self._t_mag
         self._put("pose", {"t": t, "x": float(x[0]), "y": float(x[1]), "heading": float(x[2]),
                            "cov": p.tolist(), "t_mag": t_mag}, t)  # fmt: skip
         if landmarks:
