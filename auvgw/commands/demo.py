@@ -14,6 +14,13 @@ and SLAM poses and the components' status, stops the children (SIGINT, then kill
 their exit codes. Vehicle time 0 is held back until every part is up (``auvgw sim
 --start-delay``), so dead reckoning starts from the scenario's start pose.
 
+``--scenario beacons`` (a scenario with magnetic beacons and a magnetometer): the SLAM stage is
+the magnetic one (AMB-SLAM on the MS3A samples, the acoustic beacon's replies and the fusion
+odometry; ``auvgw slam run --pipeline magnetic`` with ``--processes``, started once the sim's
+``[clock]`` epoch, the beacons' phase reference, is known); the summary prints its counters and
+its error against the truth beside dead reckoning's (RMSE / distance x 100), and the Rerun
+recording gets the true and estimated beacons, their ellipses, the ranges and the acoustic beacon.
+
 Time: the emulators run ``speed`` times faster than the host clock, so the device clocks advance
 ``speed`` vehicle seconds per host second. ``auvgw sim`` writes the gateway's ``[clock]`` section
 (``time_scale = speed``, ``epoch_ns`` = host time of vehicle time 0), so the gateway stamps

@@ -236,6 +236,7 @@ class VizStage(Stage):
         self._clocks: dict[str, DeviceClock] = {}
         self._nav: tuple[float, float, float, float] | None = None
         self._truth: tuple[float, float, float, float] | None = None
+        self._acoustic: dict[str, tuple[float, float]] = {}  # acoustic beacon logged, per map
         #: magnetic-beacon ranges of the latest window: ((map name, t), beacon positions)
         self._ranges: tuple[tuple[str, float], list[tuple[float, float]]] = (("", math.nan), [])
         self._status: dict[str, tuple[Any, Any]] = {}
@@ -523,7 +524,10 @@ class VizStage(Stage):
             shown = True
         ab = body.get("acoustic_beacon")
         if isinstance(ab, list | tuple) and len(ab) >= 2:
-            self.logger.acoustic_beacon(name, t, _float(ab[0]), _float(ab[1]))
+            xy = (_float(ab[0]), _float(ab[1]))
+            if self._acoustic.get(name) != xy:  # a fixed position: logged when it changes
+                self._acoustic[name] = xy
+                self.logger.acoustic_beacon(name, t, *xy)
             shown = True
         lines = body.get("lines")
         if lines is not None:
