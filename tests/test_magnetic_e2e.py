@@ -83,3 +83,35 @@ def test_amb_slam_beats_dead_reckoning(beacons_run) -> None:
     assert amb["rmse_pct_distance"] < 0.6 * dr["rmse_pct_distance"], nav
     assert amb["rmse_m"] < 3.5, amb
     assert "AMB-SLAM vs truth over" in stdout and "RMSE/distance x 100" in stdout
+
+
+def test_in_process_demo_prints_amb_slam_and_records_the_beacons(tmp_path) -> None:
+    """``auvgw demo --scenario beacons`` (gateway, fusion, magnetic stage and Rerun in one
+    process, the emulators in another): the summary compares AMB-SLAM with dead reckoning, and
+    the recording read back holds the 20 true beacons, the estimated ones with their ellipses,
+    the ranges of each window and the acoustic beacon."""
+    from auvgw.viz.readback import read_recording
+
+    res = subprocess.run(
+        [sys.executable, "-m", "auvgw", "demo", "--scenario", "beacons", "--duration", "60",
+         "--speed", str(SPEED), "--out", str(tmp_path)],
+        capture_output=True, text=True, timeout=240,
+    )  # fmt: skip
+    assert res.returncode == 0, res.stdout + res.stderr
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    nav = summary["navigation"]
+    assert nav["slam_algorithm"] == "AMB-SLAM" and summary["slam"]["component"] == "slam-magnetic"
+    assert summary["slam"]["stage"]["observations"] >= 20 and summary["slam"]["landmarks"] >= 2
+    assert nav["slam"]["rmse_m"] < 3.5 and nav["dead_reckoning"] is not None
+    assert "AMB-SLAM vs truth over" in res.stdout
+    rec = read_recording(tmp_path / "demo.rrd")
+    assert len(rec["map/truth/landmarks"].values("Points2D:positions")[-1]) == 20
+    est = rec["map/slam/magnetic/landmarks"]
+    n_est = len(est.values("Points2D:positions")[-1])
+    assert n_est >= 2 and len(est.values("LineStrips2D:strips")[-1]) == n_est
+    ranges = rec["map/slam/magnetic/ranges"].values("LineStrips2D:strips")
+    assert len(ranges) == summary["slam"]["stage"]["observations"]
+    # the acoustic beacon at (250, 250) NED: map (east, -north)
+    for name in ("truth", "slam/magnetic"):
+        ab = rec[f"map/{name}/acoustic_beacon"].values("Points2D:positions")[-1]
+        assert ab == [[250.0, -250.0]], (name, ab)
