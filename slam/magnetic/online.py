@@ -161,7 +161,7 @@ class MagneticOnline:
             if kind == 0:
                 u, dt, qs = payload
                 q = self.filt.q
-                self.filt.q = q * qs  # type: ignore[operator]
+                self.filt.q = q * qs
                 try:
                     self.filt.predict(u, dt, rng)  # type: ignore[arg-type]
                 finally:
