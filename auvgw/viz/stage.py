@@ -237,8 +237,8 @@ class VizStage(Stage):
         self._nav: tuple[float, float, float, float] | None = None
         self._truth: tuple[float, float, float, float] | None = None
         self._acoustic: dict[str, tuple[float, float]] = {}  # acoustic beacon logged, per map
-        #: magnetic-beacon ranges of the latest window: ((map name, t), beacon positions)
-        self._ranges: tuple[tuple[str, float], list[tuple[float, float]]] = (("", math.nan), [])
+        #: magnetic-beacon ranges of the latest window, per map: (t, beacon positions)
+        self._ranges: dict[str, tuple[float, list[tuple[float, float]]]] = {}
         self._status: dict[str, tuple[Any, Any]] = {}
         self._t_last = 0.0
         self._sensor_handlers: dict[str, Callable[[str, Any, float], None]] = {
@@ -567,11 +567,16 @@ class VizStage(Stage):
         x, y, _, h = pose
         r, b = _float(z[0]), _float(z[1])
         end = (x + r * math.cos(h + b), y + r * math.sin(h + b))
-        # the observations of one demodulated window share its time: drawn together
-        if self._ranges[0] != (name, t):
-            self._ranges = ((name, t), [])
-        self._ranges[1].append(end)
-        self.logger.ranges(name, t, (x, y), self._ranges[1])
+        # the observations of one demodulated window share its time and are drawn together; an
+        # older window's (or one received twice, from the bus and in process) is not redrawn
+        t_last, ends = self._ranges.get(name, (-math.inf, []))
+        if t < t_last or end in ends:
+            return True
+        if t > t_last:
+            ends = []
+        ends.append(end)
+        self._ranges[name] = (t, ends)
+        self.logger.ranges(name, t, (x, y), ends)
         return True
 
     def _truth_msg(self, body: Mapping[str, Any], t_host: float) -> str:
