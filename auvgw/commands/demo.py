@@ -14,6 +14,13 @@ and SLAM poses and the components' status, stops the children (SIGINT, then kill
 their exit codes. Vehicle time 0 is held back until every part is up (``auvgw sim
 --start-delay``), so dead reckoning starts from the scenario's start pose.
 
+``--scenario beacons`` (a scenario with magnetic beacons and a magnetometer): the SLAM stage is
+the magnetic one (AMB-SLAM on the MS3A samples, the acoustic beacon's replies and the fusion
+odometry; ``auvgw slam run --pipeline magnetic`` with ``--processes``, started once the sim's
+``[clock]`` epoch, the beacons' phase reference, is known); the summary prints its counters and
+its error against the truth beside dead reckoning's (RMSE / distance x 100), and the Rerun
+recording gets the true and estimated beacons, their ellipses, the ranges and the acoustic beacon.
+
 Time: the emulators run ``speed`` times faster than the host clock, so the device clocks advance
 ``speed`` vehicle seconds per host second. ``auvgw sim`` writes the gateway's ``[clock]`` section
 (``time_scale = speed``, ``epoch_ns`` = host time of vehicle time 0), so the gateway stamps
@@ -347,8 +354,9 @@ def _run_stages(
         if viz is not None:
             viz.stage.handle_sample(key, payload, t_ns)
 
-    # SLAM on the MSIS point features (or, on a survey, the multibeam swaths: bathymetric) and
-    # the fusion odometry, fed in-process (publishes on auv/<v>/slam/<pipeline>/... too)
+    # SLAM on the MSIS point features (or, on a survey, the multibeam swaths: bathymetric; with
+    # magnetic beacons, AMB-SLAM) and the fusion odometry, fed in-process (publishes on
+    # auv/<v>/slam/<pipeline>/... too)
     from auvgw.drivers import registry
 
     sonar = {dev.format for dev, m in registry.message_types() if "sonar" in m.roles}
@@ -356,6 +364,8 @@ def _run_stages(
     slam: Any = None
     if args.no_slam:
         pass
+    elif _is_magnetic(scn):  # the magnetic beacons' AMB-SLAM instead of the MSIS features
+        slam = _magnetic_stage(scenario, scn, epoch_ns, session, on_slam)
     elif _bathymetric_scenario(scn):
         slam = _bathy_stage(gw_cfg, session, on_slam)
     else:
@@ -457,7 +467,7 @@ def _run_stages(
         session.close()
     _report(
         args, status, fusion_counters,
-        None if slam is None else (_slam_display_name(slam), slam_counters),
+        None if slam is None else (_slam_name(slam), slam_counters),
         dead_reckoning, slam_track, truth, rrd, time.monotonic() - t_start, speed,
         {"ins_time_span_s": ins_span[1] - ins_span[0] if ins_span else 0.0,
          **_bathy_map_summary(bathy_map, scn)},
@@ -503,8 +513,13 @@ def _report(
     if slam is not None and slam[1] is not None:
         name, slam_counters = slam
         slam_err = _path_error(slam_track, truth)
-        _print_slam(name, slam_counters, slam_err)
-        paper = None if name == BATHY_NAME else VB_PAPER_RMSE_PCT  # the VB paper's figure
+        if slam_counters.get("component") == MAGNETIC_COMPONENT:
+            _print_magnetic(name, slam_counters, slam_err, nav)
+        else:
+            _print_slam(name, slam_counters, slam_err)
+        # the VB paper's figure, for the landmark SLAM stage only
+        landmark = name != BATHY_NAME and slam_counters.get("component") != MAGNETIC_COMPONENT
+        paper = VB_PAPER_RMSE_PCT if landmark else None
         navigation.update(slam=slam_err, slam_algorithm=name,
                           paper_rmse_pct_distance=paper)  # fmt: skip
     summary = {"devices": status["devices"], "fusion": fusion_counters, "slam": slam_counters,
@@ -718,11 +733,12 @@ def _run_processes(
         wanted = {"fusion", "gateway", "ins", "dvl"}
         slam_cfg = None
         bathy = not args.no_slam and _bathymetric_scenario(scn)
+        magnetic = not args.no_slam and _is_magnetic(scn)
         if bathy:
             slam_cfg = _bathy_config(VEHICLE, "multibeam")
             children.start("slam", _bathy_argv(slam_cfg, hub))
             wanted |= {"multibeam", "slam-bathymetric"}
-        elif not args.no_slam:
+        elif not args.no_slam and not magnetic:
             slam_cfg = _slam_config(VEHICLE, "msis", scn)
             children.start("slam", [
                 "slam-run", "--vehicle", VEHICLE, "--msis", "msis",
@@ -746,7 +762,13 @@ def _run_processes(
         if args.connect:
             gw_argv += ["--viz-connect", args.connect]
         children.start("gateway", gw_argv)
+        if magnetic:  # after gateway.toml: its [clock] epoch is the beacons' phase reference
+            children.start("slam", _magnetic_argv(scenario, scn, epoch_ns, hub))
+            wanted |= {"magnetometer", "acoustic", MAGNETIC_COMPONENT}
         ready = _wait_alive(sub, wanted, children, 120.0, "--processes")
+        if magnetic and rrd is not None:  # the true beacons, for the gateway's Rerun recording
+            body = {"t": 0.0, **_true_beacons(scn)}
+            session.put(keys.truth("map"), json.dumps(body).encode())
         ready_vehicle_s = (ready - epoch_ns / 1e9) * speed
         if ready_vehicle_s > 0:
             print(f"  warning: every part was up only at vehicle t = {ready_vehicle_s:.1f} s "
@@ -798,6 +820,8 @@ def _run_processes(
         slam = (BATHY_NAME, c.status.get("slam-bathymetric"))
     elif slam_cfg is not None:
         slam = (slam_cfg.display_name, c.status.get(f"slam-{slam_cfg.pipeline_name}"))
+    elif magnetic:
+        slam = (MAGNETIC_NAME, c.status.get(MAGNETIC_COMPONENT))
     _report(
         args, status, c.status.get("fusion"), slam, c.dead_reckoning, c.slam, c.truth, rrd, wall,
         speed, {"processes": procs, "odometry_timing": c.timing(),
@@ -821,6 +845,9 @@ def _log_true_map(viz: Any, keys: Keys, scenario: Path) -> None:
         for x1, y1, x2, y2 in scn.features.lines
     ]  # fmt: skip
     body = {"t": 0.0, "landmarks": [list(p) for p in scn.point_features()], "lines": lines}
+    beacons = _true_beacons(scn)
+    body["landmarks"] += beacons.pop("landmarks", [])
+    body.update(beacons)
     viz.stage.handle_sample(keys.truth("map"), json.dumps(body).encode(), time.time_ns())
 
 
@@ -935,9 +962,12 @@ def _bathy_argv(cfg: Any, hub: str) -> list[str]:
             "--seed", str(cfg.seed), *sets, "--connect", hub, "--listen", _endpoint()]  # fmt: skip
 
 
-def _slam_display_name(stage: Any) -> str:
-    cfg = stage.config
-    return str(getattr(cfg, "display_name", BATHY_NAME))
+def _slam_name(stage: Any) -> str:
+    """The in-process SLAM stage's name in the summary."""
+    name = getattr(stage.config, "display_name", None)
+    if name is not None:
+        return str(name)
+    return BATHY_NAME if type(stage).__name__ == "BathymetricStage" else MAGNETIC_NAME
 
 
 def _print_bathy(counters: dict[str, Any]) -> None:
@@ -988,3 +1018,76 @@ def _bathy_map_summary(last: list[bytes], scn: Any) -> dict[str, Any]:
               f"|error| {out['mean_abs_error_m']:.2f} m, {100 * out['share_under_2m']:.1f} % "
               "under 2 m")  # fmt: skip
     return {"bathymetric_map": out}
+
+
+# -- the beacons scenario: AMB-SLAM on the magnetometer and the acoustic beacon -----------------
+
+#: the magnetic stage's status component and the name the summary gives it
+MAGNETIC_COMPONENT = "slam-magnetic"
+MAGNETIC_NAME = "AMB-SLAM"
+
+
+def _is_magnetic(scn: Any) -> bool:
+    """A scenario for the magnetic stage: magnetic beacons and an emulated magnetometer (the
+    MSIS SLAM stage otherwise)."""
+    return bool(scn.magnetic_beacons) and scn.devices.magnetometer.enabled
+
+
+def _mag_rate_hz(scn: Any) -> float:
+    from auvgw.sim_devices.magnetometer import MagnetometerEmulator
+
+    return float(scn.devices.magnetometer.rate_hz or MagnetometerEmulator.nominal_rate_hz)
+
+
+def _magnetic_stage(
+    scenario: Path, scn: Any, epoch_ns: int, session: Any, on_publish: Any
+) -> Any:
+    """The in-process magnetic stage: the scenario's channels and acoustic beacon, the serial
+    magnetometer timed by its counter from the gateway's epoch (the beacons' phase reference)."""
+    from auvgw.stages.magnetic import MagneticStage, config_from_scenario
+
+    cfg = config_from_scenario(
+        scenario, vehicle=VEHICLE, mag_device="magnetometer", mag_rate_hz=_mag_rate_hz(scn),
+        clock_epoch_s=epoch_ns / 1e9,
+    )  # fmt: skip
+    return MagneticStage(cfg, session=session, on_publish=on_publish)
+
+
+def _magnetic_argv(scenario: Path, scn: Any, epoch_ns: int, hub: str) -> list[str]:
+    """``auvgw slam run --pipeline magnetic`` as the demo's SLAM process (see
+    :func:`_magnetic_stage`)."""
+    return ["slam", "run", "--pipeline", "magnetic", "--vehicle", VEHICLE,
+            "--scenario", str(scenario), "--mag-device", "magnetometer",
+            "--mag-rate", str(_mag_rate_hz(scn)), "--clock-epoch-ns", str(epoch_ns),
+            "--connect", hub, "--listen", _endpoint()]  # fmt: skip
+
+
+def _print_magnetic(
+    name: str, counters: dict[str, Any], err: dict[str, float] | None,
+    dr: dict[str, float] | None,
+) -> None:
+    """The magnetic stage's counters and its error against the truth beside dead reckoning's."""
+    st = counters["stage"]
+    print(f"magnetic stage: {st['mag']} magnetometer samples, {st['acoustic']} acoustic fixes, "
+          f"{st['observations']} beacon observations, {counters['landmarks']} beacons mapped, "
+          f"{st['bad_payloads']} bad payloads")  # fmt: skip
+    if err is None:
+        print(f"{name} vs truth: not enough poses or truth to compare")
+        return
+    print(f"{name} vs truth over {err['distance_m']:.0f} m: RMSE {err['rmse_m']:.2f} m "
+          f"(x {err['rmse_x_m']:.2f}, y {err['rmse_y_m']:.2f}), final {err['final_m']:.2f} m, "
+          f"RMSE/distance x 100 {err['rmse_pct_distance']:.3f} %")  # fmt: skip
+    if dr is not None:
+        print(f"  dead reckoning: RMSE/distance x 100 {dr['rmse_pct_distance']:.3f} %; "
+              f"{name} / dead reckoning RMSE: {err['rmse_m'] / dr['rmse_m']:.2f}")  # fmt: skip
+
+
+def _true_beacons(scn: Any) -> dict[str, Any]:
+    """The scenario's magnetic beacons (``landmarks``, [x, y] m) and acoustic beacon
+    (``acoustic_beacon``) for ``truth/map`` (nothing without beacons)."""
+    out: dict[str, Any] = {}
+    if scn.magnetic_beacons:
+        out["landmarks"] = [[b.x, b.y] for b in scn.magnetic_beacons]
+    if scn.acoustic_beacon is not None:
+        out["acoustic_beacon"] = [scn.acoustic_beacon.x, scn.acoustic_beacon.y]
+    return out

@@ -9,6 +9,10 @@ subscribes to ``auv/<V>/nav/odometry``, ``auv/<V>/sensor/*/magnetometer`` and
 ``auv/<V>/sensor/*/acousticreply``; publishes ``auv/<V>/slam/magnetic/{pose,landmarks,
 observations}`` and counters on ``auv/<V>/status/slam-magnetic``. The scenario gives the beacon
 channels and the acoustic beacon's position (:func:`~auvgw.stages.magnetic.config_from_scenario`).
+``--mag-device NAME`` takes one magnetometer device (default: the first seen); ``--mag-rate HZ``
+times its samples by their counter at that rate from ``--clock-epoch-ns`` (the gateway's
+``[clock] epoch_ns``, vehicle time 0: the beacons' phase reference) instead of by the receive
+stamps (``auvgw demo --scenario beacons`` passes all three).
 
 Offline (``--recording run.mcap``): the recorded frames decoded as the gateway did, the fusion
 stage's odometry and the magnetometer / acoustic messages fed to the same stage; prints the
@@ -27,8 +31,21 @@ import numpy as np
 from auvgw.cli import UserError
 
 
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The magnetic pipeline's own options (on ``auvgw slam run``'s parser)."""
+    g = p.add_argument_group("magnetic pipeline (--pipeline magnetic)")
+    g.add_argument("--mag-device", default=None, metavar="NAME",
+                   help="gateway device of the magnetometer (default: the first seen)")
+    g.add_argument("--mag-rate", type=float, default=None, metavar="HZ",
+                   help="time the magnetometer samples by their counter at HZ from "
+                   "--clock-epoch-ns (default: by the receive stamps)")
+    g.add_argument("--clock-epoch-ns", type=int, default=0, metavar="NS",
+                   help="vehicle time 0 on the stamp clock, ns (the gateway's [clock] epoch_ns; "
+                   "the beacons' phase reference; default 0)")  # fmt: skip
+
+
 def stage_config(args: argparse.Namespace, vehicle: str) -> Any:
-    """The stage's settings from ``--scenario`` (required)."""
+    """The stage's settings from ``--scenario`` (required) and the magnetic options."""
     from pydantic import ValidationError
 
     from auvgw.stages.magnetic import config_from_scenario
@@ -38,7 +55,11 @@ def stage_config(args: argparse.Namespace, vehicle: str) -> Any:
     if not args.scenario.is_file():
         raise UserError(f"{args.scenario}: no such scenario file")
     try:
-        return config_from_scenario(args.scenario, vehicle=vehicle)
+        return config_from_scenario(
+            args.scenario, vehicle=vehicle, mag_device=getattr(args, "mag_device", None),
+            mag_rate_hz=getattr(args, "mag_rate", None),
+            clock_epoch_s=getattr(args, "clock_epoch_ns", 0) / 1e9,
+        )  # fmt: skip
     except (ValidationError, ValueError) as exc:
         raise UserError(f"{args.scenario}: {exc}") from None
 

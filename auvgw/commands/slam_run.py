@@ -101,6 +101,9 @@ def configure(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--out", type=Path, default=None, help="offline: JSON lines of the SLAM output")
     _configure_bathymetric(p)
+    from auvgw.commands import magnetic_run
+
+    magnetic_run.add_arguments(p)
     add_bus_arguments(p)
     p.set_defaults(func=run)  # fmt: skip
 

@@ -97,6 +97,10 @@ class LoggerStats:
 
 
 # -- geometry helpers (pure, also used by tests) ------------------------------------------------
+#: the acoustic beacon's marker (magenta)
+ACOUSTIC_COLOUR = (230, 0, 230)
+
+
 def depth_colours(depth: np.ndarray, lo: float, hi: float) -> np.ndarray:
     """RGB (n, 3) uint8 of depths (m) on the turbo-like scale: ``lo`` dark blue, ``hi`` dark red."""
     span = hi - lo if hi > lo else 1.0
@@ -618,6 +622,20 @@ class RerunLogger:
         """A text event of one device (``health/<device>/events``)."""
         return self._put("event", (str(device), float(t), str(text), str(level)), float(t))
 
+    # -- magnetic beacons (AMB-SLAM) --------------------------------------------------------
+    def ranges(self, name: str, t: float, origin: Any, targets: Any) -> bool:
+        """Beacon observations of ``name`` (``slam/magnetic``): one line per observed beacon
+        from the vehicle at ``origin (x, y)`` to ``targets (K, 2)`` (m, map frame), on
+        ``map/<name>/ranges``; replaces the previous set."""
+        o = np.array(origin, dtype=np.float64).reshape(2)
+        tg = np.array(targets, dtype=np.float64).reshape(-1, 2)
+        return self._put("ranges", (name, float(t), o, tg), float(t))
+
+    def acoustic_beacon(self, name: str, t: float, x: float, y: float) -> bool:
+        """The acoustic beacon (a fixed, known position, m) of map ``name``, on
+        ``map/<name>/acoustic_beacon``."""
+        return self._put("acoustic_beacon", (name, float(t), float(x), float(y)), float(t))
+
     # -- the logging thread ----------------------------------------------------------------
     def _run(self) -> None:
         rec = self._rec
@@ -1129,3 +1147,21 @@ class RerunLogger:
     def _do_event(self, device: str, t: float, text: str, level: str) -> None:
         self._set_time(t)
         self._rec.log(ent.events_path(device), rr.TextLog(text, level=level))
+
+    # -- magnetic beacons (AMB-SLAM) --------------------------------------------------------
+    def _do_ranges(self, name: str, t: float, origin: np.ndarray, targets: np.ndarray) -> None:
+        self._set_time(t)
+        seg = np.stack([np.broadcast_to(origin, targets.shape), targets], axis=1)
+        self._rec.log(
+            ent.map_path(name, "ranges"),
+            rr.LineStrips2D(list(self._to_map(seg[..., 0], seg[..., 1])),
+                            colors=[self._colour(name)], radii=[-1.0], draw_order=[25.0]),
+        )  # fmt: skip
+
+    def _do_acoustic_beacon(self, name: str, t: float, x: float, y: float) -> None:
+        self._set_time(t)
+        self._rec.log(
+            ent.map_path(name, "acoustic_beacon"),
+            rr.Points2D(self._to_map([x], [y]), colors=[ACOUSTIC_COLOUR], radii=[-7.0],
+                        labels=["acoustic beacon"], draw_order=[50.0]),
+        )  # fmt: skip

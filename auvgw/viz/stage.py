@@ -236,6 +236,9 @@ class VizStage(Stage):
         self._clocks: dict[str, DeviceClock] = {}
         self._nav: tuple[float, float, float, float] | None = None
         self._truth: tuple[float, float, float, float] | None = None
+        self._acoustic: dict[str, tuple[float, float]] = {}  # acoustic beacon logged, per map
+        #: magnetic-beacon ranges of the latest window, per map: (t, beacon positions)
+        self._ranges: dict[str, tuple[float, list[tuple[float, float]]]] = {}
         self._status: dict[str, tuple[Any, Any]] = {}
         self._t_last = 0.0
         #: device registry role -> handler; a message type is shown by the first of its roles
@@ -542,6 +545,13 @@ class VizStage(Stage):
                 c = None
             self.logger.landmarks(name, t, mean, c, ids)
             shown = True
+        ab = body.get("acoustic_beacon")
+        if isinstance(ab, list | tuple) and len(ab) >= 2:
+            xy = (_float(ab[0]), _float(ab[1]))
+            if self._acoustic.get(name) != xy:  # a fixed position: logged when it changes
+                self._acoustic[name] = xy
+                self.logger.acoustic_beacon(name, t, *xy)
+            shown = True
         lines = body.get("lines")
         if lines is not None:
             rho, theta, lcov, ends = _lines(lines)
@@ -567,6 +577,8 @@ class VizStage(Stage):
             shown |= self._seabed_map(name, body, t)
         if what in ("landmarks", "map"):
             shown |= self._map_features(name, body, t)
+        if what == "observations":
+            shown |= self._beacon_ranges(name, body, t)
         return "logged" if shown else f"slam:{what}"
 
     def _seabed_map(self, name: str, body: Mapping[str, Any], t: float) -> bool:
@@ -582,6 +594,29 @@ class VizStage(Stage):
             self.logger.seabed(name, t, pts)
             return True
         return False
+
+    def _beacon_ranges(self, name: str, body: Mapping[str, Any], t: float) -> bool:
+        """One magnetic-beacon observation (``slam/magnetic/observations``: ``z`` = [range m,
+        bearing rad from the heading] seen from ``x``, ``y``, ``heading``): a line from the
+        vehicle to where it places the beacon."""
+        z = body.get("z")
+        pose = self._pose_of(body)
+        if not isinstance(z, list | tuple) or len(z) < 2 or pose is None:
+            return False
+        x, y, _, h = pose
+        r, b = _float(z[0]), _float(z[1])
+        end = (x + r * math.cos(h + b), y + r * math.sin(h + b))
+        # the observations of one demodulated window share its time and are drawn together; an
+        # older window's (or one received twice, from the bus and in process) is not redrawn
+        t_last, ends = self._ranges.get(name, (-math.inf, []))
+        if t < t_last or end in ends:
+            return True
+        if t > t_last:
+            ends = []
+        ends.append(end)
+        self._ranges[name] = (t, ends)
+        self.logger.ranges(name, t, (x, y), ends)
+        return True
 
     def _truth_msg(self, body: Mapping[str, Any], t_host: float) -> str:
         t = self._clock("truth")(_float(body.get("t")), t_host)
