@@ -411,8 +411,8 @@ class DeadReckoningEKF:
         The gate is applied against the (adapted) noise before the update: adapting, the
         quantile of the VB predictive (:func:`predictive_gate`, ``dvl_gate_predictive``), else
         chi-square; a rejected fix changes nothing (a spike does not inflate the learned noise)
-        unless ``force``. Adapting with ``dvl_noise_rescale``, the velocity rows and columns of
-        the covariance are then scaled by ``sqrt(mean(R_new / R_old))``.
+        unless ``force``. Adapting with ``dvl_noise_rescale``, the velocity covariance is then
+        scaled by ``sqrt(mean(R_new / R_old))`` along the measured directions.
         Returns ``(accepted, NIS, innovation / sqrt(diag S))`` (NaN for missing components); a
         fix without any finite component returns ``(False, nan, nans)``.
         """
@@ -468,11 +468,14 @@ class DeadReckoningEKF:
             # the velocity covariance was learned from fixes weighed with the previous noise
             # estimate: it scales with the noise (West & Harrison's variance learning), so a
             # velocity fitted to the first fixes under a too-small spec noise is not held with
-            # a too-small covariance while the learned noise grows
+            # a too-small covariance while the learned noise grows. Only the measured directions
+            # (rows of H: orthonormal, a rotation's) are scaled, unmeasured ones keep theirs.
             d = math.sqrt(float(np.mean(r_diag / (b_pri[mask] / a_pri[mask]))))
+            Hv = H[:, _VEL]
+            D = np.eye(3) + (d - 1.0) * (Hv.T @ Hv)
             P = self.P
-            P[_VEL, :] *= d
-            P[:, _VEL] *= d
+            P[_VEL, :] = D @ P[_VEL, :]
+            P[:, _VEL] = P[:, _VEL] @ D
         return True, nis, norm
 
     def update_position(
