@@ -35,7 +35,8 @@ Models
   with constant acceleration too (trapezoid). Depth integrates the vertical NED velocity.
 * DVL: ``z = M^T (v + omega x r)`` in instrument axes (``z = v + omega x r`` for body-axes
   fixes), with ``M`` the mounting rotation, ``r`` the lever arm and ``omega`` the body rate at
-  the DVL's own time; missing components are left out; innovations are chi-square gated.
+  the DVL's own time; missing components are left out; innovations are gated (chi-square,
+  or while the noise is learned the VB predictive: :func:`predictive_gate`).
 * Depth: ``z = z_ref + (C r_p)_z`` for a pressure sensor at lever arm ``r_p``.
 
 The covariance is propagated with the Jacobian of this step (``P <- F P F^T + Q``) and updated
