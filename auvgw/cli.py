@@ -12,7 +12,7 @@ import importlib
 import logging
 import sys
 from pathlib import Path
-from typing import TextIO
+from typing import Any, TextIO
 
 #: command name -> (module, one-line help), in the order ``auvgw --help`` lists them. Only the
 #: module of the command being run is imported, so ``auvgw --help`` imports none of them (no
@@ -56,6 +56,15 @@ COMMANDS: dict[str, tuple[str, str]] = {
 
 class UserError(Exception):
     """A problem the user can fix (bad file, bad config); printed as one line, exit code 2."""
+
+
+def add_command(sub: Any, name: str, doc: str | None) -> argparse.ArgumentParser:
+    """The parser of command ``name`` (its help line from :data:`COMMANDS`, ``doc``, the
+    module docstring, as its description, line breaks kept)."""
+    return sub.add_parser(  # type: ignore[no-any-return]
+        name, help=COMMANDS[name][1], description=doc,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )  # fmt: skip
 
 
 def open_output(path: Path | None) -> TextIO | None:

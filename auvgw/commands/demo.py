@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 
 from auvgw.bus import Keys, decode_envelope, encode_envelope, open_session
-from auvgw.cli import UserError
+from auvgw.cli import UserError, add_command
 from auvgw.config.bus import BusConfig
 from auvgw.config.gateway import ConfigError, load_gateway_config
 from auvgw.config.scenario import ScenarioError, load_scenario
@@ -55,12 +55,7 @@ VB_PAPER_RMSE_PCT = 0.742
 
 
 def register(sub: Any) -> None:
-    p = sub.add_parser(
-        "demo",
-        help="run the emulated vehicle, gateway, fusion, SLAM and Rerun recording (main job)",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    p = add_command(sub, "demo", __doc__)
     p.add_argument(
         "--scenario",
         default=DEFAULT_SCENARIO,
