@@ -385,7 +385,7 @@ def _run_stages(
 
     ins_span: list[float] = []  # device time of the first and the latest INS sample, s
 
-    def on_message(device: str, t_ns: int, msg: Any) -> None:
+    def to_fusion(device: str, t_ns: int, msg: Any) -> None:
         # t_ns: the gateway's vehicle-paced stamp (its [clock] section)
         if device == "ins" and hasattr(msg, "time"):
             ins_span[1:] = [float(msg.time)]
@@ -394,10 +394,6 @@ def _run_stages(
                 fusion_box.append(start_fusion(float(msg.time)))
         if fusion_box:
             fusion_box[0].feed(device, t_ns, msg)
-        if slam is not None:
-            slam.post(device, t_ns, msg)
-        if viz is not None:
-            viz.on_message(device, t_ns, msg)
 
     truth_pub = session.declare_publisher(keys.truth("pose"))
 
@@ -410,7 +406,10 @@ def _run_stages(
             viz.stage.handle_sample(keys.truth("pose"), body, epoch_ns + int(sample["t"] * 1e9))
 
     tail = _TruthTail(sim_dir / "truth.jsonl", on_truth)
-    gateway = Gateway(gw_cfg, session=session, on_message=on_message)
+    gateway = Gateway(gw_cfg, session=session)
+    for listener in (to_fusion, slam and slam.post, viz and viz.on_message):
+        if listener:
+            gateway.listeners.subscribe(listener)
     if viz is not None:
         _log_true_map(viz, keys, scenario)
     stop = threading.Event()

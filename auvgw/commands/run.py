@@ -174,7 +174,7 @@ def serve(settings: RunSettings, stop: threading.Event | None = None) -> int:
             connect=settings.viz_connect,
             sections=("nav", "slam", "truth", "status"),
         )
-        gateway.on_message = viz.on_message
+        gateway.listeners.subscribe(viz.on_message)
     with handle_stop_signals(stop):
         try:
             gateway.start()
