@@ -13,6 +13,7 @@ the ``beacon`` id.
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 from typing import Any
 
@@ -28,7 +29,7 @@ from auvgw.drivers.tablecodec import (
 )
 from auvgw.paths import config_file
 
-__all__ = ["CODEC", "FORMAT", "REQUIRED_FIELDS", "AcousticCodec", "AcousticFramer", "AcousticReply"]
+__all__ = ["FORMAT", "REQUIRED_FIELDS", "AcousticCodec", "AcousticFramer", "default_codec"]
 
 #: fields every acoustic table must declare: name -> decoded units ('' = integer count)
 REQUIRED_FIELDS: dict[str, str] = {
@@ -66,10 +67,21 @@ class AcousticCodec(AsciiLineCodec):
         return AcousticFramer(self, policy=policy, source=source)
 
 
-#: the codec of the shipped table
-CODEC: AcousticCodec = AcousticCodec.from_toml()
-#: message class of the shipped table
-AcousticReply = CODEC.message_type
+@functools.cache
+def default_codec() -> AcousticCodec:
+    """The codec of the shipped table, read on first use (importing this module reads no
+    file)."""
+    return AcousticCodec.from_toml()
+
+
+def __getattr__(name: str) -> Any:
+    """``CODEC`` (:func:`default_codec`) and ``AcousticReply``, the shipped table's
+    message class (a site table builds its own class of that name), built on first use."""
+    if name == "CODEC":
+        return default_codec()
+    if name == "AcousticReply":
+        return default_codec().message_type
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 class AcousticFramer(AsciiLineFramer):
@@ -82,18 +94,19 @@ class AcousticFramer(AsciiLineFramer):
         policy: ErrorPolicy | str = ErrorPolicy.LOG,
         source: str = "",
     ) -> None:
-        super().__init__((codec or CODEC).spec, policy=policy, source=source, name="acoustic")
+        spec = (codec or default_codec()).spec
+        super().__init__(spec, policy=policy, source=source, name="acoustic")
 
 
 def _decode(frame: bytes) -> list[Any]:
-    return [CODEC.decode(frame)]
+    return [default_codec().decode(frame)]
 
 
 FORMAT = Format(
     name="acoustic",
     summary="an acoustic beacon (transponder/USBL) ASCII capture (auvgw assumed layout, "
     "config/acoustic.toml)",
-    framer=CODEC.framer,
+    framer=lambda *a, **k: default_codec().framer(*a, **k),
     decode=_decode,
-    encode=CODEC.encode,
+    encode=lambda m: default_codec().encode(m),
 )

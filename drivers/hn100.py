@@ -13,6 +13,7 @@ status word and its flags ``aligned``, ``gnss_aided``, ``dvl_aided``, ``error``.
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 from typing import Any
 
@@ -31,13 +32,12 @@ from auvgw.drivers.tablecodec import (
 from auvgw.paths import config_file
 
 __all__ = [
-    "CODEC",
     "FORMAT",
     "REQUIRED_FIELDS",
     "REQUIRED_FLAGS",
     "Hn100Codec",
     "Hn100Framer",
-    "Hn100Nav",
+    "default_codec",
 ]
 
 #: fields every HN-100 table must declare: name -> decoded units ('' = integer count)
@@ -118,10 +118,21 @@ class Hn100Codec(BinaryFrameCodec):
         return Hn100Framer(self, policy=policy, source=source)
 
 
-#: the codec of the shipped table
-CODEC: Hn100Codec = Hn100Codec.from_toml()
-#: message class of the shipped table (a site table builds its own class of the same name)
-Hn100Nav = CODEC.message_type
+@functools.cache
+def default_codec() -> Hn100Codec:
+    """The codec of the shipped table, read on first use (importing this module reads no
+    file)."""
+    return Hn100Codec.from_toml()
+
+
+def __getattr__(name: str) -> Any:
+    """``CODEC`` (:func:`default_codec`) and ``Hn100Nav``, the shipped table's
+    message class (a site table builds its own class of that name), built on first use."""
+    if name == "CODEC":
+        return default_codec()
+    if name == "Hn100Nav":
+        return default_codec().message_type
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 class Hn100Framer(BinaryFrameFramer):
@@ -133,17 +144,18 @@ class Hn100Framer(BinaryFrameFramer):
         policy: ErrorPolicy | str = ErrorPolicy.LOG,
         source: str = "",
     ) -> None:
-        super().__init__((codec or CODEC).spec, policy=policy, source=source, name="hn100")
+        spec = (codec or default_codec()).spec
+        super().__init__(spec, policy=policy, source=source, name="hn100")
 
 
 def _decode(frame: bytes) -> list[Any]:
-    return [CODEC.decode(frame)]
+    return [default_codec().decode(frame)]
 
 
 FORMAT = Format(
     name="hn100",
     summary="an HN-100 INS binary capture (auvgw assumed layout, config/hn100.toml)",
-    framer=CODEC.framer,
+    framer=lambda *a, **k: default_codec().framer(*a, **k),
     decode=_decode,
-    encode=CODEC.encode,
+    encode=lambda m: default_codec().encode(m),
 )

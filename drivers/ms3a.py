@@ -11,6 +11,7 @@ Decoded :data:`Ms3aSample` messages carry the sample ``counter`` and the flux de
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 from typing import Any
 
@@ -28,7 +29,7 @@ from auvgw.drivers.tablecodec import (
 )
 from auvgw.paths import config_file
 
-__all__ = ["CODEC", "FORMAT", "REQUIRED_FIELDS", "Ms3aCodec", "Ms3aFramer", "Ms3aSample"]
+__all__ = ["FORMAT", "REQUIRED_FIELDS", "Ms3aCodec", "Ms3aFramer", "default_codec"]
 
 #: fields every MS3A table must declare: name -> decoded units ('' = integer count)
 REQUIRED_FIELDS: dict[str, str] = {"counter": "", "bx": "nT", "by": "nT", "bz": "nT"}
@@ -79,10 +80,21 @@ class Ms3aCodec(AsciiLineCodec):
         return Ms3aFramer(self, policy=policy, source=source)
 
 
-#: the codec of the shipped table
-CODEC: Ms3aCodec = Ms3aCodec.from_toml()
-#: message class of the shipped table (a site table builds its own class of the same name)
-Ms3aSample = CODEC.message_type
+@functools.cache
+def default_codec() -> Ms3aCodec:
+    """The codec of the shipped table, read on first use (importing this module reads no
+    file)."""
+    return Ms3aCodec.from_toml()
+
+
+def __getattr__(name: str) -> Any:
+    """``CODEC`` (:func:`default_codec`) and ``Ms3aSample``, the shipped table's
+    message class (a site table builds its own class of that name), built on first use."""
+    if name == "CODEC":
+        return default_codec()
+    if name == "Ms3aSample":
+        return default_codec().message_type
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 class Ms3aFramer(AsciiLineFramer):
@@ -94,17 +106,18 @@ class Ms3aFramer(AsciiLineFramer):
         policy: ErrorPolicy | str = ErrorPolicy.LOG,
         source: str = "",
     ) -> None:
-        super().__init__((codec or CODEC).spec, policy=policy, source=source, name="ms3a")
+        spec = (codec or default_codec()).spec
+        super().__init__(spec, policy=policy, source=source, name="ms3a")
 
 
 def _decode(frame: bytes) -> list[Any]:
-    return [CODEC.decode(frame)]
+    return [default_codec().decode(frame)]
 
 
 FORMAT = Format(
     name="ms3a",
     summary="an MS3A magnetometer ASCII capture (auvgw assumed layout, config/ms3a.toml)",
-    framer=CODEC.framer,
+    framer=lambda *a, **k: default_codec().framer(*a, **k),
     decode=_decode,
-    encode=CODEC.encode,
+    encode=lambda m: default_codec().encode(m),
 )
