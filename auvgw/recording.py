@@ -56,6 +56,7 @@ from auvgw.bus import (
 )
 from auvgw.config.gateway import ConfigError, GatewayConfig, format_validation_error
 from auvgw.decoding import DeviceDecoder, make_decoders
+from auvgw.errors import DataError
 from auvgw.paths import config_file
 
 log = logging.getLogger(__name__)
@@ -93,7 +94,7 @@ _ATT_LEN = struct.Struct("<H")
 _STOP = "stop"
 
 
-class RecordingError(ValueError):
+class RecordingError(DataError):
     """A recording that cannot be read or used; the message names the file."""
 
 

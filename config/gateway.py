@@ -51,6 +51,7 @@ from auvgw.config.transport import (
     SerialTransportConfig,
     TransportConfig,
 )
+from auvgw.errors import ConfigError
 
 __all__ = [
     "DEVICE_FORMATS",
@@ -68,10 +69,6 @@ __all__ = [
 DEVICE_FORMATS = ("pd0", "pd6", "seanet", "kongsberg", "hn100", "ms3a", "acoustic", "can")
 
 _NAME_CHARS = "letters, digits, '_' or '-'"
-
-
-class ConfigError(ValueError):
-    """An unusable configuration; one line per problem, each naming the file and the field."""
 
 
 class _Model(BaseModel):

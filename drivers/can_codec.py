@@ -31,6 +31,7 @@ import cantools
 
 from auvgw.drivers.spec import message
 from auvgw.drivers.tablecodec import UNITS
+from auvgw.errors import DataError
 from auvgw.paths import config_file
 
 __all__ = [
@@ -55,7 +56,7 @@ def _where(exc: BaseException) -> str:
         return f"not text (byte {exc.start} is not valid {exc.encoding})"
     return "invalid DBC syntax" + (f" at line {m[1]}, column {m[2]}" if m else "")
 
-class CanCodecError(ValueError):
+class CanCodecError(DataError):
     """A CAN frame or message that the DBC cannot decode or encode (names message and signal)."""
 
 

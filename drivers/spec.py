@@ -33,6 +33,8 @@ from typing import Any, TypeVar
 
 import numpy as np
 
+from auvgw.errors import DataError
+
 __all__ = [
     "Wire",
     "WireError",
@@ -78,7 +80,7 @@ MESSAGE_TYPES: dict[str, type] = {}
 CLASS_CACHE_SIZE = 256
 
 
-class WireError(ValueError):
+class WireError(DataError):
     """A value cannot be decoded from or encoded to the wire (names message, field, offset)."""
 
 
@@ -159,9 +161,7 @@ def _wire_fields(cls: type) -> list[tuple[str, Wire]]:
     cached = cls.__dict__.get("__wire_fields__")
     if cached is not None:
         return cached
-    out = [
-        (f.name, f.metadata["wire"]) for f in dataclasses.fields(cls) if "wire" in f.metadata
-    ]
+    out = [(f.name, f.metadata["wire"]) for f in dataclasses.fields(cls) if "wire" in f.metadata]
     cls.__wire_fields__ = out  # type: ignore[attr-defined]
     return out
 
@@ -256,7 +256,9 @@ def _from_si(cls: type, name: str, w: Wire, value: Any) -> Any:
             if w.invalid is not None:
                 raw = np.where(bad, w.invalid, raw)
             elif bad.any():
-                raise WireError(f"{cls.__name__}.{name}: NaN but the field has no invalid code")
+                raise WireError(
+                    "NaN but the field has no invalid code", field=f"{cls.__name__}.{name}"
+                )
         else:
             raw = arr
         if is_int:
@@ -270,7 +272,9 @@ def _from_si(cls: type, name: str, w: Wire, value: Any) -> Any:
     if w.is_scaled:
         if isinstance(value, float) and math.isnan(value):
             if w.invalid is None:
-                raise WireError(f"{cls.__name__}.{name}: NaN but the field has no invalid code")
+                raise WireError(
+                    "NaN but the field has no invalid code", field=f"{cls.__name__}.{name}"
+                )
             return w.invalid
         raw = (value - w.add) / w.scale
         value = round(raw) if is_int else raw
@@ -303,9 +307,9 @@ def decode_block(
         size = w.nbytes(ctx)
         if start + size > n:
             raise WireError(
-                f"{cls.__name__}.{name}: needs bytes {start}..{start + size - 1}, "
-                f"block ends at {n}"
-            )
+                f"needs bytes {start}..{start + size - 1}, block ends at {n}",
+                field=f"{cls.__name__}.{name}", offset=start,
+            )  # fmt: skip
         if w.type == "bytes":
             raw: Any = bytes(buf[start : start + size])
         elif w.type == "str":
@@ -338,18 +342,24 @@ def encode_block(
         raw = _from_si(cls, name, w, getattr(msg, name))
         if w.type == "bytes":
             if len(raw) != w.size:
-                raise WireError(f"{cls.__name__}.{name}: needs {w.size} bytes, got {len(raw)}")
+                raise WireError(
+                    f"needs {w.size} bytes, got {len(raw)}", field=f"{cls.__name__}.{name}"
+                )
             buf[start : start + w.size] = raw
         elif w.type == "str":
             data = str(raw).encode("ascii")
             if len(data) > w.size:
-                raise WireError(f"{cls.__name__}.{name}: {raw!r} longer than {w.size} bytes")
+                raise WireError(
+                    f"{raw!r} longer than {w.size} bytes", field=f"{cls.__name__}.{name}"
+                )
             buf[start : start + w.size] = data.ljust(w.size, b"\x00")
         elif w.is_array:
             shape = w.resolve_shape(ctx)
             arr = np.asarray(raw)
             if arr.shape != shape:
-                raise WireError(f"{cls.__name__}.{name}: shape {arr.shape}, table says {shape}")
+                raise WireError(
+                    f"shape {arr.shape}, table says {shape}", field=f"{cls.__name__}.{name}"
+                )
             dt = np.dtype(_endian(cls, w) + WIRE_TYPES[w.type])
             data = arr.astype(dt).tobytes()
             buf[start : start + len(data)] = data
@@ -432,7 +442,6 @@ def to_jsonable(msg: Any) -> dict[str, Any]:
 @functools.lru_cache(maxsize=CLASS_CACHE_SIZE)
 def _field_names(cls: type) -> tuple[str, ...]:
     return tuple(f.name for f in dataclasses.fields(cls))
-
 
 
 def _from_json_value(tp: Any, value: Any) -> Any:

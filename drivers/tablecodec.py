@@ -35,6 +35,7 @@ from typing import Any
 
 from auvgw.drivers.framing import BadFrame, DecodeError, ErrorPolicy, Framer
 from auvgw.drivers.spec import WIRE_TYPES, WireError, decode_block, encode_block, message, wire
+from auvgw.errors import ConfigError, DataError
 
 __all__ = [
     "CHECKSUMS",
@@ -57,7 +58,7 @@ __all__ = [
 ]
 
 
-class TableError(ValueError):
+class TableError(ConfigError):
     """A frame table that cannot be used; the message names the file, the entry and the fix."""
 
 
@@ -812,7 +813,7 @@ _MAX_DIGITS = 12
 _NUMBER_RE = re.compile(r"^([+-]?)([0-9]+)(?:\.([0-9]+))?$")
 
 
-class LineError(ValueError):
+class LineError(DataError):
     """A line that is not valid under its table (the reason is short, for framer counters)."""
 
 
@@ -959,7 +960,8 @@ def parse_line(spec: AsciiLineSpec, line: bytes | bytearray | memoryview) -> lis
     try:
         body = data[len(start) : len(data) - len(term)].decode("ascii")
     except UnicodeDecodeError as exc:
-        raise LineError(f"bad byte 0x{data[len(start) + exc.start]:02x}: not ASCII") from None
+        raise LineError(f"bad byte 0x{data[len(start) + exc.start]:02x}: not ASCII",
+                        offset=len(start) + exc.start) from None  # fmt: skip
     if not body.isprintable():
         raise LineError("bad character: control character inside the line")
     if spec.checksum is not None:
@@ -1065,7 +1067,8 @@ class AsciiLineCodec:
         try:
             raws = parse_line(self.spec, line)
         except LineError as exc:
-            raise DecodeError(f"{self.name}: {exc}") from None
+            raise DecodeError(exc.reason, source=self.name, field=exc.field,
+                              offset=exc.offset) from None  # fmt: skip
         values: dict[str, Any] = {}
         for f, raw in zip(self.spec.fields, raws, strict=True):
             values[f.name] = raw * f.scale + f.add if f.is_scaled else raw

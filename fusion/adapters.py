@@ -50,6 +50,7 @@ import numpy as np
 
 from auvgw.drivers import pd0
 from auvgw.drivers.spec import WIRE_TYPES
+from auvgw.errors import DataError
 from auvgw.fusion.frames import beam_matrix
 from auvgw.fusion.samples import DvlSample, InsSample
 
@@ -101,7 +102,7 @@ _BEAM_ANGLES_DEG = {0: 15.0, 1: 20.0, 2: 30.0}
 _EZ_DEPTH = 0x40
 
 
-class AdapterError(ValueError):
+class AdapterError(DataError):
     """A message the fusion cannot use as it is (names the message and what is missing)."""
 
 

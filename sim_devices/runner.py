@@ -54,6 +54,7 @@ from typing import Any
 import numpy as np
 
 from auvgw.config.scenario import DeviceSettings, FaultSettings, Scenario
+from auvgw.errors import format_validation_error
 from auvgw.sim_devices.acoustic import AcousticEmulator
 from auvgw.sim_devices.clock import SimClock
 from auvgw.sim_devices.emulator import (
@@ -472,9 +473,8 @@ class Runner:
             try:
                 new[name] = FaultSettings.model_validate({**base.model_dump(), **changes})
             except ValidationError as exc:
-                err = exc.errors()[0]
-                field = ".".join(str(p) for p in err["loc"])
-                raise ValueError(f"fault control: {name}.{field}: {err['msg']}") from None
+                where = f"fault control: {name}"
+                raise ValueError(format_validation_error(exc, where).split("\n")[0]) from None
         for name, fs in new.items():
             self.emulators[name].set_faults(fs)
         return new

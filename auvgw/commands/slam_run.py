@@ -36,6 +36,7 @@ import numpy as np
 
 from auvgw.bus import add_bus_arguments
 from auvgw.cli import UserError, open_output
+from auvgw.errors import format_validation_error
 
 HELP = "run the SLAM stage (fusion odometry + MSIS features), live or over a recording"
 
@@ -156,11 +157,8 @@ def _stage_config(args: argparse.Namespace, vehicle: str = "auv1") -> Any:
         )  # fmt: skip
     except ValidationError as exc:
         opts = {"sound_speed_mps": "--sound-speed", "target_radius_m": "--target-radius",
-                "vehicle": "--vehicle"}  # fmt: skip
-        raise UserError("\n".join(
-            f"{opts.get(str(e['loc'][0]), e['loc'][0]) if e['loc'] else 'settings'}: {e['msg']}"
-            for e in exc.errors()
-        )) from None  # fmt: skip
+                "vehicle": "--vehicle", "n_particles": "--particles"}  # fmt: skip
+        raise UserError(format_validation_error(exc, rename=lambda f: opts.get(f, f))) from None
 
 
 def run(args: argparse.Namespace) -> int:
