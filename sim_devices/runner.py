@@ -55,6 +55,7 @@ import numpy as np
 
 from auvgw.config.scenario import DeviceSettings, FaultSettings, Scenario
 from auvgw.errors import format_validation_error
+from auvgw.procs import stop_process
 from auvgw.sim_devices.acoustic import AcousticEmulator
 from auvgw.sim_devices.clock import SimClock
 from auvgw.sim_devices.emulator import (
@@ -776,11 +777,7 @@ class DeviceProcesses:
         msg = self._read(proc, timeout)
         if msg is not None and "stats" in msg:
             self._stats[kind] = msg["stats"]
-        try:
-            proc.wait(timeout)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        stop_process(proc, None, timeout)  # asked on stdin; killed if it does not exit
 
     # -- the Runner surface -------------------------------------------------------------------
     @property
