@@ -38,7 +38,6 @@ import hashlib
 import json
 import math
 import pickle
-import sys
 import tempfile
 import time
 from dataclasses import asdict, dataclass
@@ -46,17 +45,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-
-from fusion_emulated import (
-    HOST_EPOCH,
-    Emulated,
-    decode_serial,
-    dvl_stream,
-    ins_output,
-    run_stage,
-)
 
 from auvgw.commands.demo import _fusion_config, _path_error, _Track
 from auvgw.config.scenario import Scenario
@@ -71,6 +59,14 @@ from auvgw.sim_devices.vehicle import Truth, simulate
 from auvgw.sim_devices.world import World
 from auvgw.slam.landmark.online import LandmarkOnline, LandmarkOnlineConfig
 from auvgw.slam.models import wrap_angle
+from auvgw.testing.fusion_emulated import (
+    HOST_EPOCH,
+    Emulated,
+    decode_serial,
+    dvl_stream,
+    ins_output,
+    run_stage,
+)
 
 #: the fusion stage's output lag (odometry reaches the SLAM stage this much after its time), s
 ODOMETRY_LAG_S = 0.25

@@ -18,15 +18,6 @@ import time
 from pathlib import Path
 
 import pytest
-from fusion_emulated import (
-    HOST_EPOCH,
-    decode_serial,
-    dvl_stream,
-    emulate,
-    filter_config,
-    ins_output,
-    survey_scenario,
-)
 
 from auvgw.bus import Keys, decode_envelope, encode_envelope, open_session, pack_raw_attachment
 from auvgw.cli import main as cli_main
@@ -44,6 +35,15 @@ from auvgw.stages.fusion import (
     sensor_kinds,
 )
 from auvgw.subscribe import typed_message
+from auvgw.testing.fusion_emulated import (
+    HOST_EPOCH,
+    decode_serial,
+    dvl_stream,
+    emulate,
+    filter_config,
+    ins_output,
+    survey_scenario,
+)
 
 REPO = Path(__file__).resolve().parent.parent
 AUVGW = str(REPO / ".venv" / "bin" / "auvgw")

@@ -6,7 +6,6 @@ from __future__ import annotations
 import struct
 from pathlib import Path
 
-from gateway_support import pd0_frames
 from test_hn100 import good_frames as hn100_frames
 from test_kongsberg import G as KONGSBERG_FRAMES
 from test_ms3a import L as MS3A_LINES
@@ -16,6 +15,7 @@ from test_v4log import sample_items
 
 from auvgw.drivers import seanet as sn
 from auvgw.drivers import v4log as v4
+from auvgw.testing import pd0_frames
 
 STREAM_FORMATS = ("pd0", "pd6", "seanet", "kongsberg", "hn100", "ms3a")
 
