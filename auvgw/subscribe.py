@@ -41,7 +41,7 @@ import zenoh
 from auvgw.bus import Envelope, Keys, decode_envelope, open_session, unpack_raw_attachment
 from auvgw.config.bus import BusConfig
 from auvgw.drivers.formats import FORMATS, get_format
-from auvgw.drivers.spec import MESSAGE_TYPES, from_jsonable
+from auvgw.drivers.spec import from_jsonable, message_class
 
 log = logging.getLogger(__name__)
 
@@ -67,9 +67,9 @@ def _load_codecs() -> None:
 
 def typed_message(type_name: str, body: Any) -> Any:
     """The typed, immutable message of an envelope's body, or None for an unknown type."""
-    if type_name not in MESSAGE_TYPES:
+    if message_class(type_name) is None:
         _load_codecs()
-    cls = MESSAGE_TYPES.get(type_name)
+    cls = message_class(type_name)
     if cls is None:
         return None
     try:

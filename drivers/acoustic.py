@@ -19,6 +19,7 @@ from typing import Any
 
 from auvgw.drivers.formats import Format
 from auvgw.drivers.framing import ErrorPolicy
+from auvgw.drivers.spec import LAZY_TYPES
 from auvgw.drivers.tablecodec import (
     AsciiLineCodec,
     AsciiLineFramer,
@@ -72,6 +73,9 @@ def default_codec() -> AcousticCodec:
     """The codec of the shipped table, read on first use (importing this module reads no
     file)."""
     return AcousticCodec.from_toml()
+
+
+LAZY_TYPES["AcousticReply"] = lambda: default_codec().message_type
 
 
 def __getattr__(name: str) -> Any:

@@ -21,6 +21,7 @@ import numpy as np
 
 from auvgw.drivers.formats import Format
 from auvgw.drivers.framing import ErrorPolicy
+from auvgw.drivers.spec import LAZY_TYPES
 from auvgw.drivers.tablecodec import (
     BinaryFrameCodec,
     BinaryFrameFramer,
@@ -123,6 +124,9 @@ def default_codec() -> Hn100Codec:
     """The codec of the shipped table, read on first use (importing this module reads no
     file)."""
     return Hn100Codec.from_toml()
+
+
+LAZY_TYPES["Hn100Nav"] = lambda: default_codec().message_type
 
 
 def __getattr__(name: str) -> Any:

@@ -19,6 +19,7 @@ import numpy as np
 
 from auvgw.drivers.formats import Format
 from auvgw.drivers.framing import ErrorPolicy
+from auvgw.drivers.spec import LAZY_TYPES
 from auvgw.drivers.tablecodec import (
     AsciiLineCodec,
     AsciiLineFramer,
@@ -85,6 +86,9 @@ def default_codec() -> Ms3aCodec:
     """The codec of the shipped table, read on first use (importing this module reads no
     file)."""
     return Ms3aCodec.from_toml()
+
+
+LAZY_TYPES["Ms3aSample"] = lambda: default_codec().message_type
 
 
 def __getattr__(name: str) -> Any:

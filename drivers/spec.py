@@ -43,6 +43,7 @@ __all__ = [
     "encode_block",
     "from_jsonable",
     "message",
+    "message_class",
     "raw_value",
     "table_rows",
     "to_jsonable",
@@ -75,6 +76,18 @@ T = TypeVar("T")
 #: every class made with :func:`message`, by type name (``TYPE`` class attribute or class name);
 #: used to rebuild typed messages from their JSON form (:func:`from_jsonable`)
 MESSAGE_TYPES: dict[str, type] = {}
+#: message classes built on first use (a codec whose table is read lazily registers its type
+#: name here at import; the class joins :data:`MESSAGE_TYPES` when built): name -> builder
+LAZY_TYPES: dict[str, Callable[[], type]] = {}
+
+
+def message_class(name: str) -> type | None:
+    """The message class of type ``name`` (building a lazily declared one), or None."""
+    cls = MESSAGE_TYPES.get(name)
+    if cls is None and (build := LAZY_TYPES.get(name)) is not None:
+        cls = build()
+    return cls
+
 #: message classes whose field names / type hints are cached (bounded: classes made from wire
 #: values, e.g. Kongsberg Depth beam tables, must not pin memory)
 CLASS_CACHE_SIZE = 256
@@ -504,9 +517,9 @@ def from_jsonable(data: Mapping[str, Any], cls: type | None = None) -> Any:
     NaN travels as null, arrays as lists; integer arrays come back as int64)."""
     if cls is None:
         name = data.get("type")
-        if name not in MESSAGE_TYPES:
+        cls = message_class(name) if isinstance(name, str) else None
+        if cls is None:
             raise KeyError(f"unknown message type {name!r}")
-        cls = MESSAGE_TYPES[name]
     hints = _type_hints(cls)
     kwargs = {}
     for f in dataclasses.fields(cls):

@@ -1,4 +1,5 @@
-"""The fusion on the low-cost vehicle (config/scenarios/lowcost.json, tests/support/fusion_lowcost.py):
+"""The fusion on the low-cost vehicle (config/scenarios/lowcost.json,
+tests/support/fusion_lowcost.py):
 with DEFAULT noise settings it does as well as the same filter told the true DVL noise, better
 than a plain rotate-and-integrate of the DVL, learns the DVL noise, and its diagnostics show the
 shares; the old defaults (a 0.002 m/s DVL) starve the filter and the diagnostics say so. Three

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import math
-import socket
 import threading
 import time
 
@@ -16,6 +15,7 @@ from auvgw.cli import main
 from auvgw.drivers import hn100, kongsberg, ms3a, pd0, seanet
 from auvgw.fusion import Odometry
 from auvgw.health import DeviceHealth
+from auvgw.procs import free_port
 from auvgw.viz import entities as ent
 from auvgw.viz.logger import RerunLogger
 from auvgw.viz.readback import read_recording, read_views
@@ -296,15 +296,9 @@ def test_stage_queue_full_drops_with_a_counter(tmp_path) -> None:
     assert len(read_recording(tmp_path / "drop.rrd")[ent.MAG_FIELD]) == 3
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def test_cli_records_from_the_bus(tmp_path) -> None:
     path = tmp_path / "cli.rrd"
-    port = _free_port()
+    port = free_port()
     code: list[int] = []
     args = ["viz", "--rrd", str(path), "--duration", "2.5", "--bus-listen", f"tcp/127.0.0.1:{port}"]
     cmd = threading.Thread(target=lambda: code.append(main(args)))

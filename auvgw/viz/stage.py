@@ -48,7 +48,7 @@ import numpy as np
 
 from auvgw.bus import SCHEMA_VERSION, Keys, decode_envelope
 from auvgw.devicetime import DeviceClock
-from auvgw.drivers.spec import MESSAGE_TYPES, from_jsonable
+from auvgw.drivers.spec import from_jsonable, message_class
 from auvgw.stages.base import BusCounters, Stage
 from auvgw.viz.logger import RerunLogger, VizOptions
 
@@ -241,8 +241,8 @@ class VizStage(Stage):
             except Exception as exc:  # a codec being written must not stop the stage
                 log.warning("viz stage: %s unavailable (%s); its messages are skipped", name, exc)
         for type_name in self._sensor_handlers:
-            if type_name in MESSAGE_TYPES:
-                self._classes[type_name] = MESSAGE_TYPES[type_name]
+            if (cls := message_class(type_name)) is not None:
+                self._classes[type_name] = cls
 
     # -- bus side --------------------------------------------------------------------------
     def input_keys(self) -> list[str]:
