@@ -13,13 +13,11 @@ the ``beacon`` id.
 
 from __future__ import annotations
 
-import functools
 from pathlib import Path
 from typing import Any
 
 from auvgw.drivers.formats import Format
 from auvgw.drivers.framing import ErrorPolicy
-from auvgw.drivers.spec import LAZY_TYPES
 from auvgw.drivers.tablecodec import (
     AsciiLineCodec,
     AsciiLineFramer,
@@ -27,6 +25,7 @@ from auvgw.drivers.tablecodec import (
     build_message_class,
     load_toml,
     parse_ascii_table,
+    shipped_codec,
 )
 from auvgw.paths import config_file
 
@@ -68,24 +67,9 @@ class AcousticCodec(AsciiLineCodec):
         return AcousticFramer(self, policy=policy, source=source)
 
 
-@functools.cache
-def default_codec() -> AcousticCodec:
-    """The codec of the shipped table, read on first use (importing this module reads no
-    file)."""
-    return AcousticCodec.from_toml()
-
-
-LAZY_TYPES["AcousticReply"] = lambda: default_codec().message_type
-
-
-def __getattr__(name: str) -> Any:
-    """``CODEC`` (:func:`default_codec`) and ``AcousticReply``, the shipped table's
-    message class (a site table builds its own class of that name), built on first use."""
-    if name == "CODEC":
-        return default_codec()
-    if name == "AcousticReply":
-        return default_codec().message_type
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+#: the shipped table's codec, read on first use; ``CODEC`` and ``AcousticReply`` (its message class)
+#: are served by the module ``__getattr__``
+default_codec, __getattr__ = shipped_codec(AcousticCodec.from_toml, "AcousticReply")
 
 
 class AcousticFramer(AsciiLineFramer):

@@ -13,7 +13,6 @@ status word and its flags ``aligned``, ``gnss_aided``, ``dvl_aided``, ``error``.
 
 from __future__ import annotations
 
-import functools
 from pathlib import Path
 from typing import Any
 
@@ -21,7 +20,6 @@ import numpy as np
 
 from auvgw.drivers.formats import Format
 from auvgw.drivers.framing import ErrorPolicy
-from auvgw.drivers.spec import LAZY_TYPES
 from auvgw.drivers.tablecodec import (
     BinaryFrameCodec,
     BinaryFrameFramer,
@@ -29,6 +27,7 @@ from auvgw.drivers.tablecodec import (
     build_message_class,
     load_toml,
     parse_binary_table,
+    shipped_codec,
 )
 from auvgw.paths import config_file
 
@@ -119,24 +118,9 @@ class Hn100Codec(BinaryFrameCodec):
         return Hn100Framer(self, policy=policy, source=source)
 
 
-@functools.cache
-def default_codec() -> Hn100Codec:
-    """The codec of the shipped table, read on first use (importing this module reads no
-    file)."""
-    return Hn100Codec.from_toml()
-
-
-LAZY_TYPES["Hn100Nav"] = lambda: default_codec().message_type
-
-
-def __getattr__(name: str) -> Any:
-    """``CODEC`` (:func:`default_codec`) and ``Hn100Nav``, the shipped table's
-    message class (a site table builds its own class of that name), built on first use."""
-    if name == "CODEC":
-        return default_codec()
-    if name == "Hn100Nav":
-        return default_codec().message_type
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+#: the shipped table's codec, read on first use; ``CODEC`` and ``Hn100Nav`` (its message class)
+#: are served by the module ``__getattr__``
+default_codec, __getattr__ = shipped_codec(Hn100Codec.from_toml, "Hn100Nav")
 
 
 class Hn100Framer(BinaryFrameFramer):

@@ -11,7 +11,6 @@ Decoded :data:`Ms3aSample` messages carry the sample ``counter`` and the flux de
 
 from __future__ import annotations
 
-import functools
 from pathlib import Path
 from typing import Any
 
@@ -19,7 +18,6 @@ import numpy as np
 
 from auvgw.drivers.formats import Format
 from auvgw.drivers.framing import ErrorPolicy
-from auvgw.drivers.spec import LAZY_TYPES
 from auvgw.drivers.tablecodec import (
     AsciiLineCodec,
     AsciiLineFramer,
@@ -27,6 +25,7 @@ from auvgw.drivers.tablecodec import (
     build_message_class,
     load_toml,
     parse_ascii_table,
+    shipped_codec,
 )
 from auvgw.paths import config_file
 
@@ -81,24 +80,9 @@ class Ms3aCodec(AsciiLineCodec):
         return Ms3aFramer(self, policy=policy, source=source)
 
 
-@functools.cache
-def default_codec() -> Ms3aCodec:
-    """The codec of the shipped table, read on first use (importing this module reads no
-    file)."""
-    return Ms3aCodec.from_toml()
-
-
-LAZY_TYPES["Ms3aSample"] = lambda: default_codec().message_type
-
-
-def __getattr__(name: str) -> Any:
-    """``CODEC`` (:func:`default_codec`) and ``Ms3aSample``, the shipped table's
-    message class (a site table builds its own class of that name), built on first use."""
-    if name == "CODEC":
-        return default_codec()
-    if name == "Ms3aSample":
-        return default_codec().message_type
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+#: the shipped table's codec, read on first use; ``CODEC`` and ``Ms3aSample`` (its message class)
+#: are served by the module ``__getattr__``
+default_codec, __getattr__ = shipped_codec(Ms3aCodec.from_toml, "Ms3aSample")
 
 
 class Ms3aFramer(AsciiLineFramer):

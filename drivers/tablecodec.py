@@ -22,6 +22,7 @@ from __future__ import annotations
 import binascii
 import builtins
 import dataclasses
+import functools
 import keyword
 import math
 import re
@@ -31,10 +32,18 @@ import zlib
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, TypeVar
 
 from auvgw.drivers.framing import BadFrame, DecodeError, ErrorPolicy, Framer
-from auvgw.drivers.spec import WIRE_TYPES, WireError, decode_block, encode_block, message, wire
+from auvgw.drivers.spec import (
+    LAZY_TYPES,
+    WIRE_TYPES,
+    WireError,
+    decode_block,
+    encode_block,
+    message,
+    wire,
+)
 from auvgw.errors import ConfigError, DataError
 
 __all__ = [
@@ -1098,3 +1107,31 @@ class AsciiLineCodec:
                     f"the table's form ({f.form()}): {exc}"
                 ) from None
         return _render(self.spec, texts).encode("ascii")
+
+
+class _Codec(Protocol):
+    message_type: type
+
+
+C = TypeVar("C", bound=_Codec)
+
+
+def shipped_codec(
+    build: Callable[[], C], type_name: str
+) -> tuple[Callable[[], C], Callable[[str], Any]]:
+    """A table-driven driver's shipped codec, read on first use (importing the driver reads no
+    file): ``default_codec()`` (built once) and the module ``__getattr__`` that serves ``CODEC``
+    and ``type_name``, the shipped table's message class (a site table builds its own class of
+    that name). ``type_name`` joins :data:`~auvgw.drivers.spec.LAZY_TYPES`, so a bus envelope
+    naming it rebuilds the class."""
+    codec = functools.cache(build)
+    LAZY_TYPES[type_name] = lambda: codec().message_type
+
+    def module_getattr(name: str) -> Any:
+        if name == "CODEC":
+            return codec()
+        if name == type_name:
+            return codec().message_type
+        raise AttributeError(f"no attribute {name!r}")
+
+    return codec, module_getattr
