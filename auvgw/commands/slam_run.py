@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -174,30 +175,74 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _live(args: argparse.Namespace) -> int:
-    import sys
-
-    from auvgw.commands.run import serve_stage
     from auvgw.stages.slam import SlamStage
 
     cfg = _stage_config(args, args.vehicle)
+    return serve_slam(args, lambda session: SlamStage(cfg, session), cfg.display_name)
+
+
+def serve_slam(args: argparse.Namespace, make: Callable[[Any], Any], name: str) -> int:
+    """Run the stage ``make(session)`` on the bus until stopped (``slam run``, both pipelines);
+    its counters on stderr at the end."""
+    import sys
+
+    from auvgw.commands.run import serve_stage
+
     stage = serve_stage(
         args,
-        lambda session: SlamStage(cfg, session),
-        lambda st: f"slam running: vehicle {cfg.vehicle}, {cfg.display_name} on {st.key('pose')}",
+        make,
+        lambda st: f"slam running: vehicle {st.keys.vehicle}, {name} on {st.key('pose')}",
         lambda st: st.input_keys(),
     )
     print(f"slam counters: {json.dumps(stage.counters())}", file=sys.stderr)
     return 0
 
 
-def _offline(args: argparse.Namespace) -> int:
+def check_recording(args: argparse.Namespace) -> None:
+    """A :class:`UserError` unless ``--recording`` names a file."""
+    if not args.recording.is_file():
+        raise UserError(f"{args.recording}: no such file")
+
+
+def replay_recording(
+    args: argparse.Namespace, stage: Any, paths: _Paths, flush: bool = True
+) -> Any:
+    """The recording through the fusion stage (``--fusion-settings``) and ``stage``, in recording
+    order, fed in-process: the fusion's odometry (also into ``paths.dr``) and every decoded
+    message go to ``stage``; the simulation truth into ``paths.truth``. Returns the fusion
+    stage; ``flush``: flush ``stage`` at the end too."""
     from auvgw.recording import RecordingError, iter_recording
     from auvgw.stages.fusion import FusionStage
+
+    def on_odometry(o: Any) -> None:
+        paths.dr.append((o.t, o.x, o.y))
+        stage.feed_odometry(o)
+
+    fusion = FusionStage(_fusion_settings(args), on_odometry=on_odometry)
+    try:
+        for rec in iter_recording(args.recording, truth=True):
+            if "/truth/" in rec.key:
+                s = rec.messages[0] if rec.messages else None
+                if rec.key.endswith("/pose") and isinstance(s, dict) and "t" in s:
+                    paths.truth.append((float(s["t"]), float(s["x"]), float(s["y"])))
+                continue
+            device = rec.key.rsplit("/", 1)[-1]
+            for msg in rec.messages:
+                fusion.feed(device, rec.t_recv_ns, msg)
+                stage.feed(device, rec.t_recv_ns, msg)
+        fusion.flush()
+        if flush:
+            stage.flush()
+    except RecordingError as exc:
+        raise UserError(str(exc)) from None
+    return fusion
+
+
+def _offline(args: argparse.Namespace) -> int:
     from auvgw.stages.slam import SlamStage
 
     cfg = _stage_config(args)
-    if not args.recording.is_file():
-        raise UserError(f"{args.recording}: no such file")
+    check_recording(args)
     paths = _Paths()
     out_file = open_output(args.out)  # closed in finally
     last_map: list[bytes] = []
@@ -212,27 +257,8 @@ def _offline(args: argparse.Namespace) -> int:
             last_map[:] = [payload]
 
     slam = SlamStage(cfg, on_publish=on_publish)
-
-    def on_odometry(o: Any) -> None:
-        paths.dr.append((o.t, o.x, o.y))
-        slam.feed_odometry(o)
-
-    fusion = FusionStage(_fusion_settings(args), on_odometry=on_odometry)
     try:
-        for rec in iter_recording(args.recording, truth=True):
-            if "/truth/" in rec.key:
-                s = rec.messages[0] if rec.messages else None
-                if rec.key.endswith("/pose") and isinstance(s, dict) and "t" in s:
-                    paths.truth.append((float(s["t"]), float(s["x"]), float(s["y"])))
-                continue
-            device = rec.key.rsplit("/", 1)[-1]
-            for msg in rec.messages:
-                fusion.feed(device, rec.t_recv_ns, msg)
-                slam.feed(device, rec.t_recv_ns, msg)
-        fusion.flush()
-        slam.flush()
-    except RecordingError as exc:
-        raise UserError(str(exc)) from None
+        fusion = replay_recording(args, slam, paths)
     finally:
         if out_file is not None:
             if last_map:
