@@ -369,19 +369,17 @@ class LandmarkOnline:
             self.filter.update(z, self.rng)
         c = self.config
         use = [ln for ln in feats.lines if _length(ln) >= c.line_min_length_m]
-        if use and self._lines_to_filter():
+        pf = self.filter
+        # line features update particle filters only (``use_lines``; the EKF family takes points)
+        if use and c.use_lines and isinstance(pf, ParticleFilterSLAM):
             self.stats.line_updates += 1
             z = np.array([ln.z for ln in use])
             floor = np.diag([c.line_sigma_rho_m**2, math.radians(c.line_sigma_theta_deg) ** 2])
             r = np.array([np.asarray(ln.covariance, float) for ln in use]) + floor
-            self.filter.update(z, self.rng, model=self._line_model, r=r)
+            pf.update(z, self.rng, model=self._line_model, r=r)
         for ln in feats.lines:
             self.stats.line_features += 1
             self.lines.append(self._map_line(ln))
-
-    def _lines_to_filter(self) -> bool:
-        """Whether line features update the filter (``use_lines``, a particle filter)."""
-        return self.config.use_lines and isinstance(self.filter, ParticleFilterSLAM)
 
     def _map_line(self, ln: Any) -> dict[str, Any]:
         """A line observation placed with the SLAM pose: (rho, theta) and its end points (the
