@@ -474,8 +474,8 @@ class Runner:
             try:
                 new[name] = FaultSettings.model_validate({**base.model_dump(), **changes})
             except ValidationError as exc:
-                where = f"fault control: {name}"
-                raise ValueError(format_validation_error(exc, where).split("\n")[0]) from None
+                lines = format_validation_error(exc, "fault control", rename=f"{name}.{{}}".format)
+                raise ValueError(lines.split("\n")[0]) from None
         for name, fs in new.items():
             self.emulators[name].set_faults(fs)
         return new
