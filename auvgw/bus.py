@@ -38,6 +38,7 @@ from auvgw.envelope import (
     encode_envelope,
     envelope_encoding,
 )
+from auvgw.errors import format_validation_error
 
 __all__ = [
     "ENVELOPE_VERSION",
@@ -275,8 +276,4 @@ def bus_from_args(args: Any, hub: bool = False) -> BusConfig:
             bus = bus.rebased(path.resolve().parent)
         return bus.as_hub() if hub else bus.as_spoke()
     except ValidationError as exc:
-        lines = []
-        for e in exc.errors():
-            opt = ".".join(str(p) for p in e["loc"]) or "bus"
-            lines.append(f"--{opt}: {e['msg'].removeprefix('Value error, ')}")
-        raise ValueError("\n".join(lines)) from exc
+        raise ValueError(format_validation_error(exc, rename=lambda f: f"--{f}")) from exc

@@ -46,6 +46,7 @@ from auvgw.drivers.transports import (
 )
 from auvgw.health import Backoff, DeviceHealth
 from auvgw.hostdrivers import HostDriver, make_host_driver
+from auvgw.notify import Notifier
 
 log = logging.getLogger(__name__)
 
@@ -73,8 +74,9 @@ class _Device:
 class Gateway:
     """Runs every enabled device of a configuration against one Zenoh session. ``session`` may be
     passed in (stages sharing one embedded peer); otherwise one is opened from ``cfg.bus`` and
-    closed by :meth:`stop`. ``on_message(device, t_recv_ns, message)`` lets an in-process stage see
-    decoded messages without a Zenoh hop (it runs on the device's reader thread: keep it short);
+    closed by :meth:`stop`. :attr:`listeners` (a :class:`~auvgw.notify.Notifier`; ``on_message``
+    is subscribed to it) lets in-process stages see decoded messages without a Zenoh hop
+    (``(device, t_recv_ns, message)`` on the device's reader thread: keep it short);
     ``t_recv_ns`` is the time published with the message (the host receive time, or the
     vehicle-paced time of ``cfg.clock``: :meth:`ClockConfig.stamp
     <auvgw.config.gateway.ClockConfig.stamp>`). Decoders are built first, so a format, table or DBC
@@ -102,7 +104,9 @@ class Gateway:
             )
             for name, decoder in decoders.items()
         }
-        self.on_message = on_message
+        self.listeners = Notifier()
+        if on_message is not None:
+            self.listeners.subscribe(on_message)
         self.stop_event = threading.Event()
         self.finished = threading.Event()
         self._own_session = session is None
@@ -317,11 +321,7 @@ class Gateway:
             for msg in item.messages:
                 dev.health.seen(t_recv_ns, message_type(msg))  # health stays on the host clock
                 self._publish(dev, msg, t_ns, seq)
-                if self.on_message is not None:
-                    try:
-                        self.on_message(dev.name, t_ns, msg)
-                    except Exception:  # an in-process stage's bug must not reopen the device
-                        log.exception("%s: on_message callback failed", dev.name)
+                self.listeners.notify(dev.name, t_ns, (msg,))
                 if host is not None:
                     host.on_message(msg, transport.write, time.monotonic())
 

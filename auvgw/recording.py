@@ -57,6 +57,7 @@ from auvgw.bus import (
 from auvgw.config.gateway import ConfigError, GatewayConfig, format_validation_error
 from auvgw.decoding import DeviceDecoder, make_decoders
 from auvgw.drivers.spec import to_jsonable
+from auvgw.errors import DataError
 from auvgw.paths import config_file
 
 log = logging.getLogger(__name__)
@@ -94,7 +95,7 @@ _ATT_LEN = struct.Struct("<H")
 _STOP = "stop"
 
 
-class RecordingError(ValueError):
+class RecordingError(DataError):
     """A recording that cannot be read or used; the message names the file."""
 
 

@@ -49,7 +49,6 @@ import argparse
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -66,6 +65,7 @@ from auvgw.bus import decode_envelope, open_session
 from auvgw.config.bus import BusConfig
 from auvgw.drivers.formats import get_format
 from auvgw.paths import REPO_ROOT, shared_dir
+from auvgw.procs import free_endpoint, stop_process
 
 BIN = REPO_ROOT / ".venv" / "bin"
 VEHICLE = "bench"
@@ -101,12 +101,6 @@ sub = s.declare_subscriber(sys.argv[2], lambda sample: time.sleep(3600))
 print("READY", flush=True)
 time.sleep(3600)
 """
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def cpu_ticks(pid: int) -> int:
@@ -148,8 +142,8 @@ class Bench:
         self.frames = frames
         self.fmt = fmt
         kind = message_kind(get_format(fmt).decode(frames[0])[0])
-        self.gw_ep = f"tcp/127.0.0.1:{free_port()}"
-        self.my_ep = f"tcp/127.0.0.1:{free_port()}"
+        self.gw_ep = free_endpoint()
+        self.my_ep = free_endpoint()
         master, slave = os.openpty()
         tty.setraw(slave)
         self.master, self.slave = master, slave
@@ -279,13 +273,7 @@ class Bench:
 
     def close(self) -> None:
         for p in [*self.children, self.gw]:
-            if p.poll() is None:
-                p.send_signal(signal.SIGTERM)
-                try:
-                    p.wait(10)
-                except subprocess.TimeoutExpired:
-                    p.kill()
-                    p.wait()
+            stop_process(p, signal.SIGTERM, 10.0)
         self.sub.undeclare()
         self.bare.undeclare()
         self.session.close()
@@ -379,7 +367,7 @@ def all_devices_phase(
     reader = threading.Thread(target=lambda: lines.extend(x.rstrip("\n") for x in sim.stdout))
     reader.start()
     cfg = tomllib.loads((out / "gateway.toml").read_text())
-    ep = f"tcp/127.0.0.1:{free_port()}"
+    ep = free_endpoint()
     cfg["status_period_s"] = 1.0
     cfg["bus"] = {"listen": [ep]}
     (out / "gw.toml").write_text(gateway_toml(cfg, "benchmark: all five emulated devices"))
@@ -433,13 +421,7 @@ def all_devices_phase(
         reader.join(10)
     finally:
         for p in (sim, gw):
-            if p.poll() is None:
-                p.send_signal(signal.SIGTERM)
-                try:
-                    p.wait(15)
-                except subprocess.TimeoutExpired:
-                    p.kill()
-                    p.wait()
+            stop_process(p, signal.SIGTERM, 15.0)
         sim_log.close()
         gw_log.close()
     for log_path in (out / "gateway.log", out / "sim.log"):  # what went wrong, if anything did

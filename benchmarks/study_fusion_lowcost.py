@@ -1,7 +1,7 @@
 """Low-cost sensor study of the fusion over seeds (config/scenarios/lowcost.json).
 
 For every seed: the world model's truth of the scenario, AHRS and DVL samples with its low-cost
-figures (tests/fusion_lowcost.py), and four dead reckonings: the fusion with DEFAULT noise
+figures (tests/support/fusion_lowcost.py), and four dead reckonings: the fusion with DEFAULT noise
 settings (spec prior, VB-adapted DVL noise), the same filter told the TRUE DVL noise, the OLD
 defaults (0.002 m/s DVL), and a PLAIN rotate-and-integrate of the DVL; and, for scale, the
 ORACLE: plain integration of the same seed drawn without spikes (what perfect spike rejection
@@ -17,15 +17,12 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import sys
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-
-from fusion_lowcost import lowcost_scenario, run, truth_trajectory
+from auvgw.testing.fusion_lowcost import lowcost_scenario, run, truth_trajectory
 
 
 def main() -> None:

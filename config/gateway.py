@@ -52,6 +52,7 @@ from auvgw.config.transport import (
     TransportConfig,
 )
 from auvgw.drivers import registry
+from auvgw.errors import ConfigError
 
 __all__ = [
     "DEVICE_FORMATS",
@@ -70,10 +71,6 @@ __all__ = [
 DEVICE_FORMATS = registry.device_formats()
 
 _NAME_CHARS = "letters, digits, '_' or '-'"
-
-
-class ConfigError(ValueError):
-    """An unusable configuration; one line per problem, each naming the file and the field."""
 
 
 class _Model(BaseModel):

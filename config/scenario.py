@@ -32,6 +32,7 @@ from pydantic import (
 )
 
 from auvgw.drivers import registry
+from auvgw.errors import ConfigError, format_validation_error
 
 __all__ = [
     "AcousticBeacon",
@@ -53,7 +54,7 @@ __all__ = [
 XY = tuple[float, float]
 
 
-class ScenarioError(ValueError):
+class ScenarioError(ConfigError):
     """A scenario file that cannot be used; the message names the file and the field."""
 
 
@@ -376,14 +377,6 @@ class Scenario(_Model):
         return (x0, y0, math.atan2(y1 - y0, x1 - x0))
 
 
-def _format_errors(path: str, exc: ValidationError) -> str:
-    lines = []
-    for err in exc.errors():
-        loc = ".".join(str(p) for p in err["loc"]) or "(top level)"
-        lines.append(f"{path}: field '{loc}': {err['msg']} (got {err.get('input')!r:.60})")
-    return "\n".join(lines)
-
-
 def load_scenario(path: str | Path) -> Scenario:
     """Read and validate a scenario JSON file; :class:`ScenarioError` names file and field."""
     path = Path(path)
@@ -399,5 +392,5 @@ def load_scenario(path: str | Path) -> Scenario:
     try:
         scn = Scenario.model_validate({**data, "source": str(path)}, context={"source": str(path)})
     except ValidationError as exc:
-        raise ScenarioError(_format_errors(str(path), exc)) from exc
+        raise ScenarioError(format_validation_error(exc, str(path))) from exc
     return scn

@@ -32,6 +32,7 @@ import cantools
 from auvgw.drivers import registry
 from auvgw.drivers.spec import message
 from auvgw.drivers.tablecodec import UNITS
+from auvgw.errors import DataError
 from auvgw.paths import config_file
 
 __all__ = [
@@ -58,7 +59,7 @@ def _where(exc: BaseException) -> str:
     return "invalid DBC syntax" + (f" at line {m[1]}, column {m[2]}" if m else "")
 
 
-class CanCodecError(ValueError):
+class CanCodecError(DataError):
     """A CAN frame or message that the DBC cannot decode or encode (names message and signal)."""
 
 

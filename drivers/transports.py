@@ -54,6 +54,7 @@ from auvgw.config.transport import (
     UdpTransportConfig,
     parse_transport_config,
 )
+from auvgw.errors import TransportError
 
 __all__ = [
     "CanTransport",
@@ -92,14 +93,6 @@ class Chunk:
     can_id: int | None = None
     is_extended_id: bool = False
     t_device_s: float | None = None
-
-
-class TransportError(Exception):
-    """A transport failure; ``port`` names the device (path, URL, channel, address or file)."""
-
-    def __init__(self, port: str, message: str) -> None:
-        super().__init__(f"{port}: {message}")
-        self.port = port
 
 
 class TransportOpenError(TransportError):

@@ -49,6 +49,8 @@ import numpy as np
 
 from auvgw.config.scenario import DeviceSettings, FaultSettings, Scenario
 from auvgw.drivers import registry
+from auvgw.errors import format_validation_error
+from auvgw.procs import stop_process
 from auvgw.sim_devices.clock import SimClock
 from auvgw.sim_devices.emulator import (
     DEFAULT_EPOCH,
@@ -397,9 +399,8 @@ class Runner:
             try:
                 new[name] = FaultSettings.model_validate({**base.model_dump(), **changes})
             except ValidationError as exc:
-                err = exc.errors()[0]
-                field = ".".join(str(p) for p in err["loc"])
-                raise ValueError(f"fault control: {name}.{field}: {err['msg']}") from None
+                lines = format_validation_error(exc, "fault control", rename=f"{name}.{{}}".format)
+                raise ValueError(lines.split("\n")[0]) from None
         for name, fs in new.items():
             self.emulators[name].set_faults(fs)
         return new
@@ -701,11 +702,7 @@ class DeviceProcesses:
         msg = self._read(proc, timeout)
         if msg is not None and "stats" in msg:
             self._stats[kind] = msg["stats"]
-        try:
-            proc.wait(timeout)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        stop_process(proc, None, timeout)  # asked on stdin; killed if it does not exit
 
     # -- the Runner surface -------------------------------------------------------------------
     @property

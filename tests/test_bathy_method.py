@@ -17,7 +17,7 @@ from auvgw.slam.bathymetric.filters import MTMPF, jitter_variance
 from auvgw.slam.bathymetric.loops import LCCD, LoopClosure, correction_ramp
 from auvgw.slam.bathymetric.matching import alpha_exponent, idw, match_weights
 from auvgw.slam.bathymetric.simulate import DRModel, simulate_survey, swath_offsets
-from tests.bathy_helpers import TINY
+from auvgw.testing.bathy_helpers import TINY
 
 
 def test_idw_hand_computed() -> None:

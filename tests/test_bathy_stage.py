@@ -23,7 +23,7 @@ from auvgw.slam.bathymetric.evaluate import run_filter
 from auvgw.slam.bathymetric.online import ned_offsets
 from auvgw.slam.bathymetric.simulate import BathyRun, simulate_survey
 from auvgw.stages.bathymetric import BathymetricStage, BathymetricStageConfig
-from tests.bathy_helpers import TINY
+from auvgw.testing.bathy_helpers import TINY
 
 #: transducer depth of the emulated swaths (m): the stage must add it to the beam depths
 DRAFT = 0.5
@@ -168,7 +168,7 @@ def test_stage_process_on_the_bus(tmp_path: Path, tiny: BathyRun) -> None:
     import zenoh
 
     from auvgw.bus import encode_envelope
-    from tests.gateway_support import Proc, endpoint, free_port, wait_until
+    from auvgw.testing import Proc, endpoint, free_port, wait_until
 
     sim = tiny
     n = 200
@@ -276,8 +276,14 @@ def test_slam_run_bathymetric_over_a_recording(tmp_path: Path, capsys) -> None:
     writes it (INS, DVL and multibeam raw frames of 60 s of the emulated survey + the truth)
     gives the poses of the same stages fed in-process, and its report puts both paths against
     the recorded truth."""
-    sys.path.insert(0, str(Path(__file__).parent))
-    from fusion_emulated import (
+    from auvgw.bus import Keys, pack_raw_attachment
+    from auvgw.cli import main as cli_main
+    from auvgw.config.gateway import parse_gateway_config
+    from auvgw.drivers import hn100, pd0
+    from auvgw.recording import McapRecorder
+    from auvgw.sim_devices.multibeam import MultibeamEmulator
+    from auvgw.stages.fusion import FusionStage, FusionStageConfig
+    from auvgw.testing.fusion_emulated import (
         HOST_EPOCH,
         decode_serial,
         dvl_stream,
@@ -286,14 +292,6 @@ def test_slam_run_bathymetric_over_a_recording(tmp_path: Path, capsys) -> None:
         ins_output,
         survey_scenario,
     )
-
-    from auvgw.bus import Keys, pack_raw_attachment
-    from auvgw.cli import main as cli_main
-    from auvgw.config.gateway import parse_gateway_config
-    from auvgw.drivers import hn100, pd0
-    from auvgw.recording import McapRecorder
-    from auvgw.sim_devices.multibeam import MultibeamEmulator
-    from auvgw.stages.fusion import FusionStage, FusionStageConfig
 
     rec_s = 60.0
     em = emulate(survey_scenario(rec_s + 1.0), tmp_path)

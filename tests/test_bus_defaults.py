@@ -13,11 +13,10 @@ import threading
 from collections import Counter
 from pathlib import Path
 
-from gateway_support import AUVGW, REPO, wait_until
-
 from auvgw.bus import Keys, open_session
 from auvgw.config.bus import BusConfig, default_endpoint
 from auvgw.recording import iter_samples, read_info
+from auvgw.testing import AUVGW, REPO, wait_until
 
 SCENARIO = str(REPO / "config" / "scenarios" / "harbour.json")
 
@@ -256,9 +255,8 @@ def test_a_stage_without_gateway_says_no_publisher_and_recorder_fails(procs, tmp
 
 
 def test_run_listen_option_replaces_the_configuration_endpoints(procs, tmp_path: Path):
-    from gateway_support import endpoint, free_port
-
     from auvgw.subscribe import GatewaySubscriber
+    from auvgw.testing import endpoint, free_port
 
     cfg = tmp_path / "gw.toml"
     cfg.write_text('vehicle = "lv"\nstatus_period_s = 0.2\n[bus]\nlisten = ["tcp/127.0.0.1:1"]\n'

@@ -18,13 +18,13 @@ from typing import Any
 
 import numpy as np
 import pytest
-from format_samples import stream_samples
 
 from auvgw.drivers import registry
 from auvgw.drivers.formats import format_from_table, get_format
 from auvgw.drivers.framing import ErrorPolicy, Frame
 from auvgw.drivers.spec import MESSAGE_TYPES, to_jsonable
 from auvgw.paths import config_file
+from auvgw.testing.format_samples import stream_samples
 
 FORMATS = [d.format for d in registry.DEVICES]
 #: formats whose frames carry no checksum (a corrupted payload byte is still a valid frame):

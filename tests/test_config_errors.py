@@ -13,7 +13,8 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
-from gateway_support import AUVGW, REPO
+
+from auvgw.testing import AUVGW, REPO
 
 DVL = '[devices.dvl]\nformat = "pd0"\ntransport = { kind = "serial", url = "/dev/null-dvl" }\n'
 

@@ -11,7 +11,6 @@ import math
 import msgspec
 import numpy as np
 import pytest
-from format_samples import STREAM_FORMATS, samples
 
 from auvgw.drivers import hn100
 from auvgw.drivers.formats import get_format
@@ -23,6 +22,7 @@ from auvgw.envelope import (
     schema_id,
 )
 from auvgw.subscribe import typed_message
+from auvgw.testing.format_samples import STREAM_FORMATS, samples
 
 T_NS = 1_763_800_000_123_456_789
 SEQ = (1_763_800_000 << 32) | 42

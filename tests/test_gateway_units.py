@@ -8,7 +8,6 @@ import json
 import threading
 
 import pytest
-from gateway_support import local_decoded, pd0_frames, wait_until
 
 from auvgw.bus import decode_envelope, encode_envelope
 from auvgw.config.gateway import (
@@ -28,6 +27,7 @@ from auvgw.drivers.spec import to_jsonable
 from auvgw.drivers.transports import Chunk
 from auvgw.health import Backoff, DeviceHealth
 from auvgw.subscribe import typed_message
+from auvgw.testing import local_decoded, pd0_frames, wait_until
 
 
 def test_backoff_doubles_to_the_cap_and_resets():

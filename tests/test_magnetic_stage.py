@@ -63,7 +63,7 @@ def test_stage_process_on_the_bus_publishes_poses_and_observations(tmp_path: Pat
     from auvgw.bus import encode_envelope
     from auvgw.drivers.acoustic import AcousticReply
     from auvgw.drivers.ms3a import Ms3aSample
-    from tests.gateway_support import Proc, endpoint, free_port, wait_until
+    from auvgw.testing import Proc, endpoint, free_port, wait_until
 
     inputs = stage_inputs(SCENARIO, 1200)  # 30 s, 150 m
     sim, dr = inputs.prep.sim, inputs.dr

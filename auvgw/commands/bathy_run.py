@@ -91,13 +91,11 @@ def _live(args: argparse.Namespace) -> int:
 
 
 def _offline(args: argparse.Namespace) -> int:
-    from auvgw.commands.slam_run import _error, _fusion_settings, replay_recording
+    from auvgw.commands.slam_run import _error, _Paths, check_recording, replay_recording
     from auvgw.stages.bathymetric import BathymetricStage
-    from auvgw.stages.fusion import FusionStage
 
     cfg = stage_config(args, "auv1")
-    if not args.recording.is_file():
-        raise UserError(f"{args.recording}: no such file")
+    check_recording(args)
     out_file = None
     if args.out is not None:
         from auvgw.cli import open_output
@@ -109,18 +107,13 @@ def _offline(args: argparse.Namespace) -> int:
             out_file.write(payload.decode() + "\n")
 
     stage = BathymetricStage(cfg, on_publish=on_publish)
-    dr: list[tuple[float, float, float]] = []
-
-    def on_odometry(o: Any) -> None:
-        dr.append((o.t, o.x, o.y))
-        stage.feed_odometry(o)
-
-    fusion = FusionStage(_fusion_settings(args), on_odometry=on_odometry)
+    paths = _Paths()
     try:
-        truth = replay_recording(args.recording, [fusion, stage])
+        fusion = replay_recording(args, stage, paths)
     finally:
         if out_file is not None:
             out_file.close()
+    truth, dr = paths.truth, paths.dr
     c = stage.counters()
     print(f"{args.recording}: {json.dumps(c['stage'])}, {c['pings']} pings, loop closures "
           f"{c['loops_accepted']} accepted / {c['loops_rejected']} rejected")  # fmt: skip

@@ -35,7 +35,6 @@ import argparse
 import json
 import math
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -48,11 +47,12 @@ from typing import Any
 import numpy as np
 
 from auvgw.bus import Keys, decode_envelope, encode_envelope, open_session
-from auvgw.cli import UserError
+from auvgw.cli import UserError, add_command
 from auvgw.config.bus import BusConfig
 from auvgw.config.gateway import ConfigError, load_gateway_config
 from auvgw.config.scenario import ScenarioError, load_scenario
 from auvgw.paths import config_file
+from auvgw.procs import Children, free_endpoint, stop_process
 
 DEFAULT_SCENARIO = "harbour"
 #: the emulated vehicle's name (the <v> key segment)
@@ -62,12 +62,7 @@ VB_PAPER_RMSE_PCT = 0.742
 
 
 def register(sub: Any) -> None:
-    p = sub.add_parser(
-        "demo",
-        help="run the emulated vehicle, gateway, fusion, SLAM and Rerun recording (main job)",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    p = add_command(sub, "demo", __doc__)
     p.add_argument(
         "--scenario",
         default=DEFAULT_SCENARIO,
@@ -253,12 +248,7 @@ def run(args: argparse.Namespace) -> int:
         _wait_for(sim_dir / "gateway.toml", sim, 60.0)
         return _run_stages(args, sim, sim_dir, scenario, rrd, speed)
     finally:
-        if sim.poll() is None:
-            sim.send_signal(signal.SIGINT)
-            try:
-                sim.wait(20)
-            except subprocess.TimeoutExpired:
-                sim.kill()
+        stop_process(sim, signal.SIGINT, 20.0)
         sim_log.close()
 
 
@@ -409,7 +399,7 @@ def _run_stages(
 
     ins_span: list[float] = []  # device time of the first and the latest INS sample, s
 
-    def on_message(device: str, t_ns: int, msg: Any) -> None:
+    def to_fusion(device: str, t_ns: int, msg: Any) -> None:
         # t_ns: the gateway's vehicle-paced stamp (its [clock] section)
         if device == "ins" and hasattr(msg, "time"):
             ins_span[1:] = [float(msg.time)]
@@ -418,10 +408,6 @@ def _run_stages(
                 fusion_box.append(start_fusion(float(msg.time)))
         if fusion_box:
             fusion_box[0].feed(device, t_ns, msg)
-        if slam is not None:
-            slam.post(device, t_ns, msg)
-        if viz is not None:
-            viz.on_message(device, t_ns, msg)
 
     truth_pub = session.declare_publisher(keys.truth("pose"))
 
@@ -434,7 +420,10 @@ def _run_stages(
             viz.stage.handle_sample(keys.truth("pose"), body, epoch_ns + int(sample["t"] * 1e9))
 
     tail = _TruthTail(sim_dir / "truth.jsonl", on_truth)
-    gateway = Gateway(gw_cfg, session=session, on_message=on_message)
+    gateway = Gateway(gw_cfg, session=session)
+    for listener in (to_fusion, slam and slam.post, viz and viz.on_message):
+        if listener:
+            gateway.listeners.subscribe(listener)
     if viz is not None:
         _log_true_map(viz, keys, scenario)
     stop = threading.Event()
@@ -533,74 +522,12 @@ def _report(
 # -- one OS process per part ------------------------------------------------------------------
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-def _endpoint() -> str:
-    return f"tcp/127.0.0.1:{_free_port()}"
-
-
-class _Children:
-    """The demo's child processes (``python -m auvgw ...``), each logging to ``OUT/<name>.log``;
-    stopped with SIGINT, then killed after a grace period; exit codes kept."""
-
-    def __init__(self, out: Path) -> None:
-        self.out = out
-        self.procs: dict[str, subprocess.Popen[bytes]] = {}
-        self.exit_codes: dict[str, int | None] = {}
-        self.killed: list[str] = []
-        self._logs: list[Any] = []
-
-    def start(self, name: str, argv: list[str]) -> subprocess.Popen[bytes]:
-        log_file = open(self.out / f"{name}.log", "wb")  # noqa: SIM115 (closed in close)
-        self._logs.append(log_file)
-        proc = subprocess.Popen([sys.executable, "-m", "auvgw", *argv], stdout=log_file,
-                                stderr=subprocess.STDOUT)  # fmt: skip
-        self.procs[name] = proc
-        return proc
-
-    def check(self) -> None:
-        """A :class:`UserError` if a child other than the sim has exited."""
-        for name, proc in self.procs.items():
-            if name != "sim" and proc.poll() is not None:
-                raise UserError(f"{name} stopped early (exit {proc.returncode}): "
-                                f"{self.tail(name)}")  # fmt: skip
-
-    def tail(self, name: str, n: int = 400) -> str:
-        try:
-            text = (self.out / f"{name}.log").read_text(errors="replace")
-        except OSError:
-            return ""
-        return text[-n:].strip().replace("\n", " | ")
-
-    def stop(self, name: str, grace_s: float = 15.0) -> int | None:
-        """SIGINT, then SIGKILL after ``grace_s``; the exit code (negative: signal)."""
-        proc = self.procs.get(name)
-        if proc is None:
-            return None
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(grace_s)
-            except subprocess.TimeoutExpired:
-                self.killed.append(name)
-                proc.kill()
-                proc.wait()
-        self.exit_codes[name] = proc.returncode
-        return proc.returncode
-
-    def close(self) -> None:
-        for name in list(self.procs):
-            self.stop(name, grace_s=5.0)
-        for f in self._logs:
-            f.close()
-
-    def report(self) -> dict[str, Any]:
-        return {n: {"pid": p.pid, "exit_code": self.exit_codes.get(n, p.returncode),
-                    "killed": n in self.killed} for n, p in self.procs.items()}  # fmt: skip
+def _check_children(children: Children) -> None:
+    """A :class:`UserError` if a child other than the sim has exited."""
+    name = children.exited(but=("sim",))
+    if name is not None:
+        code = children.procs[name].returncode
+        raise UserError(f"{name} stopped early (exit {code}): {children.tail(name)}")
 
 
 class _Collector:
@@ -667,12 +594,12 @@ class _Collector:
 
 
 def _wait_alive(
-    sub: Any, wanted: set[str], children: _Children, timeout_s: float, what: str
+    sub: Any, wanted: set[str], children: Children, timeout_s: float, what: str
 ) -> float:
     """Wait until every component in ``wanted`` holds its liveliness token; host time then."""
     deadline = time.monotonic() + timeout_s
     while True:
-        children.check()
+        _check_children(children)
         missing = wanted - sub.alive(timeout=0.5)
         if not missing:
             return time.time()
@@ -710,10 +637,10 @@ def _run_processes(
     out: Path = args.out
     scn = load_scenario(scenario)
     keys = Keys(VEHICLE)
-    hub = _endpoint()
+    hub = free_endpoint()
     session = open_session(BusConfig(listen=[hub]))
     sub = GatewaySubscriber(VEHICLE, session=session)
-    children = _Children(out)
+    children = Children(out)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
@@ -729,7 +656,7 @@ def _run_processes(
                                            scn.devices.ins.noise)
                             .model_dump_json(indent=1))  # fmt: skip
         children.start("fusion", ["fusion", "--settings", str(settings),
-                                  "--connect", hub, "--listen", _endpoint()])  # fmt: skip
+                                  "--connect", hub, "--listen", free_endpoint()])  # fmt: skip
         wanted = {"fusion", "gateway", "ins", "dvl"}
         slam_cfg = None
         bathy = not args.no_slam and _bathymetric_scenario(scn)
@@ -745,7 +672,7 @@ def _run_processes(
                 "--algorithm", slam_cfg.algorithm, "--particles", str(slam_cfg.n_particles),
                 "--seed", str(slam_cfg.seed), "--sound-speed", str(slam_cfg.sound_speed_mps),
                 "--target-radius", str(slam_cfg.target_radius_m),
-                "--connect", hub, "--listen", _endpoint(),
+                "--connect", hub, "--listen", free_endpoint(),
             ])  # fmt: skip
             wanted |= {"msis", f"slam-{slam_cfg.pipeline_name}"}
         sim = children.start("sim", [*_sim_argv(scenario, speed, args.duration, sim_dir),
@@ -756,7 +683,7 @@ def _run_processes(
         collector = _Collector(session, keys, epoch_ns / 1e9)
         if bathy:
             map_tap = _BathyMapTap(session, keys)
-        gw_argv = ["run", "--config", str(_gateway_toml(sim_dir, out, _endpoint(), hub))]
+        gw_argv = ["run", "--config", str(_gateway_toml(sim_dir, out, free_endpoint(), hub))]
         if rrd is not None:
             gw_argv += ["--viz-rrd", str(rrd)]
         if args.connect:
@@ -784,7 +711,7 @@ def _run_processes(
         progress = _Progress(epoch_ns, speed, args.duration)
         while not _sim_done(sim, sim_dir) and not stop.is_set():
             tail.poll()
-            children.check()
+            _check_children(children)
             stop.wait(0.2)
             progress.tick()
         tail.poll()
@@ -959,7 +886,8 @@ def _bathy_argv(cfg: Any, hub: str) -> list[str]:
     sets = [a for k, v in cfg.filter.items() for a in ("--set", f"{k}={json.dumps(v)}")]
     return ["slam", "run", "--pipeline", "bathymetric", "--vehicle", cfg.vehicle,
             "--multibeam", str(cfg.multibeam_device), "--particles", str(cfg.n_particles),
-            "--seed", str(cfg.seed), *sets, "--connect", hub, "--listen", _endpoint()]  # fmt: skip
+            "--seed", str(cfg.seed), *sets,
+            "--connect", hub, "--listen", free_endpoint()]  # fmt: skip
 
 
 def _slam_name(stage: Any) -> str:
@@ -1059,7 +987,7 @@ def _magnetic_argv(scenario: Path, scn: Any, epoch_ns: int, hub: str) -> list[st
     return ["slam", "run", "--pipeline", "magnetic", "--vehicle", VEHICLE,
             "--scenario", str(scenario), "--mag-device", "magnetometer",
             "--mag-rate", str(_mag_rate_hz(scn)), "--clock-epoch-ns", str(epoch_ns),
-            "--connect", hub, "--listen", _endpoint()]  # fmt: skip
+            "--connect", hub, "--listen", free_endpoint()]  # fmt: skip
 
 
 def _print_magnetic(

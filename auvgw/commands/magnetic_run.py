@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from typing import Any
 
 import numpy as np
@@ -71,52 +70,23 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _live(args: argparse.Namespace) -> int:
-    from auvgw.commands.run import serve_stage
+    from auvgw.commands.slam_run import serve_slam
     from auvgw.stages.magnetic import MagneticStage
 
     cfg = stage_config(args, args.vehicle)
-    stage = serve_stage(
-        args,
-        lambda session: MagneticStage(cfg, session),
-        lambda st: f"slam running: vehicle {cfg.vehicle}, AMB-SLAM on {st.key('pose')}",
-        lambda st: st.input_keys(),
-    )
-    print(f"slam counters: {json.dumps(stage.counters())}", file=sys.stderr)
-    return 0
+    return serve_slam(args, lambda session: MagneticStage(cfg, session), "AMB-SLAM")
 
 
 def _offline(args: argparse.Namespace) -> int:
-    from auvgw.commands.slam_run import _error, _fusion_settings
-    from auvgw.recording import RecordingError, iter_recording
-    from auvgw.stages.fusion import FusionStage
+    from auvgw.commands.slam_run import _error, _Paths, check_recording, replay_recording
     from auvgw.stages.magnetic import MagneticStage
 
     cfg = stage_config(args, "auv1")
-    if not args.recording.is_file():
-        raise UserError(f"{args.recording}: no such file")
+    check_recording(args)
     stage = MagneticStage(cfg)
-    dr: list[tuple[float, float, float]] = []
-    truth: list[tuple[float, float, float]] = []
-
-    def on_odometry(o: Any) -> None:
-        dr.append((o.t, o.x, o.y))
-        stage.feed_odometry(o)
-
-    fusion = FusionStage(_fusion_settings(args), on_odometry=on_odometry)
-    try:
-        for rec in iter_recording(args.recording, truth=True):
-            if "/truth/" in rec.key:
-                s = rec.messages[0] if rec.messages else None
-                if rec.key.endswith("/pose") and isinstance(s, dict) and "t" in s:
-                    truth.append((float(s["t"]), float(s["x"]), float(s["y"])))
-                continue
-            device = rec.key.rsplit("/", 1)[-1]
-            for msg in rec.messages:
-                fusion.feed(device, rec.t_recv_ns, msg)
-                stage.feed(device, rec.t_recv_ns, msg)
-        fusion.flush()
-    except RecordingError as exc:
-        raise UserError(str(exc)) from None
+    paths = _Paths()
+    fusion = replay_recording(args, stage, paths, flush=False)
+    dr, truth = paths.dr, paths.truth
     c = stage.counters()
     print(f"{args.recording}: {json.dumps(c['stage'])}, {c['landmarks']} beacons mapped")
     ins = fusion.adapter.ins_device

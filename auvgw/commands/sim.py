@@ -29,19 +29,14 @@ import time
 from pathlib import Path
 from typing import Any
 
-from auvgw.cli import UserError
+from auvgw.cli import UserError, add_command
 from auvgw.drivers import registry
 
 log = logging.getLogger(__name__)
 
 
 def register(sub: Any) -> None:
-    p = sub.add_parser(
-        "sim",
-        help="run the emulated vehicle (world + device emulators on virtual ports)",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    p = add_command(sub, "sim", __doc__)
     p.add_argument("--scenario", "-s", required=True, type=Path, help="scenario file (JSON)")
     p.add_argument(
         "--speed",

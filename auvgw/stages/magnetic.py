@@ -43,7 +43,6 @@ logged, never stops the worker.
 
 from __future__ import annotations
 
-import bisect
 import logging
 import math
 from collections import deque
@@ -59,6 +58,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from auvgw.bus import Envelope, Keys
 from auvgw.drivers import registry
 from auvgw.fusion.odometry import Odometry
+from auvgw.slam.history import StateHistory
 from auvgw.slam.magnetic.filters import MAGNETIC_ALGORITHMS, make_magnetic
 from auvgw.slam.magnetic.mlp import MLP
 from auvgw.slam.magnetic.online import MagneticOnline
@@ -177,9 +177,7 @@ class MagneticStage(Stage):
         self.online: MagneticOnline | None = None
         #: published poses: (t s, x, y, heading)
         self.track: list[tuple[float, float, float, float]] = []
-        self._t_att: deque[float] = deque()
-        self._att: deque[tuple[float, float, float]] = deque()  # unwrapped heading, pitch, roll
-        self._pos: deque[tuple[float, float, float]] = deque()  # x, y, z
+        self._att = StateHistory(3, angles=(0, 1, 2))  # heading, pitch, roll (rad)
         self._mags: deque[tuple[float, np.ndarray]] = deque()
         self._t_pub: float | None = None
         self._t_odo = -math.inf  # end of the odometry given to the filter (input clock, s)
@@ -215,26 +213,19 @@ class MagneticStage(Stage):
         """One odometry sample (in time order)."""
         with self._lock:
             self.stats.odometry += 1
-            if self._t_att and o.t <= self._t_att[-1]:
+            last = self._att.last_t
+            if last is not None and o.t <= last:
                 return
             if self.online is None:
                 self.online = self._make(o)
                 self._t_odo = o.t
             elif o.increment is not None:
                 self._compose(o.t, o.increment)
-            h = o.heading
-            if self._att:
-                h = self._att[-1][0] + math.remainder(h - self._att[-1][0], math.tau)
-            self._t_att.append(o.t)
-            self._att.append((h, o.pitch, o.roll))
-            self._pos.append((o.x, o.y, o.z))
+            self._att.append(o.t, (o.heading, o.pitch, o.roll))
             self._drain_mag()
             if self._pose_due():
                 self._publish_pose(landmarks=False)
-            while self._t_att and self._t_att[0] < o.t - self.config.odometry_window_s:
-                self._t_att.popleft()
-                self._att.popleft()
-                self._pos.popleft()
+            self._att.trim(o.t - self.config.odometry_window_s)
 
     def _compose(self, t: float, inc: Any) -> None:
         """Compose odometry increments (``dx`` forward, ``dy`` starboard in the body frame at
@@ -255,7 +246,8 @@ class MagneticStage(Stage):
     def feed_mag(self, t: float, b_body_nt: np.ndarray) -> None:
         """One magnetometer sample (body axes, nT) at ``t`` (odometry clock)."""
         with self._lock:
-            if self._t_att and t < self._t_att[0]:
+            first = self._att.first_t
+            if first is not None and t < first:
                 self.stats.mag_before_odometry += 1
                 return
             if len(self._mags) >= self.config.max_pending_mag:
@@ -314,19 +306,14 @@ class MagneticStage(Stage):
         return self._t0 + (base + counter) / rate
 
     def _drain_mag(self) -> None:
-        if self.online is None or not self._t_att:
+        last = self._att.last_t
+        if self.online is None or last is None:
             return
-        t_att = list(self._t_att)
-        while self._mags and self._mags[0][0] <= t_att[-1]:
+        while self._mags and self._mags[0][0] <= last:
             t, b = self._mags.popleft()
-            k = bisect.bisect_left(t_att, t)
-            if k == 0:
-                h, p, r = self._att[0]
-            else:
-                t0, t1 = t_att[k - 1], t_att[k]
-                w = (t - t0) / (t1 - t0) if t1 > t0 else 1.0
-                a0, a1 = self._att[k - 1], self._att[k]
-                h, p, r = (a0[i] + w * (a1[i] - a0[i]) for i in range(3))
+            att = self._att.at(t, hold_first=True)
+            assert att is not None
+            h, p, r = (float(v) for v in att)
             try:
                 horizon = self.online.horizon
                 obs = self.online.add_mag(t - self._t0, b, h, p, r)

@@ -27,7 +27,7 @@ The JSON accepted on ``slam/``, ``truth/`` and ``nav/`` is documented in ``docs/
 
 Time: each message goes on ``sensor_time`` at its device time where the wire carries a UTC
 clock that agrees with the host (Kongsberg, PD0), else at the device time mapped onto the host
-clock (:class:`DeviceClock`: INS time since power-up, simulation time, an emulator's epoch),
+clock (:func:`host_clock`: INS time since power-up, simulation time, an emulator's epoch),
 else at the gateway's receive time.
 
 The Zenoh callback only copies the payload into a bounded queue (dropping with a counter when
@@ -50,18 +50,17 @@ from typing import Any
 import numpy as np
 
 from auvgw.bus import SCHEMA_VERSION, Keys, decode_envelope
-from auvgw.drivers.spec import MESSAGE_TYPES, from_jsonable
+from auvgw.devicetime import DeviceClock
+from auvgw.drivers.spec import from_jsonable, resolve_type
 from auvgw.stages.base import BusCounters, Stage
 from auvgw.viz.logger import RerunLogger, VizOptions
 
-__all__ = ["SECTIONS", "DeviceClock", "StageStats", "VizRunner", "VizStage", "open_viz"]
+__all__ = ["SECTIONS", "StageStats", "VizRunner", "VizStage", "host_clock", "open_viz"]
 
 log = logging.getLogger(__name__)
 
 #: bus sections the stage subscribes to
 SECTIONS: tuple[str, ...] = ("sensor", "nav", "slam", "truth", "status")
-#: device clocks later than this (2001-09-09, POSIX s) are taken as absolute UTC
-ABSOLUTE_CLOCK_S = 1e9
 
 #: sensor message types that carry nothing to show (replies, configuration, raw blocks)
 IGNORED_TYPES = frozenset(
@@ -92,30 +91,16 @@ class _Obj:
             raise AttributeError(name) from None
 
 
-class DeviceClock:
-    """Maps one source's device clock (s) onto the host clock (POSIX s).
+def host_clock(jump_s: float = 1.0, sync_s: float = 60.0) -> DeviceClock:
+    """One source's device clock (s) onto the host clock (POSIX s), for display.
 
     A UTC clock that agrees with the host within ``sync_s`` (a GPS-disciplined sonar, a DVL
     set at dive start) passes through. Any other clock (time since power-up, simulation time,
     an RTC set to another epoch) gets the smallest host-minus-device offset seen so far (the
-    least delayed sample), re-anchored when the offset grows by more than ``jump_s`` (clock
-    reset or jump): the samples keep the device's own spacing on the host's time line.
+    least delayed sample), re-anchored at once when the offset grows by more than ``jump_s``
+    (clock reset or jump): the samples keep the device's own spacing on the host's time line.
     """
-
-    def __init__(self, jump_s: float = 1.0, sync_s: float = 60.0) -> None:
-        self.jump_s = jump_s
-        self.sync_s = sync_s
-        self.offset: float | None = None
-
-    def __call__(self, t_device: float | None, t_host: float) -> float:
-        if t_device is None or not math.isfinite(t_device):
-            return t_host
-        d = t_host - t_device
-        if t_device > ABSOLUTE_CLOCK_S and abs(d) <= self.sync_s:
-            return t_device
-        if self.offset is None or d < self.offset or d > self.offset + self.jump_s:
-            self.offset = d
-        return t_device + self.offset
+    return DeviceClock(skew=0.0, jump_s=jump_s, confirm=1, confirm_s=0.0, sync_s=sync_s)
 
 
 @dataclass
@@ -266,8 +251,8 @@ class VizStage(Stage):
                 importlib.import_module(name)
             except Exception as exc:  # a codec being written must not stop the stage
                 log.warning("viz stage: %s unavailable (%s); its messages are skipped", name, exc)
-            if m.type in MESSAGE_TYPES:
-                self._classes[m.type] = MESSAGE_TYPES[m.type]
+            if (cls := resolve_type(m.type)) is not None:
+                self._classes[m.type] = cls
 
     # -- bus side --------------------------------------------------------------------------
     def input_keys(self) -> list[str]:
@@ -308,7 +293,7 @@ class VizStage(Stage):
     def _clock(self, source: str) -> DeviceClock:
         c = self._clocks.get(source)
         if c is None:
-            c = self._clocks[source] = DeviceClock()
+            c = self._clocks[source] = host_clock()
         return c
 
     def handle_sample(self, key: str, payload: bytes, t_arrival_ns: int | None = None) -> str:

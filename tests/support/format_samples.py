@@ -7,7 +7,6 @@ from __future__ import annotations
 import struct
 from pathlib import Path
 
-from gateway_support import pd0_frames
 from test_acoustic import LINE as ACOUSTIC_LINE
 from test_hn100 import good_frames as hn100_frames
 from test_kongsberg import G as KONGSBERG_FRAMES
@@ -18,6 +17,7 @@ from test_v4log import sample_items
 
 from auvgw.drivers import seanet as sn
 from auvgw.drivers.seanet import v4log as v4
+from auvgw.testing import pd0_frames
 
 STREAM_FORMATS = ("pd0", "pd6", "seanet", "kongsberg", "hn100", "ms3a")
 
