@@ -36,7 +36,14 @@ ports close), so every frame an emulator sends falls in the measured run.
   phase, per port (target: envelope <= 1.5x its raw frame).
 * **lost**: frames each emulator sent (the sim's printed counters; on CAN the sim counts a
   sample's burst once, so its count times the DBC's frames per epoch) minus the frames the
-  gateway counted (``frames`` of its status queryable); the bar is none.
+  gateway counted (``frames`` of its status queryable, once its counts settle after the
+  devices fall silent); the bar is none. ``--all-warm`` gives the gateway more seconds to
+  start and connect every port before the devices speak (a loaded machine needs them).
+
+The script runs under ``nice`` as the project asks: on a machine loaded well beyond its cores,
+the niced gateway waits for the scheduler, and the latencies (``read p50``: ``os.write`` to the
+gateway's receive stamp, before any gateway code runs) and the 10x losses (emulators whose ptys
+fill while the gateway waits) measure that wait; compare with the load printed beside them.
 
 Nominal rate: 10 Hz (a Pathfinder's top ping rate); 10x = 100 Hz. Latencies are medians and
 99th percentiles over every ensemble of a phase. Timings depend on the machine's load: compare

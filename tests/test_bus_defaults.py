@@ -39,6 +39,8 @@ def _count_on_bus(
                     envelopes.append((key, smp.payload.to_bytes()))
                 if "/slam/" in key and key.endswith("/pose"):
                     counts["slam_pose"] += 1
+                if key.endswith("/msis/mtheaddata"):  # the polled head answers after its set-up
+                    counts["msis_head"] += 1
 
             sub = s.declare_subscriber(keys.all("**"), on_sample)
             stop.wait()
@@ -68,8 +70,9 @@ def test_default_endpoints_connect_sim_gateway_record_fusion_slam(procs, tmp_pat
         rec.wait_line("recording", timeout=60)
         fusion.wait_line("fusion running", timeout=60)
         slam.wait_line("slam running", timeout=60)
-        wait_until(lambda: counts["slam_pose"] >= 3 and counts["nav"] >= 50, timeout=120,
-                   what=f"SLAM poses and odometry on the default bus (seen {counts})")  # fmt: skip
+        wait_until(lambda: counts["slam_pose"] >= 3 and counts["nav"] >= 50
+                   and counts["msis_head"] >= 3, timeout=120,
+                   what=f"SLAM poses, odometry, sonar lines (seen {counts})")  # fmt: skip
         rec.signal(signal.SIGTERM)
         assert rec.wait(60) == 0, rec.stderr()
     finally:
@@ -163,8 +166,8 @@ def _check_ros2_readers(path: Path, envelopes: list[tuple[str, bytes]]) -> None:
             # the DVL: bottom-track velocity in the frame it reports (ship here, levelled into
             # base_link FLU), -1 in covariance[0] without bottom lock; altitude in metres
             s = dvl_from_pd0(msg, t=0.0)
-            if name == "altitude":
-                return "dvl", s.altitude
+            if name == "altitude":  # sensor_msgs/Range carries float32
+                return "dvl", float(np.float32(s.altitude))
             frame = "base_link" if s.frame == "body" else "dvl"
             v = flu_from_frd(s.velocity) if s.frame == "body" else s.velocity
             return frame, tuple(v), (0.0, 0.0, 0.0), 0.0 if s.bottom_lock else -1.0
@@ -197,7 +200,7 @@ def _check_ros2_readers(path: Path, envelopes: list[tuple[str, bytes]]) -> None:
             return ros.header.frame_id, ros.range
         if name == "twist":
             t, cov = ros.twist.twist, ros.twist.covariance
-            assert not cov[1:].any()
+            assert not any(cov[1:])
             return (ros.header.frame_id, (t.linear.x, t.linear.y, t.linear.z),
                     (t.angular.x, t.angular.y, t.angular.z), cov[0])  # fmt: skip
         if name == "returns":
