@@ -15,6 +15,8 @@ ROOTS = {
     "auvgw.slam": "slam",
     "auvgw.sim_devices": "sim_devices",
     "auvgw.config": "config",
+    # the test house: tests and benchmarks import it without editing sys.path
+    "auvgw.testing": "tests/support",
 }
 
 packages: list[str] = []

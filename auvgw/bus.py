@@ -3,36 +3,42 @@
 Key space (``<v>`` is the vehicle name)::
 
     auv/<v>/raw/<device>                 raw frames: bytes, attachment = RAW_ATTACHMENT
-    auv/<v>/sensor/<device>/<kind>       decoded messages: JSON, encoding schema auvgw/1/<Type>
-    auv/<v>/nav/odometry                 fusion output (JSON)
+    auv/<v>/sensor/<device>/<kind>       decoded messages: envelopes (auvgw.envelope)
+    auv/<v>/nav/odometry                 fusion output (envelope)
     auv/<v>/slam/<pipeline>/{pose,landmarks,map}
     auv/<v>/status/<component>           periodic health (JSON); also a queryable
     auv/<v>/alive/<component>            liveliness tokens
     auv/<v>/config/<component>           queryable: the running configuration (JSON)
     auv/<v>/truth/<what>                 simulation ground truth (JSON)
 
-The schema version (``SCHEMA_VERSION``) is carried in every JSON payload's encoding schema
-(``auvgw/1/Ensemble``) and in the ``v`` key of the envelope, so consumers can reject payloads they
-do not understand without guessing from the key.
+The schema version (``SCHEMA_VERSION``) of the JSON documents is carried in their encoding
+schema (``auvgw/1/...``); the envelope's version (``ENVELOPE_VERSION``) in its encoding
+(``application/msgpack;auvgw/3/<Type>``) and its first element, so consumers can reject payloads
+they do not understand without guessing from the key.
 """
 
 from __future__ import annotations
 
 import contextlib
-import json
 import struct
 import sys
 import threading
-from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass, field
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import msgspec
-import numpy as np
 import zenoh
 
 from auvgw.config.bus import BusConfig
+from auvgw.envelope import (
+    ENVELOPE_VERSION,
+    Envelope,
+    decode_envelope,
+    encode_envelope,
+    envelope_encoding,
+)
+from auvgw.errors import format_validation_error
 
 __all__ = [
     "ENVELOPE_VERSION",
@@ -59,10 +65,6 @@ __all__ = [
 
 #: version of the JSON documents (status, configuration, SLAM outputs, truth)
 SCHEMA_VERSION = 1
-#: version of the decoded-message envelope (MessagePack); 1 was JSON, still read for a release
-ENVELOPE_VERSION = 2
-#: MessagePack extension code of a numpy array: ``<dtype.str>;<d0,d1,...>`` NUL then the bytes
-EXT_NDARRAY = 1
 #: attachment of a raw frame: host receive time (ns since the Unix epoch), per-device sequence,
 #: stream byte offset of the frame's first byte
 RAW_ATTACHMENT = struct.Struct("<qQQ")
@@ -149,109 +151,6 @@ def wire_format_of(encoding: str) -> str:
 
 def json_encoding(type_name: str) -> zenoh.Encoding:
     return zenoh.Encoding.APPLICATION_JSON.with_schema(f"auvgw/{SCHEMA_VERSION}/{type_name}")
-
-
-@dataclass(frozen=True)
-class Envelope:
-    """A decoded message as it travels: its type name, source device, host receive time (ns
-    since the Unix epoch), the sequence of the raw frame it came from, the message's body (SI
-    units; numpy arrays, bytes and NaN as they are) and, where rebuilt (:mod:`auvgw.subscribe`),
-    the typed immutable ``message``; ``wire`` the gateway format it was decoded from (``hn100``,
-    ``can``, ...; empty for derived messages such as odometry)."""
-
-    type: str
-    device: str
-    t_recv_ns: int
-    seq: int
-    body: Mapping[str, Any] = field(default_factory=dict)
-    message: Any = None
-    key: str = ""
-    wire: str = ""
-
-
-_ARRAY_HEADS: dict[tuple[Any, tuple[int, ...]], bytes] = {}
-
-
-def _enc_hook(obj: Any) -> Any:
-    if isinstance(obj, np.ndarray):
-        key = (obj.dtype, obj.shape)
-        head = _ARRAY_HEADS.get(key)
-        if head is None:  # a few (dtype, shape) per codec: cached
-            head = f"{obj.dtype.str};{','.join(map(str, obj.shape))}".encode() + b"\0"
-            if len(_ARRAY_HEADS) < 4096:
-                _ARRAY_HEADS[key] = head
-        return msgspec.msgpack.Ext(EXT_NDARRAY, head + obj.tobytes())
-    if isinstance(obj, np.generic):
-        return obj.item()
-    raise NotImplementedError(f"cannot encode a {type(obj).__name__} in an envelope")
-
-
-def _ext_hook(code: int, data: memoryview) -> Any:
-    if code != EXT_NDARRAY:
-        raise ValueError(f"unknown MessagePack extension {code} in an envelope")
-    raw = bytes(data)
-    head, _, body = raw.partition(b"\0")
-    dtype, _, shape = head.decode().partition(";")
-    dims = tuple(int(x) for x in shape.split(",") if x)
-    return np.frombuffer(body, dtype=np.dtype(dtype)).reshape(dims)  # read-only, like messages
-
-
-_ENCODER = msgspec.msgpack.Encoder(enc_hook=_enc_hook)
-_DECODER = msgspec.msgpack.Decoder(ext_hook=_ext_hook)
-
-
-def envelope_encoding(type_name: str) -> zenoh.Encoding:
-    """``application/msgpack;auvgw/2/<Type>``: the encoding of every envelope sample."""
-    return zenoh.Encoding(f"application/msgpack;auvgw/{ENVELOPE_VERSION}/{type_name}")
-
-
-def encode_envelope(
-    msg: Any,
-    device: str,
-    t_recv_ns: int,
-    seq: int,
-    body: Mapping[str, Any] | None = None,
-    wire: str = "",
-) -> tuple[bytes, zenoh.Encoding]:
-    """MessagePack envelope and its encoding (docs/bus.md#payloads) of a decoded message
-    (``body`` replaces the message's fields; ``wire``: the gateway format it came from)."""
-    if body is not None:
-        body = dict(body)
-        type_name = str(body.pop("type", None) or getattr(msg, "TYPE", type(msg).__name__))
-    else:
-        type_name = str(getattr(msg, "TYPE", type(msg).__name__))
-    env = {
-        "v": ENVELOPE_VERSION,
-        "type": type_name,
-        "wire": wire,
-        "device": device,
-        "t": t_recv_ns,
-        "seq": seq,
-        "msg": msg if body is None else body,
-    }
-    return _ENCODER.encode(env), envelope_encoding(type_name)
-
-
-def decode_envelope(payload: bytes, key: str = "") -> Envelope:
-    """Parse an envelope (MessagePack v2; JSON v1 of the previous release is still read);
-    raises ValueError on anything else."""
-    if payload[:1] == b"{":  # v1: JSON
-        env = json.loads(payload)
-        if env.get("v") != 1:
-            raise ValueError(f"JSON envelope version {env.get('v')!r}, expected 1")
-        return Envelope(
-            env["type"], env["device"], env["t_recv_ns"], env["seq"], env["msg"], key=key
-        )
-    try:
-        env = _DECODER.decode(payload)
-    except msgspec.DecodeError as exc:
-        raise ValueError(f"not an envelope: {exc}") from None
-    if not isinstance(env, dict) or env.get("v") != ENVELOPE_VERSION:
-        v = env.get("v") if isinstance(env, dict) else None
-        raise ValueError(f"envelope version {v!r}, expected {ENVELOPE_VERSION}")
-    return Envelope(
-        env["type"], env["device"], env["t"], env["seq"], env["msg"], key=key, wire=env["wire"]
-    )
 
 
 class InputWatch:
@@ -377,8 +276,4 @@ def bus_from_args(args: Any, hub: bool = False) -> BusConfig:
             bus = bus.rebased(path.resolve().parent)
         return bus.as_hub() if hub else bus.as_spoke()
     except ValidationError as exc:
-        lines = []
-        for e in exc.errors():
-            opt = ".".join(str(p) for p in e["loc"]) or "bus"
-            lines.append(f"--{opt}: {e['msg'].removeprefix('Value error, ')}")
-        raise ValueError("\n".join(lines)) from exc
+        raise ValueError(format_validation_error(exc, rename=lambda f: f"--{f}")) from exc

@@ -2,7 +2,9 @@
 
 Each command module defines ``register(subparsers)`` which adds its parser and sets
 ``func=run`` where ``run(args) -> int`` is the exit code. Exit code 2 means bad input
-(unreadable file, wrong format, invalid configuration), with a one-line message on stderr.
+(unreadable file, wrong format, invalid configuration), with a one-line message on stderr: a
+command raises :class:`~auvgw.errors.UserError` (or lets a ``ConfigError`` / ``DataError``
+through).
 """
 
 from __future__ import annotations
@@ -12,7 +14,9 @@ import importlib
 import logging
 import sys
 from pathlib import Path
-from typing import TextIO
+from typing import Any, TextIO
+
+from auvgw.errors import ConfigError, DataError, UserError
 
 #: command name -> (module, one-line help), in the order ``auvgw --help`` lists them. Only the
 #: module of the command being run is imported, so ``auvgw --help`` imports none of them (no
@@ -54,8 +58,16 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
-class UserError(Exception):
-    """A problem the user can fix (bad file, bad config); printed as one line, exit code 2."""
+__all__ = ["COMMANDS", "UserError", "add_command", "build_parser", "main", "open_output"]
+
+
+def add_command(sub: Any, name: str, doc: str | None) -> argparse.ArgumentParser:
+    """The parser of command ``name`` (its help line from :data:`COMMANDS`, ``doc``, the
+    module docstring, as its description, line breaks kept)."""
+    return sub.add_parser(  # type: ignore[no-any-return]
+        name, help=COMMANDS[name][1], description=doc,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )  # fmt: skip
 
 
 def open_output(path: Path | None) -> TextIO | None:
@@ -110,7 +122,7 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     try:
         return int(args.func(args) or 0)
-    except UserError as exc:
+    except (UserError, ConfigError, DataError) as exc:  # bad input: one line, never a traceback
         print(f"auvgw {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

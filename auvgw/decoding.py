@@ -16,7 +16,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from auvgw.config.gateway import ConfigError, DeviceConfig, GatewayConfig
-from auvgw.drivers.formats import Format, get_format
+from auvgw.drivers import registry
+from auvgw.drivers.formats import Format, format_from_table, get_format
 from auvgw.drivers.framing import ErrorPolicy, Framer
 
 __all__ = [
@@ -50,21 +51,11 @@ def message_type(msg: Any) -> str:
     return str(getattr(msg, "TYPE", type(msg).__name__))
 
 
-#: one ``<kind>`` per physical quantity, whatever the wire: an HN-100 solution is ``ins`` from
-#: its serial frame (Hn100Nav) and from its CAN epoch (HN100_Sample), an MS3A sample is
-#: ``magnetometer`` from ASCII and from CAN; the envelope names the type and the wire
-QUANTITY_KINDS: dict[str, str] = {
-    "Hn100Nav": "ins",
-    "HN100_Sample": "ins",
-    "Ms3aSample": "magnetometer",
-    "MS3A_Sample": "magnetometer",
-}
-
-
 def kind_of(type_name: str) -> str:
-    """The ``<kind>`` key segment of a message type name: its quantity (:data:`QUANTITY_KINDS`),
-    else the type name without its codec prefix, lower case (``pd0.Ensemble`` -> ``ensemble``)."""
-    return QUANTITY_KINDS.get(type_name) or type_name.rsplit(".", 1)[-1].lower()
+    """The ``<kind>`` key segment of a message type name (the device registry's public kinds,
+    :func:`auvgw.drivers.registry.kind_of`: ``pd0.Ensemble`` -> ``ensemble``, ``Hn100Nav`` and
+    ``HN100_Sample`` -> ``ins``)."""
+    return registry.kind_of(type_name)
 
 
 def message_kind(msg: Any) -> str:
@@ -203,16 +194,11 @@ class DeviceDecoder:
 
 def make_decoder(cfg: DeviceConfig, name: str = "") -> DeviceDecoder:
     """The decoder a device's configuration asks for (site tables and DBCs resolved here)."""
-    if cfg.format == "can":
+    if cfg.format == registry.CAN_FORMAT:
         from auvgw.drivers.can_codec import load_can_codec
 
         return DeviceDecoder(name, None, load_can_codec(cfg.dbc))
-    if cfg.table and cfg.format in ("hn100", "ms3a"):
-        from auvgw.drivers.formats import format_from_table
-
-        fmt = format_from_table(cfg.format, cfg.table)
-    else:
-        fmt = get_format(cfg.format)
+    fmt = format_from_table(cfg.format, cfg.table) if cfg.table else get_format(cfg.format)
     return DeviceDecoder(
         name, fmt, datagrams=cfg.transport.kind == "udp",
         max_partial_age_s=cfg.partial_frame_max_age_s,
@@ -227,7 +213,7 @@ def make_decoders(cfg: GatewayConfig) -> dict[str, DeviceDecoder]:
     for name, dcfg in cfg.devices.items():
         if not dcfg.enabled:
             continue
-        what = "dbc" if dcfg.format == "can" else "table" if dcfg.table else "format"
+        what = "dbc" if dcfg.format == registry.CAN_FORMAT else "table" if dcfg.table else "format"
         try:
             out[name] = make_decoder(dcfg, name)
         except ImportError as exc:

@@ -47,6 +47,7 @@ from auvgw.drivers.transports import (
 )
 from auvgw.health import Backoff, DeviceHealth, device_time_s
 from auvgw.hostdrivers import HostDriver, make_host_driver
+from auvgw.notify import Notifier
 
 log = logging.getLogger(__name__)
 
@@ -78,8 +79,9 @@ class _Device:
 class Gateway:
     """Runs every enabled device of a configuration against one Zenoh session. ``session`` may be
     passed in (stages sharing one embedded peer); otherwise one is opened from ``cfg.bus`` and
-    closed by :meth:`stop`. ``on_message(device, t_recv_ns, message)`` lets an in-process stage see
-    decoded messages without a Zenoh hop (it runs on the device's reader thread: keep it short);
+    closed by :meth:`stop`. :attr:`listeners` (a :class:`~auvgw.notify.Notifier`; ``on_message``
+    is subscribed to it) lets in-process stages see decoded messages without a Zenoh hop
+    (``(device, t_recv_ns, message)`` on the device's reader thread: keep it short);
     ``t_recv_ns`` is the time published with the message (the host receive time, or the
     vehicle-paced time of ``cfg.clock``: :meth:`ClockConfig.stamp
     <auvgw.config.gateway.ClockConfig.stamp>`). Decoders are built first, so a format, table or DBC
@@ -107,7 +109,9 @@ class Gateway:
             )
             for name, decoder in decoders.items()
         }
-        self.on_message = on_message
+        self.listeners = Notifier()
+        if on_message is not None:
+            self.listeners.subscribe(on_message)
         self.stop_event = threading.Event()
         self.finished = threading.Event()
         self._own_session = session is None
@@ -312,7 +316,7 @@ class Gateway:
                 self.keys.sensor(dev.name, kind), congestion_control=_DROP
             )
             dev.pubs[kind] = pub
-        payload, enc = encode_envelope(msg, dev.name, t_ns, seq, wire=dev.cfg.format)
+        payload, enc = encode_envelope(msg, dev.name, t_ns, seq, wire=dev.cfg.format, decoded=True)
         pub.put(payload, encoding=enc)
 
     def _handle_items(
@@ -335,11 +339,7 @@ class Gateway:
                 # rates on the host clock; lag from the device's own time against the stamp
                 dev.health.seen(t_recv_ns, message_type(msg), t_ns, device_time_s(msg))
                 self._publish(dev, msg, t_ns, seq)
-                if self.on_message is not None:
-                    try:
-                        self.on_message(dev.name, t_ns, msg)
-                    except Exception:  # an in-process stage's bug must not reopen the device
-                        log.exception("%s: on_message callback failed", dev.name)
+                self.listeners.notify(dev.name, t_ns, (msg,))
                 if host is not None:
                     host.on_message(msg, transport.write, time.monotonic())
 

@@ -12,6 +12,7 @@ from collections.abc import Callable
 from typing import Any, Protocol
 
 from auvgw.config.gateway import DeviceConfig
+from auvgw.drivers import registry
 
 __all__ = ["HostDriver", "Write", "make_host_driver"]
 
@@ -33,10 +34,12 @@ class HostDriver(Protocol):
 
 
 def make_host_driver(cfg: DeviceConfig) -> HostDriver | None:
-    """The host driver a device's format needs, or None for devices that stream on their own."""
-    if cfg.format == "seanet":
-        from auvgw.msis_host import SeaNetHost
-
-        assert cfg.msis is not None  # DeviceConfig fills it for seanet
-        return SeaNetHost(cfg.msis)
-    return None
+    """The host driver a device's format needs (the registry's ``host_driver``, made from the
+    device's configuration), or None for devices that stream on their own."""
+    if cfg.format == registry.CAN_FORMAT:
+        return None
+    target = registry.device(cfg.format).host_driver
+    if target is None:
+        return None
+    driver: HostDriver = registry.load(target)(cfg)
+    return driver

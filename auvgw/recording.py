@@ -56,6 +56,8 @@ from auvgw.bus import (
 )
 from auvgw.config.gateway import ConfigError, GatewayConfig, format_validation_error
 from auvgw.decoding import DeviceDecoder, make_decoders
+from auvgw.drivers.spec import to_jsonable
+from auvgw.errors import DataError
 from auvgw.paths import config_file
 
 log = logging.getLogger(__name__)
@@ -93,7 +95,7 @@ _ATT_LEN = struct.Struct("<H")
 _STOP = "stop"
 
 
-class RecordingError(ValueError):
+class RecordingError(DataError):
     """A recording that cannot be read or used; the message names the file."""
 
 
@@ -218,22 +220,26 @@ def sample_to_ros(
     """(ROS 2 messages, stamp ns, sequence) of a non-raw bus sample: an envelope (``sensor/``,
     ``nav/``: stamped with its receive time) or a JSON document (SLAM outputs stamped with their
     ``t`` on the odometry clock; status and truth with ``t_rx_ns``, when the recorder got it)."""
-    from auvgw.subscribe import typed_message
+    from auvgw.subscribe import envelope_message
 
     if section in ("sensor", "nav"):
         env = decode_envelope(payload)
         _load_types()
-        msg = typed_message(env.type, env.body)
-        if msg is None:
-            msg = _Fields(env.type, env.body)
+        msg = envelope_message(env)
+        if msg is None:  # a type this recorder does not know: its fields if sent by name
+            msg = _Fields(env.type, env.body if isinstance(env.body, Mapping) else {})
         kind = rest.rpartition("/")[2]
         source = rest.partition("/")[0] if section == "sensor" else rest
         try:
             msgs = ros2.to_ros(section, source, msg, env.t_recv_ns, env.seq, kind)
         except (AttributeError, TypeError, ValueError) as exc:  # no standard form: keep the body
             log.debug("%s/%s: %s; recorded as %s", section, rest, exc, ros2.DECODED_TYPE)
+            typed = hasattr(msg, "__dataclass_fields__")
+            body = (
+                to_jsonable(msg) if typed else {k: v for k, v in vars(msg).items() if k != "TYPE"}
+            )
             msgs = [ros2.decoded_msg(f"{section}/{rest}", source, env.type, env.t_recv_ns,
-                                     env.seq, dict(env.body))]  # fmt: skip
+                                     env.seq, body)]  # fmt: skip
         return msgs, env.t_recv_ns, env.seq
     text = payload.decode("utf-8", errors="replace")
     try:
@@ -253,15 +259,15 @@ def _load_types() -> None:
     """The fusion odometry type and the shipped HN-100 and MS3A DBCs' message types, so their
     envelopes become typed."""
     import auvgw.fusion.odometry  # noqa: F401 - registers Odometry
+    from auvgw.drivers import registry
     from auvgw.drivers.spec import MESSAGE_TYPES
 
-    if "HN100_Sample" in MESSAGE_TYPES and "MS3A_Sample" in MESSAGE_TYPES:
+    if all(m.type in MESSAGE_TYPES for _, m in registry.message_types() if m.wire == "can"):
         return
     try:
-        from auvgw.drivers.can_codec import hn100_can, ms3a_can
+        from auvgw.drivers.can_codec import shipped_can_types
 
-        hn100_can()
-        ms3a_can()
+        shipped_can_types()
     except Exception as exc:  # cantools or a DBC missing: CAN samples stay untyped
         log.debug("CAN message types not available: %s", exc)
 

@@ -48,6 +48,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from auvgw.drivers import registry
 from auvgw.geometry import quaternion_zyx
 
 __all__ = [
@@ -370,9 +371,10 @@ def landmarks_msg(body: Mapping[str, Any], t_ns: int) -> Any:
 
 # -- dispatch --------------------------------------------------------------------------------------
 
-_INS = frozenset({"Hn100Nav", "HN100_Sample"})
-_MAG = frozenset({"Ms3aSample", "MS3A_Sample"})
-_SWATH = frozenset({"XYZ88", "Depth"})
+# message types by the device registry's roles (auvgw.drivers.registry)
+_INS = registry.types_with_role("ins")
+_MAG = registry.types_with_role("field")
+_SWATH = registry.types_with_role("swath")
 
 
 def _type_name(msg: Any) -> str:

@@ -11,8 +11,9 @@
             print(env.t_recv_ns, env.message.bottom_track)   # a typed, immutable pd0.Ensemble
 
 How messages are rebuilt: from the envelope the gateway publishes
-(``auv/<v>/sensor/<device>/<kind>``, MessagePack, docs/bus.md#payloads) with
-:func:`auvgw.drivers.spec.from_jsonable`, not by decoding the raw frame again. That needs no
+(``auv/<v>/sensor/<device>/<kind>``, MessagePack, docs/bus.md#payloads) by
+:func:`auvgw.envelope.decode_envelope` (the positional body through the codec's table), not by
+decoding the raw frame again. That needs no
 device configuration, DBC or site table on the subscriber's side (a shore laptop only needs the
 codec modules for the types), and it gives the same values the gateway decoded (floats and
 arrays travel in binary, NaN included). A type no installed codec defines (e.g. a CAN message
@@ -26,6 +27,7 @@ more than ``queue_size`` samples, new ones are dropped and counted (``Stream.dro
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import logging
 import queue
@@ -40,43 +42,35 @@ import zenoh
 
 from auvgw.bus import Envelope, Keys, decode_envelope, open_session, unpack_raw_attachment
 from auvgw.config.bus import BusConfig
-from auvgw.drivers.formats import FORMATS, get_format
-from auvgw.drivers.spec import MESSAGE_TYPES, from_jsonable
+from auvgw.drivers.spec import from_jsonable
+from auvgw.envelope import SchemaError, message_class, typed_body
 
 log = logging.getLogger(__name__)
 
-__all__ = ["GatewaySubscriber", "RawFrame", "Stream", "typed_message"]
-
-_codecs_loaded = False
-_codecs_lock = threading.Lock()
+__all__ = ["GatewaySubscriber", "RawFrame", "Stream", "envelope_message", "typed_message"]
 
 
-def _load_codecs() -> None:
-    """Import every codec module of the registry once (they register their message types)."""
-    global _codecs_loaded
-    with _codecs_lock:
-        if _codecs_loaded:
-            return
-        _codecs_loaded = True
-        for name in FORMATS:
-            try:
-                get_format(name)
-            except Exception as exc:  # a codec that cannot load only loses its own types
-                log.debug("codec %s not loaded: %s", name, exc)
-
-
-def typed_message(type_name: str, body: Any) -> Any:
-    """The typed, immutable message of an envelope's body, or None for an unknown type."""
-    if type_name not in MESSAGE_TYPES:
-        _load_codecs()
-    cls = MESSAGE_TYPES.get(type_name)
+def typed_message(type_name: str, body: Any, schema: int | None = None) -> Any:
+    """The typed, immutable message of an envelope's body (by name, or positional with the
+    envelope's ``schema``), or None for an unknown type or a body that does not fit."""
+    cls = message_class(type_name)
     if cls is None:
         return None
     try:
+        if isinstance(body, list):
+            return typed_body(cls, type_name, -1 if schema is None else schema, body)
         return from_jsonable(body, cls)
     except (TypeError, ValueError, KeyError) as exc:
-        log.warning("cannot rebuild a %s from its JSON body: %s", type_name, exc)
+        log.warning("cannot rebuild a %s from its envelope body: %s", type_name, exc)
         return None
+
+
+def envelope_message(env: Envelope) -> Any:
+    """The typed message of a decoded envelope (rebuilt now if its type was not known when the
+    envelope was decoded), or None."""
+    if env.message is not None:
+        return env.message
+    return typed_message(env.type, env.body, env.schema)
 
 
 @dataclass(frozen=True, slots=True)
@@ -124,18 +118,15 @@ class Stream:
             return RawFrame(key.rsplit("/", 1)[-1], t_ns, seq, offset, payload, key)
         try:
             env = decode_envelope(payload, key)
+        except SchemaError as exc:  # another table than ours: the body as it came
+            log.warning("%s: %s", key, exc)
+            return decode_envelope(payload, key, typed=False)
         except (ValueError, KeyError) as exc:
             log.warning("%s: not a gateway envelope: %s", key, exc)
             return None
-        return Envelope(
-            env.type,
-            env.device,
-            env.t_recv_ns,
-            env.seq,
-            env.body,
-            typed_message(env.type, env.body),
-            key,
-        )
+        if env.message is not None:
+            return env
+        return dataclasses.replace(env, message=typed_message(env.type, env.body, env.schema))
 
     def get(self, timeout: float | None = None) -> Any:
         """The next envelope (or raw frame), or None when nothing arrives within ``timeout`` s."""

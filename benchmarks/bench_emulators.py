@@ -8,9 +8,10 @@ emulator of the scenario and runs them for ``--duration`` vehicle seconds at ``-
 time. A reader process (this script with ``--reader``, so it has its own core and GIL, like a
 gateway) opens every port with the real client library before the run starts: pyserial on the
 serial ptys (framed and decoded with the drivers; the MSIS is polled by the gateway's own
-:class:`~auvgw.msis_host.SeaNetHost`), the USB-CAN adapters with python-can's ``slcan`` interface
-read in bulk as the gateway opens them (:class:`~auvgw.drivers.slcanbus.BulkSlcanBus`; frames
-decoded with the DBC, counted in complete epochs) and a UDP socket for the multibeam.
+:class:`~auvgw.drivers.seanet.host.SeaNetHost`), the USB-CAN adapters with python-can's
+``slcan`` interface read in bulk as the gateway opens them
+(:class:`~auvgw.drivers.slcanbus.BulkSlcanBus`; frames decoded with the DBC, counted in complete
+epochs) and a UDP socket for the multibeam.
 
 The table: per port, the nominal rate (vehicle Hz), the rate the emulator ticked at and the
 rate the reader decoded at (messages per vehicle second, i.e. per real second / speed), the
@@ -64,7 +65,7 @@ def _read_serial(
     write = s.write
     if ep["format"] == "seanet":
         from auvgw.config.gateway import MsisPolling
-        from auvgw.msis_host import SeaNetHost
+        from auvgw.drivers.seanet.host import SeaNetHost
 
         host = SeaNetHost(MsisPolling(**ep.get("msis", {})))
         host.on_connect(write, time.monotonic())

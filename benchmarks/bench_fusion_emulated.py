@@ -31,9 +31,9 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-
-from fusion_emulated import (
+from auvgw.sim_devices.dvl import DvlEmulator
+from auvgw.stages.fusion import FusionStageConfig
+from auvgw.testing.fusion_emulated import (
     NEES_2SIGMA,
     NEES_95,
     Emulated,
@@ -47,9 +47,6 @@ from fusion_emulated import (
     run_stage,
     survey_scenario,
 )
-
-from auvgw.sim_devices.dvl import DvlEmulator
-from auvgw.stages.fusion import FusionStageConfig
 
 
 def timed(fn, *args):

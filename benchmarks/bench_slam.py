@@ -31,10 +31,7 @@ from auvgw.slam.evaluation.runner import drive
 from auvgw.slam.evaluation.simulate import simulate
 from auvgw.slam.landmark.registry import ALGORITHMS, DISPLAY_NAMES, make_filter
 from auvgw.slam.models import BicycleModel, RangeBearing
-
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-
-from slam_helpers import bailey_scenario
+from auvgw.testing.slam_helpers import bailey_scenario
 
 BARS = {"fastslam1": 100.0, "vb-aufastslam": 20.0}
 

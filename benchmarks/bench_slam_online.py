@@ -7,9 +7,10 @@ and ``benchmarks/bench_fusion_emulated.py``; filter settings of ``auvgw demo``, 
 heading-error model follows the scenario); the fusion's odometry is dead reckoning (DR). The MSIS
 head emulator (echo model of the scenario's world, its noise and noise bursts) is polled every
 ``--period`` s with the gateway's head settings (30 m, 300 bins, 1.8 deg steps) and its scan
-lines, decoded by the SeaNet driver, go with the odometry to the SLAM stage
-(:class:`auvgw.stages.slam.SlamStage`, the code of the bus stage) in arrival order: odometry
-after the fusion's lag (0.25 s), a ping when its data would have arrived.
+lines, decoded by the SeaNet driver, go with the odometry to the online landmark pipeline
+(:class:`auvgw.slam.landmark.online.LandmarkOnline`, the core of the bus stage, no bus) in
+arrival order: odometry after the fusion's lag (0.25 s), a ping when its data would have
+arrived.
 
 Prints one row per scenario, filter seed and feature set (``points``: point targets only,
 ``points+lines``: the walls too, ``use_lines``): DR and SLAM path RMSE, final error and RMSE as
@@ -37,25 +38,13 @@ import hashlib
 import json
 import math
 import pickle
-import sys
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-
-from fusion_emulated import (
-    HOST_EPOCH,
-    Emulated,
-    decode_serial,
-    dvl_stream,
-    ins_output,
-    run_stage,
-)
 
 from auvgw.commands.demo import _fusion_config, _path_error, _Track
 from auvgw.config.scenario import Scenario
@@ -68,8 +57,16 @@ from auvgw.sim_devices.ins import InsEmulator
 from auvgw.sim_devices.msis import MsisHead, make_echo
 from auvgw.sim_devices.vehicle import Truth, simulate
 from auvgw.sim_devices.world import World
+from auvgw.slam.landmark.online import LandmarkOnline, LandmarkOnlineConfig
 from auvgw.slam.models import wrap_angle
-from auvgw.stages.slam import SlamStage, SlamStageConfig
+from auvgw.testing.fusion_emulated import (
+    HOST_EPOCH,
+    Emulated,
+    decode_serial,
+    dvl_stream,
+    ins_output,
+    run_stage,
+)
 
 #: the fusion stage's output lag (odometry reaches the SLAM stage this much after its time), s
 ODOMETRY_LAG_S = 0.25
@@ -181,19 +178,19 @@ def aligned(track: _Track, x0: float, y0: float, e0: float) -> _Track:
     return out
 
 
-def run_slam(em: Emulation, cfg: SlamStageConfig) -> SlamStage:
-    """Odometry (after the fusion lag) and pings (at arrival) to the stage in time order."""
-    stage = SlamStage(cfg)
+def run_slam(em: Emulation, cfg: LandmarkOnlineConfig) -> LandmarkOnline:
+    """Odometry (after the fusion lag) and pings (at arrival) to the pipeline in time order."""
+    online = LandmarkOnline(cfg)
     events = [(o.t + ODOMETRY_LAG_S, 0, o) for o in em.odometry]
     events += [(HOST_EPOCH + t, 1, m) for t, m in em.pings]
     events.sort(key=lambda e: (e[0], e[1]))
     for t, kind, m in events:
         if kind == 0:
-            stage.feed_odometry(m)
+            online.add_odometry(m)
         else:
-            stage.feed("msis", round(t * 1e9), m)
-    stage.flush()
-    return stage
+            online.add_ping(round(t * 1e9) / 1e9, m)  # the stage's ns stamps
+    online.finish()
+    return online
 
 
 def main() -> None:
@@ -218,7 +215,7 @@ def main() -> None:
         nargs="*",
         default=[],
         metavar="KEY=JSON",
-        help="further SlamStageConfig settings, e.g. line_sigma_rho_m=0.1",
+        help="further LandmarkOnlineConfig settings, e.g. line_sigma_rho_m=0.1",
     )
     ap.add_argument("--cache", default="", help="directory for the emulated data")
     ap.add_argument("--json", default="", help="write the rows here")
@@ -261,18 +258,18 @@ def main() -> None:
         for feats in a.features:
             for seed in a.seeds:
                 t1 = time.perf_counter()
-                cfg = SlamStageConfig(
+                cfg = LandmarkOnlineConfig(
                     algorithm=a.algorithm, sound_speed_mps=em.world.sound_speed,
                     target_radius_m=em.world.point_radius, n_particles=a.particles, seed=seed,
                     use_lines=FEATURE_SETS[feats], **extra,
                 )  # fmt: skip
-                stage = run_slam(em, cfg)
+                online = run_slam(em, cfg)
                 st = _Track()
-                for t, x, y, _h in stage.track:
+                for t, x, y, _h in online.track:
                     st.add(t - HOST_EPOCH, x, y)
                 se = _path_error(st, tt)
                 sea = _path_error(aligned(st, o0.x, o0.y, e0), tt)
-                c = stage.counters()
+                c = {"stage": asdict(online.stats), **online.summary()}
                 row = {"scenario": name, "features": feats, "seed": seed, "dr": dre, "slam": se,
                        "dr_aligned": dra, "slam_aligned": sea, "initial_heading_error_rad": e0,
                        "perfect_slam_rmse_m": floor["rmse_m"],

@@ -27,13 +27,10 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-
-from format_samples import STREAM_FORMATS, samples, v4log_records
-
 from auvgw.drivers.formats import get_format
 from auvgw.drivers.framing import ErrorPolicy
 from auvgw.paths import REPO_ROOT, shared_dir
+from auvgw.testing.format_samples import STREAM_FORMATS, samples, v4log_records
 
 Corrupt = Callable[[bytes, np.random.Generator], bytes]
 

@@ -1,9 +1,11 @@
 """Low-cost sensor study of the fusion over seeds (config/scenarios/lowcost.json).
 
 For every seed: the world model's truth of the scenario, AHRS and DVL samples with its low-cost
-figures (tests/fusion_lowcost.py), and four dead reckonings: the fusion with DEFAULT noise
+figures (tests/support/fusion_lowcost.py), and four dead reckonings: the fusion with DEFAULT noise
 settings (spec prior, VB-adapted DVL noise), the same filter told the TRUE DVL noise, the OLD
-defaults (0.002 m/s DVL), and a PLAIN rotate-and-integrate of the DVL. Prints (and with
+defaults (0.002 m/s DVL), and a PLAIN rotate-and-integrate of the DVL; and, for scale, the
+ORACLE: plain integration of the same seed drawn without spikes (what perfect spike rejection
+could give). Prints (and with
 ``--out`` writes) a markdown table: per-seed final and RMS horizontal errors, ratios, the
 adapted DVL noise against the truth, and the default filter's accepted / rejected / coasting
 shares.
@@ -15,15 +17,12 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import sys
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-
-from fusion_lowcost import lowcost_scenario, run, truth_trajectory
+from auvgw.testing.fusion_lowcost import lowcost_scenario, run, truth_trajectory
 
 
 def main() -> None:
@@ -85,7 +84,7 @@ def main() -> None:
         "| filter | final error | RMS error |",
         "|---|---|---|",
     ]
-    for key in ("default", "true", "old", "plain"):
+    for key in ("default", "true", "old", "plain", "oracle"):
         summary.append(f"| {key} | {mean(key, 'final_m'):.2f} m | {mean(key, 'rms_m'):.2f} m |")
     def paired(a: str, b: str) -> str:
         r = [x[a].rms_m / x[b].rms_m for _, x, _, _ in rows]
@@ -98,6 +97,9 @@ def main() -> None:
         f"- paired, default / true: {paired('default', 'true')} of {len(rows)} seeds",
         f"- paired, default / plain: {paired('default', 'plain')} of {len(rows)} seeds",
         f"- paired, true / plain: {paired('true', 'plain')} of {len(rows)} seeds",
+        f"- paired, oracle (plain integration of the same seed drawn without spikes) / plain: "
+        f"{paired('oracle', 'plain')} of {len(rows)} seeds; oracle / plain RMS "
+        f"{mean('oracle', 'rms_m') / mean('plain', 'rms_m'):.3f}",
         f"- default / true noise: final {mean('default', 'final_m') / mean('true', 'final_m'):.3f}"
         f", RMS {mean('default', 'rms_m') / mean('true', 'rms_m'):.3f} (bar: <= 1.1)",
         f"- default / plain integration: final "

@@ -32,7 +32,7 @@ import types
 import typing
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 from pydantic import (
     BaseModel,
@@ -51,6 +51,8 @@ from auvgw.config.transport import (
     SerialTransportConfig,
     TransportConfig,
 )
+from auvgw.drivers import registry
+from auvgw.errors import ConfigError
 
 __all__ = [
     "DEVICE_FORMATS",
@@ -64,14 +66,11 @@ __all__ = [
     "parse_gateway_config",
 ]
 
-#: formats a device may speak; "can" decodes CAN frames with the device's DBC
-DEVICE_FORMATS = ("pd0", "pd6", "seanet", "kongsberg", "hn100", "ms3a", "acoustic", "can")
+#: formats a device may speak (from the device registry); "can" decodes CAN frames with the
+#: device's DBC
+DEVICE_FORMATS = registry.device_formats()
 
 _NAME_CHARS = "letters, digits, '_' or '-'"
-
-
-class ConfigError(ValueError):
-    """An unusable configuration; one line per problem, each naming the file and the field."""
 
 
 class _Model(BaseModel):
@@ -96,13 +95,15 @@ class MsisPolling(_Model):
 class DeviceConfig(_Model):
     """One device: its wire format, its transport, and format-specific options."""
 
-    format: Literal["pd0", "pd6", "seanet", "kongsberg", "hn100", "ms3a", "acoustic", "can"]
+    format: str = Field(description="wire format: one of DEVICE_FORMATS (the device registry)")
     transport: TransportConfig
     enabled: bool = True
     dbc: str | None = Field(
         None, description="CAN database (format 'can'); file in config/ or path"
     )
-    table: str | None = Field(None, description="site table replacing the shipped hn100/ms3a one")
+    table: str | None = Field(
+        None, description="site table replacing the shipped one (formats with a registry table)"
+    )
     msis: MsisPolling | None = None
     stale_after_s: float = Field(
         2.0, gt=0, le=3600, description="report the device silent after this, s"
@@ -115,9 +116,18 @@ class DeviceConfig(_Model):
         "few frame periods of the slowest message, longer than its transmission time",
     )  # fmt: skip
 
+    @field_validator("format")
+    @classmethod
+    def _known_format(cls, v: str) -> str:
+        if v not in DEVICE_FORMATS:
+            names = [repr(f) for f in DEVICE_FORMATS]
+            raise ValueError(f"Input should be {', '.join(names[:-1])} or {names[-1]}")
+        return v
+
     @model_validator(mode="after")
     def _format_options(self) -> DeviceConfig:
         kind = self.transport.kind
+        dev = None if self.format == registry.CAN_FORMAT else registry.device(self.format)
         if self.format == "can" and not self.dbc:
             raise ValueError("format 'can' needs 'dbc' (e.g. dbc = \"hn100.dbc\")")
         if self.format == "can" and kind != "can":
@@ -129,17 +139,27 @@ class DeviceConfig(_Model):
             )
         if self.dbc and self.format != "can":
             raise ValueError(f"'dbc' only applies to format 'can', not {self.format!r}")
-        if self.table and self.format not in ("hn100", "ms3a"):
+        if self.table and (dev is None or dev.table is None):
+            tables = [repr(d.format) for d in registry.DEVICES if d.table and d.live]
             raise ValueError(
-                f"'table' only applies to formats 'hn100' and 'ms3a', not {self.format!r}"
+                f"'table' only applies to formats {', '.join(tables)}, not {self.format!r}"
             )
-        if self.msis is not None and self.format != "seanet":
-            raise ValueError(f"'msis' only applies to format 'seanet', not {self.format!r}")
+        for opt, model in _OPTIONS.items():
+            takes = dev is not None and dev.options == opt
+            if getattr(self, opt) is not None and not takes:
+                owner = [repr(d.format) for d in registry.DEVICES if d.options == opt]
+                raise ValueError(
+                    f"{opt!r} only applies to format {' or '.join(owner)}, not {self.format!r}"
+                )
+            if takes and getattr(self, opt) is None:
+                setattr(self, opt, model())
         if self.backoff_max_s < self.backoff_initial_s:
             raise ValueError("'backoff_max_s' must be >= 'backoff_initial_s'")
-        if self.format == "seanet" and self.msis is None:
-            self.msis = MsisPolling()
         return self
+
+
+#: a device's own options table (the registry's ``options``) -> its model
+_OPTIONS: dict[str, type[_Model]] = {"msis": MsisPolling}
 
 
 class ClockConfig(_Model):

@@ -19,7 +19,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, Literal
 
 from pydantic import (
     BaseModel,
@@ -27,8 +27,12 @@ from pydantic import (
     Field,
     ValidationError,
     ValidationInfo,
+    create_model,
     model_validator,
 )
+
+from auvgw.drivers import registry
+from auvgw.errors import ConfigError, format_validation_error
 
 __all__ = [
     "AcousticBeacon",
@@ -50,7 +54,7 @@ __all__ = [
 XY = tuple[float, float]
 
 
-class ScenarioError(ValueError):
+class ScenarioError(ConfigError):
     """A scenario file that cannot be used; the message names the file and the field."""
 
 
@@ -295,14 +299,29 @@ class DeviceSettings(_Model):
     options: dict[str, float | int | str | bool] = {}
 
 
-class Devices(_Model):
-    ins: DeviceSettings = DeviceSettings()
-    dvl: DeviceSettings = DeviceSettings()
-    msis: DeviceSettings = DeviceSettings()
-    multibeam: DeviceSettings = DeviceSettings()
-    magnetometer: DeviceSettings = DeviceSettings()
-    #: the acoustic beacon transceiver: off unless a scenario with an acoustic_beacon enables it
-    acoustic: DeviceSettings = DeviceSettings(enabled=False)
+class _DevicesBase(_Model):
+    """The scenario's ``devices``: one :class:`DeviceSettings` per emulator of the registry."""
+
+    if TYPE_CHECKING:  # the fields come from the registry: each is a DeviceSettings
+
+        def __getattr__(self, name: str) -> DeviceSettings: ...
+
+
+#: one settings table per emulator of the device registry, in its order (``ins``, ``dvl``,
+#: ``msis``, ``multibeam``, ``magnetometer``, ``acoustic``); a device that needs a scenario
+#: feature (the acoustic beacon) is off unless the scenario enables it
+if TYPE_CHECKING:
+    Devices = _DevicesBase
+else:
+    Devices = create_model(
+        "Devices",
+        __base__=_DevicesBase,
+        __module__=__name__,
+        **{
+            em.key: (DeviceSettings, DeviceSettings(enabled=em.default_on))
+            for em in registry.emulators()
+        },
+    )
 
 
 class Scenario(_Model):
@@ -358,14 +377,6 @@ class Scenario(_Model):
         return (x0, y0, math.atan2(y1 - y0, x1 - x0))
 
 
-def _format_errors(path: str, exc: ValidationError) -> str:
-    lines = []
-    for err in exc.errors():
-        loc = ".".join(str(p) for p in err["loc"]) or "(top level)"
-        lines.append(f"{path}: field '{loc}': {err['msg']} (got {err.get('input')!r:.60})")
-    return "\n".join(lines)
-
-
 def load_scenario(path: str | Path) -> Scenario:
     """Read and validate a scenario JSON file; :class:`ScenarioError` names file and field."""
     path = Path(path)
@@ -381,5 +392,5 @@ def load_scenario(path: str | Path) -> Scenario:
     try:
         scn = Scenario.model_validate({**data, "source": str(path)}, context={"source": str(path)})
     except ValidationError as exc:
-        raise ScenarioError(_format_errors(str(path), exc)) from exc
+        raise ScenarioError(format_validation_error(exc, str(path))) from exc
     return scn

@@ -33,6 +33,8 @@ from pydantic import (
     model_validator,
 )
 
+from auvgw.errors import ConfigError
+
 __all__ = [
     "CanFilter",
     "CanTransportConfig",
@@ -60,7 +62,7 @@ _CAN_RESERVED = frozenset(
 )
 
 
-class TransportConfigError(ValueError):
+class TransportConfigError(ConfigError):
     """Invalid transport settings; one line per problem, each naming the field."""
 
 

@@ -25,10 +25,11 @@ from auvgw.drivers.tablecodec import (
     build_message_class,
     load_toml,
     parse_ascii_table,
+    shipped_codec,
 )
 from auvgw.paths import config_file
 
-__all__ = ["CODEC", "FORMAT", "REQUIRED_FIELDS", "AcousticCodec", "AcousticFramer", "AcousticReply"]
+__all__ = ["FORMAT", "REQUIRED_FIELDS", "AcousticCodec", "AcousticFramer", "default_codec"]
 
 #: fields every acoustic table must declare: name -> decoded units ('' = integer count)
 REQUIRED_FIELDS: dict[str, str] = {
@@ -66,10 +67,9 @@ class AcousticCodec(AsciiLineCodec):
         return AcousticFramer(self, policy=policy, source=source)
 
 
-#: the codec of the shipped table
-CODEC: AcousticCodec = AcousticCodec.from_toml()
-#: message class of the shipped table
-AcousticReply = CODEC.message_type
+#: the shipped table's codec, read on first use; ``CODEC`` and ``AcousticReply`` (its message class)
+#: are served by the module ``__getattr__``
+default_codec, __getattr__ = shipped_codec(AcousticCodec.from_toml, "AcousticReply")
 
 
 class AcousticFramer(AsciiLineFramer):
@@ -82,18 +82,19 @@ class AcousticFramer(AsciiLineFramer):
         policy: ErrorPolicy | str = ErrorPolicy.LOG,
         source: str = "",
     ) -> None:
-        super().__init__((codec or CODEC).spec, policy=policy, source=source, name="acoustic")
+        spec = (codec or default_codec()).spec
+        super().__init__(spec, policy=policy, source=source, name="acoustic")
 
 
 def _decode(frame: bytes) -> list[Any]:
-    return [CODEC.decode(frame)]
+    return [default_codec().decode(frame)]
 
 
 FORMAT = Format(
     name="acoustic",
     summary="an acoustic beacon (transponder/USBL) ASCII capture (auvgw assumed layout, "
     "config/acoustic.toml)",
-    framer=CODEC.framer,
+    framer=lambda *a, **k: default_codec().framer(*a, **k),
     decode=_decode,
-    encode=CODEC.encode,
+    encode=lambda m: default_codec().encode(m),
 )

@@ -29,8 +29,10 @@ from typing import Any
 
 import cantools
 
+from auvgw.drivers import registry
 from auvgw.drivers.spec import message
 from auvgw.drivers.tablecodec import UNITS
+from auvgw.errors import DataError
 from auvgw.paths import config_file
 
 __all__ = [
@@ -40,8 +42,9 @@ __all__ = [
     "EpochAssembler",
     "hn100_can",
     "ms3a_can",
+    "shipped_can",
+    "shipped_can_types",
 ]
-
 
 
 _LINE_COL = re.compile(r"line (\d+), column (\d+)")
@@ -55,7 +58,8 @@ def _where(exc: BaseException) -> str:
         return f"not text (byte {exc.start} is not valid {exc.encoding})"
     return "invalid DBC syntax" + (f" at line {m[1]}, column {m[2]}" if m else "")
 
-class CanCodecError(ValueError):
+
+class CanCodecError(DataError):
     """A CAN frame or message that the DBC cannot decode or encode (names message and signal)."""
 
 
@@ -90,6 +94,9 @@ class _Signal:
     maximum: float | None
     tolerance: float
     comment: str
+    #: (DBC scale, DBC offset): decoded = (raw * scale + offset) * factor; None when the
+    #: signal is an IEEE float or not scaled
+    linear: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -120,6 +127,7 @@ def _signal_info(sig: Any) -> _Signal:
         maximum=sig.maximum,
         tolerance=abs(conv.scale) * 1e-6,
         comment=(sig.comment or "").strip(),
+        linear=(conv.scale, conv.offset) if scaled and not conv.is_float else None,
     )
 
 
@@ -129,7 +137,10 @@ def _build_class(name: str, signals: Sequence[_Signal], doc: str, module: str) -
     lines = [doc, "", "Fields [decoded units]:"]
     for s in signals:
         annotations[s.field] = (str | int) if s.choices else (float if s.scaled else int)
-        ns[s.field] = dataclasses.field(metadata={"signal": s.name, "units": s.units})
+        meta: dict[str, Any] = {"signal": s.name, "units": s.units}
+        if s.linear is not None and not s.choices:  # how the envelope carries the raw value
+            meta["linear"] = (*s.linear, s.factor)
+        ns[s.field] = dataclasses.field(metadata=meta)
         lines.append(f"    {s.field} [{s.units or '1'}]: DBC signal {s.name}. {s.comment}".rstrip())
     ns["__annotations__"] = annotations
     ns["__doc__"] = "\n".join(lines)
@@ -394,14 +405,31 @@ class EpochAssembler:
         return len(self._pending)
 
 
+def shipped_can(fmt: str, path: str | Path | None = None) -> DbcCodec:
+    """The CAN codec of a registered device (``hn100``, ``ms3a``): its DBC (default the shipped
+    one the registry names) with its samples named as the registry's CAN message type."""
+    dev = registry.device(fmt)
+    sample = next((m.type for m in dev.messages if m.wire == "can"), None)
+    if dev.dbc is None:
+        raise KeyError(f"format {fmt!r} has no CAN database in the registry")
+    return DbcCodec(path or config_file(dev.dbc), sample_name=sample)
+
+
+def shipped_can_types() -> None:
+    """Load every shipped DBC once, so its sample types are in ``MESSAGE_TYPES``."""
+    for dev in registry.DEVICES:
+        if dev.dbc is not None:
+            shipped_can(dev.format)
+
+
 def hn100_can(path: str | Path | None = None) -> DbcCodec:
     """The HN-100 CAN codec (default: the shipped ``config/hn100.dbc``); samples HN100_Sample."""
-    return DbcCodec(path or config_file("hn100.dbc"), sample_name="HN100_Sample")
+    return shipped_can("hn100", path)
 
 
 def ms3a_can(path: str | Path | None = None) -> DbcCodec:
     """The MS3A CAN codec (default: the shipped ``config/ms3a.dbc``); samples MS3A_Sample."""
-    return DbcCodec(path or config_file("ms3a.dbc"), sample_name="MS3A_Sample")
+    return shipped_can("ms3a", path)
 
 
 class CanDeviceCodec:
@@ -429,5 +457,5 @@ def load_can_codec(dbc: str | Path) -> CanDeviceCodec:
         if not shipped.is_file():
             raise FileNotFoundError(f"{dbc}: no such DBC file (neither a path nor in config/)")
         path = shipped
-    names = {"hn100.dbc": "HN100_Sample", "ms3a.dbc": "MS3A_Sample"}
+    names = {d.dbc: m.type for d, m in registry.message_types() if m.wire == "can" and d.dbc}
     return CanDeviceCodec(DbcCodec(path, sample_name=names.get(path.name)))

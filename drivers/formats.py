@@ -1,21 +1,22 @@
-"""Registry of wire formats: name -> framer factory and frame decoder (used by ``auvgw decode``,
-the gateway and the replay tools).
+"""Wire formats: name -> framer factory and frame decoder (used by ``auvgw decode``, the gateway
+and the replay tools).
 
-Each codec module defines a module-level :class:`Format` (or several); the registry imports the
-module only when the format is asked for.
+Each codec module defines a module-level :class:`Format`; the names and where each lives come
+from the device registry (:mod:`auvgw.drivers.registry`), which imports a codec module only when
+its format is asked for.
 """
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from auvgw.drivers import registry
 from auvgw.drivers.framing import ErrorPolicy, Frame, Framer, read_file_frames
 
-__all__ = ["FORMATS", "Format", "get_format"]
+__all__ = ["FORMATS", "Format", "format_from_table", "get_format"]
 
 
 @dataclass(frozen=True)
@@ -46,41 +47,24 @@ class Format:
         return read_file_frames(framer, path), framer
 
 
-#: format name -> "module:attribute"
-FORMATS: dict[str, str] = {
-    "pd0": "auvgw.drivers.pd0:FORMAT",
-    "pd6": "auvgw.drivers.pd6:FORMAT",
-    "seanet": "auvgw.drivers.seanet:FORMAT",
-    "v4log": "auvgw.drivers.v4log:FORMAT",
-    "kongsberg": "auvgw.drivers.kongsberg:FORMAT",
-    "hn100": "auvgw.drivers.hn100:FORMAT",
-    "ms3a": "auvgw.drivers.ms3a:FORMAT",
-    "acoustic": "auvgw.drivers.acoustic:FORMAT",
-}
+#: format name -> "module:attribute" of its :class:`Format` (from :mod:`auvgw.drivers.registry`)
+FORMATS: dict[str, str] = {d.format: d.codec for d in registry.DEVICES}
 
 
 def get_format(name: str) -> Format:
     """The :class:`Format` called ``name`` (one of :data:`FORMATS`)."""
-    try:
-        target = FORMATS[name]
-    except KeyError:
-        raise KeyError(f"unknown format {name!r}; known: {', '.join(FORMATS)}") from None
-    module, attr = target.split(":")
-    return getattr(importlib.import_module(module), attr)
+    fmt: Format = registry.load(registry.device(name).codec)
+    return fmt
 
 
 def format_from_table(name: str, table: str | Path) -> Format:
-    """The ``hn100`` or ``ms3a`` format under a site's own table file (no code change needed)."""
-    if name == "hn100":
-        from auvgw.drivers.hn100 import Hn100Codec
-
-        codec: Any = Hn100Codec.from_toml(table)
-    elif name == "ms3a":
-        from auvgw.drivers.ms3a import Ms3aCodec
-
-        codec = Ms3aCodec.from_toml(table)
-    else:
-        raise KeyError(f"format {name!r} has no replaceable table (only hn100, ms3a)")
+    """Format ``name`` under a site's own table file (formats with a replaceable table only:
+    the registry's ``table_codec``), so a site matches its firmware without a code change."""
+    dev = registry.device(name)
+    if dev.table_codec is None:
+        known = ", ".join(d.format for d in registry.DEVICES if d.table_codec)
+        raise KeyError(f"format {name!r} has no replaceable table (only {known})")
+    codec = registry.load(dev.table_codec).from_toml(table)
     base = get_format(name)
     return Format(
         name=name,

@@ -28,6 +28,8 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
 
+from auvgw.errors import DataError
+
 __all__ = [
     "BadFrame",
     "DecodeError",
@@ -58,18 +60,18 @@ class BadFrame(Exception):
         self.reason = reason
 
 
-class FrameError(ValueError):
+class FrameError(DataError):
     """A bad frame under :attr:`ErrorPolicy.RAISE`; ``offset`` is the absolute stream offset."""
 
     def __init__(self, source: str, offset: int, reason: str) -> None:
-        super().__init__(f"{source}: bad frame at byte offset {offset}: {reason}")
-        self.source = source
-        self.offset = offset
+        super().__init__(f"bad frame at byte offset {offset}: {reason}", source=source,
+                         offset=offset)  # fmt: skip
         self.reason = reason
 
 
-class DecodeError(ValueError):
-    """A frame passed its checksum but its content cannot be decoded (names field and offset)."""
+class DecodeError(DataError):
+    """A frame passed its checksum but its content cannot be decoded (names field and offset:
+    ``field`` and ``offset`` attributes where the decoder knows them)."""
 
 
 @dataclass(frozen=True, slots=True)

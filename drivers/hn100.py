@@ -27,17 +27,17 @@ from auvgw.drivers.tablecodec import (
     build_message_class,
     load_toml,
     parse_binary_table,
+    shipped_codec,
 )
 from auvgw.paths import config_file
 
 __all__ = [
-    "CODEC",
     "FORMAT",
     "REQUIRED_FIELDS",
     "REQUIRED_FLAGS",
     "Hn100Codec",
     "Hn100Framer",
-    "Hn100Nav",
+    "default_codec",
 ]
 
 #: fields every HN-100 table must declare: name -> decoded units ('' = integer count)
@@ -118,10 +118,9 @@ class Hn100Codec(BinaryFrameCodec):
         return Hn100Framer(self, policy=policy, source=source)
 
 
-#: the codec of the shipped table
-CODEC: Hn100Codec = Hn100Codec.from_toml()
-#: message class of the shipped table (a site table builds its own class of the same name)
-Hn100Nav = CODEC.message_type
+#: the shipped table's codec, read on first use; ``CODEC`` and ``Hn100Nav`` (its message class)
+#: are served by the module ``__getattr__``
+default_codec, __getattr__ = shipped_codec(Hn100Codec.from_toml, "Hn100Nav")
 
 
 class Hn100Framer(BinaryFrameFramer):
@@ -133,17 +132,18 @@ class Hn100Framer(BinaryFrameFramer):
         policy: ErrorPolicy | str = ErrorPolicy.LOG,
         source: str = "",
     ) -> None:
-        super().__init__((codec or CODEC).spec, policy=policy, source=source, name="hn100")
+        spec = (codec or default_codec()).spec
+        super().__init__(spec, policy=policy, source=source, name="hn100")
 
 
 def _decode(frame: bytes) -> list[Any]:
-    return [CODEC.decode(frame)]
+    return [default_codec().decode(frame)]
 
 
 FORMAT = Format(
     name="hn100",
     summary="an HN-100 INS binary capture (auvgw assumed layout, config/hn100.toml)",
-    framer=CODEC.framer,
+    framer=lambda *a, **k: default_codec().framer(*a, **k),
     decode=_decode,
-    encode=CODEC.encode,
+    encode=lambda m: default_codec().encode(m),
 )

@@ -32,6 +32,7 @@ import dataclasses
 import datetime as _dt
 import functools
 import math
+import re
 import struct
 from collections.abc import Collection, Mapping
 from typing import Any, ClassVar
@@ -41,6 +42,7 @@ import numpy as np
 from auvgw.drivers.formats import Format
 from auvgw.drivers.framing import BadFrame, DecodeError, ErrorPolicy, Framer
 from auvgw.drivers.spec import (
+    TYPE_FACTORIES,
     WIRE_TYPES,
     Wire,
     WireError,
@@ -449,6 +451,21 @@ def depth_beam_table(z_resolution_cm: int, xy_resolution_cm: int, unsigned_depth
         **rows,
     }
     return message(type(name, (DepthBeams,), ns))
+
+
+_DEPTH_TABLE_NAME = re.compile(r"DepthBeams_z(\d+)cm_xy(\d+)cm_([us])16")
+
+
+def _depth_table_of_name(name: str) -> type | None:
+    """The Depth beam table a :func:`depth_beam_table` class name stands for (readers of
+    envelopes rebuild the table from its name)."""
+    m = _DEPTH_TABLE_NAME.fullmatch(name)
+    if m is None or int(m[1]) == 0 or int(m[2]) == 0:
+        return None
+    return depth_beam_table(int(m[1]), int(m[2]), m[3] == "u")
+
+
+TYPE_FACTORIES.append(_depth_table_of_name)
 
 
 @message

@@ -25,10 +25,11 @@ from auvgw.drivers.tablecodec import (
     build_message_class,
     load_toml,
     parse_ascii_table,
+    shipped_codec,
 )
 from auvgw.paths import config_file
 
-__all__ = ["CODEC", "FORMAT", "REQUIRED_FIELDS", "Ms3aCodec", "Ms3aFramer", "Ms3aSample"]
+__all__ = ["FORMAT", "REQUIRED_FIELDS", "Ms3aCodec", "Ms3aFramer", "default_codec"]
 
 #: fields every MS3A table must declare: name -> decoded units ('' = integer count)
 REQUIRED_FIELDS: dict[str, str] = {"counter": "", "bx": "nT", "by": "nT", "bz": "nT"}
@@ -79,10 +80,9 @@ class Ms3aCodec(AsciiLineCodec):
         return Ms3aFramer(self, policy=policy, source=source)
 
 
-#: the codec of the shipped table
-CODEC: Ms3aCodec = Ms3aCodec.from_toml()
-#: message class of the shipped table (a site table builds its own class of the same name)
-Ms3aSample = CODEC.message_type
+#: the shipped table's codec, read on first use; ``CODEC`` and ``Ms3aSample`` (its message class)
+#: are served by the module ``__getattr__``
+default_codec, __getattr__ = shipped_codec(Ms3aCodec.from_toml, "Ms3aSample")
 
 
 class Ms3aFramer(AsciiLineFramer):
@@ -94,17 +94,18 @@ class Ms3aFramer(AsciiLineFramer):
         policy: ErrorPolicy | str = ErrorPolicy.LOG,
         source: str = "",
     ) -> None:
-        super().__init__((codec or CODEC).spec, policy=policy, source=source, name="ms3a")
+        spec = (codec or default_codec()).spec
+        super().__init__(spec, policy=policy, source=source, name="ms3a")
 
 
 def _decode(frame: bytes) -> list[Any]:
-    return [CODEC.decode(frame)]
+    return [default_codec().decode(frame)]
 
 
 FORMAT = Format(
     name="ms3a",
     summary="an MS3A magnetometer ASCII capture (auvgw assumed layout, config/ms3a.toml)",
-    framer=CODEC.framer,
+    framer=lambda *a, **k: default_codec().framer(*a, **k),
     decode=_decode,
-    encode=CODEC.encode,
+    encode=lambda m: default_codec().encode(m),
 )

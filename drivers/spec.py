@@ -33,6 +33,8 @@ from typing import Any, TypeVar
 
 import numpy as np
 
+from auvgw.errors import DataError
+
 __all__ = [
     "Wire",
     "WireError",
@@ -41,7 +43,9 @@ __all__ = [
     "encode_block",
     "from_jsonable",
     "message",
+    "message_class",
     "raw_value",
+    "resolve_type",
     "table_rows",
     "to_jsonable",
     "wire",
@@ -73,12 +77,18 @@ T = TypeVar("T")
 #: every class made with :func:`message`, by type name (``TYPE`` class attribute or class name);
 #: used to rebuild typed messages from their JSON form (:func:`from_jsonable`)
 MESSAGE_TYPES: dict[str, type] = {}
+#: makers of message classes built from wire values (e.g. Kongsberg Depth beam tables): each
+#: takes a type name and returns its class, or None if the name is not one of its kind
+TYPE_FACTORIES: list[Callable[[str], type | None]] = []
+#: message classes built on first use (a codec whose table is read lazily registers its type
+#: name here at import; the class joins :data:`MESSAGE_TYPES` when built): name -> builder
+LAZY_TYPES: dict[str, Callable[[], type]] = {}
 #: message classes whose field names / type hints are cached (bounded: classes made from wire
 #: values, e.g. Kongsberg Depth beam tables, must not pin memory)
 CLASS_CACHE_SIZE = 256
 
 
-class WireError(ValueError):
+class WireError(DataError):
     """A value cannot be decoded from or encoded to the wire (names message, field, offset)."""
 
 
@@ -159,11 +169,28 @@ def _wire_fields(cls: type) -> list[tuple[str, Wire]]:
     cached = cls.__dict__.get("__wire_fields__")
     if cached is not None:
         return cached
-    out = [
-        (f.name, f.metadata["wire"]) for f in dataclasses.fields(cls) if "wire" in f.metadata
-    ]
+    out = [(f.name, f.metadata["wire"]) for f in dataclasses.fields(cls) if "wire" in f.metadata]
     cls.__wire_fields__ = out  # type: ignore[attr-defined]
     return out
+
+
+def resolve_type(name: str) -> type | None:
+    """The message class of a type name: registered, built on first use (:data:`LAZY_TYPES`), or
+    made by a :data:`TYPE_FACTORIES` entry; None when no codec knows it."""
+    cls = MESSAGE_TYPES.get(name)
+    if cls is not None:
+        return cls
+    if (build := LAZY_TYPES.get(name)) is not None:
+        return build()
+    for make in TYPE_FACTORIES:
+        cls = make(name)
+        if cls is not None:
+            return cls
+    return None
+
+
+#: the name the bus readers use for :func:`resolve_type`
+message_class = resolve_type
 
 
 def _eq(a: Any, b: Any) -> bool:
@@ -256,7 +283,9 @@ def _from_si(cls: type, name: str, w: Wire, value: Any) -> Any:
             if w.invalid is not None:
                 raw = np.where(bad, w.invalid, raw)
             elif bad.any():
-                raise WireError(f"{cls.__name__}.{name}: NaN but the field has no invalid code")
+                raise WireError(
+                    "NaN but the field has no invalid code", field=f"{cls.__name__}.{name}"
+                )
         else:
             raw = arr
         if is_int:
@@ -270,7 +299,9 @@ def _from_si(cls: type, name: str, w: Wire, value: Any) -> Any:
     if w.is_scaled:
         if isinstance(value, float) and math.isnan(value):
             if w.invalid is None:
-                raise WireError(f"{cls.__name__}.{name}: NaN but the field has no invalid code")
+                raise WireError(
+                    "NaN but the field has no invalid code", field=f"{cls.__name__}.{name}"
+                )
             return w.invalid
         raw = (value - w.add) / w.scale
         value = round(raw) if is_int else raw
@@ -303,9 +334,9 @@ def decode_block(
         size = w.nbytes(ctx)
         if start + size > n:
             raise WireError(
-                f"{cls.__name__}.{name}: needs bytes {start}..{start + size - 1}, "
-                f"block ends at {n}"
-            )
+                f"needs bytes {start}..{start + size - 1}, block ends at {n}",
+                field=f"{cls.__name__}.{name}", offset=start,
+            )  # fmt: skip
         if w.type == "bytes":
             raw: Any = bytes(buf[start : start + size])
         elif w.type == "str":
@@ -338,18 +369,24 @@ def encode_block(
         raw = _from_si(cls, name, w, getattr(msg, name))
         if w.type == "bytes":
             if len(raw) != w.size:
-                raise WireError(f"{cls.__name__}.{name}: needs {w.size} bytes, got {len(raw)}")
+                raise WireError(
+                    f"needs {w.size} bytes, got {len(raw)}", field=f"{cls.__name__}.{name}"
+                )
             buf[start : start + w.size] = raw
         elif w.type == "str":
             data = str(raw).encode("ascii")
             if len(data) > w.size:
-                raise WireError(f"{cls.__name__}.{name}: {raw!r} longer than {w.size} bytes")
+                raise WireError(
+                    f"{raw!r} longer than {w.size} bytes", field=f"{cls.__name__}.{name}"
+                )
             buf[start : start + w.size] = data.ljust(w.size, b"\x00")
         elif w.is_array:
             shape = w.resolve_shape(ctx)
             arr = np.asarray(raw)
             if arr.shape != shape:
-                raise WireError(f"{cls.__name__}.{name}: shape {arr.shape}, table says {shape}")
+                raise WireError(
+                    f"shape {arr.shape}, table says {shape}", field=f"{cls.__name__}.{name}"
+                )
             dt = np.dtype(_endian(cls, w) + WIRE_TYPES[w.type])
             data = arr.astype(dt).tobytes()
             buf[start : start + len(data)] = data
@@ -434,7 +471,6 @@ def _field_names(cls: type) -> tuple[str, ...]:
     return tuple(f.name for f in dataclasses.fields(cls))
 
 
-
 def _from_json_value(tp: Any, value: Any) -> Any:
     origin = typing.get_origin(tp)
     args = typing.get_args(tp)
@@ -495,9 +531,9 @@ def from_jsonable(data: Mapping[str, Any], cls: type | None = None) -> Any:
     NaN travels as null, arrays as lists; integer arrays come back as int64)."""
     if cls is None:
         name = data.get("type")
-        if name not in MESSAGE_TYPES:
+        cls = message_class(name) if isinstance(name, str) else None
+        if cls is None:
             raise KeyError(f"unknown message type {name!r}")
-        cls = MESSAGE_TYPES[name]
     hints = _type_hints(cls)
     kwargs = {}
     for f in dataclasses.fields(cls):

@@ -22,6 +22,7 @@ from __future__ import annotations
 import binascii
 import builtins
 import dataclasses
+import functools
 import keyword
 import math
 import re
@@ -31,10 +32,19 @@ import zlib
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, TypeVar
 
 from auvgw.drivers.framing import BadFrame, DecodeError, ErrorPolicy, Framer
-from auvgw.drivers.spec import WIRE_TYPES, WireError, decode_block, encode_block, message, wire
+from auvgw.drivers.spec import (
+    LAZY_TYPES,
+    WIRE_TYPES,
+    WireError,
+    decode_block,
+    encode_block,
+    message,
+    wire,
+)
+from auvgw.errors import ConfigError, DataError
 
 __all__ = [
     "CHECKSUMS",
@@ -57,7 +67,7 @@ __all__ = [
 ]
 
 
-class TableError(ValueError):
+class TableError(ConfigError):
     """A frame table that cannot be used; the message names the file, the entry and the fix."""
 
 
@@ -829,7 +839,7 @@ _MAX_DIGITS = 12
 _NUMBER_RE = re.compile(r"^([+-]?)([0-9]+)(?:\.([0-9]+))?$")
 
 
-class LineError(ValueError):
+class LineError(DataError):
     """A line that is not valid under its table (the reason is short, for framer counters)."""
 
 
@@ -993,9 +1003,8 @@ def parse_line(spec: AsciiLineSpec, line: bytes | bytearray | memoryview) -> lis
     try:
         body = data[len(start) : len(data) - len(term)].decode("ascii")
     except UnicodeDecodeError as exc:
-        raise LineError(
-            f"character: byte 0x{data[len(start) + exc.start]:02x} is not ASCII"
-        ) from None
+        raise LineError(f"character: byte 0x{data[len(start) + exc.start]:02x} is not ASCII",
+                        offset=len(start) + exc.start) from None  # fmt: skip
     if not body.isprintable():
         raise LineError("character: control character inside the line")
     if spec.checksum is not None:
@@ -1103,7 +1112,8 @@ class AsciiLineCodec:
         try:
             raws = parse_line(self.spec, line)
         except LineError as exc:
-            raise DecodeError(f"{self.name}: {exc}") from None
+            raise DecodeError(exc.reason, source=self.name, field=exc.field,
+                              offset=exc.offset) from None  # fmt: skip
         values: dict[str, Any] = {}
         for f, raw in zip(self.spec.fields, raws, strict=True):
             values[f.name] = f.value(raw)
@@ -1133,3 +1143,31 @@ class AsciiLineCodec:
                     f"the table's form ({f.form()}): {exc}"
                 ) from None
         return _render(self.spec, texts).encode("ascii")
+
+
+class _Codec(Protocol):
+    message_type: type
+
+
+C = TypeVar("C", bound=_Codec)
+
+
+def shipped_codec(
+    build: Callable[[], C], type_name: str
+) -> tuple[Callable[[], C], Callable[[str], Any]]:
+    """A table-driven driver's shipped codec, read on first use (importing the driver reads no
+    file): ``default_codec()`` (built once) and the module ``__getattr__`` that serves ``CODEC``
+    and ``type_name``, the shipped table's message class (a site table builds its own class of
+    that name). ``type_name`` joins :data:`~auvgw.drivers.spec.LAZY_TYPES`, so a bus envelope
+    naming it rebuilds the class."""
+    codec = functools.cache(build)
+    LAZY_TYPES[type_name] = lambda: codec().message_type
+
+    def module_getattr(name: str) -> Any:
+        if name == "CODEC":
+            return codec()
+        if name == type_name:
+            return codec().message_type
+        raise AttributeError(f"no attribute {name!r}")
+
+    return codec, module_getattr

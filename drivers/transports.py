@@ -57,6 +57,7 @@ from auvgw.config.transport import (
     parse_transport_config,
 )
 from auvgw.drivers.slcanbus import BulkSlcanBus
+from auvgw.errors import TransportError
 
 __all__ = [
     "CanTransport",
@@ -95,14 +96,6 @@ class Chunk:
     can_id: int | None = None
     is_extended_id: bool = False
     t_device_s: float | None = None
-
-
-class TransportError(Exception):
-    """A transport failure; ``port`` names the device (path, URL, channel, address or file)."""
-
-    def __init__(self, port: str, message: str) -> None:
-        super().__init__(f"{port}: {message}")
-        self.port = port
 
 
 class TransportOpenError(TransportError):

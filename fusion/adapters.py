@@ -48,8 +48,10 @@ from typing import Any
 
 import numpy as np
 
-from auvgw.drivers import pd0
+from auvgw.devicetime import ClockStats, DeviceClock
+from auvgw.drivers import pd0, registry
 from auvgw.drivers.spec import WIRE_TYPES
+from auvgw.errors import DataError
 from auvgw.fusion.frames import beam_matrix
 from auvgw.fusion.samples import DvlSample, InsSample
 
@@ -76,17 +78,17 @@ __all__ = [
     "janus_angle",
 ]
 
-#: message type names (``TYPE`` or class name) of INS solutions this module adapts
-INS_TYPES = frozenset({"Hn100Nav", "HN100_Sample"})
+#: message type names (``TYPE`` or class name) of INS solutions (the registry's role ``ins``)
+INS_TYPES = registry.types_with_role("ins")
 #: message type names of DVL messages this module adapts
 PD0_TYPES = frozenset({"pd0.Ensemble"})
 #: PD6 bottom-track velocity sentences -> DvlSample frame
 PD6_VELOCITY_TYPES = {"pd6.BI": "instrument", "pd6.BS": "body", "pd6.BE": "earth"}
-#: every message type that can be an attitude source (INS; a DVL's compass: PD0 variable
-#: leader, PD6 ``:SA``)
-ATTITUDE_TYPES = INS_TYPES | PD0_TYPES | {"pd6.SA"}
-#: every message type that can be a velocity source
-VELOCITY_TYPES = PD0_TYPES | frozenset(PD6_VELOCITY_TYPES)
+#: every message type that can be an attitude source (the registry's role ``attitude``: INS;
+#: a DVL's compass: PD0 variable leader, PD6 ``:SA``)
+ATTITUDE_TYPES = registry.types_with_role("attitude")
+#: every message type that can be a velocity source (the registry's role ``velocity``)
+VELOCITY_TYPES = registry.types_with_role("velocity")
 
 #: ``DvlMount.rotation_deg`` (roll, pitch, yaw) of RDI instrument axes (X starboard, Y forward,
 #: Z up) for a down-facing DVL with beam 3 forward: ``Rz(90) Ry(0) Rx(180)`` maps (X, Y, Z) to
@@ -101,7 +103,7 @@ _BEAM_ANGLES_DEG = {0: 15.0, 1: 20.0, 2: 30.0}
 _EZ_DEPTH = 0x40
 
 
-class AdapterError(ValueError):
+class AdapterError(DataError):
     """A message the fusion cannot use as it is (names the message and what is missing)."""
 
 
@@ -340,98 +342,6 @@ def dvl_from_pd6(msg: Any, t: float) -> DvlSample:
 # -- clocks --------------------------------------------------------------------------------------
 
 
-@dataclass
-class ClockStats:
-    """Counters of one :class:`DeviceClock`."""
-
-    samples: int = 0
-    wraps: int = 0  #: device-clock wraps unwrapped
-    resets: int = 0  #: offset re-estimated after a backward device-clock jump
-
-
-class DeviceClock:
-    """Maps one device's own clock onto the common clock (host receive time, s).
-
-    The offset ``t_recv - t_device`` of a sample is its transport latency plus the clocks'
-    offset; the smallest seen is the best estimate of the clocks' offset (latency only adds).
-    So the estimate follows ``offset_k = min(offset_{k-1} + skew * dt_recv, d_k)``: it drops at
-    once to a smaller difference (a faster device clock, a forward jump) and may creep up by at
-    most ``skew`` s/s (a slower device clock). A device clock that jumps backward makes every
-    difference exceed the estimate; once they have exceeded it by more than ``jump_s`` for
-    ``confirm`` samples AND ``confirm_s`` seconds of receive time (so a backlog after a stall is
-    not taken for a jump), the estimate restarts from the current difference. ``wrap_s``: the
-    device time wraps after this many seconds (unwrapped here). ``latency_s``: a known fixed
-    delay between the device's time stamp and reception (e.g. frame bytes x 10 / baud),
-    subtracted from every mapped time.
-    """
-
-    def __init__(
-        self,
-        latency_s: float = 0.0,
-        skew: float = 1e-4,
-        jump_s: float = 1.0,
-        confirm: int = 3,
-        confirm_s: float = 0.5,
-        wrap_s: float | None = None,
-    ) -> None:
-        self.latency_s = float(latency_s)
-        self.skew = float(skew)
-        self.jump_s = float(jump_s)
-        self.confirm = int(confirm)
-        self.confirm_s = float(confirm_s)
-        self.wrap_s = wrap_s
-        self.offset: float | None = None
-        self.stats = ClockStats()
-        self._last_recv = math.nan
-        self._last_dev = math.nan
-        self._wrap_base = 0.0
-        self._excess_n = 0
-        self._excess_since = math.nan
-
-    def _unwrap(self, t_device: float) -> float:
-        w = self.wrap_s
-        if w is not None and math.isfinite(self._last_dev):
-            t = t_device + self._wrap_base
-            if t < self._last_dev - 0.5 * w:
-                self._wrap_base += w
-                self.stats.wraps += 1
-                t += w
-            return t
-        return t_device
-
-    def to_common(self, t_device: float, t_recv: float) -> float:
-        """The common-clock time (s) of a sample stamped ``t_device`` (device s) and received at
-        ``t_recv`` (common clock s)."""
-        t_dev = self._unwrap(t_device)
-        d = t_recv - t_dev
-        off = self.offset
-        if off is None:
-            off = d
-        else:
-            off += self.skew * max(t_recv - self._last_recv, 0.0)
-            if d <= off:
-                off = d
-                self._excess_n = 0
-            elif d - off > self.jump_s:
-                if self._excess_n == 0:
-                    self._excess_since = t_recv
-                self._excess_n += 1
-                if (
-                    self._excess_n >= self.confirm
-                    and t_recv - self._excess_since >= self.confirm_s
-                ):
-                    off = d
-                    self._excess_n = 0
-                    self.stats.resets += 1
-            else:
-                self._excess_n = 0
-        self.offset = off
-        self._last_recv = t_recv
-        self._last_dev = t_dev
-        self.stats.samples += 1
-        return t_dev + off - self.latency_s
-
-
 # -- per-device adapter ---------------------------------------------------------------------------
 
 
@@ -546,6 +456,8 @@ class MessageAdapter:
                     self.stats.dvl += 1
                     out.append(d._replace(t=t))
                 return out
+            if name not in PD6_VELOCITY_TYPES and name != "pd6.SA":
+                raise AdapterError(f"no fusion adapter for message type {name}")
             # PD6: no device time in the sentence
             t = self._clock(device, type(msg), "ins" if att else "dvl").to_common(
                 t_recv_s, t_recv_s

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from auvgw.errors import DataError
 from auvgw.fusion.config import DvlMount
 from auvgw.fusion.frames import beam_to_instrument, rot_x, rot_y
 from auvgw.fusion.samples import DvlSample, InsSample, PositionFix
@@ -35,7 +36,7 @@ from auvgw.fusion.samples import DvlSample, InsSample, PositionFix
 __all__ = ["CalibrationError", "DvlCalibration", "calibrate_dvl"]
 
 
-class CalibrationError(ValueError):
+class CalibrationError(DataError):
     """Not enough usable data for a calibration (says what is missing)."""
 
 

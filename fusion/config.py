@@ -85,6 +85,16 @@ class FusionConfig(_Model):
     dvl_noise_prior_dof: float = Field(
         2.0, gt=0, description="VB prior strength: inverse-gamma shape alpha0 of the spec noise"
     )
+    dvl_noise_rescale: bool = Field(
+        True,
+        description="scale the velocity covariance with the learned DVL noise at every fix "
+        "(it was built with the previous noise estimate; West & Harrison's variance learning)",
+    )
+    dvl_gate_predictive: bool = Field(
+        True,
+        description="gate adapted DVL fixes against the VB predictive (Student-t: k F(k, 2 alpha) "
+        "quantile), wide while the noise is still being learned; false: chi-square",
+    )
     dvl_noise_iterations: int = Field(3, ge=1, description="VB fixed-point iterations per fix")
     position_gate_probability: float | None = Field(
         0.9999, gt=0, lt=1, description="chi-square gate on position fixes; None disables"

@@ -37,19 +37,19 @@ from __future__ import annotations
 
 import csv
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field
 
+from auvgw.errors import DataError, load_settings
 from auvgw.fusion.samples import DepthSample, DvlSample, InsSample, PositionFix
 
 __all__ = ["ColumnMap", "CsvLog", "LogError", "load_column_map", "read_csv_log"]
 
 
-class LogError(ValueError):
+class LogError(DataError):
     """A log or column map that cannot be used (names the file, line and column)."""
 
 
@@ -94,22 +94,7 @@ class ColumnMap(_Model):
 
 def load_column_map(path: str | Path) -> ColumnMap:
     """Read a column map (TOML); :class:`LogError` names the file and field."""
-    path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except OSError as exc:
-        raise LogError(f"{path}: cannot read: {exc.strerror}") from exc
-    except tomllib.TOMLDecodeError as exc:
-        raise LogError(f"{path}: not valid TOML: {exc}") from exc
-    try:
-        return ColumnMap.model_validate(data)
-    except ValidationError as exc:
-        raise LogError(
-            "\n".join(
-                f"{path}: field '{'.'.join(str(p) for p in e['loc'])}': {e['msg']}"
-                for e in exc.errors()
-            )
-        ) from None
+    return load_settings(path, ColumnMap, LogError)
 
 
 @dataclass

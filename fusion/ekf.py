@@ -35,7 +35,8 @@ Models
   with constant acceleration too (trapezoid). Depth integrates the vertical NED velocity.
 * DVL: ``z = M^T (v + omega x r)`` in instrument axes (``z = v + omega x r`` for body-axes
   fixes), with ``M`` the mounting rotation, ``r`` the lever arm and ``omega`` the body rate at
-  the DVL's own time; missing components are left out; innovations are chi-square gated.
+  the DVL's own time; missing components are left out; innovations are gated (chi-square,
+  or while the noise is learned the VB predictive: :func:`predictive_gate`).
 * Depth: ``z = z_ref + (C r_p)_z`` for a pressure sensor at lever arm ``r_p``.
 
 The covariance is propagated with the Jacobian of this step (``P <- F P F^T + Q``) and updated
@@ -44,6 +45,7 @@ with the Joseph form.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -53,7 +55,14 @@ from auvgw.fusion.frames import mount_matrix, wrap_angle
 from auvgw.fusion.samples import DvlFrame, InsSample
 from auvgw.geometry import chi2_ppf
 
-__all__ = ["N_STATE", "STATE_NAMES", "DeadReckoningEKF", "arc_weights", "gm_factor"]
+__all__ = [
+    "N_STATE",
+    "STATE_NAMES",
+    "DeadReckoningEKF",
+    "arc_weights",
+    "gm_factor",
+    "predictive_gate",
+]
 
 STATE_NAMES = ("x", "y", "z", "heading", "pitch", "u", "v", "w")
 N_STATE = 8
@@ -89,6 +98,23 @@ def arc_weights(a: float) -> tuple[complex, complex]:
     f0 = (e - 1.0) / (1j * a)
     f1 = e / (1j * a) + (e - 1.0) / (a * a)
     return f0, f1
+
+
+@functools.lru_cache(maxsize=4096)
+def _f_gate(p: float, k: int, nu: float) -> float:
+    from scipy.special import fdtri
+
+    return k * float(fdtri(k, nu, p))
+
+
+def predictive_gate(p: float, k: int, nu: float) -> float:
+    """Gate on the NIS of ``k`` innovation components whose noise variance is only known as an
+    inverse-gamma posterior of shape ``nu / 2`` (the VB estimate): the ``p`` quantile of ``k F(k,
+    nu)``, the NIS of a ``k``-variate Student-t with ``nu`` degrees of freedom. Wide while the
+    noise is still being learned (``nu`` small: 259 for ``k = 3, nu = 5, p = 0.9999``), the
+    chi-square quantile as ``nu`` grows (23.4 at ``nu = 100``, chi-square 21.1). ``nu`` is rounded
+    to 0.1 (cached)."""
+    return _f_gate(p, k, round(nu, 1))
 
 
 def gm_factor(h: float, tau: float) -> float:
@@ -137,6 +163,7 @@ class DeadReckoningEKF:
         self._vb_b: np.ndarray | None = None
         p = config.dvl_gate_probability
         self._gate = {k: (float(chi2_ppf(p, k)) if p is not None else math.inf) for k in (1, 2, 3)}
+        self._gate_p = p
         pp = config.position_gate_probability
         self._pos_gate = float(chi2_ppf(pp, 2)) if pp is not None else math.inf
         self._g = config.gravity_mps2
@@ -382,8 +409,11 @@ class DeadReckoningEKF:
         point ``R = diag(beta / alpha)`` -> Kalman update ``(m, P)`` -> ``beta = beta^- +
         (z - H m)^2 / 2 + diag(H P H^T) / 2`` iterated ``dvl_noise_iterations`` times.
 
-        The chi-square gate is applied against the (adapted) noise before the update; a rejected
-        fix changes nothing (a spike does not inflate the learned noise) unless ``force``.
+        The gate is applied against the (adapted) noise before the update: adapting, the
+        quantile of the VB predictive (:func:`predictive_gate`, ``dvl_gate_predictive``), else
+        chi-square; a rejected fix changes nothing (a spike does not inflate the learned noise)
+        unless ``force``. Adapting with ``dvl_noise_rescale``, the velocity covariance is then
+        scaled by ``sqrt(mean(R_new / R_old))`` along the measured directions.
         Returns ``(accepted, NIS, innovation / sqrt(diag S))`` (NaN for missing components); a
         fix without any finite component returns ``(False, nan, nans)``.
         """
@@ -413,9 +443,12 @@ class DeadReckoningEKF:
         S_inv = np.linalg.inv(S)
         nis = float(y @ S_inv @ y)
         norm[mask] = y / np.sqrt(np.diag(S))
+        gate = self._gate[k]
         if adaptive:
             self._vb_a, self._vb_b = a_pri, b_pri  # the forgetting step happens at every fix
-        if not force and nis > self._gate[k]:
+            if self._gate_p is not None and cfg.dvl_gate_predictive:
+                gate = predictive_gate(self._gate_p, k, 2.0 * float(a_pri[mask].min()))
+        if not force and nis > gate:
             return False, nis, norm
         if adaptive:
             a_post = a_pri.copy()
@@ -432,6 +465,18 @@ class DeadReckoningEKF:
             S_inv = np.linalg.inv(HPH + np.diag(r_diag))
             self._vb_a, self._vb_b = a_post, b_post
         self._update(H, y, np.diag(r_diag), S_inv)
+        if adaptive and cfg.dvl_noise_rescale:
+            # the velocity covariance was learned from fixes weighed with the previous noise
+            # estimate: it scales with the noise (West & Harrison's variance learning), so a
+            # velocity fitted to the first fixes under a too-small spec noise is not held with
+            # a too-small covariance while the learned noise grows. Only the measured directions
+            # (rows of H: orthonormal, a rotation's) are scaled, unmeasured ones keep theirs.
+            d = math.sqrt(float(np.mean(r_diag / (b_pri[mask] / a_pri[mask]))))
+            Hv = H[:, _VEL]
+            D = np.eye(3) + (d - 1.0) * (Hv.T @ Hv)
+            P = self.P
+            P[_VEL, :] = D @ P[_VEL, :]
+            P[:, _VEL] = P[:, _VEL] @ D
         return True, nis, norm
 
     def update_position(

@@ -64,9 +64,12 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from auvgw.config.gateway import MsisPolling
+from auvgw.config.scenario import DeviceSettings
 from auvgw.drivers import seanet as sn
 from auvgw.drivers.framing import DecodeError, ErrorPolicy
 from auvgw.sim_devices.clock import SimClock
+from auvgw.sim_devices.emulator import PolledEmulator, SimContext, device_option
 
 log = logging.getLogger(__name__)
 
@@ -78,6 +81,7 @@ __all__ = [
     "MsisHead",
     "MsisHeadStats",
     "make_echo",
+    "make_emulator",
     "quantise",
     "serve_on_port",
     "silent_echo",
@@ -690,3 +694,53 @@ def make_echo(
         return np.clip(1.0 + level / RECEIVER_RANGE_DB, 0.0, 1.0)
 
     return echo
+
+
+def make_emulator(ctx: SimContext, settings: DeviceSettings) -> PolledEmulator:
+    """The simulator's Tritech head (the registry's emulator of ``seanet``): a :class:`MsisHead`
+    with :func:`make_echo` on the world's ray caster, host-polled on a pty.
+
+    Options: ``baud`` (115200), ``beam_width_deg`` (3), ``noise_floor`` (0.1), ``speckle``
+    (1), ``mount_offset_deg`` (0), ``inverted`` (false), ``alive_period_s`` (1),
+    ``tick_hz`` (20: how often the head's own clock is served), ``ping_delay`` (true: a
+    HeadData reply leaves after the ping's duration); gateway polling keys (``range_m``,
+    ``gain``, ``step_deg``, ``left_limit_deg``, ``right_limit_deg``, ``continuous``,
+    ``n_bins``, ``adc8``, ``reply_timeout_s``) go to the gateway configuration's ``msis`` table.
+    """
+
+    def opt(key: str, default: Any) -> Any:
+        return device_option(settings, "msis", key, default)
+
+    pose_time = [0.0]
+
+    def pose() -> tuple[float, float, float]:
+        return ctx.truth.at(pose_time[0]).pose
+
+    echo = make_echo(
+        ctx.world,
+        pose,
+        ctx.rng("msis/echo"),
+        beam_width_deg=opt("beam_width_deg", 3.0),
+        noise_floor=opt("noise_floor", 0.1),
+        speckle=opt("speckle", 1.0),
+        mount_offset=math.radians(opt("mount_offset_deg", 0.0)),
+        inverted=opt("inverted", False),
+    )
+    head = MsisHead(
+        echo, sound_speed=ctx.world.sound_speed, alive_period_s=opt("alive_period_s", 1.0)
+    )
+    polling = {k: v for k, v in settings.options.items() if k in MsisPolling.model_fields}
+    em = PolledEmulator(
+        ctx,
+        settings,
+        head,
+        kind="msis",
+        fmt="seanet",
+        framer=sn.SeaNetFramer,
+        baud=opt("baud", 115200),
+        rate_hz=opt("tick_hz", 20.0),
+        extra={"msis": polling} if polling else None,
+        reply_delay=head.ping_duration_s if opt("ping_delay", True) else None,
+    )
+    em.before_feed = lambda t: pose_time.__setitem__(0, t)
+    return em

@@ -18,14 +18,10 @@ Faults come from each device's ``faults`` in the scenario and can be switched at
   device's faults become the scenario's plus the file's entries for it (a device left out
   returns to the scenario's). Windows (``unplug``, ``stall``, ...) are in vehicle seconds.
 
-Devices: ``ins`` (:class:`~auvgw.sim_devices.ins.InsEmulator`), ``magnetometer``
-(:class:`~auvgw.sim_devices.magnetometer.MagnetometerEmulator`), ``acoustic``
-(:class:`~auvgw.sim_devices.acoustic.AcousticEmulator`, off unless enabled), ``multibeam``
-(:class:`~auvgw.sim_devices.multibeam.MultibeamEmulator`), ``msis`` (the SeaNet head of
-:mod:`auvgw.sim_devices.msis` in a :class:`~auvgw.sim_devices.emulator.PolledEmulator`) and
-``dvl`` (``auvgw.sim_devices.dvl.DvlEmulator(ctx, settings)``, an
-:class:`~auvgw.sim_devices.emulator.Emulator`). A device whose module is not installed is
-listed in :attr:`Runner.unavailable` with the reason.
+Devices: every emulator of the device registry (:func:`auvgw.drivers.registry.emulators`, in
+its order: ``ins``, ``dvl``, ``msis``, ``multibeam``, ``magnetometer``, ``acoustic``), each
+made by its registered factory. A device whose module is not installed is listed in
+:attr:`Runner.unavailable` with the reason.
 
 One Python process runs its threads on about one core (the GIL). :class:`DeviceProcesses` runs
 each device in its own process instead (each a :class:`Runner` of one device, built from the
@@ -37,7 +33,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import importlib
 import json
 import logging
 import math
@@ -48,25 +43,21 @@ import threading
 import time
 from collections.abc import Callable, Iterable
 from pathlib import Path
-from types import ModuleType
 from typing import Any
 
 import numpy as np
 
 from auvgw.config.scenario import DeviceSettings, FaultSettings, Scenario
-from auvgw.sim_devices.acoustic import AcousticEmulator
+from auvgw.drivers import registry
+from auvgw.errors import format_validation_error
+from auvgw.procs import stop_process
 from auvgw.sim_devices.clock import SimClock
 from auvgw.sim_devices.emulator import (
     DEFAULT_EPOCH,
     Emulator,
     Endpoint,
-    PolledEmulator,
     SimContext,
-    device_option,
 )
-from auvgw.sim_devices.ins import InsEmulator
-from auvgw.sim_devices.magnetometer import MagnetometerEmulator
-from auvgw.sim_devices.multibeam import MultibeamEmulator
 from auvgw.sim_devices.vehicle import TRUTH_FIELDS, TruthSample, simulate
 from auvgw.sim_devices.world import World
 
@@ -80,107 +71,43 @@ __all__ = [
     "gateway_clock",
     "gateway_config",
     "gateway_toml",
-    "make_dvl",
-    "make_msis",
     "write_gateway_config",
 ]
 
 log = logging.getLogger(__name__)
 
-#: devices in the order they are built and listed (the scenario's ``devices`` keys)
-DEVICE_ORDER = ("ins", "dvl", "msis", "multibeam", "magnetometer", "acoustic")
-
-#: fields of the gateway's MSIS polling table that a scenario's msis options may set
-_MSIS_POLLING = (
-    "range_m", "gain", "step_deg", "left_limit_deg", "right_limit_deg", "continuous", "n_bins",
-    "adc8", "reply_timeout_s",
-)  # fmt: skip
+#: devices in the order they are built and listed (the scenario's ``devices`` keys, from the
+#: device registry)
+DEVICE_ORDER = tuple(em.key for em in registry.emulators())
 
 
 class DeviceUnavailable(RuntimeError):
     """A device of the scenario whose emulator module is not installed."""
 
 
-def _optional_module(name: str) -> ModuleType | None:
-    full = f"auvgw.sim_devices.{name}"
-    try:
-        return importlib.import_module(full)
-    except ModuleNotFoundError as exc:
-        if exc.name == full:
-            return None
-        raise
+def _factory(em: registry.Emulator) -> Callable[[SimContext, DeviceSettings], Emulator]:
+    """The registered factory of an emulator, imported when first called (a module that is not
+    installed makes the device unavailable, not the simulator)."""
+
+    def make(ctx: SimContext, settings: DeviceSettings) -> Emulator:
+        module = em.factory.partition(":")[0]
+        try:
+            factory = registry.load(em.factory)
+        except ModuleNotFoundError as exc:
+            if exc.name != module:
+                raise
+            raise DeviceUnavailable(f"no {em.key} emulator ({em.factory})") from exc
+        except AttributeError as exc:
+            raise DeviceUnavailable(f"no {em.key} emulator ({em.factory})") from exc
+        emulator: Emulator = factory(ctx, settings)
+        return emulator
+
+    return make
 
 
-def make_dvl(ctx: SimContext, settings: DeviceSettings) -> Emulator:
-    """The Pathfinder DVL: ``auvgw.sim_devices.dvl.DvlEmulator(ctx, settings)``."""
-    mod = _optional_module("dvl")
-    if mod is None or not hasattr(mod, "DvlEmulator"):
-        raise DeviceUnavailable("no DVL emulator (auvgw.sim_devices.dvl.DvlEmulator)")
-    return mod.DvlEmulator(ctx, settings)
-
-
-def make_msis(ctx: SimContext, settings: DeviceSettings) -> Emulator:
-    """The Tritech head: :class:`auvgw.sim_devices.msis.MsisHead` with
-    :func:`~auvgw.sim_devices.msis.make_echo` on the world's ray caster, host-polled on a pty.
-
-    Options: ``baud`` (115200), ``beam_width_deg`` (3), ``noise_floor`` (0.1), ``speckle``
-    (1), ``mount_offset_deg`` (0), ``inverted`` (false), ``alive_period_s`` (1),
-    ``tick_hz`` (20: how often the head's own clock is served), ``ping_delay`` (true: a
-    HeadData reply leaves after the ping's duration); gateway polling keys (``range_m``,
-    ``gain``, ``step_deg``, ``left_limit_deg``, ``right_limit_deg``, ``continuous``,
-    ``n_bins``, ``adc8``, ``reply_timeout_s``) go to the gateway configuration's ``msis`` table.
-    """
-    mod = _optional_module("msis")
-    if mod is None or not hasattr(mod, "MsisHead"):
-        raise DeviceUnavailable("no MSIS head (auvgw.sim_devices.msis.MsisHead)")
-    from auvgw.drivers.seanet import SeaNetFramer
-
-    def opt(key: str, default: Any) -> Any:
-        return device_option(settings, "msis", key, default)
-
-    pose_time = [0.0]
-
-    def pose() -> tuple[float, float, float]:
-        return ctx.truth.at(pose_time[0]).pose
-
-    echo = mod.make_echo(
-        ctx.world,
-        pose,
-        ctx.rng("msis/echo"),
-        beam_width_deg=opt("beam_width_deg", 3.0),
-        noise_floor=opt("noise_floor", 0.1),
-        speckle=opt("speckle", 1.0),
-        mount_offset=math.radians(opt("mount_offset_deg", 0.0)),
-        inverted=opt("inverted", False),
-    )
-    head = mod.MsisHead(
-        echo, sound_speed=ctx.world.sound_speed, alive_period_s=opt("alive_period_s", 1.0)
-    )
-    polling = {k: settings.options[k] for k in _MSIS_POLLING if k in settings.options}
-    em = PolledEmulator(
-        ctx,
-        settings,
-        head,
-        kind="msis",
-        fmt="seanet",
-        framer=SeaNetFramer,
-        baud=opt("baud", 115200),
-        rate_hz=opt("tick_hz", 20.0),
-        extra={"msis": polling} if polling else None,
-        reply_delay=head.ping_duration_s if opt("ping_delay", True) else None,
-    )
-    em.before_feed = lambda t: pose_time.__setitem__(0, t)
-    return em
-
-
-#: device key -> factory(ctx, settings) -> emulator (raises DeviceUnavailable)
+#: device key -> factory(ctx, settings) -> emulator (raises DeviceUnavailable), from the registry
 FACTORIES: dict[str, Callable[[SimContext, DeviceSettings], Emulator]] = {
-    "ins": InsEmulator,
-    "dvl": make_dvl,
-    "msis": make_msis,
-    "multibeam": MultibeamEmulator,
-    "magnetometer": MagnetometerEmulator,
-    "acoustic": AcousticEmulator,
+    em.key: _factory(em) for em in registry.emulators()
 }
 
 
@@ -472,9 +399,8 @@ class Runner:
             try:
                 new[name] = FaultSettings.model_validate({**base.model_dump(), **changes})
             except ValidationError as exc:
-                err = exc.errors()[0]
-                field = ".".join(str(p) for p in err["loc"])
-                raise ValueError(f"fault control: {name}.{field}: {err['msg']}") from None
+                lines = format_validation_error(exc, "fault control", rename=f"{name}.{{}}".format)
+                raise ValueError(lines.split("\n")[0]) from None
         for name, fs in new.items():
             self.emulators[name].set_faults(fs)
         return new
@@ -776,11 +702,7 @@ class DeviceProcesses:
         msg = self._read(proc, timeout)
         if msg is not None and "stats" in msg:
             self._stats[kind] = msg["stats"]
-        try:
-            proc.wait(timeout)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        stop_process(proc, None, timeout)  # asked on stdin; killed if it does not exit
 
     # -- the Runner surface -------------------------------------------------------------------
     @property

@@ -31,7 +31,7 @@ def papers_dir(shared_data: Path) -> Path:
 @pytest.fixture
 def procs(tmp_path):
     """Child processes of a test (gateway, router, subscriber), all stopped at its end."""
-    from gateway_support import Procs
+    from auvgw.testing import Procs
 
     p = Procs(tmp_path)
     try:
@@ -43,7 +43,7 @@ def procs(tmp_path):
 @pytest.fixture
 def dvl(tmp_path):
     """A pty standing in for the DVL's serial port (stable symlink path)."""
-    from gateway_support import PtyDevice
+    from auvgw.testing import PtyDevice
 
     d = PtyDevice(tmp_path / "dvl")
     try:
@@ -88,9 +88,8 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 def _bus_endpoint():
     """A free loopback port as the one-machine default bus endpoint of this test session (so
     parallel test runs on one machine never meet on tcp/127.0.0.1:7447)."""
-    from gateway_support import endpoint, free_port
-
     from auvgw.config.bus import ENDPOINT_ENV
+    from auvgw.testing import endpoint, free_port
 
     old = os.environ.get(ENDPOINT_ENV)
     os.environ[ENDPOINT_ENV] = endpoint(free_port())

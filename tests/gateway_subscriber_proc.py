@@ -65,7 +65,7 @@ def main() -> int:
                 "t_recv_ns": env.t_recv_ns,
                 "seq": env.seq,
                 "typed": env.message is not None,
-                "msg": to_jsonable(env.message) if env.message is not None else dict(env.body),
+                "msg": to_jsonable(env.message) if env.message is not None else env.body,
                 "t_arrival_ns": time.time_ns(),
             }
             out.write(json.dumps(rec) + "\n")

@@ -16,8 +16,8 @@ from auvgw.config.scenario import Scenario
 from auvgw.slam.bathymetric.config import BathyConfig
 from auvgw.slam.bathymetric.study import BathyStudy, monte_carlo
 from auvgw.slam.evaluation.executor import open_executor
-from tests.bathy_helpers import TINY, local_cluster
-from tests.slam_helpers import bailey_scenario
+from auvgw.testing.bathy_helpers import TINY, local_cluster
+from auvgw.testing.slam_helpers import bailey_scenario
 
 
 def _study() -> BathyStudy:

@@ -17,7 +17,7 @@ from auvgw.slam.bathymetric.filters import MTMPF, jitter_variance
 from auvgw.slam.bathymetric.loops import LCCD, LoopClosure, correction_ramp
 from auvgw.slam.bathymetric.matching import alpha_exponent, idw, match_weights
 from auvgw.slam.bathymetric.simulate import DRModel, simulate_survey, swath_offsets
-from tests.bathy_helpers import TINY
+from auvgw.testing.bathy_helpers import TINY
 
 
 def test_idw_hand_computed() -> None:
@@ -171,3 +171,27 @@ def test_one_noise_free_particle_reproduces_the_truth() -> None:
         assert np.allclose(res.online, sim.truth, atol=1e-9)
     grid, _ = grid_dem(f.map_points(), 2.0)
     assert np.nanmax(grid) < 40 and np.nanmin(grid) > 20
+
+
+def test_one_closure_per_crossing() -> None:
+    """closure = "crossing": the TINY survey crosses its first line once; the weights of that
+    crossing's pings are accumulated and resampled once, where eq. (13) resamples at many
+    consecutive pings of the same crossing; the one closure still pulls the track in."""
+    sim = simulate_survey(Scenario.model_validate(TINY), np.random.default_rng(3))
+    cfg1 = BathyConfig(n_particles=100, closure="resampling")
+    per_ping, f1 = run_filter("mtm-pf", sim, cfg1, np.random.default_rng(1))
+    cfg = BathyConfig(n_particles=100, closure="crossing")
+    per_crossing, f2 = run_filter("mtm-pf", sim, cfg, np.random.default_rng(1))
+    assert len(f1.loops) > 3  # many small resamplings in a row
+    assert 1 <= len(f2.loops) <= 2
+    t_ends = [lp.t_end for lp in f2.loops]
+    # the crossing's matched pings: each closure comes after the last of them
+    matched = np.flatnonzero(f2.matched > 0)
+    assert all(t >= matched.min() + 1 for t in t_ends)
+    err = np.hypot(*(per_crossing.final[-1] - sim.truth[-1]))
+    err_dr = np.hypot(*(sim.dr[-1] - sim.truth[-1]))
+    print(
+        f"final error: per crossing {err:.2f} m, per resampling "
+        f"{np.hypot(*(per_ping.final[-1] - sim.truth[-1])):.2f} m, DR {err_dr:.2f} m"
+    )
+    assert err < err_dr

@@ -10,7 +10,7 @@ from auvgw.slam.bathymetric.config import BathyConfig
 from auvgw.slam.bathymetric.evaluate import run_filter
 from auvgw.slam.bathymetric.online import OnlineBathy, resample_swath
 from auvgw.slam.bathymetric.simulate import simulate_survey
-from tests.bathy_helpers import TINY
+from auvgw.testing.bathy_helpers import TINY
 
 
 def test_online_driver_grows_and_matches_the_batch_filter() -> None:

@@ -7,16 +7,16 @@ set by conftest.py) so parallel test runs never meet; the commands themselves ge
 
 from __future__ import annotations
 
+import math
 import signal
 import threading
 from collections import Counter
 from pathlib import Path
 
-from gateway_support import AUVGW, REPO, wait_until
-
 from auvgw.bus import Keys, open_session
 from auvgw.config.bus import BusConfig, default_endpoint
 from auvgw.recording import iter_samples, read_info
+from auvgw.testing import AUVGW, REPO, wait_until
 
 SCENARIO = str(REPO / "config" / "scenarios" / "harbour.json")
 
@@ -39,6 +39,8 @@ def _count_on_bus(
                     envelopes.append((key, smp.payload.to_bytes()))
                 if "/slam/" in key and key.endswith("/pose"):
                     counts["slam_pose"] += 1
+                if key.endswith("/msis/mtheaddata"):  # the polled head answers after its set-up
+                    counts["msis_head"] += 1
 
             sub = s.declare_subscriber(keys.all("**"), on_sample)
             stop.wait()
@@ -68,8 +70,9 @@ def test_default_endpoints_connect_sim_gateway_record_fusion_slam(procs, tmp_pat
         rec.wait_line("recording", timeout=60)
         fusion.wait_line("fusion running", timeout=60)
         slam.wait_line("slam running", timeout=60)
-        wait_until(lambda: counts["slam_pose"] >= 3 and counts["nav"] >= 50, timeout=120,
-                   what=f"SLAM poses and odometry on the default bus (seen {counts})")  # fmt: skip
+        wait_until(lambda: counts["slam_pose"] >= 3 and counts["nav"] >= 50
+                   and counts["msis_head"] >= 3, timeout=120,
+                   what=f"SLAM poses, odometry, sonar lines (seen {counts})")  # fmt: skip
         rec.signal(signal.SIGTERM)
         assert rec.wait(60) == 0, rec.stderr()
     finally:
@@ -128,7 +131,8 @@ def _check_ros2_readers(path: Path, envelopes: list[tuple[str, bytes]]) -> None:
     import auvgw.fusion.odometry  # noqa: F401 - the Odometry type
     from auvgw.bus import decode_envelope
     from auvgw.drivers.can_codec import hn100_can, ms3a_can
-    from auvgw.ros2 import enu_from_ned, flu_from_frd, quaternion_enu_flu
+    from auvgw.fusion.adapters import dvl_from_pd0
+    from auvgw.ros2 import DEFAULT_SOUND_SPEED, enu_from_ned, flu_from_frd, quaternion_enu_flu
     from auvgw.subscribe import typed_message
 
     with AnyReader([path]) as reader:
@@ -158,6 +162,22 @@ def _check_ros2_readers(path: Path, envelopes: list[tuple[str, bytes]]) -> None:
             b = msg.beams
             xyzi = np.column_stack([b.along, -b.across, -b.depth, b.reflectivity])
             return tuple(xyzi.astype("<f4").reshape(-1))
+        if name in ("twist", "altitude"):
+            # the DVL: bottom-track velocity in the frame it reports (ship here, levelled into
+            # base_link FLU), -1 in covariance[0] without bottom lock; altitude in metres
+            s = dvl_from_pd0(msg, t=0.0)
+            if name == "altitude":  # sensor_msgs/Range carries float32
+                return "dvl", float(np.float32(s.altitude))
+            frame = "base_link" if s.frame == "body" else "dvl"
+            v = flu_from_frd(s.velocity) if s.frame == "body" else s.velocity
+            return frame, tuple(v), (0.0, 0.0, 0.0), 0.0 if s.bottom_lock else -1.0
+        if name == "returns":
+            # the MSIS scan line: a point per bin at its centre range along the bearing
+            # (clockwise from forward, so starboard is -y in FLU), intensity = amplitude
+            r = (np.arange(len(msg.bins)) + 0.5) * (msg.ad_interval * DEFAULT_SOUND_SPEED / 2)
+            xyzi = np.column_stack([r * math.cos(msg.bearing), -r * math.sin(msg.bearing),
+                                    np.zeros(len(r)), msg.bins])  # fmt: skip
+            return "msis", tuple(xyzi.astype("<f4").reshape(-1))
         if name == "odometry":
             return (
                 enu_from_ned((msg.x, msg.y, msg.z)),
@@ -176,9 +196,29 @@ def _check_ros2_readers(path: Path, envelopes: list[tuple[str, bytes]]) -> None:
         if name == "points":
             assert [f.name for f in ros.fields] == ["x", "y", "z", "intensity"]
             return tuple(np.frombuffer(bytes(ros.data), dtype="<f4"))
+        if name == "altitude":
+            return ros.header.frame_id, ros.range
+        if name == "twist":
+            t, cov = ros.twist.twist, ros.twist.covariance
+            assert not any(cov[1:])
+            return (ros.header.frame_id, (t.linear.x, t.linear.y, t.linear.z),
+                    (t.angular.x, t.angular.y, t.angular.z), cov[0])  # fmt: skip
+        if name == "returns":
+            assert [f.name for f in ros.fields] == ["x", "y", "z", "intensity"]
+            assert (ros.height, ros.width, ros.point_step) == (1, len(ros.data) // 16, 16)
+            return ros.header.frame_id, tuple(np.frombuffer(bytes(ros.data), dtype="<f4"))
         p, o, v = ros.pose.pose.position, ros.pose.pose.orientation, ros.twist.twist.linear
         return (p.x, p.y, p.z), (o.x, o.y, o.z, o.w), (v.x, v.y, v.z)
 
+    def same(a, b) -> bool:
+        """Equal, bit for bit where numbers, NaN equal to NaN (a DVL without bottom lock)."""
+        if isinstance(a, tuple | list) and isinstance(b, tuple | list):
+            return len(a) == len(b) and all(same(x, y) for x, y in zip(a, b, strict=True))
+        if isinstance(a, float | np.floating) and isinstance(b, float | np.floating):
+            return (a != a and b != b) or a == b
+        return a == b
+
+    names = ("imu", "magnetic_field", "points", "odometry", "twist", "altitude", "returns")
     checked = Counter()
     with open(path, "rb") as f:
         reader = make_reader(f, decoder_factories=[DecoderFactory()])
@@ -188,14 +228,15 @@ def _check_ros2_readers(path: Path, envelopes: list[tuple[str, bytes]]) -> None:
         parts = topic.split("/")  # /auv1/<section>/<device or stream>/...
         name = parts[-1]
         candidates = gw.get((parts[3], _stamp(ros.header)))
-        if candidates is None or name not in ("imu", "magnetic_field", "points", "odometry"):
+        if candidates is None or name not in names:
             continue
         if len(candidates) > 1 or per_stamp[(topic, _stamp(ros.header))] > 1:
             continue  # several messages share this receive time: the pairing is ambiguous
-        # field for field, bit for bit (NaN-free here: NaN != NaN would fail loudly)
-        assert got(name, ros) == expected(name, candidates[0]), topic
+        # field for field, bit for bit
+        g, e = got(name, ros), expected(name, candidates[0])
+        assert same(g, e), (topic, g, e)
         checked[name] += 1
-    for name in ("imu", "magnetic_field", "points", "odometry"):
+    for name in names:
         assert checked[name] > 0, checked
 
 
@@ -217,9 +258,8 @@ def test_a_stage_without_gateway_says_no_publisher_and_recorder_fails(procs, tmp
 
 
 def test_run_listen_option_replaces_the_configuration_endpoints(procs, tmp_path: Path):
-    from gateway_support import endpoint, free_port
-
     from auvgw.subscribe import GatewaySubscriber
+    from auvgw.testing import endpoint, free_port
 
     cfg = tmp_path / "gw.toml"
     cfg.write_text('vehicle = "lv"\nstatus_period_s = 0.2\n[bus]\nlisten = ["tcp/127.0.0.1:1"]\n'

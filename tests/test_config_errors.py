@@ -13,7 +13,8 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
-from gateway_support import AUVGW, REPO
+
+from auvgw.testing import AUVGW, REPO
 
 DVL = '[devices.dvl]\nformat = "pd0"\ntransport = { kind = "serial", url = "/dev/null-dvl" }\n'
 
@@ -32,7 +33,7 @@ _ALL: dict[str, tuple[str, list[str]]] = {
     ),
     "unknown_format": (
         '[devices.dvl]\nformat = "pd9"\ntransport = { kind = "serial", url = "/dev/x" }\n',
-        ["devices.dvl.format: Input should be 'pd0', 'pd6'", "(got 'pd9')"],
+        ["devices.dvl.format: Input should be 'hn100', 'pd0', 'pd6'", "(got 'pd9')"],
     ),
     "bad_transport_kind": (
         '[devices.dvl]\nformat = "pd0"\ntransport = { kind = "serail", url = "/dev/x" }\n',

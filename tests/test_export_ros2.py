@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 
 import numpy as np
-from gateway_support import local_decoded, pd0_frames
 from mcap.writer import Writer
 from rosbags.highlevel import AnyReader
 from test_record_replay import gateway_config_json
@@ -21,6 +20,7 @@ from auvgw.recording import (
     pack_raw_record,
     read_info,
 )
+from auvgw.testing import local_decoded, pd0_frames
 
 
 def _old_recording(path, frames):

@@ -11,16 +11,16 @@ import time
 from pathlib import Path
 
 import pytest
-from format_samples import KONGSBERG_FRAMES, pd0_frames, samples, v4log_records
 
 from auvgw.config.transport import UdpTransportConfig
 from auvgw.decoding import DeviceDecoder
 from auvgw.drivers import kongsberg as kb
 from auvgw.drivers import seanet as sn
-from auvgw.drivers import v4log as v4
 from auvgw.drivers.formats import get_format
 from auvgw.drivers.framing import ErrorPolicy, Framer
+from auvgw.drivers.seanet import v4log as v4
 from auvgw.drivers.transports import Chunk, make_transport
+from auvgw.testing.format_samples import KONGSBERG_FRAMES, pd0_frames, samples, v4log_records
 
 
 def _max_pd0(frame: bytes) -> bytes:

@@ -130,5 +130,5 @@ def test_log_errors_name_file_line_and_column(tmp_path):
     assert len(got.ins) == 1 and len(got.dvl) == 1  # the row's DVL fix is kept
     bad = tmp_path / "bad.toml"
     bad.write_text('[columns]\nheading = "yaw"\n')
-    with pytest.raises(LogError, match=r"bad\.toml: field 'columns\.t'"):
+    with pytest.raises(LogError, match=r"bad\.toml: columns\.t: "):
         load_column_map(bad)

@@ -15,7 +15,10 @@ import math
 
 import numpy as np
 import pytest
-from fusion_emulated import (
+
+from auvgw.sim_devices.dvl import DvlEmulator
+from auvgw.stages.fusion import FusionStageConfig
+from auvgw.testing.fusion_emulated import (
     HOST_EPOCH,
     NEES_2SIGMA,
     NEES_95,
@@ -28,9 +31,6 @@ from fusion_emulated import (
     run_stage,
     survey_scenario,
 )
-
-from auvgw.sim_devices.dvl import DvlEmulator
-from auvgw.stages.fusion import FusionStageConfig
 
 T0, T1 = 220.0, 340.0  # vehicle s: line 1 ends about 247 s, line 2 starts about 295 s
 LOSS = (250.0, 310.0)  # 60 s without bottom lock, mid-run (through both turns)

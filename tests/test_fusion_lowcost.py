@@ -1,4 +1,5 @@
-"""The fusion on the low-cost vehicle (config/scenarios/lowcost.json, tests/fusion_lowcost.py):
+"""The fusion on the low-cost vehicle (config/scenarios/lowcost.json,
+tests/support/fusion_lowcost.py):
 with DEFAULT noise settings it does as well as the same filter told the true DVL noise, better
 than a plain rotate-and-integrate of the DVL, learns the DVL noise, and its diagnostics show the
 shares; the old defaults (a 0.002 m/s DVL) starve the filter and the diagnostics say so. Three
@@ -10,7 +11,8 @@ import statistics
 
 import numpy as np
 import pytest
-from fusion_lowcost import lowcost_scenario, run, truth_trajectory
+
+from auvgw.testing.fusion_lowcost import lowcost_scenario, run, truth_trajectory
 
 SEEDS = (0, 1, 2)
 
@@ -96,7 +98,7 @@ def test_device_emulators_play_the_lowcost_scenario(tmp_path):
     demo): compass deviation in the INS heading, spikes in the DVL's velocities."""
     import math
 
-    from fusion_emulated import emulate
+    from auvgw.testing.fusion_emulated import emulate
 
     scn = lowcost_scenario()
     data = scn.model_dump()

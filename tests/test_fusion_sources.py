@@ -14,14 +14,6 @@ import math
 
 import numpy as np
 import pytest
-from fusion_emulated import (
-    decode_serial,
-    dvl_stream,
-    emulate,
-    filter_config,
-    ins_output,
-    survey_scenario,
-)
 
 from auvgw.drivers import pd6
 from auvgw.fusion import DvlMount, FusionConfig, NavFilter, run_filter
@@ -29,6 +21,14 @@ from auvgw.fusion.adapters import MessageAdapter, dvl_from_pd6
 from auvgw.fusion.frames import beam_matrix, body_to_ned
 from auvgw.fusion.samples import DvlSample, InsSample, PositionFix
 from auvgw.stages.fusion import FusionStage, FusionStageConfig
+from auvgw.testing.fusion_emulated import (
+    decode_serial,
+    dvl_stream,
+    emulate,
+    filter_config,
+    ins_output,
+    survey_scenario,
+)
 
 T0, T1 = 100.0, 110.0
 

@@ -8,7 +8,10 @@ import json
 import signal
 
 import pytest
-from gateway_support import (
+
+from auvgw.config.bus import BusConfig
+from auvgw.subscribe import GatewaySubscriber
+from auvgw.testing import (
     AUVGW,
     endpoint,
     frame_counters,
@@ -19,9 +22,6 @@ from gateway_support import (
     wait_until,
     write_gateway_toml,
 )
-
-from auvgw.config.bus import BusConfig
-from auvgw.subscribe import GatewaySubscriber
 
 
 @pytest.fixture

@@ -9,17 +9,17 @@ from __future__ import annotations
 
 import can
 import pytest
-from gateway_support import (
-    endpoint,
-    free_port,
-    read_jsonl,
-    wait_until,
-)
 
 from auvgw.config.bus import BusConfig
 from auvgw.drivers.can_codec import ms3a_can
 from auvgw.sim_devices.slcan import SlcanAdapter
 from auvgw.subscribe import GatewaySubscriber
+from auvgw.testing import (
+    endpoint,
+    free_port,
+    read_jsonl,
+    wait_until,
+)
 
 N_BEFORE = 20  # samples sent before the unplug (40 frames)
 N_UNPLUGGED = 5  # samples the magnetometer produces while the adapter is out (never delivered)

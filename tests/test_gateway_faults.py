@@ -3,7 +3,9 @@ the same symlink, and a subscriber that stops reading."""
 
 from __future__ import annotations
 
-from gateway_support import (
+from auvgw.config.bus import BusConfig
+from auvgw.subscribe import GatewaySubscriber
+from auvgw.testing import (
     PYTHON,
     endpoint,
     frame_counters,
@@ -14,9 +16,6 @@ from gateway_support import (
     wait_until,
     write_gateway_toml,
 )
-
-from auvgw.config.bus import BusConfig
-from auvgw.subscribe import GatewaySubscriber
 
 
 def test_unplug_and_replug_reported_and_resumed_without_loss(procs, tmp_path, dvl, shared_data):

@@ -94,10 +94,9 @@ def test_malformed_bus_payloads_are_counted_logged_and_survived(stage_kind, capl
 def test_raw_sequence_numbers_are_unique_across_a_gateway_restart(tmp_path, shared_data) -> None:
     """Two runs of a gateway over the same capture: the second run's raw sequence numbers
     (``session_id << 32 | n``) repeat none of the first run's."""
-    from gateway_support import frame_counters, pd0_frames
-
     from auvgw.bus import unpack_raw_attachment
     from auvgw.gateway import Gateway
+    from auvgw.testing import frame_counters, pd0_frames
 
     frames = pd0_frames(shared_data, 5)
     capture = tmp_path / "dvl.pd0"
@@ -150,9 +149,8 @@ def test_relative_device_paths_resolve_against_the_config_file(tmp_path, monkeyp
 def test_a_config_with_relative_ports_connects_from_another_directory(procs, tmp_path) -> None:
     """A gateway started elsewhere (systemd starts in /) opens ``url = "ports/dvl"`` next to
     its configuration file and delivers the device's frames."""
-    from gateway_support import AUVGW, PtyDevice, endpoint, free_port, wait_until
-
     from auvgw.subscribe import GatewaySubscriber
+    from auvgw.testing import AUVGW, PtyDevice, endpoint, free_port, wait_until
 
     site = tmp_path / "site"
     (site / "ports").mkdir(parents=True)

@@ -53,3 +53,26 @@ def test_online_chain_tracks_the_vehicle_and_publishes_observations() -> None:
     assert filt.n_lm >= 2
     with pytest.raises(ValueError, match="out of order"):
         online.add_mag(ts[0], b_body[0], *att[0])
+
+
+def test_pose_propagation_fast_path_matches_the_velocity_model() -> None:
+    """The scalar VelocityModel steps of ``MagneticOnline.pose`` give the model's own ``f`` and
+    Jacobians' mean and covariance (the q_scale of composed steps included)."""
+    from auvgw.slam.magnetic.online import _velocity_steps
+    from auvgw.slam.models import VelocityModel
+
+    rng = np.random.default_rng(3)
+    m = VelocityModel()
+    q = np.diag([0.05**2, 0.02**2, np.radians(0.2) ** 2])
+    x = np.array([10.0, -4.0, 3.0])
+    p = np.diag([0.3, 0.2, 0.01])
+    steps = [(rng.normal([5.0, 0.2, 0.3], [0.5, 0.1, 0.2]), 0.05, 1.0 / rng.integers(1, 6))
+             for _ in range(40)]  # fmt: skip
+    xg, pg = x.copy(), p.copy()
+    for u, dt, qs in steps:
+        fx, fu = m.jacobians(xg, u, dt)
+        xg = m.f(xg, u, dt)
+        pg = fx @ pg @ fx.T + fu @ (q * qs) @ fu.T
+    xf, pf = _velocity_steps(x, p, steps, q)  # type: ignore[arg-type]
+    assert np.allclose(xf[:2], xg[:2]) and np.isclose(np.cos(xf[2] - xg[2]), 1.0)
+    assert np.allclose(pf, pg, rtol=1e-10, atol=1e-12)

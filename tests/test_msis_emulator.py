@@ -448,7 +448,7 @@ def test_emulated_head_takes_scenario_noise_and_bursts(tmp_path, caplog):
     from auvgw.config.scenario import Scenario
     from auvgw.sim_devices.clock import SimClock
     from auvgw.sim_devices.emulator import SimContext
-    from auvgw.sim_devices.runner import make_msis
+    from auvgw.sim_devices.msis import make_emulator as make_msis
     from auvgw.sim_devices.vehicle import simulate
 
     def emulator(msis: dict, sub: str):

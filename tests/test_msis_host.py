@@ -19,8 +19,8 @@ import serial
 from auvgw.config.gateway import MsisPolling
 from auvgw.config.scenario import FaultSettings
 from auvgw.drivers import seanet as sn
+from auvgw.drivers.seanet.host import HostState, SeaNetHost, command_from_config
 from auvgw.drivers.spec import raw_value
-from auvgw.msis_host import HostState, SeaNetHost, command_from_config
 from auvgw.sim_devices.clock import SimClock
 from auvgw.sim_devices.faults import FaultInjector
 from auvgw.sim_devices.msis import MsisHead, make_echo, serve_on_port

@@ -10,18 +10,6 @@ import signal
 import time
 
 import pytest
-from gateway_support import (
-    AUVGW,
-    PtyDevice,
-    endpoint,
-    frame_counters,
-    free_port,
-    local_decoded,
-    pd0_frames,
-    read_jsonl,
-    wait_until,
-    write_gateway_toml,
-)
 
 from auvgw.bus import RAW_ATTACHMENT, pack_raw_attachment, unpack_raw_attachment
 from auvgw.config.bus import BusConfig
@@ -36,6 +24,18 @@ from auvgw.recording import (
     read_info,
 )
 from auvgw.subscribe import GatewaySubscriber
+from auvgw.testing import (
+    AUVGW,
+    PtyDevice,
+    endpoint,
+    frame_counters,
+    free_port,
+    local_decoded,
+    pd0_frames,
+    read_jsonl,
+    wait_until,
+    write_gateway_toml,
+)
 
 
 def gateway_config_json(vehicle: str, url: str) -> str:

@@ -15,11 +15,11 @@ import time
 from pathlib import Path
 
 import pytest
-from gateway_support import AUVGW, endpoint, free_port, pd0_frames
 
 from auvgw.bus import open_session, pack_raw_attachment
 from auvgw.config.bus import BusConfig
 from auvgw.recording import McapRecorder, iter_samples
+from auvgw.testing import AUVGW, endpoint, free_port, pd0_frames
 
 
 class FullDisk:

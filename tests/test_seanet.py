@@ -13,8 +13,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from auvgw.drivers import seanet as sn
 from auvgw.drivers.framing import DecodeError, ErrorPolicy, FrameError
+from auvgw.drivers.seanet import codec as sn
 from auvgw.drivers.spec import WireError, from_jsonable, raw_value, table_rows, to_jsonable
 
 # -- helpers ----------------------------------------------------------------------------------

@@ -11,12 +11,12 @@ from pathlib import Path
 
 import pytest
 import zenoh
-from gateway_support import AUVGW, free_port, wait_until
 
 from auvgw.bus import decode_envelope, load_bus_table, open_session
 from auvgw.config.bus import BusConfig
 from auvgw.paths import config_file
 from auvgw.security import make_identity
+from auvgw.testing import AUVGW, free_port, wait_until
 
 pytestmark = pytest.mark.skipif(shutil.which("openssl") is None, reason="needs the openssl CLI")
 

@@ -9,13 +9,13 @@ import subprocess
 import threading
 
 import zenoh
-from gateway_support import AUVGW, endpoint, free_port, pd0_frames
 
 from auvgw.bus import Keys, open_session, pack_raw_attachment
 from auvgw.config.bus import BusConfig
 from auvgw.config.gateway import parse_gateway_config
 from auvgw.decoding import make_decoders
 from auvgw.recording import McapRecorder, read_info, recorded_paths
+from auvgw.testing import AUVGW, endpoint, free_port, pd0_frames
 
 SECRET = "root:$6$s3cr3tHash:19000:0:99999:7:::"
 

@@ -12,13 +12,13 @@ import socket
 import tracemalloc
 
 import pytest
-from gateway_support import free_port, wait_until
 
 from auvgw.config.gateway import parse_gateway_config
 from auvgw.config.transport import TransportConfigError, parse_transport_config
 from auvgw.drivers import kongsberg
 from auvgw.drivers.transports import open_transport
 from auvgw.gateway import Gateway
+from auvgw.testing import free_port, wait_until
 
 ATTACKER = "127.0.0.2"
 #: datagrams sent before waiting for the gateway to catch up (well inside the default socket

@@ -157,7 +157,7 @@ def _write(tmp_path: Path, data: dict) -> Path:
 def test_waypoints_file_errors_name_the_field(tmp_path: Path) -> None:
     base = {"name": "x", "vehicle": {"waypoints_file": "missing.json"}}
     with pytest.raises(
-        ScenarioError, match=r"s\.json: field 'vehicle'.*waypoints_file 'missing\.json'"
+        ScenarioError, match=r"s\.json: vehicle: .*waypoints_file 'missing\.json'"
     ):
         load_scenario(_write(tmp_path, base))
     (tmp_path / "route.json").write_text(json.dumps({"waypoints": [[0, 0], [10, 5], [20, 0]]}))
@@ -186,7 +186,7 @@ def test_new_fields_are_validated(tmp_path: Path) -> None:
     fast_current = {"name": "x", "vehicle": {**veh, "speed_mps": 1.0, "current_mps": [1.0, 0.5]}}
     with pytest.raises(ScenarioError, match="current_mps"):
         load_scenario(_write(tmp_path, fast_current))
-    with pytest.raises(ScenarioError, match=r"field 'terrain\.octaves'"):
+    with pytest.raises(ScenarioError, match=r": terrain\.octaves: "):
         load_scenario(_write(tmp_path, {"name": "x", "vehicle": veh, "terrain": {"octaves": 0}}))
 
 

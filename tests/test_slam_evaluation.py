@@ -14,7 +14,7 @@ from auvgw.commands import slam as slam_cmd
 from auvgw.slam.evaluation.metrics import RunResult, feature_errors, summarise
 from auvgw.slam.evaluation.simulate import simulate
 from auvgw.slam.models import RangeBearing
-from tests.slam_helpers import bailey_scenario
+from auvgw.testing.slam_helpers import bailey_scenario
 
 
 @pytest.fixture(scope="module")

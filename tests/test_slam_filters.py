@@ -8,7 +8,7 @@ import pytest
 from auvgw.slam.evaluation.simulate import simulate
 from auvgw.slam.landmark import ALGORITHMS, make_filter
 from auvgw.slam.models import BicycleModel, LineFeature, RangeBearing, VelocityModel
-from tests.slam_helpers import bailey_scenario, run_filter
+from auvgw.testing.slam_helpers import bailey_scenario, run_filter
 
 PARTICLE_FILTERS = [
     "fastslam1",

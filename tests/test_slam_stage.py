@@ -283,15 +283,6 @@ REC_S = 60.0
 def test_slam_run_over_a_recording_is_the_in_process_stage(tmp_path, capsys):
     """A recording as ``auvgw record`` writes it (INS, DVL and MSIS raw frames of the emulated
     harbour + the truth): ``auvgw slam-run`` gives the poses of the stages fed in-process."""
-    from fusion_emulated import (
-        HOST_EPOCH,
-        decode_serial,
-        dvl_stream,
-        emulate,
-        filter_config,
-        ins_output,
-    )
-
     from auvgw.bus import Keys, pack_raw_attachment
     from auvgw.cli import main as cli_main
     from auvgw.config.gateway import parse_gateway_config
@@ -299,6 +290,14 @@ def test_slam_run_over_a_recording_is_the_in_process_stage(tmp_path, capsys):
     from auvgw.drivers import hn100, pd0
     from auvgw.recording import McapRecorder
     from auvgw.stages.fusion import FusionStage, FusionStageConfig
+    from auvgw.testing.fusion_emulated import (
+        HOST_EPOCH,
+        decode_serial,
+        dvl_stream,
+        emulate,
+        filter_config,
+        ins_output,
+    )
 
     data = json.loads(config_file("scenarios/harbour.json").read_text())
     data["duration_s"] = REC_S + 1.0

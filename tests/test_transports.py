@@ -259,11 +259,9 @@ def test_can_write_uses_configured_id_and_checks_ids():
             rx.write(b"\x00")  # no tx_id configured on rx
 
 
-def test_can_slcan_adapter_on_a_pty(pty_pair):
-    """python-can's real slcan driver against a pty: the way an emulated USB-CAN adapter works."""
-    fds, path = pty_pair
-    master = fds["master"]
-    t = open_transport(
+def _slcan_on(path: str):
+    """A CAN transport through python-can's slcan driver on the pty at ``path`` (500 kbit/s)."""
+    return open_transport(
         {
             "kind": "can",
             "interface": "slcan",
@@ -272,6 +270,13 @@ def test_can_slcan_adapter_on_a_pty(pty_pair):
             "options": {"sleep_after_open": 0},
         }
     )
+
+
+def test_can_slcan_adapter_on_a_pty(pty_pair):
+    """python-can's real slcan driver against a pty: the way an emulated USB-CAN adapter works."""
+    fds, path = pty_pair
+    master = fds["master"]
+    t = _slcan_on(path)
     setup = drain_master(master)
     assert b"S6\r" in setup and b"O\r" in setup  # 500 kbit/s, channel opened
     os.write(master, b"t1232AABB\rT18FF50E53010203\r")
@@ -539,3 +544,23 @@ def test_error_format_for_a_model_embedding_transport():
         "vehicle.toml: devices.dvl.transport.port: "
         "Input should be greater than or equal to 0 (got -5)"
     )
+
+
+def test_can_slcan_reads_bursts_and_split_frames_in_order(pty_pair):
+    """The slcan port is read in bulk (drivers/slcanbus.py BulkSlcanBus): frames of a burst, and a
+    frame whose bytes arrive in two writes, come out whole and in order."""
+    fds, path = pty_pair
+    master = fds["master"]
+    t = _slcan_on(path)
+    drain_master(master)
+    lines = [b"t3108%016X\r" % i for i in range(300)]
+    os.write(master, b"".join(lines[:200]))
+    os.write(master, lines[200][:7])  # half a frame: nothing to deliver yet from these bytes
+    got = [t.read(1.0) for _ in range(200)]
+    os.write(master, lines[200][7:] + b"".join(lines[201:]))
+    got += [t.read(1.0) for _ in range(100)]
+    assert [(c.can_id, int.from_bytes(c.data, "big")) for c in got] == [
+        (0x310, i) for i in range(300)
+    ]
+    assert t.read(0.05) is None
+    t.close()

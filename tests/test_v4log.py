@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from auvgw.drivers import seanet as sn
-from auvgw.drivers import v4log as v4
 from auvgw.drivers.framing import ErrorPolicy
+from auvgw.drivers.seanet import v4log as v4
 from auvgw.drivers.spec import from_jsonable, to_jsonable
 
 T0 = 1_700_000_000.0  # 2023-11-14T22:13:20Z

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import math
-import socket
 import threading
 import time
 
@@ -16,10 +15,11 @@ from auvgw.cli import main
 from auvgw.drivers import hn100, kongsberg, ms3a, pd0, seanet
 from auvgw.fusion import Odometry
 from auvgw.health import DeviceHealth
+from auvgw.procs import free_port
 from auvgw.viz import entities as ent
 from auvgw.viz.logger import RerunLogger
 from auvgw.viz.readback import read_recording, read_views
-from auvgw.viz.stage import DeviceClock, VizStage, open_viz
+from auvgw.viz.stage import VizStage, host_clock, open_viz
 
 T_RECV = 1_763_800_000.0  # host receive time of the samples (s)
 NS = 1e9
@@ -238,11 +238,11 @@ def test_pd0_ensemble_to_dvl(tmp_path, shared_data) -> None:
 
 
 def test_device_clock() -> None:
-    assert DeviceClock()(1.7e9, 1.7e9 + 0.3) == 1.7e9  # a UTC clock in sync: passes through
-    other_epoch = DeviceClock()
+    assert host_clock()(1.7e9, 1.7e9 + 0.3) == 1.7e9  # a UTC clock in sync: passes through
+    other_epoch = host_clock()
     assert other_epoch(1.6e9, 1.7e9 + 0.3) == 1.7e9 + 0.3  # another epoch: mapped
     assert other_epoch(1.6e9 + 0.1, 1.7e9 + 0.5) == pytest.approx(1.7e9 + 0.4)
-    c = DeviceClock(jump_s=1.0)
+    c = host_clock(jump_s=1.0)
     assert c(None, 123.0) == 123.0  # no device time: host time
     assert c(10.0, 1000.3) == pytest.approx(1000.3)
     assert c(10.1, 1000.35) == pytest.approx(1000.35)  # less delayed: offset tightens
@@ -296,15 +296,9 @@ def test_stage_queue_full_drops_with_a_counter(tmp_path) -> None:
     assert len(read_recording(tmp_path / "drop.rrd")[ent.MAG_FIELD]) == 3
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def test_cli_records_from_the_bus(tmp_path) -> None:
     path = tmp_path / "cli.rrd"
-    port = _free_port()
+    port = free_port()
     code: list[int] = []
     args = ["viz", "--rrd", str(path), "--duration", "2.5", "--bus-listen", f"tcp/127.0.0.1:{port}"]
     cmd = threading.Thread(target=lambda: code.append(main(args)))

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from auvgw.cli import UserError
+from auvgw.drivers import registry
 from auvgw.drivers.formats import FORMATS, format_from_table, get_format
 from auvgw.drivers.framing import DecodeError
 from auvgw.drivers.spec import WireError, to_jsonable
@@ -24,9 +25,8 @@ def register(sub: Any) -> None:
     p = sub.add_parser("decode", help="decode a capture file to JSON lines")
     p.add_argument("--format", "-f", required=True, choices=sorted(FORMATS), help="wire format")
     p.add_argument("file", type=Path, help="capture file (raw bytes as received, or a .V4LOG)")
-    p.add_argument(
-        "--table", type=Path, default=None, help="site table (TOML) for hn100/ms3a"
-    )
+    tables = "/".join(d.format for d in registry.DEVICES if d.table_codec)
+    p.add_argument("--table", type=Path, default=None, help=f"site table (TOML) for {tables}")
     p.add_argument("--limit", type=int, default=0, help="stop after N messages (0: all)")
     p.add_argument("--quiet", "-q", action="store_true", help="summary only, no JSON lines")
     p.set_defaults(func=run)

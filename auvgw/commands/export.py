@@ -17,18 +17,13 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from auvgw.cli import UserError
+from auvgw.cli import UserError, add_command
 
 __all__ = ["export_ros2"]
 
 
 def register(sub: Any) -> None:
-    p = sub.add_parser(
-        "export",
-        help="convert a recording (earlier auvgw MCAP layout) to MCAP's ROS 2 profile",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    p = add_command(sub, "export", __doc__)
     p.add_argument("file", type=Path, help="recording to convert (.mcap)")
     p.add_argument("--ros2", action="store_true", required=True, help="ROS 2 profile (CDR)")
     p.add_argument(

@@ -46,7 +46,7 @@ from pathlib import Path
 from typing import Any
 
 from auvgw.bus import add_bus_arguments
-from auvgw.cli import UserError, open_output
+from auvgw.cli import UserError, add_command, open_output
 
 log = logging.getLogger(__name__)
 
@@ -54,12 +54,7 @@ __all__ = ["register", "run"]
 
 
 def register(sub: Any) -> None:
-    p = sub.add_parser(
-        "fusion",
-        help="INS + DVL dead reckoning: odometry on the bus, or over a recording",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    p = add_command(sub, "fusion", __doc__)
     p.add_argument(
         "action",
         nargs="?",

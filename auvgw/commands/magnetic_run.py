@@ -9,6 +9,10 @@ subscribes to ``auv/<V>/nav/odometry``, ``auv/<V>/sensor/*/magnetometer`` and
 ``auv/<V>/sensor/*/acousticreply``; publishes ``auv/<V>/slam/magnetic/{pose,landmarks,
 observations}`` and counters on ``auv/<V>/status/slam-magnetic``. The scenario gives the beacon
 channels and the acoustic beacon's position (:func:`~auvgw.stages.magnetic.config_from_scenario`).
+``--mag-device NAME`` takes one magnetometer device (default: the first seen); ``--mag-rate HZ``
+times its samples by their counter at that rate from ``--clock-epoch-ns`` (the gateway's
+``[clock] epoch_ns``, vehicle time 0: the beacons' phase reference) instead of by the receive
+stamps (``auvgw demo --scenario beacons`` passes all three).
 
 Offline (``--recording run.mcap``): the recorded frames decoded as the gateway did, the fusion
 stage's odometry and the magnetometer / acoustic messages fed to the same stage; prints the
@@ -19,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from typing import Any
 
 import numpy as np
@@ -27,8 +30,21 @@ import numpy as np
 from auvgw.cli import UserError
 
 
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The magnetic pipeline's own options (on ``auvgw slam run``'s parser)."""
+    g = p.add_argument_group("magnetic pipeline (--pipeline magnetic)")
+    g.add_argument("--mag-device", default=None, metavar="NAME",
+                   help="gateway device of the magnetometer (default: the first seen)")
+    g.add_argument("--mag-rate", type=float, default=None, metavar="HZ",
+                   help="time the magnetometer samples by their counter at HZ from "
+                   "--clock-epoch-ns (default: by the receive stamps)")
+    g.add_argument("--clock-epoch-ns", type=int, default=0, metavar="NS",
+                   help="vehicle time 0 on the stamp clock, ns (the gateway's [clock] epoch_ns; "
+                   "the beacons' phase reference; default 0)")  # fmt: skip
+
+
 def stage_config(args: argparse.Namespace, vehicle: str) -> Any:
-    """The stage's settings from ``--scenario`` (required)."""
+    """The stage's settings from ``--scenario`` (required) and the magnetic options."""
     from pydantic import ValidationError
 
     from auvgw.stages.magnetic import config_from_scenario
@@ -38,7 +54,11 @@ def stage_config(args: argparse.Namespace, vehicle: str) -> Any:
     if not args.scenario.is_file():
         raise UserError(f"{args.scenario}: no such scenario file")
     try:
-        return config_from_scenario(args.scenario, vehicle=vehicle)
+        return config_from_scenario(
+            args.scenario, vehicle=vehicle, mag_device=getattr(args, "mag_device", None),
+            mag_rate_hz=getattr(args, "mag_rate", None),
+            clock_epoch_s=getattr(args, "clock_epoch_ns", 0) / 1e9,
+        )  # fmt: skip
     except (ValidationError, ValueError) as exc:
         raise UserError(f"{args.scenario}: {exc}") from None
 
@@ -50,52 +70,23 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _live(args: argparse.Namespace) -> int:
-    from auvgw.commands.run import serve_stage
+    from auvgw.commands.slam_run import serve_slam
     from auvgw.stages.magnetic import MagneticStage
 
     cfg = stage_config(args, args.vehicle)
-    stage = serve_stage(
-        args,
-        lambda session: MagneticStage(cfg, session),
-        lambda st: f"slam running: vehicle {cfg.vehicle}, AMB-SLAM on {st.key('pose')}",
-        lambda st: st.input_keys(),
-    )
-    print(f"slam counters: {json.dumps(stage.counters())}", file=sys.stderr)
-    return 0
+    return serve_slam(args, lambda session: MagneticStage(cfg, session), "AMB-SLAM")
 
 
 def _offline(args: argparse.Namespace) -> int:
-    from auvgw.commands.slam_run import _error, _fusion_settings
-    from auvgw.recording import RecordingError, iter_recording
-    from auvgw.stages.fusion import FusionStage
+    from auvgw.commands.slam_run import _error, _Paths, check_recording, replay_recording
     from auvgw.stages.magnetic import MagneticStage
 
     cfg = stage_config(args, "auv1")
-    if not args.recording.is_file():
-        raise UserError(f"{args.recording}: no such file")
+    check_recording(args)
     stage = MagneticStage(cfg)
-    dr: list[tuple[float, float, float]] = []
-    truth: list[tuple[float, float, float]] = []
-
-    def on_odometry(o: Any) -> None:
-        dr.append((o.t, o.x, o.y))
-        stage.feed_odometry(o)
-
-    fusion = FusionStage(_fusion_settings(args), on_odometry=on_odometry)
-    try:
-        for rec in iter_recording(args.recording, truth=True):
-            if "/truth/" in rec.key:
-                s = rec.messages[0] if rec.messages else None
-                if rec.key.endswith("/pose") and isinstance(s, dict) and "t" in s:
-                    truth.append((float(s["t"]), float(s["x"]), float(s["y"])))
-                continue
-            device = rec.key.rsplit("/", 1)[-1]
-            for msg in rec.messages:
-                fusion.feed(device, rec.t_recv_ns, msg)
-                stage.feed(device, rec.t_recv_ns, msg)
-        fusion.flush()
-    except RecordingError as exc:
-        raise UserError(str(exc)) from None
+    paths = _Paths()
+    fusion = replay_recording(args, stage, paths, flush=False)
+    dr, truth = paths.dr, paths.truth
     c = stage.counters()
     print(f"{args.recording}: {json.dumps(c['stage'])}, {c['landmarks']} beacons mapped")
     ins = fusion.adapter.ins_device

@@ -23,7 +23,7 @@ from typing import Any
 import zenoh
 
 from auvgw.bus import InputWatch, Keys, add_bus_arguments, bus_from_args, open_session
-from auvgw.cli import UserError
+from auvgw.cli import UserError, add_command
 from auvgw.commands.run import handle_stop_signals
 from auvgw.recording import McapRecorder
 
@@ -35,13 +35,9 @@ log = logging.getLogger(__name__)
 DRAIN_QUIET_S = 0.3
 DRAIN_MAX_S = 2.0
 
+
 def register(sub: Any) -> None:
-    p = sub.add_parser(
-        "record",
-        help="record a vehicle's raw bus traffic (all devices, receive times) to an MCAP file",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    p = add_command(sub, "record", __doc__)
     p.add_argument("--vehicle", default="auv1", help="vehicle name (default auv1)")
     p.add_argument("--out", "-o", required=True, type=Path, metavar="FILE.mcap", help="output file")
     p.add_argument(

@@ -36,7 +36,7 @@ from auvgw.bus import (
     raw_encoding,
     unpack_raw_attachment,
 )
-from auvgw.cli import UserError
+from auvgw.cli import UserError, add_command
 from auvgw.commands.run import handle_stop_signals, load_or_fail
 from auvgw.decoding import message_kind
 from auvgw.recording import RecordingError, decoders_for, iter_samples, key_section, read_info
@@ -50,12 +50,7 @@ _OCTETS = zenoh.Encoding.APPLICATION_OCTET_STREAM
 
 
 def register(sub: Any) -> None:
-    p = sub.add_parser(
-        "replay",
-        help="republish an MCAP recording (raw and decoded) as if live",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    p = add_command(sub, "replay", __doc__)
     p.add_argument("file", type=Path, help="recording made by auvgw record (.mcap)")
     p.add_argument(
         "--speed",
@@ -201,7 +196,7 @@ def run(args: argparse.Namespace) -> int:
                 for msg in item.messages:
                     skey = keys.sensor(rest, message_kind(msg))
                     payload, enc = encode_envelope(
-                        msg, rest, t_ns, seq, wire=cfg.devices[rest].format
+                        msg, rest, t_ns, seq, wire=cfg.devices[rest].format, decoded=True
                     )
                     publisher(skey).put(payload, encoding=enc)
                     sent[skey] += 1

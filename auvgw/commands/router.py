@@ -18,6 +18,7 @@ from auvgw.bus import load_bus_table, open_session
 from auvgw.cli import UserError
 from auvgw.commands.run import handle_stop_signals
 from auvgw.config.bus import DEFAULT_ENDPOINT, BusConfig, default_endpoint
+from auvgw.errors import format_validation_error
 
 
 def register(sub: Any) -> None:
@@ -54,9 +55,7 @@ def run(args: argparse.Namespace) -> int:
         if args.bus_config is not None:
             cfg = cfg.rebased(args.bus_config.resolve().parent)
     except ValidationError as exc:
-        raise UserError(
-            "; ".join(e["msg"].removeprefix("Value error, ") for e in exc.errors())
-        ) from exc
+        raise UserError(format_validation_error(exc, "bus").replace("\n", "; ")) from exc
     stop = threading.Event()
     try:
         session = open_session(cfg)

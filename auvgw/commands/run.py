@@ -21,7 +21,7 @@ from typing import Any
 
 import zenoh
 
-from auvgw.cli import UserError
+from auvgw.cli import UserError, add_command
 from auvgw.config.gateway import ConfigError, GatewayConfig, load_gateway_config
 from auvgw.gateway import Gateway
 
@@ -45,12 +45,7 @@ class RunSettings:
 
 
 def register(sub: Any) -> None:
-    p = sub.add_parser(
-        "run",
-        help="run the gateway daemon (devices -> Zenoh) from a TOML configuration",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    p = add_command(sub, "run", __doc__)
     p.add_argument("--config", "-c", required=True, type=Path, help="gateway configuration (TOML)")
     p.add_argument(
         "--viz-rrd",
@@ -179,7 +174,7 @@ def serve(settings: RunSettings, stop: threading.Event | None = None) -> int:
             connect=settings.viz_connect,
             sections=("nav", "slam", "truth", "status"),
         )
-        gateway.on_message = viz.on_message
+        gateway.listeners.subscribe(viz.on_message)
     with handle_stop_signals(stop):
         try:
             gateway.start()

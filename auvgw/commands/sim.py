@@ -29,18 +29,14 @@ import time
 from pathlib import Path
 from typing import Any
 
-from auvgw.cli import UserError
+from auvgw.cli import UserError, add_command
+from auvgw.drivers import registry
 
 log = logging.getLogger(__name__)
 
 
 def register(sub: Any) -> None:
-    p = sub.add_parser(
-        "sim",
-        help="run the emulated vehicle (world + device emulators on virtual ports)",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    p = add_command(sub, "sim", __doc__)
     p.add_argument("--scenario", "-s", required=True, type=Path, help="scenario file (JSON)")
     p.add_argument(
         "--speed",
@@ -67,7 +63,8 @@ def register(sub: Any) -> None:
         "--devices",
         default=None,
         metavar="LIST",
-        help="comma-separated subset of ins,dvl,msis,multibeam,magnetometer",
+        help="comma-separated subset of "
+        + ",".join(em.key for em in registry.emulators()),
     )
     p.add_argument("--vehicle", default="auv1", help="vehicle name in the gateway configuration")
     p.add_argument(

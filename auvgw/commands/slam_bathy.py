@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from auvgw.cli import UserError
+from auvgw.errors import format_validation_error
 
 __all__ = ["command_line", "parse_sets", "run"]
 
@@ -85,8 +86,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         cfg = BathyConfig(**{"n_particles": args.particles, **parse_sets(args.set)})
     except ValidationError as exc:
-        bad = "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())
-        raise UserError(f"--set: {bad} (see BathyConfig in docs/slam_bathymetric.md)") from None
+        bad = format_validation_error(exc, "--set").replace("\n", "; ")
+        raise UserError(f"{bad} (see BathyConfig in docs/slam_bathymetric.md)") from None
     try:
         scenario = load_scenario(args.scenario)
     except ScenarioError as exc:

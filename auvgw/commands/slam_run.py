@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +37,7 @@ import numpy as np
 
 from auvgw.bus import add_bus_arguments
 from auvgw.cli import UserError, open_output
+from auvgw.errors import format_validation_error
 
 HELP = "run the SLAM stage (fusion odometry + MSIS features), live or over a recording"
 
@@ -79,9 +81,11 @@ def configure(p: argparse.ArgumentParser) -> None:
         help="radius of the point targets, m (default 0.6)",
     )
     p.add_argument("--algorithm", default="vb-aufastslam", choices=sorted(ALGORITHMS))
-    p.add_argument("--pipeline", default="landmark", choices=("landmark", "magnetic"),
+    p.add_argument("--pipeline", default="landmark",
+                   choices=("landmark", "magnetic", "bathymetric"),
                    help="landmark: MSIS features (default); magnetic: AMB-SLAM on the MS3A and "
-                   "acoustic beacon (auvgw.commands.magnetic_run)")  # fmt: skip
+                   "acoustic beacon (auvgw.commands.magnetic_run); bathymetric: mtm-pf on the "
+                   "multibeam swaths (auvgw.commands.bathy_run)")  # fmt: skip
     p.add_argument("--scenario", type=Path, default=None, metavar="FILE.json",
                    help="magnetic: beacons scenario giving the channels and the acoustic beacon")
     p.add_argument("--particles", type=int, default=50, help="particles (default 50)")
@@ -98,8 +102,23 @@ def configure(p: argparse.ArgumentParser) -> None:
         help="fusion stage settings (TOML/JSON, as auvgw fusion --settings)",
     )
     p.add_argument("--out", type=Path, default=None, help="offline: JSON lines of the SLAM output")
+    _configure_bathymetric(p)
+    from auvgw.commands import magnetic_run
+
+    magnetic_run.add_arguments(p)
     add_bus_arguments(p)
     p.set_defaults(func=run)  # fmt: skip
+
+
+def _configure_bathymetric(p: argparse.ArgumentParser) -> None:
+    """The options only ``--pipeline bathymetric`` reads (auvgw.commands.bathy_run)."""
+    p.add_argument(
+        "--multibeam", default=None, help="bathymetric: gateway device of the multibeam (any)"
+    )
+    p.add_argument(
+        "--set", action="append", default=[], metavar="KEY=VALUE",
+        help="bathymetric: a stage or filter setting (repeatable), e.g. radius_m=40",
+    )  # fmt: skip
 
 
 class _Paths:
@@ -156,11 +175,8 @@ def _stage_config(args: argparse.Namespace, vehicle: str = "auv1") -> Any:
         )  # fmt: skip
     except ValidationError as exc:
         opts = {"sound_speed_mps": "--sound-speed", "target_radius_m": "--target-radius",
-                "vehicle": "--vehicle"}  # fmt: skip
-        raise UserError("\n".join(
-            f"{opts.get(str(e['loc'][0]), e['loc'][0]) if e['loc'] else 'settings'}: {e['msg']}"
-            for e in exc.errors()
-        )) from None  # fmt: skip
+                "vehicle": "--vehicle", "n_particles": "--particles"}  # fmt: skip
+        raise UserError(format_validation_error(exc, rename=lambda f: opts.get(f, f))) from None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -168,6 +184,10 @@ def run(args: argparse.Namespace) -> int:
         from auvgw.commands import magnetic_run
 
         return magnetic_run.run(args)
+    if args.pipeline == "bathymetric":
+        from auvgw.commands import bathy_run
+
+        return bathy_run.run(args)
     if args.recording is None:
         if args.out is not None or args.fusion_settings is not None:
             raise UserError("--out and --fusion-settings are for --recording (offline) runs")
@@ -176,30 +196,74 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _live(args: argparse.Namespace) -> int:
-    import sys
-
-    from auvgw.commands.run import serve_stage
     from auvgw.stages.slam import SlamStage
 
     cfg = _stage_config(args, args.vehicle)
+    return serve_slam(args, lambda session: SlamStage(cfg, session), cfg.display_name)
+
+
+def serve_slam(args: argparse.Namespace, make: Callable[[Any], Any], name: str) -> int:
+    """Run the stage ``make(session)`` on the bus until stopped (``slam run``, both pipelines);
+    its counters on stderr at the end."""
+    import sys
+
+    from auvgw.commands.run import serve_stage
+
     stage = serve_stage(
         args,
-        lambda session: SlamStage(cfg, session),
-        lambda st: f"slam running: vehicle {cfg.vehicle}, {cfg.display_name} on {st.key('pose')}",
+        make,
+        lambda st: f"slam running: vehicle {st.keys.vehicle}, {name} on {st.key('pose')}",
         lambda st: st.input_keys(),
     )
     print(f"slam counters: {json.dumps(stage.counters())}", file=sys.stderr)
     return 0
 
 
-def _offline(args: argparse.Namespace) -> int:
+def check_recording(args: argparse.Namespace) -> None:
+    """A :class:`UserError` unless ``--recording`` names a file."""
+    if not args.recording.is_file():
+        raise UserError(f"{args.recording}: no such file")
+
+
+def replay_recording(
+    args: argparse.Namespace, stage: Any, paths: _Paths, flush: bool = True
+) -> Any:
+    """The recording through the fusion stage (``--fusion-settings``) and ``stage``, in recording
+    order, fed in-process: the fusion's odometry (also into ``paths.dr``) and every decoded
+    message go to ``stage``; the simulation truth into ``paths.truth``. Returns the fusion
+    stage; ``flush``: flush ``stage`` at the end too."""
     from auvgw.recording import RecordingError, iter_recording
     from auvgw.stages.fusion import FusionStage
+
+    def on_odometry(o: Any) -> None:
+        paths.dr.append((o.t, o.x, o.y))
+        stage.feed_odometry(o)
+
+    fusion = FusionStage(_fusion_settings(args), on_odometry=on_odometry)
+    try:
+        for rec in iter_recording(args.recording, truth=True):
+            if "/truth/" in rec.key:
+                s = rec.messages[0] if rec.messages else None
+                if rec.key.endswith("/pose") and isinstance(s, dict) and "t" in s:
+                    paths.truth.append((float(s["t"]), float(s["x"]), float(s["y"])))
+                continue
+            device = rec.key.rsplit("/", 1)[-1]
+            for msg in rec.messages:
+                fusion.feed(device, rec.t_recv_ns, msg)
+                stage.feed(device, rec.t_recv_ns, msg)
+        fusion.flush()
+        if flush:
+            stage.flush()
+    except RecordingError as exc:
+        raise UserError(str(exc)) from None
+    return fusion
+
+
+def _offline(args: argparse.Namespace) -> int:
     from auvgw.stages.slam import SlamStage
 
     cfg = _stage_config(args)
-    if not args.recording.is_file():
-        raise UserError(f"{args.recording}: no such file")
+    check_recording(args)
     paths = _Paths()
     out_file = open_output(args.out)  # closed in finally
     last_map: list[bytes] = []
@@ -214,27 +278,8 @@ def _offline(args: argparse.Namespace) -> int:
             last_map[:] = [payload]
 
     slam = SlamStage(cfg, on_publish=on_publish)
-
-    def on_odometry(o: Any) -> None:
-        paths.dr.append((o.t, o.x, o.y))
-        slam.feed_odometry(o)
-
-    fusion = FusionStage(_fusion_settings(args), on_odometry=on_odometry)
     try:
-        for rec in iter_recording(args.recording, truth=True):
-            if "/truth/" in rec.key:
-                s = rec.messages[0] if rec.messages else None
-                if rec.key.endswith("/pose") and isinstance(s, dict) and "t" in s:
-                    paths.truth.append((float(s["t"]), float(s["x"]), float(s["y"])))
-                continue
-            device = rec.key.rsplit("/", 1)[-1]
-            for msg in rec.messages:
-                fusion.feed(device, rec.t_recv_ns, msg)
-                slam.feed(device, rec.t_recv_ns, msg)
-        fusion.flush()
-        slam.flush()
-    except RecordingError as exc:
-        raise UserError(str(exc)) from None
+        fusion = replay_recording(args, slam, paths)
     finally:
         if out_file is not None:
             if last_map:

@@ -22,7 +22,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from auvgw.cli import UserError
+from auvgw.cli import UserError, add_command
 from auvgw.config.bus import BusConfig
 from auvgw.viz.options import VizOptions
 
@@ -75,12 +75,7 @@ def _stop_on_signals(stop: threading.Event) -> Iterator[None]:
 
 
 def register(sub: Any) -> None:
-    p = sub.add_parser(
-        "viz",
-        help="log the bus to Rerun (a .rrd file or a running viewer)",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    p = add_command(sub, "viz", __doc__)
     add_output_arguments(p)
     p.add_argument("--vehicle", default=None, help="vehicle name (default: from --config, auv1)")
     p.add_argument(

@@ -282,11 +282,11 @@ class Stage:
         """One bus payload: its envelope decoded and the typed message given to
         :meth:`dispatch`; a malformed payload, an unknown type or a failed handling is counted
         (``bad_payloads``) and logged, never raised. ``t_arrival_ns``: host arrival time."""
-        from auvgw.subscribe import typed_message
+        from auvgw.subscribe import envelope_message
 
         try:
             env = decode_envelope(payload, key)
-            msg = typed_message(env.type, env.body)
+            msg = envelope_message(env)
             if msg is None:
                 raise ValueError(f"unknown or unusable message type {env.type!r}")
         except Exception as exc:  # any malformed payload ([] on a sensor key...): count, go on

@@ -31,19 +31,18 @@ publication and the counters' ``t_ns`` are host-clock health).
 
 from __future__ import annotations
 
-import json
 import logging
 import time
-import tomllib
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 import zenoh
-from pydantic import AliasChoices, BaseModel, ConfigDict, Field, ValidationError
+from pydantic import AliasChoices, BaseModel, ConfigDict, Field
 
 from auvgw.bus import Keys, encode_envelope
+from auvgw.errors import ConfigError, load_settings
 from auvgw.fusion import FusionConfig, NavFilter, Odometry
 from auvgw.fusion.adapters import ATTITUDE_TYPES, VELOCITY_TYPES, MessageAdapter
 from auvgw.stages.base import BusCounters, Stage
@@ -72,7 +71,7 @@ def sensor_kinds(type_names: frozenset[str]) -> list[str]:
     return sorted({kind_of(t) for t in type_names})
 
 
-class SettingsError(ValueError):
+class SettingsError(ConfigError):
     """A fusion settings file that cannot be used (names the file and the field)."""
 
 
@@ -105,28 +104,9 @@ class FusionStageConfig(BaseModel):
 
 
 def load_stage_config(path: str | Path) -> FusionStageConfig:
-    """Read a TOML (or JSON) settings file; :class:`SettingsError` names the file and field."""
-    path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise SettingsError(f"{path}: cannot read: {exc.strerror}") from exc
-    try:
-        data = json.loads(text) if path.suffix == ".json" else tomllib.loads(text)
-    except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
-        kind = "JSON" if path.suffix == ".json" else "TOML"
-        raise SettingsError(f"{path}: not valid {kind}: {exc}") from exc
-    if isinstance(data, dict) and isinstance(data.get("fusion"), dict):
-        # a [fusion] table (e.g. inside a larger vehicle file) holds the same keys
-        data = data["fusion"]
-    try:
-        return FusionStageConfig.model_validate(data)
-    except ValidationError as exc:
-        lines = [
-            f"{path}: field '{'.'.join(str(p) for p in e['loc']) or '(top level)'}': {e['msg']}"
-            for e in exc.errors()
-        ]
-        raise SettingsError("\n".join(lines)) from None
+    """Read a TOML (or JSON) settings file, its keys at the top level or under ``[fusion]`` (a
+    larger vehicle file); :class:`SettingsError` names the file and field."""
+    return load_settings(path, FusionStageConfig, SettingsError, table="fusion")
 
 
 @dataclass

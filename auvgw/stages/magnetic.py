@@ -10,19 +10,31 @@ stamps):
   ``(heading, pitch, roll)`` - the INS attitude the fusion stage carries - joins a short history
   used to rotate each magnetometer sample to NED;
 * **magnetometer** (the decoded MS3A sample, kind ``magnetometer`` whatever the wire; ``b_nt``
-  sensor axes = body axes): it waits until the odometry covers its time, then goes to
+  sensor axes = body axes; one device, ``mag_device`` or the first seen): it waits until the
+  odometry covers its time, then goes to
   :meth:`~auvgw.slam.magnetic.online.MagneticOnline.add_mag` with the attitude interpolated at
-  its time;
+  its time. Its time is the receive stamp, or with ``mag_rate_hz`` the sample clock
+  ``clock_epoch_s + n / mag_rate_hz`` (``n`` the unwrapped MS3A counter): the demodulator is
+  phase-locked to the beacons' drive, and a receive stamp's jitter (host ms times the speed of a
+  faster-than-real-time run) turns into phase error at 8.5 Hz;
 * **acoustic** (``AcousticReply``: slant range m, bearing rad from the bow, depression): the
   reply is stamped at the receive time minus the two-way travel time (``2 range / c``), the
   slant range is made horizontal with the depression angle
   (``r cos(depression)``) and given to the anchor update with ``R = diag(sigma_range^2,
   sigma_bearing^2)``.
 
+Time origin: the beacons are driven ``m cos(2 pi f t)`` on the vehicle clock, whose zero is
+``clock_epoch_s`` on the input clock (the gateway's ``[clock] epoch_ns``, 0 for inputs already on
+the vehicle clock); every time is shifted by it before the demodulator and the filter and back on
+output.
+
 Published (JSON, the shapes of ``docs/viz.md``): ``auv/<v>/slam/magnetic/pose`` (``t``, ``x``,
-``y``, ``heading``, ``cov`` 3x3) after every demodulated window (every ``hop_s`` of magnetometer
-time) and at most every ``publish_period_s`` of odometry time; ``.../landmarks`` (``t``,
-``mean``, ``cov``, ``ids``: the beacons) with each pose after a window; ``.../observations``
+``y``, ``heading``, ``cov`` 3x3; ``t`` the end of the odometry applied, odometry composed over
+``odometry_period_s`` per filter prediction) after every demodulated window (every ``hop_s`` of
+magnetometer time; ``t_mag``: the sample that completed it, for latency) and otherwise every
+``publish_period_s`` of odometry time (``t_mag`` null); ``.../landmarks`` (``t``, ``mean``,
+``cov``, ``ids``: the beacons; ``acoustic_beacon``: its known ``[x, y]``) with each pose after a
+window; ``.../observations``
 (one per demodulated beacon observation: ``t``, ``freq``, ``amp_nt``, ``snr``, ``z`` = [range m,
 bearing rad], ``r``, plus ``x``, ``y``, ``heading`` of the pose it is seen from, for range
 lines). Counters on ``auv/<v>/status/slam-magnetic``. A malformed payload is counted and
@@ -31,7 +43,6 @@ logged, never stops the worker.
 
 from __future__ import annotations
 
-import bisect
 import logging
 import math
 from collections import deque
@@ -45,10 +56,12 @@ import zenoh
 from pydantic import BaseModel, ConfigDict, Field
 
 from auvgw.bus import Envelope, Keys
+from auvgw.drivers import registry
 from auvgw.fusion.odometry import Odometry
+from auvgw.slam.history import StateHistory
 from auvgw.slam.magnetic.filters import MAGNETIC_ALGORITHMS, make_magnetic
 from auvgw.slam.magnetic.mlp import MLP
-from auvgw.slam.magnetic.online import BeaconObservation, MagneticOnline
+from auvgw.slam.magnetic.online import MagneticOnline
 from auvgw.slam.models import VelocityModel
 from auvgw.stages.base import BusCounters, Stage
 
@@ -57,8 +70,10 @@ log = logging.getLogger(__name__)
 __all__ = ["MagneticStage", "MagneticStageConfig", "MagneticStats", "config_from_scenario"]
 
 PIPELINE = "magnetic"
-MAG_KIND = "magnetometer"
-ACOUSTIC_KIND = "acousticreply"
+#: the key kinds of the device registry's roles ``field`` (MS3A on serial and CAN) and ``range``
+#: (the acoustic beacon)
+(MAG_KIND,) = registry.kinds_with_role("field")
+(ACOUSTIC_KIND,) = registry.kinds_with_role("range")
 DEFAULT_MODEL = Path(__file__).resolve().parents[2] / "config" / "magnetic_mlp.npz"
 
 
@@ -71,7 +86,11 @@ class MagneticStageConfig(BaseModel):
     ``Q = diag(sigma_v^2, sigma_v^2, sigma_yaw_rate^2)`` (m/s, m/s, deg/s) per prediction,
     nominal beacon noise ``R = diag(sigma_range^2, sigma_bearing^2)`` (m, deg; each MLP
     observation carries its own covariance), acoustic ``acoustic_sigma_*``. ``sound_speed_mps``
-    for the acoustic travel time.
+    for the acoustic travel time. ``mag_device``: the gateway device of the magnetometer (None:
+    the first seen; a serial and a CAN copy of one sensor must not both feed the demodulator).
+    ``mag_rate_hz``: time the samples by their counter (wrapping at ``mag_counter_modulus``) at
+    this rate from ``clock_epoch_s`` (None: by the receive stamp). ``clock_epoch_s``: the
+    vehicle clock's zero on the input clock (s), the beacons' phase reference.
     """
 
     model_config = ConfigDict(extra="forbid")
@@ -89,22 +108,28 @@ class MagneticStageConfig(BaseModel):
     acoustic_sigma_range_m: float = Field(1.0, gt=0)
     acoustic_sigma_bearing_deg: float = Field(2.0, gt=0)
     sound_speed_mps: float = Field(1500.0, gt=0)
+    mag_device: str | None = None
+    mag_rate_hz: float | None = Field(None, gt=0)
+    mag_counter_modulus: int = Field(1_000_000, ge=2)
+    clock_epoch_s: float = 0.0
     publish_period_s: float = Field(0.2, gt=0)
     odometry_window_s: float = Field(30.0, gt=0)
+    odometry_period_s: float = Field(0.05, ge=0)
     max_pending_mag: int = Field(20_000, ge=1)
     status_period_s: float = Field(1.0, gt=0)
     queue_size: int = Field(100_000, ge=1)
 
 
 def config_from_scenario(path: Path, **kw: Any) -> MagneticStageConfig:
-    """Stage settings from a beacons scenario: the beacons' frequencies and the acoustic
-    beacon's horizontal position."""
+    """Stage settings from a beacons scenario: the beacons' frequencies, the acoustic beacon's
+    horizontal position and the sound speed (``kw``: the other settings)."""
     from auvgw.config.scenario import load_scenario
 
     scn = load_scenario(path)
     freqs = sorted({float(b.frequency_hz) for b in scn.magnetic_beacons})
     ab = scn.acoustic_beacon
     anchor = (float(ab.x), float(ab.y)) if ab is not None else None
+    kw.setdefault("sound_speed_mps", scn.sound_speed_mps)
     return MagneticStageConfig(channels_hz=freqs, anchor_xy=anchor, **kw)
 
 
@@ -114,6 +139,7 @@ class MagneticStats(BusCounters):
 
     odometry: int = 0  #: odometry samples used
     mag: int = 0  #: magnetometer samples given to the demodulator
+    mag_other_device: int = 0  #: samples of another magnetometer device (ignored)
     mag_before_odometry: int = 0  #: samples older than the odometry history (dropped)
     mag_dropped: int = 0  #: samples dropped because too many waited for odometry
     acoustic: int = 0  #: acoustic fixes used
@@ -149,14 +175,17 @@ class MagneticStage(Stage):
         )  # fmt: skip
         self.net = MLP.load(cfg.model)
         self.online: MagneticOnline | None = None
-        self.observations: list[BeaconObservation] = []
         #: published poses: (t s, x, y, heading)
         self.track: list[tuple[float, float, float, float]] = []
-        self._t_att: deque[float] = deque()
-        self._att: deque[tuple[float, float, float]] = deque()  # unwrapped heading, pitch, roll
-        self._pos: deque[tuple[float, float, float]] = deque()  # x, y, z
+        self._att = StateHistory(3, angles=(0, 1, 2))  # heading, pitch, roll (rad)
         self._mags: deque[tuple[float, np.ndarray]] = deque()
         self._t_pub: float | None = None
+        self._t_odo = -math.inf  # end of the odometry given to the filter (input clock, s)
+        #: odometry being composed: dx, dy (m, body frame at its start), dheading, dt, count
+        self._acc: tuple[float, float, float, float, int] = (0.0, 0.0, 0.0, 0.0, 0)
+        self._t0 = cfg.clock_epoch_s  # vehicle clock zero on the input clock, s
+        self._mag_device = cfg.mag_device
+        self._counter: tuple[int, int] | None = None  # (last raw counter, wraps * modulus)
 
     component = f"slam-{PIPELINE}"  # type: ignore[assignment]
 
@@ -184,32 +213,41 @@ class MagneticStage(Stage):
         """One odometry sample (in time order)."""
         with self._lock:
             self.stats.odometry += 1
-            if self._t_att and o.t <= self._t_att[-1]:
+            last = self._att.last_t
+            if last is not None and o.t <= last:
                 return
             if self.online is None:
                 self.online = self._make(o)
+                self._t_odo = o.t
             elif o.increment is not None:
-                inc = o.increment
-                u = np.array([inc.v_forward, inc.v_starboard, inc.yaw_rate])
-                self.online.add_odometry(o.t, u, inc.dt)
-            h = o.heading
-            if self._att:
-                h = self._att[-1][0] + math.remainder(h - self._att[-1][0], math.tau)
-            self._t_att.append(o.t)
-            self._att.append((h, o.pitch, o.roll))
-            self._pos.append((o.x, o.y, o.z))
+                self._compose(o.t, o.increment)
+            self._att.append(o.t, (o.heading, o.pitch, o.roll))
             self._drain_mag()
-            if self._t_pub is None or o.t - self._t_pub >= self.config.publish_period_s:
-                self._publish_pose(o.t, landmarks=False)
-            while self._t_att and self._t_att[0] < o.t - self.config.odometry_window_s:
-                self._t_att.popleft()
-                self._att.popleft()
-                self._pos.popleft()
+            if self._pose_due():
+                self._publish_pose(landmarks=False)
+            self._att.trim(o.t - self.config.odometry_window_s)
+
+    def _compose(self, t: float, inc: Any) -> None:
+        """Compose odometry increments (``dx`` forward, ``dy`` starboard in the body frame at
+        the start, m; ``dheading`` rad) over ``odometry_period_s`` into one filter prediction
+        ending at ``t``, its control noise scaled by ``1/n`` (the variance of ``n`` steps)."""
+        assert self.online is not None
+        dx, dy, dh, dt, n = self._acc
+        c, s = math.cos(dh), math.sin(dh)
+        self._acc = (dx + c * inc.dx - s * inc.dy, dy + s * inc.dx + c * inc.dy,
+                     dh + inc.dheading, dt + inc.dt, n + 1)  # fmt: skip
+        dx, dy, dh, dt, n = self._acc
+        if dt >= self.config.odometry_period_s - 1e-9 and dt > 0:
+            self.online.add_odometry(t - self._t0, np.array([dx / dt, dy / dt, dh / dt]), dt,
+                                     q_scale=1.0 / n)  # fmt: skip
+            self._acc = (0.0, 0.0, 0.0, 0.0, 0)
+            self._t_odo = t
 
     def feed_mag(self, t: float, b_body_nt: np.ndarray) -> None:
         """One magnetometer sample (body axes, nT) at ``t`` (odometry clock)."""
         with self._lock:
-            if self._t_att and t < self._t_att[0]:
+            first = self._att.first_t
+            if first is not None and t < first:
                 self.stats.mag_before_odometry += 1
                 return
             if len(self._mags) >= self.config.max_pending_mag:
@@ -232,7 +270,7 @@ class MagneticStage(Stage):
             r = np.diag(
                 [c.acoustic_sigma_range_m**2, math.radians(c.acoustic_sigma_bearing_deg) ** 2]
             )
-            self.online.add_acoustic(t, z, r)
+            self.online.add_acoustic(t - self._t0, z, r)
             self.stats.acoustic += 1
 
     def feed(self, device: str, t_recv_ns: int, message: Any) -> None:
@@ -242,60 +280,86 @@ class MagneticStage(Stage):
 
         kind = message_kind(message)
         if kind == MAG_KIND:
-            self.feed_mag(t_recv_ns * 1e-9, np.asarray(message.b_nt, float))
+            with self._lock:
+                if self._mag_device is None:
+                    self._mag_device = device
+                if device != self._mag_device:
+                    self.stats.mag_other_device += 1
+                    return
+                t = self._mag_time(t_recv_ns, int(message.counter))
+            self.feed_mag(t, np.asarray(message.b_nt, float))
         elif kind == ACOUSTIC_KIND:
             self.feed_acoustic(t_recv_ns * 1e-9, float(message.range), float(message.bearing),
                                float(message.depression))  # fmt: skip
 
+    def _mag_time(self, t_recv_ns: int, counter: int) -> float:
+        """A magnetometer sample's time on the input clock: its receive stamp, or with
+        ``mag_rate_hz`` its unwrapped counter on the sample clock."""
+        rate = self.config.mag_rate_hz
+        if rate is None:
+            return t_recv_ns * 1e-9
+        mod = self.config.mag_counter_modulus
+        last, base = self._counter if self._counter is not None else (counter, 0)
+        if counter < last:
+            base += mod
+        self._counter = (counter, base)
+        return self._t0 + (base + counter) / rate
+
     def _drain_mag(self) -> None:
-        if self.online is None or not self._t_att:
+        last = self._att.last_t
+        if self.online is None or last is None:
             return
-        t_att = list(self._t_att)
-        while self._mags and self._mags[0][0] <= t_att[-1]:
+        while self._mags and self._mags[0][0] <= last:
             t, b = self._mags.popleft()
-            k = bisect.bisect_left(t_att, t)
-            if k == 0:
-                h, p, r = self._att[0]
-            else:
-                t0, t1 = t_att[k - 1], t_att[k]
-                w = (t - t0) / (t1 - t0) if t1 > t0 else 1.0
-                a0, a1 = self._att[k - 1], self._att[k]
-                h, p, r = (a0[i] + w * (a1[i] - a0[i]) for i in range(3))
+            att = self._att.at(t, hold_first=True)
+            assert att is not None
+            h, p, r = (float(v) for v in att)
             try:
-                obs = self.online.add_mag(t, b, h, p, r)
+                horizon = self.online.horizon
+                obs = self.online.add_mag(t - self._t0, b, h, p, r)
             except ValueError:  # out of order
                 self.stats.mag_before_odometry += 1
                 continue
             self.stats.mag += 1
             x, y, hd = self.online.filt.xs[:3]
             for ob in obs:
-                self.observations.append(ob)
                 self.stats.observations += 1
                 d = asdict(ob)
-                d.update(x=float(x), y=float(y), heading=float(hd))
+                d.update(t=ob.t + self._t0, x=float(x), y=float(y), heading=float(hd))
                 self._put("observations", d, t)
-            if obs or self._t_pub is None or t - self._t_pub >= self.config.publish_period_s:
-                self._publish_pose(t, landmarks=True)
+            if self.online.horizon != horizon:  # a window was demodulated
+                self._publish_pose(landmarks=True, t_mag=t)
 
     # -- outputs ---------------------------------------------------------------------------------
     def _put(self, what: str, body: dict[str, Any], t: float) -> None:
         self.publish_json(what, body, t, f"Magnetic{what.capitalize()}")
 
-    def _publish_pose(self, t: float, landmarks: bool) -> None:
+    def _pose_due(self) -> bool:
+        p = self.config.publish_period_s
+        return self._t_pub is None or self._t_odo - self._t_pub >= p
+
+    def _publish_pose(self, landmarks: bool, t_mag: float | None = None) -> None:
+        """The pose at the end of the odometry given to the filter (``t``) and, with
+        ``landmarks``, the beacon map; ``t_mag``: the magnetometer sample that completed the
+        window it follows."""
         assert self.online is not None
         x, p = self.online.pose()
+        t = self._t_odo
         self._t_pub = t
         self.stats.published += 1
         self.track.append((t, float(x[0]), float(x[1]), float(x[2])))
         self._put("pose", {"t": t, "x": float(x[0]), "y": float(x[1]), "heading": float(x[2]),
-                           "cov": p.tolist()}, t)  # fmt: skip
+                           "cov": p.tolist(), "t_mag": t_mag}, t)  # fmt: skip
         if landmarks:
             f = self.online.filt
             n = f.n_lm
             mean = f.xs[3 : 3 + 2 * n].reshape(n, 2)
             cov = [f.p[3 + 2 * i : 5 + 2 * i, 3 + 2 * i : 5 + 2 * i].tolist() for i in range(n)]
-            self._put("landmarks", {"t": t, "mean": mean.tolist(), "cov": cov,
-                                    "ids": list(range(n))}, t)  # fmt: skip
+            body: dict[str, Any] = {"t": t, "mean": mean.tolist(), "cov": cov,
+                                    "ids": list(range(n))}  # fmt: skip
+            if self.config.anchor_xy is not None:
+                body["acoustic_beacon"] = list(self.config.anchor_xy)
+            self._put("landmarks", body, t)
 
     def status_fields(self) -> dict[str, Any]:
         """Algorithm and the number of beacons mapped."""
@@ -306,7 +370,7 @@ class MagneticStage(Stage):
         """Publish the current pose and beacon map (end of data)."""
         with self._lock:
             if self.online is not None and self._t_pub is not None:
-                self._publish_pose(self._t_pub, landmarks=True)
+                self._publish_pose(landmarks=True)
 
     # -- on the bus ------------------------------------------------------------------------------
     def dispatch(self, env: Envelope, message: Any) -> None:

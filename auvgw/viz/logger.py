@@ -97,6 +97,10 @@ class LoggerStats:
 
 
 # -- geometry helpers (pure, also used by tests) ------------------------------------------------
+#: the acoustic beacon's marker (magenta)
+ACOUSTIC_COLOUR = (230, 0, 230)
+
+
 def depth_colours(depth: np.ndarray, lo: float, hi: float) -> np.ndarray:
     """RGB (n, 3) uint8 of depths (m) on the turbo-like scale: ``lo`` dark blue, ``hi`` dark red."""
     span = hi - lo if hi > lo else 1.0
@@ -582,6 +586,25 @@ class RerunLogger:
         pose = (float(x), float(y), float(z), float(heading))
         return self._put("swath", (float(t), a[ok], c[ok], d[ok], pose), float(t))
 
+    # bathymetric SLAM map (slam/<p>/cloud and slam/<p>/map DEM tiles) ------------------------
+    def seabed(self, name: str, t: float, points: Any) -> bool:
+        """Soundings placed by a SLAM trajectory, ``points`` (P, 3) x, y (map frame, m), depth
+        (m, down): depth-coloured 3-D points on ``world/<name>/seabed`` (accumulated like the
+        multibeam soundings)."""
+        pts = np.array(points, dtype=np.float64).reshape(-1, 3)
+        pts = pts[np.all(np.isfinite(pts), axis=1)]
+        return self._put("seabed", (str(name), float(t), pts), float(t))
+
+    def dem(self, name: str, t: float, x0: float, y0: float, cell_m: float, depth: Any) -> bool:
+        """A DEM tile of a SLAM map: ``depth[i][j]`` (m, NaN = empty) the mean depth of the
+        ``cell_m`` cell centred at ``x0 + (i + 0.5) cell_m, y0 + (j + 0.5) cell_m`` (map
+        frame): depth-coloured discs on ``map/<name>/dem`` (each tile replaces the last)."""
+        grid = np.array(depth, dtype=np.float64)
+        if grid.ndim != 2:
+            raise ValueError(f"dem: depth must be a 2-D grid, got shape {grid.shape}")
+        args = (str(name), float(t), float(x0), float(y0), float(cell_m), grid)
+        return self._put("dem", args, float(t))
+
     def magnetometer(self, t: float, b_nt: Any) -> bool:
         """Magnetic flux density (nT, sensor axes = body axes): field series, magnitude and an
         arrow on the vehicle."""
@@ -598,6 +621,20 @@ class RerunLogger:
     def event(self, device: str, t: float, text: str, level: str = "INFO") -> bool:
         """A text event of one device (``health/<device>/events``)."""
         return self._put("event", (str(device), float(t), str(text), str(level)), float(t))
+
+    # -- magnetic beacons (AMB-SLAM) --------------------------------------------------------
+    def ranges(self, name: str, t: float, origin: Any, targets: Any) -> bool:
+        """Beacon observations of ``name`` (``slam/magnetic``): one line per observed beacon
+        from the vehicle at ``origin (x, y)`` to ``targets (K, 2)`` (m, map frame), on
+        ``map/<name>/ranges``; replaces the previous set."""
+        o = np.array(origin, dtype=np.float64).reshape(2)
+        tg = np.array(targets, dtype=np.float64).reshape(-1, 2)
+        return self._put("ranges", (name, float(t), o, tg), float(t))
+
+    def acoustic_beacon(self, name: str, t: float, x: float, y: float) -> bool:
+        """The acoustic beacon (a fixed, known position, m) of map ``name``, on
+        ``map/<name>/acoustic_beacon``."""
+        return self._put("acoustic_beacon", (name, float(t), float(x), float(y)), float(t))
 
     # -- the logging thread ----------------------------------------------------------------
     def _run(self) -> None:
@@ -1059,6 +1096,37 @@ class RerunLogger:
             )
         self._grid_logged_t = t
 
+    # bathymetric SLAM map ------------------------------------------------------------------
+    def _seabed_colours(self, depth: np.ndarray) -> np.ndarray:
+        if self._depth_range is None and len(depth):
+            lo, hi = float(np.min(depth)), float(np.max(depth))
+            pad = max(1.0, 0.5 * (hi - lo))
+            self._depth_range = (lo - pad, hi + pad)
+        lo, hi = self._depth_range or (0.0, 1.0)
+        return depth_colours(depth, lo, hi)
+
+    def _do_seabed(self, name: str, t: float, pts: np.ndarray) -> None:
+        if not len(pts):
+            return
+        path = ent.world_path(name, "seabed")
+        self._static(path, lambda: rr.Points3D.from_fields(radii=[-2.0]))
+        self._append(path, "points3", t, (pts, self._seabed_colours(pts[:, 2])))
+
+    def _do_dem(
+        self, name: str, t: float, x0: float, y0: float, cell: float, grid: np.ndarray
+    ) -> None:
+        i, j = np.nonzero(np.isfinite(grid))
+        if not len(i):
+            return
+        uv = self._to_map(x0 + (i + 0.5) * cell, y0 + (j + 0.5) * cell)
+        self._set_time(t)
+        self._rec.log(
+            ent.map_path(name, "dem"),
+            rr.Points2D(
+                uv, colors=self._seabed_colours(grid[i, j]), radii=[0.6 * cell], draw_order=-5.0
+            ),
+        )
+
     def _do_mag(self, t: float, b: np.ndarray) -> None:
         self._static(ent.MAG_FIELD, lambda: rr.SeriesLines(names=["x nT", "y nT", "z nT"]))
         self._static(ent.MAG_MAGNITUDE, lambda: rr.SeriesLines(names=["|B| nT"]))
@@ -1079,3 +1147,21 @@ class RerunLogger:
     def _do_event(self, device: str, t: float, text: str, level: str) -> None:
         self._set_time(t)
         self._rec.log(ent.events_path(device), rr.TextLog(text, level=level))
+
+    # -- magnetic beacons (AMB-SLAM) --------------------------------------------------------
+    def _do_ranges(self, name: str, t: float, origin: np.ndarray, targets: np.ndarray) -> None:
+        self._set_time(t)
+        seg = np.stack([np.broadcast_to(origin, targets.shape), targets], axis=1)
+        self._rec.log(
+            ent.map_path(name, "ranges"),
+            rr.LineStrips2D(list(self._to_map(seg[..., 0], seg[..., 1])),
+                            colors=[self._colour(name)], radii=[-1.0], draw_order=[25.0]),
+        )  # fmt: skip
+
+    def _do_acoustic_beacon(self, name: str, t: float, x: float, y: float) -> None:
+        self._set_time(t)
+        self._rec.log(
+            ent.map_path(name, "acoustic_beacon"),
+            rr.Points2D(self._to_map([x], [y]), colors=[ACOUSTIC_COLOUR], radii=[-7.0],
+                        labels=["acoustic beacon"], draw_order=[50.0]),
+        )  # fmt: skip

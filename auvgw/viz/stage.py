@@ -1,19 +1,22 @@
 """The Rerun bus stage: bus messages in, :class:`~auvgw.viz.logger.RerunLogger` calls out.
 
 Subscribes to ``auv/<v>/{sensor,nav,slam,truth,status}/**`` (raw frames are not needed: the
-decoded envelopes carry everything shown) and maps each message to logger calls:
+decoded envelopes carry everything shown) and maps each message to logger calls. Sensor
+messages are shown by their device-registry role (:mod:`auvgw.drivers.registry`; the first of
+a type's roles that has a view):
 
 ============================================  ==================================================
-``sensor/<dev>/xyz88``, ``depth`` (Kongsberg)  swath points + bathymetric grid, placed at the
+role ``swath`` (Kongsberg XYZ 88, Depth)      swath points + bathymetric grid, placed at the
                                                latest navigation pose (``nav``, else ``truth``)
-``sensor/<dev>/ensemble`` (PD0)                DVL velocity (bottom track, vehicle over bottom),
+role ``velocity`` (PD0 ``ensemble``)           DVL velocity (bottom track, vehicle over bottom),
                                                altitude, bottom lock
-``sensor/<dev>/headdata`` (SeaNet mtHeadData)  MSIS scan line into the sonar fan
-any message with ``roll, pitch, heading``      INS attitude (HN-100 binary or CAN sample)
-any message with ``bx, by, bz`` (nT)           magnetometer (MS3A ASCII or CAN sample)
+role ``sonar`` (SeaNet ``mtheaddata``)         MSIS scan line into the sonar fan
+role ``attitude`` (``roll, pitch, heading``)   INS attitude (HN-100 binary or CAN, PD6 ``sa``)
+role ``field`` (``bx, by, bz`` in nT)          magnetometer (MS3A ASCII or CAN sample)
 ``nav/odometry``                               ``dead_reckoning`` trajectory with its covariance
 ``slam/<p>/pose``                              ``slam/<p>`` trajectory (+ particles if carried)
 ``slam/<p>/landmarks``, ``slam/<p>/map``       landmarks with covariances, line features
+``slam/<p>/cloud``, ``slam/<p>/map`` (DEM)     seabed points, DEM tile (bathymetric SLAM)
 ``truth/<what>``                               ``truth`` trajectory, true landmarks and lines
 ``status/<device>``                            per-device health series + connection events
 ============================================  ==================================================
@@ -24,7 +27,7 @@ The JSON accepted on ``slam/``, ``truth/`` and ``nav/`` is documented in ``docs/
 
 Time: each message goes on ``sensor_time`` at its device time where the wire carries a UTC
 clock that agrees with the host (Kongsberg, PD0), else at the device time mapped onto the host
-clock (:class:`DeviceClock`: INS time since power-up, simulation time, an emulator's epoch),
+clock (:func:`host_clock`: INS time since power-up, simulation time, an emulator's epoch),
 else at the gateway's receive time.
 
 The Zenoh callback only copies the payload into a bounded queue (dropping with a counter when
@@ -47,18 +50,17 @@ from typing import Any
 import numpy as np
 
 from auvgw.bus import SCHEMA_VERSION, Keys, decode_envelope
-from auvgw.drivers.spec import MESSAGE_TYPES, from_jsonable
+from auvgw.devicetime import DeviceClock
+from auvgw.drivers.spec import from_jsonable, resolve_type
 from auvgw.stages.base import BusCounters, Stage
 from auvgw.viz.logger import RerunLogger, VizOptions
 
-__all__ = ["SECTIONS", "DeviceClock", "StageStats", "VizRunner", "VizStage", "open_viz"]
+__all__ = ["SECTIONS", "StageStats", "VizRunner", "VizStage", "host_clock", "open_viz"]
 
 log = logging.getLogger(__name__)
 
 #: bus sections the stage subscribes to
 SECTIONS: tuple[str, ...] = ("sensor", "nav", "slam", "truth", "status")
-#: device clocks later than this (2001-09-09, POSIX s) are taken as absolute UTC
-ABSOLUTE_CLOCK_S = 1e9
 
 #: sensor message types that carry nothing to show (replies, configuration, raw blocks)
 IGNORED_TYPES = frozenset(
@@ -68,13 +70,10 @@ IGNORED_TYPES = frozenset(
     }
 )  # fmt: skip
 
-#: driver modules whose message classes the stage rebuilds from JSON (imported lazily, so a
-#: codec module that is missing or broken only loses its own messages)
-_CODEC_MODULES = (
-    "auvgw.drivers.kongsberg",
-    "auvgw.drivers.pd0",
-    "auvgw.drivers.seanet",
-)
+#: registry roles whose handlers need the typed message (rebuilt from JSON with the codec's
+#: class, its module imported lazily so a missing or broken codec only loses its own messages);
+#: the other roles' handlers read plain fields
+_TYPED_ROLES = ("swath", "velocity", "sonar")
 
 
 class _Obj:
@@ -92,30 +91,16 @@ class _Obj:
             raise AttributeError(name) from None
 
 
-class DeviceClock:
-    """Maps one source's device clock (s) onto the host clock (POSIX s).
+def host_clock(jump_s: float = 1.0, sync_s: float = 60.0) -> DeviceClock:
+    """One source's device clock (s) onto the host clock (POSIX s), for display.
 
     A UTC clock that agrees with the host within ``sync_s`` (a GPS-disciplined sonar, a DVL
     set at dive start) passes through. Any other clock (time since power-up, simulation time,
     an RTC set to another epoch) gets the smallest host-minus-device offset seen so far (the
-    least delayed sample), re-anchored when the offset grows by more than ``jump_s`` (clock
-    reset or jump): the samples keep the device's own spacing on the host's time line.
+    least delayed sample), re-anchored at once when the offset grows by more than ``jump_s``
+    (clock reset or jump): the samples keep the device's own spacing on the host's time line.
     """
-
-    def __init__(self, jump_s: float = 1.0, sync_s: float = 60.0) -> None:
-        self.jump_s = jump_s
-        self.sync_s = sync_s
-        self.offset: float | None = None
-
-    def __call__(self, t_device: float | None, t_host: float) -> float:
-        if t_device is None or not math.isfinite(t_device):
-            return t_host
-        d = t_host - t_device
-        if t_device > ABSOLUTE_CLOCK_S and abs(d) <= self.sync_s:
-            return t_device
-        if self.offset is None or d < self.offset or d > self.offset + self.jump_s:
-            self.offset = d
-        return t_device + self.offset
+    return DeviceClock(skew=0.0, jump_s=jump_s, confirm=1, confirm_s=0.0, sync_s=sync_s)
 
 
 @dataclass
@@ -236,13 +221,19 @@ class VizStage(Stage):
         self._clocks: dict[str, DeviceClock] = {}
         self._nav: tuple[float, float, float, float] | None = None
         self._truth: tuple[float, float, float, float] | None = None
+        self._acoustic: dict[str, tuple[float, float]] = {}  # acoustic beacon logged, per map
+        #: magnetic-beacon ranges of the latest window, per map: (t, beacon positions)
+        self._ranges: dict[str, tuple[float, list[tuple[float, float]]]] = {}
         self._status: dict[str, tuple[Any, Any]] = {}
         self._t_last = 0.0
-        self._sensor_handlers: dict[str, Callable[[str, Any, float], None]] = {
-            "XYZ88": self._swath,
-            "Depth": self._swath,
-            "pd0.Ensemble": self._dvl,
-            "mtHeadData": self._msis,
+        #: device registry role -> handler; a message type is shown by the first of its roles
+        #: that has one (registry.MessageType.roles)
+        self._role_handlers: dict[str, Callable[[str, Any, float], bool]] = {
+            "swath": self._swath,
+            "velocity": self._dvl,
+            "sonar": self._msis,
+            "attitude": self._attitude,
+            "field": self._field,
         }
         self._classes: dict[str, type] = {}
         self._load_codecs()
@@ -250,14 +241,18 @@ class VizStage(Stage):
     def _load_codecs(self) -> None:
         import importlib
 
-        for name in _CODEC_MODULES:
+        from auvgw.drivers import registry
+
+        for dev, m in registry.message_types():
+            if m.wire != "stream" or not set(m.roles) & set(_TYPED_ROLES):
+                continue
+            name = dev.codec.partition(":")[0]
             try:
                 importlib.import_module(name)
             except Exception as exc:  # a codec being written must not stop the stage
                 log.warning("viz stage: %s unavailable (%s); its messages are skipped", name, exc)
-        for type_name in self._sensor_handlers:
-            if type_name in MESSAGE_TYPES:
-                self._classes[type_name] = MESSAGE_TYPES[type_name]
+            if (cls := resolve_type(m.type)) is not None:
+                self._classes[m.type] = cls
 
     # -- bus side --------------------------------------------------------------------------
     def input_keys(self) -> list[str]:
@@ -298,7 +293,7 @@ class VizStage(Stage):
     def _clock(self, source: str) -> DeviceClock:
         c = self._clocks.get(source)
         if c is None:
-            c = self._clocks[source] = DeviceClock()
+            c = self._clocks[source] = host_clock()
         return c
 
     def handle_sample(self, key: str, payload: bytes, t_arrival_ns: int | None = None) -> str:
@@ -342,6 +337,9 @@ class VizStage(Stage):
         section = parts[0]
         if section in ("sensor", "nav"):  # envelopes (MessagePack; JSON of the previous release)
             env = decode_envelope(payload, key)
+            if section == "sensor" and env.message is not None:
+                self._t_last = env.t_recv_ns / 1e9
+                return self._sensor(env.device, env.type, env.message, self._t_last)
             data: Any = {"v": SCHEMA_VERSION, "type": env.type, "device": env.device,
                          "msg": env.body, "t_recv_ns": env.t_recv_ns}  # fmt: skip
         else:
@@ -412,21 +410,29 @@ class VizStage(Stage):
         return self._count(outcome)
 
     def _sensor(self, device: str, type_name: str, msg: Any, t_host: float) -> str:
-        handler = self._sensor_handlers.get(type_name)
-        if handler is not None:
-            handler(device, msg, t_host)
-            return "logged"
+        from auvgw.drivers import registry
+
         if type_name in IGNORED_TYPES:
             return "ignored"
-        if all(hasattr(msg, n) for n in ("roll", "pitch", "heading")):
-            t = self._clock(device)(_float(getattr(msg, "time", None)), t_host)
-            self.logger.attitude(t, _float(msg.roll), _float(msg.pitch), _float(msg.heading))
-            return "logged"
-        if all(hasattr(msg, n) for n in ("bx", "by", "bz")):
-            b = (_float(msg.bx), _float(msg.by), _float(msg.bz))
-            self.logger.magnetometer(self._clock(device)(None, t_host), b)
-            return "logged"
+        for role in registry.roles_of(type_name):
+            handler = self._role_handlers.get(role)
+            if handler is not None and handler(device, msg, t_host):
+                return "logged"
         return f"sensor:{type_name or '?'}"
+
+    def _attitude(self, device: str, msg: Any, t_host: float) -> bool:
+        if not all(hasattr(msg, n) for n in ("roll", "pitch", "heading")):
+            return False
+        t = self._clock(device)(_float(getattr(msg, "time", None)), t_host)
+        self.logger.attitude(t, _float(msg.roll), _float(msg.pitch), _float(msg.heading))
+        return True
+
+    def _field(self, device: str, msg: Any, t_host: float) -> bool:
+        if not all(hasattr(msg, n) for n in ("bx", "by", "bz")):
+            return False
+        b = (_float(msg.bx), _float(msg.by), _float(msg.bz))
+        self.logger.magnetometer(self._clock(device)(None, t_host), b)
+        return True
 
     # sensor handlers (typed messages) -------------------------------------------------------
     def _pose_for_swath(self, heading: float) -> tuple[float, float, float, float]:
@@ -435,7 +441,7 @@ class VizStage(Stage):
             return (0.0, 0.0, 0.0, heading)
         return pose
 
-    def _swath(self, device: str, msg: Any, t_host: float) -> None:
+    def _swath(self, device: str, msg: Any, t_host: float) -> bool:
         t = self._clock(device)(_float(getattr(msg, "device_time", None)), t_host)
         xyz = np.asarray(msg.xyz, dtype=np.float64)
         beams = msg.beams
@@ -448,6 +454,7 @@ class VizStage(Stage):
         self.logger.swath(
             t, xyz[:, 0], xyz[:, 1], xyz[:, 2], x=x, y=y, z=z0, heading=h, valid=valid
         )
+        return True
 
     _FRAME_AXES: Mapping[int, tuple[str, str, str]] = {
         0: ("beam 1", "beam 2", "beam 3"),
@@ -456,7 +463,9 @@ class VizStage(Stage):
         3: ("east", "north", "up"),
     }
 
-    def _dvl(self, device: str, ens: Any, t_host: float) -> None:
+    def _dvl(self, device: str, ens: Any, t_host: float) -> bool:
+        if not hasattr(ens, "bottom_track"):  # a PD0 ensemble; PD6 velocities are not shown
+            return False
         vl = ens.variable_leader
         t = self._clock(device)(None if vl is None else vl.device_time_s, t_host)
         bt, hr, rng = ens.bottom_track, ens.bt_high_res, ens.bt_range
@@ -474,11 +483,13 @@ class VizStage(Stage):
         frame = ens.coordinate_frame
         names = self._FRAME_AXES.get(int(frame) if frame is not None else 1, ("x", "y", "z"))
         self.logger.dvl(t, v, altitude, names, lock)
+        return True
 
-    def _msis(self, device: str, msg: Any, t_host: float) -> None:
+    def _msis(self, device: str, msg: Any, t_host: float) -> bool:
         t = self._clock(device)(None, t_host)
         max_value = 255 if msg.adc8on else 15
         self.logger.msis_ping(t, msg.bearing, msg.bins, msg.range_m, msg.step, max_value)
+        return True
 
     # nav, slam, truth, status (JSON objects) ------------------------------------------------
     def _odometry(self, body: Mapping[str, Any], t_host: float) -> str:
@@ -519,6 +530,13 @@ class VizStage(Stage):
                 c = None
             self.logger.landmarks(name, t, mean, c, ids)
             shown = True
+        ab = body.get("acoustic_beacon")
+        if isinstance(ab, list | tuple) and len(ab) >= 2:
+            xy = (_float(ab[0]), _float(ab[1]))
+            if self._acoustic.get(name) != xy:  # a fixed position: logged when it changes
+                self._acoustic[name] = xy
+                self.logger.acoustic_beacon(name, t, *xy)
+            shown = True
         lines = body.get("lines")
         if lines is not None:
             rho, theta, lcov, ends = _lines(lines)
@@ -540,9 +558,50 @@ class VizStage(Stage):
         if particles is not None:
             self.logger.particles(name, t, particles, body.get("weights"))
             shown = True
+        if what in ("cloud", "map"):
+            shown |= self._seabed_map(name, body, t)
         if what in ("landmarks", "map"):
             shown |= self._map_features(name, body, t)
+        if what == "observations":
+            shown |= self._beacon_ranges(name, body, t)
         return "logged" if shown else f"slam:{what}"
+
+    def _seabed_map(self, name: str, body: Mapping[str, Any], t: float) -> bool:
+        """Bathymetric SLAM map (auvgw.stages.bathymetric): a ``cloud`` of ``points`` [[x, y,
+        depth]] as seabed points, a DEM tile (``depth`` grid, ``cell_m``, ``x0``, ``y0``)."""
+        if "cell_m" in body and "depth" in body:
+            grid = [[math.nan if v is None else v for v in row] for row in body["depth"]]
+            self.logger.dem(name, t, _float(body["x0"]), _float(body["y0"]),
+                            _float(body["cell_m"]), grid)  # fmt: skip
+            return True
+        pts = body.get("points")
+        if pts is not None and len(pts) and len(pts[0]) == 3:
+            self.logger.seabed(name, t, pts)
+            return True
+        return False
+
+    def _beacon_ranges(self, name: str, body: Mapping[str, Any], t: float) -> bool:
+        """One magnetic-beacon observation (``slam/magnetic/observations``: ``z`` = [range m,
+        bearing rad from the heading] seen from ``x``, ``y``, ``heading``): a line from the
+        vehicle to where it places the beacon."""
+        z = body.get("z")
+        pose = self._pose_of(body)
+        if not isinstance(z, list | tuple) or len(z) < 2 or pose is None:
+            return False
+        x, y, _, h = pose
+        r, b = _float(z[0]), _float(z[1])
+        end = (x + r * math.cos(h + b), y + r * math.sin(h + b))
+        # the observations of one demodulated window share its time and are drawn together; an
+        # older window's (or one received twice, from the bus and in process) is not redrawn
+        t_last, ends = self._ranges.get(name, (-math.inf, []))
+        if t < t_last or end in ends:
+            return True
+        if t > t_last:
+            ends = []
+        ends.append(end)
+        self._ranges[name] = (t, ends)
+        self.logger.ranges(name, t, (x, y), ends)
+        return True
 
     def _truth_msg(self, body: Mapping[str, Any], t_host: float) -> str:
         t = self._clock("truth")(_float(body.get("t")), t_host)

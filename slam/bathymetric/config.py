@@ -72,6 +72,20 @@ class BathyConfig(BaseModel):
         "this many recent pings (T_p) even when earlier loops cover them; literally a repeated "
         "closure moves only the newest ping, a kink inside the next Pmaps",
     )
+    closure: Literal["resampling", "crossing"] = Field(
+        "crossing",
+        description="what one loop closure is: 'resampling' = every resampling of eq. (13) as "
+        "written (a crossing then makes many small consecutive ones); 'crossing' (ours) = the "
+        "weights of consecutive matched pings are multiplied (log-summed) and the particles "
+        "resampled once, when the crossing ends (crossing_gap_pings without any particle in "
+        "R of the old track) or after crossing_max_pings, if the accumulated Neff < f N",
+    )
+    crossing_gap_pings: int = Field(
+        5, ge=1, description="'crossing': pings without overlap that end a crossing (ours)"
+    )
+    crossing_max_pings: int = Field(
+        40, ge=1, description="'crossing': longest crossing before a closure is made (ours)"
+    )
     lccd: bool = Field(True, description="loop-closure consistency determination (Sec. IV-B)")
     lccd_tau_m: float = Field(3.0, gt=0, description="clustering cut distance (A15)")
     lccd_linkage: str = Field("single", description="scipy linkage method (A15)")

@@ -165,6 +165,11 @@ class MTMPF(BathyFilter):
         self.covered = np.zeros(n_pings, dtype=bool)  # l^h, eq. (16)
         self.t_r = 10**9  # "a large value" at mission start, eq. (3)
         self.lccd = LCCD(cfg.lccd_tau_m, cfg.lccd_linkage, cfg.lccd_disjoint_m)
+        # closure = "crossing": accumulated log weights, pings in / since the crossing
+        self.logw = np.zeros(cfg.n_particles)
+        self.crossing_len = 0
+        self.since_match = 0
+        self._tlp = np.zeros(cfg.n_particles, dtype=int)
 
     def start(self, x0: np.ndarray, offsets: np.ndarray, depth: np.ndarray) -> None:
         super().start(x0, offsets, depth)
@@ -182,6 +187,10 @@ class MTMPF(BathyFilter):
         self.t_r += 1
         self.traj[t] = self.x.mean(0)  # S_p, unweighted centroid (A7)
         w, tlp = self.weights()
+        if cfg.closure == "crossing":
+            self._crossing(w, tlp)
+            self.estimates[t] = self.traj[t]
+            return
         if w is None:
             self.estimates[t] = self.traj[t]
             return
@@ -250,6 +259,34 @@ class MTMPF(BathyFilter):
         valid = (valid & mask).reshape(len(idx), -1)
         n_m = mask.reshape(len(idx), -1).sum(1)
         return z_pm.reshape(len(idx), -1), z_mm.reshape(len(idx), -1), valid, n_m
+
+    def _crossing(self, w: np.ndarray | None, tlp: np.ndarray) -> None:
+        """closure = "crossing" (ours): one loop closure per crossing. The weights of the
+        crossing's pings are multiplied (sequential importance sampling, the particles moving
+        on by eq. (2) in between); the crossing ends after ``crossing_gap_pings`` pings without
+        overlap or at ``crossing_max_pings``; then, if the accumulated Neff < f N (eq. 13),
+        one resampling = one closure."""
+        cfg, n = self.cfg, self.cfg.n_particles
+        if w is not None:
+            self.logw += np.log(np.maximum(w, 1e-300))
+            self.crossing_len += 1
+            self.since_match = 0
+            self._tlp = tlp
+        elif self.crossing_len:
+            self.since_match += 1
+        if not self.crossing_len:
+            return
+        lw = self.logw - self.logw.max()
+        wa = np.exp(lw)
+        wa /= wa.sum()
+        neff = 1.0 / np.sum(wa**2)
+        self.neff_log[self.t] = neff
+        if self.since_match < cfg.crossing_gap_pings and self.crossing_len < cfg.crossing_max_pings:
+            return
+        self.logw[:] = 0.0
+        self.crossing_len = self.since_match = 0
+        if neff < cfg.neff_fraction * n and self.t - cfg.t_l >= 2:
+            self._resample(wa, self._tlp)
 
     # -- resampling = loop closure ------------------------------------------------------------
     def _resample(self, w: np.ndarray, tlp: np.ndarray) -> None:

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import heapq
 import itertools
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -30,6 +31,7 @@ from auvgw.slam.magnetic.demod import DemodConfig, demodulate, rotate_to_ned
 from auvgw.slam.magnetic.evaluation import Variant, gate_observations
 from auvgw.slam.magnetic.filters import MagneticSLAM
 from auvgw.slam.magnetic.mlp import MLP
+from auvgw.slam.models import VelocityModel
 
 __all__ = ["BeaconObservation", "MagneticOnline"]
 
@@ -93,9 +95,11 @@ class MagneticOnline:
         self._run()
         return out
 
-    def add_odometry(self, t: float, u: np.ndarray, dt: float) -> None:
-        """One motion increment (controls of the filter's motion model) ending at ``t``."""
-        self._push(t, 0, (np.asarray(u, float), float(dt)))
+    def add_odometry(self, t: float, u: np.ndarray, dt: float, q_scale: float = 1.0) -> None:
+        """One motion increment (controls of the filter's motion model) ending at ``t``;
+        ``q_scale`` scales the filter's control noise ``Q`` for this step (``1/n`` for ``n``
+        increments composed into one: the same position variance as ``n`` steps)."""
+        self._push(t, 0, (np.asarray(u, float), float(dt), float(q_scale)))
         self._run()
 
     def add_acoustic(self, t: float, z: np.ndarray, r: np.ndarray) -> None:
@@ -110,12 +114,13 @@ class MagneticOnline:
         x = self.filt.xs[:3].copy()
         p = self.filt.p[:3, :3].copy()
         m = self.filt.motion
-        for _, kind, _, payload in sorted(self._events):
-            if kind == 0:
-                u, dt = payload
-                fx, fu = m.jacobians(x, u, dt)  # type: ignore[arg-type]
-                x = m.f(x, u, dt)  # type: ignore[arg-type]
-                p = fx @ p @ fx.T + fu @ self.filt.q @ fu.T
+        steps = [e[3] for e in sorted(self._events) if e[1] == 0]
+        if isinstance(m, VelocityModel):  # the stage's model: scalar steps, no array overhead
+            return _velocity_steps(x, p, steps, np.asarray(self.filt.q, float))
+        for u, dt, qs in steps:
+            fx, fu = m.jacobians(x, u, dt)  # type: ignore[arg-type]
+            x = m.f(x, u, dt)  # type: ignore[arg-type]
+            p = fx @ p @ fx.T + fu @ (self.filt.q * qs) @ fu.T
         return x, p
 
     # ------------------------------------------------------------------ internals
@@ -154,8 +159,13 @@ class MagneticOnline:
         while self._events and self._events[0][0] <= self.horizon:
             _, kind, _, payload = heapq.heappop(self._events)
             if kind == 0:
-                u, dt = payload
-                self.filt.predict(u, dt, rng)  # type: ignore[arg-type]
+                u, dt, qs = payload
+                q = self.filt.q
+                self.filt.q = q * qs
+                try:
+                    self.filt.predict(u, dt, rng)  # type: ignore[arg-type]
+                finally:
+                    self.filt.q = q
             elif kind == 1:
                 if self.filt.anchor is not None:
                     z, r = payload
@@ -163,3 +173,20 @@ class MagneticOnline:
             else:
                 z, r = payload
                 self.filt.update_each(np.asarray(z)[None], np.asarray(r)[None])
+
+
+def _velocity_steps(
+    x: np.ndarray, p: np.ndarray, steps: list[tuple[object, ...]], q: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """:class:`VelocityModel` predictions of ``(x, y, heading)`` and its 3x3 covariance over
+    ``steps`` ``(u, dt, q_scale)``: the model's ``f`` and Jacobians written out for one pose
+    (the same numbers, without the per-call array overhead)."""
+    px, py, h = (float(v) for v in x)
+    for u, dt, qs in steps:
+        vx, vy, w = (float(v) * dt for v in u)  # type: ignore[attr-defined, operator]
+        s, c = math.sin(h), math.cos(h)
+        fx = np.array([[1.0, 0.0, -vx * s - vy * c], [0.0, 1.0, vx * c - vy * s], [0, 0, 1.0]])
+        fu = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) * dt
+        p = fx @ p @ fx.T + fu @ (q * qs) @ fu.T
+        px, py, h = px + vx * c - vy * s, py + vx * s + vy * c, h + w
+    return np.array([px, py, math.remainder(h, math.tau)]), p

@@ -44,7 +44,6 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any, BinaryIO, ClassVar
 
-from auvgw.drivers import seanet
 from auvgw.drivers.formats import Format
 from auvgw.drivers.framing import (
     BadFrame,
@@ -55,6 +54,7 @@ from auvgw.drivers.framing import (
     Framer,
     read_file_frames,
 )
+from auvgw.drivers.seanet import codec as seanet
 from auvgw.drivers.spec import (
     WireError,
     decode_block,

@@ -38,10 +38,12 @@ from dataclasses import asdict, dataclass
 from enum import StrEnum
 from typing import Any
 
-from auvgw.config.gateway import MsisPolling
-from auvgw.drivers import seanet as sn
+from auvgw.config.gateway import DeviceConfig, MsisPolling
+from auvgw.drivers.seanet import codec as sn
 
-__all__ = ["HostState", "SeaNetHost", "SeaNetHostStats", "command_from_config", "ms_of_day"]
+__all__ = [
+    "HostState", "SeaNetHost", "SeaNetHostStats", "command_from_config", "from_config", "ms_of_day",
+]  # fmt: skip
 
 Write = Callable[[bytes], None]
 
@@ -266,3 +268,9 @@ class SeaNetHost:
             self._configure(write, now)
             return
         self._ping(write, now)
+
+
+def from_config(cfg: DeviceConfig) -> SeaNetHost:
+    """The gateway's host driver of a ``seanet`` device (the registry's ``host_driver``): polled
+    with the device's ``msis`` table (defaults when absent)."""
+    return SeaNetHost(cfg.msis or MsisPolling())

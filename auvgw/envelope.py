@@ -1,0 +1,582 @@
+"""The decoded-message envelope (docs/bus.md#payloads): compact, positional, self-describing.
+
+Version 3, one MessagePack array per sample::
+
+    [3, type, schema, wire, device, t, seq, body]
+
+``type`` is the message type the codec registers (:data:`auvgw.drivers.spec.MESSAGE_TYPES`),
+``schema`` a 16-bit fingerprint of its table (field names, wire types, scales, shapes, nested
+tables: :func:`schema_id`), ``body`` the message's fields **by position** in the table's order,
+so the names are not repeated in every sample. Values travel as the wire carried them:
+
+* a scaled integer field (``raw * scale + add`` in SI) as its raw integer, the ``invalid`` code
+  for NaN; a reader applies the table's scale (the same float operations as the codec, so the
+  value is identical); a value the raw integer cannot give exactly travels as a float (SI);
+* a wire array as MessagePack bin of its raw values (1-D, little endian, the table's dtype) or
+  extension 1 (``<dtype>;<shape>`` NUL bytes) in the wire dtype when it has several dimensions;
+  an array the wire dtype cannot give exactly travels in its own dtype (SI);
+* a float as float32 when float32 holds it exactly (every f32 wire value does), else float64;
+* derived fields (status flag bits) are left out and recomputed; nested messages nest as
+  positional arrays, or as extension 2 (``<type>`` NUL MessagePack array) when the table does
+  not fix their type.
+
+Versions 2 (a MessagePack map with field names) and 1 (JSON) are still read, for one release.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import functools
+import json
+import keyword
+import logging
+import math
+import struct
+import threading
+import types
+import typing
+import zlib
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import msgspec
+import numpy as np
+import zenoh
+
+from auvgw.drivers.spec import CLASS_CACHE_SIZE, WIRE_TYPES, Wire, resolve_type
+
+__all__ = [
+    "ENVELOPE_VERSION",
+    "EXT_NDARRAY",
+    "EXT_TYPED",
+    "Envelope",
+    "SchemaError",
+    "decode_envelope",
+    "encode_envelope",
+    "envelope_encoding",
+    "message_fields",
+    "pack_body",
+    "schema_id",
+    "unpack_body",
+]
+
+log = logging.getLogger(__name__)
+
+#: version of the decoded-message envelope; 2 (MessagePack map) and 1 (JSON) are still read
+ENVELOPE_VERSION = 3
+#: MessagePack extension code of a numpy array: ``<dtype.str>;<d0,d1,...>`` NUL then the bytes
+EXT_NDARRAY = 1
+#: MessagePack extension code of a nested message whose type the table does not fix:
+#: ``<type>`` NUL then its positional body (MessagePack)
+EXT_TYPED = 2
+
+_F32 = struct.Struct(">f")
+_F32_NAN = msgspec.Raw(b"\xca\x7f\xc0\x00\x00")
+
+
+class SchemaError(ValueError):
+    """An envelope's body does not fit the reader's table of its type (names type and field)."""
+
+
+@dataclass(frozen=True)
+class Envelope:
+    """A decoded message as it travels: its type name, source device, host receive time (ns
+    since the Unix epoch), the sequence of the raw frame it came from, the message's fields
+    (``body``: by name, SI units; a positional list when the reader does not know the type),
+    the typed immutable ``message`` where the reader knows the type, ``wire`` the gateway format
+    it was decoded from (``hn100``, ``can``, ...; empty for derived messages such as odometry)
+    and ``schema`` the table fingerprint (0 before version 3)."""
+
+    type: str
+    device: str
+    t_recv_ns: int
+    seq: int
+    body: Any = field(default_factory=dict)
+    message: Any = None
+    key: str = ""
+    wire: str = ""
+    schema: int = 0
+
+
+def _enc_float(v: float) -> Any:
+    """float32 when it holds ``v`` exactly (MessagePack 0xca, 5 bytes), else float64."""
+    if v != v:
+        return _F32_NAN
+    try:
+        b = _F32.pack(v)
+    except OverflowError:
+        return v
+    return msgspec.Raw(b"\xca" + b) if _F32.unpack(b)[0] == v else v
+
+
+def _enc_number(v: Any, trusted: bool) -> Any:
+    return _enc_float(v) if type(v) is float else v
+
+
+def _enc_any(v: Any, trusted: bool = False) -> Any:
+    """A value with no table row to guide it."""
+    t = type(v)
+    if t is float:
+        return _enc_float(v)
+    if t is int or t is str or t is bool or v is None or t is bytes or t is np.ndarray:
+        return v
+    if dataclasses.is_dataclass(v):
+        return _typed_ext(v, trusted)
+    if isinstance(v, tuple | list):
+        return [_enc_any(x, trusted) for x in v]
+    if isinstance(v, Mapping):
+        return {k: _enc_any(x, trusted) for k, x in v.items()}
+    if isinstance(v, float):
+        return _enc_float(float(v))
+    return v
+
+
+def _typed_ext(v: Any, trusted: bool = False) -> msgspec.msgpack.Ext:
+    name = str(getattr(v, "TYPE", type(v).__name__))
+    body = _ENCODER.encode(pack_body(v, trusted))
+    return msgspec.msgpack.Ext(EXT_TYPED, name.encode() + b"\0" + body)
+
+
+@dataclass(frozen=True)
+class _Typed:
+    """Extension 2 as read: a nested message's type name and positional body."""
+
+    name: str
+    body: list[Any]
+
+
+def _dec_typed(v: Any) -> Any:
+    if isinstance(v, _Typed):
+        cls = resolve_type(v.name)
+        if cls is None:
+            raise SchemaError(f"nested message type {v.name!r} is not known here")
+        return unpack_body(cls, v.body)
+    return v
+
+
+def _is_message_class(tp: Any) -> bool:
+    return isinstance(tp, type) and dataclasses.is_dataclass(tp)
+
+
+def _hint_coders(tp: Any) -> tuple[Callable[[Any, bool], Any] | None, Callable[[Any], Any], str]:
+    """(encode, decode, schema text) of a field with no wire row, from its type hint."""
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if origin in (types.UnionType, typing.Union):
+        real = [a for a in args if a is not type(None)]
+        if len(real) == 1 and len(args) == 2:
+            enc, dec, desc = _hint_coders(real[0])
+            return (
+                None if enc is None else (lambda v, t: None if v is None else enc(v, t)),
+                (lambda v: None if v is None else dec(v)),
+                f"{desc}?",
+            )
+        return _enc_any, _dec_typed, "any"
+    if _is_message_class(tp):
+        cls: type = tp
+        pack_nested = _plan(cls).pack
+
+        def enc_msg(v: Any, t: bool) -> Any:
+            return pack_nested(v, t) if type(v) is cls else _typed_ext(v, t)
+
+        def dec_msg(v: Any) -> Any:
+            return unpack_body(cls, v) if isinstance(v, list) else _dec_typed(v)
+
+        return enc_msg, dec_msg, f"{cls.__name__}#{schema_id(cls):04x}"
+    if origin is tuple and len(args) == 2 and args[1] is Ellipsis:
+        enc_el, dec_el, desc = _hint_coders(args[0])
+        return (
+            None if enc_el is None else (lambda v, t: [enc_el(x, t) for x in v]),
+            (lambda v: tuple(dec_el(x) for x in v)),
+            f"tuple[{desc}]",
+        )
+    if origin is tuple and args:
+        coders = [_hint_coders(a) for a in args]
+        encs = [c[0] or _enc_number for c in coders]
+        return (
+            (lambda v, t: [e(x, t) for e, x in zip(encs, v, strict=True)]),
+            (lambda v: tuple(c[1](x) for c, x in zip(coders, v, strict=True))),
+            f"tuple[{','.join(c[2] for c in coders)}]",
+        )
+    if isinstance(tp, type) and issubclass(tp, enum.Enum):
+        enum_cls: type[enum.Enum] = tp
+        return (
+            (lambda v, t: v if v is None else v.value),
+            (lambda v: v if v is None else enum_cls(v)),
+            enum_cls.__name__,
+        )
+    if tp is float:
+        return (lambda v, t: _enc_float(v) if type(v) is float else _enc_any(v, t)), _dec_typed, "f"
+    if tp is bytes:
+        return None, (lambda v: v if v is None else bytes(v)), "bytes"
+    name = getattr(tp, "__name__", repr(tp))
+    return _enc_any, _dec_typed, name
+
+
+def _readonly(a: np.ndarray) -> np.ndarray:
+    a.flags.writeable = False
+    return a
+
+
+def _wire_coders(w: Wire) -> tuple[Callable[[Any, bool], Any] | None, Callable[[Any], Any], str]:
+    """(encode, decode, schema text) of a wire row: raw wire values where they give the exact
+    SI value back (the codec's own ``raw * scale + add``), else the SI value itself."""
+    desc = f"{w.type}{list(w.shape) if w.shape else ''}*{w.scale!r}+{w.add!r}!{w.invalid}"
+    if w.type in ("bytes", "str"):
+        return None, (lambda v: v), desc
+    is_int = not w.type.startswith("f")
+    scale, add, invalid = w.scale, w.add, w.invalid
+    if not w.is_array:
+        if not (is_int and w.is_scaled):
+            return _enc_number, (lambda v: v), desc
+        info = np.iinfo(np.dtype(WIRE_TYPES[w.type]))
+        lo, hi = int(info.min), int(info.max)
+
+        def enc_scalar(v: Any, t: bool) -> Any:
+            if v is None or type(v) is bool:
+                return v
+            if v != v:
+                return invalid if invalid is not None else _F32_NAN
+            if v in (math.inf, -math.inf):
+                return _enc_float(v)
+            raw = round((v - add) / scale)
+            if raw * scale + add == v and lo <= raw <= hi and raw != invalid:
+                return raw
+            return _enc_float(float(v))
+
+        def dec_scalar(v: Any) -> Any:
+            if type(v) is not int:
+                return v
+            return math.nan if v == invalid else v * scale + add
+
+        return enc_scalar, dec_scalar, desc
+    wdt = np.dtype("<" + WIRE_TYPES[w.type])
+    native = wdt.newbyteorder("=")
+    to_si = is_int and w.is_scaled
+    limits: Any = np.iinfo(native) if is_int else None
+
+    def enc_array(v: Any, trusted: bool) -> Any:
+        if v is None:
+            return None
+        a = v if type(v) is np.ndarray else np.asarray(v)
+        if to_si and a.dtype == np.float64:
+            raw = a - add if add else a / scale
+            if add:
+                raw /= scale
+            np.rint(raw, out=raw)
+            if invalid is not None:
+                raw[np.isnan(raw)] = invalid
+            if not trusted:
+                if (invalid is None and np.isnan(raw).any()) or (
+                    raw.size and (raw.min() < limits.min or raw.max() > limits.max)
+                ):
+                    return a
+                rawi = raw.astype(native)
+                back = rawi * scale + add
+                if invalid is not None:
+                    back[rawi == invalid] = np.nan
+                if back.tobytes() != a.tobytes():  # exact, NaN as the codec makes it
+                    return a
+                a = rawi
+            else:
+                a = raw.astype(native)
+        elif a.dtype != native:
+            return a
+        return a.astype(wdt, copy=False).tobytes() if a.ndim == 1 else a
+
+    def dec_array(v: Any) -> Any:
+        if v is None:
+            return None
+        if isinstance(v, bytes | bytearray | memoryview):
+            raw = np.frombuffer(v, dtype=wdt)
+        elif isinstance(v, np.ndarray) and v.dtype == native:
+            raw = v
+        else:
+            return v  # SI, in its own dtype
+        if not to_si:
+            return _readonly(raw.astype(native, copy=False))
+        out = raw.astype(np.float64) * scale + add
+        if invalid is not None:
+            out[raw == invalid] = np.nan
+        return _readonly(out)
+
+    return enc_array, dec_array, desc
+
+
+def _linear_coders(
+    scale: float, offset: float, factor: float
+) -> tuple[Callable[[Any, bool], Any], Callable[[Any], Any], str]:
+    """A CAN signal decoded as ``float(raw * scale + offset) * factor`` (cantools, then the
+    codec's unit factor): its raw integer where that gives the value back exactly."""
+
+    def enc(v: Any, t: bool) -> Any:
+        if type(v) is not float:
+            return _enc_any(v, t)
+        if not math.isfinite(v):
+            return _enc_float(v)
+        raw = round((v / factor - offset) / scale)
+        return raw if float(raw * scale + offset) * factor == v else _enc_float(v)
+
+    def dec(v: Any) -> Any:
+        return float(v * scale + offset) * factor if type(v) is int else v
+
+    return enc, dec, f"lin*{scale!r}+{offset!r}*{factor!r}"
+
+
+@dataclass(frozen=True)
+class _Plan:
+    """How one message class travels: a (name, encode, decode) per transmitted field."""
+
+    cls: type
+    names: tuple[str, ...]
+    #: None where the value travels as it is (integers, strings, bytes)
+    encoders: tuple[Callable[[Any, bool], Any] | None, ...]
+    decoders: tuple[Callable[[Any], Any], ...]
+    schema: int
+    #: ``pack(msg, trusted) -> body``, generated for the class (see :func:`_packer`)
+    pack: Callable[[Any, bool], list[Any]]
+
+
+def _packer(
+    names: tuple[str, ...], encoders: tuple[Callable[[Any, bool], Any] | None, ...]
+) -> Callable[[Any, bool], list[Any]]:
+    """A function building the positional body of one class: one list display of attribute
+    reads and encoder calls (the gateway's hot path: no loop, no zip, no per-field lookup)."""
+    ns: dict[str, Any] = {}
+    items = []
+    for i, (name, enc) in enumerate(zip(names, encoders, strict=True)):
+        ok = name.isidentifier() and not keyword.iskeyword(name)
+        get = f"msg.{name}" if ok else f"getattr(msg, {name!r})"  # a site table's odd name
+        if enc is None:
+            items.append(get)
+        else:
+            ns[f"e{i}"] = enc
+            items.append(f"e{i}({get}, trusted)")
+    src = f"def pack(msg, trusted):\n    return [{', '.join(items)}]\n"
+    exec(src, ns)  # the source holds only identifiers and repr() of names
+    return ns["pack"]  # type: ignore[no-any-return]
+
+
+_type_hints = functools.lru_cache(maxsize=CLASS_CACHE_SIZE)(typing.get_type_hints)
+
+
+@functools.lru_cache(maxsize=CLASS_CACHE_SIZE)
+def _plan(cls: type) -> _Plan:
+    hints = _type_hints(cls)
+    names, encs, decs, descs = [], [], [], []
+    for f in dataclasses.fields(cls):
+        if "flag_bit" in f.metadata:  # derived from the status word on construction
+            continue
+        w, linear = f.metadata.get("wire"), f.metadata.get("linear")
+        if w is not None:
+            enc, dec, desc = _wire_coders(w)
+        elif linear is not None:
+            enc, dec, desc = _linear_coders(*linear)
+        else:
+            enc, dec, desc = _hint_coders(hints.get(f.name, Any))
+        names.append(f.name)
+        encs.append(enc)
+        decs.append(dec)
+        descs.append(f"{f.name}:{desc}")
+    text = f"{getattr(cls, 'TYPE', cls.__name__)}({';'.join(descs)})"
+    schema = zlib.crc32(text.encode()) & 0xFFFF
+    return _Plan(
+        cls, tuple(names), tuple(encs), tuple(decs), schema, _packer(tuple(names), tuple(encs))
+    )
+
+
+def schema_id(cls: type) -> int:
+    """16-bit fingerprint of a message class's table as the envelope carries it: field order,
+    names, wire types, scales, invalid codes, shapes and nested tables. A reader whose table
+    differs (another firmware's site table, another release) refuses the body."""
+    return _plan(cls).schema
+
+
+def pack_body(msg: Any, trusted: bool = False) -> list[Any]:
+    """The positional body of a message (its class's table order; see the module docstring).
+    ``trusted``: the message comes straight from its codec's decode, so every scaled array is
+    ``raw * scale + add`` of integers and its raw values are recovered without checking."""
+    return _plan(type(msg)).pack(msg, trusted)
+
+
+def unpack_body(cls: type, body: list[Any]) -> Any:
+    """The typed, immutable message of a positional body (inverse of :func:`pack_body`)."""
+    p = _plan(cls)
+    if len(body) != len(p.names):
+        raise SchemaError(
+            f"{getattr(cls, 'TYPE', cls.__name__)}: body has {len(body)} fields, this reader's "
+            f"table {len(p.names)}"
+        )
+    kwargs = {}
+    for name, dec, v in zip(p.names, p.decoders, body, strict=True):
+        try:
+            kwargs[name] = dec(v)
+        except SchemaError:
+            raise
+        except (TypeError, ValueError) as exc:
+            raise SchemaError(f"{cls.__name__}.{name}: {exc}") from None
+    return cls(**kwargs)
+
+
+def message_fields(msg: Any) -> dict[str, Any]:
+    """A message's fields by name (shallow: nested messages stay typed)."""
+    return {f.name: getattr(msg, f.name) for f in dataclasses.fields(msg)}
+
+
+_ARRAY_HEADS: dict[tuple[Any, tuple[int, ...]], bytes] = {}
+
+
+def _enc_hook(obj: Any) -> Any:
+    if isinstance(obj, np.ndarray):
+        key = (obj.dtype, obj.shape)
+        head = _ARRAY_HEADS.get(key)
+        if head is None:  # a few (dtype, shape) per codec: cached
+            head = f"{obj.dtype.str};{','.join(map(str, obj.shape))}".encode() + b"\0"
+            if len(_ARRAY_HEADS) < 4096:
+                _ARRAY_HEADS[key] = head
+        return msgspec.msgpack.Ext(EXT_NDARRAY, head + obj.tobytes())
+    if isinstance(obj, np.generic):
+        item = obj.item()
+        return _enc_float(item) if type(item) is float else item
+    if dataclasses.is_dataclass(obj):
+        return _typed_ext(obj)
+    raise NotImplementedError(f"cannot encode a {type(obj).__name__} in an envelope")
+
+
+def _ext_hook(code: int, data: memoryview) -> Any:
+    if code == EXT_NDARRAY:
+        raw = bytes(data)
+        head, _, body = raw.partition(b"\0")
+        dtype, _, shape = head.decode().partition(";")
+        dims = tuple(int(x) for x in shape.split(",") if x)
+        return np.frombuffer(body, dtype=np.dtype(dtype)).reshape(dims)  # read-only
+    if code == EXT_TYPED:
+        raw = bytes(data)
+        name, _, body = raw.partition(b"\0")
+        return _Typed(name.decode(), _DECODER.decode(body))
+    raise ValueError(f"unknown MessagePack extension {code} in an envelope")
+
+
+_ENCODER = msgspec.msgpack.Encoder(enc_hook=_enc_hook)
+_DECODER = msgspec.msgpack.Decoder(ext_hook=_ext_hook)
+
+
+@functools.lru_cache(maxsize=CLASS_CACHE_SIZE)
+def envelope_encoding(type_name: str) -> zenoh.Encoding:
+    """``application/msgpack;auvgw/3/<Type>``: the encoding of every envelope sample."""
+    return zenoh.Encoding(f"application/msgpack;auvgw/{ENVELOPE_VERSION}/{type_name}")
+
+
+def encode_envelope(
+    msg: Any,
+    device: str,
+    t_recv_ns: int,
+    seq: int,
+    body: Mapping[str, Any] | None = None,
+    wire: str = "",
+    decoded: bool = False,
+) -> tuple[bytes, zenoh.Encoding]:
+    """The envelope (module docstring) of a decoded message and its encoding; ``body``, a map
+    of fields with a ``type`` entry, replaces the message (schema 0: sent by name);
+    ``wire``: the gateway format it came from; ``decoded``: ``msg`` is a codec's output as it
+    decoded it (the gateway's hot path; see :func:`pack_body`)."""
+    if body is not None:
+        named = dict(body)
+        type_name = str(named.pop("type", None) or getattr(msg, "TYPE", type(msg).__name__))
+        env = [ENVELOPE_VERSION, type_name, 0, wire, device, t_recv_ns, seq, _enc_any(named)]
+    else:
+        type_name = str(getattr(msg, "TYPE", type(msg).__name__))
+        p = _plan(type(msg))
+        env = [
+            ENVELOPE_VERSION,
+            type_name,
+            p.schema,
+            wire,
+            device,
+            t_recv_ns,
+            seq,
+            p.pack(msg, decoded),
+        ]
+    return _ENCODER.encode(env), envelope_encoding(type_name)
+
+
+_codecs_loaded = False
+_codecs_lock = threading.Lock()
+
+
+def message_class(type_name: str) -> type | None:
+    """The class of a message type name, loading once, if needed, every codec module, the
+    shipped CAN DBCs (``HN100_Sample``, ``MS3A_Sample``) and the fusion ``Odometry``."""
+    cls = resolve_type(type_name)
+    if cls is not None:
+        return cls
+    global _codecs_loaded
+    with _codecs_lock:
+        if not _codecs_loaded:
+            _codecs_loaded = True
+            from auvgw.drivers.formats import FORMATS, get_format
+
+            for name in FORMATS:
+                try:
+                    get_format(name)
+                except Exception as exc:  # a codec that cannot load only loses its own types
+                    log.debug("codec %s not loaded: %s", name, exc)
+            try:
+                import auvgw.fusion.odometry  # noqa: F401 - registers Odometry
+                from auvgw.drivers.can_codec import hn100_can, ms3a_can
+
+                hn100_can()
+                ms3a_can()
+            except Exception as exc:  # cantools or a DBC missing: those types stay unknown
+                log.debug("CAN sample types not loaded: %s", exc)
+    return resolve_type(type_name)
+
+
+def decode_envelope(payload: bytes, key: str = "", typed: bool = True) -> Envelope:
+    """Parse an envelope (version 3; 2 and 1 of the previous releases are still read); with
+    ``typed``, rebuild the message when its type is known here. Raises ValueError (a
+    :class:`SchemaError` when the body does not fit this reader's table of its type)."""
+    if payload[:1] == b"{":  # v1: JSON
+        env = json.loads(payload)
+        if env.get("v") != 1:
+            raise ValueError(f"JSON envelope version {env.get('v')!r}, expected 1")
+        return Envelope(
+            env["type"], env["device"], env["t_recv_ns"], env["seq"], env["msg"], key=key
+        )
+    try:
+        env = _DECODER.decode(payload)
+    except msgspec.DecodeError as exc:
+        raise ValueError(f"not an envelope: {exc}") from None
+    if isinstance(env, dict):
+        if env.get("v") != 2:
+            raise ValueError(f"envelope version {env.get('v')!r}, expected {ENVELOPE_VERSION}")
+        return Envelope(
+            env["type"], env["device"], env["t"], env["seq"], env["msg"], key=key, wire=env["wire"]
+        )
+    if not isinstance(env, list) or not env or env[0] != ENVELOPE_VERSION or len(env) != 8:
+        v = env[0] if isinstance(env, list) and env else None
+        raise ValueError(f"envelope version {v!r}, expected {ENVELOPE_VERSION}")
+    _, type_name, schema, wire, device, t_ns, seq, body = env
+    if not isinstance(type_name, str) or not isinstance(body, list | dict):
+        raise ValueError(f"malformed envelope of type {type_name!r}")
+    if isinstance(body, dict):
+        return Envelope(type_name, device, t_ns, seq, body, key=key, wire=wire, schema=schema)
+    message = None
+    if typed:
+        cls = message_class(type_name)
+        if cls is not None:
+            message = typed_body(cls, type_name, schema, body)
+    named = message_fields(message) if message is not None else body
+    return Envelope(type_name, device, t_ns, seq, named, message, key, wire, schema)
+
+
+def typed_body(cls: type, type_name: str, schema: int, body: list[Any]) -> Any:
+    """The message of a positional body, after checking the schema fingerprint."""
+    mine = schema_id(cls)
+    if schema != mine:
+        raise SchemaError(
+            f"{type_name}: envelope schema {schema:04x}, this reader's table {mine:04x} "
+            "(the gateway's table or release differs from this reader's)"
+        )
+    return unpack_body(cls, body)

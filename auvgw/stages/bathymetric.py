@@ -1,0 +1,322 @@
+"""The online bathymetric PF-SLAM stage (mtm-pf, Zhang 2021): multibeam swaths and odometry in,
+corrected pose and seabed map out.
+
+Inputs, each in time order (times: seconds on the odometry clock, i.e. the gateway's receive
+stamps):
+
+* **odometry** (:class:`~auvgw.fusion.Odometry`, the fusion stage's ``nav/odometry``): its pose
+  ``(x, y, heading)`` (NED m, rad) joins a short history used to place each swath;
+* **multibeam swaths**: Kongsberg XYZ 88 (kind ``xyz88``) and Depth (kind ``depth``) datagrams
+  of the configured device (or of any device). Their beam depths are from the transmit
+  transducer, so the seabed depth is ``transducer depth + beam depth`` (XYZ 88
+  ``transducer_depth``, Depth ``transducer_depth_total``). A swath waits until the odometry
+  covers its receive time, then goes to :class:`~auvgw.slam.bathymetric.online.OnlineBathy`
+  with the odometry pose interpolated at that time; the odometry displacement since the
+  previous used swath is the filter's control ``u`` (eq. 2). A swath is used only once the
+  vehicle has moved ``min_ping_spacing_m`` since the last used one (the paper pings at 1 Hz
+  at 2.2 m/s; a 5 Hz multibeam at 1.7 m/s would make the T_p = 20 swath submap 7 m long).
+
+Published (JSON) on ``auv/<v>/slam/bathymetric/``:
+
+* ``pose`` after every used swath: ``t``, ``x``, ``y`` (the filter's corrected position),
+  ``heading`` (the odometry's: the filter estimates position only), ``cov`` (2 x 2, the particle
+  cloud's covariance, m^2), ``dr`` ``[x, y]`` (the odometry at the same time), ``ping``;
+* ``map`` every ``map_period_pings`` used swaths and at flush: a DEM tile
+  (:func:`~auvgw.slam.bathymetric.evaluate.grid_dem`, mean depth per ``grid_cell_m`` cell) of
+  every sounding placed by the corrected trajectory inside the bounding box of the latest
+  ``map_period_pings`` swaths (at flush: of the whole map): ``t``, ``cell_m``, ``x0``, ``y0``
+  (corner, cell ``[i][j]`` centred at ``x0 + (i + 0.5) cell, y0 + (j + 0.5) cell``), ``depth``
+  (rows over x, ``null`` where empty), ``pings``, ``loops`` (accepted, rejected);
+* ``cloud`` with each ``map``: the latest ``map_period_pings`` swaths' soundings (every
+  ``cloud_beam_stride``-th beam) placed by the corrected trajectory, ``points`` ``[[x, y,
+  depth], ...]`` (m, NED, depth down).
+
+Counters on ``auv/<v>/status/slam-bathymetric``. A malformed payload is counted and logged,
+never stops the worker; a swath with fewer than 2 valid soundings is counted (``bad_swaths``).
+"""
+
+from __future__ import annotations
+
+import bisect
+import logging
+import math
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import zenoh
+from pydantic import BaseModel, ConfigDict, Field
+
+from auvgw.bus import Envelope, Keys
+from auvgw.fusion.odometry import Odometry
+from auvgw.slam.bathymetric.config import BathyConfig
+from auvgw.slam.bathymetric.evaluate import grid_dem
+from auvgw.slam.bathymetric.online import OnlineBathy
+from auvgw.stages.base import BusCounters, Stage
+
+log = logging.getLogger(__name__)
+
+__all__ = ["BathymetricStage", "BathymetricStageConfig", "BathymetricStats", "swath_soundings"]
+
+PIPELINE = "bathymetric"
+SWATH_KINDS = ("xyz88", "depth")
+
+
+class BathymetricStageConfig(BaseModel):
+    """Settings of the bathymetric stage.
+
+    ``multibeam_device``: the gateway device whose swaths are used (None: any);
+    ``n_particles``, ``seed``: the filter's particles and random seed; ``filter``: any other
+    :class:`~auvgw.slam.bathymetric.config.BathyConfig` value by name (``radius_m``, ``t_p``...);
+    ``n_beams``: soundings kept per swath (resampled evenly across track);
+    ``min_ping_spacing_m``: travel (odometry, m) between used swaths; ``map_period_pings``: used
+    swaths between map publications; ``cloud_beam_stride``: beam decimation of the cloud;
+    ``odometry_window_s``: odometry history kept to place swaths; ``max_pending_swaths``: swaths
+    waiting for odometry before the oldest is dropped."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    vehicle: str = "auv1"
+    multibeam_device: str | None = None
+    n_particles: int = Field(100, ge=1)
+    seed: int = 0
+    filter: dict[str, Any] = Field(default_factory=dict)
+    n_beams: int = Field(141, ge=2)
+    min_ping_spacing_m: float = Field(2.0, ge=0)
+    map_period_pings: int = Field(20, ge=1)
+    cloud_beam_stride: int = Field(4, ge=1)
+    odometry_window_s: float = Field(60.0, gt=0)
+    max_pending_swaths: int = Field(200, ge=1)
+    status_period_s: float = Field(1.0, gt=0)
+    queue_size: int = Field(100_000, ge=1)
+
+    def bathy_config(self) -> BathyConfig:
+        """The filter's settings (``filter`` overrides, then ``n_particles``)."""
+        return BathyConfig(**{**self.filter, "n_particles": self.n_particles})
+
+
+@dataclass
+class BathymetricStats(BusCounters):
+    """Counters of the stage (``received``: envelopes decoded)."""
+
+    odometry: int = 0  #: odometry samples used
+    swaths: int = 0  #: multibeam swaths received (of the configured device)
+    pings: int = 0  #: swaths given to the filter
+    spacing_skipped: int = 0  #: swaths skipped: less than min_ping_spacing_m since the last
+    before_odometry: int = 0  #: swaths older than the odometry history (dropped)
+    pending_dropped: int = 0  #: swaths dropped because too many waited for odometry
+    bad_swaths: int = 0  #: swaths with fewer than 2 valid soundings
+    published: int = 0  #: pose publications
+    maps: int = 0  #: map (DEM tile + cloud) publications
+
+
+def swath_soundings(msg: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(across, along, depth)`` (m: starboard, forward, down from the water surface) of the
+    valid beams of a decoded XYZ 88 or Depth datagram: the beam depth (from the transmit
+    transducer) plus the transducer depth."""
+    beams = msg.beams
+    valid = beams.valid if hasattr(beams, "valid") else np.asarray(beams.depth) != 0
+    draft = getattr(msg, "transducer_depth_total", None)
+    if draft is None:
+        draft = msg.transducer_depth
+    valid = np.asarray(valid, bool)
+    return (
+        np.asarray(beams.across, float)[valid],
+        np.asarray(beams.along, float)[valid],
+        np.asarray(beams.depth, float)[valid] + float(draft),
+    )
+
+
+class BathymetricStage(Stage):
+    """Odometry + multibeam swaths -> mtm-pf (see the module docstring).
+
+    ``session``: publish on it (None: in-process only); ``on_publish(key, payload, t_ns)`` is
+    called at every publication."""
+
+    name = PIPELINE
+    status_schema = "BathymetricStatus"
+    outputs = ("pose", "map", "cloud")
+    stats: BathymetricStats
+    component = f"slam-{PIPELINE}"  # type: ignore[assignment,unused-ignore]
+
+    def __init__(
+        self,
+        config: BathymetricStageConfig,
+        session: zenoh.Session | None = None,
+        on_publish: Callable[[str, bytes, int], object] | None = None,
+    ) -> None:
+        self.config = cfg = config
+        self.bathy = cfg.bathy_config()
+        super().__init__(
+            Keys(cfg.vehicle), BathymetricStats(), session,
+            status_period_s=cfg.status_period_s, queue_size=cfg.queue_size, on_publish=on_publish,
+        )  # fmt: skip
+        self.online = OnlineBathy(self.bathy, np.random.default_rng(cfg.seed), cfg.n_beams)
+        #: published poses: (t s, x, y, heading)
+        self.track: list[tuple[float, float, float, float]] = []
+        #: time of each ping given to the filter (s, odometry clock)
+        self.ping_times: list[float] = []
+        self._t_odo: deque[float] = deque()
+        self._odo: deque[tuple[float, float, float]] = deque()  # x, y, unwrapped heading
+        self._swaths: deque[tuple[float, Any]] = deque()
+        self._last_xy: tuple[float, float] | None = None
+
+    def key(self, what: str) -> str:
+        """``auv/<v>/slam/bathymetric/<what>``."""
+        return self.keys.slam(PIPELINE, what)
+
+    def input_keys(self) -> list[str]:
+        """Odometry and the multibeam's XYZ 88 and Depth datagrams."""
+        dev = self.config.multibeam_device or "*"
+        return [self.keys.odometry(), *(self.keys.sensor(dev, k) for k in SWATH_KINDS)]
+
+    # -- in-process use ------------------------------------------------------------------------
+    def feed_odometry(self, o: Odometry) -> None:
+        """One odometry sample (in time order; a stale one is ignored)."""
+        with self._lock:
+            self.stats.odometry += 1
+            if self._t_odo and o.t <= self._t_odo[-1]:
+                return
+            h = o.heading
+            if self._odo:
+                h = self._odo[-1][2] + math.remainder(h - self._odo[-1][2], math.tau)
+            self._t_odo.append(o.t)
+            self._odo.append((o.x, o.y, h))
+            self._drain()
+            while self._t_odo and self._t_odo[0] < o.t - self.config.odometry_window_s:
+                self._t_odo.popleft()
+                self._odo.popleft()
+
+    def feed_swath(self, t: float, msg: Any) -> None:
+        """One decoded XYZ 88 / Depth datagram received at ``t`` (s, odometry clock)."""
+        with self._lock:
+            self.stats.swaths += 1
+            if self._t_odo and t < self._t_odo[0]:
+                self.stats.before_odometry += 1
+                return
+            if len(self._swaths) >= self.config.max_pending_swaths:
+                self._swaths.popleft()
+                self.stats.pending_dropped += 1
+            self._swaths.append((float(t), msg))
+            self._drain()
+
+    def feed(self, device: str, t_recv_ns: int, message: Any) -> None:
+        """One decoded gateway message (``on_message`` signature): swaths of the configured
+        multibeam are used, everything else ignored."""
+        from auvgw.decoding import message_kind
+
+        want = self.config.multibeam_device
+        if (want is None or device == want) and message_kind(message) in SWATH_KINDS:
+            self.feed_swath(t_recv_ns * 1e-9, message)
+
+    def _pose_at(self, t: float) -> tuple[float, float, float]:
+        t_odo = self._t_odo
+        k = bisect.bisect_left(t_odo, t)
+        if k == 0:
+            return self._odo[0]
+        if k >= len(t_odo):
+            return self._odo[-1]
+        t0, t1 = t_odo[k - 1], t_odo[k]
+        w = (t - t0) / (t1 - t0) if t1 > t0 else 1.0
+        a, b = self._odo[k - 1], self._odo[k]
+        return (a[0] + w * (b[0] - a[0]), a[1] + w * (b[1] - a[1]), a[2] + w * (b[2] - a[2]))
+
+    def _drain(self) -> None:
+        if not self._t_odo:
+            return
+        while self._swaths and self._swaths[0][0] <= self._t_odo[-1]:
+            t, msg = self._swaths.popleft()
+            if t < self._t_odo[0]:
+                self.stats.before_odometry += 1
+                continue
+            x, y, h = self._pose_at(t)
+            last = self._last_xy
+            if last is not None and math.hypot(x - last[0], y - last[1]) < (
+                self.config.min_ping_spacing_m
+            ):
+                self.stats.spacing_skipped += 1
+                continue
+            try:
+                across, along, depth = swath_soundings(msg)
+                est = self.online.add_ping(x, y, h, across, along, depth)
+            except ValueError as exc:
+                self.stats.bad_swaths += 1
+                log.debug("bathymetric: swath at t = %.3f s not used: %s", t, exc)
+                continue
+            self._last_xy = (x, y)
+            self.ping_times.append(t)
+            self.stats.pings += 1
+            self._publish_pose(t, est, h, (x, y))
+            if self.stats.pings % self.config.map_period_pings == 0:
+                self._publish_map(t, self.config.map_period_pings)
+
+    # -- outputs ---------------------------------------------------------------------------------
+    def _put(self, what: str, body: dict[str, Any], t: float) -> None:
+        self.publish_json(what, body, t, f"Bathymetric{what.capitalize()}")
+
+    def _publish_pose(
+        self, t: float, est: np.ndarray, heading: float, dr: tuple[float, float]
+    ) -> None:
+        f = self.online.filter
+        cloud = getattr(f, "x", None)
+        cov = np.cov(cloud.T) if cloud is not None and len(cloud) > 1 else np.zeros((2, 2))
+        hd = math.remainder(heading, math.tau)
+        self.stats.published += 1
+        self.track.append((t, float(est[0]), float(est[1]), hd))
+        self._put("pose", {"t": t, "x": float(est[0]), "y": float(est[1]), "heading": hd,
+                           "cov": cov.tolist(), "dr": [dr[0], dr[1]],
+                           "ping": self.online.pings - 1}, t)  # fmt: skip
+
+    def _loops(self) -> list[int]:
+        loops = self.online.filter.loops
+        acc = sum(1 for lp in loops if lp.accepted)
+        return [acc, len(loops) - acc]
+
+    def _publish_map(self, t: float, last_pings: int | None) -> None:
+        """DEM tile over the latest ``last_pings`` swaths (None: the whole map) and the cloud."""
+        pts = self.online.map_points()
+        if not len(pts):
+            return
+        recent = self.online.map_points(last_pings)
+        if last_pings is not None:
+            lo, hi = recent[:, :2].min(0), recent[:, :2].max(0)
+            inside = np.all((pts[:, :2] >= lo) & (pts[:, :2] <= hi), axis=1)
+            pts = pts[inside]
+        grid, (x0, y0) = grid_dem(pts, self.bathy.grid_cell_m)
+        depth = [[None if math.isnan(v) else round(float(v), 3) for v in row] for row in grid]
+        self.stats.maps += 1
+        self._put("map", {"t": t, "cell_m": self.bathy.grid_cell_m, "x0": x0, "y0": y0,
+                          "depth": depth, "pings": self.online.pings,
+                          "loops": self._loops()}, t)  # fmt: skip
+        n_b = self.online.n_beams
+        stride = self.config.cloud_beam_stride
+        cloud = recent.reshape(-1, n_b, 3)[:, ::stride].reshape(-1, 3)
+        self._put("cloud", {"t": t, "points": np.round(cloud, 3).tolist()}, t)
+
+    def status_fields(self) -> dict[str, Any]:
+        """Particles, pings in the filter and loop closures (accepted, rejected)."""
+        acc, rej = self._loops()
+        return {"algorithm": "mtm-pf", "n_particles": self.bathy.n_particles,
+                "pings": self.online.pings, "loops_accepted": acc, "loops_rejected": rej,
+                "bytes_held": self.online.filter.bytes_held()}  # fmt: skip
+
+    def flush(self) -> None:
+        """End of data: swaths still waiting for odometry are dropped (counted as
+        ``pending_dropped``); the whole map is published."""
+        with self._lock:
+            self.stats.pending_dropped += len(self._swaths)
+            self._swaths.clear()
+            if self.online.pings > 0 and self.ping_times:
+                self._publish_map(self.ping_times[-1], None)
+
+    # -- on the bus ------------------------------------------------------------------------------
+    def dispatch(self, env: Envelope, message: Any) -> None:
+        """One decoded bus message (counted as received)."""
+        with self._lock:
+            self.stats.received += 1
+        super().dispatch(env, message)
+
+    #: one bus payload: decoded, dispatched; a malformed one is counted and logged
+    handle = Stage.handle_sample

@@ -1,0 +1,49 @@
+"""The test house (``tests/support/``, imported as ``auvgw.testing``: setup.py maps it, so tests
+and benchmarks import it without editing ``sys.path``).
+
+* :func:`wait_until` - poll a condition (never a fixed sleep);
+* processes - :class:`Proc`, :class:`Procs` (the ``procs`` fixture), ``AUVGW``, ``PYTHON``,
+  free ports (:func:`free_port`, :func:`endpoint`; :mod:`auvgw.procs` is their home);
+* ptys - :class:`PtyDevice`;
+* config writers - :func:`write_gateway_toml`;
+* data - :func:`pd0_frames`, :func:`local_decoded`, :func:`read_jsonl`, :func:`frame_counters`;
+* emulation helpers - :mod:`~auvgw.testing.fusion_emulated`, :mod:`~auvgw.testing.fusion_lowcost`,
+  :mod:`~auvgw.testing.slam_helpers`, :mod:`~auvgw.testing.format_samples`,
+  :mod:`~auvgw.testing.bathy_helpers`.
+"""
+
+if __name__ != "auvgw.testing":
+    raise ImportError(f"import auvgw.testing, not {__name__}: the folder is mapped (setup.py)")
+
+from auvgw.testing.configs import write_gateway_toml
+from auvgw.testing.data import frame_counters, local_decoded, pd0_frames, read_jsonl
+from auvgw.testing.processes import (
+    AUVGW,
+    PYTHON,
+    REPO,
+    SUBSCRIBER,
+    Proc,
+    Procs,
+    endpoint,
+    free_port,
+)
+from auvgw.testing.ptys import PtyDevice
+from auvgw.testing.waiting import wait_until
+
+__all__ = [
+    "AUVGW",
+    "PYTHON",
+    "REPO",
+    "SUBSCRIBER",
+    "Proc",
+    "Procs",
+    "PtyDevice",
+    "endpoint",
+    "frame_counters",
+    "free_port",
+    "local_decoded",
+    "pd0_frames",
+    "read_jsonl",
+    "wait_until",
+    "write_gateway_toml",
+]

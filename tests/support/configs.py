@@ -1,0 +1,39 @@
+"""Configuration writers of the tests."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+__all__ = ["write_gateway_toml"]
+
+
+def write_gateway_toml(
+    path: Path,
+    vehicle: str,
+    bus: dict,
+    devices: dict[str, dict],
+    status_period_s: float = 0.2,
+) -> Path:
+    """A gateway TOML (written with json-compatible inline values)."""
+    lines = [
+        f"vehicle = {json.dumps(vehicle)}",
+        f"status_period_s = {status_period_s}",
+        "",
+        "[bus]",
+    ]
+    lines += [f"{k} = {json.dumps(v)}" for k, v in bus.items()]
+    for name, dev in devices.items():
+        lines += ["", f"[devices.{name}]"]
+        for k, v in dev.items():
+            if isinstance(v, dict):
+                inner = ", ".join(f"{ik} = {json.dumps(iv)}" for ik, iv in v.items())
+                lines.append(f"{k} = {{ {inner} }}")
+            else:
+                lines.append(f"{k} = {json.dumps(v)}")
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def read_jsonl(path: Path) -> list[dict]:
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]

@@ -1,0 +1,113 @@
+"""Child processes of a test (gateway, router, subscriber), their output, and free ports.
+
+Every child process is started through :class:`Procs` (the ``procs`` fixture of
+``tests/conftest.py``), which stops what is still running when the test ends, whatever
+happened (:func:`auvgw.procs.stop_process`).
+"""
+
+from __future__ import annotations
+
+import os
+import queue
+import signal
+import subprocess
+import threading
+import time
+from pathlib import Path
+
+from auvgw.procs import endpoint, free_port, stop_process
+
+__all__ = ["AUVGW", "PYTHON", "REPO", "SUBSCRIBER", "Proc", "Procs", "endpoint", "free_port"]
+
+#: the repository (this file is tests/support/processes.py)
+REPO = Path(__file__).resolve().parents[2]
+VENV_BIN = REPO / ".venv" / "bin"
+AUVGW = str(VENV_BIN / "auvgw")
+PYTHON = str(VENV_BIN / "python")
+SUBSCRIBER = str(REPO / "tests" / "gateway_subscriber_proc.py")
+
+
+class Proc:
+    """A child process whose stdout lines are collected by a thread (stderr goes to a file)."""
+
+    def __init__(self, args: list[str], log: Path, env: dict[str, str] | None = None) -> None:
+        self.args = args
+        self.log = log
+        self._err = open(log, "wb")  # noqa: SIM115 - closed in stop()
+        self.p = subprocess.Popen(
+            args,
+            stdout=subprocess.PIPE,
+            stderr=self._err,
+            text=True,
+            env={**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})},
+            cwd=REPO,
+        )
+        self.lines: queue.Queue[str] = queue.Queue()
+        self.all_lines: list[str] = []
+        self._t = threading.Thread(target=self._pump, daemon=True)
+        self._t.start()
+
+    def _pump(self) -> None:
+        assert self.p.stdout is not None
+        for line in self.p.stdout:
+            self.all_lines.append(line.rstrip("\n"))
+            self.lines.put(line.rstrip("\n"))
+
+    def wait_line(self, prefix: str, timeout: float = 30.0) -> str:
+        deadline = time.monotonic() + timeout
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0 or (self.p.poll() is not None and self.lines.empty()):
+                raise AssertionError(
+                    f"{self.args[:3]}: no line starting {prefix!r} (exit {self.p.poll()}); "
+                    f"stderr:\n{self.stderr()}"
+                )
+            try:
+                line = self.lines.get(timeout=min(left, 0.2))
+            except queue.Empty:
+                continue
+            if line.startswith(prefix):
+                return line
+
+    def stderr(self) -> str:
+        if not self._err.closed:
+            self._err.flush()
+        return self.log.read_text(errors="replace")[-4000:]
+
+    def signal(self, sig: int = signal.SIGTERM) -> None:
+        if self.p.poll() is None:
+            self.p.send_signal(sig)
+
+    def wait(self, timeout: float = 30.0) -> int:
+        rc = self.p.wait(timeout)
+        self._t.join(5)
+        return rc
+
+    def stop(self) -> int | None:
+        """Terminate (then kill) if still running; returns the exit code."""
+        code, _ = stop_process(self.p, signal.SIGTERM, 10.0)
+        self._err.close()
+        return code
+
+
+class Procs:
+    """Starts child processes and stops them all at the end (the tests' fixture)."""
+
+    def __init__(self, tmp: Path) -> None:
+        self.tmp = tmp
+        self.procs: list[Proc] = []
+
+    def start(self, args: list[str], name: str, env: dict[str, str] | None = None) -> Proc:
+        p = Proc(args, self.tmp / f"{name}.stderr", env)
+        self.procs.append(p)
+        return p
+
+    def gateway(self, config: Path, name: str = "gateway", *extra: str) -> Proc:
+        return self.start([AUVGW, "-v", "run", "--config", str(config), *extra], name)
+
+    def subscriber(self, name: str = "subscriber", *args: str) -> Proc:
+        return self.start([PYTHON, SUBSCRIBER, *args], name)
+
+    def stop_all(self) -> None:
+        for p in reversed(self.procs):
+            p.stop()
