@@ -28,7 +28,7 @@ test-fast: $(STAMP)
 # through an import hook no type checker follows); strict on drivers/ and slam/ (pyproject.toml)
 TYPED := $(VENV)/typecheck
 typecheck: $(STAMP)
-	rm -rf $(TYPED) && $(BIN)/python -m pip install -q --no-deps --target $(TYPED) . >/dev/null
+	rm -rf $(TYPED) build && $(BIN)/python -m pip install -q --no-deps --target $(TYPED) . >/dev/null
 	cd $(TYPED) && $(CURDIR)/$(BIN)/mypy --config-file $(CURDIR)/pyproject.toml -p auvgw.drivers -p auvgw.slam
 
 lint: $(STAMP)
