@@ -12,13 +12,13 @@ from pathlib import Path
 
 import can
 import pytest
-from gateway_support import PtyDevice, wait_until
 
 from auvgw.config.gateway import parse_gateway_config
 from auvgw.drivers import hn100
 from auvgw.drivers.transports import CanTransport, UdpTransport, open_transport
 from auvgw.health import DeviceHealth, LagTracker, device_time_s
 from auvgw.sim_devices.slcan import SlcanAdapter
+from auvgw.testing import PtyDevice, wait_until
 
 
 def hn100_frame(i: int, t: float) -> bytes:
