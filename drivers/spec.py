@@ -177,11 +177,13 @@ def _wire_fields(cls: type) -> list[tuple[str, Wire]]:
 def resolve_type(name: str) -> type | None:
     """The message class of a type name: registered, built on first use (:data:`LAZY_TYPES`), or
     made by a :data:`TYPE_FACTORIES` entry; None when no codec knows it."""
+    if (build := LAZY_TYPES.get(name)) is not None:
+        # a table-driven type: the name belongs to the shipped table's class (a site table's own
+        # class of that name serves its codec, and never shadows the shipped one for readers)
+        return build()
     cls = MESSAGE_TYPES.get(name)
     if cls is not None:
         return cls
-    if (build := LAZY_TYPES.get(name)) is not None:
-        return build()
     for make in TYPE_FACTORIES:
         cls = make(name)
         if cls is not None:

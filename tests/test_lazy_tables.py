@@ -51,3 +51,19 @@ def test_no_table_read_at_import_and_read_once_on_first_use():
     read = sorted(p.rsplit("/", 1)[-1] for p in r["after"])
     assert read == ["acoustic.toml", "hn100.toml", "ms3a.toml"]  # each once, on first use
     assert r["same"] and r["round_trip"] and r["by_name"]
+
+
+def test_a_site_table_does_not_shadow_the_shipped_class_for_readers(tmp_path):
+    """A site table builds its own class of the shipped type name (its codec's); a bus reader
+    resolving the name still gets the shipped table's class (it would otherwise change every
+    later reader's schema in the process)."""
+    from auvgw.drivers import ms3a
+    from auvgw.drivers.spec import resolve_type
+    from auvgw.paths import config_file
+
+    shipped = ms3a.default_codec().message_type
+    site_table = tmp_path / "site_ms3a.toml"
+    site_table.write_text(config_file("ms3a.toml").read_text())
+    site = ms3a.Ms3aCodec.from_toml(site_table).message_type
+    assert site is not shipped and site.__name__ == shipped.__name__ == "Ms3aSample"
+    assert resolve_type("Ms3aSample") is shipped
