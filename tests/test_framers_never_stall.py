@@ -161,3 +161,22 @@ def test_one_bad_udp_datagram_costs_that_datagram_only() -> None:
     assert out == good
     c = dec.counts()
     assert (c.frames, c.bad_frames, c.skipped_bytes) == (len(good), 1, len(bad))
+
+
+def test_v4log_corrupted_record_judged_the_same_whatever_the_chunk_split(tmp_path: Path) -> None:
+    """Issue 18's reproducer (docs/reliability.md): record 9 with its length 20 -> 22 swallows
+    the first bytes of record 10. With the chunk ending 7 bytes into record 10 (its length is
+    in, its TDateTime is not), the framer must give what it gives fed whole: every intact
+    record (record 9 passes, its content is plausible; record 10 is found in its last bytes)."""
+    head, recs = v4log_records(tmp_path / "c.V4LOG")
+    assert len(recs[9]) == 20
+    bad = bytearray(recs[9])
+    struct.pack_into("<H", bad, 0, 22)
+    wire = head + b"".join(recs[:9]) + bytes(bad) + b"".join(recs[10:])
+    framer = v4.V4LogFramer(policy="ignore")
+    whole = [(f.data, f.offset) for f in framer.frames([wire])]
+    assert [d for d, _ in whole if d in recs] == recs[:9] + recs[10:]
+    cut = len(head) + sum(map(len, recs[:10])) + 7
+    split = v4.V4LogFramer(policy="ignore")
+    assert [(f.data, f.offset) for f in split.frames([wire[:cut], wire[cut:]])] == whole
+    assert split.stats.as_dict() == framer.stats.as_dict()

@@ -242,6 +242,8 @@ class V4LogFramer(Framer):
         self._end: int | None = None
         self._times = (0.0, _MAX_TDATETIME)
         self._resync = False
+        self._last_end = -1  # absolute end of the last record delivered
+        self._tail = b""  # its last bytes, for _look_back
 
     def _read_header(self, buf: bytearray) -> None:
         if bytes(buf[: len(MAGIC)]) != MAGIC:
@@ -296,24 +298,42 @@ class V4LogFramer(Framer):
         a, b = struct.pack("<d", max(lo, 1.0)), struct.pack("<d", hi)
         return a[6:] if a[6:] == b[6:] else None
 
+    def _candidates(self, buf: bytearray, lo: int, last: int) -> Iterator[int]:
+        """Positions in ``lo..last`` that may start a record: those whose TDateTime (all in
+        ``buf``) has the log's top bytes (found in C), every position when the log's time span
+        has none."""
+        pat = self._time_pattern()
+        if pat is None:
+            yield from range(lo, last + 1)
+            return
+        q = buf.find(pat, lo + 8, last + 10) - 8
+        while lo <= q <= last:
+            yield q
+            q = buf.find(pat, q + 9, last + 10) - 8
+
     def _inner_record(self, buf: bytearray, start: int, end: int | None = None) -> bool | None:
         """A complete plausible record starts inside the one at ``start`` (``end``: its end when
         complete; None: it waits for bytes): its length field is the corrupted one. None when it
         is complete but a record starting inside it still waits for bytes (it waits too).
-        Candidates are the positions whose TDateTime has the log's top bytes (found in C); a
-        waiting record without them is probed byte by byte, each position once while it waits
-        (those that wait for bytes themselves are judged again)."""
-        pat = self._time_pattern()
+
+        Only starts whose TDateTime lies inside the record at ``start`` count, so the verdict
+        never depends on bytes that may not have arrived yet (a start nearer the end is found
+        by :meth:`_look_back` once the record after it fails). A waiting record is probed once
+        per position while it waits (those that wait for bytes themselves are judged again)."""
         waiting = end is None
-        if waiting and self._waiting != self._base + start:
-            self._probed = self._base + start + 1
-        lo = max(start + 1, self._probed - self._base) if waiting else start + 1
-        last = len(buf) - MIN_RECORD_SIZE if end is None else end - 1
-        if pat is None and not waiting:
-            return False
+        if waiting:
+            if len(buf) - start < 2:
+                return False
+            (claimed,) = struct.unpack_from("<H", buf, start)
+            if self._waiting != self._base + start:
+                self._probed = self._base + start + 1
+            lo = max(start + 1, self._probed - self._base)
+            last = min(len(buf) - MIN_RECORD_SIZE, start + claimed - 10)
+        else:
+            assert end is not None
+            lo, last = start + 1, end - 10
         first_open: int | None = None
-        q = lo if pat is None else buf.find(pat, lo + 8, last + 10) - 8
-        while lo <= q <= last:
+        for q in self._candidates(buf, lo, last):
             try:
                 n = self.check(buf, q)
             except BadFrame:
@@ -322,7 +342,6 @@ class V4LogFramer(Framer):
                 return True
             if n == 0 and first_open is None:
                 first_open = q
-            q = q + 1 if pat is None else buf.find(pat, q + 9, last + 10) - 8
         if not waiting and first_open is not None:
             return None  # complete, but a record starting inside it still waits: wait too
         if waiting:
@@ -330,6 +349,38 @@ class V4LogFramer(Framer):
                 first_open if first_open is not None else max(last, start) + 1
             )
         return False
+
+    def _look_back(self, buf: bytearray, i: int, eof: bool) -> Frame | None:
+        """The record starting in the last bytes of the record delivered just before ``i``
+        (where no record starts): that record's length claimed a few bytes too many (its
+        TDateTime lies past the corrupted record's end, where :meth:`_inner_record` does not
+        look). Raises :class:`_Wait` when one of them still waits for bytes."""
+        if self._last_end != self._base + i or not self._tail:
+            return None
+        tail = self._tail
+        probe = bytearray(tail) + buf[i:]
+        shift = i - len(tail)
+        self._base += shift  # check() places records by absolute offset: probe[0] is there
+        try:
+            for q in range(len(tail)):
+                try:
+                    n = self.check(probe, q)
+                except BadFrame:
+                    continue
+                if n > 0:
+                    return Frame(bytes(probe[q : q + n]), self._base + q)
+                if not eof:
+                    raise _Wait
+        finally:
+            self._base -= shift
+        return None
+
+    def _deliver(self, out: list[Frame], frame: Frame) -> None:
+        out.append(frame)
+        self.stats.frames += 1
+        self._resync = False
+        self._last_end = frame.offset + len(frame.data)
+        self._tail = frame.data[-(RECORD_HEADER_SIZE - 3) :]  # starts whose TDateTime is past it
 
     def _scan(self, eof: bool) -> list[Frame]:
         buf = self._buf
@@ -353,32 +404,38 @@ class V4LogFramer(Framer):
                 self.stats.skipped_bytes += len(buf) - i
                 i = len(buf)
                 break
+            reason = ""
             try:
                 length = self.check(buf, i)
                 if length == 0 and eof and i < len(buf):
                     raise BadFrame(f"truncated: stream ends {len(buf) - i} bytes into a record")
             except BadFrame as exc:
+                reason = exc.reason
+            if not reason:
+                inner: bool | None = False
+                if length > 0 or not eof:
+                    inner = self._inner_record(buf, i, i + length if length else None)
+                    if inner is None and eof:
+                        inner = False
+                if inner is None:
+                    length = 0
+                elif inner:
+                    reason = "inner_frame: a complete record starts inside this one"
+                    self._waiting = None
+            if reason:
+                try:
+                    found = self._look_back(buf, i, eof)
+                except _Wait:
+                    self._waiting = self._base + i
+                    break
+                if found is not None:  # the record before claimed too much: it passed
+                    self._deliver(out, found)
+                    i = found.offset + len(found.data) - self._base
+                    continue
                 self.stats.skipped_bytes += 1
                 if not self._resync:  # one bad frame per lost stretch, then slide quietly
                     self._resync = True
-                    error = self._bad(i, exc.reason)
-                i += 1
-                if error is not None:
-                    break
-                continue
-            inner: bool | None = False
-            if length > 0 or not eof:
-                inner = self._inner_record(buf, i, i + length if length else None)
-                if inner is None and eof:
-                    inner = False
-            if inner is None:
-                length = 0
-            elif inner:
-                self.stats.skipped_bytes += 1
-                if not self._resync:
-                    self._resync = True
-                    error = self._bad(i, "inner_frame: a complete record starts inside this one")
-                self._waiting = None
+                    error = self._bad(i, reason)
                 i += 1
                 if error is not None:
                     break
@@ -386,9 +443,7 @@ class V4LogFramer(Framer):
             if length == 0:
                 self._waiting = self._base + i
                 break
-            out.append(Frame(bytes(buf[i : i + length]), pos))
-            self.stats.frames += 1
-            self._resync = False
+            self._deliver(out, Frame(bytes(buf[i : i + length]), pos))
             i += length
         if self._waiting is not None and self._waiting != self._base + i:
             self._waiting = None
@@ -398,6 +453,10 @@ class V4LogFramer(Framer):
             self._pending = out
             raise error
         return out
+
+
+class _Wait(Exception):
+    """A record found by :meth:`V4LogFramer._look_back` still waits for bytes."""
 
 
 def read_file(
