@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import json
 import struct
 import subprocess
@@ -10,6 +11,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
 
 from auvgw.drivers import seanet as sn
 from auvgw.drivers.framing import ErrorPolicy
@@ -285,3 +288,65 @@ def test_cli_wrong_file_is_one_line_exit_2(tmp_path: Path, log_file: Path) -> No
     res = run_cli("decode", "--format", "seanet", str(log_file))
     assert res.returncode == 2 and "Traceback" not in res.stderr
     assert "no valid seanet frame" in res.stderr.strip().splitlines()[-1]
+
+
+def _log_bytes(items: list[tuple[float, sn.SeaNetMessage]]) -> tuple[bytes, list[bytes]]:
+    """A .V4LOG of ``items`` in memory: its header and its records."""
+    buf = io.BytesIO()
+    with v4.V4LogWriter(buf) as writer:
+        for t, m in items:
+            writer.write(t, m)
+    data = buf.getvalue()
+    records, pos = [], v4.HEADER_SIZE
+    while pos < len(data):
+        (n,) = struct.unpack_from("<H", data, pos)
+        records.append(data[pos : pos + n])
+        pos += n
+    return data[: v4.HEADER_SIZE], records
+
+
+@st.composite
+def _corrupted_logs(draw: st.DrawFn) -> tuple[bytes, list[bytes], int, bytes, list[int]]:
+    """(header, good records, index of the corrupted one, the wire, chunk cuts)."""
+    items = sample_items()
+    picks = draw(st.lists(st.integers(0, len(items) - 1), min_size=3, max_size=12))
+    head, records = _log_bytes([(T0 + 0.5 * j, items[i][1]) for j, i in enumerate(picks)])
+    k = draw(st.integers(0, len(records) - 1))
+    bad = bytearray(records[k])
+    kind = draw(st.sampled_from(["length", "bits", "burst"]))
+    if kind == "length":  # the length a few bytes off: the next record starts near its end
+        struct.pack_into("<H", bad, 0, len(bad) + draw(st.integers(-8, 12)))
+    elif kind == "bits":
+        for pos in draw(st.lists(st.integers(0, 8 * len(bad) - 1), min_size=1, max_size=3)):
+            bad[pos // 8] ^= 1 << (pos % 8)
+    else:  # a burst of random bytes
+        at = draw(st.integers(0, len(bad) - 2))
+        burst = draw(st.binary(min_size=1, max_size=min(16, len(bad) - at)))
+        bad[at : at + len(burst)] = burst
+    assume(bytes(bad) != records[k])
+    wire = head + b"".join(records[:k]) + bytes(bad) + b"".join(records[k + 1 :])
+    end = len(head) + sum(map(len, records[: k + 1]))  # cuts anywhere, and near its end
+    near = st.integers(max(1, end - 12), min(len(wire) - 1, end + 12))
+    cuts = draw(st.lists(st.integers(1, len(wire) - 1), max_size=40))
+    cuts = sorted(set(cuts + draw(st.lists(near, max_size=3))))
+    return head, records, k, wire, cuts
+
+
+@settings(max_examples=300, deadline=None)
+@given(_corrupted_logs())
+def test_one_corrupted_record_costs_at_most_itself_whatever_the_chunking(
+    case: tuple[bytes, list[bytes], int, bytes, list[int]],
+) -> None:
+    """Random good records, one of them corrupted (bit flips or a burst), random chunk splits:
+    every other record comes out at its offset, and the chunked stream gives exactly the frames
+    and counters of the whole one (issue 18)."""
+    head, records, k, wire, cuts = case
+    whole = v4.V4LogFramer(policy="ignore")
+    ref = [(f.data, f.offset) for f in whole.frames([wire])]
+    starts = [len(head) + sum(map(len, records[:j])) for j in range(len(records))]
+    intact = [(r, s) for j, (r, s) in enumerate(zip(records, starts, strict=True)) if j != k]
+    assert [fr for fr in ref if fr in intact] == intact
+    chunked = v4.V4LogFramer(policy="ignore")
+    chunks = [wire[a:b] for a, b in zip([0, *cuts], [*cuts, len(wire)], strict=True)]
+    assert [(f.data, f.offset) for f in chunked.frames(chunks)] == ref
+    assert chunked.stats.as_dict() == whole.stats.as_dict()
