@@ -12,7 +12,9 @@ makes them; the real PD0 recording for PD0) with one frame corrupted is framed i
 Writes the table to docs/reliability.md (``--out``) between its ``<!-- table -->`` markers.
 Regenerate with::
 
-    .venv/bin/python benchmarks/reliability.py --trials 2000
+    PYTHONPATH=tests .venv/bin/python benchmarks/reliability.py --trials 2000
+
+(``auvgw.testing.format_samples`` imports the sample frames of the test modules.)
 """
 
 from __future__ import annotations

@@ -30,7 +30,10 @@ POSIX seconds (``time``; TDateTime carries no time zone, it is read as UTC), the
 Records have no sync bytes, so :class:`V4LogFramer` walks them by their lengths within the
 record section; a record with an implausible length or time (outside the log's open/close
 times, one day of slack) is a bad frame, and the framer then slides byte by byte until a
-plausible record starts again. ``skipped_bytes`` counts the 80-byte header and any non-record
+plausible record starts again. A record inside which a complete record starts (its TDateTime
+inside the outer one) is refused; a record starting in the last 9 bytes of the one delivered
+before it is found by looking back (the two frames overlap). Whatever the chunking, the same
+records come out. ``skipped_bytes`` counts the 80-byte header and any non-record
 section too (every byte not delivered in a record).
 """
 
