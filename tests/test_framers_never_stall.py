@@ -179,4 +179,4 @@ def test_v4log_corrupted_record_judged_the_same_whatever_the_chunk_split(tmp_pat
     cut = len(head) + sum(map(len, recs[:10])) + 7
     split = v4.V4LogFramer(policy="ignore")
     assert [(f.data, f.offset) for f in split.frames([wire[:cut], wire[cut:]])] == whole
-    assert split.stats.as_dict() == framer.stats.as_dict()
+    assert split.stats.as_dict() == framer.stats.as_dict() and framer.stats.bad_frames == 0

@@ -339,7 +339,7 @@ def test_one_corrupted_record_costs_at_most_itself_whatever_the_chunking(
 ) -> None:
     """Random good records, one of them corrupted (bit flips or a burst), random chunk splits:
     every other record comes out at its offset, and the chunked stream gives exactly the frames
-    and counters of the whole one (issue 18)."""
+    and counters (frames, bad frames, skipped bytes) of the whole one (issue 18)."""
     head, records, k, wire, cuts = case
     whole = v4.V4LogFramer(policy="ignore")
     ref = [(f.data, f.offset) for f in whole.frames([wire])]
@@ -349,4 +349,5 @@ def test_one_corrupted_record_costs_at_most_itself_whatever_the_chunking(
     chunked = v4.V4LogFramer(policy="ignore")
     chunks = [wire[a:b] for a, b in zip([0, *cuts], [*cuts, len(wire)], strict=True)]
     assert [(f.data, f.offset) for f in chunked.frames(chunks)] == ref
-    assert chunked.stats.as_dict() == whole.stats.as_dict()
+    counts = [(f.stats.frames, f.stats.bad_frames, f.stats.skipped_bytes) for f in (chunked, whole)]
+    assert counts[0] == counts[1]  # the reason may differ: a waiting record has no content yet

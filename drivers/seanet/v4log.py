@@ -303,11 +303,11 @@ class V4LogFramer(Framer):
 
     def _candidates(self, buf: bytearray, lo: int, last: int) -> Iterator[int]:
         """Positions in ``lo..last`` that may start a record: those whose TDateTime (all in
-        ``buf``) has the log's top bytes (found in C), every position when the log's time span
-        has none."""
+        ``buf``) has the log's top bytes (found in C). None when the log's time span has no
+        such bytes (a header without times: any date up to year 9999 is plausible, and records
+        found inside good ones would cost them)."""
         pat = self._time_pattern()
         if pat is None:
-            yield from range(lo, last + 1)
             return
         q = buf.find(pat, lo + 8, last + 10) - 8
         while lo <= q <= last:
