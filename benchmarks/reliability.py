@@ -12,9 +12,9 @@ makes them; the real PD0 recording for PD0) with one frame corrupted is framed i
 Writes the table to docs/reliability.md (``--out``) between its ``<!-- table -->`` markers.
 Regenerate with::
 
-    PYTHONPATH=tests .venv/bin/python benchmarks/reliability.py --trials 2000
+    .venv/bin/python benchmarks/reliability.py --trials 2000
 
-(``auvgw.testing.format_samples`` imports the sample frames of the test modules.)
+(the sample frames come from the test house, ``auvgw.testing.format_samples``.)
 """
 
 from __future__ import annotations

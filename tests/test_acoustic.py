@@ -18,8 +18,7 @@ from auvgw.drivers.acoustic import CODEC, AcousticFramer, AcousticReply
 from auvgw.drivers.formats import get_format
 from auvgw.drivers.framing import ErrorPolicy, FrameError
 from auvgw.sim_devices.runner import Runner
-
-LINE = b"$ACRB,000042,0123.45,-045.3,+12.0,1*11\r\n"
+from auvgw.testing.format_samples import ACOUSTIC_LINE as LINE
 
 
 def _line(counter: int, rng: float, brg: float, dep: float = 10.0) -> bytes:

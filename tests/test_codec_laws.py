@@ -1,5 +1,5 @@
 """The codec and framer laws, for every format of the device registry (a new device gets them by
-being registered and giving its sample frames in tests/format_samples.py):
+being registered and giving its sample frames in tests/support/format_samples.py):
 
 * round trip: ``encode(decode(b)) == b`` on sample frames and ``decode(encode(m)) == m``;
 * garbage between frames loses no frame (and is counted as skipped bytes);
@@ -39,7 +39,7 @@ def sample(
     """(stream head, good sample frames) of ``fmt`` (PD0's come from the real recording)."""
     shared = request.getfixturevalue("shared_data") if fmt == "pd0" else None
     head, out = stream_samples(fmt, shared, tmp_path)
-    assert len(out) >= 3, f"{fmt}: give at least 3 sample frames in tests/format_samples.py"
+    assert len(out) >= 3, f"{fmt}: give at least 3 sample frames in tests/support/format_samples.py"
     return head, out
 
 

@@ -22,60 +22,13 @@ from auvgw.drivers.hn100 import CODEC, FORMAT, Hn100Codec, Hn100Framer, Hn100Nav
 from auvgw.drivers.spec import WireError, raw_value, to_jsonable
 from auvgw.drivers.tablecodec import CHECKSUMS, TableError
 from auvgw.paths import REPO_ROOT, config_file
+from auvgw.testing.format_samples import REF_INTS, crc16_ccitt_false, ref_frame
+from auvgw.testing.format_samples import hn100_frames as good_frames
 
 SHIPPED = config_file("hn100.toml")
 SHIPPED_TEXT = SHIPPED.read_text()
 AUVGW = REPO_ROOT / ".venv" / "bin" / "auvgw"
 SIZE = 74
-
-
-# -- independent reference implementation of the shipped layout (not the codec) ---------------
-
-
-def crc16_ccitt_false(data: bytes) -> int:
-    crc = 0xFFFF
-    for byte in data:
-        crc ^= byte << 8
-        for _ in range(8):
-            crc = ((crc << 1) ^ 0x1021) if crc & 0x8000 else crc << 1
-            crc &= 0xFFFF
-    return crc
-
-
-def ref_frame(seq: int, status: int, ticks: int, ints: list[int]) -> bytes:
-    """sync AA 48 | u16 length 68 | u16 seq | u16 status | u32 time | 15 x s32 | crc16 LE."""
-    body = struct.pack("<HHHI15i", 68, seq, status, ticks, *ints)
-    return b"\xaa\x48" + body + struct.pack("<H", crc16_ccitt_false(body))
-
-
-REF_INTS = [
-    100_000,  # roll 0.1 rad
-    -50_000,  # pitch -0.05 rad
-    3_000_000,  # heading 3.0 rad
-    10_000,  # rate_x 0.01 rad/s
-    -20_000,
-    30_000,
-    10_000,  # accel_x 0.1 m/s^2
-    20_000,
-    -981_000,  # accel_z -9.81 m/s^2
-    15_000,  # vel_n 1.5 m/s
-    -2_000,
-    100,
-    431_234_567,  # latitude 43.1234567 deg
-    -59_876_543,  # longitude -5.9876543 deg
-    123_456,  # depth 123.456 m
-]
-
-
-def good_frames(n: int, start: int = 0) -> list[bytes]:
-    """n valid frames whose bytes contain no sync pair except at their start."""
-    out = []
-    for i in range(start, start + n):
-        ints = [v + 7 * i for v in REF_INTS]
-        f = ref_frame(i, 0b0101, 1000 + 100 * i, ints)
-        assert f.find(b"\xaa\x48", 1) < 0
-        out.append(f)
-    return out
 
 
 def test_shipped_table_decodes_reference_frame() -> None:

@@ -20,10 +20,11 @@ from hypothesis import strategies as st
 from auvgw.drivers import kongsberg as kb
 from auvgw.drivers.framing import BadFrame, DecodeError, ErrorPolicy, FrameError
 from auvgw.drivers.spec import WireError, raw_value, to_jsonable
+from auvgw.testing.format_samples import KONGSBERG_FRAMES as G
+from auvgw.testing.format_samples import T0, dep, xyz
 
 AUVGW = Path(sys.executable).parent / "auvgw"
 CLI = [str(AUVGW)] if AUVGW.exists() else [sys.executable, "-m", "auvgw.cli"]
-T0 = 1_700_000_000.0  # 2023-11-14 22:13:20 UTC
 
 
 def wire_of(cls: type, name: str):
@@ -33,48 +34,6 @@ def wire_of(cls: type, name: str):
 def cks(frame: bytes) -> int:
     """Independent checksum: bytes after STX (index 4) up to ETX (index -3), mod 65536."""
     return sum(frame[5:-3]) & 0xFFFF
-
-
-def xyz(i: int, n: int, **kw) -> kb.XYZ88:
-    k = np.arange(n)
-    args = dict(
-        time=T0 + i * 0.5,
-        depth=20.0 + 0.25 * k,
-        across=-30.0 + 2.5 * k,
-        along=0.125 * (k % 3),
-        quality=(k * 7) % 200,
-        reflectivity=-25.0 + 0.1 * k,
-        detection_window=8 + k,
-        heading=math.radians(45.0),
-        sound_speed=1490.0,
-        transducer_depth=1.5,
-        sampling_frequency=20000.0,
-        ping_counter=i,
-        serial=140,
-    )
-    args.update(kw)
-    return kb.make_xyz88(**args)
-
-
-def dep(i: int, n: int, **kw) -> kb.Depth:
-    k = np.arange(n)
-    args = dict(
-        time=T0 + i * 0.5,
-        depth=15.0 + 0.5 * k,
-        across=-10.0 + 1.0 * k,
-        along=0.05 * k,
-        depression=np.radians(60.0 + k),
-        azimuth=np.radians(90.0 + 0 * k),
-        range_samples=300 + k,
-        quality=50,
-        detection_window=16,
-        reflectivity=-20.0,
-        ping_counter=i,
-        serial=7,
-        sampling_rate=14293,
-    )
-    args.update(kw)
-    return kb.make_depth(**args)
 
 
 def generic(type_id: int, body: bytes, counter: int = 1) -> bytes:
@@ -452,24 +411,6 @@ def test_property_framer_finds_every_concatenated_datagram(frames: list[bytes], 
 
 
 # -- named corrupted fixtures ----------------------------------------------------------------------
-def clean(make, start: int) -> bytes:
-    """The first datagram from ``make(counter)`` whose only 0x02 byte is its STX, so every
-    expected count below follows from the fixture alone."""
-    for counter in range(start, start + 500):
-        b = kb.encode(make(counter))
-        if b.count(0x02) == 1:
-            return b
-    raise AssertionError("no clean datagram")
-
-
-G = [
-    clean(lambda c: xyz(c, 5, ping_counter=c), 10),
-    clean(lambda c: dep(c, 4, ping_counter=c, beam_number=[10, 11, 12, 13]), 20),
-    clean(lambda c: xyz(c, 8, ping_counter=c), 30),
-    clean(lambda c: dep(c, 3, ping_counter=c, beam_number=[20, 21, 22]), 40),
-]
-
-
 def corrupt(frame: bytes, at: int, value: int) -> bytes:
     out = bytearray(frame)
     out[at] = value

@@ -7,7 +7,6 @@ import json
 import random
 import re
 import subprocess
-from functools import reduce
 from pathlib import Path
 
 import pytest
@@ -20,31 +19,13 @@ from auvgw.drivers.ms3a import CODEC, FORMAT, Ms3aCodec, Ms3aFramer, Ms3aSample
 from auvgw.drivers.spec import WireError, raw_value, to_jsonable
 from auvgw.drivers.tablecodec import TableError
 from auvgw.paths import REPO_ROOT, config_file
+from auvgw.testing.format_samples import MS3A_LINES as L
+from auvgw.testing.format_samples import crc16_ccitt_false, ref_line
 
 SHIPPED_TEXT = config_file("ms3a.toml").read_text()
 AUVGW = REPO_ROOT / ".venv" / "bin" / "auvgw"
 
 
-# -- independent reference of the shipped line (not the codec) --------------------------------
-
-
-def xor_hex(body: str) -> str:
-    return f"{reduce(lambda a, c: a ^ ord(c), body, 0):02X}"
-
-
-def nt_text(raw: int) -> str:
-    """raw in 0.1 nT -> sign, 6 integer digits, point, 1 decimal."""
-    sign = "-" if raw < 0 else "+"
-    return f"{sign}{abs(raw) // 10:06d}.{abs(raw) % 10}"
-
-
-def ref_line(counter: int, bx: int, by: int, bz: int, body: str | None = None) -> bytes:
-    if body is None:
-        body = f"MS3A,{counter:06d},{nt_text(bx)},{nt_text(by)},{nt_text(bz)}"
-    return f"${body}*{xor_hex(body)}\r\n".encode()
-
-
-L = [ref_line(i, 213_456 + i, -12_345 - i, 432_100 + 3 * i) for i in range(4)]
 N = len(L[0])
 
 
@@ -331,16 +312,6 @@ description = "sensor temperature, deg C"
 [[fields]]
 name = "counter"
 """
-
-
-def crc16_ccitt_false(data: bytes) -> int:
-    crc = 0xFFFF
-    for byte in data:
-        crc ^= byte << 8
-        for _ in range(8):
-            crc = ((crc << 1) ^ 0x1021) if crc & 0x8000 else crc << 1
-            crc &= 0xFFFF
-    return crc
 
 
 def test_site_table_changes_line_without_code(tmp_path: Path) -> None:

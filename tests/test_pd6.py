@@ -20,21 +20,8 @@ from auvgw.drivers import pd6
 from auvgw.drivers.formats import get_format
 from auvgw.drivers.framing import DecodeError, ErrorPolicy, FrameError
 from auvgw.drivers.spec import WireError, to_jsonable
+from auvgw.testing.format_samples import PD6_LINES as LINES
 
-#: one Pathfinder PD6 ensemble, fields at the widths of the guide's Table 50
-LINES = [
-    b":SA, -2.31, +1.92, 75.20\r\n",
-    b":TS,04081111563644,35.0,+21.0,   0.0,1524.0,  0\r\n",
-    b":WI,-32768,-32768,-32768,-32768,V\r\n",
-    b":WS,-32768,-32768,-32768,V\r\n",
-    b":WE,-32768,-32768,-32768,V\r\n",
-    b":WD,       +0.00,       +0.00,       +0.00,  20.00,  0.00\r\n",
-    b":BI,   +24,    -6,   -20,    -4,A\r\n",
-    b":BS,   -13,   +21,   -20,A\r\n",
-    b":BE,   +17,   +18,   -20,A\r\n",
-    b":BD,       -0.02,       -0.03,       +0.02,   7.13,  0.21\r\n",
-    b":HM,G,L, 123,   7,24.015,1.503,15.978\r\n",
-]
 STREAM = b"".join(LINES)
 
 

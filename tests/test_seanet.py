@@ -16,6 +16,7 @@ from hypothesis import strategies as st
 from auvgw.drivers.framing import DecodeError, ErrorPolicy, FrameError
 from auvgw.drivers.seanet import codec as sn
 from auvgw.drivers.spec import WireError, from_jsonable, raw_value, table_rows, to_jsonable
+from auvgw.testing.format_samples import sample_messages
 
 # -- helpers ----------------------------------------------------------------------------------
 
@@ -85,33 +86,6 @@ def feed(
 
 
 CHUNKS = (1, 2, 3, 7, 64, 100_000)
-
-
-def sample_messages() -> list[sn.SeaNetMessage]:
-    cfg8 = sn.head_command(range_m=10.0, n_bins=50)
-    cfg4 = sn.head_command(range_m=10.0, n_bins=50, adc8on=False)
-    return [
-        sn.alive(12.345, head_inf=sn.HeadInf.NO_PARAMS | sn.HeadInf.MOTOR_ON),
-        sn.reboot(),
-        sn.send_version(),
-        sn.version_data(software_version=3, serial_number=1234, program_length=65000),
-        sn.send_bb_user(),
-        cfg8,
-        sn.alive(13.0, head_inf=sn.HeadInf.SENT_CFG | sn.HeadInf.MOTOR_ON | sn.HeadInf.CENTRED),
-        sn.send_data(56_000_123),
-        sn.head_data(np.arange(50) % 60, 0.25, config=cfg8),
-        sn.send_data(56_000_300),
-        sn.head_data(np.arange(50) % 16, 0.30, config=cfg4),
-        sn.SeaNetRaw(
-            tx_node=2,
-            rx_node=255,
-            byte_count=11,
-            sequence=0x80,
-            node=2,
-            msg_type=sn.MessageType.mtAuxData,
-            payload=b"\x01\x02\x03\x04\x05\x06\x07\x08",
-        ),
-    ]
 
 
 # -- known bytes ------------------------------------------------------------------------------

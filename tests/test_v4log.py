@@ -18,36 +18,7 @@ from auvgw.drivers import seanet as sn
 from auvgw.drivers.framing import ErrorPolicy
 from auvgw.drivers.seanet import v4log as v4
 from auvgw.drivers.spec import from_jsonable, to_jsonable
-
-T0 = 1_700_000_000.0  # 2023-11-14T22:13:20Z
-
-
-def sample_items() -> list[tuple[float, sn.SeaNetMessage]]:
-    cfg = sn.head_command(range_m=20.0, n_bins=40)
-    cfg4 = sn.head_command(range_m=20.0, n_bins=40, adc8on=False)
-    return [
-        (T0 + 0.0, sn.alive(100.0, head_inf=sn.HeadInf.NO_PARAMS | sn.HeadInf.MOTOR_ON)),
-        (T0 + 0.1, sn.reboot()),
-        (T0 + 0.2, sn.send_version()),
-        (T0 + 0.3, sn.version_data(serial_number=4321)),
-        (T0 + 0.4, cfg),
-        (T0 + 1.0, sn.send_data(80_001_000)),
-        (T0 + 1.1, sn.head_data(np.arange(40) % 50, 1.0, config=cfg)),
-        (T0 + 1.2, sn.send_data(80_001_200)),
-        (T0 + 1.3, sn.head_data(np.arange(40) % 16, 1.1, config=cfg4)),
-        (
-            T0 + 1.4,
-            sn.SeaNetRaw(
-                tx_node=2,
-                rx_node=255,
-                byte_count=8,
-                sequence=0x80,
-                node=2,
-                msg_type=8,
-                payload=b"aux!\x01",
-            ),
-        ),
-    ]
+from auvgw.testing.format_samples import T0, sample_items
 
 
 @pytest.fixture
