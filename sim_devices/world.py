@@ -28,6 +28,7 @@ from typing import Literal
 import numpy as np
 
 from auvgw.config.scenario import ObservationSettings, Scenario, ScenarioError, Terrain
+from auvgw.geometry import body_to_ned_matrix as body_to_ned  # (heading, pitch, roll) -> R
 from auvgw.geometry import wrap_angles as wrap_angle  # arrays in, arrays out
 
 __all__ = [
@@ -435,21 +436,6 @@ def cast_rays(
 
 
 # -- multibeam swath -------------------------------------------------------------------------
-
-
-def body_to_ned(heading: float, pitch: float = 0.0, roll: float = 0.0) -> FArray:
-    """Rotation matrix from body axes (x forward, y starboard, z down) to NED, ZYX Euler
-    angles in radians (``R = Rz(heading) Ry(pitch) Rx(roll)``)."""
-    ch, sh = math.cos(heading), math.sin(heading)
-    cp, sp = math.cos(pitch), math.sin(pitch)
-    cr, sr = math.cos(roll), math.sin(roll)
-    return np.array(
-        [
-            [ch * cp, ch * sp * sr - sh * cr, ch * sp * cr + sh * sr],
-            [sh * cp, sh * sp * sr + ch * cr, sh * sp * cr - ch * sr],
-            [-sp, cp * sr, cp * cr],
-        ]
-    )
 
 
 @dataclass(frozen=True)
