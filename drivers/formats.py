@@ -38,6 +38,18 @@ class Format:
     read_file: Callable[..., tuple[Iterator[Frame], Framer]] | None = None
 
     @classmethod
+    def one_per_frame(
+        cls,
+        name: str,
+        summary: str,
+        framer: Callable[..., Framer],
+        decode: Callable[[bytes], Any],
+        encode: Callable[[Any], bytes],
+    ) -> Format:
+        """The format of a codec whose ``decode(frame)`` gives one message per frame."""
+        return cls(name, summary, framer, lambda frame: [decode(frame)], encode)
+
+    @classmethod
     def of_codec(cls, name: str, summary: str, codec: Callable[[], Any]) -> Format:
         """The format of a table-driven codec (one message per frame): framer, decode and
         encode from ``codec()``, called at each use (so the table is read on first use)."""
