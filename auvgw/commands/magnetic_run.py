@@ -71,13 +71,9 @@ def live(args: argparse.Namespace) -> int:
 
 
 def offline(args: argparse.Namespace) -> int:
-    """Run the stage over ``--recording`` and print its counters and its error against truth."""
-    from auvgw.commands.slam_run import (
-        _Paths,
-        check_recording,
-        replay_recording,
-        report_truth,
-    )
+    """The magnetic stage (AMB-SLAM) over ``--recording``: its counters, the beacons mapped
+    and its error against the recorded truth beside dead reckoning's."""
+    from auvgw.commands.slam_run import _Paths, check_recording, replay_recording, report_truth
     from auvgw.stages.magnetic import MagneticStage
 
     cfg = stage_config(args, "auv1")
