@@ -38,7 +38,7 @@ from auvgw.envelope import (
     encode_envelope,
     envelope_encoding,
 )
-from auvgw.errors import format_validation_error
+from auvgw.errors import UserError, format_validation_error
 
 __all__ = [
     "ENVELOPE_VERSION",
@@ -55,6 +55,7 @@ __all__ = [
     "envelope_encoding",
     "json_encoding",
     "load_bus_table",
+    "open_cli_session",
     "open_session",
     "pack_raw_attachment",
     "raw_encoding",
@@ -84,6 +85,19 @@ def open_session(cfg: BusConfig | None = None) -> zenoh.Session:
     for key, value in (cfg or BusConfig()).zenoh_json5().items():
         conf.insert_json5(key, value)
     return zenoh.open(conf)
+
+
+def open_cli_session(
+    cfg: BusConfig,
+    what: str = "cannot open the Zenoh session",
+    hint: str = "; check --connect/--listen",
+) -> zenoh.Session:
+    """:func:`open_session` for a command: a Zenoh error becomes a :class:`UserError`
+    ``"<what> (<error>)<hint>"``."""
+    try:
+        return open_session(cfg)
+    except zenoh.ZError as exc:
+        raise UserError(f"{what} ({exc}){hint}") from exc
 
 
 @dataclass(frozen=True)

@@ -58,7 +58,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
-__all__ = ["COMMANDS", "UserError", "add_command", "build_parser", "main", "open_output"]
+__all__ = [
+    "COMMANDS", "UserError", "add_command", "build_parser", "main", "open_output",
+    "study_algorithms",
+]  # fmt: skip
 
 
 def add_command(sub: Any, name: str, doc: str | None) -> argparse.ArgumentParser:
@@ -79,6 +82,19 @@ def open_output(path: Path | None) -> TextIO | None:
         return open(path, "w")
     except OSError as exc:
         raise UserError(f"{path}: cannot write: {exc.strerror}") from exc
+
+
+def study_algorithms(args: argparse.Namespace, known: Any) -> tuple[str, ...]:
+    """The names in ``--algorithms`` (comma separated), each one of ``known``; a
+    :class:`UserError` for an unknown name or a ``--runs``, ``--jobs`` or ``--particles`` below 1
+    (``slam eval``, both pipelines)."""
+    algorithms = tuple(a.strip() for a in args.algorithms.split(",") if a.strip())
+    unknown = [a for a in algorithms if a not in known]
+    if not algorithms or unknown:
+        raise UserError(f"unknown algorithm(s) {unknown}; choose from {', '.join(known)}")
+    if args.runs < 1 or args.jobs < 1 or args.particles < 1:
+        raise UserError("--runs, --jobs and --particles must be at least 1")
+    return algorithms
 
 
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:

@@ -16,6 +16,7 @@ from numpy.typing import NDArray
 
 __all__ = [
     "TWO_PI",
+    "body_to_ned_matrix",
     "chi2_ppf",
     "dcm_body_to_ned",
     "quaternion_zyx",
@@ -61,6 +62,24 @@ def rot_z(a: float) -> NDArray[np.float64]:
     """Rotation matrix about z by ``a`` rad (heading)."""
     c, s = math.cos(a), math.sin(a)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def body_to_ned_matrix(
+    heading: float, pitch: float = 0.0, roll: float = 0.0
+) -> NDArray[np.float64]:
+    """``R = Rz(heading) Ry(pitch) Rx(roll)`` written out: body axes (x forward, y starboard,
+    z down) -> NED, angles in rad (heading 0: body -> level). The emulators and the DVL adapter
+    use it; equal to :func:`dcm_body_to_ned` but for rounding."""
+    ch, sh = math.cos(heading), math.sin(heading)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cr, sr = math.cos(roll), math.sin(roll)
+    return np.array(
+        [
+            [ch * cp, ch * sp * sr - sh * cr, ch * sp * cr + sh * sr],
+            [sh * cp, sh * sp * sr + ch * cr, sh * sp * cr - ch * sr],
+            [-sp, cp * sr, cp * cr],
+        ]
+    )
 
 
 def dcm_body_to_ned(roll: float, pitch: float, heading: float) -> NDArray[np.float64]:

@@ -37,6 +37,7 @@ import sys
 import tempfile
 import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -46,13 +47,17 @@ REPO = Path(__file__).resolve().parents[1]
 # -- the reader process ------------------------------------------------------------------------
 
 
-def _read_serial(
-    ep: dict[str, Any],
-    counts: dict[str, int],
-    stop: threading.Event,
-    opened: threading.Event,
-    draining: threading.Event,
-) -> None:
+@dataclass(frozen=True)
+class _Events:
+    """One reader thread's signals: ``opened`` (it set it: its port is open), ``draining`` (the
+    run is over: no more SeaNet polls), ``stop`` (return)."""
+
+    stop: threading.Event
+    opened: threading.Event
+    draining: threading.Event
+
+
+def _read_serial(ep: dict[str, Any], counts: dict[str, int], ev: _Events) -> None:
     import serial
 
     from auvgw.drivers.formats import get_format
@@ -60,7 +65,7 @@ def _read_serial(
     fmt = get_format(ep["format"])
     framer = fmt.framer()
     s = serial.Serial(ep["target"], ep["transport"]["baud"], timeout=0.02)
-    opened.set()
+    ev.opened.set()
     host = None
     write = s.write
     if ep["format"] == "seanet":
@@ -70,7 +75,7 @@ def _read_serial(
         host = SeaNetHost(MsisPolling(**ep.get("msis", {})))
         host.on_connect(write, time.monotonic())
     try:
-        while not stop.is_set():
+        while not ev.stop.is_set():
             data = s.read(max(1, s.in_waiting))
             for fr in framer.feed(data):
                 for msg in fmt.decode(fr.data):
@@ -78,22 +83,16 @@ def _read_serial(
                         counts[ep["name"]] += 1
                         continue
                     counts[ep["name"] + (":pings" if type(msg).__name__ == "HeadData" else "")] += 1
-                    if not draining.is_set():  # the run is over: no more polls
+                    if not ev.draining.is_set():  # the run is over: no more polls
                         host.on_message(msg, write, time.monotonic())
-            if host is not None and not draining.is_set():
+            if host is not None and not ev.draining.is_set():
                 host.on_idle(write, time.monotonic())
     finally:
         s.close()
     counts[ep["name"] + ":bad"] = framer.stats.bad_frames
 
 
-def _read_can(
-    ep: dict[str, Any],
-    counts: dict[str, int],
-    stop: threading.Event,
-    opened: threading.Event,
-    draining: threading.Event,
-) -> None:
+def _read_can(ep: dict[str, Any], counts: dict[str, int], ev: _Events) -> None:
     """The adapter opened as the gateway opens it: python-can's ``slcan`` interface read in bulk
     (:class:`~auvgw.drivers.slcanbus.BulkSlcanBus`), frames decoded with the DBC."""
     from auvgw.drivers.can_codec import load_can_codec
@@ -101,9 +100,9 @@ def _read_can(
 
     codec = load_can_codec(ep["dbc"])
     bus = BulkSlcanBus(channel=ep["target"], bitrate=ep["transport"]["bitrate"], sleep_after_open=0)
-    opened.set()
+    ev.opened.set()
     try:
-        while not stop.is_set():
+        while not ev.stop.is_set():
             msg = bus.recv(0.02)
             if msg is None:
                 continue
@@ -115,13 +114,7 @@ def _read_can(
         bus.shutdown()
 
 
-def _read_udp(
-    ep: dict[str, Any],
-    counts: dict[str, int],
-    stop: threading.Event,
-    opened: threading.Event,
-    draining: threading.Event,
-) -> None:
+def _read_udp(ep: dict[str, Any], counts: dict[str, int], ev: _Events) -> None:
     import socket
 
     from auvgw.drivers.kongsberg import KongsbergFramer, decode
@@ -132,8 +125,8 @@ def _read_udp(
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
         sock.bind((tr["host"], tr["port"]))
         sock.settimeout(0.02)
-        opened.set()
-        while not stop.is_set():
+        ev.opened.set()
+        while not ev.stop.is_set():
             try:
                 data = sock.recv(1 << 16)
             except TimeoutError:
@@ -156,7 +149,7 @@ def reader_main(spec: str) -> int:
 
     def guarded(ep: dict[str, Any], ready: threading.Event) -> None:
         try:
-            kinds[ep["kind"]](ep, counts, stop, ready, draining)
+            kinds[ep["kind"]](ep, counts, _Events(stop, ready, draining))
         except Exception as exc:
             counts[ep["name"] + ":error"] += 1
             print(f"reader {ep['name']}: {exc!r}", file=sys.stderr, flush=True)

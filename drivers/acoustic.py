@@ -86,15 +86,9 @@ class AcousticFramer(AsciiLineFramer):
         super().__init__(spec, policy=policy, source=source, name="acoustic")
 
 
-def _decode(frame: bytes) -> list[Any]:
-    return [default_codec().decode(frame)]
-
-
-FORMAT = Format(
-    name="acoustic",
-    summary="an acoustic beacon (transponder/USBL) ASCII capture (auvgw assumed layout, "
+FORMAT = Format.of_codec(
+    "acoustic",
+    "an acoustic beacon (transponder/USBL) ASCII capture (auvgw assumed layout, "
     "config/acoustic.toml)",
-    framer=lambda *a, **k: default_codec().framer(*a, **k),
-    decode=_decode,
-    encode=lambda m: default_codec().encode(m),
+    default_codec,
 )

@@ -37,6 +37,30 @@ class Format:
     encode: Callable[[Any], bytes] | None = None
     read_file: Callable[..., tuple[Iterator[Frame], Framer]] | None = None
 
+    @classmethod
+    def one_per_frame(
+        cls,
+        name: str,
+        summary: str,
+        framer: Callable[..., Framer],
+        decode: Callable[[bytes], Any],
+        encode: Callable[[Any], bytes],
+    ) -> Format:
+        """The format of a codec whose ``decode(frame)`` gives one message per frame."""
+        return cls(name, summary, framer, lambda frame: [decode(frame)], encode)
+
+    @classmethod
+    def of_codec(cls, name: str, summary: str, codec: Callable[[], Any]) -> Format:
+        """The format of a table-driven codec (one message per frame): framer, decode and
+        encode from ``codec()``, called at each use (so the table is read on first use)."""
+        return cls(
+            name=name,
+            summary=summary,
+            framer=lambda *a, **k: codec().framer(*a, **k),
+            decode=lambda frame: [codec().decode(frame)],
+            encode=lambda m: codec().encode(m),
+        )
+
     def frames_of_file(
         self, path: str | Path, policy: ErrorPolicy | str = ErrorPolicy.IGNORE
     ) -> tuple[Iterator[Frame], Framer]:
@@ -66,10 +90,4 @@ def format_from_table(name: str, table: str | Path) -> Format:
         raise KeyError(f"format {name!r} has no replaceable table (only {known})")
     codec = registry.load(dev.table_codec).from_toml(table)
     base = get_format(name)
-    return Format(
-        name=name,
-        summary=f"{base.summary} [table {table}]",
-        framer=codec.framer,
-        decode=lambda frame: [codec.decode(frame)],
-        encode=codec.encode,
-    )
+    return Format.of_codec(name, f"{base.summary} [table {table}]", lambda: codec)

@@ -136,14 +136,8 @@ class Hn100Framer(BinaryFrameFramer):
         super().__init__(spec, policy=policy, source=source, name="hn100")
 
 
-def _decode(frame: bytes) -> list[Any]:
-    return [default_codec().decode(frame)]
-
-
-FORMAT = Format(
-    name="hn100",
-    summary="an HN-100 INS binary capture (auvgw assumed layout, config/hn100.toml)",
-    framer=lambda *a, **k: default_codec().framer(*a, **k),
-    decode=_decode,
-    encode=lambda m: default_codec().encode(m),
+FORMAT = Format.of_codec(
+    "hn100",
+    "an HN-100 INS binary capture (auvgw assumed layout, config/hn100.toml)",
+    default_codec,
 )

@@ -98,14 +98,8 @@ class Ms3aFramer(AsciiLineFramer):
         super().__init__(spec, policy=policy, source=source, name="ms3a")
 
 
-def _decode(frame: bytes) -> list[Any]:
-    return [default_codec().decode(frame)]
-
-
-FORMAT = Format(
-    name="ms3a",
-    summary="an MS3A magnetometer ASCII capture (auvgw assumed layout, config/ms3a.toml)",
-    framer=lambda *a, **k: default_codec().framer(*a, **k),
-    decode=_decode,
-    encode=lambda m: default_codec().encode(m),
+FORMAT = Format.of_codec(
+    "ms3a",
+    "an MS3A magnetometer ASCII capture (auvgw assumed layout, config/ms3a.toml)",
+    default_codec,
 )

@@ -1231,14 +1231,10 @@ class Pd0Framer(Framer):
             raise BadFrame(f"length: nBytes {nbytes} cannot hold the header and {ntypes} offsets")
 
 
-def _decode_frame(frame: bytes) -> list[Ensemble]:
-    return [decode(frame)]
-
-
-FORMAT = Format(
-    name="pd0",
-    summary="Teledyne RDI PD0 binary ensembles (7F 7F ... checksum)",
-    framer=Pd0Framer,
-    decode=_decode_frame,
-    encode=encode,
+FORMAT = Format.one_per_frame(
+    "pd0",
+    "Teledyne RDI PD0 binary ensembles (7F 7F ... checksum)",
+    Pd0Framer,
+    decode,
+    encode,
 )

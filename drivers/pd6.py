@@ -544,14 +544,10 @@ class Pd6Framer(Framer):
         return end + 2 - start
 
 
-def _decode_frame(frame: bytes) -> list[Any]:
-    return [decode(frame)]
-
-
-FORMAT = Format(
-    name="pd6",
-    summary="Teledyne RDI PD6 ASCII lines (:SA :TS :BI :BS :BE :BD ...)",
-    framer=Pd6Framer,
-    decode=_decode_frame,
-    encode=encode,
+FORMAT = Format.one_per_frame(
+    "pd6",
+    "Teledyne RDI PD6 ASCII lines (:SA :TS :BI :BS :BE :BD ...)",
+    Pd6Framer,
+    decode,
+    encode,
 )

@@ -54,6 +54,7 @@ from auvgw.drivers.spec import WIRE_TYPES
 from auvgw.errors import DataError
 from auvgw.fusion.frames import beam_matrix
 from auvgw.fusion.samples import DvlSample, InsSample
+from auvgw.geometry import body_to_ned_matrix
 
 __all__ = [
     "ATTITUDE_TYPES",
@@ -192,20 +193,6 @@ def janus_angle(fixed: pd0.FixedLeader) -> float:
     return math.radians(_BEAM_ANGLES_DEG[code])
 
 
-def _rot_body_to_level(heading: float, pitch: float, roll: float) -> np.ndarray:
-    """``Rz(heading) Ry(pitch) Rx(roll)`` (body -> NED, or body -> level with heading 0)."""
-    ch, sh = math.cos(heading), math.sin(heading)
-    cp, sp = math.cos(pitch), math.sin(pitch)
-    cr, sr = math.cos(roll), math.sin(roll)
-    return np.array(
-        [
-            [ch * cp, ch * sp * sr - sh * cr, ch * sp * cr + sh * sr],
-            [sh * cp, sh * sp * sr + ch * cr, sh * sp * cr - ch * sr],
-            [-sp, cp * sr, cp * cr],
-        ]
-    )
-
-
 def _bt_velocity(ens: pd0.Ensemble, frame: pd0.CoordinateFrame, high_res: bool) -> np.ndarray:
     """The 4 bottom-track components as the instrument moving over the bottom (beam: closing
     speeds as on the wire), preferring 0x5803 when valid; NaN when bad."""
@@ -282,7 +269,7 @@ def dvl_from_pd0(ens: pd0.Ensemble, t: float | None = None, high_res: bool = Tru
             pitch, roll = (var.pitch, var.roll) if fixed.tilts_used else (0.0, 0.0)
             heading = var.heading if frame is pd0.CoordinateFrame.EARTH else 0.0
             # ship/earth = SWAP R(heading, pitch, roll) v_body  =>  v_body = R^T SWAP v
-            vel = _rot_body_to_level(heading, pitch, roll).T @ (_SWAP @ vel)
+            vel = body_to_ned_matrix(heading, pitch, roll).T @ (_SWAP @ vel)
             out_frame = "body"
     if not lock:
         vel = np.full(3, math.nan)

@@ -225,7 +225,19 @@ class Channel:
         self.port.close()
 
 
-class SerialChannel(Channel):
+class _ByteChannel(Channel):
+    """A wire of bytes (serial, UDP): :meth:`send_raw` puts bytes on it as they are."""
+
+    def send_raw(self, data: bytes) -> bool:
+        """Bytes on the wire without fault injection; True if any went out."""
+        raise NotImplementedError
+
+    def flush(self) -> None:
+        """Send the held-back bad frames (end of stream)."""
+        self.send_raw(self.injector.flush())
+
+
+class SerialChannel(_ByteChannel):
     """A serial line on a pty: ``send(frame, t)`` puts one encoded frame through the injector
     and on the line. ``extra`` adds keys to the gateway device table (``table``, ``msis``)."""
 
@@ -256,11 +268,6 @@ class SerialChannel(Channel):
     def send_raw(self, data: bytes) -> bool:
         """Bytes on the line without fault injection (replies already processed)."""
         return bool(data) and self._port.write(data)
-
-    def flush(self) -> None:
-        data = self.injector.flush()
-        if data:
-            self._port.write(data)
 
     def endpoint(self) -> Endpoint:
         target = self._port.device
@@ -330,7 +337,7 @@ class CanChannel(Channel):
         return {**self.adapter.port.stats.as_dict(), **self.adapter.stats.as_dict()}
 
 
-class UdpChannel(Channel):
+class UdpChannel(_ByteChannel):
     """A UDP stream to ``host:port``: ``send(datagram, t)`` through the injector."""
 
     kind = "udp"
@@ -344,13 +351,10 @@ class UdpChannel(Channel):
         return self.sender
 
     def send(self, datagram: bytes, t: float) -> bool:
-        data = self.injector.process(datagram, t)
-        return bool(data) and self.sender.send(data)
+        return self.send_raw(self.injector.process(datagram, t))
 
-    def flush(self) -> None:
-        data = self.injector.flush()
-        if data:
-            self.sender.send(data)
+    def send_raw(self, data: bytes) -> bool:
+        return bool(data) and self.sender.send(data)
 
     def endpoint(self) -> Endpoint:
         host, port = self.sender.address

@@ -28,6 +28,7 @@ from typing import Literal
 import numpy as np
 
 from auvgw.config.scenario import ObservationSettings, Scenario, ScenarioError, Terrain
+from auvgw.geometry import body_to_ned_matrix as body_to_ned  # (heading, pitch, roll) -> R
 from auvgw.geometry import wrap_angles as wrap_angle  # arrays in, arrays out
 
 __all__ = [
@@ -298,30 +299,21 @@ def _load_grid(path: Path) -> FArray:
         raise ScenarioError(f"terrain.file {path}: cannot read a depth grid: {exc}") from exc
 
 
+#: terrain kind -> its model and the ``Terrain`` settings passed to it by keyword (sandwaves takes
+#: its direction in radians, a grid its file: both below)
+_TERRAINS: dict[str, tuple[Callable[..., TerrainModel], tuple[str, ...]]] = {
+    "flat": (FlatTerrain, ("depth_m",)),
+    "procedural": (ProceduralTerrain, ("depth_m", "relief_m", "wavelength_m", "seed", "octaves")),
+    "mixed": (MixedTerrain, ("depth_m", "relief_m", "wavelength_m", "seed", "octaves",
+                             "flat_fraction", "n_ridges", "n_mounds", "extent_m")),
+}  # fmt: skip
+
+
 def terrain_from_settings(settings: Terrain, resolve: Callable[[str], Path] = Path) -> TerrainModel:
     """The terrain model a scenario's ``terrain`` section describes (``resolve`` finds files)."""
-    if settings.kind == "flat":
-        return FlatTerrain(settings.depth_m)
-    if settings.kind == "procedural":
-        return ProceduralTerrain(
-            settings.depth_m,
-            settings.relief_m,
-            settings.wavelength_m,
-            settings.seed,
-            settings.octaves,
-        )
-    if settings.kind == "mixed":
-        return MixedTerrain(
-            settings.depth_m,
-            settings.relief_m,
-            settings.wavelength_m,
-            settings.seed,
-            settings.octaves,
-            settings.flat_fraction,
-            settings.n_ridges,
-            settings.n_mounds,
-            settings.extent_m,
-        )
+    if settings.kind in _TERRAINS:
+        model, names = _TERRAINS[settings.kind]
+        return model(**{name: getattr(settings, name) for name in names})
     if settings.kind == "sandwaves":
         return SandWaveTerrain(
             settings.depth_m,
@@ -435,21 +427,6 @@ def cast_rays(
 
 
 # -- multibeam swath -------------------------------------------------------------------------
-
-
-def body_to_ned(heading: float, pitch: float = 0.0, roll: float = 0.0) -> FArray:
-    """Rotation matrix from body axes (x forward, y starboard, z down) to NED, ZYX Euler
-    angles in radians (``R = Rz(heading) Ry(pitch) Rx(roll)``)."""
-    ch, sh = math.cos(heading), math.sin(heading)
-    cp, sp = math.cos(pitch), math.sin(pitch)
-    cr, sr = math.cos(roll), math.sin(roll)
-    return np.array(
-        [
-            [ch * cp, ch * sp * sr - sh * cr, ch * sp * cr + sh * sr],
-            [sh * cp, sh * sp * sr + ch * cr, sh * sp * cr - ch * sr],
-            [-sp, cp * sr, cp * cr],
-        ]
-    )
 
 
 @dataclass(frozen=True)

@@ -21,40 +21,27 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from typing import Any
 
-import numpy as np
-
 from auvgw.cli import UserError
-
-
-def _value(text: str) -> Any:
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError:
-        return text
 
 
 def stage_config(args: argparse.Namespace, vehicle: str) -> Any:
     """The stage's settings from ``--particles``, ``--seed``, ``--multibeam`` and ``--set``."""
     from pydantic import ValidationError
 
+    from auvgw.commands.slam_bathy import parse_sets
     from auvgw.slam.bathymetric.config import BathyConfig
     from auvgw.stages.bathymetric import BathymetricStageConfig
 
     stage: dict[str, Any] = {"vehicle": vehicle, "n_particles": args.particles, "seed": args.seed,
                              "multibeam_device": getattr(args, "multibeam", None)}  # fmt: skip
     filt: dict[str, Any] = {}
-    for item in getattr(args, "set", None) or []:
-        key, sep, text = item.partition("=")
-        key = key.strip()
-        if not sep or not key:
-            raise UserError(f"--set {item!r}: expected KEY=VALUE")
+    for key, value in parse_sets(getattr(args, "set", None)).items():
         if key in BathymetricStageConfig.model_fields and key != "filter":
-            stage[key] = _value(text)
+            stage[key] = value
         elif key in BathyConfig.model_fields:
-            filt[key] = _value(text)
+            filt[key] = value
         else:
             raise UserError(f"--set {key}: not a bathymetric stage or filter setting")
     try:
@@ -66,32 +53,20 @@ def stage_config(args: argparse.Namespace, vehicle: str) -> Any:
     return cfg
 
 
-def run(args: argparse.Namespace) -> int:
-    if args.recording is None:
-        return _live(args)
-    return _offline(args)
-
-
-def _live(args: argparse.Namespace) -> int:
-    from auvgw.commands.run import serve_stage
+def live(args: argparse.Namespace) -> int:
+    """Serve the stage on the bus (``slam run`` without ``--recording``)."""
+    from auvgw.commands.slam_run import serve_slam
     from auvgw.stages.bathymetric import BathymetricStage
 
     cfg = stage_config(args, args.vehicle)
-    stage = serve_stage(
-        args,
-        lambda session: BathymetricStage(cfg, session),
-        lambda st: (
-            f"slam running: vehicle {cfg.vehicle}, mtm-pf ({cfg.n_particles} particles) "
-            f"on {st.key('pose')}"
-        ),
-        lambda st: st.input_keys(),
-    )
-    print(f"slam counters: {json.dumps(stage.counters())}", file=sys.stderr)
-    return 0
+    name = f"mtm-pf ({cfg.n_particles} particles)"
+    return serve_slam(args, lambda session: BathymetricStage(cfg, session), name)
 
 
-def _offline(args: argparse.Namespace) -> int:
-    from auvgw.commands.slam_run import _error, _Paths, check_recording, replay_recording
+def offline(args: argparse.Namespace) -> int:
+    """The bathymetric stage (mtm-pf) over ``--recording``: its counters, pings and loop
+    closures, and its error against the recorded truth beside dead reckoning's."""
+    from auvgw.commands.slam_run import _Paths, check_recording, replay_recording, report_truth
     from auvgw.stages.bathymetric import BathymetricStage
 
     cfg = stage_config(args, "auv1")
@@ -113,18 +88,8 @@ def _offline(args: argparse.Namespace) -> int:
     finally:
         if out_file is not None:
             out_file.close()
-    truth, dr = paths.truth, paths.dr
     c = stage.counters()
     print(f"{args.recording}: {json.dumps(c['stage'])}, {c['pings']} pings, loop closures "
           f"{c['loops_accepted']} accepted / {c['loops_rejected']} rejected")  # fmt: skip
-    ins = fusion.adapter.ins_device
-    if truth and ins in fusion.adapter.clocks:
-        tr = np.asarray(sorted(truth))
-        tr[:, 0] += fusion.adapter.clocks[ins].offset
-        slam = [(t, x, y) for t, x, y, _ in stage.track]
-        for name, track in (("dead reckoning", dr), ("mtm-pf", slam)):
-            e = _error(track, tr)
-            if e is not None:
-                print(f"  {name} vs truth over {e['distance_m']:.0f} m: RMSE {e['rmse_m']:.2f} m, "
-                      f"RMSE/distance x 100 {e['rmse_pct_distance']:.3f} %")  # fmt: skip
+    report_truth(fusion, paths, stage.track, "mtm-pf")
     return 0

@@ -822,14 +822,18 @@ def _print_slam(name: str, counters: dict[str, Any], err: dict[str, float] | Non
         print(f"slam: {st['pings']} scan lines, {st['point_features']} point and "
               f"{st['line_features']} line features, {st['updates']} updates, "
               f"{counters['landmarks']} landmarks")  # fmt: skip
+    _print_vs_truth(f"SLAM ({name})", err, "not enough SLAM poses or truth to compare", paper)
+
+
+def _print_vs_truth(label: str, err: dict[str, float] | None, missing: str, tail: str = "") -> None:
+    """``<label> vs truth``: the error (m, RMSE / distance x 100, then ``tail``), or ``missing``
+    without one."""
     if err is None:
-        print(f"SLAM ({name}) vs truth: not enough SLAM poses or truth to compare")
+        print(f"{label} vs truth: {missing}")
         return
-    print(
-        f"SLAM ({name}) vs truth over {err['distance_m']:.0f} m: RMSE {err['rmse_m']:.2f} m "
-        f"(x {err['rmse_x_m']:.2f}, y {err['rmse_y_m']:.2f}), final {err['final_m']:.2f} m, "
-        f"RMSE/distance x 100 {err['rmse_pct_distance']:.3f} %{paper}"
-    )
+    print(f"{label} vs truth over {err['distance_m']:.0f} m: RMSE {err['rmse_m']:.2f} m "
+          f"(x {err['rmse_x_m']:.2f}, y {err['rmse_y_m']:.2f}), final {err['final_m']:.2f} m, "
+          f"RMSE/distance x 100 {err['rmse_pct_distance']:.3f} %{tail}")  # fmt: skip
 
 
 # -- the bathymetric pipeline on survey scenarios (issue 14) -----------------------------------
@@ -999,13 +1003,8 @@ def _print_magnetic(
     print(f"magnetic stage: {st['mag']} magnetometer samples, {st['acoustic']} acoustic fixes, "
           f"{st['observations']} beacon observations, {counters['landmarks']} beacons mapped, "
           f"{st['bad_payloads']} bad payloads")  # fmt: skip
-    if err is None:
-        print(f"{name} vs truth: not enough poses or truth to compare")
-        return
-    print(f"{name} vs truth over {err['distance_m']:.0f} m: RMSE {err['rmse_m']:.2f} m "
-          f"(x {err['rmse_x_m']:.2f}, y {err['rmse_y_m']:.2f}), final {err['final_m']:.2f} m, "
-          f"RMSE/distance x 100 {err['rmse_pct_distance']:.3f} %")  # fmt: skip
-    if dr is not None:
+    _print_vs_truth(name, err, "not enough poses or truth to compare")
+    if err is not None and dr is not None:
         print(f"  dead reckoning: RMSE/distance x 100 {dr['rmse_pct_distance']:.3f} %; "
               f"{name} / dead reckoning RMSE: {err['rmse_m'] / dr['rmse_m']:.2f}")  # fmt: skip
 

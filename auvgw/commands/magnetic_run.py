@@ -25,8 +25,6 @@ import argparse
 import json
 from typing import Any
 
-import numpy as np
-
 from auvgw.cli import UserError
 
 
@@ -63,13 +61,8 @@ def stage_config(args: argparse.Namespace, vehicle: str) -> Any:
         raise UserError(f"{args.scenario}: {exc}") from None
 
 
-def run(args: argparse.Namespace) -> int:
-    if args.recording is None:
-        return _live(args)
-    return _offline(args)
-
-
-def _live(args: argparse.Namespace) -> int:
+def live(args: argparse.Namespace) -> int:
+    """Serve the stage on the bus (``slam run`` without ``--recording``)."""
     from auvgw.commands.slam_run import serve_slam
     from auvgw.stages.magnetic import MagneticStage
 
@@ -77,8 +70,10 @@ def _live(args: argparse.Namespace) -> int:
     return serve_slam(args, lambda session: MagneticStage(cfg, session), "AMB-SLAM")
 
 
-def _offline(args: argparse.Namespace) -> int:
-    from auvgw.commands.slam_run import _error, _Paths, check_recording, replay_recording
+def offline(args: argparse.Namespace) -> int:
+    """The magnetic stage (AMB-SLAM) over ``--recording``: its counters, the beacons mapped
+    and its error against the recorded truth beside dead reckoning's."""
+    from auvgw.commands.slam_run import _Paths, check_recording, replay_recording, report_truth
     from auvgw.stages.magnetic import MagneticStage
 
     cfg = stage_config(args, "auv1")
@@ -86,17 +81,7 @@ def _offline(args: argparse.Namespace) -> int:
     stage = MagneticStage(cfg)
     paths = _Paths()
     fusion = replay_recording(args, stage, paths, flush=False)
-    dr, truth = paths.dr, paths.truth
     c = stage.counters()
     print(f"{args.recording}: {json.dumps(c['stage'])}, {c['landmarks']} beacons mapped")
-    ins = fusion.adapter.ins_device
-    if truth and ins in fusion.adapter.clocks:
-        tr = np.asarray(sorted(truth))
-        tr[:, 0] += fusion.adapter.clocks[ins].offset
-        slam = [(t, x, y) for t, x, y, _ in stage.track]
-        for name, track in (("dead reckoning", dr), ("AMB-SLAM", slam)):
-            e = _error(track, tr)
-            if e is not None:
-                print(f"  {name} vs truth over {e['distance_m']:.0f} m: RMSE {e['rmse_m']:.2f} m, "
-                      f"RMSE/distance x 100 {e['rmse_pct_distance']:.3f} %")  # fmt: skip
+    report_truth(fusion, paths, stage.track, "AMB-SLAM")
     return 0

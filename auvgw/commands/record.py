@@ -22,7 +22,7 @@ from typing import Any
 
 import zenoh
 
-from auvgw.bus import InputWatch, Keys, add_bus_arguments, bus_from_args, open_session
+from auvgw.bus import InputWatch, Keys, add_bus_arguments, bus_from_args, open_cli_session
 from auvgw.cli import UserError, add_command
 from auvgw.commands.run import handle_stop_signals
 from auvgw.recording import McapRecorder
@@ -134,10 +134,7 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--duration must be > 0 seconds, got {args.duration}")
     keys = Keys(args.vehicle)
     stop = threading.Event()
-    try:
-        session = open_session(bus)
-    except zenoh.ZError as exc:
-        raise UserError(f"cannot open the Zenoh session ({exc}); check --connect/--listen") from exc
+    session = open_cli_session(bus)
     try:
         try:
             rec = McapRecorder(out, args.vehicle)

@@ -32,7 +32,7 @@ from auvgw.bus import (
     bus_from_args,
     encode_envelope,
     json_encoding,
-    open_session,
+    open_cli_session,
     raw_encoding,
     unpack_raw_attachment,
 )
@@ -128,10 +128,7 @@ def run(args: argparse.Namespace) -> int:
     keys = Keys(vehicle)
     served = cfg.model_copy(update={"vehicle": vehicle}).model_dump_json().encode()
     stop = threading.Event()
-    try:
-        session = open_session(bus)
-    except zenoh.ZError as exc:
-        raise UserError(f"cannot open the Zenoh session ({exc}); check --connect/--listen") from exc
+    session = open_cli_session(bus)
     sent: Counter[str] = Counter()
     errors = 0
     pubs: dict[str, zenoh.Publisher] = {}

@@ -11,10 +11,9 @@ import threading
 from pathlib import Path
 from typing import Any
 
-import zenoh
 from pydantic import ValidationError
 
-from auvgw.bus import load_bus_table, open_session
+from auvgw.bus import load_bus_table, open_cli_session
 from auvgw.cli import UserError
 from auvgw.commands.run import handle_stop_signals
 from auvgw.config.bus import DEFAULT_ENDPOINT, BusConfig, default_endpoint
@@ -57,10 +56,7 @@ def run(args: argparse.Namespace) -> int:
     except ValidationError as exc:
         raise UserError(format_validation_error(exc, "bus").replace("\n", "; ")) from exc
     stop = threading.Event()
-    try:
-        session = open_session(cfg)
-    except zenoh.ZError as exc:
-        raise UserError(f"cannot start the router ({exc}); is the port free?") from exc
+    session = open_cli_session(cfg, "cannot start the router", "; is the port free?")
     try:
         with handle_stop_signals(stop):
             print(f"auvgw router {session.zid()} listening on {', '.join(cfg.listen)}", flush=True)

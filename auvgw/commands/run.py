@@ -115,7 +115,7 @@ def serve_stage(
     ``inputs(stage)``: its input key expressions, watched for "no publisher"
     (:class:`~auvgw.bus.InputWatch`). Returns the stopped stage (for its counters); bad options
     are a :class:`UserError`."""
-    from auvgw.bus import InputWatch, bus_from_args, open_session
+    from auvgw.bus import InputWatch, bus_from_args, open_cli_session
 
     if args.duration is not None and not args.duration > 0:
         raise UserError(f"--duration must be > 0, got {args.duration}")
@@ -123,12 +123,9 @@ def serve_stage(
         bus = bus_from_args(args)
     except ValueError as exc:
         raise UserError(str(exc)) from None
-    try:
-        session = open_session(bus)
-    except zenoh.ZError as exc:
-        raise UserError(
-            f"bus: cannot open the Zenoh session ({exc}); check --listen/--connect"
-        ) from exc
+    session = open_cli_session(
+        bus, "bus: cannot open the Zenoh session", "; check --listen/--connect"
+    )
     stop = threading.Event()
     try:
         stage = make(session)

@@ -27,7 +27,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from auvgw.cli import UserError
+from auvgw.cli import UserError, study_algorithms
 
 __all__ = ["command_line", "parse_noise", "register", "run"]
 
@@ -215,12 +215,7 @@ def _run_landmark(args: argparse.Namespace, executor: Any) -> int:
     from auvgw.slam.evaluation.runner import Study
     from auvgw.slam.landmark.registry import ALGORITHMS
 
-    algorithms = tuple(a.strip() for a in args.algorithms.split(",") if a.strip())
-    unknown = [a for a in algorithms if a not in ALGORITHMS]
-    if not algorithms or unknown:
-        raise UserError(f"unknown algorithm(s) {unknown}; choose from {', '.join(ALGORITHMS)}")
-    if args.runs < 1 or args.jobs < 1 or args.particles < 1:
-        raise UserError("--runs, --jobs and --particles must be at least 1")
+    algorithms = study_algorithms(args, ALGORITHMS)
     if args.association == "jcbb" and any(not a.endswith("ekf") for a in algorithms):
         raise UserError("--association jcbb is for the EKF family (ekf, shekf, stekf, caekf)")
     try:

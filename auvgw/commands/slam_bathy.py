@@ -21,7 +21,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from auvgw.cli import UserError
+from auvgw.cli import UserError, study_algorithms
 from auvgw.errors import format_validation_error
 
 __all__ = ["command_line", "parse_sets", "run"]
@@ -77,12 +77,7 @@ def run(args: argparse.Namespace) -> int:
     from auvgw.slam.evaluation.executor import ExecutorError, open_executor
 
     args.algorithms = args.algorithms or "mtm-pf,bpslam,dr"
-    algorithms = tuple(a.strip() for a in args.algorithms.split(",") if a.strip())
-    unknown = [a for a in algorithms if a not in FILTERS]
-    if not algorithms or unknown:
-        raise UserError(f"unknown algorithm(s) {unknown}; choose from {', '.join(FILTERS)}")
-    if args.runs < 1 or args.jobs < 1 or args.particles < 1:
-        raise UserError("--runs, --jobs and --particles must be at least 1")
+    algorithms = study_algorithms(args, FILTERS)
     try:
         cfg = BathyConfig(**{"n_particles": args.particles, **parse_sets(args.set)})
     except ValidationError as exc:

@@ -180,14 +180,11 @@ def _stage_config(args: argparse.Namespace, vehicle: str = "auv1") -> Any:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.pipeline == "magnetic":
-        from auvgw.commands import magnetic_run
+    if args.pipeline in ("magnetic", "bathymetric"):
+        from auvgw.commands import bathy_run, magnetic_run
 
-        return magnetic_run.run(args)
-    if args.pipeline == "bathymetric":
-        from auvgw.commands import bathy_run
-
-        return bathy_run.run(args)
+        module = magnetic_run if args.pipeline == "magnetic" else bathy_run
+        return module.live(args) if args.recording is None else module.offline(args)
     if args.recording is None:
         if args.out is not None or args.fusion_settings is not None:
             raise UserError("--out and --fusion-settings are for --recording (offline) runs")
@@ -257,6 +254,24 @@ def replay_recording(
     except RecordingError as exc:
         raise UserError(str(exc)) from None
     return fusion
+
+
+def report_truth(fusion: Any, paths: _Paths, track: list[Any], name: str) -> None:
+    """Print dead reckoning's (``paths.dr``) and the stage's error against the recording's truth
+    (``paths.truth``, simulation time moved to the odometry clock): RMSE (m) over the distance
+    (m) and RMSE / distance x 100 (``track``: the stage's ``(t s, x m, y m, ...)`` poses;
+    ``name``: the stage's name in the lines). Prints nothing without truth or INS clock."""
+    ins = fusion.adapter.ins_device
+    if not paths.truth or ins not in fusion.adapter.clocks:
+        return
+    tr = np.asarray(sorted(paths.truth))
+    tr[:, 0] += fusion.adapter.clocks[ins].offset
+    slam = [(t, x, y) for t, x, y, *_ in track]
+    for label, est in (("dead reckoning", paths.dr), (name, slam)):
+        e = _error(est, tr)
+        if e is not None:
+            print(f"  {label} vs truth over {e['distance_m']:.0f} m: RMSE {e['rmse_m']:.2f} m, "
+                  f"RMSE/distance x 100 {e['rmse_pct_distance']:.3f} %")  # fmt: skip
 
 
 def _offline(args: argparse.Namespace) -> int:

@@ -212,15 +212,11 @@ def run(args: argparse.Namespace) -> int:
             "to this process will be heard",
             file=sys.stderr,
         )
-    import zenoh
 
-    from auvgw.bus import open_session
+    from auvgw.bus import open_cli_session
     from auvgw.viz.stage import open_viz
 
-    try:
-        session = open_session(bus)
-    except zenoh.ZError as exc:
-        raise UserError(f"bus: cannot open the Zenoh session ({exc})") from exc
+    session = open_cli_session(bus, "bus: cannot open the Zenoh session", "")
     stop = threading.Event()
     try:
         runner = open_viz(session, vehicle, rrd=args.rrd, connect=args.connect, options=options)

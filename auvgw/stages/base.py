@@ -52,7 +52,7 @@ from auvgw.bus import SCHEMA_VERSION, Envelope, Keys, decode_envelope, json_enco
 from auvgw.fusion.odometry import Odometry
 from auvgw.stages import join_draining, log_bad_payload
 
-__all__ = ["DROP", "BusCounters", "Stage"]
+__all__ = ["DROP", "BusCounters", "PipelineStage", "Stage"]
 
 log = logging.getLogger(__name__)
 
@@ -344,3 +344,33 @@ class Stage:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+
+class PipelineStage(Stage):
+    """A SLAM pipeline stage (bathymetric, magnetic): output ``what`` on
+    ``auv/<v>/slam/<name>/<what>`` as JSON of type ``<schema_prefix><What>``, status and
+    liveliness as ``slam-<name>``, every decoded bus message counted as ``received``."""
+
+    #: the JSON type of output ``what`` is this prefix + ``what.capitalize()``
+    schema_prefix: ClassVar[str] = ""
+
+    @property
+    def component(self) -> str:
+        """``slam-<name>``."""
+        return f"slam-{self.name}"
+
+    def key(self, what: str) -> str:
+        """``auv/<v>/slam/<name>/<what>``."""
+        return self.keys.slam(self.name, what)
+
+    def _put(self, what: str, body: dict[str, Any], t: float) -> None:
+        self.publish_json(what, body, t, f"{self.schema_prefix}{what.capitalize()}")
+
+    def dispatch(self, env: Envelope, message: Any) -> None:
+        """One decoded bus message (counted as received)."""
+        with self._lock:
+            self.stats.received += 1
+        super().dispatch(env, message)
+
+    #: one bus payload: decoded, dispatched; a malformed one is counted and logged
+    handle = Stage.handle_sample

@@ -49,12 +49,12 @@ import numpy as np
 import zenoh
 from pydantic import BaseModel, ConfigDict, Field
 
-from auvgw.bus import Envelope, Keys
+from auvgw.bus import Keys
 from auvgw.fusion.odometry import Odometry
 from auvgw.slam.bathymetric.config import BathyConfig
 from auvgw.slam.bathymetric.evaluate import grid_dem
 from auvgw.slam.bathymetric.online import OnlineBathy
-from auvgw.stages.base import BusCounters, Stage
+from auvgw.stages.base import BusCounters, PipelineStage
 
 log = logging.getLogger(__name__)
 
@@ -129,17 +129,17 @@ def swath_soundings(msg: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     )
 
 
-class BathymetricStage(Stage):
+class BathymetricStage(PipelineStage):
     """Odometry + multibeam swaths -> mtm-pf (see the module docstring).
 
     ``session``: publish on it (None: in-process only); ``on_publish(key, payload, t_ns)`` is
     called at every publication."""
 
     name = PIPELINE
+    schema_prefix = "Bathymetric"
     status_schema = "BathymetricStatus"
     outputs = ("pose", "map", "cloud")
     stats: BathymetricStats
-    component = f"slam-{PIPELINE}"  # type: ignore[assignment,unused-ignore]
 
     def __init__(
         self,
@@ -162,10 +162,6 @@ class BathymetricStage(Stage):
         self._odo: deque[tuple[float, float, float]] = deque()  # x, y, unwrapped heading
         self._swaths: deque[tuple[float, Any]] = deque()
         self._last_xy: tuple[float, float] | None = None
-
-    def key(self, what: str) -> str:
-        """``auv/<v>/slam/bathymetric/<what>``."""
-        return self.keys.slam(PIPELINE, what)
 
     def input_keys(self) -> list[str]:
         """Odometry and the multibeam's XYZ 88 and Depth datagrams."""
@@ -253,9 +249,6 @@ class BathymetricStage(Stage):
                 self._publish_map(t, self.config.map_period_pings)
 
     # -- outputs ---------------------------------------------------------------------------------
-    def _put(self, what: str, body: dict[str, Any], t: float) -> None:
-        self.publish_json(what, body, t, f"Bathymetric{what.capitalize()}")
-
     def _publish_pose(
         self, t: float, est: np.ndarray, heading: float, dr: tuple[float, float]
     ) -> None:
@@ -310,13 +303,3 @@ class BathymetricStage(Stage):
             self._swaths.clear()
             if self.online.pings > 0 and self.ping_times:
                 self._publish_map(self.ping_times[-1], None)
-
-    # -- on the bus ------------------------------------------------------------------------------
-    def dispatch(self, env: Envelope, message: Any) -> None:
-        """One decoded bus message (counted as received)."""
-        with self._lock:
-            self.stats.received += 1
-        super().dispatch(env, message)
-
-    #: one bus payload: decoded, dispatched; a malformed one is counted and logged
-    handle = Stage.handle_sample

@@ -55,7 +55,7 @@ import numpy as np
 import zenoh
 from pydantic import BaseModel, ConfigDict, Field
 
-from auvgw.bus import Envelope, Keys
+from auvgw.bus import Keys
 from auvgw.drivers import registry
 from auvgw.fusion.odometry import Odometry
 from auvgw.slam.history import StateHistory
@@ -63,7 +63,7 @@ from auvgw.slam.magnetic.filters import MAGNETIC_ALGORITHMS, make_magnetic
 from auvgw.slam.magnetic.mlp import MLP
 from auvgw.slam.magnetic.online import MagneticOnline
 from auvgw.slam.models import VelocityModel
-from auvgw.stages.base import BusCounters, Stage
+from auvgw.stages.base import BusCounters, PipelineStage
 
 log = logging.getLogger(__name__)
 
@@ -147,13 +147,14 @@ class MagneticStats(BusCounters):
     published: int = 0  #: pose publications
 
 
-class MagneticStage(Stage):
+class MagneticStage(PipelineStage):
     """Odometry + magnetometer + acoustic beacon -> AMB-SLAM (see the module docstring).
 
     ``session``: publish on it (None: in-process only); ``on_publish(key, payload, t_ns)`` is
     called at every publication."""
 
     name = PIPELINE
+    schema_prefix = "Magnetic"
     status_schema = "MagneticStatus"
     outputs = ("pose", "landmarks", "observations")
     stats: MagneticStats
@@ -186,12 +187,6 @@ class MagneticStage(Stage):
         self._t0 = cfg.clock_epoch_s  # vehicle clock zero on the input clock, s
         self._mag_device = cfg.mag_device
         self._counter: tuple[int, int] | None = None  # (last raw counter, wraps * modulus)
-
-    component = f"slam-{PIPELINE}"  # type: ignore[assignment]
-
-    def key(self, what: str) -> str:
-        """``auv/<v>/slam/magnetic/<what>``."""
-        return self.keys.slam(PIPELINE, what)
 
     def input_keys(self) -> list[str]:
         """Odometry, the magnetometer and the acoustic beacon of any device."""
@@ -331,9 +326,6 @@ class MagneticStage(Stage):
                 self._publish_pose(landmarks=True, t_mag=t)
 
     # -- outputs ---------------------------------------------------------------------------------
-    def _put(self, what: str, body: dict[str, Any], t: float) -> None:
-        self.publish_json(what, body, t, f"Magnetic{what.capitalize()}")
-
     def _pose_due(self) -> bool:
         p = self.config.publish_period_s
         return self._t_pub is None or self._t_odo - self._t_pub >= p
@@ -371,13 +363,3 @@ class MagneticStage(Stage):
         with self._lock:
             if self.online is not None and self._t_pub is not None:
                 self._publish_pose(landmarks=True)
-
-    # -- on the bus ------------------------------------------------------------------------------
-    def dispatch(self, env: Envelope, message: Any) -> None:
-        """One decoded bus message (counted as received)."""
-        with self._lock:
-            self.stats.received += 1
-        super().dispatch(env, message)
-
-    #: one bus payload: decoded, dispatched; a malformed one is counted and logged
-    handle = Stage.handle_sample
