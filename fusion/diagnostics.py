@@ -7,9 +7,16 @@ and standard deviation: 0 and 1 for a consistent filter) and the adapted DVL noi
 warnings:
 
 * ``dvl_rejections``: more than ``max_reject_share`` (1/3) of the window's fixes were rejected;
-* ``nis_inconsistent``: over a full window the summed NIS of the accepted fixes is outside the
-  two-sided ``nis_probability`` (99 %) chi-square interval of their degrees of freedom (the
-  noise the filter assumes does not match the data).
+* ``nis_inconsistent``: over a full window the summed NIS of the accepted fixes is above the
+  two-sided ``nis_probability`` (99 %) chi-square interval of their degrees of freedom: the
+  filter is overconfident (it assumes less noise than the data have), so it rejects good fixes
+  and its sigma understates its error.
+
+A NIS below the interval (``nis_consistent`` false, ``nis_side`` "low") is a conservative filter:
+its process or measurement noise is larger than the data need (a Pathfinder with the default
+cheap-DVL velocity random walk shows NIS ~0.05 per degree of freedom). It is reported in the
+summary as the note ``nis_conservative``, not as a warning: its sigma overstates its error, it
+does not lose fixes.
 
 Pure computation (no transports): the bus stage publishes :meth:`FusionDiagnostics.summary`.
 """
@@ -122,12 +129,18 @@ class FusionDiagnostics:
                 f"dvl_rejections: {rejected} of {n} DVL fixes rejected in the last "
                 f"{self.window_s:g} s (more than {100 * self.max_reject_share:.0f} %)"
             )
-        if full and consistent is False:
-            warnings.append(
-                f"nis_inconsistent: mean DVL NIS per degree of freedom {nis_sum / dof:.2f} over "
-                f"the last {self.window_s:g} s (expected 1, {100 * self.nis_probability:g} % "
-                f"interval {lo / dof:.2f}-{hi / dof:.2f})"
+        notes = []
+        side = None if consistent is not False else ("high" if nis_sum > hi else "low")
+        if full and side is not None:
+            text = (
+                f"mean DVL NIS per degree of freedom {nis_sum / dof:.2f} over the last "
+                f"{self.window_s:g} s (expected 1, {100 * self.nis_probability:g} % interval "
+                f"{lo / dof:.2f}-{hi / dof:.2f})"
             )
+            if side == "high":
+                warnings.append(f"nis_inconsistent: {text}")
+            else:
+                notes.append(f"nis_conservative: {text}")
         tot = self.total_fixes
         return {
             "window_s": self.window_s,
@@ -140,6 +153,7 @@ class FusionDiagnostics:
                 "nis_mean_per_dof": nis_sum / dof if dof else None,
                 "nis_interval_per_dof": [lo / dof, hi / dof] if dof else None,
                 "nis_consistent": consistent,
+                "nis_side": side,
                 "innovation_mean": inn_mean,
                 "innovation_std": inn_std,
             },
@@ -152,6 +166,7 @@ class FusionDiagnostics:
             },
             "dvl_noise_sigma_mps": [_finite(s) for s in self.noise_sigma],
             "warnings": warnings,
+            "notes": notes,
         }
 
 

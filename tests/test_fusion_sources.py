@@ -231,6 +231,14 @@ def test_diagnostics_warn_on_rejections_and_on_a_minute_of_inconsistent_nis():
     for i in range(30, 62):
         d2.add_fix(FixRecord(float(i), True, False, 30.0, 3, ok))
     assert [w.split(":")[0] for w in d2.summary()["warnings"]] == ["nis_inconsistent"]
+    assert d2.summary()["window"]["nis_side"] == "high"
+    # NIS 20 times too small for a minute: a conservative filter, a note and not a warning
+    d4 = FusionDiagnostics(window_s=60.0)
+    for i in range(62):
+        d4.add_fix(FixRecord(float(i), True, False, 0.15, 3, ok))
+    s4 = d4.summary()
+    assert s4["warnings"] == [] and s4["window"]["nis_side"] == "low"
+    assert [w.split(":")[0] for w in s4["notes"]] == ["nis_conservative"]
     # rejections: a third is tolerated, more is not
     d3 = FusionDiagnostics(window_s=60.0)
     for i in range(30):
