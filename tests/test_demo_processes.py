@@ -6,13 +6,12 @@ collects; its summary is read back and checked against the emulator's ground tru
 
 from __future__ import annotations
 
-import json
 import math
 import re
-import subprocess
-import sys
 
 import pytest
+
+from auvgw.testing import run_demo_processes
 
 DURATION_S = 40.0
 SPEED = 2.0  # 4x on a loaded 2-core machine: host stalls x 4 reset the INS clock offset
@@ -22,19 +21,8 @@ INS_RATE_HZ = 100.0
 @pytest.fixture(scope="module")
 def processes_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("demo-processes")
-    demo = subprocess.Popen(
-        [sys.executable, "-m", "auvgw", "demo", "--processes", "--scenario", "harbour",
-         "--duration", str(DURATION_S), "--speed", str(SPEED), "--no-viz", "--out", str(out)],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-    )  # fmt: skip
-    try:
-        stdout, _ = demo.communicate(timeout=150)
-    finally:
-        if demo.poll() is None:
-            demo.kill()
-            demo.wait()
-    assert demo.returncode == 0, stdout
-    return out, demo.pid, stdout, json.loads((out / "summary.json").read_text())
+    pid, stdout, summary = run_demo_processes(out, "harbour", DURATION_S, SPEED, 150)
+    return out, pid, stdout, summary
 
 
 def test_every_part_ran_in_its_own_process_and_exited_cleanly(processes_run) -> None:

@@ -6,11 +6,9 @@ odometry it was given, and a seabed map that matches the true terrain."""
 
 from __future__ import annotations
 
-import json
-import subprocess
-import sys
-
 import pytest
+
+from auvgw.testing import run_demo_processes
 
 DURATION_S = 120.0  # 200 m of the first survey line at 1.7 m/s
 SPEED = 3.0
@@ -19,19 +17,8 @@ SPEED = 3.0
 @pytest.fixture(scope="module")
 def survey_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("demo-survey")
-    demo = subprocess.Popen(
-        [sys.executable, "-m", "auvgw", "demo", "--processes", "--scenario", "survey",
-         "--duration", str(DURATION_S), "--speed", str(SPEED), "--no-viz", "--out", str(out)],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-    )  # fmt: skip
-    try:
-        stdout, _ = demo.communicate(timeout=300)
-    finally:
-        if demo.poll() is None:
-            demo.kill()
-            demo.wait()
-    assert demo.returncode == 0, stdout
-    return out, stdout, json.loads((out / "summary.json").read_text())
+    _, stdout, summary = run_demo_processes(out, "survey", DURATION_S, SPEED, 300)
+    return out, stdout, summary
 
 
 def test_bathymetric_stage_ran_in_its_own_process(survey_run) -> None:

@@ -16,6 +16,8 @@ import sys
 
 import pytest
 
+from auvgw.testing import run_demo_processes
+
 DURATION_S = 120.0  # 600 m: the first leg and five beacons
 SPEED = 4.0
 MAG_RATE_HZ = 20.0
@@ -24,19 +26,8 @@ MAG_RATE_HZ = 20.0
 @pytest.fixture(scope="module")
 def beacons_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("magnetic-e2e")
-    demo = subprocess.Popen(
-        [sys.executable, "-m", "auvgw", "demo", "--processes", "--scenario", "beacons",
-         "--duration", str(DURATION_S), "--speed", str(SPEED), "--no-viz", "--out", str(out)],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-    )  # fmt: skip
-    try:
-        stdout, _ = demo.communicate(timeout=240)
-    finally:
-        if demo.poll() is None:
-            demo.kill()
-            demo.wait()
-    assert demo.returncode == 0, stdout
-    return out, stdout, json.loads((out / "summary.json").read_text())
+    _, stdout, summary = run_demo_processes(out, "beacons", DURATION_S, SPEED, 240)
+    return out, stdout, summary
 
 
 def test_every_part_ran_in_its_own_process(beacons_run) -> None:

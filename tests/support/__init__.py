@@ -26,6 +26,7 @@ from auvgw.testing.processes import (
     Procs,
     endpoint,
     free_port,
+    run_demo_processes,
 )
 from auvgw.testing.ptys import PtyDevice
 from auvgw.testing.waiting import wait_until
@@ -44,6 +45,7 @@ __all__ = [
     "local_decoded",
     "pd0_frames",
     "read_jsonl",
+    "run_demo_processes",
     "wait_until",
     "write_gateway_toml",
 ]

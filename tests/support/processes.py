@@ -7,17 +7,30 @@ happened (:func:`auvgw.procs.stop_process`).
 
 from __future__ import annotations
 
+import json
 import os
 import queue
 import signal
 import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 from auvgw.procs import endpoint, free_port, stop_process
 
-__all__ = ["AUVGW", "PYTHON", "REPO", "SUBSCRIBER", "Proc", "Procs", "endpoint", "free_port"]
+__all__ = [
+    "AUVGW",
+    "PYTHON",
+    "REPO",
+    "SUBSCRIBER",
+    "Proc",
+    "Procs",
+    "endpoint",
+    "free_port",
+    "run_demo_processes",
+]
 
 #: the repository (this file is tests/support/processes.py)
 REPO = Path(__file__).resolve().parents[2]
@@ -111,3 +124,23 @@ class Procs:
     def stop_all(self) -> None:
         for p in reversed(self.procs):
             p.stop()
+
+
+def run_demo_processes(
+    out: Path, scenario: str, duration_s: float, speed: float, timeout_s: float
+) -> tuple[int, str, dict[str, Any]]:
+    """``auvgw demo --processes --scenario S --no-viz`` into ``out``, waited for up to
+    ``timeout_s``: (the demo's pid, its output, its ``summary.json``); it must exit 0."""
+    demo = subprocess.Popen(
+        [sys.executable, "-m", "auvgw", "demo", "--processes", "--scenario", scenario,
+         "--duration", str(duration_s), "--speed", str(speed), "--no-viz", "--out", str(out)],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )  # fmt: skip
+    try:
+        stdout, _ = demo.communicate(timeout=timeout_s)
+    finally:
+        if demo.poll() is None:
+            demo.kill()
+            demo.wait()
+    assert demo.returncode == 0, stdout
+    return demo.pid, stdout, json.loads((out / "summary.json").read_text())
