@@ -139,7 +139,9 @@ class _Track:
 
 
 def _path_error(est: _Track, truth: _Track) -> dict[str, float] | None:
-    """Horizontal error of ``est`` against ``truth`` (interpolated at the estimate's times)."""
+    """Horizontal error of ``est`` against ``truth`` (interpolated at the estimate's times);
+    ``samples``: the estimates scored, ``outside_truth``: those left out, stamped outside the
+    truth log's span (the last swath's pose may be stamped after the last truth sample)."""
     te, xe, ye = est.arrays()
     tt, xt, yt = truth.arrays()
     if len(te) < 2 or len(tt) < 2:
@@ -156,6 +158,7 @@ def _path_error(est: _Track, truth: _Track) -> dict[str, float] | None:
     rmse = float(np.sqrt(np.mean(err**2)))
     return {
         "samples": len(te),
+        "outside_truth": int(len(keep) - len(te)),
         "distance_m": dist,
         "rmse_m": rmse,
         "rmse_x_m": float(np.sqrt(np.mean(ex**2))),
@@ -568,6 +571,25 @@ class _Collector:
 
         undeclare(self._subs)
 
+    def wait_stopped(
+        self, components: list[str], map_tap: _BathyMapTap | None, limit_s: float = 10.0
+    ) -> None:
+        """Wait (at most ``limit_s``) for the last status of each stage in ``components`` (its
+        ``stopped`` status, put after every pose and odometry sample it published) and, with
+        ``map_tap``, for the whole map that went out before it (a lower-priority output, so it
+        may arrive after the status)."""
+        end = time.monotonic() + limit_s
+        while time.monotonic() < end:
+            with self.lock:
+                last = [self.status.get(c) or {} for c in components]
+            done = all(st.get("stopped") for st in last)
+            if done and map_tap is not None:
+                pings = last[-1].get("pings")
+                done = bool(map_tap.last) and json.loads(map_tap.last[-1]).get("pings") == pings
+            if done:
+                return
+            time.sleep(0.05)
+
     def timing(self) -> dict[str, Any]:
         """How the odometry envelopes' stamps advanced: the vehicle time of the first, their
         span (vehicle s) and their rate against the host clock of their arrival (stamped s per
@@ -591,6 +613,13 @@ class _Collector:
             "stamp_span_s": float(st[-1, 0] - st[0, 0]),
             "stamp_rate": rate if len(live) > 1 else None,
         }
+
+
+def _slam_component(bathy: bool, magnetic: bool, slam_cfg: Any) -> str:
+    """The status component of the demo's SLAM stage."""
+    if bathy:
+        return "slam-bathymetric"
+    return MAGNETIC_COMPONENT if magnetic else f"slam-{slam_cfg.pipeline_name}"
 
 
 def _wait_alive(
@@ -724,7 +753,9 @@ def _run_processes(
         status = sub.status(timeout=2.0) or collector.status.get("gateway") or {"devices": {}}
         for name in ("gateway", "fusion", "slam", "sim"):
             children.stop(name)
-        time.sleep(0.5)  # the stages' last status samples
+        stages = ["fusion"] if "slam" not in children.procs else ["fusion", _slam_component(
+            bathy, magnetic, slam_cfg)]  # fmt: skip
+        collector.wait_stopped(stages, map_tap)
     finally:
         children.close()
         if collector is not None:

@@ -86,6 +86,10 @@ class Stage:
     status_schema: ClassVar[str | None] = None
     #: output names, each declared as a publisher on :meth:`key` at :meth:`start`
     outputs: ClassVar[tuple[str, ...]] = ()
+    #: outputs of bulk data (maps, point clouds) put at ``Priority.DATA_LOW``: Zenoh keeps a
+    #: transmission queue per priority, so a burst of them cannot fill the queue the small
+    #: outputs (poses) wait in and have those dropped (DROP gives up on a full queue after 1 ms)
+    bulk_outputs: ClassVar[frozenset[str]] = frozenset()
 
     def __init__(
         self,
@@ -190,13 +194,15 @@ class Stage:
         self.publish(what, json.dumps(body).encode(), json_encoding(schema), int(t * 1e9))
 
     def counters(self) -> dict[str, Any]:
-        """Every counter, JSON-ready: the common fields, then :meth:`status_fields`."""
+        """Every counter, JSON-ready: the common fields (``stopped``: the last status, sent at
+        :meth:`stop` after everything else the stage published), then :meth:`status_fields`."""
         with self._lock:
             return {
                 "v": SCHEMA_VERSION,
                 "component": self.component,
                 "vehicle": self.keys.vehicle,
                 "t_ns": time.time_ns(),
+                "stopped": self._stopped,
                 "stage": asdict(self.stats),
                 **self.status_fields(),
             }
@@ -226,7 +232,9 @@ class Stage:
         self._started = True
         s = self.session
         for what in self.outputs:
-            self._pubs[what] = s.declare_publisher(self.key(what), congestion_control=DROP)
+            prio = zenoh.Priority.DATA_LOW if what in self.bulk_outputs else zenoh.Priority.DATA
+            self._pubs[what] = s.declare_publisher(self.key(what), congestion_control=DROP,
+                                                   priority=prio)  # fmt: skip
         status_key = self.keys.status(self.component)
         if self.status_schema is not None:
             self._status_pub = s.declare_publisher(status_key, congestion_control=DROP)

@@ -139,6 +139,7 @@ class BathymetricStage(PipelineStage):
     schema_prefix = "Bathymetric"
     status_schema = "BathymetricStatus"
     outputs = ("pose", "map", "cloud")
+    bulk_outputs = frozenset({"map", "cloud"})
     stats: BathymetricStats
 
     def __init__(
