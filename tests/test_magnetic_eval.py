@@ -25,6 +25,23 @@ def test_parse_variant_and_errors() -> None:
         parse_variant("trak=mlp")
     with pytest.raises(ValueError, match="loop must be one of"):
         parse_variant("loop=sideways")
+    with pytest.raises(ValueError, match="association=known needs track=generic"):
+        parse_variant("track=mlp,association=known")
+
+
+def test_known_association_maps_each_observed_beacon_once() -> None:
+    """``association=known``: every observation carries its true beacon, so MB-SLAM maps each
+    observed beacon exactly once (the paper's NN association may map one twice)."""
+    scn = load_scenario(SCENARIO)
+    v = parse_variant("association=known")
+    prep = prepare(scn, v, seed=1, run=0, max_steps=6000)
+    assert prep.ids is not None and [len(i) for i in prep.ids] == [len(z) for z in prep.z]
+    seen = np.unique(np.concatenate(prep.ids))
+    run = run_filter("mb-slam", prep, v)
+    assert len(seen) >= 3 and len(run.lm_mean) == len(seen)
+    nn = run_filter("mb-slam", prepare(scn, Variant(), seed=1, run=0, max_steps=6000), Variant())
+    assert not np.array_equal(nn.est, run.est)  # the ids were used, not ignored
+    assert prepare(scn, Variant(), seed=1, run=0, max_steps=600).ids is None
 
 
 @pytest.mark.parametrize("track", ["generic", "mlp"])

@@ -16,6 +16,9 @@ every algorithm then runs on the same data (:func:`run_filter`). Variants (:clas
   first lap lies in its first half are kept (observed and scored).
 * ``loop``: ``closed`` or ``open`` (Fig. 12, A20): open loop drops every beacon from the state
   when the second lap starts, so revisits cannot close the loop.
+* ``association``: ``nn`` (the paper's unknown association, A13, default) or ``known`` (the
+  ``generic`` track only: each observation carries its true beacon, which isolates the filter
+  from its association: the notes' A5 "physical" mode without the frequency reuse of the plan).
 * ``acoustic``: ``range-bearing`` (Sec. 2.4.2, default) or ``range-only`` (Conclusions, A17),
   every ``acoustic_every`` scans; the slant range (noise ``acoustic_beacon.sigma_range_m``) is
   converted to horizontal with the known depth difference (A24).
@@ -86,6 +89,7 @@ class Variant:
     track: Literal["generic", "mlp"] = "generic"
     density: Literal["all", "first-half"] = "all"
     loop: Literal["closed", "open"] = "closed"
+    association: Literal["nn", "known"] = "nn"
     acoustic: Literal["range-bearing", "range-only"] = "range-bearing"
     acoustic_bearing_deg: float = 1.0
     acoustic_every: int = 1
@@ -105,6 +109,8 @@ class Variant:
         parts = [self.track, self.density, f"{self.loop} loop"]
         if self.acoustic != "range-bearing":
             parts.append(f"acoustic {self.acoustic}")
+        if self.association != "nn":
+            parts.append(f"{self.association} association")
         if self.fov_deg:
             parts.append(f"field of view {self.fov_deg:g} deg")
         return ", ".join(parts)
@@ -127,10 +133,14 @@ def parse_variant(text: str) -> Variant:
             raise ValueError(f"--variant {text!r}: {key} must be {typ.__name__}") from None
     v = Variant(**kw)
     allowed = {"track": ("generic", "mlp"), "density": ("all", "first-half"),
-               "loop": ("closed", "open"), "acoustic": ("range-bearing", "range-only")}  # fmt: skip
+               "loop": ("closed", "open"), "acoustic": ("range-bearing", "range-only"),
+               "association": ("nn", "known")}  # fmt: skip
     for key, ok in allowed.items():
         if getattr(v, key) not in ok:
             raise ValueError(f"--variant {text!r}: {key} must be one of {ok}")
+    if v.association == "known" and v.track != "generic":
+        raise ValueError(f"--variant {text!r}: association=known needs track=generic (the MLP "
+                         "track's channels are reused between beacons)")  # fmt: skip
     return v
 
 
@@ -139,7 +149,8 @@ class Prepared:
     """One simulated run: the evaluation sim, the beacon observations per scan ``z[i] (m, 2)``
     with covariances ``r[i] (m, 2, 2)`` (``None``: the sensor's ``R0``), the acoustic
     observations per scan (``nan`` when none), the scan index where the second lap starts, the
-    true beacons scored, and the chain seconds of the ``mlp`` track."""
+    true beacons scored, the chain seconds of the ``mlp`` track and, for ``association=known``,
+    each observation's true beacon ``ids[i] (m,)``."""
 
     sim: SimRun
     z: list[np.ndarray]
@@ -150,6 +161,7 @@ class Prepared:
     lap2_scan: int
     beacons: np.ndarray
     chain_s: float = 0.0
+    ids: list[np.ndarray] | None = None
 
 
 @dataclass
@@ -311,9 +323,11 @@ def prepare(
     chain_s = 0.0
     if v.track == "generic":
         z = [zz[keep[ids]] for zz, ids in zip(sim.obs_z, sim.obs_ids, strict=True)]
+        obs_ids = [ids[keep[ids]] for ids in sim.obs_ids]
         r: list[np.ndarray | None] = [None] * len(z)
     else:
         z, r, chain_s = _mlp_observations(scn, sim, v, rng, keep)
+        obs_ids = []
     ab = scn.acoustic_beacon
     from auvgw.sim_devices.world import World
 
@@ -332,14 +346,15 @@ def prepare(
     ar = np.zeros((len(st), 2, 2))
     ar[:, 0, 0], ar[:, 1, 1] = sig_h**2, sb**2
     lap2 = int(np.searchsorted(sim.obs_step, lap_start))
-    return Prepared(sim, z, r, az, ar, (ab.x, ab.y), lap2, bxy[keep], chain_s)
+    return Prepared(sim, z, r, az, ar, (ab.x, ab.y), lap2, bxy[keep], chain_s,
+                    obs_ids if v.association == "known" else None)  # fmt: skip
 
 
 def run_filter(name: str, prep: Prepared, v: Variant, run: int = 0) -> MagneticRun:
     """Run one algorithm through a prepared run."""
     sim = prep.sim
     f: MagneticSLAM = make_magnetic(name, sim.motion_model(), sim.q, sim.r, sim.truth[0],
-                                    prep.anchor_xy)  # fmt: skip
+                                    prep.anchor_xy, known=prep.ids is not None)  # fmt: skip
     rng = np.random.default_rng(zlib.crc32(name.encode()) + run)
     n_scans = len(sim.obs_step)
     est = np.empty((n_scans, 3))
@@ -355,7 +370,7 @@ def run_filter(name: str, prep: Prepared, v: Variant, run: int = 0) -> MagneticR
         if v.loop == "open" and i == prep.lap2_scan:
             f.forget_landmarks()
         if len(prep.z[i]):
-            f.update_each(prep.z[i], prep.r[i])
+            f.update_each(prep.z[i], prep.r[i], None if prep.ids is None else prep.ids[i])
         if f.anchor is not None and not np.isnan(prep.acoustic_z[i, 0]):
             f.anchor_update(prep.acoustic_z[i, :m], prep.acoustic_r[i, :m, :m])
         est[i] = f.estimate()

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from auvgw.slam.landmark.association import NearestNeighbour
+from auvgw.slam.landmark.association import KnownAssociation, NearestNeighbour
 from auvgw.slam.landmark.ekfslam import EKFSLAM
 from auvgw.slam.models import MotionModel, RangeBearing, wrap_angle
 
@@ -43,7 +43,8 @@ class MagneticSLAM(EKFSLAM):
     """EKF-SLAM over magnetic beacons with an optional known-position acoustic anchor.
 
     ``anchor_xy`` (m, NED) is the acoustic beacon; ``use_beacons=False`` ignores the magnetic
-    beacons (dead reckoning when there is no anchor either)."""
+    beacons (dead reckoning when there is no anchor either); ``known``: observations come with
+    their beacon ids (:meth:`update_each`), no gating (an evaluation of the filter alone)."""
 
     def __init__(
         self,
@@ -56,25 +57,28 @@ class MagneticSLAM(EKFSLAM):
         use_beacons: bool = True,
         gates: tuple[float, float] = (GATE_REJECT, GATE_AUGMENT),
         name: str = "amb-slam",
+        known: bool = False,
     ) -> None:
-        super().__init__(
-            motion, RangeBearing(), q, r, x0=x0,
-            association=NearestNeighbour(gate_accept=gates[0], gate_new=gates[1]),
-        )  # fmt: skip
+        assoc = KnownAssociation() if known else NearestNeighbour(gates[0], gates[1])
+        super().__init__(motion, RangeBearing(), q, r, x0=x0, association=assoc)
         self.name = name
         self.anchor = None if anchor_xy is None else np.asarray(anchor_xy, float).reshape(2)
         self.use_beacons = use_beacons
 
-    def update_each(self, z: np.ndarray, r: np.ndarray | None = None) -> None:
+    def update_each(
+        self, z: np.ndarray, r: np.ndarray | None = None, ids: np.ndarray | None = None
+    ) -> None:
         """Beacon observations ``z (m, 2)`` (range m, bearing rad), one at a time, each with
         its own covariance ``r (m, 2, 2)`` (e.g. the MLP's; default the filter's ``R0``).
-        Association and augmentation use that covariance."""
+        Association and augmentation use that covariance; ``ids (m,)``: the true beacons (a
+        filter built with ``known=True`` needs them)."""
         if not self.use_beacons:
             return
         z = np.asarray(z, float).reshape(-1, 2)
         for j in range(len(z)):
             self.rdiag = np.diag(self.r0).copy() if r is None else np.diag(r[j]).copy()
-            self.update(z[j : j + 1], np.random.default_rng(0))
+            self.update(z[j : j + 1], np.random.default_rng(0),
+                        None if ids is None else np.asarray(ids[j : j + 1]))  # fmt: skip
         self.rdiag = np.diag(self.r0).copy()
 
     def anchor_update(self, z: np.ndarray, r: np.ndarray) -> float:
@@ -123,11 +127,13 @@ def make_magnetic(
     x0: np.ndarray | tuple[float, float, float],
     anchor_xy: tuple[float, float],
     gates: tuple[float, float] = (GATE_REJECT, GATE_AUGMENT),
+    known: bool = False,
 ) -> MagneticSLAM:
-    """``amb-slam`` (beacons + acoustic anchor), ``mb-slam`` (beacons only) or ``dr``."""
+    """``amb-slam`` (beacons + acoustic anchor), ``mb-slam`` (beacons only) or ``dr``;
+    ``known``: association by the observations' true ids (evaluation)."""
     if name not in MAGNETIC_ALGORITHMS:
         raise ValueError(f"unknown magnetic algorithm {name!r}; choose from {MAGNETIC_ALGORITHMS}")
     return MagneticSLAM(
         motion, q, r, x0=x0, anchor_xy=anchor_xy if name == "amb-slam" else None,
-        use_beacons=name != "dr", gates=gates, name=name,
+        use_beacons=name != "dr", gates=gates, name=name, known=known,
     )  # fmt: skip
