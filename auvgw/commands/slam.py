@@ -110,7 +110,8 @@ def register(sub: Any) -> None:
         help="bathymetric: override a BathyConfig value (repeatable), e.g. --set lccd=false",
     )
     e.add_argument("--particles", type=int, default=100, help="particles per filter")
-    e.add_argument("--association", default="known", choices=["known", "nn", "jcbb"])
+    e.add_argument("--association", default="known", choices=["known", "nn", "jcbb"],
+                   help="landmark pipeline (magnetic: --variant association=nn|known)")  # fmt: skip
     e.add_argument("--seed", type=int, default=0, help="base seed of the study")
     e.add_argument(
         "--r0-scale",
@@ -154,8 +155,10 @@ def command_line(args: argparse.Namespace) -> str:
     parts += ["--algorithms", args.algorithms, "--runs", str(args.runs)]
     for t in args.noise or []:
         parts += ["--noise", t]
-    parts += ["--jobs", str(args.jobs), "--particles", str(args.particles)]
-    parts += ["--association", args.association, "--seed", str(args.seed)]
+    parts += ["--jobs", str(args.jobs)]
+    if args.pipeline != "magnetic":  # its filters are EKFs; its association is a --variant key
+        parts += ["--particles", str(args.particles), "--association", args.association]
+    parts += ["--seed", str(args.seed)]
     if args.r0_scale != 1.0:
         parts += ["--r0-scale", f"{args.r0_scale:g}"]
     if args.oracle_noise:

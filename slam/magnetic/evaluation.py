@@ -426,14 +426,14 @@ def run_study(
     return out
 
 
-def summarise(
-    results: list[MagneticRun], algorithms: tuple[str, ...]
-) -> list[dict[str, float | str]]:
+def summarise(results: list[MagneticRun], algorithms: tuple[str, ...]) -> list[dict[str, Any]]:
     """Per algorithm: mean and std over runs of the path RMSE (total, x, y), landmark error,
-    beacons mapped, filter seconds per run and real-time factor."""
-    rows: list[dict[str, float | str]] = []
+    beacons mapped, filter seconds per run and real-time factor; ``rmse_runs``: each run's
+    RMSE in run order (variants of one study share their runs' random numbers, so two rows
+    compare run by run)."""
+    rows: list[dict[str, Any]] = []
     for a in algorithms:
-        rs = [r for r in results if r.algorithm == a]
+        rs = sorted((r for r in results if r.algorithm == a), key=lambda r: r.run)
         if not rs:
             continue
         rm = np.array([r.rmse for r in rs])
@@ -442,6 +442,7 @@ def summarise(
             "rmse": float(rm[:, 0].mean()), "rmse_std": float(rm[:, 0].std()),
             "rmse_x": float(rm[:, 1].mean()), "rmse_y": float(rm[:, 2].mean()),
             "rmse_max": float(rm[:, 0].max()),
+            "rmse_runs": [round(float(x), 3) for x in rm[:, 0]],
             "rmse_pct_distance": float(100 * rm[:, 0].mean() / np.mean([r.distance_m for r in rs])),
             "lm_error_m": float(np.nanmean([r.lm_error_m for r in rs])) if a != "dr" else math.nan,
             "n_landmarks": float(np.mean([len(r.lm_mean) for r in rs])),
@@ -453,7 +454,7 @@ def summarise(
     return rows
 
 
-def format_table(title: str, rows: list[dict[str, float | str]], markdown: bool = False) -> str:
+def format_table(title: str, rows: list[dict[str, Any]], markdown: bool = False) -> str:
     """Text or markdown table of :func:`summarise` rows."""
     head = ["algorithm", "RMSE m (std)", "RMSE x", "RMSE y", "max", "% dist", "landmark err m",
             "beacons mapped", "filter s/run", "demod+MLP s/run", "x real time"]  # fmt: skip
