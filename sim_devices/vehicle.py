@@ -61,6 +61,10 @@ TRUTH_FIELDS = (
 
 _ANGLES = ("heading", "roll", "pitch", "steer")
 _ANGLE_IDX = tuple(TRUTH_FIELDS.index(f) for f in _ANGLES)
+#: the fields of motion: zero once the route has ended (the vehicle stops where it ended)
+MOTION_FIELDS = ("u", "v", "w", "yaw_rate", "roll_rate", "pitch_rate", "vn", "ve", "vd", "an", "ae",
+           "ad", "speed", "steer")  # fmt: skip
+_MOTION_IDX = tuple(TRUTH_FIELDS.index(f) for f in MOTION_FIELDS)
 _TWO_PI = 2.0 * math.pi
 
 
@@ -199,14 +203,25 @@ class Truth:
             cols[k] = np.unwrap(cols[k])
         return [float(v) for v in self.t], np.stack(cols, axis=1)
 
+    @cached_property
+    def _rest(self) -> FArray:
+        """The last step's row with every motion field zero: the vehicle after its route."""
+        row = self._table[1][-1].copy()
+        row[list(_MOTION_IDX)] = 0.0
+        return row
+
     def interp(self, t: FArray) -> Truth:
         """The truth at times ``t`` (s), linear between steps (angles along the shortest
-        way), held at the first/last step outside the trajectory."""
+        way), held at the first step before the trajectory; after the last step the vehicle
+        rests where the route ended (velocities, rates, accelerations, speed and steer zero)."""
         tq = np.asarray(t, float)
         rows = self._table[1]
+        after = tq > self.t[-1]
         out = {}
         for k, f in enumerate(TRUTH_FIELDS):
             v = np.interp(tq, self.t, rows[:, k])
+            if k in _MOTION_IDX and np.any(after):
+                v = np.where(after, 0.0, v)
             out[f] = wrap_angle(v) if f in _ANGLES else v
         out["t"] = tq
         return Truth(**out)
@@ -217,8 +232,10 @@ class Truth:
         ts, rows = self._table
         if t <= ts[0]:
             row = rows[0]
-        elif t >= ts[-1]:
+        elif t == ts[-1]:
             row = rows[-1]
+        elif t > ts[-1]:
+            row = self._rest
         else:
             i = bisect.bisect_right(ts, t) - 1
             w = (t - ts[i]) / (ts[i + 1] - ts[i])

@@ -481,6 +481,22 @@ def test_truth_interpolation_across_the_heading_wrap() -> None:
     assert list(truth.every(8)[:3]) == [8, 16, 24]
 
 
+def test_after_its_route_the_vehicle_rests_where_it_ended() -> None:
+    """Past the last step the pose is held and every motion field is zero (a DVL emulated past
+    the route used to report the last step's 1.7 m/s while the truth stood still)."""
+    truth = simulate(_square(start=[50, -30, 175.0]))
+    end = truth.t[-1]
+    last = truth.at(end)
+    assert last.speed > 0 and math.hypot(last.vn, last.ve) > 0.5
+    s = truth.at(end + 10.0)
+    assert (s.x, s.y, s.heading) == pytest.approx((last.x, last.y, last.heading))
+    assert s.u == s.v == s.vn == s.ve == s.yaw_rate == s.speed == s.an == 0.0
+    both = truth.interp(np.array([end - 1.0, end + 10.0]))  # the array path agrees
+    assert both.u[0] == pytest.approx(truth.u[-2], rel=0.2) and both.u[1] == 0.0
+    assert both.vn[1] == both.ve[1] == both.yaw_rate[1] == 0.0
+    assert (both.x[1], both.y[1]) == pytest.approx((last.x, last.y))
+
+
 # -- Bailey's bicycle ------------------------------------------------------------------------
 
 
