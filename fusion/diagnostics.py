@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from auvgw.geometry import chi2_ppf
+from auvgw.fusion.deviation import CompassDeviationEstimator
 
 __all__ = ["FixRecord", "FusionDiagnostics"]
 
@@ -69,6 +70,8 @@ class FusionDiagnostics:
         self.total_outputs = 0
         self.total_coasting = 0
         self.noise_sigma: tuple[float, float, float] = (math.nan,) * 3
+        #: the compass deviation estimate (None: ``compass_deviation = "off"``)
+        self.compass_deviation: CompassDeviationEstimator | None = None
         self.last_t = -math.inf
         self.first_t = math.nan
 
@@ -165,6 +168,9 @@ class FusionDiagnostics:
                 "coasting_share": _share(self.total_coasting, self.total_outputs),
             },
             "dvl_noise_sigma_mps": [_finite(s) for s in self.noise_sigma],
+            "compass_deviation": (
+                None if self.compass_deviation is None else self.compass_deviation.status()
+            ),
             "warnings": warnings,
             "notes": notes,
         }

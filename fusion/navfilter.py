@@ -23,6 +23,7 @@ import numpy as np
 
 from auvgw.fusion.align import AidingSample, BufferStats, ReorderBuffer, interpolate_ins
 from auvgw.fusion.config import FusionConfig
+from auvgw.fusion.deviation import CompassDeviationEstimator, deviation_regressors
 from auvgw.fusion.diagnostics import FixRecord, FusionDiagnostics
 from auvgw.fusion.ekf import DeadReckoningEKF
 from auvgw.fusion.frames import beam_to_instrument, dcm_body_to_ned, wrap_angle
@@ -69,6 +70,14 @@ class NavFilter:
         self._pos_rejections = 0
         self._heading_corr = self.config.heading_correction()
         self.diagnostics = FusionDiagnostics(self.config.diagnostics_window_s)
+        self.deviation = _deviation_estimator(self.config)
+        # back-correction of the past deviation (see _back_correct): sum of J dp phi^T over
+        # the steps, sum of J dp d_applied, the shift applied so far, and this step's phi, d
+        self._dev_S = np.zeros((2, 4))
+        self._dev_a = np.zeros(2)
+        self._dev_shift = np.zeros(2)
+        self._dev_step: tuple[np.ndarray, float] | None = None
+        self._dev_updates = 0
 
     @property
     def buffer_stats(self) -> BufferStats:
@@ -115,6 +124,8 @@ class NavFilter:
     def _drain(self, flush: bool) -> list[Odometry]:
         out = []
         for ins, events in self.buffer.release(flush):
+            if self.deviation is not None:
+                ins = self._correct_deviation(ins)
             if self.ekf is None:
                 self.ekf = DeadReckoningEKF(self.config, ins)
                 self._ins = ins
@@ -125,10 +136,47 @@ class NavFilter:
                 out.append(self._step(ins, events))
         return out
 
+    def _correct_deviation(self, ins: InsSample) -> InsSample:
+        """Feed the deviation estimate (with the compass heading: before offset and
+        declination) and subtract the estimated deviation where it is confident."""
+        est = self.deviation
+        assert est is not None
+        compass = wrap_angle(ins.heading - self._heading_corr)
+        est.add(ins.t, compass, ins.roll, ins.pitch, ins.rates)
+        d = est.correction(compass)
+        self.diagnostics.compass_deviation = est
+        self._dev_step = (deviation_regressors(wrap_angle(compass - est.deviation(compass))), d)
+        return ins._replace(heading=wrap_angle(ins.heading - d)) if d else ins
+
+    def _back_correct(self, p0: tuple[float, float, float]) -> None:
+        """Correct the position for the deviation of the past steps, as far as the estimate
+        has improved since (the linearised effect of a heading error ``eps`` on a displacement
+        ``dp`` is ``eps J dp``, ``J`` the 90 deg rotation; the same cross-term an EKF with the
+        coefficients as states would build): accumulate ``S = sum J dp phi^T`` and ``a = sum
+        d_applied J dp``; once the estimate is confident at every heading, shift the position by
+        ``-(S c - a)`` (what is not shifted yet)."""
+        est, ekf = self.deviation, self.ekf
+        if est is None or not self.config.compass_deviation_back_correct:
+            return
+        assert ekf is not None and self._dev_step is not None
+        phi, d = self._dev_step
+        p1 = ekf.position()
+        jdp = np.array([-(p1[1] - p0[1]), p1[0] - p0[0]])
+        self._dev_S += np.outer(jdp, phi)
+        self._dev_a += d * jdp
+        if est.updates == self._dev_updates or not est.confident_everywhere():
+            return
+        self._dev_updates = est.updates
+        target = -(self._dev_S @ est.x[2:] - self._dev_a)
+        dn, de = (target - self._dev_shift).tolist()
+        self._dev_shift = target
+        ekf.shift_position(dn, de)
+
     def _step(self, s: InsSample, events: list[AidingSample]) -> Odometry:
         ekf = self.ekf
         a = self._ins
         assert ekf is not None and a is not None
+        p0 = ekf.position()
         if not events:  # the usual INS step
             inc_cov = ekf.propagate(a, s, self.coasting(a.t))
         else:
@@ -143,6 +191,7 @@ class NavFilter:
             if s.t > cur.t:
                 inc_cov = inc_cov + ekf.propagate(cur, s, self.coasting(cur.t))
         self._ins = s
+        self._back_correct(p0)
         gap = s.t - a.t > self.config.max_ins_gap_s
         if gap:
             self.stats.ins_gaps += 1
@@ -269,6 +318,21 @@ class NavFilter:
         self.diagnostics.add_output(s.t, odo.coasting)
         self.last = odo
         return odo
+
+
+def _deviation_estimator(cfg: FusionConfig) -> CompassDeviationEstimator | None:
+    if cfg.compass_deviation == "off":
+        return None
+    r = math.radians
+    return CompassDeviationEstimator(
+        coefficient_sigma=r(cfg.compass_deviation_prior_deg),
+        compass_sigma=r(cfg.compass_noise_deg),
+        angle_random_walk=r(cfg.gyro_angle_random_walk_deg_rt_s),
+        bias_sigma=r(cfg.gyro_bias_sigma_dps),
+        bias_random_walk=r(cfg.gyro_bias_random_walk_dps_rt_s),
+        interval_s=cfg.compass_update_interval_s,
+        max_sigma=r(cfg.compass_deviation_max_sigma_deg),
+    )
 
 
 def _age(t: float, since: float) -> float:
