@@ -9,7 +9,6 @@ Angles in the configuration are degrees (fields end in ``_deg``); everything els
 from __future__ import annotations
 
 import math
-
 from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field

@@ -29,8 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from auvgw.geometry import chi2_ppf
 from auvgw.fusion.deviation import CompassDeviationEstimator
+from auvgw.geometry import chi2_ppf
 
 __all__ = ["FixRecord", "FusionDiagnostics"]
 
@@ -116,9 +116,7 @@ class FusionDiagnostics:
         norm = np.array([f.norm for f in acc], dtype=float).reshape(-1, 3)
         with np.errstate(all="ignore"):
             inn_mean = [_finite(np.nanmean(c)) if np.isfinite(c).any() else None for c in norm.T]
-            inn_std = [
-                _finite(np.nanstd(c)) if np.isfinite(c).sum() > 1 else None for c in norm.T
-            ]
+            inn_std = [_finite(np.nanstd(c)) if np.isfinite(c).sum() > 1 else None for c in norm.T]
         lo = hi = math.nan
         consistent: bool | None = None
         full = self.last_t - self.first_t >= self.window_s
