@@ -30,6 +30,7 @@ import math
 
 import numpy as np
 
+from auvgw.fusion.config import FusionConfig
 from auvgw.fusion.frames import wrap_angle
 
 __all__ = ["CompassDeviationEstimator", "deviation_regressors"]
@@ -88,6 +89,20 @@ class CompassDeviationEstimator:
         self.updates = 0
         self.has_gyro = False  #: a sample with a non-zero rate was seen
         self.last_sigma = math.inf  #: 1-sigma of the deviation at the last heading, rad
+
+    @classmethod
+    def from_config(cls, cfg: FusionConfig) -> CompassDeviationEstimator:
+        """The estimator with the ``compass_*`` and ``gyro_*`` settings of ``cfg``."""
+        r = math.radians
+        return cls(
+            coefficient_sigma=r(cfg.compass_deviation_prior_deg),
+            compass_sigma=r(cfg.compass_noise_deg),
+            angle_random_walk=r(cfg.gyro_angle_random_walk_deg_rt_s),
+            bias_sigma=r(cfg.gyro_bias_sigma_dps),
+            bias_random_walk=r(cfg.gyro_bias_random_walk_dps_rt_s),
+            interval_s=cfg.compass_update_interval_s,
+            max_sigma=r(cfg.compass_deviation_max_sigma_deg),
+        )
 
     # ---- input ----------------------------------------------------------------------------
     def add(self, t: float, heading: float, roll: float, pitch: float, rates: tuple) -> None:

@@ -69,8 +69,13 @@ class NavFilter:
         self._rejections = 0
         self._pos_rejections = 0
         self._heading_corr = self.config.heading_correction()
+        self._declination = math.radians(self.config.magnetic_declination_deg)
         self.diagnostics = FusionDiagnostics(self.config.diagnostics_window_s)
-        self.deviation = _deviation_estimator(self.config)
+        self.deviation = (
+            None
+            if self.config.compass_deviation == "off"
+            else CompassDeviationEstimator.from_config(self.config)
+        )
         # back-correction of the past deviation (see _back_correct): sum of J dp phi^T over
         # the steps, sum of J dp d_applied, the shift applied so far, and this step's phi, d
         self._dev_S = np.zeros((2, 4))
@@ -137,11 +142,12 @@ class NavFilter:
         return out
 
     def _correct_deviation(self, ins: InsSample) -> InsSample:
-        """Feed the deviation estimate (with the compass heading: before offset and
-        declination) and subtract the estimated deviation where it is confident."""
+        """Feed the deviation estimate with the magnetic heading (the source's heading with the
+        configured offset, without the declination: the deviation is a function of the magnetic
+        heading) and subtract the estimated deviation where it is confident."""
         est = self.deviation
         assert est is not None
-        compass = wrap_angle(ins.heading - self._heading_corr)
+        compass = wrap_angle(ins.heading - self._declination)
         est.add(ins.t, compass, ins.roll, ins.pitch, ins.rates)
         d = est.correction(compass)
         self.diagnostics.compass_deviation = est
@@ -318,21 +324,6 @@ class NavFilter:
         self.diagnostics.add_output(s.t, odo.coasting)
         self.last = odo
         return odo
-
-
-def _deviation_estimator(cfg: FusionConfig) -> CompassDeviationEstimator | None:
-    if cfg.compass_deviation == "off":
-        return None
-    r = math.radians
-    return CompassDeviationEstimator(
-        coefficient_sigma=r(cfg.compass_deviation_prior_deg),
-        compass_sigma=r(cfg.compass_noise_deg),
-        angle_random_walk=r(cfg.gyro_angle_random_walk_deg_rt_s),
-        bias_sigma=r(cfg.gyro_bias_sigma_dps),
-        bias_random_walk=r(cfg.gyro_bias_random_walk_dps_rt_s),
-        interval_s=cfg.compass_update_interval_s,
-        max_sigma=r(cfg.compass_deviation_max_sigma_deg),
-    )
 
 
 def _age(t: float, since: float) -> float:
