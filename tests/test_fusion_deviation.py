@@ -17,11 +17,11 @@ PLANTED_DEG = (4.0, -2.5, 1.5, -1.0)  # B sin + C cos + D sin 2psi + E cos 2psi
 
 def turning_record(
     seed: int, coefficients_deg: tuple[float, float, float, float], offset_deg: float = 0.5
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """20 minutes at 10 Hz: straight legs and 120 deg turns at 3 deg/s (every heading seen);
     compass = heading + offset (what the configured heading offset leaves) + deviation + 0.5 deg
     white noise; yaw rate = truth + 0.05 deg/s
-    bias + 0.1 deg/s white noise. Returns t, true heading, compass heading, yaw rate (rad)."""
+    bias + 0.1 deg/s white noise. Returns t (s), compass heading and yaw rate (rad, rad/s)."""
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, 1200.0, 0.1)
     phase = np.mod(t, 100.0)
@@ -33,7 +33,7 @@ def turning_record(
         psi + math.radians(offset_deg) + dev + math.radians(0.5) * rng.standard_normal(len(t))
     )
     gyro = rate + math.radians(0.05) + math.radians(0.1) * rng.standard_normal(len(t))
-    return t, wrap_angle_array(psi), compass, gyro
+    return t, compass, gyro
 
 
 def wrap_angle_array(a: np.ndarray) -> np.ndarray:
@@ -49,7 +49,7 @@ def estimate(t, compass, gyro) -> CompassDeviationEstimator:
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_recovers_planted_deviation_from_a_turning_record(seed: int) -> None:
-    t, psi, compass, gyro = turning_record(seed, PLANTED_DEG)
+    t, compass, gyro = turning_record(seed, PLANTED_DEG)
     est = estimate(t, compass, gyro)
     got = np.degrees(est.x[2:])
     sigma = np.degrees(np.sqrt(np.diag(est.P)[2:]))
@@ -72,7 +72,7 @@ def test_recovers_planted_deviation_from_a_turning_record(seed: int) -> None:
 
 
 def test_leaves_a_deviation_free_record_alone() -> None:
-    t, psi, compass, gyro = turning_record(3, (0.0, 0.0, 0.0, 0.0))
+    t, compass, gyro = turning_record(3, (0.0, 0.0, 0.0, 0.0))
     est = estimate(t, compass, gyro)
     assert np.all(np.abs(np.degrees(est.x[2:])) < 0.2)
     worst = max(abs(est.correction(h)) for h in np.radians(np.arange(-180, 180, 5)))
@@ -80,12 +80,12 @@ def test_leaves_a_deviation_free_record_alone() -> None:
 
 
 def test_no_turn_no_correction_and_no_gyro_never() -> None:
-    t, psi, compass, gyro = turning_record(4, PLANTED_DEG)
-    straight = t < 40.0 + 60.0  # first turn only (120 deg): not every heading seen
-    est = estimate(t[t < 20.0], compass[t < 20.0], gyro[t < 20.0])  # half a turn
+    t, compass, gyro = turning_record(4, PLANTED_DEG)
+    first = t < 20.0  # half of the first turn: 60 deg of headings seen
+    est = estimate(t[first], compass[first], gyro[first])
+    assert est.updates >= 19
     assert not est.confident_everywhere()
-    assert est.correction(float(compass[0])) == 0.0  # heading not known well yet
-    assert straight.any()
+    assert est.correction(float(compass[0])) == 0.0  # the deviation there not known well yet
     # a source without gyros (rates exactly zero, e.g. a DVL's compass): never corrected
     est = estimate(t, compass, np.zeros_like(gyro))
     assert est.updates == 0 and not est.has_gyro
