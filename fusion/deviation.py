@@ -39,6 +39,11 @@ __all__ = ["CompassDeviationEstimator", "deviation_regressors"]
 COEFFICIENTS = ("B_sin", "C_cos", "D_sin2", "E_cos2")
 
 
+def _phi(psi: float) -> tuple[float, float, float, float]:
+    s, c = math.sin(psi), math.cos(psi)
+    return (s, c, 2.0 * s * c, c * c - s * s)
+
+
 def deviation_regressors(psi: float) -> np.ndarray:
     """``(sin psi, cos psi, sin 2psi, cos 2psi)``: the deviation is their dot product with
     ``(B, C, D, E)``."""
@@ -89,6 +94,8 @@ class CompassDeviationEstimator:
         self.updates = 0
         self.has_gyro = False  #: a sample with a non-zero rate was seen
         self.last_sigma = math.inf  #: 1-sigma of the deviation at the last heading, rad
+        self.last_phi = (0.0, 0.0, 0.0, 0.0)  #: regressors at the last corrected heading
+        self._refresh()
 
     @classmethod
     def from_config(cls, cfg: FusionConfig) -> CompassDeviationEstimator:
@@ -159,32 +166,40 @@ class CompassDeviationEstimator:
         self.P = 0.5 * (self.P + self.P.T)
         self._t_update = t
         self.updates += 1
+        self._refresh()
 
     # ---- output ---------------------------------------------------------------------------
+    def _refresh(self) -> None:
+        """Cache the coefficients, their covariance and the confidence (per update, so that the
+        per-sample outputs are plain float arithmetic)."""
+        self._c = tuple(self.x[2:].tolist())
+        self._Pc = self.P[2:, 2:].tolist()
+        var = np.einsum("ij,jk,ik->i", _GRID, self.P[2:, 2:], _GRID)
+        self._confident = self.has_gyro and bool(var.max() < self.max_sigma**2)
+
     def deviation(self, heading: float) -> float:
-        """Estimated deviation (rad) at compass heading ``heading`` (rad)."""
-        return float(deviation_regressors(heading) @ self.x[2:])
+        """Estimated deviation (rad) at magnetic heading ``heading`` (rad)."""
+        return sum(a * b for a, b in zip(_phi(heading), self._c, strict=True))
 
     def deviation_sigma(self, heading: float) -> float:
         """1-sigma of the estimated deviation at ``heading`` (rad)."""
-        f = deviation_regressors(heading)
-        return math.sqrt(max(float(f @ self.P[2:, 2:] @ f), 0.0))
+        f = _phi(heading)
+        var = sum(fi * sum(p * fj for p, fj in zip(row, f, strict=True))
+                  for fi, row in zip(f, self._Pc, strict=True))  # fmt: skip
+        return math.sqrt(max(var, 0.0))
 
     def confident_everywhere(self) -> bool:
         """The 1-sigma of the deviation is below ``max_sigma`` at every heading (5 deg grid)."""
-        if not self.has_gyro or self.updates == 0:
-            return False
-        f = _GRID
-        var = np.einsum("ij,jk,ik->i", f, self.P[2:, 2:], f)
-        return bool(var.max() < self.max_sigma**2)
+        return self._confident and self.updates > 0
 
     def correction(self, heading: float) -> float:
         """What to subtract from the compass heading ``heading`` (rad): the estimated deviation
-        where it is confident, else 0."""
+        where it is confident, else 0. Sets ``last_phi``, the regressors at the heading."""
+        psi = wrap_angle(heading - self.deviation(heading))
+        self.last_phi = _phi(psi)
         if not self.has_gyro or self.updates == 0:
             self.last_sigma = math.inf
             return 0.0
-        psi = wrap_angle(heading - self.deviation(heading))
         self.last_sigma = self.deviation_sigma(psi)
         return self.deviation(psi) if self.last_sigma < self.max_sigma else 0.0
 

@@ -23,7 +23,7 @@ import numpy as np
 
 from auvgw.fusion.align import AidingSample, BufferStats, ReorderBuffer, interpolate_ins
 from auvgw.fusion.config import FusionConfig
-from auvgw.fusion.deviation import CompassDeviationEstimator, deviation_regressors
+from auvgw.fusion.deviation import CompassDeviationEstimator
 from auvgw.fusion.diagnostics import FixRecord, FusionDiagnostics
 from auvgw.fusion.ekf import DeadReckoningEKF
 from auvgw.fusion.frames import beam_to_instrument, dcm_body_to_ned, wrap_angle
@@ -76,12 +76,12 @@ class NavFilter:
             if self.config.compass_deviation == "off"
             else CompassDeviationEstimator.from_config(self.config)
         )
-        # back-correction of the past deviation (see _back_correct): sum of J dp phi^T over
-        # the steps, sum of J dp d_applied, the shift applied so far, and this step's phi, d
-        self._dev_S = np.zeros((2, 4))
-        self._dev_a = np.zeros(2)
-        self._dev_shift = np.zeros(2)
-        self._dev_step: tuple[np.ndarray, float] | None = None
+        # back-correction of the past deviation (see _back_correct): sum of J dp phi^T (2 x 4,
+        # row-major), sum of J dp d_applied, the shift applied so far, this step's d_applied
+        self._dev_S = [0.0] * 8
+        self._dev_a = [0.0, 0.0]
+        self._dev_shift = (0.0, 0.0)
+        self._dev_d = 0.0
         self._dev_updates = 0
 
     @property
@@ -151,7 +151,7 @@ class NavFilter:
         est.add(ins.t, compass, ins.roll, ins.pitch, ins.rates)
         d = est.correction(compass)
         self.diagnostics.compass_deviation = est
-        self._dev_step = (deviation_regressors(wrap_angle(compass - est.deviation(compass))), d)
+        self._dev_d = d
         return ins._replace(heading=wrap_angle(ins.heading - d)) if d else ins
 
     def _back_correct(self, p0: tuple[float, float, float]) -> None:
@@ -164,19 +164,23 @@ class NavFilter:
         est, ekf = self.deviation, self.ekf
         if est is None or not self.config.compass_deviation_back_correct:
             return
-        assert ekf is not None and self._dev_step is not None
-        phi, d = self._dev_step
+        assert ekf is not None
         p1 = ekf.position()
-        jdp = np.array([-(p1[1] - p0[1]), p1[0] - p0[0]])
-        self._dev_S += np.outer(jdp, phi)
-        self._dev_a += d * jdp
+        jn, je = p0[1] - p1[1], p1[0] - p0[0]  # J dp
+        S, a, d = self._dev_S, self._dev_a, self._dev_d
+        for i, f in enumerate(est.last_phi):
+            S[i] += jn * f
+            S[4 + i] += je * f
+        a[0] += d * jn
+        a[1] += d * je
         if est.updates == self._dev_updates or not est.confident_everywhere():
             return
         self._dev_updates = est.updates
-        target = -(self._dev_S @ est.x[2:] - self._dev_a)
-        dn, de = (target - self._dev_shift).tolist()
-        self._dev_shift = target
-        ekf.shift_position(dn, de)
+        c = est.x[2:].tolist()
+        tn = a[0] - sum(s * ci for s, ci in zip(S[:4], c, strict=True))
+        te = a[1] - sum(s * ci for s, ci in zip(S[4:], c, strict=True))
+        ekf.shift_position(tn - self._dev_shift[0], te - self._dev_shift[1])
+        self._dev_shift = (tn, te)
 
     def _step(self, s: InsSample, events: list[AidingSample]) -> Odometry:
         ekf = self.ekf
