@@ -91,6 +91,13 @@ class FusionConfig(_Model):
     compass_deviation_max_sigma_deg: float = Field(
         1.0, gt=0, description="apply the estimate where its 1-sigma at the heading is below, deg"
     )
+    compass_deviation_detect_probability: float = Field(
+        0.999,
+        ge=0,
+        lt=1,
+        description="apply nothing until the coefficients differ from zero at this probability "
+        "(chi-square, 4 dof; 0: always)",
+    )
     gyro_angle_random_walk_deg_rt_s: float = Field(
         0.05, gt=0, description="yaw-rate noise of the attitude source, deg/sqrt(s)"
     )

@@ -32,6 +32,7 @@ import numpy as np
 
 from auvgw.fusion.config import FusionConfig
 from auvgw.fusion.frames import wrap_angle
+from auvgw.geometry import chi2_ppf
 
 __all__ = ["CompassDeviationEstimator", "deviation_regressors"]
 
@@ -63,7 +64,8 @@ class CompassDeviationEstimator:
     (rad/s/sqrt(s)); ``interval_s``: time between updates (compass noise is seldom white at the
     sample rate); ``max_sigma``: the correction is applied where the 1-sigma of the deviation at
     the current heading is below it (rad); ``max_gap_s``: a longer interval between samples
-    loses the gyro heading (delta' restarted).
+    loses the gyro heading (delta' restarted); ``detect_chi2``: nothing is applied until the
+    coefficients differ from zero, ``c^T P_c^-1 c`` above it (a chi-square quantile, 4 dof).
     """
 
     def __init__(
@@ -76,6 +78,7 @@ class CompassDeviationEstimator:
         interval_s: float = 1.0,
         max_sigma: float = math.radians(1.0),
         max_gap_s: float = 2.0,
+        detect_chi2: float = 0.0,
     ) -> None:
         self.compass_var = compass_sigma**2
         self.arw2 = angle_random_walk**2
@@ -83,6 +86,7 @@ class CompassDeviationEstimator:
         self.interval_s = interval_s
         self.max_sigma = max_sigma
         self.max_gap_s = max_gap_s
+        self.detect_chi2 = detect_chi2
         self.x = np.zeros(6)
         self.P = np.diag([math.pi**2, bias_sigma**2] + [coefficient_sigma**2] * 4)
         self._delta_var0 = math.pi**2
@@ -109,6 +113,7 @@ class CompassDeviationEstimator:
             bias_random_walk=r(cfg.gyro_bias_random_walk_dps_rt_s),
             interval_s=cfg.compass_update_interval_s,
             max_sigma=r(cfg.compass_deviation_max_sigma_deg),
+            detect_chi2=float(chi2_ppf(cfg.compass_deviation_detect_probability, 4)),
         )
 
     # ---- input ----------------------------------------------------------------------------
@@ -175,7 +180,9 @@ class CompassDeviationEstimator:
         self._c = tuple(self.x[2:].tolist())
         self._Pc = self.P[2:, 2:].tolist()
         var = np.einsum("ij,jk,ik->i", _GRID, self.P[2:, 2:], _GRID)
-        self._confident = self.has_gyro and bool(var.max() < self.max_sigma**2)
+        self.chi2 = float(self.x[2:] @ np.linalg.solve(self.P[2:, 2:], self.x[2:]))
+        self.detected = self.has_gyro and self.updates > 0 and self.chi2 > self.detect_chi2
+        self._confident = self.detected and bool(var.max() < self.max_sigma**2)
 
     def deviation(self, heading: float) -> float:
         """Estimated deviation (rad) at magnetic heading ``heading`` (rad)."""
@@ -189,15 +196,16 @@ class CompassDeviationEstimator:
         return math.sqrt(max(var, 0.0))
 
     def confident_everywhere(self) -> bool:
-        """The 1-sigma of the deviation is below ``max_sigma`` at every heading (5 deg grid)."""
-        return self._confident and self.updates > 0
+        """A deviation is detected and its 1-sigma is below ``max_sigma`` at every heading
+        (5 deg grid)."""
+        return self._confident
 
     def correction(self, heading: float) -> float:
         """What to subtract from the compass heading ``heading`` (rad): the estimated deviation
-        where it is confident, else 0. Sets ``last_phi``, the regressors at the heading."""
+        where one is detected and confident, else 0. Sets ``last_phi`` (regressors there)."""
         psi = wrap_angle(heading - self.deviation(heading))
         self.last_phi = _phi(psi)
-        if not self.has_gyro or self.updates == 0:
+        if not self.detected:
             self.last_sigma = math.inf
             return 0.0
         self.last_sigma = self.deviation_sigma(psi)
@@ -219,6 +227,8 @@ class CompassDeviationEstimator:
             "sigma_at_heading_deg": (
                 math.degrees(self.last_sigma) if math.isfinite(self.last_sigma) else None
             ),
+            "chi2": self.chi2,
+            "detected": self.detected,
             "applied": bool(self.last_sigma < self.max_sigma),
             "updates": self.updates,
             "has_gyro": self.has_gyro,
