@@ -27,6 +27,7 @@ radians, times in seconds.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -117,7 +118,9 @@ class CompassDeviationEstimator:
         )
 
     # ---- input ----------------------------------------------------------------------------
-    def add(self, t: float, heading: float, roll: float, pitch: float, rates: tuple) -> None:
+    def add(
+        self, t: float, heading: float, roll: float, pitch: float, rates: Sequence[float]
+    ) -> None:
         """One attitude sample: compass heading (rad, before any correction), roll and pitch
         (rad), body rates p, q, r (rad/s). Samples must come in time order."""
         p, q, r = rates[:3]
@@ -177,8 +180,8 @@ class CompassDeviationEstimator:
     def _refresh(self) -> None:
         """Cache the coefficients, their covariance and the confidence (per update, so that the
         per-sample outputs are plain float arithmetic)."""
-        self._c = tuple(self.x[2:].tolist())
-        self._Pc = self.P[2:, 2:].tolist()
+        self._c: tuple[float, ...] = tuple(self.x[2:].tolist())
+        self._Pc: list[list[float]] = self.P[2:, 2:].tolist()
         var = np.einsum("ij,jk,ik->i", _GRID, self.P[2:, 2:], _GRID)
         self.chi2 = float(self.x[2:] @ np.linalg.solve(self.P[2:, 2:], self.x[2:]))
         self.detected = self.has_gyro and self.updates > 0 and self.chi2 > self.detect_chi2
