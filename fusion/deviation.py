@@ -124,7 +124,7 @@ class CompassDeviationEstimator:
         """One attitude sample: compass heading (rad, before any correction), roll and pitch
         (rad), body rates p, q, r (rad/s). Samples must come in time order."""
         p, q, r = rates[:3]
-        rate = (q * math.sin(roll) + r * math.cos(roll)) / math.cos(pitch)
+        rate = (q * math.sin(roll) + r * math.cos(roll)) / max(math.cos(pitch), 1e-6)
         self.has_gyro = self.has_gyro or p != 0.0 or q != 0.0 or r != 0.0
         if math.isnan(self._t):
             self.psi_gyro = heading
