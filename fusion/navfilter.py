@@ -76,6 +76,7 @@ class NavFilter:
             if self.config.compass_deviation == "off"
             else CompassDeviationEstimator.from_config(self.config)
         )
+        self.diagnostics.compass_deviation = self.deviation
         # back-correction of the past deviation (see _back_correct): sum of J dp phi^T (2 x 4,
         # row-major), sum of J dp d_applied, the shift applied so far, this step's d_applied
         self._dev_S = [0.0] * 8
@@ -150,7 +151,6 @@ class NavFilter:
         compass = wrap_angle(ins.heading - self._declination)
         est.add(ins.t, compass, ins.roll, ins.pitch, ins.rates)
         d = est.correction(compass)
-        self.diagnostics.compass_deviation = est
         self._dev_d = d
         return ins._replace(heading=wrap_angle(ins.heading - d)) if d else ins
 
