@@ -77,6 +77,24 @@ def main() -> None:
     old_coast = statistics.fmean(
         r["old_diagnostics"]["total"]["coasting_share"] for _, r, _, _ in rows
     )
+    ins_noise = scn.devices.ins.noise
+    planted = ", ".join(
+        f"{k} {ins_noise[n]:g}"
+        for k, n in zip(
+            ("B_sin", "C_cos", "D_sin2", "E_cos2"),
+            ("deviation_a1_deg", "deviation_b1_deg", "deviation_a2_deg", "deviation_b2_deg"),
+            strict=True,
+        )
+    )
+    coef = {
+        k: [r["deviation"]["coefficients_deg"][k] for _, r, _, _ in rows]
+        for k in ("B_sin", "C_cos", "D_sin2", "E_cos2")
+    }
+    sig = {k: statistics.fmean(r["deviation"]["sigma_deg"][k] for _, r, _, _ in rows) for k in coef}
+    deviation = ", ".join(
+        f"{k} {statistics.fmean(v):.2f} +- {statistics.pstdev(v):.2f} (own sigma {sig[k]:.2f})"
+        for k, v in coef.items()
+    )
     summary = [
         "",
         f"Means over {len(rows)} seeds:",
@@ -84,8 +102,9 @@ def main() -> None:
         "| filter | final error | RMS error |",
         "|---|---|---|",
     ]
-    for key in ("default", "true", "old", "plain", "oracle"):
+    for key in ("default", "true", "old", "nodev", "plain", "oracle"):
         summary.append(f"| {key} | {mean(key, 'final_m'):.2f} m | {mean(key, 'rms_m'):.2f} m |")
+
     def paired(a: str, b: str) -> str:
         r = [x[a].rms_m / x[b].rms_m for _, x, _, _ in rows]
         se = statistics.stdev(r) / len(r) ** 0.5 if len(r) > 1 else float("nan")
@@ -97,6 +116,10 @@ def main() -> None:
         f"- paired, default / true: {paired('default', 'true')} of {len(rows)} seeds",
         f"- paired, default / plain: {paired('default', 'plain')} of {len(rows)} seeds",
         f"- paired, true / plain: {paired('true', 'plain')} of {len(rows)} seeds",
+        f"- paired, nodev (default settings, compass_deviation off) / plain: "
+        f"{paired('nodev', 'plain')} of {len(rows)} seeds; nodev / plain: final "
+        f"{mean('nodev', 'final_m') / mean('plain', 'final_m'):.3f}, RMS "
+        f"{mean('nodev', 'rms_m') / mean('plain', 'rms_m'):.3f}",
         f"- paired, oracle (plain integration of the same seed drawn without spikes) / plain: "
         f"{paired('oracle', 'plain')} of {len(rows)} seeds; oracle / plain RMS "
         f"{mean('oracle', 'rms_m') / mean('plain', 'rms_m'):.3f}",
@@ -108,6 +131,8 @@ def main() -> None:
         f"- adapted DVL noise (mean of the 3 axes at the end): mean {statistics.fmean(sigs):.3f} "
         f"m/s, range {min(sigs):.3f}-{max(sigs):.3f}, truth {true_sigma} m/s: worst deviation "
         f"{100 * max(abs(s / true_sigma - 1) for s in sigs):.1f} % (bar: 20 %)",
+        f"- compass deviation estimated by the default filter (deg, mean +- sd over the seeds; "
+        f"planted {planted}): {deviation}",
         f"- old defaults (0.002 m/s DVL, fixed): {100 * old_rej:.0f} % of fixes rejected, "
         f"{100 * old_coast:.0f} % of epochs coasting",
     ]

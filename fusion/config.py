@@ -9,6 +9,7 @@ Angles in the configuration are degrees (fields end in ``_deg``); everything els
 from __future__ import annotations
 
 import math
+from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -64,6 +65,47 @@ class FusionConfig(_Model):
     )
     magnetic_declination_deg: float = Field(
         0.0, ge=-180, le=180, description="true north = magnetic heading + declination, deg"
+    )
+
+    # heading-dependent compass deviation, estimated online from the source's gyro
+    # (fusion/deviation.py); the constant part is heading_offset_deg above
+    compass_deviation: Literal["estimate", "off"] = Field(
+        "estimate",
+        description="estimate: learn B sin + C cos + D sin 2psi + E cos 2psi of the magnetic "
+        "heading from the attitude source's yaw rate and subtract it where confident; off: no",
+    )
+    compass_deviation_back_correct: bool = Field(
+        True,
+        description="once the estimate is confident at every heading, also correct the "
+        "position for the deviation of the steps before (a jump of the position)",
+    )
+    compass_deviation_prior_deg: float = Field(
+        10.0, gt=0, description="prior 1-sigma of each deviation coefficient, deg"
+    )
+    compass_noise_deg: float = Field(
+        1.0, gt=0, description="white noise of one compass heading for the estimate, deg"
+    )
+    compass_update_interval_s: float = Field(
+        1.0, ge=0, description="time between updates of the deviation estimate, s"
+    )
+    compass_deviation_max_sigma_deg: float = Field(
+        1.0, gt=0, description="apply the estimate where its 1-sigma at the heading is below, deg"
+    )
+    compass_deviation_detect_probability: float = Field(
+        0.999,
+        ge=0,
+        lt=1,
+        description="apply nothing until the coefficients differ from zero at this probability "
+        "(chi-square, 4 dof; 0: always)",
+    )
+    gyro_angle_random_walk_deg_rt_s: float = Field(
+        0.05, gt=0, description="yaw-rate noise of the attitude source, deg/sqrt(s)"
+    )
+    gyro_bias_sigma_dps: float = Field(
+        0.1, gt=0, description="prior 1-sigma of the yaw-rate bias, deg/s"
+    )
+    gyro_bias_random_walk_dps_rt_s: float = Field(
+        3e-4, ge=0, description="drift of the yaw-rate bias, deg/s/sqrt(s)"
     )
 
     # measurement noise. DVL as a sensor spec: per-axis sigma = sqrt(floor^2 + (pct |v|)^2);

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from auvgw.fusion.deviation import CompassDeviationEstimator
 from auvgw.geometry import chi2_ppf
 
 __all__ = ["FixRecord", "FusionDiagnostics"]
@@ -69,6 +70,8 @@ class FusionDiagnostics:
         self.total_outputs = 0
         self.total_coasting = 0
         self.noise_sigma: tuple[float, float, float] = (math.nan,) * 3
+        #: the compass deviation estimate (None: ``compass_deviation = "off"``)
+        self.compass_deviation: CompassDeviationEstimator | None = None
         self.last_t = -math.inf
         self.first_t = math.nan
 
@@ -113,9 +116,7 @@ class FusionDiagnostics:
         norm = np.array([f.norm for f in acc], dtype=float).reshape(-1, 3)
         with np.errstate(all="ignore"):
             inn_mean = [_finite(np.nanmean(c)) if np.isfinite(c).any() else None for c in norm.T]
-            inn_std = [
-                _finite(np.nanstd(c)) if np.isfinite(c).sum() > 1 else None for c in norm.T
-            ]
+            inn_std = [_finite(np.nanstd(c)) if np.isfinite(c).sum() > 1 else None for c in norm.T]
         lo = hi = math.nan
         consistent: bool | None = None
         full = self.last_t - self.first_t >= self.window_s
@@ -165,6 +166,9 @@ class FusionDiagnostics:
                 "coasting_share": _share(self.total_coasting, self.total_outputs),
             },
             "dvl_noise_sigma_mps": [_finite(s) for s in self.noise_sigma],
+            "compass_deviation": (
+                None if self.compass_deviation is None else self.compass_deviation.status()
+            ),
             "warnings": warnings,
             "notes": notes,
         }

@@ -201,6 +201,12 @@ class DeadReckoningEKF:
         """Estimated position (x, y, z) NED, m."""
         return (self._x[IX], self._x[IY], self._x[IZ])
 
+    def shift_position(self, dn: float, de: float) -> None:
+        """Move the horizontal position by (dn, de) m NED (a correction of the past heading;
+        the covariance is unchanged)."""
+        self._x[IX] += dn
+        self._x[IY] += de
+
     # ---- propagation --------------------------------------------------------------------
     def _kin_accel(
         self, ins: InsSample, cth: float, sth: float, u: float, v: float, w: float

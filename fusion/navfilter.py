@@ -23,6 +23,7 @@ import numpy as np
 
 from auvgw.fusion.align import AidingSample, BufferStats, ReorderBuffer, interpolate_ins
 from auvgw.fusion.config import FusionConfig
+from auvgw.fusion.deviation import CompassDeviationEstimator
 from auvgw.fusion.diagnostics import FixRecord, FusionDiagnostics
 from auvgw.fusion.ekf import DeadReckoningEKF
 from auvgw.fusion.frames import beam_to_instrument, dcm_body_to_ned, wrap_angle
@@ -68,7 +69,21 @@ class NavFilter:
         self._rejections = 0
         self._pos_rejections = 0
         self._heading_corr = self.config.heading_correction()
+        self._declination = math.radians(self.config.magnetic_declination_deg)
         self.diagnostics = FusionDiagnostics(self.config.diagnostics_window_s)
+        self.deviation = (
+            None
+            if self.config.compass_deviation == "off"
+            else CompassDeviationEstimator.from_config(self.config)
+        )
+        self.diagnostics.compass_deviation = self.deviation
+        # back-correction of the past deviation (see _back_correct): sum of J dp phi^T (2 x 4,
+        # row-major), sum of J dp d_applied, the shift applied so far, this step's d_applied
+        self._dev_S = [0.0] * 8
+        self._dev_a = [0.0, 0.0]
+        self._dev_shift = (0.0, 0.0)
+        self._dev_d = 0.0
+        self._dev_updates = 0
 
     @property
     def buffer_stats(self) -> BufferStats:
@@ -115,6 +130,8 @@ class NavFilter:
     def _drain(self, flush: bool) -> list[Odometry]:
         out = []
         for ins, events in self.buffer.release(flush):
+            if self.deviation is not None:
+                ins = self._correct_deviation(ins)
             if self.ekf is None:
                 self.ekf = DeadReckoningEKF(self.config, ins)
                 self._ins = ins
@@ -125,10 +142,51 @@ class NavFilter:
                 out.append(self._step(ins, events))
         return out
 
+    def _correct_deviation(self, ins: InsSample) -> InsSample:
+        """Feed the deviation estimate with the magnetic heading (the source's heading with the
+        configured offset, without the declination: the deviation is a function of the magnetic
+        heading) and subtract the estimated deviation where it is confident."""
+        est = self.deviation
+        assert est is not None
+        compass = wrap_angle(ins.heading - self._declination)
+        est.add(ins.t, compass, ins.roll, ins.pitch, ins.rates)
+        d = est.correction(compass)
+        self._dev_d = d
+        return ins._replace(heading=wrap_angle(ins.heading - d)) if d else ins
+
+    def _back_correct(self, p0: tuple[float, float, float]) -> None:
+        """Correct the position for the deviation of the past steps, as far as the estimate
+        has improved since (the linearised effect of a heading error ``eps`` on a displacement
+        ``dp`` is ``eps J dp``, ``J`` the 90 deg rotation; the same cross-term an EKF with the
+        coefficients as states would build): accumulate ``S = sum J dp phi^T`` and ``a = sum
+        d_applied J dp``; once the estimate is confident at every heading, shift the position by
+        ``-(S c - a)`` (what is not shifted yet)."""
+        est, ekf = self.deviation, self.ekf
+        if est is None or not self.config.compass_deviation_back_correct:
+            return
+        assert ekf is not None
+        p1 = ekf.position()
+        jn, je = p0[1] - p1[1], p1[0] - p0[0]  # J dp
+        S, a, d = self._dev_S, self._dev_a, self._dev_d
+        for i, f in enumerate(est.last_phi):
+            S[i] += jn * f
+            S[4 + i] += je * f
+        a[0] += d * jn
+        a[1] += d * je
+        if est.updates == self._dev_updates or not est.confident_everywhere():
+            return
+        self._dev_updates = est.updates
+        c = est.x[2:].tolist()
+        tn = a[0] - sum(s * ci for s, ci in zip(S[:4], c, strict=True))
+        te = a[1] - sum(s * ci for s, ci in zip(S[4:], c, strict=True))
+        ekf.shift_position(tn - self._dev_shift[0], te - self._dev_shift[1])
+        self._dev_shift = (tn, te)
+
     def _step(self, s: InsSample, events: list[AidingSample]) -> Odometry:
         ekf = self.ekf
         a = self._ins
         assert ekf is not None and a is not None
+        p0 = ekf.position()
         if not events:  # the usual INS step
             inc_cov = ekf.propagate(a, s, self.coasting(a.t))
         else:
@@ -143,6 +201,7 @@ class NavFilter:
             if s.t > cur.t:
                 inc_cov = inc_cov + ekf.propagate(cur, s, self.coasting(cur.t))
         self._ins = s
+        self._back_correct(p0)
         gap = s.t - a.t > self.config.max_ins_gap_s
         if gap:
             self.stats.ins_gaps += 1

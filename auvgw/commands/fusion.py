@@ -234,6 +234,14 @@ def print_diagnostics(d: dict[str, Any]) -> None:
         f"{'-' if nis is None else f'{nis:.2f}'} (consistent: {win['nis_consistent']}); "
         f"DVL noise (m/s per axis) {sig}"
     )
+    dev = d.get("compass_deviation")
+    if dev is not None and dev["has_gyro"]:
+        co, sg = dev["coefficients_deg"], dev["sigma_deg"]
+        terms = ", ".join(f"{k} {co[k]:+.2f} +- {sg[k]:.2f}" for k in co)
+        print(
+            f"  compass deviation    (deg) {terms}; gyro bias {dev['gyro_bias_dps']:+.4f} deg/s; "
+            f"{'applied' if dev['applied'] else 'not applied (not confident yet)'}"
+        )
     for w in d["warnings"]:
         print(f"  WARNING: {w}")
 

@@ -74,7 +74,8 @@ def sensors(
 
 def filter_config(scn: Scenario, truth: Trajectory, kind: str = "default") -> FusionConfig:
     """``default``: default noise settings; ``true``: told the true DVL noise (not adapted);
-    ``old``: the previous defaults (0.002 m/s DVL, not adapted)."""
+    ``old``: the previous defaults (0.002 m/s DVL, not adapted); ``nodev``: default settings
+    with ``compass_deviation = "off"`` (the fusion before the deviation estimate)."""
     kw: dict = {
         "dvl": mount(scn),
         "initial": InitialState(position_m=(truth.x[0], truth.y[0], truth.z[0])),
@@ -86,6 +87,8 @@ def filter_config(scn: Scenario, truth: Trajectory, kind: str = "default") -> Fu
     elif kind == "old":
         kw |= {"dvl_noise_adaptive": False, "dvl_velocity_percent": 0.0,
                "dvl_velocity_sigma_mps": 0.002}
+    elif kind == "nodev":
+        kw |= {"compass_deviation": "off"}
     elif kind != "default":
         raise ValueError(kind)
     return FusionConfig(**kw)
@@ -127,12 +130,13 @@ def errors(x: np.ndarray, y: np.ndarray, truth: Trajectory) -> RunErrors:
 
 
 def run(scn: Scenario, truth: Trajectory, seed: int) -> dict:
-    """One seed: errors of every filter (``default``, ``true``, ``old``, ``plain``, and
+    """One seed: errors of every filter (``default``, ``true``, ``old``, ``nodev``, ``plain``, and
     ``oracle``: plain integration of the same seed drawn without spikes), the
-    default filter's adapted DVL noise (m/s per axis) and its diagnostics summary."""
+    default filter's adapted DVL noise (m/s per axis), its diagnostics summary and its compass
+    deviation estimate (``deviation``)."""
     sim = sensors(scn, truth, seed)
     out: dict = {}
-    for kind in ("default", "true", "old"):
+    for kind in ("default", "true", "old", "nodev"):
         nav = NavFilter(filter_config(scn, truth, kind))
         o = run_filter_arrays(sim.ins, sim.dvl, nav=nav)
         out[kind] = errors(o.x, o.y, truth)
@@ -140,6 +144,7 @@ def run(scn: Scenario, truth: Trajectory, seed: int) -> dict:
             assert nav.ekf is not None
             out["adapted_sigma"] = nav.ekf.dvl_noise_sigma()
             out["diagnostics"] = nav.diagnostics.summary()
+            out["deviation"] = out["diagnostics"]["compass_deviation"]
         if kind == "old":
             out["old_diagnostics"] = nav.diagnostics.summary()
     _, pos = plain_integration(sim, mount(scn))
