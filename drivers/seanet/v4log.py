@@ -448,14 +448,7 @@ class V4LogFramer(Framer):
                 break
             self._deliver(out, Frame(bytes(buf[i : i + length]), pos))
             i += length
-        if self._waiting is not None and self._waiting != self._base + i:
-            self._waiting = None
-        del buf[:i]
-        self._base += i
-        if error is not None:
-            self._pending = out
-            raise error
-        return out
+        return self._consumed(i, out, error)
 
 
 class _Wait(Exception):
