@@ -90,7 +90,8 @@ default_codec, __getattr__ = shipped_codec(Hn100Codec.from_toml, "Hn100Nav")
 
 
 class Hn100Framer(BinaryFrameFramer, shipped=default_codec):
-    """HN-100 framer: sync, size, length and checksum from ``codec``'s table (default shipped)."""
+    """HN-100 framer: sync, size, length and checksum from the table or codec given (default:
+    the shipped codec)."""
 
 
 FORMAT = Format.of_codec(
