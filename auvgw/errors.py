@@ -112,6 +112,37 @@ def format_validation_error(
 M = TypeVar("M", bound="BaseModel")
 
 
+def read_document(
+    path: str | Path,
+    error: type[Exception] = ConfigError,
+    what: str = "file",
+    kind: str | None = None,
+) -> dict[str, Any]:
+    """The top-level table of a ``kind`` (``"TOML"`` or ``"JSON"``; None: JSON for ``.json``,
+    else TOML) file. Every failure raises ``error`` naming the file (``what`` it should be, e.g.
+    ``"configuration file"``): missing, a directory, not UTF-8 text, cannot read, not TOML/JSON
+    (with the position), not a table."""
+    path = Path(path)
+    kind = kind or ("JSON" if path.suffix == ".json" else "TOML")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError as exc:
+        raise error(f"{path}: cannot read: no such {what}") from exc
+    except IsADirectoryError as exc:
+        raise error(f"{path}: cannot read: is a directory, not a {what}") from exc
+    except OSError as exc:
+        raise error(f"{path}: cannot read: {exc.strerror or exc}") from exc
+    except UnicodeDecodeError as exc:
+        raise error(f"{path}: not a text (UTF-8) file ({exc.reason} at byte {exc.start})") from exc
+    try:
+        data = json.loads(text) if kind == "JSON" else tomllib.loads(text)
+    except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
+        raise error(f"{path}: not valid {kind}: {exc}") from exc
+    if not isinstance(data, dict):
+        raise error(f"{path}: the top level must be a table (an object)")
+    return data
+
+
 def load_settings(
     path: str | Path,
     model: type[M],
@@ -121,24 +152,11 @@ def load_settings(
 ) -> M:
     """Read a TOML (``.json``: JSON) settings file into ``model``. ``table``: the keys may sit
     under ``[table]`` (a section of a larger file) or at the top level. Every failure raises
-    ``error`` naming the file: cannot read, not TOML/JSON (with the position), and each invalid
-    field on its own line (:func:`format_validation_error`)."""
+    ``error`` naming the file: what :func:`read_document` refuses, and each invalid field on
+    its own line (:func:`format_validation_error`)."""
     from pydantic import ValidationError
 
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise error(f"{path}: cannot read: {exc.strerror or exc}") from exc
-    except UnicodeDecodeError as exc:
-        raise error(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from exc
-    try:
-        data = json.loads(text) if path.suffix == ".json" else tomllib.loads(text)
-    except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
-        kind = "JSON" if path.suffix == ".json" else "TOML"
-        raise error(f"{path}: not valid {kind}: {exc}") from exc
-    if not isinstance(data, dict):
-        raise error(f"{path}: the top level must be a table (an object)")
+    data = read_document(path, error)
     if table is not None and isinstance(data.get(table), dict):
         data = data[table]
     try:

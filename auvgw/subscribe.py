@@ -35,12 +35,12 @@ import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
-from types import TracebackType
-from typing import Any, Self
+from typing import Any
 
 import zenoh
 
 from auvgw.bus import Envelope, Keys, decode_envelope, open_session, unpack_raw_attachment
+from auvgw.closing import Closing
 from auvgw.config.bus import BusConfig
 from auvgw.drivers.spec import from_jsonable
 from auvgw.envelope import SchemaError, message_class, typed_body
@@ -87,7 +87,7 @@ class RawFrame:
     key: str
 
 
-class Stream:
+class Stream(Closing):
     """A declared subscription whose samples queue up until iterated (see :meth:`get`)."""
 
     def __init__(self, session: zenoh.Session, key: str, raw: bool, queue_size: int) -> None:
@@ -153,14 +153,9 @@ class Stream:
         with contextlib.suppress(zenoh.ZError):
             self._sub.undeclare()
 
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
-class GatewaySubscriber:
+class GatewaySubscriber(Closing):
     """A Zenoh session joined to a vehicle's bus, with typed access to the gateway's data.
 
     ``vehicle`` is the gateway's ``vehicle`` name; ``bus`` how to join (e.g. a client of the
@@ -260,13 +255,3 @@ class GatewaySubscriber:
         if self._own:
             self.session.close()
 
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()

@@ -27,7 +27,6 @@ relative to the file's folder; a ``dbc``/``table`` name not found there is one s
 
 from __future__ import annotations
 
-import tomllib
 import types
 import typing
 from collections.abc import Mapping
@@ -52,7 +51,7 @@ from auvgw.config.transport import (
     TransportConfig,
 )
 from auvgw.drivers import registry
-from auvgw.errors import ConfigError
+from auvgw.errors import ConfigError, read_document
 
 __all__ = [
     "DEVICE_FORMATS",
@@ -358,18 +357,5 @@ def _resolve_paths(cfg: GatewayConfig, base: Path) -> None:
 def load_gateway_config(path: str | Path) -> GatewayConfig:
     """Read and validate a gateway TOML file; :class:`ConfigError` names file and field."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError as exc:
-        raise ConfigError(f"{path}: no such configuration file") from exc
-    except IsADirectoryError as exc:
-        raise ConfigError(f"{path}: is a directory, not a configuration file") from exc
-    except UnicodeDecodeError as exc:
-        raise ConfigError(f"{path}: not a text (UTF-8) file: {exc.reason}") from exc
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read: {exc.strerror}") from exc
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: not valid TOML: {exc}") from exc
+    data = read_document(path, ConfigError, "configuration file")
     return parse_gateway_config(data, str(path), base_dir=path.resolve().parent)

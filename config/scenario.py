@@ -32,7 +32,7 @@ from pydantic import (
 )
 
 from auvgw.drivers import registry
-from auvgw.errors import ConfigError, format_validation_error
+from auvgw.errors import ConfigError, format_validation_error, read_document
 
 __all__ = [
     "AcousticBeacon",
@@ -380,14 +380,7 @@ class Scenario(_Model):
 def load_scenario(path: str | Path) -> Scenario:
     """Read and validate a scenario JSON file; :class:`ScenarioError` names file and field."""
     path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except OSError as exc:
-        raise ScenarioError(f"{path}: cannot read: {exc.strerror}") from exc
-    except json.JSONDecodeError as exc:
-        raise ScenarioError(f"{path}: not JSON: {exc.msg} at line {exc.lineno}") from exc
-    if not isinstance(data, dict):
-        raise ScenarioError(f"{path}: top level must be a JSON object")
+    data = read_document(path, ScenarioError, "scenario file", "JSON")
     data.pop("source", None)
     try:
         scn = Scenario.model_validate({**data, "source": str(path)}, context={"source": str(path)})

@@ -13,21 +13,8 @@ the ``beacon`` id.
 
 from __future__ import annotations
 
-from pathlib import Path
-from typing import Any
-
 from auvgw.drivers.formats import Format
-from auvgw.drivers.framing import ErrorPolicy
-from auvgw.drivers.tablecodec import (
-    AsciiLineCodec,
-    AsciiLineFramer,
-    AsciiLineSpec,
-    build_message_class,
-    load_toml,
-    parse_ascii_table,
-    shipped_codec,
-)
-from auvgw.paths import config_file
+from auvgw.drivers.tablecodec import AsciiLineCodec, AsciiLineFramer, shipped_codec
 
 __all__ = ["FORMAT", "REQUIRED_FIELDS", "AcousticCodec", "AcousticFramer", "default_codec"]
 
@@ -43,28 +30,13 @@ horizontal, rad; beacon: transponder id; counter: reply count."""
 
 
 class AcousticCodec(AsciiLineCodec):
-    """Acoustic reply lines under one table: :meth:`framer`, :meth:`decode`, :meth:`encode`."""
+    """Acoustic reply lines under one table (shipped: ``config/acoustic.toml``): :meth:`framer`,
+    :meth:`decode`, :meth:`encode`; a site table loads with :meth:`from_toml`."""
 
-    @classmethod
-    def from_toml(cls, path: str | Path | None = None) -> AcousticCodec:
-        """Load a table (default: the shipped ``config/acoustic.toml``); errors name the file
-        and the entry."""
-        path = Path(path) if path is not None else config_file("acoustic.toml")
-        return cls.from_spec(parse_ascii_table(load_toml(path), str(path), REQUIRED_FIELDS))
-
-    @classmethod
-    def from_spec(cls, spec: AsciiLineSpec) -> AcousticCodec:
-        msg_type = build_message_class(
-            "AcousticReply", spec.fields, doc=f"{_DOC}\n\nTable: {spec.source}",
-            module=__name__, source=spec.source,
-        )  # fmt: skip
-        return cls(spec, msg_type, name="acoustic")
-
-    def framer(
-        self, policy: ErrorPolicy | str = ErrorPolicy.LOG, source: str = "", **_ignored: Any
-    ) -> AcousticFramer:
-        """A fresh framer for this codec's table."""
-        return AcousticFramer(self, policy=policy, source=source)
+    TABLE = "acoustic.toml"
+    MESSAGE = "AcousticReply"
+    DOC = _DOC
+    REQUIRED_FIELDS = REQUIRED_FIELDS
 
 
 #: the shipped table's codec, read on first use; ``CODEC`` and ``AcousticReply`` (its message class)
@@ -72,18 +44,9 @@ class AcousticCodec(AsciiLineCodec):
 default_codec, __getattr__ = shipped_codec(AcousticCodec.from_toml, "AcousticReply")
 
 
-class AcousticFramer(AsciiLineFramer):
+class AcousticFramer(AsciiLineFramer, shipped=default_codec):
     """Acoustic framer: start char .. terminator; checksum, field count and number forms
     verified."""
-
-    def __init__(
-        self,
-        codec: AcousticCodec | None = None,
-        policy: ErrorPolicy | str = ErrorPolicy.LOG,
-        source: str = "",
-    ) -> None:
-        spec = (codec or default_codec()).spec
-        super().__init__(spec, policy=policy, source=source, name="acoustic")
 
 
 FORMAT = Format.of_codec(

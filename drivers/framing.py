@@ -305,9 +305,14 @@ class Framer:
             out.append(Frame(bytes(buf[start : start + length]), self._base + start))
             self.stats.frames += 1
             i = start + length
+        return self._consumed(i, out, error)
+
+    def _consumed(self, i: int, out: list[Frame], error: FrameError | None) -> list[Frame]:
+        """The end of a scan: drop the ``i`` bytes scanned, then raise ``error`` (the frames
+        found before it wait for the next call) or return the frames ``out``."""
         if self._waiting is not None and self._waiting != self._base + i:
             self._waiting = None
-        del buf[:i]
+        del self._buf[:i]
         self._base += i
         if error is not None:
             self._pending = out

@@ -13,23 +13,12 @@ status word and its flags ``aligned``, ``gnss_aided``, ``dvl_aided``, ``error``.
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from auvgw.drivers.formats import Format
-from auvgw.drivers.framing import ErrorPolicy
-from auvgw.drivers.tablecodec import (
-    BinaryFrameCodec,
-    BinaryFrameFramer,
-    BinaryFrameSpec,
-    build_message_class,
-    load_toml,
-    parse_binary_table,
-    shipped_codec,
-)
-from auvgw.paths import config_file
+from auvgw.drivers.tablecodec import BinaryFrameCodec, BinaryFrameFramer, shipped_codec
 
 __all__ = [
     "FORMAT",
@@ -84,38 +73,15 @@ _EXTRA = {
 
 
 class Hn100Codec(BinaryFrameCodec):
-    """HN-100 frames under one table: :meth:`framer`, :meth:`decode`, :meth:`encode`."""
+    """HN-100 frames under one table (shipped: ``config/hn100.toml``): :meth:`framer`,
+    :meth:`decode`, :meth:`encode`; a site table loads with :meth:`from_toml`."""
 
-    @classmethod
-    def from_toml(cls, path: str | Path | None = None) -> Hn100Codec:
-        """Load a table (default: the shipped ``config/hn100.toml``).
-
-        Raises :class:`~auvgw.drivers.tablecodec.TableError` naming the file, the entry and
-        what is expected (unknown type, overlapping fields, field beyond the frame, ...).
-        """
-        path = Path(path) if path is not None else config_file("hn100.toml")
-        spec = parse_binary_table(load_toml(path), str(path), REQUIRED_FIELDS, REQUIRED_FLAGS)
-        return cls.from_spec(spec)
-
-    @classmethod
-    def from_spec(cls, spec: BinaryFrameSpec) -> Hn100Codec:
-        msg_type = build_message_class(
-            "Hn100Nav",
-            spec.fields,
-            byte_order=spec.byte_order,
-            doc=f"{_DOC}\n\nTable: {spec.source}",
-            flags=spec.flags,
-            module=__name__,
-            namespace=_EXTRA,
-            source=spec.source,
-        )
-        return cls(spec, msg_type, name="hn100")
-
-    def framer(
-        self, policy: ErrorPolicy | str = ErrorPolicy.LOG, source: str = "", **_ignored: Any
-    ) -> Hn100Framer:
-        """A fresh framer for this codec's table."""
-        return Hn100Framer(self, policy=policy, source=source)
+    TABLE = "hn100.toml"
+    MESSAGE = "Hn100Nav"
+    DOC = _DOC
+    EXTRA = _EXTRA
+    REQUIRED_FIELDS = REQUIRED_FIELDS
+    REQUIRED_FLAGS = REQUIRED_FLAGS
 
 
 #: the shipped table's codec, read on first use; ``CODEC`` and ``Hn100Nav`` (its message class)
@@ -123,17 +89,9 @@ class Hn100Codec(BinaryFrameCodec):
 default_codec, __getattr__ = shipped_codec(Hn100Codec.from_toml, "Hn100Nav")
 
 
-class Hn100Framer(BinaryFrameFramer):
-    """HN-100 framer: sync, size, length and checksum from ``codec``'s table (default shipped)."""
-
-    def __init__(
-        self,
-        codec: Hn100Codec | None = None,
-        policy: ErrorPolicy | str = ErrorPolicy.LOG,
-        source: str = "",
-    ) -> None:
-        spec = (codec or default_codec()).spec
-        super().__init__(spec, policy=policy, source=source, name="hn100")
+class Hn100Framer(BinaryFrameFramer, shipped=default_codec):
+    """HN-100 framer: sync, size, length and checksum from the table or codec given (default:
+    the shipped codec)."""
 
 
 FORMAT = Format.of_codec(

@@ -11,23 +11,12 @@ Decoded :data:`Ms3aSample` messages carry the sample ``counter`` and the flux de
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from auvgw.drivers.formats import Format
-from auvgw.drivers.framing import ErrorPolicy
-from auvgw.drivers.tablecodec import (
-    AsciiLineCodec,
-    AsciiLineFramer,
-    AsciiLineSpec,
-    build_message_class,
-    load_toml,
-    parse_ascii_table,
-    shipped_codec,
-)
-from auvgw.paths import config_file
+from auvgw.drivers.tablecodec import AsciiLineCodec, AsciiLineFramer, shipped_codec
 
 __all__ = ["FORMAT", "REQUIRED_FIELDS", "Ms3aCodec", "Ms3aFramer", "default_codec"]
 
@@ -53,31 +42,14 @@ _EXTRA = {"b_nt": property(_b_nt), "b_tesla": property(_b_tesla)}
 
 
 class Ms3aCodec(AsciiLineCodec):
-    """MS3A lines under one table: :meth:`framer`, :meth:`decode`, :meth:`encode`."""
+    """MS3A lines under one table (shipped: ``config/ms3a.toml``): :meth:`framer`,
+    :meth:`decode`, :meth:`encode`; a site table loads with :meth:`from_toml`."""
 
-    @classmethod
-    def from_toml(cls, path: str | Path | None = None) -> Ms3aCodec:
-        """Load a table (default: the shipped ``config/ms3a.toml``); errors name file and entry."""
-        path = Path(path) if path is not None else config_file("ms3a.toml")
-        return cls.from_spec(parse_ascii_table(load_toml(path), str(path), REQUIRED_FIELDS))
-
-    @classmethod
-    def from_spec(cls, spec: AsciiLineSpec) -> Ms3aCodec:
-        msg_type = build_message_class(
-            "Ms3aSample",
-            spec.fields,
-            doc=f"{_DOC}\n\nTable: {spec.source}",
-            module=__name__,
-            namespace=_EXTRA,
-            source=spec.source,
-        )
-        return cls(spec, msg_type, name="ms3a")
-
-    def framer(
-        self, policy: ErrorPolicy | str = ErrorPolicy.LOG, source: str = "", **_ignored: Any
-    ) -> Ms3aFramer:
-        """A fresh framer for this codec's table."""
-        return Ms3aFramer(self, policy=policy, source=source)
+    TABLE = "ms3a.toml"
+    MESSAGE = "Ms3aSample"
+    DOC = _DOC
+    EXTRA = _EXTRA
+    REQUIRED_FIELDS = REQUIRED_FIELDS
 
 
 #: the shipped table's codec, read on first use; ``CODEC`` and ``Ms3aSample`` (its message class)
@@ -85,17 +57,8 @@ class Ms3aCodec(AsciiLineCodec):
 default_codec, __getattr__ = shipped_codec(Ms3aCodec.from_toml, "Ms3aSample")
 
 
-class Ms3aFramer(AsciiLineFramer):
+class Ms3aFramer(AsciiLineFramer, shipped=default_codec):
     """MS3A framer: start char .. terminator; checksum, field count and number forms verified."""
-
-    def __init__(
-        self,
-        codec: Ms3aCodec | None = None,
-        policy: ErrorPolicy | str = ErrorPolicy.LOG,
-        source: str = "",
-    ) -> None:
-        spec = (codec or default_codec()).spec
-        super().__init__(spec, policy=policy, source=source, name="ms3a")
 
 
 FORMAT = Format.of_codec(

@@ -32,7 +32,7 @@ import zlib
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol, TypeVar
+from typing import Any, ClassVar, Generic, Protocol, Self, TypeVar
 
 from auvgw.drivers.framing import BadFrame, DecodeError, ErrorPolicy, Framer
 from auvgw.drivers.spec import (
@@ -45,6 +45,7 @@ from auvgw.drivers.spec import (
     wire,
 )
 from auvgw.errors import ConfigError, DataError
+from auvgw.paths import config_file
 
 __all__ = [
     "CHECKSUMS",
@@ -59,7 +60,9 @@ __all__ = [
     "ChecksumKind",
     "FieldSpec",
     "FlagsSpec",
+    "TableCodec",
     "TableError",
+    "TableFramer",
     "load_toml",
     "parse_ascii_table",
     "parse_binary_table",
@@ -710,24 +713,141 @@ def _runs(indices: Iterable[int]) -> list[tuple[int, int]]:
     return out
 
 
-class BinaryFrameFramer(Framer):
-    """Framer whose sync, size, length field and checksum come from a :class:`BinaryFrameSpec`."""
+class _Table(Protocol):
+    @property
+    def source(self) -> str: ...
+
+    @property
+    def fields(self) -> Sequence[FieldSpec]: ...
+
+
+S = TypeVar("S", bound=_Table)
+F = TypeVar("F", bound=Framer)
+
+
+class TableCodec(Generic[S, F]):
+    """What a table-driven codec shares: the table ``spec``, the message class built from it, a
+    ``name`` (logs, errors) and :meth:`framer`.
+
+    A device's codec subclasses :class:`BinaryFrameCodec` or :class:`AsciiLineCodec` and gives
+    in class attributes its shipped table (:attr:`TABLE`), the message class's name
+    (:attr:`MESSAGE`), docstring (:attr:`DOC`) and extra members (:attr:`EXTRA`), and the
+    fields every table of the device must declare (:attr:`REQUIRED_FIELDS`); :meth:`from_toml`
+    and :meth:`from_spec` build it from those. A device's framer class subclasses the table
+    kind's framer with ``shipped=default_codec`` (the codec used when it is given none)."""
+
+    #: the framer of this table kind: ``framer_type(spec, policy=, source=, name=)``
+    framer_type: Callable[..., F]
+    #: a device's shipped table under ``config/``; its stem names the codec
+    TABLE: ClassVar[str] = ""
+    #: the name of the message class built from a table
+    MESSAGE: ClassVar[str] = ""
+    #: the message class's docstring (the table's source is appended)
+    DOC: ClassVar[str] = ""
+    #: extra members of the message class (properties)
+    EXTRA: ClassVar[Mapping[str, Any]] = {}
+    #: fields every table of the device must declare: name -> decoded units ('' = a count)
+    REQUIRED_FIELDS: ClassVar[Mapping[str, str]] = {}
+
+    def __init__(self, spec: S, message_type: type, name: str = "frame") -> None:
+        self.spec = spec
+        self.message_type = message_type
+        self.name = name
+
+    @classmethod
+    def from_toml(cls, path: str | Path | None = None) -> Self:
+        """Load a table (default: the shipped ``config/<TABLE>``).
+
+        Raises :class:`TableError` naming the file, the entry and what is expected (unknown
+        type, overlapping fields, field beyond the frame, a required field missing, ...).
+        """
+        path = Path(path) if path is not None else config_file(cls.TABLE)
+        return cls.from_spec(cls.parse_table(load_toml(path), str(path)))
+
+    @classmethod
+    def parse_table(cls, doc: Mapping[str, Any], source: str) -> S:
+        """Validate a parsed TOML table of this kind read from ``source``."""
+        raise NotImplementedError
+
+    @classmethod
+    def message_options(cls, spec: S) -> dict[str, Any]:
+        """Keyword arguments of :func:`build_message_class` that the table kind adds."""
+        return {}
+
+    @classmethod
+    def from_spec(cls, spec: S) -> Self:
+        """The codec of a validated table, its message class (:attr:`MESSAGE`) built from it."""
+        msg_type = build_message_class(
+            cls.MESSAGE,
+            spec.fields,
+            doc=f"{cls.DOC}\n\nTable: {spec.source}",
+            module=cls.__module__,
+            namespace=cls.EXTRA,
+            source=spec.source,
+            **cls.message_options(spec),
+        )
+        return cls(spec, msg_type, name=Path(cls.TABLE).stem)
+
+    def framer(
+        self,
+        policy: ErrorPolicy | str = ErrorPolicy.LOG,
+        source: str = "",
+        **_ignored: Any,
+    ) -> F:
+        """A fresh framer for this table."""
+        return self.framer_type(self.spec, policy=policy, source=source, name=self.name)
+
+
+class TableFramer(Framer, Generic[S]):
+    """A framer whose sync, size and checks come from a table: a spec, a codec's or (a device
+    framer, declared ``class Hn100Framer(BinaryFrameFramer, shipped=default_codec)``) the
+    shipped codec's when given none. ``name`` defaults to the codec's."""
+
+    #: the codec whose table a device framer uses when given none
+    shipped: ClassVar[Callable[[], TableCodec[Any, Any]] | None] = None
+    spec: S
+
+    def __init_subclass__(
+        cls, shipped: Callable[[], TableCodec[Any, Any]] | None = None, **kw: Any
+    ) -> None:
+        super().__init_subclass__(**kw)
+        cls.shipped = shipped or cls.shipped
 
     def __init__(
         self,
-        spec: BinaryFrameSpec,
+        table: S | TableCodec[S, Any] | None = None,
         policy: ErrorPolicy | str = ErrorPolicy.LOG,
         source: str = "",
-        name: str = "frame",
+        name: str | None = None,
     ) -> None:
-        self.spec = spec
+        shipped = type(self).shipped
+        if table is None:
+            if shipped is None:
+                raise TypeError(f"{type(self).__name__} needs a table")
+            table = shipped()
+        if isinstance(table, TableCodec):
+            name = name or table.name
+            table = table.spec
+        self.spec = table
+        self.name = name or self.name
+        super().__init__(policy=policy, source=source, max_frame_size=self.use_table(table))
+
+    def use_table(self, spec: S) -> int:
+        """Take the sync and what the checks need from ``spec``; the largest frame (bytes)."""
+        raise NotImplementedError
+
+
+class BinaryFrameFramer(TableFramer[BinaryFrameSpec]):
+    """Framer whose sync, size, length field and checksum come from a :class:`BinaryFrameSpec`
+    (see :class:`TableFramer`)."""
+
+    def use_table(self, spec: BinaryFrameSpec) -> int:
         self.sync = spec.sync
-        self.name = name
-        super().__init__(policy=policy, source=source, max_frame_size=spec.size)
         self._cs_struct = struct.Struct(
             spec.checksum_byte_order + ("B", "H", "", "I")[spec.checksum.size - 1]
         )
         self._len_struct = struct.Struct(spec.byte_order + WIRE_TYPES[spec.length_type])
+        return spec.size
 
     def check(self, buf: bytearray, start: int) -> int:
         spec = self.spec
@@ -756,23 +876,25 @@ class BinaryFrameFramer(Framer):
         return spec.size
 
 
-class BinaryFrameCodec:
-    """Decode/encode one :class:`BinaryFrameSpec` through a message class built from it."""
+class BinaryFrameCodec(TableCodec[BinaryFrameSpec, BinaryFrameFramer]):
+    """Decode/encode one :class:`BinaryFrameSpec` through a message class built from it; its
+    framer takes sync, length and checksum from the table."""
+
+    framer_type = BinaryFrameFramer
+    #: status bits every table of the device must name (in its [status] table)
+    REQUIRED_FLAGS: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, spec: BinaryFrameSpec, message_type: type, name: str = "frame") -> None:
-        self.spec = spec
-        self.message_type = message_type
-        self.name = name
+        super().__init__(spec, message_type, name)
         self._checker = BinaryFrameFramer(spec, policy=ErrorPolicy.IGNORE, name=name)
 
-    def framer(
-        self,
-        policy: ErrorPolicy | str = ErrorPolicy.LOG,
-        source: str = "",
-        **_ignored: Any,
-    ) -> BinaryFrameFramer:
-        """A fresh framer for this table (sync, length and checksum from the table)."""
-        return BinaryFrameFramer(self.spec, policy=policy, source=source, name=self.name)
+    @classmethod
+    def parse_table(cls, doc: Mapping[str, Any], source: str) -> BinaryFrameSpec:
+        return parse_binary_table(doc, source, cls.REQUIRED_FIELDS, cls.REQUIRED_FLAGS)
+
+    @classmethod
+    def message_options(cls, spec: BinaryFrameSpec) -> dict[str, Any]:
+        return {"byte_order": spec.byte_order, "flags": spec.flags}
 
     def verify(self, frame: bytes | bytearray | memoryview) -> None:
         """Raise :class:`DecodeError` unless ``frame`` is exactly one valid frame."""
@@ -1054,22 +1176,17 @@ def parse_line(spec: AsciiLineSpec, line: bytes | bytearray | memoryview) -> lis
     return raws
 
 
-class AsciiLineFramer(Framer):
+class AsciiLineFramer(TableFramer[AsciiLineSpec]):
     """Framer on the start character .. terminator; every line is fully validated
-    (checksum, field count, numbers, widths), so a delivered line always decodes."""
+    (checksum, field count, numbers, widths), so a delivered line always decodes (see
+    :class:`TableFramer`)."""
 
-    def __init__(
-        self,
-        spec: AsciiLineSpec,
-        policy: ErrorPolicy | str = ErrorPolicy.LOG,
-        source: str = "",
-        name: str = "line",
-    ) -> None:
-        self.spec = spec
+    name = "line"
+
+    def use_table(self, spec: AsciiLineSpec) -> int:
         self.sync = spec.start.encode()
-        self.name = name
         self._term = spec.terminator.encode()
-        super().__init__(policy=policy, source=source, max_frame_size=spec.max_length)
+        return spec.max_length
 
     def check(self, buf: bytearray, start: int) -> int:
         limit = min(len(buf), start + self.spec.max_length)
@@ -1090,22 +1207,17 @@ class AsciiLineFramer(Framer):
         return length
 
 
-class AsciiLineCodec:
+class AsciiLineCodec(TableCodec[AsciiLineSpec, AsciiLineFramer]):
     """Decode/encode one :class:`AsciiLineSpec` through a message class built from it."""
 
-    def __init__(self, spec: AsciiLineSpec, message_type: type, name: str = "line") -> None:
-        self.spec = spec
-        self.message_type = message_type
-        self.name = name
+    framer_type = AsciiLineFramer
 
-    def framer(
-        self,
-        policy: ErrorPolicy | str = ErrorPolicy.LOG,
-        source: str = "",
-        **_ignored: Any,
-    ) -> AsciiLineFramer:
-        """A fresh framer for this table."""
-        return AsciiLineFramer(self.spec, policy=policy, source=source, name=self.name)
+    def __init__(self, spec: AsciiLineSpec, message_type: type, name: str = "line") -> None:
+        super().__init__(spec, message_type, name)
+
+    @classmethod
+    def parse_table(cls, doc: Mapping[str, Any], source: str) -> AsciiLineSpec:
+        return parse_ascii_table(doc, source, cls.REQUIRED_FIELDS)
 
     def decode(self, line: bytes | bytearray | memoryview) -> Any:
         """The message of one whole line (checksum and form verified), decoded units."""

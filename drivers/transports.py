@@ -39,13 +39,13 @@ import time
 from abc import ABC, abstractmethod
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
-from types import TracebackType
 from typing import Any, ClassVar, NoReturn, Self
 
 import can
 import serial
 from serial.urlhandler import protocol_socket
 
+from auvgw.closing import Closing
 from auvgw.config.transport import (
     CAN_EXT_MAX,
     CAN_STD_MAX,
@@ -158,7 +158,7 @@ def _hint(exc: BaseException, default: str) -> str:
     return default
 
 
-class Transport(ABC):
+class Transport(Closing, ABC):
     """Bytes in and out of one device, with receive timestamps; no decoding.
 
     ``read`` returns one :class:`Chunk` or None when nothing arrived within ``timeout_s``
@@ -207,13 +207,6 @@ class Transport(ABC):
         self.open()
         return self
 
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
     def __repr__(self) -> str:
         state = "open" if self.is_open else "closed"

@@ -56,6 +56,7 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from auvgw.closing import Closing
 from auvgw.sim_devices.clock import SimClock, thread_cpu_s
 
 __all__ = ["Pacer", "PortStats", "PtyPort", "UdpSender"]
@@ -119,7 +120,7 @@ class Pacer:
         self.line_free += seconds
 
 
-class PtyPort:
+class PtyPort(Closing):
     """A device's serial port: a pty pair, paced writes, host bytes in, unplug and replug.
 
     ``baud`` None means unpaced (USB adapters); a write can also give its own line time.
@@ -276,11 +277,6 @@ class PtyPort:
             with contextlib.suppress(OSError):
                 os.close(fd)
 
-    def __enter__(self) -> PtyPort:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     # -- device side API ----------------------------------------------------------------------
     def write(
@@ -457,7 +453,7 @@ class PtyPort:
                 self.stats.writes_cut += 1
 
 
-class UdpSender:
+class UdpSender(Closing):
     """Datagrams to ``host:port`` (loopback by default), e.g. the multibeam's XYZ 88 stream.
 
     Unplugging (the Ethernet cable pulled) drops datagrams, counted, until :meth:`replug`.
@@ -518,8 +514,3 @@ class UdpSender:
                 self._sock.close()
                 self._sock = None
 
-    def __enter__(self) -> UdpSender:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()

@@ -47,6 +47,7 @@ from typing import Any
 
 import numpy as np
 
+from auvgw.closing import Closing
 from auvgw.config.scenario import DeviceSettings, FaultSettings, Scenario
 from auvgw.drivers import registry
 from auvgw.errors import format_validation_error
@@ -216,7 +217,7 @@ def write_gateway_config(
 # -- the runner ----------------------------------------------------------------------------------
 
 
-class Runner:
+class Runner(Closing):
     """World + truth + clock + emulators of one scenario (see the module docstring).
 
     ``speed``: vehicle seconds per real second (0: as fast as possible). ``out_dir``: port
@@ -539,11 +540,6 @@ class Runner:
                 em.close()
         self._finish_truth_log()
 
-    def __enter__(self) -> Runner:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 # -- one process per device ----------------------------------------------------------------------
@@ -602,7 +598,7 @@ def child_main(argv: list[str] | None = None) -> None:
         runner.close()
 
 
-class DeviceProcesses:
+class DeviceProcesses(Closing):
     """Every device of a scenario in its own process, on one shared clock (vehicle time 0 at
     the same host instant in every process), so a run uses every core instead of one Python
     interpreter's. The same surface as :class:`Runner` for ``auvgw sim``: :meth:`endpoints`,
@@ -791,8 +787,3 @@ class DeviceProcesses:
                 self._finish(kind, timeout=5.0)
         self.truth_runner.close()
 
-    def __enter__(self) -> DeviceProcesses:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()

@@ -29,6 +29,7 @@ from pathlib import Path
 
 import can
 
+from auvgw.closing import Closing
 from auvgw.sim_devices.clock import SimClock
 from auvgw.sim_devices.ports import PtyPort
 
@@ -126,7 +127,7 @@ def _parse_frame(line: str) -> can.Message | None:
     )
 
 
-class SlcanAdapter:
+class SlcanAdapter(Closing):
     """A USB-CAN adapter on a pty (see the module docstring). ``clock`` gives the speed factor
     for bus pacing and the vehicle time for ``Z1`` timestamps; ``link`` a stable symlink."""
 
@@ -196,11 +197,6 @@ class SlcanAdapter:
     def close(self) -> None:
         self.port.close()
 
-    def __enter__(self) -> SlcanAdapter:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     # -- device side --------------------------------------------------------------------------
     def send(self, msg: can.Message) -> bool:

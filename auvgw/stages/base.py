@@ -47,12 +47,13 @@ from dataclasses import asdict, dataclass
 from typing import Any, ClassVar
 
 import zenoh
+from pydantic import BaseModel, ConfigDict, Field
 
 from auvgw.bus import SCHEMA_VERSION, Envelope, Keys, decode_envelope, json_encoding, undeclare
 from auvgw.fusion.odometry import Odometry
 from auvgw.stages import join_draining, log_bad_payload
 
-__all__ = ["DROP", "BusCounters", "PipelineStage", "Stage"]
+__all__ = ["DROP", "BusCounters", "PipelineStage", "Stage", "StageConfig"]
 
 log = logging.getLogger(__name__)
 
@@ -71,13 +72,26 @@ class BusCounters:
     queue_dropped: int = 0  #: payloads dropped because the worker fell behind
 
 
+class StageConfig(BaseModel):
+    """The settings every stage's config has: ``vehicle`` (the key root ``auv/<vehicle>``),
+    ``status_period_s`` (s between status publications, host clock) and ``queue_size``
+    (payloads waiting for the worker before ``queue_dropped`` counts)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    vehicle: str = "auv1"
+    status_period_s: float = Field(1.0, gt=0)
+    queue_size: int = Field(100_000, ge=1)
+
+
 class Stage:
     """Queue, worker, envelope decoding, status, liveliness and stop/flush of a bus stage (see
     the module docstring for the subclass contract).
 
-    ``keys``: the vehicle's key expressions; ``stats``: the stage's counters (a
+    ``config``: vehicle, status period and queue size; ``stats``: the stage's counters (a
     :class:`BusCounters`, published under ``"stage"``); ``session``: the Zenoh session (None:
-    in-process only); ``on_publish(key, payload, t_ns)``: called at every publication.
+    in-process only); ``on_publish(key, payload, t_ns)``: called at every publication;
+    ``keys``: the vehicle's key expressions (None: ``Keys(config.vehicle)``).
     """
 
     #: short name: logs, the worker thread, the default component
@@ -93,22 +107,21 @@ class Stage:
 
     def __init__(
         self,
-        keys: Keys,
+        config: StageConfig,
         stats: BusCounters,
         session: zenoh.Session | None = None,
         *,
-        status_period_s: float = 1.0,
-        queue_size: int = 100_000,
         on_publish: Callable[[str, bytes, int], object] | None = None,
+        keys: Keys | None = None,
     ) -> None:
-        self.keys = keys
+        self.keys = keys or Keys(config.vehicle)
         self.stats = stats
         self.session = session
         self.on_publish = on_publish
-        self.status_period_s = status_period_s
+        self.status_period_s = config.status_period_s
         self._lock = threading.RLock()  # the subclass's state and the counters
         self._drop_lock = threading.Lock()  # queue_dropped (Zenoh callbacks, never _lock)
-        self._queue: queue.Queue[_Item | None] = queue.Queue(max(1, queue_size))
+        self._queue: queue.Queue[_Item | None] = queue.Queue(max(1, config.queue_size))
         self._pubs: dict[str, zenoh.Publisher] = {}
         self._status_pub: zenoh.Publisher | None = None
         self._decls: list[Any] = []
@@ -356,11 +369,38 @@ class Stage:
 
 class PipelineStage(Stage):
     """A SLAM pipeline stage (bathymetric, magnetic): output ``what`` on
-    ``auv/<v>/slam/<name>/<what>`` as JSON of type ``<schema_prefix><What>``, status and
-    liveliness as ``slam-<name>``, every decoded bus message counted as ``received``."""
+    ``auv/<v>/slam/<name>/<what>`` as JSON of type ``<Name><What>``, status (``<Name>Status``)
+    and liveliness as ``slam-<name>``, every decoded bus message counted as ``received``.
 
-    #: the JSON type of output ``what`` is this prefix + ``what.capitalize()``
+    ``config``: the stage's settings (kept as ``self.config``); ``session``: publish on it
+    (None: in-process only); ``on_publish(key, payload, t_ns)`` is called at every
+    publication. A subclass names its counters in :attr:`stats_type` and builds its own state
+    in :meth:`setup`."""
+
+    #: the JSON type of output ``what`` is this prefix + ``what.capitalize()`` (``<Name>``)
     schema_prefix: ClassVar[str] = ""
+    #: the stage's counters, made at construction
+    stats_type: ClassVar[type[BusCounters]] = BusCounters
+
+    def __init_subclass__(cls, **kw: Any) -> None:
+        super().__init_subclass__(**kw)
+        cls.schema_prefix = cls.name.capitalize()
+        cls.status_schema = f"{cls.schema_prefix}Status"
+
+    def __init__(
+        self,
+        config: StageConfig,
+        session: zenoh.Session | None = None,
+        on_publish: Callable[[str, bytes, int], object] | None = None,
+    ) -> None:
+        self.config = config
+        super().__init__(config, self.stats_type(), session, on_publish=on_publish)
+        #: published poses: (t s, x, y, heading)
+        self.track: list[tuple[float, float, float, float]] = []
+        self.setup()
+
+    def setup(self) -> None:
+        """The pipeline's own state, from ``self.config`` (the end of construction)."""
 
     @property
     def component(self) -> str:

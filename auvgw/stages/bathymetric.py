@@ -41,20 +41,17 @@ import bisect
 import logging
 import math
 from collections import deque
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import zenoh
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
-from auvgw.bus import Keys
 from auvgw.fusion.odometry import Odometry
 from auvgw.slam.bathymetric.config import BathyConfig
 from auvgw.slam.bathymetric.evaluate import grid_dem
 from auvgw.slam.bathymetric.online import OnlineBathy
-from auvgw.stages.base import BusCounters, PipelineStage
+from auvgw.stages.base import BusCounters, PipelineStage, StageConfig
 
 log = logging.getLogger(__name__)
 
@@ -64,7 +61,7 @@ PIPELINE = "bathymetric"
 SWATH_KINDS = ("xyz88", "depth")
 
 
-class BathymetricStageConfig(BaseModel):
+class BathymetricStageConfig(StageConfig):
     """Settings of the bathymetric stage.
 
     ``multibeam_device``: the gateway device whose swaths are used (None: any);
@@ -76,9 +73,6 @@ class BathymetricStageConfig(BaseModel):
     ``odometry_window_s``: odometry history kept to place swaths; ``max_pending_swaths``: swaths
     waiting for odometry before the oldest is dropped."""
 
-    model_config = ConfigDict(extra="forbid")
-
-    vehicle: str = "auv1"
     multibeam_device: str | None = None
     n_particles: int = Field(100, ge=1)
     seed: int = 0
@@ -89,8 +83,6 @@ class BathymetricStageConfig(BaseModel):
     cloud_beam_stride: int = Field(4, ge=1)
     odometry_window_s: float = Field(60.0, gt=0)
     max_pending_swaths: int = Field(200, ge=1)
-    status_period_s: float = Field(1.0, gt=0)
-    queue_size: int = Field(100_000, ge=1)
 
     def bathy_config(self) -> BathyConfig:
         """The filter's settings (``filter`` overrides, then ``n_particles``)."""
@@ -130,33 +122,20 @@ def swath_soundings(msg: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 class BathymetricStage(PipelineStage):
-    """Odometry + multibeam swaths -> mtm-pf (see the module docstring).
-
-    ``session``: publish on it (None: in-process only); ``on_publish(key, payload, t_ns)`` is
-    called at every publication."""
+    """Odometry + multibeam swaths -> mtm-pf (see the module docstring and
+    :class:`~auvgw.stages.base.PipelineStage`)."""
 
     name = PIPELINE
-    schema_prefix = "Bathymetric"
-    status_schema = "BathymetricStatus"
     outputs = ("pose", "map", "cloud")
     bulk_outputs = frozenset({"map", "cloud"})
+    stats_type = BathymetricStats
     stats: BathymetricStats
+    config: BathymetricStageConfig
 
-    def __init__(
-        self,
-        config: BathymetricStageConfig,
-        session: zenoh.Session | None = None,
-        on_publish: Callable[[str, bytes, int], object] | None = None,
-    ) -> None:
-        self.config = cfg = config
+    def setup(self) -> None:
+        cfg = self.config
         self.bathy = cfg.bathy_config()
-        super().__init__(
-            Keys(cfg.vehicle), BathymetricStats(), session,
-            status_period_s=cfg.status_period_s, queue_size=cfg.queue_size, on_publish=on_publish,
-        )  # fmt: skip
         self.online = OnlineBathy(self.bathy, np.random.default_rng(cfg.seed), cfg.n_beams)
-        #: published poses: (t s, x, y, heading)
-        self.track: list[tuple[float, float, float, float]] = []
         #: time of each ping given to the filter (s, odometry clock)
         self.ping_times: list[float] = []
         self._t_odo: deque[float] = deque()

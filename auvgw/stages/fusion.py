@@ -39,13 +39,13 @@ from pathlib import Path
 from typing import Any
 
 import zenoh
-from pydantic import AliasChoices, BaseModel, ConfigDict, Field
+from pydantic import AliasChoices, ConfigDict, Field
 
-from auvgw.bus import Keys, encode_envelope
+from auvgw.bus import encode_envelope
 from auvgw.errors import ConfigError, load_settings
 from auvgw.fusion import FusionConfig, NavFilter, Odometry
 from auvgw.fusion.adapters import ATTITUDE_TYPES, VELOCITY_TYPES, MessageAdapter
-from auvgw.stages.base import BusCounters, Stage
+from auvgw.stages.base import BusCounters, Stage, StageConfig
 
 log = logging.getLogger(__name__)
 
@@ -75,7 +75,7 @@ class SettingsError(ConfigError):
     """A fusion settings file that cannot be used (names the file and the field)."""
 
 
-class FusionStageConfig(BaseModel):
+class FusionStageConfig(StageConfig):
     """Settings of the fusion stage (TOML: top-level keys, the filter under ``[filter]``).
 
     ``attitude`` / ``velocity`` (also spelled ``ins_device`` / ``dvl_device``): the gateway
@@ -90,7 +90,6 @@ class FusionStageConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid", populate_by_name=True)
 
-    vehicle: str = "auv1"
     ins_device: str = Field("ins", validation_alias=AliasChoices("attitude", "ins_device"))
     dvl_device: str = Field("dvl", validation_alias=AliasChoices("velocity", "dvl_device"))
     latency_s: dict[str, float] = Field(default_factory=dict)
@@ -98,8 +97,6 @@ class FusionStageConfig(BaseModel):
     clock_jump_s: float = Field(1.0, gt=0)
     require_aligned: bool = True
     high_res: bool = True
-    status_period_s: float = Field(1.0, gt=0)
-    queue_size: int = Field(100_000, ge=1)
     filter: FusionConfig = FusionConfig()
 
 
@@ -135,10 +132,7 @@ class FusionStage(Stage):
         on_odometry: Callable[[Odometry], object] | None = None,
     ) -> None:
         self.config = cfg = config or FusionStageConfig()
-        super().__init__(
-            Keys(cfg.vehicle), StageStats(), session,
-            status_period_s=cfg.status_period_s, queue_size=cfg.queue_size,
-        )  # fmt: skip
+        super().__init__(cfg, StageStats(), session)
         self.adapter = MessageAdapter(
             ins_device=cfg.ins_device,
             dvl_device=cfg.dvl_device,

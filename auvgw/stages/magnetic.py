@@ -46,16 +46,13 @@ from __future__ import annotations
 import logging
 import math
 from collections import deque
-from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import zenoh
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
-from auvgw.bus import Keys
 from auvgw.drivers import registry
 from auvgw.fusion.odometry import Odometry
 from auvgw.slam.history import StateHistory
@@ -63,7 +60,7 @@ from auvgw.slam.magnetic.filters import MAGNETIC_ALGORITHMS, make_magnetic
 from auvgw.slam.magnetic.mlp import MLP
 from auvgw.slam.magnetic.online import MagneticOnline
 from auvgw.slam.models import VelocityModel
-from auvgw.stages.base import BusCounters, PipelineStage
+from auvgw.stages.base import BusCounters, PipelineStage, StageConfig
 
 log = logging.getLogger(__name__)
 
@@ -77,7 +74,7 @@ PIPELINE = "magnetic"
 DEFAULT_MODEL = Path(__file__).resolve().parents[2] / "config" / "magnetic_mlp.npz"
 
 
-class MagneticStageConfig(BaseModel):
+class MagneticStageConfig(StageConfig):
     """Settings of the magnetic stage.
 
     ``channels_hz``: the beacons' frequencies (Hz, the demodulator's plan); ``anchor_xy``: the
@@ -93,9 +90,6 @@ class MagneticStageConfig(BaseModel):
     vehicle clock's zero on the input clock (s), the beacons' phase reference.
     """
 
-    model_config = ConfigDict(extra="forbid")
-
-    vehicle: str = "auv1"
     algorithm: str = "amb-slam"
     channels_hz: list[float]
     anchor_xy: tuple[float, float] | None = None
@@ -116,8 +110,6 @@ class MagneticStageConfig(BaseModel):
     odometry_window_s: float = Field(30.0, gt=0)
     odometry_period_s: float = Field(0.05, ge=0)
     max_pending_mag: int = Field(20_000, ge=1)
-    status_period_s: float = Field(1.0, gt=0)
-    queue_size: int = Field(100_000, ge=1)
 
 
 def config_from_scenario(path: Path, **kw: Any) -> MagneticStageConfig:
@@ -148,36 +140,23 @@ class MagneticStats(BusCounters):
 
 
 class MagneticStage(PipelineStage):
-    """Odometry + magnetometer + acoustic beacon -> AMB-SLAM (see the module docstring).
-
-    ``session``: publish on it (None: in-process only); ``on_publish(key, payload, t_ns)`` is
-    called at every publication."""
+    """Odometry + magnetometer + acoustic beacon -> AMB-SLAM (see the module docstring and
+    :class:`~auvgw.stages.base.PipelineStage`)."""
 
     name = PIPELINE
-    schema_prefix = "Magnetic"
-    status_schema = "MagneticStatus"
     outputs = ("pose", "landmarks", "observations")
+    stats_type = MagneticStats
     stats: MagneticStats
+    config: MagneticStageConfig
 
-    def __init__(
-        self,
-        config: MagneticStageConfig,
-        session: zenoh.Session | None = None,
-        on_publish: Callable[[str, bytes, int], object] | None = None,
-    ) -> None:
-        if config.algorithm not in MAGNETIC_ALGORITHMS:
+    def setup(self) -> None:
+        cfg = self.config
+        if cfg.algorithm not in MAGNETIC_ALGORITHMS:
             raise ValueError(
-                f"unknown algorithm {config.algorithm!r}; choose from {MAGNETIC_ALGORITHMS}"
+                f"unknown algorithm {cfg.algorithm!r}; choose from {MAGNETIC_ALGORITHMS}"
             )
-        self.config = cfg = config
-        super().__init__(
-            Keys(cfg.vehicle), MagneticStats(), session,
-            status_period_s=cfg.status_period_s, queue_size=cfg.queue_size, on_publish=on_publish,
-        )  # fmt: skip
         self.net = MLP.load(cfg.model)
         self.online: MagneticOnline | None = None
-        #: published poses: (t s, x, y, heading)
-        self.track: list[tuple[float, float, float, float]] = []
         self._att = StateHistory(3, angles=(0, 1, 2))  # heading, pitch, roll (rad)
         self._mags: deque[tuple[float, np.ndarray]] = deque()
         self._t_pub: float | None = None

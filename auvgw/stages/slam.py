@@ -32,9 +32,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import zenoh
-from pydantic import Field
 
-from auvgw.bus import Keys
 from auvgw.drivers import registry
 from auvgw.drivers import seanet as sn
 from auvgw.fusion.odometry import Odometry
@@ -44,7 +42,7 @@ from auvgw.slam.landmark.online import (
     OnlineStats,
     compose_increments,
 )
-from auvgw.stages.base import BusCounters, Stage
+from auvgw.stages.base import BusCounters, Stage, StageConfig
 
 log = logging.getLogger(__name__)
 
@@ -55,17 +53,14 @@ __all__ = ["SlamStage", "SlamStageConfig", "SlamStats", "compose_increments"]
 (HEADDATA_KIND,) = registry.kinds_with_role("sonar")
 
 
-class SlamStageConfig(LandmarkOnlineConfig):
+class SlamStageConfig(LandmarkOnlineConfig, StageConfig):
     """Settings of the SLAM stage: the pipeline's (:class:`LandmarkOnlineConfig`) and the
     bus's: ``vehicle``; ``pipeline``, the key segment (default the algorithm name);
     ``msis_device``, gateway device of the head (None: the first head seen); status period and
     queue size."""
 
-    vehicle: str = "auv1"
     pipeline: str | None = None
     msis_device: str | None = None
-    status_period_s: float = Field(1.0, gt=0)
-    queue_size: int = Field(100_000, ge=1)
 
     @property
     def pipeline_name(self) -> str:
@@ -99,9 +94,7 @@ class SlamStage(Stage):
         on_publish: Callable[[str, bytes, int], object] | None = None,
     ) -> None:
         self.config = cfg = config or SlamStageConfig()
-        super().__init__(Keys(cfg.vehicle), SlamStats(), session,
-                         status_period_s=cfg.status_period_s, queue_size=cfg.queue_size,
-                         on_publish=on_publish)  # fmt: skip
+        super().__init__(cfg, SlamStats(), session, on_publish=on_publish)
         self.online = LandmarkOnline(cfg, stats=self.stats)
         self.msis_device = cfg.msis_device
 

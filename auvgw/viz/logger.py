@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 import rerun as rr
 
+from auvgw.closing import Closing
 from auvgw.geometry import TWO_PI, quaternion_zyx, wrap_angle
 from auvgw.viz import entities as ent
 from auvgw.viz.blueprint import DEFAULT_TRACKS, default_blueprint
@@ -319,7 +320,7 @@ class _Stream:
 
 
 # -- the logger --------------------------------------------------------------------------------
-class RerunLogger:
+class RerunLogger(Closing):
     """Logs a run to an ``.rrd`` file (``rrd``) and/or a running viewer (``connect``, a
     ``rerun+http://host:9876/proxy`` URL) without ever blocking the caller.
 
@@ -422,11 +423,6 @@ class RerunLogger:
         finally:
             self._rec.disconnect()
 
-    def __enter__(self) -> RerunLogger:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     def stats(self) -> LoggerStats:
         """Current counters (see :class:`LoggerStats`)."""

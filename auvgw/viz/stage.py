@@ -52,7 +52,7 @@ import numpy as np
 from auvgw.bus import SCHEMA_VERSION, Keys, decode_envelope
 from auvgw.devicetime import DeviceClock
 from auvgw.drivers.spec import from_jsonable, resolve_type
-from auvgw.stages.base import BusCounters, Stage
+from auvgw.stages.base import BusCounters, Stage, StageConfig
 from auvgw.viz.logger import RerunLogger, VizOptions
 
 __all__ = ["SECTIONS", "StageStats", "VizRunner", "VizStage", "host_clock", "open_viz"]
@@ -213,8 +213,8 @@ class VizStage(Stage):
         queue_size: int = 20_000,
         health_period_s: float = 1.0,
     ) -> None:
-        super().__init__(Keys(vehicle, root), StageStats(), status_period_s=health_period_s,
-                         queue_size=queue_size)  # fmt: skip
+        cfg = StageConfig(vehicle=vehicle, status_period_s=health_period_s, queue_size=queue_size)
+        super().__init__(cfg, StageStats(), keys=Keys(vehicle, root))
         self.logger = logger
         self.sections: tuple[str, ...] = SECTIONS
         self._map_lock = threading.Lock()  # mapping state (clocks, poses): bus and in-process

@@ -44,9 +44,9 @@ import math
 import struct
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
-from types import TracebackType
 from typing import Any, BinaryIO, ClassVar
 
+from auvgw.closing import Closing
 from auvgw.drivers.formats import Format
 from auvgw.drivers.framing import (
     BadFrame,
@@ -448,14 +448,7 @@ class V4LogFramer(Framer):
                 break
             self._deliver(out, Frame(bytes(buf[i : i + length]), pos))
             i += length
-        if self._waiting is not None and self._waiting != self._base + i:
-            self._waiting = None
-        del buf[:i]
-        self._base += i
-        if error is not None:
-            self._pending = out
-            raise error
-        return out
+        return self._consumed(i, out, error)
 
 
 class _Wait(Exception):
@@ -512,7 +505,7 @@ def read_v4log(
 
 
 # -- writing ----------------------------------------------------------------------------------
-class V4LogWriter:
+class V4LogWriter(Closing):
     """Writes a .V4LOG: the header (patched on :meth:`close`), then one record per packet.
 
     No clock inside: every record gets the time it is given; the header's open/close times
@@ -573,15 +566,7 @@ class V4LogWriter:
             self._fh.close()
         return header
 
-    def __enter__(self) -> V4LogWriter:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
+    def __exit__(self, *exc: object) -> None:
         if not self._fh.closed:
             self.close()
 

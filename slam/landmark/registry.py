@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from importlib import import_module
 from typing import Any
 
 import numpy as np
@@ -14,65 +15,37 @@ from auvgw.slam.models import MotionModel, ObservationModel
 __all__ = ["ALGORITHMS", "DISPLAY_NAMES", "make_association", "make_filter"]
 
 
-def _fastslam1(**kw: Any) -> LandmarkFilter:
-    from auvgw.slam.landmark.fastslam import FastSLAM1
-
-    return FastSLAM1(**kw)
+#: the particle filters' arguments, which the EKF family does not take
+_PARTICLE_ARGS = ("n_particles", "resample_fraction")
 
 
-def _fastslam2(**kw: Any) -> LandmarkFilter:
-    from auvgw.slam.landmark.fastslam import FastSLAM2
+def _lazy(
+    module: str, cls: str, drop: tuple[str, ...] = (), **fixed: Any
+) -> Callable[..., LandmarkFilter]:
+    """A factory of ``auvgw.slam.landmark.<module>.<cls>`` importing it on first use: the
+    ``fixed`` keyword arguments, then the caller's less those named in ``drop``."""
 
-    return FastSLAM2(**kw)
-
-
-def _ufastslam(**kw: Any) -> LandmarkFilter:
-    from auvgw.slam.landmark.ufastslam import UFastSLAM
-
-    return UFastSLAM(**kw)
-
-
-def _vba(**kw: Any) -> LandmarkFilter:
-    from auvgw.slam.landmark.vb import VBAFastSLAM
-
-    return VBAFastSLAM(**kw)
-
-
-def _vbau(**kw: Any) -> LandmarkFilter:
-    from auvgw.slam.landmark.vb import VBAUFastSLAM
-
-    return VBAUFastSLAM(**kw)
-
-
-def _vr(**kw: Any) -> LandmarkFilter:
-    from auvgw.slam.landmark.vrfastslam import VRFastSLAM
-
-    return VRFastSLAM(**kw)
-
-
-def _ekf(adaptive: str) -> Callable[..., LandmarkFilter]:
     def build(**kw: Any) -> LandmarkFilter:
-        from auvgw.slam.landmark.ekfslam import EKFSLAM
-
-        kw.pop("n_particles", None)
-        kw.pop("resample_fraction", None)
-        return EKFSLAM(adaptive=adaptive, **kw)
+        filt: type[LandmarkFilter] = getattr(import_module(f"auvgw.slam.landmark.{module}"), cls)
+        for name in drop:
+            kw.pop(name, None)
+        return filt(**fixed, **kw)
 
     return build
 
 
 #: algorithm name -> factory taking the keyword arguments of :func:`make_filter`
 ALGORITHMS: dict[str, Callable[..., LandmarkFilter]] = {
-    "fastslam1": _fastslam1,
-    "fastslam2": _fastslam2,
-    "ufastslam": _ufastslam,
-    "vb-afastslam": _vba,
-    "vb-aufastslam": _vbau,
-    "vrfastslam": _vr,
-    "ekf": _ekf("none"),
-    "shekf": _ekf("sage-husa"),
-    "stekf": _ekf("strong-tracking"),
-    "caekf": _ekf("combined"),
+    "fastslam1": _lazy("fastslam", "FastSLAM1"),
+    "fastslam2": _lazy("fastslam", "FastSLAM2"),
+    "ufastslam": _lazy("ufastslam", "UFastSLAM"),
+    "vb-afastslam": _lazy("vb", "VBAFastSLAM"),
+    "vb-aufastslam": _lazy("vb", "VBAUFastSLAM"),
+    "vrfastslam": _lazy("vrfastslam", "VRFastSLAM"),
+    "ekf": _lazy("ekfslam", "EKFSLAM", _PARTICLE_ARGS, adaptive="none"),
+    "shekf": _lazy("ekfslam", "EKFSLAM", _PARTICLE_ARGS, adaptive="sage-husa"),
+    "stekf": _lazy("ekfslam", "EKFSLAM", _PARTICLE_ARGS, adaptive="strong-tracking"),
+    "caekf": _lazy("ekfslam", "EKFSLAM", _PARTICLE_ARGS, adaptive="combined"),
 }
 
 #: names used in the papers' tables
@@ -110,14 +83,13 @@ def make_filter(
     q: np.ndarray,
     r: np.ndarray,
     *,
-    n_particles: int = 100,
-    x0: np.ndarray | tuple[float, float, float] = (0.0, 0.0, 0.0),
     association: str | Association = "known",
-    resample_fraction: float = 0.75,
     **options: Any,
 ) -> LandmarkFilter:
     """A filter by algorithm name (see :data:`ALGORITHMS`); ``q`` control noise, ``r`` nominal
-    observation noise ``R0``; extra ``options`` go to the filter class."""
+    observation noise ``R0``; ``options`` go to the filter class (``n_particles``, ``x0``,
+    ``resample_fraction`` of :class:`~auvgw.slam.landmark.base.LandmarkFilter` and each
+    class's own; the EKF family ignores the particle filters' two)."""
     try:
         factory = ALGORITHMS[name]
     except KeyError:
@@ -128,9 +100,6 @@ def make_filter(
         obs=obs,
         q=q,
         r=r,
-        n_particles=n_particles,
-        x0=x0,
         association=assoc,
-        resample_fraction=resample_fraction,
         **options,
     )
