@@ -58,9 +58,12 @@ def test_the_magnetic_stage_used_every_sample_and_mapped_beacons(beacons_run) ->
     assert n_mag - 2 <= st["mag"] <= n_mag
     assert st["mag_before_odometry"] == 0 and st["mag_dropped"] == 0
     assert st["bad_payloads"] == 0 and st["queue_dropped"] == 0 and st["mag_other_device"] == 0
-    # 1 Hz acoustic fixes, 5 % missed; every one the gateway decoded was used
+    # 1 Hz acoustic fixes, 5 % missed; every one the gateway decoded was used, those that came
+    # before the first odometry (which lags the sensors by the fusion's hold-back, seconds on a
+    # loaded machine) once it came
     n_ac = summary["devices"]["acoustic"]["messages"]["AcousticReply"]
     assert st["acoustic"] >= n_ac - 2 and n_ac >= 0.85 * DURATION_S
+    assert st["acoustic_before_odometry"] <= 1
     # the first leg passes five beacons within the 25 m sensor range: each seen many times at 5 Hz
     assert st["observations"] >= 50
     assert 3 <= counters["landmarks"] <= 10

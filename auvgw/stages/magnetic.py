@@ -135,6 +135,7 @@ class MagneticStats(BusCounters):
     mag_before_odometry: int = 0  #: samples older than the odometry history (dropped)
     mag_dropped: int = 0  #: samples dropped because too many waited for odometry
     acoustic: int = 0  #: acoustic fixes used
+    acoustic_before_odometry: int = 0  #: fixes older than the first odometry (dropped)
     observations: int = 0  #: demodulated, ranged beacon observations
     published: int = 0  #: pose publications
 
@@ -159,6 +160,8 @@ class MagneticStage(PipelineStage):
         self.online: MagneticOnline | None = None
         self._att = StateHistory(3, angles=(0, 1, 2))  # heading, pitch, roll (rad)
         self._mags: deque[tuple[float, np.ndarray]] = deque()
+        #: acoustic fixes (t, z, r) that came before the first odometry sample did
+        self._fixes: deque[tuple[float, np.ndarray, np.ndarray]] = deque(maxlen=600)
         self._t_pub: float | None = None
         self._t_odo = -math.inf  # end of the odometry given to the filter (input clock, s)
         #: odometry being composed: dx, dy (m, body frame at its start), dheading, dt, count
@@ -193,6 +196,8 @@ class MagneticStage(PipelineStage):
             if self.online is None:
                 self.online = self._make(o)
                 self._t_odo = o.t
+                while self._fixes:  # the fixes that came before it (odometry lags the sensors)
+                    self._add_fix(*self._fixes.popleft(), t_first=o.t)
             elif o.increment is not None:
                 self._compose(o.t, o.increment)
             self._att.append(o.t, (o.heading, o.pitch, o.roll))
@@ -235,17 +240,27 @@ class MagneticStage(PipelineStage):
     ) -> None:
         """One acoustic reply received at ``t_recv``: slant range m, bearing rad from the bow,
         depression rad."""
+        c = self.config
+        if c.anchor_xy is None:
+            return
+        t = t_recv - 2.0 * slant_m / c.sound_speed_mps
+        z = np.array([slant_m * math.cos(depression), bearing])
+        r = np.diag([c.acoustic_sigma_range_m**2, math.radians(c.acoustic_sigma_bearing_deg) ** 2])
         with self._lock:
-            if self.online is None or self.config.anchor_xy is None:
-                return
-            c = self.config
-            t = t_recv - 2.0 * slant_m / c.sound_speed_mps
-            z = np.array([slant_m * math.cos(depression), bearing])
-            r = np.diag(
-                [c.acoustic_sigma_range_m**2, math.radians(c.acoustic_sigma_bearing_deg) ** 2]
-            )
-            self.online.add_acoustic(t - self._t0, z, r)
-            self.stats.acoustic += 1
+            if self.online is None:  # held until the first odometry sample arrives
+                self._fixes.append((t, z, r))
+            else:
+                self._add_fix(t, z, r, None)
+
+    def _add_fix(self, t: float, z: np.ndarray, r: np.ndarray, t_first: float | None) -> None:
+        """Give one acoustic fix at ``t`` (input clock, s) to the filter, unless it is older
+        than the first odometry sample ``t_first`` (None: no check, the filter orders it)."""
+        assert self.online is not None
+        if t_first is not None and t < t_first:
+            self.stats.acoustic_before_odometry += 1
+            return
+        self.online.add_acoustic(t - self._t0, z, r)
+        self.stats.acoustic += 1
 
     def feed(self, device: str, t_recv_ns: int, message: Any) -> None:
         """One decoded gateway message (``on_message`` signature): magnetometer samples and
