@@ -331,7 +331,7 @@ def decode_block(
     if not ctx:
         plan = _block_plan(cls)
         if plan is not None and base >= 0 and base + plan.end <= len(buf):
-            return plan.decode(buf, base, extra)  # type: ignore[no-any-return]
+            return plan.decode(buf, base, extra)
     return _decode_block_fields(cls, buf, base, ctx, extra)
 
 
@@ -386,7 +386,7 @@ def _block_plan(cls: type) -> _BlockPlan | None:
     depends on a context or the scalar fields cannot share one ``struct`` layout."""
     cached = cls.__dict__.get("__wire_plan__", False)
     if cached is not False:
-        return cached  # type: ignore[no-any-return]
+        return cached
     plan = _compile_block(cls)
     cls.__wire_plan__ = plan  # type: ignore[attr-defined]
     return plan
