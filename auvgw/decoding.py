@@ -109,6 +109,8 @@ class DeviceDecoder:
         self.can = can_codec
         self._framer: Framer | None = None
         self._closed = DecoderCounts()
+        self._reasons: Counter[str] = Counter()
+        self._reasons_at = 0  # the bad-frame total ``_reasons`` was summed at
         self.reset()
 
     def reset(self) -> None:
@@ -126,16 +128,19 @@ class DeviceDecoder:
         )
 
     def counts(self) -> DecoderCounts:
-        """Totals since creation: (frames, bad frames, skipped bytes, bad-frame reasons)."""
+        """Totals since creation: (frames, bad frames, skipped bytes, bad-frame reasons). The
+        gateway asks after every chunk: the reasons (a new Counter, never changed afterwards)
+        are summed again only when the bad-frame total has moved."""
         c = self._closed
-        if self._framer is None:
-            return DecoderCounts(c.frames, c.bad_frames, c.skipped_bytes, Counter(c.reasons))
-        s = self._framer.stats
+        s = self._framer.stats if self._framer is not None else None
+        bad = c.bad_frames + (s.bad_frames if s is not None else 0)
+        if bad != self._reasons_at:
+            self._reasons = c.reasons + s.reasons if s is not None else Counter(c.reasons)
+            self._reasons_at = bad
+        if s is None:
+            return DecoderCounts(c.frames, bad, c.skipped_bytes, self._reasons)
         return DecoderCounts(
-            c.frames + s.frames,
-            c.bad_frames + s.bad_frames,
-            c.skipped_bytes + s.skipped_bytes,
-            c.reasons + s.reasons,
+            c.frames + s.frames, bad, c.skipped_bytes + s.skipped_bytes, self._reasons
         )
 
     def decode_raw(self, raw: bytes) -> tuple[Any, ...]:

@@ -328,6 +328,21 @@ def decode_block(
 
     Raises :class:`WireError` naming the message, field and absolute offset when ``buf`` is short.
     """
+    if not ctx:
+        plan = _block_plan(cls)
+        if plan is not None and base >= 0 and base + plan.end <= len(buf):
+            return plan.decode(buf, base, extra)
+    return _decode_block_fields(cls, buf, base, ctx, extra)
+
+
+def _decode_block_fields(
+    cls: type[T],
+    buf: bytes | bytearray | memoryview,
+    base: int,
+    ctx: Mapping[str, int] | None,
+    extra: Mapping[str, Any],
+) -> T:
+    """:func:`decode_block` field by field (shapes from ``ctx``; the precise short-buffer error)."""
     ctx = ctx or {}
     values: dict[str, Any] = {}
     n = len(buf)
@@ -355,6 +370,98 @@ def decode_block(
         values[name] = value
     values.update(extra)
     return cls(**values)
+
+
+@dataclasses.dataclass(frozen=True)
+class _BlockPlan:
+    """A fixed-size table compiled once: its bytes span ``end`` and ``decode(buf, base, extra)``
+    reads every scalar with one ``struct`` call, with :func:`_decode_block_fields`' arithmetic."""
+
+    end: int
+    decode: Callable[[Any, int, Mapping[str, Any]], Any]
+
+
+def _block_plan(cls: type) -> _BlockPlan | None:
+    """The compiled decoder of ``cls`` (cached on the class), or None when a field's shape
+    depends on a context or the scalar fields cannot share one ``struct`` layout."""
+    cached = cls.__dict__.get("__wire_plan__", False)
+    if cached is not False:
+        return cached
+    plan = _compile_block(cls)
+    cls.__wire_plan__ = plan  # type: ignore[attr-defined]
+    return plan
+
+
+def _compile_block(cls: type) -> _BlockPlan | None:
+    fields = _wire_fields(cls)
+    if any(isinstance(d, str) for _, w in fields for d in w.shape):
+        return None
+    scalars = sorted(
+        ((w.offset, name, w) for name, w in fields if w.type in WIRE_TYPES and not w.shape),
+        key=lambda x: x[0],
+    )
+    endians = {_endian(cls, w) for _, _, w in scalars}
+    if len(endians) > 1:
+        return None
+    fmt, pos = [next(iter(endians), "<")], 0
+    for offset, _, w in scalars:
+        if offset < pos:
+            return None  # overlapping fields: left to the field-by-field path
+        fmt.append(f"{offset - pos}x{WIRE_TYPES[w.type]}" if offset > pos else WIRE_TYPES[w.type])
+        pos = offset + w.item_size()
+    layout = struct.Struct("".join(fmt))
+    slot = {name: i for i, (_, name, _) in enumerate(scalars)}
+    ns: dict[str, Any] = {"unpack": layout.unpack_from, "cls": cls, "nan": math.nan}
+    items = []
+    for i, (name, w) in enumerate(fields):
+        if name in slot:
+            r = f"r[{slot[name]}]"
+            if not w.is_scaled:
+                expr = r
+            else:
+                ns[f"s{i}"], ns[f"a{i}"] = w.scale, w.add
+                expr = f"{r} * s{i} + a{i}"
+                if w.invalid is not None:
+                    ns[f"n{i}"] = w.invalid
+                    expr = f"(nan if {r} == n{i} else {expr})"
+        else:
+            ns[f"h{i}"] = _field_reader(cls, w)
+            expr = f"h{i}(buf, base)"
+        items.append(f"{name!r}: {expr}")
+    src = (
+        "def decode(buf, base, extra):\n"
+        "    r = unpack(buf, base)\n"
+        f"    values = {{{', '.join(items)}}}\n"
+        "    if extra:\n"
+        "        values.update(extra)\n"
+        "    return cls(**values)\n"
+    )
+    exec(src, ns)  # the source holds only repr() of field names and generated identifiers
+    end = max((w.offset + w.nbytes({}) for _, w in fields), default=0)
+    return _BlockPlan(max(end, layout.size), ns["decode"])
+
+
+def _field_reader(cls: type, w: Wire) -> Callable[[Any, int], Any]:
+    """Reads one bytes, str or fixed-shape array field as :func:`_decode_block_fields` does."""
+    size = w.nbytes({})
+    if w.type == "bytes":
+        return lambda buf, base: bytes(buf[base + w.offset : base + w.offset + size])
+    if w.type == "str":
+        return lambda buf, base: (
+            bytes(buf[base + w.offset : base + w.offset + size])
+            .rstrip(b"\x00")
+            .decode("ascii", "replace")
+        )
+    dt = np.dtype(_endian(cls, w) + WIRE_TYPES[w.type])
+    native, shape, count = dt.newbyteorder("="), w.resolve_shape({}), size // dt.itemsize
+
+    def read_array(buf: Any, base: int) -> Any:
+        raw = np.frombuffer(buf, dtype=dt, count=count, offset=base + w.offset)
+        value = _to_si(w, raw.reshape(shape).astype(native))
+        value.flags.writeable = False
+        return value
+
+    return read_array
 
 
 def encode_block(

@@ -266,6 +266,7 @@ class SerialTransport(Transport):
         self._ser: serial.SerialBase | None = None
         self._fd: int | None = None
         self._socket_like = False
+        self._posix = False
         self._icount0: tuple[int, ...] | None = None  # driver counters at open (None: no ioctl)
 
     @property
@@ -301,6 +302,8 @@ class SerialTransport(Transport):
         except (AttributeError, io.UnsupportedOperation, OSError, NotImplementedError):
             self._fd = None
         self._socket_like = isinstance(ser, protocol_socket.Serial)
+        #: a local serial device or pty (pyserial's POSIX class, non-blocking fd): read directly
+        self._posix = self._fd is not None and type(ser) is serial.Serial
         self._ser = ser
         self._icount0 = self._icount()
 
@@ -339,9 +342,20 @@ class SerialTransport(Transport):
                 if not ready:
                     return None
                 t_recv = time.time_ns()
-                data = ser.read(limit)  # timeout 0: what is ready; b"" ready = gone (raises)
-                if not data:
-                    return None
+                if self._posix:  # what is ready, one syscall (pyserial's read selects again)
+                    try:
+                        data = os.read(self._fd, limit)
+                    except (BlockingIOError, InterruptedError):
+                        return None
+                    if not data:  # ready but empty: the device went away
+                        raise serial.SerialException(
+                            "device reports readiness to read but returned no data "
+                            "(device disconnected or multiple access on port?)"
+                        )
+                else:
+                    data = ser.read(limit)  # timeout 0: what is ready; b"" ready = gone (raises)
+                    if not data:
+                        return None
             else:
                 self._set_timeout(ser, timeout_s)
                 first = ser.read(1)
