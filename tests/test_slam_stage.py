@@ -24,6 +24,7 @@ from auvgw.sim_devices.vehicle import simulate
 from auvgw.sim_devices.world import World
 from auvgw.slam.features import PoseTrack
 from auvgw.stages.slam import SlamStage, SlamStageConfig, compose_increments
+from auvgw.testing import wait_until
 
 DURATION_S = 150.0
 ODO_DT = 0.1
@@ -245,6 +246,8 @@ def test_posted_and_bus_inputs_run_on_the_worker_like_direct_feeding(harbour_run
             assert time.monotonic() < deadline, bus.counters()
             time.sleep(0.05)
         bus.stop(flush=True)
+        # the last pose (put by the flush) reaches the callback on Zenoh's own thread
+        wait_until(lambda: len(got) >= len(bus.track), 30.0, what="the flushed pose")
         sub.undeclare()
     finally:
         session.close()
