@@ -276,58 +276,33 @@ def test_slam_run_bathymetric_over_a_recording(tmp_path: Path, capsys) -> None:
     writes it (INS, DVL and multibeam raw frames of 60 s of the emulated survey + the truth)
     gives the poses of the same stages fed in-process, and its report puts both paths against
     the recorded truth."""
-    from auvgw.bus import Keys, pack_raw_attachment
     from auvgw.cli import main as cli_main
-    from auvgw.config.gateway import parse_gateway_config
-    from auvgw.drivers import hn100, pd0
-    from auvgw.recording import McapRecorder
     from auvgw.sim_devices.multibeam import MultibeamEmulator
-    from auvgw.stages.fusion import FusionStage, FusionStageConfig
+    from auvgw.stages.fusion import FusionStage
     from auvgw.testing.fusion_emulated import (
         HOST_EPOCH,
-        decode_serial,
         dvl_stream,
         emulate,
-        filter_config,
+        fusion_settings,
+        ins_dvl_frames,
         ins_output,
         survey_scenario,
+        write_recording,
     )
 
     rec_s = 60.0
     em = emulate(survey_scenario(rec_s + 1.0), tmp_path)
     ins = ins_output(em, 0.0, rec_s)
     dvl = dvl_stream(em, 0.0, rec_s)
-    msgs = decode_serial(ins.serial, "hn100", "ins") + decode_serial(dvl, "pd0", "dvl")
-    raw = [(t, d, hn100.CODEC.encode(m) if d == "ins" else pd0.encode(m), m) for t, d, m in msgs]
+    raw = ins_dvl_frames(ins, dvl)
     mb = MultibeamEmulator(em.ctx)
     for t in np.arange(0.0, rec_s, 0.2):
         m = mb.ping(float(t))
         raw.append((HOST_EPOCH + t + 0.01, "mb", kongsberg.encode(m), m))
     raw.sort(key=lambda r: r[0])
-    serial = {"kind": "serial", "url": "/dev/null"}
-    gw = parse_gateway_config({"vehicle": "s1", "devices": {
-        "ins": {"format": "hn100", "transport": serial},
-        "dvl": {"format": "pd0", "transport": serial},
-        "mb": {"format": "kongsberg", "transport": {"kind": "udp", "port": 0}}}})  # fmt: skip
-    keys = Keys("s1")
-    rec_path = tmp_path / "run.mcap"
-    rec = McapRecorder(rec_path, "s1")
-    rec.set_gateway_config(gw.model_dump_json())
-    offsets = dict.fromkeys(("ins", "dvl", "mb"), 0)
-    for seq, (t, dev, b, _) in enumerate(raw):
-        rec.add(keys.raw(dev), b, pack_raw_attachment(round(t * 1e9), seq, offsets[dev]))
-        offsets[dev] += len(b)
-    for t, (x, y, h) in zip(em.truth.t[::10], em.truth.poses[::10], strict=True):
-        body = json.dumps({"t": float(t), "x": float(x), "y": float(y), "heading": float(h)})
-        rec.add(keys.truth("pose"), body.encode(), None, "application/json")
-    rec.close()
-
-    fcfg = FusionStageConfig(vehicle="s1", ins_device="ins", dvl_device="dvl",
-                             latency_s={"ins": ins.serial.frame_latency_s,
-                                        "dvl": dvl.frame_latency_s},
-                             filter=filter_config(em, 0.0))  # fmt: skip
-    settings = tmp_path / "fusion.json"
-    settings.write_text(fcfg.model_dump_json())
+    rec_path = write_recording(tmp_path / "run.mcap", "s1",
+                               {"ins": "hn100", "dvl": "pd0", "mb": "kongsberg"}, raw, em.truth)
+    settings, fcfg = fusion_settings(tmp_path / "fusion.json", "s1", em, ins, dvl)
     out = tmp_path / "bathy.jsonl"
     rc = cli_main(["slam", "run", "--pipeline", "bathymetric", "--recording", str(rec_path),
                    "--fusion-settings", str(settings), "--particles", "20",

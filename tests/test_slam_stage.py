@@ -286,20 +286,17 @@ REC_S = 60.0
 def test_slam_run_over_a_recording_is_the_in_process_stage(tmp_path, capsys):
     """A recording as ``auvgw record`` writes it (INS, DVL and MSIS raw frames of the emulated
     harbour + the truth): ``auvgw slam-run`` gives the poses of the stages fed in-process."""
-    from auvgw.bus import Keys, pack_raw_attachment
     from auvgw.cli import main as cli_main
-    from auvgw.config.gateway import parse_gateway_config
     from auvgw.config.scenario import Scenario
-    from auvgw.drivers import hn100, pd0
-    from auvgw.recording import McapRecorder
-    from auvgw.stages.fusion import FusionStage, FusionStageConfig
+    from auvgw.stages.fusion import FusionStage
     from auvgw.testing.fusion_emulated import (
         HOST_EPOCH,
-        decode_serial,
         dvl_stream,
         emulate,
-        filter_config,
+        fusion_settings,
+        ins_dvl_frames,
         ins_output,
+        write_recording,
     )
 
     data = json.loads(config_file("scenarios/harbour.json").read_text())
@@ -310,8 +307,7 @@ def test_slam_run_over_a_recording_is_the_in_process_stage(tmp_path, capsys):
     em = emulate(scn, tmp_path)
     ins = ins_output(em, 0.0, REC_S)
     dvl = dvl_stream(em, 0.0, REC_S)
-    msgs = decode_serial(ins.serial, "hn100", "ins") + decode_serial(dvl, "pd0", "dvl")
-    raw = [(t, d, hn100.CODEC.encode(m) if d == "ins" else pd0.encode(m), m) for t, d, m in msgs]
+    raw = ins_dvl_frames(ins, dvl)
     # the MSIS head, polled every ping, at the true pose
     world = em.ctx.world
     track = PoseTrack(em.truth.t, em.truth.poses)
@@ -331,30 +327,9 @@ def test_slam_run_over_a_recording_is_the_in_process_stage(tmp_path, capsys):
         raw.append((HOST_EPOCH + t + 0.01, "msis", data_i, sn.decode(data_i)[0]))
     raw.sort(key=lambda r: r[0])
 
-    serial = {"kind": "serial", "url": "/dev/null"}
-    gw = parse_gateway_config({"vehicle": "s1", "devices": {
-        "ins": {"format": "hn100", "transport": serial},
-        "dvl": {"format": "pd0", "transport": serial},
-        "msis": {"format": "seanet", "transport": serial}}})  # fmt: skip
-    keys = Keys("s1")
-    rec_path = tmp_path / "run.mcap"
-    rec = McapRecorder(rec_path, "s1")
-    rec.set_gateway_config(gw.model_dump_json())
-    offsets = dict.fromkeys(("ins", "dvl", "msis"), 0)
-    for seq, (t, dev, b, _) in enumerate(raw):
-        rec.add(keys.raw(dev), b, pack_raw_attachment(round(t * 1e9), seq, offsets[dev]))
-        offsets[dev] += len(b)
-    for t, (x, y, h) in zip(em.truth.t[::10], em.truth.poses[::10], strict=True):
-        body = json.dumps({"t": float(t), "x": float(x), "y": float(y), "heading": float(h)})
-        rec.add(keys.truth("pose"), body.encode(), None, "application/json")
-    rec.close()
-
-    fcfg = FusionStageConfig(vehicle="s1", ins_device="ins", dvl_device="dvl",
-                             latency_s={"ins": ins.serial.frame_latency_s,
-                                        "dvl": dvl.frame_latency_s},
-                             filter=filter_config(em, 0.0))  # fmt: skip
-    settings = tmp_path / "fusion.json"
-    settings.write_text(fcfg.model_dump_json())
+    rec_path = write_recording(tmp_path / "run.mcap", "s1",
+                               {"ins": "hn100", "dvl": "pd0", "msis": "seanet"}, raw, em.truth)
+    settings, fcfg = fusion_settings(tmp_path / "fusion.json", "s1", em, ins, dvl)
     out = tmp_path / "slam.jsonl"
     rc = cli_main(["slam-run", "--recording", str(rec_path), "--fusion-settings", str(settings),
                    "--sound-speed", str(world.sound_speed), "--out", str(out)])  # fmt: skip

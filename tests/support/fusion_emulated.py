@@ -282,3 +282,56 @@ def evaluate(out: list[Odometry], truth: Truth) -> Evaluation:
         coasting=np.array([o.coasting for o in out]),
         bottom_lock=np.array([o.bottom_lock for o in out]),
     )
+
+
+def ins_dvl_frames(ins: InsOutput, dvl: Stream) -> list[tuple[float, str, bytes, Any]]:
+    """The INS (HN-100 serial) and DVL (PD0) frames of an emulated run as a gateway reads them:
+    ``(t_recv s, device "ins" | "dvl", raw frame, decoded message)``."""
+    msgs = decode_serial(ins.serial, "hn100", "ins") + decode_serial(dvl, "pd0", "dvl")
+    return [(t, d, hn100.CODEC.encode(m) if d == "ins" else pd0.encode(m), m) for t, d, m in msgs]
+
+
+def write_recording(
+    path: Path,
+    vehicle: str,
+    formats: dict[str, str],
+    frames: list[tuple[float, str, bytes, Any]],
+    truth: Truth,
+) -> Path:
+    """An MCAP as ``auvgw record`` writes it: the gateway configuration (``formats``: device ->
+    format; serial devices on /dev/null, ``kongsberg`` on UDP), every raw frame in order with
+    its attachment (receive time, sequence, stream offset per device) and every 10th truth
+    pose on ``truth/pose``."""
+    from auvgw.bus import Keys, pack_raw_attachment
+    from auvgw.config.gateway import parse_gateway_config
+    from auvgw.recording import McapRecorder
+
+    transport = {"kind": "serial", "url": "/dev/null"}
+    devices = {d: {"format": f, "transport": {"kind": "udp", "port": 0}
+                   if f == "kongsberg" else transport} for d, f in formats.items()}  # fmt: skip
+    gw = parse_gateway_config({"vehicle": vehicle, "devices": devices})
+    keys = Keys(vehicle)
+    rec = McapRecorder(path, vehicle)
+    rec.set_gateway_config(gw.model_dump_json())
+    offsets = dict.fromkeys(formats, 0)
+    for seq, (t, dev, b, _) in enumerate(frames):
+        rec.add(keys.raw(dev), b, pack_raw_attachment(round(t * 1e9), seq, offsets[dev]))
+        offsets[dev] += len(b)
+    for t, (x, y, h) in zip(truth.t[::10], truth.poses[::10], strict=True):
+        body = json.dumps({"t": float(t), "x": float(x), "y": float(y), "heading": float(h)})
+        rec.add(keys.truth("pose"), body.encode(), None, "application/json")
+    rec.close()
+    return path
+
+
+def fusion_settings(
+    path: Path, vehicle: str, em: Emulated, ins: InsOutput, dvl: Stream
+) -> tuple[Path, FusionStageConfig]:
+    """The fusion stage settings for an emulated INS + DVL run (their frame latencies, the
+    emulators' noise model) written as JSON to ``path``: (path, the settings)."""
+    cfg = FusionStageConfig(vehicle=vehicle, ins_device="ins", dvl_device="dvl",
+                            latency_s={"ins": ins.serial.frame_latency_s,
+                                       "dvl": dvl.frame_latency_s},
+                            filter=filter_config(em, 0.0))  # fmt: skip
+    path.write_text(cfg.model_dump_json())
+    return path, cfg
