@@ -278,11 +278,11 @@ def test_slam_run_bathymetric_over_a_recording(tmp_path: Path, capsys) -> None:
     the recorded truth."""
     from auvgw.cli import main as cli_main
     from auvgw.sim_devices.multibeam import MultibeamEmulator
-    from auvgw.stages.fusion import FusionStage
     from auvgw.testing.fusion_emulated import (
         HOST_EPOCH,
         dvl_stream,
         emulate,
+        feed_through_fusion,
         fusion_settings,
         ins_dvl_frames,
         ins_output,
@@ -318,12 +318,7 @@ def test_slam_run_bathymetric_over_a_recording(tmp_path: Path, capsys) -> None:
     stage = BathymetricStage(BathymetricStageConfig(n_particles=20),
                              on_publish=lambda k, p, _t: got.append(json.loads(p)) if
                              k.endswith("/pose") else None)  # fmt: skip
-    fusion = FusionStage(fcfg, on_odometry=stage.feed_odometry)
-    for t, dev, _, m in raw:
-        fusion.feed(dev, round(t * 1e9), m)
-        stage.feed(dev, round(t * 1e9), m)
-    fusion.flush()
-    stage.flush()
+    feed_through_fusion(fcfg, stage, raw)
     assert got == poses
     err = {ln.split(" vs truth")[0].strip(): float(ln.split("RMSE ")[1].split(" m")[0])
            for ln in text.splitlines() if " vs truth" in ln}  # fmt: skip

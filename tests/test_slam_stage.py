@@ -288,11 +288,11 @@ def test_slam_run_over_a_recording_is_the_in_process_stage(tmp_path, capsys):
     harbour + the truth): ``auvgw slam-run`` gives the poses of the stages fed in-process."""
     from auvgw.cli import main as cli_main
     from auvgw.config.scenario import Scenario
-    from auvgw.stages.fusion import FusionStage
     from auvgw.testing.fusion_emulated import (
         HOST_EPOCH,
         dvl_stream,
         emulate,
+        feed_through_fusion,
         fusion_settings,
         ins_dvl_frames,
         ins_output,
@@ -345,12 +345,7 @@ def test_slam_run_over_a_recording_is_the_in_process_stage(tmp_path, capsys):
     slam = SlamStage(SlamStageConfig(sound_speed_mps=world.sound_speed),
                      on_publish=lambda k, p, _t: got.append(json.loads(p)) if k.endswith("/pose")
                      else None)  # fmt: skip
-    fusion = FusionStage(fcfg, on_odometry=slam.feed_odometry)
-    for t, dev, _, m in raw:
-        fusion.feed(dev, round(t * 1e9), m)
-        slam.feed(dev, round(t * 1e9), m)
-    fusion.flush()
-    slam.flush()
+    feed_through_fusion(fcfg, slam, raw)
     assert got == poses
     assert slam.counters()["stage"]["pings"] == len(ping_t)
     # the report: counters and both paths against the recorded truth (decimetres here)

@@ -335,3 +335,17 @@ def fusion_settings(
                             filter=filter_config(em, 0.0))  # fmt: skip
     path.write_text(cfg.model_dump_json())
     return path, cfg
+
+
+def feed_through_fusion(
+    config: FusionStageConfig, stage: Any, frames: list[tuple[float, str, bytes, Any]]
+) -> None:
+    """Feed decoded ``frames`` (``(t_recv s, device, raw, message)``, in order) to an in-process
+    fusion stage and to ``stage`` (a SLAM stage: ``feed``, ``feed_odometry``, ``flush``), the
+    fusion's odometry into ``stage``; flush both at the end."""
+    fusion = FusionStage(config, on_odometry=stage.feed_odometry)
+    for t, dev, _, m in frames:
+        fusion.feed(dev, round(t * 1e9), m)
+        stage.feed(dev, round(t * 1e9), m)
+    fusion.flush()
+    stage.flush()
