@@ -615,13 +615,6 @@ class _Collector:
         }
 
 
-def _slam_component(bathy: bool, magnetic: bool, slam_cfg: Any) -> str:
-    """The status component of the demo's SLAM stage."""
-    if bathy:
-        return "slam-bathymetric"
-    return MAGNETIC_COMPONENT if magnetic else f"slam-{slam_cfg.pipeline_name}"
-
-
 def _wait_alive(
     sub: Any, wanted: set[str], children: Children, timeout_s: float, what: str
 ) -> float:
@@ -676,6 +669,7 @@ def _run_processes(
     t_start = time.monotonic()
     collector: _Collector | None = None
     map_tap: _BathyMapTap | None = None
+    slam_part: tuple[str, str] | None = None  # the SLAM stage's display name and component
     truth_pub = session.declare_publisher(keys.truth("pose"))
     try:
         # the stages first (they need nothing from the sim), so they are up before vehicle t = 0
@@ -687,13 +681,13 @@ def _run_processes(
         children.start("fusion", ["fusion", "--settings", str(settings),
                                   "--connect", hub, "--listen", free_endpoint()])  # fmt: skip
         wanted = {"fusion", "gateway", "ins", "dvl"}
-        slam_cfg = None
         bathy = not args.no_slam and _bathymetric_scenario(scn)
         magnetic = not args.no_slam and _is_magnetic(scn)
         if bathy:
             slam_cfg = _bathy_config(VEHICLE, "multibeam")
             children.start("slam", _bathy_argv(slam_cfg, hub))
-            wanted |= {"multibeam", "slam-bathymetric"}
+            slam_part = (BATHY_NAME, "slam-bathymetric")
+            wanted |= {"multibeam", slam_part[1]}
         elif not args.no_slam and not magnetic:
             slam_cfg = _slam_config(VEHICLE, "msis", scn)
             children.start("slam", [
@@ -703,7 +697,8 @@ def _run_processes(
                 "--target-radius", str(slam_cfg.target_radius_m),
                 "--connect", hub, "--listen", free_endpoint(),
             ])  # fmt: skip
-            wanted |= {"msis", f"slam-{slam_cfg.pipeline_name}"}
+            slam_part = (slam_cfg.display_name, f"slam-{slam_cfg.pipeline_name}")
+            wanted |= {"msis", slam_part[1]}
         sim = children.start("sim", [*_sim_argv(scenario, speed, args.duration, sim_dir),
                                      "--start-delay", str(args.start_delay)])  # fmt: skip
         _wait_for(sim_dir / "gateway.toml", sim, 120.0)
@@ -720,6 +715,7 @@ def _run_processes(
         children.start("gateway", gw_argv)
         if magnetic:  # after gateway.toml: its [clock] epoch is the beacons' phase reference
             children.start("slam", _magnetic_argv(scenario, scn, epoch_ns, hub))
+            slam_part = (MAGNETIC_NAME, MAGNETIC_COMPONENT)
             wanted |= {"magnetometer", "acoustic", MAGNETIC_COMPONENT}
         ready = _wait_alive(sub, wanted, children, 120.0, "--processes")
         if magnetic and rrd is not None:  # the true beacons, for the gateway's Rerun recording
@@ -753,9 +749,7 @@ def _run_processes(
         status = sub.status(timeout=2.0) or collector.status.get("gateway") or {"devices": {}}
         for name in ("gateway", "fusion", "slam", "sim"):
             children.stop(name)
-        stages = ["fusion"] if "slam" not in children.procs else ["fusion", _slam_component(
-            bathy, magnetic, slam_cfg)]  # fmt: skip
-        collector.wait_stopped(stages, map_tap)
+        collector.wait_stopped(["fusion", *([slam_part[1]] if slam_part else [])], map_tap)
     finally:
         children.close()
         if collector is not None:
@@ -773,13 +767,7 @@ def _run_processes(
         for n, p in procs.items()))  # fmt: skip
     c = collector
     assert c is not None
-    slam = None
-    if bathy:
-        slam = (BATHY_NAME, c.status.get("slam-bathymetric"))
-    elif slam_cfg is not None:
-        slam = (slam_cfg.display_name, c.status.get(f"slam-{slam_cfg.pipeline_name}"))
-    elif magnetic:
-        slam = (MAGNETIC_NAME, c.status.get(MAGNETIC_COMPONENT))
+    slam = None if slam_part is None else (slam_part[0], c.status.get(slam_part[1]))
     _report(
         args, status, c.status.get("fusion"), slam, c.dead_reckoning, c.slam, c.truth, rrd, wall,
         speed, {"processes": procs, "odometry_timing": c.timing(),
