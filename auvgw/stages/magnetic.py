@@ -125,6 +125,10 @@ def config_from_scenario(path: Path, **kw: Any) -> MagneticStageConfig:
     return MagneticStageConfig(channels_hz=freqs, anchor_xy=anchor, **kw)
 
 
+#: acoustic fixes held while no odometry has come (10 min of the 1 Hz beacon)
+MAX_PENDING_FIXES = 600
+
+
 @dataclass
 class MagneticStats(BusCounters):
     """Counters of the stage (``received``: envelopes decoded)."""
@@ -136,6 +140,7 @@ class MagneticStats(BusCounters):
     mag_dropped: int = 0  #: samples dropped because too many waited for odometry
     acoustic: int = 0  #: acoustic fixes used
     acoustic_before_odometry: int = 0  #: fixes older than the first odometry (dropped)
+    acoustic_dropped: int = 0  #: fixes dropped because too many waited for the first odometry
     observations: int = 0  #: demodulated, ranged beacon observations
     published: int = 0  #: pose publications
 
@@ -161,7 +166,7 @@ class MagneticStage(PipelineStage):
         self._att = StateHistory(3, angles=(0, 1, 2))  # heading, pitch, roll (rad)
         self._mags: deque[tuple[float, np.ndarray]] = deque()
         #: acoustic fixes (t, z, r) that came before the first odometry sample did
-        self._fixes: deque[tuple[float, np.ndarray, np.ndarray]] = deque(maxlen=600)
+        self._fixes: deque[tuple[float, np.ndarray, np.ndarray]] = deque()
         self._t_pub: float | None = None
         self._t_odo = -math.inf  # end of the odometry given to the filter (input clock, s)
         #: odometry being composed: dx, dy (m, body frame at its start), dheading, dt, count
@@ -248,6 +253,9 @@ class MagneticStage(PipelineStage):
         r = np.diag([c.acoustic_sigma_range_m**2, math.radians(c.acoustic_sigma_bearing_deg) ** 2])
         with self._lock:
             if self.online is None:  # held until the first odometry sample arrives
+                if len(self._fixes) >= MAX_PENDING_FIXES:
+                    self._fixes.popleft()
+                    self.stats.acoustic_dropped += 1
                 self._fixes.append((t, z, r))
             else:
                 self._add_fix(t, z, r, None)
