@@ -187,13 +187,14 @@ def reader_main(spec: str) -> int:
 
 def one_run(scenario: Path, speed: float, duration: float, processes: bool) -> dict[str, Any]:
     from auvgw.config.scenario import load_scenario
-    from auvgw.sim_devices.runner import DeviceProcesses, Runner
+    from auvgw.sim_devices.runner import DeviceProcesses, Runner, RunOptions
 
     with tempfile.TemporaryDirectory() as tmp:
+        options = RunOptions(out_dir=Path(tmp), speed=speed)
         if processes:
-            runner: Any = DeviceProcesses(scenario, out_dir=tmp, speed=speed)
+            runner: Any = DeviceProcesses(scenario, options)
         else:
-            runner = Runner(load_scenario(scenario), out_dir=tmp, speed=speed)
+            runner = Runner(load_scenario(scenario), options)
         with runner:
             eps = []
             for ep in runner.endpoints():

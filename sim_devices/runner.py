@@ -41,7 +41,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Collection, Iterable
 from pathlib import Path
 from typing import Any
 
@@ -67,6 +67,7 @@ __all__ = [
     "FACTORIES",
     "DeviceProcesses",
     "DeviceUnavailable",
+    "RunOptions",
     "Runner",
     "child_main",
     "gateway_clock",
@@ -217,50 +218,58 @@ def write_gateway_config(
 # -- the runner ----------------------------------------------------------------------------------
 
 
-class Runner(Closing):
-    """World + truth + clock + emulators of one scenario (see the module docstring).
+@dataclasses.dataclass(frozen=True)
+class RunOptions:
+    """How a scenario's emulated vehicle runs, for a :class:`Runner` or :class:`DeviceProcesses`.
 
-    ``speed``: vehicle seconds per real second (0: as fast as possible). ``out_dir``: port
-    symlinks go to ``out_dir/ports``. ``devices``: build only these (default: every enabled
+    ``out_dir``: port symlinks go to ``out_dir/ports``. ``speed``: vehicle seconds per real
+    second (0: as fast as possible). ``devices``: build only these (default: every enabled
     device). ``epoch``: UTC POSIX time of vehicle time 0 (device clocks that carry a date).
-    ``on_truth(sample)``: called with the ground truth at ``truth_rate_hz`` (clock thread; keep
-    it short). ``truth_log``: a ``.jsonl`` or ``.npz`` path.
+    ``udp_host``: the address UDP devices send from and to. ``on_truth(sample)``: called with
+    the ground truth at ``truth_rate_hz`` (clock thread; keep it short). ``truth_log``: a
+    ``.jsonl`` or ``.npz`` path. Checked when made (a ValueError names the bad value).
     """
 
-    def __init__(
-        self,
-        scenario: Scenario,
-        *,
-        out_dir: str | Path,
-        speed: float = 1.0,
-        devices: Iterable[str] | None = None,
-        epoch: float = DEFAULT_EPOCH,
-        udp_host: str = "127.0.0.1",
-        truth_rate_hz: float = 10.0,
-        on_truth: Callable[[TruthSample], object] | None = None,
-        truth_log: str | Path | None = None,
-    ) -> None:
-        wanted = None if devices is None else list(devices)
-        unknown = sorted(set(wanted or ()) - set(DEVICE_ORDER))
+    out_dir: Path
+    speed: float = 1.0
+    devices: Collection[str] | None = None
+    epoch: float = DEFAULT_EPOCH
+    udp_host: str = "127.0.0.1"
+    truth_rate_hz: float = 10.0
+    on_truth: Callable[[TruthSample], object] | None = None
+    truth_log: Path | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "out_dir", Path(self.out_dir))
+        if self.devices is not None:
+            object.__setattr__(self, "devices", tuple(self.devices))
+        if self.truth_log is not None:
+            object.__setattr__(self, "truth_log", Path(self.truth_log))
+        unknown = sorted(set(self.devices or ()) - set(DEVICE_ORDER))
         if unknown:
             raise ValueError(
                 f"unknown device(s) {', '.join(unknown)}; known: {', '.join(DEVICE_ORDER)}"
             )
-        if truth_log is not None and Path(truth_log).suffix not in (".jsonl", ".npz"):
-            raise ValueError(f"truth log {truth_log}: use a .jsonl or .npz file name")
-        if not truth_rate_hz > 0:
-            raise ValueError(f"truth_rate_hz must be > 0, got {truth_rate_hz}")
+        if self.truth_log is not None and self.truth_log.suffix not in (".jsonl", ".npz"):
+            raise ValueError(f"truth log {self.truth_log}: use a .jsonl or .npz file name")
+        if not self.truth_rate_hz > 0:
+            raise ValueError(f"truth_rate_hz must be > 0, got {self.truth_rate_hz}")
+
+
+class Runner(Closing):
+    """World + truth + clock + emulators of one scenario (see the module docstring), run as
+    ``options`` (:class:`RunOptions`) say."""
+
+    def __init__(self, scenario: Scenario, options: RunOptions) -> None:
+        self.options = options
         self.scenario = scenario
-        self.out_dir = Path(out_dir)
         self.world = World.from_scenario(scenario)
         self.truth = simulate(scenario, self.world)
-        self.clock = SimClock(speed)
+        self.clock = SimClock(options.speed)
         self.ctx = SimContext(
-            scenario, self.world, self.truth, self.clock, self.out_dir / "ports", epoch, udp_host
-        )
-        self.truth_rate_hz = float(truth_rate_hz)
-        self.on_truth = on_truth
-        self.truth_log = Path(truth_log) if truth_log is not None else None
+            scenario, self.world, self.truth, self.clock, options.out_dir / "ports",
+            options.epoch, options.udp_host,
+        )  # fmt: skip
         self.emulators: dict[str, Emulator] = {}
         self.unavailable: dict[str, str] = {}
         self._base_faults: dict[str, FaultSettings] = {}
@@ -279,7 +288,7 @@ class Runner(Closing):
         try:
             for kind in DEVICE_ORDER:
                 settings: DeviceSettings = getattr(scenario.devices, kind)
-                if wanted is not None and kind not in wanted:
+                if options.devices is not None and kind not in options.devices:
                     continue
                 if not settings.enabled:
                     continue
@@ -441,12 +450,12 @@ class Runner(Closing):
     # -- truth ------------------------------------------------------------------------------------
     def _truth_tick(self, t: float) -> None:
         s = self.truth.at(t)
-        if self.on_truth is not None:
+        if self.options.on_truth is not None:
             try:
-                self.on_truth(s)
+                self.options.on_truth(s)
             except Exception:
                 log.exception("on_truth callback failed")
-        if self.truth_log is None:
+        if self.options.truth_log is None:
             return
         if self._truth_file is not None:
             rec = {f: getattr(s, f) for f in TRUTH_FIELDS}
@@ -458,9 +467,11 @@ class Runner(Closing):
         if self._truth_file is not None:
             self._truth_file.close()
             self._truth_file = None
-        elif self.truth_log is not None and self.truth_log.suffix == ".npz" and self._started:
+            return
+        path = self.options.truth_log
+        if path is not None and path.suffix == ".npz" and self._started:
             rows = np.asarray(self._truth_rows, float).reshape(-1, len(TRUTH_FIELDS))
-            np.savez(self.truth_log, **{f: rows[:, i] for i, f in enumerate(TRUTH_FIELDS)})
+            np.savez(path, **{f: rows[:, i] for i, f in enumerate(TRUTH_FIELDS)})
 
     # -- run --------------------------------------------------------------------------------------
     def start(self, duration: float | None = None, start_at: float | None = None) -> None:
@@ -472,13 +483,14 @@ class Runner(Closing):
             raise RuntimeError("the runner was already started")
         self._started = True
         self.until = float(duration) if duration is not None else self.route_duration
-        if self.truth_log is not None:
-            self.truth_log.parent.mkdir(parents=True, exist_ok=True)
-            if self.truth_log.suffix == ".jsonl":
-                self._truth_file = self.truth_log.open("w", encoding="utf-8")
-        if self.on_truth is not None or self.truth_log is not None:
+        o = self.options
+        if o.truth_log is not None:
+            o.truth_log.parent.mkdir(parents=True, exist_ok=True)
+            if o.truth_log.suffix == ".jsonl":
+                self._truth_file = o.truth_log.open("w", encoding="utf-8")
+        if o.on_truth is not None or o.truth_log is not None:
             self._truth_task = self.clock.every(
-                1.0 / self.truth_rate_hz, self._truth_tick, start=0.0, name="truth"
+                1.0 / o.truth_rate_hz, self._truth_tick, start=0.0, name="truth"
             )
         self._cpu0 = _process_cpu_s()
         for em in self.emulators.values():
@@ -567,14 +579,11 @@ def child_main(argv: list[str] | None = None) -> None:
     args = json.loads((argv or sys.argv[1:])[0])
     try:
         scn = load_scenario(args["scenario"])
-        runner = Runner(
-            scn,
-            out_dir=args["out_dir"],
-            speed=args["speed"],
-            devices=[args["device"]],
-            epoch=args["epoch"],
-            udp_host=args["udp_host"],
-        )
+        options = RunOptions(
+            out_dir=args["out_dir"], speed=args["speed"], devices=[args["device"]],
+            epoch=args["epoch"], udp_host=args["udp_host"],
+        )  # fmt: skip
+        runner = Runner(scn, options)
     except (ScenarioError, ValueError, OSError) as exc:
         print(json.dumps({"error": str(exc)}), flush=True)
         return
@@ -609,37 +618,22 @@ class DeviceProcesses(Closing):
     def __init__(
         self,
         scenario_path: str | Path,
+        options: RunOptions,
         *,
-        out_dir: str | Path,
-        speed: float = 1.0,
-        devices: Iterable[str] | None = None,
-        epoch: float = DEFAULT_EPOCH,
-        udp_host: str = "127.0.0.1",
-        truth_rate_hz: float = 10.0,
-        on_truth: Callable[[TruthSample], object] | None = None,
-        truth_log: str | Path | None = None,
         control: str | Path | None = None,
         startup_timeout_s: float = 120.0,
     ) -> None:
         from auvgw.config.scenario import load_scenario
 
-        if speed <= 0:
+        if options.speed <= 0:
             raise ValueError("one process per device needs a real-time clock: speed > 0")
-        unknown = sorted(set(devices or ()) - set(DEVICE_ORDER))
-        if unknown:
-            raise ValueError(
-                f"unknown device(s) {', '.join(unknown)}; known: {', '.join(DEVICE_ORDER)}"
-            )
+        self.options = options
         self.scenario_path = Path(scenario_path)
         self.scenario = load_scenario(self.scenario_path)
-        self.out_dir = Path(out_dir)
-        self.speed = float(speed)
         self.control = str(control) if control is not None else None
         # ground truth here (no device): the same world and trajectory as every child builds
-        self.truth_runner = Runner(
-            self.scenario, out_dir=out_dir, speed=speed, devices=[], epoch=epoch,
-            truth_rate_hz=truth_rate_hz, on_truth=on_truth, truth_log=truth_log,
-        )  # fmt: skip
+        self.truth_runner = Runner(self.scenario, dataclasses.replace(options, devices=()))
+        devices = options.devices
         wanted = DEVICE_ORDER if devices is None else [d for d in DEVICE_ORDER if d in devices]
         self.unavailable: dict[str, str] = {}
         self._endpoints: dict[str, list[Endpoint]] = {}
@@ -649,9 +643,9 @@ class DeviceProcesses(Closing):
             for kind in wanted:
                 if not getattr(self.scenario.devices, kind).enabled:
                     continue
-                args = {"scenario": str(self.scenario_path), "out_dir": str(out_dir),
-                        "speed": speed, "device": kind, "epoch": epoch, "udp_host": udp_host,
-                        "control": self.control}  # fmt: skip
+                args = {"scenario": str(self.scenario_path), "out_dir": str(options.out_dir),
+                        "speed": options.speed, "device": kind, "epoch": options.epoch,
+                        "udp_host": options.udp_host, "control": self.control}  # fmt: skip
                 self.procs[kind] = subprocess.Popen(
                     [sys.executable, "-c", _CHILD, json.dumps(args)],
                     stdin=subprocess.PIPE,
@@ -716,9 +710,10 @@ class DeviceProcesses(Closing):
     def write_gateway_config(
         self, path: str | Path, vehicle: str = "auv1", start_at: float | None = None
     ) -> Path:
-        clock = None if start_at is None else gateway_clock(self.speed, start_at)
+        clock = None if start_at is None else gateway_clock(self.options.speed, start_at)
         return write_gateway_config(
-            path, self.endpoints(), vehicle, self.scenario.name, self.out_dir / "ports", clock
+            path, self.endpoints(), vehicle, self.scenario.name, self.options.out_dir / "ports",
+            clock,
         )
 
     def watch_control(self, path: str | Path, interval_s: float = 0.5) -> None:

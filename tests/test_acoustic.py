@@ -17,7 +17,7 @@ from auvgw.decoding import make_decoders
 from auvgw.drivers.acoustic import CODEC, AcousticFramer, AcousticReply
 from auvgw.drivers.formats import get_format
 from auvgw.drivers.framing import ErrorPolicy, FrameError
-from auvgw.sim_devices.runner import Runner
+from auvgw.sim_devices.runner import Runner, RunOptions
 from auvgw.testing.format_samples import ACOUSTIC_LINE as LINE
 
 
@@ -70,7 +70,7 @@ def test_emulator_on_a_pty_reports_range_and_bearing_and_the_gateway_decodes(
         "devices": {"acoustic": {"enabled": True, "rate_hz": 2.0,
                                  "options": {"miss_p": 0.2, "delay": False}}},
     })  # fmt: skip
-    with Runner(scn, out_dir=tmp_path, speed=20, devices=["acoustic"]) as r:
+    with Runner(scn, RunOptions(out_dir=tmp_path, speed=20, devices=["acoustic"])) as r:
         em = r.emulators["acoustic"]
         cfg = load_gateway_config(r.write_gateway_config(tmp_path / "gw.toml"))
         dec = make_decoders(cfg)["acoustic"]

@@ -25,7 +25,7 @@ from auvgw.drivers.spec import raw_value
 from auvgw.sim_devices.clock import SimClock
 from auvgw.sim_devices.dvl import DvlEmulator
 from auvgw.sim_devices.emulator import DEFAULT_EPOCH, SimContext
-from auvgw.sim_devices.runner import Runner
+from auvgw.sim_devices.runner import Runner, RunOptions
 from auvgw.sim_devices.vehicle import Truth, simulate
 from auvgw.sim_devices.world import World, body_to_ned
 
@@ -513,7 +513,7 @@ def test_runner_serves_the_dvl_on_a_pty(tmp_path: Path) -> None:
     """The runner's DVL on its pty, read with pyserial at 20x real time: every ensemble arrives
     in order, the velocity matches the truth within the noise, lock follows the fault window."""
     scn = scenario({"options": {"serial": True}, "faults": {"bottom_lock_loss": [[8.0, 12.0]]}})
-    with Runner(scn, out_dir=tmp_path, speed=20, devices=["dvl"]) as r:
+    with Runner(scn, RunOptions(out_dir=tmp_path, speed=20, devices=["dvl"])) as r:
         assert "dvl" in r.emulators, r.unavailable
         (ep,) = r.endpoints()
         assert ep.name == "dvl" and ep.format == "pd0" and Path(ep.target).is_symlink()

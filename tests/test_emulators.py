@@ -26,7 +26,7 @@ from auvgw.drivers.can_codec import hn100_can, ms3a_can
 from auvgw.drivers.framing import ErrorPolicy
 from auvgw.sim_devices.emulator import DEFAULT_EPOCH
 from auvgw.sim_devices.ins import body_rates, latlon, specific_force
-from auvgw.sim_devices.runner import Runner, gateway_toml
+from auvgw.sim_devices.runner import Runner, RunOptions, gateway_toml
 from auvgw.sim_devices.vehicle import MOTION_FIELDS, TRUTH_FIELDS
 from auvgw.sim_devices.world import MU0_OVER_4PI, body_to_ned, wrap_angle
 
@@ -169,7 +169,7 @@ def rms(a: np.ndarray) -> float:
 
 
 def test_truth_at_matches_a_reference_interpolation(tmp_path: Path) -> None:
-    r = Runner(make_scenario(), out_dir=tmp_path, devices=[])
+    r = Runner(make_scenario(), RunOptions(out_dir=tmp_path, devices=[]))
     truth = r.truth
     assert r.ctx.sampler is truth
     ts = np.random.default_rng(1).uniform(-1.0, truth.duration + 1.0, 300)
@@ -200,7 +200,7 @@ def test_truth_at_matches_a_reference_interpolation(tmp_path: Path) -> None:
 
 def test_ins_serial_frames_match_the_truth_within_the_seed_noise(tmp_path: Path) -> None:
     scn = make_scenario(devices={"ins": {"options": {"can": False}}})
-    with Runner(scn, out_dir=tmp_path, speed=20, devices=["ins"]) as r:
+    with Runner(scn, RunOptions(out_dir=tmp_path, speed=20, devices=["ins"])) as r:
         ep = endpoint(r, "ins")
         assert ep.format == "hn100" and Path(ep.target).is_symlink()
         reader = SerialReader(ep.target, 115200)
@@ -251,7 +251,7 @@ def test_ins_can_bursts_through_python_can_slcan_with_exact_dropouts(tmp_path: P
     scn = make_scenario(
         devices={"ins": {"options": {"serial": False}, "faults": {"dropout_p": 0.1}}}
     )
-    with Runner(scn, out_dir=tmp_path, speed=2, devices=["ins"]) as r:
+    with Runner(scn, RunOptions(out_dir=tmp_path, speed=2, devices=["ins"])) as r:
         ep = endpoint(r, "ins_can")
         assert ep.kind == "can" and ep.transport["interface"] == "slcan"
         reader = CanReader(ep.target, ep.transport["bitrate"])
@@ -293,7 +293,7 @@ def _expected_mag(r: Runner, t: float) -> np.ndarray:
 
 def test_magnetometer_serial_and_can_report_the_world_field(tmp_path: Path) -> None:
     scn = make_scenario(devices={"magnetometer": {"noise": {"field_nt": 2.0}}})
-    with Runner(scn, out_dir=tmp_path, speed=10, devices=["magnetometer"]) as r:
+    with Runner(scn, RunOptions(out_dir=tmp_path, speed=10, devices=["magnetometer"])) as r:
         em = r.emulators["magnetometer"]
         line = SerialReader(endpoint(r, "magnetometer").target, 38400)
         ep_can = endpoint(r, "magnetometer_can")
@@ -329,7 +329,7 @@ def test_magnetometer_field_falls_with_the_cube_of_the_range_to_a_beacon(tmp_pat
         magnetic_beacons=[{"x": 0, "y": 0, "z": 5, "moment_am2": 1e5, "axis": [1, 0, 0]}],
         devices={"magnetometer": {"options": {"can": False}}},
     )
-    with Runner(scn, out_dir=tmp_path, speed=20, devices=["magnetometer"]) as r:
+    with Runner(scn, RunOptions(out_dir=tmp_path, speed=20, devices=["magnetometer"])) as r:
         em = r.emulators["magnetometer"]
         reader = SerialReader(endpoint(r, "magnetometer").target, 38400)
         run_for(r, 25.0)
@@ -376,7 +376,7 @@ def test_multibeam_xyz88_over_udp_follows_the_terrain(tmp_path: Path) -> None:
     sock = _bind_udp()
     port = sock.getsockname()[1]
     scn = make_scenario(devices={"multibeam": {"options": {"udp_port": port, "n_beams": 128}}})
-    with Runner(scn, out_dir=tmp_path, speed=20, devices=["multibeam"]) as r:
+    with Runner(scn, RunOptions(out_dir=tmp_path, speed=20, devices=["multibeam"])) as r:
         ep = endpoint(r, "multibeam")
         assert ep.transport == {"kind": "udp", "host": "127.0.0.1", "port": port}
         run_for(r, 12.0)
@@ -427,7 +427,8 @@ def test_garbage_and_corruption_are_counted_exactly_and_lose_no_good_frame(tmp_p
                           "faults": FAULTS},
         }
     )
-    with Runner(scn, out_dir=tmp_path, speed=10, devices=["ins", "magnetometer", "multibeam"]) as r:
+    options = RunOptions(out_dir=tmp_path, speed=10, devices=["ins", "magnetometer", "multibeam"])
+    with Runner(scn, options) as r:
         readers = {
             "ins": SerialReader(endpoint(r, "ins").target, 115200),
             "magnetometer": SerialReader(endpoint(r, "magnetometer").target, 38400),
@@ -461,7 +462,7 @@ def test_garbage_and_corruption_are_counted_exactly_and_lose_no_good_frame(tmp_p
 def test_unplug_stall_and_clock_jump_windows(tmp_path: Path) -> None:
     faults = {"unplug": [[1.0, 1.5]], "stall": [[2.5, 3.0]], "clock_jumps": [[3.2, 100.0]]}
     scn = make_scenario(devices={"ins": {"options": {"can": False}, "faults": faults}})
-    with Runner(scn, out_dir=tmp_path, speed=10, devices=["ins"]) as r:
+    with Runner(scn, RunOptions(out_dir=tmp_path, speed=10, devices=["ins"])) as r:
         ep = endpoint(r, "ins")
         first_pty = ep.path
         reader = SerialReader(ep.target, 115200, reconnect=True)
@@ -488,7 +489,7 @@ def test_noise_bursts_multiply_the_covariance(tmp_path: Path) -> None:
     faults = {"noise_burst_p": 0.3, "noise_burst_n": 16.0}
     scn = make_scenario(devices={"ins": {"options": {"can": False, "serial": False},
                                          "faults": faults}})  # fmt: skip
-    with Runner(scn, out_dir=tmp_path, devices=["ins"]) as r:
+    with Runner(scn, RunOptions(out_dir=tmp_path, devices=["ins"])) as r:
         em = r.emulators["ins"]
         samples = [em.measure(k * 0.01) for k in range(6000)]
     bursts = np.array([s.burst for s in samples])
@@ -502,7 +503,7 @@ def test_noise_bursts_multiply_the_covariance(tmp_path: Path) -> None:
 
 def test_faults_switch_at_run_time_and_through_the_control_file(tmp_path: Path) -> None:
     scn = make_scenario(devices={"ins": {"faults": {"dropout_p": 0.1}}})
-    with Runner(scn, out_dir=tmp_path, devices=["ins", "magnetometer"]) as r:
+    with Runner(scn, RunOptions(out_dir=tmp_path, devices=["ins", "magnetometer"])) as r:
         ins = r.emulators["ins"]
         serial_ch, can_ch = ins.channels
         r.set_faults("ins", corrupt_p=0.2, garbage_p=0.1)
@@ -548,7 +549,7 @@ def test_msis_head_is_silent_until_polled_and_pings_the_walls(tmp_path: Path) ->
         {**json.loads((Path(__file__).parents[1] / "config/scenarios/harbour.json").read_text()),
          "devices": {"msis": {"options": {"alive_period_s": 1.0}}}}
     )
-    with Runner(scn, out_dir=tmp_path, speed=10, devices=["msis"]) as r:
+    with Runner(scn, RunOptions(out_dir=tmp_path, speed=10, devices=["msis"])) as r:
         ep = endpoint(r, "msis")
         assert ep.format == "seanet"
         reader = SerialReader(ep.target, 115200)
@@ -611,7 +612,7 @@ def test_msis_head_is_silent_until_polled_and_pings_the_walls(tmp_path: Path) ->
 
 
 def test_gateway_configuration_points_at_every_port(tmp_path: Path) -> None:
-    with Runner(make_scenario(), out_dir=tmp_path) as r:
+    with Runner(make_scenario(), RunOptions(out_dir=tmp_path)) as r:
         path = r.write_gateway_config(tmp_path / "gw.toml", vehicle="sim-1")
         cfg = load_gateway_config(path)
         assert cfg.vehicle == "sim-1"
@@ -650,8 +651,9 @@ def test_truth_callback_and_logs(tmp_path: Path) -> None:
     seen: list[Any] = []
     scn = make_scenario(devices={"magnetometer": {"options": {"can": False}}})
     for log_name in ("truth.jsonl", "truth.npz"):
-        with Runner(scn, out_dir=tmp_path, speed=0, devices=["magnetometer"], truth_rate_hz=5,
-                    on_truth=seen.append, truth_log=tmp_path / log_name) as r:  # fmt: skip
+        options = RunOptions(out_dir=tmp_path, speed=0, devices=["magnetometer"], truth_rate_hz=5,
+                             on_truth=seen.append, truth_log=tmp_path / log_name)  # fmt: skip
+        with Runner(scn, options) as r:
             r.start(duration=3.0)
             assert r.wait(30)
     assert [s.t for s in seen] == pytest.approx([k * 0.2 for k in range(16)] * 2)
@@ -662,15 +664,15 @@ def test_truth_callback_and_logs(tmp_path: Path) -> None:
     assert np.allclose(npz["t"], [k * 0.2 for k in range(16)])
     assert np.allclose(npz["heading"], [r.truth.at(k * 0.2).heading for k in range(16)])
     with pytest.raises(ValueError, match=r"use a \.jsonl or \.npz"):
-        Runner(scn, out_dir=tmp_path, devices=[], truth_log=tmp_path / "t.csv")
+        Runner(scn, RunOptions(out_dir=tmp_path, devices=[], truth_log=tmp_path / "t.csv"))
 
 
 def test_bad_device_options_and_names_are_clear_errors(tmp_path: Path) -> None:
     scn = make_scenario(devices={"ins": {"options": {"baud": "fast"}}})
     with pytest.raises(ValueError, match=r"devices\.ins\.options\.baud: expected int, got 'fast'"):
-        Runner(scn, out_dir=tmp_path, devices=["ins"])
+        Runner(scn, RunOptions(out_dir=tmp_path, devices=["ins"]))
     scn = make_scenario(devices={"multibeam": {"options": {"spacing": "random"}}})
     with pytest.raises(ValueError, match=r"devices\.multibeam\.options\.spacing"):
-        Runner(scn, out_dir=tmp_path, devices=["multibeam"])
+        Runner(scn, RunOptions(out_dir=tmp_path, devices=["multibeam"]))
     with pytest.raises(ValueError, match="unknown device"):
-        Runner(make_scenario(), out_dir=tmp_path, devices=["sonar"])
+        Runner(make_scenario(), RunOptions(out_dir=tmp_path, devices=["sonar"]))

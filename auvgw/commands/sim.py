@@ -135,7 +135,7 @@ def _print_stats(runner: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from auvgw.config.scenario import ScenarioError, load_scenario
-    from auvgw.sim_devices.runner import DeviceProcesses, Runner
+    from auvgw.sim_devices.runner import DeviceProcesses, Runner, RunOptions
 
     if args.speed < 0:
         raise UserError(f"--speed must be >= 0, got {args.speed}")
@@ -164,25 +164,14 @@ def run(args: argparse.Namespace) -> int:
     if args.processes and args.speed == 0:
         raise UserError("--processes needs a real-time clock: --speed > 0")
     try:
+        options = RunOptions(
+            out_dir=out, speed=args.speed, devices=devices, truth_log=truth_log,
+            truth_rate_hz=args.truth_rate,
+        )  # fmt: skip
         if args.processes:
-            runner: Any = DeviceProcesses(
-                args.scenario,
-                out_dir=out,
-                speed=args.speed,
-                devices=devices,
-                truth_log=truth_log,
-                truth_rate_hz=args.truth_rate,
-                control=control,
-            )
+            runner: Any = DeviceProcesses(args.scenario, options, control=control)
         else:
-            runner = Runner(
-                scn,
-                out_dir=out,
-                speed=args.speed,
-                devices=devices,
-                truth_log=truth_log,
-                truth_rate_hz=args.truth_rate,
-            )
+            runner = Runner(scn, options)
     except (ScenarioError, ValueError, OSError) as exc:
         raise UserError(f"{args.scenario}: {exc}") from exc
     stop = threading.Event()
