@@ -8,20 +8,13 @@ stage (online, ``auvgw.stages.fusion``) and :func:`run_filter` (offline, recordi
 device clocks onto the host clock.
 """
 
+from auvgw.fusion import offline
 from auvgw.fusion.config import DvlMount, FusionConfig, InitialState
 from auvgw.fusion.diagnostics import FusionDiagnostics
 from auvgw.fusion.ekf import STATE_NAMES, DeadReckoningEKF
 from auvgw.fusion.navfilter import FusionStats, NavFilter
 from auvgw.fusion.odometry import MotionIncrement, Odometry
-from auvgw.fusion.offline import (
-    OdometryArrays,
-    depth_from_arrays,
-    dvl_from_arrays,
-    ins_from_arrays,
-    iter_filter,
-    run_filter,
-    run_filter_arrays,
-)
+from auvgw.fusion.offline import *  # noqa: F403 - its __all__ joins ours
 from auvgw.fusion.samples import AttitudeSample, DepthSample, DvlSample, InsSample, PositionFix
 
 __all__ = [
@@ -39,15 +32,9 @@ __all__ = [
     "MotionIncrement",
     "NavFilter",
     "Odometry",
-    "OdometryArrays",
     "PositionFix",
-    "depth_from_arrays",
-    "dvl_from_arrays",
-    "ins_from_arrays",
-    "iter_filter",
-    "run_filter",
-    "run_filter_arrays",
 ]
+__all__ += offline.__all__
 
 if __name__ != "auvgw.fusion":
     raise ImportError(f"import auvgw.fusion, not {__name__}: the folder is mapped (setup.py)")
