@@ -161,6 +161,14 @@ def _bus(args: argparse.Namespace) -> tuple[str, BusConfig]:
     return args.vehicle or vehicle, bus.as_spoke()
 
 
+def _summary(args: argparse.Namespace, **counts: Any) -> int:
+    """Print the run's summary (``counts`` and the ``.rrd`` written) as one JSON line on
+    stderr; the exit status, 0."""
+    summary = {**counts, "rrd": None if args.rrd is None else str(args.rrd)}
+    print(json.dumps(summary), file=sys.stderr)
+    return 0
+
+
 def _synthetic(args: argparse.Namespace, options: VizOptions) -> int:
     from dataclasses import replace
 
@@ -179,15 +187,9 @@ def _synthetic(args: argparse.Namespace, options: VizOptions) -> int:
     finally:
         logger.close()
     st = logger.stats()
-    summary = {
-        "synthetic_s": args.synthetic,
-        "logged": st.processed,
-        "dropped": st.dropped,
-        "errors": st.errors,
-        "rrd": None if args.rrd is None else str(args.rrd),
-    }
-    print(json.dumps(summary), file=sys.stderr)
-    return 0
+    return _summary(
+        args, synthetic_s=args.synthetic, logged=st.processed, dropped=st.dropped, errors=st.errors
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -228,16 +230,8 @@ def run(args: argparse.Namespace) -> int:
     finally:
         session.close()
     s, ls = runner.stage.stats, runner.logger.stats()
-    summary = {
-        "vehicle": vehicle,
-        "received": s.received,
-        "logged": s.logged,
-        "ignored": s.ignored,
-        "unknown": dict(s.unknown),
-        "errors": s.errors,
-        "stage_dropped": s.queue_dropped,
-        "logger_dropped": ls.dropped,
-        "rrd": None if args.rrd is None else str(args.rrd),
-    }
-    print(json.dumps(summary), file=sys.stderr)
-    return 0
+    return _summary(
+        args, vehicle=vehicle, received=s.received, logged=s.logged, ignored=s.ignored,
+        unknown=dict(s.unknown), errors=s.errors, stage_dropped=s.queue_dropped,
+        logger_dropped=ls.dropped,
+    )  # fmt: skip

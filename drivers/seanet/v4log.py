@@ -233,20 +233,14 @@ class V4LogFramer(Framer):
     sync = MAGIC
     max_frame_size = seanet.MAX_PACKET_SIZE + 1
 
-    def __init__(
-        self,
-        policy: ErrorPolicy | str = ErrorPolicy.LOG,
-        source: str = "",
-        max_frame_size: int | None = None,
-    ) -> None:
-        super().__init__(policy, source, max_frame_size)
-        self.header: V4LogHeader | None = None
-        self._start = HEADER_SIZE
-        self._end: int | None = None
-        self._times = (0.0, _MAX_TDATETIME)
-        self._resync = False
-        self._last_end = -1  # absolute end of the last record delivered
-        self._tail = b""  # its last bytes, for _look_back
+    # the state of one stream, until its header and records set their own (immutable values)
+    header: V4LogHeader | None = None
+    _start: int = HEADER_SIZE
+    _end: int | None = None
+    _times: tuple[float, float] = (0.0, _MAX_TDATETIME)
+    _resync: bool = False
+    _last_end: int = -1  # absolute end of the last record delivered
+    _tail: bytes = b""  # its last bytes, for _look_back
 
     def _read_header(self, buf: bytearray) -> None:
         if bytes(buf[: len(MAGIC)]) != MAGIC:
