@@ -35,6 +35,7 @@ from auvgw.slam.features import (
     fit_line,
     hough_votes,
     line_difference,
+    line_refitter,
     merge_lines,
     place_returns,
     place_scan,
@@ -303,7 +304,7 @@ def test_merge_lines_joins_two_fits_of_one_wall_and_keeps_parallel_walls():
     for part in (np.arange(0, 20), np.arange(20, 41), np.arange(41, 82)):
         fit = _fit(px, py, a, r, sr, ping, h, part)
         halves.append(fit)
-    merged = merge_lines(halves, px, py, a, r, sr, ping, h)
+    merged = merge_lines(halves, line_refitter(px, py, a, r, sr, ping, h), h)
     assert len(merged) == 2
     near = min(merged, key=lambda f: f.rho)
     assert near.support.tolist() == list(range(41))

@@ -13,72 +13,10 @@ Pure algorithms on arrays (numpy, scipy): no transports, no Zenoh, no Rerun.
 See ``docs/sonar_features.md``.
 """
 
-from .beams import (
-    BeamSettings,
-    PlacedReturns,
-    PoseSource,
-    PoseTrack,
-    Returns,
-    ScanLines,
-    SonarMount,
-    detect_returns,
-    place_returns,
-    place_scan,
-    poses_at,
-    preprocess_beam,
-    scan_lines_from_head_data,
-)
-from .lines import (
-    HoughSettings,
-    LineFit,
-    LineObservation,
-    SectorBuffer,
-    extract_lines,
-    fit_line,
-    hough_votes,
-    line_difference,
-    line_to_world,
-    merge_lines,
-)
-from .pipeline import Features, FeatureSettings, SonarFeatureExtractor
-from .points import (
-    PointFit,
-    PointObservation,
-    PointSettings,
-    cluster_returns,
-    extract_points,
-)
+from . import beams, lines, pipeline, points
+from .beams import *  # noqa: F403 - the package exports each module's __all__
+from .lines import *  # noqa: F403
+from .pipeline import *  # noqa: F403
+from .points import *  # noqa: F403
 
-__all__ = [
-    "BeamSettings",
-    "FeatureSettings",
-    "Features",
-    "HoughSettings",
-    "LineFit",
-    "LineObservation",
-    "PlacedReturns",
-    "PointFit",
-    "PointObservation",
-    "PointSettings",
-    "PoseSource",
-    "PoseTrack",
-    "Returns",
-    "ScanLines",
-    "SectorBuffer",
-    "SonarFeatureExtractor",
-    "SonarMount",
-    "cluster_returns",
-    "detect_returns",
-    "extract_lines",
-    "extract_points",
-    "fit_line",
-    "hough_votes",
-    "line_difference",
-    "line_to_world",
-    "merge_lines",
-    "place_returns",
-    "place_scan",
-    "poses_at",
-    "preprocess_beam",
-    "scan_lines_from_head_data",
-]
+__all__ = [*beams.__all__, *lines.__all__, *pipeline.__all__, *points.__all__]

@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -56,6 +57,7 @@ __all__ = [
     "fit_line",
     "hough_votes",
     "line_difference",
+    "line_refitter",
     "line_to_world",
     "merge_lines",
 ]
@@ -265,35 +267,41 @@ def fit_line(
     return rho, theta, cov, idx[support], chi2
 
 
-def _line_fit(
+#: ``refit(rho0, theta0, votes, candidates)``: a line of ``votes`` near ``(rho0, theta0)`` from
+#: the returns ``candidates``, or None when it fails the acceptance tests
+Refit = Callable[[float, float, int, FArray], LineFit | None]
+
+
+def line_refitter(
     px: FArray,
     py: FArray,
     ang: FArray,
     rng: FArray,
     sigma_r: FArray,
     ping: FArray,
-    rho0: float,
-    theta0: float,
-    votes: int,
     settings: HoughSettings,
-    candidates: FArray,
-) -> LineFit | None:
-    """:func:`fit_line` plus the acceptance tests (returns, pings, length)."""
-    got = fit_line(px, py, ang, rng, sigma_r, rho0, theta0, settings, candidates)
-    if got is None:
-        return None
-    rho, theta, cov, sup, chi2 = got
-    c, s = math.cos(theta), math.sin(theta)
-    t = -px[sup] * s + py[sup] * c
-    n_pings = int(np.unique(ping[sup]).size)
-    fit = LineFit(rho, theta, cov, votes, sup, n_pings, float(t.min()), float(t.max()), chi2)
-    if (
-        sup.size < settings.min_votes
-        or n_pings < settings.min_pings
-        or fit.length < settings.min_length_m
-    ):
-        return None
-    return fit
+) -> Refit:
+    """:func:`fit_line` over these returns (``ping`` labels their pings) plus the acceptance
+    tests (returns, pings, length), as a :data:`Refit`."""
+
+    def refit(rho0: float, theta0: float, votes: int, candidates: FArray) -> LineFit | None:
+        got = fit_line(px, py, ang, rng, sigma_r, rho0, theta0, settings, candidates)
+        if got is None:
+            return None
+        rho, theta, cov, sup, chi2 = got
+        c, s = math.cos(theta), math.sin(theta)
+        t = -px[sup] * s + py[sup] * c
+        n_pings = int(np.unique(ping[sup]).size)
+        fit = LineFit(rho, theta, cov, votes, sup, n_pings, float(t.min()), float(t.max()), chi2)
+        if (
+            sup.size < settings.min_votes
+            or n_pings < settings.min_pings
+            or fit.length < settings.min_length_m
+        ):
+            return None
+        return fit
+
+    return refit
 
 
 def line_difference(a: tuple[float, float], b: tuple[float, float]) -> tuple[float, float]:
@@ -332,6 +340,7 @@ def extract_lines(
     if sx.size < settings.min_votes:
         return []
     px, py = sx + rng * np.cos(ang), sy + rng * np.sin(ang)
+    refit = line_refitter(px, py, ang, rng, sr, ping, settings)
     voter, cell, (n_theta, n_rho) = hough_votes(sx, sy, ang, rng, settings)
     acc = np.bincount(cell, minlength=n_theta * n_rho).astype(np.int64)
     active = np.ones(sx.size, bool)
@@ -344,10 +353,7 @@ def extract_lines(
             break
         k, p = divmod(peak, n_rho)
         cand = np.flatnonzero(active)
-        fit = _line_fit(
-            px, py, ang, rng, sr, ping, (p + 0.5) * settings.rho_res_m, k * dth, votes,
-            settings, cand,
-        )  # fmt: skip
+        fit = refit((p + 0.5) * settings.rho_res_m, k * dth, votes, cand)
         if fit is None:
             # suppress the peak and its neighbours; its voters may still make another line
             kk = (k + np.arange(-1, 2)) % n_theta
@@ -360,22 +366,13 @@ def extract_lines(
         gone &= active
         active &= ~gone
         np.subtract.at(acc, cell[gone[voter]], 1)
-    return merge_lines(fits, px, py, ang, rng, sr, ping, settings)
+    return merge_lines(fits, refit, settings)
 
 
-def merge_lines(
-    fits: list[LineFit],
-    px: FArray,
-    py: FArray,
-    ang: FArray,
-    rng: FArray,
-    sigma_r: FArray,
-    ping: FArray,
-    settings: HoughSettings,
-) -> list[LineFit]:
+def merge_lines(fits: list[LineFit], refit: Refit, settings: HoughSettings) -> list[LineFit]:
     """Merge lines of one vote that are the same line: Mahalanobis distance of their
     ``(rho, theta)`` difference (summed covariances) below ``merge_chi2``; the merged line is
-    refitted on the union of their returns."""
+    refitted (``refit``, see :func:`line_refitter`) on the union of their returns."""
     out = list(fits)
     merged = True
     while merged and len(out) > 1:
@@ -388,10 +385,7 @@ def merge_lines(
                 if float(d @ np.linalg.solve(s, d)) > settings.merge_chi2:
                     continue
                 cand = np.union1d(a.support, b.support)
-                fit = _line_fit(
-                    px, py, ang, rng, sigma_r, ping, a.rho, a.theta, a.votes + b.votes,
-                    settings, cand,
-                )  # fmt: skip
+                fit = refit(a.rho, a.theta, a.votes + b.votes, cand)
                 if fit is None:
                     continue
                 out[i] = fit
