@@ -14,9 +14,12 @@ import importlib
 import logging
 import sys
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 from auvgw.errors import ConfigError, DataError, UserError
+
+if TYPE_CHECKING:
+    from auvgw.config.gateway import GatewayConfig
 
 #: command name -> (module, one-line help), in the order ``auvgw --help`` lists them. Only the
 #: module of the command being run is imported, so ``auvgw --help`` imports none of them (no
@@ -59,8 +62,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
 
 
 __all__ = [
-    "COMMANDS", "UserError", "add_command", "build_parser", "main", "open_output",
-    "study_algorithms",
+    "COMMANDS", "UserError", "add_command", "add_decode_config", "build_parser", "decode_config",
+    "main", "open_output", "study_algorithms",
 ]  # fmt: skip
 
 
@@ -71,6 +74,23 @@ def add_command(sub: Any, name: str, doc: str | None) -> argparse.ArgumentParser
         name, help=COMMANDS[name][1], description=doc,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )  # fmt: skip
+
+
+def add_decode_config(p: argparse.ArgumentParser) -> None:
+    """``--config TOML``: the gateway configuration a recording is decoded with instead of its
+    recorded one (``replay``, ``export``); read with :func:`decode_config`."""
+    p.add_argument(
+        "--config", type=Path, default=None, metavar="TOML",
+        help="gateway configuration to decode with, instead of the recorded one",
+    )  # fmt: skip
+
+
+def decode_config(args: argparse.Namespace) -> GatewayConfig | None:
+    """The validated ``--config`` of :func:`add_decode_config` (a :class:`UserError` listing
+    every problem), or None: decode with the recorded configuration."""
+    from auvgw.commands.run import load_or_fail
+
+    return load_or_fail(args.config) if args.config is not None else None
 
 
 def open_output(path: Path | None) -> TextIO | None:

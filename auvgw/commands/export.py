@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from auvgw.cli import UserError, add_command
+from auvgw.cli import UserError, add_command, add_decode_config, decode_config
 
 __all__ = ["export_ros2"]
 
@@ -30,10 +30,7 @@ def register(sub: Any) -> None:
         "--out", "-o", type=Path, default=None, metavar="FILE.mcap",
         help="output (default: FILE with .ros2.mcap; never overwritten)",
     )  # fmt: skip
-    p.add_argument(
-        "--config", type=Path, default=None, metavar="TOML",
-        help="gateway configuration to decode with, instead of the recorded one",
-    )  # fmt: skip
+    add_decode_config(p)
     p.set_defaults(func=run)
 
 
@@ -88,7 +85,6 @@ def export_ros2(src: Path, out: Path, config: Any = None) -> dict[str, int]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from auvgw.commands.run import load_or_fail
     from auvgw.recording import RecordingError
 
     out: Path = args.out or args.file.with_suffix(".ros2.mcap")
@@ -96,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"{out}: exists; choose another --out (export never overwrites)")
     if not out.parent.is_dir():
         raise UserError(f"{out}: folder {out.parent} does not exist")
-    config = load_or_fail(args.config) if args.config is not None else None
+    config = decode_config(args)
     try:
         counts = export_ros2(args.file, out, config)
     except RecordingError as exc:

@@ -36,8 +36,8 @@ from auvgw.bus import (
     raw_encoding,
     unpack_raw_attachment,
 )
-from auvgw.cli import UserError, add_command
-from auvgw.commands.run import handle_stop_signals, load_or_fail
+from auvgw.cli import UserError, add_command, add_decode_config, decode_config
+from auvgw.commands.run import handle_stop_signals
 from auvgw.decoding import message_kind
 from auvgw.recording import RecordingError, decoders_for, iter_samples, key_section, read_info
 
@@ -60,13 +60,7 @@ def register(sub: Any) -> None:
         help="K x the recorded pace; 0 = as fast as possible (default 1)",
     )
     p.add_argument("--vehicle", default=None, help="publish as this vehicle (default: recorded)")
-    p.add_argument(
-        "--config",
-        type=Path,
-        default=None,
-        metavar="TOML",
-        help="gateway configuration to decode with, instead of the recorded one",
-    )
+    add_decode_config(p)
     p.add_argument(
         "--trust-recorded-paths",
         action="store_true",
@@ -116,7 +110,7 @@ def run(args: argparse.Namespace) -> int:
         bus = bus_from_args(args, hub=True)  # replay stands in for the gateway
     except ValueError as exc:
         raise UserError(str(exc)) from exc
-    override = load_or_fail(args.config) if args.config is not None else None
+    override = decode_config(args)
     try:
         info = read_info(args.file)
         decoders = decoders_for(info, override, trust_paths=args.trust_recorded_paths)
