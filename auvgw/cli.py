@@ -62,8 +62,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
 
 
 __all__ = [
-    "COMMANDS", "UserError", "add_command", "add_decode_config", "build_parser", "decode_config",
-    "main", "open_output", "study_algorithms",
+    "COMMANDS", "UserError", "add_command", "add_decode_config", "add_duration", "build_parser",
+    "decode_config", "main", "open_output", "study_algorithms",
 ]  # fmt: skip
 
 
@@ -73,6 +73,15 @@ def add_command(sub: Any, name: str, doc: str | None) -> argparse.ArgumentParser
     return sub.add_parser(  # type: ignore[no-any-return]
         name, help=COMMANDS[name][1], description=doc,
         formatter_class=argparse.RawDescriptionHelpFormatter,
+    )  # fmt: skip
+
+
+def add_duration(p: argparse.ArgumentParser, when: str = "") -> None:
+    """``--duration S``: a long-running command stops after S seconds (None: at SIGINT or
+    SIGTERM); ``when`` starts the help (``"live: "``: it applies only when live)."""
+    p.add_argument(
+        "--duration", type=float, default=None, metavar="S",
+        help=f"{when}stop after S seconds (default: until SIGINT/SIGTERM)",
     )  # fmt: skip
 
 

@@ -46,7 +46,7 @@ from pathlib import Path
 from typing import Any
 
 from auvgw.bus import add_bus_arguments
-from auvgw.cli import UserError, add_command, open_output
+from auvgw.cli import UserError, add_command, add_duration, open_output
 
 log = logging.getLogger(__name__)
 
@@ -81,13 +81,7 @@ def register(sub: Any) -> None:
         metavar="DEVICE",
         help="gateway device of the velocity source (default: settings, 'dvl')",
     )
-    p.add_argument(
-        "--duration",
-        type=float,
-        default=None,
-        metavar="S",
-        help="online: stop after S seconds (default: until SIGINT/SIGTERM)",
-    )
+    add_duration(p, "online: ")
     p.add_argument(
         "--recording",
         type=Path,

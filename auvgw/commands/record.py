@@ -23,7 +23,7 @@ from typing import Any
 import zenoh
 
 from auvgw.bus import InputWatch, Keys, add_bus_arguments, bus_from_args, open_cli_session
-from auvgw.cli import UserError, add_command
+from auvgw.cli import UserError, add_command, add_duration
 from auvgw.commands.run import handle_stop_signals
 from auvgw.recording import McapRecorder
 
@@ -40,13 +40,7 @@ def register(sub: Any) -> None:
     p = add_command(sub, "record", __doc__)
     p.add_argument("--vehicle", default="auv1", help="vehicle name (default auv1)")
     p.add_argument("--out", "-o", required=True, type=Path, metavar="FILE.mcap", help="output file")
-    p.add_argument(
-        "--duration",
-        type=float,
-        default=None,
-        metavar="S",
-        help="stop after S seconds (default: until SIGINT/SIGTERM)",
-    )
+    add_duration(p)
     p.add_argument(
         "--wait-gateway",
         type=float,

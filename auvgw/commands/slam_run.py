@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 
 from auvgw.bus import add_bus_arguments
-from auvgw.cli import UserError, open_output
+from auvgw.cli import UserError, add_duration, open_output
 from auvgw.errors import format_validation_error
 
 HELP = "run the SLAM stage (fusion odometry + MSIS features), live or over a recording"
@@ -66,13 +66,7 @@ def configure(p: argparse.ArgumentParser) -> None:
         help="offline: run over this recording (default: live on the bus)",
     )
     p.add_argument("--vehicle", default="auv1", help="live: vehicle name (default auv1)")
-    p.add_argument(
-        "--duration",
-        type=float,
-        default=None,
-        metavar="S",
-        help="live: stop after S seconds (default: until SIGINT/SIGTERM)",
-    )
+    add_duration(p, "live: ")
     p.add_argument(
         "--target-radius",
         type=float,
