@@ -49,6 +49,24 @@ class FusionStats:
     position_rejected: int = 0  #: position fixes that failed their gate
 
 
+@dataclass
+class _Gate:
+    """Consecutive gate rejections of one kind of fix: after ``limit`` of them the next fix is
+    forced through (re-acquisition)."""
+
+    limit: int
+    rejections: int = 0
+
+    @property
+    def force(self) -> bool:
+        return self.rejections >= self.limit
+
+    def passed(self, ok: bool) -> bool:
+        """Count the outcome of one update; returns ``ok``."""
+        self.rejections = 0 if ok else self.rejections + 1
+        return ok
+
+
 class NavFilter:
     """INS + DVL (+ depth) dead reckoning; see the module docstring for the policies.
 
@@ -66,8 +84,8 @@ class NavFilter:
         self._lock = False
         self._last_fix_t = -math.inf
         self._last_depth_t = -math.inf
-        self._rejections = 0
-        self._pos_rejections = 0
+        self._dvl_gate = _Gate(self.config.dvl_gate_max_rejections)
+        self._position_gate = _Gate(self.config.dvl_gate_max_rejections)
         self._heading_corr = self.config.heading_correction()
         self._declination = math.radians(self.config.magnetic_declination_deg)
         self.diagnostics = FusionDiagnostics(self.config.diagnostics_window_s)
@@ -218,7 +236,7 @@ class NavFilter:
             has_v = e.bottom_lock and any(math.isfinite(c) for c in vel)
             self._lock = has_v
             if has_v:
-                force = self._rejections >= cfg.dvl_gate_max_rejections
+                force = self._dvl_gate.force
                 if force:
                     ekf.reset_velocity_covariance(cfg.initial.velocity_sigma_mps)
                     self.stats.dvl_reacquired += 1
@@ -231,12 +249,10 @@ class NavFilter:
                     )
                 )
                 self.diagnostics.noise_sigma = ekf.dvl_noise_sigma()
-                if ok:
+                if self._dvl_gate.passed(ok):
                     self._last_fix_t = e.t
-                    self._rejections = 0
                     self.stats.dvl_updates += 1
                 else:
-                    self._rejections += 1
                     self.stats.dvl_rejected += 1
             else:
                 self.stats.dvl_no_lock += 1
@@ -247,13 +263,12 @@ class NavFilter:
         elif isinstance(e, PositionFix):
             if not (math.isfinite(e.north) and math.isfinite(e.east) and e.sigma_m > 0):
                 return
-            force = self._pos_rejections >= cfg.dvl_gate_max_rejections
-            ok, _ = ekf.update_position(e.north, e.east, e.sigma_m, force=force)
-            if ok:
-                self._pos_rejections = 0
+            ok, _ = ekf.update_position(
+                e.north, e.east, e.sigma_m, force=self._position_gate.force
+            )
+            if self._position_gate.passed(ok):
                 self.stats.position_updates += 1
             else:
-                self._pos_rejections += 1
                 self.stats.position_rejected += 1
         else:
             if not math.isfinite(e.depth):
