@@ -1086,6 +1086,15 @@ def head_command(
     )
 
 
+#: the mtHeadCommand settings a head repeats in every mtHeadData, under the same field names
+HEAD_DATA_ECHOES = (
+    "hd_ctrl", "range_scale_raw", "ad_span", "ad_low", "ad_interval", "left_limit", "right_limit",
+    "step",
+)  # fmt: skip
+#: ... and those it repeats from the channel in use (mtHeadCommand's ``<name>_ch1``/``_ch2``)
+HEAD_DATA_CHANNEL_ECHOES = ("tx_frequency", "gain", "slope")
+
+
 def head_data(
     bins: Sequence[int] | np.ndarray,
     bearing: float,
@@ -1120,17 +1129,8 @@ def head_data(
         bins=np.asarray(bins),
         appended=appended,
         # settings echoed from the command, already in SI
-        hd_ctrl=cfg.hd_ctrl,
-        range_scale_raw=cfg.range_scale_raw,
-        tx_frequency=getattr(cfg, f"tx_frequency_{ch}"),
-        gain=getattr(cfg, f"gain_{ch}"),
-        slope=getattr(cfg, f"slope_{ch}"),
-        ad_span=cfg.ad_span,
-        ad_low=cfg.ad_low,
-        ad_interval=cfg.ad_interval,
-        left_limit=cfg.left_limit,
-        right_limit=cfg.right_limit,
-        step=cfg.step,
+        **{name: getattr(cfg, name) for name in HEAD_DATA_ECHOES},
+        **{name: getattr(cfg, f"{name}_{ch}") for name in HEAD_DATA_CHANNEL_ECHOES},
     )
 
 
