@@ -29,19 +29,17 @@ range: slant range in m; bearing: from the bow, clockwise, rad; depression: belo
 horizontal, rad; beacon: transponder id; counter: reply count."""
 
 
-class AcousticCodec(AsciiLineCodec):
+class AcousticCodec(AsciiLineCodec, device="acoustic"):
     """Acoustic reply lines under one table (shipped: ``config/acoustic.toml``): :meth:`framer`,
     :meth:`decode`, :meth:`encode`; a site table loads with :meth:`from_toml`."""
 
-    TABLE = "acoustic.toml"
-    MESSAGE = "AcousticReply"
     DOC = _DOC
     REQUIRED_FIELDS = REQUIRED_FIELDS
 
 
 #: the shipped table's codec, read on first use; ``CODEC`` and ``AcousticReply`` (its message class)
 #: are served by the module ``__getattr__``
-default_codec, __getattr__ = shipped_codec(AcousticCodec.from_toml, "AcousticReply")
+default_codec, __getattr__ = shipped_codec(AcousticCodec.from_toml, AcousticCodec.MESSAGE)
 
 
 class AcousticFramer(AsciiLineFramer, shipped=default_codec):

@@ -72,12 +72,10 @@ _EXTRA = {
 }
 
 
-class Hn100Codec(BinaryFrameCodec):
+class Hn100Codec(BinaryFrameCodec, device="hn100"):
     """HN-100 frames under one table (shipped: ``config/hn100.toml``): :meth:`framer`,
     :meth:`decode`, :meth:`encode`; a site table loads with :meth:`from_toml`."""
 
-    TABLE = "hn100.toml"
-    MESSAGE = "Hn100Nav"
     DOC = _DOC
     EXTRA = _EXTRA
     REQUIRED_FIELDS = REQUIRED_FIELDS
@@ -86,7 +84,7 @@ class Hn100Codec(BinaryFrameCodec):
 
 #: the shipped table's codec, read on first use; ``CODEC`` and ``Hn100Nav`` (its message class)
 #: are served by the module ``__getattr__``
-default_codec, __getattr__ = shipped_codec(Hn100Codec.from_toml, "Hn100Nav")
+default_codec, __getattr__ = shipped_codec(Hn100Codec.from_toml, Hn100Codec.MESSAGE)
 
 
 class Hn100Framer(BinaryFrameFramer, shipped=default_codec):

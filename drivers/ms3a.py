@@ -41,12 +41,10 @@ _b_tesla.__doc__ = "(bx, by, bz) in T, sensor axes"
 _EXTRA = {"b_nt": property(_b_nt), "b_tesla": property(_b_tesla)}
 
 
-class Ms3aCodec(AsciiLineCodec):
+class Ms3aCodec(AsciiLineCodec, device="ms3a"):
     """MS3A lines under one table (shipped: ``config/ms3a.toml``): :meth:`framer`,
     :meth:`decode`, :meth:`encode`; a site table loads with :meth:`from_toml`."""
 
-    TABLE = "ms3a.toml"
-    MESSAGE = "Ms3aSample"
     DOC = _DOC
     EXTRA = _EXTRA
     REQUIRED_FIELDS = REQUIRED_FIELDS
@@ -54,7 +52,7 @@ class Ms3aCodec(AsciiLineCodec):
 
 #: the shipped table's codec, read on first use; ``CODEC`` and ``Ms3aSample`` (its message class)
 #: are served by the module ``__getattr__``
-default_codec, __getattr__ = shipped_codec(Ms3aCodec.from_toml, "Ms3aSample")
+default_codec, __getattr__ = shipped_codec(Ms3aCodec.from_toml, Ms3aCodec.MESSAGE)
 
 
 class Ms3aFramer(AsciiLineFramer, shipped=default_codec):

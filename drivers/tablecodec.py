@@ -34,6 +34,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar, Generic, Protocol, Self, TypeVar
 
+from auvgw.drivers import registry
 from auvgw.drivers.framing import BadFrame, DecodeError, ErrorPolicy, Framer
 from auvgw.drivers.spec import (
     LAZY_TYPES,
@@ -729,11 +730,13 @@ class TableCodec(Generic[S, F]):
     """What a table-driven codec shares: the table ``spec``, the message class built from it, a
     ``name`` (logs, errors) and :meth:`framer`.
 
-    A device's codec subclasses :class:`BinaryFrameCodec` or :class:`AsciiLineCodec` and gives
-    in class attributes its shipped table (:attr:`TABLE`), the message class's name
-    (:attr:`MESSAGE`), docstring (:attr:`DOC`) and extra members (:attr:`EXTRA`), and the
-    fields every table of the device must declare (:attr:`REQUIRED_FIELDS`); :meth:`from_toml`
-    and :meth:`from_spec` build it from those. A device's framer class subclasses the table
+    A device's codec subclasses :class:`BinaryFrameCodec` or :class:`AsciiLineCodec` with
+    ``device=<format>``: its shipped table (:attr:`TABLE`) and the message class's name
+    (:attr:`MESSAGE`, its registered stream message type) come from the device registry
+    (:mod:`auvgw.drivers.registry`); it gives in class attributes the message class's docstring
+    (:attr:`DOC`) and extra members (:attr:`EXTRA`), and the fields every table of the device
+    must declare (:attr:`REQUIRED_FIELDS`); :meth:`from_toml` and :meth:`from_spec` build it
+    from those. A device's framer class subclasses the table
     kind's framer with ``shipped=default_codec`` (the codec used when it is given none)."""
 
     #: the framer of this table kind: ``framer_type(spec, policy=, source=, name=)``
@@ -748,6 +751,16 @@ class TableCodec(Generic[S, F]):
     EXTRA: ClassVar[Mapping[str, Any]] = {}
     #: fields every table of the device must declare: name -> decoded units ('' = a count)
     REQUIRED_FIELDS: ClassVar[Mapping[str, str]] = {}
+
+    def __init_subclass__(cls, device: str | None = None, **kw: Any) -> None:
+        super().__init_subclass__(**kw)
+        if device is None:
+            return
+        d = registry.device(device)
+        stream = [m.type for m in d.messages if m.wire == "stream"]
+        if d.table is None or len(stream) != 1:
+            raise TypeError(f"{cls.__name__}: format {device!r} registers no table and one type")
+        cls.TABLE, cls.MESSAGE = d.table, stream[0]
 
     def __init__(self, spec: S, message_type: type, name: str = "frame") -> None:
         self.spec = spec
