@@ -72,6 +72,7 @@ import can
 import numpy as np
 
 from auvgw.config.scenario import DeviceSettings, FaultSettings, Scenario
+from auvgw.drivers import registry
 from auvgw.drivers.can_codec import CanFrame
 from auvgw.drivers.framing import ErrorPolicy, Framer
 from auvgw.sim_devices.clock import SimClock, Task, thread_cpu_s
@@ -621,15 +622,25 @@ class SerialCanEmulator(Emulator):
 
     Options: ``serial`` and ``can`` (true: open that wire), ``baud`` (:attr:`default_baud`),
     ``can_bitrate`` (500000), ``table`` (a site table replacing the shipped one of the serial
-    codec, TOML; the gateway configuration then names it too). A subclass sets
-    :attr:`serial_format`, :attr:`default_baud` and :attr:`dbc`, calls :meth:`add_wires` with
-    its codecs, and implements ``measure(t)`` and the two encoders; each tick sends one sample
-    on both wires.
+    codec, TOML; the gateway configuration then names it too). A subclass names its device
+    (``class InsEmulator(SerialCanEmulator, device="hn100")``: its registry line gives
+    :attr:`kind`, :attr:`serial_format` and :attr:`dbc`), sets :attr:`default_baud`, calls
+    :meth:`add_wires` with its codecs, and implements ``measure(t)`` and the two encoders; each
+    tick sends one sample on both wires.
     """
 
     serial_format: ClassVar[str] = ""
     default_baud: ClassVar[int] = 115200
     dbc: ClassVar[str] = ""
+
+    def __init_subclass__(cls, device: str | None = None, **kw: Any) -> None:
+        super().__init_subclass__(**kw)
+        if device is None:
+            return
+        d = registry.device(device)
+        if d.emulator is None or d.dbc is None:
+            raise TypeError(f"{cls.__name__}: format {device!r} registers no emulator and DBC")
+        cls.kind, cls.serial_format, cls.dbc = d.emulator.key, d.format, d.dbc
 
     def add_wires(self, codec_type: Any, default_codec: Any, can_codec: Callable[[], Any]) -> None:
         """Set :attr:`codec` (``codec_type.from_toml(table)`` or ``default_codec``) and open

@@ -152,14 +152,11 @@ class InsSample:
     heading_error: float = 0.0
 
 
-class InsEmulator(SerialCanEmulator):
+class InsEmulator(SerialCanEmulator, device="hn100"):
     """The HN-100 INS (see the module docstring)."""
 
-    kind = "ins"
     nominal_rate_hz = 100.0
-    serial_format = "hn100"
     default_baud = 115200
-    dbc = "hn100.dbc"
 
     def __init__(
         self, ctx: SimContext, settings: DeviceSettings | None = None, name: str | None = None

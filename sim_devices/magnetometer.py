@@ -49,14 +49,11 @@ class MagSample:
     burst: bool
 
 
-class MagnetometerEmulator(SerialCanEmulator):
+class MagnetometerEmulator(SerialCanEmulator, device="ms3a"):
     """The MS3A magnetometer (see the module docstring)."""
 
-    kind = "magnetometer"
     nominal_rate_hz = 20.0
-    serial_format = "ms3a"
     default_baud = 38400
-    dbc = "ms3a.dbc"
 
     def __init__(
         self, ctx: SimContext, settings: DeviceSettings | None = None, name: str | None = None
