@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -12,9 +13,17 @@ import pytest
 
 from auvgw.config.scenario import load_scenario
 from auvgw.paths import config_file
-from auvgw.slam.magnetic.evaluation import Variant, parse_variant, prepare, run_filter
+from auvgw.slam.magnetic.diagnose import diagnose_run, longest_gap
+from auvgw.slam.magnetic.evaluation import (
+    Variant,
+    paired_change,
+    parse_variant,
+    prepare,
+    run_filter,
+)
 
 SCENARIO = Path(__file__).resolve().parents[1] / "config" / "scenarios" / "beacons_amb.json"
+DENSE = SCENARIO.with_name("beacons_dense.json")
 
 
 def test_parse_variant_and_errors() -> None:
@@ -70,6 +79,7 @@ def test_cli_pipeline_magnetic_writes_tables_and_plots(tmp_path: Path) -> None:
     cmd = [sys.executable, "-m", "auvgw", "slam", "eval", "--pipeline", "magnetic",
            "--scenario", str(SCENARIO), "--algorithms", "amb-slam,dr", "--runs", "2",
            "--max-steps", "1500", "--no-progress", "--out", str(out)]  # fmt: skip
+    cmd += ["--variant", "default", "--variant", "density=first-half"]
     p = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr
     assert "amb-slam" in p.stdout and "dr" in p.stdout
@@ -78,5 +88,67 @@ def test_cli_pipeline_magnetic_writes_tables_and_plots(tmp_path: Path) -> None:
     res = json.loads((out / "results.json").read_text())
     rows = {r["algorithm"]: r for r in res["variants"][0]["rows"]}
     assert rows["amb-slam"]["runs"] == 2 and rows["amb-slam"]["rmse"] < rows["dr"]["rmse"]
-    assert len(list(out.glob("*_map.png"))) == 1 and len(list(out.glob("*_errors.png"))) == 1
+    assert len(list(out.glob("*_map.png"))) == 2 and len(list(out.glob("*_errors.png"))) == 2
+    # the density study's run-by-run change table, from the two rows of each algorithm
+    assert "density all -> first-half" in md and "runs worse" in md
+    (ch,) = res["density_changes"]
+    half = {r["algorithm"]: r for r in res["variants"][1]["rows"]}
+    for c in ch["rows"]:
+        a = c["algorithm"]
+        assert c["change"] == pytest.approx(half[a]["rmse"] - rows[a]["rmse"], abs=2e-3)
+    dr = next(c for c in ch["rows"] if c["algorithm"] == "dr")
+    assert dr["change"] == 0.0 and dr["worse"] == 0  # dead reckoning sees no beacon either way
     assert config_file("acoustic.toml").exists()
+
+
+def test_paired_change_by_hand() -> None:
+    base = {"algorithm": "mb-slam", "rmse_runs": [1.0, 2.0, 3.0, 4.0]}
+    other = {"algorithm": "mb-slam", "rmse_runs": [2.0, 2.0, 5.0, 3.0]}
+    c = paired_change(base, other)
+    # differences 1, 0, 2, -1: mean 0.5, sample std sqrt(5/3), s.e. sqrt(5/3)/2
+    assert c["change"] == pytest.approx(0.5)
+    assert c["change_se"] == pytest.approx(np.sqrt(5 / 3) / 2)
+    assert (c["worse"], c["runs"]) == (2, 4)
+    assert c["ratio"] == pytest.approx(3.0 / 2.5)
+    with pytest.raises(ValueError, match="same runs"):
+        paired_change(base, {"algorithm": "mb-slam", "rmse_runs": [1.0, 2.0]})
+    with pytest.raises(ValueError, match="one algorithm"):
+        paired_change(base, {**other, "algorithm": "dr"})
+
+
+def test_dense_scenario_keeps_a_beacon_in_view_along_the_route() -> None:
+    """``beacons_dense.json`` (docs/slam_magnetic.md): a beacon every 20 m of the route, 5 m to
+    alternate sides, every one within the 25 m sensor range of the flown path, never more than
+    ~2 s (a corner) without a sighting, and the paper's vehicle and sensor of the v03 field."""
+    scn = load_scenario(DENSE)
+    v03 = load_scenario(SCENARIO.with_name("beacons_amb_v03.json"))
+    assert scn.bicycle == v03.bicycle and scn.observations == v03.observations
+    assert scn.observations.max_range_m == 25.0 and len(scn.magnetic_beacons) == 30
+    prep = prepare(scn, Variant(), seed=0, run=0)
+    lap1 = prep.sim.truth[: prep.sim.obs_step[prep.lap2_scan], :2]
+    b = np.array([(m.x, m.y) for m in scn.magnetic_beacons])
+    d = np.hypot(*(b[:, None] - lap1[None]).transpose(2, 0, 1))
+    assert d.min(axis=1).max() < 8.0  # 5 m off the route (corners cut a little)
+    arc = np.r_[0.0, np.cumsum(np.hypot(*np.diff(lap1, axis=0).T))]
+    spacing = np.diff(np.sort(arc[d.argmin(axis=1)]))  # along the flown path
+    assert len(spacing) == 29 and abs(np.median(spacing) - 20.0) < 0.5
+    assert spacing.max() < 27.0  # at a corner the flown path swings wide of the polyline
+    g0, g1 = longest_gap(prep)
+    assert (g1 - g0 + 1) / 5.0 <= 2.5  # seconds at 5 Hz
+    assert np.mean([len(z) > 0 for z in prep.z]) > 0.95
+    freqs = {m.frequency_hz for m in scn.magnetic_beacons}
+    assert len(freqs) <= 6 and max(freqs) < 10.0  # the demodulator's channels, below Nyquist
+
+
+def test_longest_gap_and_diagnosis_on_the_dense_field() -> None:
+    prep = prepare(load_scenario(DENSE), Variant(), seed=0, run=0, max_steps=400)
+    one, none = np.zeros((1, 2)), np.zeros((0, 2))
+    z = [one, none, none, one, none, none, none, one, none]
+    assert longest_gap(replace(prep, z=z)) == (4, 6)
+    assert longest_gap(replace(prep, z=[one, one])) == (0, -1)
+    d = diagnose_run(load_scenario(DENSE), Variant(), seed=0, run=1)
+    assert d.longest_gap_s <= 2.5 and d.scans_with_sighting > 0.95
+    assert d.mb_rmse < 0.5 * d.dr_rmse  # MB-SLAM beats dead reckoning on the dense field
+    # revisits re-localise on the map: the vehicle's error is the beacon's, within a metre
+    assert d.revisit_difference_m < 1.0 and d.map_error_first_sighting_m < 10.0
+    assert 0.1 < d.mb_nees_heading < 5.0  # consistent (1 expected), unlike the sparse field

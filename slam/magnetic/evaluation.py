@@ -60,10 +60,13 @@ __all__ = [
     "MagneticRun",
     "Prepared",
     "Variant",
+    "format_changes",
     "format_table",
+    "paired_change",
     "parse_variant",
     "plot_runs",
     "prepare",
+    "render_table",
     "run_filter",
     "run_study",
     "summarise",
@@ -350,8 +353,15 @@ def prepare(
                     obs_ids if v.association == "known" else None)  # fmt: skip
 
 
-def run_filter(name: str, prep: Prepared, v: Variant, run: int = 0) -> MagneticRun:
-    """Run one algorithm through a prepared run."""
+def run_filter(
+    name: str,
+    prep: Prepared,
+    v: Variant,
+    run: int = 0,
+    on_scan: Callable[[int, MagneticSLAM], None] | None = None,
+) -> MagneticRun:
+    """Run one algorithm through a prepared run; ``on_scan(i, filter)`` after scan ``i``'s
+    updates (diagnostics, :mod:`~auvgw.slam.magnetic.diagnose`)."""
     sim = prep.sim
     f: MagneticSLAM = make_magnetic(name, sim.motion_model(), sim.q, sim.r, sim.truth[0],
                                     prep.anchor_xy, known=prep.ids is not None)  # fmt: skip
@@ -374,6 +384,8 @@ def run_filter(name: str, prep: Prepared, v: Variant, run: int = 0) -> MagneticR
         if f.anchor is not None and not np.isnan(prep.acoustic_z[i, 0]):
             f.anchor_update(prep.acoustic_z[i, :m], prep.acoustic_r[i, :m, :m])
         est[i] = f.estimate()
+        if on_scan is not None:
+            on_scan(int(i), f)
     spent = time.perf_counter() - t0
     truth = sim.truth[sim.obs_step]
     lm = f.landmarks()
@@ -454,14 +466,8 @@ def summarise(results: list[MagneticRun], algorithms: tuple[str, ...]) -> list[d
     return rows
 
 
-def format_table(title: str, rows: list[dict[str, Any]], markdown: bool = False) -> str:
-    """Text or markdown table of :func:`summarise` rows."""
-    head = ["algorithm", "RMSE m (std)", "RMSE x", "RMSE y", "max", "% dist", "landmark err m",
-            "beacons mapped", "filter s/run", "demod+MLP s/run", "x real time"]  # fmt: skip
-    body = [[str(r["algorithm"]), f"{r['rmse']:.2f} ({r['rmse_std']:.2f})", f"{r['rmse_x']:.2f}",
-             f"{r['rmse_y']:.2f}", f"{r['rmse_max']:.2f}", f"{r['rmse_pct_distance']:.3f}",
-             f"{r['lm_error_m']:.2f}", f"{r['n_landmarks']:.1f}", f"{r['seconds']:.2f}",
-             f"{r['chain_s']:.2f}", f"{r['rt_factor']:.0f}"] for r in rows]  # fmt: skip
+def render_table(title: str, head: list[str], body: list[list[str]], markdown: bool) -> str:
+    """Aligned text, or markdown under a ``###`` title, of a header and rows of cells."""
     if markdown:
         lines = [f"### {title}", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
         lines += ["| " + " | ".join(b) + " |" for b in body]
@@ -470,6 +476,45 @@ def format_table(title: str, rows: list[dict[str, Any]], markdown: bool = False)
     lines = [title, "  ".join(h.ljust(w[i]) for i, h in enumerate(head))]
     lines += ["  ".join(c.ljust(w[i]) for i, c in enumerate(b)) for b in body]
     return "\n".join(lines) + "\n"
+
+
+def format_table(title: str, rows: list[dict[str, Any]], markdown: bool = False) -> str:
+    """Text or markdown table of :func:`summarise` rows."""
+    head = ["algorithm", "RMSE m (std)", "RMSE x", "RMSE y", "max", "% dist", "landmark err m",
+            "beacons mapped", "filter s/run", "demod+MLP s/run", "x real time"]  # fmt: skip
+    body = [[str(r["algorithm"]), f"{r['rmse']:.2f} ({r['rmse_std']:.2f})", f"{r['rmse_x']:.2f}",
+             f"{r['rmse_y']:.2f}", f"{r['rmse_max']:.2f}", f"{r['rmse_pct_distance']:.3f}",
+             f"{r['lm_error_m']:.2f}", f"{r['n_landmarks']:.1f}", f"{r['seconds']:.2f}",
+             f"{r['chain_s']:.2f}", f"{r['rt_factor']:.0f}"] for r in rows]  # fmt: skip
+    return render_table(title, head, body, markdown)
+
+
+def paired_change(base: dict[str, Any], other: dict[str, Any]) -> dict[str, Any]:
+    """Run-by-run change of one algorithm's path RMSE between two :func:`summarise` rows of one
+    study (the same seeds, so run ``i`` of both saw the same noise): mean change ``other - base``
+    (m) with its standard error, how many runs got worse, and the ratio of the mean RMSEs."""
+    a, b = np.asarray(base["rmse_runs"], float), np.asarray(other["rmse_runs"], float)
+    if base["algorithm"] != other["algorithm"] or len(a) != len(b) or len(a) < 2:
+        raise ValueError(
+            "paired change needs one algorithm and the same runs (>= 2) in both rows, got "
+            f"{base['algorithm']} x {len(a)} and {other['algorithm']} x {len(b)}"
+        )
+    d = b - a
+    return {
+        "algorithm": base["algorithm"], "runs": len(d), "base": float(a.mean()),
+        "other": float(b.mean()), "change": float(d.mean()),
+        "change_se": float(d.std(ddof=1) / math.sqrt(len(d))), "worse": int((d > 0).sum()),
+        "ratio": float(b.mean() / a.mean()) if a.mean() > 0 else math.nan,
+    }  # fmt: skip
+
+
+def format_changes(title: str, ch: list[dict[str, Any]], markdown: bool = False) -> str:
+    """Text or markdown table of :func:`paired_change` rows."""
+    head = ["algorithm", "RMSE before m", "RMSE after m", "change m (s.e.)", "runs worse", "ratio"]
+    body = [[c["algorithm"], f"{c['base']:.2f}", f"{c['other']:.2f}",
+             f"{c['change']:+.2f} ({c['change_se']:.2f})", f"{c['worse']} of {c['runs']}",
+             f"{c['ratio']:.2f}"] for c in ch]  # fmt: skip
+    return render_table(title, head, body, markdown)
 
 
 def plot_runs(results: list[MagneticRun], scn: Scenario, title: str, out: Path) -> list[Path]:
@@ -558,6 +603,7 @@ def run_cli(args: Any, command: str) -> int:
     except (ScenarioError, ValueError) as exc:
         raise UserError(str(exc)) from None
     blocks, md, js = [], [f"Made by:\n\n```\n{command}\n```\n"], []
+    done: dict[Variant, list[dict[str, Any]]] = {}
     for v in variants:
         if v.track == "mlp" and not Path(v.model).exists():
             raise UserError(f"{v.model}: no MLP model; train it with "
@@ -576,6 +622,7 @@ def run_cli(args: Any, command: str) -> int:
             if bar:
                 bar.close()
         rows = summarise(res, algs)
+        done[v] = rows
         title = f"{scn.name}: {v.label} ({args.runs} runs)"
         blocks.append(format_table(title, rows))
         print(blocks[-1])
@@ -585,10 +632,20 @@ def run_cli(args: Any, command: str) -> int:
             tag = "_".join(p.replace(" ", "-") for p in v.label.split(", "))
             for png in plot_runs(res, scn, title, args.out / f"{scn.name}_{tag}.png"):
                 print(f"plot: {png}", file=sys.stderr)
+    changes: list[dict[str, Any]] = []
+    for v, rows in done.items():  # the density study, run by run (same seeds in both rows)
+        base = done.get(replace(v, density="all")) if v.density == "first-half" else None
+        if base is not None:
+            title = f"{scn.name}: density all -> first-half, {replace(v, density='all').label}"
+            ch = [paired_change(a, b) for a, b in zip(base, rows, strict=True)]
+            print(format_changes(title, ch))
+            md.append(format_changes(title, ch, markdown=True))
+            changes.append({"title": title, "rows": ch})
     if args.out is not None:
         args.out.mkdir(parents=True, exist_ok=True)
         (args.out / "tables.md").write_text("\n".join(md))
-        (args.out / "results.json").write_text(json.dumps({"command": command, "variants": js},
+        (args.out / "results.json").write_text(json.dumps({"command": command, "variants": js,
+                                                           "density_changes": changes},
                                                           indent=1, default=str))  # fmt: skip
         print(f"tables: {args.out / 'tables.md'}", file=sys.stderr)
     return 0
