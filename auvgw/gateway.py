@@ -37,7 +37,7 @@ from auvgw.bus import (
     raw_encoding,
 )
 from auvgw.config.gateway import DeviceConfig, GatewayConfig
-from auvgw.decoding import DecodedItem, DeviceDecoder, make_decoders, message_kind, message_type
+from auvgw.decoding import DecodedItem, DeviceDecoder, kind_of, make_decoders, message_type
 from auvgw.drivers.transports import (
     Disconnected,
     EndOfStream,
@@ -308,16 +308,13 @@ class Gateway:
         )
 
     # -- one device -------------------------------------------------------------------------
-    def _publish(self, dev: _Device, msg: Any, t_ns: int, seq: int) -> None:
-        kind = message_kind(msg)
+    def _sensor_pub(self, dev: _Device, kind: str) -> zenoh.Publisher:
         pub = dev.pubs.get(kind)
         if pub is None:
-            pub = self.session.declare_publisher(
+            pub = dev.pubs[kind] = self.session.declare_publisher(
                 self.keys.sensor(dev.name, kind), congestion_control=_DROP
             )
-            dev.pubs[kind] = pub
-        payload, enc = encode_envelope(msg, dev.name, t_ns, seq, wire=dev.cfg.format, decoded=True)
-        pub.put(payload, encoding=enc)
+        return pub
 
     def _handle_items(
         self,
@@ -327,18 +324,28 @@ class Gateway:
         transport: Transport,
         host: HostDriver | None,
     ) -> None:
+        """Count, publish and hand on the frames of one read. A frame's envelopes are built
+        before its raw sample is put, so the raw and decoded samples leave back to back (one
+        wake of Zenoh's sender for both; raw is still first on the bus)."""
         t_ns = self._stamp(t_recv_ns)  # published time (vehicle-paced with [clock])
+        raw_pub = dev.pubs["raw"]
+        wire = dev.cfg.format
         for item in items:
             dev.seq += 1
             seq = dev.seq
-            dev.pubs["raw"].put(item.raw, attachment=pack_raw_attachment(t_ns, seq, item.offset))
+            samples = []
             if item.error is not None:
                 dev.health.decode_error(item.error)
-                continue
             for msg in item.messages:
+                type_name = message_type(msg)
                 # rates on the host clock; lag from the device's own time against the stamp
-                dev.health.seen(t_recv_ns, message_type(msg), t_ns, device_time_s(msg))
-                self._publish(dev, msg, t_ns, seq)
+                dev.health.seen(t_recv_ns, type_name, t_ns, device_time_s(msg))
+                payload, enc = encode_envelope(msg, dev.name, t_ns, seq, wire=wire, decoded=True)
+                samples.append((self._sensor_pub(dev, kind_of(type_name)), payload, enc))
+            raw_pub.put(item.raw, attachment=pack_raw_attachment(t_ns, seq, item.offset))
+            for pub, payload, enc in samples:
+                pub.put(payload, encoding=enc)
+            for msg in item.messages:
                 self.listeners.notify(dev.name, t_ns, (msg,))
                 if host is not None:
                     host.on_message(msg, transport.write, time.monotonic())
