@@ -324,28 +324,32 @@ class Gateway:
         transport: Transport,
         host: HostDriver | None,
     ) -> None:
-        """Count, publish and hand on the frames of one read. A frame's envelopes are built
+        """Publish, count and hand on the frames of one read. A frame's envelopes are built
         before its raw sample is put, so the raw and decoded samples leave back to back (one
-        wake of Zenoh's sender for both; raw is still first on the bus)."""
+        wake of Zenoh's sender for both; raw is still first on the bus); the health accounting
+        and the in-process listeners come after the puts, off the samples' latency."""
         t_ns = self._stamp(t_recv_ns)  # published time (vehicle-paced with [clock])
         raw_pub = dev.pubs["raw"]
         wire = dev.cfg.format
         for item in items:
             dev.seq += 1
             seq = dev.seq
-            samples = []
+            types = [message_type(msg) for msg in item.messages]
+            samples = [
+                (
+                    kind_of(type_name),
+                    encode_envelope(msg, dev.name, t_ns, seq, wire=wire, decoded=True),
+                )
+                for msg, type_name in zip(item.messages, types, strict=True)
+            ]
+            raw_pub.put(item.raw, attachment=pack_raw_attachment(t_ns, seq, item.offset))
+            for kind, (payload, enc) in samples:
+                self._sensor_pub(dev, kind).put(payload, encoding=enc)
             if item.error is not None:
                 dev.health.decode_error(item.error)
-            for msg in item.messages:
-                type_name = message_type(msg)
+            for msg, type_name in zip(item.messages, types, strict=True):
                 # rates on the host clock; lag from the device's own time against the stamp
                 dev.health.seen(t_recv_ns, type_name, t_ns, device_time_s(msg))
-                payload, enc = encode_envelope(msg, dev.name, t_ns, seq, wire=wire, decoded=True)
-                samples.append((self._sensor_pub(dev, kind_of(type_name)), payload, enc))
-            raw_pub.put(item.raw, attachment=pack_raw_attachment(t_ns, seq, item.offset))
-            for pub, payload, enc in samples:
-                pub.put(payload, encoding=enc)
-            for msg in item.messages:
                 self.listeners.notify(dev.name, t_ns, (msg,))
                 if host is not None:
                     host.on_message(msg, transport.write, time.monotonic())
@@ -381,15 +385,15 @@ class Gateway:
             next_loss_poll = 0.0
             while not self.stop_event.is_set():
                 chunk = transport.read(READ_TIMEOUT_S)
-                self._update_rejected(dev, transport)
-                if time.monotonic() >= next_loss_poll:
-                    next_loss_poll = time.monotonic() + LOSS_POLL_S
-                    self._update_losses(dev, transport)
-                if chunk is not None:
+                if chunk is not None:  # the data first, the bookkeeping after it
                     self._handle_items(
                         dev, dev.decoder.feed(chunk), chunk.t_recv_ns, transport, host
                     )
                     self._update_framing(dev)
+                self._update_rejected(dev, transport)
+                if (now := time.monotonic()) >= next_loss_poll:
+                    next_loss_poll = now + LOSS_POLL_S
+                    self._update_losses(dev, transport)
                 # a partial frame waited too long on a quiet line (never while bytes arrive: a
                 # reader starved of CPU must not drop frames whose bytes wait in the port)
                 if chunk is None and dev.decoder.has_stale(time.monotonic()):
