@@ -183,3 +183,50 @@ def test_can_samples_round_trip_field_for_field():
         assert len(payload) - raw < 60, (type(got).__name__, len(payload), raw)
         if codec is HN:  # 18 signals of an INS epoch: raw integers, not float64
             assert len(payload) <= 1.5 * raw, (len(payload), raw)
+
+
+def test_short_arrays_packed_in_python_give_the_numpy_bytes(shared_data, monkeypatch):
+    """The gateway's path for short 1-D arrays (packed in Python, envelope.SMALL_ARRAY) gives
+    the bytes of the numpy path for every sample of every format and every ensemble of both
+    real PD0 files, and for values with NaN, an offset and off the wire grid (half steps:
+    rounded half to even both ways)."""
+    import auvgw.envelope as envelope
+    from auvgw.drivers import pd0
+    from auvgw.drivers.spec import WIRE_TYPES, Wire
+    from auvgw.envelope import _wire_coders
+
+    small = envelope.SMALL_ARRAY
+    assert small > 0
+
+    def both(fn):
+        out = []
+        for n in (small, 0):
+            monkeypatch.setattr(envelope, "SMALL_ARRAY", n)
+            out.append(fn())
+        return out
+
+    msgs = [msg for _fmt, _frame, msg in _decoded(shared_data)]
+    for name in ("RDI_withBT.000", "vmdas02_os.ENR"):
+        frames, _ = get_format("pd0").frames_of_file(shared_data / "pd0" / name)
+        msgs += pd0.decode_many([f.data for f in frames])
+    assert len(msgs) > 1800
+    python, numpy = both(
+        lambda: [encode_envelope(m, "d", T_NS, SEQ, decoded=True)[0] for m in msgs]
+    )
+    assert python == numpy
+    for w in (
+        Wire("s16", 0, scale=1e-3, invalid=-32768, shape=(6,)),
+        Wire("u16", 0, scale=0.5, add=-3.0, shape=(5,)),
+        Wire("u8", 0, scale=655.36, shape=(4,)),
+    ):
+        enc, dec, _ = _wire_coders(w)
+        raw = np.arange(w.shape[0], dtype=np.dtype(WIRE_TYPES[w.type])) * 3 + 1
+        si = raw * w.scale + w.add
+        if w.invalid is not None:
+            si[2] = np.nan
+        python, numpy = both(lambda si=si, enc=enc: enc(si, True))
+        assert python == numpy and isinstance(python, bytes)
+        assert np.array_equal(dec(python), si, equal_nan=True)
+        half = (raw + 0.5) * w.scale + w.add
+        python, numpy = both(lambda half=half, enc=enc: enc(half, True))
+        assert python == numpy
