@@ -73,8 +73,9 @@ EXT_NDARRAY = 1
 EXT_TYPED = 2
 
 _F32 = struct.Struct(">f")
-#: 1-D wire arrays up to this many elements are packed in Python (cheaper than numpy's calls)
-SMALL_ARRAY = 16
+#: wire arrays of a codec's output up to this many elements are packed in Python (cheaper than
+#: numpy's calls, most of all on a cold core)
+SMALL_ARRAY = 128
 _F32_NAN = msgspec.Raw(b"\xca\x7f\xc0\x00\x00")
 
 
@@ -267,26 +268,32 @@ def _wire_coders(w: Wire) -> tuple[Callable[[Any, bool], Any] | None, Callable[[
     native = wdt.newbyteorder("=")
     to_si = is_int and w.is_scaled
     limits: Any = np.iinfo(native) if is_int else None
-    code = "<%d" + WIRE_TYPES[w.type]
+    code = "%d" + WIRE_TYPES[w.type]
 
-    def enc_small(a: np.ndarray) -> bytes | None:
-        """A short 1-D array of the codec's ``raw * scale + add`` as its raw bytes, in Python
-        (numpy's per-call cost dominates below a few dozen elements): the same float
-        operations and rounding (half to even) as the numpy path; None where that path has a
-        case of its own (NaN without an invalid code)."""
-        vals = a.tolist()
+    def enc_small(a: np.ndarray) -> Any:
+        """A short array of the codec's ``raw * scale + add`` as its raw values, in Python
+        (numpy's calls cost more below a few hundred elements, most of all on a cold core: one
+        frame at a time): the numpy path's float operations, rounding (half to even) and output
+        (1-D: little-endian bytes; more dimensions: extension 1 in the native dtype); None
+        where that path has a case of its own (NaN without an invalid code)."""
+        vals = a.ravel().tolist()
         raw = [(x - add) / scale for x in vals] if add else [x / scale for x in vals]
         if invalid is None:
             if any(r != r for r in raw):
                 return None
-            return struct.pack(code % len(raw), *map(round, raw))
-        return struct.pack(code % len(raw), *[invalid if r != r else round(r) for r in raw])
+            ints = list(map(round, raw))
+        else:
+            ints = [invalid if r != r else round(r) for r in raw]
+        if a.ndim == 1:
+            return struct.pack("<" + code % len(ints), *ints)
+        head = _array_head(native, a.shape)
+        return msgspec.msgpack.Ext(EXT_NDARRAY, head + struct.pack("=" + code % len(ints), *ints))
 
     def enc_array(v: Any, trusted: bool) -> Any:
         if v is None:
             return None
         a = v if type(v) is np.ndarray else np.asarray(v)
-        if trusted and to_si and a.ndim == 1 and a.size <= SMALL_ARRAY and a.dtype == np.float64:
+        if trusted and to_si and a.size <= SMALL_ARRAY and a.dtype == np.float64:
             small = enc_small(a)
             if small is not None:
                 return small
@@ -457,15 +464,20 @@ def message_fields(msg: Any) -> dict[str, Any]:
 _ARRAY_HEADS: dict[tuple[Any, tuple[int, ...]], bytes] = {}
 
 
+def _array_head(dtype: np.dtype, shape: tuple[int, ...]) -> bytes:
+    """``<dtype.str>;<d0,d1,...>`` NUL: the head of extension 1 (cached: a few per codec)."""
+    key = (dtype, shape)
+    head = _ARRAY_HEADS.get(key)
+    if head is None:
+        head = f"{dtype.str};{','.join(map(str, shape))}".encode() + b"\0"
+        if len(_ARRAY_HEADS) < 4096:
+            _ARRAY_HEADS[key] = head
+    return head
+
+
 def _enc_hook(obj: Any) -> Any:
     if isinstance(obj, np.ndarray):
-        key = (obj.dtype, obj.shape)
-        head = _ARRAY_HEADS.get(key)
-        if head is None:  # a few (dtype, shape) per codec: cached
-            head = f"{obj.dtype.str};{','.join(map(str, obj.shape))}".encode() + b"\0"
-            if len(_ARRAY_HEADS) < 4096:
-                _ARRAY_HEADS[key] = head
-        return msgspec.msgpack.Ext(EXT_NDARRAY, head + obj.tobytes())
+        return msgspec.msgpack.Ext(EXT_NDARRAY, _array_head(obj.dtype, obj.shape) + obj.tobytes())
     if isinstance(obj, np.generic):
         item = obj.item()
         return _enc_float(item) if type(item) is float else item

@@ -193,7 +193,7 @@ def test_short_arrays_packed_in_python_give_the_numpy_bytes(shared_data, monkeyp
     import auvgw.envelope as envelope
     from auvgw.drivers import pd0
     from auvgw.drivers.spec import WIRE_TYPES, Wire
-    from auvgw.envelope import _wire_coders
+    from auvgw.envelope import _DECODER, _ENCODER, _wire_coders
 
     small = envelope.SMALL_ARRAY
     assert small > 0
@@ -218,15 +218,17 @@ def test_short_arrays_packed_in_python_give_the_numpy_bytes(shared_data, monkeyp
         Wire("s16", 0, scale=1e-3, invalid=-32768, shape=(6,)),
         Wire("u16", 0, scale=0.5, add=-3.0, shape=(5,)),
         Wire("u8", 0, scale=655.36, shape=(4,)),
+        Wire("s16", 0, scale=1e-3, invalid=-32768, shape=(17, 4)),  # a velocity profile
     ):
         enc, dec, _ = _wire_coders(w)
-        raw = np.arange(w.shape[0], dtype=np.dtype(WIRE_TYPES[w.type])) * 3 + 1
+        n = math.prod(w.shape)
+        raw = (np.arange(n, dtype=np.dtype(WIRE_TYPES[w.type])) * 3 + 1).reshape(w.shape)
         si = raw * w.scale + w.add
         if w.invalid is not None:
-            si[2] = np.nan
-        python, numpy = both(lambda si=si, enc=enc: enc(si, True))
-        assert python == numpy and isinstance(python, bytes)
-        assert np.array_equal(dec(python), si, equal_nan=True)
+            si.flat[2] = np.nan
+        python, numpy = both(lambda si=si, enc=enc: _ENCODER.encode([enc(si, True)]))
+        assert python == numpy  # n-D arrays as extension 1, 1-D as bytes
+        assert np.array_equal(dec(_DECODER.decode(python)[0]), si, equal_nan=True)
         half = (raw + 0.5) * w.scale + w.add
-        python, numpy = both(lambda half=half, enc=enc: enc(half, True))
+        python, numpy = both(lambda half=half, enc=enc: _ENCODER.encode([enc(half, True)]))
         assert python == numpy
