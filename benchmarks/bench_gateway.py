@@ -52,6 +52,12 @@ by the adapter, counted by the gateway and lost, the adapter's overrun flags, th
 malformed lines. First the SLCAN reader alone: python-can's ``slcanBus`` (one ``read(1)`` per
 byte) against :class:`~auvgw.drivers.slcanbus.BulkSlcanBus`, frames/s parsed from a pty.
 
+Last table, **the per-frame path** (``--only-path``; also printed by a full run): the gateway's
+Python work on one frame in this process, stage by stage (framer, decode, envelope), median us
+per frame, warm (frames back to back) and cold (10 ms idle before each frame, as at 100 Hz: what
+the caches keep between frames). One frame at a time the cold figure is what a sample waits;
+it depends on the machine's load far less than the end-to-end latencies (A/B in one sitting).
+
 Nominal rate: 10 Hz (a Pathfinder's top ping rate); 10x = 100 Hz. Latencies are medians and
 99th percentiles over every ensemble of a phase. Timings depend on the machine's load: compare
 the rows of one run, not runs of different days.
@@ -713,6 +719,48 @@ def all_devices_run(args: argparse.Namespace) -> list[AllPhase]:
         ]
 
 
+def frame_path(frames: list[bytes], fmt_name: str, n: int = 150) -> dict[str, tuple[float, float]]:
+    """Median us per frame of each stage of the gateway's per-frame Python work in this process
+    (framer, decode, envelope): warm (frames back to back) and cold (a 10 ms sleep before each
+    frame, as at 100 Hz: what the caches and branch predictors keep between frames)."""
+    from auvgw.bus import encode_envelope
+
+    fmt = get_format(fmt_name)
+    out: dict[str, list[list[float]]] = {s: [[], []] for s in ("framer", "decode", "envelope")}
+    for cold in (False, True):
+        framer = fmt.framer()
+        for i in range(n):
+            if cold:
+                time.sleep(0.01)
+            t0 = time.perf_counter_ns()
+            (frame,) = framer.feed(frames[i % len(frames)], 0.0)
+            t1 = time.perf_counter_ns()
+            (msg,) = fmt.decode(frame.data)
+            t2 = time.perf_counter_ns()
+            encode_envelope(msg, "dvl", t0, i, wire=fmt_name, decoded=True)
+            t3 = time.perf_counter_ns()
+            for stage, dt in zip(out, (t1 - t0, t2 - t1, t3 - t2), strict=True):
+                out[stage][cold].append(dt / 1e3)
+    skip = n // 5  # the first frames warm the codec's caches
+    return {s: (pct(w[skip:], 0.5), pct(c[skip:], 0.5)) for s, (w, c) in out.items()}
+
+
+def print_frame_path(devices: dict[str, list[bytes]]) -> None:
+    print(
+        "\nPer-frame path in one process (framer -> decode -> envelope), median us per frame; "
+        f"warm: back to back; cold: 10 ms idle before each frame; load {os.getloadavg()[0]:.1f}\n"
+    )
+    head = f"{'format':8} {'stage':10} {'warm us':>8} {'cold us':>8}"
+    print(head)
+    print("-" * len(head))
+    for fmt_name, frames in devices.items():
+        rows = frame_path(frames, fmt_name)
+        for stage, (warm, cold) in rows.items():
+            print(f"{fmt_name:8} {stage:10} {warm:8.1f} {cold:8.1f}")
+        total = [sum(v[i] for v in rows.values()) for i in (0, 1)]
+        print(f"{fmt_name:8} {'total':10} {total[0]:8.1f} {total[1]:8.1f}")
+
+
 def hn100_frames(n: int) -> list[bytes]:
     """``n`` HN-100 binary frames (100 Hz solutions of a vehicle turning slowly)."""
     from auvgw.drivers import hn100
@@ -762,6 +810,11 @@ def main() -> int:
         help="wall seconds per phase of the INS-over-CAN run at 1x, 4x, 10x (0: skip it)",
     )
     ap.add_argument("--only-can", action="store_true", help="only the INS-over-CAN run")
+    ap.add_argument(
+        "--only-path",
+        action="store_true",
+        help="only the per-frame path in this process (framer, decode, envelope; warm and cold)",
+    )
     ap.add_argument("--can-speeds", type=float, nargs="+", default=[1.0, 4.0, 10.0])
     args = ap.parse_args()
     seconds = 5.0 if args.quick else args.seconds
@@ -781,6 +834,9 @@ def main() -> int:
         return 0
     if args.only_can:
         ins_can_run(args)
+        return 0
+    if args.only_path:
+        print_frame_path(devices)
         return 0
     results: dict[str, list[Row]] = {}
     sizes: dict[str, tuple[int, int]] = {}
@@ -820,6 +876,7 @@ def main() -> int:
                 f"{fmt(r.p50_us):>7} {fmt(r.p99_us):>8} {fmt(r.read_p50_us):>8} "
                 f"{fmt(r.rest_p50_us):>8} {fmt(r.cpu_pct, '.1f'):>6}"
             )
+    print_frame_path(devices)
     print()
     for fmt_name, rows in results.items():
         by = {(r.name, r.rate_hz): r for r in rows}
