@@ -719,10 +719,8 @@ class _Plan:
                 arr = np.array(
                     [math.nan if r == invalid else r * scale + add for r in flat[a:b]]
                 )
-                if shape is not None:
-                    arr = arr.reshape(shape)
-                arr.flags.writeable = False
-                values[name] = arr
+                arr.flags.writeable = False  # (its reshaped view is read-only too)
+                values[name] = arr if shape is None else arr.reshape(shape)
         for name, pos, dtype, count, shape, w, scaled in self.arrays:
             arr = np.frombuffer(buf, dtype=dtype, count=count, offset=start + pos)
             if shape is not None:
