@@ -334,15 +334,20 @@ class Gateway:
         for item in items:
             dev.seq += 1
             seq = dev.seq
+            attachment = pack_raw_attachment(t_ns, seq, item.offset)
             types = [message_type(msg) for msg in item.messages]
-            samples = [
-                (
-                    kind_of(type_name),
-                    encode_envelope(msg, dev.name, t_ns, seq, wire=wire, decoded=True),
-                )
-                for msg, type_name in zip(item.messages, types, strict=True)
-            ]
-            raw_pub.put(item.raw, attachment=pack_raw_attachment(t_ns, seq, item.offset))
+            try:
+                samples = [
+                    (
+                        kind_of(type_name),
+                        encode_envelope(msg, dev.name, t_ns, seq, wire=wire, decoded=True),
+                    )
+                    for msg, type_name in zip(item.messages, types, strict=True)
+                ]
+            except Exception:  # the raw frame goes out whatever its envelope does
+                raw_pub.put(item.raw, attachment=attachment)
+                raise
+            raw_pub.put(item.raw, attachment=attachment)
             for kind, (payload, enc) in samples:
                 self._sensor_pub(dev, kind).put(payload, encoding=enc)
             if item.error is not None:

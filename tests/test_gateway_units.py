@@ -215,3 +215,45 @@ def test_the_documented_example_configuration_is_valid():
     assert set(cfg.devices) == {"dvl", "sonar", "mbes", "ins", "mag_can", "replayed"}
     assert {d.transport.kind for d in cfg.devices.values()} == {"serial", "udp", "can", "file"}
     assert cfg.devices["sonar"].msis is not None and cfg.devices["sonar"].msis.n_bins == 300
+
+
+def test_a_frame_whose_envelope_fails_still_goes_out_raw(shared_data, tmp_path, monkeypatch):
+    """Raw first holds when building a frame's envelope raises (fault injected into the
+    envelope encoder): its raw sample is on the bus, the reader error is reported, and the
+    frames before it went out raw and decoded."""
+    import auvgw.gateway as gateway_mod
+    from auvgw.bus import open_session
+    from auvgw.config.bus import BusConfig
+    from auvgw.testing import endpoint, free_port
+
+    frames = pd0_frames(shared_data, 4)
+    cap = tmp_path / "dvl.pd0"
+    cap.write_bytes(b"".join(frames))
+    cfg = parse_gateway_config(
+        {"vehicle": "fail1", "devices": {"dvl": {"format": "pd0", "transport": {
+            "kind": "file", "path": str(cap), "byte_rate": 20000}}}}
+    )  # fmt: skip
+    real_encode = gateway_mod.encode_envelope
+    calls = []
+
+    def failing_third(msg, *args, **kwargs):
+        calls.append(msg)
+        if len(calls) == 3:
+            raise ValueError("injected envelope failure")
+        return real_encode(msg, *args, **kwargs)
+
+    monkeypatch.setattr(gateway_mod, "encode_envelope", failing_third)
+    raw, dec = [], []
+    with open_session(BusConfig(listen=[endpoint(free_port())])) as s:
+        subs = [
+            s.declare_subscriber("auv/fail1/raw/dvl", lambda smp: raw.append(smp)),
+            s.declare_subscriber("auv/fail1/sensor/dvl/**", lambda smp: dec.append(smp)),
+        ]
+        with gateway_mod.Gateway(cfg, s) as gw:
+            wait_until(lambda: len(raw) >= 3, what="three raw frames")
+            wait_until(lambda: "injected" in gw.device_status("dvl")["last_error"], what="error")
+        for sub in subs:
+            sub.undeclare()
+    assert [r.payload.to_bytes() for r in raw[:3]] == frames[:3]
+    assert len(dec) >= 2
+    assert [decode_envelope(d.payload.to_bytes()).seq & 0xFFFFFFFF for d in dec[:2]] == [1, 2]
