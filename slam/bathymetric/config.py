@@ -35,10 +35,13 @@ class BathyConfig(BaseModel):
         ge=0,
         description="sigma^2_pmap = sigma^2_mmap, map-error variance of eqs. (11)-(12) (A4)",
     )
-    unmatched_weight: Literal["uniform", "neutral"] = Field(
-        "uniform",
+    unmatched_weight: Literal["uniform", "neutral", "gate"] = Field(
+        "gate",
         description="weight of particles outside R or failing the gates: 'uniform' = 1/N as "
-        "written (Sec. III-C; A5), 'neutral' = the mean of the matched weights (ours)",
+        "written (Sec. III-C; A5), 'neutral' = the mean of the matched weights (ours), 'gate' "
+        "(ours, default) = 1 / sqrt(2 pi (sigma_s^2 + mse_max)), the expected eq. (7) weight "
+        "of a match whose MSE is at the gate; alpha then flattens towards it too. 1/N makes "
+        "any match N x (0.5 to 1.3) likelier than none, so the weight sharpness grows with N",
     )
     min_matched_fraction: float = Field(
         0.1,
@@ -83,10 +86,25 @@ class BathyConfig(BaseModel):
     crossing_gap_pings: int = Field(
         5, ge=1, description="'crossing': pings without overlap that end a crossing (ours)"
     )
+    jitter_in_crossing: bool = Field(
+        False,
+        description="'crossing': add the eq. (3) jitter between the matched pings of a "
+        "crossing too (ours, default off: the weights of a crossing are multiplied, so each "
+        "particle must keep one offset through it; the DR error moves ~0.02 m per ping, the "
+        "jitter 1 m)",
+    )
     crossing_max_pings: int = Field(
         40, ge=1, description="'crossing': longest crossing before a closure is made (ours)"
     )
     lccd: bool = Field(True, description="loop-closure consistency determination (Sec. IV-B)")
+    lccd_mode: Literal["pool", "parts"] = Field(
+        "parts",
+        description="what LCCD compares: 'pool' = every loop closure so far, Sec. IV-B (the "
+        "first closure is always rejected, disjoint loops never agree); 'parts' (ours, "
+        "default; closure = 'crossing' only) = the corrections implied by lccd_parts "
+        "successive parts of the crossing's own pings, which must agree within lccd_tau_m",
+    )
+    lccd_parts: int = Field(2, ge=2, description="'parts': parts a crossing is split into")
     lccd_tau_m: float = Field(3.0, gt=0, description="clustering cut distance (A15)")
     lccd_linkage: str = Field("single", description="scipy linkage method (A15)")
     lccd_disjoint_m: float = Field(1e6, gt=0, description="distance of disjoint loops (A14)")

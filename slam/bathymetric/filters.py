@@ -11,10 +11,18 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from auvgw.slam.bathymetric.config import BathyConfig
-from auvgw.slam.bathymetric.loops import LCCD, LoopClosure, correction_ramp
+from auvgw.slam.bathymetric.loops import LCCD, LoopClosure, consistent, correction_ramp
 from auvgw.slam.bathymetric.matching import idw, match_weights
 
-__all__ = ["BPSLAM", "MTMPF", "BathyFilter", "DeadReckoning", "jitter_variance", "systematic"]
+__all__ = [
+    "BPSLAM",
+    "MTMPF",
+    "BathyFilter",
+    "DeadReckoning",
+    "jitter_variance",
+    "no_match_weight",
+    "systematic",
+]
 
 
 def jitter_variance(t_r: int, cfg: BathyConfig) -> float:
@@ -31,14 +39,27 @@ def systematic(w: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return np.searchsorted(c, (rng.random() + np.arange(n)) / n)
 
 
-def fill_weights(n: int, idx: np.ndarray, w_m: np.ndarray, cfg: BathyConfig) -> np.ndarray:
+def no_match_weight(n: int, cfg: BathyConfig) -> float:
+    """Un-normalised weight of a particle without a usable match (outside R or gated out), and
+    what alpha flattens towards: 1/N as written (A5), or with ``unmatched_weight = 'gate'``
+    the expected eq. (7) weight of a match whose MSE equals the gate,
+    ``1 / sqrt(2 pi (sigma_s^2 + mse_max))`` (independent of N)."""
+    if cfg.unmatched_weight == "gate":
+        return 1.0 / float(np.sqrt(2 * np.pi * (cfg.sigma_s_m**2 + cfg.mse_max_m2)))
+    return 1.0 / n
+
+
+def fill_weights(
+    n: int, idx: np.ndarray, w_m: np.ndarray, cfg: BathyConfig, w0: float | None = None
+) -> np.ndarray:
     """Normalised weights of ``n`` particles: ``w_m`` for those in ``idx`` (matched and gated
-    in), the ``unmatched_weight`` rule for the rest (1/N as written, or the mean matched weight:
-    "no evidence" then neither favours nor penalises a particle, A5)."""
+    in), the ``unmatched_weight`` rule for the rest (1/N as written, the mean matched weight:
+    "no evidence" then neither favours nor penalises a particle, A5; or the gate's weight,
+    :func:`no_match_weight`; ``w0`` overrides it)."""
     if len(w_m) < cfg.min_matched_fraction * n:
         return np.full(n, 1.0 / n)
-    if cfg.unmatched_weight == "uniform" or len(w_m) == 0:
-        w = np.full(n, 1.0 / n)
+    if cfg.unmatched_weight != "neutral" or len(w_m) == 0:
+        w = np.full(n, no_match_weight(n, cfg) if w0 is None else w0)
     else:
         w = np.full(n, float(w_m.mean()))
     w[idx] = w_m
@@ -170,6 +191,7 @@ class MTMPF(BathyFilter):
         self.crossing_len = 0
         self.since_match = 0
         self._tlp = np.zeros(cfg.n_particles, dtype=int)
+        self._parts: list[np.ndarray] = []  # log weights of the crossing's pings with evidence
 
     def start(self, x0: np.ndarray, offsets: np.ndarray, depth: np.ndarray) -> None:
         super().start(x0, offsets, depth)
@@ -182,7 +204,10 @@ class MTMPF(BathyFilter):
     # -- one ping -----------------------------------------------------------------------------
     def step(self, u: np.ndarray, offsets: np.ndarray, depth: np.ndarray) -> None:
         cfg, n = self.cfg, self.cfg.n_particles
-        self.x += self._advance(u, offsets, depth, jitter_variance(self.t_r, cfg))  # eq. (2)
+        var = jitter_variance(self.t_r, cfg)
+        if cfg.closure == "crossing" and self.crossing_len and not cfg.jitter_in_crossing:
+            var = 0.0  # one offset per particle through a crossing (ours)
+        self.x += self._advance(u, offsets, depth, var)  # eq. (2)
         t = self.t
         self.t_r += 1
         self.traj[t] = self.x.mean(0)  # S_p, unweighted centroid (A7)
@@ -232,7 +257,7 @@ class MTMPF(BathyFilter):
         v = self.x[near] - self.traj[t]  # V_ec, eq. (5)
         idx, ok = self._mmap_index(tlp[near], h)
         z_pm, z_mm, valid, n_m = self._mmap_vs_pmap(tree, z_p, idx, ok, v, self.traj)
-        w_m, gate, _ = match_weights(z_pm, z_mm, valid, n_m, cfg, fallback=1.0 / n)
+        w_m, gate, _ = match_weights(z_pm, z_mm, valid, n_m, cfg, fallback=no_match_weight(n, cfg))
         return fill_weights(n, near[gate], w_m[gate], cfg), tlp
 
     def _mmap_vs_pmap(
@@ -268,7 +293,10 @@ class MTMPF(BathyFilter):
         one resampling = one closure."""
         cfg, n = self.cfg, self.cfg.n_particles
         if w is not None:
-            self.logw += np.log(np.maximum(w, 1e-300))
+            lw_ping = np.log(np.maximum(w, 1e-300))
+            self.logw += lw_ping
+            if np.ptp(w) > 0:  # a ping with evidence (not all 1/N)
+                self._parts.append(lw_ping)
             self.crossing_len += 1
             self.since_match = 0
             self._tlp = tlp
@@ -285,11 +313,31 @@ class MTMPF(BathyFilter):
             return
         self.logw[:] = 0.0
         self.crossing_len = self.since_match = 0
+        parts, self._parts = self._parts, []
         if neff < cfg.neff_fraction * n and self.t - cfg.t_l >= 2:
-            self._resample(wa, self._tlp)
+            agree = self._parts_agree(parts) if cfg.lccd and cfg.lccd_mode == "parts" else None
+            self._resample(wa, self._tlp, agree)
+
+    def _parts_agree(self, parts: list[np.ndarray]) -> bool:
+        """LCCD inside one crossing (``lccd_mode = 'parts'``, ours): the crossing's pings with
+        evidence are split in time into ``lccd_parts`` parts; each part's own multiplied
+        weights give the correction it implies (weighted mean of the particles, which keep
+        their offsets through the crossing); the closure is consistent when those corrections
+        form one cluster at ``lccd_tau_m`` (the same linkage as Sec. IV-B)."""
+        cfg = self.cfg
+        if len(parts) < cfg.lccd_parts:
+            return False  # too few pings with evidence to confirm each other
+        corr = []
+        for chunk in np.array_split(np.arange(len(parts)), cfg.lccd_parts):
+            lw = np.sum([parts[i] for i in chunk], axis=0)
+            w = np.exp(lw - lw.max())
+            corr.append((w / w.sum()) @ self.x)
+        return consistent(np.asarray(corr), cfg.lccd_tau_m, cfg.lccd_linkage)
 
     # -- resampling = loop closure ------------------------------------------------------------
-    def _resample(self, w: np.ndarray, tlp: np.ndarray) -> None:
+    def _resample(self, w: np.ndarray, tlp: np.ndarray, agree: bool | None = None) -> None:
+        """Resample = one loop closure (14); ``agree``: the crossing's own LCCD decision
+        (``lccd_mode = 'parts'``), None = the pool's (Sec. IV-B)."""
         cfg, t = self.cfg, self.t
         before = self.x.copy()
         s_before = self.traj[t].copy()
@@ -309,7 +357,12 @@ class MTMPF(BathyFilter):
             s_end_before=s_before,
         )
         self.loops.append(loop)
-        valid = self.lccd.judge(loop) if cfg.lccd else True
+        if not cfg.lccd:
+            valid = True
+        elif agree is not None:
+            valid = agree
+        else:
+            valid = self.lccd.judge(loop)
         loop.accepted = valid
         if not valid:  # A18: restore the particles, map unchanged
             self.x = before
@@ -405,7 +458,7 @@ class BPSLAM(BathyFilter):
         w_m, gate, _ = match_weights(
             z_pm.reshape(k, -1), z_mm, valid, mask.reshape(k, -1).sum(1), cfg, use_alpha=False
         )
-        return fill_weights(n, near[gate], w_m[gate], cfg)
+        return fill_weights(n, near[gate], w_m[gate], cfg, w0=1.0 / n)  # as written (A5)
 
 
 FILTERS: dict[str, type[BathyFilter]] = {"mtm-pf": MTMPF, "bpslam": BPSLAM, "dr": DeadReckoning}

@@ -9,7 +9,7 @@ import numpy as np
 from scipy.cluster.hierarchy import fcluster, linkage
 from scipy.spatial.distance import squareform
 
-__all__ = ["LCCD", "LoopClosure", "correction_ramp"]
+__all__ = ["LCCD", "LoopClosure", "consistent", "correction_ramp"]
 
 
 @dataclass
@@ -56,6 +56,15 @@ def correction_ramp(
     in_u = in_u[first:]
     a = np.cumsum(in_u)  # eq. (19)/(21): a_t over U steps only
     return t_a, (a / a[-1])[:, None] * np.asarray(m, float)[None, :]  # eqs. (18), (21), (22)
+
+
+def consistent(corrections: np.ndarray, tau_m: float, method: str = "single") -> bool:
+    """True when the corrections (K, 2) (m, NED) form one cluster when the ``method`` linkage
+    dendrogram is cut at ``tau_m``; False for fewer than two."""
+    if len(corrections) < 2:
+        return False
+    z = linkage(np.asarray(corrections, float), method=method)
+    return bool(len(set(fcluster(z, t=tau_m, criterion="distance"))) == 1)
 
 
 class LCCD:
