@@ -36,12 +36,15 @@ class BathyConfig(BaseModel):
         description="sigma^2_pmap = sigma^2_mmap, map-error variance of eqs. (11)-(12) (A4)",
     )
     unmatched_weight: Literal["uniform", "neutral", "gate"] = Field(
-        "gate",
+        "neutral",
         description="weight of particles outside R or failing the gates: 'uniform' = 1/N as "
-        "written (Sec. III-C; A5), 'neutral' = the mean of the matched weights (ours), 'gate' "
-        "(ours, default) = 1 / sqrt(2 pi (sigma_s^2 + mse_max)), the expected eq. (7) weight "
-        "of a match whose MSE is at the gate; alpha then flattens towards it too. 1/N makes "
-        "any match N x (0.5 to 1.3) likelier than none, so the weight sharpness grows with N",
+        "written (Sec. III-C; A5); 'gate' (ours) = w_gate = 1 / sqrt(2 pi (sigma_s^2 + "
+        "mse_max)), the expected eq. (7) weight of a match whose MSE is at the gate; "
+        "'neutral' (ours, default) = the mean matched weight outside R (no evidence) and "
+        "min(w_gate, mean) inside R but gated out (a poor fit). With 'gate' or 'neutral' "
+        "alpha flattens towards w_gate. 1/N makes any match N x likelier than none, so the "
+        "sharpness of a crossing's multiplied weights grows with N; 'gate' rewards every "
+        "passing match, so long mediocre overlaps outweigh short good ones",
     )
     min_matched_fraction: float = Field(
         0.1,

@@ -40,28 +40,38 @@ def systematic(w: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 
 
 def no_match_weight(n: int, cfg: BathyConfig) -> float:
-    """Un-normalised weight of a particle without a usable match (outside R or gated out), and
-    what alpha flattens towards: 1/N as written (A5), or with ``unmatched_weight = 'gate'``
-    the expected eq. (7) weight of a match whose MSE equals the gate,
-    ``1 / sqrt(2 pi (sigma_s^2 + mse_max))`` (independent of N)."""
-    if cfg.unmatched_weight == "gate":
-        return 1.0 / float(np.sqrt(2 * np.pi * (cfg.sigma_s_m**2 + cfg.mse_max_m2)))
-    return 1.0 / n
+    """Un-normalised weight of a particle that fails the gates, and what alpha flattens
+    towards: 1/N as written (``unmatched_weight = 'uniform'``, A5), otherwise the expected
+    eq. (7) weight of a match whose MSE equals the gate, ``1 / sqrt(2 pi (sigma_s^2 +
+    mse_max))`` (independent of N)."""
+    if cfg.unmatched_weight == "uniform":
+        return 1.0 / n
+    return 1.0 / float(np.sqrt(2 * np.pi * (cfg.sigma_s_m**2 + cfg.mse_max_m2)))
 
 
 def fill_weights(
-    n: int, idx: np.ndarray, w_m: np.ndarray, cfg: BathyConfig, w0: float | None = None
+    n: int,
+    idx: np.ndarray,
+    w_m: np.ndarray,
+    cfg: BathyConfig,
+    w0: float | None = None,
+    bad: np.ndarray | None = None,
 ) -> np.ndarray:
     """Normalised weights of ``n`` particles: ``w_m`` for those in ``idx`` (matched and gated
-    in), the ``unmatched_weight`` rule for the rest (1/N as written, the mean matched weight:
-    "no evidence" then neither favours nor penalises a particle, A5; or the gate's weight,
-    :func:`no_match_weight`; ``w0`` overrides it)."""
+    in); the rest by ``unmatched_weight``: 1/N as written (A5), the gate's weight
+    (:func:`no_match_weight`; ``w0`` overrides it), or 'neutral': the mean matched weight
+    ("no evidence" neither favours nor penalises a particle) for those outside R, and at
+    most the gate's weight for ``bad`` (inside R, failing the gates: a poor fit)."""
     if len(w_m) < cfg.min_matched_fraction * n:
         return np.full(n, 1.0 / n)
+    w_gate = no_match_weight(n, cfg) if w0 is None else w0
     if cfg.unmatched_weight != "neutral" or len(w_m) == 0:
-        w = np.full(n, no_match_weight(n, cfg) if w0 is None else w0)
+        w = np.full(n, w_gate)
     else:
-        w = np.full(n, float(w_m.mean()))
+        mean = float(w_m.mean())
+        w = np.full(n, mean)
+        if bad is not None:
+            w[bad] = min(w_gate, mean)
     w[idx] = w_m
     s = w.sum()
     return w / s if s > 0 else np.full(n, 1.0 / n)
@@ -258,7 +268,7 @@ class MTMPF(BathyFilter):
         idx, ok = self._mmap_index(tlp[near], h)
         z_pm, z_mm, valid, n_m = self._mmap_vs_pmap(tree, z_p, idx, ok, v, self.traj)
         w_m, gate, _ = match_weights(z_pm, z_mm, valid, n_m, cfg, fallback=no_match_weight(n, cfg))
-        return fill_weights(n, near[gate], w_m[gate], cfg), tlp
+        return fill_weights(n, near[gate], w_m[gate], cfg, bad=near[~gate]), tlp
 
     def _mmap_vs_pmap(
         self,
