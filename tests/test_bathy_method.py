@@ -214,7 +214,7 @@ def test_no_match_weight_scales_with_n_only_when_uniform(rule: str) -> None:
         assert ratios == pytest.approx([50.0, 400.0])
     else:
         assert ratios[0] == pytest.approx(ratios[1])
-        assert ratios[0] == pytest.approx(math.sqrt(2 * math.pi * (0.3**2 + 0.5)))
+        assert ratios[0] == pytest.approx(math.sqrt(2 * math.pi * (0.15**2 + 0.5)))
     # the weight indexation flattens a featureless match to the same no-match weight
     cfg = BathyConfig(n_particles=400, unmatched_weight=rule)
     flat = np.full((1, 50), 30.0)

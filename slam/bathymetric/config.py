@@ -29,7 +29,14 @@ class BathyConfig(BaseModel):
     min_valid_fraction: float = Field(
         0.25, gt=0, le=1, description="I threshold as a share of the Mmap points (A2)"
     )
-    sigma_s_m: float = Field(0.3, gt=0, description="sigma_s, sensor std of eq. (8) (A3)")
+    sigma_s_m: float = Field(
+        0.15,
+        gt=0,
+        description="sigma_s, std of eq. (8) (A3): the Pmap-vs-Mmap depth residual at the true "
+        "alignment, measured 0.12 m (bathy_survey) / 0.15 m (bathy_sandwaves) by "
+        "benchmarks/diag_bathy_residual.py (was 0.3: 2x too wide, weights too flat to move "
+        "the cloud at a crossing)",
+    )
     sigma_map2: float = Field(
         0.1,
         ge=0,
