@@ -13,7 +13,13 @@ from auvgw.config.scenario import Scenario
 from auvgw.sim_devices.world import ProceduralTerrain
 from auvgw.slam.bathymetric.config import BathyConfig
 from auvgw.slam.bathymetric.evaluate import grid_dem, run_filter
-from auvgw.slam.bathymetric.filters import MTMPF, fill_weights, jitter_variance, no_match_weight
+from auvgw.slam.bathymetric.filters import (
+    MTMPF,
+    fill_weights,
+    jitter_variance,
+    mode_weights,
+    no_match_weight,
+)
 from auvgw.slam.bathymetric.loops import LCCD, LoopClosure, consistent, correction_ramp
 from auvgw.slam.bathymetric.matching import alpha_exponent, idw, match_weights
 from auvgw.slam.bathymetric.simulate import DRModel, simulate_survey, swath_offsets
@@ -267,3 +273,23 @@ def test_lccd_parts_judges_a_crossing_by_its_own_pings() -> None:
     assert f._parts_agree([near0, near0, near1, near1])  # 1.1 m apart
     assert not f._parts_agree([near0, near0, far, far])  # ~9.7 m apart
     assert not f._parts_agree([near0])
+
+
+def test_closure_resamples_the_dominant_mode_only() -> None:
+    """closure_estimate = 'mode': two modes 20 m apart holding 0.6 and 0.4 of the weight; the
+    weighted mean lies between them, where no particle is; the closure draws only from the
+    heavier mode, so the resampled centroid lands on it."""
+    x = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [20.0, 0.0], [50.0, 50.0]])
+    w = np.array([0.2, 0.2, 0.2, 0.4, 0.0])
+    assert np.linalg.norm(w @ x - (8.0, 0.0)) < 0.5  # the mean: between the modes
+    wm = mode_weights(x, w, 3.0)
+    assert wm.sum() == pytest.approx(1.0)
+    assert wm[3] == 0.0 and wm[4] == 0.0 and wm[:3] == pytest.approx([1 / 3] * 3)
+    cfg = BathyConfig(n_particles=5, lccd=False, t_l=2)
+    f = MTMPF(cfg, 10, np.random.default_rng(0))
+    f.t, f.x = 5, x.copy()
+    f.traj[:6] = np.arange(6.0)[:, None] * (0.0, 1.0)
+    f.traj[5] = x.mean(0)
+    f._resample(w, np.zeros(5, dtype=int))
+    assert (np.linalg.norm(f.x, axis=1) <= 1.0 + 1e-9).all()
+    assert np.allclose(f.traj[5], f.x.mean(0))  # the closure moved the track to the mode

@@ -93,6 +93,17 @@ class BathyConfig(BaseModel):
         "resampled once, when the crossing ends (crossing_gap_pings without any particle in "
         "R of the old track) or after crossing_max_pings, if the accumulated Neff < f N",
     )
+    closure_estimate: Literal["mean", "mode"] = Field(
+        "mode",
+        description="'crossing': what the closure's resampling draws from: 'mean' = the whole "
+        "weighted cloud (its centroid can sit between modes, where no particle is), 'mode' "
+        "(ours, default) = only the particles within mode_radius_m of the particle whose "
+        "neighbourhood holds the most weight (what the paper's repeated resamplings of one "
+        "crossing converge to)",
+    )
+    mode_radius_m: float = Field(
+        3.0, gt=0, description="'mode': radius of the dominant mode (m; ours, = lccd_tau_m)"
+    )
     crossing_gap_pings: int = Field(
         5, ge=1, description="'crossing': pings without overlap that end a crossing (ours)"
     )

@@ -20,6 +20,7 @@ __all__ = [
     "BathyFilter",
     "DeadReckoning",
     "jitter_variance",
+    "mode_weights",
     "no_match_weight",
     "systematic",
 ]
@@ -75,6 +76,19 @@ def fill_weights(
     w[idx] = w_m
     s = w.sum()
     return w / s if s > 0 else np.full(n, 1.0 / n)
+
+
+def mode_weights(x: np.ndarray, w: np.ndarray, radius_m: float) -> np.ndarray:
+    """Normalised weights ``w`` (N,) of particles ``x`` (N, 2) (m) kept only within
+    ``radius_m`` of the particle whose ``radius_m`` neighbourhood holds the most weight: the
+    posterior's dominant mode."""
+    cand = np.flatnonzero(w > 1e-12 * w.max())  # particles that carry weight
+    d2 = ((x[cand, None, :] - x[None, :, :]) ** 2).sum(-1)  # (C, N)
+    near = d2 <= radius_m**2
+    centre = cand[int(np.argmax(near @ w))]
+    keep = ((x - x[centre]) ** 2).sum(-1) <= radius_m**2
+    wk = np.where(keep, w, 0.0)
+    return wk / wk.sum()
 
 
 class BathyFilter:
@@ -332,7 +346,8 @@ class MTMPF(BathyFilter):
         """LCCD inside one crossing (``lccd_mode = 'parts'``, ours): the crossing's pings with
         evidence are split in time into ``lccd_parts`` parts; each part's own multiplied
         weights give the correction it implies (weighted mean of the particles, which keep
-        their offsets through the crossing); the closure is consistent when those corrections
+        their offsets through the crossing, in the dominant mode with ``closure_estimate =
+        'mode'``); the closure is consistent when those corrections
         form one cluster at ``lccd_tau_m`` (the same linkage as Sec. IV-B)."""
         cfg = self.cfg
         if len(parts) < cfg.lccd_parts:
@@ -341,7 +356,10 @@ class MTMPF(BathyFilter):
         for chunk in np.array_split(np.arange(len(parts)), cfg.lccd_parts):
             lw = np.sum([parts[i] for i in chunk], axis=0)
             w = np.exp(lw - lw.max())
-            corr.append((w / w.sum()) @ self.x)
+            w /= w.sum()
+            if cfg.closure_estimate == "mode":
+                w = mode_weights(self.x, w, cfg.mode_radius_m)
+            corr.append(w @ self.x)
         return consistent(np.asarray(corr), cfg.lccd_tau_m, cfg.lccd_linkage)
 
     # -- resampling = loop closure ------------------------------------------------------------
@@ -351,6 +369,8 @@ class MTMPF(BathyFilter):
         cfg, t = self.cfg, self.t
         before = self.x.copy()
         s_before = self.traj[t].copy()
+        if cfg.closure == "crossing" and cfg.closure_estimate == "mode":
+            w = mode_weights(self.x, w, cfg.mode_radius_m)
         self.x = self.x[systematic(w, self.rng)]
         s_after = self.x.mean(0)
         m = s_after - s_before  # eq. (14)
