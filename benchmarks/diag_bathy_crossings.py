@@ -25,7 +25,7 @@ from scipy.spatial import cKDTree
 from auvgw.config.scenario import Scenario
 from auvgw.sim_devices.world import World
 from auvgw.slam.bathymetric.config import BathyConfig
-from auvgw.slam.bathymetric.filters import MTMPF, no_match_weight
+from auvgw.slam.bathymetric.filters import MTMPF, mode_weights, no_match_weight
 from auvgw.slam.bathymetric.matching import match_weights
 from auvgw.slam.bathymetric.simulate import simulate_survey
 
@@ -110,6 +110,7 @@ class Probe(MTMPF):
                 "nearest": float(d.min()),
                 "n_within_2m": int((d < 2).sum()),
                 "neff": float(1 / np.sum(wa**2)),
+                "mode_share": float(wa[mode_weights(self.x, wa, self.cfg.mode_radius_m) > 0].sum()),
                 "abs_err_before": float(np.linalg.norm(c - self.truth[t])),
             }
             if self._grid_ll is not None and self._grid_x is not None:
@@ -150,6 +151,7 @@ COLS = [
     ("nearest", "nearest - x*", "{:.1f}"),
     ("n_within_2m", "n < 2 m", "{:.0f}"),
     ("neff", "Neff", "{:.1f}"),
+    ("mode_share", "mode share", "{:.2f}"),
     ("ll_peak_off", "LL peak - x*", "{:.1f}"),
     ("ll_width", "LL width", "{:.1f}"),
     ("resampled", "resampled", "{:.0f}"),

@@ -118,12 +118,14 @@ class BathyConfig(BaseModel):
         40, ge=1, description="'crossing': longest crossing before a closure is made (ours)"
     )
     lccd: bool = Field(True, description="loop-closure consistency determination (Sec. IV-B)")
-    lccd_mode: Literal["pool", "parts"] = Field(
-        "parts",
-        description="what LCCD compares: 'pool' = every loop closure so far, Sec. IV-B (the "
-        "first closure is always rejected, disjoint loops never agree); 'parts' (ours, "
-        "default; closure = 'crossing' only) = the corrections implied by lccd_parts "
-        "successive parts of the crossing's own pings, which must agree within lccd_tau_m",
+    lccd_mode: Literal["pool", "veto", "parts"] = Field(
+        "veto",
+        description="how LCCD decides: 'pool' = Sec. IV-B, a closure needs a partner within "
+        "lccd_tau_m among all closures so far (the first is always rejected, a loop disjoint "
+        "from all others never agrees); 'veto' (ours, default) = the same clustering, but a "
+        "closure without a partner is rejected only when an accepted closure comparable with "
+        "it (not disjoint) disagrees; 'parts' (ours; closure = 'crossing') = the modes of "
+        "lccd_parts successive parts of the crossing's own pings must agree",
     )
     lccd_parts: int = Field(2, ge=2, description="'parts': parts a crossing is split into")
     lccd_tau_m: float = Field(3.0, gt=0, description="clustering cut distance (A15)")

@@ -209,7 +209,9 @@ class MTMPF(BathyFilter):
         self.traj = np.zeros((n_pings, 2))
         self.covered = np.zeros(n_pings, dtype=bool)  # l^h, eq. (16)
         self.t_r = 10**9  # "a large value" at mission start, eq. (3)
-        self.lccd = LCCD(cfg.lccd_tau_m, cfg.lccd_linkage, cfg.lccd_disjoint_m)
+        self.lccd = LCCD(
+            cfg.lccd_tau_m, cfg.lccd_linkage, cfg.lccd_disjoint_m, veto=cfg.lccd_mode == "veto"
+        )
         # closure = "crossing": accumulated log weights, pings in / since the crossing
         self.logw = np.zeros(cfg.n_particles)
         self.crossing_len = 0

@@ -72,8 +72,15 @@ class LCCD:
     far (A17); a new one is valid unless it ends up alone in its cluster when the single-linkage
     (A15) dendrogram of D (eqs. 23-27) is cut at ``tau_m``."""
 
-    def __init__(self, tau_m: float = 3.0, method: str = "single", disjoint_m: float = 1e6) -> None:
+    def __init__(
+        self,
+        tau_m: float = 3.0,
+        method: str = "single",
+        disjoint_m: float = 1e6,
+        veto: bool = False,
+    ) -> None:
         self.tau_m, self.method, self.disjoint_m = tau_m, method, disjoint_m
+        self.veto = veto
         self.pool: list[LoopClosure] = []
 
     @staticmethod
@@ -98,12 +105,19 @@ class LCCD:
         return d
 
     def judge(self, loop: LoopClosure) -> bool:
-        """Add ``loop`` to the pool; True if it is consistent with at least one other."""
+        """Add ``loop`` to the pool; True if it is consistent with at least one other. With
+        ``veto`` (ours) a loop alone in its cluster is rejected only when some accepted loop
+        is comparable with it (not disjoint, A14): the first loop, and a loop disjoint from
+        every accepted one, have nothing to contradict them and are accepted."""
         self.pool.append(loop)
         if len(self.pool) < 2:
-            loop.accepted = False
-            return False
-        z = linkage(squareform(self.matrix(), checks=False), method=self.method)
+            loop.accepted = self.veto
+            return loop.accepted
+        d = self.matrix()
+        z = linkage(squareform(d, checks=False), method=self.method)
         labels = fcluster(z, t=self.tau_m, criterion="distance")
         loop.accepted = bool((labels == labels[-1]).sum() > 1)
+        if not loop.accepted and self.veto:
+            judges = [i for i, lp in enumerate(self.pool[:-1]) if lp.accepted]
+            loop.accepted = all(d[i, -1] >= self.disjoint_m for i in judges)
         return loop.accepted
