@@ -43,6 +43,7 @@ __all__ = [
 ]
 
 
+
 class MotionModel(ABC):
     """``x_k = f(x_{k-1}, u_k, dt)``: pose ``(..., 3)``, control ``(..., n_u)``, step ``dt`` s."""
 
