@@ -29,16 +29,29 @@ class BathyConfig(BaseModel):
     min_valid_fraction: float = Field(
         0.25, gt=0, le=1, description="I threshold as a share of the Mmap points (A2)"
     )
-    sigma_s_m: float = Field(0.3, gt=0, description="sigma_s, sensor std of eq. (8) (A3)")
+    sigma_s_m: float = Field(
+        0.15,
+        gt=0,
+        description="sigma_s, std of eq. (8) (A3): the Pmap-vs-Mmap depth residual at the true "
+        "alignment, measured 0.12 m (bathy_survey) / 0.15 m (bathy_sandwaves) by "
+        "benchmarks/diag_bathy_residual.py (was 0.3: 2x too wide, weights too flat to move "
+        "the cloud at a crossing)",
+    )
     sigma_map2: float = Field(
         0.1,
         ge=0,
         description="sigma^2_pmap = sigma^2_mmap, map-error variance of eqs. (11)-(12) (A4)",
     )
-    unmatched_weight: Literal["uniform", "neutral"] = Field(
-        "uniform",
+    unmatched_weight: Literal["uniform", "neutral", "gate"] = Field(
+        "neutral",
         description="weight of particles outside R or failing the gates: 'uniform' = 1/N as "
-        "written (Sec. III-C; A5), 'neutral' = the mean of the matched weights (ours)",
+        "written (Sec. III-C; A5); 'gate' (ours) = w_gate = 1 / sqrt(2 pi (sigma_s^2 + "
+        "mse_max)), the expected eq. (7) weight of a match whose MSE is at the gate; "
+        "'neutral' (ours, default) = the mean matched weight outside R (no evidence) and "
+        "min(w_gate, mean) inside R but gated out (a poor fit). With 'gate' or 'neutral' "
+        "alpha flattens towards w_gate. 1/N makes any match N x likelier than none, so the "
+        "sharpness of a crossing's multiplied weights grows with N; 'gate' rewards every "
+        "passing match, so long mediocre overlaps outweigh short good ones",
     )
     min_matched_fraction: float = Field(
         0.1,
@@ -80,13 +93,41 @@ class BathyConfig(BaseModel):
         "resampled once, when the crossing ends (crossing_gap_pings without any particle in "
         "R of the old track) or after crossing_max_pings, if the accumulated Neff < f N",
     )
+    closure_estimate: Literal["mean", "mode"] = Field(
+        "mode",
+        description="'crossing': what the closure's resampling draws from: 'mean' = the whole "
+        "weighted cloud (its centroid can sit between modes, where no particle is), 'mode' "
+        "(ours, default) = only the particles within mode_radius_m of the particle whose "
+        "neighbourhood holds the most weight (what the paper's repeated resamplings of one "
+        "crossing converge to)",
+    )
+    mode_radius_m: float = Field(
+        3.0, gt=0, description="'mode': radius of the dominant mode (m; ours, = lccd_tau_m)"
+    )
     crossing_gap_pings: int = Field(
         5, ge=1, description="'crossing': pings without overlap that end a crossing (ours)"
+    )
+    jitter_in_crossing: bool = Field(
+        False,
+        description="'crossing': add the eq. (3) jitter between the matched pings of a "
+        "crossing too (ours, default off: the weights of a crossing are multiplied, so each "
+        "particle must keep one offset through it; the DR error moves ~0.02 m per ping, the "
+        "jitter 1 m)",
     )
     crossing_max_pings: int = Field(
         40, ge=1, description="'crossing': longest crossing before a closure is made (ours)"
     )
     lccd: bool = Field(True, description="loop-closure consistency determination (Sec. IV-B)")
+    lccd_mode: Literal["pool", "veto", "parts"] = Field(
+        "veto",
+        description="how LCCD decides: 'pool' = Sec. IV-B, a closure needs a partner within "
+        "lccd_tau_m among all closures so far (the first is always rejected, a loop disjoint "
+        "from all others never agrees); 'veto' (ours, default) = the same clustering, but a "
+        "closure without a partner is rejected only when an accepted closure comparable with "
+        "it (not disjoint) disagrees; 'parts' (ours; closure = 'crossing') = the modes of "
+        "lccd_parts successive parts of the crossing's own pings must agree",
+    )
+    lccd_parts: int = Field(2, ge=2, description="'parts': parts a crossing is split into")
     lccd_tau_m: float = Field(3.0, gt=0, description="clustering cut distance (A15)")
     lccd_linkage: str = Field("single", description="scipy linkage method (A15)")
     lccd_disjoint_m: float = Field(1e6, gt=0, description="distance of disjoint loops (A14)")

@@ -11,10 +11,19 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from auvgw.slam.bathymetric.config import BathyConfig
-from auvgw.slam.bathymetric.loops import LCCD, LoopClosure, correction_ramp
+from auvgw.slam.bathymetric.loops import LCCD, LoopClosure, consistent, correction_ramp
 from auvgw.slam.bathymetric.matching import idw, match_weights
 
-__all__ = ["BPSLAM", "MTMPF", "BathyFilter", "DeadReckoning", "jitter_variance", "systematic"]
+__all__ = [
+    "BPSLAM",
+    "MTMPF",
+    "BathyFilter",
+    "DeadReckoning",
+    "jitter_variance",
+    "mode_weights",
+    "no_match_weight",
+    "systematic",
+]
 
 
 def jitter_variance(t_r: int, cfg: BathyConfig) -> float:
@@ -31,19 +40,55 @@ def systematic(w: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return np.searchsorted(c, (rng.random() + np.arange(n)) / n)
 
 
-def fill_weights(n: int, idx: np.ndarray, w_m: np.ndarray, cfg: BathyConfig) -> np.ndarray:
+def no_match_weight(n: int, cfg: BathyConfig) -> float:
+    """Un-normalised weight of a particle that fails the gates, and what alpha flattens
+    towards: 1/N as written (``unmatched_weight = 'uniform'``, A5), otherwise the expected
+    eq. (7) weight of a match whose MSE equals the gate, ``1 / sqrt(2 pi (sigma_s^2 +
+    mse_max))`` (independent of N)."""
+    if cfg.unmatched_weight == "uniform":
+        return 1.0 / n
+    return 1.0 / float(np.sqrt(2 * np.pi * (cfg.sigma_s_m**2 + cfg.mse_max_m2)))
+
+
+def fill_weights(
+    n: int,
+    idx: np.ndarray,
+    w_m: np.ndarray,
+    cfg: BathyConfig,
+    w0: float | None = None,
+    bad: np.ndarray | None = None,
+) -> np.ndarray:
     """Normalised weights of ``n`` particles: ``w_m`` for those in ``idx`` (matched and gated
-    in), the ``unmatched_weight`` rule for the rest (1/N as written, or the mean matched weight:
-    "no evidence" then neither favours nor penalises a particle, A5)."""
+    in); the rest by ``unmatched_weight``: 1/N as written (A5), the gate's weight
+    (:func:`no_match_weight`; ``w0`` overrides it), or 'neutral': the mean matched weight
+    ("no evidence" neither favours nor penalises a particle) for those outside R, and at
+    most the gate's weight for ``bad`` (inside R, failing the gates: a poor fit)."""
     if len(w_m) < cfg.min_matched_fraction * n:
         return np.full(n, 1.0 / n)
-    if cfg.unmatched_weight == "uniform" or len(w_m) == 0:
-        w = np.full(n, 1.0 / n)
+    w_gate = no_match_weight(n, cfg) if w0 is None else w0
+    if cfg.unmatched_weight != "neutral" or len(w_m) == 0:
+        w = np.full(n, w_gate)
     else:
-        w = np.full(n, float(w_m.mean()))
+        mean = float(w_m.mean())
+        w = np.full(n, mean)
+        if bad is not None:
+            w[bad] = min(w_gate, mean)
     w[idx] = w_m
     s = w.sum()
     return w / s if s > 0 else np.full(n, 1.0 / n)
+
+
+def mode_weights(x: np.ndarray, w: np.ndarray, radius_m: float) -> np.ndarray:
+    """Normalised weights ``w`` (N,) of particles ``x`` (N, 2) (m) kept only within
+    ``radius_m`` of the particle whose ``radius_m`` neighbourhood holds the most weight: the
+    posterior's dominant mode."""
+    cand = np.flatnonzero(w > 1e-12 * w.max())  # particles that carry weight
+    d2 = ((x[cand, None, :] - x[None, :, :]) ** 2).sum(-1)  # (C, N)
+    near = d2 <= radius_m**2
+    centre = cand[int(np.argmax(near @ w))]
+    keep = ((x - x[centre]) ** 2).sum(-1) <= radius_m**2
+    wk = np.where(keep, w, 0.0)
+    return wk / wk.sum()
 
 
 class BathyFilter:
@@ -164,12 +209,15 @@ class MTMPF(BathyFilter):
         self.traj = np.zeros((n_pings, 2))
         self.covered = np.zeros(n_pings, dtype=bool)  # l^h, eq. (16)
         self.t_r = 10**9  # "a large value" at mission start, eq. (3)
-        self.lccd = LCCD(cfg.lccd_tau_m, cfg.lccd_linkage, cfg.lccd_disjoint_m)
+        self.lccd = LCCD(
+            cfg.lccd_tau_m, cfg.lccd_linkage, cfg.lccd_disjoint_m, veto=cfg.lccd_mode == "veto"
+        )
         # closure = "crossing": accumulated log weights, pings in / since the crossing
         self.logw = np.zeros(cfg.n_particles)
         self.crossing_len = 0
         self.since_match = 0
         self._tlp = np.zeros(cfg.n_particles, dtype=int)
+        self._parts: list[np.ndarray] = []  # log weights of the crossing's pings with evidence
 
     def start(self, x0: np.ndarray, offsets: np.ndarray, depth: np.ndarray) -> None:
         super().start(x0, offsets, depth)
@@ -182,7 +230,10 @@ class MTMPF(BathyFilter):
     # -- one ping -----------------------------------------------------------------------------
     def step(self, u: np.ndarray, offsets: np.ndarray, depth: np.ndarray) -> None:
         cfg, n = self.cfg, self.cfg.n_particles
-        self.x += self._advance(u, offsets, depth, jitter_variance(self.t_r, cfg))  # eq. (2)
+        var = jitter_variance(self.t_r, cfg)
+        if cfg.closure == "crossing" and self.crossing_len and not cfg.jitter_in_crossing:
+            var = 0.0  # one offset per particle through a crossing (ours)
+        self.x += self._advance(u, offsets, depth, var)  # eq. (2)
         t = self.t
         self.t_r += 1
         self.traj[t] = self.x.mean(0)  # S_p, unweighted centroid (A7)
@@ -232,8 +283,8 @@ class MTMPF(BathyFilter):
         v = self.x[near] - self.traj[t]  # V_ec, eq. (5)
         idx, ok = self._mmap_index(tlp[near], h)
         z_pm, z_mm, valid, n_m = self._mmap_vs_pmap(tree, z_p, idx, ok, v, self.traj)
-        w_m, gate, _ = match_weights(z_pm, z_mm, valid, n_m, cfg, fallback=1.0 / n)
-        return fill_weights(n, near[gate], w_m[gate], cfg), tlp
+        w_m, gate, _ = match_weights(z_pm, z_mm, valid, n_m, cfg, fallback=no_match_weight(n, cfg))
+        return fill_weights(n, near[gate], w_m[gate], cfg, bad=near[~gate]), tlp
 
     def _mmap_vs_pmap(
         self,
@@ -268,7 +319,10 @@ class MTMPF(BathyFilter):
         one resampling = one closure."""
         cfg, n = self.cfg, self.cfg.n_particles
         if w is not None:
-            self.logw += np.log(np.maximum(w, 1e-300))
+            lw_ping = np.log(np.maximum(w, 1e-300))
+            self.logw += lw_ping
+            if np.ptp(w) > 0:  # a ping with evidence (not all 1/N)
+                self._parts.append(lw_ping)
             self.crossing_len += 1
             self.since_match = 0
             self._tlp = tlp
@@ -285,14 +339,40 @@ class MTMPF(BathyFilter):
             return
         self.logw[:] = 0.0
         self.crossing_len = self.since_match = 0
+        parts, self._parts = self._parts, []
         if neff < cfg.neff_fraction * n and self.t - cfg.t_l >= 2:
-            self._resample(wa, self._tlp)
+            agree = self._parts_agree(parts) if cfg.lccd and cfg.lccd_mode == "parts" else None
+            self._resample(wa, self._tlp, agree)
+
+    def _parts_agree(self, parts: list[np.ndarray]) -> bool:
+        """LCCD inside one crossing (``lccd_mode = 'parts'``, ours): the crossing's pings with
+        evidence are split in time into ``lccd_parts`` parts; each part's own multiplied
+        weights give the correction it implies (weighted mean of the particles, which keep
+        their offsets through the crossing, in the dominant mode with ``closure_estimate =
+        'mode'``); the closure is consistent when those corrections
+        form one cluster at ``lccd_tau_m`` (the same linkage as Sec. IV-B)."""
+        cfg = self.cfg
+        if len(parts) < cfg.lccd_parts:
+            return False  # too few pings with evidence to confirm each other
+        corr = []
+        for chunk in np.array_split(np.arange(len(parts)), cfg.lccd_parts):
+            lw = np.sum([parts[i] for i in chunk], axis=0)
+            w = np.exp(lw - lw.max())
+            w /= w.sum()
+            if cfg.closure_estimate == "mode":
+                w = mode_weights(self.x, w, cfg.mode_radius_m)
+            corr.append(w @ self.x)
+        return consistent(np.asarray(corr), cfg.lccd_tau_m, cfg.lccd_linkage)
 
     # -- resampling = loop closure ------------------------------------------------------------
-    def _resample(self, w: np.ndarray, tlp: np.ndarray) -> None:
+    def _resample(self, w: np.ndarray, tlp: np.ndarray, agree: bool | None = None) -> None:
+        """Resample = one loop closure (14); ``agree``: the crossing's own LCCD decision
+        (``lccd_mode = 'parts'``), None = the pool's (Sec. IV-B)."""
         cfg, t = self.cfg, self.t
         before = self.x.copy()
         s_before = self.traj[t].copy()
+        if cfg.closure == "crossing" and cfg.closure_estimate == "mode":
+            w = mode_weights(self.x, w, cfg.mode_radius_m)
         self.x = self.x[systematic(w, self.rng)]
         s_after = self.x.mean(0)
         m = s_after - s_before  # eq. (14)
@@ -309,7 +389,12 @@ class MTMPF(BathyFilter):
             s_end_before=s_before,
         )
         self.loops.append(loop)
-        valid = self.lccd.judge(loop) if cfg.lccd else True
+        if not cfg.lccd:
+            valid = True
+        elif agree is not None:
+            valid = agree
+        else:
+            valid = self.lccd.judge(loop)
         loop.accepted = valid
         if not valid:  # A18: restore the particles, map unchanged
             self.x = before
@@ -405,7 +490,7 @@ class BPSLAM(BathyFilter):
         w_m, gate, _ = match_weights(
             z_pm.reshape(k, -1), z_mm, valid, mask.reshape(k, -1).sum(1), cfg, use_alpha=False
         )
-        return fill_weights(n, near[gate], w_m[gate], cfg)
+        return fill_weights(n, near[gate], w_m[gate], cfg, w0=1.0 / n)  # as written (A5)
 
 
 FILTERS: dict[str, type[BathyFilter]] = {"mtm-pf": MTMPF, "bpslam": BPSLAM, "dr": DeadReckoning}

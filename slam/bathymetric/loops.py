@@ -9,7 +9,7 @@ import numpy as np
 from scipy.cluster.hierarchy import fcluster, linkage
 from scipy.spatial.distance import squareform
 
-__all__ = ["LCCD", "LoopClosure", "correction_ramp"]
+__all__ = ["LCCD", "LoopClosure", "consistent", "correction_ramp"]
 
 
 @dataclass
@@ -58,13 +58,29 @@ def correction_ramp(
     return t_a, (a / a[-1])[:, None] * np.asarray(m, float)[None, :]  # eqs. (18), (21), (22)
 
 
+def consistent(corrections: np.ndarray, tau_m: float, method: str = "single") -> bool:
+    """True when the corrections (K, 2) (m, NED) form one cluster when the ``method`` linkage
+    dendrogram is cut at ``tau_m``; False for fewer than two."""
+    if len(corrections) < 2:
+        return False
+    z = linkage(np.asarray(corrections, float), method=method)
+    return bool(len(set(fcluster(z, t=tau_m, criterion="distance"))) == 1)
+
+
 class LCCD:
     """Loop-closure consistency determination (Sec. IV-B): the pool holds every loop closure so
     far (A17); a new one is valid unless it ends up alone in its cluster when the single-linkage
     (A15) dendrogram of D (eqs. 23-27) is cut at ``tau_m``."""
 
-    def __init__(self, tau_m: float = 3.0, method: str = "single", disjoint_m: float = 1e6) -> None:
+    def __init__(
+        self,
+        tau_m: float = 3.0,
+        method: str = "single",
+        disjoint_m: float = 1e6,
+        veto: bool = False,
+    ) -> None:
         self.tau_m, self.method, self.disjoint_m = tau_m, method, disjoint_m
+        self.veto = veto
         self.pool: list[LoopClosure] = []
 
     @staticmethod
@@ -89,12 +105,19 @@ class LCCD:
         return d
 
     def judge(self, loop: LoopClosure) -> bool:
-        """Add ``loop`` to the pool; True if it is consistent with at least one other."""
+        """Add ``loop`` to the pool; True if it is consistent with at least one other. With
+        ``veto`` (ours) a loop alone in its cluster is rejected only when some accepted loop
+        is comparable with it (not disjoint, A14): the first loop, and a loop disjoint from
+        every accepted one, have nothing to contradict them and are accepted."""
         self.pool.append(loop)
         if len(self.pool) < 2:
-            loop.accepted = False
-            return False
-        z = linkage(squareform(self.matrix(), checks=False), method=self.method)
+            loop.accepted = self.veto
+            return loop.accepted
+        d = self.matrix()
+        z = linkage(squareform(d, checks=False), method=self.method)
         labels = fcluster(z, t=self.tau_m, criterion="distance")
         loop.accepted = bool((labels == labels[-1]).sum() > 1)
+        if not loop.accepted and self.veto:
+            judges = [i for i, lp in enumerate(self.pool[:-1]) if lp.accepted]
+            loop.accepted = all(d[i, -1] >= self.disjoint_m for i in judges)
         return loop.accepted
