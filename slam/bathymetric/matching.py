@@ -14,6 +14,32 @@ from auvgw.slam.bathymetric.config import BathyConfig
 __all__ = ["alpha_exponent", "idw", "match_weights"]
 
 
+def _maybe_near(data: np.ndarray, q: np.ndarray, radius: float) -> np.ndarray:
+    """Rows of ``q`` (M, D) that may have a sample of ``data`` (n, D) within ``radius``: a
+    conservative test on the first two coordinates with square cells a hair wider than
+    ``radius``, so a sample within ``radius`` is always in the 3 x 3 cells around the row's
+    cell. The rest have none (their IDW is (nan, False) without a tree query)."""
+    if data.shape[1] < 2 or len(data) == 0:
+        return np.ones(len(q), dtype=bool)
+    c = radius * 1.001  # margin against the rounding of coordinate / cell
+    cells = np.floor(data[:, :2] / c).astype(np.int64)
+    lo = cells.min(0) - 1
+    shape = cells.max(0) - lo + 2
+    if shape[0] * shape[1] > 64 * len(data) + 4096:  # sparse samples: the grid would not pay
+        return np.ones(len(q), dtype=bool)
+    occ = np.zeros(shape, dtype=bool)
+    ix, iy = cells[:, 0] - lo[0], cells[:, 1] - lo[1]
+    for dx in (-1, 0, 1):
+        for dy in (-1, 0, 1):
+            occ[ix + dx, iy + dy] = True
+    qc = np.floor(q[:, :2] / c) - lo  # float: rows far outside the grid must not overflow
+    inside = (qc[:, 0] >= 0) & (qc[:, 0] < shape[0]) & (qc[:, 1] >= 0) & (qc[:, 1] < shape[1])
+    out = np.zeros(len(q), dtype=bool)
+    qi = qc[inside].astype(np.int64)
+    out[inside] = occ[qi[:, 0], qi[:, 1]]
+    return out
+
+
 def idw(
     tree: cKDTree,
     values: np.ndarray,
@@ -26,21 +52,29 @@ def idw(
     """Shepard IDW (A1): ``z(q) = sum d_k^-p z_k / sum d_k^-p`` over the ``k`` nearest samples
     of ``tree`` within ``radius`` of each row of ``query`` (..., D). Returns ``(z, valid)`` of
     shape ``query.shape[:-1]``; ``valid`` needs ``min_neighbours`` samples in range. A sample at
-    zero distance returns its own value."""
+    zero distance returns its own value. Rows without any sample in range are (nan, False); the
+    tree is queried only for rows a grid test cannot rule out (:func:`_maybe_near`)."""
     shape = query.shape[:-1]
     q = query.reshape(-1, query.shape[-1])
+    z = np.full(len(q), np.nan)
+    valid = np.zeros(len(q), dtype=bool)
+    rows = np.flatnonzero(_maybe_near(tree.data, q, radius))
+    if len(rows) == 0:
+        return z.reshape(shape), valid.reshape(shape)
     k = min(k, tree.n)
-    d, i = tree.query(q, k=k, distance_upper_bound=radius)
-    d, i = d.reshape(len(q), k), i.reshape(len(q), k)
-    ok = np.isfinite(d)
-    n_ok = ok.sum(1)
-    vals = np.where(ok, values[np.minimum(i, tree.n - 1)], 0.0)
-    exact = ok & (d < 1e-9)
-    w = np.where(ok, 1.0 / np.maximum(d, 1e-9) ** power, 0.0)
-    w = np.where(exact.any(1, keepdims=True), exact.astype(float), w)
+    d, i = tree.query(q[rows], k=k, distance_upper_bound=radius)
+    d, i = d.reshape(len(rows), k), i.reshape(len(rows), k)
+    # a missing neighbour has d = inf, i = n: weight 1 / inf^p = 0 and value 0 (padded)
+    vals = np.append(values, 0.0)[i]
+    w = 1.0 / np.maximum(d, 1e-9) ** power
+    exact = d < 1e-9
+    if exact.any():
+        hit = exact.any(1)
+        w[hit] = exact[hit]
     sw = w.sum(1)
-    z = np.where(sw > 0, (w * vals).sum(1) / np.where(sw > 0, sw, 1.0), np.nan)
-    return z.reshape(shape), (n_ok >= min_neighbours).reshape(shape)
+    z[rows] = np.where(sw > 0, (w * vals).sum(1) / np.where(sw > 0, sw, 1.0), np.nan)
+    valid[rows] = (i < tree.n).sum(1) >= min_neighbours
+    return z.reshape(shape), valid.reshape(shape)
 
 
 def _terrain_alpha(
