@@ -248,9 +248,9 @@ class MTMPF(BathyFilter):
         querying the Mmap points shifted by ``-shift``: one tree serves every particle."""
         assert self.offsets is not None and self.depths is not None
         cfg = self.cfg
-        bsl = slice(None, None, cfg.mmap_beam_stride)
-        pts = traj[idx][:, :, None, :] + self.offsets[idx][:, :, bsl]  # (K, W, B', 2)
-        z_mm = self.depths[idx][:, :, bsl]
+        bsl = slice(None, None, cfg.mmap_beam_stride)  # gather only the strided beams
+        pts = traj[idx][:, :, None, :] + self.offsets[:, bsl][idx]  # (K, W, B', 2)
+        z_mm = self.depths[:, bsl][idx]
         q = pts - shift[:, None, None, :]
         z_pm, valid = idw(
             tree, z_p, q, cfg.idw_k, cfg.idw_radius_m, cfg.idw_power, cfg.idw_min_neighbours

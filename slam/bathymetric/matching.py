@@ -39,7 +39,8 @@ def _near_rows(data: np.ndarray, q: np.ndarray, radius: float) -> np.ndarray:
     key = qc[inside, 0].astype(np.int64) * ny + qc[inside, 1].astype(np.int64)
     hit = occ[key]
     rows, key = inside[hit], key[hit]
-    return rows[np.argsort(key)]
+    small = nx * ny <= 1 << 16  # radix sort of 16-bit keys: several times faster
+    return rows[np.argsort(key.astype(np.uint16) if small else key, kind="stable")]
 
 
 def idw(
