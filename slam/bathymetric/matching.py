@@ -67,16 +67,20 @@ def idw(
     k = min(k, tree.n)
     d, i = tree.query(q[rows], k=k, distance_upper_bound=radius)
     d, i = d.reshape(len(rows), k), i.reshape(len(rows), k)
-    # a missing neighbour has d = inf, i = n: weight 1 / inf^p = 0 and value 0 (padded)
+    # rows come sorted by distance; a missing neighbour has d = inf, i = n: its weight is
+    # 1 / inf^p = 0 and its value 0 (padded)
     vals = np.append(values, 0.0)[i]
-    w = 1.0 / np.maximum(d, 1e-9) ** power
-    exact = d < 1e-9
-    if exact.any():
-        hit = exact.any(1)
-        w[hit] = exact[hit]
+    w = np.maximum(d, 1e-9)
+    w **= power
+    np.divide(1.0, w, out=w)
+    hit = d[:, 0] < 1e-9  # a sample at zero distance: its value alone
+    if hit.any():
+        w[hit] = d[hit] < 1e-9
     sw = w.sum(1)
-    z[rows] = np.where(sw > 0, (w * vals).sum(1) / np.where(sw > 0, sw, 1.0), np.nan)
-    valid[rows] = (i < tree.n).sum(1) >= min_neighbours
+    w *= vals
+    z[rows] = np.where(sw > 0, w.sum(1) / np.where(sw > 0, sw, 1.0), np.nan)
+    if min_neighbours <= k:
+        valid[rows] = np.isfinite(d[:, min_neighbours - 1])
     return z.reshape(shape), valid.reshape(shape)
 
 
