@@ -31,6 +31,28 @@ def test_idw_hand_computed() -> None:
     assert ok.tolist() == [True, True, False]  # (30, 30) has no neighbour within 10 m
 
 
+def test_idw_equals_brute_force_next_to_the_radius() -> None:
+    """idw queries the tree only for rows its grid test cannot rule out: every row equals a
+    brute-force IDW, rows just inside the radius of a sample (at any angle, so across cell
+    borders) included, and rows out of range are (nan, False)."""
+    rng = np.random.default_rng(3)
+    pts, z = rng.uniform(0.0, 40.0, (300, 2)), rng.normal(0.0, 1.0, 300)
+    r, k = 4.0, 8
+    ang = rng.uniform(0.0, 2 * math.pi, 3000)
+    rim = pts[rng.integers(0, 300, 3000)] + (r - 1e-9) * np.column_stack([np.cos(ang), np.sin(ang)])
+    q = np.vstack([rim, rng.uniform(-20.0, 60.0, (3000, 2))])
+    got, ok = idw(cKDTree(pts), z, q, k, r, 2.0, 1)
+    d = np.linalg.norm(q[:, None, :] - pts[None], axis=-1)
+    near = np.argsort(d, axis=1)[:, :k]
+    dn = np.take_along_axis(d, near, 1)
+    w = np.where(dn < r, dn**-2.0, 0.0)
+    want = (w * z[near]).sum(1) / np.where(w.sum(1) > 0, w.sum(1), np.nan)
+    assert ok.tolist() == (dn[:, 0] < r).tolist()
+    assert ok[:3000].all() and not ok.all()  # every rim row is in range; some rows are not
+    np.testing.assert_allclose(got[ok], want[ok], rtol=1e-12)
+    assert np.isnan(got[~ok]).all()
+
+
 def _crossing() -> tuple[MTMPF, np.ndarray]:
     """Line 1 north along y = 0 (pings 0-99), then line 2 east along x = 50 (pings 100-199):
     the mean trajectory of line 2 is off by (3, -2) m (drift), so the Pmap matches the older

@@ -15,13 +15,14 @@ __all__ = ["alpha_exponent", "idw", "match_weights"]
 
 
 def _near_rows(data: np.ndarray, q: np.ndarray, radius: float) -> np.ndarray:
-    """Indices of the rows of ``q`` (M, D) that may have a sample of ``data`` (n, D) within
+    """Indices of the rows of ``q`` (M, 2) that may have a sample of ``data`` (n, 2) within
     ``radius``, grouped by grid cell (neighbouring queries walk the same tree nodes: faster).
-    A conservative test on the first two coordinates with square cells a hair wider than
-    ``radius``: a sample within ``radius`` is always in the 3 x 3 cells around the row's cell.
-    The rows left out have no sample in range (their IDW is (nan, False) without a query)."""
+    A conservative test with square cells a hair wider than ``radius``: a sample within
+    ``radius`` is always in the 3 x 3 cells around the row's cell. The rows left out have no
+    sample in range (their IDW is (nan, False) without a query). Other dimensions (BPSLAM's
+    particle label as a third coordinate): every row, in order."""
     every = np.arange(len(q))
-    if data.shape[1] < 2 or len(data) == 0:
+    if data.shape[1] != 2 or len(data) == 0:  # e.g. BPSLAM's (x, y, particle label)
         return every
     c = radius * 1.001  # margin against the rounding of coordinate / cell
     cells = np.floor(data[:, :2] / c).astype(np.int64)
