@@ -44,6 +44,25 @@ def _near_rows(data: np.ndarray, q: np.ndarray, radius: float) -> np.ndarray:
     return rows[np.argsort(key.astype(np.uint16) if small else key, kind="stable")]
 
 
+def _row_sums(a: np.ndarray) -> np.ndarray:
+    """``a.sum(1)`` of a short-row array (m, k) from column adds, in numpy's own order for
+    8 <= k <= 128 (eight running sums combined pairwise, then the tail), so the result is the
+    same to the bit on the numpy this was checked with; several times faster than a
+    reduction over rows of eight (the IDW neighbours). Other k: ``a.sum(1)``."""
+    k = a.shape[1]
+    if not 8 <= k <= 128:
+        return a.sum(1)
+    r = [a[:, j].copy() for j in range(8)]
+    full = k - k % 8
+    for i in range(8, full, 8):
+        for j in range(8):
+            r[j] += a[:, i + j]
+    out = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
+    for i in range(full, k):
+        out += a[:, i]
+    return out
+
+
 def idw(
     tree: cKDTree,
     values: np.ndarray,
@@ -77,9 +96,9 @@ def idw(
     hit = d[:, 0] < 1e-9  # a sample at zero distance: its value alone
     if hit.any():
         w[hit] = d[hit] < 1e-9
-    sw = w.sum(1)
+    sw = _row_sums(w)
     w *= vals
-    z[rows] = np.where(sw > 0, w.sum(1) / np.where(sw > 0, sw, 1.0), np.nan)
+    z[rows] = np.where(sw > 0, _row_sums(w) / np.where(sw > 0, sw, 1.0), np.nan)
     if min_neighbours <= k:
         valid[rows] = np.isfinite(d[:, min_neighbours - 1])
     return z.reshape(shape), valid.reshape(shape)
