@@ -249,16 +249,17 @@ class MTMPF(BathyFilter):
         assert self.offsets is not None and self.depths is not None
         cfg = self.cfg
         bsl = slice(None, None, cfg.mmap_beam_stride)  # gather only the strided beams
-        pts = traj[idx][:, :, None, :] + self.offsets[:, bsl][idx]  # (K, W, B', 2)
+        q = self.offsets[:, bsl][idx]  # (K, W, B', 2), in place below: no temporaries
+        q += traj[idx][:, :, None, :]  # the Mmap points
+        q -= shift[:, None, None, :]
         z_mm = self.depths[:, bsl][idx]
-        q = pts - shift[:, None, None, :]
         z_pm, valid = idw(
             tree, z_p, q, cfg.idw_k, cfg.idw_radius_m, cfg.idw_power, cfg.idw_min_neighbours
         )
-        mask = np.broadcast_to(ok[:, :, None], valid.shape)
-        valid = (valid & mask).reshape(len(idx), -1)
-        n_m = mask.reshape(len(idx), -1).sum(1)
-        return z_pm.reshape(len(idx), -1), z_mm.reshape(len(idx), -1), valid, n_m
+        valid &= ok[:, :, None]
+        n_m = ok.sum(1) * q.shape[2]
+        k = len(idx)
+        return z_pm.reshape(k, -1), z_mm.reshape(k, -1), valid.reshape(k, -1), n_m
 
     def _crossing(self, w: np.ndarray | None, tlp: np.ndarray) -> None:
         """closure = "crossing" (ours): one loop closure per crossing. The weights of the

@@ -21,25 +21,25 @@ def _near_rows(data: np.ndarray, q: np.ndarray, radius: float) -> np.ndarray:
     ``radius`` is always in the 3 x 3 cells around the row's cell. The rows left out have no
     sample in range (their IDW is (nan, False) without a query). Other dimensions (BPSLAM's
     particle label as a third coordinate): every row, in order."""
-    every = np.arange(len(q))
     if data.shape[1] != 2 or len(data) == 0:  # e.g. BPSLAM's (x, y, particle label)
-        return every
+        return np.arange(len(q))
     c = radius * 1.001  # margin against the rounding of coordinate / cell
-    cells = np.floor(data[:, :2] / c).astype(np.int64)
-    lo = cells.min(0) - 1
-    nx, ny = cells.max(0) - lo + 2
+    cx, cy = np.floor(data[:, 0] / c), np.floor(data[:, 1] / c)
+    x0, y0 = cx.min() - 2, cy.min() - 2  # an outer ring of cells that stays empty
+    nx, ny = int(cx.max() - x0) + 3, int(cy.max() - y0) + 3
     if nx * ny > 64 * len(data) + 4096:  # sparse samples: the grid would not pay
-        return every
+        return np.arange(len(q))
     occ = np.zeros(nx * ny, dtype=bool)
-    flat = (cells[:, 0] - lo[0]) * ny + (cells[:, 1] - lo[1])
+    flat = ((cx - x0) * ny + (cy - y0)).astype(np.intp)
     for dx in (-1, 0, 1):
         for dy in (-1, 0, 1):
-            occ[flat + dx * ny + dy] = True
-    qc = np.floor(q[:, :2] / c) - lo  # float: rows far outside the grid must not overflow
-    inside = np.flatnonzero((qc[:, 0] >= 0) & (qc[:, 0] < nx) & (qc[:, 1] >= 0) & (qc[:, 1] < ny))
-    key = qc[inside, 0].astype(np.int64) * ny + qc[inside, 1].astype(np.int64)
-    hit = occ[key]
-    rows, key = inside[hit], key[hit]
+            occ[flat + (dx * ny + dy)] = True
+    # rows outside the grid (or not finite) land on the empty ring
+    qx = np.nan_to_num(np.clip(np.floor(q[:, 0] / c) - x0, 0, nx - 1))
+    qy = np.nan_to_num(np.clip(np.floor(q[:, 1] / c) - y0, 0, ny - 1))
+    key = (qx * ny + qy).astype(np.intp)
+    rows = np.flatnonzero(occ[key])
+    key = key[rows]
     small = nx * ny <= 1 << 16  # radix sort of 16-bit keys: several times faster
     return rows[np.argsort(key.astype(np.uint16) if small else key, kind="stable")]
 
