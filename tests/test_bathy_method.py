@@ -15,7 +15,7 @@ from auvgw.slam.bathymetric.config import BathyConfig
 from auvgw.slam.bathymetric.evaluate import grid_dem, run_filter
 from auvgw.slam.bathymetric.filters import MTMPF, jitter_variance
 from auvgw.slam.bathymetric.loops import LCCD, LoopClosure, correction_ramp
-from auvgw.slam.bathymetric.matching import _row_sums, alpha_exponent, idw, match_weights
+from auvgw.slam.bathymetric.matching import _column_sums, alpha_exponent, idw, match_weights
 from auvgw.slam.bathymetric.simulate import DRModel, simulate_survey, swath_offsets
 from auvgw.testing.bathy_helpers import TINY
 
@@ -54,11 +54,12 @@ def test_idw_equals_brute_force_next_to_the_radius() -> None:
 
 
 @pytest.mark.parametrize("k", [3, 8, 13, 20])
-def test_row_sums_by_columns(k: int) -> None:
-    """The IDW's column-wise row sums: numpy's a.sum(1) (same order: equal to the bit on the
-    numpy it was checked with; the tolerance only guards against a numpy that changes its)."""
+def test_neighbour_sums_by_whole_rows(k: int) -> None:
+    """The IDW's sums over neighbours held column-wise equal numpy's row sums (same order:
+    equal to the bit on the numpy it was checked with; the tolerance only guards against a
+    numpy that changes its summation order)."""
     a = np.exp(np.random.default_rng(k).normal(0.0, 5.0, (1000, k)))
-    np.testing.assert_allclose(_row_sums(a), a.sum(1), rtol=1e-14)
+    np.testing.assert_allclose(_column_sums(np.ascontiguousarray(a.T)), a.sum(1), rtol=1e-14)
 
 
 def _crossing() -> tuple[MTMPF, np.ndarray]:
