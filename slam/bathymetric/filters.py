@@ -17,6 +17,12 @@ from auvgw.slam.bathymetric.matching import idw, match_weights
 __all__ = ["BPSLAM", "MTMPF", "BathyFilter", "DeadReckoning", "jitter_variance", "systematic"]
 
 
+def _tree(points: np.ndarray) -> cKDTree:
+    """A KD-tree built each ping: sliding-midpoint splits, no node shrinking (half the build
+    time of scipy's defaults here; same neighbours, the queries as fast)."""
+    return cKDTree(points, balanced_tree=False, compact_nodes=False)
+
+
 def jitter_variance(t_r: int, cfg: BathyConfig) -> float:
     """sigma_m^2 of eq. (3): sigma_c^2 + A exp(-t_r / C), with A = 0 while t_r < B (A8)."""
     a = cfg.jitter_a if t_r >= cfg.jitter_b else 0.0
@@ -207,7 +213,7 @@ class MTMPF(BathyFilter):
         lo = max(t - cfg.t_p + 1, 0)
         sl = slice(None, None, cfg.pmap_beam_stride)
         pts = self.traj[lo : t + 1, None, :] + self.offsets[lo : t + 1, sl]
-        return cKDTree(pts.reshape(-1, 2)), self.depths[lo : t + 1, sl].reshape(-1)
+        return _tree(pts.reshape(-1, 2)), self.depths[lo : t + 1, sl].reshape(-1)
 
     def _mmap_index(self, tlp: np.ndarray, h: int) -> tuple[np.ndarray, np.ndarray]:
         """Swath indices (K, W) of each Mmap around ``tlp`` and their mask, clipped to < h (A25)."""
@@ -223,7 +229,7 @@ class MTMPF(BathyFilter):
         h = t - cfg.t_l  # historical centroids: times < t - t_l (Sec. III-C)
         if h < 2:
             return None, np.zeros(n, dtype=int)
-        d, tlp = cKDTree(self.traj[:h]).query(self.x)
+        d, tlp = _tree(self.traj[:h]).query(self.x)
         near = np.flatnonzero(d <= cfg.radius_m)  # overlap test
         self.matched[t] = len(near)
         if len(near) == 0:
