@@ -21,7 +21,7 @@ from auvgw.slam.bathymetric.filters import (
     no_match_weight,
 )
 from auvgw.slam.bathymetric.loops import LCCD, LoopClosure, consistent, correction_ramp
-from auvgw.slam.bathymetric.matching import alpha_exponent, idw, match_weights
+from auvgw.slam.bathymetric.matching import _column_sums, alpha_exponent, idw, match_weights
 from auvgw.slam.bathymetric.simulate import DRModel, simulate_survey, swath_offsets
 from auvgw.testing.bathy_helpers import TINY
 
@@ -35,6 +35,37 @@ def test_idw_hand_computed() -> None:
     assert got[0] == pytest.approx((1 * 1 + 0.5 * 2 + 1 * 4) / 2.5)
     assert got[1] == 2.0  # a sample's own value at zero distance
     assert ok.tolist() == [True, True, False]  # (30, 30) has no neighbour within 10 m
+
+
+def test_idw_equals_brute_force_next_to_the_radius() -> None:
+    """idw queries the tree only for rows its grid test cannot rule out: every row equals a
+    brute-force IDW, rows just inside the radius of a sample (at any angle, so across cell
+    borders) included, and rows out of range are (nan, False)."""
+    rng = np.random.default_rng(3)
+    pts, z = rng.uniform(0.0, 40.0, (300, 2)), rng.normal(0.0, 1.0, 300)
+    r, k = 4.0, 8
+    ang = rng.uniform(0.0, 2 * math.pi, 3000)
+    rim = pts[rng.integers(0, 300, 3000)] + (r - 1e-9) * np.column_stack([np.cos(ang), np.sin(ang)])
+    q = np.vstack([rim, rng.uniform(-20.0, 60.0, (3000, 2))])
+    got, ok = idw(cKDTree(pts), z, q, k, r, 2.0, 1)
+    d = np.linalg.norm(q[:, None, :] - pts[None], axis=-1)
+    near = np.argsort(d, axis=1)[:, :k]
+    dn = np.take_along_axis(d, near, 1)
+    w = np.where(dn < r, dn**-2.0, 0.0)
+    want = (w * z[near]).sum(1) / np.where(w.sum(1) > 0, w.sum(1), np.nan)
+    assert ok.tolist() == (dn[:, 0] < r).tolist()
+    assert ok[:3000].all() and not ok.all()  # every rim row is in range; some rows are not
+    np.testing.assert_allclose(got[ok], want[ok], rtol=1e-12)
+    assert np.isnan(got[~ok]).all()
+
+
+@pytest.mark.parametrize("k", [3, 8, 13, 20])
+def test_neighbour_sums_by_whole_rows(k: int) -> None:
+    """The IDW's sums over neighbours held column-wise equal numpy's row sums (same order:
+    equal to the bit on the numpy it was checked with; the tolerance only guards against a
+    numpy that changes its summation order)."""
+    a = np.exp(np.random.default_rng(k).normal(0.0, 5.0, (1000, k)))
+    np.testing.assert_allclose(_column_sums(np.ascontiguousarray(a.T)), a.sum(1), rtol=1e-14)
 
 
 def _crossing() -> tuple[MTMPF, np.ndarray]:

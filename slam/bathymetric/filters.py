@@ -26,6 +26,12 @@ __all__ = [
 ]
 
 
+def _tree(points: np.ndarray) -> cKDTree:
+    """A KD-tree built each ping: sliding-midpoint splits, no node shrinking (half the build
+    time of scipy's defaults here; same neighbours, the queries as fast)."""
+    return cKDTree(points, balanced_tree=False, compact_nodes=False)
+
+
 def jitter_variance(t_r: int, cfg: BathyConfig) -> float:
     """sigma_m^2 of eq. (3): sigma_c^2 + A exp(-t_r / C), with A = 0 while t_r < B (A8)."""
     a = cfg.jitter_a if t_r >= cfg.jitter_b else 0.0
@@ -258,7 +264,7 @@ class MTMPF(BathyFilter):
         lo = max(t - cfg.t_p + 1, 0)
         sl = slice(None, None, cfg.pmap_beam_stride)
         pts = self.traj[lo : t + 1, None, :] + self.offsets[lo : t + 1, sl]
-        return cKDTree(pts.reshape(-1, 2)), self.depths[lo : t + 1, sl].reshape(-1)
+        return _tree(pts.reshape(-1, 2)), self.depths[lo : t + 1, sl].reshape(-1)
 
     def _mmap_index(self, tlp: np.ndarray, h: int) -> tuple[np.ndarray, np.ndarray]:
         """Swath indices (K, W) of each Mmap around ``tlp`` and their mask, clipped to < h (A25)."""
@@ -274,7 +280,7 @@ class MTMPF(BathyFilter):
         h = t - cfg.t_l  # historical centroids: times < t - t_l (Sec. III-C)
         if h < 2:
             return None, np.zeros(n, dtype=int)
-        d, tlp = cKDTree(self.traj[:h]).query(self.x)
+        d, tlp = _tree(self.traj[:h]).query(self.x)
         near = np.flatnonzero(d <= cfg.radius_m)  # overlap test
         self.matched[t] = len(near)
         if len(near) == 0:
@@ -299,17 +305,18 @@ class MTMPF(BathyFilter):
         querying the Mmap points shifted by ``-shift``: one tree serves every particle."""
         assert self.offsets is not None and self.depths is not None
         cfg = self.cfg
-        bsl = slice(None, None, cfg.mmap_beam_stride)
-        pts = traj[idx][:, :, None, :] + self.offsets[idx][:, :, bsl]  # (K, W, B', 2)
-        z_mm = self.depths[idx][:, :, bsl]
-        q = pts - shift[:, None, None, :]
+        bsl = slice(None, None, cfg.mmap_beam_stride)  # gather only the strided beams
+        q = self.offsets[:, bsl][idx]  # (K, W, B', 2), in place below: no temporaries
+        q += traj[idx][:, :, None, :]  # the Mmap points
+        q -= shift[:, None, None, :]
+        z_mm = self.depths[:, bsl][idx]
         z_pm, valid = idw(
             tree, z_p, q, cfg.idw_k, cfg.idw_radius_m, cfg.idw_power, cfg.idw_min_neighbours
         )
-        mask = np.broadcast_to(ok[:, :, None], valid.shape)
-        valid = (valid & mask).reshape(len(idx), -1)
-        n_m = mask.reshape(len(idx), -1).sum(1)
-        return z_pm.reshape(len(idx), -1), z_mm.reshape(len(idx), -1), valid, n_m
+        valid &= ok[:, :, None]
+        n_m = ok.sum(1) * q.shape[2]
+        k = len(idx)
+        return z_pm.reshape(k, -1), z_mm.reshape(k, -1), valid.reshape(k, -1), n_m
 
     def _crossing(self, w: np.ndarray | None, tlp: np.ndarray) -> None:
         """closure = "crossing" (ours): one loop closure per crossing. The weights of the
