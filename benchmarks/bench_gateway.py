@@ -128,6 +128,24 @@ def cpu_ticks(pid: int) -> int:
     return int(fields[11]) + int(fields[12])  # utime, stime (fields 14 and 15 of stat)
 
 
+#: a printed table's columns: (title, width); a negative width left-aligns (text columns)
+Columns = list[tuple[str, int]]
+
+
+def table_line(cols: Columns, cells: tuple[object, ...]) -> str:
+    """One line of a fixed-width table: each cell's ``str`` in its column's width."""
+    return " ".join(
+        f"{c!s:<{-w}}" if w < 0 else f"{c!s:>{w}}" for c, (_, w) in zip(cells, cols, strict=True)
+    )
+
+
+def print_head(cols: Columns) -> None:
+    """Print a table's titles and a rule under them (rows: :func:`table_line`)."""
+    head = table_line(cols, tuple(t for t, _ in cols))
+    print(head)
+    print("-" * len(head))
+
+
 def pct(values: list[float], q: float) -> float:
     if not values:
         return float("nan")
@@ -472,27 +490,22 @@ def print_all_devices(phases: list[AllPhase]) -> None:
         "\nAll five emulated devices (harbour scenario, auvgw sim --processes; INS CAN off, "
         f"see the docstring); machine load {os.getloadavg()[0]:.1f}\n"
     )
-    head = (
-        f"{'speed':>5} {'port':18} {'sent':>7} {'counted':>8} {'lost':>5} {'bad':>4} "
-        f"{'sim dropped B':>13}"
-    )
-    print(head)
-    print("-" * len(head))
+    cols = [("speed", 5), ("port", -18), ("sent", 7), ("counted", 8), ("lost", 5), ("bad", 4),
+            ("sim dropped B", 13)]  # fmt: skip
+    print_head(cols)
     for ph in phases:
         for r in ph.rows:
-            print(
-                f"{ph.speed:>4g}x {r.port:18} {r.sent:>7} {r.counted:>8} {r.lost:>5} "
-                f"{r.bad:>4} {r.dropped_bytes:>13}"
-            )
+            print(table_line(cols, (f"{ph.speed:g}x", r.port, r.sent, r.counted, r.lost, r.bad,
+                                    r.dropped_bytes)))  # fmt: skip
     print("\nPayload size per message on the bus (MessagePack envelope v3) against its raw frame")
     print("(CAN: several raw frames per decoded epoch), from the first phase's traffic:\n")
-    head = f"{'port':18} {'raw B/frame':>11} {'env B/msg':>10} {'env/raw':>8} {'env B/raw B':>11}"
-    print(head)
-    print("-" * len(head))
+    cols = [("port", -18), ("raw B/frame", 11), ("env B/msg", 10), ("env/raw", 8),
+            ("env B/raw B", 11)]  # fmt: skip
+    print_head(cols)
     for port, (nr, br, ne, be) in sorted(phases[0].sizes.items()) if phases else []:
         if nr and ne:
-            print(f"{port:18} {br / nr:>11.0f} {be / ne:>10.0f} {be / ne / (br / nr):>7.2f}x "
-                  f"{be / br:>10.2f}x")  # fmt: skip
+            print(table_line(cols, (port, f"{br / nr:.0f}", f"{be / ne:.0f}",
+                                    f"{be / ne / (br / nr):.2f}x", f"{be / br:.2f}x")))  # fmt: skip
     print()
     for ph in phases:
         lost = sum(r.lost for r in ph.rows)
@@ -635,26 +648,22 @@ def print_ins_can(phases: list[CanPhase], rates: dict[str, float]) -> None:
     )
     print("SLCAN reader alone, frames/s parsed from a pty: "
           + ", ".join(f"{k} {v:,.0f}" for k, v in rates.items()) + "\n")  # fmt: skip
-    head = (
-        f"{'speed':>5} {'frames/s':>8} {'epochs':>7} {'sent':>7} {'adapter drop':>12} "
-        f"{'received':>8} {'lost':>6} {'overrun flags':>13} {'lag s':>6} {'lag max s':>9} "
-        f"{'CPU %':>6} {'us/fr':>6} {'sender late':>11} {'closed':>6} {'outages':>7} "
-        f"{'pty drop B':>9} {'malformed':>9}"
-    )
-    print(head)
-    print("-" * len(head))
+    cols = [("speed", 5), ("frames/s", 8), ("epochs", 7), ("sent", 7), ("adapter drop", 12),
+            ("received", 8), ("lost", 6), ("overrun flags", 13), ("lag s", 6), ("lag max s", 9),
+            ("CPU %", 6), ("us/fr", 6), ("sender late", 11), ("closed", 6), ("outages", 7),
+            ("pty drop B", 9), ("malformed", 9)]  # fmt: skip
+    print_head(cols)
     for ph in phases:
         total = ph.epochs * 8
         lost = total - ph.received
         lag = "-" if ph.lag_s is None else f"{ph.lag_s:.3f}"
         lmax = "-" if ph.lag_max_s is None else f"{ph.lag_max_s:.3f}"
-        print(
-            f"{ph.speed:>4g}x {total / ph.seconds:>8.0f} {ph.epochs:>7} {ph.sent:>7} "
-            f"{ph.dropped:>12} {ph.received:>8} {lost:>6} {ph.overruns!s:>13} {lag:>6} "
-            f"{lmax:>9} {ph.cpu_pct:>6.1f} {1e6 * ph.cpu_s / max(ph.received, 1):>6.0f} "
-            f"{ph.sender_late_s:>11.3f} {ph.closed:>6} {ph.outages:>7} {ph.pty_dropped:>9} "
-            f"{ph.malformed:>9}"
-        )
+        print(table_line(cols, (
+            f"{ph.speed:g}x", f"{total / ph.seconds:.0f}", ph.epochs, ph.sent, ph.dropped,
+            ph.received, lost, ph.overruns, lag, lmax, f"{ph.cpu_pct:.1f}",
+            f"{1e6 * ph.cpu_s / max(ph.received, 1):.0f}", f"{ph.sender_late_s:.3f}", ph.closed,
+            ph.outages, ph.pty_dropped, ph.malformed,
+        )))  # fmt: skip
         if ph.last_error:
             print(f"      last error: {ph.last_error}")
     print(
@@ -750,15 +759,13 @@ def print_frame_path(devices: dict[str, list[bytes]]) -> None:
         "\nPer-frame path in one process (framer -> decode -> envelope), median us per frame; "
         f"warm: back to back; cold: 10 ms idle before each frame; load {os.getloadavg()[0]:.1f}\n"
     )
-    head = f"{'format':8} {'stage':10} {'warm us':>8} {'cold us':>8}"
-    print(head)
-    print("-" * len(head))
+    cols = [("format", -8), ("stage", -10), ("warm us", 8), ("cold us", 8)]
+    print_head(cols)
     for fmt_name, frames in devices.items():
         rows = frame_path(frames, fmt_name)
-        for stage, (warm, cold) in rows.items():
-            print(f"{fmt_name:8} {stage:10} {warm:8.1f} {cold:8.1f}")
-        total = [sum(v[i] for v in rows.values()) for i in (0, 1)]
-        print(f"{fmt_name:8} {'total':10} {total[0]:8.1f} {total[1]:8.1f}")
+        total = tuple(sum(v[i] for v in rows.values()) for i in (0, 1))
+        for stage, (warm, cold) in [*rows.items(), ("total", total)]:
+            print(table_line(cols, (fmt_name, stage, f"{warm:.1f}", f"{cold:.1f}")))
 
 
 def hn100_frames(n: int) -> list[bytes]:
@@ -864,18 +871,14 @@ def main() -> int:
             f"\nGateway benchmark, {fmt_name}: frames of {raw_b} B -> envelopes of {env_b} B "
             f"({env_b / raw_b:.2f}x); {seconds:g} s per phase; load {os.getloadavg()[0]:.1f}\n"
         )
-        head = (
-            f"{'phase':34} {'rate Hz':>7} {'sent':>5} {'lost':>5} {'p50 us':>7} {'p99 us':>8} "
-            f"{'read p50':>8} {'pub p50':>8} {'CPU %':>6}"
-        )
-        print(head)
-        print("-" * len(head))
+        cols = [("phase", -34), ("rate Hz", 7), ("sent", 5), ("lost", 5), ("p50 us", 7),
+                ("p99 us", 8), ("read p50", 8), ("pub p50", 8), ("CPU %", 6)]  # fmt: skip
+        print_head(cols)
         for r in rows:
-            print(
-                f"{r.name:34} {fmt(r.rate_hz, 'g'):>7} {r.sent:>5} {r.lost if r.sent else '-':>5} "
-                f"{fmt(r.p50_us):>7} {fmt(r.p99_us):>8} {fmt(r.read_p50_us):>8} "
-                f"{fmt(r.rest_p50_us):>8} {fmt(r.cpu_pct, '.1f'):>6}"
-            )
+            print(table_line(cols, (
+                r.name, fmt(r.rate_hz, "g"), r.sent, r.lost if r.sent else "-", fmt(r.p50_us),
+                fmt(r.p99_us), fmt(r.read_p50_us), fmt(r.rest_p50_us), fmt(r.cpu_pct, ".1f"),
+            )))  # fmt: skip
     print_frame_path(devices)
     print()
     for fmt_name, rows in results.items():
