@@ -39,7 +39,7 @@ import time
 from abc import ABC, abstractmethod
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
-from typing import Any, ClassVar, NoReturn, Self
+from typing import Any, ClassVar, Generic, NoReturn, Self, TypeVar
 
 import can
 import serial
@@ -158,12 +158,18 @@ def _hint(exc: BaseException, default: str) -> str:
     return default
 
 
-class Transport(Closing, ABC):
+#: the open device a transport holds (a pyserial port, a python-can bus, a socket, a file)
+H = TypeVar("H")
+
+
+class Transport(Closing, ABC, Generic[H]):
     """Bytes in and out of one device, with receive timestamps; no decoding.
 
     ``read`` returns one :class:`Chunk` or None when nothing arrived within ``timeout_s``
     (seconds; None waits indefinitely). Counters: ``chunks_read``, ``bytes_read``,
     ``bytes_written``. Opening an open transport and closing a closed one do nothing.
+    A subclass holds its open device in ``_handle`` (None: closed) and opens it in
+    :meth:`_open`.
     """
 
     kind: ClassVar[str]
@@ -172,6 +178,7 @@ class Transport(Closing, ABC):
         self.chunks_read = 0
         self.bytes_read = 0
         self.bytes_written = 0
+        self._handle: H | None = None
 
     @property
     @abstractmethod
@@ -179,13 +186,18 @@ class Transport(Closing, ABC):
         """The device path, URL, channel, address or file this transport uses."""
 
     @property
-    @abstractmethod
     def is_open(self) -> bool:
         """Whether the transport is open."""
+        return self._handle is not None
+
+    def open(self) -> None:
+        """Open the device (if closed); raises :class:`TransportOpenError` naming the port."""
+        if self._handle is None:
+            self._open()
 
     @abstractmethod
-    def open(self) -> None:
-        """Open the device; raises :class:`TransportOpenError` naming the port."""
+    def _open(self) -> None:
+        """Open the device and set ``_handle``; raises :class:`TransportOpenError`."""
 
     @abstractmethod
     def read(self, timeout_s: float | None) -> Chunk | None:
@@ -249,7 +261,7 @@ class Transport(Closing, ABC):
             raise ValueError(f"timeout_s must be >= 0 or None, got {timeout_s}")
 
 
-class SerialTransport(Transport):
+class SerialTransport(Transport[serial.SerialBase]):
     """A serial port or pyserial URL; each chunk is the bytes the OS had ready (up to
     ``max_chunk``).
 
@@ -263,7 +275,6 @@ class SerialTransport(Transport):
     def __init__(self, cfg: SerialTransportConfig) -> None:
         super().__init__()
         self.cfg = cfg
-        self._ser: serial.SerialBase | None = None
         self._fd: int | None = None
         self._socket_like = False
         self._posix = False
@@ -273,13 +284,7 @@ class SerialTransport(Transport):
     def port(self) -> str:
         return self.cfg.url
 
-    @property
-    def is_open(self) -> bool:
-        return self._ser is not None
-
-    def open(self) -> None:
-        if self._ser is not None:
-            return
+    def _open(self) -> None:
         c = self.cfg
         try:
             ser = serial.serial_for_url(
@@ -304,7 +309,7 @@ class SerialTransport(Transport):
         self._socket_like = isinstance(ser, protocol_socket.Serial)
         #: a local serial device or pty (pyserial's POSIX class, non-blocking fd): read directly
         self._posix = self._fd is not None and type(ser) is serial.Serial
-        self._ser = ser
+        self._handle = ser
         self._icount0 = self._icount()
 
     def _icount(self) -> tuple[int, ...] | None:
@@ -332,7 +337,7 @@ class SerialTransport(Transport):
 
     def read(self, timeout_s: float | None) -> Chunk | None:
         self._check_timeout(timeout_s)
-        ser = self._ser
+        ser = self._handle
         if ser is None:
             self._not_open()
         limit = self.cfg.max_chunk
@@ -376,7 +381,7 @@ class SerialTransport(Transport):
         return self._chunk(Chunk(bytes(data), t_recv))
 
     def write(self, data: bytes) -> None:
-        ser = self._ser
+        ser = self._handle
         if ser is None:
             self._not_open()
         try:
@@ -392,7 +397,7 @@ class SerialTransport(Transport):
         self.bytes_written += len(data)
 
     def close(self) -> None:
-        ser, self._ser, self._fd = self._ser, None, None
+        ser, self._handle, self._fd = self._handle, None, None
         if ser is not None:
             with contextlib.suppress(serial.SerialException, OSError):  # already gone
                 ser.close()
@@ -416,7 +421,7 @@ _CAN_HINTS = {
 }
 
 
-class CanTransport(Transport):
+class CanTransport(Transport[can.BusABC]):
     """A python-can bus; each chunk is one data frame with its id and the interface timestamp.
 
     Error and remote frames carry no payload and are skipped (counted in ``frames_skipped``).
@@ -429,20 +434,13 @@ class CanTransport(Transport):
     def __init__(self, cfg: CanTransportConfig) -> None:
         super().__init__()
         self.cfg = cfg
-        self._bus: can.BusABC | None = None
         self.frames_skipped = 0
 
     @property
     def port(self) -> str:
         return self.cfg.port
 
-    @property
-    def is_open(self) -> bool:
-        return self._bus is not None
-
-    def open(self) -> None:
-        if self._bus is not None:
-            return
+    def _open(self) -> None:
         c = self.cfg
         kwargs: dict[str, Any] = dict(c.options)
         kwargs["interface"] = c.interface
@@ -460,9 +458,9 @@ class CanTransport(Transport):
         try:
             if c.interface == "slcan":  # python-can's slcan, read in bulk (drivers/slcanbus.py)
                 del kwargs["interface"]
-                self._bus = BulkSlcanBus(**kwargs)
+                self._handle = BulkSlcanBus(**kwargs)
             else:
-                self._bus = can.Bus(**kwargs)
+                self._handle = can.Bus(**kwargs)
         except (can.CanError, OSError, ValueError, ImportError, serial.SerialException) as exc:
             hint = _CAN_HINTS.get(c.interface)
             if hint is None:
@@ -472,7 +470,7 @@ class CanTransport(Transport):
 
     def read(self, timeout_s: float | None) -> Chunk | None:
         self._check_timeout(timeout_s)
-        bus = self._bus
+        bus = self._handle
         if bus is None:
             self._not_open()
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
@@ -501,7 +499,7 @@ class CanTransport(Transport):
             )
 
     def losses(self) -> dict[str, int]:
-        bus = self._bus
+        bus = self._handle
         if not isinstance(bus, BulkSlcanBus):
             return {}
         # the reply is counted when read; a gone adapter shows on the next read
@@ -513,7 +511,7 @@ class CanTransport(Transport):
 
     def send_frame(self, can_id: int, data: bytes, *, is_extended_id: bool) -> None:
         """Send one frame; ``is_extended_id`` is required (29-bit when True, 11-bit when False)."""
-        bus = self._bus
+        bus = self._handle
         if bus is None:
             self._not_open()
         top = CAN_EXT_MAX if is_extended_id else CAN_STD_MAX
@@ -551,7 +549,7 @@ class CanTransport(Transport):
         self.send_frame(c.tx_id, data, is_extended_id=c.tx_extended)
 
     def close(self) -> None:
-        bus, self._bus = self._bus, None
+        bus, self._handle = self._handle, None
         if bus is not None:
             # an adapter already gone fails here (slcan writes 'C' on shutdown)
             with contextlib.suppress(can.CanError, OSError, serial.SerialException):
@@ -569,7 +567,7 @@ _ANC_SPACE = socket.CMSG_SPACE(4)
 _LINK_GONE = frozenset({errno.ENETDOWN, errno.ENETUNREACH, errno.EHOSTUNREACH, errno.ENODEV})
 
 
-class UdpTransport(Transport):
+class UdpTransport(Transport[socket.socket]):
     """A UDP socket bound to ``host:port``; one datagram per chunk (boundaries preserved).
 
     With ``multicast_group`` it joins that IPv4 group on ``multicast_interface``. ``write`` sends
@@ -583,7 +581,6 @@ class UdpTransport(Transport):
     def __init__(self, cfg: UdpTransportConfig) -> None:
         super().__init__()
         self.cfg = cfg
-        self._sock: socket.socket | None = None
         self.last_sender: tuple[str, int] | None = None
         #: datagrams (and their bytes) dropped because their sender is not allowed
         self.rejected_datagrams = 0
@@ -599,20 +596,14 @@ class UdpTransport(Transport):
         return f"{self.cfg.host}:{self.cfg.port}"
 
     @property
-    def is_open(self) -> bool:
-        return self._sock is not None
-
-    @property
     def local_address(self) -> tuple[str, int]:
         """The bound (host, port); shows the real port when ``port = 0``."""
-        if self._sock is None:
+        if self._handle is None:
             self._not_open()
-        host, port = self._sock.getsockname()[:2]
+        host, port = self._handle.getsockname()[:2]
         return host, port
 
-    def open(self) -> None:
-        if self._sock is not None:
-            return
+    def _open(self) -> None:
         c = self.cfg
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
@@ -648,11 +639,11 @@ class UdpTransport(Transport):
             raise TransportOpenError(
                 self._name(), f"cannot open: cannot resolve an allowed sender ({exc})"
             ) from exc
-        self._sock = sock
+        self._handle = sock
 
     def read(self, timeout_s: float | None) -> Chunk | None:
         self._check_timeout(timeout_s)
-        sock = self._sock
+        sock = self._handle
         if sock is None:
             self._not_open()
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
@@ -683,7 +674,7 @@ class UdpTransport(Transport):
 
     def write(self, data: bytes) -> None:
         """Send ``data`` as one datagram."""
-        sock = self._sock
+        sock = self._handle
         if sock is None:
             self._not_open()
         c = self.cfg
@@ -708,13 +699,13 @@ class UdpTransport(Transport):
         self.bytes_written += len(data)
 
     def close(self) -> None:
-        sock, self._sock = self._sock, None
+        sock, self._handle = self._handle, None
         if sock is not None:
             sock.close()
 
     def describe(self) -> str:
         out = self.cfg.describe()
-        if self._sock is not None and self.cfg.port == 0:
+        if self._handle is not None and self.cfg.port == 0:
             out += f" (bound port {self.local_address[1]})"
         return out
 
@@ -758,7 +749,7 @@ def replay_schedule(
     return out
 
 
-class FileReplayTransport(Transport):
+class FileReplayTransport(Transport[io.BufferedReader]):
     """A capture file of raw bytes replayed as chunks; see :class:`FileTransportConfig`.
 
     Unpaced, each read returns the next ``chunk_size`` bytes at once. Paced, a chunk is held
@@ -775,7 +766,6 @@ class FileReplayTransport(Transport):
         self.cfg = cfg
         self.bytes_per_s = cfg.bytes_per_s
         self.chunk_size = cfg.chunk_bytes
-        self._f: io.BufferedReader | None = None
         self._pending: bytes | None = None
         self._delivered = 0
         self._t0_ns = 0
@@ -786,13 +776,7 @@ class FileReplayTransport(Transport):
     def port(self) -> str:
         return str(self.cfg.path)
 
-    @property
-    def is_open(self) -> bool:
-        return self._f is not None
-
-    def open(self) -> None:
-        if self._f is not None:
-            return
+    def _open(self) -> None:
         path = self.cfg.path
         try:
             f = open(path, "rb")  # noqa: SIM115 - held open across reads, closed by close()
@@ -808,7 +792,7 @@ class FileReplayTransport(Transport):
         if size == 0 and self.cfg.loop:
             f.close()
             raise TransportOpenError(self._name(), "cannot loop an empty file")
-        self._f = f
+        self._handle = f
         self._pending = None
         self._delivered = 0
         self.loops = 0
@@ -828,7 +812,7 @@ class FileReplayTransport(Transport):
 
     def read(self, timeout_s: float | None) -> Chunk | None:
         self._check_timeout(timeout_s)
-        f = self._f
+        f = self._handle
         if f is None:
             self._not_open()
         if self._pending is None:
@@ -848,12 +832,12 @@ class FileReplayTransport(Transport):
 
     def write(self, data: bytes) -> None:
         """Discard ``data`` (a replay has no device to answer); counted in bytes_discarded."""
-        if self._f is None:
+        if self._handle is None:
             self._not_open()
         self.bytes_discarded += len(data)
 
     def close(self) -> None:
-        f, self._f = self._f, None
+        f, self._handle = self._handle, None
         if f is not None:
             f.close()
 
@@ -861,7 +845,7 @@ class FileReplayTransport(Transport):
         return self.cfg.describe()
 
 
-_KINDS: dict[type, type[Transport]] = {
+_KINDS: dict[type, type[Transport[Any]]] = {
     SerialTransportConfig: SerialTransport,
     CanTransportConfig: CanTransport,
     UdpTransportConfig: UdpTransport,
@@ -869,7 +853,7 @@ _KINDS: dict[type, type[Transport]] = {
 }
 
 
-def make_transport(cfg: TransportConfig | Mapping[str, Any]) -> Transport:
+def make_transport(cfg: TransportConfig | Mapping[str, Any]) -> Transport[Any]:
     """The transport for a config model or mapping, not yet opened (for reconnect loops)."""
     if isinstance(cfg, Mapping):
         cfg = parse_transport_config(cfg)
@@ -880,7 +864,7 @@ def make_transport(cfg: TransportConfig | Mapping[str, Any]) -> Transport:
     return cls(cfg)  # type: ignore[call-arg]  # each kind takes its own config
 
 
-def open_transport(cfg: TransportConfig | Mapping[str, Any]) -> Transport:
+def open_transport(cfg: TransportConfig | Mapping[str, Any]) -> Transport[Any]:
     """Build and open the transport a config describes; raises :class:`TransportOpenError`."""
     t = make_transport(cfg)
     t.open()

@@ -144,7 +144,7 @@ def test_one_bad_udp_datagram_costs_that_datagram_only() -> None:
     tr = make_transport(UdpTransportConfig(kind="udp", host="127.0.0.1", port=0))
     tr.open()
     try:
-        port = tr._sock.getsockname()[1]  # type: ignore[attr-defined]
+        port = tr.local_address[1]
         dec = DeviceDecoder("mbes", get_format("kongsberg"), datagrams=True)
         assert dec.datagrams
         wire = [good[0], bad, *good[1:]]

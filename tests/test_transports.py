@@ -338,7 +338,8 @@ def test_udp_remote_and_port_in_use():
         "receive_buffer_bytes": 65536,
     }
     with open_transport(cfg) as t:
-        assert t._sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF) >= 65536
+        assert t._handle is not None
+        assert t._handle.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF) >= 65536
         t.write(b"hello")
         assert rx.recv(100) == b"hello" and t.bytes_written == 5
         port = t.local_address[1]
