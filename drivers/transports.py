@@ -207,9 +207,15 @@ class Transport(Closing, ABC, Generic[H]):
     def write(self, data: bytes) -> None:
         """Send bytes to the device."""
 
-    @abstractmethod
     def close(self) -> None:
         """Release the device; safe to call more than once and after :class:`Disconnected`."""
+        handle, self._handle = self._handle, None
+        if handle is not None:
+            self._release(handle)
+
+    @abstractmethod
+    def _release(self, handle: H) -> None:
+        """Close the device :meth:`close` took from ``_handle``."""
 
     @abstractmethod
     def describe(self) -> str:
@@ -229,8 +235,11 @@ class Transport(Closing, ABC, Generic[H]):
     def _name(self) -> str:
         return f"{self.kind} {self.port}"
 
-    def _not_open(self) -> NoReturn:
-        raise TransportError(self._name(), "not open; call open() first")
+    def _device(self) -> H:
+        """The open device; raises :class:`TransportError` if the transport is closed."""
+        if self._handle is None:
+            raise TransportError(self._name(), "not open; call open() first")
+        return self._handle
 
     def _gone(self, exc: BaseException) -> NoReturn:
         self.close()
@@ -337,9 +346,7 @@ class SerialTransport(Transport[serial.SerialBase]):
 
     def read(self, timeout_s: float | None) -> Chunk | None:
         self._check_timeout(timeout_s)
-        ser = self._handle
-        if ser is None:
-            self._not_open()
+        ser = self._device()
         limit = self.cfg.max_chunk
         try:
             if self._fd is not None:
@@ -381,9 +388,7 @@ class SerialTransport(Transport[serial.SerialBase]):
         return self._chunk(Chunk(bytes(data), t_recv))
 
     def write(self, data: bytes) -> None:
-        ser = self._handle
-        if ser is None:
-            self._not_open()
+        ser = self._device()
         try:
             ser.write(data)
         except serial.SerialTimeoutException as exc:
@@ -396,11 +401,10 @@ class SerialTransport(Transport[serial.SerialBase]):
             self._gone(exc)
         self.bytes_written += len(data)
 
-    def close(self) -> None:
-        ser, self._handle, self._fd = self._handle, None, None
-        if ser is not None:
-            with contextlib.suppress(serial.SerialException, OSError):  # already gone
-                ser.close()
+    def _release(self, handle: serial.SerialBase) -> None:
+        self._fd = None
+        with contextlib.suppress(serial.SerialException, OSError):  # already gone
+            handle.close()
 
     def describe(self) -> str:
         return self.cfg.describe()
@@ -470,9 +474,7 @@ class CanTransport(Transport[can.BusABC]):
 
     def read(self, timeout_s: float | None) -> Chunk | None:
         self._check_timeout(timeout_s)
-        bus = self._handle
-        if bus is None:
-            self._not_open()
+        bus = self._device()
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
         while True:
             left = None if deadline is None else max(0.0, deadline - time.monotonic())
@@ -511,9 +513,7 @@ class CanTransport(Transport[can.BusABC]):
 
     def send_frame(self, can_id: int, data: bytes, *, is_extended_id: bool) -> None:
         """Send one frame; ``is_extended_id`` is required (29-bit when True, 11-bit when False)."""
-        bus = self._handle
-        if bus is None:
-            self._not_open()
+        bus = self._device()
         top = CAN_EXT_MAX if is_extended_id else CAN_STD_MAX
         if not 0 <= can_id <= top:
             kind = "extended 29-bit" if is_extended_id else "standard 11-bit"
@@ -548,12 +548,10 @@ class CanTransport(Transport[can.BusABC]):
             )
         self.send_frame(c.tx_id, data, is_extended_id=c.tx_extended)
 
-    def close(self) -> None:
-        bus, self._handle = self._handle, None
-        if bus is not None:
-            # an adapter already gone fails here (slcan writes 'C' on shutdown)
-            with contextlib.suppress(can.CanError, OSError, serial.SerialException):
-                bus.shutdown()
+    def _release(self, handle: can.BusABC) -> None:
+        # an adapter already gone fails here (slcan writes 'C' on shutdown)
+        with contextlib.suppress(can.CanError, OSError, serial.SerialException):
+            handle.shutdown()
 
     def describe(self) -> str:
         return self.cfg.describe()
@@ -598,9 +596,7 @@ class UdpTransport(Transport[socket.socket]):
     @property
     def local_address(self) -> tuple[str, int]:
         """The bound (host, port); shows the real port when ``port = 0``."""
-        if self._handle is None:
-            self._not_open()
-        host, port = self._handle.getsockname()[:2]
+        host, port = self._device().getsockname()[:2]
         return host, port
 
     def _open(self) -> None:
@@ -643,9 +639,7 @@ class UdpTransport(Transport[socket.socket]):
 
     def read(self, timeout_s: float | None) -> Chunk | None:
         self._check_timeout(timeout_s)
-        sock = self._handle
-        if sock is None:
-            self._not_open()
+        sock = self._device()
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
         while True:
             left = None if deadline is None else deadline - time.monotonic()
@@ -674,9 +668,7 @@ class UdpTransport(Transport[socket.socket]):
 
     def write(self, data: bytes) -> None:
         """Send ``data`` as one datagram."""
-        sock = self._handle
-        if sock is None:
-            self._not_open()
+        sock = self._device()
         c = self.cfg
         if c.remote_host is not None and c.remote_port is not None:
             target: tuple[str, int] = (c.remote_host, c.remote_port)
@@ -698,10 +690,8 @@ class UdpTransport(Transport[socket.socket]):
             ) from exc
         self.bytes_written += len(data)
 
-    def close(self) -> None:
-        sock, self._handle = self._handle, None
-        if sock is not None:
-            sock.close()
+    def _release(self, handle: socket.socket) -> None:
+        handle.close()
 
     def describe(self) -> str:
         out = self.cfg.describe()
@@ -812,9 +802,7 @@ class FileReplayTransport(Transport[io.BufferedReader]):
 
     def read(self, timeout_s: float | None) -> Chunk | None:
         self._check_timeout(timeout_s)
-        f = self._handle
-        if f is None:
-            self._not_open()
+        f = self._device()
         if self._pending is None:
             self._pending = self._next_block(f)
         data = self._pending
@@ -832,14 +820,11 @@ class FileReplayTransport(Transport[io.BufferedReader]):
 
     def write(self, data: bytes) -> None:
         """Discard ``data`` (a replay has no device to answer); counted in bytes_discarded."""
-        if self._handle is None:
-            self._not_open()
+        self._device()  # raises if closed
         self.bytes_discarded += len(data)
 
-    def close(self) -> None:
-        f, self._handle = self._handle, None
-        if f is not None:
-            f.close()
+    def _release(self, handle: io.BufferedReader) -> None:
+        handle.close()
 
     def describe(self) -> str:
         return self.cfg.describe()
