@@ -41,6 +41,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -213,8 +214,8 @@ def _sim_done(sim: subprocess.Popen[bytes], sim_dir: Path) -> bool:
 
 
 def _wait_drained(frames: Callable[[], int], quiet_s: float = 0.5, limit_s: float = 10.0) -> None:
-    """Wait until the gateway's frame count has not moved for ``quiet_s`` (the last frames
-    read from the held-open ports), at most ``limit_s``."""
+    """Wait until a count has not moved for ``quiet_s``, at most ``limit_s``: the gateway's
+    frames (the last read from the held-open ports) or a stage's received messages."""
     last, since, end = frames(), time.monotonic(), time.monotonic() + limit_s
     while time.monotonic() < end and time.monotonic() - since < quiet_s:
         time.sleep(0.05)
@@ -566,6 +567,11 @@ class _Collector:
         with self.lock:
             self.status[component] = json.loads(sample.payload.to_bytes())
 
+    def received(self, component: str) -> int:
+        """Bus messages ``component`` (a stage) has counted as received, by its last status."""
+        with self.lock:
+            return int((self.status.get(component) or {}).get("stage", {}).get("received", 0))
+
     def close(self) -> None:
         from auvgw.bus import undeclare
 
@@ -741,13 +747,19 @@ def _run_processes(
             progress.tick()
         tail.poll()
         # the devices are silent, their ports still open: the gateway drains them; then stop in
-        # data-flow order: gateway, fusion (flushes its held-back odometry), SLAM (drains its
-        # queue, publishes its last pose), and the emulators last
+        # data-flow order: gateway, fusion (flushes its held-back odometry), SLAM once what they
+        # put has reached it (its received count quiet for two status periods; a loaded machine
+        # holds samples in flight for seconds), which drains its queue and publishes its last
+        # pose, and the emulators last
         _wait_drained(lambda: sum(d.get("frames", 0) for d in
                                   (sub.status(timeout=2.0) or {"devices": {}})["devices"].values()),
                       quiet_s=1.5)  # fmt: skip
         status = sub.status(timeout=2.0) or collector.status.get("gateway") or {"devices": {}}
-        for name in ("gateway", "fusion", "slam", "sim"):
+        for name in ("gateway", "fusion"):
+            children.stop(name)
+        if slam_part is not None:
+            _wait_drained(partial(collector.received, slam_part[1]), quiet_s=2.5, limit_s=20.0)
+        for name in ("slam", "sim"):
             children.stop(name)
         collector.wait_stopped(["fusion", *([slam_part[1]] if slam_part else [])], map_tap)
     finally:
