@@ -344,10 +344,8 @@ class Gateway:
                     )
                     for msg, type_name in zip(item.messages, types, strict=True)
                 ]
-            except Exception:  # the raw frame goes out whatever its envelope does
+            finally:  # the raw frame goes out whatever its envelope does
                 raw_pub.put(item.raw, attachment=attachment)
-                raise
-            raw_pub.put(item.raw, attachment=attachment)
             for kind, (payload, enc) in samples:
                 self._sensor_pub(dev, kind).put(payload, encoding=enc)
             if item.error is not None:
