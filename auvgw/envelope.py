@@ -237,23 +237,14 @@ def _wire_coders(w: Wire) -> tuple[Callable[[Any, bool], Any] | None, Callable[[
         lo, hi = int(info.min), int(info.max)
 
         def enc_scalar(v: Any, t: bool) -> Any:
-            if type(v) is float:  # the codec's output: the common case first
-                try:
-                    raw = round((v - add) / scale)
-                except (ValueError, OverflowError):  # NaN, +-inf
-                    if v != v:
-                        return invalid if invalid is not None else _F32_NAN
-                    return _enc_float(v)
-                if raw * scale + add == v and lo <= raw <= hi and raw != invalid:
-                    return raw
-                return _enc_float(v)
             if v is None or type(v) is bool:
                 return v
-            if v != v:
-                return invalid if invalid is not None else _F32_NAN
-            if v in (math.inf, -math.inf):
-                return _enc_float(v)
-            raw = round((v - add) / scale)
+            try:
+                raw = round((v - add) / scale)
+            except (ValueError, OverflowError):  # NaN, +-inf (Python's and numpy's floats)
+                if v != v:
+                    return invalid if invalid is not None else _F32_NAN
+                return _enc_float(float(v))
             if raw * scale + add == v and lo <= raw <= hi and raw != invalid:
                 return raw
             return _enc_float(float(v))
