@@ -26,7 +26,6 @@ from auvgw.config.scenario import Scenario
 from auvgw.sim_devices.world import World
 from auvgw.slam.bathymetric.config import BathyConfig
 from auvgw.slam.bathymetric.filters import MTMPF, mode_weights, no_match_weight
-from auvgw.slam.bathymetric.matching import match_weights
 from auvgw.slam.bathymetric.simulate import simulate_survey
 
 
@@ -46,23 +45,13 @@ class Probe(MTMPF):
 
     def raw_weights(self, x: np.ndarray) -> np.ndarray:
         """log of the un-normalised matched weight at positions ``x`` (G, 2) this ping, with the
-        filter's own matching (log(1/N) for positions outside R or gated out)."""
-        cfg, t, n = self.cfg, self.t, self.cfg.n_particles
-        h = t - cfg.t_l
-        w0 = no_match_weight(n, cfg)
-        out = np.full(len(x), np.log(w0))
-        if h < 2:
-            return out
-        d, tlp = cKDTree(self.traj[:h]).query(x)
-        near = np.flatnonzero(d <= cfg.radius_m)
-        if len(near) == 0:
-            return out
-        tree, z_p = self._submap()
-        v = x[near] - self.traj[t]
-        idx, ok = self._mmap_index(tlp[near], h)
-        z_pm, z_mm, valid, n_m = self._mmap_vs_pmap(tree, z_p, idx, ok, v, self.traj)
-        w_m, gate, _ = match_weights(z_pm, z_mm, valid, n_m, cfg, fallback=w0)
-        out[near[gate]] = np.log(np.maximum(w_m[gate], 1e-300))
+        filter's own matching (:meth:`MTMPF.match`; the no-match weight for positions outside R
+        or gated out)."""
+        out = np.full(len(x), np.log(no_match_weight(self.cfg.n_particles, self.cfg)))
+        m = self.match(x)
+        if m is not None:
+            _, near, w_m, gate = m
+            out[near[gate]] = np.log(np.maximum(w_m[gate], 1e-300))
         return out
 
     def _x_star(self, t_loop: int) -> np.ndarray:

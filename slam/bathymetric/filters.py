@@ -276,21 +276,38 @@ class MTMPF(BathyFilter):
 
     def weights(self) -> tuple[np.ndarray | None, np.ndarray]:
         """Normalised weights (None: no particle overlaps the map) and each particle's t_lp."""
-        cfg, t, n = self.cfg, self.t, self.cfg.n_particles
-        h = t - cfg.t_l  # historical centroids: times < t - t_l (Sec. III-C)
-        if h < 2:
+        cfg, n = self.cfg, self.cfg.n_particles
+        m = self.match(self.x)
+        if m is None:
             return None, np.zeros(n, dtype=int)
-        d, tlp = _tree(self.traj[:h]).query(self.x)
-        near = np.flatnonzero(d <= cfg.radius_m)  # overlap test
-        self.matched[t] = len(near)
+        tlp, near, w_m, gate = m
+        self.matched[self.t] = len(near)
         if len(near) == 0:
             return None, tlp
+        return fill_weights(n, near[gate], w_m[gate], cfg, bad=near[~gate]), tlp
+
+    def match(
+        self, x: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+        """The submap match of this ping at positions ``x`` (G, 2) (m, NED; the particles, or
+        any offsets a diagnosis probes): each position's t_lp, the indices of those within R of
+        the old track (overlap test), their un-normalised weights (eqs. 4-12) and which of them
+        pass the gates; None while there is no history (times < t - t_l) to match."""
+        cfg, t = self.cfg, self.t
+        h = t - cfg.t_l  # historical centroids: times < t - t_l (Sec. III-C)
+        if h < 2:
+            return None
+        d, tlp = _tree(self.traj[:h]).query(x)
+        near = np.flatnonzero(d <= cfg.radius_m)  # overlap test
+        if len(near) == 0:
+            return tlp, near, np.zeros(0), np.zeros(0, dtype=bool)
         tree, z_p = self._submap()
-        v = self.x[near] - self.traj[t]  # V_ec, eq. (5)
+        v = x[near] - self.traj[t]  # V_ec, eq. (5)
         idx, ok = self._mmap_index(tlp[near], h)
         z_pm, z_mm, valid, n_m = self._mmap_vs_pmap(tree, z_p, idx, ok, v, self.traj)
-        w_m, gate, _ = match_weights(z_pm, z_mm, valid, n_m, cfg, fallback=no_match_weight(n, cfg))
-        return fill_weights(n, near[gate], w_m[gate], cfg, bad=near[~gate]), tlp
+        w0 = no_match_weight(cfg.n_particles, cfg)
+        w_m, gate, _ = match_weights(z_pm, z_mm, valid, n_m, cfg, fallback=w0)
+        return tlp, near, w_m, gate
 
     def _mmap_vs_pmap(
         self,
