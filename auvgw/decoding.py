@@ -143,19 +143,21 @@ class DeviceDecoder:
             c.frames + s.frames, bad, c.skipped_bytes + s.skipped_bytes, self._reasons
         )
 
-    def decode_raw(self, raw: bytes) -> tuple[Any, ...]:
-        """Messages of one raw frame as published on the bus (raises on undecodable content)."""
+    def decode_raw(self, raw: bytes, verified: bool = False) -> tuple[Any, ...]:
+        """Messages of one raw frame as published on the bus (raises on undecodable content);
+        ``verified``: the frame came out of this decoder's framer, its checksum is not checked
+        again (replay and offline tools leave it False: their bytes are checked)."""
         if self.can is not None:
             can_id, ext, data = unpack_can_raw(raw)
             msg = self.can.decode(can_id, data, is_extended_id=ext)
             return () if msg is None else (msg,)
         assert self.format is not None
-        return tuple(self.format.decode(raw))
+        return tuple(self.format.decode_frame(raw, verified))
 
-    def item(self, raw: bytes, offset: int = 0) -> DecodedItem:
+    def item(self, raw: bytes, offset: int = 0, verified: bool = False) -> DecodedItem:
         """Decode one raw frame; an error (any exception of the codec) becomes the item's text."""
         try:
-            return DecodedItem(raw, offset, self.decode_raw(raw))
+            return DecodedItem(raw, offset, self.decode_raw(raw, verified))
         except Exception as exc:  # a codec failing on odd content must not stop the device
             where = f"frame at byte offset {offset}" if self.can is None else "CAN frame"
             return DecodedItem(
@@ -173,7 +175,7 @@ class DeviceDecoder:
             frames = self._framer.feed_datagram(chunk.data)
         else:
             frames = self._framer.feed(chunk.data, time.monotonic())
-        return [self.item(f.data, f.offset) for f in frames]
+        return [self.item(f.data, f.offset, True) for f in frames]
 
     def has_stale(self, now: float) -> bool:
         """A partial frame has waited more than ``max_age`` (host monotonic seconds ``now``)."""
@@ -188,13 +190,13 @@ class DeviceDecoder:
         if self._framer is None or self.max_partial_age_s is None:
             return []
         frames = self._framer.expire(now, self.max_partial_age_s)
-        return [self.item(f.data, f.offset) for f in frames]
+        return [self.item(f.data, f.offset, True) for f in frames]
 
     def finish(self) -> list[DecodedItem]:
         """End of a finite stream: judge the bytes left (an incomplete frame is a bad frame)."""
         if self._framer is None:
             return []
-        return [self.item(f.data, f.offset) for f in self._framer.finish()]
+        return [self.item(f.data, f.offset, True) for f in self._framer.finish()]
 
 
 def make_decoder(cfg: DeviceConfig, name: str = "") -> DeviceDecoder:

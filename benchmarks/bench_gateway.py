@@ -744,7 +744,7 @@ def frame_path(frames: list[bytes], fmt_name: str, n: int = 150) -> dict[str, tu
             t0 = time.perf_counter_ns()
             (frame,) = framer.feed(frames[i % len(frames)], 0.0)
             t1 = time.perf_counter_ns()
-            (msg,) = fmt.decode(frame.data)
+            (msg,) = fmt.decode_frame(frame.data, verified=True)  # as the gateway does
             t2 = time.perf_counter_ns()
             encode_envelope(msg, "dvl", t0, i, wire=fmt_name, decoded=True)
             t3 = time.perf_counter_ns()

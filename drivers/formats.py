@@ -28,6 +28,9 @@ class Format:
     field and offset when the content is inconsistent); ``encode(message)`` gives the bytes back.
     ``read_file`` overrides the default chunked framing of a file (container formats such as
     ``.V4LOG`` whose records wrap the frames); it returns the frames and the framer that counted.
+    ``decode_verified(frame_bytes)`` (None: ``decode``) decodes a frame its own framer has just
+    delivered, without checking its checksum a second time (:meth:`decode_frame`); ``decode``
+    alone stays safe on any bytes.
     """
 
     name: str
@@ -36,6 +39,14 @@ class Format:
     decode: Callable[[bytes], Sequence[Any]]
     encode: Callable[[Any], bytes] | None = None
     read_file: Callable[..., tuple[Iterator[Frame], Framer]] | None = None
+    decode_verified: Callable[[bytes], Sequence[Any]] | None = None
+
+    def decode_frame(self, frame: bytes, verified: bool = False) -> Sequence[Any]:
+        """``decode(frame)``; with ``verified`` (the frame came out of this format's framer,
+        checksum checked there) through ``decode_verified`` where the format has one."""
+        if verified and self.decode_verified is not None:
+            return self.decode_verified(frame)
+        return self.decode(frame)
 
     @classmethod
     def one_per_frame(
@@ -43,22 +54,34 @@ class Format:
         name: str,
         summary: str,
         framer: Callable[..., Framer],
-        decode: Callable[[bytes], Any],
+        decode: Callable[..., Any],
         encode: Callable[[Any], bytes],
+        skips_checksum: bool = False,
     ) -> Format:
-        """The format of a codec whose ``decode(frame)`` gives one message per frame."""
-        return cls(name, summary, framer, lambda frame: [decode(frame)], encode)
+        """The format of a codec whose ``decode(frame)`` gives one message per frame;
+        ``skips_checksum``: its ``decode(frame, verified=True)`` trusts the framer's checksum."""
+        return cls(
+            name, summary, framer, lambda frame: [decode(frame)], encode,
+            decode_verified=(lambda frame: [decode(frame, verified=True)]) if skips_checksum
+            else None,
+        )  # fmt: skip
 
     @classmethod
-    def of_codec(cls, name: str, summary: str, codec: Callable[[], Any]) -> Format:
+    def of_codec(
+        cls, name: str, summary: str, codec: Callable[[], Any], skips_checksum: bool = False
+    ) -> Format:
         """The format of a table-driven codec (one message per frame): framer, decode and
-        encode from ``codec()``, called at each use (so the table is read on first use)."""
+        encode from ``codec()``, called at each use (so the table is read on first use);
+        ``skips_checksum`` as in :meth:`one_per_frame`."""
         return cls(
             name=name,
             summary=summary,
             framer=lambda *a, **k: codec().framer(*a, **k),
             decode=lambda frame: [codec().decode(frame)],
             encode=lambda m: codec().encode(m),
+            decode_verified=(lambda frame: [codec().decode(frame, verified=True)])
+            if skips_checksum
+            else None,
         )
 
     def frames_of_file(
@@ -90,4 +113,7 @@ def format_from_table(name: str, table: str | Path) -> Format:
         raise KeyError(f"format {name!r} has no replaceable table (only {known})")
     codec = registry.load(dev.table_codec).from_toml(table)
     base = get_format(name)
-    return Format.of_codec(name, f"{base.summary} [table {table}]", lambda: codec)
+    return Format.of_codec(
+        name, f"{base.summary} [table {table}]", lambda: codec,
+        skips_checksum=base.decode_verified is not None,
+    )  # fmt: skip

@@ -96,4 +96,5 @@ FORMAT = Format.of_codec(
     "hn100",
     "an HN-100 INS binary capture (auvgw assumed layout, config/hn100.toml)",
     default_codec,
+    skips_checksum=True,
 )

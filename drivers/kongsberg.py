@@ -630,20 +630,22 @@ def _decode_depth(frame: bytes) -> Depth:
     return decode_block(Depth, frame, beams=beams, trailer=trailer)
 
 
-def decode(frame: bytes | bytearray | memoryview) -> list[Any]:
+def decode(frame: bytes | bytearray | memoryview, verified: bool = False) -> list[Any]:
     """One datagram (from its length field to its checksum) -> [message].
 
     XYZ 88 and Depth decode to :class:`XYZ88` and :class:`Depth`; every other type to
     :class:`KongsbergDatagram`. The checksum is verified here too, so the function is safe on
-    bytes that did not come through :class:`KongsbergFramer`. Raises
-    :class:`~auvgw.drivers.framing.DecodeError` naming the field and byte offset.
+    bytes that did not come through :class:`KongsbergFramer`, unless ``verified`` says that
+    framer has just checked it. Raises :class:`~auvgw.drivers.framing.DecodeError` naming the
+    field and byte offset.
     """
     data = bytes(frame)
     _structure(data)
-    (want,) = struct.unpack_from("<H", data, len(data) - 2)
-    got = checksum(data)
-    if got != want:
-        raise DecodeError(f"checksum 0x{got:04x} computed, 0x{want:04x} on the wire")
+    if not verified:
+        (want,) = struct.unpack_from("<H", data, len(data) - 2)
+        got = checksum(data)
+        if got != want:
+            raise DecodeError(f"checksum 0x{got:04x} computed, 0x{want:04x} on the wire")
     kind = data[5]
     try:
         if kind == XYZ88_ID:
@@ -880,4 +882,5 @@ FORMAT = Format(
     framer=KongsbergFramer,
     decode=decode,
     encode=encode,
+    decode_verified=lambda frame: decode(frame, verified=True),
 )

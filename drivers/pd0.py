@@ -1073,15 +1073,17 @@ def _verify_checksum(frame: bytes, nbytes: int) -> None:
         raise DecodeError(f"PD0 checksum at byte {nbytes}: stored 0x{stored:04X} does not match")
 
 
-def decode(frame: bytes | bytearray | memoryview) -> Ensemble:
+def decode(frame: bytes | bytearray | memoryview, verified: bool = False) -> Ensemble:
     """Decode one whole PD0 ensemble (sync to checksum) into an :class:`Ensemble`.
 
     Raises :class:`DecodeError` naming the data type, field and byte offset when the content is
     inconsistent (length, checksum, offsets outside the ensemble, blocks too short).
+    ``verified``: :class:`Pd0Framer` has just checked this frame's checksum (not checked again).
     """
     frame = bytes(frame)
     tpl = _template(frame)
-    _verify_checksum(frame, tpl.nbytes)
+    if not verified:
+        _verify_checksum(frame, tpl.nbytes)
     return tpl.decode(frame)
 
 
@@ -1248,4 +1250,5 @@ FORMAT = Format.one_per_frame(
     Pd0Framer,
     decode,
     encode,
+    skips_checksum=True,
 )

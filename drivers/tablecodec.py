@@ -927,9 +927,11 @@ class BinaryFrameCodec(TableCodec[BinaryFrameSpec, BinaryFrameFramer]):
         except BadFrame as exc:
             raise DecodeError(f"{self.name}: {exc.reason}") from None
 
-    def decode(self, frame: bytes | bytearray | memoryview) -> Any:
-        """The message in ``frame`` (one whole frame, checksum verified), SI units."""
-        self.verify(frame)
+    def decode(self, frame: bytes | bytearray | memoryview, verified: bool = False) -> Any:
+        """The message in ``frame`` (one whole frame, checksum verified), SI units;
+        ``verified``: this codec's framer has just checked size, sync and checksum."""
+        if not verified:
+            self.verify(frame)
         return decode_block(self.message_type, frame)
 
     def encode(self, msg: Any) -> bytes:

@@ -7,7 +7,9 @@ being registered and giving its sample frames in tests/support/format_samples.py
   come through;
 * resync at sync + 1: a truncated frame whose length claim swallows the next frames costs
   itself only;
-* chunking invariance: any chunking of a stream gives the same frames, offsets and counters.
+* chunking invariance: any chunking of a stream gives the same frames, offsets and counters;
+* checksum once: a frame its framer delivered decodes the same without a second checksum
+  (``decode_frame(b, verified=True)``), and ``decode`` alone still refuses a bad checksum.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ import pytest
 
 from auvgw.drivers import registry
 from auvgw.drivers.formats import format_from_table, get_format
-from auvgw.drivers.framing import ErrorPolicy, Frame
+from auvgw.drivers.framing import DecodeError, ErrorPolicy, Frame
 from auvgw.drivers.spec import MESSAGE_TYPES, to_jsonable
 from auvgw.paths import config_file
 from auvgw.testing.format_samples import stream_samples
@@ -134,6 +136,27 @@ def test_corrupted_frame_is_dropped_and_counted(
     out, (n, n_bad, _) = run([frames[0], bytes(bad), *frames[2:]])
     assert [fr.data for fr in out] == [frames[0], *frames[2:]]
     assert n_bad >= 1 and n == len(frames) - 1
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+def test_checksum_verified_once(fmt: str, frames: list[bytes], run: Callable[..., Any]) -> None:
+    f = get_format(fmt)
+    out, _ = run(frames)
+    assert [fr.data for fr in out] == frames
+    for b in frames:
+        want = [to_jsonable(m) for m in f.decode(b)]
+        assert [to_jsonable(m) for m in f.decode_frame(b, verified=True)] == want
+        assert [to_jsonable(m) for m in f.decode_frame(b)] == want
+    if f.decode_verified is None:  # (text lines: their values are parsed either way)
+        return
+    bad = bytearray(frames[0])
+    bad[-1] ^= 0x5A  # the formats that skip it end in their checksum
+    with pytest.raises(DecodeError, match="checksum"):
+        f.decode(bytes(bad))
+    with pytest.raises(DecodeError, match="checksum"):
+        f.decode_frame(bytes(bad))
+    # trusted to the framer, which refuses it (test_corrupted_frame_is_dropped_and_counted)
+    assert len(f.decode_frame(bytes(bad), verified=True)) == 1
 
 
 @pytest.mark.parametrize("fmt", FORMATS)
