@@ -22,6 +22,8 @@ BELL; polling stops after three.
 
 from __future__ import annotations
 
+import io
+import select
 from collections import Counter
 from typing import Any
 
@@ -55,7 +57,13 @@ class BulkSlcanBus(slcanBus):
         self._status_pending: int | None = 0
         self._status_supported = False
         self._status_bells = 0
+        #: the port's file descriptor to wait on (None: a URL handler without one: polled)
+        self._fd: int | None = None
         super().__init__(channel, **kwargs)
+        try:
+            self._fd = self.serialPortOrig.fileno()
+        except (AttributeError, io.UnsupportedOperation, OSError, NotImplementedError):
+            self._fd = None
 
     def poll_status(self) -> None:
         """Ask the adapter for its status flags; the reply is counted when it is read."""
@@ -109,8 +117,14 @@ class BulkSlcanBus(slcanBus):
                     self.malformed_lines += 1
                     continue
                 return line
-            # in bulk what is there; else one byte, waiting up to the port's timeout (1 ms)
+            # in bulk what is there; else wait for the port to be readable (one wake per burst,
+            # not python-can's 1 ms polls of ``read(1)``), or a byte up to the port's timeout
             waiting = port.in_waiting
+            if not waiting and self._fd is not None:
+                ready, _, _ = select.select([self._fd], [], [], deadline.time_left())
+                if not ready:
+                    return None
+                waiting = port.in_waiting
             data = port.read(waiting if waiting else 1)
             if data:
                 self._buffer.extend(data)

@@ -565,3 +565,28 @@ def test_can_slcan_reads_bursts_and_split_frames_in_order(pty_pair):
     ]
     assert t.read(0.05) is None
     t.close()
+
+
+def test_can_slcan_idle_line_waits_without_polling(pty_pair):
+    """A quiet slcan line is waited on with ``select`` (one wake when bytes come), not polled
+    with python-can's 1 ms ``read(1)``: a 0.3 s read of nothing reads the port at most once."""
+    fds, path = pty_pair
+    master = fds["master"]
+    t = _slcan_on(path)
+    drain_master(master)
+    port = t._handle.serialPortOrig
+    reads = 0
+    real_read = port.read
+
+    def counting_read(n: int = 1) -> bytes:
+        nonlocal reads
+        reads += 1
+        return real_read(n)
+
+    port.read = counting_read  # the real port underneath; only counted
+    assert t.read(0.3) is None
+    assert reads <= 1  # polling: about 300
+    os.write(master, b"t3108%016X\r" % 7)
+    c = t.read(2.0)
+    assert c is not None and (c.can_id, int.from_bytes(c.data, "big")) == (0x310, 7)
+    t.close()
