@@ -588,7 +588,7 @@ class HeadData(_Packet):
         arr = np.asarray(self.bins)
         if arr.ndim != 1 or (arr.size and arr.dtype.kind not in "iu"):
             raise WireError(f"HeadData.bins: a 1-D integer array, got {arr.dtype}{arr.shape}")
-        if arr.size and (int(arr.min()) < 0 or int(arr.max()) > 255):
+        if arr.size and arr.dtype != np.uint8 and (int(arr.min()) < 0 or int(arr.max()) > 255):
             raise WireError("HeadData.bins: amplitudes must be 0..255")
         out = arr.astype(np.uint8)
         out.flags.writeable = False
