@@ -179,9 +179,22 @@ def _hint_coders(tp: Any) -> tuple[Callable[[Any, bool], Any] | None, Callable[[
     if _is_message_class(tp):
         cls: type = tp
         pack_nested = _plan(cls).pack
+        #: (message, its body) of the last codec output packed here: a codec shares one
+        #: immutable nested message while its bytes repeat (a PD0 fixed leader), so the body
+        #: is packed once, not per frame (one tuple, replaced whole: safe across threads)
+        last: tuple[Any, list[Any] | None] = (None, None)
 
         def enc_msg(v: Any, t: bool) -> Any:
-            return pack_nested(v, t) if type(v) is cls else _typed_ext(v, t)
+            nonlocal last
+            if type(v) is not cls:
+                return _typed_ext(v, t)
+            if not t:
+                return pack_nested(v, t)
+            seen, body = last
+            if seen is not v or body is None:
+                body = pack_nested(v, t)
+                last = (v, body)
+            return body
 
         def dec_msg(v: Any) -> Any:
             return unpack_body(cls, v) if isinstance(v, list) else _dec_typed(v)

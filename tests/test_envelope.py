@@ -232,3 +232,32 @@ def test_short_arrays_packed_in_python_give_the_numpy_bytes(shared_data, monkeyp
         half = (raw + 0.5) * w.scale + w.add
         python, numpy = both(lambda half=half, enc=enc: _ENCODER.encode([enc(half, True)]))
         assert python == numpy
+
+
+def test_a_shared_nested_message_is_packed_once_with_the_same_bytes(shared_data):
+    """PD0 ensembles of one file share their fixed leader (one immutable message while its
+    bytes repeat); its body is packed once and reused, and every envelope is the one a fresh,
+    unshared copy gives. A changed (not shared) message is packed anew."""
+    import copy
+
+    from auvgw.drivers import pd0
+
+    frames, _ = get_format("pd0").frames_of_file(shared_data / "pd0" / "RDI_withBT.000")
+    data = [f.data for f in frames][:40]
+    msgs = [pd0.decode(b, verified=True) for b in data]
+    assert msgs[0].fixed_leader is msgs[1].fixed_leader  # shared by the codec
+    shared = [encode_envelope(m, "d", T_NS, SEQ, decoded=True)[0] for m in msgs]
+    fresh = [
+        encode_envelope(
+            dataclasses.replace(m, fixed_leader=copy.copy(m.fixed_leader)), "d", T_NS, SEQ,
+            decoded=True,
+        )[0]
+        for m in msgs
+    ]  # fmt: skip
+    assert shared == fresh
+    other = dataclasses.replace(msgs[0].fixed_leader, firmware_revision=99)
+    env = encode_envelope(dataclasses.replace(msgs[0], fixed_leader=other), "d", T_NS, SEQ,
+                          decoded=True)[0]  # fmt: skip
+    got = decode_envelope(env).message
+    assert got.fixed_leader.firmware_revision == 99
+    assert got.variable_leader == msgs[0].variable_leader
