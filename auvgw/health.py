@@ -136,7 +136,10 @@ class DeviceHealth:
             self.messages[type_name] += 1
             self.last_seen_ns = t_ns
             self.last_stamp_ns = stamp
-            self._times.setdefault(type_name, deque(maxlen=RATE_SAMPLES)).append(t_ns)
+            times = self._times.get(type_name)
+            if times is None:  # (not setdefault: that builds a deque per message)
+                times = self._times[type_name] = deque(maxlen=RATE_SAMPLES)
+            times.append(t_ns)
             if t_device_s is not None:
                 self.lag_s = self.lag.observe(stamp / 1e9, t_device_s)
                 self.lag_max_s = max(self.lag_s, self.lag_max_s or 0.0)
