@@ -1124,6 +1124,13 @@ def _render(spec: AsciiLineSpec, texts: Sequence[str], checksum_hex: str | None 
     return f"{spec.start}{body}{spec.checksum_delimiter}{checksum_hex}{spec.terminator}"
 
 
+#: (table, line, raw values) of the last valid line parsed: the framer parses every line it
+#: delivers and the codec's decode then asks for the same line again (the checksum and every
+#: field checked once, not twice); an exact match of table object and bytes, so the result is
+#: the one a new parse gives (one tuple, replaced whole: safe across reader threads)
+_LAST_LINE: tuple[AsciiLineSpec | None, bytes, tuple[int, ...]] = (None, b"", ())
+
+
 def parse_line(spec: AsciiLineSpec, line: bytes | bytearray | memoryview) -> list[int]:
     """Raw integer values of every field of one whole line; :class:`LineError` if invalid.
 
@@ -1131,7 +1138,17 @@ def parse_line(spec: AsciiLineSpec, line: bytes | bytearray | memoryview) -> lis
     ``overlong``, ``character``, ``checksum``, ``fields``, ``header``, ``syntax`` (a field's
     text is not the table's form) or ``range`` (a value outside the table's ``min`` .. ``max``).
     """
+    global _LAST_LINE
     data = bytes(line)
+    last_spec, last_data, last_raws = _LAST_LINE
+    if last_spec is spec and last_data == data:
+        return list(last_raws)
+    raws = _parse_line(spec, data)
+    _LAST_LINE = (spec, data, tuple(raws))
+    return raws
+
+
+def _parse_line(spec: AsciiLineSpec, data: bytes) -> list[int]:
     if len(data) > spec.max_length:
         raise LineError(f"overlong line: {len(data)} bytes > max_length {spec.max_length}")
     start, term = spec.start.encode(), spec.terminator.encode()
