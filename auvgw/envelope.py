@@ -509,7 +509,6 @@ _DECODER = msgspec.msgpack.Decoder(ext_hook=_ext_hook)
 
 
 @functools.lru_cache(maxsize=CLASS_CACHE_SIZE)
-@functools.lru_cache(maxsize=CLASS_CACHE_SIZE)
 def envelope_encoding(type_name: str) -> zenoh.Encoding:
     """``application/msgpack;auvgw/3/<Type>``: the encoding of every envelope sample (one
     immutable object per type, made once: parsing the text cost about 2 us per frame)."""
