@@ -98,7 +98,9 @@ class Probe(MTMPF):
             row = {
                 "mode_err": float(np.linalg.norm(wm @ self.x - xs)),
                 "mode_lr": float(wa[in_mode].sum() / in_mode.mean()),
-                "mode_ratio": float(mode_ratio(self.x, wa, self.cfg.mode_radius_m)),
+                "mode_ratio": float(
+                    mode_ratio(self.x, wa, self.cfg.mode_radius_m, self.cfg.mode_apart_m)
+                ),
                 "w_std": float(np.sqrt((wa @ ((self.x - mu_w) ** 2)).sum() / 2)),
                 "t": t,
                 "t_loop": t_loop,

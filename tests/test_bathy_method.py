@@ -353,19 +353,19 @@ def test_mode_ratio_weighs_the_dominant_mode_against_a_disjoint_one() -> None:
     beyond 2 radii is infinite. It compares posterior masses, not particle counts, so the
     same posterior gives about the same ratio at any N."""
     x = np.array([[0.0, 0.0], [1.0, 0.0], [20.0, 0.0], [21.0, 0.0]])
-    assert mode_ratio(x, np.array([0.3, 0.25, 0.25, 0.2]), 3.0) == pytest.approx(0.55 / 0.45)
-    assert mode_ratio(x, np.array([0.5, 0.4, 0.05, 0.05]), 3.0) == pytest.approx(9.0)
-    assert mode_ratio(x[:2], np.array([0.5, 0.5]), 3.0) == math.inf
+    assert mode_ratio(x, np.array([0.3, 0.25, 0.25, 0.2]), 3.0, 10.0) == pytest.approx(0.55 / 0.45)
+    assert mode_ratio(x, np.array([0.5, 0.4, 0.05, 0.05]), 3.0, 10.0) == pytest.approx(9.0)
+    assert mode_ratio(x[:2], np.array([0.5, 0.5]), 3.0, 10.0) == math.inf
     # a posterior of two modes holding 0.7 and 0.3 over a uniform cloud: the median ratio over
     # 40 clouds is near 0.7 / 0.3 at N = 100 and at N = 400 (Monte Carlo noise grows as N falls)
     for n in (100, 400):
         ratios = []
         for seed in range(40):
-            pts = np.random.default_rng(seed).uniform(-20.0, 20.0, (n, 2))
-            d2a = ((pts - (10.0, 0.0)) ** 2).sum(-1)
-            d2b = ((pts - (-10.0, 0.0)) ** 2).sum(-1)
+            pts = np.random.default_rng(seed).uniform(-15.0, 15.0, (n, 2))
+            d2a = ((pts - (8.0, 0.0)) ** 2).sum(-1)
+            d2b = ((pts - (-8.0, 0.0)) ** 2).sum(-1)
             lik = 0.7 * np.exp(-0.5 * d2a / 1.5**2) + 0.3 * np.exp(-0.5 * d2b / 1.5**2)
-            ratios.append(mode_ratio(pts, lik / lik.sum(), 3.0))
+            ratios.append(mode_ratio(pts, lik / lik.sum(), 3.0, 10.0))
         assert float(np.median(ratios)) == pytest.approx(0.7 / 0.3, rel=0.35)
 
 

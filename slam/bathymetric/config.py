@@ -114,6 +114,14 @@ class BathyConfig(BaseModel):
         "crossing's weights are dropped as if Neff >= f N: no resampling, no closure. "
         "1 = off (eq. 13 alone)",
     )
+    mode_apart_m: float = Field(
+        10.0,
+        gt=0,
+        description="'min_mode_ratio': alternatives to the dominant mode are mode_radius_m "
+        "neighbourhoods centred farther than this (m; ours): 2 x the measured width of a "
+        "crossing's likelihood (std 5.1 m, median over the closures of the diagnosed run), "
+        "so the shoulder of the same peak is not counted as a rival closure",
+    )
     crossing_gap_pings: int = Field(
         5, ge=1, description="'crossing': pings without overlap that end a crossing (ours)"
     )

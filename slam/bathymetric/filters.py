@@ -109,15 +109,15 @@ def mode_weights(x: np.ndarray, w: np.ndarray, radius_m: float) -> np.ndarray:
     return wk / wk.sum()
 
 
-def mode_ratio(x: np.ndarray, w: np.ndarray, radius_m: float) -> float:
+def mode_ratio(x: np.ndarray, w: np.ndarray, radius_m: float, apart_m: float) -> float:
     """Evidence of a closure (ours): the weight ``w`` (N,) within ``radius_m`` of the dominant
     mode's centre (:func:`mode_weights`) over the weight of the heaviest ``radius_m``
-    neighbourhood centred more than ``2 radius_m`` from it (a disjoint alternative); inf when
-    no particle lies that far. Both are Monte Carlo estimates of posterior masses, so the
-    ratio does not depend on N. Positions ``x`` (N, 2) in m."""
+    neighbourhood centred more than ``apart_m`` from it (an alternative closure); inf when no
+    particle lies that far. Both are Monte Carlo estimates of posterior masses, so the ratio
+    does not depend on N. Positions ``x`` (N, 2) and distances in m."""
     n = len(w)
     centre, top = _heaviest(x, w, radius_m, np.arange(n))
-    far = np.flatnonzero(((x - x[centre]) ** 2).sum(-1) > (2 * radius_m) ** 2)
+    far = np.flatnonzero(((x - x[centre]) ** 2).sum(-1) > apart_m**2)
     _, second = _heaviest(x, w, radius_m, far)
     return top / second if second > 0 else float("inf")
 
@@ -394,7 +394,8 @@ class MTMPF(BathyFilter):
         parts, self._parts = self._parts, []
         if neff < cfg.neff_fraction * n and self.t - cfg.t_l >= 2:
             weak = cfg.closure_estimate == "mode" and cfg.min_mode_ratio > 1
-            if weak and mode_ratio(self.x, wa, cfg.mode_radius_m) < cfg.min_mode_ratio:
+            r = cfg.mode_radius_m
+            if weak and mode_ratio(self.x, wa, r, cfg.mode_apart_m) < cfg.min_mode_ratio:
                 self.weak_crossings += 1  # too little evidence: no resampling, no closure
                 return
             agree = self._parts_agree(parts) if cfg.lccd and cfg.lccd_mode == "parts" else None

@@ -120,6 +120,8 @@ def summary(results: Sequence[BathyResult]) -> dict[str, float]:
         "loops_rejected": float(np.mean([r.loops_rejected for r in results])),
         # share of a run's closures that truth labels false (fp + tn), mean over runs with any
         "false_share": float(np.mean(shares)) if (shares := _false_shares(results)) else math.nan,
+        "loops_overturned": float(np.mean([r.extra.get("loops_overturned", 0) for r in results])),
+        "weak_crossings": float(np.mean([r.extra.get("weak_crossings", 0) for r in results])),
         "tp": tp,
         "fp": fp,
         "tn": tn,
@@ -152,6 +154,11 @@ ROWS = [
     ("Memory held (MB)", "memory_mb", "{:.1f}"),
     ("Particles matched per ping", "matched_per_ping", "{:.1f}"),
     ("Loop closures accepted / rejected", ("loops_accepted", "loops_rejected"), "{:.1f}"),
+    (
+        "Closures overturned (counted as rejected) / weak crossings (no closure)",
+        ("loops_overturned", "weak_crossings"),
+        "{:.1f}",
+    ),
     ("Loop closures TP / FP / TN / FN", ("tp", "fp", "tn", "fn"), "{:d}"),
     ("Closures labelled false, share per run", "false_share", "{:.2f}"),
     ("LCCD precision / recall / F1", ("precision", "recall", "f1"), "{:.2f}"),
