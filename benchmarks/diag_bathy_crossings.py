@@ -25,7 +25,7 @@ from scipy.spatial import cKDTree
 from auvgw.config.scenario import Scenario
 from auvgw.sim_devices.world import World
 from auvgw.slam.bathymetric.config import BathyConfig
-from auvgw.slam.bathymetric.filters import MTMPF, mode_weights, no_match_weight
+from auvgw.slam.bathymetric.filters import MTMPF, mode_ratio, mode_weights, no_match_weight
 from auvgw.slam.bathymetric.simulate import simulate_survey
 
 
@@ -35,6 +35,7 @@ class Probe(MTMPF):
     truth: np.ndarray
     grid_half_m = 20.0
     grid_step_m = 2.0
+    grid = True
 
     def __init__(self, *a: object, **k: object) -> None:
         super().__init__(*a, **k)  # type: ignore[arg-type]
@@ -71,10 +72,13 @@ class Probe(MTMPF):
             g = np.arange(-self.grid_half_m, self.grid_half_m + 1e-9, self.grid_step_m)
             gx, gy = np.meshgrid(g, g, indexing="ij")
             off = np.column_stack([gx.ravel(), gy.ravel()])
-            if self._grid_ll is None:
+            if not self.grid:
+                pass
+            elif self._grid_ll is None:
                 self._grid_ll = np.zeros(len(off))
                 self._grid_x = off
-            self._grid_ll += self.raw_weights(xs + off)
+            if self.grid:
+                self._grid_ll += self.raw_weights(xs + off)
         ending = (
             self.crossing_len
             and (w is None and self.since_match + 1 >= self.cfg.crossing_gap_pings)
@@ -88,7 +92,16 @@ class Probe(MTMPF):
             t_loop = int(cKDTree(self.traj[:h]).query(c)[1])
             xs = self._x_star(t_loop)
             d = np.linalg.norm(self.x - xs, axis=1)
+            wm = mode_weights(self.x, wa, self.cfg.mode_radius_m)
+            in_mode = wm > 0
+            mu_w = wa @ self.x
             row = {
+                "mode_err": float(np.linalg.norm(wm @ self.x - xs)),
+                "mode_lr": float(wa[in_mode].sum() / in_mode.mean()),
+                "mode_ratio": float(
+                    mode_ratio(self.x, wa, self.cfg.mode_radius_m, self.cfg.mode_apart_m)
+                ),
+                "w_std": float(np.sqrt((wa @ ((self.x - mu_w) ** 2)).sum() / 2)),
                 "t": t,
                 "t_loop": t_loop,
                 "len": self.crossing_len + (w is not None),
@@ -99,7 +112,7 @@ class Probe(MTMPF):
                 "nearest": float(d.min()),
                 "n_within_2m": int((d < 2).sum()),
                 "neff": float(1 / np.sum(wa**2)),
-                "mode_share": float(wa[mode_weights(self.x, wa, self.cfg.mode_radius_m) > 0].sum()),
+                "mode_share": float(wa[in_mode].sum()),
                 "abs_err_before": float(np.linalg.norm(c - self.truth[t])),
             }
             if self._grid_ll is not None and self._grid_x is not None:
@@ -141,6 +154,10 @@ COLS = [
     ("n_within_2m", "n < 2 m", "{:.0f}"),
     ("neff", "Neff", "{:.1f}"),
     ("mode_share", "mode share", "{:.2f}"),
+    ("mode_lr", "mode LR", "{:.1f}"),
+    ("mode_ratio", "mode ratio", "{:.1f}"),
+    ("w_std", "w std", "{:.1f}"),
+    ("mode_err", "mode - x*", "{:.1f}"),
     ("ll_peak_off", "LL peak - x*", "{:.1f}"),
     ("ll_width", "LL width", "{:.1f}"),
     ("resampled", "resampled", "{:.0f}"),
@@ -156,6 +173,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--out", type=Path)
+    ap.add_argument("--no-grid", action="store_true", help="skip the likelihood grid (faster)")
     a = ap.parse_args(argv)
     scn = Scenario.model_validate_json(Path(a.scenario).read_text())
     world = World.from_scenario(scn)
@@ -167,6 +185,7 @@ def main(argv: list[str] | None = None) -> int:
     rng = np.random.default_rng(np.random.SeedSequence([a.seed, a.run, zlib.crc32(b"mtm-pf")]))
     f = Probe(cfg, len(sim.t), rng)
     f.truth = sim.truth
+    f.grid = not a.no_grid
     u = sim.controls()
     f.start(sim.dr[0], sim.offsets[0], sim.depth[0])
     for k in range(1, len(sim.t)):

@@ -43,6 +43,7 @@ __all__ = [
     "Features",
     "MagneticBeacon",
     "ObservationSettings",
+    "SandField",
     "Scenario",
     "ScenarioError",
     "Terrain",
@@ -192,6 +193,32 @@ class Features(_Model):
     )
 
 
+class SandField(_Model):
+    """A field of sand waves on a flat sandy bed inside a mixed terrain (metres, NED).
+
+    Inside ``extent_m`` = (x_min, x_max, y_min, y_max) the mixed relief fades out (over ``edge_m``
+    at the borders) and a :class:`sandwaves`-style wave of ``wavelength_m`` and ``relief_m``
+    across ``direction_deg`` (deg from north) takes its place: crossings there match an alias
+    one wavelength away about as well as the truth, crossings outside do not.
+    """
+
+    extent_m: tuple[float, float, float, float]
+    relief_m: float = Field(1.5, gt=0)
+    wavelength_m: float = Field(40.0, gt=0)
+    direction_deg: float = 30.0
+    edge_m: float = Field(20.0, gt=0, description="width of the fade at the field's borders")
+    seed: int = 0
+
+    @model_validator(mode="after")
+    def _extent_ordered(self) -> SandField:
+        x0, x1, y0, y1 = self.extent_m
+        if not (x0 < x1 and y0 < y1):
+            raise ValueError(
+                f"sand field extent_m {self.extent_m}: need x_min < x_max, y_min < y_max"
+            )
+        return self
+
+
 class Terrain(_Model):
     """Seabed depth below the surface, metres (positive down).
 
@@ -202,7 +229,8 @@ class Terrain(_Model):
     (``flat_fraction`` of the area) plus ``n_ridges`` linear ridges and ``n_mounds`` Gaussian
     mounds inside ``extent_m`` (varied relief for bathymetric SLAM). ``sandwaves``: one
     dominant wave of ``wavelength_m`` across ``direction_deg`` with weak modulation
-    (self-similar relief that invites false loop closures). ``grid``: a depth grid from ``file``
+    (self-similar relief that invites false loop closures); ``sand_fields`` put such waves on
+    parts of a ``mixed`` terrain (:class:`SandField`). ``grid``: a depth grid from ``file``
     (``.npy`` or JSON list of rows) with cell size ``cell_m`` and its (x, y) origin at
     ``origin``; row i is x = origin_x + i cell_m, column j is y = origin_y + j cell_m.
     """
@@ -228,11 +256,22 @@ class Terrain(_Model):
     direction_deg: float = Field(
         30.0, description="sandwaves: crest-normal direction of the dominant wave, deg from north"
     )
+    sand_fields: list[SandField] = Field(
+        [], description="mixed: sand-wave fields replacing the relief inside their extent"
+    )
 
     @model_validator(mode="after")
     def _grid_needs_file(self) -> Terrain:
         if self.kind == "grid" and not self.file:
             raise ValueError("terrain kind 'grid' needs 'file'")
+        if self.sand_fields and self.kind != "mixed":
+            raise ValueError(f"terrain kind {self.kind!r}: sand_fields need kind 'mixed'")
+        for i, f in enumerate(self.sand_fields):
+            if f.relief_m >= self.depth_m:
+                raise ValueError(
+                    f"sand_fields[{i}].relief_m ({f.relief_m}) must be less than depth_m "
+                    f"({self.depth_m}): the seabed must stay below the surface"
+                )
         if self.kind in ("procedural", "sandwaves") and self.relief_m >= self.depth_m:
             raise ValueError(
                 f"relief_m ({self.relief_m}) must be less than depth_m ({self.depth_m}): "

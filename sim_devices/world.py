@@ -38,6 +38,7 @@ __all__ = [
     "MixedTerrain",
     "ProceduralTerrain",
     "RayHits",
+    "SandWaveField",
     "SandWaveTerrain",
     "Swath",
     "SwathGeometry",
@@ -206,7 +207,9 @@ class MixedTerrain(_NumericGradient):
     no information. Ridges (``n_ridges``, height ``relief_m``, 1/e half-width 25 m) run along
     random directions, mounds (``n_mounds``, height ``relief_m``, sigma 15-40 m) sit at random
     points of ``extent_m`` = (x_min, x_max, y_min, y_max); both are masked like the relief, so
-    flat patches stay flat. Metres, positive down; everything seeded by ``seed``.
+    flat patches stay flat. ``sand_fields`` (:class:`SandWaveField`) replace all of that inside
+    their extent with sand waves on a flat bed. Metres, positive down; everything seeded by
+    ``seed``.
     """
 
     def __init__(
@@ -220,8 +223,10 @@ class MixedTerrain(_NumericGradient):
         n_ridges: int = 3,
         n_mounds: int = 12,
         extent_m: tuple[float, float, float, float] = (-200.0, 1000.0, -200.0, 1000.0),
+        sand_fields: tuple[SandWaveField, ...] = (),
     ) -> None:
         rng = np.random.default_rng([seed, 1])
+        self.sand_fields = tuple(sand_fields)
         self.rough = ProceduralTerrain(0.0, relief_m, wavelength_m, seed, octaves)
         self.mask_field = ProceduralTerrain(0.0, 1.0, 4.0 * wavelength_m, seed + 7, 1)
         # threshold of the logistic so that ~flat_fraction of the mask field is below it
@@ -254,11 +259,16 @@ class MixedTerrain(_NumericGradient):
         d2 = ((xy[..., None, :] - self.mound_pt) ** 2).sum(-1)
         mounds = (self.mound_sign * np.exp(-d2 / (2 * self.mound_sigma**2))).sum(-1)
         relief = self.rough.depth(x, y) - self.relief_m * (ridges + mounds)
-        return self.depth_m + self.mask(x, y) * relief
+        out = self.mask(x, y) * relief
+        for f in self.sand_fields:  # each field replaces what lies under it
+            w = f.window(x, y)
+            out = out * (1.0 - w) + w * (f.waves.depth(x, y) - f.waves.depth_m)
+        return self.depth_m + out
 
     @property
     def bounds(self) -> tuple[float, float]:
-        return (self.depth_m - 3 * self.relief_m, self.depth_m + 3 * self.relief_m)
+        r = max([3 * self.relief_m] + [f.waves.relief_m for f in self.sand_fields])
+        return (self.depth_m - r, self.depth_m + r)
 
 
 class SandWaveTerrain(_NumericGradient):
@@ -290,6 +300,24 @@ class SandWaveTerrain(_NumericGradient):
         return (self.depth_m - self.relief_m, self.depth_m + self.relief_m)
 
 
+@dataclass(frozen=True)
+class SandWaveField:
+    """Sand waves on a flat sandy bed inside ``extent_m`` = (x_min, x_max, y_min, y_max) of a
+    :class:`MixedTerrain`: its ``window`` is 1 inside, 0 outside, a smooth logistic fade of
+    about ``edge_m`` at the borders; ``waves`` gives the seabed there. Metres, NED."""
+
+    waves: SandWaveTerrain
+    extent_m: tuple[float, float, float, float]
+    edge_m: float = 20.0
+
+    def window(self, x: FArray, y: FArray) -> FArray:
+        """1 inside the field, 0 outside, smooth over ``edge_m`` (the 12-88 % rise)."""
+        x0, x1, y0, y1 = self.extent_m
+        k = 4.0 / self.edge_m
+        inside = np.minimum(np.minimum(x - x0, x1 - x), np.minimum(y - y0, y1 - y))
+        return 1.0 / (1.0 + np.exp(-k * inside))
+
+
 def _load_grid(path: Path) -> FArray:
     try:
         if path.suffix == ".npy":
@@ -313,7 +341,19 @@ def terrain_from_settings(settings: Terrain, resolve: Callable[[str], Path] = Pa
     """The terrain model a scenario's ``terrain`` section describes (``resolve`` finds files)."""
     if settings.kind in _TERRAINS:
         model, names = _TERRAINS[settings.kind]
-        return model(**{name: getattr(settings, name) for name in names})
+        kwargs = {name: getattr(settings, name) for name in names}
+        if settings.sand_fields:
+            kwargs["sand_fields"] = tuple(
+                SandWaveField(
+                    SandWaveTerrain(
+                        0.0, f.relief_m, f.wavelength_m, math.radians(f.direction_deg), f.seed
+                    ),
+                    f.extent_m,
+                    f.edge_m,
+                )
+                for f in settings.sand_fields
+            )
+        return model(**kwargs)
     if settings.kind == "sandwaves":
         return SandWaveTerrain(
             settings.depth_m,

@@ -109,6 +109,7 @@ def test_eval_command_bathymetric_prints_the_measures_and_writes_plots(tmp_path,
         "Real-time factor",
         "Memory held (MB)",
         "LCCD precision / recall / F1",
+        "Closures labelled false, share per run",
         "Soundings within 2 m (%)",
     ):
         assert row in text
@@ -117,6 +118,11 @@ def test_eval_command_bathymetric_prints_the_measures_and_writes_plots(tmp_path,
     assert "--pipeline bathymetric" in md and "--set t_l=30" in md
     res = json.loads((out / "results.json").read_text())
     assert res["config"]["t_l"] == 30 and len(res["final_errors"]["dr"]) == 1
+    runs, mtm = res["loops_per_run"]["mtm-pf"], res["summaries"]["mtm-pf"]
+    n = sum(runs[0].values())
+    assert len(runs) == 1 and n == sum(mtm[k] for k in ("tp", "fp", "tn", "fn"))
+    if n:  # the share of closures truth labels false
+        assert mtm["false_share"] == pytest.approx((runs[0]["fp"] + runs[0]["tn"]) / n)
     for png in ("map", "trajectories", "error"):
         assert (out / f"tiny_survey_{png}.png").stat().st_size > 10_000
     from auvgw.cli import UserError

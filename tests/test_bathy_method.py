@@ -17,6 +17,7 @@ from auvgw.slam.bathymetric.filters import (
     MTMPF,
     fill_weights,
     jitter_variance,
+    mode_ratio,
     mode_weights,
     no_match_weight,
 )
@@ -344,3 +345,106 @@ def test_lccd_veto_accepts_what_nothing_contradicts() -> None:
     veto, pool = LCCD(tau_m=3.0, veto=True), LCCD(tau_m=3.0)
     assert [veto.judge(lp) for lp in loops] == [True, True, False, True, True]
     assert [pool.judge(lp) for lp in loops] == [False, True, False, True, False]
+
+
+def test_mode_ratio_weighs_the_dominant_mode_against_a_disjoint_one() -> None:
+    """The closure's evidence (min_mode_ratio): two modes 20 m apart holding 0.55 and 0.45 of
+    the weight are ambiguous (ratio 1.2); 0.9 against 0.1 is not (9); one mode and nothing
+    beyond 2 radii is infinite. It compares posterior masses, not particle counts, so the
+    same posterior gives about the same ratio at any N."""
+    x = np.array([[0.0, 0.0], [1.0, 0.0], [20.0, 0.0], [21.0, 0.0]])
+    assert mode_ratio(x, np.array([0.3, 0.25, 0.25, 0.2]), 3.0, 10.0) == pytest.approx(0.55 / 0.45)
+    assert mode_ratio(x, np.array([0.5, 0.4, 0.05, 0.05]), 3.0, 10.0) == pytest.approx(9.0)
+    assert mode_ratio(x[:2], np.array([0.5, 0.5]), 3.0, 10.0) == math.inf
+    # a posterior of two modes holding 0.7 and 0.3 over a uniform cloud: the median ratio over
+    # 40 clouds is near 0.7 / 0.3 at N = 100 and at N = 400 (Monte Carlo noise grows as N falls)
+    for n in (100, 400):
+        ratios = []
+        for seed in range(40):
+            pts = np.random.default_rng(seed).uniform(-15.0, 15.0, (n, 2))
+            d2a = ((pts - (8.0, 0.0)) ** 2).sum(-1)
+            d2b = ((pts - (-8.0, 0.0)) ** 2).sum(-1)
+            lik = 0.7 * np.exp(-0.5 * d2a / 1.5**2) + 0.3 * np.exp(-0.5 * d2b / 1.5**2)
+            ratios.append(mode_ratio(pts, lik / lik.sum(), 3.0, 10.0))
+        assert float(np.median(ratios)) == pytest.approx(0.7 / 0.3, rel=0.35)
+
+
+@pytest.mark.parametrize("min_ratio", [1.0, 2.0])
+def test_a_weak_crossing_neither_resamples_nor_closes(min_ratio: float) -> None:
+    """A crossing whose weights split 0.55 / 0.45 between two modes 20 m apart reaches
+    Neff < 2N/3 but is ambiguous: with min_mode_ratio = 2 it makes no closure, the particles
+    stay where they were and the crossing's weights are dropped; with 1 (eq. 13 alone) it
+    closes on the heavier mode."""
+    x = np.array([[0.0, 0.0], [1.0, 0.0], [20.0, 0.0], [21.0, 0.0]])
+    w = np.array([0.5, 0.05, 0.05, 0.4])  # Neff 2.2 < 2/3 x 4
+    cfg = BathyConfig(
+        n_particles=4, lccd=False, t_l=2, crossing_max_pings=1, min_mode_ratio=min_ratio
+    )
+    f = MTMPF(cfg, 10, np.random.default_rng(0))
+    f.t, f.x = 6, x.copy()
+    f.traj[:7] = np.arange(7.0)[:, None] * (0.0, 1.0)
+    f._crossing(w, np.zeros(4, dtype=int))
+    assert f.crossing_len == 0 and not f.logw.any()  # the crossing ended, its weights dropped
+    if min_ratio > 1:
+        assert f.loops == [] and f.weak_crossings == 1
+        assert np.array_equal(f.x, x)
+    else:
+        assert len(f.loops) == 1 and f.weak_crossings == 0
+        assert (np.linalg.norm(f.x, axis=1) <= 1.0 + 1e-9).all()
+
+
+def test_lccd_overturns_a_planted_wrong_first_closure() -> None:
+    """lccd_overturn: a wrong first closure (19 m off) is accepted by 'veto' (nothing
+    contradicts it) and vetoes the next right one; the one after agrees with that right one,
+    so their cluster (2) outweighs the wrong one's (1): it is accepted and overturns the wrong
+    one, and every later right closure is kept. Without overturn the wrong one stays."""
+    drift = np.array([0.012, 0.012])
+    loops = lambda: [  # noqa: E731
+        _loop(90, 330, drift, (15.0, -12.0)),  # a false match: 19 m off
+        _loop(100, 340, drift, (0, 0)),
+        _loop(101, 350, drift, (0.3, -0.2)),
+        _loop(120, 360, drift, (-0.4, 0.5)),
+    ]
+    lccd = LCCD(tau_m=3.0, veto=True, overturn=True)
+    lps, over = loops(), []
+    for lp in lps:
+        lccd.judge(lp)
+        over.append(list(lccd.overturned_now))
+    assert [lp.accepted for lp in lps] == [False, False, True, True]
+    assert lps[0].overturned and [len(o) for o in over] == [0, 0, 1, 0] and over[2][0] is lps[0]
+    assert all(lp is not lps[0] for lp in lccd.pool)
+    plain = LCCD(tau_m=3.0, veto=True)
+    lps = loops()
+    assert [plain.judge(lp) for lp in lps] == [True, False, True, True]
+
+
+def test_overturn_undoes_a_closure_on_the_mean_trajectory() -> None:
+    """Undoing a closure: its ramp and the jump the particles carried on are subtracted; the
+    closure that overturned it keeps ping t aligned with the map at its t_loop (which the undo
+    moved by -c(t_loop)), through a linear ramp over [t_loop, t]: no jump anywhere."""
+    cfg = BathyConfig(n_particles=3, t_l=2)
+    f = MTMPF(cfg, 200, np.random.default_rng(0))
+    f.t = 150
+    base = np.column_stack([np.arange(151.0), np.zeros(151)])
+    f.traj[:151] = base
+    f.x = base[150] + np.array([[0.0, 0.0], [0.5, 0.0], [0.0, 0.5]])
+    m = np.array([0.0, 20.0])
+    t_a, delta = correction_ramp(np.zeros(151, bool), 40, 100, m)
+    wrong = _loop(40, 100, np.zeros(2), (0, 0))
+    wrong.m, wrong.t_a, wrong.delta = m, t_a, delta
+    f.traj[t_a:101] += delta
+    f.traj[101:151] += m
+    f.x += m
+    keep = _loop(70, 150, np.zeros(2), (0, 0))
+    keep.accepted = True
+    wrong.accepted, wrong.overturned = False, True
+    f.loops = [wrong, keep]
+    x_before, traj_before = f.x.copy(), f.traj[:151].copy()
+    f._overturn(keep, [wrong])
+    c70 = delta[70 - t_a]
+    assert np.allclose(f.traj[:40], base[:40])  # before the wrong ramp: untouched
+    assert np.allclose(f.traj[40:71], base[40:71])  # the wrong ramp removed up to t_loop
+    assert np.allclose(f.traj[150], traj_before[150] - c70)  # end follows the map at 70
+    assert np.allclose(f.x, x_before - c70)
+    assert np.linalg.norm(np.diff(f.traj[:151], axis=0) - (1.0, 0.0), axis=1).max() < 0.5
+    assert f.covered[70:151].all() and not f.covered[:70].any()

@@ -33,6 +33,7 @@ from auvgw.sim_devices.world import (
     cast_rays,
     cast_swath,
     dipole_field,
+    terrain_from_settings,
 )
 
 SCENARIOS = sorted(Path(str(config_file("scenarios"))).glob("*.json"))
@@ -232,6 +233,36 @@ def test_grid_terrain_is_bilinear_and_loads_from_a_scenario(tmp_path: Path) -> N
     (tmp_path / "grid.json").write_text("[[1, 2], [3]]")
     with pytest.raises(ScenarioError, match=r"terrain\.file .*grid\.json"):
         World.from_scenario(load_scenario(tmp_path / "s.json"))
+
+
+def test_sand_field_replaces_the_mixed_relief_inside_its_extent(tmp_path: Path) -> None:
+    mixed = {"kind": "mixed", "depth_m": 30.0, "relief_m": 3.0, "wavelength_m": 120.0, "seed": 5}
+    field = {"extent_m": [200, 400, -100, 600], "relief_m": 1.5, "wavelength_m": 40.0,
+             "direction_deg": 0.0, "edge_m": 10.0, "seed": 6}  # fmt: skip
+    veh = {"waypoints": [[0, 0], [10, 0]]}
+    plain = load_scenario(_write(tmp_path, {"name": "m", "vehicle": veh, "terrain": mixed}))
+    with_field = Scenario.model_validate(
+        {**plain.model_dump(), "terrain": {**mixed, "sand_fields": [field]}}
+    )
+    t0 = terrain_from_settings(plain.terrain)
+    t1 = terrain_from_settings(with_field.terrain)
+    y = np.linspace(0.0, 500.0, 51)
+    # far outside the field (> 6 edge widths): the mixed relief, unchanged
+    for x in (0.0, 100.0, 600.0):
+        assert np.allclose(t1.depth(np.full_like(y, x), y), t0.depth(np.full_like(y, x), y))
+    # deep inside: the sand waves alone, crests across north (direction 0): depth repeats one
+    # wavelength further north, to within the +-20 % amplitude modulation and crest waviness
+    x = np.linspace(260.0, 300.0, 41)
+    z, z_next = t1.depth(x, np.full_like(x, 250.0)), t1.depth(x + 40.0, np.full_like(x, 250.0))
+    assert np.ptp(z) > 1.5 and np.abs(z - 30.0).max() <= 1.5 + 1e-9
+    assert np.abs(z - z_next).max() < 0.5 * np.ptp(z)
+    assert t1.bounds == (21.0, 39.0)
+    bad = {**mixed, "sand_fields": [{**field, "extent_m": [400, 200, 0, 1]}]}
+    with pytest.raises(ScenarioError, match=r"terrain\.sand_fields\.0.*x_min < x_max"):
+        load_scenario(_write(tmp_path, {"name": "m", "vehicle": veh, "terrain": bad}))
+    wrong_kind = {"kind": "flat", "sand_fields": [field]}
+    with pytest.raises(ScenarioError, match="sand_fields need kind 'mixed'"):
+        load_scenario(_write(tmp_path, {"name": "m", "vehicle": veh, "terrain": wrong_kind}))
 
 
 # -- ray casting (MSIS) ----------------------------------------------------------------------

@@ -127,6 +127,15 @@ def run(args: argparse.Namespace) -> int:
                         a: [r.final_error_m for r in results if r.algorithm == a]
                         for a in algorithms
                     },
+                    # truth-labelled closures of each run (A22), for the per-run false share
+                    "loops_per_run": {
+                        a: [
+                            {"tp": r.tp, "fp": r.fp, "tn": r.tn, "fn": r.fn}
+                            for r in results
+                            if r.algorithm == a
+                        ]
+                        for a in algorithms
+                    },
                 },
                 indent=1,
             )

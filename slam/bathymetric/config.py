@@ -104,6 +104,24 @@ class BathyConfig(BaseModel):
     mode_radius_m: float = Field(
         3.0, gt=0, description="'mode': radius of the dominant mode (m; ours, = lccd_tau_m)"
     )
+    min_mode_ratio: float = Field(
+        3.0,
+        ge=1,
+        description="'crossing' + 'mode' (ours): a crossing whose accumulated Neff < f N "
+        "closes only when its dominant mode holds at least this many times the weight of the "
+        "heaviest disjoint mode_radius_m neighbourhood (filters.mode_ratio; both are "
+        "estimates of posterior masses, so the rule does not depend on N); below it the "
+        "crossing's weights are dropped as if Neff >= f N: no resampling, no closure. "
+        "1 = off (eq. 13 alone)",
+    )
+    mode_apart_m: float = Field(
+        10.0,
+        gt=0,
+        description="'min_mode_ratio': alternatives to the dominant mode are mode_radius_m "
+        "neighbourhoods centred farther than this (m; ours): 2 x the measured width of a "
+        "crossing's likelihood (std 5.1 m, median over the closures of the diagnosed run), "
+        "so the shoulder of the same peak is not counted as a rival closure",
+    )
     crossing_gap_pings: int = Field(
         5, ge=1, description="'crossing': pings without overlap that end a crossing (ours)"
     )
@@ -126,6 +144,14 @@ class BathyConfig(BaseModel):
         "closure without a partner is rejected only when an accepted closure comparable with "
         "it (not disjoint) disagrees; 'parts' (ours; closure = 'crossing') = the modes of "
         "lccd_parts successive parts of the crossing's own pings must agree",
+    )
+    lccd_overturn: bool = Field(
+        True,
+        description="'veto' (ours): an accepted closure with partners (its cluster at "
+        "lccd_tau_m holds 2 or more closures) overturns earlier accepted closures comparable "
+        "with it, outside its cluster, whose own cluster is smaller; their corrections are "
+        "undone on the mean trajectory and the particles (the ramp of eqs. 15-22 is additive). "
+        "Without it, a weak wrong first closure accepted by 'veto' vetoes the right ones after it",
     )
     lccd_parts: int = Field(2, ge=2, description="'parts': parts a crossing is split into")
     lccd_tau_m: float = Field(3.0, gt=0, description="clustering cut distance (A15)")

@@ -135,6 +135,10 @@ def run_filter(
         tn=sum(not a and not v for a, v in zip(acc, labels, strict=True)),
         fn=sum(not a and v for a, v in zip(acc, labels, strict=True)),
         matched_mean=float(f.matched.mean()),
+        extra={
+            "loops_overturned": float(sum(lc.overturned for lc in f.loops)),
+            "weak_crossings": float(getattr(f, "weak_crossings", 0)),
+        },
     )
     if depth_fn is not None:
         res.map_err_mean_m, res.map_err_under_2m = map_registration(f.map_points(), depth_fn)

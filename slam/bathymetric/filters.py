@@ -20,6 +20,7 @@ __all__ = [
     "BathyFilter",
     "DeadReckoning",
     "jitter_variance",
+    "mode_ratio",
     "mode_weights",
     "no_match_weight",
     "systematic",
@@ -84,17 +85,41 @@ def fill_weights(
     return w / s if s > 0 else np.full(n, 1.0 / n)
 
 
+def _heaviest(
+    x: np.ndarray, w: np.ndarray, radius_m: float, among: np.ndarray
+) -> tuple[int, float]:
+    """The particle of ``among`` whose ``radius_m`` neighbourhood (over every particle of ``x``
+    (N, 2), m) holds the most of ``w`` (N,): its index and that weight."""
+    cand = among[w[among] > 1e-12 * w.max()]  # particles that carry weight
+    if len(cand) == 0:
+        return -1, 0.0
+    d2 = ((x[cand, None, :] - x[None, :, :]) ** 2).sum(-1)  # (C, N)
+    mass = (d2 <= radius_m**2) @ w
+    k = int(np.argmax(mass))
+    return int(cand[k]), float(mass[k])
+
+
 def mode_weights(x: np.ndarray, w: np.ndarray, radius_m: float) -> np.ndarray:
     """Normalised weights ``w`` (N,) of particles ``x`` (N, 2) (m) kept only within
     ``radius_m`` of the particle whose ``radius_m`` neighbourhood holds the most weight: the
     posterior's dominant mode."""
-    cand = np.flatnonzero(w > 1e-12 * w.max())  # particles that carry weight
-    d2 = ((x[cand, None, :] - x[None, :, :]) ** 2).sum(-1)  # (C, N)
-    near = d2 <= radius_m**2
-    centre = cand[int(np.argmax(near @ w))]
+    centre, _ = _heaviest(x, w, radius_m, np.arange(len(w)))
     keep = ((x - x[centre]) ** 2).sum(-1) <= radius_m**2
     wk = np.where(keep, w, 0.0)
     return wk / wk.sum()
+
+
+def mode_ratio(x: np.ndarray, w: np.ndarray, radius_m: float, apart_m: float) -> float:
+    """Evidence of a closure (ours): the weight ``w`` (N,) within ``radius_m`` of the dominant
+    mode's centre (:func:`mode_weights`) over the weight of the heaviest ``radius_m``
+    neighbourhood centred more than ``apart_m`` from it (an alternative closure); inf when no
+    particle lies that far. Both are Monte Carlo estimates of posterior masses, so the ratio
+    does not depend on N. Positions ``x`` (N, 2) and distances in m."""
+    n = len(w)
+    centre, top = _heaviest(x, w, radius_m, np.arange(n))
+    far = np.flatnonzero(((x - x[centre]) ** 2).sum(-1) > apart_m**2)
+    _, second = _heaviest(x, w, radius_m, far)
+    return top / second if second > 0 else float("inf")
 
 
 class BathyFilter:
@@ -216,7 +241,11 @@ class MTMPF(BathyFilter):
         self.covered = np.zeros(n_pings, dtype=bool)  # l^h, eq. (16)
         self.t_r = 10**9  # "a large value" at mission start, eq. (3)
         self.lccd = LCCD(
-            cfg.lccd_tau_m, cfg.lccd_linkage, cfg.lccd_disjoint_m, veto=cfg.lccd_mode == "veto"
+            cfg.lccd_tau_m,
+            cfg.lccd_linkage,
+            cfg.lccd_disjoint_m,
+            veto=cfg.lccd_mode == "veto",
+            overturn=cfg.lccd_overturn and cfg.lccd_mode == "veto",
         )
         # closure = "crossing": accumulated log weights, pings in / since the crossing
         self.logw = np.zeros(cfg.n_particles)
@@ -224,6 +253,7 @@ class MTMPF(BathyFilter):
         self.since_match = 0
         self._tlp = np.zeros(cfg.n_particles, dtype=int)
         self._parts: list[np.ndarray] = []  # log weights of the crossing's pings with evidence
+        self.weak_crossings = 0  # crossings below min_mode_ratio (no closure)
 
     def start(self, x0: np.ndarray, offsets: np.ndarray, depth: np.ndarray) -> None:
         super().start(x0, offsets, depth)
@@ -286,9 +316,7 @@ class MTMPF(BathyFilter):
             return None, tlp
         return fill_weights(n, near[gate], w_m[gate], cfg, bad=near[~gate]), tlp
 
-    def match(
-        self, x: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    def match(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
         """The submap match of this ping at positions ``x`` (G, 2) (m, NED; the particles, or
         any offsets a diagnosis probes): each position's t_lp, the indices of those within R of
         the old track (overlap test), their un-normalised weights (eqs. 4-12) and which of them
@@ -365,6 +393,11 @@ class MTMPF(BathyFilter):
         self.crossing_len = self.since_match = 0
         parts, self._parts = self._parts, []
         if neff < cfg.neff_fraction * n and self.t - cfg.t_l >= 2:
+            weak = cfg.closure_estimate == "mode" and cfg.min_mode_ratio > 1
+            r = cfg.mode_radius_m
+            if weak and mode_ratio(self.x, wa, r, cfg.mode_apart_m) < cfg.min_mode_ratio:
+                self.weak_crossings += 1  # too little evidence: no resampling, no closure
+                return
             agree = self._parts_agree(parts) if cfg.lccd and cfg.lccd_mode == "parts" else None
             self._resample(wa, self._tlp, agree)
 
@@ -429,8 +462,35 @@ class MTMPF(BathyFilter):
             covered[max(t - cfg.min_ramp_pings + 1, 0) : t + 1] = False
         t_a, delta = correction_ramp(covered, t_loop, t, m)  # eqs. (15)-(22)
         self.traj[t_a : t + 1] += delta
+        loop.t_a, loop.delta = t_a, delta
         self.covered[t_loop : t + 1] = True  # A19
         self.t_r = 1
+        if cfg.lccd and self.lccd.overturned_now:
+            self._overturn(loop, self.lccd.overturned_now)
+
+    def _overturn(self, keep: LoopClosure, wrong: list[LoopClosure]) -> None:
+        """Undo the ``wrong`` closures' corrections (``lccd_overturn``, ours): the ramp of eqs.
+        (15)-(22) and the jump the particles carried on are additive, so each one's
+        :meth:`LoopClosure.contribution` is subtracted from the mean trajectory and the jump
+        from the particles. ``keep`` (the closure that overturned them, at ``t``) aligned the
+        ping ``t`` with the map at its ``t_loop``; that map moved by ``-c(t_loop)``, so the
+        end must move with it: a linear ramp over ``[t_loop, t]`` restores that alignment.
+        ``covered`` (eq. 16) is rebuilt from the closures still accepted."""
+        t = self.t
+        times = np.arange(t + 1)
+        for lc in wrong:
+            c = lc.contribution(times)
+            fix = c[t] - c[keep.t_loop]
+            self.traj[: t + 1] -= c
+            span = max(t - keep.t_loop, 1)
+            self.traj[keep.t_loop : t + 1] += (
+                (times[keep.t_loop :] - keep.t_loop)[:, None] / span * fix
+            )
+            self.x += fix - c[t]
+        self.covered[:] = False
+        for lc in self.loops:
+            if lc.accepted:
+                self.covered[lc.t_loop : lc.t_end + 1] = True
 
 
 class BPSLAM(BathyFilter):

@@ -27,6 +27,22 @@ class LoopClosure:
     s_end: np.ndarray
     s_end_before: np.ndarray
     accepted: bool = False
+    overturned: bool = False
+    t_a: int = -1
+    delta: np.ndarray | None = None
+
+    def contribution(self, t: np.ndarray) -> np.ndarray:
+        """What this accepted closure added to the mean trajectory at pings ``t`` (K,), (K, 2)
+        m: its ramp ``delta`` on ``[t_a, t_end]`` (eqs. 15-22), the jump ``m`` after ``t_end``
+        (the resampled particles carry it on), 0 before ``t_a``."""
+        t = np.asarray(t)
+        out = np.zeros((len(t), 2))
+        if self.delta is None:
+            return out
+        ramp = (t >= self.t_a) & (t <= self.t_end)
+        out[ramp] = self.delta[t[ramp] - self.t_a]
+        out[t > self.t_end] = self.m
+        return out
 
     @property
     def v_end(self) -> np.ndarray:
@@ -78,10 +94,12 @@ class LCCD:
         method: str = "single",
         disjoint_m: float = 1e6,
         veto: bool = False,
+        overturn: bool = False,
     ) -> None:
         self.tau_m, self.method, self.disjoint_m = tau_m, method, disjoint_m
-        self.veto = veto
+        self.veto, self.overturn = veto, overturn
         self.pool: list[LoopClosure] = []
+        self.overturned_now: list[LoopClosure] = []  # by the last :meth:`judge`
 
     @staticmethod
     def distance(a: LoopClosure, b: LoopClosure, disjoint_m: float = 1e6) -> float:
@@ -105,19 +123,39 @@ class LCCD:
         return d
 
     def judge(self, loop: LoopClosure) -> bool:
-        """Add ``loop`` to the pool; True if it is consistent with at least one other. With
-        ``veto`` (ours) a loop alone in its cluster is rejected only when some accepted loop
-        is comparable with it (not disjoint, A14): the first loop, and a loop disjoint from
-        every accepted one, have nothing to contradict them and are accepted."""
+        """Add ``loop`` to the pool and set ``loop.accepted``: True if it is consistent with at
+        least one other. With ``veto`` (ours) a loop alone in its cluster is rejected only
+        when some accepted loop is comparable with it (not disjoint, A14): the first loop, and
+        a loop disjoint from every accepted one, have nothing to contradict them and are
+        accepted. With ``overturn`` (ours) an accepted loop with partners overturns every
+        earlier accepted loop comparable with it, outside its cluster, whose own cluster is
+        smaller: those are marked ``overturned`` (no longer accepted), left out of the pool,
+        and listed in :attr:`overturned_now` so the filter can undo their corrections."""
         self.pool.append(loop)
+        self.overturned_now = []
         if len(self.pool) < 2:
             loop.accepted = self.veto
             return loop.accepted
         d = self.matrix()
         z = linkage(squareform(d, checks=False), method=self.method)
         labels = fcluster(z, t=self.tau_m, criterion="distance")
-        loop.accepted = bool((labels == labels[-1]).sum() > 1)
+        size = np.bincount(labels)
+        loop.accepted = bool(size[labels[-1]] > 1)
         if not loop.accepted and self.veto:
             judges = [i for i, lp in enumerate(self.pool[:-1]) if lp.accepted]
             loop.accepted = all(d[i, -1] >= self.disjoint_m for i in judges)
+        if not (loop.accepted and self.overturn and size[labels[-1]] > 1):
+            return loop.accepted
+        out = [
+            lp
+            for i, lp in enumerate(self.pool[:-1])
+            if lp.accepted
+            and labels[i] != labels[-1]
+            and d[i, -1] < self.disjoint_m
+            and size[labels[i]] < size[labels[-1]]
+        ]
+        for lp in out:
+            lp.accepted, lp.overturned = False, True
+        self.pool = [lp for lp in self.pool if not lp.overturned]
+        self.overturned_now = out
         return loop.accepted

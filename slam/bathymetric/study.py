@@ -81,6 +81,16 @@ def _prf(tp: int, fp: int, fn: int) -> tuple[float, float, float]:
     return p, r, f1
 
 
+def _false_shares(results: Sequence[BathyResult]) -> list[float]:
+    """Per run with closures: the share of them that truth labels false (A22)."""
+    out = []
+    for r in results:
+        n = r.tp + r.fp + r.tn + r.fn
+        if n:
+            out.append((r.fp + r.tn) / n)
+    return out
+
+
 def summary(results: Sequence[BathyResult]) -> dict[str, float]:
     """The paper's measures over the runs of one algorithm (means unless named)."""
     fe = np.array([r.final_error_m for r in results])
@@ -108,6 +118,10 @@ def summary(results: Sequence[BathyResult]) -> dict[str, float]:
         "matched_per_ping": float(np.mean([r.matched_mean for r in results])),
         "loops_accepted": float(np.mean([r.loops_accepted for r in results])),
         "loops_rejected": float(np.mean([r.loops_rejected for r in results])),
+        # share of a run's closures that truth labels false (fp + tn), mean over runs with any
+        "false_share": float(np.mean(shares)) if (shares := _false_shares(results)) else math.nan,
+        "loops_overturned": float(np.mean([r.extra.get("loops_overturned", 0) for r in results])),
+        "weak_crossings": float(np.mean([r.extra.get("weak_crossings", 0) for r in results])),
         "tp": tp,
         "fp": fp,
         "tn": tn,
@@ -140,7 +154,13 @@ ROWS = [
     ("Memory held (MB)", "memory_mb", "{:.1f}"),
     ("Particles matched per ping", "matched_per_ping", "{:.1f}"),
     ("Loop closures accepted / rejected", ("loops_accepted", "loops_rejected"), "{:.1f}"),
+    (
+        "Closures overturned (counted as rejected) / weak crossings (no closure)",
+        ("loops_overturned", "weak_crossings"),
+        "{:.1f}",
+    ),
     ("Loop closures TP / FP / TN / FN", ("tp", "fp", "tn", "fn"), "{:d}"),
+    ("Closures labelled false, share per run", "false_share", "{:.2f}"),
     ("LCCD precision / recall / F1", ("precision", "recall", "f1"), "{:.2f}"),
     ("Map registration error, mean (m)", "map_err_mean_m", "{:.2f}"),
     ("Soundings within 2 m (%)", "map_under_2m_pct", "{:.2f}"),
