@@ -25,7 +25,13 @@ from scipy.spatial import cKDTree
 from auvgw.config.scenario import Scenario
 from auvgw.sim_devices.world import World
 from auvgw.slam.bathymetric.config import BathyConfig
-from auvgw.slam.bathymetric.filters import MTMPF, mode_ratio, mode_weights, no_match_weight
+from auvgw.slam.bathymetric.filters import (
+    MTMPF,
+    mode_odds,
+    mode_ratio,
+    mode_weights,
+    no_match_weight,
+)
 from auvgw.slam.bathymetric.simulate import simulate_survey
 
 
@@ -101,6 +107,9 @@ class Probe(MTMPF):
                 "mode_ratio": float(
                     mode_ratio(self.x, wa, self.cfg.mode_radius_m, self.cfg.mode_apart_m)
                 ),
+                "mode_odds": float(
+                    mode_odds(self.x, wa, self.cfg.mode_radius_m, self.cfg.mode_apart_m)
+                ),
                 "w_std": float(np.sqrt((wa @ ((self.x - mu_w) ** 2)).sum() / 2)),
                 "t": t,
                 "t_loop": t_loop,
@@ -156,6 +165,7 @@ COLS = [
     ("mode_share", "mode share", "{:.2f}"),
     ("mode_lr", "mode LR", "{:.1f}"),
     ("mode_ratio", "mode ratio", "{:.1f}"),
+    ("mode_odds", "mode odds", "{:.2f}"),
     ("w_std", "w std", "{:.1f}"),
     ("mode_err", "mode - x*", "{:.1f}"),
     ("ll_peak_off", "LL peak - x*", "{:.1f}"),

@@ -17,6 +17,7 @@ from auvgw.slam.bathymetric.filters import (
     MTMPF,
     fill_weights,
     jitter_variance,
+    mode_odds,
     mode_ratio,
     mode_weights,
     no_match_weight,
@@ -369,6 +370,46 @@ def test_mode_ratio_weighs_the_dominant_mode_against_a_disjoint_one() -> None:
         assert float(np.median(ratios)) == pytest.approx(0.7 / 0.3, rel=0.35)
 
 
+def test_mode_odds_weighs_the_mode_against_all_the_weight_elsewhere() -> None:
+    """min_mode_odds: a mode holding 0.045 of the weight beats each of 24 rivals holding 0.04
+    of it (rival ratio >= 1) but its odds against all of them are 0.04 / 0.96; the shoulder
+    within mode_apart_m counts with the mode (same peak), the weight beyond it against."""
+    rng = np.random.default_rng(1)
+    mode = rng.normal(0.0, 0.5, (10, 2))
+    rivals = np.array([[30.0 * np.cos(a), 30.0 * np.sin(a)] for a in np.arange(24) * 0.26])
+    x = np.vstack([mode, rivals])
+    w = np.concatenate([np.full(10, 0.0045), np.full(24, 0.04)])  # mode 0.045, rivals 0.04
+    w /= w.sum()
+    assert mode_ratio(x, w, 3.0, 10.0) >= 1.0
+    assert mode_odds(x, w, 3.0, 10.0) == pytest.approx(w[:10].sum() / w[10:].sum())
+    assert mode_odds(x, w, 3.0, 10.0) < 0.05
+    shoulder = np.array([[0.0, 0.0], [6.0, 0.0], [25.0, 0.0]])  # 6 m: the same peak's shoulder
+    assert mode_odds(shoulder, np.array([0.5, 0.3, 0.2]), 3.0, 10.0) == pytest.approx(4.0)
+    assert mode_odds(shoulder[:2], np.array([0.5, 0.5]), 3.0, 10.0) == math.inf
+
+
+def test_a_crossing_below_min_mode_odds_does_not_close() -> None:
+    """A crossing whose heaviest 3 m mode passes min_mode_ratio but holds less than all the
+    weight beyond mode_apart_m makes no closure when min_mode_odds = 1; with 0 (off) it
+    closes on that mode."""
+    x = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [20.0, 0.0], [40.0, 0.0], [60.0, 0.0]])
+    w = np.array([0.45, 0.0, 0.0, 0.3, 0.25, 0.0])  # Neff 2.8 < 4; odds 0.45 / 0.55
+    for odds in (0.0, 1.0):
+        cfg = BathyConfig(
+            n_particles=6,
+            lccd=False,
+            t_l=2,
+            crossing_max_pings=1,
+            min_mode_ratio=1.2,
+            min_mode_odds=odds,
+        )
+        f = MTMPF(cfg, 10, np.random.default_rng(0))
+        f.t, f.x = 6, x.copy()
+        f.traj[:7] = np.arange(7.0)[:, None] * (0.0, 1.0)
+        f._crossing(w, np.zeros(6, dtype=int))
+        assert (len(f.loops), f.weak_crossings) == ((0, 1) if odds else (1, 0))
+
+
 @pytest.mark.parametrize("min_ratio", [1.0, 2.0])
 def test_a_weak_crossing_neither_resamples_nor_closes(min_ratio: float) -> None:
     """A crossing whose weights split 0.55 / 0.45 between two modes 20 m apart reaches
@@ -448,3 +489,48 @@ def test_overturn_undoes_a_closure_on_the_mean_trajectory() -> None:
     assert np.allclose(f.x, x_before - c70)
     assert np.linalg.norm(np.diff(f.traj[:151], axis=0) - (1.0, 0.0), axis=1).max() < 0.5
     assert f.covered[70:151].all() and not f.covered[:70].any()
+
+
+def test_lccd_pending_holds_a_lone_closure_until_another_judges_it() -> None:
+    """lccd_pending: the first closure is held (not accepted, nothing applied); a later one
+    in its cluster confirms it (both accepted); a wrong first closure is held, the next right
+    one is held too (no accepted closure can judge either), a third that agrees with the right
+    one accepts both right ones and drops the wrong one without anything to undo. Without
+    'pending' the wrong first closure is accepted and vetoes the right one after it."""
+    drift = np.array([0.012, 0.012])
+    lccd = LCCD(tau_m=3.0, veto=True, overturn=True, pending=True)
+    a, b = _loop(100, 300, drift, (0, 0)), _loop(101, 301, drift, (0.3, -0.2))
+    assert not lccd.judge(a) and a.pending
+    assert lccd.judge(b) and a.accepted and not a.pending and lccd.overturned_now == []
+    wrong = lambda: [  # noqa: E731
+        _loop(90, 330, drift, (15.0, -12.0)),  # a false match: 19 m off
+        _loop(100, 340, drift, (0, 0)),
+        _loop(101, 350, drift, (0.3, -0.2)),
+        _loop(120, 360, drift, (-0.4, 0.5)),
+    ]
+    lccd = LCCD(tau_m=3.0, veto=True, overturn=True, pending=True)
+    lps = wrong()
+    got = []
+    for lp in lps:
+        got.append((lccd.judge(lp), lp.pending))
+        assert lccd.overturned_now == []  # nothing wrong was ever applied
+    assert got == [(False, True), (False, True), (True, False), (True, False)]
+    assert [lp.accepted for lp in lps] == [False, True, True, True]
+    assert not lps[0].pending and not lps[0].overturned
+    plain = LCCD(tau_m=3.0, veto=True)
+    assert [plain.judge(lp) for lp in wrong()] == [True, False, True, True]
+
+
+def test_a_pending_closure_changes_neither_particles_nor_track() -> None:
+    """The filter with lccd_pending: the first closure of a run resamples, is held pending,
+    and the particles and the mean trajectory are restored exactly (the map unchanged)."""
+    x = np.array([[0.0, 0.0], [1.0, 0.0], [20.0, 0.0], [21.0, 0.0]])
+    w = np.array([0.6, 0.3, 0.05, 0.05])
+    cfg = BathyConfig(n_particles=4, t_l=2, crossing_max_pings=1, lccd_pending=True)
+    f = MTMPF(cfg, 10, np.random.default_rng(0))
+    f.t, f.x = 6, x.copy()
+    f.traj[:7] = np.arange(7.0)[:, None] * (0.0, 1.0)
+    traj = f.traj.copy()
+    f._crossing(w, np.zeros(4, dtype=int))
+    assert len(f.loops) == 1 and f.loops[0].pending and not f.loops[0].accepted
+    assert np.array_equal(f.x, x) and np.array_equal(f.traj, traj) and not f.covered.any()

@@ -122,6 +122,16 @@ class BathyConfig(BaseModel):
         "crossing's likelihood (std 5.1 m, median over the closures of the diagnosed run), "
         "so the shoulder of the same peak is not counted as a rival closure",
     )
+    min_mode_odds: float = Field(
+        0.0,
+        ge=0,
+        description="'min_mode_ratio' too (ours): the crossing closes only when the weight "
+        "within mode_apart_m of the dominant mode's centre is at least this many times all "
+        "the weight farther away (filters.mode_odds: the posterior odds that the closure is "
+        "where the mode says rather than anywhere else; 1 = more likely than not). The "
+        "rival ratio alone passes a mode holding 4 % of the weight when each rival holds "
+        "less still. 0 = off",
+    )
     crossing_gap_pings: int = Field(
         5, ge=1, description="'crossing': pings without overlap that end a crossing (ours)"
     )
@@ -152,6 +162,15 @@ class BathyConfig(BaseModel):
         "with it, outside its cluster, whose own cluster is smaller; their corrections are "
         "undone on the mean trajectory and the particles (the ramp of eqs. 15-22 is additive). "
         "Without it, a weak wrong first closure accepted by 'veto' vetoes the right ones after it",
+    )
+    lccd_pending: bool = Field(
+        False,
+        description="'veto' (ours; A17's 'singleton => invalid' made revisable): a closure "
+        "that no accepted closure can judge (the first, or one disjoint from every accepted "
+        "one) is held pending: its correction is not applied and the particles are restored, "
+        "until a later closure falls in its lccd_tau_m cluster (that one is applied, the "
+        "pending one counts as accepted) or an accepted closure comparable with it disagrees "
+        "(it stays rejected). False = accept it as 'veto' does",
     )
     lccd_parts: int = Field(2, ge=2, description="'parts': parts a crossing is split into")
     lccd_tau_m: float = Field(3.0, gt=0, description="clustering cut distance (A15)")

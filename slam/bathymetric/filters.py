@@ -122,6 +122,19 @@ def mode_ratio(x: np.ndarray, w: np.ndarray, radius_m: float, apart_m: float) ->
     return top / second if second > 0 else float("inf")
 
 
+def mode_odds(x: np.ndarray, w: np.ndarray, radius_m: float, apart_m: float) -> float:
+    """Posterior odds that a closure lies where the dominant mode says (ours): the weight ``w``
+    (N,) within ``apart_m`` of the dominant ``radius_m`` mode's centre (:func:`mode_weights`:
+    the mode and its own peak's shoulder) over all the weight farther away (every other
+    closure together); inf when no weight lies that far. Unlike :func:`mode_ratio` a mode
+    holding a few per cent of the weight fails it however weak each rival is. Positions ``x``
+    (N, 2) and distances in m."""
+    centre, _ = _heaviest(x, w, radius_m, np.arange(len(w)))
+    near = ((x - x[centre]) ** 2).sum(-1) <= apart_m**2
+    rest = float(w[~near].sum())
+    return float(w[near].sum()) / rest if rest > 0 else float("inf")
+
+
 class BathyFilter:
     """Common storage: the swaths (offsets, depths) of every ping, preallocated for ``n_pings``."""
 
@@ -246,6 +259,7 @@ class MTMPF(BathyFilter):
             cfg.lccd_disjoint_m,
             veto=cfg.lccd_mode == "veto",
             overturn=cfg.lccd_overturn and cfg.lccd_mode == "veto",
+            pending=cfg.lccd_pending and cfg.lccd_mode == "veto",
         )
         # closure = "crossing": accumulated log weights, pings in / since the crossing
         self.logw = np.zeros(cfg.n_particles)
@@ -395,7 +409,10 @@ class MTMPF(BathyFilter):
         if neff < cfg.neff_fraction * n and self.t - cfg.t_l >= 2:
             weak = cfg.closure_estimate == "mode" and cfg.min_mode_ratio > 1
             r = cfg.mode_radius_m
-            if weak and mode_ratio(self.x, wa, r, cfg.mode_apart_m) < cfg.min_mode_ratio:
+            if weak and (
+                mode_ratio(self.x, wa, r, cfg.mode_apart_m) < cfg.min_mode_ratio
+                or mode_odds(self.x, wa, r, cfg.mode_apart_m) < cfg.min_mode_odds
+            ):
                 self.weak_crossings += 1  # too little evidence: no resampling, no closure
                 return
             agree = self._parts_agree(parts) if cfg.lccd and cfg.lccd_mode == "parts" else None
@@ -453,7 +470,7 @@ class MTMPF(BathyFilter):
         else:
             valid = self.lccd.judge(loop)
         loop.accepted = valid
-        if not valid:  # A18: restore the particles, map unchanged
+        if not valid:  # A18 (and a pending closure): restore the particles, map unchanged
             self.x = before
             return
         covered = self.covered

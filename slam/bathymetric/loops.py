@@ -28,6 +28,7 @@ class LoopClosure:
     s_end_before: np.ndarray
     accepted: bool = False
     overturned: bool = False
+    pending: bool = False
     t_a: int = -1
     delta: np.ndarray | None = None
 
@@ -95,9 +96,10 @@ class LCCD:
         disjoint_m: float = 1e6,
         veto: bool = False,
         overturn: bool = False,
+        pending: bool = False,
     ) -> None:
         self.tau_m, self.method, self.disjoint_m = tau_m, method, disjoint_m
-        self.veto, self.overturn = veto, overturn
+        self.veto, self.overturn, self.hold = veto, overturn, pending
         self.pool: list[LoopClosure] = []
         self.overturned_now: list[LoopClosure] = []  # by the last :meth:`judge`
 
@@ -127,14 +129,19 @@ class LCCD:
         least one other. With ``veto`` (ours) a loop alone in its cluster is rejected only
         when some accepted loop is comparable with it (not disjoint, A14): the first loop, and
         a loop disjoint from every accepted one, have nothing to contradict them and are
-        accepted. With ``overturn`` (ours) an accepted loop with partners overturns every
+        accepted; with ``pending`` (ours, A17's "singleton => invalid" made revisable) they are
+        held ``pending`` instead (not accepted: the filter applies nothing), until a later loop
+        falls in their cluster (both accepted; the pending one is not applied again) or an
+        accepted loop comparable with it falls outside its cluster (it stays rejected).
+        With ``overturn`` (ours) an accepted loop with partners overturns every
         earlier accepted loop comparable with it, outside its cluster, whose own cluster is
         smaller: those are marked ``overturned`` (no longer accepted), left out of the pool,
         and listed in :attr:`overturned_now` so the filter can undo their corrections."""
         self.pool.append(loop)
         self.overturned_now = []
         if len(self.pool) < 2:
-            loop.accepted = self.veto
+            loop.accepted = self.veto and not self.hold
+            loop.pending = self.veto and self.hold
             return loop.accepted
         d = self.matrix()
         z = linkage(squareform(d, checks=False), method=self.method)
@@ -144,6 +151,14 @@ class LCCD:
         if not loop.accepted and self.veto:
             judges = [i for i, lp in enumerate(self.pool[:-1]) if lp.accepted]
             loop.accepted = all(d[i, -1] >= self.disjoint_m for i in judges)
+            if loop.accepted and self.hold:
+                loop.accepted, loop.pending = False, True
+        if self.hold and loop.accepted:
+            for i, lp in enumerate(self.pool[:-1]):
+                if lp.pending and labels[i] == labels[-1]:
+                    lp.accepted, lp.pending = True, False  # confirmed
+                elif lp.pending and d[i, -1] < self.disjoint_m:
+                    lp.pending = False  # contradicted: stays rejected
         if not (loop.accepted and self.overturn and size[labels[-1]] > 1):
             return loop.accepted
         out = [
