@@ -534,3 +534,32 @@ def test_a_pending_closure_changes_neither_particles_nor_track() -> None:
     f._crossing(w, np.zeros(4, dtype=int))
     assert len(f.loops) == 1 and f.loops[0].pending and not f.loops[0].accepted
     assert np.array_equal(f.x, x) and np.array_equal(f.traj, traj) and not f.covered.any()
+
+
+def test_lccd_replace_lets_stronger_evidence_undo_a_lone_closure() -> None:
+    """lccd_replace: a weak wrong first closure (mode ratio 3.4, 19 m off) is accepted; the
+    next one contradicts it with more evidence (ratio 24) and nothing else has judged the first,
+    so it replaces it (the first is overturned, to be undone); a weaker contradicting closure
+    (ratio 2) is vetoed, and once a closure has a partner it is no longer replaced."""
+    drift = np.array([0.012, 0.012])
+
+    def loops() -> list[LoopClosure]:
+        lps = [
+            _loop(90, 330, drift, (15.0, -12.0)),  # a false match: 19 m off
+            _loop(100, 340, drift, (0, 0)),
+            _loop(95, 345, drift, (14.0, -11.0)),  # false again, weaker evidence
+            _loop(101, 350, drift, (0.3, -0.2)),
+        ]
+        for lp, ev in zip(lps, (3.4, 24.0, 2.0, 10.0), strict=True):
+            lp.evidence = ev
+        return lps
+
+    lccd = LCCD(tau_m=3.0, veto=True, replace=True)
+    lps, over = loops(), []
+    for lp in lps:
+        lccd.judge(lp)
+        over.append(list(lccd.overturned_now))
+    assert [lp.accepted for lp in lps] == [False, True, False, True]
+    assert lps[0].overturned and [len(o) for o in over] == [0, 1, 0, 0]
+    plain = LCCD(tau_m=3.0, veto=True)
+    assert [plain.judge(lp) for lp in loops()] == [True, False, True, True]

@@ -172,6 +172,15 @@ class BathyConfig(BaseModel):
         "pending one counts as accepted) or an accepted closure comparable with it disagrees "
         "(it stays rejected). False = accept it as 'veto' does",
     )
+    lccd_replace: bool = Field(
+        False,
+        description="'veto' (ours): a closure vetoed only by accepted closures that no other "
+        "accepted closure agrees with (lone, e.g. the first) replaces them when its mode ratio "
+        "(min_mode_ratio's evidence) is larger: between two contradicting closures and nothing "
+        "else to judge them, the one the posterior supports more; the replaced ones are undone "
+        "as lccd_overturn does. Without it a weak wrong first closure vetoes every stronger "
+        "right one after it until two of them agree",
+    )
     lccd_parts: int = Field(2, ge=2, description="'parts': parts a crossing is split into")
     lccd_tau_m: float = Field(3.0, gt=0, description="clustering cut distance (A15)")
     lccd_linkage: str = Field("single", description="scipy linkage method (A15)")

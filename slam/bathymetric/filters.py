@@ -7,6 +7,8 @@ and depths (B,) (m, down); ping 0 is given to ``start``. ``trajectory()`` is the
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -260,6 +262,7 @@ class MTMPF(BathyFilter):
             veto=cfg.lccd_mode == "veto",
             overturn=cfg.lccd_overturn and cfg.lccd_mode == "veto",
             pending=cfg.lccd_pending and cfg.lccd_mode == "veto",
+            replace=cfg.lccd_replace and cfg.lccd_mode == "veto",
         )
         # closure = "crossing": accumulated log weights, pings in / since the crossing
         self.logw = np.zeros(cfg.n_particles)
@@ -409,14 +412,15 @@ class MTMPF(BathyFilter):
         if neff < cfg.neff_fraction * n and self.t - cfg.t_l >= 2:
             weak = cfg.closure_estimate == "mode" and cfg.min_mode_ratio > 1
             r = cfg.mode_radius_m
+            ratio = mode_ratio(self.x, wa, r, cfg.mode_apart_m) if weak else math.inf
             if weak and (
-                mode_ratio(self.x, wa, r, cfg.mode_apart_m) < cfg.min_mode_ratio
+                ratio < cfg.min_mode_ratio
                 or mode_odds(self.x, wa, r, cfg.mode_apart_m) < cfg.min_mode_odds
             ):
                 self.weak_crossings += 1  # too little evidence: no resampling, no closure
                 return
             agree = self._parts_agree(parts) if cfg.lccd and cfg.lccd_mode == "parts" else None
-            self._resample(wa, self._tlp, agree)
+            self._resample(wa, self._tlp, agree, evidence=ratio)
 
     def _parts_agree(self, parts: list[np.ndarray]) -> bool:
         """LCCD inside one crossing (``lccd_mode = 'parts'``, ours): the crossing's pings with
@@ -439,7 +443,13 @@ class MTMPF(BathyFilter):
         return consistent(np.asarray(corr), cfg.lccd_tau_m, cfg.lccd_linkage)
 
     # -- resampling = loop closure ------------------------------------------------------------
-    def _resample(self, w: np.ndarray, tlp: np.ndarray, agree: bool | None = None) -> None:
+    def _resample(
+        self,
+        w: np.ndarray,
+        tlp: np.ndarray,
+        agree: bool | None = None,
+        evidence: float = math.inf,
+    ) -> None:
         """Resample = one loop closure (14); ``agree``: the crossing's own LCCD decision
         (``lccd_mode = 'parts'``), None = the pool's (Sec. IV-B)."""
         cfg, t = self.cfg, self.t
@@ -461,6 +471,7 @@ class MTMPF(BathyFilter):
             s_loop=self.traj[t_loop].copy(),
             s_end=s_after,
             s_end_before=s_before,
+            evidence=evidence,
         )
         self.loops.append(loop)
         if not cfg.lccd:

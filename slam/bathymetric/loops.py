@@ -29,6 +29,7 @@ class LoopClosure:
     accepted: bool = False
     overturned: bool = False
     pending: bool = False
+    evidence: float = float("inf")  # the crossing's mode ratio (filters.mode_ratio)
     t_a: int = -1
     delta: np.ndarray | None = None
 
@@ -97,9 +98,11 @@ class LCCD:
         veto: bool = False,
         overturn: bool = False,
         pending: bool = False,
+        replace: bool = False,
     ) -> None:
         self.tau_m, self.method, self.disjoint_m = tau_m, method, disjoint_m
         self.veto, self.overturn, self.hold = veto, overturn, pending
+        self.replace = replace
         self.pool: list[LoopClosure] = []
         self.overturned_now: list[LoopClosure] = []  # by the last :meth:`judge`
 
@@ -133,7 +136,9 @@ class LCCD:
         held ``pending`` instead (not accepted: the filter applies nothing), until a later loop
         falls in their cluster (both accepted; the pending one is not applied again) or an
         accepted loop comparable with it falls outside its cluster (it stays rejected).
-        With ``overturn`` (ours) an accepted loop with partners overturns every
+        With ``replace`` (ours) a loop vetoed only by accepted loops that no other accepted
+        loop agrees with (unconfirmed) replaces them when its ``evidence`` is larger: they are
+        overturned as below. With ``overturn`` (ours) an accepted loop with partners overturns every
         earlier accepted loop comparable with it, outside its cluster, whose own cluster is
         smaller: those are marked ``overturned`` (no longer accepted), left out of the pool,
         and listed in :attr:`overturned_now` so the filter can undo their corrections."""
@@ -150,7 +155,22 @@ class LCCD:
         loop.accepted = bool(size[labels[-1]] > 1)
         if not loop.accepted and self.veto:
             judges = [i for i, lp in enumerate(self.pool[:-1]) if lp.accepted]
-            loop.accepted = all(d[i, -1] >= self.disjoint_m for i in judges)
+            against = [i for i in judges if d[i, -1] < self.disjoint_m]
+            loop.accepted = not against
+            lone = all(not any(j != i and labels[j] == labels[i] for j in judges) for i in against)
+            if (
+                against
+                and self.replace
+                and lone
+                and loop.evidence > max(self.pool[i].evidence for i in against)
+            ):
+                out = [self.pool[i] for i in against]
+                for lp in out:
+                    lp.accepted, lp.overturned = False, True
+                self.pool = [lp for lp in self.pool if not lp.overturned]
+                self.overturned_now = out
+                loop.accepted = True
+                return True
             if loop.accepted and self.hold:
                 loop.accepted, loop.pending = False, True
         if self.hold and loop.accepted:
