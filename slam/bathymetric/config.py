@@ -173,13 +173,13 @@ class BathyConfig(BaseModel):
         "(it stays rejected). False = accept it as 'veto' does",
     )
     lccd_replace: bool = Field(
-        False,
+        True,
         description="'veto' (ours): a closure vetoed only by accepted closures that no other "
         "accepted closure agrees with (lone, e.g. the first) replaces them when its mode ratio "
         "(min_mode_ratio's evidence) is larger: between two contradicting closures and nothing "
         "else to judge them, the one the posterior supports more; the replaced ones are undone "
         "as lccd_overturn does. Without it a weak wrong first closure vetoes every stronger "
-        "right one after it until two of them agree",
+        "right one after it until two of them agree (default on: 8 runs, session 5)",
     )
     lccd_parts: int = Field(2, ge=2, description="'parts': parts a crossing is split into")
     lccd_tau_m: float = Field(3.0, gt=0, description="clustering cut distance (A15)")
