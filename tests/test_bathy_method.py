@@ -181,6 +181,15 @@ def _loop(t_loop: int, t_end: int, drift: np.ndarray, error: np.ndarray) -> Loop
     )
 
 
+def _judge_all(lccd: LCCD, loops: list[LoopClosure]) -> list[list[LoopClosure]]:
+    """Judge ``loops`` in order; what each judgement overturned."""
+    over = []
+    for lp in loops:
+        lccd.judge(lp)
+        over.append(list(lccd.overturned_now))
+    return over
+
+
 def test_lccd_rejects_a_planted_inconsistent_closure() -> None:
     drift = np.array([0.012, 0.012])
     lccd = LCCD(tau_m=3.0)
@@ -447,10 +456,8 @@ def test_lccd_overturns_a_planted_wrong_first_closure() -> None:
         _loop(120, 360, drift, (-0.4, 0.5)),
     ]
     lccd = LCCD(tau_m=3.0, veto=True, overturn=True)
-    lps, over = loops(), []
-    for lp in lps:
-        lccd.judge(lp)
-        over.append(list(lccd.overturned_now))
+    lps = loops()
+    over = _judge_all(lccd, lps)
     assert [lp.accepted for lp in lps] == [False, False, True, True]
     assert lps[0].overturned and [len(o) for o in over] == [0, 0, 1, 0] and over[2][0] is lps[0]
     assert all(lp is not lps[0] for lp in lccd.pool)
@@ -555,10 +562,8 @@ def test_lccd_replace_lets_stronger_evidence_undo_a_lone_closure() -> None:
         return lps
 
     lccd = LCCD(tau_m=3.0, veto=True, replace=True)
-    lps, over = loops(), []
-    for lp in lps:
-        lccd.judge(lp)
-        over.append(list(lccd.overturned_now))
+    lps = loops()
+    over = _judge_all(lccd, lps)
     assert [lp.accepted for lp in lps] == [False, True, False, True]
     assert lps[0].overturned and [len(o) for o in over] == [0, 1, 0, 0]
     plain = LCCD(tau_m=3.0, veto=True)
