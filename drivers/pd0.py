@@ -56,6 +56,7 @@ import numpy as np
 from auvgw.drivers.formats import Format
 from auvgw.drivers.framing import BadFrame, DecodeError, Framer
 from auvgw.drivers.spec import (
+    WIRE_BYTES,
     WIRE_TYPES,
     Wire,
     WireError,
@@ -642,7 +643,7 @@ class _Plan:
 
     __slots__ = (
         "absent", "arrays", "bulk", "cls", "missing", "names", "scaled", "size", "small",
-        "small_struct", "struct",
+        "small_struct", "spans", "struct",
     )
     #: scaled arrays up to this many elements (a Pathfinder's velocity profile included) are
     #: converted in Python: cheaper than numpy's calls on a warm core for a few elements, and on a
@@ -659,6 +660,8 @@ class _Plan:
         self.scaled: list[tuple[str, float, float, int | None]] = []
         self.arrays: list[tuple[str, int, np.dtype, int, tuple[int, ...] | None, Wire, bool]] = []
         self.absent: dict[str, None] = {}
+        #: (field, first byte, stop) of every integer array field: its wire bytes
+        self.spans: list[tuple[str, int, int]] = []
         #: (field, offset, stop) of the first required field the block is too short for
         self.missing: tuple[str, int, int] | None = None
         min_size = cls.MIN_SIZE if cls.MIN_SIZE >= 0 else block_size(cls, ctx)
@@ -676,6 +679,8 @@ class _Plan:
             code = "<" + WIRE_TYPES.get(w.type, "B")
             count = n // struct.calcsize(code)
             shape = w.resolve_shape(ctx)
+            if w.shape and w.type in WIRE_TYPES and not w.type.startswith("f"):
+                self.spans.append((name, pos, expected))
             if w.type == "bytes":
                 fmt.append(f"{n}s")
                 small_fmt.append(f"{n}x")
@@ -736,6 +741,8 @@ class _Plan:
         values["extra"] = extra
         if self.absent:
             values.update(self.absent)
+        if self.spans:
+            values[WIRE_BYTES] = {name: buf[start + a : start + b] for name, a, b in self.spans}
         msg: Any = object.__new__(self.cls)
         msg.__dict__.update(values)
         return msg

@@ -36,6 +36,7 @@ import numpy as np
 from auvgw.errors import DataError
 
 __all__ = [
+    "WIRE_BYTES",
     "Wire",
     "WireError",
     "block_size",
@@ -50,6 +51,12 @@ __all__ = [
     "to_jsonable",
     "wire",
 ]
+
+#: instance attribute where a codec's decode may leave the wire bytes of a decoded message's
+#: integer array fields (``{field: bytes}``, little endian, the table's dtype, exactly the bytes
+#: the field was decoded from); the envelope then sends them as they are instead of converting
+#: the SI values back (docs/gateway.md). Not a field: equality, ``replace`` and encode ignore it.
+WIRE_BYTES = "__wire__"
 
 #: wire type name -> struct code
 WIRE_TYPES: dict[str, str] = {
