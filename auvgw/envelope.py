@@ -387,10 +387,10 @@ def _packer(
 ) -> Callable[[Any, bool], list[Any]]:
     """A function building the positional body of one class: one list display of attribute
     reads and encoder calls (the gateway's hot path: no loop, no zip, no per-field lookup).
-    ``wire_arrays``: the integer array fields (their native dtype when they have several
-    dimensions, else None); a trusted message carrying their wire bytes
-    (:data:`~auvgw.drivers.spec.WIRE_BYTES`) sends those as they are: the same bytes the
-    encoders give from the SI values, without the round trip."""
+    ``wire_arrays``: the integer array and scaled integer fields (an array's native dtype when
+    it has several dimensions, else None); a trusted message carrying their wire values
+    (:data:`~auvgw.drivers.spec.WIRE_BYTES`) sends those as they are: the raw integers and
+    bytes the encoders give from the SI values, without the round trip."""
     ns: dict[str, Any] = {"_ext": msgspec.msgpack.Ext, "_head": _array_head}
     items, fast = [], []
     for i, (name, enc) in enumerate(zip(names, encoders, strict=True)):
@@ -406,7 +406,7 @@ def _packer(
             fast.append(items[-1])
             continue
         nd = wire_arrays[name]
-        if nd is None:  # 1-D: MessagePack bin of the wire bytes
+        if nd is None:  # a raw integer, or a 1-D array as MessagePack bin of its wire bytes
             got = f"W[{name!r}]"
         else:  # extension 1 in the native dtype (little endian here, as the wire)
             ns[f"d{i}"] = nd
@@ -437,7 +437,7 @@ def _plan(cls: type) -> _Plan:
         w, linear = f.metadata.get("wire"), f.metadata.get("linear")
         if w is not None:
             enc, dec, desc = _wire_coders(w)
-            if w.is_array and w.type in WIRE_TYPES and not w.type.startswith("f"):
+            if w.type in WIRE_TYPES and not w.type.startswith("f") and (w.is_array or w.is_scaled):
                 nd = len(w.shape) > 1
                 wire_arrays[f.name] = np.dtype("=" + WIRE_TYPES[w.type]) if nd else None
         elif linear is not None:

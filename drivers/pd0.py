@@ -703,6 +703,8 @@ class _Plan:
                 small_fmt.append(f"{n}x")
                 self.names.append(name)
                 if w.is_scaled:
+                    if w.type.startswith("f"):
+                        raise TypeError(f"{cls.__name__}.{name}: a scaled float")
                     self.scaled.append((name, w.scale, w.add, w.invalid))
             pos = expected
         self.cls = cls
@@ -715,8 +717,9 @@ class _Plan:
         """Decode the block at ``buf[start:]``; ``buf`` must be ``bytes`` (immutable: unscaled
         arrays are read-only views of it)."""
         values = dict(zip(self.names, self.struct.unpack_from(buf, start), strict=True))
+        wire: dict[str, Any] = {}
         for name, scale, add, invalid in self.scaled:
-            raw = values[name]
+            raw = wire[name] = values[name]
             values[name] = math.nan if raw == invalid else raw * scale + add
         if self.small:
             flat = self.small_struct.unpack_from(buf, start)
@@ -741,8 +744,9 @@ class _Plan:
         values["extra"] = extra
         if self.absent:
             values.update(self.absent)
-        if self.spans:
-            values[WIRE_BYTES] = {name: buf[start + a : start + b] for name, a, b in self.spans}
+        for name, a, b in self.spans:
+            wire[name] = buf[start + a : start + b]
+        values[WIRE_BYTES] = wire
         msg: Any = object.__new__(self.cls)
         msg.__dict__.update(values)
         return msg

@@ -52,10 +52,11 @@ __all__ = [
     "wire",
 ]
 
-#: instance attribute where a codec's decode may leave the wire bytes of a decoded message's
-#: integer array fields (``{field: bytes}``, little endian, the table's dtype, exactly the bytes
-#: the field was decoded from); the envelope then sends them as they are instead of converting
-#: the SI values back (docs/gateway.md). Not a field: equality, ``replace`` and encode ignore it.
+#: instance attribute where a codec's decode may leave what a decoded message's fields were on
+#: the wire: ``{field: value}``, the raw integer of a scaled integer field, the bytes (little
+#: endian, the table's dtype) of an integer array field, exactly what it was decoded from; the
+#: envelope then sends them as they are instead of converting the SI values back
+#: (docs/gateway.md). Not a field: equality, ``replace`` and encode ignore it.
 WIRE_BYTES = "__wire__"
 
 #: wire type name -> struct code
