@@ -413,7 +413,7 @@ def _packer(
             got = f"_ext({EXT_NDARRAY}, _head(d{i}, {get}.shape) + W[{name!r}])"
         fast.append(f"({got} if {name!r} in W else {items[-1]})")
     src = "def pack(msg, trusted):\n"
-    if wire_arrays and sys.byteorder == "little":
+    if wire_arrays:
         src += (
             f"    W = getattr(msg, {WIRE_BYTES!r}, None) if trusted else None\n"
             f"    if W is not None:\n        return [{', '.join(fast)}]\n"
@@ -449,6 +449,7 @@ def _plan(cls: type) -> _Plan:
         decs.append(dec)
         descs.append(f"{f.name}:{desc}")
     text = f"{getattr(cls, 'TYPE', cls.__name__)}({';'.join(descs)})"
+    carries_wire = sys.byteorder == "little" and any(WIRE_BYTES in vars(c) for c in cls.__mro__)
     schema = zlib.crc32(text.encode()) & 0xFFFF
     return _Plan(
         cls,
@@ -456,7 +457,7 @@ def _plan(cls: type) -> _Plan:
         tuple(encs),
         tuple(decs),
         schema,
-        _packer(tuple(names), tuple(encs), wire_arrays),
+        _packer(tuple(names), tuple(encs), wire_arrays if carries_wire else {}),
     )
 
 

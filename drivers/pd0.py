@@ -554,6 +554,8 @@ _TABLES: dict[int, type] = {
         BottomTrackRange,
     )
 }
+for _cls in _TABLES.values():  # their decode keeps the wire values (see _Plan.decode)
+    setattr(_cls, WIRE_BYTES, None)
 #: Ensemble field name of each known data type, in the canonical (RDI) order
 _FIELD_OF: dict[int, str] = {
     ID_FIXED_LEADER: "fixed_leader",
@@ -703,8 +705,6 @@ class _Plan:
                 small_fmt.append(f"{n}x")
                 self.names.append(name)
                 if w.is_scaled:
-                    if w.type.startswith("f"):
-                        raise TypeError(f"{cls.__name__}.{name}: a scaled float")
                     self.scaled.append((name, w.scale, w.add, w.invalid))
             pos = expected
         self.cls = cls

@@ -56,7 +56,8 @@ __all__ = [
 #: the wire: ``{field: value}``, the raw integer of a scaled integer field, the bytes (little
 #: endian, the table's dtype) of an integer array field, exactly what it was decoded from; the
 #: envelope then sends them as they are instead of converting the SI values back
-#: (docs/gateway.md). Not a field: equality, ``replace`` and encode ignore it.
+#: (docs/gateway.md). Not a field: equality, ``replace`` and encode ignore it. A class whose
+#: codec does this says so with a class attribute of this name (None): only those look.
 WIRE_BYTES = "__wire__"
 
 #: wire type name -> struct code
