@@ -238,8 +238,8 @@ def test_pd0_wire_bytes_give_the_envelope_of_the_si_values(shared_data):
     """PD0's decode leaves each block's wire values on the message (spec.WIRE_BYTES: integer
     array bytes, raw scaled integers) and the envelope sends them as they are: on every
     ensemble of both real files (decoded one at a time, as the gateway does) the envelope is
-    byte for byte the one built from the SI values (the same messages without their wire bytes, trusted and checked), and decodes
-    to the same values."""
+    byte for byte the one built from the SI values (the same messages without their wire
+    values, trusted and checked), and decodes to the same values."""
     import copy
 
     from auvgw.drivers import pd0
