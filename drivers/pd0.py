@@ -56,6 +56,7 @@ import numpy as np
 from auvgw.drivers.formats import Format
 from auvgw.drivers.framing import BadFrame, DecodeError, Framer
 from auvgw.drivers.spec import (
+    WIRE_BYTES,
     WIRE_TYPES,
     Wire,
     WireError,
@@ -553,6 +554,8 @@ _TABLES: dict[int, type] = {
         BottomTrackRange,
     )
 }
+for _cls in _TABLES.values():  # their decode keeps the wire values (see _Plan.decode)
+    setattr(_cls, WIRE_BYTES, None)
 #: Ensemble field name of each known data type, in the canonical (RDI) order
 _FIELD_OF: dict[int, str] = {
     ID_FIXED_LEADER: "fixed_leader",
@@ -642,7 +645,7 @@ class _Plan:
 
     __slots__ = (
         "absent", "arrays", "bulk", "cls", "missing", "names", "scaled", "size", "small",
-        "small_struct", "struct",
+        "small_struct", "spans", "struct",
     )
     #: scaled arrays up to this many elements (a Pathfinder's velocity profile included) are
     #: converted in Python: cheaper than numpy's calls on a warm core for a few elements, and on a
@@ -659,6 +662,8 @@ class _Plan:
         self.scaled: list[tuple[str, float, float, int | None]] = []
         self.arrays: list[tuple[str, int, np.dtype, int, tuple[int, ...] | None, Wire, bool]] = []
         self.absent: dict[str, None] = {}
+        #: (field, first byte, stop) of every integer array field: its wire bytes
+        self.spans: list[tuple[str, int, int]] = []
         #: (field, offset, stop) of the first required field the block is too short for
         self.missing: tuple[str, int, int] | None = None
         min_size = cls.MIN_SIZE if cls.MIN_SIZE >= 0 else block_size(cls, ctx)
@@ -676,6 +681,8 @@ class _Plan:
             code = "<" + WIRE_TYPES.get(w.type, "B")
             count = n // struct.calcsize(code)
             shape = w.resolve_shape(ctx)
+            if w.shape and w.type in WIRE_TYPES and not w.type.startswith("f"):
+                self.spans.append((name, pos, expected))
             if w.type == "bytes":
                 fmt.append(f"{n}s")
                 small_fmt.append(f"{n}x")
@@ -710,8 +717,9 @@ class _Plan:
         """Decode the block at ``buf[start:]``; ``buf`` must be ``bytes`` (immutable: unscaled
         arrays are read-only views of it)."""
         values = dict(zip(self.names, self.struct.unpack_from(buf, start), strict=True))
+        wire: dict[str, Any] = {}
         for name, scale, add, invalid in self.scaled:
-            raw = values[name]
+            raw = wire[name] = values[name]
             values[name] = math.nan if raw == invalid else raw * scale + add
         if self.small:
             flat = self.small_struct.unpack_from(buf, start)
@@ -736,6 +744,9 @@ class _Plan:
         values["extra"] = extra
         if self.absent:
             values.update(self.absent)
+        for name, a, b in self.spans:
+            wire[name] = buf[start + a : start + b]
+        values[WIRE_BYTES] = wire
         msg: Any = object.__new__(self.cls)
         msg.__dict__.update(values)
         return msg
