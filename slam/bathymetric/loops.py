@@ -164,11 +164,7 @@ class LCCD:
                 and lone
                 and loop.evidence > max(self.pool[i].evidence for i in against)
             ):
-                out = [self.pool[i] for i in against]
-                for lp in out:
-                    lp.accepted, lp.overturned = False, True
-                self.pool = [lp for lp in self.pool if not lp.overturned]
-                self.overturned_now = out
+                self._overturn([self.pool[i] for i in against])
                 loop.accepted = True
                 return True
             if loop.accepted and self.hold:
@@ -181,16 +177,22 @@ class LCCD:
                     lp.pending = False  # contradicted: stays rejected
         if not (loop.accepted and self.overturn and size[labels[-1]] > 1):
             return loop.accepted
-        out = [
-            lp
-            for i, lp in enumerate(self.pool[:-1])
-            if lp.accepted
-            and labels[i] != labels[-1]
-            and d[i, -1] < self.disjoint_m
-            and size[labels[i]] < size[labels[-1]]
-        ]
+        self._overturn(
+            [
+                lp
+                for i, lp in enumerate(self.pool[:-1])
+                if lp.accepted
+                and labels[i] != labels[-1]
+                and d[i, -1] < self.disjoint_m
+                and size[labels[i]] < size[labels[-1]]
+            ]
+        )
+        return loop.accepted
+
+    def _overturn(self, out: list[LoopClosure]) -> None:
+        """Mark ``out`` overturned (no longer accepted), leave them out of the pool and list
+        them in :attr:`overturned_now` for the filter to undo."""
         for lp in out:
             lp.accepted, lp.overturned = False, True
         self.pool = [lp for lp in self.pool if not lp.overturned]
         self.overturned_now = out
-        return loop.accepted
