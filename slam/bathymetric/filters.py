@@ -415,7 +415,10 @@ class MTMPF(BathyFilter):
             ratio = mode_ratio(self.x, wa, r, cfg.mode_apart_m) if weak else math.inf
             if weak and (
                 ratio < cfg.min_mode_ratio
-                or mode_odds(self.x, wa, r, cfg.mode_apart_m) < cfg.min_mode_odds
+                or (
+                    cfg.min_mode_odds > 0
+                    and mode_odds(self.x, wa, r, cfg.mode_apart_m) < cfg.min_mode_odds
+                )
             ):
                 self.weak_crossings += 1  # too little evidence: no resampling, no closure
                 return
