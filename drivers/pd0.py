@@ -60,6 +60,7 @@ from auvgw.drivers.spec import (
     WIRE_TYPES,
     Wire,
     WireError,
+    WireLayout,
     block_size,
     encode_block,
     message,
@@ -94,6 +95,7 @@ __all__ = [
     "decode",
     "decode_many",
     "encode",
+    "wire_layout",
 ]
 
 SYNC = b"\x7f\x7f"
@@ -974,6 +976,28 @@ class _Template:
         self.nbytes = hdr.nbytes
         #: the last fixed leader decoded with this template, by its bytes (shared while equal)
         self.last_fixed: dict[bytes, FixedLeader] = {}
+        self.ctx = fixed_ctx or {}
+        self._layout: WireLayout | None = None
+
+    @property
+    def layout(self) -> WireLayout:
+        """Where every field of this layout's ensembles sits (:func:`wire_layout`)."""
+        if self._layout is None:
+            fields: dict[str, Any] = dict.fromkeys(_FIELD_OF.values())
+            unknown = []
+            for name, plan, start, stop, end, last in self.steps:
+                if plan is None:
+                    unknown.append(WireLayout(RawBlock, start, fields={"data": slice(start, end)}))
+                    continue
+                extra = b"" if last else slice(stop, end)
+                ctx = self.ctx if plan.cls.ID in _CELL_TABLES else {}
+                fields[name] = WireLayout(
+                    plan.cls, start, ctx, frozenset(plan.absent), {"extra": extra}
+                )
+            fields.update(self.fixed, unknown=tuple(unknown), gap=slice(*self.gap),
+                          trailer=slice(self.trailer_start, self.nbytes))  # fmt: skip
+            self._layout = WireLayout(Ensemble, 0, fields=fields)
+        return self._layout
 
     def decode(self, frame: bytes) -> Ensemble:
         values = dict(_ENSEMBLE_DEFAULTS)
@@ -1096,6 +1120,14 @@ def decode(frame: bytes | bytearray | memoryview, verified: bool = False) -> Ens
     if not verified:
         _verify_checksum(frame, tpl.nbytes)
     return tpl.decode(frame)
+
+
+def wire_layout(frame: bytes) -> WireLayout:
+    """Where every field of the ensemble in ``frame`` (delivered by :class:`Pd0Framer`) sits
+    (:class:`~auvgw.drivers.spec.WireLayout`; one object per layout, cached); raises the
+    :class:`DecodeError` :func:`decode` raises for a layout it cannot decode, and a frame whose
+    layout it returns decodes without error."""
+    return _template(frame).layout
 
 
 def decode_many(frames: Sequence[bytes | bytearray | memoryview]) -> list[Ensemble]:
@@ -1262,4 +1294,5 @@ FORMAT = Format.one_per_frame(
     decode,
     encode,
     skips_checksum=True,
+    layout=wire_layout,
 )
