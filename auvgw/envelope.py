@@ -48,7 +48,6 @@ import zenoh
 
 from auvgw.drivers.spec import (
     CLASS_CACHE_SIZE,
-    WIRE_BYTES,
     WIRE_TYPES,
     Wire,
     WireLayout,
@@ -390,44 +389,21 @@ class _Plan:
 
 
 def _packer(
-    names: tuple[str, ...],
-    encoders: tuple[Callable[[Any, bool], Any] | None, ...],
-    wire_arrays: Mapping[str, np.dtype | None],
+    names: tuple[str, ...], encoders: tuple[Callable[[Any, bool], Any] | None, ...]
 ) -> Callable[[Any, bool], list[Any]]:
     """A function building the positional body of one class: one list display of attribute
-    reads and encoder calls (the gateway's hot path: no loop, no zip, no per-field lookup).
-    ``wire_arrays``: the integer array and scaled integer fields (an array's native dtype when
-    it has several dimensions, else None); a trusted message carrying their wire values
-    (:data:`~auvgw.drivers.spec.WIRE_BYTES`) sends those as they are: the raw integers and
-    bytes the encoders give from the SI values, without the round trip."""
-    ns: dict[str, Any] = {"_ext": msgspec.msgpack.Ext, "_head": _array_head}
-    items, fast = [], []
+    reads and encoder calls (no loop, no zip, no per-field lookup)."""
+    ns: dict[str, Any] = {}
+    items = []
     for i, (name, enc) in enumerate(zip(names, encoders, strict=True)):
         ok = name.isidentifier() and not keyword.iskeyword(name)
         get = f"msg.{name}" if ok else f"getattr(msg, {name!r})"  # a site table's odd name
         if enc is None:
             items.append(get)
-            fast.append(get)
             continue
         ns[f"e{i}"] = enc
         items.append(f"e{i}({get}, trusted)")
-        if name not in wire_arrays:
-            fast.append(items[-1])
-            continue
-        nd = wire_arrays[name]
-        if nd is None:  # a raw integer, or a 1-D array as MessagePack bin of its wire bytes
-            got = f"W[{name!r}]"
-        else:  # extension 1 in the native dtype (little endian here, as the wire)
-            ns[f"d{i}"] = nd
-            got = f"_ext({EXT_NDARRAY}, _head(d{i}, {get}.shape) + W[{name!r}])"
-        fast.append(f"({got} if {name!r} in W else {items[-1]})")
-    src = "def pack(msg, trusted):\n"
-    if wire_arrays:
-        src += (
-            f"    W = getattr(msg, {WIRE_BYTES!r}, None) if trusted else None\n"
-            f"    if W is not None:\n        return [{', '.join(fast)}]\n"
-        )
-    src += f"    return [{', '.join(items)}]\n"
+    src = f"def pack(msg, trusted):\n    return [{', '.join(items)}]\n"
     exec(src, ns)  # the source holds only identifiers and repr() of names
     return ns["pack"]  # type: ignore[no-any-return]
 
@@ -439,16 +415,12 @@ _type_hints = functools.lru_cache(maxsize=CLASS_CACHE_SIZE)(typing.get_type_hint
 def _plan(cls: type) -> _Plan:
     hints = _type_hints(cls)
     names, encs, decs, descs = [], [], [], []
-    wire_arrays: dict[str, np.dtype | None] = {}
     for f in dataclasses.fields(cls):
         if "flag_bit" in f.metadata:  # derived from the status word on construction
             continue
         w, linear = f.metadata.get("wire"), f.metadata.get("linear")
         if w is not None:
             enc, dec, desc = _wire_coders(w)
-            if w.type in WIRE_TYPES and not w.type.startswith("f") and (w.is_array or w.is_scaled):
-                nd = len(w.shape) > 1
-                wire_arrays[f.name] = np.dtype("=" + WIRE_TYPES[w.type]) if nd else None
         elif linear is not None:
             enc, dec, desc = _linear_coders(*linear)
         else:
@@ -458,15 +430,9 @@ def _plan(cls: type) -> _Plan:
         decs.append(dec)
         descs.append(f"{f.name}:{desc}")
     text = f"{getattr(cls, 'TYPE', cls.__name__)}({';'.join(descs)})"
-    carries_wire = sys.byteorder == "little" and any(WIRE_BYTES in vars(c) for c in cls.__mro__)
     schema = zlib.crc32(text.encode()) & 0xFFFF
     return _Plan(
-        cls,
-        tuple(names),
-        tuple(encs),
-        tuple(decs),
-        schema,
-        _packer(tuple(names), tuple(encs), wire_arrays if carries_wire else {}),
+        cls, tuple(names), tuple(encs), tuple(decs), schema, _packer(tuple(names), tuple(encs))
     )
 
 

@@ -56,7 +56,6 @@ import numpy as np
 from auvgw.drivers.formats import Format
 from auvgw.drivers.framing import BadFrame, DecodeError, Framer
 from auvgw.drivers.spec import (
-    WIRE_BYTES,
     WIRE_TYPES,
     Wire,
     WireError,
@@ -556,8 +555,6 @@ _TABLES: dict[int, type] = {
         BottomTrackRange,
     )
 }
-for _cls in _TABLES.values():  # their decode keeps the wire values (see _Plan.decode)
-    setattr(_cls, WIRE_BYTES, None)
 #: Ensemble field name of each known data type, in the canonical (RDI) order
 _FIELD_OF: dict[int, str] = {
     ID_FIXED_LEADER: "fixed_leader",
@@ -647,7 +644,7 @@ class _Plan:
 
     __slots__ = (
         "absent", "arrays", "bulk", "cls", "missing", "names", "scaled", "size", "small",
-        "small_struct", "spans", "struct",
+        "small_struct", "struct",
     )
     #: scaled arrays up to this many elements (a Pathfinder's velocity profile included) are
     #: converted in Python: cheaper than numpy's calls on a warm core for a few elements, and on a
@@ -664,8 +661,6 @@ class _Plan:
         self.scaled: list[tuple[str, float, float, int | None]] = []
         self.arrays: list[tuple[str, int, np.dtype, int, tuple[int, ...] | None, Wire, bool]] = []
         self.absent: dict[str, None] = {}
-        #: (field, first byte, stop) of every integer array field: its wire bytes
-        self.spans: list[tuple[str, int, int]] = []
         #: (field, offset, stop) of the first required field the block is too short for
         self.missing: tuple[str, int, int] | None = None
         min_size = cls.MIN_SIZE if cls.MIN_SIZE >= 0 else block_size(cls, ctx)
@@ -683,8 +678,6 @@ class _Plan:
             code = "<" + WIRE_TYPES.get(w.type, "B")
             count = n // struct.calcsize(code)
             shape = w.resolve_shape(ctx)
-            if w.shape and w.type in WIRE_TYPES and not w.type.startswith("f"):
-                self.spans.append((name, pos, expected))
             if w.type == "bytes":
                 fmt.append(f"{n}s")
                 small_fmt.append(f"{n}x")
@@ -719,9 +712,8 @@ class _Plan:
         """Decode the block at ``buf[start:]``; ``buf`` must be ``bytes`` (immutable: unscaled
         arrays are read-only views of it)."""
         values = dict(zip(self.names, self.struct.unpack_from(buf, start), strict=True))
-        wire: dict[str, Any] = {}
         for name, scale, add, invalid in self.scaled:
-            raw = wire[name] = values[name]
+            raw = values[name]
             values[name] = math.nan if raw == invalid else raw * scale + add
         if self.small:
             flat = self.small_struct.unpack_from(buf, start)
@@ -746,9 +738,6 @@ class _Plan:
         values["extra"] = extra
         if self.absent:
             values.update(self.absent)
-        for name, a, b in self.spans:
-            wire[name] = buf[start + a : start + b]
-        values[WIRE_BYTES] = wire
         msg: Any = object.__new__(self.cls)
         msg.__dict__.update(values)
         return msg

@@ -36,7 +36,6 @@ import numpy as np
 from auvgw.errors import DataError
 
 __all__ = [
-    "WIRE_BYTES",
     "Wire",
     "WireError",
     "WireLayout",
@@ -52,14 +51,6 @@ __all__ = [
     "to_jsonable",
     "wire",
 ]
-
-#: instance attribute where a codec's decode may leave what a decoded message's fields were on
-#: the wire: ``{field: value}``, the raw integer of a scaled integer field, the bytes (little
-#: endian, the table's dtype) of an integer array field, exactly what it was decoded from; the
-#: envelope then sends them as they are instead of converting the SI values back
-#: (docs/gateway.md). Not a field: equality, ``replace`` and encode ignore it. A class whose
-#: codec does this says so with a class attribute of this name (None): only those look.
-WIRE_BYTES = "__wire__"
 
 #: wire type name -> struct code
 WIRE_TYPES: dict[str, str] = {
