@@ -451,9 +451,18 @@ class Gateway:
             if host is not None:
                 host.on_connect(transport.write, time.monotonic())
             next_loss_poll = 0.0
+            # a stream read at most every read_interval_s while bytes keep coming (a polled
+            # device never: its next poll waits on the reply; datagrams and CAN frames come
+            # one per read anyway)
+            paced = host is None and dev.cfg.transport.kind == "serial"
+            pace = dev.cfg.read_interval_s if paced else 0.0
+            next_read = 0.0
             while not self.stop_event.is_set():
+                if pace and (wait := next_read - time.monotonic()) > 0:
+                    time.sleep(wait)
                 chunk = transport.read(SETTLE_S if dev.deferred else READ_TIMEOUT_S)
                 if chunk is not None:  # the data first, the bookkeeping after it
+                    next_read = time.monotonic() + pace
                     self._handle_frames(
                         dev, dev.decoder.frames(chunk), chunk.t_recv_ns, transport, host
                     )

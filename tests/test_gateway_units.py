@@ -304,3 +304,41 @@ def test_a_frame_the_codec_rejects_goes_out_raw_only(shared_data, tmp_path):
     assert seqs[:2] == [1, 3] and all(k % 3 != 2 for k in seqs)
     assert str(err.value) in st["last_error"] and "byte offset" in st["last_error"]
     assert st["bad_frames"] == 0 and st["frames"] >= 3 * st["decode_errors"]
+
+
+def test_writes_closer_than_the_read_interval_are_read_together(tmp_path):
+    """``read_interval_s``: while bytes keep coming, a serial port is read at most that often,
+    so writes closer together are read (and stamped) together; every frame still comes out.
+    Three HN-100 frames written 10 ms apart with a 0.3 s interval: the last two share the
+    receive stamp of one read."""
+    import os
+    import time
+
+    from auvgw.gateway import Gateway
+    from auvgw.testing.format_samples import hn100_frames
+    from auvgw.testing.ptys import PtyDevice
+
+    dev = PtyDevice(tmp_path / "ins")
+    frames = hn100_frames(3)
+    got: list[tuple[int, object]] = []
+    cfg = parse_gateway_config(
+        {"vehicle": "pace1", "devices": {"ins": {"format": "hn100", "read_interval_s": 0.3,
+         "transport": {"kind": "serial", "url": str(dev.link)}}}}
+    )  # fmt: skip
+    assert parse_gateway_config(
+        {"devices": {"d": {"format": "pd0", "transport": {"kind": "serial", "url": "x"}}}}
+    ).devices["d"].read_interval_s == 0.002
+    try:
+        with Gateway(cfg, on_message=lambda d, t, m: got.append((t, m))) as gw:
+            wait_until(lambda: gw.device_status("ins")["connected"], what="the port open")
+            for f in frames:
+                os.write(dev.master, f)
+                time.sleep(0.01)
+            wait_until(lambda: len(got) == 3, what="three frames")
+    finally:
+        dev.unplug()
+    assert [m.seq for _, m in got] == [get_format("hn100").decode(f)[0].seq for f in frames]
+    assert got[1][0] == got[2][0]
+    with pytest.raises(ConfigError, match="read_interval_s"):
+        parse_gateway_config({"devices": {"d": {"format": "pd0", "read_interval_s": -1,
+                                                "transport": {"kind": "serial", "url": "x"}}}})
