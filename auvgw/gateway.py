@@ -63,6 +63,9 @@ LOSS_POLL_S = 0.5
 #: frames whose envelopes went out straight from their bytes are decoded (health, listeners)
 #: once the line has been quiet this long, or the oldest of them is this old (s)
 SETTLE_S = 0.002
+#: while bytes keep coming, a device's framing counters reach its health at most this often (s;
+#: and once the line is quiet)
+FRAMING_PERIOD_S = 0.05
 _DROP = zenoh.CongestionControl.DROP
 
 
@@ -79,6 +82,8 @@ class _Device:
     #: published frames waiting for their decode: (frame, receive time, stamp), ns
     deferred: list[tuple[Frame, int, int]] = field(default_factory=list)
     deferred_since: float = 0.0  # host monotonic s when the oldest of them was published
+    framing_at: float = 0.0  # host monotonic s the framing counters last reached the health
+    framed: bool = False  # frames or bytes came since then
     seq: int = 0
     reported_bad: int = 0
     rejected_before: int = 0  # datagrams rejected on earlier connections (allowed senders)
@@ -425,6 +430,7 @@ class Gateway:
     def _update_framing(self, dev: _Device) -> None:
         c = dev.decoder.counts()
         dev.health.set_framing(c.frames, c.bad_frames, c.skipped_bytes, c.reasons)
+        dev.framing_at, dev.framed = time.monotonic(), False
 
     @staticmethod
     def _update_rejected(dev: _Device, transport: Transport) -> None:
@@ -466,12 +472,17 @@ class Gateway:
                     self._handle_frames(
                         dev, dev.decoder.frames(chunk), chunk.t_recv_ns, transport, host
                     )
-                    if not dev.deferred:
+                    dev.framed = True
+                    now = time.monotonic()
+                    if dev.deferred:
+                        if now - dev.deferred_since >= SETTLE_S:
+                            self._settle(dev, transport)
+                    elif now - dev.framing_at >= FRAMING_PERIOD_S:
                         self._update_framing(dev)
-                    elif time.monotonic() - dev.deferred_since >= SETTLE_S:
-                        self._settle(dev, transport)
                 elif dev.deferred:  # the line is quiet: the samples are on their way
                     self._settle(dev, transport)
+                elif dev.framed:
+                    self._update_framing(dev)
                 self._update_rejected(dev, transport)
                 if (now := time.monotonic()) >= next_loss_poll:
                     next_loss_poll = now + LOSS_POLL_S
