@@ -174,10 +174,9 @@ class DeviceDecoder:
         if layout is None:
             return None
         try:
-            where = layout(raw)
+            return layout_body(layout(raw), raw)
         except Exception:  # the decode's error, which item() reports
             return None
-        return layout_body(where, raw)
 
     def frames(self, chunk: Any) -> list[Frame]:
         """Raw frames completed by one transport chunk (a

@@ -2,10 +2,11 @@
 
 Per device: open the transport (retrying with exponential backoff while it is missing), feed every
 chunk to the format's framer, publish each verified frame raw (bytes + attachment: receive time,
-sequence, stream offset) *before* decoding it, then publish the decoded messages as JSON
-envelopes. A device that disappears is reported (status ``connected: false``, its liveliness token
-withdrawn) and picked up again when it returns, while the other devices keep flowing. A finite
-source (a file replayed without ``loop``) ends its device cleanly (status ``ended: true``).
+sequence, stream offset), then its decoded messages as envelopes (auvgw.envelope; PD0 and HN-100
+envelopes read straight from the frame's bytes, the frame decoded after both puts). A device
+that disappears is reported (status ``connected: false``, its liveliness token withdrawn) and
+picked up again when it returns, while the other devices keep flowing. A finite source (a file
+replayed without ``loop``) ends its device cleanly (status ``ended: true``).
 Receive times are the host clock, or with a ``[clock]`` section (``time_scale`` != 1, an
 emulated vehicle faster than real time) the vehicle-paced ``epoch + (t_recv - epoch) *
 time_scale``, on envelopes and raw attachments alike; health keeps the host clock.
