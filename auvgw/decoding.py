@@ -18,7 +18,8 @@ from typing import Any
 from auvgw.config.gateway import ConfigError, DeviceConfig, GatewayConfig
 from auvgw.drivers import registry
 from auvgw.drivers.formats import Format, format_from_table, get_format
-from auvgw.drivers.framing import ErrorPolicy, Framer
+from auvgw.drivers.framing import ErrorPolicy, Frame, Framer
+from auvgw.envelope import layout_body
 
 __all__ = [
     "DecodedItem",
@@ -164,18 +165,39 @@ class DeviceDecoder:
                 raw, offset, (), f"{self.name}: {where}: {type(exc).__name__}: {exc}"
             )
 
-    def feed(self, chunk: Any) -> list[DecodedItem]:
-        """Items completed by one transport chunk (a :class:`~auvgw.drivers.transports.Chunk`)."""
+    def envelope_body(self, raw: bytes) -> tuple[str, int, list[Any]] | None:
+        """(type, schema, body) of the envelope of a frame this decoder's framer delivered,
+        read straight from its bytes (:func:`auvgw.envelope.layout_body`): the envelope of the
+        message :meth:`item` decodes, byte for byte. None where the format has no such path or
+        the frame would not decode (:meth:`item` then gives its error)."""
+        layout = self.format.layout if self.format is not None else None
+        if layout is None:
+            return None
+        try:
+            return layout_body(layout(raw), raw)
+        except Exception:  # the decode's error, which item() reports
+            return None
+
+    def frames(self, chunk: Any) -> list[Frame]:
+        """Raw frames completed by one transport chunk (a
+        :class:`~auvgw.drivers.transports.Chunk`), not decoded yet (:meth:`item` with
+        :attr:`verified`)."""
         if self.can is not None:
-            raw = pack_can_raw(chunk.can_id, chunk.is_extended_id, chunk.data)
             self._closed.frames += 1
-            return [self.item(raw, 0)]
+            return [Frame(pack_can_raw(chunk.can_id, chunk.is_extended_id, chunk.data), 0)]
         assert self._framer is not None
         if self.datagrams:
-            frames = self._framer.feed_datagram(chunk.data)
-        else:
-            frames = self._framer.feed(chunk.data, time.monotonic())
-        return [self.item(f.data, f.offset, True) for f in frames]
+            return self._framer.feed_datagram(chunk.data)
+        return self._framer.feed(chunk.data, time.monotonic())
+
+    @property
+    def verified(self) -> bool:
+        """Frames of :meth:`frames` passed this decoder's framer (CAN frames have none)."""
+        return self.can is None
+
+    def feed(self, chunk: Any) -> list[DecodedItem]:
+        """Items completed by one transport chunk (:meth:`frames`, decoded)."""
+        return [self.item(f.data, f.offset, self.verified) for f in self.frames(chunk)]
 
     def has_stale(self, now: float) -> bool:
         """A partial frame has waited more than ``max_age`` (host monotonic seconds ``now``)."""
@@ -184,19 +206,18 @@ class DeviceDecoder:
         since = self._framer.waiting_s
         return since is not None and now - since > self.max_partial_age_s
 
-    def expire(self, now: float) -> list[DecodedItem]:
+    def expire(self, now: float) -> list[Frame]:
         """Drop a partial frame older than ``max_partial_age_s`` (host monotonic seconds ``now``;
         counted, reason ``stale``) and return the frames that were queued behind it."""
         if self._framer is None or self.max_partial_age_s is None:
             return []
-        frames = self._framer.expire(now, self.max_partial_age_s)
-        return [self.item(f.data, f.offset, True) for f in frames]
+        return self._framer.expire(now, self.max_partial_age_s)
 
-    def finish(self) -> list[DecodedItem]:
+    def finish(self) -> list[Frame]:
         """End of a finite stream: judge the bytes left (an incomplete frame is a bad frame)."""
         if self._framer is None:
             return []
-        return [self.item(f.data, f.offset, True) for f in self._framer.finish()]
+        return self._framer.finish()
 
 
 def make_decoder(cfg: DeviceConfig, name: str = "") -> DeviceDecoder:

@@ -46,7 +46,13 @@ import msgspec
 import numpy as np
 import zenoh
 
-from auvgw.drivers.spec import CLASS_CACHE_SIZE, WIRE_BYTES, WIRE_TYPES, Wire, resolve_type
+from auvgw.drivers.spec import (
+    CLASS_CACHE_SIZE,
+    WIRE_TYPES,
+    Wire,
+    WireLayout,
+    resolve_type,
+)
 
 __all__ = [
     "ENVELOPE_VERSION",
@@ -57,8 +63,10 @@ __all__ = [
     "decode_envelope",
     "encode_envelope",
     "envelope_encoding",
+    "layout_body",
     "message_fields",
     "pack_body",
+    "pack_envelope",
     "schema_id",
     "unpack_body",
 ]
@@ -381,44 +389,21 @@ class _Plan:
 
 
 def _packer(
-    names: tuple[str, ...],
-    encoders: tuple[Callable[[Any, bool], Any] | None, ...],
-    wire_arrays: Mapping[str, np.dtype | None],
+    names: tuple[str, ...], encoders: tuple[Callable[[Any, bool], Any] | None, ...]
 ) -> Callable[[Any, bool], list[Any]]:
     """A function building the positional body of one class: one list display of attribute
-    reads and encoder calls (the gateway's hot path: no loop, no zip, no per-field lookup).
-    ``wire_arrays``: the integer array and scaled integer fields (an array's native dtype when
-    it has several dimensions, else None); a trusted message carrying their wire values
-    (:data:`~auvgw.drivers.spec.WIRE_BYTES`) sends those as they are: the raw integers and
-    bytes the encoders give from the SI values, without the round trip."""
-    ns: dict[str, Any] = {"_ext": msgspec.msgpack.Ext, "_head": _array_head}
-    items, fast = [], []
+    reads and encoder calls (no loop, no zip, no per-field lookup)."""
+    ns: dict[str, Any] = {}
+    items = []
     for i, (name, enc) in enumerate(zip(names, encoders, strict=True)):
         ok = name.isidentifier() and not keyword.iskeyword(name)
         get = f"msg.{name}" if ok else f"getattr(msg, {name!r})"  # a site table's odd name
         if enc is None:
             items.append(get)
-            fast.append(get)
             continue
         ns[f"e{i}"] = enc
         items.append(f"e{i}({get}, trusted)")
-        if name not in wire_arrays:
-            fast.append(items[-1])
-            continue
-        nd = wire_arrays[name]
-        if nd is None:  # a raw integer, or a 1-D array as MessagePack bin of its wire bytes
-            got = f"W[{name!r}]"
-        else:  # extension 1 in the native dtype (little endian here, as the wire)
-            ns[f"d{i}"] = nd
-            got = f"_ext({EXT_NDARRAY}, _head(d{i}, {get}.shape) + W[{name!r}])"
-        fast.append(f"({got} if {name!r} in W else {items[-1]})")
-    src = "def pack(msg, trusted):\n"
-    if wire_arrays:
-        src += (
-            f"    W = getattr(msg, {WIRE_BYTES!r}, None) if trusted else None\n"
-            f"    if W is not None:\n        return [{', '.join(fast)}]\n"
-        )
-    src += f"    return [{', '.join(items)}]\n"
+    src = f"def pack(msg, trusted):\n    return [{', '.join(items)}]\n"
     exec(src, ns)  # the source holds only identifiers and repr() of names
     return ns["pack"]  # type: ignore[no-any-return]
 
@@ -430,16 +415,12 @@ _type_hints = functools.lru_cache(maxsize=CLASS_CACHE_SIZE)(typing.get_type_hint
 def _plan(cls: type) -> _Plan:
     hints = _type_hints(cls)
     names, encs, decs, descs = [], [], [], []
-    wire_arrays: dict[str, np.dtype | None] = {}
     for f in dataclasses.fields(cls):
         if "flag_bit" in f.metadata:  # derived from the status word on construction
             continue
         w, linear = f.metadata.get("wire"), f.metadata.get("linear")
         if w is not None:
             enc, dec, desc = _wire_coders(w)
-            if w.type in WIRE_TYPES and not w.type.startswith("f") and (w.is_array or w.is_scaled):
-                nd = len(w.shape) > 1
-                wire_arrays[f.name] = np.dtype("=" + WIRE_TYPES[w.type]) if nd else None
         elif linear is not None:
             enc, dec, desc = _linear_coders(*linear)
         else:
@@ -449,16 +430,147 @@ def _plan(cls: type) -> _Plan:
         decs.append(dec)
         descs.append(f"{f.name}:{desc}")
     text = f"{getattr(cls, 'TYPE', cls.__name__)}({';'.join(descs)})"
-    carries_wire = sys.byteorder == "little" and any(WIRE_BYTES in vars(c) for c in cls.__mro__)
     schema = zlib.crc32(text.encode()) & 0xFFFF
     return _Plan(
-        cls,
-        tuple(names),
-        tuple(encs),
-        tuple(decs),
-        schema,
-        _packer(tuple(names), tuple(encs), wire_arrays if carries_wire else {}),
+        cls, tuple(names), tuple(encs), tuple(decs), schema, _packer(tuple(names), tuple(encs))
     )
+
+
+#: generated body readers by frame layout (one per layout a codec serves: a PD0 template, an
+#: HN-100 table); None where a layout has no such reader. Bounded, replaced whole when full.
+_LAYOUT_READERS: dict[WireLayout, tuple[str, int, Callable[[bytes], list[Any]]] | None] = {}
+_NO_READER: Any = object()
+
+
+def layout_body(layout: WireLayout, frame: bytes) -> tuple[str, int, list[Any]] | None:
+    """(type, schema, body) of the envelope of the message ``layout`` places in ``frame``, read
+    straight from the frame's bytes (the gateway's hot path: no message, no numpy), by a
+    function generated once per layout from the codec's tables (:func:`_layout_reader`). The
+    body is the one :func:`pack_body` gives for the decoded message (tests/test_envelope.py:
+    every ensemble of the real PD0 files, emulated PD0 and HN-100 frames); None where a field
+    has no such form (an ASCII ``str`` row, a float scaled by the table: decode, then pack)."""
+    got = _LAYOUT_READERS.get(layout, _NO_READER)
+    if got is _NO_READER:
+        if len(_LAYOUT_READERS) >= 4096:  # fuzzed layouts: keep it bounded
+            _LAYOUT_READERS.clear()
+        got = _LAYOUT_READERS[layout] = _layout_reader(layout)
+    if got is None:
+        return None
+    type_name, schema, read = got
+    return type_name, schema, read(frame)
+
+
+def _hint_names(hint: Any, cls: type) -> bool:
+    """``hint`` is ``cls`` or ``cls | None`` (the envelope nests ``cls`` untyped there)."""
+    if hint is cls:
+        return True
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    return origin in (types.UnionType, typing.Union) and set(args) == {cls, type(None)}
+
+
+def _layout_reader(
+    layout: WireLayout,
+) -> tuple[str, int, Callable[[bytes], list[Any]]] | None:
+    """Generate ``read(frame) -> body`` for one layout: one ``struct`` unpack of every wire field
+    of every nested table (integers as the raw integers the envelope sends for them, integer
+    arrays as their little-endian wire bytes, N-D ones as extension 1 with a constant head,
+    floats through :func:`_enc_float`), frame slices for bytes fields, constants encoded once
+    by the field's encoder, and one nested list display in the plans' field order."""
+    ns: dict[str, Any] = {"_ext": msgspec.msgpack.Ext, "_f": _enc_float}
+    slots: list[tuple[int, str, int]] = []  # (frame offset, struct code, bytes): item "@k@"
+    endians: set[str] = set()
+
+    def const(v: Any) -> str:
+        name = f"c{len(ns)}"
+        ns[name] = v
+        return name
+
+    def slot(at: int, code: str, size: int) -> str:
+        slots.append((at, code, size))
+        return f"@{len(slots) - 1}@"
+
+    def wire_item(node: WireLayout, w: Wire) -> str | None:
+        at = node.base + w.offset
+        if w.type == "bytes":
+            return slot(at, f"{w.size}s", w.size)
+        if w.type not in WIRE_TYPES:  # "str": decoded with its NULs stripped
+            return None
+        code = WIRE_TYPES[w.type]
+        size = struct.calcsize(code)
+        endian = str(w.endian or getattr(node.cls, "__wire_endian__", "<"))
+        if w.shape:  # 1-D: bin of the little-endian wire bytes; N-D: extension 1, native
+            if w.type.startswith("f") or endian != "<" or sys.byteorder != "little":
+                return None
+            shape = w.resolve_shape(node.ctx)
+            n = math.prod(shape) * size
+            item = slot(at, f"{n}s", n)
+            if len(shape) == 1:
+                return item
+            head = const(_array_head(np.dtype("=" + code), shape))
+            return f"_ext({EXT_NDARRAY}, {head} + {item})"
+        endians.add(endian)
+        item = slot(at, code, size)
+        if w.type.startswith("f"):
+            return None if w.is_scaled else f"_f({item})"
+        # a scaled integer travels as its raw integer: round((raw * scale + add - add) / scale)
+        # gives raw back exactly for 32-bit integers and a sane offset (not so for 64-bit)
+        if w.is_scaled and (size > 4 or (w.add and abs(w.add / w.scale) >= 2.0**40)):
+            return None
+        return item
+
+    def value(v: Any, hint: Any, enc: Callable[[Any, bool], Any] | None) -> str | None:
+        if v is None:
+            return "None"
+        if isinstance(v, WireLayout):
+            return message(v) if _hint_names(hint, v.cls) else None
+        if isinstance(v, slice):
+            return f"buf[{int(v.start)}:{int(v.stop)}]" if enc is None else None
+        if isinstance(v, tuple) and any(isinstance(x, WireLayout | slice) for x in v):
+            args = typing.get_args(hint)
+            if typing.get_origin(hint) is not tuple or len(args) != 2 or args[1] is not Ellipsis:
+                return None
+            items = [value(x, args[0], None) for x in v]
+            return None if None in items else f"[{', '.join(items)}]"  # type: ignore[arg-type]
+        return const(v if enc is None else enc(v, True))  # a constant, encoded once
+
+    def message(node: WireLayout) -> str | None:
+        p = _plan(node.cls)
+        rows = {f.name: f.metadata.get("wire") for f in dataclasses.fields(node.cls)}
+        hints = _type_hints(node.cls)
+        items = []
+        for name, enc in zip(p.names, p.encoders, strict=True):
+            w = rows.get(name)
+            if w is not None:
+                item = "None" if name in node.absent else wire_item(node, w)
+            elif name in node.fields:
+                item = value(node.fields[name], hints.get(name, Any), enc)
+            else:
+                item = None
+            if item is None:
+                return None
+            items.append(item)
+        return f"[{', '.join(items)}]"
+
+    body = message(layout)
+    if body is None or len(endians) > 1:
+        return None
+    order = sorted(range(len(slots)), key=lambda k: slots[k][0])
+    fmt, pos, index = [next(iter(endians), "<")], 0, {}
+    for i, k in enumerate(order):
+        at, code, size = slots[k]
+        if at < pos:
+            return None  # overlapping fields
+        fmt.append(f"{at - pos}x{code}" if at > pos else code)
+        pos, index[k] = at + size, i
+    ns["_unpack"] = struct.Struct("".join(fmt)).unpack_from
+    for k, i in index.items():
+        body = body.replace(f"@{k}@", f"r[{i}]")
+    if body == f"[{', '.join(f'r[{i}]' for i in range(len(slots)))}]":
+        body = "list(r)"  # a flat table in wire order
+    src = f"def read(buf):\n    r = _unpack(buf)\n    return {body}\n"
+    exec(src, ns)  # the source holds only generated identifiers and integers
+    cls = layout.cls
+    return str(getattr(cls, "TYPE", cls.__name__)), _plan(cls).schema, ns["read"]
 
 
 def schema_id(cls: type) -> int:
@@ -549,6 +661,14 @@ def envelope_encoding(type_name: str) -> zenoh.Encoding:
     return zenoh.Encoding(f"application/msgpack;auvgw/{ENVELOPE_VERSION}/{type_name}")
 
 
+def pack_envelope(
+    type_name: str, schema: int, wire: str, device: str, t_ns: int, seq: int, body: Any
+) -> bytes:
+    """The envelope bytes (module docstring) of a positional ``body`` (:func:`pack_body`,
+    :func:`layout_body`) or a map of fields (schema 0)."""
+    return _ENCODER.encode([ENVELOPE_VERSION, type_name, schema, wire, device, t_ns, seq, body])
+
+
 def encode_envelope(
     msg: Any,
     device: str,
@@ -565,21 +685,14 @@ def encode_envelope(
     if body is not None:
         named = dict(body)
         type_name = str(named.pop("type", None) or getattr(msg, "TYPE", type(msg).__name__))
-        env = [ENVELOPE_VERSION, type_name, 0, wire, device, t_recv_ns, seq, _enc_any(named)]
+        payload = pack_envelope(type_name, 0, wire, device, t_recv_ns, seq, _enc_any(named))
     else:
         type_name = str(getattr(msg, "TYPE", type(msg).__name__))
         p = _plan(type(msg))
-        env = [
-            ENVELOPE_VERSION,
-            type_name,
-            p.schema,
-            wire,
-            device,
-            t_recv_ns,
-            seq,
-            p.pack(msg, decoded),
-        ]
-    return _ENCODER.encode(env), envelope_encoding(type_name)
+        payload = pack_envelope(
+            type_name, p.schema, wire, device, t_recv_ns, seq, p.pack(msg, decoded)
+        )
+    return payload, envelope_encoding(type_name)
 
 
 _codecs_loaded = False

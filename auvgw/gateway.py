@@ -2,10 +2,11 @@
 
 Per device: open the transport (retrying with exponential backoff while it is missing), feed every
 chunk to the format's framer, publish each verified frame raw (bytes + attachment: receive time,
-sequence, stream offset) *before* decoding it, then publish the decoded messages as JSON
-envelopes. A device that disappears is reported (status ``connected: false``, its liveliness token
-withdrawn) and picked up again when it returns, while the other devices keep flowing. A finite
-source (a file replayed without ``loop``) ends its device cleanly (status ``ended: true``).
+sequence, stream offset), then its decoded messages as envelopes (auvgw.envelope; PD0 and HN-100
+envelopes read straight from the frame's bytes, the frame decoded after both puts). A device
+that disappears is reported (status ``connected: false``, its liveliness token withdrawn) and
+picked up again when it returns, while the other devices keep flowing. A finite source (a file
+replayed without ``loop``) ends its device cleanly (status ``ended: true``).
 Receive times are the host clock, or with a ``[clock]`` section (``time_scale`` != 1, an
 emulated vehicle faster than real time) the vehicle-paced ``epoch + (t_recv - epoch) *
 time_scale``, on envelopes and raw attachments alike; health keeps the host clock.
@@ -31,6 +32,7 @@ from auvgw.bus import (
     SCHEMA_VERSION,
     Keys,
     encode_envelope,
+    envelope_encoding,
     json_encoding,
     open_session,
     pack_raw_attachment,
@@ -38,6 +40,7 @@ from auvgw.bus import (
 )
 from auvgw.config.gateway import DeviceConfig, GatewayConfig
 from auvgw.decoding import DecodedItem, DeviceDecoder, kind_of, make_decoders, message_type
+from auvgw.drivers.framing import Frame
 from auvgw.drivers.transports import (
     Disconnected,
     EndOfStream,
@@ -45,6 +48,7 @@ from auvgw.drivers.transports import (
     TransportError,
     make_transport,
 )
+from auvgw.envelope import pack_envelope
 from auvgw.health import Backoff, DeviceHealth, device_time_s
 from auvgw.hostdrivers import HostDriver, make_host_driver
 from auvgw.notify import Notifier
@@ -57,6 +61,12 @@ __all__ = ["READ_TIMEOUT_S", "Gateway"]
 READ_TIMEOUT_S = 0.05
 #: how often a reader refreshes its transport's loss counters (s; an SLCAN adapter is asked)
 LOSS_POLL_S = 0.5
+#: frames whose envelopes went out straight from their bytes are decoded (health, listeners)
+#: once the line has been quiet this long, or the oldest of them is this old (s)
+SETTLE_S = 0.002
+#: while bytes keep coming, a device's framing counters reach its health at most this often (s;
+#: and once the line is quiet)
+FRAMING_PERIOD_S = 0.05
 _DROP = zenoh.CongestionControl.DROP
 
 
@@ -68,6 +78,13 @@ class _Device:
     decoder: DeviceDecoder
     thread: threading.Thread | None = None
     pubs: dict[str, zenoh.Publisher] = field(default_factory=dict)
+    #: message type -> (its publisher, its envelope encoding)
+    routes: dict[str, tuple[zenoh.Publisher, zenoh.Encoding]] = field(default_factory=dict)
+    #: published frames waiting for their decode: (frame, receive time, stamp), ns
+    deferred: list[tuple[Frame, int, int]] = field(default_factory=list)
+    deferred_since: float = 0.0  # host monotonic s when the oldest of them was published
+    framing_at: float = 0.0  # host monotonic s the framing counters last reached the health
+    framed: bool = False  # frames or bytes came since then
     seq: int = 0
     reported_bad: int = 0
     rejected_before: int = 0  # datagrams rejected on earlier connections (allowed senders)
@@ -316,50 +333,105 @@ class Gateway:
             )
         return pub
 
-    def _handle_items(
+    def _route(self, dev: _Device, type_name: str) -> tuple[zenoh.Publisher, zenoh.Encoding]:
+        """The publisher and encoding of a message type's envelopes (made once per type)."""
+        route = dev.routes.get(type_name)
+        if route is None:
+            pub = self._sensor_pub(dev, kind_of(type_name))
+            route = dev.routes[type_name] = (pub, envelope_encoding(type_name))
+        return route
+
+    def _handle_frames(
         self,
         dev: _Device,
-        items: list[DecodedItem],
+        frames: list[Frame],
         t_recv_ns: int,
         transport: Transport,
         host: HostDriver | None,
     ) -> None:
-        """Publish, count and hand on the frames of one read. A frame's envelopes are built
-        before its raw sample is put, so the raw and decoded samples leave back to back (one
-        wake of Zenoh's sender for both; raw is still first on the bus); the health accounting
-        and the in-process listeners come after the puts, off the samples' latency."""
+        """Publish, decode, count and hand on the frames of one read. Where the format reads
+        the envelope straight from the frame's bytes (:meth:`DeviceDecoder.envelope_body`: the
+        same bytes as the decoded message's envelope), the raw and decoded samples are put
+        first and the frame is decoded after them; otherwise it is decoded and its envelopes
+        built before the raw put. Either way raw and decoded leave back to back (one wake of
+        Zenoh's sender, raw first on the bus) and the health accounting, the in-process
+        listeners and the host driver come after the puts, off the samples' latency."""
         t_ns = self._stamp(t_recv_ns)  # published time (vehicle-paced with [clock])
         raw_pub = dev.pubs["raw"]
         wire = dev.cfg.format
-        for item in items:
+        decoder = dev.decoder
+        verified = decoder.verified
+        for frame in frames:
             dev.seq += 1
             seq = dev.seq
-            attachment = pack_raw_attachment(t_ns, seq, item.offset)
-            types = [message_type(msg) for msg in item.messages]
-            try:
-                samples = [
-                    (
-                        kind_of(type_name),
-                        encode_envelope(msg, dev.name, t_ns, seq, wire=wire, decoded=True),
-                    )
-                    for msg, type_name in zip(item.messages, types, strict=True)
-                ]
-            finally:  # the raw frame goes out whatever its envelope does
-                raw_pub.put(item.raw, attachment=attachment)
-            for kind, (payload, enc) in samples:
-                self._sensor_pub(dev, kind).put(payload, encoding=enc)
-            if item.error is not None:
-                dev.health.decode_error(item.error)
-            for msg, type_name in zip(item.messages, types, strict=True):
-                # rates on the host clock; lag from the device's own time against the stamp
-                dev.health.seen(t_recv_ns, type_name, t_ns, device_time_s(msg))
-                self.listeners.notify(dev.name, t_ns, (msg,))
-                if host is not None:
-                    host.on_message(msg, transport.write, time.monotonic())
+            attachment = pack_raw_attachment(t_ns, seq, frame.offset)
+            fast = decoder.envelope_body(frame.data) if verified else None
+            if fast is not None:
+                type_name, schema, body = fast
+                pub, enc = self._route(dev, type_name)
+                try:
+                    payload = pack_envelope(type_name, schema, wire, dev.name, t_ns, seq, body)
+                finally:  # the raw frame goes out whatever its envelope does
+                    raw_pub.put(frame.data, attachment=attachment)
+                pub.put(payload, encoding=enc)
+                if host is None:  # decoded once the samples are on their way (_settle)
+                    if not dev.deferred:
+                        dev.deferred_since = time.monotonic()
+                    dev.deferred.append((frame, t_recv_ns, t_ns))
+                    continue
+                item = decoder.item(frame.data, frame.offset, verified)
+            else:
+                item = decoder.item(frame.data, frame.offset, verified)
+                try:
+                    samples = [
+                        (
+                            self._route(dev, message_type(msg)),
+                            encode_envelope(msg, dev.name, t_ns, seq, wire=wire, decoded=True)[0],
+                        )
+                        for msg in item.messages
+                    ]
+                finally:  # the raw frame goes out whatever its envelope does
+                    raw_pub.put(frame.data, attachment=attachment)
+                for (pub, enc), payload in samples:
+                    pub.put(payload, encoding=enc)
+            self._decoded(dev, item, t_recv_ns, t_ns, transport, host)
+
+    def _decoded(
+        self,
+        dev: _Device,
+        item: DecodedItem,
+        t_recv_ns: int,
+        t_ns: int,
+        transport: Transport,
+        host: HostDriver | None,
+    ) -> None:
+        """A frame's decoded messages (published already) to the health accounting, the
+        in-process listeners and the host driver."""
+        if item.error is not None:
+            dev.health.decode_error(item.error)
+        for msg in item.messages:
+            # rates on the host clock; lag from the device's own time against the stamp
+            dev.health.seen(t_recv_ns, message_type(msg), t_ns, device_time_s(msg))
+            self.listeners.notify(dev.name, t_ns, (msg,))
+            if host is not None:
+                host.on_message(msg, transport.write, time.monotonic())
+
+    def _settle(self, dev: _Device, transport: Transport) -> None:
+        """Decode the frames whose envelopes went out straight from their bytes (for the
+        health, the listeners), then refresh the framing counters. Called once the line has
+        been quiet for :data:`SETTLE_S` or the oldest such frame is that old: not while their
+        samples travel (on a 2-core machine that work delayed them by tens of us)."""
+        deferred, dev.deferred = dev.deferred, []
+        decoder, verified = dev.decoder, dev.decoder.verified
+        for frame, t_recv_ns, t_ns in deferred:
+            item = decoder.item(frame.data, frame.offset, verified)
+            self._decoded(dev, item, t_recv_ns, t_ns, transport, None)
+        self._update_framing(dev)
 
     def _update_framing(self, dev: _Device) -> None:
         c = dev.decoder.counts()
         dev.health.set_framing(c.frames, c.bad_frames, c.skipped_bytes, c.reasons)
+        dev.framing_at, dev.framed = time.monotonic(), False
 
     @staticmethod
     def _update_rejected(dev: _Device, transport: Transport) -> None:
@@ -386,12 +458,31 @@ class Gateway:
             if host is not None:
                 host.on_connect(transport.write, time.monotonic())
             next_loss_poll = 0.0
+            # a stream read at most every read_interval_s while bytes keep coming (a polled
+            # device never: its next poll waits on the reply; datagrams and CAN frames come
+            # one per read anyway)
+            paced = host is None and dev.cfg.transport.kind == "serial"
+            pace = dev.cfg.read_interval_s if paced else 0.0
+            next_read = 0.0
             while not self.stop_event.is_set():
-                chunk = transport.read(READ_TIMEOUT_S)
+                if pace and (wait := next_read - time.monotonic()) > 0:
+                    time.sleep(wait)
+                chunk = transport.read(SETTLE_S if dev.deferred else READ_TIMEOUT_S)
                 if chunk is not None:  # the data first, the bookkeeping after it
-                    self._handle_items(
-                        dev, dev.decoder.feed(chunk), chunk.t_recv_ns, transport, host
+                    next_read = time.monotonic() + pace
+                    self._handle_frames(
+                        dev, dev.decoder.frames(chunk), chunk.t_recv_ns, transport, host
                     )
+                    dev.framed = True
+                    now = time.monotonic()
+                    if dev.deferred:
+                        if now - dev.deferred_since >= SETTLE_S:
+                            self._settle(dev, transport)
+                    elif now - dev.framing_at >= FRAMING_PERIOD_S:
+                        self._update_framing(dev)
+                elif dev.deferred:  # the line is quiet: the samples are on their way
+                    self._settle(dev, transport)
+                elif dev.framed:
                     self._update_framing(dev)
                 self._update_rejected(dev, transport)
                 if (now := time.monotonic()) >= next_loss_poll:
@@ -401,12 +492,13 @@ class Gateway:
                 # reader starved of CPU must not drop frames whose bytes wait in the port)
                 if chunk is None and dev.decoder.has_stale(time.monotonic()):
                     stale = dev.decoder.expire(time.monotonic())
-                    self._handle_items(dev, stale, time.time_ns(), transport, host)
+                    self._handle_frames(dev, stale, time.time_ns(), transport, host)
                     self._update_framing(dev)
                 if host is not None:
                     host.on_idle(transport.write, time.monotonic())
         except EndOfStream as exc:
-            self._handle_items(dev, dev.decoder.finish(), time.time_ns(), transport, None)
+            self._handle_frames(dev, dev.decoder.finish(), time.time_ns(), transport, None)
+            self._settle(dev, transport)
             dev.health.set_ended(str(exc))
             log.info("%s: end of stream (%s)", dev.name, exc)
             return True
@@ -424,6 +516,8 @@ class Gateway:
             dev.health.set_connected(False, f"{type(exc).__name__}: {exc}")
             log.exception("%s: reader error; reopening", dev.name)
         finally:
+            with contextlib.suppress(Exception):
+                self._settle(dev, transport)
             self._update_framing(dev)
             with contextlib.suppress(Exception):  # counters of a connection that just failed
                 self._update_losses(dev, transport)

@@ -53,10 +53,12 @@ malformed lines. First the SLCAN reader alone: python-can's ``slcanBus`` (one ``
 byte) against :class:`~auvgw.drivers.slcanbus.BulkSlcanBus`, frames/s parsed from a pty.
 
 Last table, **the per-frame path** (``--only-path``; also printed by a full run): the gateway's
-Python work on one frame in this process, stage by stage (framer, decode, envelope), median us
-per frame, warm (frames back to back) and cold (10 ms idle before each frame, as at 100 Hz: what
-the caches keep between frames). One frame at a time the cold figure is what a sample waits;
-it depends on the machine's load far less than the end-to-end latencies (A/B in one sitting).
+Python work on one frame in this process, stage by stage in its order (framer; envelope, read
+straight from the frame's bytes for PD0 and HN-100, else decode + envelope; the puts; then the
+decode of a PD0 or HN-100 frame), median us per frame, warm (frames back to back) and cold
+(10 ms idle before each frame, as at 100 Hz: what the caches keep between frames). One frame at
+a time the cold "to the puts" figure is what a sample waits; it depends on the machine's load
+far less than the end-to-end latencies (A/B in one sitting).
 
 Nominal rate: 10 Hz (a Pathfinder's top ping rate); 10x = 100 Hz. Latencies are medians and
 99th percentiles over every ensemble of a phase. Timings depend on the machine's load: compare
@@ -84,6 +86,7 @@ import zenoh
 from auvgw.bus import decode_envelope, open_session
 from auvgw.config.bus import BusConfig
 from auvgw.drivers.formats import get_format
+from auvgw.drivers.transports import Chunk
 from auvgw.paths import REPO_ROOT, shared_dir
 from auvgw.procs import free_endpoint, stop_process
 
@@ -729,25 +732,35 @@ def all_devices_run(args: argparse.Namespace) -> list[AllPhase]:
 
 
 def frame_path(frames: list[bytes], fmt_name: str, n: int = 150) -> dict[str, tuple[float, float]]:
-    """Median us per frame of each stage of the gateway's per-frame Python work in this process
-    (framer, decode, envelope): warm (frames back to back) and cold (a 10 ms sleep before each
-    frame, as at 100 Hz: what the caches and branch predictors keep between frames)."""
-    from auvgw.bus import encode_envelope
+    """Median us per frame of each stage of the gateway's per-frame Python work in this process,
+    in its order: framer, envelope (read straight from the frame's bytes where the format has
+    that path, PD0 and HN-100: ``DeviceDecoder.envelope_body``; else the decode and the
+    envelope packer), then the decode that runs after the puts (none for the others): warm
+    (frames back to back) and cold (a 10 ms sleep before each frame, as at 100 Hz: what the
+    caches and branch predictors keep between frames)."""
+    from auvgw.decoding import DeviceDecoder
+    from auvgw.envelope import encode_envelope, pack_envelope
 
     fmt = get_format(fmt_name)
-    out: dict[str, list[list[float]]] = {s: [[], []] for s in ("framer", "decode", "envelope")}
+    out: dict[str, list[list[float]]] = {s: [[], []] for s in ("framer", "envelope", "decode")}
     for cold in (False, True):
-        framer = fmt.framer()
+        dec = DeviceDecoder("dvl", fmt)
         for i in range(n):
             if cold:
                 time.sleep(0.01)
             t0 = time.perf_counter_ns()
-            (frame,) = framer.feed(frames[i % len(frames)], 0.0)
+            (frame,) = dec.frames(Chunk(frames[i % len(frames)], t0))
             t1 = time.perf_counter_ns()
-            (msg,) = fmt.decode_frame(frame.data, verified=True)  # as the gateway does
-            t2 = time.perf_counter_ns()
-            encode_envelope(msg, "dvl", t0, i, wire=fmt_name, decoded=True)
-            t3 = time.perf_counter_ns()
+            fast = dec.envelope_body(frame.data)
+            if fast is not None:
+                pack_envelope(*fast[:2], fmt_name, "dvl", t0, i, fast[2])
+                t2 = time.perf_counter_ns()
+                dec.item(frame.data, frame.offset, True)  # after the puts, as the gateway does
+                t3 = time.perf_counter_ns()
+            else:
+                (msg,) = dec.item(frame.data, frame.offset, True).messages
+                encode_envelope(msg, "dvl", t0, i, wire=fmt_name, decoded=True)
+                t2 = t3 = time.perf_counter_ns()
             for stage, dt in zip(out, (t1 - t0, t2 - t1, t3 - t2), strict=True):
                 out[stage][cold].append(dt / 1e3)
     skip = n // 5  # the first frames warm the codec's caches
@@ -756,15 +769,17 @@ def frame_path(frames: list[bytes], fmt_name: str, n: int = 150) -> dict[str, tu
 
 def print_frame_path(devices: dict[str, list[bytes]]) -> None:
     print(
-        "\nPer-frame path in one process (framer -> decode -> envelope), median us per frame; "
-        f"warm: back to back; cold: 10 ms idle before each frame; load {os.getloadavg()[0]:.1f}\n"
+        "\nPer-frame path in one process (framer -> envelope, the puts, then the decode), median "
+        f"us per frame; warm: back to back; cold: 10 ms idle before each frame; load "
+        f"{os.getloadavg()[0]:.1f}\n"
     )
-    cols = [("format", -8), ("stage", -10), ("warm us", 8), ("cold us", 8)]
+    cols = [("format", -8), ("stage", -16), ("warm us", 8), ("cold us", 8)]
     print_head(cols)
     for fmt_name, frames in devices.items():
         rows = frame_path(frames, fmt_name)
+        to_puts = tuple(rows["framer"][i] + rows["envelope"][i] for i in (0, 1))
         total = tuple(sum(v[i] for v in rows.values()) for i in (0, 1))
-        for stage, (warm, cold) in [*rows.items(), ("total", total)]:
+        for stage, (warm, cold) in [*rows.items(), ("to the puts", to_puts), ("total", total)]:
             print(table_line(cols, (fmt_name, stage, f"{warm:.1f}", f"{cold:.1f}")))
 
 

@@ -10,7 +10,9 @@ taking ``time.time_ns()`` (one system clock for both processes):
     os.write returns -> select wakes (the chunk's receive stamp) -> os.read returns ->
     framer done -> decoded -> envelope built -> raw put -> decoded put -> subscriber callback
 
-and, after the puts, the health accounting and listeners. Prints the median of each step (us)
+and, after the puts, the health accounting and listeners. Where the gateway reads a frame's
+envelope straight from its bytes (PD0, HN-100), "framer -> envelope from the bytes" replaces the
+decode and envelope steps and the decode runs after the puts. Prints the median of each step (us)
 over the frames that came alone in their read, and the reads per frame (a frame split over
 several reads would show here). The wrappers cost a few us each; compare runs of this script
 with each other (main against a branch in one sitting), not with ``bench_gateway.py``.
@@ -32,17 +34,20 @@ import tty
 from pathlib import Path
 from typing import Any
 
+#: (step, from, to, path): path "decode" only for frames decoded before their envelope, "bytes"
+#: only for envelopes read from the frame's bytes (decoded after the puts), None for both
 STEPS = (
-    ("write -> select wake", "written", "t_recv"),
-    ("wake -> read done", "t_recv", "read"),
-    ("read -> framer done", "read", "framed"),
-    ("framer -> decoded", "framed", "decoded"),
-    ("decoded -> envelope", "decoded", "env"),
-    ("envelope -> raw put", "env", "rawput"),
-    ("raw put -> decoded put", "rawput", "decput"),
-    ("decoded put -> subscriber", "decput", "arrived"),
-    ("total: write -> subscriber", "written", "arrived"),
-    ("after the puts (health, listeners)", "decput", "done"),
+    ("write -> select wake", "written", "t_recv", None),
+    ("wake -> read done", "t_recv", "read", None),
+    ("read -> framer done", "read", "framed", None),
+    ("framer -> decoded", "framed", "decoded", "decode"),
+    ("decoded -> envelope", "decoded", "env", "decode"),
+    ("framer -> envelope from the bytes", "framed", "env", "bytes"),
+    ("envelope -> raw put", "env", "rawput", None),
+    ("raw put -> decoded put", "rawput", "decput", None),
+    ("decoded put -> subscriber", "decput", "arrived", None),
+    ("total: write -> subscriber", "written", "arrived", None),
+    ("after the puts (decode, health, listeners)", "decput", "done", None),
 )
 
 
@@ -66,7 +71,8 @@ def child(out_path: str, argv: list[str]) -> int:
             cur["read"] = time.time_ns()
         return chunk
 
-    real_feed = decoding.DeviceDecoder.feed
+    feeder = "frames" if hasattr(decoding.DeviceDecoder, "frames") else "feed"
+    real_feed = getattr(decoding.DeviceDecoder, feeder)
 
     def feed(self: Any, chunk: Any) -> Any:
         framer = self._framer
@@ -97,6 +103,14 @@ def child(out_path: str, argv: list[str]) -> int:
         cur["env"] = time.time_ns()
         return out
 
+    real_pack = getattr(gateway, "pack_envelope", None)  # an envelope read from the bytes
+
+    def pack(*a: Any) -> Any:
+        out = real_pack(*a)  # type: ignore[misc]
+        cur["env"] = time.time_ns()
+        cur["path"] = "bytes"
+        return out
+
     class Stamped:
         def __init__(self, pub: Any, tag: str) -> None:
             self.pub, self.tag = pub, tag
@@ -108,12 +122,16 @@ def child(out_path: str, argv: list[str]) -> int:
         def undeclare(self) -> None:
             self.pub.undeclare()
 
-    real_handle = gateway.Gateway._handle_items
+    handler = "_handle_frames" if hasattr(gateway.Gateway, "_handle_frames") else "_handle_items"
+    real_handle = getattr(gateway.Gateway, handler)
 
     def handle(self: Any, dev: Any, items: Any, t_recv_ns: int, *a: Any) -> None:
         for k, pub in list(dev.pubs.items()):
             if not isinstance(pub, Stamped):
                 dev.pubs[k] = Stamped(pub, "rawput" if k == "raw" else "decput")
+        for t, (pub, enc) in list(getattr(dev, "routes", {}).items()):
+            if not isinstance(pub, Stamped):
+                dev.routes[t] = (Stamped(pub, "decput"), enc)
         real_handle(self, dev, items, t_recv_ns, *a)
         if items:
             frames.append({**cur, "t_recv": t_recv_ns, "n": len(items), "seq": dev.seq,
@@ -121,10 +139,12 @@ def child(out_path: str, argv: list[str]) -> int:
         cur.clear()
 
     transports.SerialTransport.read = read  # type: ignore[method-assign]
-    decoding.DeviceDecoder.feed = feed  # type: ignore[method-assign]
+    setattr(decoding.DeviceDecoder, feeder, feed)
     decoding.DeviceDecoder.item = item  # type: ignore[method-assign]
     gateway.encode_envelope = envelope
-    gateway.Gateway._handle_items = handle  # type: ignore[method-assign]
+    if real_pack is not None:
+        gateway.pack_envelope = pack
+    setattr(gateway.Gateway, handler, handle)
     atexit.register(lambda: Path(out_path).write_text(json.dumps({"reads": reads,
                                                                   "frames": frames})))  # fmt: skip
     return main(argv)
@@ -209,14 +229,16 @@ def run(fmt_name: str, rate: float, n: int) -> dict[str, Any]:
     measured = [f for f in data["frames"] if (f["seq"] & 0xFFFFFFFF) > first]
     t_first = written[first + 1] - 1_000_000
     reads = [r for r in data["reads"] if r[0] >= t_first]
-    steps: dict[str, list[float]] = {name: [] for name, _, _ in STEPS}
+    steps: dict[str, list[float]] = {name: [] for name, *_ in STEPS}
     for f in measured:
         k = f["seq"] & 0xFFFFFFFF
         if f["n"] != 1 or k not in arrived:
             continue
         f["written"], f["arrived"] = written[k], arrived[k]
-        for name, a, b in STEPS:
-            steps[name].append((f[b] - f[a]) / 1e3)
+        path = f.get("path", "decode")
+        for name, a, b, only in STEPS:
+            if only in (None, path):
+                steps[name].append((f[b] - f[a]) / 1e3)
     return {
         "format": fmt_name,
         "rate_hz": rate,

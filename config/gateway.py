@@ -114,6 +114,11 @@ class DeviceConfig(_Model):
         description="drop a partial frame that waited this long for its bytes (host s); a "
         "few frame periods of the slowest message, longer than its transmission time",
     )  # fmt: skip
+    read_interval_s: float = Field(
+        0.002, ge=0, le=1,
+        description="least time between two reads of a serial port while bytes keep coming "
+        "(s): writes closer together are read together; 0: each as it arrives",
+    )  # fmt: skip
 
     @field_validator("format")
     @classmethod

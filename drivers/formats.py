@@ -15,6 +15,7 @@ from typing import Any
 
 from auvgw.drivers import registry
 from auvgw.drivers.framing import ErrorPolicy, Frame, Framer, read_file_frames
+from auvgw.drivers.spec import WireLayout
 
 __all__ = ["FORMATS", "Format", "format_from_table", "get_format"]
 
@@ -30,7 +31,9 @@ class Format:
     ``.V4LOG`` whose records wrap the frames); it returns the frames and the framer that counted.
     ``decode_verified(frame_bytes)`` (None: ``decode``) decodes a frame its own framer has just
     delivered, without checking its checksum a second time (:meth:`decode_frame`); ``decode``
-    alone stays safe on any bytes.
+    alone stays safe on any bytes. ``layout(frame_bytes)`` (None: no such path) tells where the
+    fields of a frame its framer delivered sit (:class:`~auvgw.drivers.spec.WireLayout`, raising
+    the error ``decode`` raises), so the gateway builds the envelope straight from the bytes.
     """
 
     name: str
@@ -40,6 +43,7 @@ class Format:
     encode: Callable[[Any], bytes] | None = None
     read_file: Callable[..., tuple[Iterator[Frame], Framer]] | None = None
     decode_verified: Callable[[bytes], Sequence[Any]] | None = None
+    layout: Callable[[bytes], WireLayout] | None = None
 
     def decode_frame(self, frame: bytes, verified: bool = False) -> Sequence[Any]:
         """``decode(frame)``; with ``verified`` (the frame came out of this format's framer,
@@ -57,22 +61,30 @@ class Format:
         decode: Callable[..., Any],
         encode: Callable[[Any], bytes],
         skips_checksum: bool = False,
+        layout: Callable[[bytes], WireLayout] | None = None,
     ) -> Format:
         """The format of a codec whose ``decode(frame)`` gives one message per frame;
-        ``skips_checksum``: its ``decode(frame, verified=True)`` trusts the framer's checksum."""
+        ``skips_checksum``: its ``decode(frame, verified=True)`` trusts the framer's checksum;
+        ``layout``: as the attribute."""
         return cls(
             name, summary, framer, lambda frame: [decode(frame)], encode,
             decode_verified=(lambda frame: [decode(frame, verified=True)]) if skips_checksum
-            else None,
+            else None, layout=layout,
         )  # fmt: skip
 
     @classmethod
     def of_codec(
-        cls, name: str, summary: str, codec: Callable[[], Any], skips_checksum: bool = False
+        cls,
+        name: str,
+        summary: str,
+        codec: Callable[[], Any],
+        skips_checksum: bool = False,
+        layout: bool = False,
     ) -> Format:
         """The format of a table-driven codec (one message per frame): framer, decode and
         encode from ``codec()``, called at each use (so the table is read on first use);
-        ``skips_checksum`` as in :meth:`one_per_frame`."""
+        ``skips_checksum`` as in :meth:`one_per_frame`; ``layout``: the codec has
+        ``wire_layout(frame)``."""
         return cls(
             name=name,
             summary=summary,
@@ -82,6 +94,7 @@ class Format:
             decode_verified=(lambda frame: [codec().decode(frame, verified=True)])
             if skips_checksum
             else None,
+            layout=(lambda frame: codec().wire_layout(frame)) if layout else None,
         )
 
     def frames_of_file(
@@ -115,5 +128,5 @@ def format_from_table(name: str, table: str | Path) -> Format:
     base = get_format(name)
     return Format.of_codec(
         name, f"{base.summary} [table {table}]", lambda: codec,
-        skips_checksum=base.decode_verified is not None,
+        skips_checksum=base.decode_verified is not None, layout=base.layout is not None,
     )  # fmt: skip

@@ -141,6 +141,9 @@ class Framer:
         #: the claimed length as before; the fault injector verifies its faults that way, so
         #: they hold for any chunking)
         self.abandon_on_inner = True
+        #: a chunk that starts the buffer is first taken as whole frames back to back
+        #: (:meth:`_whole_frames`), the usual read of a device writing frame by frame
+        self._whole_ok = self.sync_offset == 0 and not self.judge_inner_of_complete
 
     # -- to implement -------------------------------------------------------------------------
     def check(self, buf: bytearray, start: int) -> int:
@@ -156,13 +159,42 @@ class Framer:
         """Add a chunk; return every frame completed by it, in stream order. ``now`` (host
         seconds, any monotonic clock) dates a frame left waiting for :meth:`expire`."""
         self.stats.bytes_in += len(chunk)
+        whole = self._whole_ok and not self._buf and not self._pending
         self._buf += chunk
+        if whole:
+            self._pending = self._whole_frames()
+            if not self._buf:  # nothing left: no candidate waits
+                out, self._pending = self._pending, []
+                self._waiting_since = None
+                return out
         before = self._waiting
         try:
-            return self._scan(eof=False)
+            return self._scan(eof=False)  # (from the frames _whole_frames found)
         finally:
             if self._waiting is None or self._waiting != before:
                 self._waiting_since = now if self._waiting is not None else None
+
+    def _whole_frames(self) -> list[Frame]:
+        """The valid frames that follow each other from the buffer's first byte, taken out of
+        it: what :meth:`_scan` delivers there, without its search (a sync right at each
+        frame's end, no inner frame to judge), one frame at a time; it stops at the first
+        byte that does not start a complete valid frame, for :meth:`_scan` to judge."""
+        buf, sync, out, pos = self._buf, self.sync, [], 0
+        n = len(buf)
+        while pos < n and buf.startswith(sync, pos):
+            try:
+                length = self.check(buf, pos)
+            except BadFrame:
+                break
+            if not 0 < length <= self.max_frame_size:
+                break
+            out.append(Frame(bytes(buf[pos : pos + length]), self._base + pos))
+            pos += length
+        if pos:
+            self.stats.frames += len(out)
+            del buf[:pos]
+            self._base += pos
+        return out
 
     def feed_datagram(self, datagram: bytes | bytearray | memoryview) -> list[Frame]:
         """One datagram framed on its own: what it leaves incomplete is a bad frame of that

@@ -97,4 +97,5 @@ FORMAT = Format.of_codec(
     "an HN-100 INS binary capture (auvgw assumed layout, config/hn100.toml)",
     default_codec,
     skips_checksum=True,
+    layout=True,
 )

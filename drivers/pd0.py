@@ -56,10 +56,10 @@ import numpy as np
 from auvgw.drivers.formats import Format
 from auvgw.drivers.framing import BadFrame, DecodeError, Framer
 from auvgw.drivers.spec import (
-    WIRE_BYTES,
     WIRE_TYPES,
     Wire,
     WireError,
+    WireLayout,
     block_size,
     encode_block,
     message,
@@ -94,6 +94,7 @@ __all__ = [
     "decode",
     "decode_many",
     "encode",
+    "wire_layout",
 ]
 
 SYNC = b"\x7f\x7f"
@@ -554,8 +555,6 @@ _TABLES: dict[int, type] = {
         BottomTrackRange,
     )
 }
-for _cls in _TABLES.values():  # their decode keeps the wire values (see _Plan.decode)
-    setattr(_cls, WIRE_BYTES, None)
 #: Ensemble field name of each known data type, in the canonical (RDI) order
 _FIELD_OF: dict[int, str] = {
     ID_FIXED_LEADER: "fixed_leader",
@@ -645,7 +644,7 @@ class _Plan:
 
     __slots__ = (
         "absent", "arrays", "bulk", "cls", "missing", "names", "scaled", "size", "small",
-        "small_struct", "spans", "struct",
+        "small_struct", "struct",
     )
     #: scaled arrays up to this many elements (a Pathfinder's velocity profile included) are
     #: converted in Python: cheaper than numpy's calls on a warm core for a few elements, and on a
@@ -662,8 +661,6 @@ class _Plan:
         self.scaled: list[tuple[str, float, float, int | None]] = []
         self.arrays: list[tuple[str, int, np.dtype, int, tuple[int, ...] | None, Wire, bool]] = []
         self.absent: dict[str, None] = {}
-        #: (field, first byte, stop) of every integer array field: its wire bytes
-        self.spans: list[tuple[str, int, int]] = []
         #: (field, offset, stop) of the first required field the block is too short for
         self.missing: tuple[str, int, int] | None = None
         min_size = cls.MIN_SIZE if cls.MIN_SIZE >= 0 else block_size(cls, ctx)
@@ -681,8 +678,6 @@ class _Plan:
             code = "<" + WIRE_TYPES.get(w.type, "B")
             count = n // struct.calcsize(code)
             shape = w.resolve_shape(ctx)
-            if w.shape and w.type in WIRE_TYPES and not w.type.startswith("f"):
-                self.spans.append((name, pos, expected))
             if w.type == "bytes":
                 fmt.append(f"{n}s")
                 small_fmt.append(f"{n}x")
@@ -717,9 +712,8 @@ class _Plan:
         """Decode the block at ``buf[start:]``; ``buf`` must be ``bytes`` (immutable: unscaled
         arrays are read-only views of it)."""
         values = dict(zip(self.names, self.struct.unpack_from(buf, start), strict=True))
-        wire: dict[str, Any] = {}
         for name, scale, add, invalid in self.scaled:
-            raw = wire[name] = values[name]
+            raw = values[name]
             values[name] = math.nan if raw == invalid else raw * scale + add
         if self.small:
             flat = self.small_struct.unpack_from(buf, start)
@@ -744,9 +738,6 @@ class _Plan:
         values["extra"] = extra
         if self.absent:
             values.update(self.absent)
-        for name, a, b in self.spans:
-            wire[name] = buf[start + a : start + b]
-        values[WIRE_BYTES] = wire
         msg: Any = object.__new__(self.cls)
         msg.__dict__.update(values)
         return msg
@@ -974,6 +965,28 @@ class _Template:
         self.nbytes = hdr.nbytes
         #: the last fixed leader decoded with this template, by its bytes (shared while equal)
         self.last_fixed: dict[bytes, FixedLeader] = {}
+        self.ctx = fixed_ctx or {}
+        self._layout: WireLayout | None = None
+
+    @property
+    def layout(self) -> WireLayout:
+        """Where every field of this layout's ensembles sits (:func:`wire_layout`)."""
+        if self._layout is None:
+            fields: dict[str, Any] = dict.fromkeys(_FIELD_OF.values())
+            unknown = []
+            for name, plan, start, stop, end, last in self.steps:
+                if plan is None:
+                    unknown.append(WireLayout(RawBlock, start, fields={"data": slice(start, end)}))
+                    continue
+                extra = b"" if last else slice(stop, end)
+                ctx = self.ctx if plan.cls.ID in _CELL_TABLES else {}
+                fields[name] = WireLayout(
+                    plan.cls, start, ctx, frozenset(plan.absent), {"extra": extra}
+                )
+            fields.update(self.fixed, unknown=tuple(unknown), gap=slice(*self.gap),
+                          trailer=slice(self.trailer_start, self.nbytes))  # fmt: skip
+            self._layout = WireLayout(Ensemble, 0, fields=fields)
+        return self._layout
 
     def decode(self, frame: bytes) -> Ensemble:
         values = dict(_ENSEMBLE_DEFAULTS)
@@ -1096,6 +1109,14 @@ def decode(frame: bytes | bytearray | memoryview, verified: bool = False) -> Ens
     if not verified:
         _verify_checksum(frame, tpl.nbytes)
     return tpl.decode(frame)
+
+
+def wire_layout(frame: bytes) -> WireLayout:
+    """Where every field of the ensemble in ``frame`` (delivered by :class:`Pd0Framer`) sits
+    (:class:`~auvgw.drivers.spec.WireLayout`; one object per layout, cached); raises the
+    :class:`DecodeError` :func:`decode` raises for a layout it cannot decode, and a frame whose
+    layout it returns decodes without error."""
+    return _template(frame).layout
 
 
 def decode_many(frames: Sequence[bytes | bytearray | memoryview]) -> list[Ensemble]:
@@ -1262,4 +1283,5 @@ FORMAT = Format.one_per_frame(
     decode,
     encode,
     skips_checksum=True,
+    layout=wire_layout,
 )

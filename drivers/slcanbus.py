@@ -23,6 +23,8 @@ BELL; polling stops after three.
 from __future__ import annotations
 
 import io
+import os
+import re
 import select
 from collections import Counter
 from typing import Any
@@ -42,8 +44,6 @@ SLCAN_FLAGS = {
     0x40: "arbitration_lost",
     0x80: "bus_error",
 }
-
-_TERMINATORS = (0x0D, 0x07)  # CR: OK / end of line, BELL: error
 
 
 class BulkSlcanBus(slcanBus):
@@ -74,12 +74,13 @@ class BulkSlcanBus(slcanBus):
 
     def _take_line(self) -> str | None:
         buf = self._buffer
-        for i, b in enumerate(buf):  # lines are short: at most 30 bytes scanned
-            if b in _TERMINATORS:
-                line = bytes(buf[: i + 1]).decode("ascii", "replace")
-                del buf[: i + 1]
-                return line
-        return None
+        cr, bell = buf.find(b"\r"), buf.find(b"\a")  # CR: OK / end of line, BELL: error
+        end = cr if bell < 0 or 0 <= cr < bell else bell
+        if end < 0:
+            return None
+        line = bytes(buf[: end + 1]).decode("ascii", "replace")
+        del buf[: end + 1]
+        return line
 
     def _status_reply(self, line: str) -> bool:
         """Consume an answer to :meth:`poll_status`; True if ``line`` was one. ``Fxx`` is
@@ -119,12 +120,22 @@ class BulkSlcanBus(slcanBus):
                 return line
             # in bulk what is there; else wait for the port to be readable (one wake per burst,
             # not python-can's 1 ms polls of ``read(1)``), or a byte up to the port's timeout
-            waiting = port.in_waiting
-            if not waiting and self._fd is not None:
+            if self._fd is not None:  # a device: wait, then one read of what is there
                 ready, _, _ = select.select([self._fd], [], [], deadline.time_left())
                 if not ready:
                     return None
-                waiting = port.in_waiting
+                try:
+                    data = os.read(self._fd, 65536)  # (pyserial opened it non-blocking)
+                except (BlockingIOError, InterruptedError):
+                    continue
+                if not data:  # readable but empty: the adapter went away
+                    raise serial.SerialException(
+                        "device reports readiness to read but returned no data "
+                        "(device disconnected or multiple access on port?)"
+                    )
+                self._buffer.extend(data)
+                continue
+            waiting = port.in_waiting
             data = port.read(waiting if waiting else 1)
             if data:
                 self._buffer.extend(data)
@@ -133,22 +144,16 @@ class BulkSlcanBus(slcanBus):
                 return None
 
 
-_HEX = frozenset("0123456789abcdefABCDEF")
+
+#: a classic frame line: type, 3 or 8 id digits, DLC, hex digits (data, timestamp), CR
+_FRAME_LINE = re.compile(r"([tr][0-9A-Fa-f]{3}|[TR][0-9A-Fa-f]{8})([0-8])([0-9A-Fa-f]*)\r")
 
 
 def _well_formed(line: str) -> bool:
     """A ``t T r R`` line (with its CR): id digits, a DLC 0-8, exactly its data digits, and
     optionally a 4-digit timestamp."""
-    n_id = 8 if line[0] in "TR" else 3
-    head = 1 + n_id
-    if len(line) < head + 2 or line[-1] != "\r" or not line[head].isdigit():
+    m = _FRAME_LINE.fullmatch(line)
+    if m is None:
         return False
-    dlc = int(line[head])
-    body = line[head + 1 : -1]
-    n_data = 0 if line[0] in "rR" else 2 * dlc
-    return (
-        dlc <= 8
-        and len(body) in (n_data, n_data + 4)
-        and all(c in _HEX for c in line[1:head])
-        and all(c in _HEX for c in body)
-    )
+    n_data = 0 if line[0] in "rR" else 2 * int(m[2])
+    return len(m[3]) in (n_data, n_data + 4)

@@ -36,9 +36,9 @@ import numpy as np
 from auvgw.errors import DataError
 
 __all__ = [
-    "WIRE_BYTES",
     "Wire",
     "WireError",
+    "WireLayout",
     "block_size",
     "decode_block",
     "encode_block",
@@ -51,14 +51,6 @@ __all__ = [
     "to_jsonable",
     "wire",
 ]
-
-#: instance attribute where a codec's decode may leave what a decoded message's fields were on
-#: the wire: ``{field: value}``, the raw integer of a scaled integer field, the bytes (little
-#: endian, the table's dtype) of an integer array field, exactly what it was decoded from; the
-#: envelope then sends them as they are instead of converting the SI values back
-#: (docs/gateway.md). Not a field: equality, ``replace`` and encode ignore it. A class whose
-#: codec does this says so with a class attribute of this name (None): only those look.
-WIRE_BYTES = "__wire__"
 
 #: wire type name -> struct code
 WIRE_TYPES: dict[str, str] = {
@@ -149,6 +141,27 @@ class Wire:
     def nbytes(self, ctx: Mapping[str, int]) -> int:
         n = math.prod(self.resolve_shape(ctx)) if self.shape else 1
         return n * self.item_size()
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class WireLayout:
+    """Where a decoded message's fields sit in the bytes of one frame layout, for a reader that
+    takes the wire values straight from the frame (the gateway's envelope:
+    :func:`auvgw.envelope.layout_body`). A codec gives it only for a frame it decodes without
+    error, and it holds for every frame of that layout (same length, same block positions).
+
+    ``cls`` the message class; its wire fields sit at ``base + offset`` of their table rows,
+    array shapes resolved with ``ctx``; ``absent`` the trailing wire fields the block is too
+    short for (``None``); ``fields`` the value of every other field (except derived flags): a
+    nested :class:`WireLayout`, a ``slice`` of the frame (bytes), ``None``, a tuple of those,
+    or a constant. Compared by identity (a codec caches one per layout).
+    """
+
+    cls: type
+    base: int = 0
+    ctx: Mapping[str, int] = dataclasses.field(default_factory=dict)
+    absent: frozenset[str] = frozenset()
+    fields: Mapping[str, Any] = dataclasses.field(default_factory=dict)
 
 
 def wire(

@@ -40,6 +40,7 @@ from auvgw.drivers.spec import (
     LAZY_TYPES,
     WIRE_TYPES,
     WireError,
+    WireLayout,
     decode_block,
     encode_block,
     message,
@@ -900,6 +901,12 @@ class BinaryFrameCodec(TableCodec[BinaryFrameSpec, BinaryFrameFramer]):
     def __init__(self, spec: BinaryFrameSpec, message_type: type, name: str = "frame") -> None:
         super().__init__(spec, message_type, name)
         self._checker = BinaryFrameFramer(spec, policy=ErrorPolicy.IGNORE, name=name)
+        self._layout = WireLayout(message_type)
+
+    def wire_layout(self, frame: bytes | bytearray | memoryview) -> WireLayout:
+        """Where the fields of a frame this codec's framer delivered sit: the table itself
+        (:class:`~auvgw.drivers.spec.WireLayout`; such a frame always decodes)."""
+        return self._layout
 
     @classmethod
     def parse_table(cls, doc: Mapping[str, Any], source: str) -> BinaryFrameSpec:

@@ -390,7 +390,12 @@ class SerialTransport(Transport[serial.SerialBase]):
     def write(self, data: bytes) -> None:
         ser = self._device()
         try:
-            ser.write(data)
+            sent = 0
+            if self._posix:  # what the port takes now, one syscall (pyserial's selects first)
+                with contextlib.suppress(BlockingIOError, InterruptedError):
+                    sent = os.write(ser.fileno(), data)
+            if sent < len(data):  # the rest waits for the port, up to write_timeout_s
+                ser.write(data[sent:])
         except serial.SerialTimeoutException as exc:
             raise TransportError(
                 self._name(),

@@ -187,10 +187,18 @@ def test_resync_at_sync_plus_one(
 def test_chunking_invariance(
     fmt: str, frames: list[bytes], run: Callable[..., Any]
 ) -> None:
-    stream = _garbage(13, 7) + b"".join(fr + _garbage(3, i) for i, fr in
-                                            enumerate(frames))  # fmt: skip
+    """Any chunking gives the same frames, offsets and counters: byte by byte, 7 bytes, at
+    random, and chunks that start at a frame (taken as whole frames first: Framer's
+    ``_whole_frames``): one frame each, a frame with the garbage after it, three frames
+    with a cut one among them."""
+    bad = bytearray(frames[1])
+    bad[len(bad) // 2] ^= 0x01 if bad[len(bad) // 2] not in b"\r\n$:@" else 0x00
+    parts = [_garbage(13, 7)]
+    for i, fr in enumerate([*frames, bytes(bad), frames[0][: len(frames[0]) // 2], *frames]):
+        parts += [fr, _garbage(3, i)]
+    stream = b"".join(parts)
     whole, stats = run([stream])
-    assert len(whole) == len(frames)
+    assert len(whole) >= 2 * len(frames)
     rng = np.random.default_rng(1)
     cuts = sorted(rng.choice(np.arange(1, len(stream)), size=min(40, len(stream) - 1),
                              replace=False).tolist())  # fmt: skip
@@ -198,9 +206,27 @@ def test_chunking_invariance(
         "bytes": [stream[i : i + 1] for i in range(len(stream))],
         "sevens": [stream[i : i + 7] for i in range(0, len(stream), 7)],
         "random": [stream[a:b] for a, b in zip([0, *cuts], [*cuts, len(stream)], strict=True)],
+        "frames": parts,
+        "frame and garbage": [parts[0], *map(bytes.__add__, parts[1::2], parts[2::2])],
+        "three": [b"".join(parts[i : i + 6]) for i in range(1, len(parts), 6)],
     }
+    splits["three"][0] = parts[0] + splits["three"][0]
     for name, chunks in splits.items():
         assert b"".join(chunks) == stream
+        got, got_stats = run(chunks)
+        assert [(fr.data, fr.offset) for fr in got] == [(fr.data, fr.offset) for fr in whole], name
+        assert got_stats == stats, name
+    # back to back, as a device writes them: several whole frames per chunk, a bad one inside
+    tight = [*frames, bytes(bad), *frames]
+    stream = b"".join(tight)
+    whole, stats = run([stream])
+    assert 0 <= len(whole) - 2 * len(frames) <= (fmt in NO_CHECKSUM)  # (the bad one: no sum)
+    cut = len(stream) - len(frames[-1]) // 2
+    for name, chunks in {
+        "pairs": [b"".join(tight[i : i + 2]) for i in range(0, len(tight), 2)],
+        "one frame cut": [stream[:cut], stream[cut:]],
+        "frames": tight,
+    }.items():
         got, got_stats = run(chunks)
         assert [(fr.data, fr.offset) for fr in got] == [(fr.data, fr.offset) for fr in whole], name
         assert got_stats == stats, name

@@ -234,47 +234,6 @@ def test_short_arrays_packed_in_python_give_the_numpy_bytes(shared_data, monkeyp
         assert python == numpy
 
 
-def test_pd0_wire_bytes_give_the_envelope_of_the_si_values(shared_data):
-    """PD0's decode leaves each block's wire values on the message (spec.WIRE_BYTES: integer
-    array bytes, raw scaled integers) and the envelope sends them as they are: on every
-    ensemble of both real files (decoded one at a time, as the gateway does) the envelope is
-    byte for byte the one built from the SI values (the same messages without their wire
-    values, trusted and checked), and decodes to the same values."""
-    import copy
-
-    from auvgw.drivers import pd0
-    from auvgw.drivers.spec import WIRE_BYTES
-
-    def without_wire(ens):
-        out = copy.copy(ens)
-        for f in dataclasses.fields(ens):
-            sub = getattr(ens, f.name)
-            if dataclasses.is_dataclass(sub):
-                bare = copy.copy(sub)
-                vars(bare).pop(WIRE_BYTES, None)
-                object.__setattr__(out, f.name, bare)
-        return out
-
-    n = carried = 0
-    for name in ("RDI_withBT.000", "vmdas02_os.ENR"):
-        frames, _ = get_format("pd0").frames_of_file(shared_data / "pd0" / name)
-        for f in frames:
-            ens = pd0.decode(f.data, verified=True)
-            assert ens.velocity is not None and ens.bottom_track is not None
-            wire = vars(ens.velocity)[WIRE_BYTES]
-            assert len(wire["velocity"]) == 2 * ens.velocity.velocity.size
-            carried += len(wire)
-            fast = encode_envelope(ens, "d", T_NS, SEQ, wire="pd0", decoded=True)[0]
-            bare = without_wire(ens)
-            assert WIRE_BYTES not in vars(bare.velocity)
-            assert fast == encode_envelope(bare, "d", T_NS, SEQ, wire="pd0", decoded=True)[0]
-            assert fast == encode_envelope(bare, "d", T_NS, SEQ, wire="pd0")[0]
-            n += 1
-            if n % 100 == 0:
-                assert decode_envelope(fast).message == ens
-    assert n > 1800 and carried >= n
-
-
 def test_a_shared_nested_message_is_packed_once_with_the_same_bytes(shared_data):
     """PD0 ensembles of one file share their fixed leader (one immutable message while its
     bytes repeat); its body is packed once and reused, and every envelope is the one a fresh,

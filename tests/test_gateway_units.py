@@ -233,16 +233,16 @@ def test_a_frame_whose_envelope_fails_still_goes_out_raw(shared_data, tmp_path, 
         {"vehicle": "fail1", "devices": {"dvl": {"format": "pd0", "transport": {
             "kind": "file", "path": str(cap), "byte_rate": 20000}}}}
     )  # fmt: skip
-    real_encode = gateway_mod.encode_envelope
+    real_pack = gateway_mod.pack_envelope  # (PD0's envelope is read from the frame's bytes)
     calls = []
 
-    def failing_third(msg, *args, **kwargs):
-        calls.append(msg)
+    def failing_third(*args):
+        calls.append(args)
         if len(calls) == 3:
             raise ValueError("injected envelope failure")
-        return real_encode(msg, *args, **kwargs)
+        return real_pack(*args)
 
-    monkeypatch.setattr(gateway_mod, "encode_envelope", failing_third)
+    monkeypatch.setattr(gateway_mod, "pack_envelope", failing_third)
     raw, dec = [], []
     with open_session(BusConfig(listen=[endpoint(free_port())])) as s:
         subs = [
@@ -257,3 +257,88 @@ def test_a_frame_whose_envelope_fails_still_goes_out_raw(shared_data, tmp_path, 
     assert [r.payload.to_bytes() for r in raw[:3]] == frames[:3]
     assert len(dec) >= 2
     assert [decode_envelope(d.payload.to_bytes()).seq & 0xFFFFFFFF for d in dec[:2]] == [1, 2]
+
+
+def test_a_frame_the_codec_rejects_goes_out_raw_only(shared_data, tmp_path):
+    """Between good ensembles (a capture replayed in a loop), one with a good checksum whose
+    layout the codec refuses (a data type 1 byte long): it goes out raw, no decoded sample is
+    read from its bytes, the decode error is counted with the decoder's text, and the
+    listeners and health see the good ones."""
+    import struct
+
+    from auvgw.bus import open_session
+    from auvgw.config.bus import BusConfig
+    from auvgw.drivers import pd0
+    from auvgw.gateway import Gateway
+    from auvgw.testing import endpoint, free_port
+
+    frames = pd0_frames(shared_data, 3)
+    bad = bytearray(frames[1])
+    offsets = struct.unpack_from(f"<{bad[5]}H", bad, 6)
+    struct.pack_into("<H", bad, 8, offsets[2] - 1)  # the variable leader: 1 byte long
+    nbytes = bad[2] | bad[3] << 8
+    struct.pack_into("<H", bad, nbytes, pd0.checksum(bad[:nbytes]))
+    bad = bytes(bad)
+    with pytest.raises(Exception, match="PD0") as err:
+        pd0.decode(bad)
+    cap = tmp_path / "dvl.pd0"
+    cap.write_bytes(frames[0] + bad + frames[2])
+    cfg = parse_gateway_config(
+        {"vehicle": "rej1", "devices": {"dvl": {"format": "pd0", "transport": {
+            "kind": "file", "path": str(cap), "byte_rate": 20000, "loop": True}}}}
+    )  # fmt: skip
+    raw, dec, heard = [], [], []
+    with open_session(BusConfig(listen=[endpoint(free_port())])) as s:
+        subs = [
+            s.declare_subscriber("auv/rej1/raw/dvl", lambda smp: raw.append(smp)),
+            s.declare_subscriber("auv/rej1/sensor/dvl/**", lambda smp: dec.append(smp)),
+        ]
+        with Gateway(cfg, s, on_message=lambda d, t, m: heard.append(m)) as gw:
+            wait_until(lambda: len(raw) >= 3 and len(heard) >= 2, what="three raw, two decoded")
+            wait_until(lambda: gw.device_status("dvl")["decode_errors"] >= 1, what="the error")
+            st = gw.device_status("dvl")
+        for sub in subs:
+            sub.undeclare()
+    assert [r.payload.to_bytes() for r in raw[:3]] == [frames[0], bad, frames[2]]
+    seqs = [decode_envelope(d.payload.to_bytes()).seq & 0xFFFFFFFF for d in dec]
+    assert seqs[:2] == [1, 3] and all(k % 3 != 2 for k in seqs)
+    assert str(err.value) in st["last_error"] and "byte offset" in st["last_error"]
+    assert st["bad_frames"] == 0 and st["frames"] >= 3 * st["decode_errors"]
+
+
+def test_writes_closer_than_the_read_interval_are_read_together(tmp_path):
+    """``read_interval_s``: while bytes keep coming, a serial port is read at most that often,
+    so writes closer together are read (and stamped) together; every frame still comes out.
+    Three HN-100 frames written 10 ms apart with a 0.3 s interval: the last two share the
+    receive stamp of one read."""
+    import os
+    import time
+
+    from auvgw.gateway import Gateway
+    from auvgw.testing.format_samples import hn100_frames
+    from auvgw.testing.ptys import PtyDevice
+
+    dev = PtyDevice(tmp_path / "ins")
+    frames = hn100_frames(3)
+    got: list[tuple[int, object]] = []
+    cfg = parse_gateway_config(
+        {"vehicle": "pace1", "devices": {"ins": {"format": "hn100", "read_interval_s": 0.3,
+         "transport": {"kind": "serial", "url": str(dev.link)}}}}
+    )  # fmt: skip
+    assert parse_gateway_config(
+        {"devices": {"d": {"format": "pd0", "transport": {"kind": "serial", "url": "x"}}}}
+    ).devices["d"].read_interval_s == 0.002
+    try:
+        with Gateway(cfg, on_message=lambda d, t, m: got.append((t, m))) as gw:
+            wait_until(lambda: gw.device_status("ins")["connected"], what="the port open")
+            for f in frames:
+                os.write(dev.master, f)
+                time.sleep(0.01)
+            wait_until(lambda: len(got) == 3, what="three frames")
+    finally:
+        dev.unplug()
+    assert [m.seq for _, m in got] == [get_format("hn100").decode(f)[0].seq for f in frames]
+    assert got[1][0] == got[2][0]
+    with pytest.raises(ConfigError, match="read_interval_s"):
+        parse_gateway_config({"devices": {"d": {"format": "pd0", "read_interval_s": -1,
+                                                "transport": {"kind": "serial", "url": "x"}}}})

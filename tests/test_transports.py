@@ -564,28 +564,43 @@ def test_can_slcan_reads_bursts_and_split_frames_in_order(pty_pair):
         (0x310, i) for i in range(300)
     ]
     assert t.read(0.05) is None
+    # lines cut by lost bytes are dropped and counted, status replies and BELLs are not frames
+    bad = [b"t3108%015X\r" % 1, b"t31090011223344556677\r", b"T1234567g100\r", b"t31\r",
+           b"t3108001122334455667\r"]  # fmt: skip
+    good = [b"t3100\r", b"T123456782BEEF\r", b"r7FF8\r", b"t3102ABCD1234\r"]
+    os.write(master, b"".join([bad[0], good[0], b"F00\r", bad[1], b"\a", good[1], bad[2],
+                               good[2], bad[3], bad[4], good[3]]))  # fmt: skip
+    got = [t.read(1.0) for _ in range(3)]  # (the remote frame is skipped, and counted)
+    assert [(c.can_id, c.data) for c in got] == [
+        (0x310, b""), (0x12345678, b"\xbe\xef"), (0x310, b"\xab\xcd")
+    ]
+    assert t.read(0.05) is None
+    assert t.losses()["malformed_lines"] == len(bad) and t.frames_skipped == 1
     t.close()
 
 
-def test_can_slcan_idle_line_waits_without_polling(pty_pair):
+def test_can_slcan_idle_line_waits_without_polling(pty_pair, monkeypatch):
     """A quiet slcan line is waited on with ``select`` (one wake when bytes come), not polled
-    with python-can's 1 ms ``read(1)``: a 0.3 s read of nothing reads the port at most once."""
+    with python-can's 1 ms ``read(1)``: a 0.3 s read of nothing waits once or twice."""
     fds, path = pty_pair
     master = fds["master"]
+    import types
+
+    from auvgw.drivers import slcanbus
+
     t = _slcan_on(path)
     drain_master(master)
-    port = t._handle.serialPortOrig
-    reads = 0
-    real_read = port.read
+    waits = 0
+    real_select = slcanbus.select.select
 
-    def counting_read(n: int = 1) -> bytes:
-        nonlocal reads
-        reads += 1
-        return real_read(n)
+    def counting_select(*a):
+        nonlocal waits
+        waits += 1
+        return real_select(*a)
 
-    port.read = counting_read  # the real port underneath; only counted
+    monkeypatch.setattr(slcanbus, "select", types.SimpleNamespace(select=counting_select))
     assert t.read(0.3) is None
-    assert reads <= 1  # polling: about 300
+    assert waits <= 2  # polling: about 300
     os.write(master, b"t3108%016X\r" % 7)
     c = t.read(2.0)
     assert c is not None and (c.can_id, int.from_bytes(c.data, "big")) == (0x310, 7)
