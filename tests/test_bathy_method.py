@@ -12,7 +12,7 @@ from scipy.spatial import cKDTree
 from auvgw.config.scenario import Scenario
 from auvgw.sim_devices.world import ProceduralTerrain
 from auvgw.slam.bathymetric.config import BathyConfig
-from auvgw.slam.bathymetric.evaluate import grid_dem, run_filter
+from auvgw.slam.bathymetric.evaluate import error_budget, grid_dem, label_loops, run_filter
 from auvgw.slam.bathymetric.filters import (
     MTMPF,
     fill_weights,
@@ -568,3 +568,63 @@ def test_lccd_replace_lets_stronger_evidence_undo_a_lone_closure() -> None:
     assert lps[0].overturned and [len(o) for o in over] == [0, 1, 0, 0]
     plain = LCCD(tau_m=3.0, veto=True)
     assert [plain.judge(lp) for lp in loops()] == [True, False, True, True]
+
+
+def _one_closure(truth_step: tuple[float, float], mode: str = "oracle") -> MTMPF:
+    """A filter at ping 6 whose crossing ends now: the dominant mode sits near (0.3, 0), so
+    the closure jumps from the centroid (0, 6) back to ping 0's (0, 0) map. ``truth_step``
+    is the true displacement from ping 0 to ping 6."""
+    x = np.array([[0.0, 0.0], [1.0, 0.0], [20.0, 0.0], [21.0, 0.0]])
+    w = np.array([0.6, 0.3, 0.05, 0.05])
+    cfg = BathyConfig(n_particles=4, t_l=2, crossing_max_pings=1, lccd_mode=mode)
+    f = MTMPF(cfg, 10, np.random.default_rng(0))
+    f.t, f.x = 6, x.copy()
+    f.traj[:7] = np.arange(7.0)[:, None] * (0.0, 1.0)
+    truth = np.zeros((10, 2))
+    truth[6:] = truth_step
+    f.oracle_truth = truth
+    f._crossing(w, np.zeros(4, dtype=int))
+    return f
+
+
+def test_lccd_oracle_accepts_exactly_what_the_truth_label_calls_valid() -> None:
+    """lccd_mode = 'oracle' (diagnostic only): the closure is accepted iff its A22 truth label
+    says valid. Truly the vehicle came back to ping 0's place: the jump back is valid and
+    applied; truly it went on 6 m north (the track was right): the same jump is invalid, the
+    particles and the track are restored. Without the truth the mode refuses to guess."""
+    x0 = np.array([[0.0, 0.0], [1.0, 0.0], [20.0, 0.0], [21.0, 0.0]])
+    back = _one_closure((0.3, 0.0))
+    assert len(back.loops) == 1 and back.loops[0].accepted
+    assert label_loops(back, back.oracle_truth) == [True]
+    assert np.linalg.norm(back.traj[6] - (0.3, 0.0)) < 1.0  # the track moved to the mode
+    on = _one_closure((0.0, 6.0))
+    assert len(on.loops) == 1 and not on.loops[0].accepted
+    assert label_loops(on, on.oracle_truth) == [False]
+    assert np.array_equal(on.x, x0) and np.allclose(on.traj[6], (0.0, 6.0))
+    f = MTMPF(BathyConfig(n_particles=4, t_l=2, lccd_mode="oracle"), 10, np.random.default_rng(0))
+    f.t, f.x = 6, x0.copy()
+    f.traj[:7] = np.arange(7.0)[:, None] * (0.0, 1.0)
+    with pytest.raises(ValueError, match="oracle"):
+        f._resample(np.array([0.6, 0.3, 0.05, 0.05]), np.zeros(4, dtype=int))
+
+
+def test_error_budget_splits_the_final_error_at_the_last_closure() -> None:
+    """evaluate.error_budget: the final trajectory's error at the last accepted closure plus
+    what accrued after it; DR's own drift over that stretch beside it."""
+    f = MTMPF(BathyConfig(n_particles=2), 101, np.random.default_rng(0))
+    f.t = 100
+    t = np.arange(101.0)
+    truth = np.column_stack([t, np.zeros(101)])
+    f.dr[:101] = truth + 0.01 * t[:, None]  # DR drifts 0.01 m per ping per axis
+    f.traj[:101] = truth
+    f.traj[60:101] += (3.0, 4.0)  # 5 m left at the closure, carried unchanged to the end
+    f.traj[100] += (0.0, 2.0)  # and 2 m more accrued after it
+    lc = _loop(10, 60, np.zeros(2), (0, 0))
+    lc.accepted = True
+    f.loops = [lc, _loop(20, 80, np.zeros(2), (0, 0))]  # the later one was rejected
+    sim = type("Sim", (), {"truth": truth})()
+    eb = error_budget(f, sim)  # type: ignore[arg-type]
+    assert eb["last_closure_ping"] == 60
+    assert eb["err_at_last_closure_m"] == pytest.approx(5.0)
+    assert eb["accrued_since_m"] == pytest.approx(2.0)
+    assert eb["dr_drift_since_m"] == pytest.approx(0.4 * math.sqrt(2))

@@ -146,14 +146,17 @@ class BathyConfig(BaseModel):
         40, ge=1, description="'crossing': longest crossing before a closure is made (ours)"
     )
     lccd: bool = Field(True, description="loop-closure consistency determination (Sec. IV-B)")
-    lccd_mode: Literal["pool", "veto", "parts"] = Field(
+    lccd_mode: Literal["pool", "veto", "parts", "oracle"] = Field(
         "veto",
         description="how LCCD decides: 'pool' = Sec. IV-B, a closure needs a partner within "
         "lccd_tau_m among all closures so far (the first is always rejected, a loop disjoint "
         "from all others never agrees); 'veto' (ours, default) = the same clustering, but a "
         "closure without a partner is rejected only when an accepted closure comparable with "
         "it (not disjoint) disagrees; 'parts' (ours; closure = 'crossing') = the modes of "
-        "lccd_parts successive parts of the crossing's own pings must agree",
+        "lccd_parts successive parts of the crossing's own pings must agree; 'oracle' "
+        "(DIAGNOSTIC ONLY, never a default, needs the truth: evaluate.run_filter hands it "
+        "over) = accept a closure iff its truth label (A22, loops.loop_valid) says valid, the "
+        "bound of what any closure test can do on a scenario",
     )
     lccd_overturn: bool = Field(
         True,

@@ -13,7 +13,13 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from auvgw.slam.bathymetric.config import BathyConfig
-from auvgw.slam.bathymetric.loops import LCCD, LoopClosure, consistent, correction_ramp
+from auvgw.slam.bathymetric.loops import (
+    LCCD,
+    LoopClosure,
+    consistent,
+    correction_ramp,
+    loop_valid,
+)
 from auvgw.slam.bathymetric.matching import idw, match_weights
 
 __all__ = [
@@ -164,6 +170,8 @@ class BathyFilter:
         self.loops: list[LoopClosure] = []
         self.matched = np.zeros(n_pings, dtype=np.int32)
         self.neff_log = np.full(n_pings, np.nan)
+        # the true positions (T, 2), given only for the diagnostic lccd_mode = 'oracle'
+        self.oracle_truth: np.ndarray | None = None
 
     def _store(self, offsets: np.ndarray, depth: np.ndarray) -> None:
         if self.offsets is None:
@@ -216,7 +224,11 @@ class BathyFilter:
 
     def bytes_held(self) -> int:
         """Bytes of the filter's state arrays (map, trajectories, particles)."""
-        return sum(v.nbytes for v in vars(self).values() if isinstance(v, np.ndarray))
+        return sum(
+            v.nbytes
+            for k, v in vars(self).items()
+            if isinstance(v, np.ndarray) and k != "oracle_truth"
+        )
 
     def map_points(self) -> np.ndarray:
         """Every sounding placed by :meth:`trajectory`: (P, 3) x, y, depth."""
@@ -479,6 +491,10 @@ class MTMPF(BathyFilter):
         self.loops.append(loop)
         if not cfg.lccd:
             valid = True
+        elif cfg.lccd_mode == "oracle":  # diagnostic only: the truth label (A22) decides
+            if self.oracle_truth is None:
+                raise ValueError("lccd_mode = 'oracle' needs the truth (oracle_truth)")
+            valid = loop_valid(loop, self.oracle_truth)
         elif agree is not None:
             valid = agree
         else:

@@ -9,7 +9,7 @@ import numpy as np
 from scipy.cluster.hierarchy import fcluster, linkage
 from scipy.spatial.distance import squareform
 
-__all__ = ["LCCD", "LoopClosure", "consistent", "correction_ramp"]
+__all__ = ["LCCD", "LoopClosure", "consistent", "correction_ramp", "loop_valid"]
 
 
 @dataclass
@@ -55,6 +55,16 @@ class LoopClosure:
         """V_i(t), eq. (25): linear in time from 0 at t_loop to :attr:`v_end` at t_end."""
         span = max(self.t_end - self.t_loop, 1)
         return (t - self.t_loop) / span * self.v_end
+
+
+def loop_valid(lc: LoopClosure, truth: np.ndarray) -> bool:
+    """Truth label of a loop closure (A22): valid when, after its jump, the loop-interval
+    displacement error ``|(S_p^after(t_end) - S_p(t_loop)) - (x_true(t_end) - x_true(t_loop))|``
+    is at most max(3 m, half of what it was before the jump). ``truth`` (T, 2) m, NED."""
+    true_d = truth[lc.t_end] - truth[lc.t_loop]
+    before = float(np.linalg.norm((lc.s_end_before - lc.s_loop) - true_d))
+    after = float(np.linalg.norm((lc.s_end - lc.s_loop) - true_d))
+    return after <= max(3.0, 0.5 * before)
 
 
 def correction_ramp(
