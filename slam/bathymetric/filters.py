@@ -15,6 +15,7 @@ from scipy.spatial import cKDTree
 from auvgw.slam.bathymetric.config import BathyConfig
 from auvgw.slam.bathymetric.loops import (
     LCCD,
+    DriftModel,
     LoopClosure,
     consistent,
     correction_ramp,
@@ -267,6 +268,13 @@ class MTMPF(BathyFilter):
         self.traj = np.zeros((n_pings, 2))
         self.covered = np.zeros(n_pings, dtype=bool)  # l^h, eq. (16)
         self.t_r = 10**9  # "a large value" at mission start, eq. (3)
+        self.drift = DriftModel(
+            cfg.drift_spec_m,
+            cfg.drift_walk_m,
+            cfg.omega_sigma_m,
+            cfg.closure_sigma_m,
+            cfg.drift_gate_chi2,
+        )
         self.lccd = LCCD(
             cfg.lccd_tau_m,
             cfg.lccd_linkage,
@@ -275,7 +283,12 @@ class MTMPF(BathyFilter):
             overturn=cfg.lccd_overturn and cfg.lccd_mode == "veto",
             pending=cfg.lccd_pending and cfg.lccd_mode == "veto",
             replace=cfg.lccd_replace and cfg.lccd_mode == "veto",
+            drift=self.drift if cfg.lccd_mode == "drift" else None,
         )
+        # drift_estimate (ours): the DR bias removed in prediction (m per ping, (2,)) and
+        # the first ping of the accepted loop intervals it re-anchored the track at
+        self.bias = np.zeros(2)
+        self.anchor_t = -1
         # closure = "crossing": accumulated log weights, pings in / since the crossing
         self.logw = np.zeros(cfg.n_particles)
         self.crossing_len = 0
@@ -298,7 +311,7 @@ class MTMPF(BathyFilter):
         var = jitter_variance(self.t_r, cfg)
         if cfg.closure == "crossing" and self.crossing_len and not cfg.jitter_in_crossing:
             var = 0.0  # one offset per particle through a crossing (ours)
-        self.x += self._advance(u, offsets, depth, var)  # eq. (2)
+        self.x += self._advance(u, offsets, depth, var) - self.bias  # eq. (2), u - b (ours)
         t = self.t
         self.t_r += 1
         self.traj[t] = self.x.mean(0)  # S_p, unweighted centroid (A7)
@@ -514,6 +527,34 @@ class MTMPF(BathyFilter):
         self.t_r = 1
         if cfg.lccd and self.lccd.overturned_now:
             self._overturn(loop, self.lccd.overturned_now)
+        if cfg.drift_estimate:
+            self._reanchor()
+
+    def _reanchor(self) -> None:
+        """``drift_estimate`` (ours): the DR bias from the accepted closures
+        (:meth:`DriftModel.estimate`), removed from the DR steps from now on, and the track
+        re-anchored: before ``t_f``, the first ping of any accepted loop interval, no closure
+        corrects the track (eqs. 15-22 move only ``[t_loop, t]``), so it carries the DR drift
+        since the known start; it moves by ``-b t`` (0 at the start) and everything from
+        ``t_f`` on, loops and particles, rigidly by ``-b t_f`` (each loop's alignment kept).
+        Applied as the change from what was applied before; when ``t_f`` moved later (the
+        earliest loop was overturned) the stretch it freed gets the applied bias's ramp."""
+        acc = [lc for lc in self.loops if lc.accepted]
+        if not acc:
+            return
+        t = self.t
+        times = np.arange(t + 1)
+        t_f = min(lc.t_loop for lc in acc)
+        if 0 <= self.anchor_t < t_f:
+            freed = (np.clip(times, self.anchor_t, t_f) - self.anchor_t)[:, None]
+            self.traj[: t + 1] -= freed * self.bias
+            self.x -= (t_f - self.anchor_t) * self.bias
+        self.anchor_t = t_f
+        new = self.drift.estimate(acc, t)
+        step = new - self.bias
+        self.traj[: t + 1] -= np.minimum(times, t_f)[:, None] * step
+        self.x -= t_f * step
+        self.bias = new
 
     def _overturn(self, keep: LoopClosure, wrong: list[LoopClosure]) -> None:
         """Undo the ``wrong`` closures' corrections (``lccd_overturn``, ours): the ramp of eqs.
