@@ -705,6 +705,7 @@ def test_drift_estimate_reanchors_the_track_and_removes_the_bias_in_prediction()
     cfg = BathyConfig(
         n_particles=3,
         drift_estimate=True,
+        drift_min_agree=1,  # one closure suffices here (the default waits for two)
         lccd=False,
         t_l=5000,
         sigma_c2=0.0,
@@ -744,3 +745,31 @@ def test_drift_estimate_reanchors_the_track_and_removes_the_bias_in_prediction()
     f.step(np.array([1.0, 0.0]) + b, np.zeros((4, 2)), np.full(4, 30.0))  # DR step: bias in it
     np.testing.assert_allclose(f.x, x1 + np.array([1.0, 0.0]) + b - est)
     np.testing.assert_allclose(f.dr[t1 + 1], f.dr[t1] + np.array([1.0, 0.0]) + b)
+
+
+@pytest.mark.parametrize("min_agree", [1, 2])
+def test_drift_estimate_waits_for_agreeing_closures(min_agree: int) -> None:
+    """drift_min_agree = 2: a lone accepted closure (here a wrong one, 19 m off over 2000
+    pings) does not bend the bias; once two right ones agree, the bias is theirs and the
+    wrong one is left out. With 1 every accepted closure counts, the wrong one included."""
+    drift = np.array([0.012, 0.012])
+    cfg = BathyConfig(n_particles=2, drift_min_agree=min_agree)  # 2 is the default
+    f = MTMPF(cfg, 3000, np.random.default_rng(0))
+    f.t = 2800
+    wrong = _loop(100, 2100, drift, (15.0, -12.0))
+    right = [_loop(600, 2600, drift, (0.5, 0.0)), _loop(700, 2700, drift, (0.0, -0.6))]
+    for lp in (wrong, *right):
+        lp.accepted = True
+    f.loops = [wrong]
+    f._reanchor()
+    lone = f.bias.copy()
+    f.loops = [wrong, *right]
+    f._reanchor()
+    if min_agree == 2:
+        assert np.array_equal(lone, np.zeros(2))
+        np.testing.assert_allclose(f.bias, f.drift.estimate(right, 2800))
+        np.testing.assert_allclose(f.bias, drift, rtol=0.03)
+    else:
+        np.testing.assert_allclose(lone, f.drift.estimate([wrong], 2800))
+        assert np.abs(lone - drift).max() > 0.005  # the wrong closure's rate
+        np.testing.assert_allclose(f.bias, f.drift.estimate([wrong, *right], 2800))

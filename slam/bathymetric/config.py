@@ -199,6 +199,17 @@ class BathyConfig(BaseModel):
         "carries the whole DR drift since the known start: it moves by -b t, everything "
         "after it rigidly by -b t_first",
     )
+    drift_min_agree: int = Field(
+        2,
+        ge=1,
+        description="drift_estimate (ours): the bias is estimated from the largest set of "
+        "accepted closures that fit the spec and agree pairwise under the drift model "
+        "(loops.DriftModel.largest_agreeing), and only once that set holds at least this "
+        "many closures (0 bias until then; the re-anchor is retroactive, so waiting costs "
+        "only the prediction in between). 1 = every accepted closure, unfiltered: a lone false "
+        "closure then bends the bias and the re-anchor (bathy_survey N = 50, 20 runs: 51.0 m "
+        "with 1, 32.9 m with 2, 38.5 m without drift_estimate)",
+    )
     drift_spec_m: float = Field(
         0.012,
         gt=0,
@@ -216,8 +227,10 @@ class BathyConfig(BaseModel):
         2.0,
         gt=0,
         description="drift model (ours): alignment error of a valid closure per axis (m): "
-        "the loop-interval error left by the closures labelled valid (A22), 20 runs of "
-        "bathy_sandfield with LCCD off, N = 100 (benchmarks/diag_bathy_closures.py)",
+        "the loop-interval error left by the closures labelled valid (A22), median norm "
+        "2.3 m = a 2-D Gaussian's 2.0 m per axis (bathy_sandfield, N = 100, LCCD off; "
+        "benchmarks/diag_bathy_drift.py, results README session 6; the RMS is larger, the "
+        "label also calls valid a closure that halves a large error)",
     )
     drift_gate_chi2: float = Field(
         9.21,

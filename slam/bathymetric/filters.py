@@ -538,7 +538,9 @@ class MTMPF(BathyFilter):
         since the known start; it moves by ``-b t`` (0 at the start) and everything from
         ``t_f`` on, loops and particles, rigidly by ``-b t_f`` (each loop's alignment kept).
         Applied as the change from what was applied before; when ``t_f`` moved later (the
-        earliest loop was overturned) the stretch it freed gets the applied bias's ramp."""
+        earliest loop was overturned) the stretch it freed gets the applied bias's ramp. With
+        ``drift_min_agree`` > 1 the bias comes from the largest agreeing set of the accepted
+        closures (:meth:`DriftModel.largest_agreeing`), and is 0 while that set is smaller."""
         acc = [lc for lc in self.loops if lc.accepted]
         if not acc:
             return
@@ -550,7 +552,9 @@ class MTMPF(BathyFilter):
             self.traj[: t + 1] -= freed * self.bias
             self.x -= (t_f - self.anchor_t) * self.bias
         self.anchor_t = t_f
-        new = self.drift.estimate(acc, t)
+        if self.cfg.drift_min_agree > 1:
+            acc = self.drift.largest_agreeing(acc)
+        new = self.drift.estimate(acc, t) if len(acc) >= self.cfg.drift_min_agree else np.zeros(2)
         step = new - self.bias
         self.traj[: t + 1] -= np.minimum(times, t_f)[:, None] * step
         self.x -= t_f * step

@@ -107,6 +107,19 @@ class DriftModel:
         d = ra - rb
         return float(d @ d) / var <= self.gate_chi2
 
+    def largest_agreeing(self, loops: list[LoopClosure]) -> list[LoopClosure]:
+        """The largest subset of ``loops`` that fit the spec and agree pairwise
+        (:func:`max_clique`; ties: the most evidence, the sum of log mode ratios, then the
+        earliest)."""
+        fits = [lp for lp in loops if self.fits_spec(lp)]
+        k = len(fits)
+        adj = np.zeros((k, k), dtype=bool)
+        for a in range(k):
+            for b in range(a + 1, k):
+                adj[a, b] = adj[b, a] = self.agree(fits[a], fits[b])
+        ev = np.array([math.log(min(lp.evidence, 1e6)) for lp in fits])
+        return [fits[i] for i in max_clique(adj, ev)] if k else []
+
     def estimate(self, loops: list[LoopClosure], t: int) -> np.ndarray:
         """The bias now (2,) (m per ping) from ``loops``' drift rates: their weighted mean
         with the spec's zero-mean prior, each rate's variance grown by the walk since its
@@ -303,19 +316,10 @@ class LCCD:
         in it; accepted closures outside it are overturned (listed in :attr:`overturned_now`
         to be undone). Rejected closures stay in the pool and count (A17), but are never
         applied later."""
-        fits = [i for i, lp in enumerate(self.pool) if dm.fits_spec(lp)]
-        k = len(fits)
-        adj = np.zeros((k, k), dtype=bool)
-        for a in range(k):
-            for b in range(a + 1, k):
-                adj[a, b] = adj[b, a] = dm.agree(self.pool[fits[a]], self.pool[fits[b]])
-        ev = np.array([math.log(min(self.pool[i].evidence, 1e6)) for i in fits])
-        keep = {fits[i] for i in max_clique(adj, ev)} if k else set()
-        loop.accepted = len(self.pool) - 1 in keep
+        keep = {id(lp) for lp in dm.largest_agreeing(self.pool)}
+        loop.accepted = id(loop) in keep
         if loop.accepted:
-            self._overturn(
-                [lp for i, lp in enumerate(self.pool[:-1]) if lp.accepted and i not in keep]
-            )
+            self._overturn([lp for lp in self.pool[:-1] if lp.accepted and id(lp) not in keep])
         return loop.accepted
 
     def _overturn(self, out: list[LoopClosure]) -> None:
