@@ -227,10 +227,9 @@ class BathyConfig(BaseModel):
         2.0,
         gt=0,
         description="drift model (ours): alignment error of a valid closure per axis (m): "
-        "the loop-interval error left by the closures labelled valid (A22), median norm "
-        "2.3 m = a 2-D Gaussian's 2.0 m per axis (bathy_sandfield, N = 100, LCCD off; "
-        "benchmarks/diag_bathy_drift.py, results README session 6; the RMS is larger, the "
-        "label also calls valid a closure that halves a large error)",
+        "the loop-interval error left by the closures labelled valid (A22) has a per-axis "
+        "RMS of 1.92 m (109 closures, bathy_sandfield, N = 100, 20 runs, LCCD off; "
+        "benchmarks/diag_bathy_drift.py, docs/results/bathymetric/s6_probe)",
     )
     drift_gate_chi2: float = Field(
         9.21,
