@@ -12,7 +12,7 @@ from scipy.spatial import cKDTree
 from auvgw.config.scenario import Scenario
 from auvgw.sim_devices.world import ProceduralTerrain
 from auvgw.slam.bathymetric.config import BathyConfig
-from auvgw.slam.bathymetric.evaluate import grid_dem, run_filter
+from auvgw.slam.bathymetric.evaluate import error_budget, grid_dem, label_loops, run_filter
 from auvgw.slam.bathymetric.filters import (
     MTMPF,
     fill_weights,
@@ -22,7 +22,14 @@ from auvgw.slam.bathymetric.filters import (
     mode_weights,
     no_match_weight,
 )
-from auvgw.slam.bathymetric.loops import LCCD, LoopClosure, consistent, correction_ramp
+from auvgw.slam.bathymetric.loops import (
+    LCCD,
+    DriftModel,
+    LoopClosure,
+    consistent,
+    correction_ramp,
+    max_clique,
+)
 from auvgw.slam.bathymetric.matching import _column_sums, alpha_exponent, idw, match_weights
 from auvgw.slam.bathymetric.simulate import DRModel, simulate_survey, swath_offsets
 from auvgw.testing.bathy_helpers import TINY
@@ -568,3 +575,201 @@ def test_lccd_replace_lets_stronger_evidence_undo_a_lone_closure() -> None:
     assert lps[0].overturned and [len(o) for o in over] == [0, 1, 0, 0]
     plain = LCCD(tau_m=3.0, veto=True)
     assert [plain.judge(lp) for lp in loops()] == [True, False, True, True]
+
+
+def _one_closure(truth_step: tuple[float, float], mode: str = "oracle") -> MTMPF:
+    """A filter at ping 6 whose crossing ends now: the dominant mode sits near (0.3, 0), so
+    the closure jumps from the centroid (0, 6) back to ping 0's (0, 0) map. ``truth_step``
+    is the true displacement from ping 0 to ping 6."""
+    x = np.array([[0.0, 0.0], [1.0, 0.0], [20.0, 0.0], [21.0, 0.0]])
+    w = np.array([0.6, 0.3, 0.05, 0.05])
+    cfg = BathyConfig(n_particles=4, t_l=2, crossing_max_pings=1, lccd_mode=mode)
+    f = MTMPF(cfg, 10, np.random.default_rng(0))
+    f.t, f.x = 6, x.copy()
+    f.traj[:7] = np.arange(7.0)[:, None] * (0.0, 1.0)
+    truth = np.zeros((10, 2))
+    truth[6:] = truth_step
+    f.oracle_truth = truth
+    f._crossing(w, np.zeros(4, dtype=int))
+    return f
+
+
+def test_lccd_oracle_accepts_exactly_what_the_truth_label_calls_valid() -> None:
+    """lccd_mode = 'oracle' (diagnostic only): the closure is accepted iff its A22 truth label
+    says valid. Truly the vehicle came back to ping 0's place: the jump back is valid and
+    applied; truly it went on 6 m north (the track was right): the same jump is invalid, the
+    particles and the track are restored. Without the truth the mode refuses to guess."""
+    x0 = np.array([[0.0, 0.0], [1.0, 0.0], [20.0, 0.0], [21.0, 0.0]])
+    back = _one_closure((0.3, 0.0))
+    assert len(back.loops) == 1 and back.loops[0].accepted
+    assert label_loops(back, back.oracle_truth) == [True]
+    assert np.linalg.norm(back.traj[6] - (0.3, 0.0)) < 1.0  # the track moved to the mode
+    on = _one_closure((0.0, 6.0))
+    assert len(on.loops) == 1 and not on.loops[0].accepted
+    assert label_loops(on, on.oracle_truth) == [False]
+    assert np.array_equal(on.x, x0) and np.allclose(on.traj[6], (0.0, 6.0))
+    f = MTMPF(BathyConfig(n_particles=4, t_l=2, lccd_mode="oracle"), 10, np.random.default_rng(0))
+    f.t, f.x = 6, x0.copy()
+    f.traj[:7] = np.arange(7.0)[:, None] * (0.0, 1.0)
+    with pytest.raises(ValueError, match="oracle"):
+        f._resample(np.array([0.6, 0.3, 0.05, 0.05]), np.zeros(4, dtype=int))
+
+
+def test_error_budget_splits_the_final_error_at_the_last_closure() -> None:
+    """evaluate.error_budget: the final trajectory's error at the last accepted closure plus
+    what accrued after it; DR's own drift over that stretch beside it."""
+    f = MTMPF(BathyConfig(n_particles=2), 101, np.random.default_rng(0))
+    f.t = 100
+    t = np.arange(101.0)
+    truth = np.column_stack([t, np.zeros(101)])
+    f.dr[:101] = truth + 0.01 * t[:, None]  # DR drifts 0.01 m per ping per axis
+    f.traj[:101] = truth
+    f.traj[60:101] += (3.0, 4.0)  # 5 m left at the closure, carried unchanged to the end
+    f.traj[100] += (0.0, 2.0)  # and 2 m more accrued after it
+    lc = _loop(10, 60, np.zeros(2), (0, 0))
+    lc.accepted = True
+    f.loops = [lc, _loop(20, 80, np.zeros(2), (0, 0))]  # the later one was rejected
+    sim = type("Sim", (), {"truth": truth})()
+    eb = error_budget(f, sim)  # type: ignore[arg-type]
+    assert eb["last_closure_ping"] == 60
+    assert eb["err_at_last_closure_m"] == pytest.approx(5.0)
+    assert eb["accrued_since_m"] == pytest.approx(2.0)
+    assert eb["dr_drift_since_m"] == pytest.approx(0.4 * math.sqrt(2))
+
+
+def test_drift_model_rates_spec_and_pairwise_agreement() -> None:
+    """DriftModel: a closure's drift rate is -V(t_end) / span (eq. 25 per ping); closures of
+    one constant-drift run agree pairwise even when their intervals are disjoint (eqs. 26-27
+    cannot compare them, A14); a long closure 19 m off disagrees with right long ones but
+    fits the spec; a short one as far off breaks the spec; a short right one is too vague
+    to contradict the wrong long one."""
+    drift = np.array([0.012, 0.012])
+    dm = DriftModel()
+    right = _loop(600, 2600, drift, (0, 0))
+    rate, var = dm.rate(right)
+    np.testing.assert_allclose(rate, drift)
+    assert var == pytest.approx((2.0**2 + 0.01**2 * 2000) / 2000**2)
+    far = _loop(3000, 3300, drift, (0.5, -0.3))  # disjoint from `right`
+    assert LCCD.distance(right, far) == 1e6 and dm.agree(right, far)
+    wrong = _loop(100, 2100, drift, (15.0, -12.0))
+    assert dm.fits_spec(right) and dm.fits_spec(wrong) and not dm.agree(right, wrong)
+    assert not dm.fits_spec(_loop(100, 340, drift, (15.0, -12.0)))
+    assert dm.agree(wrong, _loop(2200, 2500, drift, (0, 0)))
+    # the bias from right closures, pulled slightly towards the spec's zero mean
+    est = dm.estimate([right, _loop(700, 2700, drift, (0.2, -0.2))], 2700)
+    np.testing.assert_allclose(est, drift, rtol=0.02)
+    assert (np.abs(est) < np.abs(drift) + 1e-4).all()
+
+
+def test_max_clique_prefers_size_then_score() -> None:
+    adj = np.zeros((5, 5), dtype=bool)
+    for a, b in [(0, 1), (1, 2), (0, 2), (3, 4)]:
+        adj[a, b] = adj[b, a] = True
+    assert max_clique(adj, np.zeros(5)) == [0, 1, 2]
+    adj[0, 2] = adj[2, 0] = False  # now three cliques of two
+    assert max_clique(adj, np.array([0.0, 0.0, 0.0, 1.0, 1.0])) == [3, 4]
+    assert max_clique(adj, np.zeros(5)) == [0, 1]  # a tie: the earliest
+    assert max_clique(np.zeros((0, 0), dtype=bool), np.zeros(0)) == []
+
+
+def test_lccd_drift_keeps_the_largest_consistent_set() -> None:
+    """lccd_mode = 'drift': a wrong first closure that fits the spec is accepted (nothing
+    contradicts it); a right one with more evidence contradicts it and wins the tie of two
+    lone closures (the wrong one is overturned); a second right one joins it; a later wrong
+    one, weaker, is rejected; one beyond the spec is rejected outright."""
+    drift = np.array([0.012, 0.012])
+    lps = [
+        _loop(100, 2100, drift, (15.0, -12.0)),  # wrong, 19 m off over 2000 pings
+        _loop(600, 2600, drift, (0.5, 0.0)),
+        _loop(700, 2700, drift, (0.0, -0.6)),
+        _loop(200, 2750, drift, (14.0, -12.0)),  # wrong again
+        _loop(2500, 2800, drift, (30.0, 25.0)),  # beyond the spec
+    ]
+    for lp, ev in zip(lps, (3.4, 24.0, 10.0, 5.0, 100.0), strict=True):
+        lp.evidence = ev
+    lccd = LCCD(drift=DriftModel())
+    over = _judge_all(lccd, lps)
+    assert [lp.accepted for lp in lps] == [False, True, True, False, False]
+    assert lps[0].overturned and [len(o) for o in over] == [0, 1, 0, 0, 0]
+
+
+def test_drift_estimate_reanchors_the_track_and_removes_the_bias_in_prediction() -> None:
+    """drift_estimate: one accepted closure over [1000, 3000] whose drift rate is the DR
+    bias; before it the mean trajectory is DR (17 m of bias piled up since the known start
+    by ping 1000, and carried rigidly after it). The re-anchor moves [0, 1000) by -b t and
+    the rest rigidly by -b 1000: the track then matches the truth everywhere, stays
+    continuous, the particles move with it, and the next prediction removes the bias from
+    the DR step (DR itself stays raw)."""
+    b = np.array([0.012, 0.012])
+    t0, t1 = 1000, 3000
+    cfg = BathyConfig(
+        n_particles=3,
+        drift_estimate=True,
+        drift_min_agree=1,  # one closure suffices here (the default waits for two)
+        lccd=False,
+        t_l=5000,
+        sigma_c2=0.0,
+        jitter_a=0.0,
+        omega_sigma_m=0.0,
+    )
+    f = MTMPF(cfg, t1 + 10, np.random.default_rng(0))
+    t = np.arange(t1 + 1.0)
+    truth = np.column_stack([t, np.zeros_like(t)])
+    f.t = t1
+    f.dr[: t1 + 1] = truth + t[:, None] * b
+    f.traj[: t1 + 1] = truth + t0 * b  # the closure removed the drift over [t0, t1] ...
+    f.traj[:t0] = f.dr[:t0]  # ... not before it
+    f.x = truth[t1] + t0 * b + np.array([[0.0, 0.0], [0.3, 0.0], [0.0, 0.3]])
+    lc = LoopClosure(
+        m=-(t1 - t0) * b,
+        t_loop=t0,
+        t_end=t1,
+        dr_loop=f.dr[t0].copy(),
+        dr_end=f.dr[t1].copy(),
+        s_loop=f.traj[t0].copy(),
+        s_end=f.traj[t1].copy(),
+        s_end_before=f.dr[t1].copy(),
+        accepted=True,
+    )
+    f.loops = [lc]
+    assert np.linalg.norm(f.traj[t0] - truth[t0]) == pytest.approx(t0 * 0.012 * math.sqrt(2))
+    x_before = f.x.copy()
+    f._reanchor()
+    est = f.drift.estimate([lc], t1)
+    np.testing.assert_allclose(f.bias, est)
+    np.testing.assert_allclose(est, b, rtol=0.02)  # the spec prior and the walk shrink it
+    assert np.abs(f.traj[: t1 + 1] - truth).max() < 0.02 * 0.012 * t0  # was 17 m at t0
+    np.testing.assert_allclose(f.x, x_before - t0 * est)
+    assert np.linalg.norm(np.diff(f.traj[: t1 + 1], axis=0) - (1.0, 0.0), axis=1).max() < 0.02
+    x1 = f.x.copy()
+    f.step(np.array([1.0, 0.0]) + b, np.zeros((4, 2)), np.full(4, 30.0))  # DR step: bias in it
+    np.testing.assert_allclose(f.x, x1 + np.array([1.0, 0.0]) + b - est)
+    np.testing.assert_allclose(f.dr[t1 + 1], f.dr[t1] + np.array([1.0, 0.0]) + b)
+
+
+@pytest.mark.parametrize("min_agree", [1, 2])
+def test_drift_estimate_waits_for_agreeing_closures(min_agree: int) -> None:
+    """drift_min_agree = 2: a lone accepted closure (here a wrong one, 19 m off over 2000
+    pings) does not bend the bias; once two right ones agree, the bias is theirs and the
+    wrong one is left out. With 1 every accepted closure counts, the wrong one included."""
+    drift = np.array([0.012, 0.012])
+    cfg = BathyConfig(n_particles=2, drift_min_agree=min_agree)  # 2 is the default
+    f = MTMPF(cfg, 3000, np.random.default_rng(0))
+    f.t = 2800
+    wrong = _loop(100, 2100, drift, (15.0, -12.0))
+    right = [_loop(600, 2600, drift, (0.5, 0.0)), _loop(700, 2700, drift, (0.0, -0.6))]
+    for lp in (wrong, *right):
+        lp.accepted = True
+    f.loops = [wrong]
+    f._reanchor()
+    lone = f.bias.copy()
+    f.loops = [wrong, *right]
+    f._reanchor()
+    if min_agree == 2:
+        assert np.array_equal(lone, np.zeros(2))
+        np.testing.assert_allclose(f.bias, f.drift.estimate(right, 2800))
+        np.testing.assert_allclose(f.bias, drift, rtol=0.03)
+    else:
+        np.testing.assert_allclose(lone, f.drift.estimate([wrong], 2800))
+        assert np.abs(lone - drift).max() > 0.005  # the wrong closure's rate
+        np.testing.assert_allclose(f.bias, f.drift.estimate([wrong, *right], 2800))

@@ -886,6 +886,9 @@ BATHY_NAME = "mtm-pf (bathymetric PF-SLAM)"
 #: - unmatched_weight = uniform, jitter_in_crossing = true, sigma_s_m = 0.3, closure_estimate =
 #:   mean: the weighting, crossing proposal and closure these were measured with (issue 14
 #:   changed the defaults on the eq. 28 study; not yet measured on the INS + DVL drift).
+#: - drift_estimate = false: it models the DR error as a bias constant in the world frame (eq.
+#:   28); the emulated INS heading bias and DVL scale / misalignment turn with each leg, so an
+#:   estimated bias would be wrong on the next leg (issue 14 session 6; not measured here).
 BATHY_PARTICLES = 200
 BATHY_FILTER: dict[str, Any] = {
     "mse_max_m2": 4.0,
@@ -896,6 +899,7 @@ BATHY_FILTER: dict[str, Any] = {
     "jitter_in_crossing": True,
     "sigma_s_m": 0.3,
     "closure_estimate": "mean",
+    "drift_estimate": False,
 }
 
 

@@ -136,6 +136,11 @@ def run(args: argparse.Namespace) -> int:
                         ]
                         for a in algorithms
                     },
+                    # per run: overturned closures, weak crossings and the error budget
+                    # (evaluate.error_budget)
+                    "extra_per_run": {
+                        a: [r.extra for r in results if r.algorithm == a] for a in algorithms
+                    },
                 },
                 indent=1,
             )

@@ -146,14 +146,20 @@ class BathyConfig(BaseModel):
         40, ge=1, description="'crossing': longest crossing before a closure is made (ours)"
     )
     lccd: bool = Field(True, description="loop-closure consistency determination (Sec. IV-B)")
-    lccd_mode: Literal["pool", "veto", "parts"] = Field(
+    lccd_mode: Literal["pool", "veto", "parts", "drift", "oracle"] = Field(
         "veto",
         description="how LCCD decides: 'pool' = Sec. IV-B, a closure needs a partner within "
         "lccd_tau_m among all closures so far (the first is always rejected, a loop disjoint "
         "from all others never agrees); 'veto' (ours, default) = the same clustering, but a "
         "closure without a partner is rejected only when an accepted closure comparable with "
         "it (not disjoint) disagrees; 'parts' (ours; closure = 'crossing') = the modes of "
-        "lccd_parts successive parts of the crossing's own pings must agree",
+        "lccd_parts successive parts of the crossing's own pings must agree; 'drift' (ours, "
+        "PCM-style) = the largest set of closures whose DR drift rates (eq. 25 per ping) "
+        "agree pairwise under the drift model (drift_spec_m, drift_walk_m, closure_sigma_m, "
+        "drift_gate_chi2; disjoint closures are comparable) and fit the spec; 'oracle' "
+        "(DIAGNOSTIC ONLY, never a default, needs the truth: evaluate.run_filter hands it "
+        "over) = accept a closure iff its truth label (A22, loops.loop_valid) says valid, the "
+        "bound of what any closure test can do on a scenario",
     )
     lccd_overturn: bool = Field(
         True,
@@ -182,6 +188,55 @@ class BathyConfig(BaseModel):
         "right one after it until two of them agree (default on: 8 runs, session 5)",
     )
     lccd_parts: int = Field(2, ge=2, description="'parts': parts a crossing is split into")
+    drift_estimate: bool = Field(
+        True,
+        description="ours (False = the paper; default since session 6: bathy_survey N = 100, "
+        "20 runs, 12.0 -> 3.9 m): estimate the DR bias (m per ping per axis) "
+        "from the accepted closures' drift rates (loops.DriftModel.estimate: their weighted "
+        "mean with the spec's zero-mean prior), remove it from the DR step in prediction "
+        "(eq. 2 with u - b), and re-anchor the stretch before the first accepted loop "
+        "interval, which no closure corrects (eqs. 15-22 move only [t_loop, t]) and which "
+        "carries the whole DR drift since the known start: it moves by -b t, everything "
+        "after it rigidly by -b t_first",
+    )
+    drift_min_agree: int = Field(
+        2,
+        ge=1,
+        description="drift_estimate (ours): the bias is estimated from the largest set of "
+        "accepted closures that fit the spec and agree pairwise under the drift model "
+        "(loops.DriftModel.largest_agreeing), and only once that set holds at least this "
+        "many closures (0 bias until then; the re-anchor is retroactive, so waiting costs "
+        "only the prediction in between). 1 = every accepted closure, unfiltered: a lone false "
+        "closure then bends the bias and the re-anchor (bathy_survey N = 50, 20 runs: 51.0 m "
+        "with 1, 32.9 m with 2, 38.5 m without drift_estimate)",
+    )
+    drift_spec_m: float = Field(
+        0.012,
+        gt=0,
+        description="drift model (ours): std per axis of the DR bias before any closure (m "
+        "per ping), the navigation spec; eq. (28)'s m_e, the DR the paper simulates",
+    )
+    drift_walk_m: float = Field(
+        3.3e-5,
+        ge=0,
+        description="drift model (ours): random walk of the DR bias per sqrt(ping) per axis "
+        "(m); eq. (28) holds it constant (0); 3.3e-5 lets it wander 2 mm per ping (1/6 of "
+        "m_e) in an hour, a slowly varying current or DVL / INS bias",
+    )
+    closure_sigma_m: float = Field(
+        2.0,
+        gt=0,
+        description="drift model (ours): alignment error of a valid closure per axis (m): "
+        "the loop-interval error left by the closures labelled valid (A22) has a per-axis "
+        "RMS of 1.92 m (109 closures, bathy_sandfield, N = 100, 20 runs, LCCD off; "
+        "benchmarks/diag_bathy_drift.py, docs/results/bathymetric/s6_probe)",
+    )
+    drift_gate_chi2: float = Field(
+        9.21,
+        gt=0,
+        description="drift model (ours): chi-square gate (2 dof) of the pairwise and spec "
+        "tests; 9.21 = 99 %",
+    )
     lccd_tau_m: float = Field(3.0, gt=0, description="clustering cut distance (A15)")
     lccd_linkage: str = Field("single", description="scipy linkage method (A15)")
     lccd_disjoint_m: float = Field(1e6, gt=0, description="distance of disjoint loops (A14)")

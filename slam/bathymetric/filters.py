@@ -13,7 +13,14 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from auvgw.slam.bathymetric.config import BathyConfig
-from auvgw.slam.bathymetric.loops import LCCD, LoopClosure, consistent, correction_ramp
+from auvgw.slam.bathymetric.loops import (
+    LCCD,
+    DriftModel,
+    LoopClosure,
+    consistent,
+    correction_ramp,
+    loop_valid,
+)
 from auvgw.slam.bathymetric.matching import idw, match_weights
 
 __all__ = [
@@ -164,6 +171,8 @@ class BathyFilter:
         self.loops: list[LoopClosure] = []
         self.matched = np.zeros(n_pings, dtype=np.int32)
         self.neff_log = np.full(n_pings, np.nan)
+        # the true positions (T, 2), given only for the diagnostic lccd_mode = 'oracle'
+        self.oracle_truth: np.ndarray | None = None
 
     def _store(self, offsets: np.ndarray, depth: np.ndarray) -> None:
         if self.offsets is None:
@@ -216,7 +225,11 @@ class BathyFilter:
 
     def bytes_held(self) -> int:
         """Bytes of the filter's state arrays (map, trajectories, particles)."""
-        return sum(v.nbytes for v in vars(self).values() if isinstance(v, np.ndarray))
+        return sum(
+            v.nbytes
+            for k, v in vars(self).items()
+            if isinstance(v, np.ndarray) and k != "oracle_truth"
+        )
 
     def map_points(self) -> np.ndarray:
         """Every sounding placed by :meth:`trajectory`: (P, 3) x, y, depth."""
@@ -255,6 +268,13 @@ class MTMPF(BathyFilter):
         self.traj = np.zeros((n_pings, 2))
         self.covered = np.zeros(n_pings, dtype=bool)  # l^h, eq. (16)
         self.t_r = 10**9  # "a large value" at mission start, eq. (3)
+        self.drift = DriftModel(
+            cfg.drift_spec_m,
+            cfg.drift_walk_m,
+            cfg.omega_sigma_m,
+            cfg.closure_sigma_m,
+            cfg.drift_gate_chi2,
+        )
         self.lccd = LCCD(
             cfg.lccd_tau_m,
             cfg.lccd_linkage,
@@ -263,7 +283,12 @@ class MTMPF(BathyFilter):
             overturn=cfg.lccd_overturn and cfg.lccd_mode == "veto",
             pending=cfg.lccd_pending and cfg.lccd_mode == "veto",
             replace=cfg.lccd_replace and cfg.lccd_mode == "veto",
+            drift=self.drift if cfg.lccd_mode == "drift" else None,
         )
+        # drift_estimate (ours): the DR bias removed in prediction (m per ping, (2,)) and
+        # the first ping of the accepted loop intervals it re-anchored the track at
+        self.bias = np.zeros(2)
+        self.anchor_t = -1
         # closure = "crossing": accumulated log weights, pings in / since the crossing
         self.logw = np.zeros(cfg.n_particles)
         self.crossing_len = 0
@@ -286,7 +311,7 @@ class MTMPF(BathyFilter):
         var = jitter_variance(self.t_r, cfg)
         if cfg.closure == "crossing" and self.crossing_len and not cfg.jitter_in_crossing:
             var = 0.0  # one offset per particle through a crossing (ours)
-        self.x += self._advance(u, offsets, depth, var)  # eq. (2)
+        self.x += self._advance(u, offsets, depth, var) - self.bias  # eq. (2), u - b (ours)
         t = self.t
         self.t_r += 1
         self.traj[t] = self.x.mean(0)  # S_p, unweighted centroid (A7)
@@ -479,6 +504,10 @@ class MTMPF(BathyFilter):
         self.loops.append(loop)
         if not cfg.lccd:
             valid = True
+        elif cfg.lccd_mode == "oracle":  # diagnostic only: the truth label (A22) decides
+            if self.oracle_truth is None:
+                raise ValueError("lccd_mode = 'oracle' needs the truth (oracle_truth)")
+            valid = loop_valid(loop, self.oracle_truth)
         elif agree is not None:
             valid = agree
         else:
@@ -498,6 +527,38 @@ class MTMPF(BathyFilter):
         self.t_r = 1
         if cfg.lccd and self.lccd.overturned_now:
             self._overturn(loop, self.lccd.overturned_now)
+        if cfg.drift_estimate:
+            self._reanchor()
+
+    def _reanchor(self) -> None:
+        """``drift_estimate`` (ours): the DR bias from the accepted closures
+        (:meth:`DriftModel.estimate`), removed from the DR steps from now on, and the track
+        re-anchored: before ``t_f``, the first ping of any accepted loop interval, no closure
+        corrects the track (eqs. 15-22 move only ``[t_loop, t]``), so it carries the DR drift
+        since the known start; it moves by ``-b t`` (0 at the start) and everything from
+        ``t_f`` on, loops and particles, rigidly by ``-b t_f`` (each loop's alignment kept).
+        Applied as the change from what was applied before; when ``t_f`` moved later (the
+        earliest loop was overturned) the stretch it freed gets the applied bias's ramp. With
+        ``drift_min_agree`` > 1 the bias comes from the largest agreeing set of the accepted
+        closures (:meth:`DriftModel.largest_agreeing`), and is 0 while that set is smaller."""
+        acc = [lc for lc in self.loops if lc.accepted]
+        if not acc:
+            return
+        t = self.t
+        times = np.arange(t + 1)
+        t_f = min(lc.t_loop for lc in acc)
+        if 0 <= self.anchor_t < t_f:
+            freed = (np.clip(times, self.anchor_t, t_f) - self.anchor_t)[:, None]
+            self.traj[: t + 1] -= freed * self.bias
+            self.x -= (t_f - self.anchor_t) * self.bias
+        self.anchor_t = t_f
+        if self.cfg.drift_min_agree > 1:
+            acc = self.drift.largest_agreeing(acc)
+        new = self.drift.estimate(acc, t) if len(acc) >= self.cfg.drift_min_agree else np.zeros(2)
+        step = new - self.bias
+        self.traj[: t + 1] -= np.minimum(times, t_f)[:, None] * step
+        self.x -= t_f * step
+        self.bias = new
 
     def _overturn(self, keep: LoopClosure, wrong: list[LoopClosure]) -> None:
         """Undo the ``wrong`` closures' corrections (``lccd_overturn``, ours): the ramp of eqs.

@@ -3,13 +3,22 @@ consistency determination, LCCD (eqs. 23-27, hierarchical clustering)."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.cluster.hierarchy import fcluster, linkage
 from scipy.spatial.distance import squareform
 
-__all__ = ["LCCD", "LoopClosure", "consistent", "correction_ramp"]
+__all__ = [
+    "LCCD",
+    "DriftModel",
+    "LoopClosure",
+    "consistent",
+    "correction_ramp",
+    "loop_valid",
+    "max_clique",
+]
 
 
 @dataclass
@@ -57,6 +66,111 @@ class LoopClosure:
         return (t - self.t_loop) / span * self.v_end
 
 
+@dataclass(frozen=True)
+class DriftModel:
+    """The dead-reckoning error a closure is judged against (ours; eq. 28 generalised): per
+    ping and per axis the DR step errs by ``b(t) + w``, ``w ~ N(0, sigma_e^2)`` white, the
+    bias ``b`` starting from ``N(0, spec^2)`` (the navigation spec) and random-walking by
+    ``walk`` per sqrt(ping) (0 in eq. 28, a slowly varying current or bias in a real DVL /
+    INS). A valid closure measures the DR drift over its interval up to its alignment error
+    ``N(0, sigma_a^2)`` per axis. All in m (rates in m per ping)."""
+
+    spec: float = 0.012
+    walk: float = 3.3e-5
+    sigma_e: float = 0.01
+    sigma_a: float = 2.0
+    gate_chi2: float = 9.21
+
+    def rate(self, lc: LoopClosure) -> tuple[np.ndarray, float]:
+        """The DR drift per ping (2,) that ``lc`` implies, ``-V_i(t_end) / (t_end - t_loop)``
+        (eq. 25: DR displacement minus SLAM displacement over the loop, per ping), and its
+        variance per axis from the white noise and the alignment error."""
+        span = max(lc.t_end - lc.t_loop, 1)
+        return -lc.v_end / span, (self.sigma_a**2 + self.sigma_e**2 * span) / span**2
+
+    def mid(self, lc: LoopClosure) -> float:
+        return 0.5 * (lc.t_loop + lc.t_end)
+
+    def fits_spec(self, lc: LoopClosure) -> bool:
+        """The closure's drift rate is within the gate of the spec's prior N(0, spec^2): a
+        correction far beyond what the navigation can drift over the interval is implausible."""
+        r, var = self.rate(lc)
+        return float(r @ r) / (var + self.spec**2) <= self.gate_chi2
+
+    def agree(self, a: LoopClosure, b: LoopClosure) -> bool:
+        """Pairwise consistency (PCM-style, ours): the two closures' drift rates differ by no
+        more than the gate allows given their own variances and the bias walk between their
+        interval midpoints. Disjoint intervals are comparable too (unlike eqs. 26-27, A14)."""
+        ra, va = self.rate(a)
+        rb, vb = self.rate(b)
+        var = va + vb + self.walk**2 * abs(self.mid(a) - self.mid(b))
+        d = ra - rb
+        return float(d @ d) / var <= self.gate_chi2
+
+    def largest_agreeing(self, loops: list[LoopClosure]) -> list[LoopClosure]:
+        """The largest subset of ``loops`` that fit the spec and agree pairwise
+        (:func:`max_clique`; ties: the most evidence, the sum of log mode ratios, then the
+        earliest)."""
+        fits = [lp for lp in loops if self.fits_spec(lp)]
+        k = len(fits)
+        adj = np.zeros((k, k), dtype=bool)
+        for a in range(k):
+            for b in range(a + 1, k):
+                adj[a, b] = adj[b, a] = self.agree(fits[a], fits[b])
+        ev = np.array([math.log(min(lp.evidence, 1e6)) for lp in fits])
+        return [fits[i] for i in max_clique(adj, ev)] if k else []
+
+    def estimate(self, loops: list[LoopClosure], t: int) -> np.ndarray:
+        """The bias now (2,) (m per ping) from ``loops``' drift rates: their weighted mean
+        with the spec's zero-mean prior, each rate's variance grown by the walk since its
+        interval's midpoint (an old rate says less about the bias at ping ``t``)."""
+        num, den = np.zeros(2), 1.0 / self.spec**2 if self.spec > 0 else 0.0
+        for lc in loops:
+            r, var = self.rate(lc)
+            var += self.walk**2 * max(t - self.mid(lc), 0.0)
+            num += r / var
+            den += 1.0 / var
+        return num / den if den > 0 else num
+
+
+def max_clique(adj: np.ndarray, score: np.ndarray) -> list[int]:
+    """The largest clique of the boolean adjacency ``adj`` (M, M) (Bron-Kerbosch with a
+    pivot; M is a run's closures, a few dozen at most), ties broken by the largest sum of
+    ``score`` (M,), then by the earliest members."""
+    m = len(adj)
+    nbr = [set(np.flatnonzero(adj[i]).tolist()) - {i} for i in range(m)]
+    best: list[int] = []
+    best_key = (0, -math.inf)
+
+    def visit(r: list[int], p: set[int], x: set[int]) -> None:
+        nonlocal best, best_key
+        if not p and not x:
+            key = (len(r), float(score[r].sum()))
+            if key > best_key:
+                best, best_key = sorted(r), key
+            return
+        if len(r) + len(p) < best_key[0]:
+            return
+        pivot = max(p | x, key=lambda u: len(nbr[u] & p))
+        for v in sorted(p - nbr[pivot]):
+            visit([*r, v], p & nbr[v], x & nbr[v])
+            p = p - {v}
+            x = x | {v}
+
+    visit([], set(range(m)), set())
+    return best
+
+
+def loop_valid(lc: LoopClosure, truth: np.ndarray) -> bool:
+    """Truth label of a loop closure (A22): valid when, after its jump, the loop-interval
+    displacement error ``|(S_p^after(t_end) - S_p(t_loop)) - (x_true(t_end) - x_true(t_loop))|``
+    is at most max(3 m, half of what it was before the jump). ``truth`` (T, 2) m, NED."""
+    true_d = truth[lc.t_end] - truth[lc.t_loop]
+    before = float(np.linalg.norm((lc.s_end_before - lc.s_loop) - true_d))
+    after = float(np.linalg.norm((lc.s_end - lc.s_loop) - true_d))
+    return after <= max(3.0, 0.5 * before)
+
+
 def correction_ramp(
     covered: np.ndarray, t_loop: int, t_end: int, m: np.ndarray
 ) -> tuple[int, np.ndarray]:
@@ -99,8 +213,10 @@ class LCCD:
         overturn: bool = False,
         pending: bool = False,
         replace: bool = False,
+        drift: DriftModel | None = None,
     ) -> None:
         self.tau_m, self.method, self.disjoint_m = tau_m, method, disjoint_m
+        self.drift = drift
         self.veto, self.overturn, self.hold = veto, overturn, pending
         self.replace = replace
         self.pool: list[LoopClosure] = []
@@ -144,6 +260,8 @@ class LCCD:
         and listed in :attr:`overturned_now` so the filter can undo their corrections."""
         self.pool.append(loop)
         self.overturned_now = []
+        if self.drift is not None:
+            return self._judge_drift(loop, self.drift)
         if len(self.pool) < 2:
             loop.accepted = self.veto and not self.hold
             loop.pending = self.veto and self.hold
@@ -187,6 +305,21 @@ class LCCD:
                 and size[labels[i]] < size[labels[-1]]
             ]
         )
+        return loop.accepted
+
+    def _judge_drift(self, loop: LoopClosure, dm: DriftModel) -> bool:
+        """``lccd_mode = 'drift'`` (ours, PCM-style: Mangelson et al. 2018's pairwise
+        consistency maximisation over the drift rates of eq. 25): the closures of the pool
+        that fit the spec (:meth:`DriftModel.fits_spec`) are nodes, pairs whose drift rates
+        agree (:meth:`DriftModel.agree`) edges; the largest clique (ties: the most evidence,
+        the crossing's log mode ratio) is the consistent set. ``loop`` is accepted iff it is
+        in it; accepted closures outside it are overturned (listed in :attr:`overturned_now`
+        to be undone). Rejected closures stay in the pool and count (A17), but are never
+        applied later."""
+        keep = {id(lp) for lp in dm.largest_agreeing(self.pool)}
+        loop.accepted = id(loop) in keep
+        if loop.accepted:
+            self._overturn([lp for lp in self.pool[:-1] if lp.accepted and id(lp) not in keep])
         return loop.accepted
 
     def _overturn(self, out: list[LoopClosure]) -> None:

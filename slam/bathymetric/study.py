@@ -122,6 +122,16 @@ def summary(results: Sequence[BathyResult]) -> dict[str, float]:
         "false_share": float(np.mean(shares)) if (shares := _false_shares(results)) else math.nan,
         "loops_overturned": float(np.mean([r.extra.get("loops_overturned", 0) for r in results])),
         "weak_crossings": float(np.mean([r.extra.get("weak_crossings", 0) for r in results])),
+        # error budget (evaluate.error_budget), means over runs
+        **{
+            k: float(np.mean([r.extra.get(k, math.nan) for r in results]))
+            for k in (
+                "last_closure_ping",
+                "err_at_last_closure_m",
+                "accrued_since_m",
+                "dr_drift_since_m",
+            )
+        },
         "tp": tp,
         "fp": fp,
         "tn": tn,
@@ -159,6 +169,12 @@ ROWS = [
         ("loops_overturned", "weak_crossings"),
         "{:.1f}",
     ),
+    (
+        "Error budget: last accepted closure (ping) / error there / accrued since (m)",
+        ("last_closure_ping", "err_at_last_closure_m", "accrued_since_m"),
+        "{:.1f}",
+    ),
+    ("DR drift since the last accepted closure (m)", "dr_drift_since_m", "{:.1f}"),
     ("Loop closures TP / FP / TN / FN", ("tp", "fp", "tn", "fn"), "{:d}"),
     ("Closures labelled false, share per run", "false_share", "{:.2f}"),
     ("LCCD precision / recall / F1", ("precision", "recall", "f1"), "{:.2f}"),
