@@ -168,7 +168,7 @@ def test_stage_process_on_the_bus(tmp_path: Path, tiny: BathyRun) -> None:
     import zenoh
 
     from auvgw.bus import encode_envelope
-    from auvgw.testing import Proc, endpoint, free_port, wait_until
+    from auvgw.testing import Proc, endpoint, free_port, wait_matched, wait_until
 
     sim = tiny
     n = 200
@@ -200,6 +200,9 @@ def test_stage_process_on_the_bus(tmp_path: Path, tiny: BathyRun) -> None:
             odo = s.declare_publisher("auv/auv1/nav/odometry", congestion_control=block)
             mb = s.declare_publisher("auv/auv1/sensor/mb/xyz88", congestion_control=block)
             wait_until(lambda: got["status"], what="the stage's status")
+            # its status reaching us does not mean its subscriptions have: samples put before
+            # would be routed nowhere (under load the first 23 odometry samples were lost so)
+            wait_matched(odo, mb)
             mb.put(b"{not json")
             for k in range(n):
                 t = float(sim.t[k])

@@ -63,7 +63,7 @@ def test_stage_process_on_the_bus_publishes_poses_and_observations(tmp_path: Pat
     from auvgw.bus import encode_envelope
     from auvgw.drivers.acoustic import AcousticReply
     from auvgw.drivers.ms3a import Ms3aSample
-    from auvgw.testing import Proc, endpoint, free_port, wait_until
+    from auvgw.testing import Proc, endpoint, free_port, wait_matched, wait_until
 
     inputs = stage_inputs(SCENARIO, 1200)  # 30 s, 150 m
     sim, dr = inputs.prep.sim, inputs.dr
@@ -94,6 +94,7 @@ def test_stage_process_on_the_bus_publishes_poses_and_observations(tmp_path: Pat
             )
             aco = s.declare_publisher("auv/auv1/sensor/acoustic/acousticreply")
             wait_until(lambda: got["status"], what="the stage's status")
+            wait_matched(odo, mag, aco)  # samples put before its subscriptions reach us are lost
             mag.put(b"\x00not an envelope")
             k_mag = 0
             for k, (kind, args) in enumerate(inputs.events(t0=1000.0)):

@@ -1,7 +1,8 @@
 """The test house (``tests/support/``, imported as ``auvgw.testing``: setup.py maps it, so tests
 and benchmarks import it without editing ``sys.path``).
 
-* :func:`wait_until` - poll a condition (never a fixed sleep);
+* :func:`wait_until` - poll a condition (never a fixed sleep); :func:`wait_matched` - until
+  every Zenoh publisher has a subscriber;
 * processes - :class:`Proc`, :class:`Procs` (the ``procs`` fixture), ``AUVGW``, ``PYTHON``,
   free ports (:func:`free_port`, :func:`endpoint`; :mod:`auvgw.procs` is their home);
 * ptys - :class:`PtyDevice`;
@@ -29,7 +30,7 @@ from auvgw.testing.processes import (
     run_demo_processes,
 )
 from auvgw.testing.ptys import PtyDevice
-from auvgw.testing.waiting import wait_until
+from auvgw.testing.waiting import wait_matched, wait_until
 
 __all__ = [
     "AUVGW",
@@ -46,6 +47,7 @@ __all__ = [
     "pd0_frames",
     "read_jsonl",
     "run_demo_processes",
+    "wait_matched",
     "wait_until",
     "write_gateway_toml",
 ]

@@ -6,7 +6,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-__all__ = ["wait_until"]
+__all__ = ["wait_matched", "wait_until"]
 
 
 def wait_until(
@@ -21,3 +21,11 @@ def wait_until(
         if time.monotonic() > deadline:
             raise AssertionError(f"timed out after {timeout} s waiting for {what}")
         time.sleep(interval)
+
+
+def wait_matched(*publishers: Any, timeout: float = 60.0) -> None:
+    """Wait until every Zenoh publisher has a matching subscriber. A sample put before the
+    remote subscriber's declaration has reached this session is routed nowhere (lost), and a
+    process's own status reaching us says nothing about whether its subscriptions reached us."""
+    wait_until(lambda: all(p.matching_status.matching for p in publishers), timeout,
+               what="a subscriber for every publisher")  # fmt: skip
