@@ -327,3 +327,12 @@ def test_slam_run_bathymetric_over_a_recording(tmp_path: Path, capsys) -> None:
            for ln in text.splitlines() if " vs truth" in ln}  # fmt: skip
     assert set(err) == {"dead reckoning", "mtm-pf"}, text
     assert err["dead reckoning"] < 2.0 and err["mtm-pf"] < 5.0, text
+
+
+def test_stage_keeps_drift_estimate_off_unless_asked() -> None:
+    """Online the world-frame drift model (eq. 28) is off by default (a vehicle's INS + DVL
+    error turns with each leg) while the offline default is on; ``filter`` turns it on."""
+    assert BathyConfig().drift_estimate
+    assert not BathymetricStageConfig().bathy_config().drift_estimate
+    on = BathymetricStageConfig(filter={"drift_estimate": True, "radius_m": 12.0})
+    assert on.bathy_config().drift_estimate and on.bathy_config().radius_m == 12.0

@@ -61,6 +61,10 @@ PIPELINE = "bathymetric"
 SWATH_KINDS = ("xyz88", "depth")
 
 
+#: BathyConfig values the online stage uses unless its ``filter`` says otherwise
+ONLINE_DEFAULTS: dict[str, Any] = {"drift_estimate": False}
+
+
 class BathymetricStageConfig(StageConfig):
     """Settings of the bathymetric stage.
 
@@ -85,8 +89,11 @@ class BathymetricStageConfig(StageConfig):
     max_pending_swaths: int = Field(200, ge=1)
 
     def bathy_config(self) -> BathyConfig:
-        """The filter's settings (``filter`` overrides, then ``n_particles``)."""
-        return BathyConfig(**{**self.filter, "n_particles": self.n_particles})
+        """The filter's settings (``filter`` overrides, then ``n_particles``). Online,
+        ``drift_estimate`` is off unless ``filter`` turns it on: its drift model is a bias
+        constant in the world frame (eq. 28), while a vehicle's INS + DVL error (heading bias,
+        DVL scale and misalignment) turns with each leg."""
+        return BathyConfig(**{**ONLINE_DEFAULTS, **self.filter, "n_particles": self.n_particles})
 
 
 @dataclass
