@@ -4,6 +4,7 @@ test, weight indexation, loop correction ramp, LCCD, and the noise-free single p
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -538,16 +539,25 @@ def test_lccd_pending_holds_a_lone_closure_until_another_judges_it() -> None:
 def test_a_pending_closure_changes_neither_particles_nor_track() -> None:
     """The filter with lccd_pending: the first closure of a run resamples, is held pending,
     and the particles and the mean trajectory are restored exactly (the map unchanged)."""
-    x = np.array([[0.0, 0.0], [1.0, 0.0], [20.0, 0.0], [21.0, 0.0]])
-    w = np.array([0.6, 0.3, 0.05, 0.05])
-    cfg = BathyConfig(n_particles=4, t_l=2, crossing_max_pings=1, lccd_pending=True)
-    f = MTMPF(cfg, 10, np.random.default_rng(0))
-    f.t, f.x = 6, x.copy()
-    f.traj[:7] = np.arange(7.0)[:, None] * (0.0, 1.0)
-    traj = f.traj.copy()
-    f._crossing(w, np.zeros(4, dtype=int))
+    f = _at_crossing_end(lccd_pending=True)
+    x, traj = f.x.copy(), f.traj.copy()
+    f._crossing(CROSSING_WEIGHTS, np.zeros(4, dtype=int))
     assert len(f.loops) == 1 and f.loops[0].pending and not f.loops[0].accepted
     assert np.array_equal(f.x, x) and np.array_equal(f.traj, traj) and not f.covered.any()
+
+
+#: the weights of the crossing :func:`_at_crossing_end` ends: the dominant mode near (0.3, 0)
+CROSSING_WEIGHTS = np.array([0.6, 0.3, 0.05, 0.05])
+
+
+def _at_crossing_end(**cfg: Any) -> MTMPF:
+    """A 4-particle filter at ping 6 of a straight track north whose crossing ends now
+    (particles near (0, 0) and (20, 0)); ``cfg``: further BathyConfig values."""
+    f = MTMPF(BathyConfig(n_particles=4, t_l=2, crossing_max_pings=1, **cfg), 10,
+              np.random.default_rng(0))  # fmt: skip
+    f.t, f.x = 6, np.array([[0.0, 0.0], [1.0, 0.0], [20.0, 0.0], [21.0, 0.0]])
+    f.traj[:7] = np.arange(7.0)[:, None] * (0.0, 1.0)
+    return f
 
 
 def test_lccd_replace_lets_stronger_evidence_undo_a_lone_closure() -> None:
@@ -581,16 +591,11 @@ def _one_closure(truth_step: tuple[float, float], mode: str = "oracle") -> MTMPF
     """A filter at ping 6 whose crossing ends now: the dominant mode sits near (0.3, 0), so
     the closure jumps from the centroid (0, 6) back to ping 0's (0, 0) map. ``truth_step``
     is the true displacement from ping 0 to ping 6."""
-    x = np.array([[0.0, 0.0], [1.0, 0.0], [20.0, 0.0], [21.0, 0.0]])
-    w = np.array([0.6, 0.3, 0.05, 0.05])
-    cfg = BathyConfig(n_particles=4, t_l=2, crossing_max_pings=1, lccd_mode=mode)
-    f = MTMPF(cfg, 10, np.random.default_rng(0))
-    f.t, f.x = 6, x.copy()
-    f.traj[:7] = np.arange(7.0)[:, None] * (0.0, 1.0)
+    f = _at_crossing_end(lccd_mode=mode)
     truth = np.zeros((10, 2))
     truth[6:] = truth_step
     f.oracle_truth = truth
-    f._crossing(w, np.zeros(4, dtype=int))
+    f._crossing(CROSSING_WEIGHTS, np.zeros(4, dtype=int))
     return f
 
 
