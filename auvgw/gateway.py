@@ -44,6 +44,7 @@ from auvgw.drivers.framing import Frame
 from auvgw.drivers.transports import (
     Disconnected,
     EndOfStream,
+    SerialTransport,
     Transport,
     TransportError,
     make_transport,
@@ -351,49 +352,48 @@ class Gateway:
     ) -> None:
         """Publish, decode, count and hand on the frames of one read. Where the format reads
         the envelope straight from the frame's bytes (:meth:`DeviceDecoder.envelope_body`: the
-        same bytes as the decoded message's envelope), the raw and decoded samples are put
-        first and the frame is decoded after them; otherwise it is decoded and its envelopes
-        built before the raw put. Either way raw and decoded leave back to back (one wake of
-        Zenoh's sender, raw first on the bus) and the health accounting, the in-process
-        listeners and the host driver come after the puts, off the samples' latency."""
+        same bytes as the decoded message's envelope), the frame is decoded after the samples
+        are put (:meth:`_settle`; with a host driver, right after them); otherwise it is decoded
+        and its envelopes built before the puts. The samples of every frame of the read leave
+        back to back (one wake of Zenoh's sender, each raw frame before its decoded samples);
+        the health accounting, the in-process listeners and the host driver come after the
+        puts, off the samples' latency."""
         t_ns = self._stamp(t_recv_ns)  # published time (vehicle-paced with [clock])
         raw_pub = dev.pubs["raw"]
         wire = dev.cfg.format
         decoder = dev.decoder
         verified = decoder.verified
-        for frame in frames:
-            dev.seq += 1
-            seq = dev.seq
-            attachment = pack_raw_attachment(t_ns, seq, frame.offset)
-            fast = decoder.envelope_body(frame.data) if verified else None
-            if fast is not None:
-                type_name, schema, body = fast
-                pub, enc = self._route(dev, type_name)
-                try:
+        puts: list[tuple[zenoh.Publisher, bytes, bytes | None, zenoh.Encoding | None]] = []
+        items: list[DecodedItem] = []
+        try:
+            for frame in frames:
+                dev.seq += 1
+                seq = dev.seq
+                attachment = pack_raw_attachment(t_ns, seq, frame.offset)
+                puts.append((raw_pub, frame.data, attachment, None))  # out whatever comes next
+                fast = decoder.envelope_body(frame.data) if verified else None
+                if fast is not None:
+                    type_name, schema, body = fast
+                    pub, enc = self._route(dev, type_name)
                     payload = pack_envelope(type_name, schema, wire, dev.name, t_ns, seq, body)
-                finally:  # the raw frame goes out whatever its envelope does
-                    raw_pub.put(frame.data, attachment=attachment)
-                pub.put(payload, encoding=enc)
-                if host is None:  # decoded once the samples are on their way (_settle)
-                    if not dev.deferred:
-                        dev.deferred_since = time.monotonic()
-                    dev.deferred.append((frame, t_recv_ns, t_ns))
+                    puts.append((pub, payload, None, enc))
+                    if host is None:  # decoded once the samples are on their way (_settle)
+                        if not dev.deferred:
+                            dev.deferred_since = time.monotonic()
+                        dev.deferred.append((frame, t_recv_ns, t_ns))
+                    else:
+                        items.append(decoder.item(frame.data, frame.offset, verified))
                     continue
                 item = decoder.item(frame.data, frame.offset, verified)
-            else:
-                item = decoder.item(frame.data, frame.offset, verified)
-                try:
-                    samples = [
-                        (
-                            self._route(dev, message_type(msg)),
-                            encode_envelope(msg, dev.name, t_ns, seq, wire=wire, decoded=True)[0],
-                        )
-                        for msg in item.messages
-                    ]
-                finally:  # the raw frame goes out whatever its envelope does
-                    raw_pub.put(frame.data, attachment=attachment)
-                for (pub, enc), payload in samples:
-                    pub.put(payload, encoding=enc)
+                for msg in item.messages:
+                    pub, enc = self._route(dev, message_type(msg))
+                    payload = encode_envelope(msg, dev.name, t_ns, seq, wire=wire, decoded=True)[0]
+                    puts.append((pub, payload, None, enc))
+                items.append(item)
+        finally:
+            for pub, payload, attachment, enc in puts:
+                pub.put(payload, attachment=attachment, encoding=enc)
+        for item in items:
             self._decoded(dev, item, t_recv_ns, t_ns, transport, host)
 
     def _decoded(
@@ -461,18 +461,15 @@ class Gateway:
             # a stream read at most every read_interval_s while bytes keep coming (a polled
             # device never: its next poll waits on the reply; datagrams and CAN frames come
             # one per read anyway)
-            paced = host is None and dev.cfg.transport.kind == "serial"
-            pace = dev.cfg.read_interval_s if paced else 0.0
-            next_read = 0.0
+            if host is None and isinstance(transport, SerialTransport):
+                transport.read_interval_s = dev.cfg.read_interval_s
             while not self.stop_event.is_set():
-                if pace and (wait := next_read - time.monotonic()) > 0:
-                    time.sleep(wait)
                 chunk = transport.read(SETTLE_S if dev.deferred else READ_TIMEOUT_S)
                 if chunk is not None:  # the data first, the bookkeeping after it
-                    next_read = time.monotonic() + pace
-                    self._handle_frames(
-                        dev, dev.decoder.frames(chunk), chunk.t_recv_ns, transport, host
-                    )
+                    frames = dev.decoder.frames(chunk)
+                    for more in transport.drain():  # a burst's other frames, read with it
+                        frames += dev.decoder.frames(more)
+                    self._handle_frames(dev, frames, chunk.t_recv_ns, transport, host)
                     dev.framed = True
                     now = time.monotonic()
                     if dev.deferred:

@@ -115,7 +115,7 @@ class DeviceConfig(_Model):
         "few frame periods of the slowest message, longer than its transmission time",
     )  # fmt: skip
     read_interval_s: float = Field(
-        0.002, ge=0, le=1,
+        0.005, ge=0, le=1,
         description="least time between two reads of a serial port while bytes keep coming "
         "(s): writes closer together are read together; 0: each as it arrives",
     )  # fmt: skip

@@ -72,6 +72,11 @@ class BulkSlcanBus(slcanBus):
         self._status_pending += 1
         self._write("F")
 
+    def has_line(self) -> bool:
+        """A whole line (a frame, a reply) waits in the buffer: :meth:`recv` returns it without
+        waiting on the port."""
+        return b"\r" in self._buffer or b"\a" in self._buffer
+
     def _take_line(self) -> str | None:
         buf = self._buffer
         cr, bell = buf.find(b"\r"), buf.find(b"\a")  # CR: OK / end of line, BELL: error

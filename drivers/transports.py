@@ -203,6 +203,11 @@ class Transport(Closing, ABC, Generic[H]):
     def read(self, timeout_s: float | None) -> Chunk | None:
         """Next chunk, or None if nothing arrived within ``timeout_s`` seconds."""
 
+    def drain(self) -> list[Chunk]:
+        """The chunks already received with the last read's, taken without waiting (CAN over
+        SLCAN: the rest of a burst read in one go); none by default."""
+        return []
+
     @abstractmethod
     def write(self, data: bytes) -> None:
         """Send bytes to the device."""
@@ -277,6 +282,14 @@ class SerialTransport(Transport[serial.SerialBase]):
     Device files (``/dev/tty*``, ``/dev/pts/N``) are waited on with ``select`` and read without
     blocking; other URL handlers use pyserial timeouts. A pty whose writer closed, an unplugged
     USB adapter and a closed socket peer all raise :class:`Disconnected`.
+
+    :attr:`read_interval_s` (s, default 0: every write read at once) reads the port at most
+    that often: bytes that arrive sooner after the previous read wait for the rest of the
+    interval (and are stamped when read), so writes closer together are read together. While
+    reads come closer than 1.5 intervals the reader sleeps out the interval before it waits
+    on the port (the bytes are usually there by then: one wake per read); otherwise it waits
+    on the port first and sleeps only if the bytes came early (a device writing less often
+    costs no wake more than one per write).
     """
 
     kind = "serial"
@@ -284,6 +297,10 @@ class SerialTransport(Transport[serial.SerialBase]):
     def __init__(self, cfg: SerialTransportConfig) -> None:
         super().__init__()
         self.cfg = cfg
+        #: read the port at most this often (s; 0: as bytes come)
+        self.read_interval_s = 0.0
+        self._last_read = -1e9  # host monotonic s of the last read
+        self._busy = False  # reads come closer than 1.5 intervals: sleep before waiting
         self._fd: int | None = None
         self._socket_like = False
         self._posix = False
@@ -348,11 +365,18 @@ class SerialTransport(Transport[serial.SerialBase]):
         self._check_timeout(timeout_s)
         ser = self._device()
         limit = self.cfg.max_chunk
+        interval = self.read_interval_s
+        busy = interval and (self._busy or self._fd is None)
+        if busy and (wait := self._last_read + interval - time.monotonic()) > 0:
+            time.sleep(wait)
         try:
             if self._fd is not None:
                 ready, _, _ = select.select([self._fd], [], [], timeout_s)
                 if not ready:
                     return None
+                early = interval and not busy
+                if early and (wait := self._last_read + interval - time.monotonic()) > 0:
+                    time.sleep(wait)  # bytes sooner than the interval: read them later
                 t_recv = time.time_ns()
                 if self._posix:  # what is ready, one syscall (pyserial's read selects again)
                     try:
@@ -385,6 +409,9 @@ class SerialTransport(Transport[serial.SerialBase]):
                 data = first + rest
         except (serial.SerialException, OSError) as exc:  # SerialException is an OSError
             self._gone(exc)
+        if interval:
+            now = time.monotonic()
+            self._busy, self._last_read = now - self._last_read < 1.5 * interval, now
         return self._chunk(Chunk(bytes(data), t_recv))
 
     def write(self, data: bytes) -> None:
@@ -504,6 +531,16 @@ class CanTransport(Transport[can.BusABC]):
                     t_device_s=msg.timestamp or None,
                 )
             )
+
+    def drain(self) -> list[Chunk]:
+        """The frames whose lines the SLCAN adapter delivered with the last one's (other
+        buses: none; each read waits on the bus)."""
+        bus = self._handle
+        out: list[Chunk] = []
+        if isinstance(bus, BulkSlcanBus):
+            while bus.has_line() and (chunk := self.read(0.0)) is not None:
+                out.append(chunk)
+        return out
 
     def losses(self) -> dict[str, int]:
         bus = self._handle

@@ -327,7 +327,7 @@ def test_writes_closer_than_the_read_interval_are_read_together(tmp_path):
     )  # fmt: skip
     assert parse_gateway_config(
         {"devices": {"d": {"format": "pd0", "transport": {"kind": "serial", "url": "x"}}}}
-    ).devices["d"].read_interval_s == 0.002
+    ).devices["d"].read_interval_s == 0.005
     try:
         with Gateway(cfg, on_message=lambda d, t, m: got.append((t, m))) as gw:
             wait_until(lambda: gw.device_status("ins")["connected"], what="the port open")

@@ -605,3 +605,37 @@ def test_can_slcan_idle_line_waits_without_polling(pty_pair, monkeypatch):
     c = t.read(2.0)
     assert c is not None and (c.can_id, int.from_bytes(c.data, "big")) == (0x310, 7)
     t.close()
+
+
+def test_can_slcan_drain_takes_a_burst_without_waiting(pty_pair, monkeypatch):
+    """``drain()`` after a read: the frames whose lines came in the same read of the adapter,
+    in order, without waiting on the port (no ``select``); an error line (BELL) ends it; with
+    nothing buffered it returns at once. Other transports drain nothing."""
+    fds, path = pty_pair
+    master = fds["master"]
+    import types
+
+    from auvgw.drivers import slcanbus
+
+    t = _slcan_on(path)
+    drain_master(master)
+    os.write(master, b"".join(b"t3108%016X\r" % i for i in range(5)) + b"\at3101AA\r")
+    first = t.read(2.0)
+    waits = 0
+    real_select = slcanbus.select.select
+
+    def counting_select(*a):
+        nonlocal waits
+        waits += 1
+        return real_select(*a)
+
+    monkeypatch.setattr(slcanbus, "select", types.SimpleNamespace(select=counting_select))
+    rest = t.drain()
+    assert [int.from_bytes(c.data, "big") for c in [first, *rest]] == [0, 1, 2, 3, 4]
+    assert waits == 0
+    after_bell = t.read(2.0)
+    assert (after_bell.can_id, after_bell.data) == (0x310, b"\xaa")
+    assert t.drain() == [] and waits <= 1
+    t.close()
+    with open_transport({"kind": "udp", "host": "127.0.0.1", "port": 0}) as u:
+        assert u.drain() == []
