@@ -52,6 +52,7 @@ from auvgw.cli import UserError, add_command
 from auvgw.config.bus import BusConfig
 from auvgw.config.gateway import ConfigError, load_gateway_config
 from auvgw.config.scenario import ScenarioError, load_scenario
+from auvgw.health import device_time_s
 from auvgw.paths import config_file
 from auvgw.procs import Children, free_endpoint, stop_process
 
@@ -402,9 +403,12 @@ def _run_stages(
         return stage
 
     ins_span: list[float] = []  # device time of the first and the latest INS sample, s
+    dvl_span: list[float] = []  # the same of the DVL's ensembles (their RTC), s
 
     def to_fusion(device: str, t_ns: int, msg: Any) -> None:
         # t_ns: the gateway's vehicle-paced stamp (its [clock] section)
+        if device == "dvl" and (t_dvl := device_time_s(msg)) is not None:
+            dvl_span[:] = [dvl_span[0] if dvl_span else t_dvl, t_dvl]
         if device == "ins" and hasattr(msg, "time"):
             ins_span[1:] = [float(msg.time)]
             if not fusion_box:
@@ -463,6 +467,7 @@ def _run_stages(
         None if slam is None else (_slam_name(slam), slam_counters),
         dead_reckoning, slam_track, truth, rrd, time.monotonic() - t_start, speed,
         {"ins_time_span_s": ins_span[1] - ins_span[0] if ins_span else 0.0,
+         "dvl_time_span_s": dvl_span[1] - dvl_span[0] if dvl_span else 0.0,
          **_bathy_map_summary(bathy_map, scn)},
     )  # fmt: skip
     return 0
