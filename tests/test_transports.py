@@ -579,28 +579,33 @@ def test_can_slcan_reads_bursts_and_split_frames_in_order(pty_pair):
     t.close()
 
 
+def _count_selects(monkeypatch) -> list[int]:
+    """Count the SLCAN reader's waits on its port: ``[n]``, n the ``select`` calls so far."""
+    import types
+
+    from auvgw.drivers import slcanbus
+
+    waits = [0]
+    real_select = slcanbus.select.select
+
+    def counting_select(*a):
+        waits[0] += 1
+        return real_select(*a)
+
+    monkeypatch.setattr(slcanbus, "select", types.SimpleNamespace(select=counting_select))
+    return waits
+
+
 def test_can_slcan_idle_line_waits_without_polling(pty_pair, monkeypatch):
     """A quiet slcan line is waited on with ``select`` (one wake when bytes come), not polled
     with python-can's 1 ms ``read(1)``: a 0.3 s read of nothing waits once or twice."""
     fds, path = pty_pair
     master = fds["master"]
-    import types
-
-    from auvgw.drivers import slcanbus
-
     t = _slcan_on(path)
     drain_master(master)
-    waits = 0
-    real_select = slcanbus.select.select
-
-    def counting_select(*a):
-        nonlocal waits
-        waits += 1
-        return real_select(*a)
-
-    monkeypatch.setattr(slcanbus, "select", types.SimpleNamespace(select=counting_select))
+    waits = _count_selects(monkeypatch)
     assert t.read(0.3) is None
-    assert waits <= 2  # polling: about 300
+    assert waits[0] <= 2  # polling: about 300
     os.write(master, b"t3108%016X\r" % 7)
     c = t.read(2.0)
     assert c is not None and (c.can_id, int.from_bytes(c.data, "big")) == (0x310, 7)
@@ -613,29 +618,17 @@ def test_can_slcan_drain_takes_a_burst_without_waiting(pty_pair, monkeypatch):
     nothing buffered it returns at once. Other transports drain nothing."""
     fds, path = pty_pair
     master = fds["master"]
-    import types
-
-    from auvgw.drivers import slcanbus
-
     t = _slcan_on(path)
     drain_master(master)
     os.write(master, b"".join(b"t3108%016X\r" % i for i in range(5)) + b"\at3101AA\r")
     first = t.read(2.0)
-    waits = 0
-    real_select = slcanbus.select.select
-
-    def counting_select(*a):
-        nonlocal waits
-        waits += 1
-        return real_select(*a)
-
-    monkeypatch.setattr(slcanbus, "select", types.SimpleNamespace(select=counting_select))
+    waits = _count_selects(monkeypatch)
     rest = t.drain()
     assert [int.from_bytes(c.data, "big") for c in [first, *rest]] == [0, 1, 2, 3, 4]
-    assert waits == 0
+    assert waits[0] == 0
     after_bell = t.read(2.0)
     assert (after_bell.can_id, after_bell.data) == (0x310, b"\xaa")
-    assert t.drain() == [] and waits <= 1
+    assert t.drain() == [] and waits[0] <= 1
     t.close()
     with open_transport({"kind": "udp", "host": "127.0.0.1", "port": 0}) as u:
         assert u.drain() == []
