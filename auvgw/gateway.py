@@ -458,9 +458,9 @@ class Gateway:
             if host is not None:
                 host.on_connect(transport.write, time.monotonic())
             next_loss_poll = 0.0
-            # a stream read at most every read_interval_s while bytes keep coming (a polled
-            # device never: its next poll waits on the reply; datagrams and CAN frames come
-            # one per read anyway)
+            # a serial stream read at most every read_interval_s while bytes keep coming (a
+            # polled device never: its next poll waits on the reply); a datagram comes one per
+            # read, an SLCAN adapter's frames of one read of its port together (drain)
             if host is None and isinstance(transport, SerialTransport):
                 transport.read_interval_s = dev.cfg.read_interval_s
             while not self.stop_event.is_set():
