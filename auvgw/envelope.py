@@ -436,24 +436,15 @@ def _plan(cls: type) -> _Plan:
     )
 
 
-#: generated body readers by frame layout (one per layout a codec serves: a PD0 template, an
-#: HN-100 table); None where a layout has no such reader. Bounded, replaced whole when full.
-_LAYOUT_READERS: dict[WireLayout, tuple[str, int, Callable[[bytes], list[Any]]] | None] = {}
-_NO_READER: Any = object()
-
-
 def layout_body(layout: WireLayout, frame: bytes) -> tuple[str, int, list[Any]] | None:
     """(type, schema, body) of the envelope of the message ``layout`` places in ``frame``, read
     straight from the frame's bytes (the gateway's hot path: no message, no numpy), by a
     function generated once per layout from the codec's tables (:func:`_layout_reader`). The
-    body is the one :func:`pack_body` gives for the decoded message (tests/test_envelope.py:
-    every ensemble of the real PD0 files, emulated PD0 and HN-100 frames); None where a field
-    has no such form (an ASCII ``str`` row, a float scaled by the table: decode, then pack)."""
-    got = _LAYOUT_READERS.get(layout, _NO_READER)
-    if got is _NO_READER:
-        if len(_LAYOUT_READERS) >= 4096:  # fuzzed layouts: keep it bounded
-            _LAYOUT_READERS.clear()
-        got = _LAYOUT_READERS[layout] = _layout_reader(layout)
+    body is the one :func:`pack_body` gives for the decoded message
+    (tests/test_envelope_bytes.py: every ensemble of the real PD0 files, emulated PD0 and HN-100
+    frames); None where a field has no such form (an ASCII ``str`` row, a float scaled by the
+    table: decode, then pack)."""
+    got = _layout_reader(layout)
     if got is None:
         return None
     type_name, schema, read = got
@@ -468,6 +459,7 @@ def _hint_names(hint: Any, cls: type) -> bool:
     return origin in (types.UnionType, typing.Union) and set(args) == {cls, type(None)}
 
 
+@functools.lru_cache(maxsize=4096)  # one per layout a codec serves; fuzzed ones stay bounded
 def _layout_reader(
     layout: WireLayout,
 ) -> tuple[str, int, Callable[[bytes], list[Any]]] | None:

@@ -71,8 +71,7 @@ def child(out_path: str, argv: list[str]) -> int:
             cur["read"] = time.time_ns()
         return chunk
 
-    feeder = "frames" if hasattr(decoding.DeviceDecoder, "frames") else "feed"
-    real_feed = getattr(decoding.DeviceDecoder, feeder)
+    real_feed = decoding.DeviceDecoder.frames
 
     def feed(self: Any, chunk: Any) -> Any:
         framer = self._framer
@@ -103,10 +102,10 @@ def child(out_path: str, argv: list[str]) -> int:
         cur["env"] = time.time_ns()
         return out
 
-    real_pack = getattr(gateway, "pack_envelope", None)  # an envelope read from the bytes
+    real_pack = gateway.pack_envelope  # an envelope read from the bytes
 
     def pack(*a: Any) -> Any:
-        out = real_pack(*a)  # type: ignore[misc]
+        out = real_pack(*a)
         cur["env"] = time.time_ns()
         cur["path"] = "bytes"
         return out
@@ -122,14 +121,13 @@ def child(out_path: str, argv: list[str]) -> int:
         def undeclare(self) -> None:
             self.pub.undeclare()
 
-    handler = "_handle_frames" if hasattr(gateway.Gateway, "_handle_frames") else "_handle_items"
-    real_handle = getattr(gateway.Gateway, handler)
+    real_handle = gateway.Gateway._handle_frames
 
     def handle(self: Any, dev: Any, items: Any, t_recv_ns: int, *a: Any) -> None:
         for k, pub in list(dev.pubs.items()):
             if not isinstance(pub, Stamped):
                 dev.pubs[k] = Stamped(pub, "rawput" if k == "raw" else "decput")
-        for t, (pub, enc) in list(getattr(dev, "routes", {}).items()):
+        for t, (pub, enc) in list(dev.routes.items()):
             if not isinstance(pub, Stamped):
                 dev.routes[t] = (Stamped(pub, "decput"), enc)
         real_handle(self, dev, items, t_recv_ns, *a)
@@ -139,12 +137,11 @@ def child(out_path: str, argv: list[str]) -> int:
         cur.clear()
 
     transports.SerialTransport.read = read  # type: ignore[method-assign]
-    setattr(decoding.DeviceDecoder, feeder, feed)
+    decoding.DeviceDecoder.frames = feed  # type: ignore[method-assign]
     decoding.DeviceDecoder.item = item  # type: ignore[method-assign]
     gateway.encode_envelope = envelope
-    if real_pack is not None:
-        gateway.pack_envelope = pack
-    setattr(gateway.Gateway, handler, handle)
+    gateway.pack_envelope = pack
+    gateway.Gateway._handle_frames = handle  # type: ignore[method-assign]
     atexit.register(lambda: Path(out_path).write_text(json.dumps({"reads": reads,
                                                                   "frames": frames})))  # fmt: skip
     return main(argv)

@@ -149,7 +149,6 @@ class BulkSlcanBus(slcanBus):
                 return None
 
 
-
 #: a classic frame line: type, 3 or 8 id digits, DLC, hex digits (data, timestamp), CR
 _FRAME_LINE = re.compile(r"([tr][0-9A-Fa-f]{3}|[TR][0-9A-Fa-f]{8})([0-8])([0-9A-Fa-f]*)\r")
 
