@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 from pydantic import BaseModel, ConfigDict, Field
 
-from auvgw.cli import UserError, main
+from auvgw.cli import main
 from auvgw.config.gateway import ConfigError as GatewayConfigError
 from auvgw.config.scenario import ScenarioError
 from auvgw.config.transport import TransportConfigError
@@ -19,7 +19,7 @@ from auvgw.drivers.ms3a import default_codec
 from auvgw.drivers.spec import WireError, decode_block, message, wire
 from auvgw.drivers.tablecodec import LineError, TableError
 from auvgw.drivers.transports import Disconnected, TransportError, TransportOpenError
-from auvgw.errors import AuvgwError, ConfigError, DataError, load_settings
+from auvgw.errors import AuvgwError, ConfigError, DataError, UserError, load_settings
 from auvgw.errors import TransportError as RootTransportError
 from auvgw.fusion.adapters import AdapterError
 from auvgw.fusion.calibrate import CalibrationError

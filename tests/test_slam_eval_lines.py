@@ -10,9 +10,9 @@ import math
 import numpy as np
 import pytest
 
-from auvgw.cli import UserError
 from auvgw.commands import slam as slam_cmd
 from auvgw.config.scenario import load_scenario
+from auvgw.errors import UserError
 from auvgw.paths import config_file
 from auvgw.slam.evaluation.metrics import RunResult, line_errors, summarise
 from auvgw.slam.evaluation.runner import drive

@@ -9,8 +9,8 @@ import math
 import numpy as np
 import pytest
 
-from auvgw.cli import UserError
 from auvgw.commands import slam as slam_cmd
+from auvgw.errors import UserError
 from auvgw.slam.evaluation.metrics import RunResult, feature_errors, summarise
 from auvgw.slam.evaluation.simulate import simulate
 from auvgw.slam.models import RangeBearing

@@ -23,7 +23,7 @@ import argparse
 import json
 from typing import Any
 
-from auvgw.cli import UserError
+from auvgw.errors import UserError
 
 
 def stage_config(args: argparse.Namespace, vehicle: str) -> Any:
@@ -55,7 +55,7 @@ def stage_config(args: argparse.Namespace, vehicle: str) -> Any:
 
 def live(args: argparse.Namespace) -> int:
     """Serve the stage on the bus (``slam run`` without ``--recording``)."""
-    from auvgw.commands.slam_run import serve_slam
+    from auvgw.commands.slam_common import serve_slam
     from auvgw.stages.bathymetric import BathymetricStage
 
     cfg = stage_config(args, args.vehicle)
@@ -66,14 +66,14 @@ def live(args: argparse.Namespace) -> int:
 def offline(args: argparse.Namespace) -> int:
     """The bathymetric stage (mtm-pf) over ``--recording``: its counters, pings and loop
     closures, and its error against the recorded truth beside dead reckoning's."""
-    from auvgw.commands.slam_run import _Paths, check_recording, replay_recording, report_truth
+    from auvgw.commands.slam_common import Paths, check_recording, replay_recording, report_truth
     from auvgw.stages.bathymetric import BathymetricStage
 
     cfg = stage_config(args, "auv1")
     check_recording(args)
     out_file = None
     if args.out is not None:
-        from auvgw.cli import open_output
+        from auvgw.commands.common import open_output
 
         out_file = open_output(args.out)
 
@@ -82,7 +82,7 @@ def offline(args: argparse.Namespace) -> int:
             out_file.write(payload.decode() + "\n")
 
     stage = BathymetricStage(cfg, on_publish=on_publish)
-    paths = _Paths()
+    paths = Paths()
     try:
         fusion = replay_recording(args, stage, paths)
     finally:

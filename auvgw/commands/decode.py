@@ -14,11 +14,11 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
-from auvgw.cli import UserError
 from auvgw.drivers import registry
 from auvgw.drivers.formats import FORMATS, format_from_table, get_format
 from auvgw.drivers.framing import DecodeError
 from auvgw.drivers.spec import WireError, to_jsonable
+from auvgw.errors import UserError
 
 
 def register(sub: Any) -> None:

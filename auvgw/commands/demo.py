@@ -48,7 +48,7 @@ from typing import Any
 import numpy as np
 
 from auvgw.bus import Keys, decode_envelope, encode_envelope, open_session
-from auvgw.cli import UserError, add_command
+from auvgw.commands.common import UserError, add_command
 from auvgw.config.bus import BusConfig
 from auvgw.config.gateway import ConfigError, load_gateway_config
 from auvgw.config.scenario import ScenarioError, load_scenario

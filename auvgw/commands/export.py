@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from auvgw.cli import UserError, add_command, add_decode_config, decode_config
+from auvgw.commands.common import UserError, add_command, add_decode_config, decode_config
 
 __all__ = ["export_ros2"]
 

@@ -46,7 +46,7 @@ from pathlib import Path
 from typing import Any
 
 from auvgw.bus import add_bus_arguments
-from auvgw.cli import UserError, add_command, add_duration, open_output
+from auvgw.commands.common import UserError, add_command, add_duration, open_output
 
 log = logging.getLogger(__name__)
 
@@ -260,7 +260,7 @@ def _offline(args: argparse.Namespace, cfg: Any) -> int:
 
     gw_cfg = None
     if args.config is not None:
-        from auvgw.commands.run import load_or_fail
+        from auvgw.commands.common import load_or_fail
 
         gw_cfg = load_or_fail(args.config)
     out_file = open_output(args.out)  # closed in finally

@@ -25,7 +25,7 @@ import argparse
 import json
 from typing import Any
 
-from auvgw.cli import UserError
+from auvgw.errors import UserError
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -63,7 +63,7 @@ def stage_config(args: argparse.Namespace, vehicle: str) -> Any:
 
 def live(args: argparse.Namespace) -> int:
     """Serve the stage on the bus (``slam run`` without ``--recording``)."""
-    from auvgw.commands.slam_run import serve_slam
+    from auvgw.commands.slam_common import serve_slam
     from auvgw.stages.magnetic import MagneticStage
 
     cfg = stage_config(args, args.vehicle)
@@ -73,13 +73,13 @@ def live(args: argparse.Namespace) -> int:
 def offline(args: argparse.Namespace) -> int:
     """The magnetic stage (AMB-SLAM) over ``--recording``: its counters, the beacons mapped
     and its error against the recorded truth beside dead reckoning's."""
-    from auvgw.commands.slam_run import _Paths, check_recording, replay_recording, report_truth
+    from auvgw.commands.slam_common import Paths, check_recording, replay_recording, report_truth
     from auvgw.stages.magnetic import MagneticStage
 
     cfg = stage_config(args, "auv1")
     check_recording(args)
     stage = MagneticStage(cfg)
-    paths = _Paths()
+    paths = Paths()
     fusion = replay_recording(args, stage, paths, flush=False)
     c = stage.counters()
     print(f"{args.recording}: {json.dumps(c['stage'])}, {c['landmarks']} beacons mapped")

@@ -23,8 +23,7 @@ from typing import Any
 import zenoh
 
 from auvgw.bus import InputWatch, Keys, add_bus_arguments, bus_from_args, open_cli_session
-from auvgw.cli import UserError, add_command, add_duration
-from auvgw.commands.run import handle_stop_signals
+from auvgw.commands.common import UserError, add_command, add_duration, handle_stop_signals
 from auvgw.recording import McapRecorder
 
 log = logging.getLogger(__name__)

@@ -36,8 +36,13 @@ from auvgw.bus import (
     raw_encoding,
     unpack_raw_attachment,
 )
-from auvgw.cli import UserError, add_command, add_decode_config, decode_config
-from auvgw.commands.run import handle_stop_signals
+from auvgw.commands.common import (
+    UserError,
+    add_command,
+    add_decode_config,
+    decode_config,
+    handle_stop_signals,
+)
 from auvgw.decoding import message_kind
 from auvgw.recording import RecordingError, decoders_for, iter_samples, key_section, read_info
 

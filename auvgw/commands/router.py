@@ -14,10 +14,9 @@ from typing import Any
 from pydantic import ValidationError
 
 from auvgw.bus import load_bus_table, open_cli_session
-from auvgw.cli import UserError
-from auvgw.commands.run import handle_stop_signals
+from auvgw.commands.common import handle_stop_signals
 from auvgw.config.bus import DEFAULT_ENDPOINT, BusConfig, default_endpoint
-from auvgw.errors import format_validation_error
+from auvgw.errors import UserError, format_validation_error
 
 
 def register(sub: Any) -> None:

@@ -10,24 +10,21 @@ from __future__ import annotations
 
 import argparse
 import logging
-import signal
 import threading
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from types import FrameType
 from typing import Any
 
 import zenoh
 
-from auvgw.cli import UserError, add_command
-from auvgw.config.gateway import ConfigError, GatewayConfig, load_gateway_config
+from auvgw.commands.common import UserError, add_command, handle_stop_signals, load_or_fail
+from auvgw.config.gateway import ConfigError, GatewayConfig
 from auvgw.gateway import Gateway
 
 log = logging.getLogger(__name__)
 
-__all__ = ["RunSettings", "handle_stop_signals", "load_or_fail", "serve"]
+__all__ = ["RunSettings", "serve", "serve_stage"]
 
 
 @dataclass(frozen=True)
@@ -74,33 +71,6 @@ def register(sub: Any) -> None:
         mode=False,
     )
     p.set_defaults(func=run)  # fmt: skip
-
-
-def load_or_fail(path: Path) -> GatewayConfig:
-    """The validated configuration, or a :class:`UserError` listing every problem."""
-    try:
-        return load_gateway_config(path)
-    except ConfigError as exc:
-        raise UserError(str(exc)) from exc
-
-
-@contextmanager
-def handle_stop_signals(stop: threading.Event) -> Iterator[None]:
-    """Within the block, SIGINT and SIGTERM set ``stop`` (main thread only; restored after)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def on_signal(signum: int, _frame: FrameType | None) -> None:
-        log.info("%s received: stopping", signal.Signals(signum).name)
-        stop.set()
-
-    old = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        yield
-    finally:
-        for sig, handler in old.items():
-            signal.signal(sig, handler)
 
 
 def serve_stage(

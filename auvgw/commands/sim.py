@@ -29,7 +29,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from auvgw.cli import UserError, add_command
+from auvgw.commands.common import UserError, add_command
 from auvgw.drivers import registry
 
 log = logging.getLogger(__name__)

@@ -27,7 +27,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from auvgw.cli import UserError, study_algorithms
+from auvgw.commands.common import UserError, study_algorithms
 
 __all__ = ["command_line", "parse_noise", "register", "run"]
 

@@ -21,7 +21,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from auvgw.cli import UserError, study_algorithms
+from auvgw.commands.common import UserError, study_algorithms
 from auvgw.errors import format_validation_error
 
 __all__ = ["command_line", "parse_sets", "run"]

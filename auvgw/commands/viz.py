@@ -22,7 +22,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from auvgw.cli import UserError, add_command
+from auvgw.commands.common import UserError, add_command
 from auvgw.config.bus import BusConfig
 from auvgw.viz.options import VizOptions
 

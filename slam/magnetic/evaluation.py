@@ -591,8 +591,8 @@ def run_cli(args: Any, command: str) -> int:
     import json
     import sys
 
-    from auvgw.cli import UserError
     from auvgw.config.scenario import ScenarioError, load_scenario
+    from auvgw.errors import UserError
 
     algs = tuple(a.strip() for a in args.algorithms.split(",") if a.strip())
     if any(a not in MAGNETIC_ALGORITHMS for a in algs):
