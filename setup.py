@@ -10,6 +10,7 @@ from setuptools import find_packages, setup
 
 ROOTS = {
     "auvgw": "auvgw",
+    "auvgw.ground": "ground",
     "auvgw.drivers": "drivers",
     "auvgw.fusion": "fusion",
     "auvgw.slam": "slam",

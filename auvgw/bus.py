@@ -38,7 +38,7 @@ from auvgw.envelope import (
     encode_envelope,
     envelope_encoding,
 )
-from auvgw.errors import UserError, format_validation_error
+from auvgw.ground.errors import UserError, format_validation_error
 
 __all__ = [
     "ENVELOPE_VERSION",

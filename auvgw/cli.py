@@ -5,7 +5,7 @@
 Each command module defines ``register(subparsers)`` which adds its parser and sets
 ``func=run`` where ``run(args) -> int`` is the exit code. Exit code 2 means bad input
 (unreadable file, wrong format, invalid configuration), with a one-line message on stderr: a
-command raises :class:`~auvgw.errors.UserError` (or lets a ``ConfigError`` / ``DataError``
+command raises :class:`~auvgw.ground.errors.UserError` (or lets a ``ConfigError`` / ``DataError``
 through).
 """
 
@@ -17,7 +17,7 @@ import logging
 import sys
 
 from auvgw.commands import COMMANDS
-from auvgw.errors import ConfigError, DataError, UserError
+from auvgw.ground.errors import ConfigError, DataError, UserError
 
 __all__ = ["COMMANDS", "build_parser", "main"]
 

@@ -57,8 +57,8 @@ from auvgw.bus import (
 from auvgw.config.gateway import ConfigError, GatewayConfig, format_validation_error
 from auvgw.decoding import DeviceDecoder, make_decoders
 from auvgw.drivers.spec import to_jsonable
-from auvgw.errors import DataError
-from auvgw.paths import config_file
+from auvgw.ground.errors import DataError
+from auvgw.ground.paths import config_file
 
 log = logging.getLogger(__name__)
 

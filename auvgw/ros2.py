@@ -49,7 +49,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from auvgw.drivers import registry
-from auvgw.geometry import quaternion_zyx
+from auvgw.ground.geometry import quaternion_zyx
 
 __all__ = [
     "DECODED_MSG",

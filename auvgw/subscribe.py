@@ -40,10 +40,10 @@ from typing import Any
 import zenoh
 
 from auvgw.bus import Envelope, Keys, decode_envelope, open_session, unpack_raw_attachment
-from auvgw.closing import Closing
 from auvgw.config.bus import BusConfig
 from auvgw.drivers.spec import from_jsonable
 from auvgw.envelope import SchemaError, message_class, typed_body
+from auvgw.ground.closing import Closing
 
 log = logging.getLogger(__name__)
 

@@ -87,8 +87,8 @@ from auvgw.bus import decode_envelope, open_session
 from auvgw.config.bus import BusConfig
 from auvgw.drivers.formats import get_format
 from auvgw.drivers.transports import Chunk
-from auvgw.paths import REPO_ROOT, shared_dir
-from auvgw.procs import free_endpoint, stop_process
+from auvgw.ground.paths import REPO_ROOT, shared_dir
+from auvgw.ground.procs import free_endpoint, stop_process
 
 BIN = REPO_ROOT / ".venv" / "bin"
 VEHICLE = "bench"
@@ -384,7 +384,7 @@ def all_devices_phase(
 ) -> AllPhase:
     """Every emulated device at ``speed`` for ``seconds`` of wall time, read by ``auvgw run``."""
     from auvgw.drivers.can_codec import DbcCodec
-    from auvgw.paths import config_file
+    from auvgw.ground.paths import config_file
     from auvgw.sim_devices.runner import gateway_toml
     from auvgw.subscribe import GatewaySubscriber
 
@@ -550,7 +550,7 @@ def ins_can_phase(tmp: Path, speed: float, seconds: float) -> CanPhase:
     import can
 
     from auvgw.drivers.can_codec import hn100_can
-    from auvgw.paths import config_file
+    from auvgw.ground.paths import config_file
     from auvgw.sim_devices.slcan import SlcanAdapter
     from auvgw.subscribe import GatewaySubscriber
 

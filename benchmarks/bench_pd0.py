@@ -35,7 +35,7 @@ import time
 from pathlib import Path
 
 from auvgw.drivers import pd0
-from auvgw.paths import REPO_ROOT, shared_dir
+from auvgw.ground.paths import REPO_ROOT, shared_dir
 
 VENV = REPO_ROOT / ".bench" / "dolfyn-venv"
 PINS = ["dolfyn==1.3.0", "numpy<2", "scipy<1.14", "pandas<2.2", "xarray<2024.7"]

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from auvgw.paths import shared_dir
+from auvgw.ground.paths import shared_dir
 from auvgw.slam.evaluation.runner import drive
 from auvgw.slam.evaluation.simulate import simulate
 from auvgw.slam.landmark.registry import ALGORITHMS, DISPLAY_NAMES, make_filter

@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 import rerun as rr
 
-from auvgw.paths import shared_dir
+from auvgw.ground.paths import shared_dir
 from auvgw.viz.logger import RerunLogger, VizOptions, attitude_quaternion
 from auvgw.viz.synthetic import synthetic_calls
 

@@ -156,8 +156,8 @@ def run(fmt_name: str, rate: float, n: int) -> dict[str, Any]:
     from auvgw.config.bus import BusConfig
     from auvgw.decoding import message_kind
     from auvgw.drivers.formats import get_format
-    from auvgw.paths import REPO_ROOT, shared_dir
-    from auvgw.procs import free_endpoint, stop_process
+    from auvgw.ground.paths import REPO_ROOT, shared_dir
+    from auvgw.ground.procs import free_endpoint, stop_process
 
     if fmt_name == "pd0":
         shared = shared_dir()

@@ -31,7 +31,7 @@ from tqdm import tqdm
 
 from auvgw.drivers.formats import get_format
 from auvgw.drivers.framing import ErrorPolicy
-from auvgw.paths import REPO_ROOT, shared_dir
+from auvgw.ground.paths import REPO_ROOT, shared_dir
 from auvgw.testing.format_samples import STREAM_FORMATS, samples, v4log_records
 
 Corrupt = Callable[[bytes, np.random.Generator], bytes]

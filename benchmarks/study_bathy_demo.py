@@ -23,7 +23,7 @@ from tqdm import tqdm
 
 from auvgw.commands.demo import BATHY_FILTER
 from auvgw.config.scenario import Scenario
-from auvgw.paths import config_file
+from auvgw.ground.paths import config_file
 from auvgw.sim_devices.world import World
 from auvgw.slam.bathymetric.config import BathyConfig
 from auvgw.slam.bathymetric.evaluate import run_filter

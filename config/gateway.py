@@ -51,7 +51,7 @@ from auvgw.config.transport import (
     TransportConfig,
 )
 from auvgw.drivers import registry
-from auvgw.errors import ConfigError, read_document
+from auvgw.ground.errors import ConfigError, read_document
 
 __all__ = [
     "DEVICE_FORMATS",

@@ -32,7 +32,7 @@ from pydantic import (
 )
 
 from auvgw.drivers import registry
-from auvgw.errors import ConfigError, format_validation_error, read_document
+from auvgw.ground.errors import ConfigError, format_validation_error, read_document
 
 __all__ = [
     "AcousticBeacon",
@@ -68,7 +68,7 @@ def resolve_ref(ref: str, source: str | None = None, label: str | None = None) -
     relative to the scenario file ``source`` (or absolute). ``label`` names the scenario in
     errors."""
     if ref.startswith("shared:"):
-        from auvgw.paths import shared_dir
+        from auvgw.ground.paths import shared_dir
 
         root = shared_dir()
         if root is None:

@@ -33,7 +33,7 @@ from pydantic import (
     model_validator,
 )
 
-from auvgw.errors import ConfigError
+from auvgw.ground.errors import ConfigError
 
 __all__ = [
     "CanFilter",

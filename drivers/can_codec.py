@@ -32,8 +32,8 @@ import cantools
 from auvgw.drivers import registry
 from auvgw.drivers.spec import message
 from auvgw.drivers.tablecodec import UNITS
-from auvgw.errors import DataError
-from auvgw.paths import config_file
+from auvgw.ground.errors import DataError
+from auvgw.ground.paths import config_file
 
 __all__ = [
     "CanCodecError",

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
 
-from auvgw.errors import DataError
+from auvgw.ground.errors import DataError
 
 __all__ = [
     "BadFrame",

@@ -33,7 +33,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from auvgw.errors import DataError
+from auvgw.ground.errors import DataError
 
 __all__ = [
     "Wire",

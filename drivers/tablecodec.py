@@ -46,8 +46,8 @@ from auvgw.drivers.spec import (
     message,
     wire,
 )
-from auvgw.errors import ConfigError, DataError
-from auvgw.paths import config_file
+from auvgw.ground.errors import ConfigError, DataError
+from auvgw.ground.paths import config_file
 
 __all__ = [
     "CHECKSUMS",

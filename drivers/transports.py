@@ -45,7 +45,6 @@ import can
 import serial
 from serial.urlhandler import protocol_socket
 
-from auvgw.closing import Closing
 from auvgw.config.transport import (
     CAN_EXT_MAX,
     CAN_STD_MAX,
@@ -57,7 +56,8 @@ from auvgw.config.transport import (
     parse_transport_config,
 )
 from auvgw.drivers.slcanbus import BulkSlcanBus
-from auvgw.errors import TransportError
+from auvgw.ground.closing import Closing
+from auvgw.ground.errors import TransportError
 
 __all__ = [
     "CanTransport",

@@ -48,13 +48,13 @@ from typing import Any
 
 import numpy as np
 
-from auvgw.devicetime import ClockStats, DeviceClock
 from auvgw.drivers import pd0, registry
 from auvgw.drivers.spec import WIRE_TYPES
-from auvgw.errors import DataError
 from auvgw.fusion.frames import beam_matrix
 from auvgw.fusion.samples import DvlSample, InsSample
-from auvgw.geometry import body_to_ned_matrix
+from auvgw.ground.devicetime import ClockStats, DeviceClock
+from auvgw.ground.errors import DataError
+from auvgw.ground.geometry import body_to_ned_matrix
 
 __all__ = [
     "ATTITUDE_TYPES",

@@ -28,10 +28,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from auvgw.errors import DataError
 from auvgw.fusion.config import DvlMount
 from auvgw.fusion.frames import beam_to_instrument, rot_x, rot_y
 from auvgw.fusion.samples import DvlSample, InsSample, PositionFix
+from auvgw.ground.errors import DataError
 
 __all__ = ["CalibrationError", "DvlCalibration", "calibrate_dvl"]
 

@@ -43,8 +43,8 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from auvgw.errors import DataError, load_settings
 from auvgw.fusion.samples import DepthSample, DvlSample, InsSample, PositionFix
+from auvgw.ground.errors import DataError, load_settings
 
 __all__ = ["ColumnMap", "CsvLog", "LogError", "load_column_map", "read_csv_log"]
 

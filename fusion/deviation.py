@@ -33,7 +33,7 @@ import numpy as np
 
 from auvgw.fusion.config import FusionConfig
 from auvgw.fusion.frames import wrap_angle
-from auvgw.geometry import chi2_ppf
+from auvgw.ground.geometry import chi2_ppf
 
 __all__ = ["CompassDeviationEstimator", "deviation_regressors"]
 

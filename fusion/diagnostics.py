@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from auvgw.fusion.deviation import CompassDeviationEstimator
-from auvgw.geometry import chi2_ppf
+from auvgw.ground.geometry import chi2_ppf
 
 __all__ = ["FixRecord", "FusionDiagnostics"]
 

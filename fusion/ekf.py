@@ -53,7 +53,7 @@ import numpy as np
 from auvgw.fusion.config import FusionConfig
 from auvgw.fusion.frames import mount_matrix, wrap_angle
 from auvgw.fusion.samples import DvlFrame, InsSample
-from auvgw.geometry import chi2_ppf
+from auvgw.ground.geometry import chi2_ppf
 
 __all__ = [
     "N_STATE",

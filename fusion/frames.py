@@ -14,7 +14,7 @@ import numpy as np
 
 from auvgw.fusion.config import DvlMount
 from auvgw.fusion.samples import DvlSample, InsSample
-from auvgw.geometry import (
+from auvgw.ground.geometry import (
     dcm_body_to_ned,
     rot_x,
     rot_y,

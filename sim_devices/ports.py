@@ -56,7 +56,7 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from auvgw.closing import Closing
+from auvgw.ground.closing import Closing
 from auvgw.sim_devices.clock import SimClock, thread_cpu_s
 
 __all__ = ["Pacer", "PortStats", "PtyPort", "UdpSender"]

@@ -47,11 +47,11 @@ from typing import Any
 
 import numpy as np
 
-from auvgw.closing import Closing
 from auvgw.config.scenario import DeviceSettings, FaultSettings, Scenario
 from auvgw.drivers import registry
-from auvgw.errors import format_validation_error
-from auvgw.procs import stop_process
+from auvgw.ground.closing import Closing
+from auvgw.ground.errors import format_validation_error
+from auvgw.ground.procs import stop_process
 from auvgw.sim_devices.clock import SimClock
 from auvgw.sim_devices.emulator import (
     DEFAULT_EPOCH,

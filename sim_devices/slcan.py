@@ -29,7 +29,7 @@ from pathlib import Path
 
 import can
 
-from auvgw.closing import Closing
+from auvgw.ground.closing import Closing
 from auvgw.sim_devices.clock import SimClock
 from auvgw.sim_devices.ports import PtyPort
 

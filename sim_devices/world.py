@@ -28,8 +28,8 @@ from typing import Literal
 import numpy as np
 
 from auvgw.config.scenario import ObservationSettings, Scenario, ScenarioError, Terrain
-from auvgw.geometry import body_to_ned_matrix as body_to_ned  # (heading, pitch, roll) -> R
-from auvgw.geometry import wrap_angles as wrap_angle  # arrays in, arrays out
+from auvgw.ground.geometry import body_to_ned_matrix as body_to_ned  # (heading, pitch, roll) -> R
+from auvgw.ground.geometry import wrap_angles as wrap_angle  # arrays in, arrays out
 
 __all__ = [
     "MU0_OVER_4PI",

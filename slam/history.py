@@ -17,7 +17,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from auvgw.geometry import wrap_angle
+from auvgw.ground.geometry import wrap_angle
 
 __all__ = ["StateHistory"]
 

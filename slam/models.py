@@ -30,7 +30,7 @@ from abc import ABC, abstractmethod
 
 import numpy as np
 
-from auvgw.geometry import wrap_angle
+from auvgw.ground.geometry import wrap_angle
 
 __all__ = [
     "BicycleModel",

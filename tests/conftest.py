@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from auvgw.paths import shared_dir
+from auvgw.ground.paths import shared_dir
 
 
 @pytest.fixture(scope="session")

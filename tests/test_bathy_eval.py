@@ -66,7 +66,7 @@ def test_landmark_trials_on_dask_match_the_serial_ones(shared_data, tmp_path) ->
 
 def test_unreachable_dask_scheduler_is_a_user_error(tmp_path) -> None:
     pytest.importorskip("distributed")
-    from auvgw.errors import UserError
+    from auvgw.ground.errors import UserError
 
     args = _bathy_args(tmp_path, "--runs", "1", "--dask", "tcp://127.0.0.1:1", "--no-progress")
     with pytest.raises(UserError, match="cannot reach the Dask scheduler"):
@@ -125,7 +125,7 @@ def test_eval_command_bathymetric_prints_the_measures_and_writes_plots(tmp_path,
         assert mtm["false_share"] == pytest.approx((runs[0]["fp"] + runs[0]["tn"]) / n)
     for png in ("map", "trajectories", "error"):
         assert (out / f"tiny_survey_{png}.png").stat().st_size > 10_000
-    from auvgw.errors import UserError
+    from auvgw.ground.errors import UserError
 
     with pytest.raises(UserError, match=r"--set: .*n_particle"):
         slam_cmd.run(_bathy_args(tmp_path, "--set", "n_particle=3", "--no-progress"))

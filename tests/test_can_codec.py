@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 from auvgw.drivers.can_codec import CanCodecError, CanFrame, DbcCodec, hn100_can, ms3a_can
 from auvgw.drivers.ms3a import CODEC as MS3A_ASCII
 from auvgw.drivers.spec import to_jsonable
-from auvgw.paths import config_file
+from auvgw.ground.paths import config_file
 
 HN = hn100_can()
 MAG = ms3a_can()

@@ -25,7 +25,7 @@ from auvgw.drivers import registry
 from auvgw.drivers.formats import format_from_table, get_format
 from auvgw.drivers.framing import DecodeError, ErrorPolicy, Frame
 from auvgw.drivers.spec import MESSAGE_TYPES, to_jsonable
-from auvgw.paths import config_file
+from auvgw.ground.paths import config_file
 from auvgw.testing.format_samples import stream_samples
 
 FORMATS = [d.format for d in registry.DEVICES]

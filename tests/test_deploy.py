@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from auvgw.cli import build_parser
-from auvgw.paths import REPO_ROOT
+from auvgw.ground.paths import REPO_ROOT
 
 UNITS = sorted((REPO_ROOT / "deploy" / "systemd").glob("*.service"))
 

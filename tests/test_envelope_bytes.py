@@ -19,7 +19,7 @@ from auvgw.decoding import DeviceDecoder
 from auvgw.drivers import hn100, pd0
 from auvgw.drivers.formats import format_from_table, get_format
 from auvgw.envelope import decode_envelope, encode_envelope, pack_envelope
-from auvgw.paths import config_file
+from auvgw.ground.paths import config_file
 from auvgw.testing.format_samples import hn100_frames
 
 T_NS = 1_763_800_000_123_456_789

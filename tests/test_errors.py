@@ -19,11 +19,11 @@ from auvgw.drivers.ms3a import default_codec
 from auvgw.drivers.spec import WireError, decode_block, message, wire
 from auvgw.drivers.tablecodec import LineError, TableError
 from auvgw.drivers.transports import Disconnected, TransportError, TransportOpenError
-from auvgw.errors import AuvgwError, ConfigError, DataError, UserError, load_settings
-from auvgw.errors import TransportError as RootTransportError
 from auvgw.fusion.adapters import AdapterError
 from auvgw.fusion.calibrate import CalibrationError
 from auvgw.fusion.csvlog import LogError
+from auvgw.ground.errors import AuvgwError, ConfigError, DataError, UserError, load_settings
+from auvgw.ground.errors import TransportError as RootTransportError
 from auvgw.recording import RecordingError
 from auvgw.stages.fusion import SettingsError
 

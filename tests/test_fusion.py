@@ -38,7 +38,7 @@ from auvgw.fusion.align import ReorderBuffer, interp_angle, interpolate_ins
 from auvgw.fusion.ekf import arc_weights, gm_factor, predictive_gate
 from auvgw.fusion.frames import dvl_to_body_velocity, dvl_velocity_ned, mount_matrix, wrap_angle
 from auvgw.fusion.synthetic import lawnmower, simulate_sensors
-from auvgw.geometry import chi2_ppf
+from auvgw.ground.geometry import chi2_ppf
 
 T0 = 1000.0  # a non-zero start time on purpose
 RATE = 100.0

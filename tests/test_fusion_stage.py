@@ -26,7 +26,7 @@ from auvgw.decoding import message_kind, message_type
 from auvgw.drivers.spec import from_jsonable, to_jsonable
 from auvgw.fusion import NavFilter, Odometry
 from auvgw.fusion.adapters import MessageAdapter
-from auvgw.procs import free_endpoint
+from auvgw.ground.procs import free_endpoint
 from auvgw.recording import McapRecorder
 from auvgw.stages.fusion import (
     FusionStage,

@@ -207,7 +207,7 @@ def test_the_documented_example_configuration_is_valid():
     import re
     import tomllib
 
-    from auvgw.paths import REPO_ROOT
+    from auvgw.ground.paths import REPO_ROOT
 
     text = (REPO_ROOT / "docs" / "gateway.md").read_text()
     block = re.findall(r"```toml\n(.*?)```", text, re.S)[0]

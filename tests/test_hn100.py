@@ -21,7 +21,7 @@ from auvgw.drivers.framing import DecodeError, ErrorPolicy, FrameError
 from auvgw.drivers.hn100 import CODEC, FORMAT, Hn100Codec, Hn100Framer, Hn100Nav
 from auvgw.drivers.spec import WireError, raw_value, to_jsonable
 from auvgw.drivers.tablecodec import CHECKSUMS, TableError
-from auvgw.paths import REPO_ROOT, config_file
+from auvgw.ground.paths import REPO_ROOT, config_file
 from auvgw.testing.format_samples import REF_INTS, crc16_ccitt_false, ref_frame
 from auvgw.testing.format_samples import hn100_frames as good_frames
 

@@ -59,7 +59,7 @@ def test_a_site_table_does_not_shadow_the_shipped_class_for_readers(tmp_path):
     later reader's schema in the process)."""
     from auvgw.drivers import ms3a
     from auvgw.drivers.spec import resolve_type
-    from auvgw.paths import config_file
+    from auvgw.ground.paths import config_file
 
     shipped = ms3a.default_codec().message_type
     site_table = tmp_path / "site_ms3a.toml"

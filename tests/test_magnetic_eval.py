@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from auvgw.config.scenario import load_scenario
-from auvgw.paths import config_file
+from auvgw.ground.paths import config_file
 from auvgw.slam.magnetic.diagnose import diagnose_run, longest_gap
 from auvgw.slam.magnetic.evaluation import (
     Variant,

@@ -18,7 +18,7 @@ from auvgw.drivers.framing import DecodeError, ErrorPolicy, FrameError
 from auvgw.drivers.ms3a import CODEC, FORMAT, Ms3aCodec, Ms3aFramer, Ms3aSample
 from auvgw.drivers.spec import WireError, raw_value, to_jsonable
 from auvgw.drivers.tablecodec import TableError
-from auvgw.paths import REPO_ROOT, config_file
+from auvgw.ground.paths import REPO_ROOT, config_file
 from auvgw.testing.format_samples import MS3A_LINES as L
 from auvgw.testing.format_samples import crc16_ccitt_false, ref_line
 

@@ -37,7 +37,7 @@ def test_derived_lists_are_the_registry() -> None:
 
 def test_every_record_resolves() -> None:
     from auvgw.drivers.formats import get_format
-    from auvgw.paths import config_file
+    from auvgw.ground.paths import config_file
 
     for d in registry.DEVICES:
         assert get_format(d.format).name == d.format

@@ -14,7 +14,7 @@ import zenoh
 
 from auvgw.bus import decode_envelope, load_bus_table, open_session
 from auvgw.config.bus import BusConfig
-from auvgw.paths import config_file
+from auvgw.ground.paths import config_file
 from auvgw.security import make_identity
 from auvgw.testing import AUVGW, free_port, wait_until
 

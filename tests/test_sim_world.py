@@ -14,7 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from auvgw.config.scenario import ObservationSettings, Scenario, ScenarioError, load_scenario
-from auvgw.paths import config_file
+from auvgw.ground.paths import config_file
 from auvgw.sim_devices.clock import SimClock
 from auvgw.sim_devices.vehicle import (
     bicycle_step,

@@ -12,8 +12,8 @@ import pytest
 
 from auvgw.commands import slam as slam_cmd
 from auvgw.config.scenario import load_scenario
-from auvgw.errors import UserError
-from auvgw.paths import config_file
+from auvgw.ground.errors import UserError
+from auvgw.ground.paths import config_file
 from auvgw.slam.evaluation.metrics import RunResult, line_errors, summarise
 from auvgw.slam.evaluation.runner import drive
 from auvgw.slam.evaluation.simulate import (

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from auvgw.commands import slam as slam_cmd
-from auvgw.errors import UserError
+from auvgw.ground.errors import UserError
 from auvgw.slam.evaluation.metrics import RunResult, feature_errors, summarise
 from auvgw.slam.evaluation.simulate import simulate
 from auvgw.slam.models import RangeBearing

@@ -18,7 +18,7 @@ from auvgw.bus import BusConfig, Keys, encode_envelope, open_session
 from auvgw.config.scenario import load_scenario
 from auvgw.drivers import seanet as sn
 from auvgw.fusion.odometry import MotionIncrement, Odometry
-from auvgw.paths import config_file
+from auvgw.ground.paths import config_file
 from auvgw.sim_devices.msis import MsisHead, make_echo
 from auvgw.sim_devices.vehicle import simulate
 from auvgw.sim_devices.world import World

@@ -8,7 +8,7 @@ import sys
 import pytest
 
 from auvgw.cli import COMMANDS, build_parser
-from auvgw.paths import REPO_ROOT
+from auvgw.ground.paths import REPO_ROOT
 
 HEAVY = ("scipy", "numpy", "zenoh", "rerun", "matplotlib", "pydantic")
 
@@ -35,7 +35,7 @@ def test_each_listed_command_is_registered_by_its_module(name):
     assert name in sub.choices  # type: ignore[operator]
 
 
-@pytest.mark.parametrize("folder", ["drivers", "fusion", "slam", "sim_devices", "config"])
+@pytest.mark.parametrize("folder", ["ground", "drivers", "fusion", "slam", "sim_devices", "config"])
 def test_mapped_folders_refuse_their_folder_name(folder):
     proc = subprocess.run(
         [sys.executable, "-c", f"import {folder}"],

@@ -14,8 +14,8 @@ from auvgw.bus import BusConfig, encode_envelope, open_session
 from auvgw.cli import main
 from auvgw.drivers import hn100, kongsberg, ms3a, pd0, seanet
 from auvgw.fusion import Odometry
+from auvgw.ground.procs import free_port
 from auvgw.health import DeviceHealth
-from auvgw.procs import free_port
 from auvgw.viz import entities as ent
 from auvgw.viz.logger import RerunLogger
 from auvgw.viz.readback import read_recording, read_views

@@ -23,7 +23,7 @@ import argparse
 import json
 from typing import Any
 
-from auvgw.errors import UserError
+from auvgw.ground.errors import UserError
 
 
 def stage_config(args: argparse.Namespace, vehicle: str) -> Any:

@@ -17,7 +17,7 @@ from types import FrameType
 from typing import TYPE_CHECKING, Any, TextIO
 
 from auvgw.commands import COMMANDS
-from auvgw.errors import ConfigError, UserError
+from auvgw.ground.errors import ConfigError, UserError
 
 if TYPE_CHECKING:
     from auvgw.config.gateway import GatewayConfig

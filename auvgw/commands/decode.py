@@ -18,7 +18,7 @@ from auvgw.drivers import registry
 from auvgw.drivers.formats import FORMATS, format_from_table, get_format
 from auvgw.drivers.framing import DecodeError
 from auvgw.drivers.spec import WireError, to_jsonable
-from auvgw.errors import UserError
+from auvgw.ground.errors import UserError
 
 
 def register(sub: Any) -> None:

@@ -52,9 +52,9 @@ from auvgw.commands.common import UserError, add_command
 from auvgw.config.bus import BusConfig
 from auvgw.config.gateway import ConfigError, load_gateway_config
 from auvgw.config.scenario import ScenarioError, load_scenario
+from auvgw.ground.paths import config_file
+from auvgw.ground.procs import Children, free_endpoint, stop_process
 from auvgw.health import device_time_s
-from auvgw.paths import config_file
-from auvgw.procs import Children, free_endpoint, stop_process
 
 DEFAULT_SCENARIO = "harbour"
 #: the emulated vehicle's name (the <v> key segment)

@@ -25,7 +25,7 @@ import argparse
 import json
 from typing import Any
 
-from auvgw.errors import UserError
+from auvgw.ground.errors import UserError
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

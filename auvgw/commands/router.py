@@ -16,7 +16,7 @@ from pydantic import ValidationError
 from auvgw.bus import load_bus_table, open_cli_session
 from auvgw.commands.common import handle_stop_signals
 from auvgw.config.bus import DEFAULT_ENDPOINT, BusConfig, default_endpoint
-from auvgw.errors import UserError, format_validation_error
+from auvgw.ground.errors import UserError, format_validation_error
 
 
 def register(sub: Any) -> None:

@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from auvgw.commands.common import UserError, study_algorithms
-from auvgw.errors import format_validation_error
+from auvgw.ground.errors import format_validation_error
 
 __all__ = ["command_line", "parse_sets", "run"]
 

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from auvgw.errors import UserError
+from auvgw.ground.errors import UserError
 
 
 class Paths:

@@ -43,7 +43,7 @@ from auvgw.commands.slam_common import (
     serve_slam,
     track_error,
 )
-from auvgw.errors import format_validation_error
+from auvgw.ground.errors import format_validation_error
 
 HELP = "run the SLAM stage (fusion odometry + MSIS features), live or over a recording"
 

@@ -42,9 +42,9 @@ import zenoh
 from pydantic import AliasChoices, ConfigDict, Field
 
 from auvgw.bus import encode_envelope
-from auvgw.errors import ConfigError, load_settings
 from auvgw.fusion import FusionConfig, NavFilter, Odometry
 from auvgw.fusion.adapters import ATTITUDE_TYPES, VELOCITY_TYPES, MessageAdapter
+from auvgw.ground.errors import ConfigError, load_settings
 from auvgw.stages.base import BusCounters, Stage, StageConfig
 
 log = logging.getLogger(__name__)

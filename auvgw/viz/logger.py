@@ -34,8 +34,8 @@ from typing import Any
 import numpy as np
 import rerun as rr
 
-from auvgw.closing import Closing
-from auvgw.geometry import TWO_PI, quaternion_zyx, wrap_angle
+from auvgw.ground.closing import Closing
+from auvgw.ground.geometry import TWO_PI, quaternion_zyx, wrap_angle
 from auvgw.viz import entities as ent
 from auvgw.viz.blueprint import DEFAULT_TRACKS, default_blueprint
 from auvgw.viz.entities import APPLICATION_ID, TIMELINE

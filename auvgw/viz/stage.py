@@ -50,8 +50,8 @@ from typing import Any
 import numpy as np
 
 from auvgw.bus import SCHEMA_VERSION, Keys, decode_envelope
-from auvgw.devicetime import DeviceClock
 from auvgw.drivers.spec import from_jsonable, resolve_type
+from auvgw.ground.devicetime import DeviceClock
 from auvgw.stages.base import BusCounters, Stage, StageConfig
 from auvgw.viz.logger import RerunLogger, VizOptions
 

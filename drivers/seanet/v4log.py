@@ -46,7 +46,6 @@ from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any, BinaryIO, ClassVar
 
-from auvgw.closing import Closing
 from auvgw.drivers.formats import Format
 from auvgw.drivers.framing import (
     BadFrame,
@@ -66,6 +65,7 @@ from auvgw.drivers.spec import (
     message,
     wire,
 )
+from auvgw.ground.closing import Closing
 
 __all__ = [
     "FORMAT",

@@ -36,7 +36,7 @@ from typing import Protocol
 
 import numpy as np
 
-from auvgw.geometry import wrap_angles as wrap_angle  # arrays in, arrays out
+from auvgw.ground.geometry import wrap_angles as wrap_angle  # arrays in, arrays out
 
 __all__ = [
     "BeamSettings",

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from auvgw.geometry import chi2_ppf
+from auvgw.ground.geometry import chi2_ppf
 
 __all__ = [
     "JCBB",

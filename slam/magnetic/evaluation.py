@@ -592,7 +592,7 @@ def run_cli(args: Any, command: str) -> int:
     import sys
 
     from auvgw.config.scenario import ScenarioError, load_scenario
-    from auvgw.errors import UserError
+    from auvgw.ground.errors import UserError
 
     algs = tuple(a.strip() for a in args.algorithms.split(",") if a.strip())
     if any(a not in MAGNETIC_ALGORITHMS for a in algs):

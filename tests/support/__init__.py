@@ -4,7 +4,7 @@ and benchmarks import it without editing ``sys.path``).
 * :func:`wait_until` - poll a condition (never a fixed sleep); :func:`wait_matched` - until
   every Zenoh publisher has a subscriber;
 * processes - :class:`Proc`, :class:`Procs` (the ``procs`` fixture), ``AUVGW``, ``PYTHON``,
-  free ports (:func:`free_port`, :func:`endpoint`; :mod:`auvgw.procs` is their home);
+  free ports (:func:`free_port`, :func:`endpoint`; :mod:`auvgw.ground.procs` is their home);
 * ptys - :class:`PtyDevice`;
 * config writers - :func:`write_gateway_toml`;
 * data - :func:`pd0_frames`, :func:`local_decoded`, :func:`read_jsonl`, :func:`frame_counters`;

@@ -25,7 +25,7 @@ from auvgw.drivers import hn100, pd0
 from auvgw.drivers.can_codec import CanDeviceCodec, hn100_can
 from auvgw.drivers.framing import ErrorPolicy
 from auvgw.fusion import FusionConfig, InitialState, Odometry
-from auvgw.paths import config_file
+from auvgw.ground.paths import config_file
 from auvgw.sim_devices.clock import SimClock
 from auvgw.sim_devices.dvl import DvlEmulator
 from auvgw.sim_devices.emulator import SimContext

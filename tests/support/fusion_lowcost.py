@@ -23,7 +23,7 @@ from auvgw.fusion import DvlMount, FusionConfig, InitialState, NavFilter, run_fi
 from auvgw.fusion.align import interpolate_ins
 from auvgw.fusion.frames import body_to_ned, mount_matrix
 from auvgw.fusion.synthetic import SensorNoise, SimulatedSensors, Trajectory, simulate_sensors
-from auvgw.paths import config_file
+from auvgw.ground.paths import config_file
 from auvgw.sim_devices.vehicle import simulate
 from auvgw.sim_devices.world import World
 

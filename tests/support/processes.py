@@ -2,7 +2,7 @@
 
 Every child process is started through :class:`Procs` (the ``procs`` fixture of
 ``tests/conftest.py``), which stops what is still running when the test ends, whatever
-happened (:func:`auvgw.procs.stop_process`).
+happened (:func:`auvgw.ground.procs.stop_process`).
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from auvgw.procs import endpoint, free_port, stop_process
+from auvgw.ground.procs import endpoint, free_port, stop_process
 
 __all__ = [
     "AUVGW",

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from auvgw.config.scenario import Scenario, load_scenario
-from auvgw.paths import config_file
+from auvgw.ground.paths import config_file
 from auvgw.slam.evaluation.simulate import SimRun
 from auvgw.slam.landmark.base import LandmarkFilter
 
