@@ -21,15 +21,15 @@ scenario's plus those; delete the file to restore them.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
-import signal
 import tempfile
 import threading
 import time
 from pathlib import Path
 from typing import Any
 
-from auvgw.commands.common import UserError, add_command
+from auvgw.commands.common import UserError, add_command, handle_stop_signals
 from auvgw.drivers import registry
 
 log = logging.getLogger(__name__)
@@ -96,13 +96,6 @@ def register(sub: Any) -> None:
         "core; one Python process runs on about one)",
     )
     p.set_defaults(func=run)  # fmt: skip
-
-
-def _stop_on_signals(stop: threading.Event) -> dict[int, Any]:
-    old = {}
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        old[sig] = signal.signal(sig, lambda *_: stop.set())
-    return old
 
 
 def _print_ports(runner: Any) -> None:
@@ -175,7 +168,8 @@ def run(args: argparse.Namespace) -> int:
     except (ScenarioError, ValueError, OSError) as exc:
         raise UserError(f"{args.scenario}: {exc}") from exc
     stop = threading.Event()
-    old = _stop_on_signals(stop)
+    signals = contextlib.ExitStack()  # SIGINT / SIGTERM set stop until the end
+    signals.enter_context(handle_stop_signals(stop))
     try:
         until = args.duration if args.duration is not None else runner.route_duration
         pace = "as fast as possible" if args.speed == 0 else f"{args.speed:g}x real time"
@@ -210,6 +204,5 @@ def run(args: argparse.Namespace) -> int:
         _print_stats(runner)
     finally:
         runner.close()
-        for sig, handler in old.items():
-            signal.signal(sig, handler)
+        signals.close()
     return 0

@@ -14,15 +14,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
 import sys
 import threading
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from auvgw.commands.common import UserError, add_command
+from auvgw.commands.common import UserError, add_command, handle_stop_signals
 from auvgw.config.bus import BusConfig
 from auvgw.viz.options import VizOptions
 
@@ -58,20 +55,6 @@ def add_output_arguments(p: argparse.ArgumentParser) -> None:
         metavar="Q",
         help="store the sonar fan as JPEG of quality Q (1-100; default lossless)",
     )
-
-
-@contextmanager
-def _stop_on_signals(stop: threading.Event) -> Iterator[None]:
-    """SIGINT and SIGTERM set ``stop`` within the block (main thread only)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    old = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        yield
-    finally:
-        for sig, handler in old.items():
-            signal.signal(sig, handler)
 
 
 def register(sub: Any) -> None:
@@ -223,7 +206,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         runner = open_viz(session, vehicle, rrd=args.rrd, connect=args.connect, options=options)
         try:
-            with _stop_on_signals(stop):
+            with handle_stop_signals(stop):
                 stop.wait(args.duration)
         finally:
             runner.close()
