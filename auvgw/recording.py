@@ -163,7 +163,7 @@ class Ros2McapWriter:
     ) -> None:
         """Write ROS 2 messages that came from the Zenoh ``key``."""
         for m in msgs:
-            topic = f"/{self.vehicle}/{m.topic}"
+            topic = m.topic if m.topic.startswith("/") else f"/{self.vehicle}/{m.topic}"
             self._w.add_message(
                 channel_id=self._channel(topic, m.type, key, encoding),
                 log_time=log_time,
@@ -252,7 +252,11 @@ def sample_to_ros(
         return ros2.to_ros(section, rest, body, t_ns), t_ns, 0
     type_name = body.get("type", section) if isinstance(body, dict) else section
     source = rest.rpartition("/")[2] if section == "status" else rest
-    return [ros2.decoded_msg(f"{section}/{rest}", source, str(type_name), t_ns, 0, text)], t_ns, 0
+    msgs = [ros2.decoded_msg(f"{section}/{rest}", source, str(type_name), t_ns, 0, text)]
+    if section == "status" and isinstance(body, dict):  # and the standard form of health
+        msgs.append(ros2.RosMessage("/diagnostics", ros2.DIAGNOSTICS_TYPE,
+                                    ros2.diagnostics_msg(body, t_ns)))  # fmt: skip
+    return msgs, t_ns, 0
 
 
 def _load_types() -> None:

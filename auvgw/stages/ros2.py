@@ -1,0 +1,284 @@
+"""The vehicle on ROS 2, live: the bus republished the way ``rmw_zenoh_cpp`` expects it.
+
+:class:`Ros2Bridge` subscribes to the vehicle's decoded sensors, odometry, SLAM outputs and status
+(``auv/<v>/{sensor,nav,slam,status}/**``, never the raw frames: it is off their path), turns each
+sample into its ROS 2 messages (:func:`auvgw.recording.sample_to_ros`, the same mapping as the
+MCAP recordings) and publishes them as a ROS 2 node would on ``rmw_zenoh_cpp``
+(:mod:`auvgw.rmw_zenoh`): CDR on ``<domain>/<topic>/<DDS type>/<RIHS01 hash>`` with the
+attachment (sequence number, source time, GID), and the liveliness tokens of the node and of
+each publisher, so ``ros2 node list``, ``ros2 topic list / echo`` and ``ros2 bag record`` on
+rmw_zenoh see them. Beside the vehicle's topics (``/<namespace>/<vehicle>/sensor/ins/imu``, ...):
+
+* ``/tf``: ``odom`` -> ``base_link`` from every odometry sample, ``map`` -> ``odom`` from every
+  SLAM pose (against the latest odometry at or before its time);
+* ``/tf_static``: ``base_link`` -> each sensor's frame from the mounts in the configuration,
+  published at start and again every ``static_period_s`` (rmw_zenoh's transient-local cache is a
+  Zenoh publication cache this bridge does not keep: a late subscriber waits at most one period);
+* ``/diagnostics``: every component's status as a ``diagnostic_msgs/DiagnosticArray``.
+"""
+
+from __future__ import annotations
+
+import bisect
+import contextlib
+import logging
+import re
+import threading
+from collections import deque
+from dataclasses import dataclass
+from typing import Annotated, Any, ClassVar
+
+import zenoh
+from pydantic import BaseModel, ConfigDict, Field
+
+from auvgw import ros2
+from auvgw.rmw_zenoh import (
+    DEFAULT_QOS,
+    SENSOR_QOS,
+    STATIC_QOS,
+    Qos,
+    data_key,
+    entity_gid,
+    node_token,
+    pack_attachment,
+    topic_token,
+)
+from auvgw.stages.base import DROP, BusCounters, Stage, StageConfig
+
+__all__ = ["Mount", "Ros2Bridge", "Ros2BridgeConfig", "ros_topic"]
+
+log = logging.getLogger(__name__)
+
+_NAME = r"[A-Za-z][A-Za-z0-9_]*"
+_Metres = Annotated[float, Field(ge=-100.0, le=100.0, allow_inf_nan=False)]
+_Degrees = Annotated[float, Field(ge=-360.0, le=360.0, allow_inf_nan=False)]
+
+
+class Mount(BaseModel):
+    """A sensor's mount on the vehicle: ``lever_arm_m`` (x forward, y starboard, z down: body
+    FRD, m, from the vehicle reference point) and ``rpy_deg`` (roll, pitch, yaw of the sensor's
+    axes in body FRD, degrees)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    lever_arm_m: tuple[_Metres, _Metres, _Metres] = (0.0, 0.0, 0.0)
+    rpy_deg: tuple[_Degrees, _Degrees, _Degrees] = (0.0, 0.0, 0.0)
+
+
+class Ros2BridgeConfig(StageConfig):
+    """``domain_id``: ``ROS_DOMAIN_ID`` (0-232); ``namespace``: ROS namespace of every topic and
+    of the node (``""`` or ``/name[/name...]``); ``node``: the node's name; ``mounts``: device ->
+    :class:`Mount` (``/tf_static``); ``static_period_s``: s between ``/tf_static`` repeats."""
+
+    domain_id: int = Field(0, ge=0, le=232)
+    namespace: str = Field("", pattern=rf"^(/{_NAME})*$", max_length=200)
+    node: str = Field("auvgw_bridge", pattern=rf"^{_NAME}$", max_length=100)
+    mounts: dict[str, Mount] = Field(default_factory=dict, max_length=64)
+    static_period_s: float = Field(1.0, ge=0.1, le=3600.0)
+
+
+@dataclass
+class Ros2Counters(BusCounters):
+    """``received``: bus samples taken; ``published``: ROS 2 messages put; ``topics``: ROS 2
+    publishers declared; ``tf``: transforms put on ``/tf``."""
+
+    published: int = 0
+    topics: int = 0
+    tf: int = 0
+
+
+def ros_topic(namespace: str, vehicle: str, topic: str) -> str:
+    """The fully qualified ROS topic of a :class:`~auvgw.ros2.RosMessage` topic: absolute ones
+    (``/tf``) as they are, the others under ``<namespace>/<vehicle>``; every character a ROS name
+    may not hold (``-``, ``.``, ...) written ``_``."""
+    full = topic if topic.startswith("/") else f"{namespace}/{vehicle}/{topic}"
+    return re.sub(r"[^A-Za-z0-9_/]", "_", full)
+
+
+class _Endpoint:
+    """One ROS 2 publisher: its Zenoh publisher, liveliness token, GID and sequence."""
+
+    __slots__ = ("gid", "pub", "seq", "token")
+
+    def __init__(self, pub: zenoh.Publisher, token: Any, gid: bytes) -> None:
+        self.pub, self.token, self.gid, self.seq = pub, token, gid, 0
+
+
+class Ros2Bridge(Stage):
+    """The ROS 2 face of the bus (module docstring). ``session``: the bus session (the one the
+    ROS 2 keys are published on too); in-process (no session) the ROS 2 messages go to
+    ``on_publish(data key, CDR, t_ns)``."""
+
+    name: ClassVar[str] = "ros2"
+    status_schema: ClassVar[str | None] = "Ros2BridgeStatus"
+
+    def __init__(self, config: Ros2BridgeConfig, session: zenoh.Session | None = None,
+                 **kw: Any) -> None:  # fmt: skip
+        super().__init__(config, Ros2Counters(), session, **kw)
+        self.config = config
+        self.stats: Ros2Counters = self.stats  # type: ignore[assignment]
+        self._endpoints: dict[str, _Endpoint] = {}
+        self._session_id = str(session.info.zid()) if session is not None else "0" * 32
+        self._next_entity = 1
+        self._node_token: Any = None
+        self._static_lock = threading.Lock()
+        #: odometry (t ns, x, y, heading) for map -> odom, newest last
+        self._odom: deque[tuple[int, Any]] = deque(maxlen=2048)
+
+    def input_keys(self) -> list[str]:
+        return [self.keys.all(f"{s}/**") for s in ("sensor", "nav", "slam", "status")]
+
+    def status_fields(self) -> dict[str, Any]:
+        return {"domain_id": self.config.domain_id, "namespace": self.config.namespace,
+                "node": self.config.node, "ros_topics": sorted(self._endpoints)}  # fmt: skip
+
+    # -- bus side ---------------------------------------------------------------------------
+    def handle_sample(self, key: str, payload: bytes, t_arrival_ns: int | None = None) -> object:
+        """One bus sample as its ROS 2 messages (a sample with no ROS form is counted as a bad
+        payload, never raised)."""
+        from auvgw.recording import sample_to_ros
+
+        base = self.keys.base + "/"
+        if not key.startswith(base):
+            return None
+        section, _, rest = key[len(base):].partition("/")
+        try:
+            msgs, t_ns, _ = sample_to_ros(section, rest, payload, t_arrival_ns or 0)
+            msgs = list(msgs) + self._slam_tf(section, rest, msgs, t_ns)
+            for m in msgs:
+                self.put(m, t_ns)
+        except Exception as exc:  # one sample must never stop the bridge
+            self._bad_payload(key, exc)
+            return None
+        with self._lock:
+            self.stats.received += 1
+        return None
+
+    def _slam_tf(self, section: str, rest: str, msgs: list[ros2.RosMessage],
+                 t_ns: int) -> list[ros2.RosMessage]:  # fmt: skip
+        """``map`` -> ``odom`` for a SLAM pose; odometry remembered for it."""
+        if section == "nav":
+            for m in msgs:
+                if m.type == "nav_msgs/msg/Odometry":
+                    self._odom.append((t_ns, m))
+            return []
+        if section != "slam" or not rest.endswith("/pose") or not self._odom:
+            return []
+        times = [t for t, _ in self._odom]
+        i = max(0, bisect.bisect_right(times, t_ns) - 1)
+        odom = _odom_ned(self._odom[i][1].msg)
+        pose = _slam_ned(msgs[0].msg)
+        if odom is None or pose is None:
+            return []
+        return [ros2.RosMessage("/tf", ros2.TF_TYPE,
+                                ros2.tf_msg([ros2.map_odom_tf(pose, odom, t_ns)]))]  # fmt: skip
+
+    # -- ROS 2 side -------------------------------------------------------------------------
+    def put(self, m: ros2.RosMessage, t_ns: int) -> None:
+        """Publish ROS 2 message ``m`` (stamp ``t_ns``) on its topic, declaring the publisher and
+        its liveliness token the first time."""
+        topic = ros_topic(self.config.namespace, self.keys.vehicle, m.topic)
+        cdr = ros2.serialize(m)
+        key = data_key(self.config.domain_id, topic, m.type)
+        ep = self._endpoints.get(key)
+        if ep is None and self.session is not None:
+            ep = self._declare(topic, m.type, key)
+        if ep is not None:
+            ep.seq += 1
+            try:
+                ep.pub.put(cdr, attachment=pack_attachment(ep.seq, t_ns, ep.gid))
+            except zenoh.ZError as exc:
+                log.warning("ros2: cannot publish %s: %s", topic, exc)
+        with self._lock:
+            self.stats.published += 1
+            if m.type == ros2.TF_TYPE and topic == "/tf":
+                self.stats.tf += len(m.msg.transforms)
+        if self.on_publish is not None:
+            self.on_publish(key, cdr, t_ns)
+
+    def _declare(self, topic: str, ros_type: str, key: str) -> _Endpoint:
+        assert self.session is not None
+        qos = _qos(topic)
+        token_key = topic_token(self.config.domain_id, self._session_id, 0, self._next_entity,
+                                "MP", self.config.namespace, self.config.node, topic,
+                                ros_type, qos)  # fmt: skip
+        self._next_entity += 1
+        pub = self.session.declare_publisher(key, congestion_control=DROP)
+        token = self.session.liveliness().declare_token(token_key)
+        ep = self._endpoints[key] = _Endpoint(pub, token, entity_gid(token_key))
+        with self._lock:
+            self.stats.topics += 1
+        return ep
+
+    def publish_static(self, t_ns: int) -> None:
+        """``/tf_static`` from the configured mounts (nothing without mounts)."""
+        if self.config.mounts:
+            with self._static_lock:
+                msg = ros2.static_tf(self.config.mounts, t_ns)
+                self.put(ros2.RosMessage("/tf_static", ros2.TF_TYPE, msg), t_ns)
+
+    def publish_status(self) -> None:
+        """The status, and ``/tf_static`` again (a late subscriber's wait is one period)."""
+        super().publish_status()
+        import time
+
+        self.publish_static(time.time_ns())
+
+    def start(self, subscribe: bool = True) -> None:
+        """The node's token first (a ROS graph shows the node before its publishers), then the
+        stage (subscriptions, status, liveliness) and ``/tf_static``."""
+        import time
+
+        if self.session is not None and self._node_token is None:
+            self._node_token = self.session.liveliness().declare_token(
+                node_token(self.config.domain_id, self._session_id, 0, self.config.namespace,
+                           self.config.node))  # fmt: skip
+        super().start(subscribe)
+        self.publish_static(time.time_ns())
+
+    def stop(self, flush: bool = True, timeout_s: float = 5.0) -> None:
+        """Stop the stage, then withdraw every publisher and token (the node's last)."""
+        super().stop(flush, timeout_s)
+        for ep in self._endpoints.values():
+            for d in (ep.token, ep.pub):
+                with contextlib.suppress(zenoh.ZError):
+                    d.undeclare()
+        self._endpoints.clear()
+        if self._node_token is not None:
+            with contextlib.suppress(zenoh.ZError):
+                self._node_token.undeclare()
+            self._node_token = None
+
+
+def _qos(topic: str) -> Qos:
+    if topic == "/tf_static":
+        return STATIC_QOS
+    return SENSOR_QOS if "/sensor/" in topic else DEFAULT_QOS
+
+
+class _Ned:
+    """x, y (NED, m) and heading (rad) read back from a ROS pose (ENU, FLU)."""
+
+    __slots__ = ("heading", "x", "y")
+
+    def __init__(self, x: float, y: float, heading: float) -> None:
+        self.x, self.y, self.heading = x, y, heading
+
+
+def _ned_of_pose(pose: Any) -> _Ned:
+    import math
+
+    q = pose.orientation
+    yaw_enu = math.atan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z))
+    return _Ned(pose.position.y, pose.position.x, math.pi / 2 - yaw_enu)
+
+
+def _odom_ned(msg: Any) -> _Ned | None:
+    return _ned_of_pose(msg.pose.pose) if hasattr(msg, "pose") else None
+
+
+def _slam_ned(msg: Any) -> dict[str, float] | None:
+    if not hasattr(msg, "pose"):
+        return None
+    p = _ned_of_pose(msg.pose.pose)
+    return {"x": p.x, "y": p.y, "heading": p.heading}

@@ -1,0 +1,97 @@
+"""The vehicle on ROS 2, live (issue 32): ``auvgw sim`` + ``auvgw run`` + ``auvgw fusion`` +
+``auvgw ros2 bridge``, each its own process, seen by a ROS 2 graph reader written from
+rmw_zenoh's design document alone (auvgw.ros2_graph): it lists every topic with its standard
+type and hash, and echoes an Imu, an Odometry, a TFMessage and a DiagnosticArray."""
+
+from __future__ import annotations
+
+import json
+import math
+import signal
+from pathlib import Path
+
+from auvgw.bus import open_session
+from auvgw.config.bus import BusConfig
+from auvgw.rmw_zenoh import type_hash
+from auvgw.ros2_graph import Ros2Graph
+from auvgw.testing import AUVGW, REPO, wait_until
+
+SCENARIO = str(REPO / "config" / "scenarios" / "harbour.json")
+
+WANTED = {
+    "/fleet/auv1/sensor/ins/imu": "sensor_msgs/msg/Imu",
+    "/fleet/auv1/sensor/dvl/twist": "geometry_msgs/msg/TwistWithCovarianceStamped",
+    "/fleet/auv1/sensor/magnetometer/magnetic_field": "sensor_msgs/msg/MagneticField",
+    "/fleet/auv1/nav/odometry": "nav_msgs/msg/Odometry",
+    "/tf": "tf2_msgs/msg/TFMessage",
+    "/tf_static": "tf2_msgs/msg/TFMessage",
+    "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
+}
+
+
+def test_a_ros2_graph_reader_sees_the_vehicle(procs, tmp_path: Path):
+    mounts = tmp_path / "mounts.json"
+    mounts.write_text(json.dumps({"dvl": {"lever_arm_m": [0.5, 0.0, 0.2], "rpy_deg": [0, 0, 45]},
+                                  "ins": {}}))
+    sim = procs.start([AUVGW, "sim", "--scenario", SCENARIO, "--speed", "2", "--out",
+                       str(tmp_path / "sim"), "--start-delay", "2"], "sim")
+    cfg = sim.wait_line("gateway config:", timeout=60).split(":", 1)[1].strip()
+    gw = procs.start([AUVGW, "run", "--config", cfg], "gateway")
+    fusion = procs.start([AUVGW, "fusion"], "fusion")
+    bridge = procs.start([AUVGW, "ros2", "bridge", "--namespace", "/fleet", "--mounts",
+                          str(mounts)], "bridge")
+    try:
+        fusion.wait_line("fusion running", timeout=60)
+        bridge.wait_line("ros2 bridge running", timeout=60)
+        with open_session(BusConfig().as_spoke()) as s:
+            graph = Ros2Graph(s, domain_id=0)
+            seen: dict[str, tuple[str, str]] = {}
+
+            def missing() -> list[str]:
+                seen.update(graph.topics(1.0))
+                return sorted(set(WANTED) - set(seen))
+
+            try:
+                wait_until(lambda: not missing(), timeout=120, what="the bridge's topics")
+            except AssertionError:
+                raise AssertionError(f"never published: {missing()}; seen {sorted(seen)}") from None
+            topics = graph.topics(1.0)
+            assert not graph.unparsed, graph.unparsed
+            for topic, ros_type in WANTED.items():
+                assert topics[topic] == (ros_type, type_hash(ros_type)), topic
+            assert "/fleet/auvgw_bridge" in graph.nodes(1.0)
+            # every topic a ROS name (no '-' from 'vb-aufastslam' and the like)
+            assert all(all(c.isalnum() or c in "_/" for c in t) for t in topics), topics
+
+            imu = graph.echo("/fleet/auv1/sensor/ins/imu", count=3, timeout_s=60)
+            assert len(imu) == 3 and [m.seq for m in imu] == sorted(m.seq for m in imu)
+            q = imu[-1].msg.orientation
+            assert math.isclose(q.x**2 + q.y**2 + q.z**2 + q.w**2, 1.0, rel_tol=1e-6)
+            assert imu[-1].msg.header.frame_id == "ins"
+            assert imu[-1].source_timestamp_ns > 0 and len(imu[-1].gid) == 16
+
+            odo = graph.echo("/fleet/auv1/nav/odometry", count=2, timeout_s=60)
+            o = odo[-1].msg
+            assert (o.header.frame_id, o.child_frame_id) == ("odom", "base_link")
+            speed = math.hypot(o.twist.twist.linear.x, o.twist.twist.linear.y)
+            assert 0.3 < speed < 5.0, speed  # the harbour vehicle's cruise, not zero or garbage
+
+            tf = graph.echo("/tf", count=5, timeout_s=60)
+            pairs = {(t.header.frame_id, t.child_frame_id) for m in tf for t in m.msg.transforms}
+            assert ("odom", "base_link") in pairs, pairs
+            static = graph.echo("/tf_static", count=1, timeout_s=30)[0].msg
+            assert {(t.header.frame_id, t.child_frame_id) for t in static.transforms} == {
+                ("base_link", "dvl"), ("base_link", "ins")}
+
+            diag = graph.echo("/diagnostics", count=8, timeout_s=60)
+            names = {st.name for m in diag for st in m.msg.status}
+            assert {"auvgw/auv1/ins", "auvgw/auv1/dvl"} <= names, names
+            ins = next(st for m in diag for st in m.msg.status if st.name == "auvgw/auv1/ins")
+            assert ins.level == 0, (ins.level, ins.message)  # OK: connected, fresh
+            assert "frames" in {kv.key for kv in ins.values}
+    finally:
+        for p in (bridge, fusion, gw, sim):
+            p.signal(signal.SIGINT)
+    for p in (bridge, fusion, gw):
+        assert p.wait(60) == 0, p.stderr()
+    assert "Traceback" not in bridge.stderr(), bridge.stderr()
