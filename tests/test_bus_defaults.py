@@ -113,6 +113,8 @@ WANTED = {
     "/auv1/nav/odometry": "nav_msgs/msg/Odometry",
     "/auv1/slam/vb-aufastslam/pose": "geometry_msgs/msg/PoseWithCovarianceStamped",
     "/auv1/raw/dvl": "auvgw_msgs/msg/RawFrame",
+    "/tf": "tf2_msgs/msg/TFMessage",
+    "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
 }
 
 
@@ -223,6 +225,13 @@ def _check_ros2_readers(path: Path, envelopes: list[tuple[str, bytes]]) -> None:
     with open(path, "rb") as f:
         reader = make_reader(f, decoder_factories=[DecoderFactory()])
         recorded = [(ch.topic, ros) for _s, ch, _m, ros in reader.iter_decoded_messages()]
+    # /tf and /diagnostics decode with Foxglove's ROS 2 decoder too (a TFMessage has no header)
+    tf_pairs = {(t.header.frame_id, t.child_frame_id)
+                for topic, r in recorded if topic == "/tf" for t in r.transforms}  # fmt: skip
+    assert ("odom", "base_link") in tf_pairs, tf_pairs
+    diag = {st.name for topic, r in recorded if topic == "/diagnostics" for st in r.status}
+    assert {"auvgw/auv1/ins", "auvgw/auv1/dvl", "auvgw/auv1/fusion"} <= diag, diag
+    recorded = [(t, r) for t, r in recorded if hasattr(r, "header") and t.count("/") >= 3]
     per_stamp = Counter((t, _stamp(r.header)) for t, r in recorded)
     for topic, ros in recorded:
         parts = topic.split("/")  # /auv1/<section>/<device or stream>/...

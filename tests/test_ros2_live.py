@@ -1,13 +1,14 @@
-"""The vehicle on ROS 2, live (issue 32): ``auvgw sim`` + ``auvgw run`` + ``auvgw fusion`` +
-``auvgw ros2 bridge``, each its own process, seen by a ROS 2 graph reader written from
-rmw_zenoh's design document alone (auvgw.ros2_graph): it lists every topic with its standard
-type and hash, and echoes an Imu, an Odometry, a TFMessage and a DiagnosticArray."""
+"""The vehicle on ROS 2, live (issue 32): ``auvgw sim`` + ``auvgw run`` (its ``[ros2]`` bridge on)
++ ``auvgw fusion``, each its own process, seen by a ROS 2 graph reader written from rmw_zenoh's
+design document alone (auvgw.ros2_graph): it lists every topic with its standard type and hash,
+and echoes an Imu, an Odometry, a TFMessage and a DiagnosticArray; ``auvgw ros2 list`` prints the
+same graph."""
 
 from __future__ import annotations
 
-import json
 import math
 import signal
+import subprocess
 from pathlib import Path
 
 from auvgw.bus import open_session
@@ -17,6 +18,18 @@ from auvgw.ros2_graph import Ros2Graph
 from auvgw.testing import AUVGW, REPO, wait_until
 
 SCENARIO = str(REPO / "config" / "scenarios" / "harbour.json")
+
+ROS2_TABLE = """
+[ros2]
+enabled = true
+namespace = "/fleet"
+
+[ros2.mounts.dvl]
+lever_arm_m = [0.5, 0.0, 0.2]
+rpy_deg = [0.0, 0.0, 45.0]
+
+[ros2.mounts.ins]
+"""
 
 WANTED = {
     "/fleet/auv1/sensor/ins/imu": "sensor_msgs/msg/Imu",
@@ -30,19 +43,15 @@ WANTED = {
 
 
 def test_a_ros2_graph_reader_sees_the_vehicle(procs, tmp_path: Path):
-    mounts = tmp_path / "mounts.json"
-    mounts.write_text(json.dumps({"dvl": {"lever_arm_m": [0.5, 0.0, 0.2], "rpy_deg": [0, 0, 45]},
-                                  "ins": {}}))
     sim = procs.start([AUVGW, "sim", "--scenario", SCENARIO, "--speed", "2", "--out",
                        str(tmp_path / "sim"), "--start-delay", "2"], "sim")
     cfg = sim.wait_line("gateway config:", timeout=60).split(":", 1)[1].strip()
+    with open(cfg, "a") as f:  # the deployed way: the gateway's own [ros2] table
+        f.write(ROS2_TABLE)
     gw = procs.start([AUVGW, "run", "--config", cfg], "gateway")
     fusion = procs.start([AUVGW, "fusion"], "fusion")
-    bridge = procs.start([AUVGW, "ros2", "bridge", "--namespace", "/fleet", "--mounts",
-                          str(mounts)], "bridge")
     try:
         fusion.wait_line("fusion running", timeout=60)
-        bridge.wait_line("ros2 bridge running", timeout=60)
         with open_session(BusConfig().as_spoke()) as s:
             graph = Ros2Graph(s, domain_id=0)
             seen: dict[str, tuple[str, str]] = {}
@@ -89,9 +98,15 @@ def test_a_ros2_graph_reader_sees_the_vehicle(procs, tmp_path: Path):
             ins = next(st for m in diag for st in m.msg.status if st.name == "auvgw/auv1/ins")
             assert ins.level == 0, (ins.level, ins.message)  # OK: connected, fresh
             assert "frames" in {kv.key for kv in ins.values}
+        listed = subprocess.run([AUVGW, "ros2", "list"], capture_output=True, text=True,
+                                timeout=60)  # fmt: skip
+        assert listed.returncode == 0, listed.stderr
+        assert "/fleet/auvgw_bridge\n" in listed.stdout
+        assert (f"  publishes /fleet/auv1/sensor/ins/imu [sensor_msgs/msg/Imu] "
+                f"{type_hash('sensor_msgs/msg/Imu')}") in listed.stdout
     finally:
-        for p in (bridge, fusion, gw, sim):
+        for p in (fusion, gw, sim):
             p.signal(signal.SIGINT)
-    for p in (bridge, fusion, gw):
+    for p in (fusion, gw):
         assert p.wait(60) == 0, p.stderr()
-    assert "Traceback" not in bridge.stderr(), bridge.stderr()
+    assert "Traceback" not in gw.stderr(), gw.stderr()

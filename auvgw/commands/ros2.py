@@ -63,7 +63,7 @@ def _bridge_config(args: argparse.Namespace) -> Any:
     try:
         return Ros2BridgeConfig(
             vehicle=args.vehicle, domain_id=args.domain_id, namespace=args.namespace,
-            node=args.node, mounts=mounts,
+            node=args.node, mounts=mounts, enabled=True,
         )  # fmt: skip
     except ValidationError as exc:
         raise UserError(format_validation_error(exc)) from None

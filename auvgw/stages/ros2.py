@@ -26,12 +26,12 @@ import re
 import threading
 from collections import deque
 from dataclasses import dataclass
-from typing import Annotated, Any, ClassVar
+from typing import Any, ClassVar
 
 import zenoh
-from pydantic import BaseModel, ConfigDict, Field
 
 from auvgw import ros2
+from auvgw.config.ros2 import Mount, Ros2Config
 from auvgw.rmw_zenoh import (
     DEFAULT_QOS,
     SENSOR_QOS,
@@ -49,32 +49,9 @@ __all__ = ["Mount", "Ros2Bridge", "Ros2BridgeConfig", "ros_topic"]
 
 log = logging.getLogger(__name__)
 
-_NAME = r"[A-Za-z][A-Za-z0-9_]*"
-_Metres = Annotated[float, Field(ge=-100.0, le=100.0, allow_inf_nan=False)]
-_Degrees = Annotated[float, Field(ge=-360.0, le=360.0, allow_inf_nan=False)]
-
-
-class Mount(BaseModel):
-    """A sensor's mount on the vehicle: ``lever_arm_m`` (x forward, y starboard, z down: body
-    FRD, m, from the vehicle reference point) and ``rpy_deg`` (roll, pitch, yaw of the sensor's
-    axes in body FRD, degrees)."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    lever_arm_m: tuple[_Metres, _Metres, _Metres] = (0.0, 0.0, 0.0)
-    rpy_deg: tuple[_Degrees, _Degrees, _Degrees] = (0.0, 0.0, 0.0)
-
-
-class Ros2BridgeConfig(StageConfig):
-    """``domain_id``: ``ROS_DOMAIN_ID`` (0-232); ``namespace``: ROS namespace of every topic and
-    of the node (``""`` or ``/name[/name...]``); ``node``: the node's name; ``mounts``: device ->
-    :class:`Mount` (``/tf_static``); ``static_period_s``: s between ``/tf_static`` repeats."""
-
-    domain_id: int = Field(0, ge=0, le=232)
-    namespace: str = Field("", pattern=rf"^(/{_NAME})*$", max_length=200)
-    node: str = Field("auvgw_bridge", pattern=rf"^{_NAME}$", max_length=100)
-    mounts: dict[str, Mount] = Field(default_factory=dict, max_length=64)
-    static_period_s: float = Field(1.0, ge=0.1, le=3600.0)
+class Ros2BridgeConfig(StageConfig, Ros2Config):
+    """The bridge's settings: the gateway's ``[ros2]`` table (:class:`~auvgw.config.ros2.
+    Ros2Config`: domain, namespace, node, mounts) and the stage's (vehicle, status period)."""
 
 
 @dataclass
