@@ -163,7 +163,7 @@ class Ros2McapWriter:
     ) -> None:
         """Write ROS 2 messages that came from the Zenoh ``key``."""
         for m in msgs:
-            topic = m.topic if m.topic.startswith("/") else f"/{self.vehicle}/{m.topic}"
+            topic = ros2.ros_topic("", self.vehicle, m.topic)
             self._w.add_message(
                 channel_id=self._channel(topic, m.type, key, encoding),
                 log_time=log_time,

@@ -42,6 +42,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import re
 from collections.abc import Mapping
 from functools import cache
 from typing import Any, NamedTuple
@@ -68,6 +69,7 @@ __all__ = [
     "odom_tf",
     "quaternion_enu_flu",
     "raw_frame_msg",
+    "ros_topic",
     "serialize",
     "static_tf",
     "tf_msg",
@@ -172,6 +174,14 @@ def quaternion_enu_flu(
     """(x, y, z, w) of the rotation FLU body -> ENU for an NED attitude (rad; heading from north
     towards east, pitch nose up, roll starboard down): ZYX Euler (pi/2 - heading, -pitch, roll)."""
     return quaternion_zyx(roll, -pitch, math.pi / 2 - heading)
+
+
+def ros_topic(namespace: str, vehicle: str, topic: str) -> str:
+    """The fully qualified ROS topic of a :class:`~auvgw.ros2.RosMessage` topic: absolute ones
+    (``/tf``) as they are, the others under ``<namespace>/<vehicle>``; every character a ROS name
+    may not hold (``-``, ``.``, ...) written ``_``."""
+    full = topic if topic.startswith("/") else f"{namespace}/{vehicle}/{topic}"
+    return re.sub(r"[^A-Za-z0-9_/]", "_", full)
 
 
 # -- building blocks -------------------------------------------------------------------------------

@@ -19,7 +19,7 @@ from typing import Annotated
 
 from pydantic import BaseModel, ConfigDict, Field
 
-__all__ = ["Mount", "Ros2Config"]
+__all__ = ["FoxgloveConfig", "Mount", "Ros2Config"]
 
 _NAME = r"[A-Za-z][A-Za-z0-9_]*"
 _Metres = Annotated[float, Field(ge=-100.0, le=100.0, allow_inf_nan=False)]
@@ -50,3 +50,15 @@ class Ros2Config(BaseModel):
     node: str = Field("auvgw_bridge", pattern=rf"^{_NAME}$", max_length=100)
     mounts: dict[str, Mount] = Field(default_factory=dict, max_length=64)
     static_period_s: float = Field(1.0, ge=0.1, le=3600.0, allow_inf_nan=False)
+
+
+class FoxgloveConfig(BaseModel):
+    """The ``[foxglove]`` table: ``enabled``: serve the bus to the Foxglove app from the gateway
+    over the Foxglove WebSocket protocol on ``host:port`` (the mounts of ``[ros2.mounts]`` give
+    its ``/tf_static``). ``auvgw foxglove`` does the same as its own process."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    enabled: bool = Field(False, strict=True)
+    host: str = Field("127.0.0.1", min_length=1, max_length=253)
+    port: int = Field(8765, ge=0, le=65535, strict=True)

@@ -111,7 +111,7 @@ WANTED = {
     "/auv1/sensor/msis/returns": "sensor_msgs/msg/PointCloud2",
     "/auv1/sensor/magnetometer/magnetic_field": "sensor_msgs/msg/MagneticField",
     "/auv1/nav/odometry": "nav_msgs/msg/Odometry",
-    "/auv1/slam/vb-aufastslam/pose": "geometry_msgs/msg/PoseWithCovarianceStamped",
+    "/auv1/slam/vb_aufastslam/pose": "geometry_msgs/msg/PoseWithCovarianceStamped",
     "/auv1/raw/dvl": "auvgw_msgs/msg/RawFrame",
     "/tf": "tf2_msgs/msg/TFMessage",
     "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray",

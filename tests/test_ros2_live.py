@@ -50,8 +50,12 @@ def test_a_ros2_graph_reader_sees_the_vehicle(procs, tmp_path: Path):
         f.write(ROS2_TABLE)
     gw = procs.start([AUVGW, "run", "--config", cfg], "gateway")
     fusion = procs.start([AUVGW, "fusion"], "fusion")
+    mounts = tmp_path / "mounts.json"
+    mounts.write_text('{"multibeam": {"lever_arm_m": [0.2, 0.0, 0.4]}}')
+    fox = procs.start([AUVGW, "foxglove", "--port", "0", "--mounts", str(mounts)], "foxglove")
     try:
         fusion.wait_line("fusion running", timeout=60)
+        url = fox.wait_line("foxglove running:", timeout=60).split(": ", 1)[1].strip()
         with open_session(BusConfig().as_spoke()) as s:
             graph = Ros2Graph(s, domain_id=0)
             seen: dict[str, tuple[str, str]] = {}
@@ -104,9 +108,70 @@ def test_a_ros2_graph_reader_sees_the_vehicle(procs, tmp_path: Path):
         assert "/fleet/auvgw_bridge\n" in listed.stdout
         assert (f"  publishes /fleet/auv1/sensor/ins/imu [sensor_msgs/msg/Imu] "
                 f"{type_hash('sensor_msgs/msg/Imu')}") in listed.stdout
+        _foxglove_client_decodes_a_cloud_and_transforms(url)
     finally:
-        for p in (fusion, gw, sim):
+        for p in (fox, fusion, gw, sim):
             p.signal(signal.SIGINT)
-    for p in (fusion, gw):
+    for p in (fox, fusion, gw):
         assert p.wait(60) == 0, p.stderr()
     assert "Traceback" not in gw.stderr(), gw.stderr()
+
+
+def _foxglove_client_decodes_a_cloud_and_transforms(url: str) -> None:
+    """A client of the Foxglove WebSocket protocol (foxglove/ws-protocol docs/spec.md; the SDK's
+    server selects its current subprotocol name ``foxglove.sdk.v1``, the spec's first was
+    ``foxglove.websocket.v1``: both are offered): serverInfo, advertise, subscribe, Message
+    Data (opcode 1, u32 subscription id, u64 log time, payload), each payload decoded with
+    Foxglove's ROS 2 decoder from the ``ros2msg`` schema the server advertised."""
+    import json
+    import struct
+    import time
+
+    from mcap.records import Schema
+    from mcap_ros2.decoder import DecoderFactory
+    from websockets.sync.client import connect
+
+    wanted = {"/auv1/sensor/multibeam/points": "sensor_msgs/msg/PointCloud2",
+              "/tf": "tf2_msgs/msg/TFMessage", "/tf_static": "tf2_msgs/msg/TFMessage"}
+    channels: dict[str, dict] = {}
+    got: dict[str, object] = {}
+    offered = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
+    with connect(url, subprotocols=offered, open_timeout=30) as ws:  # type: ignore[arg-type]
+        assert ws.subprotocol in offered
+        info = json.loads(ws.recv(timeout=30))
+        assert info["op"] == "serverInfo", info
+        deadline = time.monotonic() + 60
+        subscribed: dict[int, str] = {}
+        decoders: dict[str, object] = {}
+        while len(got) < len(wanted):
+            assert time.monotonic() < deadline, f"decoded only {sorted(got)}"
+            frame = ws.recv(timeout=30)
+            if isinstance(frame, str):
+                op = json.loads(frame)
+                if op["op"] != "advertise":
+                    continue
+                for ch in op["channels"]:
+                    channels[ch["topic"]] = ch
+                    if ch["topic"] in wanted and ch["topic"] not in subscribed.values():
+                        assert (ch["encoding"], ch["schemaEncoding"]) == ("cdr", "ros2msg")
+                        assert ch["schemaName"] == wanted[ch["topic"]]
+                        sid = len(subscribed) + 1
+                        subscribed[sid] = ch["topic"]
+                        schema = Schema(id=ch["id"], name=ch["schemaName"], encoding="ros2msg",
+                                        data=ch["schema"].encode())
+                        decoders[ch["topic"]] = DecoderFactory().decoder_for("cdr", schema)
+                        ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+                            {"id": sid, "channelId": ch["id"]}]}))
+                continue
+            assert frame[0] == 1, frame[:1]  # Message Data
+            sid, _log_time = struct.unpack_from("<IQ", frame, 1)
+            topic = subscribed[sid]
+            got[topic] = decoders[topic](frame[13:])
+    cloud = got["/auv1/sensor/multibeam/points"]
+    assert [f.name for f in cloud.fields] == ["x", "y", "z", "intensity"]
+    assert cloud.width * cloud.point_step == len(cloud.data) and cloud.width > 10
+    pairs = {(t.header.frame_id, t.child_frame_id) for t in got["/tf"].transforms}
+    assert pairs == {("odom", "base_link")}
+    (mount,) = got["/tf_static"].transforms
+    assert (mount.child_frame_id, mount.transform.translation.z) == ("multibeam", -0.4)
+    assert cloud.header.frame_id == "multibeam"  # placed by /tf_static in base_link

@@ -45,4 +45,5 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "auvgw.commands.ros2",
         "the vehicle on ROS 2 (rmw_zenoh): bridge, list the graph, echo a topic",
     ),
+    "foxglove": ("auvgw.commands.foxglove", "serve the bus to the Foxglove app (WebSocket)"),
 }

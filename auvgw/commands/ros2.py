@@ -48,7 +48,9 @@ def register(sub: Any) -> None:
     p.set_defaults(func=run)
 
 
-def _bridge_config(args: argparse.Namespace) -> Any:
+def bridge_config(args: argparse.Namespace) -> Any:
+    """The bridge's settings from the options (``--mounts`` read); a :class:`UserError` naming
+    the file or option that is wrong."""
     from pydantic import ValidationError
 
     from auvgw.ground.errors import format_validation_error
@@ -76,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
         from auvgw.commands.run import serve_stage
         from auvgw.stages.ros2 import Ros2Bridge
 
-        cfg = _bridge_config(args)
+        cfg = bridge_config(args)
         serve_stage(
             args,
             lambda session: Ros2Bridge(cfg, session),

@@ -142,26 +142,33 @@ def serve(settings: RunSettings, stop: threading.Event | None = None) -> int:
             sections=("nav", "slam", "truth", "status"),
         )
         gateway.listeners.subscribe(viz.on_message)
-    bridge = None
-    if cfg.ros2.enabled:
+    # on the gateway's session, from the bus like any stage (never on the raw frames' path)
+    bridges: list[Any] = []
+    if cfg.ros2.enabled or cfg.foxglove.enabled:
         from auvgw.stages.ros2 import Ros2Bridge, Ros2BridgeConfig
 
-        # on the gateway's session, from the bus like any stage (never on the raw frames' path)
-        bridge = Ros2Bridge(Ros2BridgeConfig(vehicle=cfg.vehicle,
-                                             **cfg.ros2.model_dump(exclude={"enabled"})),
-                            gateway.session)  # fmt: skip
+        ros_cfg = Ros2BridgeConfig(vehicle=cfg.vehicle, **cfg.ros2.model_dump())
+        if cfg.ros2.enabled:
+            bridges.append(Ros2Bridge(ros_cfg, gateway.session))
+        if cfg.foxglove.enabled:
+            from auvgw.stages.foxglove import FoxgloveStage
+
+            bridges.append(FoxgloveStage(ros_cfg, gateway.session, host=cfg.foxglove.host,
+                                         port=cfg.foxglove.port))  # fmt: skip
     with handle_stop_signals(stop):
         try:
             gateway.start()
-            if bridge is not None:
-                bridge.start()
+            for b in bridges:
+                b.start()
+                if hasattr(b, "port"):
+                    log.info("foxglove: ws://%s:%d", b.host, b.port)
             while not stop.wait(0.2):
                 if settings.exit_when_done and gateway.finished.is_set():
                     log.info("every device's source has ended")
                     break
         finally:
-            if bridge is not None:
-                bridge.stop()
+            for b in bridges:
+                b.stop()
             if viz is not None:
                 viz.close()
             gateway.stop()

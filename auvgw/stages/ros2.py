@@ -22,8 +22,8 @@ from __future__ import annotations
 import bisect
 import contextlib
 import logging
-import re
 import threading
+import time
 from collections import deque
 from dataclasses import dataclass
 from typing import Any, ClassVar
@@ -45,7 +45,7 @@ from auvgw.rmw_zenoh import (
 )
 from auvgw.stages.base import DROP, BusCounters, Stage, StageConfig
 
-__all__ = ["Mount", "Ros2Bridge", "Ros2BridgeConfig", "ros_topic"]
+__all__ = ["Mount", "Ros2Bridge", "Ros2BridgeConfig", "RosStage"]
 
 log = logging.getLogger(__name__)
 
@@ -64,14 +64,6 @@ class Ros2Counters(BusCounters):
     tf: int = 0
 
 
-def ros_topic(namespace: str, vehicle: str, topic: str) -> str:
-    """The fully qualified ROS topic of a :class:`~auvgw.ros2.RosMessage` topic: absolute ones
-    (``/tf``) as they are, the others under ``<namespace>/<vehicle>``; every character a ROS name
-    may not hold (``-``, ``.``, ...) written ``_``."""
-    full = topic if topic.startswith("/") else f"{namespace}/{vehicle}/{topic}"
-    return re.sub(r"[^A-Za-z0-9_/]", "_", full)
-
-
 class _Endpoint:
     """One ROS 2 publisher: its Zenoh publisher, liveliness token, GID and sequence."""
 
@@ -81,33 +73,33 @@ class _Endpoint:
         self.pub, self.token, self.gid, self.seq = pub, token, gid, 0
 
 
-class Ros2Bridge(Stage):
-    """The ROS 2 face of the bus (module docstring). ``session``: the bus session (the one the
-    ROS 2 keys are published on too); in-process (no session) the ROS 2 messages go to
-    ``on_publish(data key, CDR, t_ns)``."""
-
-    name: ClassVar[str] = "ros2"
-    status_schema: ClassVar[str | None] = "Ros2BridgeStatus"
+class RosStage(Stage):
+    """The bus as ROS 2 messages: every decoded sensor, odometry, SLAM output and status sample
+    turned into its ROS 2 messages (the recordings' mapping) plus ``/tf`` (``map`` -> ``odom``
+    from SLAM poses, besides the mapping's ``odom`` -> ``base_link``) and ``/tf_static`` (the
+    mounts, at start and every ``static_period_s``), each handed to :meth:`put`, which a
+    subclass gives: :class:`Ros2Bridge` (rmw_zenoh), :class:`~auvgw.stages.foxglove.
+    FoxgloveStage` (the Foxglove WebSocket protocol)."""
 
     def __init__(self, config: Ros2BridgeConfig, session: zenoh.Session | None = None,
                  **kw: Any) -> None:  # fmt: skip
         super().__init__(config, Ros2Counters(), session, **kw)
         self.config = config
         self.stats: Ros2Counters = self.stats  # type: ignore[assignment]
-        self._endpoints: dict[str, _Endpoint] = {}
-        self._session_id = str(session.info.zid()) if session is not None else "0" * 32
-        self._next_entity = 1
-        self._node_token: Any = None
         self._static_lock = threading.Lock()
-        #: odometry (t ns, x, y, heading) for map -> odom, newest last
+        #: odometry (t ns, ROS Odometry) for map -> odom, newest last
         self._odom: deque[tuple[int, Any]] = deque(maxlen=2048)
 
     def input_keys(self) -> list[str]:
         return [self.keys.all(f"{s}/**") for s in ("sensor", "nav", "slam", "status")]
 
-    def status_fields(self) -> dict[str, Any]:
-        return {"domain_id": self.config.domain_id, "namespace": self.config.namespace,
-                "node": self.config.node, "ros_topics": sorted(self._endpoints)}  # fmt: skip
+    def put(self, m: ros2.RosMessage, t_ns: int) -> None:
+        """Send ROS 2 message ``m`` stamped ``t_ns`` (the subclass's sink)."""
+        raise NotImplementedError
+
+    def topic(self, m: ros2.RosMessage) -> str:
+        """The fully qualified topic of ``m`` (:func:`auvgw.ros2.ros_topic` under the namespace)."""
+        return ros2.ros_topic(self.config.namespace, self.keys.vehicle, m.topic)
 
     # -- bus side ---------------------------------------------------------------------------
     def handle_sample(self, key: str, payload: bytes, t_arrival_ns: int | None = None) -> object:
@@ -150,11 +142,50 @@ class Ros2Bridge(Stage):
         return [ros2.RosMessage("/tf", ros2.TF_TYPE,
                                 ros2.tf_msg([ros2.map_odom_tf(pose, odom, t_ns)]))]  # fmt: skip
 
-    # -- ROS 2 side -------------------------------------------------------------------------
+    def publish_static(self, t_ns: int) -> None:
+        """``/tf_static`` from the configured mounts (nothing without mounts)."""
+        if self.config.mounts:
+            with self._static_lock:
+                msg = ros2.static_tf(self.config.mounts, t_ns)
+                self.put(ros2.RosMessage("/tf_static", ros2.TF_TYPE, msg), t_ns)
+
+    def publish_status(self) -> None:
+        """The status, and ``/tf_static`` again (a late subscriber's wait is one period)."""
+        super().publish_status()
+        self.publish_static(time.time_ns())
+
+    def count(self, m: ros2.RosMessage, topic: str) -> None:
+        """Count one message put on ``topic``."""
+        with self._lock:
+            self.stats.published += 1
+            if m.type == ros2.TF_TYPE and topic == "/tf":
+                self.stats.tf += len(m.msg.transforms)
+
+
+class Ros2Bridge(RosStage):
+    """The ROS 2 face of the bus on rmw_zenoh (module docstring). ``session``: the bus session
+    (the one the ROS 2 keys are published on too); in-process (no session) the ROS 2 messages go
+    to ``on_publish(data key, CDR, t_ns)``."""
+
+    name: ClassVar[str] = "ros2"
+    status_schema: ClassVar[str | None] = "Ros2BridgeStatus"
+
+    def __init__(self, config: Ros2BridgeConfig, session: zenoh.Session | None = None,
+                 **kw: Any) -> None:  # fmt: skip
+        super().__init__(config, session, **kw)
+        self._endpoints: dict[str, _Endpoint] = {}
+        self._session_id = str(session.info.zid()) if session is not None else "0" * 32
+        self._next_entity = 1
+        self._node_token: Any = None
+
+    def status_fields(self) -> dict[str, Any]:
+        return {"domain_id": self.config.domain_id, "namespace": self.config.namespace,
+                "node": self.config.node, "ros_topics": sorted(self._endpoints)}  # fmt: skip
+
     def put(self, m: ros2.RosMessage, t_ns: int) -> None:
         """Publish ROS 2 message ``m`` (stamp ``t_ns``) on its topic, declaring the publisher and
         its liveliness token the first time."""
-        topic = ros_topic(self.config.namespace, self.keys.vehicle, m.topic)
+        topic = self.topic(m)
         cdr = ros2.serialize(m)
         key = data_key(self.config.domain_id, topic, m.type)
         ep = self._endpoints.get(key)
@@ -166,10 +197,7 @@ class Ros2Bridge(Stage):
                 ep.pub.put(cdr, attachment=pack_attachment(ep.seq, t_ns, ep.gid))
             except zenoh.ZError as exc:
                 log.warning("ros2: cannot publish %s: %s", topic, exc)
-        with self._lock:
-            self.stats.published += 1
-            if m.type == ros2.TF_TYPE and topic == "/tf":
-                self.stats.tf += len(m.msg.transforms)
+        self.count(m, topic)
         if self.on_publish is not None:
             self.on_publish(key, cdr, t_ns)
 
@@ -187,25 +215,10 @@ class Ros2Bridge(Stage):
             self.stats.topics += 1
         return ep
 
-    def publish_static(self, t_ns: int) -> None:
-        """``/tf_static`` from the configured mounts (nothing without mounts)."""
-        if self.config.mounts:
-            with self._static_lock:
-                msg = ros2.static_tf(self.config.mounts, t_ns)
-                self.put(ros2.RosMessage("/tf_static", ros2.TF_TYPE, msg), t_ns)
-
-    def publish_status(self) -> None:
-        """The status, and ``/tf_static`` again (a late subscriber's wait is one period)."""
-        super().publish_status()
-        import time
-
-        self.publish_static(time.time_ns())
 
     def start(self, subscribe: bool = True) -> None:
         """The node's token first (a ROS graph shows the node before its publishers), then the
         stage (subscriptions, status, liveliness) and ``/tf_static``."""
-        import time
-
         if self.session is not None and self._node_token is None:
             self._node_token = self.session.liveliness().declare_token(
                 node_token(self.config.domain_id, self._session_id, 0, self.config.namespace,
