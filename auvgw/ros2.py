@@ -39,6 +39,7 @@ and instrument coordinates), or ``base_link`` FLU (ship and earth coordinates, m
 
 from __future__ import annotations
 
+import bisect
 import dataclasses
 import json
 import math
@@ -60,6 +61,7 @@ __all__ = [
     "RAW_FRAME_TYPE",
     "TF_TYPE",
     "RosMessage",
+    "TfTracker",
     "decoded_msg",
     "diagnostics_msg",
     "enu_from_ned",
@@ -72,6 +74,7 @@ __all__ = [
     "ros_topic",
     "serialize",
     "static_tf",
+    "static_tf_for_config",
     "tf_msg",
     "to_ros",
     "typestore",
@@ -243,13 +246,16 @@ def raw_frame_msg(
 
 
 def decoded_msg(
-    topic: str, source: str, type_name: str, t_ns: int, seq: int, body: Any
+    topic: str, source: str, type_name: str, t_ns: int, seq: int, body: Any,
+    frame: str | None = None,
 ) -> RosMessage:
-    """Any message as ``auvgw_msgs/msg/Decoded`` (``body``: a JSON-ready mapping or JSON text)."""
+    """Any message as ``auvgw_msgs/msg/Decoded`` (``body``: a JSON-ready mapping or JSON text;
+    ``frame``: its header's frame, default ``source``)."""
     text = body if isinstance(body, str) else json.dumps(body, separators=(",", ":"))
     m = _t(DECODED_TYPE)(
-        header=_header(t_ns, source), source=source, type=type_name, seq=int(seq), json=text
-    )
+        header=_header(t_ns, source if frame is None else frame), source=source,
+        type=type_name, seq=int(seq), json=text,
+    )  # fmt: skip
     return RosMessage(topic, DECODED_TYPE, m)
 
 
@@ -442,6 +448,65 @@ def static_tf(mounts: Mapping[str, Any], t_ns: int) -> Any:
         q = quaternion_zyx(roll, -pitch, -yaw)
         out.append(_transform(t_ns, FRAME_BASE, device, flu_from_frd(m.lever_arm_m), q))
     return tf_msg(out)
+
+
+def static_tf_for_config(config: Mapping[str, Any], t_ns: int) -> Any:
+    """``/tf_static`` of a gateway configuration (its JSON form): every device's frame under
+    ``base_link``, at its ``[ros2.mounts]`` mount, or at the reference point with the vehicle's
+    axes for a device with none (so every sensor frame is placed); None without devices."""
+    from types import SimpleNamespace
+
+    mounts = dict((config.get("ros2") or {}).get("mounts") or {})
+    devices = config.get("devices") or {}
+    placed = {
+        d: SimpleNamespace(lever_arm_m=tuple(m.get("lever_arm_m", (0.0, 0.0, 0.0))),
+                           rpy_deg=tuple(m.get("rpy_deg", (0.0, 0.0, 0.0))))
+        for d, m in {**{d: {} for d in devices}, **mounts}.items()
+    }  # fmt: skip
+    return static_tf(placed, t_ns) if placed else None
+
+
+class TfTracker:
+    """``map`` -> ``odom`` for each SLAM pose (REP 105), from the ROS messages of the bus as they
+    pass: odometry remembered (the last ``keep``), a SLAM pose answered with the transform
+    against the odometry at or before its stamp. Pure (no bus): the ROS 2 bridge, the Foxglove
+    server and the recorder feed it the same messages."""
+
+    def __init__(self, keep: int = 2048) -> None:
+        self._t: list[int] = []
+        self._odom: list[Any] = []
+        self._keep = keep
+
+    def feed(self, msgs: list[RosMessage], t_ns: int) -> list[RosMessage]:
+        """The ``/tf`` messages ``msgs`` (one sample's) imply; [] for most."""
+        out: list[RosMessage] = []
+        for m in msgs:
+            if m.type == "nav_msgs/msg/Odometry":
+                self._t.append(t_ns)
+                self._odom.append(_ned_of_pose(m.msg.pose.pose))
+                if len(self._t) > self._keep:
+                    del self._t[: len(self._t) - self._keep]
+                    del self._odom[: len(self._odom) - self._keep]
+            elif m.type == "geometry_msgs/msg/PoseWithCovarianceStamped" and self._t:
+                i = max(0, bisect.bisect_right(self._t, t_ns) - 1)
+                pose = _ned_of_pose(m.msg.pose.pose)
+                slam = {"x": pose.x, "y": pose.y, "heading": pose.heading}
+                tf = tf_msg([map_odom_tf(slam, self._odom[i], t_ns)])
+                out.append(RosMessage("/tf", TF_TYPE, tf))
+        return out
+
+
+class _Ned(NamedTuple):
+    x: float  #: north, m
+    y: float  #: east, m
+    heading: float  #: rad from north towards east
+
+
+def _ned_of_pose(pose: Any) -> _Ned:
+    """x, y (NED) and heading of a ROS pose (ENU position, FLU -> ENU orientation)."""
+    q = pose.orientation
+    yaw_enu = math.atan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z))
+    return _Ned(pose.position.y, pose.position.x, math.pi / 2 - yaw_enu)
 
 
 #: diagnostic_msgs/DiagnosticStatus levels

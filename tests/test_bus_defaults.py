@@ -114,6 +114,7 @@ WANTED = {
     "/auv1/slam/vb_aufastslam/pose": "geometry_msgs/msg/PoseWithCovarianceStamped",
     "/auv1/raw/dvl": "auvgw_msgs/msg/RawFrame",
     "/tf": "tf2_msgs/msg/TFMessage",
+    "/tf_static": "tf2_msgs/msg/TFMessage",
     "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
 }
 
@@ -231,6 +232,18 @@ def _check_ros2_readers(path: Path, envelopes: list[tuple[str, bytes]]) -> None:
     assert ("odom", "base_link") in tf_pairs, tf_pairs
     diag = {st.name for topic, r in recorded if topic == "/diagnostics" for st in r.status}
     assert {"auvgw/auv1/ins", "auvgw/auv1/dvl", "auvgw/auv1/fusion"} <= diag, diag
+    # every frame a header names is reachable from map through /tf and /tf_static
+    tf_pairs |= {(t.header.frame_id, t.child_frame_id)
+                 for topic, r in recorded if topic == "/tf_static" for t in r.transforms}
+    assert ("map", "odom") in tf_pairs, tf_pairs  # from the SLAM poses
+    reach, grew = {"map"}, True
+    while grew:
+        new = {c for p, c in tf_pairs if p in reach} - reach
+        reach |= new
+        grew = bool(new)
+    used = {r.header.frame_id for _t, r in recorded if hasattr(r, "header")} - {""}
+    assert used <= reach, (used - reach, tf_pairs)
+    assert {"ins", "dvl", "multibeam", "msis"} <= used
     recorded = [(t, r) for t, r in recorded if hasattr(r, "header") and t.count("/") >= 3]
     per_stamp = Counter((t, _stamp(r.header)) for t, r in recorded)
     for topic, ros in recorded:

@@ -19,12 +19,10 @@ rmw_zenoh see them. Beside the vehicle's topics (``/<namespace>/<vehicle>/sensor
 
 from __future__ import annotations
 
-import bisect
 import contextlib
 import logging
 import threading
 import time
-from collections import deque
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -87,8 +85,7 @@ class RosStage(Stage):
         self.config = config
         self.stats: Ros2Counters = self.stats  # type: ignore[assignment]
         self._static_lock = threading.Lock()
-        #: odometry (t ns, ROS Odometry) for map -> odom, newest last
-        self._odom: deque[tuple[int, Any]] = deque(maxlen=2048)
+        self._tf = ros2.TfTracker()  # map -> odom
 
     def input_keys(self) -> list[str]:
         return [self.keys.all(f"{s}/**") for s in ("sensor", "nav", "slam", "status")]
@@ -113,7 +110,7 @@ class RosStage(Stage):
         section, _, rest = key[len(base):].partition("/")
         try:
             msgs, t_ns, _ = sample_to_ros(section, rest, payload, t_arrival_ns or 0)
-            msgs = list(msgs) + self._slam_tf(section, rest, msgs, t_ns)
+            msgs = list(msgs) + self._tf.feed(msgs, t_ns)
             for m in msgs:
                 self.put(m, t_ns)
         except Exception as exc:  # one sample must never stop the bridge
@@ -122,25 +119,6 @@ class RosStage(Stage):
         with self._lock:
             self.stats.received += 1
         return None
-
-    def _slam_tf(self, section: str, rest: str, msgs: list[ros2.RosMessage],
-                 t_ns: int) -> list[ros2.RosMessage]:  # fmt: skip
-        """``map`` -> ``odom`` for a SLAM pose; odometry remembered for it."""
-        if section == "nav":
-            for m in msgs:
-                if m.type == "nav_msgs/msg/Odometry":
-                    self._odom.append((t_ns, m))
-            return []
-        if section != "slam" or not rest.endswith("/pose") or not self._odom:
-            return []
-        times = [t for t, _ in self._odom]
-        i = max(0, bisect.bisect_right(times, t_ns) - 1)
-        odom = _odom_ned(self._odom[i][1].msg)
-        pose = _slam_ned(msgs[0].msg)
-        if odom is None or pose is None:
-            return []
-        return [ros2.RosMessage("/tf", ros2.TF_TYPE,
-                                ros2.tf_msg([ros2.map_odom_tf(pose, odom, t_ns)]))]  # fmt: skip
 
     def publish_static(self, t_ns: int) -> None:
         """``/tf_static`` from the configured mounts (nothing without mounts)."""
@@ -244,31 +222,3 @@ def _qos(topic: str) -> Qos:
     if topic == "/tf_static":
         return STATIC_QOS
     return SENSOR_QOS if "/sensor/" in topic else DEFAULT_QOS
-
-
-class _Ned:
-    """x, y (NED, m) and heading (rad) read back from a ROS pose (ENU, FLU)."""
-
-    __slots__ = ("heading", "x", "y")
-
-    def __init__(self, x: float, y: float, heading: float) -> None:
-        self.x, self.y, self.heading = x, y, heading
-
-
-def _ned_of_pose(pose: Any) -> _Ned:
-    import math
-
-    q = pose.orientation
-    yaw_enu = math.atan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z))
-    return _Ned(pose.position.y, pose.position.x, math.pi / 2 - yaw_enu)
-
-
-def _odom_ned(msg: Any) -> _Ned | None:
-    return _ned_of_pose(msg.pose.pose) if hasattr(msg, "pose") else None
-
-
-def _slam_ned(msg: Any) -> dict[str, float] | None:
-    if not hasattr(msg, "pose"):
-        return None
-    p = _ned_of_pose(msg.pose.pose)
-    return {"x": p.x, "y": p.y, "heading": p.heading}
