@@ -244,6 +244,9 @@ def _check_ros2_readers(path: Path, envelopes: list[tuple[str, bytes]]) -> None:
     used = {r.header.frame_id for _t, r in recorded if hasattr(r, "header")} - {""}
     assert used <= reach, (used - reach, tf_pairs)
     assert {"ins", "dvl", "multibeam", "msis"} <= used
+    # the shipped Foxglove layout names only topics the recording has
+    topics = {t for t, _r in recorded} | {"/tf", "/tf_static", "/diagnostics"}
+    assert _layout_topics() <= topics, _layout_topics() - topics
     recorded = [(t, r) for t, r in recorded if hasattr(r, "header") and t.count("/") >= 3]
     per_stamp = Counter((t, _stamp(r.header)) for t, r in recorded)
     for topic, ros in recorded:
@@ -293,3 +296,17 @@ def test_run_listen_option_replaces_the_configuration_endpoints(procs, tmp_path:
         st = wait_until(lambda: me.status("dvl"), timeout=60, what="the gateway's status")
     assert st["connected"] is False  # the device is absent; the gateway answers on --listen
     assert f"listen {ep}" in gw.stderr()
+
+
+def _layout_topics() -> set[str]:
+    """Every topic config/foxglove-layout.json names (3D panel topics, plot paths, panels)."""
+    import json
+
+    layout = json.loads((REPO / "config" / "foxglove-layout.json").read_text())
+    out: set[str] = set()
+    for panel in layout["configById"].values():
+        out |= set(panel.get("topics", {}))
+        out |= {p["value"].split(".", 1)[0] for p in panel.get("paths", [])}
+        out |= {panel[k].split(".", 1)[0] for k in ("topicPath", "topicToRender") if k in panel}
+    assert len(out) >= 8, out
+    return out

@@ -23,6 +23,7 @@ import contextlib
 import logging
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -79,16 +80,53 @@ class RosStage(Stage):
     subclass gives: :class:`Ros2Bridge` (rmw_zenoh), :class:`~auvgw.stages.foxglove.
     FoxgloveStage` (the Foxglove WebSocket protocol)."""
 
-    def __init__(self, config: Ros2BridgeConfig, session: zenoh.Session | None = None,
-                 **kw: Any) -> None:  # fmt: skip
+    #: every section of the bus the stage can take
+    SECTIONS: ClassVar[tuple[str, ...]] = ("sensor", "nav", "slam", "status")
+
+    def __init__(self, config: Ros2BridgeConfig, session: zenoh.Session | None = None, *,
+                 sections: tuple[str, ...] = SECTIONS, **kw: Any) -> None:  # fmt: skip
         super().__init__(config, Ros2Counters(), session, **kw)
         self.config = config
+        #: the sections taken from the bus (in the gateway, the sensors come in-process:
+        #: :meth:`post`, from the gateway's listeners, no envelope round trip)
+        self.sections = sections
+        #: s a batch of posted messages waits for more (:meth:`post`)
+        self.batch_s = 0.005
+        self._batch: deque[tuple[str, int, Any]] = deque()
+        self._batch_queued = False
         self.stats: Ros2Counters = self.stats  # type: ignore[assignment]
         self._static_lock = threading.Lock()
         self._tf = ros2.TfTracker()  # map -> odom
 
     def input_keys(self) -> list[str]:
-        return [self.keys.all(f"{s}/**") for s in ("sensor", "nav", "slam", "status")]
+        return [self.keys.all(f"{s}/**") for s in self.sections]
+
+    def post(self, device: str, t_recv_ns: int, message: Any) -> None:
+        """:meth:`feed` on the worker, in batches: the first message of a batch queues one
+        call that waits ``batch_s`` and takes every message posted meanwhile (the gateway's
+        listener at 1000 messages/s wakes the worker 200 times a second, not 1000: a wake costs
+        more than a message's conversion)."""
+        self._batch.append((device, t_recv_ns, message))
+        if not self._batch_queued:
+            self._batch_queued = True
+            self._post(self._take_batch, ())
+
+    def _take_batch(self) -> None:
+        time.sleep(self.batch_s)
+        self._batch_queued = False  # before taking: a post from now on queues the next batch
+        while self._batch:
+            self.feed(*self._batch.popleft())
+
+    def feed(self, device: str, t_recv_ns: int, message: Any) -> object:
+        """One decoded sensor message in-process (the gateway's listener, via :meth:`post`)."""
+        from auvgw.decoding import message_kind
+
+        msgs = ros2.to_ros("sensor", device, message, t_recv_ns, kind=message_kind(message))
+        for m in msgs:
+            self.put(m, t_recv_ns)
+        with self._lock:
+            self.stats.received += 1
+        return None
 
     def put(self, m: ros2.RosMessage, t_ns: int) -> None:
         """Send ROS 2 message ``m`` stamped ``t_ns`` (the subclass's sink)."""
@@ -152,6 +190,7 @@ class Ros2Bridge(RosStage):
                  **kw: Any) -> None:  # fmt: skip
         super().__init__(config, session, **kw)
         self._endpoints: dict[str, _Endpoint] = {}
+        self._keys: dict[tuple[str, str], str] = {}
         self._session_id = str(session.info.zid()) if session is not None else "0" * 32
         self._next_entity = 1
         self._node_token: Any = None
@@ -165,7 +204,9 @@ class Ros2Bridge(RosStage):
         its liveliness token the first time."""
         topic = self.topic(m)
         cdr = ros2.serialize(m)
-        key = data_key(self.config.domain_id, topic, m.type)
+        key = self._keys.get((topic, m.type))
+        if key is None:
+            key = self._keys[(topic, m.type)] = data_key(self.config.domain_id, topic, m.type)
         ep = self._endpoints.get(key)
         if ep is None and self.session is not None:
             ep = self._declare(topic, m.type, key)
