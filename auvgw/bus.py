@@ -178,10 +178,12 @@ class InputWatch:
     ) -> None:
         self.what = what
         self.bus = bus
-        self.silent: set[str] = set(keys)
+        wanted = list(dict.fromkeys(keys))
+        self.silent: set[str] = set(wanted)
         self._lock = threading.Lock()
         self._reported: set[str] = set()
-        self._subs = {k: session.declare_subscriber(k, self._seen(k)) for k in self.silent}
+        # over the list, not the set: a sample may arrive (and empty the set) while declaring
+        self._subs = {k: session.declare_subscriber(k, self._seen(k)) for k in wanted}
         self._timer = threading.Timer(bus.no_publisher_after_s, self._report)
         self._timer.daemon = True
         self._timer.start()

@@ -28,9 +28,11 @@ gateway and ``auvgw replay``.
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import logging
 import queue
+import re
 import struct
 import threading
 import time
@@ -137,6 +139,7 @@ class Ros2McapWriter:
         self._w.start(profile=PROFILE, library=f"auvgw (bus schema {SCHEMA_VERSION})")
         self._schemas: dict[str, int] = {}
         self._channels: dict[tuple[str, str], int] = {}
+        self._tf = ros2.TfTracker()  # map -> odom from the SLAM poses
 
     def _channel(self, topic: str, type_name: str, key: str, encoding: str) -> int:
         cid = self._channels.get((topic, type_name))
@@ -163,9 +166,12 @@ class Ros2McapWriter:
     ) -> None:
         """Write ROS 2 messages that came from the Zenoh ``key``."""
         for m in msgs:
-            topic = f"/{self.vehicle}/{m.topic}"
+            topic = ros2.ros_topic("", self.vehicle, m.topic)
+            # a standard ROS topic derived from the bus (/tf, /tf_static, /diagnostics) names
+            # the ros2/ section as its source: a replay republishes none of it on a bus key
+            src = f"auv/{self.vehicle}/ros2{topic}" if m.topic.startswith("/") else key
             self._w.add_message(
-                channel_id=self._channel(topic, m.type, key, encoding),
+                channel_id=self._channel(topic, m.type, src, encoding),
                 log_time=log_time,
                 data=ros2.serialize(m),
                 publish_time=publish_time,
@@ -187,7 +193,7 @@ class Ros2McapWriter:
             self.write_ros(key, [msg], t_ns, t_rx_ns, seq, encoding)
             return
         msgs, t_ns, seq = sample_to_ros(section, rest, payload, t_rx_ns)
-        self.write_ros(key, msgs, t_ns, t_rx_ns, seq, encoding)
+        self.write_ros(key, msgs + self._tf.feed(msgs, t_ns), t_ns, t_rx_ns, seq, encoding)
 
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
         self._w.add_metadata(name, data)
@@ -252,12 +258,18 @@ def sample_to_ros(
         return ros2.to_ros(section, rest, body, t_ns), t_ns, 0
     type_name = body.get("type", section) if isinstance(body, dict) else section
     source = rest.rpartition("/")[2] if section == "status" else rest
-    return [ros2.decoded_msg(f"{section}/{rest}", source, str(type_name), t_ns, 0, text)], t_ns, 0
+    frame = "" if section == "status" else source  # health is not a place
+    msgs = [ros2.decoded_msg(f"{section}/{rest}", source, str(type_name), t_ns, 0, text, frame)]
+    if section == "status" and isinstance(body, dict):  # and the standard form of health
+        msgs.append(ros2.RosMessage("/diagnostics", ros2.DIAGNOSTICS_TYPE,
+                                    ros2.diagnostics_msg(body, t_ns)))  # fmt: skip
+    return msgs, t_ns, 0
 
 
+@functools.cache
 def _load_types() -> None:
     """The fusion odometry type and the shipped HN-100 and MS3A DBCs' message types, so their
-    envelopes become typed."""
+    envelopes become typed (once a process: it was half the cost of a sample's conversion)."""
     import auvgw.fusion.odometry  # noqa: F401 - registers Odometry
     from auvgw.drivers import registry
     from auvgw.drivers.spec import MESSAGE_TYPES
@@ -355,8 +367,15 @@ class McapRecorder:
                 if isinstance(p, str):
                     meta = json.loads(p)
                     with contextlib.suppress(ValueError, KeyError, AttributeError):
-                        devices = json.loads(meta["config"]).get("devices", {})
+                        cfg = json.loads(meta["config"])
+                        devices = cfg.get("devices", {})
                         self._w.wire_formats.update({k: d["format"] for k, d in devices.items()})
+                        # every sensor frame placed under base_link (the configured mounts)
+                        static = ros2.static_tf_for_config(cfg, self.t_start_ns)
+                        if static is not None:
+                            msg = ros2.RosMessage("/tf_static", ros2.TF_TYPE, static)
+                            self._w.write_ros("", [msg], self.t_start_ns,
+                                              self.t_start_ns)  # fmt: skip
                     self._w.add_metadata(GATEWAY_METADATA, meta)
                 else:
                     self._w.write(p.key, p.payload, p.attachment, p.encoding, p.t_rx_ns)
@@ -481,6 +500,10 @@ def read_info(path: str | Path) -> RecordingInfo:
     return info
 
 
+#: the keys the recorder gives the standard ROS topics it derives (``auv/<v>/ros2/...``)
+_DERIVED = re.compile(r"^auv/[^/]+/ros2/")
+
+
 def iter_samples(path: str | Path) -> Iterator[RecordedSample]:
     """Every recorded message in file order (per key, the order the recorder received them).
 
@@ -491,6 +514,8 @@ def iter_samples(path: str | Path) -> Iterator[RecordedSample]:
         _check_magic(path, f)
         try:
             for schema, channel, msg in NonSeekingReader(f).iter_messages(log_time_order=False):
+                if _DERIVED.match(channel.metadata.get("key", "")):
+                    continue  # /tf, /tf_static, /diagnostics: for ROS readers, not bus samples
                 zenc = channel.metadata.get("zenoh_encoding", "")
                 if channel.message_encoding == MESSAGE_ENCODING and schema is not None:
                     yield _ros2_sample(schema.name, channel.metadata, channel.topic, msg, zenc)

@@ -39,9 +39,11 @@ and instrument coordinates), or ``base_link`` FLU (ship and earth coordinates, m
 
 from __future__ import annotations
 
+import bisect
 import dataclasses
 import json
 import math
+import re
 from collections.abc import Mapping
 from functools import cache
 from typing import Any, NamedTuple
@@ -54,16 +56,26 @@ from auvgw.ground.geometry import quaternion_zyx
 __all__ = [
     "DECODED_MSG",
     "DECODED_TYPE",
+    "DIAGNOSTICS_TYPE",
     "RAW_FRAME_MSG",
     "RAW_FRAME_TYPE",
+    "TF_TYPE",
     "RosMessage",
+    "TfTracker",
     "decoded_msg",
+    "diagnostics_msg",
     "enu_from_ned",
     "flu_from_frd",
+    "map_odom_tf",
     "msgdef",
+    "odom_tf",
     "quaternion_enu_flu",
     "raw_frame_msg",
+    "ros_topic",
     "serialize",
+    "static_tf",
+    "static_tf_for_config",
+    "tf_msg",
     "to_ros",
     "typestore",
 ]
@@ -90,6 +102,11 @@ uint64 seq              # sequence of the raw frame (sensors) or of the publishe
 string json             # the message's fields, JSON (NaN as null)
 """
 
+#: the standard topics and types of transforms and diagnostics (absolute topic names: not
+#: under ``/<vehicle>``, where tf2, Foxglove and rqt look for them)
+TF_TYPE = "tf2_msgs/msg/TFMessage"
+DIAGNOSTICS_TYPE = "diagnostic_msgs/msg/DiagnosticArray"
+
 FRAME_MAP = "map"
 FRAME_ODOM = "odom"
 FRAME_BASE = "base_link"
@@ -102,7 +119,8 @@ _F = np.diag([1.0, -1.0, -1.0])
 
 
 class RosMessage(NamedTuple):
-    """One ROS 2 message: topic name under ``/<vehicle>``, ROS type and the message object."""
+    """One ROS 2 message: topic name under ``/<vehicle>`` (or absolute, ``/`` first: ``/tf``,
+    ``/tf_static``, ``/diagnostics``), ROS type and the message object."""
 
     topic: str
     type: str
@@ -159,6 +177,14 @@ def quaternion_enu_flu(
     """(x, y, z, w) of the rotation FLU body -> ENU for an NED attitude (rad; heading from north
     towards east, pitch nose up, roll starboard down): ZYX Euler (pi/2 - heading, -pitch, roll)."""
     return quaternion_zyx(roll, -pitch, math.pi / 2 - heading)
+
+
+def ros_topic(namespace: str, vehicle: str, topic: str) -> str:
+    """The fully qualified ROS topic of a :class:`~auvgw.ros2.RosMessage` topic: absolute ones
+    (``/tf``) as they are, the others under ``<namespace>/<vehicle>``; every character a ROS name
+    may not hold (``-``, ``.``, ...) written ``_``."""
+    full = topic if topic.startswith("/") else f"{namespace}/{vehicle}/{topic}"
+    return re.sub(r"[^A-Za-z0-9_/]", "_", full)
 
 
 # -- building blocks -------------------------------------------------------------------------------
@@ -220,13 +246,16 @@ def raw_frame_msg(
 
 
 def decoded_msg(
-    topic: str, source: str, type_name: str, t_ns: int, seq: int, body: Any
+    topic: str, source: str, type_name: str, t_ns: int, seq: int, body: Any,
+    frame: str | None = None,
 ) -> RosMessage:
-    """Any message as ``auvgw_msgs/msg/Decoded`` (``body``: a JSON-ready mapping or JSON text)."""
+    """Any message as ``auvgw_msgs/msg/Decoded`` (``body``: a JSON-ready mapping or JSON text;
+    ``frame``: its header's frame, default ``source``)."""
     text = body if isinstance(body, str) else json.dumps(body, separators=(",", ":"))
     m = _t(DECODED_TYPE)(
-        header=_header(t_ns, source), source=source, type=type_name, seq=int(seq), json=text
-    )
+        header=_header(t_ns, source if frame is None else frame), source=source,
+        type=type_name, seq=int(seq), json=text,
+    )  # fmt: skip
     return RosMessage(topic, DECODED_TYPE, m)
 
 
@@ -369,6 +398,177 @@ def landmarks_msg(body: Mapping[str, Any], t_ns: int) -> Any:
     return _cloud(t_ns, FRAME_MAP, xyz, ids)
 
 
+def _transform(
+    t_ns: int, parent: str, child: str, xyz: Any, q: tuple[float, float, float, float]
+) -> Any:
+    return _t("geometry_msgs/msg/TransformStamped")(
+        header=_header(t_ns, parent),
+        child_frame_id=child,
+        transform=_t("geometry_msgs/msg/Transform")(
+            translation=_vec3(xyz), rotation=_quat(q)
+        ),
+    )
+
+
+def tf_msg(transforms: list[Any]) -> Any:
+    """tf2_msgs/TFMessage of ``TransformStamped`` messages (``/tf``, ``/tf_static``)."""
+    return _t("tf2_msgs/msg/TFMessage")(transforms=transforms)
+
+
+def odom_tf(o: Any, t_ns: int) -> Any:
+    """The fusion's ``odom`` -> ``base_link`` transform (REP 105: the odometry's pose, ENU,
+    FLU)."""
+    return _transform(t_ns, FRAME_ODOM, FRAME_BASE, enu_from_ned((o.x, o.y, o.z)),
+                      quaternion_enu_flu(o.heading, o.pitch, o.roll))  # fmt: skip
+
+
+def map_odom_tf(slam: Mapping[str, Any], odom: Any, t_ns: int) -> Any:
+    """``map`` -> ``odom`` from a SLAM pose (map NED x, y, heading) and the odometry at the same
+    time (NED x, y, heading): the 2-D correction ``T_map_base * T_odom_base^-1`` (REP 105), in ENU
+    (z and the odometry's roll and pitch are the odometry's own: the pipelines are 2-D)."""
+    dh = float(slam["heading"]) - float(odom.heading)
+    c, s_ = math.cos(dh), math.sin(dh)
+    # NED: p_map = R(dh) p_odom + t  =>  t = p_slam - R(dh) p_odom
+    tn = float(slam["x"]) - (c * odom.x - s_ * odom.y)
+    te = float(slam["y"]) - (s_ * odom.x + c * odom.y)
+    # a turn of dh towards east (about NED down) is a yaw of -dh about ENU up
+    return _transform(t_ns, FRAME_MAP, FRAME_ODOM, enu_from_ned((tn, te, 0.0)),
+                      quaternion_zyx(0.0, 0.0, -dh))  # fmt: skip
+
+
+def static_tf(mounts: Mapping[str, Any], t_ns: int) -> Any:
+    """``/tf_static``: ``base_link`` -> each sensor's frame (named after its device) from its
+    mount: ``lever_arm_m`` (body FRD, m, from the vehicle reference point) and ``rpy_deg`` (roll,
+    pitch, yaw of the sensor's axes in body FRD, degrees), both written FLU here (REP 103)."""
+    out = []
+    for device, m in sorted(mounts.items()):
+        roll, pitch, yaw = (math.radians(float(a)) for a in m.rpy_deg)
+        # Rz(y) Ry(p) Rx(r) between FRD axes is F Rz(y) Ry(p) Rx(r) F = Rz(-y) Ry(-p) Rx(r)
+        # between FLU axes (F = diag(1, -1, -1))
+        q = quaternion_zyx(roll, -pitch, -yaw)
+        out.append(_transform(t_ns, FRAME_BASE, device, flu_from_frd(m.lever_arm_m), q))
+    return tf_msg(out)
+
+
+def static_tf_for_config(config: Mapping[str, Any], t_ns: int) -> Any:
+    """``/tf_static`` of a gateway configuration (its JSON form): every device's frame under
+    ``base_link``, at its ``[ros2.mounts]`` mount, or at the reference point with the vehicle's
+    axes for a device with none (so every sensor frame is placed); None without devices."""
+    from types import SimpleNamespace
+
+    mounts = dict((config.get("ros2") or {}).get("mounts") or {})
+    devices = config.get("devices") or {}
+    placed = {
+        d: SimpleNamespace(lever_arm_m=tuple(m.get("lever_arm_m", (0.0, 0.0, 0.0))),
+                           rpy_deg=tuple(m.get("rpy_deg", (0.0, 0.0, 0.0))))
+        for d, m in {**{d: {} for d in devices}, **mounts}.items()
+    }  # fmt: skip
+    return static_tf(placed, t_ns) if placed else None
+
+
+class TfTracker:
+    """``map`` -> ``odom`` for each SLAM pose (REP 105), from the ROS messages of the bus as they
+    pass: odometry remembered (the last ``keep``), a SLAM pose answered with the transform
+    against the odometry at or before its stamp. Pure (no bus): the ROS 2 bridge, the Foxglove
+    server and the recorder feed it the same messages."""
+
+    def __init__(self, keep: int = 2048) -> None:
+        self._t: list[int] = []
+        self._odom: list[Any] = []
+        self._keep = keep
+
+    def feed(self, msgs: list[RosMessage], t_ns: int) -> list[RosMessage]:
+        """The ``/tf`` messages ``msgs`` (one sample's) imply; [] for most."""
+        out: list[RosMessage] = []
+        for m in msgs:
+            if m.type == "nav_msgs/msg/Odometry":
+                self._t.append(t_ns)
+                self._odom.append(_ned_of_pose(m.msg.pose.pose))
+                if len(self._t) > self._keep:
+                    del self._t[: len(self._t) - self._keep]
+                    del self._odom[: len(self._odom) - self._keep]
+            elif m.type == "geometry_msgs/msg/PoseWithCovarianceStamped" and self._t:
+                i = max(0, bisect.bisect_right(self._t, t_ns) - 1)
+                pose = _ned_of_pose(m.msg.pose.pose)
+                slam = {"x": pose.x, "y": pose.y, "heading": pose.heading}
+                tf = tf_msg([map_odom_tf(slam, self._odom[i], t_ns)])
+                out.append(RosMessage("/tf", TF_TYPE, tf))
+        return out
+
+
+class _Ned(NamedTuple):
+    x: float  #: north, m
+    y: float  #: east, m
+    heading: float  #: rad from north towards east
+
+
+def _ned_of_pose(pose: Any) -> _Ned:
+    """x, y (NED) and heading of a ROS pose (ENU position, FLU -> ENU orientation)."""
+    q = pose.orientation
+    yaw_enu = math.atan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z))
+    return _Ned(pose.position.y, pose.position.x, math.pi / 2 - yaw_enu)
+
+
+#: diagnostic_msgs/DiagnosticStatus levels
+DIAG_OK, DIAG_WARN, DIAG_ERROR, DIAG_STALE = 0, 1, 2, 3
+
+
+def _diag_value(v: Any) -> str:
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    if isinstance(v, dict | list):
+        return json.dumps(v, separators=(",", ":"))
+    return str(v)
+
+
+def diagnostics_msg(status: Mapping[str, Any], t_ns: int) -> Any:
+    """A component's status JSON as diagnostic_msgs/DiagnosticArray: one DiagnosticStatus per
+    gateway device, of the gateway's status or a device's own (name
+    ``auvgw/<vehicle>/<device>``, hardware_id its port; OK, WARN when it has bad frames or decode
+    errors, ERROR when disconnected, STALE when
+    silent past its ``stale_after_s``) or one for a stage (``auvgw/<vehicle>/<component>``, OK;
+    STALE once stopped), with every scalar counter as a key-value."""
+    kv = _t("diagnostic_msgs/msg/KeyValue")
+    ds = _t("diagnostic_msgs/msg/DiagnosticStatus")
+    vehicle = str(status.get("vehicle", ""))
+    out = []
+    devices = status.get("devices")
+    if devices is None and "device" in status:  # one device's own status key
+        devices = {str(status["device"]): status}
+    if isinstance(devices, Mapping):
+        for name, d in sorted(devices.items()):
+            if not isinstance(d, Mapping):
+                continue
+            if not d.get("connected", False) and not d.get("ended", False):
+                level, text = DIAG_ERROR, f"disconnected: {d.get('last_error') or 'no data'}"
+            elif d.get("stale", False):
+                level, text = DIAG_STALE, f"silent for {d.get('silent_s')} s"
+            elif d.get("bad_frames", 0) or d.get("decode_errors", 0):
+                level, text = DIAG_WARN, (f"{d.get('bad_frames', 0)} bad frames, "
+                                          f"{d.get('decode_errors', 0)} decode errors")  # fmt: skip
+            else:
+                level, text = DIAG_OK, f"{d.get('rate_hz', 0)} Hz"
+            values = [kv(key=k, value=_diag_value(v)) for k, v in d.items()
+                      if isinstance(v, int | float | str | bool) and v is not None]  # fmt: skip
+            out.append(ds(level=level, name=f"auvgw/{vehicle}/{name}", message=text,
+                          hardware_id=str(d.get("port", name)), values=values))  # fmt: skip
+    else:
+        comp = str(status.get("component", "stage"))
+        stopped = bool(status.get("stopped", False))
+        flat: dict[str, Any] = {}
+        for k, v in status.items():
+            if isinstance(v, Mapping):
+                flat.update({f"{k}.{kk}": vv for kk, vv in v.items()})
+            else:
+                flat[k] = v
+        values = [kv(key=k, value=_diag_value(v)) for k, v in flat.items()
+                  if isinstance(v, int | float | str | bool)]  # fmt: skip
+        out.append(ds(level=DIAG_STALE if stopped else DIAG_OK,
+                      name=f"auvgw/{vehicle}/{comp}", message="stopped" if stopped else "running",
+                      hardware_id=comp, values=values))  # fmt: skip
+    return _t("diagnostic_msgs/msg/DiagnosticArray")(header=_header(t_ns, ""), status=out)
+
+
 # -- dispatch --------------------------------------------------------------------------------------
 
 # message types by the device registry's roles (auvgw.drivers.registry)
@@ -430,7 +630,8 @@ def to_ros(
             )
         ]
     if section == "nav" and _type_name(msg) == "Odometry":
-        return [RosMessage(f"nav/{source}", "nav_msgs/msg/Odometry", odometry_msg(msg, t_ns))]
+        return [RosMessage(f"nav/{source}", "nav_msgs/msg/Odometry", odometry_msg(msg, t_ns)),
+                RosMessage("/tf", TF_TYPE, tf_msg([odom_tf(msg, t_ns)]))]  # fmt: skip
     if section == "slam" and isinstance(msg, Mapping):
         if source.endswith("/pose") and "x" in msg:
             return [RosMessage(f"slam/{source}", "geometry_msgs/msg/PoseWithCovarianceStamped",

@@ -350,6 +350,8 @@ class AllPhase:
     sim_rc: int
     #: per port: [raw frames, raw bytes, decoded envelopes, envelope bytes] seen on the bus
     sizes: dict[str, list[int]]
+    #: the gateway ran its [ros2] bridge (ROS 2 messages on rmw_zenoh keys)
+    ros2: bool = False
 
 
 def all_devices_scenario(path: Path, t_open: float, t_close: float) -> Path:
@@ -381,14 +383,16 @@ def all_devices_phase(
     seconds: float,
     warm_s: float = 8.0,
     tail_s: float = 6.0,
+    ros2: bool = False,
 ) -> AllPhase:
-    """Every emulated device at ``speed`` for ``seconds`` of wall time, read by ``auvgw run``."""
+    """Every emulated device at ``speed`` for ``seconds`` of wall time, read by ``auvgw run``
+    (``ros2``: with its ``[ros2]`` bridge on)."""
     from auvgw.drivers.can_codec import DbcCodec
     from auvgw.ground.paths import config_file
     from auvgw.sim_devices.runner import gateway_toml
     from auvgw.subscribe import GatewaySubscriber
 
-    out = tmp / f"all-{speed:g}x"
+    out = tmp / f"all-{speed:g}x{'-ros2' if ros2 else ''}"
     out.mkdir()
     t_open, t_close = warm_s * speed, (warm_s + seconds) * speed
     scn = all_devices_scenario(tmp / f"harbour-{speed:g}x.json", t_open, t_close)
@@ -415,6 +419,8 @@ def all_devices_phase(
     ep = free_endpoint()
     cfg["status_period_s"] = 1.0
     cfg["bus"] = {"listen": [ep]}
+    if ros2:
+        cfg["ros2"] = {"enabled": True}
     (out / "gw.toml").write_text(gateway_toml(cfg, "benchmark: all five emulated devices"))
     gw_log = open(out / "gateway.log", "wb")  # noqa: SIM115 - closed below
     gw = subprocess.Popen(
@@ -485,7 +491,7 @@ def all_devices_phase(
         rows.append(AllRow(p, sent, int(st.get("frames", -1)), int(st.get("bad_frames", 0)),
                            dropped))  # fmt: skip
     cpu = (c1 - c0) / CLK_TCK / (m1 - m0) * 100
-    return AllPhase(speed, seconds, cpu, rows, sim_rc, sizes)
+    return AllPhase(speed, seconds, cpu, rows, sim_rc, sizes, ros2)
 
 
 def print_all_devices(phases: list[AllPhase]) -> None:
@@ -513,9 +519,15 @@ def print_all_devices(phases: list[AllPhase]) -> None:
     for ph in phases:
         lost = sum(r.lost for r in ph.rows)
         print(
-            f"at {ph.speed:g}x ({ph.seconds:g} s sending): gateway CPU {ph.cpu_pct:.1f} % of a "
-            f"core (target < 35 % at 10x); frames lost {lost} (bar: 0); sim exit {ph.sim_rc}"
+            f"at {ph.speed:g}x{' with [ros2]' if ph.ros2 else ''} ({ph.seconds:g} s sending): "
+            f"gateway CPU {ph.cpu_pct:.1f} % of a core (target < 35 % at 10x); frames lost "
+            f"{lost} (bar: 0); sim exit {ph.sim_rc}"
         )
+    plain = {ph.speed: ph.cpu_pct for ph in phases if not ph.ros2}
+    for ph in phases:
+        if ph.ros2 and ph.speed in plain:
+            print(f"[ros2] bridge at {ph.speed:g}x: {ph.cpu_pct / plain[ph.speed]:.2f}x the "
+                  "plain gateway's CPU in the same run (bar: at most 1.10x)")
 
 
 @dataclass
@@ -725,9 +737,13 @@ def ins_can_run(args: argparse.Namespace) -> None:
 def all_devices_run(args: argparse.Namespace) -> list[AllPhase]:
     seconds = 10.0 if args.quick else args.all_seconds
     with tempfile.TemporaryDirectory(prefix="bench-gw-all-") as tmp:
+        speeds = (args.all_factor,) if args.ros2 else (1.0, args.all_factor)
+        # with --ros2: plain and bridged runs interleaved, so the machine's drift hits both
         return [
-            all_devices_phase(Path(tmp), k, seconds, warm_s=args.all_warm)
-            for k in (1.0, args.all_factor)
+            all_devices_phase(Path(tmp), k, seconds, warm_s=args.all_warm, ros2=r)
+            for _ in range(args.ros2 or 1)
+            for k in speeds
+            for r in ((False, True) if args.ros2 else (False,))
         ]
 
 
@@ -825,6 +841,9 @@ def main() -> int:
         "port (raise it on a loaded machine: frames sent before it connects count as lost)",
     )
     ap.add_argument("--only-all", action="store_true", help="only the all-devices run")
+    ap.add_argument("--ros2", type=int, default=0, metavar="N",
+                    help="all-devices run: N pairs at --all-factor, without and with the "
+                         "gateway's [ros2] bridge")  # fmt: skip
     ap.add_argument(
         "--can-seconds",
         type=float,

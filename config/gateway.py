@@ -43,6 +43,7 @@ from pydantic import (
 )
 
 from auvgw.config.bus import BusConfig
+from auvgw.config.ros2 import FoxgloveConfig, Ros2Config
 from auvgw.config.transport import (
     KINDS,
     CanTransportConfig,
@@ -213,6 +214,9 @@ class GatewayConfig(_Model):
     clock: ClockConfig = Field(default_factory=ClockConfig)
     status_period_s: float = Field(1.0, gt=0, le=3600, description="status publication period, s")
     devices: dict[str, DeviceConfig] = Field(min_length=1)
+    ros2: Ros2Config = Field(default_factory=Ros2Config, description="the ROS 2 bridge")
+    foxglove: FoxgloveConfig = Field(default_factory=FoxgloveConfig,
+                                     description="the Foxglove WebSocket server")  # fmt: skip
     source: str | None = Field(None, exclude=True)
 
     @field_validator("vehicle")

@@ -111,8 +111,11 @@ WANTED = {
     "/auv1/sensor/msis/returns": "sensor_msgs/msg/PointCloud2",
     "/auv1/sensor/magnetometer/magnetic_field": "sensor_msgs/msg/MagneticField",
     "/auv1/nav/odometry": "nav_msgs/msg/Odometry",
-    "/auv1/slam/vb-aufastslam/pose": "geometry_msgs/msg/PoseWithCovarianceStamped",
+    "/auv1/slam/vb_aufastslam/pose": "geometry_msgs/msg/PoseWithCovarianceStamped",
     "/auv1/raw/dvl": "auvgw_msgs/msg/RawFrame",
+    "/tf": "tf2_msgs/msg/TFMessage",
+    "/tf_static": "tf2_msgs/msg/TFMessage",
+    "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
 }
 
 
@@ -223,6 +226,28 @@ def _check_ros2_readers(path: Path, envelopes: list[tuple[str, bytes]]) -> None:
     with open(path, "rb") as f:
         reader = make_reader(f, decoder_factories=[DecoderFactory()])
         recorded = [(ch.topic, ros) for _s, ch, _m, ros in reader.iter_decoded_messages()]
+    # /tf and /diagnostics decode with Foxglove's ROS 2 decoder too (a TFMessage has no header)
+    tf_pairs = {(t.header.frame_id, t.child_frame_id)
+                for topic, r in recorded if topic == "/tf" for t in r.transforms}  # fmt: skip
+    assert ("odom", "base_link") in tf_pairs, tf_pairs
+    diag = {st.name for topic, r in recorded if topic == "/diagnostics" for st in r.status}
+    assert {"auvgw/auv1/ins", "auvgw/auv1/dvl", "auvgw/auv1/fusion"} <= diag, diag
+    # every frame a header names is reachable from map through /tf and /tf_static
+    tf_pairs |= {(t.header.frame_id, t.child_frame_id)
+                 for topic, r in recorded if topic == "/tf_static" for t in r.transforms}
+    assert ("map", "odom") in tf_pairs, tf_pairs  # from the SLAM poses
+    reach, grew = {"map"}, True
+    while grew:
+        new = {c for p, c in tf_pairs if p in reach} - reach
+        reach |= new
+        grew = bool(new)
+    used = {r.header.frame_id for _t, r in recorded if hasattr(r, "header")} - {""}
+    assert used <= reach, (used - reach, tf_pairs)
+    assert {"ins", "dvl", "multibeam", "msis"} <= used
+    # the shipped Foxglove layout names only topics the recording has
+    topics = {t for t, _r in recorded} | {"/tf", "/tf_static", "/diagnostics"}
+    assert _layout_topics() <= topics, _layout_topics() - topics
+    recorded = [(t, r) for t, r in recorded if hasattr(r, "header") and t.count("/") >= 3]
     per_stamp = Counter((t, _stamp(r.header)) for t, r in recorded)
     for topic, ros in recorded:
         parts = topic.split("/")  # /auv1/<section>/<device or stream>/...
@@ -271,3 +296,17 @@ def test_run_listen_option_replaces_the_configuration_endpoints(procs, tmp_path:
         st = wait_until(lambda: me.status("dvl"), timeout=60, what="the gateway's status")
     assert st["connected"] is False  # the device is absent; the gateway answers on --listen
     assert f"listen {ep}" in gw.stderr()
+
+
+def _layout_topics() -> set[str]:
+    """Every topic config/foxglove-layout.json names (3D panel topics, plot paths, panels)."""
+    import json
+
+    layout = json.loads((REPO / "config" / "foxglove-layout.json").read_text())
+    out: set[str] = set()
+    for panel in layout["configById"].values():
+        out |= set(panel.get("topics", {}))
+        out |= {p["value"].split(".", 1)[0] for p in panel.get("paths", [])}
+        out |= {panel[k].split(".", 1)[0] for k in ("topicPath", "topicToRender") if k in panel}
+    assert len(out) >= 8, out
+    return out

@@ -37,8 +37,12 @@ def _roundtrip(m: ros2.RosMessage):
 
 
 def test_heading_east_at_one_metre_per_second_is_plus_x_in_enu():
-    (m,) = ros2.to_ros("nav", "odometry", _odometry(math.pi / 2), t_ns=1_500_000_000)
+    m, tf = ros2.to_ros("nav", "odometry", _odometry(math.pi / 2), t_ns=1_500_000_000)
     assert (m.topic, m.type) == ("nav/odometry", "nav_msgs/msg/Odometry")
+    assert (tf.topic, tf.type) == ("/tf", ros2.TF_TYPE)  # and odom -> base_link, the same pose
+    (t,) = _roundtrip(tf).transforms
+    assert (t.header.frame_id, t.child_frame_id) == ("odom", "base_link")
+    assert (t.transform.translation.x, t.transform.translation.y) == pytest.approx((20.0, 10.0))
     o = _roundtrip(m)
     assert (o.header.frame_id, o.child_frame_id) == ("odom", "base_link")
     assert (o.header.stamp.sec, o.header.stamp.nanosec) == (1, 500_000_000)

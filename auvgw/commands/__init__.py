@@ -41,4 +41,9 @@ COMMANDS: dict[str, tuple[str, str]] = {
     ),
     "slam": ("auvgw.commands.slam", "SLAM tools: evaluation, and the SLAM stage (slam run)"),
     "slam-run": ("auvgw.commands.slam_run", "run the SLAM stage (same as 'slam run')"),
+    "ros2": (
+        "auvgw.commands.ros2",
+        "the vehicle on ROS 2 (rmw_zenoh): bridge, list the graph, echo a topic",
+    ),
+    "foxglove": ("auvgw.commands.foxglove", "serve the bus to the Foxglove app (WebSocket)"),
 }

@@ -142,14 +142,37 @@ def serve(settings: RunSettings, stop: threading.Event | None = None) -> int:
             sections=("nav", "slam", "truth", "status"),
         )
         gateway.listeners.subscribe(viz.on_message)
+    # on the gateway's session, from the bus like any stage (never on the raw frames' path)
+    bridges: list[Any] = []
+    if cfg.ros2.enabled or cfg.foxglove.enabled:
+        from auvgw.stages.ros2 import Ros2Bridge, Ros2BridgeConfig
+
+        ros_cfg = Ros2BridgeConfig(vehicle=cfg.vehicle, **cfg.ros2.model_dump())
+        # the sensors come from the gateway's listeners (no envelope round trip), the rest
+        # (odometry, SLAM, status) from the bus
+        from_bus = ("nav", "slam", "status")
+        if cfg.ros2.enabled:
+            bridges.append(Ros2Bridge(ros_cfg, gateway.session, sections=from_bus))
+        if cfg.foxglove.enabled:
+            from auvgw.stages.foxglove import FoxgloveStage
+
+            bridges.append(FoxgloveStage(ros_cfg, gateway.session, host=cfg.foxglove.host,
+                                         port=cfg.foxglove.port, sections=from_bus))  # fmt: skip
     with handle_stop_signals(stop):
         try:
+            for b in bridges:  # before the devices: no message reaches a stopped worker
+                b.start()
+                gateway.listeners.subscribe(b.post)
+                if hasattr(b, "port"):
+                    log.info("foxglove: ws://%s:%d", b.host, b.port)
             gateway.start()
             while not stop.wait(0.2):
                 if settings.exit_when_done and gateway.finished.is_set():
                     log.info("every device's source has ended")
                     break
         finally:
+            for b in bridges:
+                b.stop()
             if viz is not None:
                 viz.close()
             gateway.stop()

@@ -1,0 +1,87 @@
+"""The bus served to the Foxglove app, live, over the Foxglove WebSocket protocol.
+
+:class:`FoxgloveStage` is a :class:`~auvgw.stages.ros2.RosStage` whose sink is a Foxglove
+WebSocket server (the ``foxglove-sdk`` package: its server speaks the protocol, advertises
+channels, answers subscriptions): one channel per ROS 2 topic, with the same schemas as the MCAP
+recordings (``ros2msg`` definitions, ``cdr`` messages), so the Foxglove app decodes them with its
+ROS 2 decoder and ``config/foxglove-layout.json`` opens the same views on a file and on the live
+vehicle. Messages are logged with their stamps (``log_time``: the gateway's receive time,
+vehicle-paced under a ``[clock]``).
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any, ClassVar
+
+import zenoh
+
+from auvgw import ros2
+from auvgw.stages.ros2 import Ros2BridgeConfig, RosStage
+
+__all__ = ["FoxgloveStage"]
+
+log = logging.getLogger(__name__)
+
+
+class FoxgloveStage(RosStage):
+    """A Foxglove WebSocket server on ``host:port`` (port 0: any free one, see :attr:`port`)
+    fed from the bus (``session``) or in-process (:meth:`handle_sample`)."""
+
+    name: ClassVar[str] = "foxglove"
+    status_schema: ClassVar[str | None] = "FoxgloveStatus"
+
+    def __init__(self, config: Ros2BridgeConfig, session: zenoh.Session | None = None, *,
+                 host: str = "127.0.0.1", port: int = 8765, **kw: Any) -> None:  # fmt: skip
+        import foxglove
+
+        super().__init__(config, session, **kw)
+        self._fg = foxglove
+        self._context = foxglove.Context()
+        self._channels: dict[str, Any] = {}
+        self._server: Any = None
+        self.host, self.port = host, port
+
+    def status_fields(self) -> dict[str, Any]:
+        return {"host": self.host, "port": self.port, "topics": sorted(self._channels)}
+
+    def put(self, m: ros2.RosMessage, t_ns: int) -> None:
+        """Log ``m`` on its topic's channel (declared, with its ``ros2msg`` schema, the first
+        time)."""
+        topic = self.topic(m)
+        ch = self._channels.get(topic)
+        if ch is None:
+            schema = self._fg.Schema(name=m.type, encoding="ros2msg",
+                                     data=ros2.msgdef(m.type).encode())  # fmt: skip
+            ch = self._channels[topic] = self._fg.Channel(
+                topic, schema=schema, message_encoding="cdr", context=self._context
+            )
+        ch.log(ros2.serialize(m), log_time=max(0, t_ns))
+        self.count(m, topic)
+
+    def start(self, subscribe: bool = True) -> None:
+        """The server first (it takes clients from then on), then the stage."""
+        self.start_server()
+        super().start(subscribe)
+        self.publish_static(_now())
+
+    def start_server(self) -> None:
+        """Start the WebSocket server (idempotent); :attr:`port` is then the bound port."""
+        if self._server is None:
+            self._server = self._fg.start_server(name=f"auvgw {self.keys.vehicle}",
+                                                 host=self.host, port=self.port,
+                                                 context=self._context)  # fmt: skip
+            self.port = int(self._server.port)
+
+    def stop(self, flush: bool = True, timeout_s: float = 5.0) -> None:
+        """Stop the stage, then the server."""
+        super().stop(flush, timeout_s)
+        if self._server is not None:
+            self._server.stop()
+            self._server = None
+
+
+def _now() -> int:
+    import time
+
+    return time.time_ns()

@@ -1,0 +1,265 @@
+"""The vehicle on ROS 2, live: the bus republished the way ``rmw_zenoh_cpp`` expects it.
+
+:class:`Ros2Bridge` subscribes to the vehicle's decoded sensors, odometry, SLAM outputs and status
+(``auv/<v>/{sensor,nav,slam,status}/**``, never the raw frames: it is off their path), turns each
+sample into its ROS 2 messages (:func:`auvgw.recording.sample_to_ros`, the same mapping as the
+MCAP recordings) and publishes them as a ROS 2 node would on ``rmw_zenoh_cpp``
+(:mod:`auvgw.rmw_zenoh`): CDR on ``<domain>/<topic>/<DDS type>/<RIHS01 hash>`` with the
+attachment (sequence number, source time, GID), and the liveliness tokens of the node and of
+each publisher, so ``ros2 node list``, ``ros2 topic list / echo`` and ``ros2 bag record`` on
+rmw_zenoh see them. Beside the vehicle's topics (``/<namespace>/<vehicle>/sensor/ins/imu``, ...):
+
+* ``/tf``: ``odom`` -> ``base_link`` from every odometry sample, ``map`` -> ``odom`` from every
+  SLAM pose (against the latest odometry at or before its time);
+* ``/tf_static``: ``base_link`` -> each sensor's frame from the mounts in the configuration,
+  published at start and again every ``static_period_s`` (rmw_zenoh's transient-local cache is a
+  Zenoh publication cache this bridge does not keep: a late subscriber waits at most one period);
+* ``/diagnostics``: every component's status as a ``diagnostic_msgs/DiagnosticArray``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import zenoh
+
+from auvgw import ros2
+from auvgw.config.ros2 import Mount, Ros2Config
+from auvgw.rmw_zenoh import (
+    DEFAULT_QOS,
+    SENSOR_QOS,
+    STATIC_QOS,
+    Qos,
+    data_key,
+    entity_gid,
+    node_token,
+    pack_attachment,
+    topic_token,
+)
+from auvgw.stages.base import DROP, BusCounters, Stage, StageConfig
+
+__all__ = ["Mount", "Ros2Bridge", "Ros2BridgeConfig", "RosStage"]
+
+log = logging.getLogger(__name__)
+
+class Ros2BridgeConfig(StageConfig, Ros2Config):
+    """The bridge's settings: the gateway's ``[ros2]`` table (:class:`~auvgw.config.ros2.
+    Ros2Config`: domain, namespace, node, mounts) and the stage's (vehicle, status period)."""
+
+
+@dataclass
+class Ros2Counters(BusCounters):
+    """``received``: bus samples taken; ``published``: ROS 2 messages put; ``topics``: ROS 2
+    publishers declared; ``tf``: transforms put on ``/tf``."""
+
+    published: int = 0
+    topics: int = 0
+    tf: int = 0
+
+
+class _Endpoint:
+    """One ROS 2 publisher: its Zenoh publisher, liveliness token, GID and sequence."""
+
+    __slots__ = ("gid", "pub", "seq", "token")
+
+    def __init__(self, pub: zenoh.Publisher, token: Any, gid: bytes) -> None:
+        self.pub, self.token, self.gid, self.seq = pub, token, gid, 0
+
+
+class RosStage(Stage):
+    """The bus as ROS 2 messages: every decoded sensor, odometry, SLAM output and status sample
+    turned into its ROS 2 messages (the recordings' mapping) plus ``/tf`` (``map`` -> ``odom``
+    from SLAM poses, besides the mapping's ``odom`` -> ``base_link``) and ``/tf_static`` (the
+    mounts, at start and every ``static_period_s``), each handed to :meth:`put`, which a
+    subclass gives: :class:`Ros2Bridge` (rmw_zenoh), :class:`~auvgw.stages.foxglove.
+    FoxgloveStage` (the Foxglove WebSocket protocol)."""
+
+    #: every section of the bus the stage can take
+    SECTIONS: ClassVar[tuple[str, ...]] = ("sensor", "nav", "slam", "status")
+
+    def __init__(self, config: Ros2BridgeConfig, session: zenoh.Session | None = None, *,
+                 sections: tuple[str, ...] = SECTIONS, **kw: Any) -> None:  # fmt: skip
+        super().__init__(config, Ros2Counters(), session, **kw)
+        self.config = config
+        #: the sections taken from the bus (in the gateway, the sensors come in-process:
+        #: :meth:`post`, from the gateway's listeners, no envelope round trip)
+        self.sections = sections
+        #: s a batch of posted messages waits for more (:meth:`post`)
+        self.batch_s = 0.005
+        self._batch: deque[tuple[str, int, Any]] = deque()
+        self._batch_queued = False
+        self.stats: Ros2Counters = self.stats  # type: ignore[assignment]
+        self._static_lock = threading.Lock()
+        self._tf = ros2.TfTracker()  # map -> odom
+
+    def input_keys(self) -> list[str]:
+        return [self.keys.all(f"{s}/**") for s in self.sections]
+
+    def post(self, device: str, t_recv_ns: int, message: Any) -> None:
+        """:meth:`feed` on the worker, in batches: the first message of a batch queues one
+        call that waits ``batch_s`` and takes every message posted meanwhile (the gateway's
+        listener at 1000 messages/s wakes the worker 200 times a second, not 1000: a wake costs
+        more than a message's conversion)."""
+        self._batch.append((device, t_recv_ns, message))
+        if not self._batch_queued:
+            self._batch_queued = True
+            self._post(self._take_batch, ())
+
+    def _take_batch(self) -> None:
+        time.sleep(self.batch_s)
+        self._batch_queued = False  # before taking: a post from now on queues the next batch
+        while self._batch:
+            self.feed(*self._batch.popleft())
+
+    def feed(self, device: str, t_recv_ns: int, message: Any) -> object:
+        """One decoded sensor message in-process (the gateway's listener, via :meth:`post`)."""
+        from auvgw.decoding import message_kind
+
+        msgs = ros2.to_ros("sensor", device, message, t_recv_ns, kind=message_kind(message))
+        for m in msgs:
+            self.put(m, t_recv_ns)
+        with self._lock:
+            self.stats.received += 1
+        return None
+
+    def put(self, m: ros2.RosMessage, t_ns: int) -> None:
+        """Send ROS 2 message ``m`` stamped ``t_ns`` (the subclass's sink)."""
+        raise NotImplementedError
+
+    def topic(self, m: ros2.RosMessage) -> str:
+        """The fully qualified topic of ``m`` (:func:`auvgw.ros2.ros_topic` under the namespace)."""
+        return ros2.ros_topic(self.config.namespace, self.keys.vehicle, m.topic)
+
+    # -- bus side ---------------------------------------------------------------------------
+    def handle_sample(self, key: str, payload: bytes, t_arrival_ns: int | None = None) -> object:
+        """One bus sample as its ROS 2 messages (a sample with no ROS form is counted as a bad
+        payload, never raised)."""
+        from auvgw.recording import sample_to_ros
+
+        base = self.keys.base + "/"
+        if not key.startswith(base):
+            return None
+        section, _, rest = key[len(base):].partition("/")
+        try:
+            msgs, t_ns, _ = sample_to_ros(section, rest, payload, t_arrival_ns or 0)
+            msgs = list(msgs) + self._tf.feed(msgs, t_ns)
+            for m in msgs:
+                self.put(m, t_ns)
+        except Exception as exc:  # one sample must never stop the bridge
+            self._bad_payload(key, exc)
+            return None
+        with self._lock:
+            self.stats.received += 1
+        return None
+
+    def publish_static(self, t_ns: int) -> None:
+        """``/tf_static`` from the configured mounts (nothing without mounts)."""
+        if self.config.mounts:
+            with self._static_lock:
+                msg = ros2.static_tf(self.config.mounts, t_ns)
+                self.put(ros2.RosMessage("/tf_static", ros2.TF_TYPE, msg), t_ns)
+
+    def publish_status(self) -> None:
+        """The status, and ``/tf_static`` again (a late subscriber's wait is one period)."""
+        super().publish_status()
+        self.publish_static(time.time_ns())
+
+    def count(self, m: ros2.RosMessage, topic: str) -> None:
+        """Count one message put on ``topic``."""
+        with self._lock:
+            self.stats.published += 1
+            if m.type == ros2.TF_TYPE and topic == "/tf":
+                self.stats.tf += len(m.msg.transforms)
+
+
+class Ros2Bridge(RosStage):
+    """The ROS 2 face of the bus on rmw_zenoh (module docstring). ``session``: the bus session
+    (the one the ROS 2 keys are published on too); in-process (no session) the ROS 2 messages go
+    to ``on_publish(data key, CDR, t_ns)``."""
+
+    name: ClassVar[str] = "ros2"
+    status_schema: ClassVar[str | None] = "Ros2BridgeStatus"
+
+    def __init__(self, config: Ros2BridgeConfig, session: zenoh.Session | None = None,
+                 **kw: Any) -> None:  # fmt: skip
+        super().__init__(config, session, **kw)
+        self._endpoints: dict[str, _Endpoint] = {}
+        self._keys: dict[tuple[str, str], str] = {}
+        self._session_id = str(session.info.zid()) if session is not None else "0" * 32
+        self._next_entity = 1
+        self._node_token: Any = None
+
+    def status_fields(self) -> dict[str, Any]:
+        return {"domain_id": self.config.domain_id, "namespace": self.config.namespace,
+                "node": self.config.node, "ros_topics": sorted(self._endpoints)}  # fmt: skip
+
+    def put(self, m: ros2.RosMessage, t_ns: int) -> None:
+        """Publish ROS 2 message ``m`` (stamp ``t_ns``) on its topic, declaring the publisher and
+        its liveliness token the first time."""
+        topic = self.topic(m)
+        cdr = ros2.serialize(m)
+        key = self._keys.get((topic, m.type))
+        if key is None:
+            key = self._keys[(topic, m.type)] = data_key(self.config.domain_id, topic, m.type)
+        ep = self._endpoints.get(key)
+        if ep is None and self.session is not None:
+            ep = self._declare(topic, m.type, key)
+        if ep is not None:
+            ep.seq += 1
+            try:
+                ep.pub.put(cdr, attachment=pack_attachment(ep.seq, t_ns, ep.gid))
+            except zenoh.ZError as exc:
+                log.warning("ros2: cannot publish %s: %s", topic, exc)
+        self.count(m, topic)
+        if self.on_publish is not None:
+            self.on_publish(key, cdr, t_ns)
+
+    def _declare(self, topic: str, ros_type: str, key: str) -> _Endpoint:
+        assert self.session is not None
+        qos = _qos(topic)
+        token_key = topic_token(self.config.domain_id, self._session_id, 0, self._next_entity,
+                                "MP", self.config.namespace, self.config.node, topic,
+                                ros_type, qos)  # fmt: skip
+        self._next_entity += 1
+        pub = self.session.declare_publisher(key, congestion_control=DROP)
+        token = self.session.liveliness().declare_token(token_key)
+        ep = self._endpoints[key] = _Endpoint(pub, token, entity_gid(token_key))
+        with self._lock:
+            self.stats.topics += 1
+        return ep
+
+
+    def start(self, subscribe: bool = True) -> None:
+        """The node's token first (a ROS graph shows the node before its publishers), then the
+        stage (subscriptions, status, liveliness) and ``/tf_static``."""
+        if self.session is not None and self._node_token is None:
+            self._node_token = self.session.liveliness().declare_token(
+                node_token(self.config.domain_id, self._session_id, 0, self.config.namespace,
+                           self.config.node))  # fmt: skip
+        super().start(subscribe)
+        self.publish_static(time.time_ns())
+
+    def stop(self, flush: bool = True, timeout_s: float = 5.0) -> None:
+        """Stop the stage, then withdraw every publisher and token (the node's last)."""
+        super().stop(flush, timeout_s)
+        for ep in self._endpoints.values():
+            for d in (ep.token, ep.pub):
+                with contextlib.suppress(zenoh.ZError):
+                    d.undeclare()
+        self._endpoints.clear()
+        if self._node_token is not None:
+            with contextlib.suppress(zenoh.ZError):
+                self._node_token.undeclare()
+            self._node_token = None
+
+
+def _qos(topic: str) -> Qos:
+    if topic == "/tf_static":
+        return STATIC_QOS
+    return SENSOR_QOS if "/sensor/" in topic else DEFAULT_QOS
