@@ -196,6 +196,7 @@ def test_paired_change_by_hand() -> None:
     assert c["change_se"] == pytest.approx(np.sqrt(5 / 3) / 2)
     assert (c["worse"], c["runs"]) == (2, 4)
     assert c["ratio"] == pytest.approx(3.0 / 2.5)
+    assert c["change_ci"][0] < c["change"] < c["change_ci"][1]
     with pytest.raises(ValueError, match="same runs"):
         paired_change(base, {"algorithm": "mb-slam", "rmse_runs": [1.0, 2.0]})
     with pytest.raises(ValueError, match="one algorithm"):

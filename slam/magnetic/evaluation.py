@@ -609,7 +609,8 @@ def format_table(title: str, rows: list[dict[str, Any]], markdown: bool = False)
 def paired_change(base: dict[str, Any], other: dict[str, Any]) -> dict[str, Any]:
     """Run-by-run change of one algorithm's path RMSE between two :func:`summarise` rows of one
     study (the same seeds, so run ``i`` of both saw the same noise): mean change ``other - base``
-    (m) with its standard error, how many runs got worse, and the ratio of the mean RMSEs."""
+    (m) with its standard error and 95 % bootstrap interval, how many runs got worse, and the
+    ratio of the mean RMSEs with its interval (:func:`paired_bootstrap`)."""
     a, b = np.asarray(base["rmse_runs"], float), np.asarray(other["rmse_runs"], float)
     if base["algorithm"] != other["algorithm"] or len(a) != len(b) or len(a) < 2:
         raise ValueError(
@@ -617,20 +618,26 @@ def paired_change(base: dict[str, Any], other: dict[str, Any]) -> dict[str, Any]
             f"{base['algorithm']} x {len(a)} and {other['algorithm']} x {len(b)}"
         )
     d = b - a
+    boot = paired_bootstrap(base, other)
     return {
         "algorithm": base["algorithm"], "runs": len(d), "base": float(a.mean()),
         "other": float(b.mean()), "change": float(d.mean()),
         "change_se": float(d.std(ddof=1) / math.sqrt(len(d))), "worse": int((d > 0).sum()),
         "ratio": float(b.mean() / a.mean()) if a.mean() > 0 else math.nan,
+        "change_ci": boot["diff_ci"], "ratio_ci": boot["ratio_ci"],
     }  # fmt: skip
 
 
 def format_changes(title: str, ch: list[dict[str, Any]], markdown: bool = False) -> str:
     """Text or markdown table of :func:`paired_change` rows."""
-    head = ["algorithm", "RMSE before m", "RMSE after m", "change m (s.e.)", "runs worse", "ratio"]
+    head = ["algorithm", "RMSE before m", "RMSE after m", "change m (s.e.) [95 % CI]",
+            "runs worse", "ratio [95 % CI]"]  # fmt: skip
     body = [[c["algorithm"], f"{c['base']:.2f}", f"{c['other']:.2f}",
-             f"{c['change']:+.2f} ({c['change_se']:.2f})", f"{c['worse']} of {c['runs']}",
-             f"{c['ratio']:.2f}"] for c in ch]  # fmt: skip
+             f"{c['change']:+.2f} ({c['change_se']:.2f}) "
+             f"[{c['change_ci'][0]:+.2f}, {c['change_ci'][1]:+.2f}]",
+             f"{c['worse']} of {c['runs']}",
+             f"{c['ratio']:.2f} [{c['ratio_ci'][0]:.2f}, {c['ratio_ci'][1]:.2f}]"]
+            for c in ch]  # fmt: skip
     return render_table(title, head, body, markdown)
 
 
