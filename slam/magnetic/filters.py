@@ -45,13 +45,43 @@ from auvgw.slam.landmark.association import KnownAssociation, NearestNeighbour
 from auvgw.slam.landmark.ekfslam import EKFSLAM
 from auvgw.slam.models import MotionModel, RangeBearing, wrap_angle
 
-__all__ = ["GATE_AUGMENT", "GATE_REJECT", "MAGNETIC_ALGORITHMS", "MagneticSLAM", "make_magnetic"]
+__all__ = [
+    "GATE_AUGMENT",
+    "GATE_REJECT",
+    "MAGNETIC_ALGORITHMS",
+    "FirstEstimateMotion",
+    "MagneticSLAM",
+    "make_magnetic",
+]
 
 #: Table 4 "maximum distance for association 8 m": Bailey's GATE_REJECT, squared Mahalanobis (A12)
 GATE_REJECT = 8.0
 #: Table 4 "augment distance 28 m": Bailey's GATE_AUGMENT, squared Mahalanobis (A13)
 GATE_AUGMENT = 28.0
 MAGNETIC_ALGORITHMS = ("amb-slam", "acoustic-only", "mb-slam", "mb-slam-fej", "dr")
+
+
+class FirstEstimateMotion(MotionModel):
+    """``model`` with the first-estimates pose Jacobian (Huang et al. 2008): ``F`` from the
+    displacement ``f(x, u) - first`` (``first`` the pose's prior, ``x`` its latest estimate),
+    ``G`` (the control Jacobian) at ``x``. Planar poses: any model that moves the position by an
+    increment rotated with the heading (bicycle, velocity)."""
+
+    def __init__(self, model: MotionModel, first: np.ndarray) -> None:
+        self.model = model
+        self.first = first
+        self.n_u = model.n_u
+
+    def f(self, x: np.ndarray, u: np.ndarray, dt: float, wrap: bool = True) -> np.ndarray:
+        return self.model.f(x, u, dt, wrap)
+
+    def jacobians(self, x: np.ndarray, u: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        _, fu = self.model.jacobians(x, u, dt)
+        new = self.model.f(x, u, dt)
+        fx = np.eye(3)
+        fx[0, 2] = -(new[1] - self.first[1])
+        fx[1, 2] = new[0] - self.first[0]
+        return fx, fu
 
 
 class MagneticSLAM(EKFSLAM):
@@ -90,26 +120,17 @@ class MagneticSLAM(EKFSLAM):
     def predict(self, u: np.ndarray, dt: float, rng: np.random.Generator) -> None:
         """Eqs. (19)-(20); with ``fej`` the pose Jacobian uses the first estimates (module
         docstring): ``F = [[1, 0, -dy], [0, 1, dx], [0, 0, 1]]``, ``(dx, dy) = p_k+1|k -
-        p_k|k-1``."""
+        p_k|k-1`` (the EKF's own propagation, with :class:`FirstEstimateMotion`'s Jacobian)."""
         if not self.fej:
             super().predict(u, dt, rng)
             return
-        u = np.asarray(u, dtype=float)
-        k = 3 + 2 * self.n_lm
-        _, fu = self.motion.jacobians(self.xs[:3], u, dt)
-        new = self.motion.f(self.xs[:3], u, dt)
-        fx = np.eye(3)
-        fx[0, 2] = -(new[1] - self.x_first[1])
-        fx[1, 2] = new[0] - self.x_first[0]
-        self.xs[:3] = new
-        self.x_first = new.copy()
-        p = self.p
-        qk = fu @ self.q @ fu.T
-        p[:3, :3] = fx @ p[:3, :3] @ fx.T + qk
-        self._qacc = fx @ self._qacc @ fx.T + qk
-        if k > 3:
-            p[:3, 3:k] = fx @ p[:3, 3:k]
-            p[3:k, :3] = p[:3, 3:k].T
+        model = self.motion
+        self.motion = FirstEstimateMotion(model, self.x_first)
+        try:
+            super().predict(u, dt, rng)
+        finally:
+            self.motion = model
+        self.x_first = self.xs[:3].copy()
 
     def _h_blocks(self, lm_idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Eq. (21) at the latest estimates; eq. (22) at the first estimates with ``fej``."""
