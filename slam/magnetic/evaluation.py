@@ -82,7 +82,6 @@ __all__ = [
     "prepare",
     "render_table",
     "run_filter",
-    "run_smoother",
     "run_study",
     "seed_split",
     "summarise",
@@ -90,19 +89,12 @@ __all__ = [
 
 DEFAULT_MODEL = Path(__file__).resolve().parents[2] / "config" / "magnetic_mlp.npz"
 GRAVITY = 9.81
-#: the filters and the offline batch smoother (:func:`run_smoother`)
-EVAL_ALGORITHMS = (*MAGNETIC_ALGORITHMS, "mb-smoother")
 #: base seeds from here up are held-out test seeds (module docstring); below: tuning seeds
 TEST_SEED_MIN = 1000
 #: the scenarios the parameters were chosen on (module docstring)
 TUNING_SCENARIOS = ("beacons_amb", "beacons_amb_v03", "beacons_dense")
 #: the paired comparisons reported when both algorithms ran: (baseline, other)
-PAIRS = (
-    ("acoustic-only", "amb-slam"),
-    ("mb-slam-fej", "amb-slam"),
-    ("mb-slam", "mb-slam-fej"),
-    ("mb-slam", "mb-smoother"),
-)
+PAIRS = (("acoustic-only", "amb-slam"), ("mb-slam-fej", "amb-slam"), ("mb-slam", "mb-slam-fej"))
 
 
 def seed_split(seed: int) -> str:
@@ -199,8 +191,7 @@ class Prepared:
     with covariances ``r[i] (m, 2, 2)`` (``None``: the sensor's ``R0``), the acoustic
     observations per scan (``nan`` when none), the scan index where the second lap starts, the
     true beacons scored, the chain seconds of the ``mlp`` track and, for ``association=known``,
-    each observation's true beacon ``ids[i] (m,)``; ``true_ids`` the same on the ``generic``
-    track whatever the association (the smoother's)."""
+    each observation's true beacon ``ids[i] (m,)``."""
 
     sim: SimRun
     z: list[np.ndarray]
@@ -212,7 +203,6 @@ class Prepared:
     beacons: np.ndarray
     chain_s: float = 0.0
     ids: list[np.ndarray] | None = None
-    true_ids: list[np.ndarray] | None = None
 
 
 @dataclass
@@ -404,8 +394,7 @@ def prepare(
     ar[:, 0, 0], ar[:, 1, 1] = sig_h**2, sb**2
     lap2 = int(np.searchsorted(sim.obs_step, lap_start))
     return Prepared(sim, z, r, az, ar, (ab.x, ab.y), lap2, bxy[keep], chain_s,
-                    obs_ids if v.association == "known" else None,
-                    obs_ids if v.track == "generic" else None)  # fmt: skip
+                    obs_ids if v.association == "known" else None)  # fmt: skip
 
 
 def run_filter(
@@ -459,44 +448,12 @@ def run_filter(
                        prep.beacons, nees, e3[:, 2] ** 2 / pcov[:, 2, 2])  # fmt: skip
 
 
-def run_smoother(prep: Prepared, v: Variant, run: int = 0) -> MagneticRun:
-    """``mb-smoother``: MB-SLAM's data (odometry and beacon sightings, no acoustic fix) solved
-    as one batch (:mod:`~auvgw.slam.magnetic.smoother`) with the true association (the
-    ``generic`` track); NEES at every 25th scan from its marginals."""
-    from auvgw.slam.magnetic.smoother import smooth
-
-    if prep.true_ids is None:
-        raise ValueError("mb-smoother needs the generic track (the true beacon of each sighting)")
-    if v.loop == "open":
-        raise ValueError("mb-smoother is a closed-loop batch: it has no open-loop variant")
-    sim = prep.sim
-    t0 = time.perf_counter()
-    res = smooth(sim.motion_model(), sim.controls, sim.q, sim.r, sim.dt, sim.truth[0],
-                 sim.obs_step, prep.z, prep.true_ids)  # fmt: skip
-    spent = time.perf_counter() - t0
-    truth = sim.truth[sim.obs_step]
-    est = res.poses[1:]
-    err = est[:, :2] - truth[:, :2]
-    k = res.nees_scans
-    e3 = np.concatenate([err[k], wrap_angle(est[k, 2:] - truth[k, 2:3])], axis=1)
-    nees = np.einsum("ni,ni->n", e3, np.linalg.solve(res.pose_cov, e3[:, :, None])[:, :, 0])
-    lm_err = math.nan
-    if len(res.beacons) and len(prep.beacons):
-        dist = np.hypot(*(res.beacons[:, None] - prep.beacons[None]).transpose(2, 0, 1))
-        lm_err = float(dist.min(axis=1).mean())
-    return MagneticRun("mb-smoother", run, sim.obs_step * sim.dt, err, est, truth, res.beacons,
-                       res.beacon_cov, lm_err, spent, prep.chain_s, sim.duration_s,
-                       sim.distance_m, prep.beacons, nees,
-                       e3[:, 2] ** 2 / res.pose_cov[:, 2, 2])  # fmt: skip
-
-
 def _one_run(
     args: tuple[Scenario, Variant, tuple[str, ...], int, int, int | None],
 ) -> list[MagneticRun]:
     scn, v, algorithms, seed, run, max_steps = args
     prep = prepare(scn, v, seed, run, max_steps)
-    return [run_smoother(prep, v, run) if a == "mb-smoother" else run_filter(a, prep, v, run)
-            for a in algorithms]  # fmt: skip
+    return [run_filter(a, prep, v, run) for a in algorithms]
 
 
 def run_study(
@@ -510,9 +467,9 @@ def run_study(
     progress: Callable[[int], None] | None = None,
 ) -> list[MagneticRun]:
     """``runs`` Monte Carlo runs of every algorithm (``progress(n_algorithms)`` after each)."""
-    bad = [a for a in algorithms if a not in EVAL_ALGORITHMS]
+    bad = [a for a in algorithms if a not in MAGNETIC_ALGORITHMS]
     if bad:
-        raise ValueError(f"unknown magnetic algorithm(s) {bad}; choose from {EVAL_ALGORITHMS}")
+        raise ValueError(f"unknown magnetic algorithm(s) {bad}; choose from {MAGNETIC_ALGORITHMS}")
     tasks = [(scn, v, algorithms, seed, i, max_steps) for i in range(runs)]
     out: list[MagneticRun] = []
     if jobs <= 1:
@@ -774,7 +731,7 @@ def run_cli(args: Any, command: str) -> int:
                         " (its filters are EKFs; association and the acoustic settings are "
                         "--variant keys)")  # fmt: skip
     algs = tuple(a.strip() for a in args.algorithms.split(",") if a.strip())
-    if any(a not in EVAL_ALGORITHMS for a in algs):
+    if any(a not in MAGNETIC_ALGORITHMS for a in algs):
         algs = MAGNETIC_ALGORITHMS if "fastslam1" in algs else algs
     try:
         scn = load_scenario(args.scenario)

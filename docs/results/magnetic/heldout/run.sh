@@ -16,3 +16,5 @@ $E --scenario config/scenarios/beacons_amb.json --variant $USBL --variant $LBL -
 $E --scenario config/scenarios/beacons_amb_insdvl.json --algorithms $ALL --out $OUT/insdvl
 $E --scenario config/scenarios/beacons_amb_insdvl.json --variant $USBL --variant $LBL --algorithms $ACO --out $OUT/insdvl_acoustic
 $E --scenario config/scenarios/beacons_dense.json --variant $USBL --variant $LBL --algorithms $ACO --out $OUT/dense_acoustic
+# added after the first part had run (same frozen parameters): the MLP track with INS + DVL navigation
+$E --scenario config/scenarios/beacons_amb_insdvl.json --variant track=mlp --algorithms $ALL --out $OUT/insdvl_mlp
