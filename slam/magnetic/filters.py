@@ -33,7 +33,7 @@ Two filters the paper does not have (issue 28, the fair baselines):
   estimate of each state: eq. (20)'s pose Jacobian with the displacement ``f(x_k|k) - x_k|k-1``
   (the propagated pose, not the updated one), and eq. (22)'s at the pose's prior at the scan and
   each beacon's estimate when it was added (eqs. 28-29). Innovations and the state still use the
-  latest estimates (Huang's eqs. 36-40). The planar pose Jacobian form holds for both motion
+  latest estimates (as in Huang et al.). The planar pose Jacobian form holds for both motion
   models (a pose increment rotated by the heading).
 """
 
