@@ -15,11 +15,16 @@ from auvgw.config.scenario import load_scenario
 from auvgw.ground.paths import config_file
 from auvgw.slam.magnetic.diagnose import diagnose_run, longest_gap
 from auvgw.slam.magnetic.evaluation import (
+    TEST_SEED_MIN,
+    MagneticRun,
     Variant,
+    nees_summary,
+    paired_bootstrap,
     paired_change,
     parse_variant,
     prepare,
     run_filter,
+    seed_split,
 )
 
 SCENARIO = Path(__file__).resolve().parents[1] / "config" / "scenarios" / "beacons_amb.json"
@@ -77,7 +82,7 @@ def test_first_half_keeps_only_the_first_half_beacons() -> None:
 def test_cli_pipeline_magnetic_writes_tables_and_plots(tmp_path: Path) -> None:
     out = tmp_path / "res"
     cmd = [sys.executable, "-m", "auvgw", "slam", "eval", "--pipeline", "magnetic",
-           "--scenario", str(SCENARIO), "--algorithms", "amb-slam,dr", "--runs", "2",
+           "--scenario", str(SCENARIO), "--algorithms", "amb-slam,acoustic-only,dr", "--runs", "2",
            "--max-steps", "1500", "--no-progress", "--out", str(out)]  # fmt: skip
     cmd += ["--variant", "default", "--variant", "density=first-half"]
     p = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
@@ -85,6 +90,8 @@ def test_cli_pipeline_magnetic_writes_tables_and_plots(tmp_path: Path) -> None:
     assert "amb-slam" in p.stdout and "dr" in p.stdout
     md = (out / "tables.md").read_text()
     assert "--pipeline magnetic" in md and "| amb-slam |" in md
+    assert "Seeds: **tuning** (base seed 0" in md and "(2 runs, tuning seeds)" in md
+    assert "| amb-slam vs acoustic-only |" in md and "pose NEES (3" in md
     res = json.loads((out / "results.json").read_text())
     rows = {r["algorithm"]: r for r in res["variants"][0]["rows"]}
     assert rows["amb-slam"]["runs"] == 2 and rows["amb-slam"]["rmse"] < rows["dr"]["rmse"]
@@ -99,6 +106,85 @@ def test_cli_pipeline_magnetic_writes_tables_and_plots(tmp_path: Path) -> None:
     dr = next(c for c in ch["rows"] if c["algorithm"] == "dr")
     assert dr["change"] == 0.0 and dr["worse"] == 0  # dead reckoning sees no beacon either way
     assert config_file("acoustic.toml").exists()
+    (pair,) = res["variants"][0]["pairs"]
+    aco = {r["algorithm"]: r for r in res["variants"][0]["rows"]}["acoustic-only"]
+    assert (pair["base"], pair["other"]) == ("acoustic-only", "amb-slam")
+    assert pair["diff"] == pytest.approx(rows["amb-slam"]["rmse"] - aco["rmse"], abs=2e-3)
+    assert 0.0 <= aco["nees_pose_in"] <= 1.0 and aco["n_landmarks"] == 0.0
+
+
+def test_cli_pipeline_magnetic_rejects_options_it_does_not_read() -> None:
+    """The recorded "Made by" line lists only options the pipeline reads: the others are
+    user errors (exit 2, one line)."""
+    for extra in (["--particles", "5"], ["--r0-scale", "2"], ["--association", "nn"]):
+        cmd = [sys.executable, "-m", "auvgw", "slam", "eval", "--pipeline", "magnetic",
+               "--scenario", str(SCENARIO), "--runs", "1", *extra]  # fmt: skip
+        p = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
+        assert p.returncode == 2 and f"does not read {extra[0]}" in p.stderr, p.stderr
+        assert len(p.stderr.strip().splitlines()) == 1
+
+
+def test_acoustic_only_without_fixes_is_dead_reckoning_and_the_acoustic_settings() -> None:
+    scn = load_scenario(SCENARIO)
+    v = Variant()
+    prep = prepare(scn, v, seed=1, run=0, max_steps=2000)
+    aco, dr = run_filter("acoustic-only", prep, v), run_filter("dr", prep, v)
+    assert aco.rmse[0] < 0.5 * dr.rmse[0] and len(aco.lm_mean) == 0
+    prep.acoustic_z[:] = np.nan  # no acoustic fix: the same filter only predicts
+    aco = run_filter("acoustic-only", prep, v)
+    np.testing.assert_array_equal(aco.est, dr.est)
+    np.testing.assert_array_equal(aco.nees_pose, dr.nees_pose)
+    # 1 Hz, 300 m range, 0.5 m sigma: the same draws, fixes only every 5th scan within range
+    u = parse_variant("acoustic_every=5,acoustic_max_range_m=300,acoustic_sigma_m=0.5")
+    pu, p0 = prepare(scn, u, seed=1, run=0, max_steps=2000), prepare(scn, v, 1, 0, 2000)
+    st = pu.sim.truth[pu.sim.obs_step]
+    hr = np.hypot(st[:, 0] - scn.acoustic_beacon.x, st[:, 1] - scn.acoustic_beacon.y)
+    has = ~np.isnan(pu.acoustic_z[:, 0])
+    idx = np.arange(len(st))
+    assert np.array_equal(has, (idx % 5 == 0) & (hr <= 300)) and 10 < has.sum() < 0.2 * len(st)
+    d_u = pu.acoustic_z[has, 0] - hr[has]
+    d_0 = p0.acoustic_z[has, 0] - hr[has]
+    np.testing.assert_allclose(d_u, 5 * d_0, rtol=0.02, atol=0.02)  # sigma 0.5 m, not 0.1
+    assert pu.acoustic_r[0, 0, 0] == pytest.approx(5**2 * p0.acoustic_r[0, 0, 0], rel=1e-3)
+    assert "acoustic every 5 scans" in u.label and "acoustic range 300 m" in u.label
+
+
+def _run(nees: np.ndarray, hdg: np.ndarray) -> MagneticRun:
+    z = np.zeros((len(nees), 2))
+    return MagneticRun("x", 0, z[:, 0], z, z, z, z, z, 0.0, 0.0, 0.0, 1.0, 1.0,
+                       nees_pose=nees, nees_heading=hdg)  # fmt: skip
+
+
+def test_nees_summary_on_consistent_and_overconfident_runs() -> None:
+    """Chi-square NEES (3 and 1 degrees of freedom) averages to 3 and 1, inside the 95 % band of
+    a 20-run average at about 95 % of the scans; ten times that is outside everywhere."""
+    from scipy.stats import chi2
+
+    rng = np.random.default_rng(3)
+    runs = [_run(rng.chisquare(3, 400), rng.chisquare(1, 400)) for _ in range(20)]
+    s = nees_summary(runs)
+    assert s["nees_pose"] == pytest.approx(3.0, abs=0.1)
+    assert s["nees_heading"] == pytest.approx(1.0, abs=0.05)
+    np.testing.assert_allclose(s["nees_pose_band"], chi2.ppf([0.025, 0.975], 60) / 20)
+    assert 0.9 < s["nees_pose_in"] <= 1.0 and 0.9 < s["nees_heading_in"] <= 1.0
+    bad = nees_summary([_run(10 * r.nees_pose, 10 * r.nees_heading) for r in runs])
+    assert bad["nees_pose_in"] == 0.0 and bad["nees_heading"] == pytest.approx(10.0, abs=0.5)
+
+
+def test_paired_bootstrap_and_seed_split() -> None:
+    base = {"algorithm": "acoustic-only", "rmse_runs": [2.0, 4.0, 6.0, 8.0, 10.0]}
+    other = {"algorithm": "amb-slam", "rmse_runs": [1.0, 2.0, 3.0, 4.0, 5.1]}
+    c = paired_bootstrap(base, other)
+    assert c["diff"] == pytest.approx(-2.98) and c["other_better"] == 5
+    assert c["ratio"] == pytest.approx(15.1 / 30.0)
+    lo, hi = c["ratio_ci"]
+    assert 0.5 <= lo <= c["ratio"] <= hi <= 0.52  # every resample has ratio ~0.5
+    assert c["diff_ci"][0] < c["diff"] < c["diff_ci"][1] < 0
+    assert paired_bootstrap(base, other) == c  # seeded
+    with pytest.raises(ValueError, match="same runs"):
+        paired_bootstrap(base, {"algorithm": "amb-slam", "rmse_runs": [1.0]})
+    assert seed_split(0) == seed_split(TEST_SEED_MIN - 1) == "tuning"
+    assert seed_split(TEST_SEED_MIN) == seed_split(1028) == "test"
 
 
 def test_paired_change_by_hand() -> None:
@@ -110,6 +196,7 @@ def test_paired_change_by_hand() -> None:
     assert c["change_se"] == pytest.approx(np.sqrt(5 / 3) / 2)
     assert (c["worse"], c["runs"]) == (2, 4)
     assert c["ratio"] == pytest.approx(3.0 / 2.5)
+    assert c["change_ci"][0] < c["change"] < c["change_ci"][1]
     with pytest.raises(ValueError, match="same runs"):
         paired_change(base, {"algorithm": "mb-slam", "rmse_runs": [1.0, 2.0]})
     with pytest.raises(ValueError, match="one algorithm"):

@@ -76,3 +76,70 @@ def test_gates_and_forgetting() -> None:
     assert f.n_lm == 0 and np.all(f.p[3:7] == 0)
     f.update_each(np.array([[5.0, 0.5]]))
     assert f.n_lm == 1
+
+
+def _pair(fej_first: bool = True) -> tuple[MagneticSLAM, MagneticSLAM]:
+    q, r = np.diag([0.09, 0.0027]), np.diag([0.01, 3e-4])
+    ekf = make_magnetic("mb-slam", BicycleModel(2.0), q, r, (0, 0, 0.3), (1, 1))
+    fej = make_magnetic("mb-slam-fej", BicycleModel(2.0), q, r, (0, 0, 0.3), (1, 1))
+    assert fej.fej and not ekf.fej and fej.anchor is None
+    return ekf, fej
+
+
+def test_fej_equals_the_ekf_until_an_update() -> None:
+    """Without updates the first estimates are the latest ones: FEJ's prediction is the EKF's."""
+    ekf, fej = _pair()
+    for k in range(50):
+        u = np.array([5.0, 0.2 * math.sin(k / 7)])
+        ekf.predict(u, 0.025, np.random.default_rng(0))
+        fej.predict(u, 0.025, np.random.default_rng(0))
+    np.testing.assert_allclose(fej.xs[:3], ekf.xs[:3], rtol=0, atol=0)
+    np.testing.assert_allclose(fej.p[:3, :3], ekf.p[:3, :3], rtol=1e-12, atol=1e-15)
+    assert np.linalg.matrix_rank(fej.p[:3, :3]) == 3
+
+
+def test_fej_jacobians_are_evaluated_at_the_first_estimates() -> None:
+    """Huang et al. 2008: eq. (22) at the pose's prior and each beacon's first estimate, eq. (20)
+    with the displacement from the prior; the EKF re-linearises at the updated estimates."""
+    ekf, fej = _pair()
+    prior = fej.xs[:3].copy()  # the pose's prior at this step (no prediction in between)
+    for f in (ekf, fej):
+        f.p[:3, :3] = np.diag([0.5, 0.5, 0.01])
+        f.update_each(np.array([[8.0, 0.4]]))  # adds beacon 0
+    first = fej.xs[3:5].copy()
+    np.testing.assert_array_equal(fej.lm_first, [first])
+    for f in (ekf, fej):
+        f.update_each(np.array([[7.9, 0.41]]))  # associated: moves the pose and the beacon
+    assert not np.allclose(fej.xs[3:5], first)
+    _, hx, hm = fej._h_blocks(np.array([0]))
+    hx0, hm0 = fej.obs.jacobians(prior, first[None])
+    np.testing.assert_array_equal(hx, hx0)
+    np.testing.assert_array_equal(hm, hm0)
+    _, hx_e, _ = ekf._h_blocks(np.array([0]))
+    np.testing.assert_allclose(hx_e, ekf.obs.jacobians(ekf.xs[:3], ekf.xs[3:5][None])[0])
+    assert not np.allclose(hx_e, hx)
+    # the prediction after the update: F uses p_k+1|k - p_k|k-1, not p_k+1|k - p_k|k
+    u = np.array([5.0, 0.1])
+    fej.xs[:2] += (0.3, -0.2)  # as an update that moved the pose would
+    p_before, post = fej.p[:3, :3].copy(), fej.xs[:3].copy()
+    fej.predict(u, 0.025, np.random.default_rng(0))
+    new = BicycleModel(2.0).f(post, u, 0.025)
+    fx = np.eye(3)
+    fx[0, 2], fx[1, 2] = -(new[1] - prior[1]), new[0] - prior[0]
+    _, fu = BicycleModel(2.0).jacobians(post, u, 0.025)
+    expect = fx @ p_before @ fx.T + fu @ fej.q @ fu.T
+    np.testing.assert_allclose(fej.p[:3, :3], expect, rtol=1e-12)
+    assert not np.allclose(fx, BicycleModel(2.0).jacobians(post, u, 0.025)[0])
+    np.testing.assert_array_equal(fej.x_first, fej.xs[:3])
+    fej.forget_landmarks()
+    assert fej.lm_first.shape == (0, 2)
+
+
+def test_acoustic_only_uses_the_anchor_and_no_beacon() -> None:
+    q, r = np.diag([0.09, 0.0027]), np.diag([0.01, 3e-4])
+    f = make_magnetic("acoustic-only", BicycleModel(2.0), q, r, (0, 0, 0), (10, 0))
+    f.update_each(np.array([[5.0, 0.0]]))
+    assert f.n_lm == 0 and f.anchor is not None
+    f.p[:3, :3] = np.eye(3)
+    f.anchor_update(np.array([9.0]), np.array([[0.25]]))
+    assert f.xs[0] == pytest.approx(0.8)

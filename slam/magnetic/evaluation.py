@@ -20,12 +20,23 @@ every algorithm then runs on the same data (:func:`run_filter`). Variants (:clas
   ``generic`` track only: each observation carries its true beacon, which isolates the filter
   from its association: the notes' A5 "physical" mode without the frequency reuse of the plan).
 * ``acoustic``: ``range-bearing`` (Sec. 2.4.2, default) or ``range-only`` (Conclusions, A17),
-  every ``acoustic_every`` scans; the slant range (noise ``acoustic_beacon.sigma_range_m``) is
-  converted to horizontal with the known depth difference (A24).
+  every ``acoustic_every`` scans (5: 1 Hz, a USBL/LBL ping rate), only within
+  ``acoustic_max_range_m`` (horizontal; 0: unlimited); the slant range (noise
+  ``acoustic_sigma_m``, 0: the scenario's ``acoustic_beacon.sigma_range_m``) is converted to
+  horizontal with the known depth difference (A24).
 
 Metrics per run: path RMSE (total, x, y) over the scans, mean distance of each estimated beacon
 to the nearest true one, the number of beacons mapped, filter seconds (and the demodulation +
-MLP seconds of the ``mlp`` track).
+MLP seconds of the ``mlp`` track), and each filter's NEES at every scan: pose ``(x, y, heading)``
+(3 degrees of freedom) and heading alone (1). :func:`nees_summary` averages them over the runs
+with the chi-square 95 % bounds; :func:`paired_bootstrap` compares two algorithms run by run.
+
+**Held-out protocol** (issue 28). Every parameter of the filters, the demodulator gates and the
+MLP was chosen on studies with base seeds below :data:`TEST_SEED_MIN` (the *tuning* seeds: all
+results before issue 28 used seed 0) and on the tuning scenarios :data:`TUNING_SCENARIOS`. Base
+seeds from :data:`TEST_SEED_MIN` up are *test* seeds: run only with the parameters frozen (the
+defaults of :class:`Variant` and :mod:`~auvgw.slam.magnetic.filters` at the commit that made
+the table). Every table title says which split its seed is in (:func:`seed_split`).
 """
 
 from __future__ import annotations
@@ -42,6 +53,7 @@ from typing import Any, Literal
 import numpy as np
 
 from auvgw.config.scenario import Scenario
+from auvgw.errors import UserError
 from auvgw.slam.evaluation.simulate import SimRun, simulate
 from auvgw.slam.magnetic.demod import (
     BeaconAmplitudes,
@@ -62,6 +74,8 @@ __all__ = [
     "Variant",
     "format_changes",
     "format_table",
+    "nees_summary",
+    "paired_bootstrap",
     "paired_change",
     "parse_variant",
     "plot_runs",
@@ -69,11 +83,23 @@ __all__ = [
     "render_table",
     "run_filter",
     "run_study",
+    "seed_split",
     "summarise",
 ]
 
 DEFAULT_MODEL = Path(__file__).resolve().parents[2] / "config" / "magnetic_mlp.npz"
 GRAVITY = 9.81
+#: base seeds from here up are held-out test seeds (module docstring); below: tuning seeds
+TEST_SEED_MIN = 1000
+#: the scenarios the parameters were chosen on (module docstring)
+TUNING_SCENARIOS = ("beacons_amb", "beacons_amb_v03", "beacons_dense")
+#: the paired comparisons reported when both algorithms ran: (baseline, other)
+PAIRS = (("acoustic-only", "amb-slam"), ("mb-slam-fej", "amb-slam"), ("mb-slam", "mb-slam-fej"))
+
+
+def seed_split(seed: int) -> str:
+    """``"test"`` for a held-out base seed (``>= TEST_SEED_MIN``), else ``"tuning"``."""
+    return "test" if seed >= TEST_SEED_MIN else "tuning"
 
 
 @dataclass(frozen=True)
@@ -87,7 +113,9 @@ class Variant:
     ``ins_heading_deg`` / ``ins_tilt_deg`` / ``ins_tau_s`` (Gauss-Markov INS attitude error,
     the notes' section 6.3), ``mag_noise_nt`` (MS3A emulator default 1 nT), ``fov_deg`` the
     generic sensor's field of view (0: the scenario's; Bailey 180, a magnetometer sees 360, A22),
-    ``model`` the MLP file."""
+    ``model`` the MLP file, ``acoustic_sigma_m`` the acoustic slant-range noise (m; 0: the
+    scenario's), ``acoustic_max_range_m`` the acoustic beacon's horizontal range (m; 0:
+    unlimited)."""
 
     track: Literal["generic", "mlp"] = "generic"
     density: Literal["all", "first-half"] = "all"
@@ -96,6 +124,8 @@ class Variant:
     acoustic: Literal["range-bearing", "range-only"] = "range-bearing"
     acoustic_bearing_deg: float = 1.0
     acoustic_every: int = 1
+    acoustic_sigma_m: float = 0.0
+    acoustic_max_range_m: float = 0.0
     snr_min: float = 5.0
     ghost_ratio: float = 0.05
     min_range_m: float = 3.0
@@ -112,6 +142,14 @@ class Variant:
         parts = [self.track, self.density, f"{self.loop} loop"]
         if self.acoustic != "range-bearing":
             parts.append(f"acoustic {self.acoustic}")
+        if self.acoustic_every != 1:
+            parts.append(f"acoustic every {self.acoustic_every} scans")
+        if self.acoustic_sigma_m:
+            parts.append(f"acoustic sigma {self.acoustic_sigma_m:g} m")
+        if self.acoustic_bearing_deg != 1.0:
+            parts.append(f"acoustic bearing {self.acoustic_bearing_deg:g} deg")
+        if self.acoustic_max_range_m:
+            parts.append(f"acoustic range {self.acoustic_max_range_m:g} m")
         if self.association != "nn":
             parts.append(f"{self.association} association")
         if self.fov_deg:
@@ -170,7 +208,8 @@ class Prepared:
 @dataclass
 class MagneticRun:
     """One algorithm on one run: errors ``err (n, 2)`` (estimate - truth, m) at scan times
-    ``t (n,)``, the estimated path, the map (means, covariances), landmark error (m), seconds."""
+    ``t (n,)``, the estimated path, the map (means, covariances), landmark error (m), seconds,
+    and the NEES at every scan of the pose ``(x, y, heading)`` and of the heading alone."""
 
     algorithm: str
     run: int
@@ -186,6 +225,8 @@ class MagneticRun:
     duration_s: float
     distance_m: float
     beacons: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    nees_pose: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    nees_heading: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def rmse(self) -> tuple[float, float, float]:
@@ -338,14 +379,17 @@ def prepare(
     st = truth[sim.obs_step]
     dz = ab.z - (world.depth(st[:, 0], st[:, 1]) - scn.vehicle.altitude_m)
     hr = np.hypot(ab.x - st[:, 0], ab.y - st[:, 1])
-    slant = np.hypot(hr, dz) + rng.standard_normal(len(st)) * ab.sigma_range_m
+    sig_r = v.acoustic_sigma_m or ab.sigma_range_m
+    slant = np.hypot(hr, dz) + rng.standard_normal(len(st)) * sig_r
     horiz = np.sqrt(np.maximum(slant**2 - dz**2, 1.0))  # A24: slant -> horizontal
-    sig_h = ab.sigma_range_m * slant / horiz
+    sig_h = sig_r * slant / horiz
     sb = math.radians(v.acoustic_bearing_deg)
     bearing = wrap_angle(np.arctan2(ab.y - st[:, 1], ab.x - st[:, 0]) - st[:, 2]
                          + rng.standard_normal(len(st)) * sb)  # fmt: skip
     az = np.stack([horiz, bearing], axis=1)
     az[np.arange(len(st)) % v.acoustic_every != 0] = np.nan
+    if v.acoustic_max_range_m:
+        az[hr > v.acoustic_max_range_m] = np.nan
     ar = np.zeros((len(st), 2, 2))
     ar[:, 0, 0], ar[:, 1, 1] = sig_h**2, sb**2
     lap2 = int(np.searchsorted(sim.obs_step, lap_start))
@@ -368,6 +412,7 @@ def run_filter(
     rng = np.random.default_rng(zlib.crc32(name.encode()) + run)
     n_scans = len(sim.obs_step)
     est = np.empty((n_scans, 3))
+    pcov = np.empty((n_scans, 3, 3))
     is_scan = np.full(len(sim.controls) + 1, -1)
     is_scan[sim.obs_step] = np.arange(n_scans)
     m = 1 if v.acoustic == "range-only" else 2
@@ -384,6 +429,7 @@ def run_filter(
         if f.anchor is not None and not np.isnan(prep.acoustic_z[i, 0]):
             f.anchor_update(prep.acoustic_z[i, :m], prep.acoustic_r[i, :m, :m])
         est[i] = f.estimate()
+        pcov[i] = f.p[:3, :3]
         if on_scan is not None:
             on_scan(int(i), f)
     spent = time.perf_counter() - t0
@@ -395,9 +441,11 @@ def run_filter(
     else:
         lm_err = math.nan
     err = est[:, :2] - truth[:, :2]
+    e3 = np.concatenate([err, wrap_angle(est[:, 2:] - truth[:, 2:3])], axis=1)
+    nees = np.einsum("ni,ni->n", e3, np.linalg.solve(pcov, e3[:, :, None])[:, :, 0])
     return MagneticRun(name, run, sim.obs_step * sim.dt, err, est, truth, lm.mean, lm.cov,
                        lm_err, spent, prep.chain_s, sim.duration_s, sim.distance_m,
-                       prep.beacons)  # fmt: skip
+                       prep.beacons, nees, e3[:, 2] ** 2 / pcov[:, 2, 2])  # fmt: skip
 
 
 def _one_run(
@@ -456,14 +504,77 @@ def summarise(results: list[MagneticRun], algorithms: tuple[str, ...]) -> list[d
             "rmse_max": float(rm[:, 0].max()),
             "rmse_runs": [round(float(x), 3) for x in rm[:, 0]],
             "rmse_pct_distance": float(100 * rm[:, 0].mean() / np.mean([r.distance_m for r in rs])),
-            "lm_error_m": float(np.nanmean([r.lm_error_m for r in rs])) if a != "dr" else math.nan,
+            "lm_error_m": _nanmean([r.lm_error_m for r in rs]),
             "n_landmarks": float(np.mean([len(r.lm_mean) for r in rs])),
             "seconds": float(np.mean([r.seconds for r in rs])),
             "chain_s": float(np.mean([r.chain_s for r in rs])),
             "rt_factor": float(np.mean([r.duration_s / max(r.seconds + r.chain_s, 1e-9)
                                         for r in rs])),
+            **nees_summary(rs),
         })  # fmt: skip
     return rows
+
+
+def _nanmean(x: list[float]) -> float:
+    """Mean of the finite values (nan when none: a filter without beacons)."""
+    a = np.asarray(x, float)
+    return float(a[np.isfinite(a)].mean()) if np.isfinite(a).any() else math.nan
+
+
+def nees_summary(rs: list[MagneticRun]) -> dict[str, Any]:
+    """One algorithm's NEES over its runs (Bar-Shalom's average NEES): at every scan the mean
+    over the ``N`` runs, then its mean over the scans (``nees_pose``, 3 when consistent;
+    ``nees_heading``, 1), the chi-square 95 % band of a run-average (``chi2(N d) / N``,
+    ``nees_*_band``) and the share of scans whose run-average lies inside it (``nees_*_in``)."""
+    from scipy.stats import chi2
+
+    n = min(len(r.nees_pose) for r in rs)
+    out: dict[str, Any] = {}
+    for key, dof in (("nees_pose", 3), ("nees_heading", 1)):
+        avg = np.stack([getattr(r, key)[:n] for r in rs]).mean(0)
+        lo, hi = chi2.ppf([0.025, 0.975], len(rs) * dof) / len(rs)
+        out[key] = float(avg.mean())
+        out[f"{key}_band"] = [float(lo), float(hi)]
+        out[f"{key}_in"] = float(np.mean((avg >= lo) & (avg <= hi)))
+    return out
+
+
+def paired_bootstrap(
+    base: dict[str, Any], other: dict[str, Any], n_boot: int = 10000, seed: int = 0
+) -> dict[str, Any]:
+    """Paired comparison of two algorithms' path RMSE in one study (common random numbers: run
+    ``i`` of both saw the same noise): the mean difference ``other - base`` (m) and the ratio of
+    the mean RMSEs ``other / base``, each with a 95 % percentile bootstrap interval over the runs
+    (``n_boot`` resamples of the run indices, generator seeded ``seed``), and how many runs
+    ``other`` was better in."""
+    a, b = np.asarray(base["rmse_runs"], float), np.asarray(other["rmse_runs"], float)
+    if len(a) != len(b) or len(a) < 2:
+        raise ValueError(
+            f"paired comparison needs the same runs (>= 2) of both, got "
+            f"{base['algorithm']} x {len(a)} and {other['algorithm']} x {len(b)}"
+        )
+    idx = np.random.default_rng(seed).integers(0, len(a), (n_boot, len(a)))
+    ma, mb = a[idx].mean(1), b[idx].mean(1)
+    diff_ci = np.quantile(mb - ma, [0.025, 0.975])
+    ratio_ci = np.quantile(mb / np.maximum(ma, 1e-12), [0.025, 0.975])
+    return {
+        "base": base["algorithm"], "other": other["algorithm"], "runs": len(a),
+        "base_rmse": float(a.mean()), "other_rmse": float(b.mean()),
+        "diff": float((b - a).mean()), "diff_ci": [float(x) for x in diff_ci],
+        "ratio": float(b.mean() / a.mean()) if a.mean() > 0 else math.nan,
+        "ratio_ci": [float(x) for x in ratio_ci], "other_better": int((b < a).sum()),
+    }  # fmt: skip
+
+
+def format_pairs(title: str, pairs: list[dict[str, Any]], markdown: bool = False) -> str:
+    """Text or markdown table of :func:`paired_bootstrap` rows."""
+    head = ["other vs base", "base RMSE m", "other RMSE m", "difference m [95 % CI]",
+            "ratio of means [95 % CI]", "runs other better"]  # fmt: skip
+    body = [[f"{c['other']} vs {c['base']}", f"{c['base_rmse']:.2f}", f"{c['other_rmse']:.2f}",
+             f"{c['diff']:+.2f} [{c['diff_ci'][0]:+.2f}, {c['diff_ci'][1]:+.2f}]",
+             f"{c['ratio']:.3f} [{c['ratio_ci'][0]:.3f}, {c['ratio_ci'][1]:.3f}]",
+             f"{c['other_better']} of {c['runs']}"] for c in pairs]  # fmt: skip
+    return render_table(title, head, body, markdown)
 
 
 def render_table(title: str, head: list[str], body: list[list[str]], markdown: bool) -> str:
@@ -480,11 +591,17 @@ def render_table(title: str, head: list[str], body: list[list[str]], markdown: b
 
 def format_table(title: str, rows: list[dict[str, Any]], markdown: bool = False) -> str:
     """Text or markdown table of :func:`summarise` rows."""
+    band = rows[0]["nees_pose_band"], rows[0]["nees_heading_band"]
     head = ["algorithm", "RMSE m (std)", "RMSE x", "RMSE y", "max", "% dist", "landmark err m",
-            "beacons mapped", "filter s/run", "demod+MLP s/run", "x real time"]  # fmt: skip
+            "beacons mapped",
+            f"pose NEES (3; 95 % band {band[0][0]:.2f}-{band[0][1]:.2f}) / % scans in band",
+            f"heading NEES (1; {band[1][0]:.2f}-{band[1][1]:.2f}) / % in band",
+            "filter s/run", "demod+MLP s/run", "x real time"]  # fmt: skip
     body = [[str(r["algorithm"]), f"{r['rmse']:.2f} ({r['rmse_std']:.2f})", f"{r['rmse_x']:.2f}",
              f"{r['rmse_y']:.2f}", f"{r['rmse_max']:.2f}", f"{r['rmse_pct_distance']:.3f}",
-             f"{r['lm_error_m']:.2f}", f"{r['n_landmarks']:.1f}", f"{r['seconds']:.2f}",
+             f"{r['lm_error_m']:.2f}", f"{r['n_landmarks']:.1f}",
+             f"{r['nees_pose']:.3g} / {100 * r['nees_pose_in']:.0f}",
+             f"{r['nees_heading']:.3g} / {100 * r['nees_heading_in']:.0f}", f"{r['seconds']:.2f}",
              f"{r['chain_s']:.2f}", f"{r['rt_factor']:.0f}"] for r in rows]  # fmt: skip
     return render_table(title, head, body, markdown)
 
@@ -492,7 +609,8 @@ def format_table(title: str, rows: list[dict[str, Any]], markdown: bool = False)
 def paired_change(base: dict[str, Any], other: dict[str, Any]) -> dict[str, Any]:
     """Run-by-run change of one algorithm's path RMSE between two :func:`summarise` rows of one
     study (the same seeds, so run ``i`` of both saw the same noise): mean change ``other - base``
-    (m) with its standard error, how many runs got worse, and the ratio of the mean RMSEs."""
+    (m) with its standard error and 95 % bootstrap interval, how many runs got worse, and the
+    ratio of the mean RMSEs with its interval (:func:`paired_bootstrap`)."""
     a, b = np.asarray(base["rmse_runs"], float), np.asarray(other["rmse_runs"], float)
     if base["algorithm"] != other["algorithm"] or len(a) != len(b) or len(a) < 2:
         raise ValueError(
@@ -500,20 +618,26 @@ def paired_change(base: dict[str, Any], other: dict[str, Any]) -> dict[str, Any]
             f"{base['algorithm']} x {len(a)} and {other['algorithm']} x {len(b)}"
         )
     d = b - a
+    boot = paired_bootstrap(base, other)
     return {
         "algorithm": base["algorithm"], "runs": len(d), "base": float(a.mean()),
         "other": float(b.mean()), "change": float(d.mean()),
         "change_se": float(d.std(ddof=1) / math.sqrt(len(d))), "worse": int((d > 0).sum()),
         "ratio": float(b.mean() / a.mean()) if a.mean() > 0 else math.nan,
+        "change_ci": boot["diff_ci"], "ratio_ci": boot["ratio_ci"],
     }  # fmt: skip
 
 
 def format_changes(title: str, ch: list[dict[str, Any]], markdown: bool = False) -> str:
     """Text or markdown table of :func:`paired_change` rows."""
-    head = ["algorithm", "RMSE before m", "RMSE after m", "change m (s.e.)", "runs worse", "ratio"]
+    head = ["algorithm", "RMSE before m", "RMSE after m", "change m (s.e.) [95 % CI]",
+            "runs worse", "ratio [95 % CI]"]  # fmt: skip
     body = [[c["algorithm"], f"{c['base']:.2f}", f"{c['other']:.2f}",
-             f"{c['change']:+.2f} ({c['change_se']:.2f})", f"{c['worse']} of {c['runs']}",
-             f"{c['ratio']:.2f}"] for c in ch]  # fmt: skip
+             f"{c['change']:+.2f} ({c['change_se']:.2f}) "
+             f"[{c['change_ci'][0]:+.2f}, {c['change_ci'][1]:+.2f}]",
+             f"{c['worse']} of {c['runs']}",
+             f"{c['ratio']:.2f} [{c['ratio_ci'][0]:.2f}, {c['ratio_ci'][1]:.2f}]"]
+            for c in ch]  # fmt: skip
     return render_table(title, head, body, markdown)
 
 
@@ -586,14 +710,27 @@ def with_model(v: Variant, model: str | None) -> Variant:
 
 
 def run_cli(args: Any, command: str) -> int:
-    """``auvgw slam eval --pipeline magnetic``: one table per ``--variant`` (text; with
-    ``--out`` also ``tables.md``, ``results.json`` and two PNGs per variant)."""
+    """``auvgw slam eval --pipeline magnetic``: one table per ``--variant`` and one of the
+    paired comparisons (:data:`PAIRS`) that ran (text; with ``--out`` also ``tables.md``,
+    ``results.json`` and two PNGs per variant). Options of the other pipelines that this one
+    would ignore are user errors, so the recorded command lists only options it reads."""
     import json
     import sys
 
     from auvgw.config.scenario import ScenarioError, load_scenario
     from auvgw.ground.errors import UserError
 
+    ignored = {"--features": args.features != "points", "--noise": bool(args.noise),
+               "--set": bool(getattr(args, "set", None)),
+               "--dask": bool(getattr(args, "dask", None)),
+               "--r0-scale": args.r0_scale != 1.0, "--oracle-noise": bool(args.oracle_noise),
+               "--particles": args.particles != 100,
+               "--association": args.association != "known"}  # fmt: skip
+    if any(ignored.values()):
+        given = ", ".join(k for k, on in ignored.items() if on)
+        raise UserError(f"--pipeline magnetic does not read {given}"
+                        " (its filters are EKFs; association and the acoustic settings are "
+                        "--variant keys)")  # fmt: skip
     algs = tuple(a.strip() for a in args.algorithms.split(",") if a.strip())
     if any(a not in MAGNETIC_ALGORITHMS for a in algs):
         algs = MAGNETIC_ALGORITHMS if "fastslam1" in algs else algs
@@ -602,7 +739,15 @@ def run_cli(args: Any, command: str) -> int:
         variants = variants_for(args.variant)
     except (ScenarioError, ValueError) as exc:
         raise UserError(str(exc)) from None
-    blocks, md, js = [], [f"Made by:\n\n```\n{command}\n```\n"], []
+    split = seed_split(args.seed)
+    tuned = " (a tuning scenario)" if scn.name in TUNING_SCENARIOS else ""
+    protocol = (
+        f"Seeds: **{split}** (base seed {args.seed}, runs 0-{args.runs - 1}; base seeds "
+        f">= {TEST_SEED_MIN} are held out, below are tuning seeds); scenario "
+        f"{scn.name}{tuned}. Paired comparisons: every algorithm saw the same runs' "
+        "random numbers; 95 % intervals are percentile bootstraps over the runs.\n"
+    )
+    blocks, md, js = [], [f"Made by:\n\n```\n{command}\n```\n", protocol], []
     done: dict[Variant, list[dict[str, Any]]] = {}
     for v in variants:
         if v.track == "mlp" and not Path(v.model).exists():
@@ -623,11 +768,16 @@ def run_cli(args: Any, command: str) -> int:
                 bar.close()
         rows = summarise(res, algs)
         done[v] = rows
-        title = f"{scn.name}: {v.label} ({args.runs} runs)"
+        title = f"{scn.name}: {v.label} ({args.runs} runs, {split} seeds)"
         blocks.append(format_table(title, rows))
         print(blocks[-1])
         md.append(format_table(title, rows, markdown=True))
-        js.append({"variant": v.__dict__, "rows": rows})
+        by = {r["algorithm"]: r for r in rows}
+        pairs = [paired_bootstrap(by[a], by[b]) for a, b in PAIRS if a in by and b in by]
+        if pairs:
+            print(format_pairs(f"{title}: paired", pairs))
+            md.append(format_pairs(f"{title}: paired", pairs, markdown=True))
+        js.append({"variant": v.__dict__, "split": split, "rows": rows, "pairs": pairs})
         if args.out is not None:
             tag = "_".join(p.replace(" ", "-") for p in v.label.split(", "))
             for png in plot_runs(res, scn, title, args.out / f"{scn.name}_{tag}.png"):
@@ -644,7 +794,8 @@ def run_cli(args: Any, command: str) -> int:
     if args.out is not None:
         args.out.mkdir(parents=True, exist_ok=True)
         (args.out / "tables.md").write_text("\n".join(md))
-        (args.out / "results.json").write_text(json.dumps({"command": command, "variants": js,
+        (args.out / "results.json").write_text(json.dumps({"command": command, "split": split,
+                                                           "variants": js,
                                                            "density_changes": changes},
                                                           indent=1, default=str))  # fmt: skip
         print(f"tables: {args.out / 'tables.md'}", file=sys.stderr)

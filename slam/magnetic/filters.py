@@ -20,6 +20,21 @@ position (A17, A23): :meth:`MagneticSLAM.anchor_update` applies eqs. (23)-(27) w
 in the vehicle columns only (the anchor is not in the state). ``range-only`` is the
 Conclusions' variant. AMB-SLAM uses it; MB-SLAM is the same filter without it (Sec. 3.4);
 dead reckoning (``dr``) only predicts.
+
+Two filters the paper does not have (issue 28, the fair baselines):
+
+* ``acoustic-only``: the same EKF with the acoustic fixes and no magnetic beacons, the baseline
+  that separates "an absolute acoustic fix against none" from what the magnetic beacons add;
+* ``mb-slam-fej``: MB-SLAM as a first-estimates Jacobian EKF (Huang, Mourikis and Roumeliotis,
+  "Analysis and improvement of the consistency of EKF-based SLAM", ICRA 2008). Plain EKF-SLAM
+  linearises at the latest estimates, which gives the linearised system an observable global
+  heading that the nonlinear one does not have: the filter gains heading information it cannot
+  have and becomes overconfident (inconsistent). FEJ evaluates every Jacobian at the *first*
+  estimate of each state: eq. (20)'s pose Jacobian with the displacement ``f(x_k|k) - x_k|k-1``
+  (the propagated pose, not the updated one), and eq. (22)'s at the pose's prior at the scan and
+  each beacon's estimate when it was added (eqs. 28-29). Innovations and the state still use the
+  latest estimates (as in Huang et al.). The planar pose Jacobian form holds for both motion
+  models (a pose increment rotated by the heading).
 """
 
 from __future__ import annotations
@@ -30,13 +45,43 @@ from auvgw.slam.landmark.association import KnownAssociation, NearestNeighbour
 from auvgw.slam.landmark.ekfslam import EKFSLAM
 from auvgw.slam.models import MotionModel, RangeBearing, wrap_angle
 
-__all__ = ["GATE_AUGMENT", "GATE_REJECT", "MAGNETIC_ALGORITHMS", "MagneticSLAM", "make_magnetic"]
+__all__ = [
+    "GATE_AUGMENT",
+    "GATE_REJECT",
+    "MAGNETIC_ALGORITHMS",
+    "FirstEstimateMotion",
+    "MagneticSLAM",
+    "make_magnetic",
+]
 
 #: Table 4 "maximum distance for association 8 m": Bailey's GATE_REJECT, squared Mahalanobis (A12)
 GATE_REJECT = 8.0
 #: Table 4 "augment distance 28 m": Bailey's GATE_AUGMENT, squared Mahalanobis (A13)
 GATE_AUGMENT = 28.0
-MAGNETIC_ALGORITHMS = ("amb-slam", "mb-slam", "dr")
+MAGNETIC_ALGORITHMS = ("amb-slam", "acoustic-only", "mb-slam", "mb-slam-fej", "dr")
+
+
+class FirstEstimateMotion(MotionModel):
+    """``model`` with the first-estimates pose Jacobian (Huang et al. 2008): ``F`` from the
+    displacement ``f(x, u) - first`` (``first`` the pose's prior, ``x`` its latest estimate),
+    ``G`` (the control Jacobian) at ``x``. Planar poses: any model that moves the position by an
+    increment rotated with the heading (bicycle, velocity)."""
+
+    def __init__(self, model: MotionModel, first: np.ndarray) -> None:
+        self.model = model
+        self.first = first
+        self.n_u = model.n_u
+
+    def f(self, x: np.ndarray, u: np.ndarray, dt: float, wrap: bool = True) -> np.ndarray:
+        return self.model.f(x, u, dt, wrap)
+
+    def jacobians(self, x: np.ndarray, u: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        _, fu = self.model.jacobians(x, u, dt)
+        new = self.model.f(x, u, dt)
+        fx = np.eye(3)
+        fx[0, 2] = -(new[1] - self.first[1])
+        fx[1, 2] = new[0] - self.first[0]
+        return fx, fu
 
 
 class MagneticSLAM(EKFSLAM):
@@ -44,7 +89,8 @@ class MagneticSLAM(EKFSLAM):
 
     ``anchor_xy`` (m, NED) is the acoustic beacon; ``use_beacons=False`` ignores the magnetic
     beacons (dead reckoning when there is no anchor either); ``known``: observations come with
-    their beacon ids (:meth:`update_each`), no gating (an evaluation of the filter alone)."""
+    their beacon ids (:meth:`update_each`), no gating (an evaluation of the filter alone);
+    ``fej``: first-estimates Jacobians (module docstring)."""
 
     def __init__(
         self,
@@ -58,12 +104,44 @@ class MagneticSLAM(EKFSLAM):
         gates: tuple[float, float] = (GATE_REJECT, GATE_AUGMENT),
         name: str = "amb-slam",
         known: bool = False,
+        fej: bool = False,
     ) -> None:
         assoc = KnownAssociation() if known else NearestNeighbour(gates[0], gates[1])
         super().__init__(motion, RangeBearing(), q, r, x0=x0, association=assoc)
         self.name = name
         self.anchor = None if anchor_xy is None else np.asarray(anchor_xy, float).reshape(2)
         self.use_beacons = use_beacons
+        self.fej = fej
+        #: FEJ: the pose's first estimate at the current step (its prior, x_k|k-1)
+        self.x_first = self.xs[:3].copy()
+        #: FEJ: each beacon's first estimate (its position when added), (n_lm, 2)
+        self.lm_first = np.zeros((0, 2))
+
+    def predict(self, u: np.ndarray, dt: float, rng: np.random.Generator) -> None:
+        """Eqs. (19)-(20); with ``fej`` the pose Jacobian uses the first estimates (module
+        docstring): ``F = [[1, 0, -dy], [0, 1, dx], [0, 0, 1]]``, ``(dx, dy) = p_k+1|k -
+        p_k|k-1`` (the EKF's own propagation, with :class:`FirstEstimateMotion`'s Jacobian)."""
+        if not self.fej:
+            super().predict(u, dt, rng)
+            return
+        model = self.motion
+        self.motion = FirstEstimateMotion(model, self.x_first)
+        try:
+            super().predict(u, dt, rng)
+        finally:
+            self.motion = model
+        self.x_first = self.xs[:3].copy()
+
+    def _h_blocks(self, lm_idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Eq. (21) at the latest estimates; eq. (22) at the first estimates with ``fej``."""
+        zhat, hx, hm = super()._h_blocks(lm_idx)
+        if self.fej:
+            hx, hm = self.obs.jacobians(self.x_first, self.lm_first[lm_idx])
+        return zhat, hx, hm
+
+    def _add(self, z: np.ndarray, fid: int | None) -> None:
+        super()._add(z, fid)
+        self.lm_first = np.vstack([self.lm_first, self.xs[1 + 2 * self.n_lm : 3 + 2 * self.n_lm]])
 
     def update_each(
         self, z: np.ndarray, r: np.ndarray | None = None, ids: np.ndarray | None = None
@@ -93,7 +171,8 @@ class MagneticSLAM(EKFSLAM):
         xv = self.xs[:3]
         rb = self.obs
         zhat = rb.h(xv, self.anchor[None])[0][:m]  # eq. (21) with a known landmark
-        hx = rb.jacobians(xv, self.anchor[None])[0][0][:m]  # eq. (22), vehicle columns only
+        xj = self.x_first if self.fej else xv
+        hx = rb.jacobians(xj, self.anchor[None])[0][0][:m]  # eq. (22), vehicle columns only
         v = z - zhat  # eq. (23)
         if m == 2:
             v[1] = wrap_angle(v[1])
@@ -115,6 +194,7 @@ class MagneticSLAM(EKFSLAM):
         self.p[:, 3:k] = 0.0
         self.xs[3:k] = 0.0
         self.n_lm = 0
+        self.lm_first = np.zeros((0, 2))
         self.ids.clear()
         self._id_index.clear()
 
@@ -129,11 +209,14 @@ def make_magnetic(
     gates: tuple[float, float] = (GATE_REJECT, GATE_AUGMENT),
     known: bool = False,
 ) -> MagneticSLAM:
-    """``amb-slam`` (beacons + acoustic anchor), ``mb-slam`` (beacons only) or ``dr``;
-    ``known``: association by the observations' true ids (evaluation)."""
+    """``amb-slam`` (beacons + acoustic anchor), ``acoustic-only`` (the anchor, no beacons),
+    ``mb-slam`` (beacons only), ``mb-slam-fej`` (MB-SLAM with first-estimates Jacobians) or
+    ``dr``; ``known``: association by the observations' true ids (evaluation)."""
     if name not in MAGNETIC_ALGORITHMS:
         raise ValueError(f"unknown magnetic algorithm {name!r}; choose from {MAGNETIC_ALGORITHMS}")
     return MagneticSLAM(
-        motion, q, r, x0=x0, anchor_xy=anchor_xy if name == "amb-slam" else None,
-        use_beacons=name != "dr", gates=gates, name=name, known=known,
+        motion, q, r, x0=x0,
+        anchor_xy=anchor_xy if name in ("amb-slam", "acoustic-only") else None,
+        use_beacons=name not in ("dr", "acoustic-only"), gates=gates, name=name, known=known,
+        fej=name.endswith("-fej"),
     )  # fmt: skip
