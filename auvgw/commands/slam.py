@@ -64,7 +64,7 @@ def register(sub: Any) -> None:
         choices=["landmark", "bathymetric", "magnetic"],
         help="landmark filters on point/line features; bathymetric PF-SLAM on multibeam "
         "swaths (mtm-pf, bpslam, dr; docs/slam_bathymetric.md); or the magnetic-beacon "
-        "pipeline (amb-slam, mb-slam, dr)",
+        "pipeline (amb-slam, acoustic-only, mb-slam, mb-slam-fej, dr; docs/slam_magnetic.md)",
     )
     e.add_argument(
         "--variant",

@@ -53,7 +53,7 @@ from typing import Any, Literal
 import numpy as np
 
 from auvgw.config.scenario import Scenario
-from auvgw.errors import UserError
+from auvgw.ground.errors import UserError
 from auvgw.slam.evaluation.simulate import SimRun, simulate
 from auvgw.slam.magnetic.demod import (
     BeaconAmplitudes,
