@@ -718,7 +718,6 @@ def run_cli(args: Any, command: str) -> int:
     import sys
 
     from auvgw.config.scenario import ScenarioError, load_scenario
-    from auvgw.ground.errors import UserError
 
     ignored = {"--features": args.features != "points", "--noise": bool(args.noise),
                "--set": bool(getattr(args, "set", None)),
