@@ -719,24 +719,123 @@ def message_class(type_name: str) -> type | None:
     return resolve_type(type_name)
 
 
+#: bounds of an envelope's header fields, every version: a stamp is int64 ns since the Unix
+#: epoch (the gateway's, or the vehicle-paced ``[clock]``'s, never negative), a sequence the
+#: u64 the gateway counts in, names what a key segment holds
+T_NS_MAX = 2**63 - 1
+SEQ_MAX = 2**64 - 1
+NAME_MAX = 256
+SCHEMA_MAX = 0xFFFF
+#: deepest nesting of a message body (a decoded message is a few levels: a table of records of
+#: arrays); MessagePack and JSON parsers recurse, so a hostile body is refused before that
+BODY_DEPTH_MAX = 32
+
+
+def _check_header(version: int, type_name: Any, device: Any, t_ns: Any, seq: Any,
+                  wire: Any = "", schema: Any = 0) -> None:  # fmt: skip
+    """Every header field at the edges of its type (module docstring); a ValueError naming the
+    version, the field and the value otherwise. ``bool`` is no integer here."""
+    if (type(t_ns) is int and 0 <= t_ns <= T_NS_MAX and type(seq) is int
+            and 0 <= seq <= SEQ_MAX and type(schema) is int and 0 <= schema <= SCHEMA_MAX
+            and type(type_name) is str and type(device) is str and type(wire) is str
+            and len(type_name) <= NAME_MAX and len(device) <= NAME_MAX
+            and len(wire) <= NAME_MAX):  # fmt: skip
+        return  # the usual case, at sensor rate: one expression
+
+    def name(field: str, v: Any) -> None:
+        if type(v) is not str or len(v) > NAME_MAX:
+            raise ValueError(f"envelope v{version}: {field} must be a string of at most "
+                             f"{NAME_MAX} characters, got {_short(v)}")  # fmt: skip
+
+    def integer(field: str, v: Any, hi: int) -> None:
+        if type(v) is not int or not 0 <= v <= hi:
+            raise ValueError(f"envelope v{version}: {field} must be an integer in 0..{hi}, "
+                             f"got {_short(v)}")  # fmt: skip
+
+    name("type", type_name)
+    name("device", device)
+    name("wire", wire)
+    integer("t_recv_ns", t_ns, T_NS_MAX)
+    integer("seq", seq, SEQ_MAX)
+    integer("schema", schema, SCHEMA_MAX)
+
+
+def _short(v: Any) -> str:
+    text = repr(v)
+    return f"{type(v).__name__} {text[:40]}{'...' if len(text) > 40 else ''}"
+
+
+def _depth_ok(v: Any, left: int = BODY_DEPTH_MAX) -> bool:
+    """Whether ``v`` nests at most ``left`` containers deep (iterative: no recursion limit)."""
+    stack = [(v, left)]
+    while stack:
+        x, d = stack.pop()
+        if isinstance(x, dict):
+            if d <= 0:
+                return False
+            stack.extend((y, d - 1) for y in x.values())
+        elif isinstance(x, list | tuple):
+            if d <= 0:
+                return False
+            stack.extend((y, d - 1) for y in x)
+    return True
+
+
+def _raw_depth_ok(payload: bytes) -> bool:
+    """Bracket / container depth of a JSON text, counted before it is parsed (the parser
+    recurses); a MessagePack payload's depth is checked by msgspec's own decoder."""
+    depth = 0
+    for b in payload:
+        if b in (0x5B, 0x7B):  # [ {
+            depth += 1
+            if depth > BODY_DEPTH_MAX + 2:
+                return False
+        elif b in (0x5D, 0x7D):
+            depth -= 1
+    return True
+
+
 def decode_envelope(payload: bytes, key: str = "", typed: bool = True) -> Envelope:
-    """Parse an envelope (version 3; 2 and 1 of the previous releases are still read); with
-    ``typed``, rebuild the message when its type is known here. Raises ValueError (a
+    """Parse an envelope (version 3; 2 and 1 of the previous releases are still read, a replay
+    of an old recording needs them); with ``typed``, rebuild the message when its type is known
+    here. Every header field is checked at the edges of its type in every version (a stamp an
+    int64 of ns, a sequence a u64, names short strings; ``bool`` and ``float`` are no integers)
+    and a body nests at most :data:`BODY_DEPTH_MAX` deep. Raises ValueError naming the field (a
     :class:`SchemaError` when the body does not fit this reader's table of its type)."""
     if payload[:1] == b"{":  # v1: JSON
-        env = json.loads(payload)
-        if env.get("v") != 1:
-            raise ValueError(f"JSON envelope version {env.get('v')!r}, expected 1")
+        if not _raw_depth_ok(payload):
+            raise ValueError(f"envelope v1: nested deeper than {BODY_DEPTH_MAX}")
+        try:
+            env = json.loads(payload)
+        except (ValueError, RecursionError) as exc:
+            raise ValueError(f"envelope v1: not JSON: {exc}") from None
+        if not isinstance(env, dict) or env.get("v") != 1:
+            v = env.get("v") if isinstance(env, dict) else None
+            raise ValueError(f"JSON envelope version {v!r}, expected 1")
+        for f in ("type", "device", "t_recv_ns", "seq", "msg"):
+            if f not in env:
+                raise ValueError(f"envelope v1: no {f!r} field")
+        _check_header(1, env["type"], env["device"], env["t_recv_ns"], env["seq"])
+        if not isinstance(env["msg"], dict | list):
+            got = _short(env["msg"])
+            raise ValueError(f"envelope v1: msg must be an object or array, got {got}")
         return Envelope(
             env["type"], env["device"], env["t_recv_ns"], env["seq"], env["msg"], key=key
         )
     try:
         env = _DECODER.decode(payload)
-    except msgspec.DecodeError as exc:
+    except (msgspec.DecodeError, RecursionError) as exc:
         raise ValueError(f"not an envelope: {exc}") from None
     if isinstance(env, dict):
         if env.get("v") != 2:
             raise ValueError(f"envelope version {env.get('v')!r}, expected {ENVELOPE_VERSION}")
+        for f in ("type", "device", "t", "seq", "msg", "wire"):
+            if f not in env:
+                raise ValueError(f"envelope v2: no {f!r} field")
+        _check_header(2, env["type"], env["device"], env["t"], env["seq"], env["wire"])
+        if not isinstance(env["msg"], dict | list) or not _depth_ok(env["msg"]):
+            raise ValueError(f"envelope v2: msg must be a map or array nested at most "
+                             f"{BODY_DEPTH_MAX} deep")  # fmt: skip
         return Envelope(
             env["type"], env["device"], env["t"], env["seq"], env["msg"], key=key, wire=env["wire"]
         )
@@ -744,8 +843,11 @@ def decode_envelope(payload: bytes, key: str = "", typed: bool = True) -> Envelo
         v = env[0] if isinstance(env, list) and env else None
         raise ValueError(f"envelope version {v!r}, expected {ENVELOPE_VERSION}")
     _, type_name, schema, wire, device, t_ns, seq, body = env
-    if not isinstance(type_name, str) or not isinstance(body, list | dict):
-        raise ValueError(f"malformed envelope of type {type_name!r}")
+    _check_header(3, type_name, device, t_ns, seq, wire, schema)
+    # a positional body is checked against its table (typed_body); one sent by name is free
+    if not isinstance(body, list | dict) or (isinstance(body, dict) and not _depth_ok(body)):
+        raise ValueError(f"malformed envelope of type {type_name!r}: the body must be a map or "
+                         f"array nested at most {BODY_DEPTH_MAX} deep")  # fmt: skip
     if isinstance(body, dict):
         return Envelope(type_name, device, t_ns, seq, body, key=key, wire=wire, schema=schema)
     message = None

@@ -51,7 +51,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from auvgw.bus import SCHEMA_VERSION, Envelope, Keys, decode_envelope, json_encoding, undeclare
 from auvgw.fusion.odometry import Odometry
-from auvgw.stages import join_draining, log_bad_payload
+from auvgw.stages import StampGuard, join_draining, log_bad_payload
 
 __all__ = ["DROP", "BusCounters", "PipelineStage", "Stage", "StageConfig"]
 
@@ -70,6 +70,7 @@ class BusCounters:
     received: int = 0  #: messages used or envelopes received (each stage says which)
     bad_payloads: int = 0  #: envelopes that could not be parsed, rebuilt or handled
     queue_dropped: int = 0  #: payloads dropped because the worker fell behind
+    bad_stamps: int = 0  #: envelopes whose stamp was implausible against the stage's clock
 
 
 class StageConfig(BaseModel):
@@ -82,16 +83,19 @@ class StageConfig(BaseModel):
     vehicle: str = "auv1"
     status_period_s: float = Field(1.0, gt=0)
     queue_size: int = Field(100_000, ge=1)
+    #: a bus stamp further than this from the stage's clock is refused (``bad_stamps``) unless
+    #: 20 in a row agree on the new time (:class:`~auvgw.stages.StampGuard`), s of stamp time
+    max_stamp_jump_s: float = Field(300.0, gt=0, le=86_400.0)
 
 
 class Stage:
     """Queue, worker, envelope decoding, status, liveliness and stop/flush of a bus stage (see
     the module docstring for the subclass contract).
 
-    ``config``: vehicle, status period and queue size; ``stats``: the stage's counters (a
-    :class:`BusCounters`, published under ``"stage"``); ``session``: the Zenoh session (None:
-    in-process only); ``on_publish(key, payload, t_ns)``: called at every publication;
-    ``keys``: the vehicle's key expressions (None: ``Keys(config.vehicle)``).
+    ``config``: vehicle, status period, queue size and stamp window; ``stats``: the stage's
+    counters (a :class:`BusCounters`, published under ``"stage"``); ``session``: the Zenoh
+    session (None: in-process only); ``on_publish(key, payload, t_ns)``: called at every
+    publication; ``keys``: the vehicle's key expressions (None: ``Keys(config.vehicle)``).
     """
 
     #: short name: logs, the worker thread, the default component
@@ -127,6 +131,7 @@ class Stage:
         self._decls: list[Any] = []
         self._worker: threading.Thread | None = None
         self._started = self._stopped = False
+        self._stamps = StampGuard(config.max_stamp_jump_s)
 
     # -- what a subclass gives ------------------------------------------------------------------
     @property
@@ -312,6 +317,15 @@ class Stage:
                 raise ValueError(f"unknown or unusable message type {env.type!r}")
         except Exception as exc:  # any malformed payload ([] on a sensor key...): count, go on
             self._bad_payload(key, exc)
+            return None
+        if not self._stamps.accept(env.t_recv_ns):  # one forged stamp never moves the clock
+            with self._lock:
+                n = self.stats.bad_stamps
+                self.stats.bad_stamps += 1
+            clock = self._stamps.clock_ns
+            log_bad_payload(self.name, key, ValueError(
+                f"stamp {env.t_recv_ns} ns is {(env.t_recv_ns - (clock or 0)) / 1e9:+.3g} s from "
+                f"the stage's clock; refused"), n)  # fmt: skip
             return None
         try:
             self.dispatch(env, msg)
