@@ -53,6 +53,7 @@ PYTHON = str(REPO / ".venv" / "bin" / "python")
 PUBLISHER = str(Path(__file__).with_name("fusion_publisher_proc.py"))
 T0, T1 = 100.0, 110.0
 VEHICLE = "fus1"
+HOST_EPOCH_NS = int(HOST_EPOCH * 1e9)
 
 
 @pytest.fixture(scope="module")
@@ -299,16 +300,53 @@ class Proc:
         return self.p.returncode
 
 
+#: hostile envelopes on the DVL's key (issue 27): an old-format JSON envelope whose stamp is
+#: 1e300 (it stopped the fusion's odometry for good), one a century ahead within int64, a
+#: boolean stamp, a negative sequence, and a JSON body nested 20,000 deep
+FORGED: list[bytes] = [
+    json.dumps({"v": 1, "type": "pd0.Ensemble", "device": "dvl", "t_recv_ns": 1e300, "seq": 1,
+                "msg": {}}).encode(),
+    json.dumps({"v": 1, "type": "pd0.Ensemble", "device": "dvl",
+                "t_recv_ns": HOST_EPOCH_NS + 100 * 365 * 86_400 * 10**9, "seq": 2,
+                "msg": {}}).encode(),
+    b'{"v": 1, "type": "pd0.Ensemble", "device": "dvl", "t_recv_ns": true, "seq": 3, "msg": {}}',
+    b'{"v": 1, "type": "pd0.Ensemble", "device": "dvl", "t_recv_ns": 5, "seq": -1, "msg": {}}',
+    b'{"v": 1, "msg": ' + b"[" * 20_000 + b"]" * 20_000 + b"}",
+]
+
+
 def test_stage_process_publishes_the_offline_odometry(data, tmp_path):
     """Three processes: this test (a Zenoh router and the odometry subscriber), ``auvgw
     fusion`` (the stage) and a publisher of gateway envelopes. The odometry on
     ``auv/<v>/nav/odometry`` equals the offline run on the same messages, sample for sample."""
+    _run_stage_process(data, tmp_path, forged=[])
+
+
+def test_forged_envelopes_mid_stream_change_no_odometry(data, tmp_path):
+    """The same run with the :data:`FORGED` envelopes sent on the DVL's key in the middle of the
+    stream: every one is refused and counted, and the odometry is the same, sample for sample,
+    at the same rate (issue 27)."""
+    st = _run_stage_process(data, tmp_path, forged=FORGED)
+    # the far-future stamp is a valid envelope but not a plausible time: refused by the clock;
+    # it carries an empty body, refused first as an unusable message, so it counts there
+    assert st["stage"]["bad_payloads"] + st["stage"]["bad_stamps"] == len(FORGED)
+
+
+def _run_stage_process(data, tmp_path, forged: list[bytes]) -> dict:
+    """The three-process run; ``forged`` payloads are published on the DVL's key halfway
+    through. Returns the stage's last status."""
     msgs, cfg = data
     keys = Keys(VEHICLE)
     n_ins, _n_can, n_dvl = counts(msgs)
     env_file = tmp_path / "envelopes.jsonl"
+    half = len(msgs) // 2
     with env_file.open("w") as f:
         for seq, (t_ns, device, msg) in enumerate(msgs):
+            if seq == half:
+                for bad in forged:
+                    item = {"key": keys.sensor("dvl", "ensemble"), "type": "pd0.Ensemble",
+                            "payload": bad.hex(), "forged": True}  # fmt: skip
+                    f.write(json.dumps(item) + "\n")
             payload, _ = encode_envelope(msg, device, t_ns, seq)
             key = keys.sensor(device, message_kind(msg))
             item = {"key": key, "type": message_type(msg), "payload": payload.hex()}
@@ -316,7 +354,10 @@ def test_stage_process_publishes_the_offline_odometry(data, tmp_path):
     # what the stage process will see: the envelopes' messages rebuilt from JSON, in order
     rebuilt = []
     for line in env_file.read_text().splitlines():
-        env = decode_envelope(bytes.fromhex(json.loads(line)["payload"]))
+        item = json.loads(line)
+        if item.get("forged"):
+            continue
+        env = decode_envelope(bytes.fromhex(item["payload"]))
         rebuilt.append((env.t_recv_ns, env.device, typed_message(env.type, env.body)))
     expected, _ = offline(rebuilt, cfg)
     assert len(expected) == n_ins
@@ -339,7 +380,8 @@ def test_stage_process_publishes_the_offline_odometry(data, tmp_path):
                     "--file", str(env_file)], tmp_path / "publisher.err")  # fmt: skip
         procs.append(pub)
         every = sorted({keys.sensor(d, message_kind(m)) for _, d, m in msgs})
-        assert pub.wait_line("published") == f"published {len(msgs)} matched {','.join(every)}"
+        n_lines = len(msgs) + len(forged)
+        assert pub.wait_line("published") == f"published {n_lines} matched {','.join(every)}"
         assert pub.wait() == 0
 
         def status() -> dict | None:
@@ -353,9 +395,12 @@ def test_stage_process_publishes_the_offline_odometry(data, tmp_path):
         n_used = n_ins + n_dvl
         wait_until(lambda: (s := status()) is not None and s["stage"]["received"] == n_used,
                    90.0, what="the stage to receive every envelope")  # fmt: skip
+        wait_until(lambda: (s := status()) is not None
+                   and s["stage"]["bad_payloads"] + s["stage"]["bad_stamps"] == len(forged),
+                   30.0, what="every forged envelope counted")  # fmt: skip
         st = status()
         assert st["adapter"]["ins"] == n_ins and st["adapter"]["dvl"] == n_dvl
-        assert st["adapter"]["ignored"] == 0 and st["stage"]["bad_payloads"] == 0
+        assert st["adapter"]["ignored"] == 0
         assert st["ins_device"] == "ins" and st["dvl_device"] == "dvl"
         assert all(v == 0 for v in st["buffer"].values()), st["buffer"]  # none arrived too late
         # all but the fixed-lag tail (0.2 s of INS samples) is published already
@@ -376,3 +421,4 @@ def test_stage_process_publishes_the_offline_odometry(data, tmp_path):
     assert [e.seq for e in map(decode_envelope, received)] == list(range(1, n_ins + 1))
     assert got == expected  # identical values, sample for sample
     assert got[-1].t == pytest.approx(HOST_EPOCH + T1, abs=1e-6)
+    return st
