@@ -148,6 +148,8 @@ class RosStage(Stage):
         section, _, rest = key[len(base):].partition("/")
         try:
             msgs, t_ns, _ = sample_to_ros(section, rest, payload, t_arrival_ns or 0)
+            if section in ("sensor", "nav") and not self._stamps.accept(t_ns):
+                raise ValueError(f"stamp {t_ns} ns implausible against the stage's clock")
             msgs = list(msgs) + self._tf.feed(msgs, t_ns)
             for m in msgs:
                 self.put(m, t_ns)

@@ -337,6 +337,8 @@ class VizStage(Stage):
         section = parts[0]
         if section in ("sensor", "nav"):  # envelopes (MessagePack; JSON of the previous release)
             env = decode_envelope(payload, key)
+            if not self._stamps.accept(env.t_recv_ns):  # a forged time never moves the clock
+                return "unknown:stamp"
             if section == "sensor" and env.message is not None:
                 self._t_last = env.t_recv_ns / 1e9
                 return self._sensor(env.device, env.type, env.message, self._t_last)
