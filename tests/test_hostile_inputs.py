@@ -9,17 +9,14 @@ takes (the end-to-end form, a forged message sent to a running ``auvgw fusion``,
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
-import msgspec
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from auvgw.bus import Keys, encode_envelope
 from auvgw.decoding import message_kind
-from auvgw.envelope import ENVELOPE_VERSION
 from auvgw.stages.fusion import FusionStage, FusionStageConfig
 from auvgw.testing import REPO
 from auvgw.testing.fusion_emulated import (
@@ -30,61 +27,10 @@ from auvgw.testing.fusion_emulated import (
     ins_output,
     survey_scenario,
 )
+from auvgw.testing.hostile import hostile_payloads
 
 T0, T1 = 100.0, 104.0
 KEYS = Keys("auv1")
-#: numbers at the edges of the types an envelope carries, and the wrong types for them
-EDGES = st.one_of(
-    st.sampled_from([0, -1, 1, 2**31, 2**32, 2**53 + 1, 2**63 - 1, 2**63, 2**64 - 1, 2**64,
-                     -(2**63), -(2**63) - 1, 10**30]),
-    st.sampled_from([0.0, -0.0, 1e300, -1e300, float("inf"), float("-inf"), float("nan"), 5e-324]),
-    st.booleans(), st.none(), st.text(max_size=8), st.just("x" * 70_000), st.binary(max_size=8),
-    st.lists(st.integers(), max_size=3), st.dictionaries(st.text(max_size=3), st.integers(),
-                                                         max_size=2),
-)  # fmt: skip
-
-
-def _json_safe(v):
-    if isinstance(v, float) and v != v:
-        return "NaN"
-    if isinstance(v, bytes):
-        return v.hex()
-    return v
-
-
-@st.composite
-def hostile_payloads(draw) -> bytes:
-    """One hostile payload: an envelope of each version with one or more fields at an edge, a
-    body nested deep, a huge one, or raw bytes."""
-    kind = draw(st.sampled_from(["v1", "v2", "v3", "deep_json", "deep_msgpack", "raw", "huge"]))
-    if kind == "raw":
-        return draw(st.binary(max_size=64))
-    if kind == "huge":
-        return b"\x93" + b"\xda\xff\xff" + b"a" * 65_535  # a 3-array of one 64 kB string
-    if kind == "deep_json":
-        n = draw(st.integers(33, 30_000))
-        return b'{"v": 1, "msg": ' + b"[" * n + b"]" * n + b"}"
-    if kind == "deep_msgpack":
-        n = draw(st.integers(33, 30_000))
-        return b"\x98\x03" + b"\x91" * n + b"\xc0"
-    fields = {"type": "pd0.Ensemble", "device": "dvl", "t": 1_780_000_102 * 10**9, "seq": 7,
-              "wire": "pd0", "schema": 0, "msg": {}}  # fmt: skip
-    for name in draw(st.lists(st.sampled_from(list(fields)), min_size=1, max_size=3)):
-        fields[name] = draw(EDGES)
-    if kind == "v1":
-        doc = {"v": 1, "type": fields["type"], "device": fields["device"],
-               "t_recv_ns": fields["t"], "seq": fields["seq"], "msg": fields["msg"]}
-        return json.dumps({k: _json_safe(v) for k, v in doc.items()}).encode()
-    enc = msgspec.msgpack.Encoder()
-    try:
-        if kind == "v2":
-            return enc.encode({"v": 2, **fields})
-        return enc.encode([ENVELOPE_VERSION, fields["type"], fields["schema"], fields["wire"],
-                           fields["device"], fields["t"], fields["seq"], fields["msg"]])
-    except (OverflowError, TypeError, msgspec.EncodeError):  # beyond what MessagePack holds
-        return enc.encode([ENVELOPE_VERSION, "pd0.Ensemble", 0, "", "dvl", -1, 0, []])
-
-
 @pytest.fixture(scope="module")
 def fusion_traffic(tmp_path_factory):
     """(good (key, payload) samples of 4 s of the emulated survey's INS and DVL, settings)."""
