@@ -2,7 +2,9 @@
 
 A device's reader thread updates its :class:`DeviceHealth`; the status publisher and the status
 queryable read :meth:`DeviceHealth.snapshot` (the JSON fields are listed in docs/gateway.md).
-Times are host wall-clock ns since the Unix epoch (``time.time_ns()``); rates are per second.
+Times are host wall-clock ns since the Unix epoch (``time.time_ns()``); rates are per second of
+the stamp clock (the host's, or the vehicle's under a gateway ``[clock]``, so an emulated vehicle
+at ``--speed 2`` shows its INS at 100 Hz, not 200).
 """
 
 from __future__ import annotations
@@ -139,7 +141,7 @@ class DeviceHealth:
             times = self._times.get(type_name)
             if times is None:  # (not setdefault: that builds a deque per message)
                 times = self._times[type_name] = deque(maxlen=RATE_SAMPLES)
-            times.append(t_ns)
+            times.append(stamp)  # rates on the stamp clock: vehicle-paced under a [clock]
             if t_device_s is not None:
                 self.lag_s = self.lag.observe(stamp / 1e9, t_device_s)
                 self.lag_max_s = max(self.lag_s, self.lag_max_s or 0.0)
@@ -217,7 +219,8 @@ class DeviceHealth:
         return out
 
     def rate_hz(self, now_ns: int | None = None) -> float:
-        """Messages per second (all types) over the last ``window_s`` seconds."""
+        """Messages per second (all types) over the last ``window_s`` seconds of the stamp clock
+        (``now_ns``: now on it; the host clock where no ``[clock]`` paces the stamps)."""
         now_ns = time.time_ns() if now_ns is None else now_ns
         with self._lock:
             return round(sum(self._rates(now_ns).values()), 3)
@@ -236,7 +239,7 @@ class DeviceHealth:
             age = None
             if self.last_stamp_ns is not None:
                 age = round((now_stamp_ns - self.last_stamp_ns) / 1e9 + (self.lag_s or 0.0), 3)
-            rates = self._rates(now_ns)
+            rates = self._rates(now_stamp_ns)
             silent = (
                 None if self.last_seen_ns is None else round((now_ns - self.last_seen_ns) / 1e9, 3)
             )

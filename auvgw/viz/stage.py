@@ -225,7 +225,7 @@ class VizStage(Stage):
         #: magnetic-beacon ranges of the latest window, per map: (t, beacon positions)
         self._ranges: dict[str, tuple[float, list[tuple[float, float]]]] = {}
         self._status: dict[str, tuple[Any, Any]] = {}
-        self._t_last = 0.0
+        self._t_last = 0.0  # the newest data time (sensor, odometry stamps), s
         #: device registry role -> handler; a message type is shown by the first of its roles
         #: that has one (registry.MessageType.roles)
         self._role_handlers: dict[str, Callable[[str, Any, float], bool]] = {
@@ -358,7 +358,8 @@ class VizStage(Stage):
             type_name = str(data.get("type", ""))
         if not isinstance(body, Mapping):
             return f"unknown:{section}"
-        self._t_last = t_host
+        if section in ("sensor", "nav"):  # data times only: status and SLAM rows follow them
+            self._t_last = t_host
         if section == "sensor":
             return self._sensor_json(device, type_name, body, t_host)
         if section == "nav":
@@ -548,7 +549,10 @@ class VizStage(Stage):
 
     def _slam(self, pipeline: str, what: str, body: Mapping[str, Any], t_host: float) -> str:
         name = f"slam/{pipeline}"
-        t = self._clock(name)(_float(body.get("t")), t_host)
+        # a SLAM output's t is on the odometry's clock, the stamps' (vehicle-paced under a
+        # [clock]): its own row time as it is; mapping it against the host's arrival time made
+        # rows at --speed 2 land at about half their vehicle time (issue 33)
+        t = _float(body.get("t"), t_host)
         shown = False
         pose = self._pose_of(body)
         if what == "pose" and pose is not None:
@@ -645,12 +649,15 @@ class VizStage(Stage):
     )  # fmt: skip
     _HEALTH_FLAGS = ("connected", "stale")
 
-    def _health(self, device: str, body: Mapping[str, Any], t: float) -> str:
+    def _health(self, device: str, body: Mapping[str, Any], t_host: float) -> str:
         if device == "gateway" or "devices" in body:
             return "ignored"  # the gateway summary repeats the per-device status
         # on the data's timeline (the gateway's stamp clock, vehicle-paced in emulation), not
-        # the host clock of arrival, which falls behind it at speed != 1
-        t = _float(body.get("t_stamp_ns"), t * 1e9) / 1e9
+        # the host clock of arrival, which falls behind it at speed != 1; a stage's status has
+        # no stamp: it goes at the newest data time this stage has seen
+        t = _float(body.get("t_stamp_ns"), math.nan) / 1e9
+        if t != t:
+            t = self._t_last or t_host
         if not any(k in body for k in (*self._HEALTH_KEYS, *self._HEALTH_FLAGS)):
             # another component's status (fusion, SLAM, ...): its numbers, one series each
             leaves = _numeric_leaves(body)
