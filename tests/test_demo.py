@@ -94,7 +94,7 @@ def test_every_row_is_stamped_on_the_vehicle_clock(demo_run) -> None:
     (rows stamped on the host clock land at about half their vehicle time, issue 33), no
     landmark is labelled with a negative id, and each device's recorded rate is its own rate on
     the vehicle clock (within 5 %), not the host clock's double."""
-    out, _, summary = demo_run
+    out, _, _summary = demo_run
     rec = read_recording(out / "demo.rrd")
     truth = rec["map/truth/track"].times
     t0, t1 = truth[0], truth[-1]
