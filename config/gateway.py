@@ -45,13 +45,13 @@ from pydantic import (
 from auvgw.config.bus import BusConfig
 from auvgw.config.transport import (
     KINDS,
+    MAX_TEXT,
     CanTransportConfig,
     FileTransportConfig,
     SerialTransportConfig,
     TransportConfig,
     UdpTransportConfig,
 )
-from auvgw.config.transport import MAX_TEXT
 from auvgw.drivers import registry
 from auvgw.errors import ConfigError, read_document
 
@@ -95,28 +95,34 @@ class MsisPolling(_Model):
     continuous: bool = True
     n_bins: int = Field(300, ge=8, le=1500)
     adc8: bool = True
-    reply_timeout_s: float = Field(1.0, ge=0.01, le=60, description="resend mtSendData after this, s")
+    reply_timeout_s: float = Field(
+        1.0, ge=0.01, le=60, description="resend mtSendData after this, s"
+    )
 
 
 class DeviceConfig(_Model):
     """One device: its wire format, its transport, and format-specific options."""
 
-    format: str = Field(max_length=64, description="wire format: one of DEVICE_FORMATS (the device registry)")
+    format: str = Field(
+        max_length=64, description="wire format: one of DEVICE_FORMATS (the device registry)"
+    )
     transport: TransportConfig
     enabled: bool = True
     dbc: str | None = Field(
-        None, max_length=MAX_TEXT, description="CAN database (format 'can'); file in config/ or path"
+        None,
+        max_length=MAX_TEXT,
+        description="CAN database (format 'can'); file in config/ or path",
     )
     table: str | None = Field(
-        None, max_length=MAX_TEXT, description="site table replacing the shipped one (formats with a registry table)"
+        None,
+        max_length=MAX_TEXT,
+        description="site table replacing the shipped one (formats with a registry table)",
     )
     msis: MsisPolling | None = None
     stale_after_s: float = Field(
         2.0, ge=0.01, le=3600, description="report the device silent after this, s"
     )
-    backoff_initial_s: float = Field(
-        0.2, ge=0.01, le=3600, description="first reconnect delay, s"
-    )
+    backoff_initial_s: float = Field(0.2, ge=0.01, le=3600, description="first reconnect delay, s")
     backoff_max_s: float = Field(5.0, ge=0.01, le=3600, description="reconnect delay cap, s")
     partial_frame_max_age_s: float = Field(
         2.0, ge=0.001, le=600,
@@ -188,7 +194,9 @@ class ClockConfig(_Model):
 
     time_scale: float = Field(1.0, gt=0, le=1000, description="stamped s per host s")
     epoch_ns: int | None = Field(
-        None, ge=0, le=MAX_EPOCH_NS,
+        None,
+        ge=0,
+        le=MAX_EPOCH_NS,
         description="host time of vehicle time 0, ns since the Unix epoch",
     )
 

@@ -109,15 +109,15 @@ class Vehicle(_Model):
 
     waypoints: list[XY] = Field(default_factory=list, max_length=MAX_POINTS)
     waypoints_file: str | None = Field(
-        None, max_length=4096, description="JSON with a 'waypoints' list of [x, y]; replaces 'waypoints'"
+        None,
+        max_length=4096,
+        description="JSON with a 'waypoints' list of [x, y]; replaces 'waypoints'",
     )
     speed_mps: float = Field(1.5, gt=0, le=10)
     depth_m: float = Field(
         5.0, ge=0, le=11000, description="commanded depth; ignored if altitude_m is set"
     )
-    altitude_m: float | None = Field(
-        None, gt=0, le=1000, description="terrain-following altitude"
-    )
+    altitude_m: float | None = Field(None, gt=0, le=1000, description="terrain-following altitude")
     loops: int = Field(1, ge=1, le=1000, description="times the waypoint list is driven")
     closed: bool = Field(False, description="return to the first waypoint at the end of a loop")
     max_yaw_rate_dps: float = Field(10.0, ge=0.1, le=360, description="turn-rate limit, deg/s")
@@ -128,9 +128,7 @@ class Vehicle(_Model):
     lookahead_m: float = Field(
         10.0, ge=0.1, le=10000, description="line-of-sight guidance lookahead"
     )
-    max_depth_rate_mps: float = Field(
-        0.5, ge=0.001, le=10, description="vertical speed limit, m/s"
-    )
+    max_depth_rate_mps: float = Field(0.5, ge=0.001, le=10, description="vertical speed limit, m/s")
     current_mps: XY = Field((0.0, 0.0), description="water current (north, east), m/s")
     dt_s: float = Field(0.02, ge=0.001, le=1.0, description="motion model integration step, s")
 
@@ -167,7 +165,9 @@ class Vehicle(_Model):
             )
         if math.hypot(*self.current_mps) >= self.speed_mps:
             raise ValueError("current_mps must be slower than speed_mps (the vehicle makes way)")
-        length = sum(math.dist(a, b) for a, b in zip(self.waypoints, self.waypoints[1:]))
+        length = sum(
+            math.dist(a, b) for a, b in zip(self.waypoints, self.waypoints[1:], strict=False)
+        )
         if self.closed:
             length += math.dist(self.waypoints[-1], self.waypoints[0])
         route_s = self.loops * length / (self.speed_mps - math.hypot(*self.current_mps))
@@ -215,7 +215,10 @@ class Features(_Model):
         [], max_length=MAX_LIST
     )
     point_radius_m: float = Field(
-        0.5, gt=0, le=100, description="radius of every point feature as a sonar target (piles, rocks)"
+        0.5,
+        gt=0,
+        le=100,
+        description="radius of every point feature as a sonar target (piles, rocks)",
     )
     points_file: str | None = Field(
         None,
@@ -288,10 +291,15 @@ class Terrain(_Model):
         description="mixed: (x_min, x_max, y_min, y_max) where ridges and mounds are placed",
     )
     direction_deg: float = Field(
-        30.0, ge=-360, le=360, description="sandwaves: crest-normal direction of the dominant wave, deg from north"
+        30.0,
+        ge=-360,
+        le=360,
+        description="sandwaves: crest-normal direction of the dominant wave, deg from north",
     )
     sand_fields: list[SandField] = Field(
-        [], max_length=64, description="mixed: sand-wave fields replacing the relief inside their extent"
+        [],
+        max_length=64,
+        description="mixed: sand-wave fields replacing the relief inside their extent",
     )
 
     @model_validator(mode="after")
@@ -364,7 +372,9 @@ class FaultSettings(_Model):
     unplug: list[Window] = Field([], max_length=MAX_LIST)
     stall: list[Window] = Field([], max_length=MAX_LIST)
     clock_jumps: list[Window] = Field(
-        [], max_length=MAX_LIST, description="(time, jump_s): the device clock jumps by jump_s at time"
+        [],
+        max_length=MAX_LIST,
+        description="(time, jump_s): the device clock jumps by jump_s at time",
     )
 
 
@@ -424,10 +434,10 @@ class Scenario(_Model):
     terrain: Terrain = Terrain()
     magnetic_beacons: list[MagneticBeacon] = Field([], max_length=MAX_LIST)
     acoustic_beacon: AcousticBeacon | None = None
-    earth_field_nt: Annotated[
-        tuple[Coord, Coord, Coord], Strict(False)
-    ] = Field(  # nT: within +-1e5 as well (Earth's field is under 7e4 nT)
-        (20000.0, 0.0, 45000.0), description="Earth field, NED components in nT"
+    earth_field_nt: Annotated[tuple[Coord, Coord, Coord], Strict(False)] = (
+        Field(  # nT: within +-1e5 as well (Earth's field is under 7e4 nT)
+            (20000.0, 0.0, 45000.0), description="Earth field, NED components in nT"
+        )
     )
     sound_speed_mps: Annotated[float, Field(gt=1300, lt=1700)] = 1500.0
     devices: Devices = Devices()

@@ -161,7 +161,9 @@ class CanTransportConfig(_Model):
 
     kind: Literal["can"] = "can"
     interface: str = Field(min_length=1, max_length=64, description="python-can interface name")
-    channel: Annotated[str, Field(max_length=MAX_TEXT)] | Annotated[int, Field(ge=0, le=1 << 16)] | None = None
+    channel: (
+        Annotated[str, Field(max_length=MAX_TEXT)] | Annotated[int, Field(ge=0, le=1 << 16)] | None
+    ) = None
     bitrate: int | None = Field(None, ge=1000, le=1_000_000, description="CAN bit rate, bit/s")
     fd: bool = Field(False, description="CAN FD frames (up to 64 data bytes)")
     data_bitrate: int | None = Field(

@@ -127,9 +127,11 @@ NAMED = {
     ),
     "too_many_devices": (
         lambda d: _devices(d).update(
-            {f"u{i}": {"format": "pd0", "transport": {"kind": "udp", "port": 0}}
-             for i in range(MAX_DEVICES)}
-        ),  # fmt: skip
+            {
+                f"u{i}": {"format": "pd0", "transport": {"kind": "udp", "port": 0}}
+                for i in range(MAX_DEVICES)
+            }
+        ),
         f"devices: Dictionary should have at most {MAX_DEVICES} items",
     ),
 }
@@ -229,12 +231,11 @@ def test_fastest_pace_replays_everything(tmp_path: Path) -> None:
     """``byte_rate`` at its bound (1e9 byte/s; inf was a traceback) with the largest chunk."""
     data = bytes(range(256)) * 16
     (tmp_path / "f.bin").write_bytes(data)
+    cfg = {"kind": "file", "path": str(tmp_path / "f.bin"), "byte_rate": 1e9, "speed": 1000.0,
+           "chunk_size": MAX_CHUNK_BYTES}  # fmt: skip
     got = b""
-    with open_transport(
-        {"kind": "file", "path": str(tmp_path / "f.bin"), "byte_rate": 1e9, "speed": 1000.0,
-         "chunk_size": MAX_CHUNK_BYTES}
-    ) as f:  # fmt: skip
-        with pytest.raises(EndOfStream):
-            while (chunk := f.read(1.0)) is not None or True:
-                got += chunk.data if chunk is not None else b""
+    with open_transport(cfg) as f, pytest.raises(EndOfStream):
+        while True:
+            chunk = f.read(1.0)
+            got += chunk.data if chunk is not None else b""
     assert got == data

@@ -63,8 +63,7 @@ def register(sub: Any) -> None:
         "--devices",
         default=None,
         metavar="LIST",
-        help="comma-separated subset of "
-        + ",".join(em.key for em in registry.emulators()),
+        help="comma-separated subset of " + ",".join(em.key for em in registry.emulators()),
     )
     p.add_argument("--vehicle", default="auv1", help="vehicle name in the gateway configuration")
     p.add_argument(

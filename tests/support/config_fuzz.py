@@ -119,8 +119,10 @@ def mutated(draw: st.DrawFn, base: dict[str, Any]) -> dict[str, Any]:
     parent, key = _parent(doc, path), path[-1]
     if how == "edge":
         parent[key] = draw(st.sampled_from(EDGES))
-    elif how == "scale" and isinstance(parent[key], int | float) and not isinstance(
-        parent[key], bool
+    elif (
+        how == "scale"
+        and isinstance(parent[key], int | float)
+        and not isinstance(parent[key], bool)
     ):
         parent[key] = parent[key] * draw(st.sampled_from([-1, 1e-12, 1e12, 10**18]))
     elif how == "remove" and isinstance(parent, dict):
@@ -153,7 +155,11 @@ def _toml_value(v: Any) -> str:
     if isinstance(v, list):
         return "[" + ", ".join(_toml_value(x) for x in v) + "]"
     if isinstance(v, dict):
-        return "{ " + ", ".join(f"{json.dumps(str(k))} = {_toml_value(x)}" for k, x in v.items()) + " }"
+        return (
+            "{ "
+            + ", ".join(f"{json.dumps(str(k))} = {_toml_value(x)}" for k, x in v.items())
+            + " }"
+        )
     raise TypeError(f"no TOML for {type(v).__name__}")
 
 
@@ -183,7 +189,7 @@ def check_file(kind: str, path: Path) -> tuple[str, str]:
     try:
         with contextlib.redirect_stderr(err), contextlib.redirect_stdout(out):
             rc = main(argv)
-    except BaseException as exc:  # noqa: BLE001 - what the fuzz counts
+    except BaseException as exc:
         return "traceback", f"{type(exc).__name__}: {exc}"[:500]
     text = err.getvalue()
     if rc == 0:
