@@ -239,3 +239,16 @@ def test_fastest_pace_replays_everything(tmp_path: Path) -> None:
             chunk = f.read(1.0)
             got += chunk.data if chunk is not None else b""
     assert got == data
+
+
+def test_a_huge_terrain_grid_is_refused_unread(folder: Path) -> None:
+    from auvgw.sim_devices.world import MAX_GRID_BYTES
+
+    grid = folder / "grid.json"
+    with grid.open("w") as f:  # sparse: no disk is spent
+        f.truncate(MAX_GRID_BYTES + 1)
+    doc = json.loads((Path(SCENARIOS[0]).parent / "survey.json").read_text())
+    doc["terrain"] = {"kind": "grid", "file": "grid.json"}
+    outcome, text = check_file("sim", write_case(folder, "big_terrain", "sim", doc))
+    assert outcome == "error", text
+    assert f"big_terrain.json: terrain.file {grid}: too large for a depth grid" in text, text

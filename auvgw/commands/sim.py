@@ -160,7 +160,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             World.from_scenario(scn)
         except ScenarioError as exc:
-            raise UserError(str(exc).replace("\n", "; ")) from exc
+            raise UserError(f"{args.scenario}: {exc}".replace("\n", "; ")) from exc
         print(f"{args.scenario}: ok (scenario {scn.name!r})")
         return 0
     devices = None
