@@ -194,7 +194,29 @@ def read_document(
         raise error(f"{path}: not valid {kind}: {exc}") from exc
     if not isinstance(data, dict):
         raise error(f"{path}: the top level must be a table (an object)")
+    where = _nul_at(data)
+    if where is not None:  # no path, port or name holds one: open() and bind() raise on it
+        raise error(f"{path}: {where or '(top level)'}: contains a NUL character")
     return data
+
+
+def _nul_at(value: Any, where: str = "") -> str | None:
+    """The key path of the first string (key or value) holding a NUL character, if any."""
+    if isinstance(value, str):
+        return where if "\0" in value else None
+    items: Any = ()
+    if isinstance(value, dict):
+        items = value.items()
+    elif isinstance(value, list):
+        items = ((f"[{i}]", v) for i, v in enumerate(value))
+    for k, v in items:
+        sub = f"{where}{k}" if k.startswith("[") or not where else f"{where}.{k}"
+        if "\0" in k:
+            return sub
+        found = _nul_at(v, sub)
+        if found is not None:
+            return found
+    return None
 
 
 def load_settings(

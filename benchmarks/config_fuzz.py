@@ -30,6 +30,7 @@ import sys
 import tempfile
 import threading
 import time
+import traceback
 from collections import Counter
 from pathlib import Path
 from typing import Any
@@ -119,8 +120,13 @@ def run_accepted(paths: list[Path], run_s: float) -> dict[str, Any]:
     died: list[str] = []
     old_hook = threading.excepthook
 
+    current = [Path()]
+
     def hook(args: threading.ExceptHookArgs) -> None:
-        died.append(f"{args.thread.name if args.thread else '?'}: {args.exc_type.__name__}")
+        name = args.thread.name if args.thread else "?"
+        died.append(f"{current[0].name} {name}: {args.exc_type.__name__}: {args.exc_value}")
+        print(f"DIED {current[0]}:", file=sys.stderr)
+        traceback.print_exception(args.exc_type, args.exc_value, args.exc_traceback)
 
     threading.excepthook = hook
     errors = _ReaderErrors()
@@ -130,6 +136,7 @@ def run_accepted(paths: list[Path], run_s: float) -> dict[str, Any]:
     worst_cpu = 0.0
     try:
         for path in paths:
+            current[0] = path
             cfg = load_gateway_config(path)
             gw = Gateway(cfg, session=session)
             gw.start()
@@ -138,6 +145,9 @@ def run_accepted(paths: list[Path], run_s: float) -> dict[str, Any]:
             time.sleep(run_s)
             cpu = (time.process_time() - cpu0) / (time.monotonic() - t0)
             gw.stop()
+            if cpu > 0.5:
+                devices = {n: d.transport.describe() for n, d in cfg.devices.items()}
+                print(f"BUSY {100 * cpu:.0f} % {path}: {devices}", file=sys.stderr)
             worst_cpu = max(worst_cpu, cpu)
     finally:
         session.close()

@@ -19,6 +19,7 @@ field, what was expected and what was given. Units are in the field names: ``_s`
 from __future__ import annotations
 
 import ipaddress
+import re
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -234,6 +235,9 @@ class CanTransportConfig(_Model):
         return out
 
 
+_HOSTNAME = re.compile(r"[A-Za-z0-9_-]{1,63}(\.[A-Za-z0-9_-]{1,63})*\.?")
+
+
 def _ipv4(v: str, what: str) -> ipaddress.IPv4Address:
     try:
         return ipaddress.IPv4Address(v)
@@ -272,6 +276,21 @@ class UdpTransportConfig(_Model):
         description="addresses or networks (10.0.0.5, 10.0.0.0/24, ::1) whose datagrams are "
         "read, or ['any']; default: remote_host if set, else any sender",
     )
+
+    @field_validator("host", "remote_host")
+    @classmethod
+    def _host(cls, v: str | None) -> str | None:
+        if v is None:
+            return v
+        try:
+            ipaddress.ip_address(v)
+        except ValueError:
+            if len(v) > 253 or not _HOSTNAME.fullmatch(v):
+                raise ValueError(
+                    f"{v!r:.60} is neither an IP address nor a host name (ASCII labels of 1-63 "
+                    "letters, digits or '-', joined by '.')"
+                ) from None
+        return v
 
     @field_validator("multicast_group")
     @classmethod

@@ -125,6 +125,15 @@ NAMED = {
         lambda d: _devices(d)["mag"].update(dbc="absent.dbc"),
         "devices.mag.dbc: cannot load 'absent.dbc'",
     ),
+    # found by benchmarks/config_fuzz.py: accepted, then the reader thread died in open()
+    "nul_in_a_path": (
+        lambda d: _devices(d)["dvl"]["transport"].update(path="dvl\0.bin"),
+        "devices.dvl.transport.path: contains a NUL character",
+    ),
+    "host_label_too_long": (
+        lambda d: _devices(d)["mb"]["transport"].update(remote_host="h" * 64, remote_port=9),
+        "devices.mb.transport.remote_host: 'hhhh",
+    ),
     "too_many_devices": (
         lambda d: _devices(d).update(
             {
