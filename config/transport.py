@@ -373,6 +373,11 @@ class FileTransportConfig(_Model):
             raise ValueError("set either 'byte_rate' or 'baud', not both")
         if self.speed != 1.0 and self.byte_rate is None and self.baud is None:
             raise ValueError("'speed' needs a real-time pace: set 'byte_rate' or 'baud'")
+        if self.loop and self.byte_rate is None and self.baud is None:
+            raise ValueError(
+                "'loop' needs a pace: set 'byte_rate' or 'baud' (an unpaced loop replays for "
+                "ever as fast as the CPU allows, a whole core)"
+            )
         return self
 
     @property

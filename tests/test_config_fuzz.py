@@ -134,6 +134,10 @@ NAMED = {
         lambda d: _devices(d)["mb"]["transport"].update(remote_host="h" * 64, remote_port=9),
         "devices.mb.transport.remote_host: 'hhhh",
     ),
+    "unpaced_loop": (  # accepted before: a reader replaying at 100 % of a core for ever
+        lambda d: _devices(d)["dvl"]["transport"].pop("byte_rate"),
+        "devices.dvl.transport: 'loop' needs a pace: set 'byte_rate' or 'baud'",
+    ),
     "too_many_devices": (
         lambda d: _devices(d).update(
             {
