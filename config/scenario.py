@@ -306,6 +306,9 @@ class Terrain(_Model):
     def _grid_needs_file(self) -> Terrain:
         if self.kind == "grid" and not self.file:
             raise ValueError("terrain kind 'grid' needs 'file'")
+        x0, x1, y0, y1 = self.extent_m
+        if self.kind == "mixed" and not (x0 < x1 and y0 < y1):
+            raise ValueError(f"extent_m {self.extent_m}: need x_min < x_max, y_min < y_max")
         if self.sand_fields and self.kind != "mixed":
             raise ValueError(f"terrain kind {self.kind!r}: sand_fields need kind 'mixed'")
         for i, f in enumerate(self.sand_fields):

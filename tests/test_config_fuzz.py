@@ -191,6 +191,12 @@ def test_a_huge_file_is_refused_unread(folder: Path, gateway_base: dict) -> None
         ("terrain.cell_m", 1e-9, "terrain.cell_m: Input should be greater than or equal to 0.01"),
         ("vehicle.speed_mps", "1.5", "vehicle.speed_mps: Input should be a valid number"),
         ("duration_s", 1e308, "duration_s: Input should be less than or equal to 86400"),
+        # found by the fuzz: a reversed extent of a mixed terrain was a numpy traceback
+        (
+            "terrain",
+            {"kind": "mixed", "extent_m": [100, -100, 0, 10]},
+            "terrain: extent_m (100.0, -100.0, 0.0, 10.0): need x_min < x_max",
+        ),
     ],
 )
 def test_scenario_bounds(folder: Path, field: str, value: object, expected: str) -> None:
