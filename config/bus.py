@@ -11,6 +11,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from auvgw.ground.errors import ConfigError
+
 __all__ = [
     "DEFAULT_ENDPOINT",
     "ENDPOINT_ENV",
@@ -39,6 +41,11 @@ def default_endpoint() -> str:
 
 
 _ENDPOINT = re.compile(r"^[a-z][a-z0-9-]*/\S+$")
+#: strict types (no "yes" -> True), finite numbers, unknown keys refused
+_STRICT = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False)
+_PATH = Field(None, max_length=4096)
+#: most listen or connect endpoints of one session
+MAX_ENDPOINTS = 32
 
 
 def _rebase(value: str | None, base: Path) -> str | None:
@@ -53,13 +60,15 @@ class BusTlsConfig(BaseModel):
     listener demand a client certificate signed by ``root_ca_certificate``: the certificate's
     common name is then the identity access control rules match (``cert_common_names``)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = _STRICT
 
-    root_ca_certificate: str = Field(description="CA that signed the peers' certificates")
-    listen_certificate: str | None = None
-    listen_private_key: str | None = None
-    connect_certificate: str | None = None
-    connect_private_key: str | None = None
+    root_ca_certificate: str = Field(
+        max_length=4096, description="CA that signed the peers' certificates"
+    )
+    listen_certificate: str | None = _PATH
+    listen_private_key: str | None = _PATH
+    connect_certificate: str | None = _PATH
+    connect_private_key: str | None = _PATH
     enable_mtls: bool = False
     verify_name_on_connect: bool = True
 
@@ -84,12 +93,12 @@ class BusAuthConfig(BaseModel):
     (``user:password`` lines) is what a listener accepts. The usernames are identities for access
     control (``usernames``). Passwords travel inside the link: use it with TLS."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = _STRICT
 
-    user: str | None = None
-    password: str | None = None
-    password_file: str | None = None
-    dictionary_file: str | None = None
+    user: str | None = Field(None, max_length=256)
+    password: str | None = Field(None, max_length=4096)
+    password_file: str | None = _PATH
+    dictionary_file: str | None = _PATH
 
     @model_validator(mode="after")
     def _one_password(self) -> BusAuthConfig:
@@ -113,9 +122,10 @@ class BusAuthConfig(BaseModel):
         if self.password_file is not None:
             try:
                 lines = Path(self.password_file).read_text().splitlines()
-            except OSError as exc:
-                raise ValueError(
-                    f"bus.auth.password_file {self.password_file}: {exc.strerror}"
+            except (OSError, UnicodeDecodeError) as exc:
+                why = exc.strerror if isinstance(exc, OSError) else "not a text (UTF-8) file"
+                raise ConfigError(
+                    f"bus.auth.password_file: {self.password_file}: cannot read: {why}"
                 ) from None
             password = lines[0] if lines else ""
         if self.user is not None:
@@ -138,11 +148,15 @@ class BusConfig(BaseModel):
     docs/bus.md#finding-each-other).
     """
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = _STRICT
 
     mode: Literal["peer", "client", "router"] = "peer"
-    listen: list[str] = Field(default_factory=list, description="e.g. tcp/127.0.0.1:7447")
-    connect: list[str] = Field(default_factory=list, description="e.g. tcp/192.168.1.10:7447")
+    listen: list[str] = Field(
+        default_factory=list, max_length=MAX_ENDPOINTS, description="e.g. tcp/127.0.0.1:7447"
+    )
+    connect: list[str] = Field(
+        default_factory=list, max_length=MAX_ENDPOINTS, description="e.g. tcp/192.168.1.10:7447"
+    )
     multicast_scouting: bool = False
     gossip: bool = True
     tls: BusTlsConfig | None = None
@@ -153,14 +167,17 @@ class BusConfig(BaseModel):
         "subjects, policies), passed as is; see docs/security.md",
     )
     no_publisher_after_s: float = Field(
-        NO_PUBLISHER_AFTER_S, gt=0, description="say 'no publisher' after this many seconds"
-    )
+        NO_PUBLISHER_AFTER_S, ge=0.1, le=3600,
+        description="say 'no publisher' after this many seconds",
+    )  # fmt: skip
 
     @field_validator("listen", "connect")
     @classmethod
     def _endpoints(cls, v: list[str]) -> list[str]:
-        for e in v:
-            if not _ENDPOINT.match(e):
+        for i, e in enumerate(v):
+            if e in v[:i]:
+                raise ValueError(f"endpoint {e!r} given twice")
+            if len(e) > 512 or not _ENDPOINT.match(e):
                 raise ValueError(
                     f"endpoint {e!r} is not '<protocol>/<address>' (e.g. 'tcp/127.0.0.1:7447')"
                 )

@@ -31,7 +31,7 @@ import types
 import typing
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 from pydantic import (
     BaseModel,
@@ -46,10 +46,12 @@ from auvgw.config.bus import BusConfig
 from auvgw.config.ros2 import FoxgloveConfig, Ros2Config
 from auvgw.config.transport import (
     KINDS,
+    MAX_TEXT,
     CanTransportConfig,
     FileTransportConfig,
     SerialTransportConfig,
     TransportConfig,
+    UdpTransportConfig,
 )
 from auvgw.drivers import registry
 from auvgw.ground.errors import ConfigError, read_document
@@ -71,11 +73,16 @@ __all__ = [
 DEVICE_FORMATS = registry.device_formats()
 
 _NAME_CHARS = "letters, digits, '_' or '-'"
+#: most devices in one gateway (a thread each)
+MAX_DEVICES = 64
+#: the latest clock.epoch_ns accepted: 2100-01-01
+MAX_EPOCH_NS = 4_102_444_800 * 10**9
 
 
 class _Model(BaseModel):
-    # every number finite (inf/nan rejected): an infinite period or delay kills a thread
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    # every number finite (inf/nan rejected): an infinite period or delay kills a thread; strict:
+    # no "yes" -> True, "3" -> 3 or 3.0 -> 3
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
 
 
 class MsisPolling(_Model):
@@ -89,29 +96,37 @@ class MsisPolling(_Model):
     continuous: bool = True
     n_bins: int = Field(300, ge=8, le=1500)
     adc8: bool = True
-    reply_timeout_s: float = Field(1.0, gt=0, le=60, description="resend mtSendData after this, s")
+    reply_timeout_s: float = Field(
+        1.0, ge=0.01, le=60, description="resend mtSendData after this, s"
+    )
 
 
 class DeviceConfig(_Model):
     """One device: its wire format, its transport, and format-specific options."""
 
-    format: str = Field(description="wire format: one of DEVICE_FORMATS (the device registry)")
+    format: str = Field(
+        max_length=64, description="wire format: one of DEVICE_FORMATS (the device registry)"
+    )
     transport: TransportConfig
     enabled: bool = True
     dbc: str | None = Field(
-        None, description="CAN database (format 'can'); file in config/ or path"
+        None,
+        max_length=MAX_TEXT,
+        description="CAN database (format 'can'); file in config/ or path",
     )
     table: str | None = Field(
-        None, description="site table replacing the shipped one (formats with a registry table)"
+        None,
+        max_length=MAX_TEXT,
+        description="site table replacing the shipped one (formats with a registry table)",
     )
     msis: MsisPolling | None = None
     stale_after_s: float = Field(
-        2.0, gt=0, le=3600, description="report the device silent after this, s"
+        2.0, ge=0.01, le=3600, description="report the device silent after this, s"
     )
-    backoff_initial_s: float = Field(0.2, gt=0, le=3600, description="first reconnect delay, s")
-    backoff_max_s: float = Field(5.0, gt=0, le=3600, description="reconnect delay cap, s")
+    backoff_initial_s: float = Field(0.2, ge=0.01, le=3600, description="first reconnect delay, s")
+    backoff_max_s: float = Field(5.0, ge=0.01, le=3600, description="reconnect delay cap, s")
     partial_frame_max_age_s: float = Field(
-        2.0, gt=0, le=600,
+        2.0, ge=0.001, le=600,
         description="drop a partial frame that waited this long for its bytes (host s); a "
         "few frame periods of the slowest message, longer than its transmission time",
     )  # fmt: skip
@@ -180,7 +195,10 @@ class ClockConfig(_Model):
 
     time_scale: float = Field(1.0, gt=0, le=1000, description="stamped s per host s")
     epoch_ns: int | None = Field(
-        None, ge=0, description="host time of vehicle time 0, ns since the Unix epoch"
+        None,
+        ge=0,
+        le=MAX_EPOCH_NS,
+        description="host time of vehicle time 0, ns since the Unix epoch",
     )
 
     @model_validator(mode="after")
@@ -209,11 +227,15 @@ class GatewayConfig(_Model):
     """The whole gateway: vehicle name (a Zenoh key segment), bus, status period, devices,
     and the receive-time clock."""
 
-    vehicle: str = "auv1"
+    vehicle: str = Field("auv1", max_length=64)
     bus: BusConfig = Field(default_factory=BusConfig)
     clock: ClockConfig = Field(default_factory=ClockConfig)
-    status_period_s: float = Field(1.0, gt=0, le=3600, description="status publication period, s")
-    devices: dict[str, DeviceConfig] = Field(min_length=1)
+    status_period_s: float = Field(
+        1.0, ge=0.05, le=3600, description="status publication period, s"
+    )
+    devices: dict[Annotated[str, Field(max_length=64)], DeviceConfig] = Field(
+        min_length=1, max_length=MAX_DEVICES
+    )
     ros2: Ros2Config = Field(default_factory=Ros2Config, description="the ROS 2 bridge")
     foxglove: FoxgloveConfig = Field(default_factory=FoxgloveConfig,
                                      description="the Foxglove WebSocket server")  # fmt: skip
@@ -237,6 +259,41 @@ class GatewayConfig(_Model):
             if name == "gateway":
                 raise ValueError("'gateway' is reserved (the gateway's own status and liveliness)")
         return v
+
+    @field_validator("devices")
+    @classmethod
+    def _one_device_per_port(cls, v: dict[str, DeviceConfig]) -> dict[str, DeviceConfig]:
+        seen: dict[tuple[str, ...], str] = {}
+        for name, dev in v.items():
+            key = _port_key(dev.transport)
+            if key is None:
+                continue
+            if key in seen:
+                raise ValueError(
+                    f"devices {seen[key]!r} and {name!r} both use {dev.transport.describe()}: "
+                    "one device per port (two would take turns failing to open it)"
+                )
+            seen[key] = name
+        return v
+
+
+def _port_key(t: TransportConfig) -> tuple[str, ...] | None:
+    """What two devices may not share: a serial port, an exclusive CAN adapter's channel, a
+    UDP port bound without SO_REUSEADDR (None: sharable, e.g. a replayed file, SocketCAN)."""
+    if isinstance(t, SerialTransportConfig):
+        return ("serial", t.url)
+    if isinstance(t, CanTransportConfig):
+        if t.interface in _SHARED_CAN:
+            return None
+        return ("can", t.interface, str(t.channel))
+    if isinstance(t, UdpTransportConfig):
+        reuse = t.reuse_address if t.reuse_address is not None else t.multicast_group is not None
+        return None if t.port == 0 or reuse else ("udp", str(t.port))
+    return None
+
+
+#: CAN interfaces several sockets may open at once (every other one is one adapter, one owner)
+_SHARED_CAN = frozenset({"socketcan", "virtual", "udp_multicast"})
 
 
 def _is_name(s: str) -> bool:
@@ -344,6 +401,11 @@ def _resolve_paths(cfg: GatewayConfig, base: Path) -> None:
     """Relative file, device (serial url, slcan channel), DBC and table paths name files next
     to the configuration file, wherever the gateway is started from (systemd: ``/``)."""
     cfg.bus = cfg.bus.rebased(base)
+    auth = cfg.bus.auth
+    for attr in ("password_file", "dictionary_file"):
+        name = getattr(auth, attr, None)
+        if name is not None and not Path(name).is_file():
+            raise ConfigError(f"{cfg.source}: bus.auth.{attr}: no such file ({name})")
     for dev in cfg.devices.values():
         t = dev.transport
         if isinstance(t, FileTransportConfig) and not t.path.is_absolute():

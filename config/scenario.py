@@ -25,6 +25,7 @@ from pydantic import (
     BaseModel,
     ConfigDict,
     Field,
+    Strict,
     ValidationError,
     ValidationInfo,
     create_model,
@@ -52,7 +53,17 @@ __all__ = [
     "resolve_ref",
 ]
 
-XY = tuple[float, float]
+#: a coordinate or offset in the local frame, metres: within 100 km of the origin
+Coord = Annotated[float, Field(ge=-1e5, le=1e5)]
+#: a point (x north, y east), metres; a JSON array (tuples are not JSON: not strict)
+XY = Annotated[tuple[Coord, Coord], Strict(False)]
+Window = Annotated[tuple[float, float], Strict(False)]
+#: a seed for numpy's generators (0 .. 2^32-1)
+Seed = Annotated[int, Field(ge=0, le=2**32 - 1)]
+#: the longest route a scenario may drive, vehicle seconds (a day; the truth is precomputed)
+MAX_ROUTE_S = 86400.0
+MAX_POINTS = 20_000
+MAX_LIST = 1000
 
 
 class ScenarioError(ConfigError):
@@ -60,7 +71,8 @@ class ScenarioError(ConfigError):
 
 
 class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # strict: no "yes" -> True, "3" -> 3 or 3.0 -> 3; every number finite
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
 
 
 def resolve_ref(ref: str, source: str | None = None, label: str | None = None) -> Path:
@@ -95,24 +107,30 @@ class Vehicle(_Model):
     step of the motion model.
     """
 
-    waypoints: list[XY] = Field(default_factory=list)
+    waypoints: list[XY] = Field(default_factory=list, max_length=MAX_POINTS)
     waypoints_file: str | None = Field(
-        None, description="JSON with a 'waypoints' list of [x, y]; replaces 'waypoints'"
+        None,
+        max_length=4096,
+        description="JSON with a 'waypoints' list of [x, y]; replaces 'waypoints'",
     )
     speed_mps: float = Field(1.5, gt=0, le=10)
-    depth_m: float = Field(5.0, ge=0, description="commanded depth; ignored if altitude_m is set")
-    altitude_m: float | None = Field(None, gt=0, description="terrain-following altitude")
-    loops: int = Field(1, ge=1, description="times the waypoint list is driven")
+    depth_m: float = Field(
+        5.0, ge=0, le=11000, description="commanded depth; ignored if altitude_m is set"
+    )
+    altitude_m: float | None = Field(None, gt=0, le=1000, description="terrain-following altitude")
+    loops: int = Field(1, ge=1, le=1000, description="times the waypoint list is driven")
     closed: bool = Field(False, description="return to the first waypoint at the end of a loop")
-    max_yaw_rate_dps: float = Field(10.0, gt=0, description="turn-rate limit, deg/s")
-    accept_radius_m: float = Field(2.0, gt=0, description="waypoint acceptance radius")
-    start: tuple[float, float, float] | None = Field(
+    max_yaw_rate_dps: float = Field(10.0, ge=0.1, le=360, description="turn-rate limit, deg/s")
+    accept_radius_m: float = Field(2.0, gt=0, le=1000, description="waypoint acceptance radius")
+    start: Annotated[tuple[Coord, Coord, float], Strict(False)] | None = Field(
         None, description="initial (x, y, heading_deg); default: first waypoint facing the second"
     )
-    lookahead_m: float = Field(10.0, gt=0, description="line-of-sight guidance lookahead")
-    max_depth_rate_mps: float = Field(0.5, gt=0, description="vertical speed limit, m/s")
+    lookahead_m: float = Field(
+        10.0, ge=0.1, le=10000, description="line-of-sight guidance lookahead"
+    )
+    max_depth_rate_mps: float = Field(0.5, ge=0.001, le=10, description="vertical speed limit, m/s")
     current_mps: XY = Field((0.0, 0.0), description="water current (north, east), m/s")
-    dt_s: float = Field(0.02, gt=0, le=1.0, description="motion model integration step, s")
+    dt_s: float = Field(0.02, ge=0.001, le=1.0, description="motion model integration step, s")
 
     @model_validator(mode="before")
     @classmethod
@@ -147,47 +165,64 @@ class Vehicle(_Model):
             )
         if math.hypot(*self.current_mps) >= self.speed_mps:
             raise ValueError("current_mps must be slower than speed_mps (the vehicle makes way)")
+        length = sum(
+            math.dist(a, b) for a, b in zip(self.waypoints, self.waypoints[1:], strict=False)
+        )
+        if self.closed:
+            length += math.dist(self.waypoints[-1], self.waypoints[0])
+        route_s = self.loops * length / (self.speed_mps - math.hypot(*self.current_mps))
+        if route_s > MAX_ROUTE_S:
+            raise ValueError(
+                f"the route takes about {route_s:.3g} s at speed_mps, over {MAX_ROUTE_S:g} s: "
+                "fewer loops or waypoints, or a faster vehicle"
+            )
         return self
 
 
 class BicycleMotion(_Model):
     """Tim Bailey's simulator vehicle (his defaults): a steered car following waypoints."""
 
-    speed_mps: float = 3.0
-    wheelbase_m: float = 4.0
-    max_steer_deg: float = 30.0
-    max_steer_rate_dps: float = 20.0
-    dt_s: float = 0.025
-    sigma_v_mps: float = 0.3
-    sigma_steer_deg: float = 3.0
+    speed_mps: float = Field(3.0, gt=0, le=50)
+    wheelbase_m: float = Field(4.0, gt=0, le=100)
+    max_steer_deg: float = Field(30.0, gt=0, le=89)
+    max_steer_rate_dps: float = Field(20.0, gt=0, le=360)
+    dt_s: float = Field(0.025, ge=0.001, le=1.0)
+    sigma_v_mps: float = Field(0.3, ge=0, le=10)
+    sigma_steer_deg: float = Field(3.0, ge=0, le=90)
 
 
 class ObservationSettings(_Model):
     """Range-bearing observations of point features (the SLAM papers' eq. 4)."""
 
-    max_range_m: float = 30.0
+    max_range_m: float = Field(30.0, gt=0, le=10000)
     field_of_view_deg: float = Field(
         180.0, gt=0, le=360, description="seen within +-fov/2 of the heading (Bailey: 180)"
     )
-    sigma_range_m: float = 0.1
-    sigma_bearing_deg: float = 1.0
-    every_n_steps: int = Field(8, ge=1, description="observe every n motion steps")
+    sigma_range_m: float = Field(0.1, ge=0, le=1000)
+    sigma_bearing_deg: float = Field(1.0, ge=0, le=180)
+    every_n_steps: int = Field(8, ge=1, le=100000, description="observe every n motion steps")
     #: the VB paper's dynamic noise: for each observation, with probability p its covariance
     #: is n times R0
     burst_p: float = Field(0.0, ge=0, le=1)
-    burst_n: float = Field(1.0, ge=1)
+    burst_n: float = Field(1.0, ge=1, le=1e6)
 
 
 class Features(_Model):
     """Point features (x, y) and line features (x1, y1, x2, y2): walls, piers, in metres."""
 
-    points: list[XY] = []
-    lines: list[tuple[float, float, float, float]] = []
+    points: list[XY] = Field([], max_length=MAX_POINTS)
+    lines: list[Annotated[tuple[Coord, Coord, Coord, Coord], Strict(False)]] = Field(
+        [], max_length=MAX_LIST
+    )
     point_radius_m: float = Field(
-        0.5, gt=0, description="radius of every point feature as a sonar target (piles, rocks)"
+        0.5,
+        gt=0,
+        le=100,
+        description="radius of every point feature as a sonar target (piles, rocks)",
     )
     points_file: str | None = Field(
         None,
+        max_length=4096,
         description="JSON with a 'landmarks' list of [x, y] (e.g. 'shared:bailey/webmap.json', "
         "resolved in ../shared/data), appended to points",
     )
@@ -202,12 +237,14 @@ class SandField(_Model):
     one wavelength away about as well as the truth, crossings outside do not.
     """
 
-    extent_m: tuple[float, float, float, float]
-    relief_m: float = Field(1.5, gt=0)
-    wavelength_m: float = Field(40.0, gt=0)
-    direction_deg: float = 30.0
-    edge_m: float = Field(20.0, gt=0, description="width of the fade at the field's borders")
-    seed: int = 0
+    extent_m: Annotated[tuple[Coord, Coord, Coord, Coord], Strict(False)]
+    relief_m: float = Field(1.5, gt=0, le=1000)
+    wavelength_m: float = Field(40.0, ge=0.1, le=1e5)
+    direction_deg: float = Field(30.0, ge=-360, le=360)
+    edge_m: float = Field(
+        20.0, gt=0, le=1e5, description="width of the fade at the field's borders"
+    )
+    seed: Seed = 0
 
     @model_validator(mode="after")
     def _extent_ordered(self) -> SandField:
@@ -236,34 +273,42 @@ class Terrain(_Model):
     """
 
     kind: Literal["flat", "procedural", "grid", "mixed", "sandwaves"] = "flat"
-    depth_m: float = Field(50.0, gt=0)
-    relief_m: float = Field(0.0, ge=0)
-    wavelength_m: float = Field(80.0, gt=0)
+    depth_m: float = Field(50.0, gt=0, le=11000)
+    relief_m: float = Field(0.0, ge=0, le=1000)
+    wavelength_m: float = Field(80.0, ge=0.1, le=1e5)
     octaves: int = Field(1, ge=1, le=8, description="procedural detail layers")
-    seed: int = 0
-    file: str | None = None
-    cell_m: float = Field(1.0, gt=0)
+    seed: Seed = 0
+    file: str | None = Field(None, max_length=4096)
+    cell_m: float = Field(1.0, ge=0.01, le=1e4)
     origin: XY = (0.0, 0.0)
     flat_fraction: float = Field(
         0.3, ge=0, lt=1, description="mixed: share of the area that is a flat patch (no relief)"
     )
     n_ridges: int = Field(3, ge=0, le=50, description="mixed: linear ridges of relief_m height")
     n_mounds: int = Field(12, ge=0, le=500, description="mixed: Gaussian mounds of relief_m")
-    extent_m: tuple[float, float, float, float] = Field(
+    extent_m: Annotated[tuple[Coord, Coord, Coord, Coord], Strict(False)] = Field(
         (-200.0, 1000.0, -200.0, 1000.0),
         description="mixed: (x_min, x_max, y_min, y_max) where ridges and mounds are placed",
     )
     direction_deg: float = Field(
-        30.0, description="sandwaves: crest-normal direction of the dominant wave, deg from north"
+        30.0,
+        ge=-360,
+        le=360,
+        description="sandwaves: crest-normal direction of the dominant wave, deg from north",
     )
     sand_fields: list[SandField] = Field(
-        [], description="mixed: sand-wave fields replacing the relief inside their extent"
+        [],
+        max_length=64,
+        description="mixed: sand-wave fields replacing the relief inside their extent",
     )
 
     @model_validator(mode="after")
     def _grid_needs_file(self) -> Terrain:
         if self.kind == "grid" and not self.file:
             raise ValueError("terrain kind 'grid' needs 'file'")
+        x0, x1, y0, y1 = self.extent_m
+        if self.kind == "mixed" and not (x0 < x1 and y0 < y1):
+            raise ValueError(f"extent_m {self.extent_m}: need x_min < x_max, y_min < y_max")
         if self.sand_fields and self.kind != "mixed":
             raise ValueError(f"terrain kind {self.kind!r}: sand_fields need kind 'mixed'")
         for i, f in enumerate(self.sand_fields):
@@ -288,31 +333,37 @@ class Terrain(_Model):
 class MagneticBeacon(_Model):
     """A coil on the seabed: position (NED, m), dipole moment (A m^2) along ``axis``, frequency."""
 
-    x: float
-    y: float
-    z: float = 0.0
-    moment_am2: float = Field(gt=0)
-    frequency_hz: float = Field(0.0, ge=0, description="0 = static (DC) field")
-    axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    x: Coord
+    y: Coord
+    z: Coord = 0.0
+    moment_am2: float = Field(gt=0, le=1e9)
+    frequency_hz: float = Field(0.0, ge=0, le=1e5, description="0 = static (DC) field")
+    axis: Annotated[tuple[float, float, float], Strict(False)] = (0.0, 0.0, 1.0)
+
+    @model_validator(mode="after")
+    def _axis_not_zero(self) -> MagneticBeacon:
+        if not 1e-6 <= math.hypot(*self.axis) <= 1e6:
+            raise ValueError(f"axis {self.axis}: needs a length between 1e-6 and 1e6")
+        return self
 
 
 class AcousticBeacon(_Model):
     """One acoustic transponder (USBL/LBL-style range source), position NED in metres."""
 
-    x: float
-    y: float
-    z: float = 0.0
-    sigma_range_m: float = Field(0.5, gt=0)
+    x: Coord
+    y: Coord
+    z: Coord = 0.0
+    sigma_range_m: float = Field(0.5, gt=0, le=1000)
 
 
 class FaultSettings(_Model):
     """Fault knobs of one device (all off by default). Times are vehicle seconds [start, end)."""
 
     noise_burst_p: float = Field(0.0, ge=0, le=1, description="probability of a noise burst")
-    noise_burst_n: float = Field(1.0, ge=1, description="covariance multiplier in a burst")
+    noise_burst_n: float = Field(1.0, ge=1, le=1e6, description="covariance multiplier in a burst")
     dropout_p: float = Field(0.0, ge=0, le=1, description="probability a frame is not sent")
     garbage_p: float = Field(0.0, ge=0, le=1, description="probability of garbage before a frame")
-    garbage_max_bytes: int = Field(32, ge=1)
+    garbage_max_bytes: int = Field(32, ge=1, le=65536)
     corrupt_p: float = Field(0.0, ge=0, le=1, description="probability a frame is corrupted")
     truncate_p: float = Field(0.0, ge=0, le=1, description="probability a frame is cut short")
     undetected_p: float = Field(
@@ -320,11 +371,13 @@ class FaultSettings(_Model):
         description="probability a frame is corrupted in a way its framer still accepts (what "
         "no check can catch: a bit in the data, two changes that keep the checksum)",
     )  # fmt: skip
-    bottom_lock_loss: list[tuple[float, float]] = []
-    unplug: list[tuple[float, float]] = []
-    stall: list[tuple[float, float]] = []
-    clock_jumps: list[tuple[float, float]] = Field(
-        [], description="(time, jump_s): the device clock jumps by jump_s at time"
+    bottom_lock_loss: list[Window] = Field([], max_length=MAX_LIST)
+    unplug: list[Window] = Field([], max_length=MAX_LIST)
+    stall: list[Window] = Field([], max_length=MAX_LIST)
+    clock_jumps: list[Window] = Field(
+        [],
+        max_length=MAX_LIST,
+        description="(time, jump_s): the device clock jumps by jump_s at time",
     )
 
 
@@ -332,10 +385,14 @@ class DeviceSettings(_Model):
     """One emulated device: on/off, rate, noise figures (named sigmas, SI or *_deg), faults."""
 
     enabled: bool = True
-    rate_hz: float | None = Field(None, gt=0, description="None: the device's nominal rate")
-    noise: dict[str, float] = {}
+    rate_hz: float | None = Field(
+        None, ge=0.001, le=1000, description="None: the device's nominal rate"
+    )
+    noise: dict[str, Annotated[float, Field(ge=0, le=1e6)]] = Field({}, max_length=64)
     faults: FaultSettings = FaultSettings()
-    options: dict[str, float | int | str | bool] = {}
+    options: dict[str, Annotated[float, Field(ge=-1e9, le=1e9)] | int | str | bool] = Field(
+        {}, max_length=64
+    )
 
 
 class _DevicesBase(_Model):
@@ -366,20 +423,24 @@ else:
 class Scenario(_Model):
     """A whole scenario (see the module docstring for frames and units)."""
 
-    name: str
-    description: str = ""
-    seed: int = 0
-    duration_s: float | None = Field(None, gt=0, description="None: until the route ends")
+    name: str = Field(min_length=1, max_length=200)
+    description: str = Field("", max_length=10000)
+    seed: Seed = 0
+    duration_s: float | None = Field(
+        None, gt=0, le=MAX_ROUTE_S, description="None: until the route ends"
+    )
     vehicle: Vehicle
     motion: Literal["auv", "bicycle"] = "auv"
     bicycle: BicycleMotion = BicycleMotion()
     observations: ObservationSettings = ObservationSettings()
     features: Features = Features()
     terrain: Terrain = Terrain()
-    magnetic_beacons: list[MagneticBeacon] = []
+    magnetic_beacons: list[MagneticBeacon] = Field([], max_length=MAX_LIST)
     acoustic_beacon: AcousticBeacon | None = None
-    earth_field_nt: tuple[float, float, float] = Field(
-        (20000.0, 0.0, 45000.0), description="Earth field, NED components in nT"
+    earth_field_nt: Annotated[tuple[Coord, Coord, Coord], Strict(False)] = (
+        Field(  # nT: within +-1e5 as well (Earth's field is under 7e4 nT)
+            (20000.0, 0.0, 45000.0), description="Earth field, NED components in nT"
+        )
     )
     sound_speed_mps: Annotated[float, Field(gt=1300, lt=1700)] = 1500.0
     devices: Devices = Devices()

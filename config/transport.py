@@ -19,6 +19,7 @@ field, what was expected and what was given. Units are in the field names: ``_s`
 from __future__ import annotations
 
 import ipaddress
+import re
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -27,6 +28,7 @@ from pydantic import (
     BaseModel,
     ConfigDict,
     Field,
+    Strict,
     TypeAdapter,
     ValidationError,
     field_validator,
@@ -66,8 +68,17 @@ class TransportConfigError(ConfigError):
     """Invalid transport settings; one line per problem, each naming the field."""
 
 
+#: upper bounds of values that reach a reader thread: a chunk or buffer this size is allocated
+#: per read, a rate or timeout past them is a misprint (docs/gateway.md#limits)
+MAX_CHUNK_BYTES = 1 << 20
+MAX_RECEIVE_BUFFER_BYTES = 1 << 27
+MAX_TIMEOUT_S = 3600.0
+MAX_TEXT = 4096
+
+
 class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # strict: no "yes" -> True, "3" -> 3 or 3.0 -> 3; every number finite
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
 
 
 class SerialTransportConfig(_Model):
@@ -78,8 +89,8 @@ class SerialTransportConfig(_Model):
     """
 
     kind: Literal["serial"] = "serial"
-    url: str = Field(min_length=1, description="device path or pyserial URL")
-    baud: int = Field(115200, gt=0, description="line rate, bit/s")
+    url: str = Field(min_length=1, max_length=MAX_TEXT, description="device path or pyserial URL")
+    baud: int = Field(115200, ge=50, le=20_000_000, description="line rate, bit/s")
     bytesize: Literal[5, 6, 7, 8] = 8
     parity: Literal["N", "E", "O", "M", "S"] = "N"
     stopbits: Literal[1, 1.5, 2] = 1
@@ -87,9 +98,12 @@ class SerialTransportConfig(_Model):
     xonxoff: bool = Field(False, description="XON/XOFF software flow control")
     exclusive: bool = Field(True, description="lock the port against other processes (POSIX)")
     write_timeout_s: float | None = Field(
-        1.0, ge=0, description="a write blocked longer than this fails; None waits forever"
+        1.0, ge=0, le=MAX_TIMEOUT_S,
+        description="a write blocked longer than this fails; None waits forever",
+    )  # fmt: skip
+    max_chunk: int = Field(
+        65536, ge=1, le=MAX_CHUNK_BYTES, description="most bytes returned by one read"
     )
-    max_chunk: int = Field(65536, ge=1, description="most bytes returned by one read")
 
     @field_validator("url")
     @classmethod
@@ -147,19 +161,26 @@ class CanTransportConfig(_Model):
     """
 
     kind: Literal["can"] = "can"
-    interface: str = Field(min_length=1, description="python-can interface name")
-    channel: str | int | None = None
-    bitrate: int | None = Field(None, gt=0, description="CAN bit rate, bit/s")
+    interface: str = Field(min_length=1, max_length=64, description="python-can interface name")
+    channel: (
+        Annotated[str, Field(max_length=MAX_TEXT)] | Annotated[int, Field(ge=0, le=1 << 16)] | None
+    ) = None
+    bitrate: int | None = Field(None, ge=1000, le=1_000_000, description="CAN bit rate, bit/s")
     fd: bool = Field(False, description="CAN FD frames (up to 64 data bytes)")
-    data_bitrate: int | None = Field(None, gt=0, description="CAN FD data phase bit rate, bit/s")
-    filters: list[CanFilter] = Field(default_factory=list)
+    data_bitrate: int | None = Field(
+        None, ge=1000, le=16_000_000, description="CAN FD data phase bit rate, bit/s"
+    )
+    filters: list[CanFilter] = Field(default_factory=list, max_length=64)
     receive_own_messages: bool = False
     tx_id: int | None = Field(None, ge=0, le=CAN_EXT_MAX, description="id used by write(data)")
     tx_extended: bool | None = Field(None, description="whether tx_id is a 29-bit id")
     send_timeout_s: float | None = Field(
-        1.0, ge=0, description="a send blocked longer than this fails; None waits forever"
+        1.0, ge=0, le=MAX_TIMEOUT_S,
+        description="a send blocked longer than this fails; None waits forever",
+    )  # fmt: skip
+    options: dict[str, Annotated[str, Field(max_length=MAX_TEXT)] | int | float | bool] = Field(
+        default_factory=dict, max_length=32
     )
-    options: dict[str, str | int | float | bool] = Field(default_factory=dict)
 
     @field_validator("interface")
     @classmethod
@@ -214,6 +235,9 @@ class CanTransportConfig(_Model):
         return out
 
 
+_HOSTNAME = re.compile(r"[A-Za-z0-9_-]{1,63}(\.[A-Za-z0-9_-]{1,63})*\.?")
+
+
 def _ipv4(v: str, what: str) -> ipaddress.IPv4Address:
     try:
         return ipaddress.IPv4Address(v)
@@ -231,23 +255,42 @@ class UdpTransportConfig(_Model):
     """
 
     kind: Literal["udp"] = "udp"
-    host: str = Field("0.0.0.0", min_length=1, description="local address to bind")
+    host: str = Field("0.0.0.0", min_length=1, max_length=255, description="local address to bind")
     port: int = Field(ge=0, le=65535, description="local port to bind")
-    multicast_group: str | None = None
-    multicast_interface: str = "0.0.0.0"
+    multicast_group: str | None = Field(None, max_length=64)
+    multicast_interface: str = Field("0.0.0.0", max_length=64)
     reuse_address: bool | None = Field(
         None, description="SO_REUSEADDR; default on when joining a multicast group"
     )
-    remote_host: str | None = None
+    remote_host: str | None = Field(None, max_length=255)
     remote_port: int | None = Field(None, ge=1, le=65535)
     receive_buffer_bytes: int | None = Field(
-        None, ge=1024, description="SO_RCVBUF; the kernel caps it at net.core.rmem_max"
-    )
-    allowed_senders: list[str] | None = Field(
         None,
+        ge=1024,
+        le=MAX_RECEIVE_BUFFER_BYTES,
+        description="SO_RCVBUF, bytes; the kernel caps it at net.core.rmem_max",
+    )
+    allowed_senders: list[Annotated[str, Field(max_length=64)]] | None = Field(
+        None,
+        max_length=256,
         description="addresses or networks (10.0.0.5, 10.0.0.0/24, ::1) whose datagrams are "
         "read, or ['any']; default: remote_host if set, else any sender",
     )
+
+    @field_validator("host", "remote_host")
+    @classmethod
+    def _host(cls, v: str | None) -> str | None:
+        if v is None:
+            return v
+        try:
+            ipaddress.ip_address(v)
+        except ValueError:
+            if len(v) > 253 or not _HOSTNAME.fullmatch(v):
+                raise ValueError(
+                    f"{v!r:.60} is neither an IP address nor a host name (ASCII labels of 1-63 "
+                    "letters, digits or '-', joined by '.')"
+                ) from None
+        return v
 
     @field_validator("multicast_group")
     @classmethod
@@ -312,12 +355,16 @@ class FileTransportConfig(_Model):
     """
 
     kind: Literal["file"] = "file"
-    path: Path
-    chunk_size: int | None = Field(None, ge=1, description="bytes per chunk")
-    byte_rate: float | None = Field(None, gt=0, description="pace, byte/s")
-    baud: int | None = Field(None, gt=0, description="pace as a line of this rate, bit/s")
-    bits_per_byte: float = Field(10.0, gt=0, description="bits on the wire per byte (8N1: 10)")
-    speed: float = Field(1.0, gt=0, description="k x real time")
+    path: Annotated[Path, Strict(False)]  # a TOML string
+    chunk_size: int | None = Field(None, ge=1, le=MAX_CHUNK_BYTES, description="bytes per chunk")
+    byte_rate: float | None = Field(None, ge=1, le=1e9, description="pace, byte/s")
+    baud: int | None = Field(
+        None, ge=50, le=20_000_000, description="pace as a line of this rate, bit/s"
+    )
+    bits_per_byte: float = Field(
+        10.0, ge=5, le=16, description="bits on the wire per byte (8N1: 10)"
+    )
+    speed: float = Field(1.0, ge=0.001, le=1000, description="k x real time")
     loop: bool = False
 
     @model_validator(mode="after")
@@ -326,6 +373,11 @@ class FileTransportConfig(_Model):
             raise ValueError("set either 'byte_rate' or 'baud', not both")
         if self.speed != 1.0 and self.byte_rate is None and self.baud is None:
             raise ValueError("'speed' needs a real-time pace: set 'byte_rate' or 'baud'")
+        if self.loop and self.byte_rate is None and self.baud is None:
+            raise ValueError(
+                "'loop' needs a pace: set 'byte_rate' or 'baud' (an unpaced loop replays for "
+                "ever as fast as the CPU allows, a whole core)"
+            )
         return self
 
     @property

@@ -111,6 +111,48 @@ def format_validation_error(
 
 M = TypeVar("M", bound="BaseModel")
 
+#: the largest settings, configuration or scenario file read (bytes): far above any real one
+#: (the shipped ones are under 10 kB), far below what could exhaust memory
+MAX_DOCUMENT_BYTES = 1 << 20
+#: the deepest nesting of arrays and tables/objects accepted: the parsers recurse per level
+#: (a 20,000-deep array is a RecursionError); real files nest 4 or 5 deep
+MAX_DOCUMENT_DEPTH = 32
+
+
+def _nesting(text: str, kind: str) -> tuple[int, int]:
+    """The deepest ``[``/``{`` nesting of a TOML or JSON text outside strings and comments,
+    and the character offset where it is first reached (a scan, no parsing)."""
+    depth = deepest = at = 0
+    quote = ""  # the open string's delimiter: '"', "'", '"""' or "'''"
+    i, n = 0, len(text)
+    while i < n:
+        c = text[i]
+        if quote:
+            if c == "\\" and quote[0] == '"':
+                i += 2
+                continue
+            if text.startswith(quote, i):
+                i += len(quote)
+                quote = ""
+                continue
+        elif c in "\"'" and (c == '"' or kind == "TOML"):
+            triple = c * 3
+            quote = triple if kind == "TOML" and text.startswith(triple, i) else c
+            i += len(quote)
+            continue
+        elif c == "#" and kind == "TOML":
+            end = text.find("\n", i)
+            i = n if end < 0 else end
+            continue
+        elif c in "[{":
+            depth += 1
+            if depth > deepest:
+                deepest, at = depth, i
+        elif c in "]}":
+            depth -= 1
+        i += 1
+    return deepest, at
+
 
 def read_document(
     path: str | Path,
@@ -125,7 +167,11 @@ def read_document(
     path = Path(path)
     kind = kind or ("JSON" if path.suffix == ".json" else "TOML")
     try:
-        text = path.read_text(encoding="utf-8")
+        with path.open("rb") as f:
+            raw = f.read(MAX_DOCUMENT_BYTES + 1)
+        if len(raw) > MAX_DOCUMENT_BYTES:
+            raise error(f"{path}: too large for a {what} (over {MAX_DOCUMENT_BYTES} bytes)")
+        text = raw.decode("utf-8")
     except FileNotFoundError as exc:
         raise error(f"{path}: cannot read: no such {what}") from exc
     except IsADirectoryError as exc:
@@ -134,13 +180,43 @@ def read_document(
         raise error(f"{path}: cannot read: {exc.strerror or exc}") from exc
     except UnicodeDecodeError as exc:
         raise error(f"{path}: not a text (UTF-8) file ({exc.reason} at byte {exc.start})") from exc
+    deepest, at = _nesting(text, kind)
+    if deepest > MAX_DOCUMENT_DEPTH:
+        raise error(
+            f"{path}: arrays/tables nested too deep ({deepest} levels at character {at}; at most "
+            f"{MAX_DOCUMENT_DEPTH})"
+        )
     try:
         data = json.loads(text) if kind == "JSON" else tomllib.loads(text)
+    except RecursionError:  # a nesting the scan missed (e.g. dotted keys): still one line
+        raise error(f"{path}: nested too deep to read") from None
     except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
         raise error(f"{path}: not valid {kind}: {exc}") from exc
     if not isinstance(data, dict):
         raise error(f"{path}: the top level must be a table (an object)")
+    where = _nul_at(data)
+    if where is not None:  # no path, port or name holds one: open() and bind() raise on it
+        raise error(f"{path}: {where or '(top level)'}: contains a NUL character")
     return data
+
+
+def _nul_at(value: Any, where: str = "") -> str | None:
+    """The key path of the first string (key or value) holding a NUL character, if any."""
+    if isinstance(value, str):
+        return where if "\0" in value else None
+    items: Any = ()
+    if isinstance(value, dict):
+        items = value.items()
+    elif isinstance(value, list):
+        items = ((f"[{i}]", v) for i, v in enumerate(value))
+    for k, v in items:
+        sub = f"{where}{k}" if k.startswith("[") or not where else f"{where}.{k}"
+        if "\0" in k:
+            return sub
+        found = _nul_at(v, sub)
+        if found is not None:
+            return found
+    return None
 
 
 def load_settings(

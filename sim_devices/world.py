@@ -318,7 +318,19 @@ class SandWaveField:
         return 1.0 / (1.0 + np.exp(-k * inside))
 
 
+#: the largest terrain grid file read (bytes): 64 MiB, 8 M cells of float64
+MAX_GRID_BYTES = 1 << 26
+
+
 def _load_grid(path: Path) -> FArray:
+    try:
+        size = path.stat().st_size
+    except OSError as exc:
+        raise ScenarioError(f"terrain.file {path}: cannot read a depth grid: {exc}") from exc
+    if size > MAX_GRID_BYTES:
+        raise ScenarioError(
+            f"terrain.file {path}: too large for a depth grid (over {MAX_GRID_BYTES} bytes)"
+        )
     try:
         if path.suffix == ".npy":
             return np.load(path, allow_pickle=False)
@@ -364,8 +376,9 @@ def terrain_from_settings(settings: Terrain, resolve: Callable[[str], Path] = Pa
         )
     assert settings.file is not None  # the scenario model enforces it
     path = resolve(settings.file)
+    grid = _load_grid(path)
     try:
-        return GridTerrain(_load_grid(path), settings.cell_m, settings.origin)
+        return GridTerrain(grid, settings.cell_m, settings.origin)
     except ValueError as exc:
         raise ScenarioError(f"terrain.file {path}: {exc}") from exc
 

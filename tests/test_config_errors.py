@@ -99,7 +99,7 @@ _ALL: dict[str, tuple[str, list[str]]] = {
     ),
     "negative_period": (
         "status_period_s = -1\n" + DVL,
-        ["status_period_s: Input should be greater than 0", "(got -1)"],
+        ["status_period_s: Input should be greater than or equal to 0.05", "(got -1)"],
     ),
     "dbc_on_stream_format": (
         DVL + 'dbc = "hn100.dbc"\n',

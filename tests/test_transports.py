@@ -399,7 +399,8 @@ def test_file_replay_as_fast_as_possible(capture):
 
 def test_file_replay_loops(capture):
     path, data = capture
-    with open_transport({"kind": "file", "path": path, "chunk_size": 4096, "loop": True}) as t:
+    cfg = {"kind": "file", "path": path, "chunk_size": 4096, "byte_rate": 1e9, "loop": True}
+    with open_transport(cfg) as t:
         got = b"".join(c.data for c in read_exactly(t, 25_000))
         assert t.loops == 2
     # chunks do not straddle the end of the file: each loop starts a fresh chunk
@@ -452,7 +453,7 @@ def test_file_replay_open_errors(tmp_path):
     empty = tmp_path / "empty.bin"
     empty.write_bytes(b"")
     with pytest.raises(TransportOpenError, match="empty"):
-        open_transport({"kind": "file", "path": empty, "loop": True})
+        open_transport({"kind": "file", "path": empty, "loop": True, "byte_rate": 1000})
     with open_transport({"kind": "file", "path": empty}) as t, pytest.raises(EndOfStream):
         t.read(0.0)
 

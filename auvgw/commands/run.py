@@ -58,6 +58,12 @@ def register(sub: Any) -> None:
         help="Rerun stage: stream to a running viewer at this URL",
     )
     p.add_argument(
+        "--check",
+        action="store_true",
+        help="validate the configuration (and load its tables, DBCs, password file), then exit: "
+        "0 and one line if usable, else one line per problem and exit code 2",
+    )
+    p.add_argument(
         "--exit-when-done",
         action="store_true",
         help="exit once every device's finite source (file replay) has ended",
@@ -113,6 +119,21 @@ def serve_stage(
         return stage
     finally:
         session.close()
+
+
+def check(cfg: GatewayConfig) -> int:
+    """``--check``: what :class:`Gateway` loads before it opens anything (decoders with their
+    tables and DBCs, the bus password file), without opening a port or a session."""
+    from auvgw.decoding import make_decoders
+
+    try:
+        make_decoders(cfg)
+        if cfg.bus.auth is not None:
+            cfg.bus.auth.zenoh()
+    except ConfigError as exc:
+        raise UserError(f"{cfg.source}: {exc}" if cfg.source not in str(exc) else str(exc)) from exc
+    print(f"{cfg.source}: ok ({len(cfg.devices)} device(s), bus {cfg.bus.describe()})")
+    return 0
 
 
 def serve(settings: RunSettings, stop: threading.Event | None = None) -> int:
@@ -185,6 +206,8 @@ def run(args: argparse.Namespace) -> int:
         if lg.getEffectiveLevel() > logging.INFO:
             lg.setLevel(logging.INFO)
     cfg = load_or_fail(args.config)
+    if args.check:
+        return check(cfg)
     if args.listen or args.connect:
         try:
             bus = cfg.bus.model_copy(update={"listen": args.listen, "connect": args.connect})

@@ -63,8 +63,7 @@ def register(sub: Any) -> None:
         "--devices",
         default=None,
         metavar="LIST",
-        help="comma-separated subset of "
-        + ",".join(em.key for em in registry.emulators()),
+        help="comma-separated subset of " + ",".join(em.key for em in registry.emulators()),
     )
     p.add_argument("--vehicle", default="auv1", help="vehicle name in the gateway configuration")
     p.add_argument(
@@ -75,6 +74,12 @@ def register(sub: Any) -> None:
         help="ground-truth log rate, vehicle Hz (default 10)",
     )
     p.add_argument("--no-truth-log", action="store_true", help="do not write truth.jsonl")
+    p.add_argument(
+        "--check",
+        action="store_true",
+        help="validate the scenario and build its world (terrain, features, beacons), then "
+        "exit: 0 and one line if usable, else the problems and exit code 2",
+    )
     p.add_argument(
         "--start-delay",
         type=float,
@@ -142,6 +147,15 @@ def run(args: argparse.Namespace) -> int:
         scn = load_scenario(args.scenario)
     except ScenarioError as exc:
         raise UserError(str(exc).replace("\n", "; ")) from exc
+    if args.check:
+        from auvgw.sim_devices.world import World
+
+        try:
+            World.from_scenario(scn)
+        except ScenarioError as exc:
+            raise UserError(f"{args.scenario}: {exc}".replace("\n", "; ")) from exc
+        print(f"{args.scenario}: ok (scenario {scn.name!r})")
+        return 0
     devices = None
     if args.devices:
         devices = [d.strip() for d in args.devices.split(",") if d.strip()]
