@@ -485,7 +485,11 @@ def read_info(path: str | Path) -> RecordingInfo:
             info.config_json = m.metadata.get("config")
     if info.config_json:
         try:
-            info.config = GatewayConfig.model_validate_json(info.config_json)
+            # a recorded configuration names decoders, it opens no port: one device per port
+            # is the live gateway's rule (and older recordings shared /dev/null in tests)
+            info.config = GatewayConfig.model_validate_json(
+                info.config_json, context={"recorded": True}
+            )
         except ValidationError as exc:
             raise RecordingError(
                 f"{path}: recorded gateway configuration is not valid here:\n"
