@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import io
 import json
 import logging
 import queue
@@ -42,8 +43,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any, NamedTuple
 
-from mcap.exceptions import McapError
+from mcap.exceptions import EndOfFile, McapError
 from mcap.reader import NonSeekingReader, make_reader
+from mcap.records import Channel, Chunk, Footer, Message, Schema
+from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 from pydantic import ValidationError
 
@@ -508,32 +511,206 @@ def read_info(path: str | Path) -> RecordingInfo:
 _DERIVED = re.compile(r"^auv/[^/]+/ros2/")
 
 
-def iter_samples(path: str | Path) -> Iterator[RecordedSample]:
-    """Every recorded message in file order (per key, the order the recorder received them).
+@dataclass
+class Damage:
+    """One damaged part of a recording: its byte ``offset``, what is wrong, and the log-time
+    range (ns) and message count it cost (0 when not known)."""
 
-    A recording cut short (recorder killed) yields what was written and logs a warning.
-    """
+    offset: int
+    what: str
+    t_start_ns: int = 0
+    t_end_ns: int = 0
+
+    def line(self, path: Path) -> str:
+        span = (f"; messages {self.t_start_ns / 1e9:.3f}-{self.t_end_ns / 1e9:.3f} s lost"
+                if self.t_end_ns else "")  # fmt: skip
+        return f"{path}: byte {self.offset}: {self.what}{span}"
+
+
+@dataclass
+class ScanReport:
+    """What reading a recording found: chunks read and damaged, and each :class:`Damage`."""
+
+    chunks: int = 0
+    damaged: list[Damage] = field(default_factory=list)
+    messages: int = 0
+    indexed: bool = False  #: read through the summary's chunk index (else a linear scan)
+
+
+def _all_records(data: bytes, emit_chunks: bool = False) -> list[Any]:
+    """Every record of ``data`` (records with no magic around them, as in a chunk); the mcap
+    reader signals their end with ``EndOfFile``."""
+    out: list[Any] = []
+    reader = StreamReader(io.BytesIO(data), skip_magic=True, emit_chunks=emit_chunks,
+                          record_size_limit=len(data))  # fmt: skip
+    try:
+        for rec in reader.records:
+            out.append(rec)
+    except EndOfFile:
+        pass
+    except Exception as exc:  # a damaged record: any error of the mcap parser
+        raise ValueError(f"unreadable record ({type(exc).__name__}: {exc})") from None
+    return out
+
+
+def _decompress(chunk: Any) -> bytes:
+    if chunk.compression == "zstd":
+        import zstandard
+
+        return bytes(zstandard.ZstdDecompressor().decompress(
+            chunk.data, max_output_size=chunk.uncompressed_size))  # fmt: skip
+    if chunk.compression == "lz4":
+        import lz4.frame
+
+        return bytes(lz4.frame.decompress(chunk.data))
+    if chunk.compression == "":
+        return bytes(chunk.data)
+    raise ValueError(f"compression {chunk.compression!r} unknown")
+
+
+def _chunk_records(chunk: Any) -> list[Any]:
+    """The records of a chunk, after its CRC is checked (a ValueError naming what is wrong)."""
+    import zlib
+
+    try:
+        data = _decompress(chunk)
+    except Exception as exc:  # zstd / lz4 errors have no common base
+        raise ValueError(f"chunk does not decompress ({type(exc).__name__}: {exc})") from None
+    if len(data) != chunk.uncompressed_size:
+        raise ValueError(f"chunk holds {len(data)} bytes, its header says "
+                         f"{chunk.uncompressed_size}")  # fmt: skip
+    if chunk.uncompressed_crc and zlib.crc32(data) != chunk.uncompressed_crc:
+        raise ValueError(f"chunk CRC {zlib.crc32(data):08x}, recorded "
+                         f"{chunk.uncompressed_crc:08x}")  # fmt: skip
+    return _all_records(data)
+
+
+def scan_recording(path: str | Path, report: ScanReport | None = None) -> Iterator[
+        tuple[Any, Any, Any]]:  # fmt: skip
+    """Every message of a recording as ``(schema, channel, message)`` records in file order,
+    each chunk's CRC checked: a damaged chunk costs that chunk only (a :class:`Damage` in
+    ``report`` and one warning line naming the file, the byte offset and the time range lost),
+    never the chunks around it nor a traceback. The file is read front to back (the records
+    themselves say what is there); where a record is unreadable (a damaged chunk header, a
+    recording cut short), the summary's chunk index, when it is readable, gives the next chunk
+    to resume at."""
     path = Path(path)
+    report = report if report is not None else ScanReport()
+    schemas: dict[int, Any] = {}
+    channels: dict[int, Any] = {}
+
+    def take(records: list[Any]) -> Iterator[tuple[Any, Any, Any]]:
+        for rec in records:
+            if isinstance(rec, Schema):
+                schemas[rec.id] = rec
+            elif isinstance(rec, Channel):
+                channels[rec.id] = rec
+            elif isinstance(rec, Message):
+                ch = channels.get(rec.channel_id)
+                if ch is not None:
+                    report.messages += 1
+                    yield schemas.get(ch.schema_id), ch, rec
+
+    def damaged(d: Damage) -> None:
+        report.damaged.append(d)
+        log.warning("%s", d.line(path))
+
+    def chunk_messages(chunk: Any, at: int) -> Iterator[tuple[Any, Any, Any]]:
+        report.chunks += 1
+        try:
+            records = _chunk_records(chunk)
+        except ValueError as exc:
+            damaged(Damage(at, f"damaged chunk: {exc}", chunk.message_start_time,
+                           chunk.message_end_time))  # fmt: skip
+            return
+        yield from take(records)
+
     with _open(path) as f:
         _check_magic(path, f)
+        try:  # the summary (a file closed properly): fallback channels and the chunk index
+            summary = make_reader(f).get_summary()
+        except Exception:  # no summary (recorder killed) or a damaged one
+            summary = None
+        if summary is not None:  # a chunk's own records (CRC-checked) replace these
+            schemas.update(summary.schemas)
+            channels.update(summary.channels)
+        size = f.seek(0, io.SEEK_END)
+        f.seek(0)
+        # no record is longer than the file: a damaged length never allocates gigabytes
+        stream = StreamReader(f, emit_chunks=True, record_size_limit=size)
+        start = 8  # each record's offset: where the one before it ended
+        seen: set[int] = set()
         try:
-            for schema, channel, msg in NonSeekingReader(f).iter_messages(log_time_order=False):
-                if _DERIVED.match(channel.metadata.get("key", "")):
-                    continue  # /tf, /tf_static, /diagnostics: for ROS readers, not bus samples
-                zenc = channel.metadata.get("zenoh_encoding", "")
-                if channel.message_encoding == MESSAGE_ENCODING and schema is not None:
-                    yield _ros2_sample(schema.name, channel.metadata, channel.topic, msg, zenc)
-                elif channel.message_encoding == RAW_ENCODING:
-                    att, payload = unpack_raw_record(msg.data)
-                    yield RecordedSample(
-                        channel.topic, msg.log_time, att or None, payload, RAW_ENCODING, zenc
-                    )
-                else:
-                    yield RecordedSample(
-                        channel.topic, msg.log_time, None, msg.data, channel.message_encoding, zenc
-                    )
-        except (McapError, struct.error, EOFError) as exc:
-            log.warning("%s: recording truncated (%s); read up to there", path, exc)
+            for rec in stream.records:
+                if isinstance(rec, Chunk):
+                    seen.add(start)
+                    yield from chunk_messages(rec, start)
+                elif not isinstance(rec, Footer):
+                    yield from take([rec])
+                start = f.tell()
+            # a chunk whose opcode is damaged is skipped by the reader as an unknown record: the
+            # index says it was there
+            for ci in summary.chunk_indexes if summary is not None else []:
+                if ci.chunk_start_offset not in seen:
+                    report.chunks += 1
+                    damaged(Damage(ci.chunk_start_offset, "damaged chunk: its record header is "
+                                   "unreadable (skipped)", ci.message_start_time,
+                                   ci.message_end_time))  # fmt: skip
+            if start + 8 >= size:  # the footer, then the closing magic
+                return
+            broken, why = start, f"the footer is followed by {size - start} more bytes"
+        except Exception as exc:  # a damaged record: any error of the mcap parser, none raised
+            broken = start
+            why = str(exc) or type(exc).__name__
+        later = sorted((ci for ci in (summary.chunk_indexes if summary else [])
+                        if ci.chunk_start_offset > broken),
+                       key=lambda c: c.chunk_start_offset)  # fmt: skip
+        if not later:
+            damaged(Damage(broken, f"unreadable from here ({why}): a recording cut short, or "
+                                   "damaged with no readable index after this point"))  # fmt: skip
+            return
+        report.indexed = True
+        damaged(Damage(broken, f"unreadable record ({why}); resumed at the next indexed chunk, "
+                               f"byte {later[0].chunk_start_offset}"))  # fmt: skip
+        for ci in later:
+            f.seek(ci.chunk_start_offset)
+            recs = _all_records(f.read(ci.chunk_length), emit_chunks=True)
+            chunk = next((r for r in recs if isinstance(r, Chunk)), None)
+            if chunk is None:
+                report.chunks += 1
+                damaged(Damage(ci.chunk_start_offset, "damaged chunk: no chunk record where the "
+                               "index points", ci.message_start_time, ci.message_end_time))
+                continue
+            yield from chunk_messages(chunk, ci.chunk_start_offset)
+
+
+def iter_samples(path: str | Path, report: ScanReport | None = None) -> Iterator[RecordedSample]:
+    """Every recorded message in file order (per key, the order the recorder received them),
+    each chunk's CRC checked (:func:`scan_recording`: a damaged chunk costs that chunk only, one
+    warning line and a :class:`Damage` in ``report``). A recording cut short (recorder killed)
+    yields what was written."""
+    for schema, channel, msg in scan_recording(path, report):
+        if _DERIVED.match(channel.metadata.get("key", "")):
+            continue  # /tf, /tf_static, /diagnostics: for ROS readers, not bus samples
+        zenc = channel.metadata.get("zenoh_encoding", "")
+        try:
+            if channel.message_encoding == MESSAGE_ENCODING and schema is not None:
+                yield _ros2_sample(schema.name, channel.metadata, channel.topic, msg, zenc)
+            elif channel.message_encoding == RAW_ENCODING:
+                att, payload = unpack_raw_record(msg.data)
+                yield RecordedSample(
+                    channel.topic, msg.log_time, att or None, payload, RAW_ENCODING, zenc
+                )
+            else:
+                yield RecordedSample(
+                    channel.topic, msg.log_time, None, msg.data, channel.message_encoding, zenc
+                )
+        except Exception as exc:  # a record CRC-valid but not ours to read: that one only
+            if report is not None:
+                report.damaged.append(Damage(0, f"{channel.topic}: message unreadable: {exc}",
+                                             msg.log_time, msg.log_time))  # fmt: skip
+            log.warning("%s: %s at %d ns: unreadable message skipped (%s)", path, channel.topic,
+                        msg.log_time, exc)  # fmt: skip
 
 
 def _shipped(name: str) -> bool:

@@ -26,6 +26,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "record a vehicle's raw bus traffic (all devices, receive times) to an MCAP file",
     ),
     "replay": ("auvgw.commands.replay", "republish an MCAP recording (raw and decoded) as if live"),
+    "verify": ("auvgw.commands.verify", "check recordings for damage (chunk CRCs, summary)"),
     "export": (
         "auvgw.commands.export",
         "convert a recording of the earlier layout to the ROS 2 profile (--ros2)",
