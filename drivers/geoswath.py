@@ -44,7 +44,13 @@ __all__ = [
 ]
 
 _TYPES = {
-    "u8": "u1", "u16": "u2", "u32": "u4", "s16": "i2", "s32": "i4", "f32": "f4", "f64": "f8",
+    "u8": "u1",
+    "u16": "u2",
+    "u32": "u4",
+    "s16": "i2",
+    "s32": "i4",
+    "f32": "f4",
+    "f64": "f8",
 }
 _SIDES = (0, 1)
 
@@ -67,7 +73,9 @@ def _dtype(source: str, where: str, rows: Any, order: str) -> np.dtype[Any]:
         elif kind in _TYPES:
             formats.append(order + _TYPES[kind])
         else:
-            raise TableError(f"{at} ({row['name']}): type {kind!r} not one of bytes, {', '.join(_TYPES)}")
+            raise TableError(
+                f"{at} ({row['name']}): type {kind!r} not one of bytes, {', '.join(_TYPES)}"
+            )
         if not isinstance(row.get("source"), str):
             raise TableError(f"{at} ({row['name']}): every field says its 'source'")
         names.append(row["name"])
@@ -110,28 +118,37 @@ class GeoSwathLayout:
         fh = _dtype(src, "file_header", _section(doc, "file_header", src).get("fields"), order)
         ph = _dtype(src, "ping_header", _section(doc, "ping_header", src).get("fields"), order)
         for need in ("raw_header_size", "raw_ping_header_size"):
-            if need not in fh.names:
+            if need not in (fh.names or ()):
                 raise TableError(f"{src}: file_header: field {need!r} is required")
         for need in ("ping_size", "previous_ping_position", "side", "ping_time"):
-            if need not in ph.names:
+            if need not in (ph.names or ()):
                 raise TableError(f"{src}: ping_header: field {need!r} is required")
         arrays = []
         for i, arr in enumerate(doc.get("arrays", [])):
             name, count = arr.get("name"), arr.get("count")
-            if not isinstance(name, str) or count not in ph.names or ph[count].kind not in "iu":
+            if (
+                not isinstance(name, str)
+                or count not in (ph.names or ())
+                or ph[count].kind not in "iu"
+            ):
                 raise TableError(
                     f"{src}: arrays[{i}]: needs a 'name' and a 'count' naming an integer "
                     f"ping_header field (got {count!r})"
                 )
-            arrays.append((name, count, _dtype(src, f"arrays[{i}] ({name})", arr.get("fields"), order)))
+            arrays.append(
+                (name, count, _dtype(src, f"arrays[{i}] ({name})", arr.get("fields"), order))
+            )
         strings = tuple(_section(doc, "strings", src).get("sizes", []))
         for s in strings:
-            if s not in ph.names or ph[s].kind not in "iu":
+            if s not in (ph.names or ()) or ph[s].kind not in "iu":
                 raise TableError(f"{src}: strings.sizes: {s!r} is not an integer ping_header field")
         b = _section(doc, "bounds", src)
-        bounds = [b.get(k) for k in ("max_samples", "max_ping_size", "max_string_size")]
-        if not all(isinstance(v, int) and v > 0 for v in bounds):
-            raise TableError(f"{src}: [bounds]: max_samples, max_ping_size, max_string_size > 0")
+        bounds: list[int] = []
+        for key in ("max_samples", "max_ping_size", "max_string_size"):
+            v = b.get(key)
+            if not isinstance(v, int) or v <= 0:
+                raise TableError(f"{src}: [bounds] {key}: expected a positive integer, got {v!r}")
+            bounds.append(v)
         return cls(src, fh, ph, tuple(arrays), strings, *bounds)
 
 
@@ -225,13 +242,19 @@ class GeoSwathCodec:
         """The file header in ``data`` (exactly its size); :class:`DataError` if not valid."""
         dt = self.layout.file_header
         if len(data) != dt.itemsize:
-            raise DataError(f"{len(data)} bytes, the file header has {dt.itemsize}", field="RdfFileHeader")
+            raise DataError(
+                f"{len(data)} bytes, the file header has {dt.itemsize}", field="RdfFileHeader"
+            )
         fields = _record_values(np.frombuffer(data, dtype=dt)[0])
-        for name, want in (("raw_header_size", dt.itemsize), ("raw_ping_header_size", self.layout.ping_header.itemsize)):
+        for name, want in (
+            ("raw_header_size", dt.itemsize),
+            ("raw_ping_header_size", self.layout.ping_header.itemsize),
+        ):
             if fields[name] != want:
                 raise DataError(
                     f"{name} = {fields[name]}, the table ({self.layout.source}) says {want}",
-                    field=f"RdfFileHeader.{name}", offset=dt.fields[name][1],
+                    field=f"RdfFileHeader.{name}",
+                    offset=dt.fields[name][1] if dt.fields else None,
                 )
         return RdfFileHeader(MappingProxyType(fields))
 
@@ -240,15 +263,22 @@ class GeoSwathCodec:
         return _pack(self.layout.file_header, msg.fields)
 
     # -- pings ----------------------------------------------------------------------------------
-    def decode_header(self, data: bytes | bytearray | memoryview, offset: int = 0) -> dict[str, Any]:
+    def decode_header(
+        self, data: bytes | bytearray | memoryview, offset: int = 0
+    ) -> dict[str, Any]:
         """The ping header fields at ``data[offset:]`` (wire values, unchecked)."""
-        return _record_values(np.frombuffer(data, dtype=self.layout.ping_header, count=1, offset=offset)[0])
+        return _record_values(
+            np.frombuffer(data, dtype=self.layout.ping_header, count=1, offset=offset)[0]
+        )
 
     def decode(self, frame: bytes | bytearray | memoryview) -> GeoSwathPing:
         """One ping (header + data, exactly); :class:`DataError` naming the field if not valid."""
         hsize = self.layout.ping_header.itemsize
         if len(frame) < hsize:
-            raise DataError(f"{len(frame)} bytes, shorter than the {hsize}-byte ping header", field="GeoSwathPing")
+            raise DataError(
+                f"{len(frame)} bytes, shorter than the {hsize}-byte ping header",
+                field="GeoSwathPing",
+            )
         header = self.decode_header(frame)
         reason = self.check_header(header)
         if reason is not None:
@@ -277,17 +307,26 @@ class GeoSwathCodec:
         for name, count, dt in self.layout.arrays:
             arr = np.asarray(msg.arrays.get(name, np.zeros(0, dt)))
             if len(arr) != int(header[count]):
-                raise ValueError(f"GeoSwathPing.{name}: {len(arr)} records, header {count} = {header[count]}")
+                raise ValueError(
+                    f"GeoSwathPing.{name}: {len(arr)} records, header {count} = {header[count]}"
+                )
             parts.append(arr.astype(dt, copy=False).tobytes())
         if len(msg.strings) != len(self.layout.strings):
-            raise ValueError(f"GeoSwathPing.strings: {len(msg.strings)} blocks, table has {len(self.layout.strings)}")
+            raise ValueError(
+                f"GeoSwathPing.strings: {len(msg.strings)} blocks, "
+                f"the table has {len(self.layout.strings)}"
+            )
         for s, block in zip(self.layout.strings, msg.strings, strict=True):
             if len(block) != int(header[s]):
-                raise ValueError(f"GeoSwathPing.strings: {len(block)} bytes, header {s} = {header[s]}")
+                raise ValueError(
+                    f"GeoSwathPing.strings: {len(block)} bytes, header {s} = {header[s]}"
+                )
             parts.append(bytes(block))
         body = b"".join(parts)
         if int(header["ping_size"]) != len(body):
-            raise ValueError(f"GeoSwathPing.ping_size = {header['ping_size']}, data has {len(body)} bytes")
+            raise ValueError(
+                f"GeoSwathPing.ping_size = {header['ping_size']}, data has {len(body)} bytes"
+            )
         return _pack(self.layout.ping_header, header) + body
 
     def make_ping(
@@ -311,7 +350,9 @@ class GeoSwathCodec:
             h[count] = len(arr)
             out[name] = _frozen(arr)
         if arrays:
-            raise ValueError(f"unknown arrays {sorted(arrays)} (table has {[a[0] for a in lay.arrays]})")
+            raise ValueError(
+                f"unknown arrays {sorted(arrays)} (table has {[a[0] for a in lay.arrays]})"
+            )
         blocks = tuple(bytes(b) for b in (strings or [b""] * len(lay.strings)))
         for s, block in zip(lay.strings, blocks, strict=True):
             h[s] = len(block)
