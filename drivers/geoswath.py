@@ -435,11 +435,21 @@ class GeoSwathFramer:
         """Add bytes; return every record they complete, in order, with its stream offset."""
         self._buf += chunk
         self.stats.bytes_in += len(chunk)
-        return self._scan(eof=False)
+        return self._scan()
 
     def finish(self) -> list[tuple[int, bytes]]:
         """End of stream: a record left incomplete is counted as truncated."""
-        out = self._scan(eof=True)
+        return self._scan_to_end()
+
+    def feed_datagram(self, datagram: bytes | bytearray | memoryview) -> list[tuple[int, bytes]]:
+        """One broadcast datagram framed on its own: what it leaves incomplete is counted as
+        truncated, never prepended to the next datagram."""
+        self._buf += datagram
+        self.stats.bytes_in += len(datagram)
+        return self._scan_to_end()
+
+    def _scan_to_end(self) -> list[tuple[int, bytes]]:
+        out = self._scan()
         if self._buf:
             self.stats.bad_frames += 1
             self.stats.reasons["truncated"] += 1
@@ -448,7 +458,7 @@ class GeoSwathFramer:
             self._buf.clear()
         return out
 
-    def _scan(self, eof: bool) -> list[tuple[int, bytes]]:
+    def _scan(self) -> list[tuple[int, bytes]]:
         out: list[tuple[int, bytes]] = []
         i, buf = 0, self._buf
         refused_run = False

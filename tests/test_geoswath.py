@@ -246,3 +246,13 @@ def test_site_table_changes_the_layout(tmp_path: Path) -> None:
     codec = GeoSwathCodec.from_toml(site)
     raw = codec.encode_file_header(file_header())
     assert raw[524:532] == b"3.20\0\0\0\0" and codec.decode_file_header(raw) == file_header()
+
+
+def test_datagrams_frame_alone() -> None:
+    _, pings = rdf_bytes(4)
+    fr = GeoSwathFramer(CODEC)
+    got = [r for _, r in fr.feed_datagram(pings[0] + pings[1])]
+    got += [r for _, r in fr.feed_datagram(pings[2][:-5])]  # cut short: counted, not carried
+    got += [r for _, r in fr.feed_datagram(pings[3])]
+    assert got == [pings[0], pings[1], pings[3]]
+    assert fr.stats.reasons["truncated"] == 1 and fr.stats.frames == 3
