@@ -399,6 +399,7 @@ class GeoSwathFramer:
         self._base = 0
         self._last_ping: int | None = None  # stream offset of the last ping accepted
         self._bad_since = False  # a stretch was refused since that ping
+        self._refusing = False  # inside a refused stretch (counted once, across chunks)
 
     def _check(self, start: int) -> int:
         """Size of the valid record at ``_buf[start]``, 0 if more bytes are needed."""
@@ -449,34 +450,28 @@ class GeoSwathFramer:
         return self._scan_to_end()
 
     def _scan_to_end(self) -> list[tuple[int, bytes]]:
-        out = self._scan()
-        if self._buf:
-            self.stats.bad_frames += 1
-            self.stats.reasons["truncated"] += 1
-            self.stats.skipped_bytes += len(self._buf)
-            self._base += len(self._buf)
-            self._buf.clear()
-        return out
+        return self._scan(eof=True)
 
-    def _scan(self) -> list[tuple[int, bytes]]:
+    def _scan(self, eof: bool = False) -> list[tuple[int, bytes]]:
         out: list[tuple[int, bytes]] = []
         i, buf = 0, self._buf
-        refused_run = False
         while i < len(buf):
             try:
                 n = self._check(i)
+                if n == 0 and eof:
+                    raise BadFrame(f"truncated: the stream ends {len(buf) - i} bytes into it")
             except BadFrame as exc:
-                if not refused_run:  # one bad frame per refused stretch, not per byte
+                if not self._refusing:  # one bad frame per refused stretch, not per byte
                     self.stats.bad_frames += 1
-                    self.stats.reasons[exc.reason.split(" ")[0]] += 1
-                    refused_run = True
+                    self.stats.reasons[exc.reason.split(" ")[0].rstrip(":")] += 1
+                    self._refusing = True
                 self.stats.skipped_bytes += 1
                 self._bad_since = True
                 i += 1
                 continue
             if n == 0:
                 break
-            refused_run = False
+            self._refusing = False
             out.append((self._base + i, bytes(buf[i : i + n])))
             self.stats.frames += 1
             if self._need_file_header:

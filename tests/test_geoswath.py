@@ -256,3 +256,39 @@ def test_datagrams_frame_alone() -> None:
     got += [r for _, r in fr.feed_datagram(pings[3])]
     assert got == [pings[0], pings[1], pings[3]]
     assert fr.stats.reasons["truncated"] == 1 and fr.stats.frames == 3
+
+
+@pytest.mark.parametrize("file_mode", [True, False])
+def test_any_chunking_same_records_and_counters(file_mode: bool) -> None:
+    data, pings = rdf_bytes(5)
+    fh_len = LAY.file_header.itemsize
+    if file_mode:  # (garbage would move the pings off their file offsets: a flipped count)
+        stream = bytearray(data)
+        stream[data.index(pings[2]) + 32] ^= 4  # sample_number
+        want = [p for k, p in enumerate(pings) if k != 2]
+    else:
+        rng = np.random.default_rng(9)
+        stream = bytearray(b"".join(rng.bytes(int(rng.integers(1, 90))) + p for p in pings))
+        want = pings
+    results = set()
+    for chunk in (1, 7, 64, 1 << 16):
+        fr, got = frame_all(bytes(stream), file_mode, chunk)
+        s = fr.stats
+        results.add((tuple(got), s.frames, s.bad_frames, s.skipped_bytes))
+    assert len(results) == 1
+    ((got, *_),) = results
+    assert [r for r in got if len(r) != fh_len] == want
+
+
+def test_cut_ping_in_a_stream_costs_what_it_claims() -> None:
+    """A broadcast ping cut short (sender restarted) whose claimed size swallows the next
+    ping: with no sync and no checksum the swallowed bytes go with it (the limit the protocol
+    page states); the search resumes inside and the pings after are recovered."""
+    _, pings = rdf_bytes(6)
+    cut = pings[2][: HSIZE + 20]
+    fr, got = frame_all(b"".join(pings[:2]) + cut + b"".join(pings[3:]), file_mode=False)
+    assert fr.stats.bad_frames >= 1  # the misaligned rest of the ping it ate
+    assert got[:2] == pings[:2] and got[-2:] == pings[-2:]
+    swallowed = len(pings[2]) - len(cut)
+    assert len(got[2]) == len(pings[2]) and got[2][:swallowed] != pings[3][:swallowed]
+    assert sum(p in got for p in pings) == len(pings) - 2  # the cut one and the one it ate
