@@ -1,0 +1,294 @@
+"""GeoSwath Plus RDF / broadcast pings: table, codec round trip, framer under corruption."""
+
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from auvgw.drivers.geoswath import (
+    GeoSwathCodec,
+    GeoSwathFramer,
+    GeoSwathPing,
+    RdfFileHeader,
+    default_codec,
+    read_rdf,
+)
+from auvgw.drivers.tablecodec import TableError
+from auvgw.errors import DataError
+from auvgw.paths import config_file
+
+CODEC = default_codec()
+LAY = CODEC.layout
+HSIZE = LAY.ping_header.itemsize
+DT = {name: dt for name, _, dt in LAY.arrays}
+N_STRINGS = len(LAY.strings)
+
+
+def make_ping(rng: np.random.Generator, number: int, prev: int, n: int = 40) -> GeoSwathPing:
+    raa = np.zeros(n, DT["raa"])
+    raa["time"] = np.arange(n) * 7 + 20
+    raa["sine"] = rng.integers(-32767, 32768, n)
+    raa["amplitude"] = rng.integers(0, 65536, n)
+    mru = np.zeros(2, DT["mru"])
+    mru["roll"], mru["pitch"], mru["heave"], mru["time_stamp"] = 1.5, -0.5, 0.1, 100.0 + number
+    nav = np.zeros(1, DT["nav"])
+    nav["x"], nav["y"], nav["quality"] = 500123.25, 6201234.5, 4
+    svs = np.zeros(1, DT["minisvs"])
+    svs["velocity"] = 1493.5
+    strings = [b"$GPGGA,1*00\r\n", b"", b"$HEHDT,12.0,T*00\r\n", b"", b"", b"", b""]
+    return CODEC.make_ping(
+        {
+            "ping_number": number,
+            "ping_time": 100.0 + 0.5 * number,
+            "side": number % 2,
+            "previous_ping_position": prev,
+            "ping_length": 400,
+            "sample_interval": 12,
+        },
+        {"raa": raa, "mru": mru, "nav": nav, "minisvs": svs},
+        strings,
+    )
+
+
+def file_header() -> RdfFileHeader:
+    fields = {n: 0 for n in LAY.file_header.names or ()}
+    fields.update(
+        creation=1_700_000_000,
+        raw_header_size=LAY.file_header.itemsize,
+        raw_ping_header_size=HSIZE,
+        filename=b"survey_001.rdf".ljust(512, b"\0"),
+        frequency=250_000,
+        version=b"3.20\0\0\0\0",
+        spare=bytes(8),
+    )
+    return RdfFileHeader(fields)
+
+
+def rdf_bytes(n_pings: int = 6, seed: int = 1) -> tuple[bytes, list[bytes]]:
+    """A whole RDF file and its pings' bytes (each linking to the previous ping's offset)."""
+    rng = np.random.default_rng(seed)
+    out = CODEC.encode_file_header(file_header())
+    pings, prev = [], -1
+    for k in range(n_pings):
+        p = CODEC.encode(make_ping(rng, k, prev, n=30 + 5 * k))
+        prev = len(out)
+        out += p
+        pings.append(p)
+    return out, pings
+
+
+def frame_all(data: bytes, file_mode: bool, chunk: int = 97) -> tuple[GeoSwathFramer, list[bytes]]:
+    fr = GeoSwathFramer(CODEC, file_mode=file_mode)
+    recs = []
+    for i in range(0, len(data), chunk):
+        recs += fr.feed(data[i : i + chunk])
+    recs += fr.finish()
+    return fr, [r for _, r in recs]
+
+
+def test_table_sizes_follow_rdf_h() -> None:
+    assert LAY.file_header.itemsize == 544 and HSIZE == 64
+    assert [(n, d.itemsize) for n, d in DT.items()] == [
+        ("raa", 6),
+        ("nav", 37),
+        ("mru", 20),
+        ("gyro", 12),
+        ("echo", 16),
+        ("minisvs", 12),
+        ("aux1", 8),
+        ("aux2", 8),
+    ]
+    assert LAY.arrays[0][1] == "sample_number"
+
+
+def test_ping_decodes_known_bytes_and_round_trips() -> None:
+    rng = np.random.default_rng(3)
+    ping = make_ping(rng, 7, 1234, n=3)
+    data = CODEC.encode(ping)
+    assert len(data) == HSIZE + int(ping.header["ping_size"])
+    # hand-read the header: ping_number at 0, ping_time at 4, previous at 12, ping_size at 16
+    assert struct.unpack_from("<idii", data, 0) == (7, 103.5, 1234, len(data) - HSIZE)
+    # the RAA samples start right after the header: time u16, sine s16, amplitude u16
+    t0, s0, a0 = struct.unpack_from("<HhH", data, HSIZE)
+    assert (t0, s0, a0) == (
+        20,
+        int(ping.arrays["raa"]["sine"][0]),
+        int(ping.arrays["raa"]["amplitude"][0]),
+    )
+    back = CODEC.decode(data)
+    assert back == ping and CODEC.encode(back) == data
+    assert back.arrays["minisvs"]["velocity"][0] == pytest.approx(1493.5)
+    assert back.strings[2] == b"$HEHDT,12.0,T*00\r\n"
+    with pytest.raises(ValueError):
+        back.arrays["raa"]["sine"][0] = 1
+
+
+def test_file_round_trip_byte_for_byte(tmp_path: Path) -> None:
+    data, pings = rdf_bytes()
+    path = tmp_path / "x.rdf"
+    path.write_bytes(data)
+    recs = list(read_rdf(path))
+    assert isinstance(recs[0], RdfFileHeader)
+    assert recs[0].fields["frequency"] == 250_000
+    again = CODEC.encode_file_header(recs[0]) + b"".join(CODEC.encode(p) for p in recs[1:])  # type: ignore[arg-type]
+    assert again == data and len(recs) == 1 + len(pings)
+
+
+def test_broadcast_stream_round_trip_any_chunking() -> None:
+    _, pings = rdf_bytes()
+    stream = b"".join(pings)
+    for chunk in (1, 13, 4096):
+        fr = GeoSwathFramer(CODEC, file_mode=False)
+        got = [r for i in range(0, len(stream), chunk) for _, r in fr.feed(stream[i : i + chunk])]
+        assert got == pings and fr.stats.bad_frames == 0 and fr.stats.skipped_bytes == 0
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    n=st.integers(0, 300),
+    seed=st.integers(0, 2**32 - 1),
+    side=st.sampled_from([0, 1]),
+    strings=st.lists(st.binary(max_size=40), min_size=N_STRINGS, max_size=N_STRINGS),
+)
+def test_random_pings_round_trip(n: int, seed: int, side: int, strings: list[bytes]) -> None:
+    rng = np.random.default_rng(seed)
+    raa = np.frombuffer(rng.bytes(6 * n), DT["raa"])
+    ping = CODEC.make_ping(
+        {"ping_time": 1.0 + seed, "side": side, "ping_number": seed % 2**31}, {"raa": raa}, strings
+    )
+    data = CODEC.encode(ping)
+    back = CODEC.decode(data)
+    assert back == ping and CODEC.encode(back) == data
+    fr = GeoSwathFramer(CODEC)
+    assert [r for _, r in fr.feed(data)] == [data]
+
+
+def test_huge_claimed_size_rejected_at_once() -> None:
+    _, pings = rdf_bytes(3)
+    bad = bytearray(pings[0])
+    struct.pack_into("<i", bad, 16, LAY.max_ping_size + 1)
+    fr = GeoSwathFramer(CODEC)
+    got = [r for _, r in fr.feed(bytes(bad[:HSIZE]))]  # the header alone is enough to refuse it
+    assert got == [] and fr.stats.bad_frames == 1 and fr.stats.reasons["ping_size"] == 1
+    got += [r for _, r in fr.feed(bytes(bad[HSIZE:]) + pings[1] + pings[2])]
+    assert got == pings[1:]
+
+
+@pytest.mark.parametrize("file_mode", [True, False])
+def test_bit_flips_in_headers_cost_that_ping_only(file_mode: bool) -> None:
+    data, pings = rdf_bytes(8)
+    rng = np.random.default_rng(11)
+    starts = [data.index(p) for p in pings]
+    victims = {2, 5}
+    buf = bytearray(data)
+    # flip a bit of ping_size, a count (nav, miniSVS) or sample_number: the ping no longer adds
+    # up (a flip in a sample value or a code goes unseen: the format has no checksum)
+    for v in victims:
+        field = int(rng.choice([16, 17, 20, 24, 32, 33]))
+        buf[starts[v] + field] ^= 1 << int(rng.integers(0, 8))
+    if not file_mode:
+        buf = buf[LAY.file_header.itemsize :]
+    fr, got = frame_all(bytes(buf), file_mode)
+    want = [p for k, p in enumerate(pings) if k not in victims]
+    assert [r for r in got if r in pings] == want  # intact pings lost: 0
+    assert all(r in pings for r in got[1 if file_mode else 0 :])  # nothing false delivered
+    assert fr.stats.bad_frames >= len(victims)
+
+
+def test_garbage_between_pings_and_truncation() -> None:
+    data, pings = rdf_bytes(5)
+    rng = np.random.default_rng(5)
+    fh = data[: LAY.file_header.itemsize]
+    stream = b"".join(rng.bytes(int(rng.integers(1, 300))) + p for p in pings)
+    fr, got = frame_all(stream + pings[0][:50], file_mode=False)
+    assert got == pings
+    assert fr.stats.reasons["truncated"] == 1 and fr.stats.bad_frames >= 2
+    fr, got = frame_all(fh + b"".join(pings[:3]) + pings[3][: HSIZE + 10], file_mode=True)
+    assert got == [fh, *pings[:3]] and fr.stats.reasons["truncated"] == 1
+
+
+def test_bad_ping_and_bad_table_errors_name_the_problem(tmp_path: Path) -> None:
+    _, pings = rdf_bytes(1)
+    with pytest.raises(DataError, match=r"ping_size \d+ but the counts give"):
+        bad = bytearray(pings[0])
+        bad[32] += 1  # sample_number + 1
+        CODEC.decode(bytes(bad))
+    with pytest.raises(DataError, match="shorter than the 64-byte ping header"):
+        CODEC.decode(pings[0][:10])
+    site = tmp_path / "site.toml"
+    site.write_text(
+        config_file("geoswath.toml")
+        .read_text()
+        .replace(
+            'type = "s32", source = "rdf.h", description = "RAA',
+            'type = "s64", source = "rdf.h", description = "RAA',
+        )
+    )
+    with pytest.raises(
+        TableError, match=r"site.toml: ping_header.fields\[15\] \(sample_number\): type 's64'"
+    ):
+        GeoSwathCodec.from_toml(site)
+
+
+def test_site_table_changes_the_layout(tmp_path: Path) -> None:
+    # a site that finds the file header's version before echo_type: same size, other order
+    text = config_file("geoswath.toml").read_text()
+    a = next(ln for ln in text.splitlines(keepends=True) if '"echo_type"' in ln)
+    b = next(ln for ln in text.splitlines(keepends=True) if '"version"' in ln)
+    assert a in text and b in text
+    site = tmp_path / "site.toml"
+    site.write_text(text.replace(a + b, b + a))
+    codec = GeoSwathCodec.from_toml(site)
+    raw = codec.encode_file_header(file_header())
+    assert raw[524:532] == b"3.20\0\0\0\0" and codec.decode_file_header(raw) == file_header()
+
+
+def test_datagrams_frame_alone() -> None:
+    _, pings = rdf_bytes(4)
+    fr = GeoSwathFramer(CODEC)
+    got = [r for _, r in fr.feed_datagram(pings[0] + pings[1])]
+    got += [r for _, r in fr.feed_datagram(pings[2][:-5])]  # cut short: counted, not carried
+    got += [r for _, r in fr.feed_datagram(pings[3])]
+    assert got == [pings[0], pings[1], pings[3]]
+    assert fr.stats.reasons["truncated"] == 1 and fr.stats.frames == 3
+
+
+@pytest.mark.parametrize("file_mode", [True, False])
+def test_any_chunking_same_records_and_counters(file_mode: bool) -> None:
+    data, pings = rdf_bytes(5)
+    fh_len = LAY.file_header.itemsize
+    if file_mode:  # (garbage would move the pings off their file offsets: a flipped count)
+        stream = bytearray(data)
+        stream[data.index(pings[2]) + 32] ^= 4  # sample_number
+        want = [p for k, p in enumerate(pings) if k != 2]
+    else:
+        rng = np.random.default_rng(9)
+        stream = bytearray(b"".join(rng.bytes(int(rng.integers(1, 90))) + p for p in pings))
+        want = pings
+    results = set()
+    for chunk in (1, 7, 64, 1 << 16):
+        fr, got = frame_all(bytes(stream), file_mode, chunk)
+        s = fr.stats
+        results.add((tuple(got), s.frames, s.bad_frames, s.skipped_bytes))
+    assert len(results) == 1
+    ((got, *_),) = results
+    assert [r for r in got if len(r) != fh_len] == want
+
+
+def test_cut_ping_in_a_stream_costs_what_it_claims() -> None:
+    """A broadcast ping cut short (sender restarted) whose claimed size swallows the next
+    ping: with no sync and no checksum the swallowed bytes go with it (the limit the protocol
+    page states); the search resumes inside and the pings after are recovered."""
+    _, pings = rdf_bytes(6)
+    cut = pings[2][: HSIZE + 20]
+    fr, got = frame_all(b"".join(pings[:2]) + cut + b"".join(pings[3:]), file_mode=False)
+    assert fr.stats.bad_frames >= 1  # the misaligned rest of the ping it ate
+    assert got[:2] == pings[:2] and got[-2:] == pings[-2:]
+    swallowed = len(pings[2]) - len(cut)
+    assert len(got[2]) == len(pings[2]) and got[2][:swallowed] != pings[3][:swallowed]
+    assert sum(p in got for p in pings) == len(pings) - 2  # the cut one and the one it ate
