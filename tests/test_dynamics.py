@@ -1,0 +1,99 @@
+"""Vehicle dynamics (sim_devices.dynamics): structure, energy and sanity checks."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from auvgw.sim_devices import dynamics as d
+
+P = d.load_params()
+
+
+def _run(p: d.VehicleParams, x: np.ndarray, inputs: list[float], seconds: float,
+         dt: float = 0.02) -> np.ndarray:
+    for _ in range(int(round(seconds / dt))):
+        x = d.step(p, x, np.array(inputs), dt)
+    return x
+
+
+def test_every_parameter_cites_a_source(tmp_path) -> None:
+    text = d.REMUS100_FILE.read_text()
+    bad = tmp_path / "v.toml"
+    bad.write_text(text.replace('source = "[P01] Xudot = -9.30e-1 kg"', 'source = ""'))
+    with pytest.raises(ValueError, match="Xudot has no source"):
+        d.load_params(bad)
+
+
+def test_mass_matrix_symmetric_positive_definite() -> None:
+    m = d.mass_matrix(P)
+    assert np.allclose(m, m.T)
+    assert np.linalg.eigvalsh(m).min() > 0
+    assert m[0, 0] == pytest.approx(30.48 + 0.93)
+
+
+def test_coriolis_does_no_work() -> None:
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        nu = rng.normal(size=6)
+        c_rb, c_a = d.coriolis(P, nu)
+        assert np.allclose(c_a, -c_a.T)
+        assert nu @ (c_rb + c_a) @ nu == pytest.approx(0.0, abs=1e-9)
+
+
+def test_energy_conserved_without_damping_and_propulsion() -> None:
+    p = P.conservative()
+    x = np.array([1.0, 0.2, -0.1, 0.3, 0.1, -0.2, 0, 0, 5.0, 0.2, 0.1, 0.5])
+    e0 = d.energy(p, x)
+    energies = []
+    for _ in range(1000):  # 10 s at dt = 0.01
+        x = d.step(p, x, np.array([0.3, 0.3, 1500.0]), 0.01)
+        energies.append(d.energy(p, x))
+    drift = max(abs(e - e0) for e in energies)
+    assert drift < 1e-6 * max(1.0, abs(e0)) + 1e-6, drift
+    # and with damping on, it is dissipated
+    y = _run(P, np.array([1.0, 0.2, -0.1, 0.3, 0.1, -0.2, 0, 0, 5.0, 0.2, 0.1, 0.5]),
+             [0, 0, 0], 5.0)
+    assert d.energy(P, y) < e0
+
+
+def test_passive_vehicle_settles_to_trim_and_rises_by_net_buoyancy() -> None:
+    x = np.zeros(12)
+    x[9], x[10] = 0.3, 0.2  # released rolled and pitched
+    x = _run(P, x, [0, 0, 0], 120.0, dt=0.05)
+    # net buoyancy B - W > 0 balanced by the cross-flow drag: w = -sqrt((B-W)/|Zww|)
+    w_body = x[2] * math.cos(x[10])
+    expected = -math.sqrt((P.buoyancy - P.weight) / -P.quad[2])
+    assert w_body == pytest.approx(expected, rel=0.1)
+    # trim: CG below CB, so no roll; pitch where the CG-CB righting moment W zg sin(theta)
+    # balances the rising hull's cross-flow moment Mww w|w|
+    assert abs(x[9]) < 1e-3 and abs(x[3]) < 1e-3
+    theta_trim = math.asin(P.quad[5] * w_body * abs(w_body) / (P.weight * P.r_g[2]))
+    assert abs(x[10] - theta_trim) < 0.015  # a slow residual pitch oscillation remains
+    assert x[8] < -5.0  # it rose
+
+
+def test_zero_rudder_goes_straight() -> None:
+    p = d.VehicleParams(**{**P.__dict__, "torque_per_thrust": 0.0})
+    x = _run(p, np.array([1.0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0.7]), [0, 0, 800], 20.0)
+    assert x[11] == pytest.approx(0.7, abs=1e-9)  # no yaw drift
+    assert x[1] == pytest.approx(0.0, abs=1e-9) and x[5] == pytest.approx(0.0, abs=1e-9)
+    assert x[6] > 5 and x[7] / x[6] == pytest.approx(math.tan(0.7), rel=1e-3)
+
+
+def test_inputs_saturate_and_current_carries_the_vehicle() -> None:
+    x = np.zeros(12)
+    a = d.step(P, x, np.array([1.0, 0, 0]), 0.1)
+    b = d.step(P, x, np.array([P.max_rudder, 0, 0]), 0.1)
+    assert np.array_equal(a, b)
+    # neutral, passive vehicle in a current: after a while it drifts with the water
+    p = d.VehicleParams(**{**P.__dict__, "buoyancy": P.weight})
+    y = np.zeros(12)
+    for _ in range(600):
+        y = d.step(p, y, np.zeros(3), 0.05, current_ned=np.array([0.0, 0.3, 0.0]))
+    v_ned = d.rotation(*y[9:12]) @ y[:3]
+    assert v_ned[1] == pytest.approx(0.3, abs=0.03)
+    with pytest.raises(ValueError, match="dt"):
+        d.step(P, x, np.zeros(3), 0.0)
