@@ -311,10 +311,7 @@ def rhs(p: VehicleParams, state: Array, inputs: Array, current_ned: Array | None
     nu, eta = state[:6], state[6:]
     phi, theta, psi = eta[3], eta[4], eta[5]
     r_bn = rotation(phi, theta, psi)
-    if current_ned is None:
-        vc_b = np.zeros(3)
-    else:
-        vc_b = r_bn.T @ current_ned
+    vc_b = np.zeros(3) if current_ned is None else r_bn.T @ current_ned
     nu_r = nu - np.concatenate([vc_b, np.zeros(3)])
     c_rb, c_a = coriolis(p, nu_r)
     tau = forces(p, nu_r, inputs)

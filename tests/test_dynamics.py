@@ -14,7 +14,7 @@ P = d.load_params()
 
 def _run(p: d.VehicleParams, x: np.ndarray, inputs: list[float], seconds: float,
          dt: float = 0.02) -> np.ndarray:
-    for _ in range(int(round(seconds / dt))):
+    for _ in range(round(seconds / dt)):
         x = d.step(p, x, np.array(inputs), dt)
     return x
 
