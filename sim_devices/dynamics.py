@@ -8,10 +8,10 @@ Inputs ``[rudder, stern, rpm]`` (rad, rad, rev/min) are saturated at the vehicle
 The ocean current is a constant NED velocity (m/s); hydrodynamic forces use the relative
 velocity ``nu_r = nu - [R^T v_c, 0]``.
 
-Model (Fossen 2021 eq. 10.?-style relative-velocity form, irrotational current):
+Model (Fossen 2021, relative-velocity form for an irrotational current):
 ``M nu_r_dot + C_RB(nu_r) nu_r + C_A(nu_r) nu_r + D(nu_r) nu_r + g(eta) = tau``, with
-``M = M_RB + M_A`` (eq. 3.44, 6.45), ``C_RB`` the linear-velocity-independent form (eq. 3.60),
-``C_A`` the skew-symmetric added-mass form (eq. 6.43), ``g`` the restoring forces (eq. 4.6),
+``M = M_RB + M_A`` (rigid body, ch. 3; added mass), ``C_RB`` in its linear-velocity-independent
+form (ch. 3), ``C_A`` in the skew-symmetric added-mass form, ``g`` the restoring forces (ch. 4),
 cross-flow quadratic drag, body and fin lift (Prestero 2001) and the propeller.
 Parameters come from ``config/vehicles/remus100.toml`` (every number cites its source).
 """
@@ -31,6 +31,8 @@ __all__ = [
     "REMUS100_FILE",
     "VehicleParams",
     "coriolis",
+    "coriolis_force",
+    "forces",
     "energy",
     "load_params",
     "mass_matrix",
@@ -46,7 +48,7 @@ REMUS100_FILE = Path(__file__).resolve().parent.parent / "config" / "vehicles" /
 
 
 def skew(a: Array) -> Array:
-    """The cross-product matrix S(a), S(a) b = a x b (Fossen eq. 2.10)."""
+    """The cross-product matrix S(a), S(a) b = a x b (Fossen ch. 2)."""
     return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
 
 
@@ -145,7 +147,7 @@ def load_params(path: Path = REMUS100_FILE) -> VehicleParams:
 
 
 def mass_matrices(p: VehicleParams) -> tuple[Array, Array]:
-    """(M_RB, M_A): rigid-body (Fossen eq. 3.44) and added mass (eq. 6.45, hydrodynamic
+    """(M_RB, M_A): rigid-body (Fossen ch. 3) and added mass (the hydrodynamic
     derivatives with their sign flipped)."""
     m = p.mass
     sg = skew(np.array(p.r_g))
@@ -173,8 +175,8 @@ def mass_matrix(p: VehicleParams) -> Array:
 
 
 def coriolis(p: VehicleParams, nu: Array) -> tuple[Array, Array]:
-    """(C_RB(nu), C_A(nu)). C_RB is Fossen's eq. 3.60 (independent of the linear velocity, so
-    the irrotational-current form holds); C_A is the skew-symmetric eq. 6.43 form."""
+    """(C_RB(nu), C_A(nu)). C_RB is Fossen's ch. 3 form (independent of the linear velocity, so
+    the irrotational-current form holds); C_A is the skew-symmetric form."""
     m_rb, m_a = _cache(p).m_rb, _cache(p).m_a
     v1, w = nu[:3], nu[3:]
     sw = skew(w)
@@ -195,7 +197,7 @@ def coriolis(p: VehicleParams, nu: Array) -> tuple[Array, Array]:
 
 
 def rotation(phi: float, theta: float, psi: float) -> Array:
-    """R_b^n (ZYX Euler angles, Fossen eq. 2.18): body FRD to NED."""
+    """R_b^n (ZYX Euler angles, Fossen ch. 2): body FRD to NED."""
     cf, sf, ct, st, cp, sp = (math.cos(phi), math.sin(phi), math.cos(theta), math.sin(theta),
                               math.cos(psi), math.sin(psi))
     return np.array([
@@ -206,7 +208,7 @@ def rotation(phi: float, theta: float, psi: float) -> Array:
 
 
 def restoring(p: VehicleParams, eta: Array) -> Array:
-    """g(eta): weight and buoyancy with CG/CB offsets (Fossen eq. 4.6), N and N m."""
+    """g(eta): weight and buoyancy with CG/CB offsets (Fossen ch. 4), N and N m."""
     phi, theta = eta[3], eta[4]
     k = np.array([-math.sin(theta), math.cos(theta) * math.sin(phi),
                   math.cos(theta) * math.cos(phi)])  # NED down axis in body
@@ -249,9 +251,12 @@ class _Cache:
         self.p = p
         self.m_rb, self.m_a = mass_matrices(p)
         self.m_inv = np.linalg.inv(self.m_rb + self.m_a)
+        self.i_b = self.m_rb[3:, 3:].tolist()
+        self.m_a_rows = self.m_a.tolist()
 
 
 _CACHE: dict[int, _Cache] = {}
+
 
 
 def _cache(p: VehicleParams) -> _Cache:
@@ -271,33 +276,33 @@ def saturate(p: VehicleParams, inputs: Array) -> Array:
     ])
 
 
-def forces(p: VehicleParams, nu_r: Array, inputs: Array) -> Array:
-    """Damping, lift, fin and propeller forces tau (N, N m) at relative velocity nu_r;
-    ``inputs`` already saturated."""
+def _tau(p: VehicleParams, nu_r: tuple[float, ...], inputs: tuple[float, float, float]) -> list[float]:
+    """Damping, lift, fin and propeller forces as floats (the hot path of :func:`rhs`)."""
     u, v, w, pr, q, r = nu_r
-    tau = np.zeros(6)
+    tau = [0.0] * 6
     if p.damping:
         xuu, yvv, zww, yrr, zqq, mww, nvv, mqq, nrr, kpp = p.quad
-        tau += np.array([
-            xuu * u * abs(u),
-            yvv * v * abs(v) + yrr * r * abs(r),
-            zww * w * abs(w) + zqq * q * abs(q),
-            kpp * pr * abs(pr),
-            mww * w * abs(w) + mqq * q * abs(q),
-            nvv * v * abs(v) + nrr * r * abs(r),
-        ])
-        tau += np.array(p.linear) * nu_r
+        lin = p.linear
+        tau[0] = xuu * u * abs(u) + lin[0] * u
+        tau[1] = yvv * v * abs(v) + yrr * r * abs(r) + lin[1] * v
+        tau[2] = zww * w * abs(w) + zqq * q * abs(q) + lin[2] * w
+        tau[3] = kpp * pr * abs(pr) + lin[3] * pr
+        tau[4] = mww * w * abs(w) + mqq * q * abs(q) + lin[4] * q
+        tau[5] = nvv * v * abs(v) + nrr * r * abs(r) + lin[5] * r
     if p.lift:
-        # body lift at x_cp (Prestero 2001 sec. 3.x, Hoerner)
+        # body lift (Prestero 2001, after Hoerner) acting at x_cp
         y_l = p.body_lift * u * v
         z_l = p.body_lift * u * w
-        # fins at x_fin: effective angle of attack from the local flow (Prestero's fin lift)
+        # fins at x_fin: lift c u|u| alpha, alpha the deflection less the local flow angle
+        # (v + x_fin r sideways, w - x_fin q vertical); reproduces Prestero's fin derivatives
         ua = abs(u)
         c, xf = p.fin_lift, p.x_fin
         y_f = c * (u * ua * inputs[0] - ua * (v + xf * r))
         z_f = c * (-u * ua * inputs[1] - ua * (w - xf * q))
-        tau += np.array([0.0, y_l + y_f, z_l + z_f, 0.0,
-                         -p.x_cp * z_l - xf * z_f, p.x_cp * y_l + xf * y_f])
+        tau[1] += y_l + y_f
+        tau[2] += z_l + z_f
+        tau[4] += -p.x_cp * z_l - xf * z_f
+        tau[5] += p.x_cp * y_l + xf * y_f
     if p.propulsion:
         n = inputs[2]
         thrust = p.thrust_coeff * n * abs(n)
@@ -306,23 +311,116 @@ def forces(p: VehicleParams, nu_r: Array, inputs: Array) -> Array:
     return tau
 
 
+def forces(p: VehicleParams, nu_r: Array, inputs: Array) -> Array:
+    """Damping, lift, fin and propeller forces tau (N, N m) at the relative velocity nu_r;
+    ``inputs`` already saturated."""
+    u = (float(inputs[0]), float(inputs[1]), float(inputs[2]))
+    return np.array(_tau(p, tuple(float(x) for x in nu_r), u))
+
+
+def _cross(a: tuple[float, float, float], b: tuple[float, float, float]) -> tuple[float, float, float]:
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+def coriolis_force(p: VehicleParams, nu: Array) -> Array:
+    """(C_RB(nu) + C_A(nu)) nu as a vector, without building the matrices (same terms as
+    :func:`coriolis`: m w x v - m w x (r_g x w); m r_g x (w x v) + w x (I_b w); and
+    -a x w; -a x v - b x w with a, b the added-mass momenta)."""
+    c = _cache(p)
+    return np.array(_coriolis_force(p, c, tuple(float(x) for x in nu)))
+
+
+def _coriolis_force(p: VehicleParams, c: _Cache, nu: tuple[float, ...]) -> list[float]:
+    v1 = (nu[0], nu[1], nu[2])
+    w = (nu[3], nu[4], nu[5])
+    m = p.mass
+    rg = p.r_g
+    wxv = _cross(w, v1)
+    wxrgw = _cross(w, _cross(rg, w))
+    ib = c.i_b
+    ibw = (ib[0][0] * w[0] + ib[0][1] * w[1] + ib[0][2] * w[2],
+           ib[1][0] * w[0] + ib[1][1] * w[1] + ib[1][2] * w[2],
+           ib[2][0] * w[0] + ib[2][1] * w[1] + ib[2][2] * w[2])
+    rgwv = _cross(rg, wxv)
+    wibw = _cross(w, ibw)
+    am = c.m_a_rows
+    ab = [sum(am[i][j] * nu[j] for j in range(6)) for i in range(6)]
+    a = (ab[0], ab[1], ab[2])
+    b = (ab[3], ab[4], ab[5])
+    axw = _cross(a, w)
+    axv = _cross(a, v1)
+    bxw = _cross(b, w)
+    return [
+        m * (wxv[0] - wxrgw[0]) - axw[0],
+        m * (wxv[1] - wxrgw[1]) - axw[1],
+        m * (wxv[2] - wxrgw[2]) - axw[2],
+        m * rgwv[0] + wibw[0] - axv[0] - bxw[0],
+        m * rgwv[1] + wibw[1] - axv[1] - bxw[1],
+        m * rgwv[2] + wibw[2] - axv[2] - bxw[2],
+    ]
+
+
 def rhs(p: VehicleParams, state: Array, inputs: Array, current_ned: Array | None = None) -> Array:
-    """State derivative [nu_dot, eta_dot] (Fossen eq. 10.?-form with an irrotational current)."""
-    nu, eta = state[:6], state[6:]
-    phi, theta, psi = eta[3], eta[4], eta[5]
-    r_bn = rotation(phi, theta, psi)
-    vc_b = np.zeros(3) if current_ned is None else r_bn.T @ current_ned
-    nu_r = nu - np.concatenate([vc_b, np.zeros(3)])
-    c_rb, c_a = coriolis(p, nu_r)
-    tau = forces(p, nu_r, inputs)
-    nu_r_dot = _cache(p).m_inv @ (tau - (c_rb + c_a) @ nu_r - restoring(p, eta))
-    # the current is constant in NED, so in body it turns with the vehicle: d/dt vc_b = -w x vc_b
-    nu_dot = nu_r_dot + np.concatenate([-np.cross(nu[3:], vc_b), np.zeros(3)])
-    # kinematics (Fossen eq. 2.40): p_dot = R nu1, Theta_dot = T(Theta) nu2
-    cf, sf, ct, tt = math.cos(phi), math.sin(phi), math.cos(theta), math.tan(theta)
-    t_mat = np.array([[1.0, sf * tt, cf * tt], [0.0, cf, -sf], [0.0, sf / ct, cf / ct]])
-    eta_dot = np.concatenate([r_bn @ nu[:3], t_mat @ nu[3:]])
-    return np.concatenate([nu_dot, eta_dot])
+    """State derivative [nu_dot, eta_dot] with an irrotational current constant in NED.
+
+    The kinetics are solved for the relative velocity, ``M nu_r_dot = tau - C(nu_r) nu_r -
+    g(eta)`` (valid because C_RB does not depend on the linear velocity), then ``nu_dot =
+    nu_r_dot - w x vc_b`` since the current turns with the body. ``inputs`` already saturated.
+    """
+    c = _cache(p)
+    x = state.tolist()
+    phi, theta, psi = x[9], x[10], x[11]
+    cf, sf, ct, st = math.cos(phi), math.sin(phi), math.cos(theta), math.sin(theta)
+    cp, sp = math.cos(psi), math.sin(psi)
+    r_bn = (
+        (cp * ct, -sp * cf + cp * st * sf, sp * sf + cp * cf * st),
+        (sp * ct, cp * cf + sf * st * sp, -cp * sf + st * sp * cf),
+        (-st, ct * sf, ct * cf),
+    )
+    if current_ned is None:
+        vc_b = (0.0, 0.0, 0.0)
+    else:
+        vn = current_ned.tolist()
+        vc_b = tuple(r_bn[0][i] * vn[0] + r_bn[1][i] * vn[1] + r_bn[2][i] * vn[2]
+                     for i in range(3))
+    nu_r = (x[0] - vc_b[0], x[1] - vc_b[1], x[2] - vc_b[2], x[3], x[4], x[5])
+    ins = inputs.tolist()
+    tau = _tau(p, nu_r, (ins[0], ins[1], ins[2]))
+    cor = _coriolis_force(p, c, nu_r)
+    # restoring forces g(eta): weight at r_g and buoyancy at r_b, NED down axis k in body
+    k = r_bn[2]
+    net = p.weight - p.buoyancy
+    fg = (p.weight * k[0], p.weight * k[1], p.weight * k[2])
+    fb = (-p.buoyancy * k[0], -p.buoyancy * k[1], -p.buoyancy * k[2])
+    mg = _cross(p.r_g, fg)
+    mb = _cross(p.r_b, fb)
+    rhs_f = np.array([
+        tau[0] - cor[0] + net * k[0],
+        tau[1] - cor[1] + net * k[1],
+        tau[2] - cor[2] + net * k[2],
+        tau[3] - cor[3] + mg[0] + mb[0],
+        tau[4] - cor[4] + mg[1] + mb[1],
+        tau[5] - cor[5] + mg[2] + mb[2],
+    ])
+    nu_r_dot = (c.m_inv @ rhs_f).tolist()
+    wxvc = _cross((x[3], x[4], x[5]), vc_b)
+    u, v, w = x[0], x[1], x[2]
+    tt = st / ct
+    return np.array([
+        nu_r_dot[0] - wxvc[0],
+        nu_r_dot[1] - wxvc[1],
+        nu_r_dot[2] - wxvc[2],
+        nu_r_dot[3],
+        nu_r_dot[4],
+        nu_r_dot[5],
+        # kinematics: position rate R nu1, Euler-angle rate T(Theta) nu2 (Fossen ch. 2)
+        r_bn[0][0] * u + r_bn[0][1] * v + r_bn[0][2] * w,
+        r_bn[1][0] * u + r_bn[1][1] * v + r_bn[1][2] * w,
+        r_bn[2][0] * u + r_bn[2][1] * v + r_bn[2][2] * w,
+        x[3] + (sf * x[4] + cf * x[5]) * tt,
+        cf * x[4] - sf * x[5],
+        (sf * x[4] + cf * x[5]) / ct,
+    ])
 
 
 def step(

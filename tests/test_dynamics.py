@@ -97,3 +97,19 @@ def test_inputs_saturate_and_current_carries_the_vehicle() -> None:
     assert v_ned[1] == pytest.approx(0.3, abs=0.03)
     with pytest.raises(ValueError, match="dt"):
         d.step(P, x, np.zeros(3), 0.0)
+
+
+def test_fast_rhs_matches_the_matrix_form() -> None:
+    """rhs() works on floats; check it against M^-1 (tau - C nu - g) built from the matrices."""
+    rng = np.random.default_rng(7)
+    m_inv = np.linalg.inv(d.mass_matrix(P))
+    for _ in range(10):
+        x = rng.normal(scale=0.3, size=12)
+        inputs = np.array([0.1, -0.2, 900.0])
+        nu = x[:6]
+        c_rb, c_a = d.coriolis(P, nu)
+        assert np.allclose(d.coriolis_force(P, nu), (c_rb + c_a) @ nu)
+        expected = m_inv @ (d.forces(P, nu, inputs) - (c_rb + c_a) @ nu - d.restoring(P, x[6:]))
+        assert np.allclose(d.rhs(P, x, inputs)[:6], expected)
+        r = d.rotation(*x[9:12])
+        assert np.allclose(d.rhs(P, x, inputs)[6:9], r @ nu[:3])
