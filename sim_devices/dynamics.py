@@ -32,8 +32,8 @@ __all__ = [
     "VehicleParams",
     "coriolis",
     "coriolis_force",
-    "forces",
     "energy",
+    "forces",
     "load_params",
     "mass_matrix",
     "restoring",
@@ -96,7 +96,8 @@ def _value(table: dict[str, Any], section: str, key: str, path: Path) -> Any:
     try:
         return table[section][key]["value"]
     except (KeyError, TypeError) as exc:
-        raise ValueError(f"{path}: missing [{section}] {key} = {{value = ..., source = ...}}") from exc
+        msg = f"{path}: missing [{section}] {key} = {{value = ..., source = ...}}"
+        raise ValueError(msg) from exc
 
 
 def load_params(path: Path = REMUS100_FILE) -> VehicleParams:
@@ -227,7 +228,7 @@ def potential(p: VehicleParams, eta: Array) -> float:
                   math.cos(theta) * math.cos(phi)])
     z_g = eta[2] + float(k @ np.array(p.r_g))
     z_b = eta[2] + float(k @ np.array(p.r_b))
-    return -p.weight * z_g + p.buoyancy * z_b
+    return float(-p.weight * z_g + p.buoyancy * z_b)
 
 
 def energy(p: VehicleParams, state: Array, current_ned: Array | None = None) -> float:
@@ -241,7 +242,8 @@ def _relative(state: Array, current_ned: Array | None) -> Array:
     if current_ned is None:
         return nu.copy()
     r = rotation(state[9], state[10], state[11])
-    return nu - np.concatenate([r.T @ current_ned, np.zeros(3)])
+    out: Array = nu - np.concatenate([r.T @ current_ned, np.zeros(3)])
+    return out
 
 
 class _Cache:
@@ -276,7 +278,10 @@ def saturate(p: VehicleParams, inputs: Array) -> Array:
     ])
 
 
-def _tau(p: VehicleParams, nu_r: tuple[float, ...], inputs: tuple[float, float, float]) -> list[float]:
+Vec3 = tuple[float, float, float]
+
+
+def _tau(p: VehicleParams, nu_r: tuple[float, ...], inputs: Vec3) -> list[float]:
     """Damping, lift, fin and propeller forces as floats (the hot path of :func:`rhs`)."""
     u, v, w, pr, q, r = nu_r
     tau = [0.0] * 6
@@ -318,7 +323,7 @@ def forces(p: VehicleParams, nu_r: Array, inputs: Array) -> Array:
     return np.array(_tau(p, tuple(float(x) for x in nu_r), u))
 
 
-def _cross(a: tuple[float, float, float], b: tuple[float, float, float]) -> tuple[float, float, float]:
+def _cross(a: Vec3, b: Vec3) -> Vec3:
     return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
 

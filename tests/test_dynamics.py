@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,7 +20,7 @@ def _run(p: d.VehicleParams, x: np.ndarray, inputs: list[float], seconds: float,
     return x
 
 
-def test_every_parameter_cites_a_source(tmp_path) -> None:
+def test_every_parameter_cites_a_source(tmp_path: Path) -> None:
     text = d.REMUS100_FILE.read_text()
     bad = tmp_path / "v.toml"
     bad.write_text(text.replace('source = "[P01] Xudot = -9.30e-1 kg"', 'source = ""'))
