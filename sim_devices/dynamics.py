@@ -72,7 +72,7 @@ class VehicleParams:
     """Xuu Yvv Zww Yrr Zqq Mww Nvv Mqq Nrr Kpp."""
     linear: tuple[float, float, float, float, float, float]
     body_lift: float
-    """Yuvl = Zuwl = -1/2 rho d^2 c_ydb (kg/m)."""
+    """Yuvl = Zuwl (kg/m), body lift per u v (u w)."""
     x_cp: float
     fin_lift: float
     """c = Yuudr (kg/(m rad)): fin force c u|u| alpha."""
@@ -114,11 +114,15 @@ def load_params(path: Path = REMUS100_FILE) -> VehicleParams:
 
     mass = float(v("rigid_body", "mass"))
     g = float(v("rigid_body", "gravity"))
-    rho = float(v("rigid_body", "rho"))
-    d = float(v("rigid_body", "diameter"))
     quad = tuple(float(v("damping", k)) for k in
                  ("Xuu", "Yvv", "Zww", "Yrr", "Zqq", "Mww", "Nvv", "Mqq", "Nrr", "Kpp"))
     c_fin = float(v("lift", "Yuudr"))
+    x_fin = float(v("lift", "Nuudr")) / c_fin
+    # body lift = Prestero's combined Yuv less the fins' -c; its centre x_cp makes Munk (the
+    # C_A term, Yvdot - Xudot per u v) + fins (-c x_fin) + body lift equal the combined Nuv
+    body_lift = float(v("lift", "Yuv")) + c_fin
+    munk = float(v("added_mass", "Yvdot")) - float(v("added_mass", "Xudot"))
+    x_cp = (float(v("lift", "Nuv")) - munk + c_fin * x_fin) / body_lift
     # kT from the calibration point: at steady speed U the thrust balances the axial drag.
     u_cal = float(v("propulsion", "calib_speed"))
     n_cal = float(v("propulsion", "calib_rpm"))
@@ -135,10 +139,10 @@ def load_params(path: Path = REMUS100_FILE) -> VehicleParams:
                     ("Xudot", "Yvdot", "Zwdot", "Kpdot", "Mqdot", "Nrdot", "Yrdot", "Zqdot")),
         quad=quad,  # type: ignore[arg-type]
         linear=tuple(lin),  # type: ignore[arg-type]
-        body_lift=-0.5 * rho * d * d * float(v("lift", "body_lift_coeff")),
-        x_cp=float(v("lift", "x_cp")),
+        body_lift=body_lift,
+        x_cp=x_cp,
         fin_lift=c_fin,
-        x_fin=float(v("lift", "Nuudr")) / c_fin,
+        x_fin=x_fin,
         thrust_coeff=drag / (n_cal * n_cal),
         torque_per_thrust=float(v("propulsion", "torque_per_thrust")),
         max_rudder=float(v("limits", "rudder")),

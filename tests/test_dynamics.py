@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -60,24 +61,30 @@ def test_energy_conserved_without_damping_and_propulsion() -> None:
     assert d.energy(P, y) < e0
 
 
-def test_passive_vehicle_settles_to_trim_and_rises_by_net_buoyancy() -> None:
+def test_passive_neutral_vehicle_settles_to_the_cg_cb_trim() -> None:
+    # CG 2 mm ahead of and 19.6 mm below the CB: trim pitch where the CG hangs under the CB,
+    # xg cos(theta) + zg sin(theta) = 0; roll trims to 0; neutral, so no depth change
+    xg, zg = 0.002, P.r_g[2]
+    p = replace(P, r_g=(xg, 0.0, zg), buoyancy=P.weight)
     x = np.zeros(12)
     x[9], x[10] = 0.3, 0.2  # released rolled and pitched
-    x = _run(P, x, [0, 0, 0], 120.0, dt=0.05)
-    # net buoyancy B - W > 0 balanced by the cross-flow drag: w = -sqrt((B-W)/|Zww|)
-    w_body = x[2] * math.cos(x[10])
-    expected = -math.sqrt((P.buoyancy - P.weight) / -P.quad[2])
-    assert w_body == pytest.approx(expected, rel=0.1)
-    # trim: CG below CB, so no roll; pitch where the CG-CB righting moment W zg sin(theta)
-    # balances the rising hull's cross-flow moment Mww w|w|
-    assert abs(x[9]) < 1e-3 and abs(x[3]) < 1e-3
-    theta_trim = math.asin(P.quad[5] * w_body * abs(w_body) / (P.weight * P.r_g[2]))
-    assert abs(x[10] - theta_trim) < 0.015  # a slow residual pitch oscillation remains
-    assert x[8] < -5.0  # it rose
+    x = _run(p, x, [0, 0, 0], 120.0, dt=0.05)
+    assert x[10] == pytest.approx(math.atan2(-xg, zg), abs=2e-3)
+    assert abs(x[9]) < 1e-3
+    assert abs(x[8]) < 0.2  # only the transient of the released pitch oscillation
+    assert np.abs(x[:6]).max() < 2e-3
+
+
+def test_passive_buoyant_vehicle_rises_at_the_drag_balance() -> None:
+    # net buoyancy B - W > 0 against the cross-flow drag: w = -sqrt((B - W) / |Zww|)
+    x = _run(P, np.zeros(12), [0, 0, 0], 60.0, dt=0.05)
+    w_ned = (d.rotation(*x[9:12]) @ x[:3])[2]
+    assert w_ned == pytest.approx(-math.sqrt((P.buoyancy - P.weight) / -P.quad[2]), rel=0.05)
+    assert x[8] < -5.0 and abs(x[9]) < 1e-3
 
 
 def test_zero_rudder_goes_straight() -> None:
-    p = d.VehicleParams(**{**P.__dict__, "torque_per_thrust": 0.0})
+    p = replace(P, torque_per_thrust=0.0)
     x = _run(p, np.array([1.0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0.7]), [0, 0, 800], 20.0)
     assert x[11] == pytest.approx(0.7, abs=1e-9)  # no yaw drift
     assert x[1] == pytest.approx(0.0, abs=1e-9) and x[5] == pytest.approx(0.0, abs=1e-9)
@@ -90,7 +97,7 @@ def test_inputs_saturate_and_current_carries_the_vehicle() -> None:
     b = d.step(P, x, np.array([P.max_rudder, 0, 0]), 0.1)
     assert np.array_equal(a, b)
     # neutral, passive vehicle in a current: after a while it drifts with the water
-    p = d.VehicleParams(**{**P.__dict__, "buoyancy": P.weight})
+    p = replace(P, buoyancy=P.weight)
     y = np.zeros(12)
     for _ in range(600):
         y = d.step(p, y, np.zeros(3), 0.05, current_ned=np.array([0.0, 0.3, 0.0]))

@@ -6,6 +6,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
@@ -22,8 +23,45 @@ def run(p: d.VehicleParams, x: np.ndarray, inputs: list[float], seconds: float) 
     return np.array(out)
 
 
+def linear_check(p: d.VehicleParams, u0: float = 1.5) -> None:
+    """Derivatives per u of the model's forces at a straight run, beside Prestero's combined
+    table, and the eigenvalues of the linearised sway-yaw and heave-pitch subsystems."""
+    q = replace(p, torque_per_thrust=0.0, buoyancy=p.weight)
+    rpm = math.sqrt(-q.quad[0] * u0 * u0 / q.thrust_coeff)
+    x0 = np.zeros(12)
+    x0[0] = u0
+    inputs = np.array([0.0, 0.0, rpm])
+
+    def total(nu: np.ndarray) -> np.ndarray:
+        return d.forces(q, nu, inputs) - d.coriolis_force(q, nu)
+
+    der = np.zeros((6, 6))
+    jac = np.zeros((12, 12))
+    for i in range(12):
+        e = np.zeros(12)
+        e[i] = 1e-6
+        jac[:, i] = (d.rhs(q, x0 + e, inputs) - d.rhs(q, x0 - e, inputs)) / 2e-6
+        if i < 6:
+            der[:, i] = (total(x0[:6] + e[:6]) - total(x0[:6] - e[:6])) / 2e-6 / u0
+    m = q.mass
+    print(f"linear derivatives per u at u = {u0} m/s (model | Prestero combined, rigid-body "
+          "m u r / m u q moved to the right-hand side)")
+    for name, val, pub in [
+        ("Yv (Yuv)", der[1, 1], -28.6), ("Yr (Yur - m)", der[1, 5], 5.22 - m),
+        ("Nv (Nuv)", der[5, 1], -24.0), ("Nr (Nur)", der[5, 5], -2.00),
+        ("Zw (Zuw)", der[2, 2], -28.6), ("Zq (Zuq + m)", der[2, 4], -5.22 + m),
+        ("Mw (Muw)", der[4, 2], 24.0), ("Mq (Muq)", der[4, 4], -2.00),
+    ]:
+        print(f"  {name:14s} {val:8.2f} | {pub:8.2f}")
+    lat = np.linalg.eigvals(jac[np.ix_([1, 5], [1, 5])])
+    lon = np.linalg.eigvals(jac[np.ix_([2, 4, 10], [2, 4, 10])])
+    print("  eigenvalues sway-yaw   (1/s):", " ".join(f"{z:.2f}" for z in lat))
+    print("  eigenvalues heave-pitch(1/s):", " ".join(f"{z:.2f}" for z in lon))
+
+
 def main() -> None:
     p = d.load_params()
+    linear_check(p)
     print("speed against shaft speed (60 s from rest, fins 0)")
     for rpm in (500, 1000, 1525):
         xs = run(p, np.zeros(12), [0, 0, rpm], 60)
