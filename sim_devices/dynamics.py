@@ -28,7 +28,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 __all__ = [
+    "PITCH_LIMIT",
     "REMUS100_FILE",
+    "PitchSingularityError",
     "VehicleParams",
     "coriolis",
     "coriolis_force",
@@ -432,6 +434,14 @@ def rhs(p: VehicleParams, state: Array, inputs: Array, current_ned: Array | None
     ])
 
 
+PITCH_LIMIT = math.radians(85.0)
+"""|theta| beyond which :func:`step` refuses to go on (Euler angles are singular at 90 deg)."""
+
+
+class PitchSingularityError(ValueError):
+    """The pitch left the range where the Euler-angle kinematics are valid."""
+
+
 def step(
     p: VehicleParams,
     state: Array,
@@ -454,4 +464,9 @@ def step(
     k4 = rhs(p, x + dt * k3, u, vc)
     out = x + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
     out[11] = math.atan2(math.sin(out[11]), math.cos(out[11]))
+    if abs(out[10]) > PITCH_LIMIT:
+        raise PitchSingularityError(
+            f"pitch {math.degrees(out[10]):.1f} deg beyond +-{math.degrees(PITCH_LIMIT):.0f}: "
+            "the ZYX Euler-angle kinematics are singular at +-90 deg (the vehicle looped)"
+        )
     return out

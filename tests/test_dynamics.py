@@ -121,3 +121,10 @@ def test_fast_rhs_matches_the_matrix_form() -> None:
         assert np.allclose(d.rhs(P, x, inputs)[:6], expected)
         r = d.rotation(*x[9:12])
         assert np.allclose(d.rhs(P, x, inputs)[6:9], r @ nu[:3])
+
+
+def test_step_refuses_to_cross_the_euler_singularity() -> None:
+    x = np.zeros(12)
+    x[10], x[4] = math.radians(84.9), 1.0  # pitching up through 85 deg
+    with pytest.raises(d.PitchSingularityError, match="singular"):
+        d.step(P, x, np.zeros(3), 0.01)

@@ -16,9 +16,14 @@ DT = 0.02
 
 
 def run(p: d.VehicleParams, x: np.ndarray, inputs: list[float], seconds: float) -> np.ndarray:
+    """Simulate; stops early (and says so) if the vehicle loops past the Euler singularity."""
     out = [x]
-    for _ in range(int(seconds / DT)):
-        x = d.step(p, x, np.array(inputs), DT)
+    for i in range(int(seconds / DT)):
+        try:
+            x = d.step(p, x, np.array(inputs), DT)
+        except d.PitchSingularityError as exc:
+            print(f"    [stopped at t = {i * DT:.1f} s: {exc}]")
+            break
         out.append(x)
     return np.array(out)
 
@@ -62,7 +67,16 @@ def linear_check(p: d.VehicleParams, u0: float = 1.5) -> None:
 def main() -> None:
     p = d.load_params()
     linear_check(p)
-    print("speed against shaft speed (60 s from rest, fins 0)")
+    straight = replace(p, torque_per_thrust=0.0, buoyancy=p.weight)
+    print("speed against shaft speed, symmetric neutral vehicle without propeller torque "
+          "(60 s from rest)")
+    for rpm in (500, 1000, 1500, 1525):
+        xs = run(straight, np.zeros(12), [0, 0, rpm], 60)
+        surge_only = rpm * math.sqrt(straight.thrust_coeff / -straight.quad[0])
+        print(f"  {rpm:5d} rpm: surge-only steady u = {surge_only:.2f} m/s; simulated u = "
+              f"{xs[-1, 0]:.2f} m/s, yaw {math.degrees(xs[-1, 11]):.3f} deg, pitch "
+              f"{math.degrees(xs[-1, 10]):.1f} deg, depth {xs[-1, 8]:.1f} m")
+    print("speed against shaft speed, full model (B > W, propeller torque; 60 s from rest)")
     for rpm in (500, 1000, 1525):
         xs = run(p, np.zeros(12), [0, 0, rpm], 60)
         last = xs[-500:]
