@@ -33,7 +33,9 @@ setup(
     packages=packages,
     package_dir=package_dir,
     package_data={
-        "auvgw.config": ["*.toml", "*.dbc", "*.json", "scenarios/*.json", "security/*.toml"]
+        "auvgw.config": [
+            "*.toml", "vehicles/*.toml", "*.dbc", "*.json", "scenarios/*.json", "security/*.toml"
+        ]
     },
     include_package_data=True,
 )

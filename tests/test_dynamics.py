@@ -1,0 +1,130 @@
+"""Vehicle dynamics (sim_devices.dynamics): structure, energy and sanity checks."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from auvgw.sim_devices import dynamics as d
+
+P = d.load_params()
+
+
+def _run(p: d.VehicleParams, x: np.ndarray, inputs: list[float], seconds: float,
+         dt: float = 0.02) -> np.ndarray:
+    for _ in range(round(seconds / dt)):
+        x = d.step(p, x, np.array(inputs), dt)
+    return x
+
+
+def test_every_parameter_cites_a_source(tmp_path: Path) -> None:
+    text = d.REMUS100_FILE.read_text()
+    bad = tmp_path / "v.toml"
+    bad.write_text(text.replace('source = "[P01] Xudot = -9.30e-1 kg"', 'source = ""'))
+    with pytest.raises(ValueError, match="Xudot has no source"):
+        d.load_params(bad)
+
+
+def test_mass_matrix_symmetric_positive_definite() -> None:
+    m = d.mass_matrix(P)
+    assert np.allclose(m, m.T)
+    assert np.linalg.eigvalsh(m).min() > 0
+    assert m[0, 0] == pytest.approx(30.48 + 0.93)
+
+
+def test_coriolis_does_no_work() -> None:
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        nu = rng.normal(size=6)
+        c_rb, c_a = d.coriolis(P, nu)
+        assert np.allclose(c_a, -c_a.T)
+        assert nu @ (c_rb + c_a) @ nu == pytest.approx(0.0, abs=1e-9)
+
+
+def test_energy_conserved_without_damping_and_propulsion() -> None:
+    p = P.conservative()
+    x = np.array([1.0, 0.2, -0.1, 0.3, 0.1, -0.2, 0, 0, 5.0, 0.2, 0.1, 0.5])
+    e0 = d.energy(p, x)
+    energies = []
+    for _ in range(1000):  # 10 s at dt = 0.01
+        x = d.step(p, x, np.array([0.3, 0.3, 1500.0]), 0.01)
+        energies.append(d.energy(p, x))
+    drift = max(abs(e - e0) for e in energies)
+    assert drift < 1e-6 * max(1.0, abs(e0)) + 1e-6, drift
+    # and with damping on, it is dissipated
+    y = _run(P, np.array([1.0, 0.2, -0.1, 0.3, 0.1, -0.2, 0, 0, 5.0, 0.2, 0.1, 0.5]),
+             [0, 0, 0], 5.0)
+    assert d.energy(P, y) < e0
+
+
+def test_passive_neutral_vehicle_settles_to_the_cg_cb_trim() -> None:
+    # CG 2 mm ahead of and 19.6 mm below the CB: trim pitch where the CG hangs under the CB,
+    # xg cos(theta) + zg sin(theta) = 0; roll trims to 0; neutral, so no depth change
+    xg, zg = 0.002, P.r_g[2]
+    p = replace(P, r_g=(xg, 0.0, zg), buoyancy=P.weight)
+    x = np.zeros(12)
+    x[9], x[10] = 0.3, 0.2  # released rolled and pitched
+    x = _run(p, x, [0, 0, 0], 120.0, dt=0.05)
+    assert x[10] == pytest.approx(math.atan2(-xg, zg), abs=2e-3)
+    assert abs(x[9]) < 1e-3
+    assert abs(x[8]) < 0.2  # only the transient of the released pitch oscillation
+    assert np.abs(x[:6]).max() < 2e-3
+
+
+def test_passive_buoyant_vehicle_rises_at_the_drag_balance() -> None:
+    # net buoyancy B - W > 0 against the cross-flow drag: w = -sqrt((B - W) / |Zww|)
+    x = _run(P, np.zeros(12), [0, 0, 0], 60.0, dt=0.05)
+    w_ned = (d.rotation(*x[9:12]) @ x[:3])[2]
+    assert w_ned == pytest.approx(-math.sqrt((P.buoyancy - P.weight) / -P.quad[2]), rel=0.05)
+    assert x[8] < -5.0 and abs(x[9]) < 1e-3
+
+
+def test_zero_rudder_goes_straight() -> None:
+    p = replace(P, torque_per_thrust=0.0)
+    x = _run(p, np.array([1.0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0.7]), [0, 0, 800], 20.0)
+    assert x[11] == pytest.approx(0.7, abs=1e-9)  # no yaw drift
+    assert x[1] == pytest.approx(0.0, abs=1e-9) and x[5] == pytest.approx(0.0, abs=1e-9)
+    assert x[6] > 5 and x[7] / x[6] == pytest.approx(math.tan(0.7), rel=1e-3)
+
+
+def test_inputs_saturate_and_current_carries_the_vehicle() -> None:
+    x = np.zeros(12)
+    a = d.step(P, x, np.array([1.0, 0, 0]), 0.1)
+    b = d.step(P, x, np.array([P.max_rudder, 0, 0]), 0.1)
+    assert np.array_equal(a, b)
+    # neutral, passive vehicle in a current: after a while it drifts with the water
+    p = replace(P, buoyancy=P.weight)
+    y = np.zeros(12)
+    for _ in range(600):
+        y = d.step(p, y, np.zeros(3), 0.05, current_ned=np.array([0.0, 0.3, 0.0]))
+    v_ned = d.rotation(*y[9:12]) @ y[:3]
+    assert v_ned[1] == pytest.approx(0.3, abs=0.03)
+    with pytest.raises(ValueError, match="dt"):
+        d.step(P, x, np.zeros(3), 0.0)
+
+
+def test_fast_rhs_matches_the_matrix_form() -> None:
+    """rhs() works on floats; check it against M^-1 (tau - C nu - g) built from the matrices."""
+    rng = np.random.default_rng(7)
+    m_inv = np.linalg.inv(d.mass_matrix(P))
+    for _ in range(10):
+        x = rng.normal(scale=0.3, size=12)
+        inputs = np.array([0.1, -0.2, 900.0])
+        nu = x[:6]
+        c_rb, c_a = d.coriolis(P, nu)
+        assert np.allclose(d.coriolis_force(P, nu), (c_rb + c_a) @ nu)
+        expected = m_inv @ (d.forces(P, nu, inputs) - (c_rb + c_a) @ nu - d.restoring(P, x[6:]))
+        assert np.allclose(d.rhs(P, x, inputs)[:6], expected)
+        r = d.rotation(*x[9:12])
+        assert np.allclose(d.rhs(P, x, inputs)[6:9], r @ nu[:3])
+
+
+def test_step_refuses_to_cross_the_euler_singularity() -> None:
+    x = np.zeros(12)
+    x[10], x[4] = math.radians(84.9), 1.0  # pitching up through 85 deg
+    with pytest.raises(d.PitchSingularityError, match="singular"):
+        d.step(P, x, np.zeros(3), 0.01)
