@@ -30,8 +30,8 @@ import numpy as np
 
 from auvgw.drivers.framing import BadFrame, FramerStats
 from auvgw.drivers.tablecodec import TableError, load_toml
-from auvgw.errors import DataError
-from auvgw.paths import config_file
+from auvgw.ground.errors import DataError
+from auvgw.ground.paths import config_file
 
 __all__ = [
     "GeoSwathCodec",

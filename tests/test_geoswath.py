@@ -19,8 +19,8 @@ from auvgw.drivers.geoswath import (
     read_rdf,
 )
 from auvgw.drivers.tablecodec import TableError
-from auvgw.errors import DataError
-from auvgw.paths import config_file
+from auvgw.ground.errors import DataError
+from auvgw.ground.paths import config_file
 
 CODEC = default_codec()
 LAY = CODEC.layout
