@@ -189,12 +189,14 @@ def test_replay_of_a_two_ins_recording_chooses_the_same_source(two_ins, tmp_path
     live = sorted(b + a + d, key=lambda m: m[0])  # ins_b first at every tick
     cfg = FusionStageConfig(vehicle="rec2", latency_s=lat, filter=filt)
     expected, _ = _run(live, cfg)
-    serial = {"kind": "serial", "url": "/dev/null"}
+    def serial(d: str) -> dict:
+        return {"kind": "serial", "url": f"/dev/recorded-{d}"}  # one port each, never opened
+
     rec = McapRecorder(tmp_path / "two.mcap", "rec2")
     rec.set_gateway_config(json.dumps({"vehicle": "rec2", "devices": {
-        "ins_b": {"format": "hn100", "transport": serial},
-        "ins": {"format": "hn100", "transport": serial},
-        "dvl": {"format": "pd0", "transport": serial}}}))  # fmt: skip
+        "ins_b": {"format": "hn100", "transport": serial("ins_b")},
+        "ins": {"format": "hn100", "transport": serial("ins")},
+        "dvl": {"format": "pd0", "transport": serial("dvl")}}}))  # fmt: skip
     keys = Keys("rec2")
     offsets = {"ins": 0, "ins_b": 0, "dvl": 0}
     for seq, (t, dev, m) in enumerate(live):

@@ -202,12 +202,14 @@ def test_settings_file_errors_name_the_file_and_field(tmp_path):
 
 
 def gateway_config_json(vehicle: str) -> str:
-    serial = {"kind": "serial", "url": "/dev/null"}
+    def serial(d: str) -> dict:
+        return {"kind": "serial", "url": f"/dev/recorded-{d}"}  # one port each, never opened
+
     return json.dumps({
         "vehicle": vehicle,
         "devices": {
-            "ins": {"format": "hn100", "transport": serial},
-            "dvl": {"format": "pd0", "transport": serial},
+            "ins": {"format": "hn100", "transport": serial("ins")},
+            "dvl": {"format": "pd0", "transport": serial("dvl")},
         },
     })  # fmt: skip
 

@@ -54,13 +54,13 @@ def test_a_forged_recording_replays_raw_without_opening_its_paths(tmp_path, shar
     fifo = tmp_path / "fifo.toml"
     os.mkfifo(fifo)
     frames = pd0_frames(shared_data, 3)
-    serial = {"kind": "serial", "url": "/dev/null"}
     cfg = parse_gateway_config(
         {
             "vehicle": "v",
-            "devices": {
-                "dvl": {"format": "pd0", "transport": serial},
-                "ins": {"format": "hn100", "table": str(fifo), "transport": serial},
+            "devices": {  # one port each (never opened: a recording only names them)
+                "dvl": {"format": "pd0", "transport": {"kind": "serial", "url": "/dev/rec-dvl"}},
+                "ins": {"format": "hn100", "table": str(fifo),
+                        "transport": {"kind": "serial", "url": "/dev/rec-ins"}},
                 "mag": {
                     "format": "can",
                     "dbc": str(_shadow(tmp_path)),

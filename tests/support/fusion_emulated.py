@@ -299,16 +299,17 @@ def write_recording(
     truth: Truth,
 ) -> Path:
     """An MCAP as ``auvgw record`` writes it: the gateway configuration (``formats``: device ->
-    format; serial devices on /dev/null, ``kongsberg`` on UDP), every raw frame in order with
-    its attachment (receive time, sequence, stream offset per device) and every 10th truth
-    pose on ``truth/pose``."""
+    format; serial devices on a /dev/recorded-<device> each, ``kongsberg`` on UDP), every raw
+    frame in order with its attachment (receive time, sequence, stream offset per device) and
+    every 10th truth pose on ``truth/pose``."""
     from auvgw.bus import Keys, pack_raw_attachment
     from auvgw.config.gateway import parse_gateway_config
     from auvgw.recording import McapRecorder
 
-    transport = {"kind": "serial", "url": "/dev/null"}
-    devices = {d: {"format": f, "transport": {"kind": "udp", "port": 0}
-                   if f == "kongsberg" else transport} for d, f in formats.items()}  # fmt: skip
+    # one port per device (the configuration's rule), never opened: a recording only names them
+    devices = {d: {"format": f, "transport": {"kind": "udp", "port": 0} if f == "kongsberg"
+                   else {"kind": "serial", "url": f"/dev/recorded-{d}"}}
+               for d, f in formats.items()}  # fmt: skip
     gw = parse_gateway_config({"vehicle": vehicle, "devices": devices})
     keys = Keys(vehicle)
     rec = McapRecorder(path, vehicle)
