@@ -134,19 +134,31 @@ def _run(name: str, tmp_path: Path, samples: list[tuple[str, bytes]]) -> tuple[l
 
 
 @pytest.mark.parametrize("name", ["slam", "bathymetric", "magnetic", "ros2", "viz"])
-def test_downstream_stages_publish_the_same_under_hostile_payloads(name, tmp_path, stage_traffic):
+@settings(max_examples=3, derandomize=True, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+@given(bad=st.lists(hostile_payloads(), min_size=40, max_size=40))
+def test_downstream_stages_publish_the_same_under_hostile_payloads(name, tmp_path, stage_traffic,
+                                                                   bad):  # fmt: skip
     """Each downstream stage (SLAM pipelines, ROS 2 bridge, Rerun) is fed the good sensor and
-    odometry traffic with a fixed sample of hostile payloads in the middle, on sensor and
-    odometry keys: nothing raises, what it publishes is what it publishes without them, and the
-    good samples after them are taken as before."""
+    odometry traffic with 40 hostile payloads in the middle, on sensor and odometry keys: nothing
+    raises, what it publishes for the good traffic is what it publishes without them, and the
+    good samples after them are taken as before. (The ROS 2 bridge also republishes a hostile
+    payload that is a well-formed envelope, as a bridge does: its good outputs must all be
+    there.)"""
+    from collections import Counter
+
     good = stage_traffic
-    bad = [hostile_payloads().example() for _ in range(40)]
     keys = [KEYS.sensor("dvl", "ensemble"), KEYS.odometry(), KEYS.sensor("ins", "ins")]
     half = len(good) // 2
     mixed = good[:half] + [(keys[i % 3], b) for i, b in enumerate(bad)] + good[half:]
-    clean_out, clean = _run(name, tmp_path / "clean", good)
-    mixed_out, counted = _run(name, tmp_path / "mixed", mixed)
-    assert mixed_out == clean_out
+    run = len(list(tmp_path.iterdir()))
+    clean_out, clean = _run(name, tmp_path / f"clean{run}", good)
+    mixed_out, counted = _run(name, tmp_path / f"mixed{run}", mixed)
+    if name == "ros2":
+        lost = Counter(map(repr, clean_out)) - Counter(map(repr, mixed_out))
+        assert not lost, list(lost)[:3]
+    else:
+        assert mixed_out == clean_out
     assert counted["stage"]["received"] >= clean["stage"]["received"]
     if name == "viz":  # the Rerun stage counts its own way: errors and unknown samples
         assert counted["stage"]["errors"] + sum(counted["stage"]["unknown"].values()) > 0
