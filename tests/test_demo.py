@@ -114,10 +114,13 @@ def test_every_row_is_stamped_on_the_vehicle_clock(demo_run) -> None:
     for stage in ("fusion", "slam-vb-aufastslam"):
         rows = rec[f"health/{stage}/status"]
         assert rows.times[0] >= t0 - slack and rows.times[-1] >= t1 - slack, stage
+    labelled = 0
     for path, rows in rec.items():
-        if path.startswith("map/slam/") and path.endswith("landmarks"):
+        if path.startswith(("map/slam/", "map/truth/")) and path.endswith("landmarks"):
             for labels in rows.values("Points2D:labels"):
                 assert not any(str(lb).startswith("-") for lb in labels or []), (path, labels)
+                labelled += len(labels or [])
+    assert labelled >= 10  # the true features carry their ids (SLAM's, once it maps some)
     # the INS at 100 Hz and the DVL at 5 Hz of vehicle time, as the health rows say
     rates = {"ins": 100.0, "dvl": 5.0}
     for device, hz in rates.items():

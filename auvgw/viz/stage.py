@@ -529,6 +529,11 @@ class VizStage(Stage):
             raw_ids = body.get("ids")
             if raw_ids is not None:
                 ids = np.asarray(raw_ids)
+            if ids is None or len(ids) != len(mean):  # the map's order is the features' id
+                ids = np.arange(len(mean))
+            elif np.issubdtype(np.asarray(ids).dtype, np.number) and (np.asarray(ids) < 0).any():
+                # a filter's "no id yet" (-1): the landmark's place in the map names it instead
+                ids = np.where(np.asarray(ids) < 0, np.arange(len(mean)), ids)
             if c is not None and len(c) != len(mean):
                 c = None
             self.logger.landmarks(name, t, mean, c, ids)
