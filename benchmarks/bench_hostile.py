@@ -36,18 +36,10 @@ import numpy as np
 
 from auvgw.bus import Keys, encode_envelope, open_session
 from auvgw.config.bus import BusConfig
-from auvgw.decoding import message_kind
 from auvgw.ground.procs import free_endpoint
 from auvgw.testing import AUVGW, REPO
-from auvgw.testing.fusion_emulated import (
-    HOST_EPOCH,
-    decode_serial,
-    dvl_stream,
-    emulate,
-    filter_config,
-    ins_output,
-    survey_scenario,
-)
+from auvgw.testing.fusion_emulated import HOST_EPOCH
+from auvgw.testing.hostile import fusion_traffic
 
 T0 = 100.0
 KEYS = Keys("auv1")
@@ -61,25 +53,6 @@ FORGED = [
 ]
 
 
-def traffic(seconds: float, tmp: Path) -> tuple[list[tuple[float, str, bytes]], object]:
-    """(host-time-ordered (t s, key, envelope) of the INS and DVL, fusion settings)."""
-    from auvgw.stages.fusion import FusionStageConfig
-
-    em = emulate(survey_scenario(T0 + seconds + 1.0), tmp)
-    ins = ins_output(em, T0, T0 + seconds)
-    dvl = dvl_stream(em, T0, T0 + seconds)
-    msgs = decode_serial(ins.serial, "hn100", "ins") + decode_serial(dvl, "pd0", "dvl")
-    msgs.sort(key=lambda m: m[0])
-    cfg = FusionStageConfig(vehicle="auv1", ins_device="ins", filter=filter_config(em, T0),
-                            latency_s={"ins": ins.serial.frame_latency_s,
-                                       "dvl": dvl.frame_latency_s})  # fmt: skip
-    out = []
-    for seq, (t, device, msg) in enumerate(msgs):
-        payload, _ = encode_envelope(msg, device, round(t * 1e9), seq)
-        out.append((t, KEYS.sensor(device, message_kind(msg)), payload))
-    return out, cfg
-
-
 def forged_run(seconds: float) -> None:
     import subprocess
 
@@ -87,7 +60,7 @@ def forged_run(seconds: float) -> None:
 
     with tempfile.TemporaryDirectory(prefix="bench-hostile-") as tmpd:
         tmp = Path(tmpd)
-        good, cfg = traffic(2 * seconds, tmp / "ports")
+        good, cfg = fusion_traffic(tmp / "ports", 2 * seconds)
         settings = tmp / "fusion.json"
         settings.write_text(cfg.model_dump_json())  # type: ignore[attr-defined]
         ep = free_endpoint()
@@ -165,7 +138,7 @@ def sweep(n_inputs: int) -> None:
     keys = [KEYS.sensor("dvl", "ensemble"), KEYS.odometry(), KEYS.sensor("ins", "ins")]
     with tempfile.TemporaryDirectory(prefix="bench-hostile-") as tmpd:
         tmp = Path(tmpd)
-        good3, cfg = traffic(4.0, tmp / "ports")
+        good3, cfg = fusion_traffic(tmp / "ports", 4.0)
         good = [(k, p) for _, k, p in good3]
         rows = []
         expected, _ = t._odometry(cfg, good)

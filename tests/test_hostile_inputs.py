@@ -16,17 +16,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from auvgw.bus import Keys, encode_envelope
-from auvgw.decoding import message_kind
-from auvgw.stages.fusion import FusionStage, FusionStageConfig
-from auvgw.testing import REPO
-from auvgw.testing.fusion_emulated import (
-    decode_serial,
-    dvl_stream,
-    emulate,
-    filter_config,
-    ins_output,
-    survey_scenario,
-)
+from auvgw.stages.fusion import FusionStage
+from auvgw.testing import REPO, hostile
 from auvgw.testing.hostile import hostile_payloads
 
 T0, T1 = 100.0, 104.0
@@ -34,19 +25,8 @@ KEYS = Keys("auv1")
 @pytest.fixture(scope="module")
 def fusion_traffic(tmp_path_factory):
     """(good (key, payload) samples of 4 s of the emulated survey's INS and DVL, settings)."""
-    em = emulate(survey_scenario(T1 + 1.0), tmp_path_factory.mktemp("ports"))
-    ins = ins_output(em, T0, T1)
-    dvl = dvl_stream(em, T0, T1)
-    msgs = decode_serial(ins.serial, "hn100", "ins") + decode_serial(dvl, "pd0", "dvl")
-    msgs.sort(key=lambda m: m[0])
-    cfg = FusionStageConfig(vehicle="auv1", ins_device="ins", filter=filter_config(em, T0),
-                            latency_s={"ins": ins.serial.frame_latency_s,
-                                       "dvl": dvl.frame_latency_s})  # fmt: skip
-    good = []
-    for seq, (t, device, msg) in enumerate(msgs):
-        payload, _ = encode_envelope(msg, device, round(t * 1e9), seq)
-        good.append((KEYS.sensor(device, message_kind(msg)), payload))
-    return good, cfg
+    good, cfg = hostile.fusion_traffic(tmp_path_factory.mktemp("ports"), T1 - T0, T0)
+    return [(k, p) for _, k, p in good], cfg
 
 
 @pytest.fixture(scope="module")

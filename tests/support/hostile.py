@@ -7,13 +7,15 @@ fields at the edges of their types, wrong types, deep nesting, huge sizes, raw b
 from __future__ import annotations
 
 import json
+from pathlib import Path
+from typing import Any
 
 import msgspec
 from hypothesis import strategies as st
 
 from auvgw.envelope import ENVELOPE_VERSION
 
-__all__ = ["EDGES", "hostile_payloads"]
+__all__ = ["EDGES", "fusion_traffic", "hostile_payloads"]
 
 #: numbers at the edges of the types an envelope carries, and the wrong types for them
 EDGES = st.one_of(
@@ -65,3 +67,37 @@ def hostile_payloads(draw) -> bytes:
                            fields["device"], fields["t"], fields["seq"], fields["msg"]])
     except (OverflowError, TypeError, msgspec.EncodeError):  # beyond what MessagePack holds
         return enc.encode([ENVELOPE_VERSION, "pd0.Ensemble", 0, "", "dvl", -1, 0, []])
+
+
+def fusion_traffic(
+    tmp: Path, seconds: float = 4.0, t0: float = 100.0, vehicle: str = "auv1"
+) -> tuple[list[tuple[float, str, bytes]], Any]:
+    """Good traffic: ``seconds`` of the emulated survey's INS and DVL from vehicle time ``t0``
+    as gateway envelopes, host-time ordered ``(t s, key, payload)``, and the fusion settings
+    that fit them (``tmp``: a folder for the emulated ports)."""
+    from auvgw.bus import Keys, encode_envelope
+    from auvgw.decoding import message_kind
+    from auvgw.stages.fusion import FusionStageConfig
+    from auvgw.testing.fusion_emulated import (
+        decode_serial,
+        dvl_stream,
+        emulate,
+        filter_config,
+        ins_output,
+        survey_scenario,
+    )
+
+    keys = Keys(vehicle)
+    em = emulate(survey_scenario(t0 + seconds + 1.0), tmp)
+    ins = ins_output(em, t0, t0 + seconds)
+    dvl = dvl_stream(em, t0, t0 + seconds)
+    msgs = decode_serial(ins.serial, "hn100", "ins") + decode_serial(dvl, "pd0", "dvl")
+    msgs.sort(key=lambda m: m[0])
+    cfg = FusionStageConfig(vehicle=vehicle, ins_device="ins", filter=filter_config(em, t0),
+                            latency_s={"ins": ins.serial.frame_latency_s,
+                                       "dvl": dvl.frame_latency_s})  # fmt: skip
+    out = []
+    for seq, (t, device, msg) in enumerate(msgs):
+        payload, _ = encode_envelope(msg, device, round(t * 1e9), seq)
+        out.append((t, keys.sensor(device, message_kind(msg)), payload))
+    return out, cfg
