@@ -20,6 +20,7 @@ they do not understand without guessing from the key.
 from __future__ import annotations
 
 import contextlib
+import logging
 import struct
 import sys
 import threading
@@ -39,6 +40,8 @@ from auvgw.envelope import (
     envelope_encoding,
 )
 from auvgw.ground.errors import UserError, format_validation_error
+
+log = logging.getLogger(__name__)
 
 __all__ = [
     "ENVELOPE_VERSION",
@@ -80,9 +83,19 @@ def undeclare(entities: Iterable[Any]) -> None:
 
 
 def open_session(cfg: BusConfig | None = None) -> zenoh.Session:
-    """Open a Zenoh session; close it (``with`` or ``finally``) or the process hangs at exit."""
+    """Open a Zenoh session; close it (``with`` or ``finally``) or the process hangs at exit.
+    On a bus without TLS or authentication that another machine could reach, every process
+    says so once at start-up (a warning naming the endpoints): any process that reaches such a
+    bus can publish sensor data the vehicle will use."""
+    cfg = cfg or BusConfig()
+    open_to = cfg.open_beyond_loopback()
+    if open_to:
+        log.warning("bus: no TLS and no authentication, and reachable beyond this machine through "
+                    "%s: any process that reaches it can publish sensor data the vehicle uses; "
+                    "see docs/security.md ([bus.tls], [bus.auth], access control)",
+                    ", ".join(open_to))  # fmt: skip
     conf = zenoh.Config()
-    for key, value in (cfg or BusConfig()).zenoh_json5().items():
+    for key, value in cfg.zenoh_json5().items():
         conf.insert_json5(key, value)
     return zenoh.open(conf)
 

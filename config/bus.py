@@ -185,6 +185,13 @@ class BusConfig(BaseModel):
 
     @model_validator(mode="after")
     def _reachable(self) -> BusConfig:
+        secured = ("tls/", "quic/")
+        if self.tls is not None and not any(e.startswith(secured)
+                                            for e in (*self.listen, *self.connect)):  # fmt: skip
+            raise ValueError(
+                "[bus.tls] is set but no listen/connect endpoint uses tls/ (or quic/): the bus "
+                "would run as plain TCP; give tls/<host>:<port> endpoints (docs/security.md)"
+            )
         if self.mode == "client" and not self.connect and not self.multicast_scouting:
             raise ValueError(
                 "mode 'client' needs the router's endpoint in 'connect' "
@@ -221,6 +228,14 @@ class BusConfig(BaseModel):
             return self
         return self.model_copy(update={"connect": [default_endpoint()], "listen": [STAGE_LISTEN]})
 
+    def open_beyond_loopback(self) -> list[str]:
+        """The endpoints (and multicast scouting) through which a process on another machine
+        could join this bus while it has neither TLS nor authentication: [] when it is safe."""
+        if self.tls is not None or self.auth is not None:
+            return []
+        out = [e for e in (*self.listen, *self.connect) if not _loopback(e)]
+        return out + (["multicast scouting"] if self.multicast_scouting else [])
+
     def describe(self) -> str:
         """One line: mode and endpoints, for messages."""
         parts = [f"mode {self.mode}"]
@@ -248,3 +263,21 @@ class BusConfig(BaseModel):
         if self.access_control is not None:
             out["access_control"] = json.dumps(self.access_control)
         return out
+
+
+def _loopback(endpoint: str) -> bool:
+    """Whether a Zenoh endpoint (``tcp/127.0.0.1:7447``, ``tcp/[::1]:7447``,
+    ``tcp/localhost:7447``) is reachable from this machine only."""
+    import ipaddress
+
+    addr = endpoint.partition("/")[2].split("#", 1)[0]
+    if addr.startswith("[") and "]" in addr:
+        host = addr[1 : addr.index("]")]
+    else:
+        host = addr.rsplit(":", 1)[0]
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False  # a host name: it may well be reachable from elsewhere
