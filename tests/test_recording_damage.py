@@ -65,8 +65,13 @@ def test_verify_reports_the_damaged_chunk(tmp_path, capsys):
     _recording(path)
     assert main(["verify", str(path)]) == 0
     assert "clean" in capsys.readouterr().out
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as f:
+        ci = sorted(make_reader(f).get_summary().chunk_indexes,
+                    key=lambda c: c.chunk_start_offset)[3]  # fmt: skip
     data = bytearray(path.read_bytes())
-    data[len(data) // 3] ^= 0x55  # inside a chunk's compressed data
+    data[ci.chunk_start_offset + ci.chunk_length - 10] ^= 0x55  # in the 4th chunk's zstd data
     path.write_bytes(bytes(data))
     assert main(["verify", str(path)]) == 1
     out = capsys.readouterr().out.splitlines()
