@@ -96,6 +96,7 @@ class RosStage(Stage):
         self._batch_queued = False
         self.stats: Ros2Counters = self.stats  # type: ignore[assignment]
         self._static_lock = threading.Lock()
+        self._static_at = -float("inf")  # monotonic s of the last /tf_static
         self._tf = ros2.TfTracker()  # map -> odom
 
     def input_keys(self) -> list[str]:
@@ -164,13 +165,16 @@ class RosStage(Stage):
         """``/tf_static`` from the configured mounts (nothing without mounts)."""
         if self.config.mounts:
             with self._static_lock:
+                self._static_at = time.monotonic()
                 msg = ros2.static_tf(self.config.mounts, t_ns)
                 self.put(ros2.RosMessage("/tf_static", ros2.TF_TYPE, msg), t_ns)
 
     def publish_status(self) -> None:
-        """The status, and ``/tf_static`` again (a late subscriber's wait is one period)."""
+        """The status, and ``/tf_static`` again once ``static_period_s`` has passed (checked at
+        every status period: a late subscriber waits at most the longer of the two)."""
         super().publish_status()
-        self.publish_static(time.time_ns())
+        if time.monotonic() - self._static_at >= self.config.static_period_s:
+            self.publish_static(time.time_ns())
 
     def count(self, m: ros2.RosMessage, topic: str) -> None:
         """Count one message put on ``topic``."""
