@@ -350,8 +350,11 @@ class AllPhase:
     sim_rc: int
     #: per port: [raw frames, raw bytes, decoded envelopes, envelope bytes] seen on the bus
     sizes: dict[str, list[int]]
-    #: the gateway ran its [ros2] bridge (ROS 2 messages on rmw_zenoh keys)
-    ros2: bool = False
+    #: the gateway ran its [ros2] bridge (ROS 2 messages on rmw_zenoh keys): "" (off),
+    #: "unwatched" (no ROS 2 subscriber) or "watched" (this script subscribes to every topic)
+    ros2: str = ""
+    #: ROS 2 messages this script received (watched)
+    ros2_received: int = 0
 
 
 def all_devices_scenario(path: Path, t_open: float, t_close: float) -> Path:
@@ -383,16 +386,17 @@ def all_devices_phase(
     seconds: float,
     warm_s: float = 8.0,
     tail_s: float = 6.0,
-    ros2: bool = False,
+    ros2: str = "",
 ) -> AllPhase:
     """Every emulated device at ``speed`` for ``seconds`` of wall time, read by ``auvgw run``
-    (``ros2``: with its ``[ros2]`` bridge on)."""
+    (``ros2``: with its ``[ros2]`` bridge on, "watched": and a subscriber here on every ROS 2
+    data key of domain 0)."""
     from auvgw.drivers.can_codec import DbcCodec
     from auvgw.ground.paths import config_file
     from auvgw.sim_devices.runner import gateway_toml
     from auvgw.subscribe import GatewaySubscriber
 
-    out = tmp / f"all-{speed:g}x{'-ros2' if ros2 else ''}"
+    out = tmp / f"all-{speed:g}x{'-ros2-' + ros2 if ros2 else ''}"
     out.mkdir()
     t_open, t_close = warm_s * speed, (warm_s + seconds) * speed
     scn = all_devices_scenario(tmp / f"harbour-{speed:g}x.json", t_open, t_close)
@@ -441,6 +445,10 @@ def all_devices_phase(
 
             size_subs = [me.session.declare_subscriber(f"auv/benchall/{sec}/**", on_sample)
                          for sec in ("raw", "sensor")]  # fmt: skip
+            ros2_seen = [0]
+            if ros2 == "watched":  # a ROS 2 node echoing every topic: the bridge's worst case
+                size_subs.append(me.session.declare_subscriber(
+                    "0/**", lambda _s: ros2_seen.__setitem__(0, ros2_seen[0] + 1)))
             deadline = time.monotonic() + 60
             while not all((me.status(p) or {}).get("connected") for p in ports):
                 if time.monotonic() > deadline:
@@ -491,7 +499,7 @@ def all_devices_phase(
         rows.append(AllRow(p, sent, int(st.get("frames", -1)), int(st.get("bad_frames", 0)),
                            dropped))  # fmt: skip
     cpu = (c1 - c0) / CLK_TCK / (m1 - m0) * 100
-    return AllPhase(speed, seconds, cpu, rows, sim_rc, sizes, ros2)
+    return AllPhase(speed, seconds, cpu, rows, sim_rc, sizes, ros2, ros2_seen[0])
 
 
 def print_all_devices(phases: list[AllPhase]) -> None:
@@ -519,15 +527,21 @@ def print_all_devices(phases: list[AllPhase]) -> None:
     for ph in phases:
         lost = sum(r.lost for r in ph.rows)
         print(
-            f"at {ph.speed:g}x{' with [ros2]' if ph.ros2 else ''} ({ph.seconds:g} s sending): "
+            f"at {ph.speed:g}x{f' with [ros2], {ph.ros2}' if ph.ros2 else ''} "
+            f"({ph.seconds:g} s sending): "
             f"gateway CPU {ph.cpu_pct:.1f} % of a core (target < 35 % at 10x); frames lost "
             f"{lost} (bar: 0); sim exit {ph.sim_rc}"
         )
-    plain = {ph.speed: ph.cpu_pct for ph in phases if not ph.ros2}
-    for ph in phases:
-        if ph.ros2 and ph.speed in plain:
-            print(f"[ros2] bridge at {ph.speed:g}x: {ph.cpu_pct / plain[ph.speed]:.2f}x the "
-                  "plain gateway's CPU in the same run (bar: at most 1.10x)")
+    def mean_cpu(speed: float, mode: str) -> float:
+        cpus = [ph.cpu_pct for ph in phases if ph.speed == speed and ph.ros2 == mode]
+        return sum(cpus) / len(cpus) if cpus else float("nan")
+
+    for speed, mode in sorted({(ph.speed, ph.ros2) for ph in phases if ph.ros2}):
+        got = sum(ph.ros2_received for ph in phases if (ph.speed, ph.ros2) == (speed, mode))
+        seen = f"; {got} ROS 2 messages received" if mode == "watched" else ""
+        print(f"[ros2] bridge at {speed:g}x, {mode}: {mean_cpu(speed, mode):.1f} % against "
+              f"{mean_cpu(speed, ''):.1f} %, {mean_cpu(speed, mode) / mean_cpu(speed, ''):.2f}x "
+              f"the plain gateway's CPU, interleaved in the same run (bar: at most 1.10x){seen}")
 
 
 @dataclass
@@ -743,7 +757,7 @@ def all_devices_run(args: argparse.Namespace) -> list[AllPhase]:
             all_devices_phase(Path(tmp), k, seconds, warm_s=args.all_warm, ros2=r)
             for _ in range(args.ros2 or 1)
             for k in speeds
-            for r in ((False, True) if args.ros2 else (False,))
+            for r in (("", "unwatched", "watched") if args.ros2 else ("",))
         ]
 
 
@@ -842,8 +856,9 @@ def main() -> int:
     )
     ap.add_argument("--only-all", action="store_true", help="only the all-devices run")
     ap.add_argument("--ros2", type=int, default=0, metavar="N",
-                    help="all-devices run: N pairs at --all-factor, without and with the "
-                         "gateway's [ros2] bridge")  # fmt: skip
+                    help="all-devices run: N triples at --all-factor, without the gateway's "
+                         "[ros2] bridge, with it and no ROS 2 subscriber, with it and a "
+                         "subscriber on every topic")  # fmt: skip
     ap.add_argument(
         "--can-seconds",
         type=float,

@@ -175,3 +175,42 @@ def _foxglove_client_decodes_a_cloud_and_transforms(url: str) -> None:
     (mount,) = got["/tf_static"].transforms
     assert (mount.child_frame_id, mount.transform.translation.z) == ("multibeam", -0.4)
     assert cloud.header.frame_id == "multibeam"  # placed by /tf_static in base_link
+
+
+def test_the_bridge_converts_only_what_a_subscriber_matches(tmp_path: Path):
+    """With no ROS 2 subscriber, a source's first sample declares its publishers (the graph
+    lists them) and the rest are counted ``unwatched``, never converted; once a subscriber on
+    the IMU's data key appears (real sessions, Zenoh's matching status), the INS samples are
+    converted and arrive while the DVL's stay unwatched."""
+    from auvgw.rmw_zenoh import data_key
+    from auvgw.stages.ros2 import Ros2Bridge, Ros2BridgeConfig
+    from auvgw.testing import free_port, hostile
+
+    good, _ = hostile.fusion_traffic(tmp_path, 1.0, 100.0)
+    ins = [(k, p) for _, k, p in good if "/sensor/ins/" in k]
+    dvl = [(k, p) for _, k, p in good if "/sensor/dvl/" in k]
+    assert len(ins) > 50 and len(dvl) > 3
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    with open_session(BusConfig(listen=[ep])) as hub, \
+            open_session(BusConfig(connect=[ep])) as spoke:  # fmt: skip
+        bridge = Ros2Bridge(Ros2BridgeConfig(vehicle="auv1"), hub)
+        try:
+            for k, p in ins + dvl:
+                bridge.handle_sample(k, p)
+            first = bridge.counters()["stage"]
+            assert first["unwatched"] == len(ins) + len(dvl) - 2  # one sample per source converted
+            assert first["received"] == len(ins) + len(dvl)
+            imu_key = data_key(0, "/auv1/sensor/ins/imu", "sensor_msgs/msg/Imu")
+            got: list[bytes] = []
+            sub = spoke.declare_subscriber(imu_key, lambda s: got.append(bytes(s.payload)))
+            imu_ep = bridge._endpoints[imu_key]
+            wait_until(lambda: imu_ep.matching, timeout=30, what="the subscriber matched")
+            for k, p in ins + dvl:
+                bridge.handle_sample(k, p)
+            wait_until(lambda: len(got) >= len(ins), timeout=30, what="the IMU messages")
+            second = bridge.counters()["stage"]
+            assert second["unwatched"] - first["unwatched"] == len(dvl)
+            assert len(got) == len(ins)
+            sub.undeclare()
+        finally:
+            bridge.stop(flush=False)

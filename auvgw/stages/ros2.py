@@ -31,6 +31,7 @@ import zenoh
 
 from auvgw import ros2
 from auvgw.config.ros2 import Mount, Ros2Config
+from auvgw.decoding import message_kind
 from auvgw.rmw_zenoh import (
     DEFAULT_QOS,
     SENSOR_QOS,
@@ -56,20 +57,28 @@ class Ros2BridgeConfig(StageConfig, Ros2Config):
 @dataclass
 class Ros2Counters(BusCounters):
     """``received``: bus samples taken; ``published``: ROS 2 messages put; ``topics``: ROS 2
-    publishers declared; ``tf``: transforms put on ``/tf``."""
+    publishers declared; ``tf``: transforms put on ``/tf``; ``unwatched``: samples not converted
+    because no subscriber matched any of the topics they make (:meth:`RosStage.wanted`)."""
 
     published: int = 0
     topics: int = 0
     tf: int = 0
+    unwatched: int = 0
 
 
 class _Endpoint:
-    """One ROS 2 publisher: its Zenoh publisher, liveliness token, GID and sequence."""
+    """One ROS 2 publisher: its Zenoh publisher, liveliness token, GID and sequence, and whether
+    a subscriber matches it (kept by Zenoh's matching listener)."""
 
-    __slots__ = ("gid", "pub", "seq", "token")
+    __slots__ = ("gid", "listener", "matching", "pub", "seq", "token")
 
     def __init__(self, pub: zenoh.Publisher, token: Any, gid: bytes) -> None:
         self.pub, self.token, self.gid, self.seq = pub, token, gid, 0
+        self.matching = bool(pub.matching_status.matching)
+        self.listener = pub.declare_matching_listener(self._matched)
+
+    def _matched(self, status: Any) -> None:
+        self.matching = bool(status.matching)
 
 
 class RosStage(Stage):
@@ -106,7 +115,10 @@ class RosStage(Stage):
         """:meth:`feed` on the worker, in batches: the first message of a batch queues one
         call that waits ``batch_s`` and takes every message posted meanwhile (the gateway's
         listener at 1000 messages/s wakes the worker 200 times a second, not 1000: a wake costs
-        more than a message's conversion)."""
+        more than a message's conversion). A message nobody would see (:meth:`wanted`) is
+        counted and left there."""
+        if not self.wanted(("sensor", device, message_kind(message))):
+            return
         self._batch.append((device, t_recv_ns, message))
         if not self._batch_queued:
             self._batch_queued = True
@@ -120,14 +132,24 @@ class RosStage(Stage):
 
     def feed(self, device: str, t_recv_ns: int, message: Any) -> object:
         """One decoded sensor message in-process (the gateway's listener, via :meth:`post`)."""
-        from auvgw.decoding import message_kind
-
-        msgs = ros2.to_ros("sensor", device, message, t_recv_ns, kind=message_kind(message))
-        for m in msgs:
-            self.put(m, t_recv_ns)
+        kind = message_kind(message)
+        source = ("sensor", device, kind)
         with self._lock:
             self.stats.received += 1
+        if self.wanted(source):
+            msgs = ros2.to_ros("sensor", device, message, t_recv_ns, kind=kind)
+            self.emit(source, msgs, t_recv_ns)
         return None
+
+    def wanted(self, source: tuple[str, ...]) -> bool:
+        """Whether the samples of ``source`` (section, device or key, kind) are worth converting:
+        always here; :class:`Ros2Bridge` skips those whose topics no subscriber matches."""
+        return True
+
+    def emit(self, source: tuple[str, ...], msgs: list[ros2.RosMessage], t_ns: int) -> None:
+        """:meth:`put` each of ``msgs``, made from a sample of ``source``."""
+        for m in msgs:
+            self.put(m, t_ns)
 
     def put(self, m: ros2.RosMessage, t_ns: int) -> None:
         """Send ROS 2 message ``m`` stamped ``t_ns`` (the subclass's sink)."""
@@ -147,13 +169,16 @@ class RosStage(Stage):
         if not key.startswith(base):
             return None
         section, _, rest = key[len(base):].partition("/")
+        source = (section, rest)
+        if not self.wanted(source):
+            with self._lock:
+                self.stats.received += 1
+            return None
         try:
             msgs, t_ns, _ = sample_to_ros(section, rest, payload, t_arrival_ns or 0)
             if section in ("sensor", "nav") and not self._stamps.accept(t_ns):
                 raise ValueError(f"stamp {t_ns} ns implausible against the stage's clock")
-            msgs = list(msgs) + self._tf.feed(msgs, t_ns)
-            for m in msgs:
-                self.put(m, t_ns)
+            self.emit(source, list(msgs) + self._tf.feed(msgs, t_ns), t_ns)
         except Exception as exc:  # one sample must never stop the bridge
             self._bad_payload(key, exc)
             return None
@@ -200,6 +225,10 @@ class Ros2Bridge(RosStage):
         self._session_id = str(session.info.zid()) if session is not None else "0" * 32
         self._next_entity = 1
         self._node_token: Any = None
+        #: the publishers each source's samples went to (:meth:`wanted`; a tuple replaced, never
+        #: changed in place: the gateway's listener threads read it)
+        self._made: dict[tuple[str, ...], tuple[_Endpoint, ...]] = {}
+        self._last_ep: _Endpoint | None = None
 
     def status_fields(self) -> dict[str, Any]:
         return {"domain_id": self.config.domain_id, "namespace": self.config.namespace,
@@ -216,6 +245,7 @@ class Ros2Bridge(RosStage):
         ep = self._endpoints.get(key)
         if ep is None and self.session is not None:
             ep = self._declare(topic, m.type, key)
+        self._last_ep = ep
         if ep is not None:
             ep.seq += 1
             try:
@@ -225,6 +255,28 @@ class Ros2Bridge(RosStage):
         self.count(m, topic)
         if self.on_publish is not None:
             self.on_publish(key, cdr, t_ns)
+
+    def wanted(self, source: tuple[str, ...]) -> bool:
+        """Convert a sample only if a subscriber matches one of the topics its source's samples
+        went to (Zenoh's matching status, kept per publisher): with nobody listening, the bridge
+        costs the gateway next to nothing. A source's first sample is always converted (it
+        declares the publishers, so ``ros2 topic list`` shows them); in-process (no session)
+        everything is."""
+        made = self._made.get(source)
+        if self.session is None or not made or any(ep.matching for ep in made):
+            return True
+        with self._lock:
+            self.stats.unwatched += 1
+        return False
+
+    def emit(self, source: tuple[str, ...], msgs: list[ros2.RosMessage], t_ns: int) -> None:
+        made = set(self._made.get(source, ()))
+        for m in msgs:
+            self.put(m, t_ns)
+            if self._last_ep is not None:
+                made.add(self._last_ep)
+        if made:
+            self._made[source] = tuple(made)
 
     def _declare(self, topic: str, ros_type: str, key: str) -> _Endpoint:
         assert self.session is not None
@@ -255,10 +307,11 @@ class Ros2Bridge(RosStage):
         """Stop the stage, then withdraw every publisher and token (the node's last)."""
         super().stop(flush, timeout_s)
         for ep in self._endpoints.values():
-            for d in (ep.token, ep.pub):
+            for d in (ep.listener, ep.token, ep.pub):
                 with contextlib.suppress(zenoh.ZError):
                     d.undeclare()
         self._endpoints.clear()
+        self._made.clear()
         if self._node_token is not None:
             with contextlib.suppress(zenoh.ZError):
                 self._node_token.undeclare()
