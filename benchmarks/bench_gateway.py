@@ -396,8 +396,8 @@ def all_devices_phase(
     from auvgw.sim_devices.runner import gateway_toml
     from auvgw.subscribe import GatewaySubscriber
 
-    out = tmp / f"all-{speed:g}x{'-ros2-' + ros2 if ros2 else ''}"
-    out.mkdir()
+    out = Path(tempfile.mkdtemp(prefix=f"all-{speed:g}x{'-ros2-' + ros2 if ros2 else ''}-",
+                                dir=tmp))  # fmt: skip
     t_open, t_close = warm_s * speed, (warm_s + seconds) * speed
     scn = all_devices_scenario(tmp / f"harbour-{speed:g}x.json", t_open, t_close)
     duration = t_close + tail_s * speed

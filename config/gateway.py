@@ -56,6 +56,7 @@ from auvgw.config.transport import (
 )
 from auvgw.drivers import registry
 from auvgw.ground.errors import ConfigError, read_document
+from auvgw.ground.errors import format_validation_error as format_errors
 
 __all__ = [
     "DEVICE_FORMATS",
@@ -341,43 +342,20 @@ def _model_at(loc: tuple[str, ...]) -> type[BaseModel] | None:
     return model
 
 
-def _where(loc: tuple[Any, ...]) -> tuple[str, ...]:
-    parts = [str(p) for p in loc]
-    return tuple(
-        p for i, p in enumerate(parts) if not (p in KINDS and i > 0 and parts[i - 1] == "transport")
-    )
+def _explain(loc: tuple[str, ...], err: Mapping[str, Any]) -> str | None:
+    if loc == ("devices",) and err["type"] in ("missing", "too_short"):
+        return "no device configured: add a [devices.<name>] table per device"
+    if err["type"] == "extra_forbidden":
+        model = _model_at(loc[:-1])
+        known = ", ".join(k for k in model.model_fields if k != "source") if model else ""
+        return f"unknown key {loc[-1]!r}" + (f"; expected one of: {known}" if known else "")
+    return None
 
 
 def format_validation_error(path: str, exc: ValidationError) -> str:
-    """One line per problem: ``file: field.path: what is wrong / expected (got ...)``."""
-    lines = []
-    kinds = ", ".join(repr(k) for k in KINDS)
-    for err in exc.errors():
-        raw_loc = tuple(str(p) for p in err["loc"])
-        loc = _where(raw_loc)
-        typ = err["type"]
-        got = err.get("input")
-        show_got = not isinstance(got, Mapping) and typ not in ("missing", "extra_forbidden")
-        msg = err["msg"].removeprefix("Value error, ")
-        if show_got and repr(got) in msg:
-            show_got = False
-        if loc in (("devices",),) and typ in ("missing", "too_short"):
-            msg, show_got = "no device configured: add a [devices.<name>] table per device", False
-        elif typ == "missing":
-            msg = "missing (required)"
-        elif typ == "extra_forbidden":
-            model = _model_at(raw_loc[:-1])
-            known = ", ".join(k for k in model.model_fields if k != "source") if model else ""
-            msg = f"unknown key {loc[-1]!r}" + (f"; expected one of: {known}" if known else "")
-        elif typ == "union_tag_not_found":
-            loc, msg = (*loc, "kind"), f"missing; must be one of {kinds}"
-        elif typ == "union_tag_invalid":
-            tag = err.get("ctx", {}).get("tag")
-            loc, msg, show_got = (*loc, "kind"), f"must be one of {kinds}, got {tag!r}", False
-        field = ".".join(loc) or "(top level)"
-        tail = f" (got {got!r:.60})" if show_got else ""
-        lines.append(f"{path}: {field}: {msg}{tail}")
-    return "\n".join(lines)
+    """One line per problem: ``file: field.path: what is wrong / expected (got ...)``
+    (:func:`auvgw.ground.errors.format_validation_error`; an unknown key lists the known ones)."""
+    return format_errors(exc, path, tags=KINDS, tagged=("transport",), explain=_explain)
 
 
 # -- loading -----------------------------------------------------------------------------------

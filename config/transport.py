@@ -36,6 +36,7 @@ from pydantic import (
 )
 
 from auvgw.ground.errors import ConfigError
+from auvgw.ground.errors import format_validation_error as format_errors
 
 __all__ = [
     "CanFilter",
@@ -424,45 +425,16 @@ KINDS = ("serial", "can", "udp", "file")
 _ADAPTER: TypeAdapter[Any] = TypeAdapter(TransportConfig)
 
 
-def _join(where: str, path: str) -> str:
-    if not where or not path:
-        return where or path or "(top level)"
-    if where.endswith(":"):  # a file name prefix, e.g. "vehicle.toml:"
-        return f"{where} {path}"
-    return f"{where}.{path}"
-
-
 def format_validation_error(exc: ValidationError, where: str = "transport") -> str:
-    """One line per error: ``where.field: what is wrong (got value)``.
+    """One line per error: ``where.field: what is wrong (got value)``
+    (:func:`auvgw.ground.errors.format_validation_error`, the union's tag dropped from the path).
 
-    ``where`` ending in ``:`` (``"vehicle.toml:"``) is joined with a space instead of a dot.
-
-    Also usable for a larger model that embeds :data:`TransportConfig` in a field named
-    ``transport``: the union tag pydantic inserts after it is dropped from the path.
+    ``where`` ending in ``:`` (``"vehicle.toml:"``) names a file instead of a field path; a
+    larger model that embeds :data:`TransportConfig` in a field named ``transport`` reads the
+    same way.
     """
-    lines = []
-    for err in exc.errors():
-        parts = [str(p) for p in err["loc"]]
-        # pydantic puts the union member's tag in the path (transport.serial.baud): drop it
-        loc = [
-            p
-            for i, p in enumerate(parts)
-            if not (p in KINDS and (i == 0 or parts[i - 1] == "transport"))
-        ]
-        kinds = ", ".join(repr(k) for k in KINDS)
-        if err["type"] == "union_tag_not_found":
-            loc, msg = ["kind"], f"missing; must be one of {kinds}"
-        elif err["type"] == "union_tag_invalid":
-            tag = err.get("ctx", {}).get("tag")
-            loc, msg = ["kind"], f"must be one of {kinds}, got {tag!r}"
-        else:
-            msg = err["msg"].removeprefix("Value error, ")
-        field = _join(where, ".".join(loc))
-        got = err.get("input")
-        quiet = err["type"] == "missing" or isinstance(got, Mapping)
-        tail = "" if quiet else f" (got {got!r:.60})"
-        lines.append(f"{field}: {msg}{tail}")
-    return "\n".join(lines)
+    file = where[:-1] if where.endswith(":") else ""
+    return format_errors(exc, file, prefix="" if file else where, tags=KINDS, tagged=("transport",))
 
 
 def parse_transport_config(data: Mapping[str, Any], where: str = "transport") -> TransportConfig:

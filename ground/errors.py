@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import json
 import tomllib
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Collection, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 
@@ -84,26 +84,51 @@ class UserError(AuvgwError):
 
 
 def format_validation_error(
-    exc: ValidationError, where: str = "", rename: Callable[[str], str] | None = None
+    exc: ValidationError,
+    where: str = "",
+    rename: Callable[[str], str] | None = None,
+    *,
+    prefix: str = "",
+    tags: Collection[str] = (),
+    tagged: Collection[str] = (),
+    explain: Callable[[tuple[str, ...], Mapping[str, Any]], str | None] | None = None,
 ) -> str:
-    """One line per problem: ``where: field.path: what is wrong (got value)``.
+    """One line per problem: ``where: field.path: what is wrong (got value)``, the one formatter
+    of every settings, configuration and scenario model.
 
-    ``where`` names the file (empty: no prefix); ``rename`` maps a field path to what the user
-    wrote (a command-line option, e.g. ``sound_speed_mps`` -> ``--sound-speed``).
+    ``where`` names the file (empty: no prefix); ``prefix`` goes before every field path
+    (``transport`` -> ``transport.port``); ``rename`` maps a field path to what the user wrote
+    (a command-line option, e.g. ``sound_speed_mps`` -> ``--sound-speed``). A union
+    discriminated by ``kind``: pydantic puts the member's tag (one of ``tags``) in the path after
+    the union's field (one of ``tagged``, or first for a bare union): it is dropped, and a
+    missing or unknown tag reads as the ``kind`` field. ``explain(path, error)`` may give the
+    message for an error instead (e.g. the keys a table takes, after an unknown one).
     """
+    choices = ", ".join(repr(k) for k in tags)
     lines = []
     for err in exc.errors():
-        field = ".".join(str(p) for p in err["loc"]) or "(top level)"
-        if rename is not None:
-            field = rename(field)
+        parts = [str(p) for p in err["loc"]]
+        loc = tuple(p for i, p in enumerate(parts)
+                    if not (p in tags and (i == 0 or parts[i - 1] in tagged)))  # fmt: skip
         typ = err["type"]
         msg = err["msg"].removeprefix("Value error, ")
         got = err.get("input")
         quiet = typ in ("missing", "extra_forbidden") or isinstance(got, Mapping)
-        if typ == "missing":
+        special = explain(tuple(parts), err) if explain is not None else None
+        if special is not None:
+            msg, quiet = special, True
+        elif typ == "missing":
             msg = "missing (required)"
         elif typ == "extra_forbidden":
-            msg = "unknown key"
+            msg = f"unknown key {loc[-1]!r}" if loc else "unknown key"
+        elif typ == "union_tag_not_found":
+            loc, msg = (*loc, "kind"), f"missing; must be one of {choices}"
+        elif typ == "union_tag_invalid":
+            tag = err.get("ctx", {}).get("tag")
+            loc, msg, quiet = (*loc, "kind"), f"must be one of {choices}, got {tag!r}", True
+        field = ".".join(p for p in (prefix, ".".join(loc)) if p) or "(top level)"
+        if rename is not None:
+            field = rename(field)
         tail = "" if quiet or repr(got) in msg else f" (got {got!r:.60})"
         lines.append(f"{where}: {field}: {msg}{tail}" if where else f"{field}: {msg}{tail}")
     return "\n".join(lines)

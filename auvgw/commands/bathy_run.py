@@ -23,7 +23,7 @@ import argparse
 import json
 from typing import Any
 
-from auvgw.ground.errors import UserError
+from auvgw.ground.errors import UserError, format_validation_error
 
 
 def stage_config(args: argparse.Namespace, vehicle: str) -> Any:
@@ -48,8 +48,7 @@ def stage_config(args: argparse.Namespace, vehicle: str) -> Any:
         cfg = BathymetricStageConfig(**stage, filter=filt)
         cfg.bathy_config()
     except ValidationError as exc:
-        raise UserError("\n".join(f"--set {'.'.join(map(str, e['loc']))}: {e['msg']}"
-                                  for e in exc.errors())) from None  # fmt: skip
+        raise UserError(format_validation_error(exc, "--set")) from None
     return cfg
 
 
