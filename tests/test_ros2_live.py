@@ -11,6 +11,8 @@ import signal
 import subprocess
 from pathlib import Path
 
+import zenoh
+
 from auvgw.bus import open_session
 from auvgw.config.bus import BusConfig
 from auvgw.rmw_zenoh import type_hash
@@ -178,10 +180,11 @@ def _foxglove_client_decodes_a_cloud_and_transforms(url: str) -> None:
 
 
 def test_the_bridge_converts_only_what_a_subscriber_matches(tmp_path: Path):
-    """With no ROS 2 subscriber, a source's first sample declares its publishers (the graph
-    lists them) and the rest are counted ``unwatched``, never converted; once a subscriber on
-    the IMU's data key appears (real sessions, Zenoh's matching status), the INS samples are
-    converted and arrive while the DVL's stay unwatched."""
+    """Over real sessions: with no ROS 2 subscriber, a bus key's first sample declares its
+    publishers (the graph lists them) and the rest are counted ``unwatched`` in the Zenoh
+    callback, never queued nor converted; once a subscriber on the IMU's data key appears
+    (Zenoh's matching status), the INS samples are converted and arrive while the DVL's stay
+    unwatched."""
     from auvgw.rmw_zenoh import data_key
     from auvgw.stages.ros2 import Ros2Bridge, Ros2BridgeConfig
     from auvgw.testing import free_port, hostile
@@ -189,27 +192,38 @@ def test_the_bridge_converts_only_what_a_subscriber_matches(tmp_path: Path):
     good, _ = hostile.fusion_traffic(tmp_path, 1.0, 100.0)
     ins = [(k, p) for _, k, p in good if "/sensor/ins/" in k]
     dvl = [(k, p) for _, k, p in good if "/sensor/dvl/" in k]
-    assert len(ins) > 50 and len(dvl) > 3
+    assert len(ins) > 50 and len(dvl) > 3 and len({k for k, _ in ins + dvl}) == 2
     ep = f"tcp/127.0.0.1:{free_port()}"
     with open_session(BusConfig(listen=[ep])) as hub, \
             open_session(BusConfig(connect=[ep])) as spoke:  # fmt: skip
-        bridge = Ros2Bridge(Ros2BridgeConfig(vehicle="auv1"), hub)
+        bridge = Ros2Bridge(Ros2BridgeConfig(vehicle="auv1"), hub, sections=("sensor",))
+        bridge.start()
         try:
-            for k, p in ins + dvl:
-                bridge.handle_sample(k, p)
-            first = bridge.counters()["stage"]
-            assert first["unwatched"] == len(ins) + len(dvl) - 2  # one sample per source converted
-            assert first["received"] == len(ins) + len(dvl)
+            def counts() -> tuple[int, int]:
+                c = bridge.counters()["stage"]
+                return c["received"], c["unwatched"]
+
+            pubs = {k: spoke.declare_publisher(k, congestion_control=zenoh.CongestionControl.BLOCK)
+                    for k, _ in (ins[0], dvl[0])}  # fmt: skip
+            wait_until(lambda: all(p.matching_status.matching for p in pubs.values()),
+                       timeout=30, what="the bridge's subscription reaching the publisher")
+
+            def send(samples: list[tuple[str, bytes]], total: int) -> None:
+                for k, p in samples:
+                    pubs[k].put(p)
+                wait_until(lambda: sum(counts()) == total, timeout=60, what="the samples taken")
+
+            send([ins[0], dvl[0]], 2)  # the first of each key declares its publishers
+            send(ins[1:] + dvl[1:], len(ins) + len(dvl))
+            assert counts() == (2, len(ins) + len(dvl) - 2)
             imu_key = data_key(0, "/auv1/sensor/ins/imu", "sensor_msgs/msg/Imu")
             got: list[bytes] = []
             sub = spoke.declare_subscriber(imu_key, lambda s: got.append(bytes(s.payload)))
             imu_ep = bridge._endpoints[imu_key]
             wait_until(lambda: imu_ep.matching, timeout=30, what="the subscriber matched")
-            for k, p in ins + dvl:
-                bridge.handle_sample(k, p)
+            send(ins + dvl, 2 * (len(ins) + len(dvl)))
             wait_until(lambda: len(got) >= len(ins), timeout=30, what="the IMU messages")
-            second = bridge.counters()["stage"]
-            assert second["unwatched"] - first["unwatched"] == len(dvl)
+            assert counts() == (2 + len(ins), 2 * (len(ins) + len(dvl)) - 2 - len(ins))
             assert len(got) == len(ins)
             sub.undeclare()
         finally:

@@ -117,7 +117,7 @@ class RosStage(Stage):
         listener at 1000 messages/s wakes the worker 200 times a second, not 1000: a wake costs
         more than a message's conversion). A message nobody would see (:meth:`wanted`) is
         counted and left there."""
-        if not self.wanted(("sensor", device, message_kind(message))):
+        if not self.wanted(self.keys.sensor(device, message_kind(message))):
             return
         self._batch.append((device, t_recv_ns, message))
         if not self._batch_queued:
@@ -133,21 +133,16 @@ class RosStage(Stage):
     def feed(self, device: str, t_recv_ns: int, message: Any) -> object:
         """One decoded sensor message in-process (the gateway's listener, via :meth:`post`)."""
         kind = message_kind(message)
-        source = ("sensor", device, kind)
+        key = self.keys.sensor(device, kind)
         with self._lock:
             self.stats.received += 1
-        if self.wanted(source):
+        if self.wanted(key):
             msgs = ros2.to_ros("sensor", device, message, t_recv_ns, kind=kind)
-            self.emit(source, msgs, t_recv_ns)
+            self.emit(key, msgs, t_recv_ns)
         return None
 
-    def wanted(self, source: tuple[str, ...]) -> bool:
-        """Whether the samples of ``source`` (section, device or key, kind) are worth converting:
-        always here; :class:`Ros2Bridge` skips those whose topics no subscriber matches."""
-        return True
-
-    def emit(self, source: tuple[str, ...], msgs: list[ros2.RosMessage], t_ns: int) -> None:
-        """:meth:`put` each of ``msgs``, made from a sample of ``source``."""
+    def emit(self, key: str, msgs: list[ros2.RosMessage], t_ns: int) -> None:
+        """:meth:`put` each of ``msgs``, made from a sample on bus key ``key``."""
         for m in msgs:
             self.put(m, t_ns)
 
@@ -169,16 +164,11 @@ class RosStage(Stage):
         if not key.startswith(base):
             return None
         section, _, rest = key[len(base):].partition("/")
-        source = (section, rest)
-        if not self.wanted(source):
-            with self._lock:
-                self.stats.received += 1
-            return None
         try:
             msgs, t_ns, _ = sample_to_ros(section, rest, payload, t_arrival_ns or 0)
             if section in ("sensor", "nav") and not self._stamps.accept(t_ns):
                 raise ValueError(f"stamp {t_ns} ns implausible against the stage's clock")
-            self.emit(source, list(msgs) + self._tf.feed(msgs, t_ns), t_ns)
+            self.emit(key, list(msgs) + self._tf.feed(msgs, t_ns), t_ns)
         except Exception as exc:  # one sample must never stop the bridge
             self._bad_payload(key, exc)
             return None
@@ -225,9 +215,9 @@ class Ros2Bridge(RosStage):
         self._session_id = str(session.info.zid()) if session is not None else "0" * 32
         self._next_entity = 1
         self._node_token: Any = None
-        #: the publishers each source's samples went to (:meth:`wanted`; a tuple replaced, never
-        #: changed in place: the gateway's listener threads read it)
-        self._made: dict[tuple[str, ...], tuple[_Endpoint, ...]] = {}
+        #: the publishers each bus key's samples went to (:meth:`wanted`; a tuple replaced, never
+        #: changed in place: the Zenoh callbacks and the gateway's listeners read it)
+        self._made: dict[str, tuple[_Endpoint, ...]] = {}
         self._last_ep: _Endpoint | None = None
 
     def status_fields(self) -> dict[str, Any]:
@@ -256,27 +246,26 @@ class Ros2Bridge(RosStage):
         if self.on_publish is not None:
             self.on_publish(key, cdr, t_ns)
 
-    def wanted(self, source: tuple[str, ...]) -> bool:
-        """Convert a sample only if a subscriber matches one of the topics its source's samples
-        went to (Zenoh's matching status, kept per publisher): with nobody listening, the bridge
-        costs the gateway next to nothing. A source's first sample is always converted (it
-        declares the publishers, so ``ros2 topic list`` shows them); in-process (no session)
-        everything is."""
-        made = self._made.get(source)
+    def wanted(self, key: str) -> bool:
+        """Take a sample on bus ``key`` only if a subscriber matches one of the topics that key's
+        samples went to (Zenoh's matching status, kept per publisher): with nobody listening,
+        the bridge costs next to nothing. A key's first sample is always taken (it declares the
+        publishers, so ``ros2 topic list`` shows them); in-process (no session) every one is."""
+        made = self._made.get(key)
         if self.session is None or not made or any(ep.matching for ep in made):
             return True
         with self._lock:
             self.stats.unwatched += 1
         return False
 
-    def emit(self, source: tuple[str, ...], msgs: list[ros2.RosMessage], t_ns: int) -> None:
-        made = set(self._made.get(source, ()))
+    def emit(self, key: str, msgs: list[ros2.RosMessage], t_ns: int) -> None:
+        made = set(self._made.get(key, ()))
         for m in msgs:
             self.put(m, t_ns)
             if self._last_ep is not None:
                 made.add(self._last_ep)
         if made:
-            self._made[source] = tuple(made)
+            self._made[key] = tuple(made)
 
     def _declare(self, topic: str, ros_type: str, key: str) -> _Endpoint:
         assert self.session is not None
