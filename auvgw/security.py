@@ -1,7 +1,9 @@
 """Certificates for the bus's TLS / mutual TLS (docs/security.md), made with the openssl CLI.
 
-``python -m auvgw.security OUT_DIR [--name vehicle --name shore ...] [--days N] [--host H]``
-writes a small CA (``ca.pem``, ``ca.key``) and, per name, ``<name>.pem`` / ``<name>.key``: an EC
+``python -m auvgw.security OUT_DIR [--name NAME ...] [--days N] [--host H]`` writes a small CA
+(``ca.pem``, ``ca.key``) and, per name (default: every component of :data:`COMPONENTS`, the
+identities the shipped access control ``config/security/router.toml`` knows), ``<name>.pem`` /
+``<name>.key``: an EC
 P-256 certificate whose common name is the name (what Zenoh's access control matches as
 ``cert_common_names``), valid for TLS server and client use, with the given hosts (default
 ``localhost`` and ``127.0.0.1``) as subject alternative names. Keys are written mode 0600. An
@@ -19,9 +21,22 @@ import sys
 import tempfile
 from pathlib import Path
 
-__all__ = ["make_ca", "make_identity"]
+__all__ = ["COMPONENTS", "make_ca", "make_identity"]
 
 DEFAULT_HOSTS = ("localhost", "127.0.0.1")
+#: one identity (certificate common name) per process on the vehicle's bus, and the shore station;
+#: each has its own ``config/security/<name>-bus.toml`` and its own rules in the router's ACL
+COMPONENTS = (
+    "router",
+    "gateway",
+    "fusion",
+    "slam-landmark",
+    "slam-magnetic",
+    "slam-bathymetric",
+    "recorder",
+    "viz",
+    "shore",
+)
 
 
 def _openssl(*args: str) -> None:
@@ -121,7 +136,7 @@ def main(argv: list[str] | None = None) -> int:
         "--name",
         action="append",
         default=None,
-        help="identity (certificate common name), repeatable; default vehicle, shore",
+        help=f"identity (certificate common name), repeatable; default {', '.join(COMPONENTS)}",
     )
     p.add_argument(
         "--host",
@@ -132,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--days", type=int, default=365, help="validity of the identities (days)")
     args = p.parse_args(argv)
     hosts = tuple(args.host or DEFAULT_HOSTS)
-    for name in args.name or ["vehicle", "shore"]:
+    for name in args.name or COMPONENTS:
         cert, key = make_identity(args.out, name, hosts, args.days)
         print(f"{name}: {cert} {key}")
     print(f"CA: {args.out / 'ca.pem'} (keep {args.out / 'ca.key'} offline)")
