@@ -1,0 +1,150 @@
+"""The vehicle's bus as docs/security.md documents it: the doc's commands run as written (one
+makes the CA and every component's certificate, one starts the router on mutual TLS with the
+shipped per-component access control), then real TLS sessions, each identity in its own process,
+show that an identity can publish on its own keys only."""
+
+from __future__ import annotations
+
+import os
+import re
+import shlex
+import shutil
+import subprocess
+import threading
+import tomllib
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from auvgw.bus import load_bus_table, open_session
+from auvgw.config.bus import BusConfig
+from auvgw.ground.paths import config_file
+from auvgw.security import COMPONENTS
+from auvgw.slam.landmark.registry import ALGORITHMS
+from auvgw.testing import PYTHON, REPO, Procs, free_port, wait_until
+
+pytestmark = pytest.mark.skipif(shutil.which("openssl") is None, reason="needs the openssl CLI")
+
+DOC = REPO / "docs" / "security.md"
+SHIPPED = config_file("security/router.toml").parent
+#: a fenced shell block the doc marks for this test
+TESTED_BLOCK = re.compile(r"<!-- tested: tests/test_security_acl\.py.*?-->\s*```sh\n(.*?)```", re.S)
+PUT_PROC = str(REPO / "tests" / "bus_put_proc.py")
+SENSOR, NAV, SLAM = "auv/v/sensor/dvl/ensemble", "auv/v/nav/odometry", "auv/v/slam/ekf/pose"
+
+
+def _doc_commands() -> list[str]:
+    blocks = TESTED_BLOCK.findall(DOC.read_text())
+    assert len(blocks) == 1, f"{DOC}: {len(blocks)} blocks marked for tests/test_security_acl.py"
+    return [ln.strip() for ln in blocks[0].splitlines() if ln.strip() and not ln.startswith("#")]
+
+
+def _bus(folder: Path, component: str) -> BusConfig:
+    path = folder / "config" / "security" / f"{component}-bus.toml"
+    return BusConfig(**load_bus_table(path)).rebased(path.parent)
+
+
+@pytest.fixture(scope="module")
+def documented_router(tmp_path_factory) -> Iterator[tuple[Path, int, Procs]]:
+    """(scratch folder, port, its processes) after the doc's block ran in the scratch folder,
+    which holds copies of config/security/*.toml with 7447 replaced by a free port."""
+    tmp = tmp_path_factory.mktemp("documented")
+    port = free_port()
+    (tmp / "config" / "security").mkdir(parents=True)
+    for f in SHIPPED.glob("*.toml"):
+        text = f.read_text().replace(":7447", f":{port}")
+        (tmp / "config" / "security" / f.name).write_text(text)
+    env = {"PATH": f"{Path(PYTHON).parent}{os.pathsep}{os.environ['PATH']}"}
+    procs = Procs(tmp)
+    try:
+        for i, line in enumerate(_doc_commands()):
+            if line.endswith("&"):  # a server: started, then waited for its banner
+                proc = procs.start(shlex.split(line[:-1]), f"doc-{i}", env=env, cwd=tmp)
+                banner = proc.wait_line("auvgw router")
+                assert banner.endswith(f"listening on tls/127.0.0.1:{port}"), banner
+            else:
+                r = subprocess.run(shlex.split(line), cwd=tmp, env={**os.environ, **env},
+                                   capture_output=True, text=True, timeout=60)  # fmt: skip
+                assert r.returncode == 0, f"{line}: {r.stderr}"
+        yield tmp, port, procs
+    finally:
+        procs.stop_all()
+
+
+def test_documented_router_speaks_tls_only(documented_router):
+    tmp, port, _procs = documented_router
+    names = {p.stem for p in (tmp / "config/security/certs").glob("*.pem")}
+    assert names == {"ca", *COMPONENTS}  # one command made the CA and every component's pair
+    with open_session(_bus(tmp, "gateway")) as gw, open_session(_bus(tmp, "fusion")) as fusion:
+        got: list[bytes] = []
+        sub = fusion.declare_subscriber(
+            "auv/v/sensor/**", lambda s: got.append(s.payload.to_bytes())
+        )
+
+        def delivered() -> bool:  # re-put until the route is in place
+            gw.put(SENSOR, b"over-tls")
+            return b"over-tls" in got
+
+        wait_until(delivered, what="a sample from the gateway's session at fusion's")
+        sub.undeclare()
+    for plain in (f"tcp/127.0.0.1:{port}", f"tcp/localhost:{port}"):
+        with pytest.raises(zenoh.ZError, match="Unable to connect"):
+            open_session(BusConfig(mode="client", connect=[plain]))
+
+
+def test_each_identity_publishes_on_its_own_keys_only(documented_router):
+    """The gateway, fusion and a landmark SLAM stage, each with its own certificate in its own
+    process, put on sensor/, nav/ and slam/ alike; a subscriber (the recorder's identity) gets
+    each key from its owner only."""
+    tmp, _port, procs = documented_router
+    seen: dict[str, set[str]] = {SENSOR: set(), NAV: set(), SLAM: set()}
+    count: dict[tuple[str, str], int] = {}
+    lock = threading.Lock()
+
+    def keep(s: zenoh.Sample) -> None:
+        key, sender = str(s.key_expr), s.payload.to_bytes().decode().rsplit("-", 1)[0]
+        with lock:
+            seen[key].add(sender)
+            count[key, sender] = count.get((key, sender), 0) + 1
+
+    def owners_heard(n: int) -> bool:
+        with lock:
+            return all(
+                count.get(k, 0) >= n
+                for k in ((SENSOR, "gateway"), (NAV, "fusion"), (SLAM, "slam-landmark"))
+            )
+
+    with open_session(_bus(tmp, "recorder")) as rec:
+        sub = rec.declare_subscriber("auv/v/**", keep)
+        # each process puts first on the keys it does not own, last on its own: once its own
+        # key's sample of a round arrives, the router has judged that round's forgeries
+        for name, keys in (
+            ("slam-landmark", (SENSOR, NAV, SLAM)),
+            ("gateway", (NAV, SLAM, SENSOR)),
+            ("fusion", (SENSOR, SLAM, NAV)),
+        ):
+            toml = tmp / "config" / "security" / f"{name}-bus.toml"
+            proc = procs.start([PYTHON, PUT_PROC, str(toml), name, *keys], name)
+            proc.wait_line("ready")
+        wait_until(lambda: owners_heard(20), timeout=30, what="20 rounds from every owner")
+        sub.undeclare()
+    with lock:
+        assert seen == {SENSOR: {"gateway"}, NAV: {"fusion"}, SLAM: {"slam-landmark"}}
+
+
+def test_the_landmark_rule_names_every_algorithm():
+    """Each landmark algorithm publishes under its own key segment: the shipped rule must list
+    all of them (a new algorithm would otherwise be silenced by the router)."""
+    acl = tomllib.loads((SHIPPED / "router.toml").read_text())["bus"]["access_control"]
+    (rule,) = (r for r in acl["rules"] if r["id"] == "slam-landmark-own")
+    want = {
+        k for a in ALGORITHMS
+        for k in (f"auv/*/slam/{a}/**", f"auv/*/status/slam-{a}", f"auv/*/alive/slam-{a}")
+    }  # fmt: skip
+    assert set(rule["key_exprs"]) == want
+    subjects = {s["id"]: s["cert_common_names"] for s in acl["subjects"]}
+    assert subjects == {c: [c] for c in COMPONENTS if c != "router"}
+    for component in subjects:
+        assert (SHIPPED / f"{component}-bus.toml").is_file()
