@@ -148,3 +148,20 @@ def test_the_landmark_rule_names_every_algorithm():
     assert subjects == {c: [c] for c in COMPONENTS if c != "router"}
     for component in subjects:
         assert (SHIPPED / f"{component}-bus.toml").is_file()
+
+
+def test_viz_takes_its_own_bus_config():
+    """``auvgw viz --bus-config viz-bus.toml``: the viewer's own certificate, paths resolved
+    against the file's folder, ``--bus-connect`` still overriding the endpoints."""
+    from auvgw.cli import build_parser
+    from auvgw.commands.viz import _bus
+
+    toml = SHIPPED / "viz-bus.toml"
+    args = build_parser("viz").parse_args(["viz", "--bus-config", str(toml), "--vehicle", "v"])
+    vehicle, bus = _bus(args)
+    assert vehicle == "v" and bus.mode == "client" and bus.connect == ["tls/localhost:7447"]
+    assert bus.tls is not None and bus.tls.connect_certificate == str(SHIPPED / "certs/viz.pem")
+    args = build_parser("viz").parse_args(
+        ["viz", "--bus-config", str(toml), "--bus-connect", "tls/10.0.0.2:7447"]
+    )
+    assert _bus(args)[1].connect == ["tls/10.0.0.2:7447"]
