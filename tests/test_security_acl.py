@@ -134,16 +134,80 @@ def test_each_identity_publishes_on_its_own_keys_only(documented_router):
         assert seen == {SENSOR: {"gateway"}, NAV: {"fusion"}, SLAM: {"slam-landmark"}}
 
 
-def test_the_landmark_rule_names_every_algorithm():
-    """Each landmark algorithm publishes under its own key segment: the shipped rule must list
-    all of them (a new algorithm would otherwise be silenced by the router)."""
+def _allowed(acl: dict, identity: str, flow: str, message: str, key: str) -> bool:
+    """Whether the ACL lets the certificate CN ``identity`` send (``ingress``) or receive
+    (``egress``) ``message`` on ``key``: some allow rule of one of its policies names all three
+    (default deny; Zenoh's own verdict is what the process tests above see)."""
+    subjects = {s["id"] for s in acl["subjects"] if identity in s.get("cert_common_names", [])}
+    rules = {r["id"]: r for r in acl["rules"]}
+    return any(
+        r["permission"] == "allow"
+        and flow in r["flows"]
+        and message in r["messages"]
+        and any(zenoh.KeyExpr(k).includes(zenoh.KeyExpr(key)) for k in r["key_exprs"])
+        for policy in acl["policies"]
+        if subjects & set(policy["subjects"])
+        for r in (rules[i] for i in policy["rules"])
+    )
+
+
+def _owned() -> dict[str, set[tuple[str, str]]]:
+    """(message, key) each identity must be able to send: the keys the code publishes on."""
+    from auvgw.bus import Keys
+    from auvgw.stages.bathymetric import BathymetricStage
+    from auvgw.stages.magnetic import MagneticStage
+    from auvgw.stages.slam import SlamStage, SlamStageConfig
+
+    k = Keys("v")
+
+    def stage(component: str, outputs: list[str]) -> set[tuple[str, str]]:
+        return {
+            *(("put", key) for key in outputs),
+            ("put", k.status(component)),
+            ("declare_queryable", k.status(component)),
+            ("liveliness_token", k.alive(component)),
+        }
+
+    landmark: set[tuple[str, str]] = set()
+    for algorithm in ALGORITHMS:
+        pipe = SlamStageConfig(vehicle="v", algorithm=algorithm).pipeline_name
+        landmark |= stage(f"slam-{pipe}", [k.slam(pipe, w) for w in SlamStage.outputs])
+    return {
+        "gateway": {
+            ("put", k.raw("dvl")),
+            ("put", k.sensor("dvl", "ensemble")),
+            *stage("gateway", []),
+            *stage("dvl", []),
+            ("declare_queryable", k.config("gateway")),
+        },
+        "fusion": stage("fusion", [k.odometry()]),
+        "slam-landmark": landmark,
+        **{
+            f"slam-{s.name}": stage(f"slam-{s.name}", [k.slam(s.name, w) for w in s.outputs])
+            for s in (MagneticStage, BathymetricStage)
+        },
+    }
+
+
+def test_shipped_acl_gives_each_identity_its_own_keys_only():
+    """Every key a component's code sends on is allowed to its identity and to no other but
+    the gateway's status/alive (the landmark rule lists every algorithm's key segment, so a new
+    one fails here); every vehicle
+    identity and the shore receive everything; the router's identity may do nothing."""
     acl = tomllib.loads((SHIPPED / "router.toml").read_text())["bus"]["access_control"]
-    (rule,) = (r for r in acl["rules"] if r["id"] == "slam-landmark-own")
-    want = {
-        k for a in ALGORITHMS
-        for k in (f"auv/*/slam/{a}/**", f"auv/*/status/slam-{a}", f"auv/*/alive/slam-{a}")
-    }  # fmt: skip
-    assert set(rule["key_exprs"]) == want
+    owned = _owned()
+    everything = set().union(*owned.values())
+    for identity in COMPONENTS:
+        for message, key in sorted(everything):
+            mine = (message, key) in owned.get(identity, set()) or (
+                # documented: the gateway's status/ and alive/ rights cover any device name
+                identity == "gateway" and key.split("/")[2] in ("status", "alive")
+            )
+            assert _allowed(acl, identity, "ingress", message, key) == mine, (identity, key)
+            receives = identity != "router"
+            assert _allowed(acl, identity, "egress", "put", key) == receives, (identity, key)
+        listens = _allowed(acl, identity, "ingress", "declare_subscriber", "auv/v/sensor/dvl/x")
+        assert listens == (identity != "router")
     subjects = {s["id"]: s["cert_common_names"] for s in acl["subjects"]}
     assert subjects == {c: [c] for c in COMPONENTS if c != "router"}
     for component in subjects:
