@@ -229,3 +229,19 @@ def test_viz_takes_its_own_bus_config():
         ["viz", "--bus-config", str(toml), "--bus-connect", "tls/10.0.0.2:7447"]
     )
     assert _bus(args)[1].connect == ["tls/10.0.0.2:7447"]
+
+
+def test_certificate_command_user_errors(tmp_path, capsys):
+    """A name that is no plain file name, or a folder that cannot be made: one line, exit 2,
+    nothing written."""
+    from auvgw.security import main
+
+    assert main([str(tmp_path / "c"), "--name", "../ca"]) == 2
+    assert (
+        capsys.readouterr().err.strip().endswith("--name '../ca': letters, digits, '.', '_', '-'")
+    )
+    (tmp_path / "file").write_text("")
+    assert main([str(tmp_path / "file" / "c"), "--name", "fusion"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("python -m auvgw.security: fusion: ")
+    assert not (tmp_path / "c").exists()
