@@ -149,14 +149,16 @@ def main() -> int:
                 results[name].append(one_run(setup, tmp, args.messages, args.paced))
     print(f"\nBus security cost: gateway-identity publisher process -> auvgw router -> "
           f"subscriber, {SAMPLE.size}-byte samples; median of {args.runs} runs\n")  # fmt: skip
-    print(f"  {'set-up':<18} {'burst samples/s':>16} {'ratio':>6} "
-          f"{'latency median us':>18} {'p99 us':>8}")  # fmt: skip
+    print(f"  {'set-up':<18} {'burst samples/s':>16} {'runs min-max':>17} {'ratio':>6} "
+          f"{'latency median us':>18} {'runs min-max':>13} {'p99 us':>8}")  # fmt: skip
     base = statistics.median(r[0] for r in results["plain TCP"])
     for name, rs in results.items():
-        rate = statistics.median(r[0] for r in rs)
-        med = statistics.median(r[1] for r in rs)
+        rates, meds = [r[0] for r in rs], [r[1] for r in rs]
+        rate, med = statistics.median(rates), statistics.median(meds)
         p99 = statistics.median(r[2] for r in rs)
-        print(f"  {name:<18} {rate:16.0f} {rate / base:6.2f} {med:18.0f} {p99:8.0f}")
+        print(f"  {name:<18} {rate:16.0f} {min(rates):8.0f}-{max(rates):<8.0f} "
+              f"{rate / base:6.2f} {med:18.0f} {min(meds):6.0f}-{max(meds):<6.0f} "
+              f"{p99:8.0f}")  # fmt: skip
     print(f"\n  burst: {args.messages} samples under BLOCK; latency: {args.paced} samples at 1 kHz")
     return 0
 
