@@ -1,11 +1,12 @@
 """Certificates for the bus's TLS / mutual TLS (docs/security.md), made with the openssl CLI.
 
-``python -m auvgw.security OUT_DIR [--name vehicle --name shore ...] [--days N] [--host H]``
-writes a small CA (``ca.pem``, ``ca.key``) and, per name, ``<name>.pem`` / ``<name>.key``: an EC
-P-256 certificate whose common name is the name (what Zenoh's access control matches as
-``cert_common_names``), valid for TLS server and client use, with the given hosts (default
-``localhost`` and ``127.0.0.1``) as subject alternative names. Keys are written mode 0600. An
-existing CA in OUT_DIR is reused, so a new or rotated identity is one more call.
+``python -m auvgw.security OUT_DIR [--name NAME ...] [--days N] [--host H]`` writes a small CA
+(``ca.pem``, ``ca.key``) and, per name (default: every component of :data:`COMPONENTS`, the
+identities the shipped access control ``config/security/router.toml`` knows), ``<name>.pem`` /
+``<name>.key``: an EC P-256 certificate whose common name is the name (what Zenoh's access
+control matches as ``cert_common_names``), valid for TLS server and client use, with the given
+hosts (default ``localhost`` and ``127.0.0.1``) as subject alternative names. Keys are written
+mode 0600. An existing CA in OUT_DIR is reused, so a new or rotated identity is one more call.
 """
 
 from __future__ import annotations
@@ -13,15 +14,31 @@ from __future__ import annotations
 import argparse
 import ipaddress
 import os
+import re
 import shutil
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
-__all__ = ["make_ca", "make_identity"]
+__all__ = ["COMPONENTS", "make_ca", "make_identity"]
 
 DEFAULT_HOSTS = ("localhost", "127.0.0.1")
+#: an identity: a certificate common name and a file name
+_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
+#: one identity (certificate common name) per process on the vehicle's bus, and the shore station;
+#: each has its own ``config/security/<name>-bus.toml`` and its own rules in the router's ACL
+COMPONENTS = (
+    "router",
+    "gateway",
+    "fusion",
+    "slam-landmark",
+    "slam-magnetic",
+    "slam-bathymetric",
+    "recorder",
+    "viz",
+    "shore",
+)
 
 
 def _openssl(*args: str) -> None:
@@ -121,7 +138,7 @@ def main(argv: list[str] | None = None) -> int:
         "--name",
         action="append",
         default=None,
-        help="identity (certificate common name), repeatable; default vehicle, shore",
+        help=f"identity (certificate common name), repeatable; default {', '.join(COMPONENTS)}",
     )
     p.add_argument(
         "--host",
@@ -132,8 +149,18 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--days", type=int, default=365, help="validity of the identities (days)")
     args = p.parse_args(argv)
     hosts = tuple(args.host or DEFAULT_HOSTS)
-    for name in args.name or ["vehicle", "shore"]:
-        cert, key = make_identity(args.out, name, hosts, args.days)
+    names = args.name or COMPONENTS
+    bad = [n for n in names if not _NAME.fullmatch(n)]
+    if bad or args.days < 1:
+        why = f"--name {bad[0]!r}: letters, digits, '.', '_', '-'" if bad else "--days must be >= 1"
+        print(f"python -m auvgw.security: {why}", file=sys.stderr)
+        return 2
+    for name in names:
+        try:
+            cert, key = make_identity(args.out, name, hosts, args.days)
+        except (RuntimeError, OSError) as exc:
+            print(f"python -m auvgw.security: {name}: {exc}", file=sys.stderr)
+            return 2
         print(f"{name}: {cert} {key}")
     print(f"CA: {args.out / 'ca.pem'} (keep {args.out / 'ca.key'} offline)")
     return 0

@@ -15,7 +15,7 @@ import zenoh
 from auvgw.bus import decode_envelope, load_bus_table, open_session
 from auvgw.config.bus import BusConfig
 from auvgw.ground.paths import config_file
-from auvgw.security import make_identity
+from auvgw.security import COMPONENTS, make_identity
 from auvgw.testing import AUVGW, free_port, wait_until
 
 pytestmark = pytest.mark.skipif(shutil.which("openssl") is None, reason="needs the openssl CLI")
@@ -27,39 +27,31 @@ def _bus(path: Path, **update) -> BusConfig:
 
 @pytest.fixture
 def secure_bus(tmp_path, procs):
-    """(port, vehicle toml, shore toml, tmp) with the shipped examples, fresh certificates and a
-    mutual-TLS router with access control running on tls/127.0.0.1:<port>."""
+    """(port, folder, tmp): the shipped config/security/*.toml copied to ``folder`` (a
+    ``<component>-bus.toml`` each), fresh certificates, and the shipped mutual-TLS router with
+    per-component access control running on tls/127.0.0.1:<port>."""
     port = free_port()
-    for name in ("vehicle-bus.toml", "shore-bus.toml"):
-        text = config_file(f"security/{name}").read_text().replace(":7447", f":{port}")
-        (tmp_path / name).write_text(text)
-    for ident in ("vehicle", "shore"):
+    shipped = config_file("security/router.toml").parent
+    for f in shipped.glob("*.toml"):
+        (tmp_path / f.name).write_text(f.read_text().replace(":7447", f":{port}"))
+    for ident in COMPONENTS:
         make_identity(tmp_path / "certs", ident)
-    make_identity(tmp_path / "rogue-ca", "vehicle")  # right name, wrong CA
-    router = procs.start(
-        [
-            AUVGW,
-            "router",
-            "--listen",
-            f"tls/127.0.0.1:{port}",
-            "--bus-config",
-            str(tmp_path / "vehicle-bus.toml"),
-        ],
-        "router",
-    )
+    make_identity(tmp_path / "rogue-ca", "gateway")  # right name, wrong CA
+    router = procs.start([AUVGW, "router", "--bus-config", str(tmp_path / "router.toml")], "router")
     router.wait_line("auvgw router")
-    return port, tmp_path / "vehicle-bus.toml", tmp_path / "shore-bus.toml", tmp_path
+    return port, tmp_path, tmp_path
 
 
 def test_no_valid_certificate_no_session(secure_bus):
-    port, vehicle, _shore, tmp = secure_bus
+    port, folder, tmp = secure_bus
+    vehicle = folder / "gateway-bus.toml"
     ca_only = _bus(vehicle).tls.model_copy(
         update={"connect_certificate": None, "connect_private_key": None}
     )
     rogue = _bus(vehicle).tls.model_copy(
         update={
-            "connect_certificate": str(tmp / "rogue-ca/vehicle.pem"),
-            "connect_private_key": str(tmp / "rogue-ca/vehicle.key"),
+            "connect_certificate": str(tmp / "rogue-ca/gateway.pem"),
+            "connect_private_key": str(tmp / "rogue-ca/gateway.key"),
         }
     )
     for tls in (ca_only, rogue, None):
@@ -72,11 +64,11 @@ def test_no_valid_certificate_no_session(secure_bus):
 
 
 def test_shore_subscribes_but_cannot_publish_sensor_data(secure_bus):
-    _port, vehicle, shore, _tmp = secure_bus
+    _port, folder, _tmp = secure_bus
     with (
-        open_session(_bus(vehicle)) as gw,
-        open_session(_bus(vehicle)) as fusion,
-        open_session(_bus(shore)) as station,
+        open_session(_bus(folder / "gateway-bus.toml")) as gw,
+        open_session(_bus(folder / "fusion-bus.toml")) as fusion,
+        open_session(_bus(folder / "shore-bus.toml")) as station,
     ):
         at_shore: list[bytes] = []
         at_fusion: list[bytes] = []
@@ -145,24 +137,25 @@ def test_user_password_authentication(tmp_path, procs):
 
 def test_gateway_record_fusion_and_slam_run_over_mutual_tls_with_acl(secure_bus, procs):
     """The emulated vehicle's gateway, the fusion and SLAM stages and the recorder, each in its
-    own process with the vehicle identity's [bus] (``--bus-config``), through the mTLS router
-    with access control on; the shore identity sees odometry and SLAM poses; the recording holds
-    raw frames and the gateway's configuration."""
-    import json
-    import tomllib
-
+    own process with its own identity's [bus] (``--bus-config``), through the mTLS router with
+    the per-component access control; the shore identity sees odometry and SLAM poses; the
+    recording holds raw frames and the gateway's configuration."""
     from auvgw.recording import read_info
-    from auvgw.sim_devices.runner import gateway_toml
     from auvgw.subscribe import GatewaySubscriber
 
-    _port, vehicle, shore, tmp = secure_bus
+    _port, folder, tmp = secure_bus
     sim_dir = tmp / "sim"
     scenario = config_file("scenarios/harbour.json")
-    bus_arg = ["--bus-config", str(vehicle)]
-    with GatewaySubscriber("auv1", _bus(shore)) as station:
+
+    def bus_arg(component: str) -> list[str]:
+        return ["--bus-config", str(folder / f"{component}-bus.toml")]
+
+    with GatewaySubscriber("auv1", _bus(folder / "shore-bus.toml")) as station:
         odom = station.session.declare_subscriber("auv/auv1/nav/odometry")
         pose = station.session.declare_subscriber("auv/auv1/slam/**")
-        procs.start([AUVGW, "fusion", "--vehicle", "auv1", "--duration", "60", *bus_arg], "fusion")
+        procs.start(
+            [AUVGW, "fusion", "--vehicle", "auv1", "--duration", "60", *bus_arg("fusion")], "fusion"
+        )
         procs.start(
             [
                 AUVGW,
@@ -173,7 +166,7 @@ def test_gateway_record_fusion_and_slam_run_over_mutual_tls_with_acl(secure_bus,
                 "msis",
                 "--duration",
                 "60",
-                *bus_arg,
+                *bus_arg("slam-landmark"),
             ],
             "slam",
         )
@@ -187,7 +180,7 @@ def test_gateway_record_fusion_and_slam_run_over_mutual_tls_with_acl(secure_bus,
                 str(tmp / "trip.mcap"),
                 "--duration",
                 "20",
-                *bus_arg,
+                *bus_arg("recorder"),
             ],
             "record",
         )
@@ -209,12 +202,9 @@ def test_gateway_record_fusion_and_slam_run_over_mutual_tls_with_acl(secure_bus,
             "sim",
         )
         wait_until(lambda: (sim_dir / "gateway.toml").is_file(), timeout=120, what="sim up")
-        data = tomllib.loads((sim_dir / "gateway.toml").read_text())
-        data["bus"] = json.loads(
-            _bus(vehicle).model_dump_json(exclude={"access_control"}, exclude_none=True)
-        )
-        (tmp / "gateway.toml").write_text(gateway_toml(data, "sim gateway on the secure bus"))
-        procs.start([AUVGW, "run", "--config", str(tmp / "gateway.toml")], "gateway")
+        # the sim's gateway configuration, its [bus] replaced by the gateway identity's
+        gateway = [AUVGW, "run", "--config", str(sim_dir / "gateway.toml"), *bus_arg("gateway")]
+        procs.start(gateway, "gateway")
         got_odom = wait_until(odom.try_recv, timeout=120, what="odometry at the shore")
         got_pose = wait_until(pose.try_recv, timeout=120, what="a SLAM sample at the shore")
         env = decode_envelope(got_odom.payload.to_bytes())

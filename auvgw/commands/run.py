@@ -205,10 +205,17 @@ def run(args: argparse.Namespace) -> int:
         lg = logging.getLogger(name)
         if lg.getEffectiveLevel() > logging.INFO:
             lg.setLevel(logging.INFO)
+    from auvgw.bus import bus_from_args
+
     cfg = load_or_fail(args.config)
+    if args.bus_config is not None:  # replaces the configuration's [bus] (its own certificate)
+        try:
+            cfg = cfg.model_copy(update={"bus": bus_from_args(args, hub=True)})
+        except ValueError as exc:
+            raise UserError(str(exc)) from None
     if args.check:
         return check(cfg)
-    if args.listen or args.connect:
+    if args.bus_config is None and (args.listen or args.connect):
         try:
             bus = cfg.bus.model_copy(update={"listen": args.listen, "connect": args.connect})
             bus = type(cfg.bus).model_validate(bus.model_dump())

@@ -65,6 +65,14 @@ def register(sub: Any) -> None:
         "--config", type=Path, default=None, help="gateway TOML: vehicle name and [bus] endpoints"
     )
     p.add_argument(
+        "--bus-config",
+        type=Path,
+        default=None,
+        metavar="TOML",
+        help="take the [bus] table (endpoints, tls, auth) of this file instead of --config's, e.g. "
+        "config/security/viz-bus.toml; --bus-* options override it (docs/security.md)",
+    )
+    p.add_argument(
         "--bus-mode", choices=("peer", "client"), default=None, help="Zenoh mode (default peer)"
     )
     p.add_argument(
@@ -132,6 +140,21 @@ def _bus(args: argparse.Namespace) -> tuple[str, BusConfig]:
         vehicle = cfg.vehicle
         # a second process on the gateway's host connects to the gateway's listen endpoints
         bus = BusConfig(mode="peer", connect=[*cfg.bus.connect, *cfg.bus.listen])
+    if args.bus_config is not None:  # its [bus] table, --bus-* options over it
+        from types import SimpleNamespace
+
+        from auvgw.bus import bus_from_args
+
+        given = SimpleNamespace(
+            bus_config=args.bus_config,
+            mode=args.bus_mode,
+            connect=args.bus_connect or [],
+            listen=args.bus_listen or [],
+        )
+        try:
+            return args.vehicle or vehicle, bus_from_args(given)
+        except ValueError as exc:
+            raise UserError(str(exc)) from None
     update: dict[str, Any] = {}
     if args.bus_mode is not None:
         update["mode"] = args.bus_mode

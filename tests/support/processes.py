@@ -43,7 +43,9 @@ SUBSCRIBER = str(REPO / "tests" / "gateway_subscriber_proc.py")
 class Proc:
     """A child process whose stdout lines are collected by a thread (stderr goes to a file)."""
 
-    def __init__(self, args: list[str], log: Path, env: dict[str, str] | None = None) -> None:
+    def __init__(
+        self, args: list[str], log: Path, env: dict[str, str] | None = None, cwd: Path = REPO
+    ) -> None:
         self.args = args
         self.log = log
         self._err = open(log, "wb")  # noqa: SIM115 - closed in stop()
@@ -53,7 +55,7 @@ class Proc:
             stderr=self._err,
             text=True,
             env={**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})},
-            cwd=REPO,
+            cwd=cwd,
         )
         self.lines: queue.Queue[str] = queue.Queue()
         self.all_lines: list[str] = []
@@ -110,8 +112,11 @@ class Procs:
         self.tmp = tmp
         self.procs: list[Proc] = []
 
-    def start(self, args: list[str], name: str, env: dict[str, str] | None = None) -> Proc:
-        p = Proc(args, self.tmp / f"{name}.stderr", env)
+    def start(
+        self, args: list[str], name: str, env: dict[str, str] | None = None, cwd: Path = REPO
+    ) -> Proc:
+        """Start ``args`` (in ``cwd``, the repository by default); stderr to ``<name>.stderr``."""
+        p = Proc(args, self.tmp / f"{name}.stderr", env, cwd)
         self.procs.append(p)
         return p
 
