@@ -29,7 +29,7 @@ test-fast: $(STAMP)
 TYPED := $(VENV)/typecheck
 typecheck: $(STAMP)
 	rm -rf $(TYPED) build && $(BIN)/python -m pip install -q --no-deps --target $(TYPED) . >/dev/null
-	cd $(TYPED) && $(CURDIR)/$(BIN)/mypy --config-file $(CURDIR)/pyproject.toml -p auvgw.ground -p auvgw.drivers -p auvgw.slam
+	cd $(TYPED) && $(CURDIR)/$(BIN)/mypy --config-file $(CURDIR)/pyproject.toml -p auvgw
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

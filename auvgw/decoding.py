@@ -225,6 +225,7 @@ def make_decoder(cfg: DeviceConfig, name: str = "") -> DeviceDecoder:
     if cfg.format == registry.CAN_FORMAT:
         from auvgw.drivers.can_codec import load_can_codec
 
+        assert cfg.dbc is not None  # the model refuses a CAN device without one
         return DeviceDecoder(name, None, load_can_codec(cfg.dbc))
     fmt = format_from_table(cfg.format, cfg.table) if cfg.table else get_format(cfg.format)
     return DeviceDecoder(

@@ -295,7 +295,7 @@ def dvl_msgs(msg: Any, device: str, t_ns: int) -> list[RosMessage]:
     if s.frame == "body":
         frame, v = FRAME_BASE, flu_from_frd(s.velocity)
     else:
-        frame, v = device, tuple(float(a) for a in s.velocity)
+        frame, v = device, (float(s.velocity[0]), float(s.velocity[1]), float(s.velocity[2]))
     twist = _t("geometry_msgs/msg/Twist")(linear=_vec3(v), angular=_vec3((0.0, 0.0, 0.0)))
     cov = np.zeros(36)
     if not s.bottom_lock:

@@ -94,7 +94,7 @@ class SerialTransportConfig(_Model):
     baud: int = Field(115200, ge=50, le=20_000_000, description="line rate, bit/s")
     bytesize: Literal[5, 6, 7, 8] = 8
     parity: Literal["N", "E", "O", "M", "S"] = "N"
-    stopbits: Literal[1, 1.5, 2] = 1
+    stopbits: Literal[1, 1.5, 2] = 1  # type: ignore[valid-type]  # pydantic takes 1.5; PEP 586 not
     rtscts: bool = Field(False, description="RTS/CTS hardware flow control")
     xonxoff: bool = Field(False, description="XON/XOFF software flow control")
     exclusive: bool = Field(True, description="lock the port against other processes (POSIX)")

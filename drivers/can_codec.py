@@ -167,7 +167,7 @@ class DbcCodec:
             db = cantools.database.load_file(str(self.path), database_format="dbc")
         except OSError as exc:
             raise CanCodecError(f"{self.path}: cannot load DBC: {exc.strerror or exc}") from None
-        except (UnicodeDecodeError, cantools.database.Error) as exc:  # type: ignore[attr-defined]
+        except (UnicodeDecodeError, cantools.database.Error) as exc:
             raise CanCodecError(f"{self.path}: cannot load DBC: {_where(exc)}") from None
         assert isinstance(db, cantools.database.can.Database)  # database_format="dbc"
         self.db = db

@@ -39,7 +39,9 @@ __all__ = [
     "wrap_angles",
 ]
 
-def body_to_ned(v_body: Sequence[float], roll: float, pitch: float, heading: float) -> np.ndarray:
+def body_to_ned(
+    v_body: Sequence[float] | np.ndarray, roll: float, pitch: float, heading: float
+) -> np.ndarray:
     """A body-axes vector (e.g. velocity, m/s) expressed in NED."""
     return dcm_body_to_ned(roll, pitch, heading) @ np.asarray(v_body, dtype=float)
 
@@ -95,7 +97,9 @@ def beam_matrix(angle: float, convex: bool = True) -> np.ndarray:
     )
 
 
-def beam_to_instrument(beams: Sequence[float], angle: float, convex: bool = True) -> np.ndarray:
+def beam_to_instrument(
+    beams: Sequence[float] | np.ndarray, angle: float, convex: bool = True
+) -> np.ndarray:
     """Instrument-axes velocity (m/s) from 3 or 4 beam closing speeds (NaN = bad beam) by least
     squares with the Janus geometry; all NaN with fewer than 3 good beams."""
     raw = np.asarray(beams, dtype=float)

@@ -28,7 +28,7 @@ from auvgw.fusion.diagnostics import FixRecord, FusionDiagnostics
 from auvgw.fusion.ekf import DeadReckoningEKF
 from auvgw.fusion.frames import beam_to_instrument, dcm_body_to_ned, wrap_angle
 from auvgw.fusion.odometry import MotionIncrement, Odometry
-from auvgw.fusion.samples import DepthSample, DvlSample, InsSample, PositionFix
+from auvgw.fusion.samples import DepthSample, DvlFrame, DvlSample, InsSample, PositionFix
 
 __all__ = ["FusionStats", "NavFilter"]
 
@@ -278,7 +278,7 @@ class NavFilter:
             self._last_depth_t = e.t
             self.stats.depth_updates += 1
 
-    def _dvl_velocity(self, e: DvlSample, ins: InsSample) -> tuple[tuple[float, ...], str]:
+    def _dvl_velocity(self, e: DvlSample, ins: InsSample) -> tuple[tuple[float, ...], DvlFrame]:
         """A fix's velocity in the axes the EKF takes ("instrument" or "body"), corrected for
         the scale factor: beam speeds by least squares (Janus geometry of the mount), earth
         (NED) velocities turned into body axes with the filter's attitude at the fix time."""

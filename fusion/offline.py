@@ -183,8 +183,8 @@ def run_filter_arrays(
                 covs.append(block)
             pending.clear()
 
-    aiding = heapq.merge(sorted(depth, key=lambda x: x.t), sorted(fixes, key=lambda x: x.t),
-                         key=lambda x: x.t)
+    aiding: Iterator[DepthSample | PositionFix] = heapq.merge(
+        sorted(depth, key=lambda x: x.t), sorted(fixes, key=lambda x: x.t), key=lambda x: x.t)
     for o in iter_filter(ins, dvl, config, aiding, nav=nav):
         vn, vb = o.velocity_ned, o.velocity_body
         rows.append(

@@ -131,7 +131,8 @@ def check(cfg: GatewayConfig) -> int:
         if cfg.bus.auth is not None:
             cfg.bus.auth.zenoh()
     except ConfigError as exc:
-        raise UserError(f"{cfg.source}: {exc}" if cfg.source not in str(exc) else str(exc)) from exc
+        source = cfg.source or "<config>"
+        raise UserError(f"{source}: {exc}" if source not in str(exc) else str(exc)) from exc
     print(f"{cfg.source}: ok ({len(cfg.devices)} device(s), bus {cfg.bus.describe()})")
     return 0
 

@@ -36,7 +36,7 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import zenoh
 from pydantic import AliasChoices, ConfigDict, Field
@@ -255,7 +255,8 @@ class FusionStage(Stage):
         if self._status_pub is None:
             return
         with self._lock:
-            warnings = {w.split(":", 1)[0]: w for w in self.nav.diagnostics.summary()["warnings"]}
+            active = cast("list[str]", self.nav.diagnostics.summary()["warnings"])
+            warnings = {w.split(":", 1)[0]: w for w in active}
         for kind in sorted(warnings.keys() - self._warned):
             log.warning("fusion: %s", warnings[kind])
         self._warned = set(warnings)

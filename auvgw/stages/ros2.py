@@ -25,7 +25,7 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any, ClassVar, cast
 
 import zenoh
 
@@ -74,7 +74,8 @@ class _Endpoint:
 
     def __init__(self, pub: zenoh.Publisher, token: Any, gid: bytes) -> None:
         self.pub, self.token, self.gid, self.seq = pub, token, gid, 0
-        self.matching = bool(pub.matching_status.matching)
+        # zenoh's stubs type matching_status as a bool; it is a MatchingStatus
+        self.matching = bool(cast(Any, pub.matching_status).matching)
         self.listener = pub.declare_matching_listener(self._matched)
 
     def _matched(self, status: Any) -> None:

@@ -23,7 +23,7 @@ import numpy as np
 from auvgw.config.scenario import Scenario
 from auvgw.drivers import hn100, pd0
 from auvgw.drivers.can_codec import CanDeviceCodec, hn100_can
-from auvgw.drivers.framing import ErrorPolicy
+from auvgw.drivers.framing import ErrorPolicy, Framer
 from auvgw.fusion import FusionConfig, InitialState, Odometry
 from auvgw.ground.paths import config_file
 from auvgw.sim_devices.clock import SimClock
@@ -161,6 +161,7 @@ def dvl_stream(em: Emulated, t0: float, t1: float) -> Stream:
 def decode_serial(stream: Stream, fmt: str, device: str) -> list[tuple[float, str, Any]]:
     """Frame and decode a byte stream with the drivers: ``(t_recv, device, message)``; every
     frame must be good."""
+    framer: Framer
     if fmt == "hn100":
         framer, decode = hn100.Hn100Framer(policy=ErrorPolicy.RAISE), hn100.CODEC.decode
     else:

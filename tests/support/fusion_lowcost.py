@@ -35,6 +35,7 @@ def lowcost_scenario() -> Scenario:
 def truth_trajectory(scn: Scenario) -> Trajectory:
     """The world model's truth at the AHRS rate (``devices.ins.rate_hz``)."""
     tr = simulate(scn, World.from_scenario(scn))
+    assert scn.devices.ins.rate_hz is not None  # the low-cost scenario names its AHRS rate
     step = max(1, round(1.0 / (scn.devices.ins.rate_hz * scn.vehicle.dt_s)))
     sl = slice(None, None, step)
     return Trajectory(

@@ -21,7 +21,7 @@ def bailey_scenario(shared_data: Path, tmp: Path, name: str = "webmap", **obs: f
         scn = load_scenario(shipped)
         return scn.model_copy(update={"observations": scn.observations.model_copy(update=obs)})
     d = json.loads((shared_data / "bailey" / f"{name}.json").read_text())
-    scn = {
+    doc = {
         "name": name,
         "motion": "bicycle",
         "vehicle": {
@@ -35,7 +35,7 @@ def bailey_scenario(shared_data: Path, tmp: Path, name: str = "webmap", **obs: f
         "observations": dict(obs),
     }
     path = tmp / f"{name}.json"
-    path.write_text(json.dumps(scn))
+    path.write_text(json.dumps(doc))
     return load_scenario(path)
 
 
