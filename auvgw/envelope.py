@@ -693,7 +693,8 @@ _codecs_lock = threading.Lock()
 
 def message_class(type_name: str) -> type | None:
     """The class of a message type name, loading once, if needed, every codec module, the
-    shipped CAN DBCs (``HN100_Sample``, ``MS3A_Sample``, ``ActuatorState``...) and the fusion ``Odometry``."""
+    shipped CAN DBCs (``HN100_Sample``, ``MS3A_Sample``, ``ActuatorState``, ...) and the
+    fusion ``Odometry``."""
     cls = resolve_type(type_name)
     if cls is not None:
         return cls

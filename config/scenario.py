@@ -102,7 +102,8 @@ class Dynamics(_Model):
     params: str = Field(
         "",
         max_length=4096,
-        description="vehicle parameter file (TOML, as config/vehicles/remus100.toml); '': REMUS 100",
+        description="vehicle parameter file (TOML, as config/vehicles/remus100.toml); '': "
+        "the REMUS 100",
     )
     dt_s: float = Field(0.01, ge=0.001, le=0.1, description="integration step, vehicle s")
     rpm: float = Field(

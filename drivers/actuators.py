@@ -62,7 +62,8 @@ def fault_word(*names: str) -> int:
         try:
             word |= FAULT_BITS[n]
         except KeyError:
-            raise KeyError(f"unknown actuator fault {n!r}; known: {', '.join(FAULT_BITS)}") from None
+            known = ", ".join(FAULT_BITS)
+            raise KeyError(f"unknown actuator fault {n!r}; known: {known}") from None
     return word
 
 

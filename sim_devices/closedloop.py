@@ -63,8 +63,12 @@ class ClosedLoopTruth:
         cfg = scn.vehicle.dynamics
         self.scenario = scn
         self.world = world
-        self.params = params if params is not None else dynamics.load_params(
-            scn.resolve_path(cfg.params) if cfg.params else dynamics.REMUS100_FILE
+        self.params = (
+            params
+            if params is not None
+            else dynamics.load_params(
+                scn.resolve_path(cfg.params) if cfg.params else dynamics.REMUS100_FILE
+            )
         )
         self.dt = float(cfg.dt_s)
         self.history_s = float(cfg.history_s)

@@ -112,7 +112,8 @@ class SimContext:
     """What every emulator of one run shares: the scenario, its world and ground truth, the one
     simulation clock, the folder of stable port symlinks, the UTC time of vehicle time 0
     (``epoch``, s) and the host UDP streams go to. ``truth.at(t)`` samples the ground truth
-    at any vehicle time (precomputed, or integrated online in a closed-loop scenario) (``sampler`` is the same object, kept for callers of that name)."""
+    at any vehicle time, precomputed or (closed loop) integrated online (``sampler`` is the
+    same object, kept for callers of that name)."""
 
     scenario: Scenario
     world: World

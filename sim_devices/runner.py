@@ -53,13 +53,13 @@ from auvgw.ground.closing import Closing
 from auvgw.ground.errors import format_validation_error
 from auvgw.ground.procs import stop_process
 from auvgw.sim_devices.clock import SimClock
+from auvgw.sim_devices.closedloop import ClosedLoopTruth
 from auvgw.sim_devices.emulator import (
     DEFAULT_EPOCH,
     Emulator,
     Endpoint,
     SimContext,
 )
-from auvgw.sim_devices.closedloop import ClosedLoopTruth
 from auvgw.sim_devices.vehicle import TRUTH_FIELDS, Truth, TruthSample, simulate
 from auvgw.sim_devices.world import World
 
