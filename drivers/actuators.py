@@ -15,6 +15,7 @@ bus, no port.
 
 from __future__ import annotations
 
+import dataclasses
 from collections import Counter
 from typing import Any
 
@@ -96,8 +97,11 @@ class CommandGate:
     """Checks actuator commands before they reach the CAN bus (see the module docstring).
 
     :meth:`check` returns the CAN frame of a good command or raises :class:`CommandRefused`
-    (``wrong_type``, ``out_of_range``, ``stale_seq``); :attr:`counts` has ``forwarded`` and
-    one counter per refusal reason. The sequence number only advances on a forwarded command.
+    (``wrong_type``, ``out_of_range``, ``stale_seq``); once the frame is on the bus,
+    :meth:`sent` counts it as forwarded and makes its sequence number the last one (a frame
+    that could not be sent leaves both as they were). :attr:`counts` has ``forwarded`` and one
+    counter per refusal reason. A command of another class of the same DBC message (another
+    codec instance, an envelope's class) is taken by its field names.
     """
 
     REASONS = ("malformed", "wrong_type", "out_of_range", "stale_seq", "send_failed")
@@ -117,18 +121,31 @@ class CommandGate:
         return CommandRefused(reason, detail)
 
     def check(self, msg: Any) -> CanFrame:
-        """The frame of ``msg`` if it may go on the bus (counted as forwarded)."""
+        """The frame of ``msg`` if it may go on the bus; :class:`CommandRefused` (counted)
+        otherwise."""
+        name = getattr(msg, "TYPE", type(msg).__name__)
         if type(msg) is not self.command_type:
-            raise self.refuse("wrong_type", f"expected {COMMAND_TYPE}, got {type(msg).__name__}")
+            if name != COMMAND_TYPE or not dataclasses.is_dataclass(msg):
+                raise self.refuse("wrong_type", f"expected {COMMAND_TYPE}, got {name}")
+            try:
+                msg = self.command_type(
+                    **{f.name: getattr(msg, f.name) for f in dataclasses.fields(self.command_type)}
+                )
+            except (AttributeError, TypeError) as exc:
+                detail = f"{name} without this DBC's fields: {exc}"
+                raise self.refuse("wrong_type", detail) from None
         try:
             frame = self.codec.encode(msg, strict=True)  # the DBC ranges, finite numbers
         except CanCodecError as exc:
             raise self.refuse("out_of_range", str(exc)) from None
         if not seq_newer(msg.seq, self.last_seq):
             raise self.refuse("stale_seq", f"seq {msg.seq} not after {self.last_seq}")
-        self.last_seq = msg.seq
-        self.counts["forwarded"] += 1
         return frame
+
+    def sent(self, frame: CanFrame) -> None:
+        """Count a checked command's frame as forwarded; its sequence number is the last."""
+        self.last_seq = int(self.codec.decode_frame(frame).seq)
+        self.counts["forwarded"] += 1
 
     def as_dict(self) -> dict[str, Any]:
         """The counters and the last refusal (JSON-ready)."""
