@@ -202,7 +202,7 @@ class ActuatorEmulator(Emulator):
         self.model = ActuatorModel(limits, rpm=rpm0, faults_at=self.faults.actuator_faults)
         self._model_lock = threading.Lock()
         self.codec = actuators_can()
-        self._command_type = self.codec.types[COMMAND_TYPE]
+        self._command_type: Any = self.codec.types[COMMAND_TYPE]
         self.host = Counter({"commands": 0, "bad_frames": 0, "other_frames": 0})
         self.counter = 0
         self.can = self.add_can(
