@@ -130,6 +130,32 @@ def test_model_timeout_stops_the_thruster_and_a_command_clears_it() -> None:
     assert m.read(3.6).faults == FAULT_BITS["command_timeout"]  # 0.5 s without a command
 
 
+def test_model_silent_thruster_and_overcurrent_from_the_fault_windows() -> None:
+    def windows(t: float) -> frozenset[str]:
+        return frozenset({"thruster_silent"}) if 1.0 <= t < 3.0 else frozenset()
+
+    m = ActuatorModel(ActuatorLimits(command_timeout_s=100, max_current_a=3.0), rpm=1000.0,
+                      faults_at=windows)  # fmt: skip
+    r = m.read(0.5)
+    assert r.faults == 0 and r.current_a == pytest.approx(0.3 + 2.0)  # 1000 rpm: 2.3 A
+    r = m.read(2.9)
+    assert fault_names(r.faults) == ("thruster_no_answer",) and r.current_a == 0.0
+    assert abs(r.rpm) < 10.0  # coasted down, whatever the command
+    m.command(2.9, 1500.0, 0.0, 0.0, seq=1)
+    r = m.read(6.0)  # answering again: 1500 rpm draws 4.8 A, over the 3 A limit
+    assert fault_names(r.faults) == ("overcurrent",) and r.rpm == pytest.approx(1500, abs=5)
+
+
+def test_feedback_reaches_the_ros2_path_as_a_decoded_message() -> None:
+    from auvgw.ros2 import to_ros
+
+    sample = CODEC.sample_type(counter=1, shaft_rpm=900.0, rudder=0.1, stern=0.0,
+                               motor_current=1.2, faults=4, cmd_seq=3)  # fmt: skip
+    (out,) = to_ros("sensor", "actuators", sample, 10**18, 5, "actuatorstate")
+    assert out.topic == "sensor/actuators/actuatorstate"
+    assert "ActuatorState" in str(out.msg) and "900" in str(out.msg)
+
+
 # -- the emulated controller through SLCAN ---------------------------------------------------
 
 
