@@ -120,6 +120,9 @@ def test_bus_commands_steer_the_emulated_vehicle(procs, tmp_path) -> None:
         assert st["stale_seq"] == st0["stale_seq"] + 1
         assert st["out_of_range"] == st0["out_of_range"] + 1
         assert st["forwarded"] >= pilot.seq - 2 and st["malformed"] == 0
+        dev = me.status("actuators")
+        assert dev["bad_frames"] == 0 and dev["decode_errors"] == 0
+        assert dev["messages"]["ActuatorState"] >= len(states)
 
         # a jammed rudder (fault control file of the sim): the fault word says so
         (out / "faults.json").write_text(json.dumps({"actuators": {"rudder_jam": [[0, 1e6]]}}))
