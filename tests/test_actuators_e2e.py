@@ -77,6 +77,20 @@ def test_bus_commands_steer_the_emulated_vehicle(procs, tmp_path) -> None:
         wait_matched(pilot.pub)
         wait_until(lambda: (me.status("actuators") or {}).get("connected"), 60, what="CAN up")
 
+        def settled(href: float, last_s: float, tol_deg: float) -> bool:
+            h = pilot.headings[-int(last_s * 100) :]
+            return len(h) == int(last_s * 100) and all(
+                abs(_wrap(x - href)) < tol_deg * DEG for x in h
+            )
+
+        def fly_until(cond, max_vehicle_s: float, what: str) -> None:
+            for _ in range(int(max_vehicle_s * 10)):
+                fly(0.1)
+                if cond():
+                    return
+            tail = np.degrees(pilot.headings[-100:]).round(1)
+            raise AssertionError(f"{what}: not within {max_vehicle_s} vehicle s; {tail}")
+
         def fly(vehicle_s: float) -> None:
             n = int(vehicle_s * 100)  # INS at 100 Hz
             for _ in range(n):
@@ -87,22 +101,17 @@ def test_bus_commands_steer_the_emulated_vehicle(procs, tmp_path) -> None:
         for _ in ins.iter(0):  # what came while waiting: old news to a controller
             pass
         # the pilot takes over whenever the processes are up: the vehicle may have started to
-        # depart (open-loop unstable, thruster stopped 1 s after vehicle time 0 by the command
-        # timeout); recover on the heading it has then, then hold the heading it settled on
+        # depart (open-loop unstable; the thruster stopped 1 s after vehicle time 0 by the
+        # command timeout): it brings it back to the heading it had then and holds it
         fly(0.05)
         pilot.href = pilot.headings[-1]
-        fly(4.0)
-        pilot.href = pilot.headings[-1]
-        fly(3.0)
-        held = np.degrees([_wrap(h - pilot.href) for h in pilot.headings[-200:]])
-        assert np.all(np.abs(held) < 3.0), held  # the last 2 vehicle s: on the setpoint
+        fly_until(lambda: settled(pilot.href, 2.0, 3.0), 20.0, "the heading hold")
         start = pilot.href
         for _ in range(6):  # the setpoint turns 30 deg at 5 deg/s
             pilot.href = _wrap(pilot.href + 5 * DEG)
             fly(1.0)
-        fly(6.0)
-        turned = np.degrees([_wrap(h - start) for h in pilot.headings[-100:]])
-        assert np.all(np.abs(turned - 30.0) < 4.0), turned  # the INS says it turned 30 deg
+        # the INS says it turned 30 deg and stays there
+        fly_until(lambda: settled(start + 30 * DEG, 1.0, 4.0), 20.0, "the 30 deg turn")
 
         # the controller applied the pilot's commands: its feedback echoes their sequence
         states = [e.message for e in fb.iter(0)]  # what has arrived (it keeps coming)
