@@ -268,8 +268,8 @@ class Gateway:
             except CommandRefused as exc:
                 self._refused(dev, str(exc))
                 return
-            except ValueError as exc:
-                self._refused(dev, str(gate.refuse("malformed", str(exc))))
+            except (ValueError, KeyError, TypeError) as exc:  # not an envelope we can read
+                self._refused(dev, str(gate.refuse("malformed", f"{type(exc).__name__}: {exc}")))
                 return
             transport = dev.transport
             try:

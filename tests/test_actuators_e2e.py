@@ -102,10 +102,18 @@ def test_bus_commands_steer_the_emulated_vehicle(procs, tmp_path) -> None:
             pass
         # the pilot takes over whenever the processes are up: the vehicle may have started to
         # depart (open-loop unstable; the thruster stopped 1 s after vehicle time 0 by the
-        # command timeout): it brings it back to the heading it had then and holds it
+        # command timeout, so it slows down). It holds the heading the vehicle has, taken
+        # again every vehicle second, until the vehicle keeps it for 2 s
         fly(0.05)
         pilot.href = pilot.headings[-1]
-        fly_until(lambda: settled(pilot.href, 2.0, 3.0), 20.0, "the heading hold")
+        for k in range(300):
+            fly(0.1)
+            if settled(pilot.href, 2.0, 3.0):
+                break
+            if k % 10 == 9:
+                pilot.href = pilot.headings[-1]
+        else:
+            raise AssertionError(f"no straight flight in 30 vehicle s: {pilot.headings[-100:]}")
         start = pilot.href
         for _ in range(6):  # the setpoint turns 30 deg at 5 deg/s
             pilot.href = _wrap(pilot.href + 5 * DEG)
@@ -122,13 +130,16 @@ def test_bus_commands_steer_the_emulated_vehicle(procs, tmp_path) -> None:
         st0 = me.status("actuators")["commands"]
         pilot.put(pilot.cmd(seq=pilot.seq, shaft_rpm=1000.0, rudder=0.0, stern=0.0))  # stale
         pilot.put(pilot.cmd(seq=pilot.seq + 1, shaft_rpm=9999.0, rudder=0.0, stern=0.0))
+        pilot.pub.put(b"\x93not an envelope")
         st = wait_until(
             lambda: (c := me.status("actuators")["commands"])["out_of_range"] > st0["out_of_range"]
             and c, 20, what="refusals counted",
         )  # fmt: skip
         assert st["stale_seq"] == st0["stale_seq"] + 1
         assert st["out_of_range"] == st0["out_of_range"] + 1
-        assert st["forwarded"] >= pilot.seq - 2 and st["malformed"] == 0
+        st = wait_until(lambda: (c := me.status("actuators")["commands"])["malformed"] and c, 20,
+                        what="the malformed one counted")  # fmt: skip
+        assert st["forwarded"] >= pilot.seq - 2 and st["malformed"] == 1
         dev = me.status("actuators")
         assert dev["bad_frames"] == 0 and dev["decode_errors"] == 0
         assert dev["messages"]["ActuatorState"] >= len(states)
