@@ -637,8 +637,8 @@ class DeviceProcesses(Closing):
         self.scenario = load_scenario(self.scenario_path)
         if self.scenario.vehicle.mode == "dynamics":
             raise ValueError(
-                f"{self.scenario_path}: vehicle.mode 'dynamics' runs every device in one process "
-                "(the closed-loop truth is integrated where the actuators are)"
+                "vehicle.mode 'dynamics' runs every device in one process (the closed-loop "
+                "truth is integrated where the actuators are): leave out --processes"
             )
         self.control = str(control) if control is not None else None
         # ground truth here (no device): the same world and trajectory as every child builds
