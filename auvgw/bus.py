@@ -148,6 +148,10 @@ class Keys:
     def truth(self, what: str) -> str:
         return f"{self.base}/truth/{what}"
 
+    def cmd(self, device: str) -> str:
+        """Commands to a device (``auv/<v>/cmd/<device>``: envelopes of its command message)."""
+        return f"{self.base}/cmd/{device}"
+
     def all(self, section: str = "**") -> str:
         return f"{self.base}/{section}"
 

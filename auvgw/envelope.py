@@ -693,7 +693,8 @@ _codecs_lock = threading.Lock()
 
 def message_class(type_name: str) -> type | None:
     """The class of a message type name, loading once, if needed, every codec module, the
-    shipped CAN DBCs (``HN100_Sample``, ``MS3A_Sample``) and the fusion ``Odometry``."""
+    shipped CAN DBCs (``HN100_Sample``, ``MS3A_Sample``, ``ActuatorState``, ...) and the
+    fusion ``Odometry``."""
     cls = resolve_type(type_name)
     if cls is not None:
         return cls
@@ -710,10 +711,9 @@ def message_class(type_name: str) -> type | None:
                     log.debug("codec %s not loaded: %s", name, exc)
             try:
                 import auvgw.fusion.odometry  # noqa: F401 - registers Odometry
-                from auvgw.drivers.can_codec import hn100_can, ms3a_can
+                from auvgw.drivers.can_codec import shipped_can_types
 
-                hn100_can()
-                ms3a_can()
+                shipped_can_types()
             except Exception as exc:  # cantools or a DBC missing: those types stay unknown
                 log.debug("CAN sample types not loaded: %s", exc)
     return resolve_type(type_name)

@@ -24,7 +24,7 @@ import time
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import zenoh
 
@@ -49,10 +49,13 @@ from auvgw.drivers.transports import (
     TransportError,
     make_transport,
 )
-from auvgw.envelope import pack_envelope
+from auvgw.envelope import decode_envelope, pack_envelope
 from auvgw.health import Backoff, DeviceHealth, device_time_s
 from auvgw.hostdrivers import HostDriver, make_host_driver
 from auvgw.notify import Notifier
+
+if TYPE_CHECKING:
+    from auvgw.drivers.actuators import CommandGate
 
 log = logging.getLogger(__name__)
 
@@ -92,6 +95,11 @@ class _Device:
     reported_rejected: int = 0
     losses_before: Counter[str] = field(default_factory=Counter)  # earlier connections' losses
     reported_lost: int = 0
+    #: a device that takes commands from the bus (the actuators): its gate, the transport of
+    #: the connection being served (None between connections) and the lock of both
+    gate: CommandGate | None = None
+    transport: Transport | None = None
+    cmd_lock: threading.Lock = field(default_factory=threading.Lock)
 
 
 class Gateway:
@@ -140,6 +148,12 @@ class Gateway:
         self.session_id = (self._t0_ns // 1_000_000_000) & 0xFFFFFFFF
         for dev in self.devices.values():
             dev.seq = self.session_id << 32
+            can = dev.decoder.can
+            if can is not None:  # a CAN device whose DBC has the actuator command takes it
+                from auvgw.drivers.actuators import COMMAND_TYPE, CommandGate
+
+                if COMMAND_TYPE in can.codec.types:
+                    dev.gate = CommandGate(can.codec)
         self._stamp = cfg.clock.stamp
         self._threads: list[threading.Thread] = []
         self._decls: list[Any] = []
@@ -170,6 +184,12 @@ class Gateway:
                 encoding=raw_encoding(dev.cfg.format),
                 congestion_control=_DROP,
             )
+            if dev.gate is not None:
+                self._decls.append(
+                    s.declare_subscriber(
+                        self.keys.cmd(dev.name), lambda smp, d=dev: self._on_command(d, smp)
+                    )
+                )
             dev.thread = threading.Thread(
                 target=self._run_device, args=(dev,), name=f"dev-{dev.name}"
             )
@@ -226,7 +246,49 @@ class Gateway:
         stamp = self._stamp(now_ns)
         snap = d.health.snapshot(now_ns, stale_after_s=d.cfg.stale_after_s, now_stamp_ns=stamp)
         snap["t_stamp_ns"] = stamp
+        if d.gate is not None:
+            with d.cmd_lock:
+                snap["commands"] = d.gate.as_dict()
         return snap
+
+    # -- commands ---------------------------------------------------------------------------
+    def _on_command(self, dev: _Device, sample: zenoh.Sample) -> None:
+        """A command envelope from ``auv/<v>/cmd/<device>`` (Zenoh's thread): checked by the
+        device's gate and sent on its CAN bus, or refused and counted (docs/gateway.md)."""
+        from auvgw.drivers.actuators import CommandRefused
+
+        gate = dev.gate
+        assert gate is not None
+        with dev.cmd_lock:
+            try:
+                env = decode_envelope(sample.payload.to_bytes(), str(sample.key_expr))
+                if env.message is None:
+                    raise ValueError(f"{env.type}: not a message type this gateway knows")
+                frame = gate.check(env.message)
+            except CommandRefused as exc:
+                self._refused(dev, str(exc))
+                return
+            except (ValueError, KeyError, TypeError) as exc:  # not an envelope we can read
+                self._refused(dev, str(gate.refuse("malformed", f"{type(exc).__name__}: {exc}")))
+                return
+            transport = dev.transport
+            try:
+                if transport is None:
+                    raise TransportError(dev.name, "not connected")
+                transport.send_frame(  # type: ignore[attr-defined]
+                    frame.arbitration_id, frame.data, is_extended_id=frame.is_extended_id
+                )
+            except (TransportError, ValueError) as exc:
+                self._refused(dev, str(gate.refuse("send_failed", str(exc))))
+                return
+            gate.sent(frame)
+
+    @staticmethod
+    def _refused(dev: _Device, why: str) -> None:
+        assert dev.gate is not None
+        n = sum(v for k, v in dev.gate.counts.items() if k != "forwarded")
+        if n & (n - 1) == 0:  # the 1st, 2nd, 4th, 8th ... refusal: a flood does not flood the log
+            log.warning("%s: command refused (%d so far): %s", dev.name, n, why)
 
     def status(self) -> dict[str, Any]:
         """The gateway's status: vehicle, time, uptime and every device's status."""
@@ -453,6 +515,8 @@ class Gateway:
         """Read one connection until it drops or stop; True when a finite source has ended."""
         host = make_host_driver(dev.cfg)
         token = None
+        with dev.cmd_lock:
+            dev.transport = transport
         try:
             token = self.session.liveliness().declare_token(self.keys.alive(dev.name))
             if host is not None:
@@ -513,6 +577,8 @@ class Gateway:
             dev.health.set_connected(False, f"{type(exc).__name__}: {exc}")
             log.exception("%s: reader error; reopening", dev.name)
         finally:
+            with dev.cmd_lock:
+                dev.transport = None
             with contextlib.suppress(Exception):
                 self._settle(dev, transport)
             self._update_framing(dev)

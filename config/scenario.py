@@ -95,6 +95,25 @@ def resolve_ref(ref: str, source: str | None = None, label: str | None = None) -
     return p
 
 
+class Dynamics(_Model):
+    """The closed-loop vehicle (``vehicle.mode = "dynamics"``): the 6-DOF model integrated
+    online at ``dt_s`` (vehicle s) from the actuators' state (docs/dynamics.md)."""
+
+    params: str = Field(
+        "",
+        max_length=4096,
+        description="vehicle parameter file (TOML, as config/vehicles/remus100.toml); '': "
+        "the REMUS 100",
+    )
+    dt_s: float = Field(0.01, ge=0.001, le=0.1, description="integration step, vehicle s")
+    rpm: float = Field(
+        0.0, ge=-3000, le=3000, description="shaft speed without an actuators device, rpm"
+    )
+    history_s: float = Field(
+        60.0, ge=1, le=3600, description="past truth kept for sampling earlier times, s"
+    )
+
+
 class Vehicle(_Model):
     """Route and speed. Waypoints are (x north, y east) in metres, visited in order.
 
@@ -131,6 +150,13 @@ class Vehicle(_Model):
     max_depth_rate_mps: float = Field(0.5, ge=0.001, le=10, description="vertical speed limit, m/s")
     current_mps: XY = Field((0.0, 0.0), description="water current (north, east), m/s")
     dt_s: float = Field(0.02, ge=0.001, le=1.0, description="motion model integration step, s")
+    mode: Literal["route", "dynamics"] = Field(
+        "route",
+        description="route: the truth flies the waypoints (precomputed); dynamics: integrated "
+        "online from the actuators (closed loop; starts at 'start' or the first waypoint, at "
+        "depth_m and speed_mps)",
+    )
+    dynamics: Dynamics = Dynamics()
 
     @model_validator(mode="before")
     @classmethod
@@ -379,6 +405,17 @@ class FaultSettings(_Model):
         max_length=MAX_LIST,
         description="(time, jump_s): the device clock jumps by jump_s at time",
     )
+    rudder_jam: list[Window] = Field(
+        [], max_length=MAX_LIST, description="actuators: the rudder stays where it is"
+    )
+    stern_jam: list[Window] = Field(
+        [], max_length=MAX_LIST, description="actuators: the stern plane stays where it is"
+    )
+    thruster_silent: list[Window] = Field(
+        [],
+        max_length=MAX_LIST,
+        description="actuators: the thruster's motor driver stops answering (the shaft coasts)",
+    )
 
 
 class DeviceSettings(_Model):
@@ -447,6 +484,17 @@ class Scenario(_Model):
 
     #: set by load_scenario: the file the scenario came from (for resolving relative paths)
     source: str | None = None
+
+    @model_validator(mode="after")
+    def _closed_loop(self) -> Scenario:
+        if self.vehicle.mode == "dynamics":
+            if self.motion != "auv":
+                raise ValueError("vehicle.mode 'dynamics' needs motion 'auv'")
+            if self.duration_s is None:
+                raise ValueError(
+                    "vehicle.mode 'dynamics' needs duration_s (the vehicle has no route to end)"
+                )
+        return self
 
     def resolve_path(self, ref: str) -> Path:
         """A path named in the scenario: ``shared:rel`` is in ../shared/data, else relative to

@@ -450,12 +450,15 @@ class CanDeviceCodec:
 
 def load_can_codec(dbc: str | Path) -> CanDeviceCodec:
     """The device codec of a DBC named in a configuration: a file shipped in ``config/``
-    (``"hn100.dbc"``) or a path. The shipped HN-100 and MS3A DBCs get their sample names."""
+    (``"hn100.dbc"``) or a path. The shipped DBCs get their registry sample names."""
     path = Path(dbc)
     if not path.is_file():
         shipped = config_file(str(dbc))
         if not shipped.is_file():
             raise FileNotFoundError(f"{dbc}: no such DBC file (neither a path nor in config/)")
         path = shipped
-    names = {d.dbc: m.type for d, m in registry.message_types() if m.wire == "can" and d.dbc}
+    names: dict[str, str] = {}
+    for d, m in registry.message_types():  # a device's first CAN type names its sample
+        if m.wire == "can" and d.dbc:
+            names.setdefault(d.dbc, m.type)
     return CanDeviceCodec(DbcCodec(path, sample_name=names.get(path.name)))

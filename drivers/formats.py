@@ -108,12 +108,16 @@ class Format:
 
 
 #: format name -> "module:attribute" of its :class:`Format` (from :mod:`auvgw.drivers.registry`)
-FORMATS: dict[str, str] = {d.format: d.codec for d in registry.DEVICES}
+#: (a device that only speaks CAN, such as the actuators, has no byte-stream format)
+FORMATS: dict[str, str] = {d.format: d.codec for d in registry.DEVICES if d.codec is not None}
 
 
 def get_format(name: str) -> Format:
     """The :class:`Format` called ``name`` (one of :data:`FORMATS`)."""
-    fmt: Format = registry.load(registry.device(name).codec)
+    codec = registry.device(name).codec
+    if codec is None:
+        raise KeyError(f"device {name!r} only speaks CAN (its DBC); no byte-stream format")
+    fmt: Format = registry.load(codec)
     return fmt
 
 

@@ -51,6 +51,8 @@ ROLES: dict[str, str] = {
     "swath": "one multibeam swath (per-beam xyz): bathymetric SLAM, Rerun point cloud",
     "field": "a magnetic flux density vector (nT): magnetic SLAM, Rerun field plot",
     "range": "a range (and bearing) to an acoustic beacon: magnetic SLAM's anchor",
+    "actuators": "measured shaft speed, fin angles, motor current and faults of the vehicle's "
+    "actuators (a closed loop's feedback)",
 }
 
 
@@ -98,7 +100,8 @@ class DeviceKind:
     """One device kind (one wire format).
 
     ``format``: the format name (gateway ``format``, ``auvgw decode --format``); ``codec``:
-    ``"module:attribute"`` of its :class:`~auvgw.drivers.formats.Format`; ``live``: a gateway
+    ``"module:attribute"`` of its :class:`~auvgw.drivers.formats.Format`, None for a device
+    that only speaks CAN (its ``dbc``; the gateway opens it as format ``can``); ``live``: a gateway
     device may speak it (False for file containers such as ``.V4LOG``); ``table``: the shipped
     table in ``config/`` a site may replace, loaded by ``table_codec`` (``"module:Class"`` with
     ``from_toml(path)``); ``dbc``: the shipped CAN database of the same device; ``options``: the
@@ -109,7 +112,7 @@ class DeviceKind:
     """
 
     format: str
-    codec: str
+    codec: str | None
     messages: tuple[MessageType, ...] = ()
     live: bool = True
     table: str | None = None
@@ -186,6 +189,15 @@ DEVICES: tuple[DeviceKind, ...] = (
         emulator=Emulator("acoustic", f"{_S}.acoustic:AcousticEmulator", default_on=False),
         protocol_doc="acoustic.md",
         messages=(MessageType("AcousticReply", roles=("range",)),),
+    ),
+    DeviceKind(
+        "actuators", None, live=False, dbc="actuators.dbc",
+        emulator=Emulator("actuators", f"{_S}.actuators:ActuatorEmulator", default_on=False),
+        protocol_doc="actuators.md",
+        messages=(
+            MessageType("ActuatorState", roles=("actuators",), wire="can"),
+            MessageType("ActuatorCommand", wire="can"),
+        ),
     ),
 )  # fmt: skip
 

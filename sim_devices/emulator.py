@@ -76,6 +76,7 @@ from auvgw.drivers import registry
 from auvgw.drivers.can_codec import CanFrame
 from auvgw.drivers.framing import ErrorPolicy, Framer
 from auvgw.sim_devices.clock import SimClock, Task, thread_cpu_s
+from auvgw.sim_devices.closedloop import ClosedLoopTruth
 from auvgw.sim_devices.faults import FaultInjector
 from auvgw.sim_devices.ports import PtyPort, UdpSender
 from auvgw.sim_devices.slcan import SlcanAdapter
@@ -111,11 +112,12 @@ class SimContext:
     """What every emulator of one run shares: the scenario, its world and ground truth, the one
     simulation clock, the folder of stable port symlinks, the UTC time of vehicle time 0
     (``epoch``, s) and the host UDP streams go to. ``truth.at(t)`` samples the ground truth
-    at any vehicle time (``sampler`` is the same object, kept for callers of that name)."""
+    at any vehicle time, precomputed or (closed loop) integrated online (``sampler`` is the
+    same object, kept for callers of that name)."""
 
     scenario: Scenario
     world: World
-    truth: Truth
+    truth: Truth | ClosedLoopTruth
     clock: SimClock
     port_dir: Path
     epoch: float = DEFAULT_EPOCH
@@ -127,7 +129,7 @@ class SimContext:
         self.truth.at(0.0)  # builds the sampling table now, not in the first tick of a run
 
     @property
-    def sampler(self) -> Truth:
+    def sampler(self) -> Truth | ClosedLoopTruth:
         """The ground truth (:meth:`Truth.at` at any vehicle time)."""
         return self.truth
 
@@ -537,7 +539,8 @@ class Emulator:
         if self._task is not None and not self._task.cancelled:
             return
         t0 = self.clock.now() if t0 is None else float(t0)
-        if self.prefetch > 0:
+        # a closed-loop truth is only known up to now: nothing is computed ahead of its tick
+        if self.prefetch > 0 and not isinstance(self.ctx.truth, ClosedLoopTruth):
             self._prefetcher = _Prefetcher(self.prepare, t0, self.period, self.prefetch, self.name)
         self._task = self.clock.every(self.period, self._tick, start=t0, name=self.name)
 

@@ -8,7 +8,8 @@ A :class:`FaultInjector` is driven by a device's
   garbage bytes before a frame, corrupted frames (one byte flipped), truncated frames;
 * time windows (vehicle seconds, ``[start, end)``): unplug/replug (:meth:`sync_port` drives a
   port), stalls (the device goes silent), bottom-lock loss (for the DVL), clock jumps
-  (:meth:`device_time`);
+  (:meth:`device_time`), jammed fins and a silent thruster (the actuators,
+  :meth:`actuator_faults`);
 * the VB paper's noise bursts: :meth:`sigma_multiplier` is ``sqrt(n)`` with probability ``p``
   (the covariance times ``n``), else 1.
 
@@ -184,6 +185,17 @@ class FaultInjector:
     def bottom_lock_lost(self, t: float) -> bool:
         """Whether a bottom-lock-loss window covers vehicle time ``t`` (DVL)."""
         return in_windows(self._settings.bottom_lock_loss, t)
+
+    def actuator_faults(self, t: float) -> frozenset[str]:
+        """The actuator fault windows covering vehicle time ``t``: ``rudder_jam``,
+        ``stern_jam``, ``thruster_silent`` (the actuators device)."""
+        s = self._settings
+        return frozenset(
+            k
+            for k, w in (("rudder_jam", s.rudder_jam), ("stern_jam", s.stern_jam),
+                         ("thruster_silent", s.thruster_silent))
+            if in_windows(w, t)
+        )  # fmt: skip
 
     def clock_offset(self, t: float) -> float:
         """Sum of the device clock jumps that happened by vehicle time ``t``, s."""

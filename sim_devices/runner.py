@@ -53,13 +53,14 @@ from auvgw.ground.closing import Closing
 from auvgw.ground.errors import format_validation_error
 from auvgw.ground.procs import stop_process
 from auvgw.sim_devices.clock import SimClock
+from auvgw.sim_devices.closedloop import ClosedLoopTruth
 from auvgw.sim_devices.emulator import (
     DEFAULT_EPOCH,
     Emulator,
     Endpoint,
     SimContext,
 )
-from auvgw.sim_devices.vehicle import TRUTH_FIELDS, TruthSample, simulate
+from auvgw.sim_devices.vehicle import TRUTH_FIELDS, Truth, TruthSample, simulate
 from auvgw.sim_devices.world import World
 
 __all__ = [
@@ -264,7 +265,11 @@ class Runner(Closing):
         self.options = options
         self.scenario = scenario
         self.world = World.from_scenario(scenario)
-        self.truth = simulate(scenario, self.world)
+        self.truth: Truth | ClosedLoopTruth = (
+            ClosedLoopTruth(scenario, self.world)
+            if scenario.vehicle.mode == "dynamics"
+            else simulate(scenario, self.world)
+        )
         self.clock = SimClock(options.speed)
         self.ctx = SimContext(
             scenario, self.world, self.truth, self.clock, options.out_dir / "ports",
@@ -630,6 +635,11 @@ class DeviceProcesses(Closing):
         self.options = options
         self.scenario_path = Path(scenario_path)
         self.scenario = load_scenario(self.scenario_path)
+        if self.scenario.vehicle.mode == "dynamics":
+            raise ValueError(
+                "vehicle.mode 'dynamics' runs every device in one process (the closed-loop "
+                "truth is integrated where the actuators are): leave out --processes"
+            )
         self.control = str(control) if control is not None else None
         # ground truth here (no device): the same world and trajectory as every child builds
         self.truth_runner = Runner(self.scenario, dataclasses.replace(options, devices=()))

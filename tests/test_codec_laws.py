@@ -28,7 +28,7 @@ from auvgw.drivers.spec import MESSAGE_TYPES, to_jsonable
 from auvgw.ground.paths import config_file
 from auvgw.testing.format_samples import stream_samples
 
-FORMATS = [d.format for d in registry.DEVICES]
+FORMATS = [d.format for d in registry.DEVICES if d.codec is not None]  # CAN-only: their DBC
 #: formats whose frames carry no checksum (a corrupted payload byte is still a valid frame):
 #: SeaNet packets end in LF, a .V4LOG record is length-prefixed
 NO_CHECKSUM = {"seanet": "SeaNet packets carry no checksum", "v4log": "V4LOG records neither"}

@@ -26,10 +26,11 @@ def test_derived_lists_are_the_registry() -> None:
                              "acoustic"]  # fmt: skip
     assert DEVICE_FORMATS == ("hn100", "pd0", "pd6", "seanet", "kongsberg", "ms3a", "acoustic",
                               "can")  # v4log is a file, not a device  # fmt: skip
-    order = ("ins", "dvl", "msis", "multibeam", "magnetometer", "acoustic")
+    order = ("ins", "dvl", "msis", "multibeam", "magnetometer", "acoustic", "actuators")
     assert order == DEVICE_ORDER and tuple(FACTORIES) == order
     assert tuple(Devices.model_fields) == order
     assert not Devices().acoustic.enabled and Devices().ins.enabled
+    assert not Devices().actuators.enabled  # a closed-loop scenario turns it on
     assert {"Hn100Nav", "HN100_Sample"} == INS_TYPES
     assert INS_TYPES | {"pd0.Ensemble", "pd6.SA"} == ATTITUDE_TYPES
     assert {"pd0.Ensemble", "pd6.BI", "pd6.BS", "pd6.BE"} == VELOCITY_TYPES
@@ -40,7 +41,12 @@ def test_every_record_resolves() -> None:
     from auvgw.ground.paths import config_file
 
     for d in registry.DEVICES:
-        assert get_format(d.format).name == d.format
+        if d.codec is None:  # a device that only speaks CAN: its DBC, no byte-stream format
+            assert d.dbc is not None and not d.live and all(m.wire == "can" for m in d.messages)
+            with pytest.raises(KeyError, match="only speaks CAN"):
+                get_format(d.format)
+        else:
+            assert get_format(d.format).name == d.format
         assert (ROOT / "docs" / "protocols" / d.protocol_doc).is_file(), d.format
         for name in (d.table, d.dbc):
             assert name is None or config_file(name).is_file(), (d.format, name)
@@ -81,7 +87,7 @@ def test_decode_help_lists_the_registered_formats() -> None:
                          capture_output=True, text=True, check=True).stdout  # fmt: skip
     choices = re.search(r"\{([a-z0-9,]+)\}", out)
     assert choices is not None and choices.group(1).split(",") == sorted(
-        d.format for d in registry.DEVICES
+        d.format for d in registry.DEVICES if d.codec is not None
     )
     assert "hn100/ms3a/acoustic" in out
 
@@ -89,7 +95,7 @@ def test_decode_help_lists_the_registered_formats() -> None:
 def test_sim_help_lists_the_emulators() -> None:
     out = subprocess.run([sys.executable, "-m", "auvgw", "sim", "--help"],
                          capture_output=True, text=True, check=True).stdout  # fmt: skip
-    assert "ins,dvl,msis,multibeam,magnetometer,acoustic" in "".join(out.split())
+    assert "ins,dvl,msis,multibeam,magnetometer,acoustic,actuators" in "".join(out.split())
 
 
 def test_gateway_checks_come_from_the_records(tmp_path: Path) -> None:
