@@ -244,7 +244,7 @@ class VizStage(Stage):
         from auvgw.drivers import registry
 
         for dev, m in registry.message_types():
-            if m.wire != "stream" or not set(m.roles) & set(_TYPED_ROLES):
+            if m.wire != "stream" or not set(m.roles) & set(_TYPED_ROLES) or dev.codec is None:
                 continue
             name = dev.codec.partition(":")[0]
             try:
