@@ -173,6 +173,7 @@ DEVICES: tuple[DeviceKind, ...] = (
     DeviceKind(
         "geoswath", f"{_D}.geoswath:FORMAT", table="geoswath.toml",
         table_codec=f"{_D}.geoswath:GeoSwathCodec",
+        emulator=Emulator("geoswath", f"{_S}.geoswath:GeoSwathEmulator", default_on=False),
         protocol_doc="geoswath.md",
         messages=(MessageType("GeoSwathPing"), MessageType("RdfFileHeader")),
     ),

@@ -26,10 +26,11 @@ def test_derived_lists_are_the_registry() -> None:
                              "ms3a", "acoustic"]  # fmt: skip
     assert DEVICE_FORMATS == ("hn100", "pd0", "pd6", "seanet", "kongsberg", "geoswath", "ms3a",
                               "acoustic", "can")  # v4log is a file, not a device  # fmt: skip
-    order = ("ins", "dvl", "msis", "multibeam", "magnetometer", "acoustic")
+    order = ("ins", "dvl", "msis", "multibeam", "geoswath", "magnetometer", "acoustic")
     assert order == DEVICE_ORDER and tuple(FACTORIES) == order
     assert tuple(Devices.model_fields) == order
     assert not Devices().acoustic.enabled and Devices().ins.enabled
+    assert not Devices().geoswath.enabled  # the Kongsberg multibeam is the default one
     assert {"Hn100Nav", "HN100_Sample"} == INS_TYPES
     assert INS_TYPES | {"pd0.Ensemble", "pd6.SA"} == ATTITUDE_TYPES
     assert {"pd0.Ensemble", "pd6.BI", "pd6.BS", "pd6.BE"} == VELOCITY_TYPES
@@ -89,7 +90,7 @@ def test_decode_help_lists_the_registered_formats() -> None:
 def test_sim_help_lists_the_emulators() -> None:
     out = subprocess.run([sys.executable, "-m", "auvgw", "sim", "--help"],
                          capture_output=True, text=True, check=True).stdout  # fmt: skip
-    assert "ins,dvl,msis,multibeam,magnetometer,acoustic" in "".join(out.split())
+    assert "ins,dvl,msis,multibeam,geoswath,magnetometer,acoustic" in "".join(out.split())
 
 
 def test_gateway_checks_come_from_the_records(tmp_path: Path) -> None:
