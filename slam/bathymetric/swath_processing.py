@@ -147,8 +147,9 @@ def ping_soundings(ping: GeoSwathPing, cfg: SwathProcessing) -> PingSoundings:
     along, across, depth = p[0], p[1], p[2]
     order = np.argsort(across, kind="stable")
     along, across, depth, ampk = along[order], across[order], depth[order], amp[keep][order]
-    if len(depth) and cfg.across_window > 1:  # step 4: the across-track running median
-        med = median_filter(depth, size=cfg.across_window, mode="nearest")
+    if len(depth) >= 3 and cfg.across_window > 1:  # step 4: the across-track running median
+        # (mirror: an end sounding counts once in its own window, never outvotes the rest)
+        med = median_filter(depth, size=cfg.across_window, mode="mirror")
         near = np.abs(depth - med) <= np.maximum(cfg.median_tol_m, cfg.median_tol_frac * med)
         dropped["median"] = int((~near).sum())
         along, across, depth, ampk = along[near], across[near], depth[near], ampk[near]
@@ -193,7 +194,9 @@ def bin_swath(
     nan = np.full(n, math.nan)
     if not len(depth):
         return nan, nan.copy(), nan.copy(), np.zeros(n, np.int64)
-    alt = np.nanmedian([p.altitude for p in pings])
+    alts = np.array([p.altitude for p in pings])
+    alts = alts[np.isfinite(alts)]
+    alt = float(np.median(alts)) if len(alts) else math.nan
     if not math.isfinite(alt) or alt <= 0:
         alt = float(np.median(depth))
     half = cfg.swath_factor / 2.0 * alt
