@@ -309,13 +309,15 @@ class GeoSwathCodec:
         return size + sum(int(header[s]) for s in lay.strings)
 
     def check_header(self, header: Mapping[str, Any]) -> str | None:
-        """Why the ping header cannot start a valid ping (a short reason), or None."""
+        """Why the ping header cannot start a valid ping (a short reason), or None. A ping
+        has at least one RAA sample (a header of zeros with a time read from the bytes before
+        it would otherwise pass in any run of zero bytes)."""
         lay = self.layout
         for name, count, _ in lay.arrays:
             n = int(header[count])
-            limit = lay.max_samples if name == "raa" else 255
-            if not 0 <= n <= limit:
-                return f"count {count} = {n} outside 0..{limit}"
+            lo, hi = (1, lay.max_samples) if name == "raa" else (0, 255)
+            if not lo <= n <= hi:
+                return f"count {count} = {n} outside {lo}..{hi}"
         for s in lay.strings:
             if not 0 <= int(header[s]) <= lay.max_string_size:
                 return f"size {s} = {header[s]} outside 0..{lay.max_string_size}"
@@ -345,7 +347,8 @@ class GeoSwathCodec:
         q = np.flatnonzero(view["side"] <= 1)  # the cheapest, most selective test first
         for name, count, _ in lay.arrays:
             c = view[count][q].astype(np.int64)
-            q = q[(c >= 0) & (c <= (lay.max_samples if name == "raa" else 255))]
+            lo, hi = (1, lay.max_samples) if name == "raa" else (0, 255)
+            q = q[(c >= lo) & (c <= hi)]
         for s in lay.strings:
             c = view[s][q].astype(np.int64)
             q = q[(c >= 0) & (c <= lay.max_string_size)]
