@@ -61,3 +61,17 @@ def test_stage_publishes_swaths_the_bathymetric_stage_takes(tmp_path: Path) -> N
         assert len(err) > 120 and float(np.percentile(np.abs(err), 95)) < 0.2
         bathy.feed("gs_swath", t_ns, msg)
     assert bathy.stats.swaths == 6  # taken as the multibeam's swaths (waiting for odometry)
+
+
+@pytest.mark.parametrize(
+    ("setting", "says"),
+    [("n_bins=0", "n_bins"), ("bins=141", "unexpected keyword argument 'bins'")],
+)
+def test_swath_command_refuses_a_bad_setting(setting: str, says: str) -> None:
+    import subprocess
+    import sys
+
+    res = subprocess.run([sys.executable, "-m", "auvgw", "swath", "--set", setting],
+                         capture_output=True, text=True, timeout=60)  # fmt: skip
+    assert res.returncode == 2 and res.stdout == ""
+    assert len(res.stderr.strip().splitlines()) == 1 and says in res.stderr, res.stderr
