@@ -686,6 +686,16 @@ class GeoSwathFramer(Framer):
         """End of stream: a record left incomplete is counted as truncated."""
         return self._scan(eof=True)
 
+    def expire(self, now: float, max_age_s: float) -> list[Frame]:
+        """As every framer's (:meth:`Framer.expire`): the record waiting longer than
+        ``max_age_s`` is dropped (``stale``), and the rest of it is the same refused stretch
+        (one bad frame, not two)."""
+        since = self._waiting_since
+        if self._waiting is None or since is None or now - since <= max_age_s:
+            return []
+        self._refusing = self._bad_since = True
+        return super().expire(now, max_age_s)
+
     def _scan(self, eof: bool) -> list[Frame]:
         out, self._pending = self._pending, []
         i, buf = 0, self._buf

@@ -328,3 +328,15 @@ def test_zero_runs_and_small_times_never_make_a_ping() -> None:
     ]  # fmt: skip
     fr, got = frame_all(b"".join(pings), file_mode=False, chunk=4096)
     assert got == pings and fr.stats.bad_frames == 0 and fr.stats.skipped_bytes == 0
+
+
+def test_a_partial_ping_expires_as_every_framer_s() -> None:
+    """The gateway's stale-partial rule (``expire``) works on this framer as on the others."""
+    _, pings = rdf_bytes(3)
+    fr = GeoSwathFramer(CODEC, file_mode=False)
+    assert fr.feed(pings[0][:200], now=10.0) == [] and fr.waiting_s == 10.0
+    assert fr.expire(10.5, 1.0) == []  # not old enough
+    assert fr.expire(12.0, 1.0) == [] and fr.stats.reasons["stale"] == 1
+    got = fr.feed(pings[1] + pings[2], now=12.5)
+    assert [f.data for f in got] == pings[1:] and fr.waiting_s is None
+    assert fr.stats.skipped_bytes == 200 and fr.stats.bad_frames == 1

@@ -4,6 +4,7 @@ long run whose numbers are in docs/results/geoswath/)."""
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,7 +19,7 @@ from auvgw.ground.paths import config_file
 from auvgw.sim_devices.clock import SimClock
 from auvgw.sim_devices.emulator import SimContext
 from auvgw.sim_devices.geoswath import GeoSwathEmulator
-from auvgw.sim_devices.vehicle import simulate
+from auvgw.sim_devices.vehicle import Truth, simulate
 from auvgw.sim_devices.world import World
 from auvgw.slam.bathymetric.swath_processing import SwathProcessing, SwathProcessor
 
@@ -38,14 +39,20 @@ class SurveyResult:
     dropped: dict[str, int]
 
 
+@functools.cache
+def _survey() -> tuple[Scenario, World, Truth]:
+    """config/scenarios/survey.json, its world and route (simulated once per process: 1.7 s)."""
+    scn = load_scenario(config_file("scenarios/survey.json"))
+    world = World.from_scenario(scn)
+    return scn, world, simulate(scn, world)
+
+
 def survey_context(tmp: Path, options: dict[str, Any] | None = None) -> GeoSwathEmulator:
     """The GeoSwath emulator on config/scenarios/survey.json (``options``: its device options)."""
-    scn = load_scenario(config_file("scenarios/survey.json"))
+    scn, world, truth = _survey()
     data = scn.model_dump()
     data["devices"]["geoswath"] = {"enabled": True, "options": options or {}}
-    scn = Scenario.model_validate(data)
-    world = World.from_scenario(scn)
-    ctx = SimContext(scn, world, simulate(scn, world), SimClock(0), tmp / "ports")
+    ctx = SimContext(Scenario.model_validate(data), world, truth, SimClock(0), tmp / "ports")
     return GeoSwathEmulator(ctx)
 
 
