@@ -1,4 +1,5 @@
-"""GeoSwath Plus ping codec cost per ping: encode, decode and framer + decode, in one run.
+"""GeoSwath Plus cost per ping: the codec (encode, decode, framer + decode) and the emulator and
+swath processing, in one run.
 
     .venv/bin/python benchmarks/bench_geoswath.py [--rounds 7] [--pings 200]
 
@@ -7,6 +8,12 @@ raw strings), built with the shipped table (``config/geoswath.toml``). Each oper
 over ``--pings`` pings in interleaved rounds; the median round is shown in microseconds per ping,
 with its ratio to the decode time of the same size (so machine load affects all alike), and the
 RAA sample rate the framer + decode path sustains (samples/s, one core).
+
+Second table: per ping of each model (125, 250, 500 kHz) over the flat 40 m seabed at 15 m
+altitude, the emulator's samples (``side_samples``: the terrain fan and the defects), the encode,
+and the swath processing (``ping_soundings``: range, angle, filters, geometry, across-track
+median; then ``SwathProcessor.add``, the binning of a 1 Hz swath amortised), with the
+processing's ratio to the decode of the same ping.
 """
 
 from __future__ import annotations
@@ -18,6 +25,9 @@ import time
 import numpy as np
 
 from auvgw.drivers.geoswath import GeoSwathFramer, GeoSwathPing, default_codec
+from auvgw.sim_devices.geoswath import MODELS, side_samples
+from auvgw.sim_devices.world import FlatTerrain, World
+from auvgw.slam.bathymetric.swath_processing import SwathProcessing, SwathProcessor, ping_soundings
 
 SIZES = (1000, 4000, 16000)
 
@@ -68,8 +78,8 @@ def main() -> None:
             fr = GeoSwathFramer(codec)
             got = 0
             for i in range(0, len(stream), 1 << 16):
-                for _, rec in fr.feed(stream[i : i + (1 << 16)]):
-                    codec.decode(rec)
+                for rec in fr.feed(stream[i : i + (1 << 16)]):
+                    codec.decode_ping(rec.data)
                     got += 1
             times["frm"].append(time.perf_counter() - t)
             assert got == len(pings) and fr.stats.bad_frames == 0
@@ -78,6 +88,51 @@ def main() -> None:
             f"| {n} | {us['enc']:.1f} | {us['dec']:.1f} | {us['frm']:.1f} | "
             f"{us['enc'] / us['dec']:.2f} | {us['frm'] / us['dec']:.2f} | "
             f"{n / us['frm']:.1f} |"
+        )
+    print()
+    print(
+        "| model kHz | samples | emulate us | encode us | decode us | soundings us "
+        "| processor us | processor/decode |"
+    )
+    print("|---|---|---|---|---|---|---|---|")
+    world = World(terrain=FlatTerrain(40.0), sound_speed=1500.0)
+    for freq, max_range in MODELS.items():
+        k_pings = max(args.pings // 10, 8)
+        cfg = SwathProcessing(frequency_hz=freq)
+        t_em: dict[str, list[float]] = {"emu": [], "enc": [], "dec": [], "snd": [], "proc": []}
+        for _ in range(args.rounds):
+            t = time.perf_counter()
+            raws = [side_samples(world, np.array([0.25 * k, 0.0, 25.0]), 0.0, 0.01, 0.02,
+                                 k % 2, freq, max_range, rng) for k in range(k_pings)]  # fmt: skip
+            t_em["emu"].append(time.perf_counter() - t)
+            t = time.perf_counter()
+            wire = [
+                codec.encode(codec.make_ping(
+                    {"ping_time": 1000.0 + 0.25 * k, "side": k % 2},
+                    {"raa": {"time": r.time, "sine": r.sine, "amplitude": r.amplitude},
+                     "nav": {"x": [0.0], "y": [0.25 * k], "z": [-25.0]}},
+                ))
+                for k, r in enumerate(raws)
+            ]  # fmt: skip
+            t_em["enc"].append(time.perf_counter() - t)
+            t = time.perf_counter()
+            decoded = [codec.decode_ping(w) for w in wire]
+            t_em["dec"].append(time.perf_counter() - t)
+            t = time.perf_counter()
+            for p in decoded:
+                ping_soundings(p, cfg)
+            t_em["snd"].append(time.perf_counter() - t)
+            proc = SwathProcessor(cfg)
+            t = time.perf_counter()
+            for p in decoded:
+                proc.add(p)
+            proc.flush()
+            t_em["proc"].append(time.perf_counter() - t)
+        us = {k: statistics.median(v) / k_pings * 1e6 for k, v in t_em.items()}
+        print(
+            f"| {freq // 1000} | {len(raws[0].time)} | {us['emu']:.0f} | {us['enc']:.0f} | "
+            f"{us['dec']:.0f} | {us['snd']:.0f} | {us['proc']:.0f} | "
+            f"{us['proc'] / us['dec']:.1f} |"
         )
 
 

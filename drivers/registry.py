@@ -174,6 +174,13 @@ DEVICES: tuple[DeviceKind, ...] = (
         messages=(MessageType("XYZ88", roles=("swath",)), MessageType("Depth", roles=("swath",))),
     ),
     DeviceKind(
+        "geoswath", f"{_D}.geoswath:FORMAT", table="geoswath.toml",
+        table_codec=f"{_D}.geoswath:GeoSwathCodec",
+        emulator=Emulator("geoswath", f"{_S}.geoswath:GeoSwathEmulator", default_on=False),
+        protocol_doc="geoswath.md",
+        messages=(MessageType("GeoSwathPing"), MessageType("RdfFileHeader")),
+    ),
+    DeviceKind(
         "ms3a", f"{_D}.ms3a:FORMAT", table="ms3a.toml", table_codec=f"{_D}.ms3a:Ms3aCodec",
         dbc="ms3a.dbc",
         emulator=Emulator("magnetometer", f"{_S}.magnetometer:MagnetometerEmulator"),

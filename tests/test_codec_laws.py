@@ -30,8 +30,10 @@ from auvgw.testing.format_samples import stream_samples
 
 FORMATS = [d.format for d in registry.DEVICES if d.codec is not None]  # CAN-only: their DBC
 #: formats whose frames carry no checksum (a corrupted payload byte is still a valid frame):
-#: SeaNet packets end in LF, a .V4LOG record is length-prefixed
-NO_CHECKSUM = {"seanet": "SeaNet packets carry no checksum", "v4log": "V4LOG records neither"}
+#: SeaNet packets end in LF, a .V4LOG record is length-prefixed, a GeoSwath ping is judged by
+#: its header's self-consistency
+NO_CHECKSUM = {"seanet": "SeaNet packets carry no checksum", "v4log": "V4LOG records neither",
+               "geoswath": "GeoSwath pings have neither sync nor checksum"}
 
 
 @pytest.fixture

@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+from collections.abc import Mapping
 
 import msgspec
 import numpy as np
@@ -47,6 +48,10 @@ def _same(a, b, where: str) -> None:
         assert type(a) is type(b) and len(a) == len(b), where
         for i, (x, y) in enumerate(zip(a, b, strict=True)):
             _same(x, y, f"{where}[{i}]")
+    elif isinstance(a, Mapping):  # (GeoSwathPing: header fields, arrays of columns)
+        assert type(a) is type(b) and list(a) == list(b), where
+        for k in a:
+            _same(a[k], b[k], f"{where}[{k!r}]")
     else:
         assert type(a) is type(b) and a == b, f"{where}: {a!r} != {b!r}"
 

@@ -22,14 +22,16 @@ def test_derived_lists_are_the_registry() -> None:
     from auvgw.fusion.adapters import ATTITUDE_TYPES, INS_TYPES, VELOCITY_TYPES
     from auvgw.sim_devices.runner import DEVICE_ORDER, FACTORIES
 
-    assert list(FORMATS) == ["hn100", "pd0", "pd6", "seanet", "v4log", "kongsberg", "ms3a",
-                             "acoustic"]  # fmt: skip
-    assert DEVICE_FORMATS == ("hn100", "pd0", "pd6", "seanet", "kongsberg", "ms3a", "acoustic",
-                              "can")  # v4log is a file, not a device  # fmt: skip
-    order = ("ins", "dvl", "msis", "multibeam", "magnetometer", "acoustic", "actuators")
+    assert list(FORMATS) == ["hn100", "pd0", "pd6", "seanet", "v4log", "kongsberg", "geoswath",
+                             "ms3a", "acoustic"]  # fmt: skip
+    assert DEVICE_FORMATS == ("hn100", "pd0", "pd6", "seanet", "kongsberg", "geoswath", "ms3a",
+                              "acoustic", "can")  # v4log is a file, not a device  # fmt: skip
+    order = ("ins", "dvl", "msis", "multibeam", "geoswath", "magnetometer", "acoustic",
+             "actuators")  # fmt: skip
     assert order == DEVICE_ORDER and tuple(FACTORIES) == order
     assert tuple(Devices.model_fields) == order
     assert not Devices().acoustic.enabled and Devices().ins.enabled
+    assert not Devices().geoswath.enabled  # the Kongsberg multibeam is the default one
     assert not Devices().actuators.enabled  # a closed-loop scenario turns it on
     assert {"Hn100Nav", "HN100_Sample"} == INS_TYPES
     assert INS_TYPES | {"pd0.Ensemble", "pd6.SA"} == ATTITUDE_TYPES
@@ -89,13 +91,13 @@ def test_decode_help_lists_the_registered_formats() -> None:
     assert choices is not None and choices.group(1).split(",") == sorted(
         d.format for d in registry.DEVICES if d.codec is not None
     )
-    assert "hn100/ms3a/acoustic" in out
+    assert "hn100/geoswath/ms3a/acoustic" in out
 
 
 def test_sim_help_lists_the_emulators() -> None:
     out = subprocess.run([sys.executable, "-m", "auvgw", "sim", "--help"],
                          capture_output=True, text=True, check=True).stdout  # fmt: skip
-    assert "ins,dvl,msis,multibeam,magnetometer,acoustic,actuators" in "".join(out.split())
+    assert "ins,dvl,msis,multibeam,geoswath,magnetometer,acoustic,actuators" in "".join(out.split())
 
 
 def test_gateway_checks_come_from_the_records(tmp_path: Path) -> None:
@@ -109,8 +111,8 @@ def test_gateway_checks_come_from_the_records(tmp_path: Path) -> None:
     site.write_text((ROOT / "config" / "acoustic.toml").read_text())
     dec = make_decoders(parse_gateway_config(cfg(format="acoustic", table=str(site))))["d"]
     assert dec.format is not None and f"[table {site}]" in dec.format.summary
-    with pytest.raises(ConfigError, match=r"'table' only applies to formats 'hn100', 'ms3a', "
-                                          r"'acoustic', not 'pd0'"):  # fmt: skip
+    with pytest.raises(ConfigError, match=r"'table' only applies to formats 'hn100', 'geoswath', "
+                                          r"'ms3a', 'acoustic', not 'pd0'"):  # fmt: skip
         parse_gateway_config(cfg(format="pd0", table="x.toml"))
     with pytest.raises(ConfigError, match=r"'msis' only applies to format 'seanet', not 'ms3a'"):
         parse_gateway_config(cfg(format="ms3a", msis={}))

@@ -42,6 +42,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
     ),
     "slam": ("auvgw.commands.slam", "SLAM tools: evaluation, and the SLAM stage (slam run)"),
     "slam-run": ("auvgw.commands.slam_run", "run the SLAM stage (same as 'slam run')"),
+    "swath": (
+        "auvgw.commands.swath",
+        "GeoSwath raw pings -> swaths (XYZ 88) for the bathymetric SLAM, on the bus",
+    ),
     "ros2": (
         "auvgw.commands.ros2",
         "the vehicle on ROS 2 (rmw_zenoh): bridge, list the graph, echo a topic",

@@ -78,6 +78,13 @@ def register(sub: Any) -> None:
     p.add_argument("--no-viz", action="store_true", help="no Rerun recording")
     p.add_argument("--no-slam", action="store_true", help="no SLAM stage")
     p.add_argument(
+        "--multibeam",
+        choices=("kongsberg", "geoswath"),
+        default="kongsberg",
+        help="a survey's multibeam: Kongsberg XYZ 88 swaths (default) or GeoSwath raw pings, "
+        "processed into swaths by the swath stage (auvgw.stages.swath) for the bathymetric SLAM",
+    )
+    p.add_argument(
         "--processes",
         action="store_true",
         help="sim, gateway, fusion and SLAM each in its own OS process (this one only collects)",
@@ -103,10 +110,11 @@ def _scenario_path(name: str) -> Path:
     return shipped
 
 
-def _demo_scenario(src: Path, out: Path) -> Path:
+def _demo_scenario(src: Path, out: Path, multibeam: str = "kongsberg") -> Path:
     """The scenario with the INS on serial only: python-can's slcan reader handles ~1400 CAN
     frames/s here, and the HN-100's 800 frames/s x speed would overrun it (the CAN form of the
-    INS is exercised by the tests; the magnetometer keeps its CAN form)."""
+    INS is exercised by the tests; the magnetometer keeps its CAN form). ``multibeam``
+    "geoswath": the GeoSwath emulator replaces a multibeam the scenario has on."""
     try:
         scn = load_scenario(src)
     except ScenarioError as exc:
@@ -115,6 +123,9 @@ def _demo_scenario(src: Path, out: Path) -> Path:
     devices = data.setdefault("devices", {})
     ins = devices.setdefault("ins", {})
     ins.setdefault("options", {})["can"] = False
+    if multibeam == "geoswath" and scn.devices.multibeam.enabled:
+        devices["multibeam"] = {**devices.get("multibeam", {}), "enabled": False}
+        devices["geoswath"] = {**devices.get("geoswath", {}), "enabled": True}
     # relative file references stay valid: resolve them against the original scenario
     for section, key in (("features", "points_file"), ("vehicle", "waypoints_file")):
         ref = data.get(section, {}).get(key)
@@ -231,7 +242,7 @@ def run(args: argparse.Namespace) -> int:
     sim_dir = out / "sim"
     for stale in (sim_dir / "gateway.toml", sim_dir / "truth.jsonl", sim_dir / "finished"):
         stale.unlink(missing_ok=True)
-    scenario = _demo_scenario(_scenario_path(args.scenario), out)
+    scenario = _demo_scenario(_scenario_path(args.scenario), out, args.multibeam)
     rrd = None if args.no_viz else (args.rrd or out / "demo.rrd")
     speed = float(args.speed)
     if speed <= 0:
@@ -372,6 +383,20 @@ def _run_stages(
     if slam is not None:
         slam.start(subscribe=False)
 
+    def on_swath(key: str, payload: bytes, t_ns: int) -> None:
+        from auvgw.subscribe import envelope_message
+
+        env = decode_envelope(payload, key)
+        if slam is not None:
+            slam.post(env.device, t_ns, envelope_message(env))
+        if viz is not None:
+            viz.stage.handle_sample(key, payload, t_ns)
+
+    # GeoSwath raw pings -> swaths (XYZ 88 on auv/<v>/sensor/<device>_swath/xyz88) -> SLAM
+    swath = _swath_stage(gw_cfg, scn, session, on_swath)
+    if swath is not None:
+        swath.start(subscribe=False)
+
     def on_odometry(o: Any) -> None:
         with lock:
             dead_reckoning.add(o.t - epoch_s, o.x, o.y)
@@ -429,7 +454,7 @@ def _run_stages(
 
     tail = _TruthTail(sim_dir / "truth.jsonl", on_truth)
     gateway = Gateway(gw_cfg, session=session)
-    for listener in (to_fusion, slam and slam.post, viz and viz.on_message):
+    for listener in (to_fusion, slam and slam.post, swath and swath.post, viz and viz.on_message):
         if listener:
             gateway.listeners.subscribe(listener)
     if viz is not None:
@@ -455,6 +480,10 @@ def _run_stages(
         if fusion_box:
             fusion_box[0].stop(flush=True)
             fusion_counters = fusion_box[0].counters()
+        swath_counters = None
+        if swath is not None:  # its last swaths reach the SLAM stage before that stops
+            swath.stop(flush=True)
+            swath_counters = swath.counters()
         slam_counters = None
         if slam is not None:
             slam.stop(flush=True)
@@ -468,6 +497,7 @@ def _run_stages(
         dead_reckoning, slam_track, truth, rrd, time.monotonic() - t_start, speed,
         {"ins_time_span_s": ins_span[1] - ins_span[0] if ins_span else 0.0,
          "dvl_time_span_s": dvl_span[1] - dvl_span[0] if dvl_span else 0.0,
+         **({"swath": swath_counters} if swath_counters is not None else {}),
          **_bathy_map_summary(bathy_map, scn)},
     )  # fmt: skip
     return 0
@@ -694,7 +724,16 @@ def _run_processes(
         wanted = {"fusion", "gateway", "ins", "dvl"}
         bathy = not args.no_slam and _bathymetric_scenario(scn)
         magnetic = not args.no_slam and _is_magnetic(scn)
-        if bathy:
+        if bathy and scn.devices.geoswath.enabled:  # its pings -> the swath stage -> SLAM
+            slam_cfg = _bathy_config(VEHICLE, "geoswath_swath")
+            khz = float(scn.devices.geoswath.options.get("model_khz", 250))
+            children.start("swath", ["swath", "--vehicle", VEHICLE, "--device", "geoswath",
+                                     "--set", f"frequency_hz={khz * 1000.0}",
+                                     "--connect", hub, "--listen", free_endpoint()])  # fmt: skip
+            children.start("slam", _bathy_argv(slam_cfg, hub))
+            slam_part = (BATHY_NAME, "slam-bathymetric")
+            wanted |= {"geoswath", "swath", slam_part[1]}
+        elif bathy:
             slam_cfg = _bathy_config(VEHICLE, "multibeam")
             children.start("slam", _bathy_argv(slam_cfg, hub))
             slam_part = (BATHY_NAME, "slam-bathymetric")
@@ -760,7 +799,7 @@ def _run_processes(
                                   (sub.status(timeout=2.0) or {"devices": {}})["devices"].values()),
                       quiet_s=1.5)  # fmt: skip
         status = sub.status(timeout=2.0) or collector.status.get("gateway") or {"devices": {}}
-        for name in ("gateway", "fusion"):
+        for name in ("gateway", "fusion", "swath"):  # (swath, if any: flushes its last swaths)
             children.stop(name)
         if slam_part is not None:
             _wait_drained(partial(collector.received, slam_part[1]), quiet_s=2.5, limit_s=20.0)
@@ -912,7 +951,7 @@ def _bathymetric_scenario(scn: Any) -> bool:
     """A survey: multibeam on, no point or line features and no magnetic beacons to map, so the
     demo's SLAM is the bathymetric pipeline."""
     return bool(
-        scn.devices.multibeam.enabled
+        (scn.devices.multibeam.enabled or scn.devices.geoswath.enabled)
         and not len(scn.point_features())
         and not scn.features.lines
         and not getattr(scn, "magnetic_beacons", None)
@@ -928,13 +967,36 @@ def _bathy_config(vehicle: str, multibeam: str | None) -> Any:
     )  # fmt: skip
 
 
+def _geoswath_device(gw_cfg: Any) -> str | None:
+    """The gateway's GeoSwath device, if any."""
+    gs = [n for n, d in gw_cfg.devices.items() if d.format == "geoswath" and d.enabled]
+    return gs[0] if gs else None
+
+
 def _bathy_stage(gw_cfg: Any, session: Any, on_publish: Any) -> Any:
-    """The in-process bathymetric stage on the gateway's Kongsberg device."""
+    """The in-process bathymetric stage on the gateway's Kongsberg device (or the swaths the
+    swath stage makes of its GeoSwath device's pings)."""
     from auvgw.stages.bathymetric import BathymetricStage
 
     mb = [n for n, d in gw_cfg.devices.items() if d.format == "kongsberg" and d.enabled]
-    cfg = _bathy_config(gw_cfg.vehicle, mb[0] if mb else None)
+    gs = _geoswath_device(gw_cfg)
+    device = mb[0] if mb else f"{gs}_swath" if gs else None
+    cfg = _bathy_config(gw_cfg.vehicle, device)
     return BathymetricStage(cfg, session=session, on_publish=on_publish)
+
+
+def _swath_stage(gw_cfg: Any, scn: Any, session: Any, on_publish: Any) -> Any:
+    """The in-process swath stage on the gateway's GeoSwath device (None: none), processing
+    at the frequency of the scenario's GeoSwath model."""
+    from auvgw.stages.swath import SwathStage, SwathStageConfig
+
+    device = _geoswath_device(gw_cfg)
+    if device is None:
+        return None
+    khz = float(scn.devices.geoswath.options.get("model_khz", 250))
+    cfg = SwathStageConfig(vehicle=gw_cfg.vehicle, device=device,
+                           processing={"frequency_hz": khz * 1000.0})  # fmt: skip
+    return SwathStage(cfg, session=session, on_publish=on_publish)
 
 
 def _bathy_argv(cfg: Any, hub: str) -> list[str]:

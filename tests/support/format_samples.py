@@ -19,7 +19,7 @@ from auvgw.drivers import seanet as sn
 from auvgw.drivers.seanet import v4log as v4
 from auvgw.testing import pd0_frames
 
-STREAM_FORMATS = ("pd0", "pd6", "seanet", "kongsberg", "hn100", "ms3a", "acoustic")
+STREAM_FORMATS = ("pd0", "pd6", "seanet", "kongsberg", "geoswath", "hn100", "ms3a", "acoustic")
 
 #: device time of the samples, s since the Unix epoch (2023-11-14 22:13:20 UTC)
 T0 = 1_700_000_000.0
@@ -252,6 +252,37 @@ def sample_items() -> list[tuple[float, sn.SeaNetMessage]]:
     ]
 
 
+# -- GeoSwath Plus pings -----------------------------------------------------------------------
+
+
+def geoswath_frames(n: int = 4) -> list[bytes]:
+    """Broadcast pings, sides alternating, 0.25 s apart: RAA samples, MRU, NAV, GYRO, MINISVS,
+    AUXDATA records and raw strings (the shipped table)."""
+    from auvgw.drivers.geoswath import default_codec
+
+    codec = default_codec()
+    rng = np.random.default_rng(31)
+    out = []
+    for k in range(n):
+        m = 40 + 17 * k
+        raa = {"time": np.arange(m) * 3 + 50, "sine": rng.integers(-30000, 30000, m),
+               "amplitude": rng.integers(0, 4000, m)}  # fmt: skip
+        arrays = {
+            "raa": raa,
+            "mru": {"roll": [1.5, 1.25], "pitch": [-0.5, -0.25], "time_stamp": [T0 + k, T0 + k]},
+            "nav": {"x": [500123.25 + k], "y": [6201234.5], "quality": [4], "time": [T0 + k]},
+            "gyro": {"heading": [123.5], "time_stamp": [T0 + k]},
+            "minisvs": {"velocity": [1493.5], "time_stamp": [T0 + k]},
+            "aux1": {"type": [k], "spare": [[1, 2, 3]], "value": [0.5 * k]},
+        }
+        strings = [b"$GPGGA,1*00\r\n" * (k % 2), b"", b"$HEHDT,123.5,T*00\r\n", b"", b"", b"", b""]
+        header = {"ping_number": k, "ping_time": T0 + 0.25 * k, "side": k % 2,
+                  "previous_ping_position": -1, "ping_length": 400,
+                  "sample_interval": 12}  # fmt: skip
+        out.append(codec.encode(codec.make_ping(header, arrays, strings)))
+    return out
+
+
 # -- every format ------------------------------------------------------------------------------
 
 
@@ -263,6 +294,8 @@ def samples(fmt: str, shared_data: Path) -> list[bytes]:
         return [sn.encode(m) for m in sample_messages()]
     if fmt == "kongsberg":
         return list(KONGSBERG_FRAMES)
+    if fmt == "geoswath":
+        return geoswath_frames()
     if fmt == "hn100":
         return hn100_frames(8)
     if fmt == "ms3a":
