@@ -130,9 +130,9 @@ def side_samples(
     cos_inc = np.abs(-gx * dirs[0] - gy * dirs[1] + dirs[2]) / np.sqrt(gx * gx + gy * gy + 1.0)
     amp = AMPLITUDE_SCALE * (cos_inc**2 + 0.05)
     # the interferometer's angle noise: towards nadir, at long range
-    sig = math.radians(nz["angle_deg"]) * noise_scale
-    sig = sig * (1.0 + nz["nadir_k"] / np.maximum(np.sin(a), 0.05))
-    sig = sig * (1.0 + nz["range_k"] * (r / max_range_m) ** 2)
+    sig = (math.radians(nz["angle_deg"]) * noise_scale
+           * (1.0 + nz["nadir_k"] / np.maximum(np.sin(a), 0.05))
+           * (1.0 + nz["range_k"] * (r / max_range_m) ** 2))  # fmt: skip
     meas = a + rng.normal(0.0, 1.0, n) * sig
     gap = math.radians(nadir_gap_deg)
     in_gap = bottom & (a < gap)
