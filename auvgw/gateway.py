@@ -19,6 +19,8 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+import os
+import socket
 import threading
 import time
 from collections import Counter
@@ -50,13 +52,18 @@ from auvgw.drivers.transports import (
     make_transport,
 )
 from auvgw.envelope import pack_envelope
+from auvgw.ground.errors import UserError
 from auvgw.health import Backoff, DeviceHealth, device_time_s
 from auvgw.hostdrivers import HostDriver, make_host_driver
 from auvgw.notify import Notifier
 
 log = logging.getLogger(__name__)
 
-__all__ = ["READ_TIMEOUT_S", "Gateway"]
+__all__ = ["CLAIM_TIMEOUT_S", "READ_TIMEOUT_S", "Gateway", "GatewayRunning"]
+
+#: how long a starting gateway asks the bus for another gateway of its vehicle, and then for
+#: that one's status (s; a lone peer's liveliness get returns at once)
+CLAIM_TIMEOUT_S = 2.0
 
 #: how long a reader waits for data before checking for stop and calling the host driver (s)
 READ_TIMEOUT_S = 0.05
@@ -69,6 +76,28 @@ SETTLE_S = 0.002
 #: and once the line is quiet)
 FRAMING_PERIOD_S = 0.05
 _DROP = zenoh.CongestionControl.DROP
+_HOST = socket.gethostname()
+
+
+class GatewayRunning(UserError):
+    """Another gateway already serves this vehicle on the bus (its ``auv/<v>/alive/gateway``
+    token is there); the message names it (host, pid, Zenoh id). ``auvgw run`` exits 2."""
+
+
+def _describe_holder(vehicle: str, status: dict[str, Any] | None) -> str:
+    """The one line of :class:`GatewayRunning`, from the running gateway's status (or None)."""
+    head = f"vehicle {vehicle!r} already has a gateway on this bus"
+    if status is None:
+        return (
+            f"{head} (its liveliness token auv/{vehicle}/alive/gateway is there; it did not "
+            "answer a status query, so its host and pid are unknown); one gateway per vehicle: "
+            "stop it first"
+        )
+    zid = (status.get("bus") or {}).get("zid", "?")
+    return (
+        f"{head}: pid {status.get('pid', '?')} on host {status.get('host', '?')} (Zenoh id "
+        f"{zid}, up {status.get('uptime_s', '?')} s); one gateway per vehicle: stop it first"
+    )
 
 
 @dataclass
@@ -144,16 +173,39 @@ class Gateway:
         self._threads: list[threading.Thread] = []
         self._decls: list[Any] = []
         self._status_pubs: dict[str, zenoh.Publisher] = {}
+        self._alone = False  # check_alone found no other gateway of this vehicle
         self._started = False
         self._stopped = False
         self._ended_lock = threading.Lock()
         self._ended = 0
 
     # -- lifecycle --------------------------------------------------------------------------
+    def check_alone(self, timeout_s: float = CLAIM_TIMEOUT_S) -> None:
+        """Raise :class:`GatewayRunning` (naming its host and pid, from its status queryable)
+        when another gateway of this vehicle holds ``auv/<v>/alive/gateway`` on the bus. Done
+        before any port is opened (by :meth:`start`, or earlier by the caller): a second
+        gateway on one vehicle would share its SLCAN adapters and close their channels on exit.
+        Two gateways started within the same instant can both pass (docs/reliability.md)."""
+        if self._alone:
+            return
+        key = self.keys.alive("gateway")
+        if not any(r.ok is not None for r in self.session.liveliness().get(key, timeout=timeout_s)):
+            self._alone = True
+            return
+        status = None
+        for reply in self.session.get(self.keys.status("gateway"), timeout=timeout_s):
+            if reply.ok is not None:
+                with contextlib.suppress(ValueError):
+                    status = json.loads(reply.ok.payload.to_bytes())
+                break
+        raise GatewayRunning(_describe_holder(self.cfg.vehicle, status))
+
     def start(self) -> None:
-        """Declare tokens, queryables and publishers, then start a reader thread per device."""
+        """Check that no other gateway serves this vehicle (:meth:`check_alone`), declare
+        tokens, queryables and publishers, then start a reader thread per device."""
         if self._started:
             return
+        self.check_alone()
         self._started = True
         s = self.session
         self._decls.append(s.liveliness().declare_token(self.keys.alive("gateway")))
@@ -194,6 +246,10 @@ class Gateway:
             return
         self._stopped = True
         self.stop_event.set()
+        if not self._started:  # refused or never started: only the session to close
+            if self._own_session:
+                self.session.close()
+            return
         for t in self._threads:
             t.join(timeout_s)
             if t.is_alive():
@@ -234,6 +290,8 @@ class Gateway:
         return {
             "v": SCHEMA_VERSION,
             "vehicle": self.cfg.vehicle,
+            "host": _HOST,
+            "pid": os.getpid(),
             "t_ns": now,
             "t_stamp_ns": self._stamp(now),
             "uptime_s": round((now - self._t0_ns) / 1e9, 3),
