@@ -17,13 +17,15 @@ gateway. Behaviour and payloads are documented in docs/gateway.md and docs/bus.m
 from __future__ import annotations
 
 import contextlib
+import itertools
 import json
 import logging
 import os
 import socket
+import statistics
 import threading
 import time
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -77,6 +79,10 @@ SETTLE_S = 0.002
 FRAMING_PERIOD_S = 0.05
 _DROP = zenoh.CongestionControl.DROP
 _HOST = socket.gethostname()
+#: reads that brought frames, kept per device to learn its period (the median interval)
+PERIOD_READS = 33
+#: a silent device reopened again and again without a frame waits this many times longer at most
+MAX_SILENT_BACKOFF = 16
 
 
 class GatewayRunning(UserError):
@@ -121,6 +127,10 @@ class _Device:
     reported_rejected: int = 0
     losses_before: Counter[str] = field(default_factory=Counter)  # earlier connections' losses
     reported_lost: int = 0
+    #: host monotonic s of the last reads that brought frames (all connections): the period
+    frame_reads: deque[float] = field(default_factory=lambda: deque(maxlen=PERIOD_READS))
+    silent_reopens: int = 0  # reopens in a row that brought no frame
+    reopen_now: bool = False  # the last connection was closed for silence: reopen at once
 
 
 class Gateway:
@@ -507,10 +517,48 @@ class Gateway:
             total.update(now)  # (not +: that drops the zero counters)
             dev.health.set_transport_losses(total)
 
+    @staticmethod
+    def silence_limit(dev: _Device) -> float | None:
+        """Host seconds without a frame after which an open device is closed and reopened
+        (None: never): ``reopen_silent_periods`` times its period (``expected_period_s``, or the
+        median interval of its recent frame-bearing reads), at least ``stale_after_s`` (the
+        device is reported stale first), doubled for each reopen in a row that brought no
+        frame (up to :data:`MAX_SILENT_BACKOFF` times). Never for a file replay."""
+        cfg = dev.cfg
+        period = cfg.expected_period_s
+        if period is None and len(dev.frame_reads) >= 3:
+            period = statistics.median(b - a for a, b in itertools.pairwise(dev.frame_reads))
+        if not cfg.reopen_silent_periods or period is None or cfg.transport.kind == "file":
+            return None  # (a file replayed again would repeat its data)
+        limit = max(cfg.reopen_silent_periods * period, cfg.stale_after_s)
+        return limit * min(2**dev.silent_reopens, MAX_SILENT_BACKOFF)
+
+    def _silent(self, dev: _Device, since: float | None, now: float) -> bool:
+        """Whether the open device has been silent too long (``since``: host monotonic s of
+        its last frame on this connection, or of the open after a silent reopen; None: it has
+        not sent on this connection, so it is not judged)."""
+        if since is None:
+            return False
+        limit = self.silence_limit(dev)
+        if limit is None or now - since <= limit:
+            return False
+        reason = (
+            f"no frame for {now - since:.1f} s while open (limit {limit:.2f} s: "
+            f"reopen_silent_periods); closing and reopening"
+        )
+        dev.health.set_reopening(reason)
+        dev.silent_reopens += 1
+        dev.reopen_now = True
+        log.warning("%s: %s", dev.name, reason)
+        return True
+
     def _serve(self, dev: _Device, transport: Transport) -> bool:
-        """Read one connection until it drops or stop; True when a finite source has ended."""
+        """Read one connection until it drops, stays silent too long (:meth:`silence_limit`),
+        or stop; True when a finite source has ended."""
         host = make_host_driver(dev.cfg)
         token = None
+        # judged silent from its last frame; from the open only after a silent reopen
+        last_frame = time.monotonic() if dev.silent_reopens else None
         try:
             token = self.session.liveliness().declare_token(self.keys.alive(dev.name))
             if host is not None:
@@ -530,6 +578,9 @@ class Gateway:
                     self._handle_frames(dev, frames, chunk.t_recv_ns, transport, host)
                     dev.framed = True
                     now = time.monotonic()
+                    if frames:
+                        dev.frame_reads.append(now)
+                        last_frame, dev.silent_reopens = now, 0
                     if dev.deferred:
                         if now - dev.deferred_since >= SETTLE_S:
                             self._settle(dev, transport)
@@ -539,6 +590,8 @@ class Gateway:
                     self._settle(dev, transport)
                 elif dev.framed:
                     self._update_framing(dev)
+                elif self._silent(dev, last_frame, time.monotonic()):
+                    break
                 self._update_rejected(dev, transport)
                 if (now := time.monotonic()) >= next_loss_poll:
                     next_loss_poll = now + LOSS_POLL_S
@@ -618,6 +671,9 @@ class Gateway:
                     if self._ended == len(self.devices):
                         self.finished.set()
                 return
+            if dev.reopen_now:  # closed for silence: reopen at once
+                dev.reopen_now = False
+                continue
             if not self.stop_event.is_set():
                 delay = backoff.next_delay()
                 dev.health.set_retry(delay)
