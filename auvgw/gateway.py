@@ -195,7 +195,7 @@ class Gateway:
         when another gateway of this vehicle holds ``auv/<v>/alive/gateway`` on the bus. Done
         before any port is opened (by :meth:`start`, or earlier by the caller): a second
         gateway on one vehicle would share its SLCAN adapters and close their channels on exit.
-        Two gateways started within the same instant can both pass (docs/reliability.md)."""
+        Two gateways started within the same instant can both pass (docs/gateway.md)."""
         if self._alone:
             return
         key = self.keys.alive("gateway")
