@@ -56,7 +56,7 @@ def test_an_slcan_adapter_held_by_another_process_is_refused_naming_the_holder(a
     )
     try:
         assert holder.stdout is not None and holder.stdout.readline().startswith("READY")
-        assert adapter.is_open
+        wait_until(lambda: adapter.is_open, 10, what="the holder opened the channel")
         commands = adapter.stats.commands
         assert lock_holder(adapter.device) is not None
         assert lock_holder(adapter.device).startswith(f"pid {holder.pid} (")
