@@ -12,7 +12,6 @@ import pytest
 
 from auvgw.config.bus import BusConfig
 from auvgw.drivers.can_codec import ms3a_can
-from auvgw.sim_devices.slcan import SlcanAdapter
 from auvgw.subscribe import GatewaySubscriber
 from auvgw.testing import (
     endpoint,
@@ -28,13 +27,8 @@ FIRST_AFTER = 1000  # counter of the first sample after the replug (a visible ju
 
 
 @pytest.fixture
-def adapter(tmp_path):
-    # speed=0: frames go to the host as soon as written (no bus-time pacing)
-    a = SlcanAdapter("mag_can", speed=0, link=tmp_path / "mag_can")
-    try:
-        yield a
-    finally:
-        a.close()
+def adapter(slcan_adapter):
+    return slcan_adapter
 
 
 def sample_frames(codec, counter: int) -> list[can.Message]:

@@ -14,7 +14,6 @@ import pytest
 
 from auvgw.drivers.portlock import PortLock, PortLockedError, lock_holder
 from auvgw.drivers.transports import TransportOpenError, open_transport
-from auvgw.sim_devices.slcan import SlcanAdapter
 from auvgw.testing import PYTHON, wait_until
 
 HOLDER = """
@@ -39,12 +38,8 @@ def _slcan(path: str) -> dict:
 
 
 @pytest.fixture
-def adapter(tmp_path):
-    a = SlcanAdapter("lock", speed=0, link=tmp_path / "can0")
-    try:
-        yield a
-    finally:
-        a.close()
+def adapter(slcan_adapter):
+    return slcan_adapter
 
 
 def test_an_slcan_adapter_held_by_another_process_is_refused_naming_the_holder(adapter):
