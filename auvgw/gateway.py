@@ -61,7 +61,13 @@ from auvgw.notify import Notifier
 
 log = logging.getLogger(__name__)
 
-__all__ = ["CLAIM_TIMEOUT_S", "READ_TIMEOUT_S", "Gateway", "GatewayRunning"]
+__all__ = [
+    "CLAIM_TIMEOUT_S",
+    "READ_TIMEOUT_S",
+    "Gateway",
+    "GatewayRunning",
+    "probe_running_gateway",
+]
 
 #: how long a starting gateway asks the bus for another gateway of its vehicle, and then for
 #: that one's status (s; a lone peer's liveliness get returns at once)
@@ -104,6 +110,50 @@ def _describe_holder(vehicle: str, status: dict[str, Any] | None) -> str:
         f"{head}: pid {status.get('pid', '?')} on host {status.get('host', '?')} (Zenoh id "
         f"{zid}, up {status.get('uptime_s', '?')} s); one gateway per vehicle: stop it first"
     )
+
+
+def _running_gateway(
+    session: zenoh.Session, keys: Keys, timeout_s: float
+) -> tuple[bool, dict[str, Any] | None]:
+    """(whether ``auv/<v>/alive/gateway`` is on the bus, that gateway's status if it answers)."""
+    key = keys.alive("gateway")
+    if not any(r.ok is not None for r in session.liveliness().get(key, timeout=timeout_s)):
+        return False, None
+    for reply in session.get(keys.status("gateway"), timeout=timeout_s):
+        if reply.ok is not None:
+            with contextlib.suppress(ValueError):
+                return True, json.loads(reply.ok.payload.to_bytes())
+            break
+    return True, None
+
+
+def _loopback(endpoint: str) -> str:
+    """A listen endpoint as this host reaches it (``0.0.0.0`` / ``[::]`` -> loopback)."""
+    return endpoint.replace("/0.0.0.0:", "/127.0.0.1:").replace("/[::]:", "/[::1]:")
+
+
+def probe_running_gateway(
+    cfg: GatewayConfig, timeout_s: float = CLAIM_TIMEOUT_S
+) -> GatewayRunning | None:
+    """When this gateway's session cannot open (a listen endpoint already taken, as by a
+    gateway started twice from one file), ask whoever listens there, as a client, whether it
+    is a gateway of this vehicle: the :class:`GatewayRunning` to raise, else None."""
+    if not cfg.bus.listen:
+        return None
+    probe = cfg.bus.model_copy(
+        update={"mode": "client", "connect": [_loopback(e) for e in cfg.bus.listen], "listen": []}
+    )
+    try:
+        session = open_session(probe)
+    except zenoh.ZError:
+        return None
+    try:
+        found, status = _running_gateway(session, Keys(cfg.vehicle), timeout_s)
+    except zenoh.ZError:
+        return None
+    finally:
+        session.close()
+    return GatewayRunning(_describe_holder(cfg.vehicle, status)) if found else None
 
 
 @dataclass
@@ -198,17 +248,10 @@ class Gateway:
         Two gateways started within the same instant can both pass (docs/gateway.md)."""
         if self._alone:
             return
-        key = self.keys.alive("gateway")
-        if not any(r.ok is not None for r in self.session.liveliness().get(key, timeout=timeout_s)):
-            self._alone = True
-            return
-        status = None
-        for reply in self.session.get(self.keys.status("gateway"), timeout=timeout_s):
-            if reply.ok is not None:
-                with contextlib.suppress(ValueError):
-                    status = json.loads(reply.ok.payload.to_bytes())
-                break
-        raise GatewayRunning(_describe_holder(self.cfg.vehicle, status))
+        found, status = _running_gateway(self.session, self.keys, timeout_s)
+        if found:
+            raise GatewayRunning(_describe_holder(self.cfg.vehicle, status))
+        self._alone = True
 
     def start(self) -> None:
         """Check that no other gateway serves this vehicle (:meth:`check_alone`), declare
