@@ -590,9 +590,11 @@ class Gateway:
             f"reopen_silent_periods); closing and reopening"
         )
         dev.health.set_reopening(reason)
+        # the first of a silence at INFO (a device at rest looks the same; status says stale),
+        # the next ones at DEBUG; frames coming back after a reopen are the WARNING
+        log.log(logging.DEBUG if dev.silent_reopens else logging.INFO, "%s: %s", dev.name, reason)
         dev.silent_reopens += 1
         dev.reopen_now = True
-        log.warning("%s: %s", dev.name, reason)
         return True
 
     def _serve(self, dev: _Device, transport: Transport) -> bool:
@@ -623,6 +625,13 @@ class Gateway:
                     now = time.monotonic()
                     if frames:
                         dev.frame_reads.append(now)
+                        if dev.silent_reopens:
+                            log.warning(
+                                "%s: frames again after %d reopen(s) for silence: the "
+                                "connection had stopped delivering while open",
+                                dev.name,
+                                dev.silent_reopens,
+                            )
                         last_frame, dev.silent_reopens = now, 0
                     if dev.deferred:
                         if now - dev.deferred_since >= SETTLE_S:

@@ -197,3 +197,4 @@ def test_a_silent_can_adapter_is_reopened_and_recovers_without_a_restart(procs, 
     assert gw.p.poll() is None  # the same gateway process throughout
     err = gw.stderr()
     assert err.count("mag_can: no frame for") == 1 and err.count("mag_can: connected on") == 2
+    assert err.count("WARNING auvgw.gateway: mag_can: frames again after 1 reopen(s)") == 1
