@@ -184,13 +184,11 @@ class DeviceHealth:
                 self.last_error = error
 
     def set_reopening(self, reason: str) -> None:
-        """The gateway closed an open but silent connection to reopen it (counted in
-        ``reopens``, not ``outages``)."""
+        """The gateway closes an open but silent connection to reopen it at once: counted in
+        ``reopens``; still ``connected`` (not an outage, not a new connect) unless the reopen
+        fails."""
         with self._lock:
             self.reopens += 1
-            self.connected = False
-            self.connected_since_ns = None
-            self.next_retry_s = 0.0
             self.last_error = reason
 
     def set_retry(self, delay_s: float) -> None:
