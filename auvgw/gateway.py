@@ -17,11 +17,15 @@ gateway. Behaviour and payloads are documented in docs/gateway.md and docs/bus.m
 from __future__ import annotations
 
 import contextlib
+import itertools
 import json
 import logging
+import os
+import socket
+import statistics
 import threading
 import time
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -50,6 +54,7 @@ from auvgw.drivers.transports import (
     make_transport,
 )
 from auvgw.envelope import decode_envelope, pack_envelope
+from auvgw.ground.errors import UserError
 from auvgw.health import Backoff, DeviceHealth, device_time_s
 from auvgw.hostdrivers import HostDriver, make_host_driver
 from auvgw.notify import Notifier
@@ -59,7 +64,17 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-__all__ = ["READ_TIMEOUT_S", "Gateway"]
+__all__ = [
+    "CLAIM_TIMEOUT_S",
+    "READ_TIMEOUT_S",
+    "Gateway",
+    "GatewayRunning",
+    "probe_running_gateway",
+]
+
+#: how long a starting gateway asks the bus for another gateway of its vehicle, and then for
+#: that one's status (s; a lone peer's liveliness get returns at once)
+CLAIM_TIMEOUT_S = 2.0
 
 #: how long a reader waits for data before checking for stop and calling the host driver (s)
 READ_TIMEOUT_S = 0.05
@@ -72,6 +87,76 @@ SETTLE_S = 0.002
 #: and once the line is quiet)
 FRAMING_PERIOD_S = 0.05
 _DROP = zenoh.CongestionControl.DROP
+_HOST = socket.gethostname()
+#: reads that brought frames, kept per device to learn its period (the median interval)
+PERIOD_READS = 33
+#: a silent device reopened again and again without a frame waits this many times longer at most
+MAX_SILENT_BACKOFF = 16
+
+
+class GatewayRunning(UserError):
+    """Another gateway already serves this vehicle on the bus (its ``auv/<v>/alive/gateway``
+    token is there); the message names it (host, pid, Zenoh id). ``auvgw run`` exits 2."""
+
+
+def _describe_holder(vehicle: str, status: dict[str, Any] | None) -> str:
+    """The one line of :class:`GatewayRunning`, from the running gateway's status (or None)."""
+    head = f"vehicle {vehicle!r} already has a gateway on this bus"
+    if status is None:
+        return (
+            f"{head} (its liveliness token auv/{vehicle}/alive/gateway is there; it did not "
+            "answer a status query, so its host and pid are unknown); one gateway per vehicle: "
+            "stop it first"
+        )
+    zid = (status.get("bus") or {}).get("zid", "?")
+    return (
+        f"{head}: pid {status.get('pid', '?')} on host {status.get('host', '?')} (Zenoh id "
+        f"{zid}, up {status.get('uptime_s', '?')} s); one gateway per vehicle: stop it first"
+    )
+
+
+def _running_gateway(
+    session: zenoh.Session, keys: Keys, timeout_s: float
+) -> tuple[bool, dict[str, Any] | None]:
+    """(whether ``auv/<v>/alive/gateway`` is on the bus, that gateway's status if it answers)."""
+    key = keys.alive("gateway")
+    if not any(r.ok is not None for r in session.liveliness().get(key, timeout=timeout_s)):
+        return False, None
+    for reply in session.get(keys.status("gateway"), timeout=timeout_s):
+        if reply.ok is not None:
+            with contextlib.suppress(ValueError):
+                return True, json.loads(reply.ok.payload.to_bytes())
+            break
+    return True, None
+
+
+def _loopback(endpoint: str) -> str:
+    """A listen endpoint as this host reaches it (``0.0.0.0`` / ``[::]`` -> loopback)."""
+    return endpoint.replace("/0.0.0.0:", "/127.0.0.1:").replace("/[::]:", "/[::1]:")
+
+
+def probe_running_gateway(
+    cfg: GatewayConfig, timeout_s: float = CLAIM_TIMEOUT_S
+) -> GatewayRunning | None:
+    """When this gateway's session cannot open (a listen endpoint already taken, as by a
+    gateway started twice from one file), ask whoever listens there, as a client, whether it
+    is a gateway of this vehicle: the :class:`GatewayRunning` to raise, else None."""
+    if not cfg.bus.listen:
+        return None
+    probe = cfg.bus.model_copy(
+        update={"mode": "client", "connect": [_loopback(e) for e in cfg.bus.listen], "listen": []}
+    )
+    try:
+        session = open_session(probe)
+    except zenoh.ZError:
+        return None
+    try:
+        found, status = _running_gateway(session, Keys(cfg.vehicle), timeout_s)
+    except zenoh.ZError:
+        return None
+    finally:
+        session.close()
+    return GatewayRunning(_describe_holder(cfg.vehicle, status)) if found else None
 
 
 @dataclass
@@ -100,6 +185,10 @@ class _Device:
     gate: CommandGate | None = None
     transport: Transport | None = None
     cmd_lock: threading.Lock = field(default_factory=threading.Lock)
+    #: host monotonic s of the last reads that brought frames (all connections): the period
+    frame_reads: deque[float] = field(default_factory=lambda: deque(maxlen=PERIOD_READS))
+    silent_reopens: int = 0  # reopens in a row that brought no frame
+    reopen_now: bool = False  # the last connection was closed for silence: reopen at once
 
 
 class Gateway:
@@ -158,16 +247,32 @@ class Gateway:
         self._threads: list[threading.Thread] = []
         self._decls: list[Any] = []
         self._status_pubs: dict[str, zenoh.Publisher] = {}
+        self._alone = False  # check_alone found no other gateway of this vehicle
         self._started = False
         self._stopped = False
         self._ended_lock = threading.Lock()
         self._ended = 0
 
     # -- lifecycle --------------------------------------------------------------------------
+    def check_alone(self, timeout_s: float = CLAIM_TIMEOUT_S) -> None:
+        """Raise :class:`GatewayRunning` (naming its host and pid, from its status queryable)
+        when another gateway of this vehicle holds ``auv/<v>/alive/gateway`` on the bus. Done
+        before any port is opened (by :meth:`start`, or earlier by the caller): a second
+        gateway on one vehicle would share its SLCAN adapters and close their channels on exit.
+        Two gateways started within the same instant can both pass (docs/gateway.md)."""
+        if self._alone:
+            return
+        found, status = _running_gateway(self.session, self.keys, timeout_s)
+        if found:
+            raise GatewayRunning(_describe_holder(self.cfg.vehicle, status))
+        self._alone = True
+
     def start(self) -> None:
-        """Declare tokens, queryables and publishers, then start a reader thread per device."""
+        """Check that no other gateway serves this vehicle (:meth:`check_alone`), declare
+        tokens, queryables and publishers, then start a reader thread per device."""
         if self._started:
             return
+        self.check_alone()
         self._started = True
         s = self.session
         self._decls.append(s.liveliness().declare_token(self.keys.alive("gateway")))
@@ -214,6 +319,10 @@ class Gateway:
             return
         self._stopped = True
         self.stop_event.set()
+        if not self._started:  # refused or never started: only the session to close
+            if self._own_session:
+                self.session.close()
+            return
         for t in self._threads:
             t.join(timeout_s)
             if t.is_alive():
@@ -296,6 +405,8 @@ class Gateway:
         return {
             "v": SCHEMA_VERSION,
             "vehicle": self.cfg.vehicle,
+            "host": _HOST,
+            "pid": os.getpid(),
             "t_ns": now,
             "t_stamp_ns": self._stamp(now),
             "uptime_s": round((now - self._t0_ns) / 1e9, 3),
@@ -511,12 +622,52 @@ class Gateway:
             total.update(now)  # (not +: that drops the zero counters)
             dev.health.set_transport_losses(total)
 
+    @staticmethod
+    def silence_limit(dev: _Device) -> float | None:
+        """Host seconds without a frame after which an open device is closed and reopened
+        (None: never): ``reopen_silent_periods`` times its period (``expected_period_s``, or the
+        median interval of its recent frame-bearing reads), at least ``stale_after_s`` (the
+        device is reported stale first), doubled for each reopen in a row that brought no
+        frame (up to :data:`MAX_SILENT_BACKOFF` times). Never for a file replay."""
+        cfg = dev.cfg
+        period = cfg.expected_period_s
+        if period is None and len(dev.frame_reads) >= 3:
+            period = statistics.median(b - a for a, b in itertools.pairwise(dev.frame_reads))
+        if not cfg.reopen_silent_periods or period is None or cfg.transport.kind == "file":
+            return None  # (a file replayed again would repeat its data)
+        limit = max(cfg.reopen_silent_periods * period, cfg.stale_after_s)
+        return limit * min(2**dev.silent_reopens, MAX_SILENT_BACKOFF)
+
+    def _silent(self, dev: _Device, since: float | None, now: float) -> bool:
+        """Whether the open device has been silent too long (``since``: host monotonic s of
+        its last frame on this connection, or of the open after a silent reopen; None: it has
+        not sent on this connection, so it is not judged)."""
+        if since is None:
+            return False
+        limit = self.silence_limit(dev)
+        if limit is None or now - since <= limit:
+            return False
+        reason = (
+            f"no frame for {now - since:.1f} s while open (limit {limit:.2f} s: "
+            f"reopen_silent_periods); closing and reopening"
+        )
+        dev.health.set_reopening(reason)
+        # the first of a silence at INFO (a device at rest looks the same; status says stale),
+        # the next ones at DEBUG; frames coming back after a reopen are the WARNING
+        log.log(logging.DEBUG if dev.silent_reopens else logging.INFO, "%s: %s", dev.name, reason)
+        dev.silent_reopens += 1
+        dev.reopen_now = True
+        return True
+
     def _serve(self, dev: _Device, transport: Transport) -> bool:
-        """Read one connection until it drops or stop; True when a finite source has ended."""
+        """Read one connection until it drops, stays silent too long (:meth:`silence_limit`),
+        or stop; True when a finite source has ended."""
         host = make_host_driver(dev.cfg)
         token = None
         with dev.cmd_lock:
             dev.transport = transport
+        # judged silent from its last frame; from the open only after a silent reopen
+        last_frame = time.monotonic() if dev.silent_reopens else None
         try:
             token = self.session.liveliness().declare_token(self.keys.alive(dev.name))
             if host is not None:
@@ -536,6 +687,16 @@ class Gateway:
                     self._handle_frames(dev, frames, chunk.t_recv_ns, transport, host)
                     dev.framed = True
                     now = time.monotonic()
+                    if frames:
+                        dev.frame_reads.append(now)
+                        if dev.silent_reopens:
+                            log.warning(
+                                "%s: frames again after %d reopen(s) for silence: the "
+                                "connection had stopped delivering while open",
+                                dev.name,
+                                dev.silent_reopens,
+                            )
+                        last_frame, dev.silent_reopens = now, 0
                     if dev.deferred:
                         if now - dev.deferred_since >= SETTLE_S:
                             self._settle(dev, transport)
@@ -545,6 +706,8 @@ class Gateway:
                     self._settle(dev, transport)
                 elif dev.framed:
                     self._update_framing(dev)
+                elif self._silent(dev, last_frame, time.monotonic()):
+                    break
                 self._update_rejected(dev, transport)
                 if (now := time.monotonic()) >= next_loss_poll:
                     next_loss_poll = now + LOSS_POLL_S
@@ -626,6 +789,9 @@ class Gateway:
                     if self._ended == len(self.devices):
                         self.finished.set()
                 return
+            if dev.reopen_now:  # closed for silence: reopen at once
+                dev.reopen_now = False
+                continue
             if not self.stop_event.is_set():
                 delay = backoff.next_delay()
                 dev.health.set_retry(delay)

@@ -106,6 +106,7 @@ class DeviceHealth:
     messages: Counter[str] = field(default_factory=Counter)
     connects: int = 0
     outages: int = 0
+    reopens: int = 0
     last_seen_ns: int | None = None
     connected_since_ns: int | None = None
     next_retry_s: float | None = None
@@ -181,6 +182,14 @@ class DeviceHealth:
             self.next_retry_s = None if connected else retry_in_s
             if error:
                 self.last_error = error
+
+    def set_reopening(self, reason: str) -> None:
+        """The gateway closes an open but silent connection to reopen it at once: counted in
+        ``reopens``; still ``connected`` (not an outage, not a new connect) unless the reopen
+        fails."""
+        with self._lock:
+            self.reopens += 1
+            self.last_error = reason
 
     def set_retry(self, delay_s: float) -> None:
         """The next reopen attempt is ``delay_s`` seconds away."""
@@ -265,6 +274,7 @@ class DeviceHealth:
                 "messages": dict(self.messages),
                 "connects": self.connects,
                 "outages": self.outages,
+                "reopens": self.reopens,
                 "connected_since_ns": self.connected_since_ns,
                 "last_seen_ns": self.last_seen_ns,
                 "silent_s": silent,

@@ -125,6 +125,17 @@ class DeviceConfig(_Model):
     stale_after_s: float = Field(
         2.0, ge=0.01, le=3600, description="report the device silent after this, s"
     )
+    reopen_silent_periods: float = Field(
+        20, ge=0, le=1e6,
+        description="close and reopen a device that stays open but sends no frame for this "
+        "many expected periods (at least stale_after_s), after it sent on that connection; "
+        "0: never",
+    )  # fmt: skip
+    expected_period_s: float | None = Field(
+        None, gt=0, le=3600,
+        description="the device's frame period, s (for reopen_silent_periods); default: "
+        "learned, the median interval between the reads that brought its frames",
+    )  # fmt: skip
     backoff_initial_s: float = Field(0.2, ge=0.01, le=3600, description="first reconnect delay, s")
     backoff_max_s: float = Field(5.0, ge=0.01, le=3600, description="reconnect delay cap, s")
     partial_frame_max_age_s: float = Field(

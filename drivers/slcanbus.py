@@ -18,6 +18,12 @@ It also asks the adapter for its status flags (Lawicel ``F``, SJA1000 style) whe
 (:attr:`BulkSlcanBus.flag_counts`): ``data_overrun`` (the adapter lost frames: its host link or
 its buffer could not keep up) and ``rx_fifo_full`` among them. Adapters without ``F`` answer
 BELL; polling stops after three.
+
+The adapter's device is locked for exclusive use before python-can opens it
+(:class:`~auvgw.drivers.portlock.PortLock`, pyserial's ``exclusive=True`` lock): a second
+gateway (or any process taking that lock) opening the same adapter would otherwise share its
+frames and close its channel (``C``) when it exits. A locked adapter raises
+:class:`~auvgw.drivers.portlock.PortLockedError` naming the holder.
 """
 
 from __future__ import annotations
@@ -31,6 +37,8 @@ from typing import Any
 
 import serial
 from can.interfaces.slcan import slcanBus
+
+from auvgw.drivers.portlock import PortLock
 
 __all__ = ["SLCAN_FLAGS", "BulkSlcanBus"]
 
@@ -59,11 +67,32 @@ class BulkSlcanBus(slcanBus):
         self._status_bells = 0
         #: the port's file descriptor to wait on (None: a URL handler without one: polled)
         self._fd: int | None = None
-        super().__init__(channel, **kwargs)
+        #: the adapter's exclusive lock (None: a pyserial URL, nothing to lock)
+        self._lock: PortLock | None = None
+        path = channel.split("@", 1)[0]  # python-can's "port@baud"
+        if "://" not in path and os.path.exists(path):
+            self._lock = PortLock(path)
+        try:
+            super().__init__(channel, **kwargs)
+        except BaseException:
+            self._release_lock()
+            raise
         try:
             self._fd = self.serialPortOrig.fileno()
         except (AttributeError, io.UnsupportedOperation, OSError, NotImplementedError):
             self._fd = None
+
+    def _release_lock(self) -> None:
+        if self._lock is not None:
+            self._lock.release()
+            self._lock = None
+
+    def shutdown(self) -> None:
+        """Close the channel and the port (python-can), then drop the adapter's lock."""
+        try:
+            super().shutdown()
+        finally:
+            self._release_lock()
 
     def poll_status(self) -> None:
         """Ask the adapter for its status flags; the reply is counted when it is read."""

@@ -55,6 +55,7 @@ from auvgw.config.transport import (
     UdpTransportConfig,
     parse_transport_config,
 )
+from auvgw.drivers.portlock import PortLockedError, lock_holder
 from auvgw.drivers.slcanbus import BulkSlcanBus
 from auvgw.ground.closing import Closing
 from auvgw.ground.errors import TransportError
@@ -327,6 +328,8 @@ class SerialTransport(Transport[serial.SerialBase]):
             )
         except (serial.SerialException, OSError, ValueError) as exc:
             hint = _hint(exc, "check the path or URL and the device")
+            if _errnos(exc) & {errno.EAGAIN, errno.EWOULDBLOCK} and (who := lock_holder(c.url)):
+                hint = f"port locked for exclusive use by {who}; set exclusive = false to share"
             raise TransportOpenError(self._name(), f"cannot open: {hint} ({exc})") from exc
         try:
             self._fd = ser.fileno()
@@ -497,6 +500,10 @@ class CanTransport(Transport[can.BusABC]):
                 self._handle = BulkSlcanBus(**kwargs)
             else:
                 self._handle = can.Bus(**kwargs)
+        except PortLockedError as exc:  # another gateway (or tool) has the adapter
+            raise TransportOpenError(
+                self._name(), f"cannot open: {exc}; one process per adapter"
+            ) from exc
         except (can.CanError, OSError, ValueError, ImportError, serial.SerialException) as exc:
             hint = _CAN_HINTS.get(c.interface)
             if hint is None:

@@ -194,6 +194,16 @@ class SlcanAdapter(Closing):
             self._flags = 0
         self.port.replug()
 
+    def reset(self) -> None:
+        """The adapter's firmware restarts (a brown-out, a watchdog; or another host closing
+        the channel with ``C``): the channel closes, the USB link (the pty) stays. Device
+        frames are dropped (``dropped_closed``) until the host opens the channel again."""
+        with self._lock:
+            self.is_open = False
+            self.timestamps = False
+            self._flags = 0
+            self._line.clear()
+
     def close(self) -> None:
         self.port.close()
 

@@ -52,6 +52,19 @@ def dvl(tmp_path):
         d.close()
 
 
+@pytest.fixture
+def slcan_adapter(tmp_path):
+    """An emulated USB-CAN adapter speaking SLCAN on a pty (stable symlink path), delivering
+    frames as soon as written (``speed=0``: no bus-time pacing)."""
+    from auvgw.sim_devices.slcan import SlcanAdapter
+
+    a = SlcanAdapter("can", speed=0, link=tmp_path / "can0")
+    try:
+        yield a
+    finally:
+        a.close()
+
+
 #: a test whose own code contains one of these runs real processes, ports or a bus: ``e2e``
 _E2E_SIGNS = re.compile(r"subprocess\.|open_session\(|\bPty|SimRunner|zenoh\.|\bAUVGW\b")
 

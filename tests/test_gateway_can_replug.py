@@ -12,7 +12,6 @@ import pytest
 
 from auvgw.config.bus import BusConfig
 from auvgw.drivers.can_codec import ms3a_can
-from auvgw.sim_devices.slcan import SlcanAdapter
 from auvgw.subscribe import GatewaySubscriber
 from auvgw.testing import (
     endpoint,
@@ -28,13 +27,8 @@ FIRST_AFTER = 1000  # counter of the first sample after the replug (a visible ju
 
 
 @pytest.fixture
-def adapter(tmp_path):
-    # speed=0: frames go to the host as soon as written (no bus-time pacing)
-    a = SlcanAdapter("mag_can", speed=0, link=tmp_path / "mag_can")
-    try:
-        yield a
-    finally:
-        a.close()
+def adapter(slcan_adapter):
+    return slcan_adapter
 
 
 def sample_frames(codec, counter: int) -> list[can.Message]:
@@ -139,3 +133,68 @@ def test_can_adapter_unplug_and_replug_reported_and_resumed_without_loss(procs, 
     assert adapter.stats.frames_to_host == 2 * n_expected
     err = gw.stderr()
     assert "mag_can: disconnected" in err and err.count("mag_can: connected on") == 2
+
+
+def test_a_silent_can_adapter_is_reopened_and_recovers_without_a_restart(procs, tmp_path, adapter):
+    """The adapter stops delivering while its port stays open (its channel closed by a reset,
+    as a second gateway's ``C`` on exit did): the device goes stale while ``connected``; after
+    ``reopen_silent_periods`` periods (at least ``stale_after_s``) the gateway closes and
+    reopens it, python-can opens the channel again, and the samples flow: ``reopens`` 1, the
+    same gateway process, no outage (``connected`` throughout, one connect)."""
+    import threading
+
+    codec = ms3a_can()
+    ep = endpoint(free_port())
+    cfg = tmp_path / "gw.toml"
+    cfg.write_text(
+        'vehicle = "canquiet"\nstatus_period_s = 0.2\n'
+        f'[bus]\nlisten = ["{ep}"]\n'
+        '[devices.mag_can]\nformat = "can"\ndbc = "ms3a.dbc"\n'
+        "stale_after_s = 0.5\nreopen_silent_periods = 100\n"
+        f'transport = {{ kind = "can", interface = "slcan", channel = "{adapter.device}", '
+        "bitrate = 500000, options = { sleep_after_open = 0 } }\n"
+    )
+    gw = procs.gateway(cfg)
+    stop = threading.Event()
+
+    def magnetometer() -> None:  # the device: 50 samples/s, whether the adapter delivers or not
+        c = 0
+        while not stop.wait(0.02):
+            adapter.send_many(sample_frames(codec, c))
+            c += 1
+
+    feeder = threading.Thread(target=magnetometer, daemon=True)
+    with GatewaySubscriber("canquiet", BusConfig(connect=[ep])) as me:
+        wait_until(lambda: adapter.is_open, 60, what="python-can opened the SLCAN channel")
+        feeder.start()
+        try:
+            wait_until(lambda: (me.status("mag_can") or {}).get("frames", 0) >= 50, 60, what="flow")
+            adapter.reset()
+            stale = wait_until(
+                lambda: (s := me.status("mag_can")) and s["stale"] and s["connected"] and s,
+                30,
+                what="stale while connected",
+            )
+            back = wait_until(
+                lambda: (s := me.status("mag_can")) and s["reopens"] == 1 and s["connected"] and s,
+                30,
+                what="reopened",
+            )
+            wait_until(lambda: adapter.is_open, 30, what="the channel opened again")
+            wait_until(
+                lambda: me.status("mag_can")["frames"] >= back["frames"] + 50, 30, what="frames"
+            )
+        finally:
+            stop.set()
+            feeder.join(5)
+        final = me.status("mag_can")
+        assert "mag_can" in me.alive()
+    assert stale["reopens"] == 0
+    assert final["reopens"] == 1 and final["connected"] is True and final["stale"] is False
+    assert final["connects"] == 1 and final["outages"] == 0 and final["bad_frames"] == 0
+    assert "no frame for" in final["last_error"] and "reopen_silent_periods" in final["last_error"]
+    assert adapter.stats.dropped_closed > 0  # what the device sent while the channel was closed
+    assert gw.p.poll() is None  # the same gateway process throughout
+    err = gw.stderr()
+    assert err.count("mag_can: no frame for") == 1 and err.count("mag_can: connected on") == 2
+    assert err.count("WARNING auvgw.gateway: mag_can: frames again after 1 reopen(s)") == 1

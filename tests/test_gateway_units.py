@@ -342,3 +342,32 @@ def test_writes_closer_than_the_read_interval_are_read_together(tmp_path):
     with pytest.raises(ConfigError, match="read_interval_s"):
         parse_gateway_config({"devices": {"d": {"format": "pd0", "read_interval_s": -1,
                                                 "transport": {"kind": "serial", "url": "x"}}}})
+
+
+def test_silence_limit_learns_the_period_floors_at_stale_and_backs_off():
+    """When an open but silent device is reopened (host seconds): ``reopen_silent_periods``
+    times its period (configured, or the median interval of its frame-bearing reads), at
+    least ``stale_after_s``, doubled per fruitless reopen up to 16 times; never for a file."""
+    from auvgw.gateway import Gateway, _Device
+
+    def device(transport: dict | None = None, **extra) -> _Device:
+        tr = transport or {"kind": "serial", "url": "/dev/null"}
+        dev = {"format": "pd0", "transport": tr, **extra}
+        cfg = parse_gateway_config({"vehicle": "v", "devices": {"d": dev}})
+        return _Device("d", cfg.devices["d"], DeviceHealth("d", "pd0"), None)  # type: ignore[arg-type]
+
+    d = device(stale_after_s=0.5, reopen_silent_periods=10)
+    assert Gateway.silence_limit(d) is None  # nothing learned yet
+    d.frame_reads.extend([0.0, 0.2, 0.4])
+    assert Gateway.silence_limit(d) == pytest.approx(2.0)  # 10 x 0.2 s
+    d.frame_reads.extend([0.41, 0.42, 1.0, 1.2, 1.4])  # a burst and a gap: the median holds
+    assert Gateway.silence_limit(d) == pytest.approx(2.0)
+    d.silent_reopens = 2
+    assert Gateway.silence_limit(d) == pytest.approx(8.0)
+    d.silent_reopens = 9
+    assert Gateway.silence_limit(d) == pytest.approx(32.0)  # capped at 16 x
+    fast = device(stale_after_s=0.5, reopen_silent_periods=10, expected_period_s=0.01)
+    assert Gateway.silence_limit(fast) == pytest.approx(0.5)  # never before it is stale
+    assert Gateway.silence_limit(device(reopen_silent_periods=0, expected_period_s=1)) is None
+    replay = device({"kind": "file", "path": "/dev/null"}, expected_period_s=1.0)
+    assert Gateway.silence_limit(replay) is None

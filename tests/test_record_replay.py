@@ -23,6 +23,7 @@ from auvgw.recording import (
     iter_samples,
     read_info,
 )
+from auvgw.signing import check_signature, load_public_key, make_signing_key
 from auvgw.subscribe import GatewaySubscriber
 from auvgw.testing import (
     AUVGW,
@@ -60,6 +61,7 @@ def test_live_record_then_replay_gives_the_same_decoded_stream(procs, tmp_path, 
         {"dvl": {"format": "pd0", "transport": {"kind": "serial", "url": str(dvl.link)}}},
     )
     mcap = tmp_path / "rec1.mcap"
+    sign_key, sign_pub = make_signing_key(tmp_path / "vehicle")  # the recorder signs at the end
     try:
         procs.gateway(cfg)
         live_out = tmp_path / "live.jsonl"
@@ -86,6 +88,8 @@ def test_live_record_then_replay_gives_the_same_decoded_stream(procs, tmp_path, 
                 ep,
                 "--wait-gateway",
                 "120",
+                "--sign-key",
+                str(sign_key),
             ],
             "recorder",
         )
@@ -102,6 +106,9 @@ def test_live_record_then_replay_gives_the_same_decoded_stream(procs, tmp_path, 
     finally:
         dvl.close()
     assert f"/rec1/raw/dvl: {len(frames)}," in recorder.stderr()
+    assert f"{mcap}: signed, {mcap}.sig" in recorder.stderr()
+    signed = check_signature(mcap, (load_public_key(sign_pub),))
+    assert signed.status == "valid" and signed.signer == "vehicle", signed.line
 
     # the file: the raw channel, the gateway configuration, every frame with its attachment
     info = read_info(mcap)
@@ -166,6 +173,7 @@ def test_live_record_then_replay_gives_the_same_decoded_stream(procs, tmp_path, 
         assert replayed.wait_line("DONE", 60).startswith(f"DONE {len(frames)} dropped=0")
         raw_frames = [raw.get(30) for _ in frames]
         assert rp.wait(60) == 0, rp.stderr()
+    assert f"{mcap}: signed by vehicle, valid" in rp.stderr()  # checked before replaying
     assert [f.data for f in raw_frames] == frames
     assert [(f.t_recv_ns, f.seq, f.offset) for f in raw_frames] == atts  # attachments kept
     replay_got = read_jsonl(replay_out)

@@ -26,7 +26,11 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "record a vehicle's raw bus traffic (all devices, receive times) to an MCAP file",
     ),
     "replay": ("auvgw.commands.replay", "republish an MCAP recording (raw and decoded) as if live"),
-    "verify": ("auvgw.commands.verify", "check recordings for damage (chunk CRCs, summary)"),
+    "verify": (
+        "auvgw.commands.verify",
+        "check recordings for damage (chunk CRCs, summary) and their signatures",
+    ),
+    "sign": ("auvgw.commands.sign", "sign recordings (Ed25519, FILE.mcap.sig) or make a key"),
     "export": (
         "auvgw.commands.export",
         "convert a recording of the earlier layout to the ROS 2 profile (--ros2)",

@@ -21,12 +21,14 @@ from auvgw.ground.errors import ConfigError, UserError
 
 if TYPE_CHECKING:
     from auvgw.config.gateway import GatewayConfig
+    from auvgw.signing import SignatureCheck
 
 log = logging.getLogger(__name__)
 
 __all__ = [
-    "UserError", "add_command", "add_decode_config", "add_duration", "decode_config",
-    "handle_stop_signals", "load_or_fail", "open_output", "study_algorithms",
+    "UserError", "add_command", "add_decode_config", "add_duration", "add_signature_arguments",
+    "check_signature_args", "decode_config", "handle_stop_signals", "load_or_fail",
+    "open_output", "study_algorithms",
 ]  # fmt: skip
 
 
@@ -115,3 +117,35 @@ def handle_stop_signals(stop: threading.Event) -> Iterator[None]:
     finally:
         for sig, handler in old.items():
             signal.signal(sig, handler)
+
+
+def add_signature_arguments(p: argparse.ArgumentParser) -> None:
+    """``--key PUB`` (trusted signers) and ``--require-signature``: a recording's detached
+    signature (``F.mcap.sig``, :mod:`auvgw.signing`) checked when present."""
+    p.add_argument(
+        "--key",
+        action="append",
+        type=Path,
+        default=[],
+        metavar="PUB",
+        help="a trusted signer's public key (NAME.sign.pub, repeatable): a signature by any "
+        "other key is INVALID (default: a signature is checked against its own key)",
+    )
+    p.add_argument(
+        "--require-signature",
+        action="store_true",
+        help="a recording without its .sig is an error",
+    )
+
+
+def check_signature_args(path: Path, args: argparse.Namespace) -> SignatureCheck:
+    """:func:`auvgw.signing.check_signature` of ``path`` with the options of
+    :func:`add_signature_arguments`; an unsigned file with ``--require-signature`` comes back
+    ``invalid``."""
+    from auvgw.signing import SignatureCheck, check_signature, load_public_key
+
+    trusted = tuple(load_public_key(k) for k in args.key)
+    check = check_signature(path, trusted)
+    if check.status == "unsigned" and args.require_signature:
+        return SignatureCheck(path, "invalid", f"{check.line}; --require-signature")
+    return check

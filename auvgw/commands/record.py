@@ -5,8 +5,10 @@ SLAM outputs, status and simulation ground truth, and writes them to an MCAP fil
 configuration (queried from ``auv/<V>/config/gateway``), so ``auvgw replay FILE`` needs nothing
 else. Records until SIGINT/SIGTERM or ``--duration`` seconds; prints ``recording ...`` on stdout
 once its subscriptions have reached the gateway; says so on stderr when no raw frame arrives
-within a few seconds, and exits 1 when it recorded nothing. Layout and rationale:
-auvgw/recording.py, docs/gateway.md.
+within a few seconds, and exits 1 when it recorded nothing. With ``--sign-key KEY`` (an
+Ed25519 key, ``auvgw sign --new-key``; checked before recording) the finished file is signed
+into ``FILE.mcap.sig`` (docs/security.md). Layout and rationale: auvgw/recording.py,
+docs/gateway.md.
 """
 
 from __future__ import annotations
@@ -54,6 +56,14 @@ def register(sub: Any) -> None:
         help="store only the configuration answered by this Zenoh session id (the gateway's)",
     )
     p.add_argument("--force", action="store_true", help="overwrite FILE.mcap if it exists")
+    p.add_argument(
+        "--sign-key",
+        type=Path,
+        default=None,
+        metavar="KEY",
+        help="sign the finished recording with this Ed25519 key (FILE.mcap.sig; auvgw sign)",
+    )
+    p.add_argument("--signer", default=None, help="signer name (default: the key file's name)")
     add_bus_arguments(p)
     p.set_defaults(func=run)
 
@@ -125,6 +135,10 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"{out}: exists; choose another --out or pass --force to overwrite it")
     if args.duration is not None and args.duration <= 0:
         raise UserError(f"--duration must be > 0 seconds, got {args.duration}")
+    if args.sign_key is not None:  # a key that cannot sign fails now, not after the dive
+        from auvgw.signing import load_signing_key
+
+        load_signing_key(args.sign_key)
     keys = Keys(args.vehicle)
     stop = threading.Event()
     session = open_cli_session(bus)
@@ -213,4 +227,9 @@ def run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 1
+    if args.sign_key is not None:
+        from auvgw.signing import sign_file
+
+        sig = sign_file(out, args.sign_key, args.signer)
+        print(f"{out}: signed, {sig}", file=sys.stderr)
     return 0

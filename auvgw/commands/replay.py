@@ -9,7 +9,9 @@ republished as recorded; the recorded decoded, odometry, SLAM and status samples
 are rebuilt). With no bus option it listens where the gateway would (docs/bus.md).
 ``--speed k`` replays at k times the recorded pace (1: real time, 0: as fast as possible). The
 recorded configuration is served on ``auv/<V>/config/gateway`` (a replay can itself be
-recorded) and ``auv/<V>/alive/replay`` is held while it runs.
+recorded) and ``auv/<V>/alive/replay`` is held while it runs. A signed recording
+(``FILE.mcap.sig``, ``auvgw sign``) has its signature checked first: one line on stderr, and an
+invalid one (or none, with ``--require-signature``) refuses the replay (exit 2).
 """
 
 from __future__ import annotations
@@ -40,6 +42,8 @@ from auvgw.commands.common import (
     UserError,
     add_command,
     add_decode_config,
+    add_signature_arguments,
+    check_signature_args,
     decode_config,
     handle_stop_signals,
 )
@@ -86,6 +90,7 @@ def register(sub: Any) -> None:
         metavar="S",
         help="give up waiting for --wait-for after S seconds (default 30)",
     )
+    add_signature_arguments(p)
     add_bus_arguments(p)
     p.set_defaults(func=run)
 
@@ -116,6 +121,11 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise UserError(str(exc)) from exc
     override = decode_config(args)
+    if args.file.is_file():  # (a missing file is read_info's one-line error)
+        signature = check_signature_args(args.file, args)
+        if signature.status == "invalid":
+            raise UserError(f"{signature.line}; not replayed")
+        print(signature.line, file=sys.stderr, flush=True)
     try:
         info = read_info(args.file)
         decoders = decoders_for(info, override, trust_paths=args.trust_recorded_paths)

@@ -20,7 +20,7 @@ import zenoh
 
 from auvgw.commands.common import UserError, add_command, handle_stop_signals, load_or_fail
 from auvgw.config.gateway import ConfigError, GatewayConfig
-from auvgw.gateway import Gateway
+from auvgw.gateway import Gateway, GatewayRunning, probe_running_gateway
 
 log = logging.getLogger(__name__)
 
@@ -146,10 +146,18 @@ def serve(settings: RunSettings, stop: threading.Event | None = None) -> int:
     except ConfigError as exc:
         raise UserError(str(exc)) from exc
     except zenoh.ZError as exc:
+        running = probe_running_gateway(cfg)  # its listen endpoint taken: by our gateway?
+        if running is not None:
+            raise running from None
         raise UserError(
             f"{cfg.source}: bus: cannot open the Zenoh session ({exc}); check bus.mode, "
             "bus.listen (port free?) and bus.connect (router reachable?)"
         ) from exc
+    try:  # one gateway per vehicle: asked before any port (or viewer, or bridge) is opened
+        gateway.check_alone()
+    except GatewayRunning:
+        gateway.stop()
+        raise
     viz = None
     if settings.viz_rrd is not None or settings.viz_connect is not None:
         from auvgw.viz.stage import open_viz
