@@ -15,6 +15,7 @@ ROOTS = {
     "auvgw.fusion": "fusion",
     "auvgw.slam": "slam",
     "auvgw.sim_devices": "sim_devices",
+    "auvgw.control": "control",
     "auvgw.config": "config",
     # the test house: tests and benchmarks import it without editing sys.path
     "auvgw.testing": "tests/support",
