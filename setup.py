@@ -35,7 +35,8 @@ setup(
     package_dir=package_dir,
     package_data={
         "auvgw.config": [
-            "*.toml", "vehicles/*.toml", "*.dbc", "*.json", "scenarios/*.json", "security/*.toml"
+            "*.toml", "vehicles/*.toml", "missions/*.toml", "*.dbc", "*.json", "scenarios/*.json",
+            "security/*.toml",
         ]
     },
     include_package_data=True,

@@ -48,13 +48,14 @@ class NavNoise:
 @dataclass(frozen=True)
 class ActuatorModel:
     """The emulated actuators: fin servos slewing at ``fin_rate`` (rad/s), a shaft following its
-    command with time constant ``rpm_tau`` (s); ``jam`` = (fin "rudder"/"stern", from t s):
-    that fin stops where it is; ``thruster_stop`` (t s): the shaft stops and reports 0 rpm;
-    ``fault`` = (word, from t s): the fault word reported."""
+    command with time constant ``rpm_tau`` (s). Faults: ``jam`` = (fin "rudder"/"stern", from
+    t s, angle rad or None): that fin goes to the angle at once (None: stops where it is) and
+    stays; ``thruster_stop`` (t s): the shaft stops and reports 0 rpm; ``fault`` = (word, from
+    t s): the fault word reported."""
 
     fin_rate: float = math.radians(60.0)
     rpm_tau: float = 0.3
-    jam: tuple[str, float] | None = None
+    jam: tuple[str, float, float | None] | None = None
     thruster_stop: float | None = None
     fault: tuple[int, float] | None = None
 
@@ -197,6 +198,7 @@ def _actuate(t: float, dt: float, applied: list[float], cmd: ActuatorCommand,
     step = act.fin_rate * dt
     for i, (name, target) in enumerate((("rudder", cmd.rudder), ("stern", cmd.stern))):
         if act.jam is not None and act.jam[0] == name and t >= act.jam[1]:
+            out[i] = out[i] if act.jam[2] is None else act.jam[2]
             continue
         out[i] += min(max(target - out[i], -step), step)
     if act.thruster_stop is not None and t >= act.thruster_stop:

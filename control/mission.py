@@ -144,6 +144,9 @@ _WAYPOINT_KEYS = {"north", "east", "depth", "speed"}
 
 def _number(errs: list[MissionError], file: str, leg: int | None, name: str, v: Any,
             lo: float, hi: float, lo_open: bool = False) -> float | None:  # fmt: skip
+    if v is None:
+        errs.append(MissionError(file, leg, name, "missing (and no default in [mission])"))
+        return None
     if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
         errs.append(MissionError(file, leg, name, f"must be a finite number, got {v!r}"))
         return None
@@ -217,13 +220,8 @@ def _parse_waypoint(errs: list[MissionError], file: str, i: int, w: dict[str, An
         ("depth", 0.0, MAX_DEPTH_M, d_depth, False),
         ("speed", 0.0, MAX_SPEED_MPS, d_speed, True),
     ):
-        if key not in w and default is None:
-            errs.append(MissionError(file, leg, f"waypoints[{i}].{key}",
-                                     "missing (and no default in [mission])"))
-            vals[key] = None
-        else:
-            vals[key] = _number(errs, file, leg, f"waypoints[{i}].{key}", w.get(key, default),
-                                lo, hi, lo_open)  # fmt: skip
+        vals[key] = _number(errs, file, leg, f"waypoints[{i}].{key}", w.get(key, default),
+                            lo, hi, lo_open)  # fmt: skip
     if len(errs) > n0:
         return None
     return Waypoint(*(float(vals[k]) for k in ("north", "east", "depth", "speed")))  # type: ignore[arg-type]
