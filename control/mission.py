@@ -191,7 +191,7 @@ def parse_mission(table: dict[str, Any], file: str = "<mission>") -> tuple[Missi
             errs.append(MissionError(file, None, "waypoints", "must be an array of tables"))
         else:
             wps = [_parse_waypoint(errs, file, i, w, d_speed, d_depth) for i, w in enumerate(raw)]
-    if not errs and len(wps) < 2:
+    if has_wp != has_lm and has_wp and len(wps) < 2:
         errs.append(MissionError(file, None, "waypoints", f"need at least 2, got {len(wps)}"))
     good = [w for w in wps if w is not None]
     if radius is not None and len(good) == len(wps):
