@@ -150,9 +150,10 @@ class AutopilotConfig:
     yaw_rate_kp: float = 3.0
     yaw_rate_ki: float = 0.3
     # depth -> pitch set-point (rad per m, rad per m s, rad per m/s)
-    depth_kp: float = 0.12
-    depth_ki: float = 0.004
-    depth_kd: float = 0.5
+    depth_kp: float = 0.2
+    depth_ki: float = 0.006
+    depth_kd: float = 1.0
+    depth_int_zone: float = 1.0  #: m of depth error within which the depth integral moves
     max_pitch_d: float = math.radians(25.0)
     depth_rate: float = 0.5  #: m/s the depth set-point moves at
     # pitch -> stern plane
@@ -193,18 +194,21 @@ def _wrap(a: float) -> float:
 class Pid:
     """``out = clip(ff + kp e + ki integral(e) + kd de, +-limit)`` with conditional
     integration: the integral stops growing while the output is saturated the way ``e``
-    pushes it (anti-windup)."""
+    pushes it (anti-windup), and outside ``|e| <= zone``."""
 
     kp: float
     ki: float
     kd: float
     limit: float
+    zone: float = math.inf
+    """the integral moves only while ``|e| <= zone`` (a transient does not wind it up)"""
     integral: float = 0.0
 
     def update(self, e: float, de: float, dt: float, ff: float = 0.0) -> float:
         raw = ff + self.kp * e + self.ki * self.integral + self.kd * de
         out = _clip(raw, self.limit)
-        if out == raw or (raw > out and e < 0) or (raw < out and e > 0):
+        free = out == raw or (raw > out and e < 0) or (raw < out and e > 0)
+        if free and abs(e) <= self.zone:
             self.integral += e * dt
         return out
 
@@ -265,7 +269,7 @@ class Autopilot:
     def __post_init__(self) -> None:
         c = self.config
         self.yaw_rate_pid = Pid(c.yaw_rate_kp, c.yaw_rate_ki, 0.0, c.max_rudder)
-        self.depth_pid = Pid(c.depth_kp, c.depth_ki, c.depth_kd, c.max_pitch_d)
+        self.depth_pid = Pid(c.depth_kp, c.depth_ki, c.depth_kd, c.max_pitch_d, c.depth_int_zone)
         self.pitch_pid = Pid(c.pitch_kp, c.pitch_ki, c.pitch_kd, c.max_stern)
         self.speed_pid = Pid(c.speed_kp, c.speed_ki, 0.0, c.max_rpm)
         self.ilos = Ilos(c.lookahead, c.ilos_kappa, c.ilos_int_limit)
@@ -326,20 +330,39 @@ class Autopilot:
         a, b, y_e, s = self._leg_geometry(nav)
         pi_h = math.atan2(b.east - a.east, b.north - a.north)
         heading_d = _wrap(pi_h + self.ilos.update(y_e, dt))
-        r_d = -_clip(c.heading_kp * _wrap(nav.heading - heading_d), c.max_yaw_rate)
+        rudder, stern, rpm, pitch_d = self.loops(nav, dt, heading_d, b.depth, b.speed)
+        self._cmd = ActuatorCommand(t, rpm, rudder, stern)
+        self.status = PilotStatus(t, self.mode, self.leg, self.mission.n_legs, y_e, s, heading_d,
+                                  pitch_d, self.depth_ref, b.speed, self._cmd)  # fmt: skip
+        return self._cmd
+
+    @property
+    def depth_ref(self) -> float:
+        """The rate-limited depth set-point (m; NaN before the first fix)."""
+        return math.nan if self._depth_ref is None else self._depth_ref
+
+    def loops(self, nav: NavFix, dt: float, heading_d: float, depth_d: float, speed_d: float,
+              pitch_d: float | None = None,
+              yaw_rate_d: float | None = None) -> tuple[float, float, float, float]:  # fmt: skip
+        """The heading, depth and speed loops one step ``dt`` (s) on toward ``heading_d`` (rad),
+        ``depth_d`` (m) and ``speed_d`` (m/s): ``(rudder rad, stern rad, rpm, pitch_d rad)``;
+        a ``pitch_d`` (rad) or ``yaw_rate_d`` (rad/s) given replaces the depth or heading
+        loop's set-point. (:meth:`step` calls it with the guidance's set-points; the manoeuvres
+        call it direct.)"""
+        c = self.config
+        r_d = (-_clip(c.heading_kp * _wrap(nav.heading - heading_d), c.max_yaw_rate)
+               if yaw_rate_d is None else yaw_rate_d)  # fmt: skip
         rudder = self.yaw_rate_pid.update(nav.r - r_d, 0.0, dt)
         if self._depth_ref is None:
             self._depth_ref = nav.depth
-        self._depth_ref += _clip(b.depth - self._depth_ref, c.depth_rate * dt)
-        pitch_d = self.depth_pid.update(nav.depth - self._depth_ref, nav.depth_rate, dt)
+        self._depth_ref += _clip(depth_d - self._depth_ref, c.depth_rate * dt)
+        if pitch_d is None:
+            pitch_d = self.depth_pid.update(nav.depth - self._depth_ref, nav.depth_rate, dt)
         stern = self.pitch_pid.update(nav.pitch - pitch_d, nav.q, dt)
-        rpm_ff = c.rpm_per_mps * b.speed
-        rpm_target = max(0.0, self.speed_pid.update(b.speed - nav.u, 0.0, dt, rpm_ff))
+        rpm_ff = c.rpm_per_mps * speed_d
+        rpm_target = max(0.0, self.speed_pid.update(speed_d - nav.u, 0.0, dt, rpm_ff))
         self._rpm += _clip(rpm_target - self._rpm, c.rpm_slew * dt)
-        self._cmd = ActuatorCommand(t, self._rpm, rudder, stern)
-        self.status = PilotStatus(t, self.mode, self.leg, self.mission.n_legs, y_e, s, heading_d,
-                                  pitch_d, self._depth_ref, b.speed, self._cmd)  # fmt: skip
-        return self._cmd
+        return rudder, stern, self._rpm, pitch_d
 
     def _leg_geometry(self, nav: NavFix) -> tuple[Waypoint, Waypoint, float, float]:
         """The current leg's ends, cross-track (+ starboard) and along-track distance (m),

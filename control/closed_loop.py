@@ -12,6 +12,7 @@ the autopilot's status at every step, and the errors against the truth.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -24,10 +25,13 @@ from auvgw.control.autopilot import (
     AutopilotConfig,
     NavFix,
 )
-from auvgw.control.mission import Mission
+from auvgw.control.mission import Mission, Waypoint
 from auvgw.sim_devices import dynamics as dyn
 
-__all__ = ["ActuatorModel", "Flight", "NavNoise", "cross_track", "fly", "trimmed_start"]
+__all__ = [
+    "ActuatorModel", "Flight", "NavNoise", "Override", "cross_track", "fly", "hold",
+    "trimmed_start",
+]  # fmt: skip
 
 Array = NDArray[np.float64]
 
@@ -206,3 +210,53 @@ def _actuate(t: float, dt: float, applied: list[float], cmd: ActuatorCommand,
     else:
         out[2] += (cmd.rpm - out[2]) * (1.0 - math.exp(-dt / act.rpm_tau))
     return out
+
+
+#: ``(t s, (rudder rad, stern rad, rpm) from the loops) -> what is commanded``: a manoeuvre fixes
+#: some of them and keeps the loops' values for the others
+Override = Callable[[float, tuple[float, float, float]], tuple[float, float, float]]
+
+
+def hold(
+    params: dyn.VehicleParams,
+    start: Array,
+    seconds: float,
+    override: Override,
+    *,
+    heading_d: float,
+    depth_d: float,
+    speed_d: float,
+    pitch_d: Callable[[float], float | None] | None = None,
+    yaw_rate_d: Callable[[float], float | None] | None = None,
+    config: AutopilotConfig | None = None,
+    dt: float = 0.05,
+    actuators: ActuatorModel | None = None,
+) -> tuple[Array, Array, Array]:
+    """A manoeuvre: the autopilot's loops hold ``heading_d`` (rad), ``depth_d`` (m) and
+    ``speed_d`` (m/s) on the axes ``override`` leaves alone (truth navigation); ``pitch_d(t)``
+    (rad) and ``yaw_rate_d(t)`` (rad/s) replace the depth and heading loops' set-points where
+    they are not None. Returns
+    ``(t, states N x 12, commands N x 3 [rpm, rudder, stern])``; stops early (returning what it
+    has) if the vehicle pitches past the Euler-angle limit."""
+    wp = Waypoint(float(start[6]), float(start[7]), depth_d, speed_d)
+    ap = Autopilot(Mission((wp, wp)), config or AutopilotConfig())
+    act = actuators or ActuatorModel()
+    x = np.array(start, dtype=float)
+    applied = [0.0, 0.0, 0.0]
+    ts, xs, cmds = [], [], []
+    for i in range(round(seconds / dt) + 1):
+        t = i * dt
+        rudder, stern, rpm, _ = ap.loops(_nav(t, x, NavNoise(), None), dt if i else 0.0,
+                                         heading_d, depth_d, speed_d,
+                                         None if pitch_d is None else pitch_d(t),
+                                         None if yaw_rate_d is None else yaw_rate_d(t))  # fmt: skip
+        rudder, stern, rpm = override(t, (rudder, stern, rpm))
+        ts.append(t)
+        xs.append(x)
+        cmds.append((rpm, rudder, stern))
+        applied = _actuate(t, dt, applied, ActuatorCommand(t, rpm, rudder, stern), act)
+        try:
+            x = dyn.step(params, x, np.array(applied), dt)
+        except dyn.PitchSingularityError:
+            break
+    return np.array(ts), np.array(xs), np.array(cmds)

@@ -35,6 +35,7 @@ from typing import Any
 __all__ = [
     "MAX_DEPTH_M",
     "MAX_SPEED_MPS",
+    "MISSIONS_DIR",
     "Mission",
     "MissionError",
     "MissionFileError",
@@ -45,6 +46,8 @@ __all__ = [
     "parse_mission",
 ]
 
+#: the shipped mission files
+MISSIONS_DIR = Path(__file__).resolve().parent.parent / "config" / "missions"
 #: the mission checker's bounds: the REMUS 100 is rated to 100 m and tops out near 2.5 m/s
 MAX_DEPTH_M = 100.0
 MAX_SPEED_MPS = 2.5
