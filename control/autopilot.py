@@ -40,6 +40,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from auvgw.control.mission import Mission, Waypoint
+from auvgw.ground.geometry import wrap_angle
 
 __all__ = [
     "ABORT_REASONS",
@@ -186,10 +187,6 @@ def _clip(x: float, lim: float) -> float:
     return min(max(x, -lim), lim)
 
 
-def _wrap(a: float) -> float:
-    return math.atan2(math.sin(a), math.cos(a))
-
-
 @dataclass
 class Pid:
     """``out = clip(ff + kp e + ki integral(e) + kd de, +-limit)`` with conditional
@@ -329,7 +326,7 @@ class Autopilot:
         self.mode = "running"
         a, b, y_e, s = self._leg_geometry(nav)
         pi_h = math.atan2(b.east - a.east, b.north - a.north)
-        heading_d = _wrap(pi_h + self.ilos.update(y_e, dt))
+        heading_d = wrap_angle(pi_h + self.ilos.update(y_e, dt))
         rudder, stern, rpm, pitch_d = self.loops(nav, dt, heading_d, b.depth, b.speed)
         self._cmd = ActuatorCommand(t, rpm, rudder, stern)
         self.status = PilotStatus(t, self.mode, self.leg, self.mission.n_legs, y_e, s, heading_d,
@@ -350,7 +347,7 @@ class Autopilot:
         loop's set-point. (:meth:`step` calls it with the guidance's set-points; the manoeuvres
         call it direct.)"""
         c = self.config
-        r_d = (-_clip(c.heading_kp * _wrap(nav.heading - heading_d), c.max_yaw_rate)
+        r_d = (-_clip(c.heading_kp * wrap_angle(nav.heading - heading_d), c.max_yaw_rate)
                if yaw_rate_d is None else yaw_rate_d)  # fmt: skip
         rudder = self.yaw_rate_pid.update(nav.r - r_d, 0.0, dt)
         if self._depth_ref is None:

@@ -26,6 +26,7 @@ from auvgw.control.autopilot import (
     NavFix,
 )
 from auvgw.control.mission import Mission, Waypoint
+from auvgw.ground.geometry import wrap_angle
 from auvgw.sim_devices import dynamics as dyn
 
 __all__ = [
@@ -118,7 +119,7 @@ def _nav(t: float, x: Array, noise: NavNoise, rng: np.random.Generator | None) -
         sig = [noise.position] * 2 + [noise.depth] + [noise.attitude] * 3 + \
             [noise.velocity] * 3 + [noise.rate] * 3
         vals = [v + s * e for v, s, e in zip(vals, sig, rng.standard_normal(12), strict=True)]
-    vals[5] = math.atan2(math.sin(vals[5]), math.cos(vals[5]))
+    vals[5] = wrap_angle(vals[5])
     return NavFix(t, *(float(v) for v in vals))
 
 
