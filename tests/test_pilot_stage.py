@@ -8,6 +8,7 @@ import math
 import threading
 
 import numpy as np
+import pytest
 
 from auvgw.control.autopilot import ActuatorCommand, ActuatorFeedback, Autopilot, AutopilotConfig
 from auvgw.control.closed_loop import trimmed_start
@@ -173,3 +174,41 @@ def test_pilot_check_prints_one_line_per_problem_and_exits_2(tmp_path, capsys):
     assert capsys.readouterr() == (f"{good}: ok (7 legs, 2090 m, 8 waypoints)\n", "")
     assert main(["pilot", "--mission", str(good), "--period", "0"]) == 2
     assert capsys.readouterr().err == "auvgw pilot: error: --period must be > 0, got 0.0\n"
+
+
+def test_rerun_shows_the_pilot_state_commands_and_the_abort(tmp_path):
+    """The stage's publications through the Rerun stage (``auvgw viz``) and the .rrd read back:
+    set-points and cross-track as series, commands in degrees, one event per change of mode."""
+    from auvgw.viz.logger import RerunLogger
+    from auvgw.viz.readback import read_recording
+    from auvgw.viz.stage import SECTIONS, VizStage
+
+    assert "pilot" in SECTIONS
+    published: list[tuple[str, bytes, int]] = []
+    stage = PilotStage(MISSION, PilotStageConfig(nav_timeout_s=0.5, feedback_timeout_s=0.0),
+                       on_publish=lambda k, b, t: published.append((k, b, t)))  # fmt: skip
+    x = trimmed_start(MISSION)
+    x[7] = 2.0  # 2 m to starboard of leg 0
+    for k in range(5):
+        stage.feed_odometry(odometry(10.0 + k * DT, x))
+    x[8] = 61.0  # beyond max_depth
+    stage.feed_odometry(odometry(11.0, x))
+    path = tmp_path / "pilot.rrd"
+    logger = RerunLogger(rrd=path)
+    viz = VizStage(logger, "auv1")
+    for key, payload, t_ns in published:
+        assert viz.handle_sample(key, payload, t_ns) == "logged", key
+    viz.stop()
+    logger.close()
+    rec = read_recording(path)
+    state = rec["health/pilot-state/status"]
+    names = [n.removeprefix("pilot-state ") for n in state.static["SeriesLines:names"]]
+    rows = [dict(zip(names, v, strict=True)) for v in state.values("Scalars:scalars")]
+    assert len(rows) == 6 and rows[0]["cross_track_m"] == 2.0 and rows[0]["depth_d_m"] == 3.0
+    assert list(state.times) == [round((10.0 + k * DT) * 1e9) for k in range(5)] + [11e9]
+    cmd = rec["health/pilot-command/status"]
+    cnames = [n.removeprefix("pilot-command ") for n in cmd.static["SeriesLines:names"]]
+    last = dict(zip(cnames, cmd.values("Scalars:scalars")[-1], strict=True))
+    assert last["rpm"] == 0.0 and last["stern_deg"] == pytest.approx(-15.0)
+    assert rec["health/pilot-state/events"].values("TextLog:text") == [
+        ["mode running"], ["mode aborted: depth_limit (depth 61.0 m beyond 60 m)"]]
