@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from auvgw.control.closed_loop import ActuatorModel, NavNoise, fly, hold
+from auvgw.control.closed_loop import ActuatorModel, NavNoise, fly, hold, trimmed_start
 from auvgw.control.mission import MISSIONS_DIR, Mission, lawnmower, load_mission
 from auvgw.sim_devices import dynamics as dyn
 
@@ -45,6 +45,15 @@ def survey() -> None:
         print(f"  {name:30s} {f.rms(f.cross_track):6.2f} {np.abs(f.cross_track[run]).max():10.2f}"
               f" {f.rms(f.depth_error):12.3f} {np.abs(f.depth_error[run]).max():12.3f}"
               f" {f.done_t or f.t[-1]:7.0f}  {f.abort_reason or '-'}")
+    x0 = trimmed_start(m)
+    x0[0] = x0[8] = 0.0  # at rest on the surface
+    f = fly(m, start=x0)
+    later = f.running() & (f.t >= 60.0)
+    on = f.t[np.argmax(np.abs(f.depth_error) < 0.3)]
+    print(f"  from rest at the surface: XTE RMS {f.rms(f.cross_track):.2f} m, depth RMS "
+          f"{f.rms(f.depth_error):.2f} m with the 10 m dive (within 0.3 m at t = {on:.0f} s); "
+          f"from t = 60 s: XTE RMS {f.rms(f.cross_track, later):.2f} m, depth RMS "
+          f"{f.rms(f.depth_error, later):.3f} m; {f.abort_reason or 'no abort'}")
     print(f"  noise (1 sigma, white): position {NOISE.position} m, depth {NOISE.depth} m, "
           f"attitude {D(NOISE.attitude):.1f} deg, velocity {NOISE.velocity} m/s, rates "
           f"{D(NOISE.rate):.1f} deg/s")
