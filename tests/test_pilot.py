@@ -19,7 +19,7 @@ from auvgw.control.autopilot import (
     NavFix,
     Pid,
 )
-from auvgw.control.closed_loop import ActuatorModel, NavNoise, fly, hold
+from auvgw.control.closed_loop import ActuatorModel, NavNoise, fly, hold, trial
 from auvgw.control.mission import (
     Mission,
     MissionFileError,
@@ -257,3 +257,16 @@ def test_the_loops_hold_the_axes_a_manoeuvre_leaves_them():
     t, xs, _ = hold(p, x0, 40.0, lambda t, c: c, heading_d=0.0, depth_d=15.0, speed_d=1.5)
     assert xs[:, 8].max() < 15.3 and abs(xs[-1, 8] - 15.0) < 0.3
     assert abs(xs[-1, 0] - 1.5) < 0.1 and abs(xs[-1, 11]) < math.radians(1.0)
+
+
+def test_a_monte_carlo_run_is_seeded_by_study_and_run_and_stays_within_the_bars():
+    noise = NavNoise(0.3, 0.05, math.radians(0.5), 0.02, math.radians(0.2))
+    line = Mission(lawnmower((0.0, 0.0), 80.0, 20.0, 1, 45.0, 5.0, 1.5), 5.0)  # one 80 m leg
+    a = trial(line, 11, 4, 0.3, noise)
+    assert a == trial(line, 11, 4, 0.3, noise)  # the same run, wherever it runs
+    b = trial(line, 11, 5, 0.3, noise)
+    assert b.current != a.current and b.offset != a.offset
+    for r in (a, b):
+        assert r.abort_reason == "" and not math.isnan(r.done_t)
+        assert r.xte_rms <= 2.0 and r.depth_rms <= 0.3
+        assert math.hypot(*r.current[:2]) <= 0.3 and abs(r.offset) <= 3.0
