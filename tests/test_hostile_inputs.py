@@ -125,11 +125,10 @@ def test_downstream_stages_publish_the_same_under_hostile_payloads(name, tmp_pat
                                                                    bad):  # fmt: skip
     """Each downstream stage (SLAM pipelines, ROS 2 bridge, Rerun, autopilot) is fed the good
     sensor and odometry traffic with 40 hostile payloads in the middle, on sensor and odometry
-    keys: nothing
-    raises, what it publishes for the good traffic is what it publishes without them, and the
-    good samples after them are taken as before. (The ROS 2 bridge also republishes a hostile
-    payload that is a well-formed envelope, as a bridge does: its good outputs must all be
-    there.)"""
+    keys: nothing raises, what it publishes for the good traffic is what it publishes without
+    them, and the good samples after them are taken as before. (The ROS 2 bridge also
+    republishes a hostile payload that is a well-formed envelope, as a bridge does: its good
+    outputs must all be there.)"""
     from collections import Counter
 
     good = stage_traffic
