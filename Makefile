@@ -25,7 +25,7 @@ test-fast: $(STAMP)
 	$(BIN)/python -m pytest -q -m "not e2e"
 
 # mypy sees the installed package (a plain, non-editable copy: the editable install maps folders
-# through an import hook no type checker follows); strict on ground/, drivers/ and slam/ (pyproject.toml)
+# through an import hook no type checker follows); strict on ground/, drivers/, slam/ and control/ (pyproject.toml)
 TYPED := $(VENV)/typecheck
 typecheck: $(STAMP)
 	rm -rf $(TYPED) build && $(BIN)/python -m pip install -q --no-deps --target $(TYPED) . >/dev/null

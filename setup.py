@@ -15,6 +15,7 @@ ROOTS = {
     "auvgw.fusion": "fusion",
     "auvgw.slam": "slam",
     "auvgw.sim_devices": "sim_devices",
+    "auvgw.control": "control",
     "auvgw.config": "config",
     # the test house: tests and benchmarks import it without editing sys.path
     "auvgw.testing": "tests/support",
@@ -34,7 +35,8 @@ setup(
     package_dir=package_dir,
     package_data={
         "auvgw.config": [
-            "*.toml", "vehicles/*.toml", "*.dbc", "*.json", "scenarios/*.json", "security/*.toml"
+            "*.toml", "vehicles/*.toml", "missions/*.toml", "*.dbc", "*.json", "scenarios/*.json",
+            "security/*.toml",
         ]
     },
     include_package_data=True,

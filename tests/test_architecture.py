@@ -1,7 +1,8 @@
 """The layering of docs/architecture.md, checked from the import graph of the source files.
 
-Layers, lowest first: ``ground/``; ``drivers/`` and ``config/``; ``fusion/``, ``slam/`` and
-``sim_devices/``; the service (``auvgw/``); the commands (``auvgw/commands/``, ``auvgw/cli.py``).
+Layers, lowest first: ``ground/``; ``drivers/`` and ``config/``; ``fusion/``, ``slam/``,
+``sim_devices/`` and ``control/``; the service (``auvgw/``); the commands (``auvgw/commands/``,
+``auvgw/cli.py``).
 A module imports only from its own layer or below, ``ground/`` from nothing of the project, and no
 file imports itself back through a chain of others. Every import counts, the ones inside
 functions too (a circle hidden in a function is still a circle); ``if TYPE_CHECKING:`` blocks do
@@ -25,12 +26,13 @@ FOLDERS: dict[str, tuple[str, int]] = {
     "auvgw.fusion": ("fusion", 2),
     "auvgw.slam": ("slam", 2),
     "auvgw.sim_devices": ("sim_devices", 2),
+    "auvgw.control": ("control", 2),
     "auvgw.commands": ("auvgw/commands", 4),
     "auvgw.cli": ("auvgw/cli.py", 4),
     "auvgw.__main__": ("auvgw/__main__.py", 4),
     "auvgw": ("auvgw", 3),
 }
-LAYER_NAMES = ["ground", "drivers/config", "fusion/slam/sim_devices", "service", "commands"]
+LAYER_NAMES = ["ground", "drivers/config", "fusion/slam/sim_devices/control", "service", "commands"]
 
 
 def _modules() -> dict[str, Path]:

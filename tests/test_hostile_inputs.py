@@ -76,9 +76,11 @@ def test_fusion_outputs_do_not_change_under_hostile_envelopes(fusion_traffic, ba
 
 def _stage_factories(tmp_path: Path) -> dict:
     tmp_path.mkdir(parents=True, exist_ok=True)
+    from auvgw.control.mission import MISSIONS_DIR, load_mission
     from auvgw.recording import McapRecorder
     from auvgw.stages.bathymetric import BathymetricStage, BathymetricStageConfig
     from auvgw.stages.magnetic import MagneticStage, config_from_scenario
+    from auvgw.stages.pilot import PilotStage, PilotStageConfig
     from auvgw.stages.ros2 import Ros2Bridge, Ros2BridgeConfig
     from auvgw.stages.slam import SlamStage, SlamStageConfig
     from auvgw.viz.logger import RerunLogger
@@ -90,6 +92,8 @@ def _stage_factories(tmp_path: Path) -> dict:
         "magnetic": lambda: MagneticStage(config_from_scenario(
             REPO / "config" / "scenarios" / "beacons_amb.json", vehicle="auv1")),
         "ros2": lambda: Ros2Bridge(Ros2BridgeConfig(vehicle="auv1")),
+        "pilot": lambda: PilotStage(load_mission(MISSIONS_DIR / "box.toml"),
+                                    PilotStageConfig(vehicle="auv1")),
         "viz": lambda: VizStage(RerunLogger(rrd=tmp_path / "hostile.rrd"), "auv1"),
         "recorder": lambda: McapRecorder(tmp_path / "hostile.mcap", "auv1"),
     }
@@ -113,18 +117,18 @@ def _run(name: str, tmp_path: Path, samples: list[tuple[str, bytes]]) -> tuple[l
     return out, stage.counters()
 
 
-@pytest.mark.parametrize("name", ["slam", "bathymetric", "magnetic", "ros2", "viz"])
+@pytest.mark.parametrize("name", ["slam", "bathymetric", "magnetic", "ros2", "viz", "pilot"])
 @settings(max_examples=3, derandomize=True, deadline=None,
           suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 @given(bad=st.lists(hostile_payloads(), min_size=40, max_size=40))
 def test_downstream_stages_publish_the_same_under_hostile_payloads(name, tmp_path, stage_traffic,
                                                                    bad):  # fmt: skip
-    """Each downstream stage (SLAM pipelines, ROS 2 bridge, Rerun) is fed the good sensor and
-    odometry traffic with 40 hostile payloads in the middle, on sensor and odometry keys: nothing
-    raises, what it publishes for the good traffic is what it publishes without them, and the
-    good samples after them are taken as before. (The ROS 2 bridge also republishes a hostile
-    payload that is a well-formed envelope, as a bridge does: its good outputs must all be
-    there.)"""
+    """Each downstream stage (SLAM pipelines, ROS 2 bridge, Rerun, autopilot) is fed the good
+    sensor and odometry traffic with 40 hostile payloads in the middle, on sensor and odometry
+    keys: nothing raises, what it publishes for the good traffic is what it publishes without
+    them, and the good samples after them are taken as before. (The ROS 2 bridge also
+    republishes a hostile payload that is a well-formed envelope, as a bridge does: its good
+    outputs must all be there.)"""
     from collections import Counter
 
     good = stage_traffic

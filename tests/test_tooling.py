@@ -35,7 +35,9 @@ def test_each_listed_command_is_registered_by_its_module(name):
     assert name in sub.choices  # type: ignore[operator]
 
 
-@pytest.mark.parametrize("folder", ["ground", "drivers", "fusion", "slam", "sim_devices", "config"])
+@pytest.mark.parametrize(
+    "folder", ["ground", "drivers", "fusion", "slam", "sim_devices", "control", "config"]
+)
 def test_mapped_folders_refuse_their_folder_name(folder):
     proc = subprocess.run(
         [sys.executable, "-c", f"import {folder}"],

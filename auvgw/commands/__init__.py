@@ -55,4 +55,5 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "the vehicle on ROS 2 (rmw_zenoh): bridge, list the graph, echo a topic",
     ),
     "foxglove": ("auvgw.commands.foxglove", "serve the bus to the Foxglove app (WebSocket)"),
+    "pilot": ("auvgw.commands.pilot", "fly a mission file with the reference autopilot (--check)"),
 }

@@ -60,7 +60,7 @@ __all__ = ["SECTIONS", "StageStats", "VizRunner", "VizStage", "host_clock", "ope
 log = logging.getLogger(__name__)
 
 #: bus sections the stage subscribes to
-SECTIONS: tuple[str, ...] = ("sensor", "nav", "slam", "truth", "status")
+SECTIONS: tuple[str, ...] = ("sensor", "nav", "slam", "truth", "status", "pilot")
 
 #: sensor message types that carry nothing to show (replies, configuration, raw blocks)
 IGNORED_TYPES = frozenset(
@@ -225,6 +225,7 @@ class VizStage(Stage):
         #: magnetic-beacon ranges of the latest window, per map: (t, beacon positions)
         self._ranges: dict[str, tuple[float, list[tuple[float, float]]]] = {}
         self._status: dict[str, tuple[Any, Any]] = {}
+        self._pilot_mode: str | None = None  # the autopilot's mode last shown
         self._t_last = 0.0  # the newest data time (sensor, odometry stamps), s
         #: device registry role -> handler; a message type is shown by the first of its roles
         #: that has one (registry.MessageType.roles)
@@ -370,7 +371,39 @@ class VizStage(Stage):
             return self._truth_msg(body, t_host)
         if section == "status" and len(parts) >= 2:
             return self._health(parts[1], body, t_host)
+        if section == "pilot" and len(parts) >= 2:
+            return self._pilot(parts[1], body, t_host)
         return f"unknown:{section}"
+
+    def _pilot(self, what: str, body: Mapping[str, Any], t_host: float) -> str:
+        """The autopilot (auvgw.stages.pilot, docs/pilot.md) on the odometry's clock: its
+        ``state`` as series of ``health/pilot-state`` (cross-track, set-points in m, deg, m/s)
+        and a ``health/pilot-state/events`` line at each change of mode (an abort with its
+        reason, as an error); its ``command`` as series of ``health/pilot-command``."""
+        t = _float(body.get("t"), t_host)
+        if what == "command":
+            self.logger.health("pilot-command", t, {
+                "rpm": _float(body.get("rpm")),
+                "rudder_deg": math.degrees(_float(body.get("rudder"))),
+                "stern_deg": math.degrees(_float(body.get("stern")))})  # fmt: skip
+            return "logged"
+        if what != "state":
+            return f"pilot:{what}"
+        self.logger.health("pilot-state", t, {
+            "leg": _float(body.get("leg")), "cross_track_m": _float(body.get("cross_track")),
+            "along_track_m": _float(body.get("along_track")),
+            "depth_d_m": _float(body.get("depth_d")),
+            "heading_d_deg": math.degrees(_float(body.get("heading_d"))),
+            "pitch_d_deg": math.degrees(_float(body.get("pitch_d"))),
+            "speed_d_mps": _float(body.get("speed_d"))})  # fmt: skip
+        mode = str(body.get("mode", ""))
+        if self._pilot_mode != mode:
+            self._pilot_mode = mode
+            reason = body.get("abort_reason") or ""
+            why = f": {reason} ({body.get('abort_detail', '')})" if reason else ""
+            self.logger.event("pilot-state", t, f"mode {mode}{why}",
+                              "ERROR" if mode == "aborted" else "INFO")  # fmt: skip
+        return "logged"
 
     def _sensor_json(self, device: str, type_name: str, body: Mapping[str, Any], t: float) -> str:
         cls = self._classes.get(type_name)
