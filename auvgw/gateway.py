@@ -373,7 +373,7 @@ class Gateway:
                 env = decode_envelope(sample.payload.to_bytes(), str(sample.key_expr))
                 if env.message is None:
                     raise ValueError(f"{env.type}: not a message type this gateway knows")
-                frame = gate.check(env.message)
+                frame = gate.check(env.message, time.monotonic())
             except CommandRefused as exc:
                 self._refused(dev, str(exc))
                 return
@@ -390,7 +390,7 @@ class Gateway:
             except (TransportError, ValueError) as exc:
                 self._refused(dev, str(gate.refuse("send_failed", str(exc))))
                 return
-            gate.sent(frame)
+            gate.sent(frame, time.monotonic())
 
     @staticmethod
     def _refused(dev: _Device, why: str) -> None:

@@ -36,6 +36,7 @@ by ``fin_tolerance`` for ``fin_jam_s``; a shaft whose measured rpm leaves its co
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -91,13 +92,16 @@ class NavFix:
 @dataclass(frozen=True)
 class ActuatorFeedback:
     """What the actuators report at time ``t`` (s): measured shaft ``rpm``, ``rudder`` and
-    ``stern`` plane angles (rad) and the ``faults`` word (bits set: faults)."""
+    ``stern`` plane angles (rad) and the ``faults`` word (bits set: faults); ``cmd_t``: the time
+    (s) of the newest command they had applied (their echo of its sequence number), so the
+    checks compare them with what was asked then, whatever the loop's latency (None: ``t``)."""
 
     t: float
     rpm: float
     rudder: float
     stern: float
     faults: int = 0
+    cmd_t: float | None = None
 
 
 @dataclass(frozen=True)
@@ -284,6 +288,9 @@ class Autopilot:
         self._exp_rudder = _Expected(c.fin_rate)
         self._exp_stern = _Expected(c.fin_rate)
         self._watch = {k: _Watch() for k in ("rudder", "stern", "thruster")}
+        #: (t, expected rudder, expected stern, commanded rpm) of the last steps: what the
+        #: actuators should show for the command of time t (:class:`ActuatorFeedback` cmd_t)
+        self._asked: deque[tuple[float, float, float, float]] = deque(maxlen=400)
         wp = self.mission.waypoints[0]
         self.status = PilotStatus(0.0, self.mode, 0, self.mission.n_legs, 0.0, 0.0, 0.0, 0.0,
                                   wp.depth, wp.speed, self._cmd)  # fmt: skip
@@ -387,29 +394,40 @@ class Autopilot:
         fb = self._fb
         exp_r = self._exp_rudder.follow(self._cmd.rudder, dt)
         exp_s = self._exp_stern.follow(self._cmd.stern, dt)
+        self._asked.append((t, exp_r, exp_s, self._cmd.rpm))
         if c.feedback_timeout_s <= 0:
             return
+        assert self._t_start is not None
         last = fb.t if fb is not None else self._t_start
-        assert last is not None
         if t - last > c.feedback_timeout_s:
             self._abort("actuators_silent", f"no actuator feedback for {t - last:.2f} s "
                         f"(limit {c.feedback_timeout_s:g} s)")  # fmt: skip
             return
-        if fb is None:
-            return
+        if fb is None or fb.t < self._t_start + c.feedback_timeout_s:
+            return  # feedback from before the first commands could reach the actuators (their
+            # command timeout bit, fins at rest) says nothing of them: judged from then on
         if fb.faults & c.fault_mask:
             self._abort("actuator_fault", f"fault word 0x{fb.faults:08x}")
             return
+        _, exp_r, exp_s, rpm_asked = self._asked_at(fb.t if fb.cmd_t is None else fb.cmd_t)
         for name, meas, exp in (("rudder", fb.rudder, exp_r), ("stern", fb.stern, exp_s)):
             off = abs(meas - exp)
             if self._watch[name].held(off > c.fin_tolerance, t) >= c.fin_jam_s:
                 self._abort(f"{name}_jammed", f"measured {math.degrees(meas):.1f} deg, expected "
                             f"{math.degrees(exp):.1f} deg for {c.fin_jam_s:g} s")  # fmt: skip
                 return
-        off = abs(fb.rpm - self._cmd.rpm)
+        off = abs(fb.rpm - rpm_asked)
         if self._watch["thruster"].held(off > c.rpm_tolerance, t) >= c.thruster_s:
-            self._abort("thruster", f"measured {fb.rpm:.0f} rpm, commanded {self._cmd.rpm:.0f} "
+            self._abort("thruster", f"measured {fb.rpm:.0f} rpm, commanded {rpm_asked:.0f} "
                         f"rpm for {c.thruster_s:g} s")  # fmt: skip
+
+    def _asked_at(self, t: float) -> tuple[float, float, float, float]:
+        """What the actuators should show once the command of time ``t`` reached them: the
+        first step after it (whose model has followed that command), or the newest."""
+        for row in self._asked:
+            if row[0] > t + 1e-9:
+                return row
+        return self._asked[-1]
 
     def _abort(self, reason: str, detail: str) -> None:
         if self.mode != "aborted":

@@ -12,8 +12,9 @@ the autopilot's status at every step, and the errors against the truth.
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -56,10 +57,12 @@ class ActuatorModel:
     command with time constant ``rpm_tau`` (s). Faults: ``jam`` = (fin "rudder"/"stern", from
     t s, angle rad or None): that fin goes to the angle at once (None: stops where it is) and
     stays; ``thruster_stop`` (t s): the shaft stops and reports 0 rpm; ``fault`` = (word, from
-    t s): the fault word reported."""
+    t s): the fault word reported. ``latency_s``: a command reaches them that much later (the
+    bus, the gateway, CAN), and their feedback names the newest command applied (its time)."""
 
     fin_rate: float = math.radians(60.0)
     rpm_tau: float = 0.3
+    latency_s: float = 0.0
     jam: tuple[str, float, float | None] | None = None
     thruster_stop: float | None = None
     fault: tuple[int, float] | None = None
@@ -156,6 +159,8 @@ def fly(
     x = trimmed_start(mission) if start is None else np.array(start, dtype=float)
     vc = None if current_ned is None else np.array(current_ned, dtype=float)
     applied = [0.0, 0.0, 0.0]  # rudder, stern (rad), rpm
+    in_flight: deque[ActuatorCommand] = deque()  # sent, not yet at the actuators (latency_s)
+    acting: ActuatorCommand | None = None  # the newest command at the actuators
     ts, xs, cmds, acts, legs, xte, dze, modes = [], [], [], [], [], [], [], []
     flight_abort_t: float | None = None
     done_t: float | None = None
@@ -164,7 +169,10 @@ def fly(
         t = i * dt
         if nav_lost_at is None or t < nav_lost_at:
             ap.nav(_nav(t, x, noise or NavNoise(), rng if noise is not None else None))
-        ap.feedback(_feedback(t, applied, act))
+        fb = _feedback(t, applied, act)
+        if act.latency_s > 0:
+            fb = replace(fb, cmd_t=acting.t if acting is not None else -math.inf)
+        ap.feedback(fb)
         cmd: ActuatorCommand = ap.step(t)
         st = ap.status
         ts.append(t)
@@ -183,7 +191,11 @@ def fly(
             break
         if done_t is not None and t - done_t >= 1.0:
             break
-        applied = _actuate(t, dt, applied, cmd, act)
+        in_flight.append(cmd)
+        while in_flight and in_flight[0].t <= t - act.latency_s + 1e-9:
+            acting = in_flight.popleft()
+        if acting is not None:
+            applied = _actuate(t, dt, applied, acting, act)
         x = dyn.step(p, x, np.array(applied), dt, vc)
     return Flight(np.array(ts), np.array(xs), np.array(cmds), np.array(acts), np.array(legs),
                   np.array(xte), np.array(dze), modes, flight_abort_t, ap.abort_reason,

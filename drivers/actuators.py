@@ -106,10 +106,16 @@ class CommandGate:
 
     REASONS = ("malformed", "wrong_type", "out_of_range", "stale_seq", "send_failed")
 
-    def __init__(self, codec: DbcCodec | None = None) -> None:
+    def __init__(self, codec: DbcCodec | None = None, new_stream_after_s: float = 2.0) -> None:
         self.codec = codec if codec is not None else actuators_can()
         self.command_type = self.codec.types[COMMAND_TYPE]
         self.last_seq: int | None = None
+        #: s without a forwarded command after which any sequence number starts a new stream (a
+        #: restarted controller counts from 0 again); within a stream a replayed or reordered
+        #: command is stale. Longer than the controller's command timeout, which stops the
+        #: thruster first.
+        self.new_stream_after_s = new_stream_after_s
+        self._last_sent_at: float | None = None
         self.counts: Counter[str] = Counter({r: 0 for r in ("forwarded", *self.REASONS)})
         self.last_refusal = ""
 
@@ -120,9 +126,9 @@ class CommandGate:
         self.last_refusal = f"{reason}: {detail}"
         return CommandRefused(reason, detail)
 
-    def check(self, msg: Any) -> CanFrame:
+    def check(self, msg: Any, now: float | None = None) -> CanFrame:
         """The frame of ``msg`` if it may go on the bus; :class:`CommandRefused` (counted)
-        otherwise."""
+        otherwise. ``now``: monotonic s (None: no new stream is ever started)."""
         name = getattr(msg, "TYPE", type(msg).__name__)
         if type(msg) is not self.command_type:
             if name != COMMAND_TYPE or not dataclasses.is_dataclass(msg):
@@ -138,13 +144,17 @@ class CommandGate:
             frame = self.codec.encode(msg, strict=True)  # the DBC ranges, finite numbers
         except CanCodecError as exc:
             raise self.refuse("out_of_range", str(exc)) from None
-        if not seq_newer(msg.seq, self.last_seq):
+        quiet = (now is not None and self._last_sent_at is not None
+                 and now - self._last_sent_at > self.new_stream_after_s)  # fmt: skip
+        if not quiet and not seq_newer(msg.seq, self.last_seq):
             raise self.refuse("stale_seq", f"seq {msg.seq} not after {self.last_seq}")
         return frame
 
-    def sent(self, frame: CanFrame) -> None:
-        """Count a checked command's frame as forwarded; its sequence number is the last."""
+    def sent(self, frame: CanFrame, now: float | None = None) -> None:
+        """Count a checked command's frame as forwarded (at monotonic ``now`` s); its sequence
+        number is the last."""
         self.last_seq = int(self.codec.decode_frame(frame).seq)
+        self._last_sent_at = now
         self.counts["forwarded"] += 1
 
     def as_dict(self) -> dict[str, Any]:

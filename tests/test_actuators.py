@@ -115,6 +115,20 @@ def test_gate_refuses_out_of_range_and_stale_commands_and_counts_them() -> None:
     assert gate.check(other) == CODEC.encode(Command(seq=12, shaft_rpm=1.0, rudder=0.0, stern=0.0))
 
 
+def test_gate_starts_a_new_stream_after_a_quiet_spell() -> None:
+    """Within a stream an old sequence number is stale; after ``new_stream_after_s`` without a
+    forwarded command (a controller restarted, counting from 0 again) it starts a new one."""
+    gate = CommandGate(CODEC, new_stream_after_s=2.0)
+    gate.sent(gate.check(Command(seq=500, shaft_rpm=800.0, rudder=0.0, stern=0.0), 10.0), 10.0)
+    with pytest.raises(CommandRefused):
+        gate.check(Command(seq=0, shaft_rpm=800.0, rudder=0.0, stern=0.0), 11.9)
+    frame = gate.check(Command(seq=0, shaft_rpm=800.0, rudder=0.0, stern=0.0), 12.1)
+    gate.sent(frame, 12.1)
+    assert gate.last_seq == 0
+    with pytest.raises(CommandRefused):  # and the new stream is guarded as before
+        gate.check(Command(seq=0, shaft_rpm=800.0, rudder=0.0, stern=0.0), 12.2)
+
+
 # -- the controller model (pure) -----------------------------------------------------------
 
 

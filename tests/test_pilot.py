@@ -231,6 +231,22 @@ def test_a_fin_stuck_where_it_was_is_caught_once_the_command_moves_away():
     assert f.abort_t is not None and 0.0 < f.abort_t - away <= 1.0
 
 
+def test_the_fin_checks_compare_with_the_command_the_actuators_had_applied():
+    """A loop latency (the bus, the gateway, CAN: 0.1 s here) makes measured fins lag their
+    commands by more than the fin tolerance at full slew: judged against the command the
+    feedback says was applied, the mission flies as without latency; a jammed rudder is still
+    caught within a second of the command moving away, plus the latency. (From 0.2 s of latency
+    on the loops' gains no longer hold this vehicle: docs/pilot.md.)"""
+    f = fly(SHORT, actuators=ActuatorModel(latency_s=0.1), stop_after_abort_s=1.0)
+    assert f.abort_reason == "" and "done" in f.mode
+    assert np.sqrt(np.mean(f.cross_track**2)) < 2.0
+    f = fly(SHORT, actuators=ActuatorModel(latency_s=0.1, jam=("rudder", 50.0, None)))
+    assert f.abort_reason == "rudder_jammed"
+    stuck = f.actuators[f.t >= 50.0][0, 1]
+    away = f.t[(f.t >= 50.0) & (np.abs(f.commands[:, 1] - stuck) > math.radians(3.0))][0]
+    assert f.abort_t is not None and 0.0 < f.abort_t - away <= 1.1
+
+
 def test_lost_navigation_is_detected_within_a_second():
     f = fly(SHORT, nav_lost_at=30.0)
     assert f.abort_reason == "nav_lost" and f.abort_t is not None

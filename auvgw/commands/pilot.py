@@ -8,9 +8,12 @@ Subscribes to ``auv/<V>/nav/odometry`` (the fusion stage's), steps the autopilot
 plane) and ``auv/<V>/pilot/state`` (mode, leg, cross-track error, set-points, abort reason);
 counters on ``auv/<V>/status/pilot``. Prints ``pilot running: ...`` once subscribed. Aborts
 (surface: shaft off, fins bow-up) on navigation older than ``--nav-timeout`` s or a depth beyond
-``--max-depth`` m. The actuators' feedback (jammed fins, a silent thruster, the fault word)
-comes in through the stage's source interface; no bus key carries it yet, so the command line
-leaves those checks off unless ``--feedback-timeout`` is set. See docs/pilot.md.
+``--max-depth`` m. Each command also goes to the vehicle's actuators as an ``ActuatorCommand`` on
+``auv/<V>/cmd/<--actuators>`` (the gateway checks it and sends it on CAN; ``--no-commands``: only
+the set-points are published), and the actuators' feedback (``auv/<V>/sensor/<--actuators>/
+actuatorstate``: jammed fins, a silent thruster, the fault word) is read; ``--feedback-timeout``
+S > 0 turns on the aborts that need it (silent actuators, a fin off its command, a shaft off its
+speed). See docs/pilot.md.
 
 ``--check``: validate the mission file only; prints one line per problem (file, leg, field) on
 stderr and exits 2, or ``FILE: ok (...)`` and exits 0.
@@ -44,8 +47,12 @@ def register(sub: Any) -> None:
     p.add_argument("--max-depth", type=float, default=60.0, metavar="M",
                    help="abort deeper than M metres (default 60)")
     p.add_argument("--feedback-timeout", type=float, default=0.0, metavar="S",
-                   help="abort when the actuators are silent S seconds (default 0: no feedback "
-                   "source on the bus yet, fin/thruster checks off)")  # fmt: skip
+                   help="abort when the actuators are silent S seconds; turns on the fin and "
+                   "thruster checks (default 0: off)")  # fmt: skip
+    p.add_argument("--actuators", default="actuators", metavar="DEVICE",
+                   help="the actuators' device name in the gateway (default actuators)")
+    p.add_argument("--no-commands", action="store_true",
+                   help="publish the set-points only, send no command to the actuators")
     add_duration(p)
     add_bus_arguments(p)
     p.set_defaults(func=run)
@@ -54,7 +61,7 @@ def register(sub: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     from auvgw.commands.run import serve_stage
     from auvgw.control.mission import MissionFileError, load_mission
-    from auvgw.stages.pilot import PilotStage, PilotStageConfig
+    from auvgw.stages.pilot import BusCommands, PilotStage, PilotStageConfig
 
     try:
         mission = load_mission(args.mission)
@@ -74,12 +81,19 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--feedback-timeout must be >= 0, got {args.feedback_timeout}")
     cfg = PilotStageConfig(vehicle=args.vehicle, control_period_s=args.period,
                            nav_timeout_s=args.nav_timeout, max_depth=args.max_depth,
-                           feedback_timeout_s=args.feedback_timeout)  # fmt: skip
+                           feedback_timeout_s=args.feedback_timeout,
+                           actuators_device=args.actuators)  # fmt: skip
+
+    def make(session: Any) -> PilotStage:
+        sink = None if args.no_commands else BusCommands(session, args.vehicle, args.actuators)
+        return PilotStage(mission, cfg, session, sink=sink)
+
     stage = serve_stage(
         args,
-        lambda session: PilotStage(mission, cfg, session),
+        make,
         lambda st: f"pilot running: vehicle {st.keys.vehicle}, mission {mission.name} "
-        f"({mission.n_legs} legs), commands on {st.key('command')}",
+        f"({mission.n_legs} legs), set-points on {st.key('command')}"
+        + ("" if args.no_commands else f", commands on {st.keys.cmd(args.actuators)}"),
         lambda st: st.input_keys(),
     )
     print(f"pilot counters: {json.dumps(stage.counters())}", file=sys.stderr)

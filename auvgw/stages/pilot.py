@@ -7,16 +7,18 @@ Inputs:
   attitude, body velocity and rates become a :class:`~auvgw.control.autopilot.NavFix`; its time
   ``t`` (s, the odometry clock) is the autopilot's vehicle time;
 * **actuator feedback** (:class:`~auvgw.control.autopilot.ActuatorFeedback`, measured rpm, fin
-  angles, fault word): through :meth:`PilotStage.feed_actuators` / :meth:`PilotStage.post_actuators`
-  (the source interface: the gateway's actuator device is wired to it when it publishes one).
+  angles, fault word): the gateway's ``ActuatorState`` samples of the ``actuators_device``
+  (``auv/<v>/sensor/<device>/actuatorstate``, stamped on the odometry's clock), or in-process
+  through :meth:`PilotStage.feed_actuators` / :meth:`PilotStage.post_actuators`.
 
 The autopilot steps on the odometry, every ``control_period_s`` of its time (the feedback is
 latched for the next step); while no odometry arrives a timer (host clock) steps it on from the
 last odometry's time plus the host time since, so a silent navigation is caught in
 ``nav_timeout_s`` + one period and the vehicle surfaces. Each step's
 :class:`~auvgw.control.autopilot.ActuatorCommand` goes to the ``sink`` (a
-:data:`~auvgw.control.autopilot.CommandSink`; wiring it to the bus key
-``auv/<v>/cmd/actuators`` is one line once the gateway takes commands) and is published.
+:data:`~auvgw.control.autopilot.CommandSink`; :class:`BusCommands` puts it on
+``auv/<v>/cmd/<device>`` as the actuators' ``ActuatorCommand``, which the gateway checks and
+sends on CAN) and is published.
 
 Published (JSON): ``auv/<v>/pilot/command`` (``t``, ``rpm``, ``rudder``, ``stern`` rad; type
 ``PilotCommand``) and ``auv/<v>/pilot/state`` (``t``, ``mode``, ``leg``, ``n_legs``,
@@ -48,7 +50,7 @@ from auvgw.control.mission import Mission
 from auvgw.fusion.odometry import Odometry
 from auvgw.stages.base import BusCounters, Stage, StageConfig
 
-__all__ = ["PilotStage", "PilotStageConfig", "PilotStats", "nav_fix"]
+__all__ = ["BusCommands", "PilotStage", "PilotStageConfig", "PilotStats", "nav_fix"]
 
 
 class PilotStageConfig(StageConfig):
@@ -57,6 +59,8 @@ class PilotStageConfig(StageConfig):
     ``feedback_timeout_s``: 0 = no actuator feedback expected, so no fin or thruster checks)."""
 
     control_period_s: float = Field(0.05, gt=0)
+    #: the device whose feedback the stage takes and whose command key it writes
+    actuators_device: str = Field("actuators", min_length=1, max_length=64)
     nav_timeout_s: float = Field(0.5, gt=0)
     max_depth: float = Field(60.0, gt=0)
     feedback_timeout_s: float = Field(0.5, ge=0)
@@ -117,7 +121,18 @@ class PilotStage(Stage):
         return f"{self.keys.base}/pilot/{what}"
 
     def input_keys(self) -> list[str]:
-        return [self.keys.odometry()]
+        return [self.keys.odometry(), self.keys.sensor(self.config.actuators_device, "*")]
+
+    def feed(self, device: str, t_recv_ns: int, message: Any) -> object:
+        """The actuators' ``ActuatorState`` (measured rpm, fin angles in rad, fault word) as
+        feedback at its receive stamp; anything else is ignored."""
+        if device == self.config.actuators_device and hasattr(message, "faults"):
+            sent_at = getattr(self.sink, "sent_at", None)
+            cmd_t = sent_at(int(message.cmd_seq)) if sent_at is not None else None
+            self.feed_actuators(ActuatorFeedback(
+                t=t_recv_ns * 1e-9, rpm=float(message.shaft_rpm), rudder=float(message.rudder),
+                stern=float(message.stern), faults=int(message.faults), cmd_t=cmd_t))  # fmt: skip
+        return None
 
     # -- inputs ---------------------------------------------------------------------------------
     def feed_odometry(self, o: Odometry) -> None:
@@ -191,6 +206,41 @@ class PilotStage(Stage):
         if self._timer is not None:
             self._timer.join()
         super().stop(flush, timeout_s)
+
+
+class BusCommands:
+    """A :data:`~auvgw.control.autopilot.CommandSink` that puts each command on
+    ``auv/<v>/cmd/<device>`` as the actuators' DBC ``ActuatorCommand`` (rpm, rudder and stern
+    plane in rad, a sequence number counting from 0; the gateway's gate starts a new stream
+    after a quiet spell, so a restarted pilot is taken)."""
+
+    def __init__(self, session: zenoh.Session, vehicle: str, device: str = "actuators") -> None:
+        from auvgw.bus import Keys
+        from auvgw.drivers.actuators import COMMAND_TYPE, SEQ_MODULO, actuators_can
+
+        self._type = actuators_can().types[COMMAND_TYPE]
+        self._modulo = SEQ_MODULO
+        self._pub = session.declare_publisher(Keys(vehicle).cmd(device))
+        self.seq = -1
+        self._sent: dict[int, float] = {}  # seq -> the command's time (s), the last 1024
+
+    def sent_at(self, seq: int) -> float | None:
+        """The time (s, the odometry clock) of the command sent with ``seq`` (None: unknown):
+        the actuators echo the last one they applied, so the loop's latency is known."""
+        return self._sent.get(seq)
+
+    def __call__(self, cmd: ActuatorCommand) -> None:
+        from auvgw.envelope import encode_envelope
+
+        self.seq = (self.seq + 1) % self._modulo
+        self._sent[self.seq] = cmd.t
+        self._sent.pop((self.seq - 1024) % self._modulo, None)
+        msg = self._type(seq=self.seq, shaft_rpm=cmd.rpm, rudder=cmd.rudder, stern=cmd.stern)
+        self._pub.put(encode_envelope(msg, "pilot", round(cmd.t * 1e9), self.seq)[0])
+
+    def close(self) -> None:
+        """Withdraw the publisher."""
+        self._pub.undeclare()
 
 
 def command_json(cmd: ActuatorCommand) -> dict[str, float]:
