@@ -49,6 +49,9 @@ def register(sub: Any) -> None:
     p.add_argument("--feedback-timeout", type=float, default=0.0, metavar="S",
                    help="abort when the actuators are silent S seconds; turns on the fin and "
                    "thruster checks (default 0: off)")  # fmt: skip
+    p.add_argument("--fin-rate", type=float, default=30.0, metavar="DEG_S",
+                   help="the fin servos' slew rate the jam check expects (default 30 deg/s, "
+                   "the emulated controller's)")  # fmt: skip
     p.add_argument("--actuators", default="actuators", metavar="DEVICE",
                    help="the actuators' device name in the gateway (default actuators)")
     p.add_argument("--no-commands", action="store_true",
@@ -77,12 +80,15 @@ def run(args: argparse.Namespace) -> int:
                        ("--max-depth", args.max_depth)):  # fmt: skip
         if not value > 0:
             raise UserError(f"{opt} must be > 0, got {value}")
+    if not 0 < args.fin_rate <= 1000:
+        raise UserError(f"--fin-rate must be in (0, 1000] deg/s, got {args.fin_rate}")
     if not args.feedback_timeout >= 0:
         raise UserError(f"--feedback-timeout must be >= 0, got {args.feedback_timeout}")
     cfg = PilotStageConfig(vehicle=args.vehicle, control_period_s=args.period,
                            nav_timeout_s=args.nav_timeout, max_depth=args.max_depth,
                            feedback_timeout_s=args.feedback_timeout,
-                           actuators_device=args.actuators)  # fmt: skip
+                           actuators_device=args.actuators,
+                           fin_rate_dps=args.fin_rate)  # fmt: skip
 
     def make(session: Any) -> PilotStage:
         sink = None if args.no_commands else BusCommands(session, args.vehicle, args.actuators)

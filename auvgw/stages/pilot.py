@@ -29,6 +29,7 @@ on ``auv/<v>/status/pilot``.
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from collections.abc import Callable
@@ -64,10 +65,14 @@ class PilotStageConfig(StageConfig):
     nav_timeout_s: float = Field(0.5, gt=0)
     max_depth: float = Field(60.0, gt=0)
     feedback_timeout_s: float = Field(0.5, ge=0)
+    #: the fin servos' slew rate (deg/s) the jam check expects: the vehicle's controller's (the
+    #: emulated one's ``fin_rate_dps``, 30 by default)
+    fin_rate_dps: float = Field(30.0, gt=0, le=1000)
 
     def autopilot(self) -> AutopilotConfig:
         return AutopilotConfig(nav_timeout_s=self.nav_timeout_s, max_depth=self.max_depth,
-                               feedback_timeout_s=self.feedback_timeout_s)  # fmt: skip
+                               feedback_timeout_s=self.feedback_timeout_s,
+                               fin_rate=math.radians(self.fin_rate_dps))  # fmt: skip
 
 
 @dataclass
