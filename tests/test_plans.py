@@ -3,7 +3,7 @@
 ``spec.plan(cls, ctx, avail)`` compiles a message table once (decode, encode, bulk / record
 columns); ``spec._decode_block_fields`` and ``spec._encode_block_fields`` walk the same table one
 row at a time and stay the reference. For every binary table of every registered format (and a
-few Kongsberg Depth beam tables, built from header values), Hypothesis draws the array
+Kongsberg Depth beam table, built from header values), Hypothesis draws the array
 dimensions, the base, the block bytes and the block length: both paths must give the same values
 (same types, dtypes, NaNs, read-only arrays) or the same error, and the same bytes on encoding.
 """
@@ -38,6 +38,7 @@ from auvgw.drivers.spec import (
     wire,
 )
 from auvgw.envelope import message_class
+from auvgw.testing import format_samples
 
 
 @message(endian=">")
@@ -58,7 +59,7 @@ def _shipped_tables() -> list[type]:
     message_class("no such type")  # loads every codec of the registry: every table registered
     for name in list(LAZY_TYPES):  # the TOML tables (HN-100, ...) are built on first use
         resolve_type(name)
-    depth = [kongsberg.depth_beam_table(z, xy, u) for z, xy, u in ((1, 1, False), (2, 5, True))]
+    depth = [type(format_samples.dep(0, 3).beams)]  # built from a header's resolutions
     tables = {c for c in [*MESSAGE_TYPES.values(), *depth] if _wire_fields(c)}
     return [Toy, *sorted(tables, key=lambda c: f"{c.__module__}.{c.__name__}")]
 
