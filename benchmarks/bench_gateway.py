@@ -797,7 +797,7 @@ def path_rows(devices: dict[str, list[bytes]]) -> dict[str, dict[str, tuple[floa
 
 def path_child(baseline: Path | None) -> dict[str, dict[str, list[float]]]:
     """:func:`path_rows` in a fresh child process (``baseline`` first on its PYTHONPATH)."""
-    env = dict(os.environ)
+    env = {**os.environ, "AUVGW_SHARED": str(shared_dir())}  # the child's own checkout may lack it
     env.pop("PYTHONPATH", None)
     if baseline is not None:
         env["PYTHONPATH"] = str(baseline)

@@ -647,8 +647,6 @@ def _decode(p: Plan, buf: bytes, start: int, extra: bytes) -> Any:
     is filled without running its ``__init__``."""
     values = p.read(buf, start)  # type: ignore[misc]  # PD0 tables always compile
     values["extra"] = extra
-    if p.absent:
-        values.update(dict.fromkeys(p.absent))
     msg: Any = object.__new__(p.cls)
     msg.__dict__.update(values)
     return msg

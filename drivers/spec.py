@@ -455,7 +455,8 @@ class Plan:
     field by field) is the reference it is tested against on every shipped table
     (``tests/test_plans.py``).
 
-    * :attr:`read` ``(buf, base) -> {field: value}``: every wire row's SI value from one
+    * :attr:`read` ``(buf, base) -> {field: value}``: every wire row's SI value (None for an
+      absent row) from one
       ``struct`` call (scalars, bytes, small scaled arrays) plus one ``numpy.frombuffer`` per
       other array (read-only views of ``buf`` when it is ``bytes``, copies otherwise); None when
       the rows cannot share one ``struct`` layout (mixed byte orders, overlapping rows).
@@ -655,6 +656,7 @@ def _compile_plan(
             fmt.append(f"{pad}{r.nbytes}x")
             ns[f"h{i}"] = _array_reader(r)
             items.append(f"{name}: h{i}(buf, base)")
+    items += [f"{name!r}: None" for name in p.absent]  # the rows the block is too short for
     ns["unpack"] = struct.Struct("".join(fmt)).unpack_from
     src = f"def read(buf, base):\n    r = unpack(buf, base)\n    return {{{', '.join(items)}}}\n"
     exec(src, ns)  # the source holds only repr() of field names and generated identifiers
@@ -731,23 +733,41 @@ def _small_array(w: Wire, shape: tuple[int, ...]) -> Callable[[tuple[Any, ...]],
 
 def _array_reader(r: Row) -> Callable[[Any, int], np.ndarray]:
     """One array row read with ``numpy.frombuffer``: a read-only view of a ``bytes`` buffer when
-    the row is unscaled and native, else a converted copy (:func:`_to_si`)."""
-    w, dt, shape, count, at = r.wire, r.dtype(), r.shape, r.count, r.wire.offset
+    the row is unscaled and native, else a converted copy (:func:`_to_si`'s values: float64
+    ``raw * scale + add``, NaN where ``raw == invalid``)."""
+    w, dt, count, at = r.wire, r.dtype(), r.count, r.wire.offset
+    shape = r.shape if len(r.shape) > 1 else None
     native = dt.newbyteorder("=")
-    view_ok = not w.is_scaled and (r.endian == _NATIVE or dt.itemsize == 1)
+    frombuffer, f64, nan = np.frombuffer, np.float64, math.nan
+    if w.is_scaled:
+        scale, add, invalid = w.scale, w.add, w.invalid
 
-    def read_array(buf: Any, base: int) -> np.ndarray:
-        raw = np.frombuffer(buf, dtype=dt, count=count, offset=base + at).reshape(shape)
-        if w.is_scaled:
-            value = _to_si(w, raw)
-        elif view_ok and type(buf) is bytes:
+        def read_scaled(buf: Any, base: int) -> np.ndarray:
+            raw = frombuffer(buf, dtype=dt, count=count, offset=base + at)
+            if shape is not None:
+                raw = raw.reshape(shape)
+            value = np.multiply(raw, scale, dtype=f64)
+            if add:
+                value += add
+            if invalid is not None:
+                np.copyto(value, nan, where=raw == invalid)
+            value.flags.writeable = False
+            return value
+
+        return read_scaled
+    view_ok = r.endian == _NATIVE or dt.itemsize == 1
+
+    def read_raw(buf: Any, base: int) -> np.ndarray:
+        raw = frombuffer(buf, dtype=dt, count=count, offset=base + at)
+        if shape is not None:
+            raw = raw.reshape(shape)
+        if view_ok and type(buf) is bytes:
             return raw  # read-only: a view of immutable bytes
-        else:
-            value = raw.astype(native)
+        value = raw.astype(native)
         value.flags.writeable = False
-        return value  # type: ignore[no-any-return]
+        return value
 
-    return read_array
+    return read_raw
 
 
 def encode_block(
