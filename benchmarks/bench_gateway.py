@@ -809,12 +809,13 @@ def path_child(baseline: Path | None) -> dict[str, dict[str, list[float]]]:
 def print_path_before_after(baseline: Path, rounds: int) -> None:
     """The per-frame path of this tree and of ``baseline``, interleaved rounds, medians."""
     runs: dict[str, list[dict[str, dict[str, list[float]]]]] = {"after": [], "before": []}
-    for _ in range(rounds):
-        runs["after"].append(path_child(None))
-        runs["before"].append(path_child(baseline))
+    for k in range(rounds):  # alternate which goes first
+        for side in ("after", "before")[:: 1 if k % 2 == 0 else -1]:
+            runs[side].append(path_child(None if side == "after" else baseline))
     print(
         f"\nPer-frame path, this tree (after) and {baseline} (before): median us per frame of "
-        f"{rounds} interleaved rounds, each a fresh process; load {os.getloadavg()[0]:.1f}\n"
+        f"{rounds} interleaved rounds (order alternating), each a fresh process; load "
+        f"{os.getloadavg()[0]:.1f}\n"
     )
     cols = [("format", -8), ("stage", -16), ("warm after", 11), ("before", 8), ("ratio", 7),
             ("cold after", 11), ("before", 8), ("ratio", 7)]  # fmt: skip

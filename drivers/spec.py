@@ -351,7 +351,9 @@ def decode_block(
 
     Raises :class:`WireError` naming the message, field and absolute offset when ``buf`` is short.
     """
-    p = _plan_or_none(cls, ctx)
+    p = cls.__dict__.get("__wire_plan__") if not ctx else None  # the common case: no context
+    if p is None:
+        p = _plan_or_none(cls, ctx)
     if p is not None and p.read is not None and base >= 0 and base + p.end <= len(buf):
         values = p.read(buf, base)
         if extra:
@@ -598,6 +600,8 @@ def plan(cls: type, ctx: Mapping[str, int] | None = None, avail: int | None = No
             plans.clear()
             plans["dims"] = dims
         p = plans[key] = Plan(cls, ctx or {}, avail)
+        if not dims and avail is None:
+            cls.__wire_plan__ = p  # type: ignore[attr-defined]  # decode_block's fast path
     return p  # type: ignore[no-any-return]
 
 
@@ -777,7 +781,10 @@ def encode_block(
     ctx: Mapping[str, int] | None = None,
 ) -> None:
     """Write the wire fields of ``msg`` into ``buf`` at ``base`` (``buf`` must be large enough)."""
-    p = _plan_or_none(type(msg), ctx)
+    cls = type(msg)
+    p = cls.__dict__.get("__wire_plan__") if not ctx else None
+    if p is None:
+        p = _plan_or_none(cls, ctx)
     if p is None:
         _encode_block_fields(msg, buf, base, ctx)
     else:
