@@ -544,7 +544,12 @@ class Plan:
                     items = [b.rstrip(b"\x00").decode("ascii", "replace") for b in items]
                 out[r.name] = items
                 continue
-            value = _to_si(w, raw) if w.is_scaled else raw.astype(raw.dtype.newbyteorder("="))
+            if w.is_scaled:
+                value = _si_array(raw, w.scale, w.add, w.invalid)
+            elif raw.dtype.isnative and type(buf) is bytes:
+                value = raw  # read-only: a view of immutable bytes
+            else:
+                value = raw.astype(raw.dtype.newbyteorder("="))
             value.flags.writeable = False
             out[r.name] = value
         return out
@@ -735,6 +740,17 @@ def _small_array(w: Wire, shape: tuple[int, ...]) -> Callable[[tuple[Any, ...]],
     return small
 
 
+def _si_array(raw: np.ndarray, scale: float, add: float, invalid: int | None) -> np.ndarray:
+    """:func:`_to_si`'s values of a raw array (float64 ``raw * scale + add``, NaN where ``raw ==
+    invalid``) with one multiply, the offset only when non-zero and ``copyto`` for NaN."""
+    value = np.multiply(raw, scale, dtype=np.float64)
+    if add:
+        value += add
+    if invalid is not None:
+        np.copyto(value, math.nan, where=raw == invalid)
+    return value
+
+
 def _array_reader(r: Row) -> Callable[[Any, int], np.ndarray]:
     """One array row read with ``numpy.frombuffer``: a read-only view of a ``bytes`` buffer when
     the row is unscaled and native, else a converted copy (:func:`_to_si`'s values: float64
@@ -742,19 +758,13 @@ def _array_reader(r: Row) -> Callable[[Any, int], np.ndarray]:
     w, dt, count, at = r.wire, r.dtype(), r.count, r.wire.offset
     shape = r.shape if len(r.shape) > 1 else None
     native = dt.newbyteorder("=")
-    frombuffer, f64, nan = np.frombuffer, np.float64, math.nan
+    frombuffer = np.frombuffer
     if w.is_scaled:
         scale, add, invalid = w.scale, w.add, w.invalid
 
         def read_scaled(buf: Any, base: int) -> np.ndarray:
             raw = frombuffer(buf, dtype=dt, count=count, offset=base + at)
-            if shape is not None:
-                raw = raw.reshape(shape)
-            value = np.multiply(raw, scale, dtype=f64)
-            if add:
-                value += add
-            if invalid is not None:
-                np.copyto(value, nan, where=raw == invalid)
+            value = _si_array(raw if shape is None else raw.reshape(shape), scale, add, invalid)
             value.flags.writeable = False
             return value
 
