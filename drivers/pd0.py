@@ -571,6 +571,7 @@ _FIELD_OF: dict[int, str] = {
     ID_BT_RANGE: "bt_range",
 }
 _CELL_TABLES = frozenset((ID_VELOCITY, ID_CORRELATION, ID_ECHO_INTENSITY, ID_PERCENT_GOOD))
+_CELL_CLASSES = frozenset(_TABLES[i] for i in _CELL_TABLES)
 
 
 @message
@@ -828,7 +829,7 @@ class _Template:
                     unknown.append(WireLayout(RawBlock, start, fields={"data": slice(start, end)}))
                     continue
                 extra = b"" if last else slice(stop, end)
-                ctx = self.ctx if plan.cls.ID in _CELL_TABLES else {}
+                ctx = self.ctx if plan.cls in _CELL_CLASSES else {}
                 fields[name] = WireLayout(
                     plan.cls, start, ctx, frozenset(plan.absent), {"extra": extra}
                 )
@@ -905,7 +906,7 @@ def _check_plan(p: Plan, start: int, end: int) -> None:
     """Refuse a block too short for a required row (below the table's ``MIN_SIZE``)."""
     if not p.absent:
         return
-    cls = p.cls
+    cls: Any = p.cls
     name = p.absent[0]
     w = dict(_wires(cls))[name]
     a, b = w.offset, w.offset + w.nbytes(p.ctx)

@@ -539,7 +539,7 @@ class Plan:
             w = r.wire
             if w.type in ("bytes", "str"):
                 flat = np.ascontiguousarray(raw).tobytes()
-                items = [flat[k * w.size : (k + 1) * w.size] for k in range(n)]
+                items: list[Any] = [flat[k * w.size : (k + 1) * w.size] for k in range(n)]
                 if w.type == "str":
                     items = [b.rstrip(b"\x00").decode("ascii", "replace") for b in items]
                 out[r.name] = items
@@ -607,7 +607,7 @@ def plan(cls: type, ctx: Mapping[str, int] | None = None, avail: int | None = No
         p = plans[key] = Plan(cls, ctx or {}, avail)
         if not dims and avail is None:
             cls.__wire_plan__ = p  # type: ignore[attr-defined]  # decode_block's fast path
-    return p  # type: ignore[no-any-return]
+    return p
 
 
 def _plan_or_none(cls: type, ctx: Mapping[str, int] | None) -> Plan | None:
