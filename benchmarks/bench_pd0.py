@@ -96,9 +96,13 @@ def time_ours(data: bytes, bulk: bool) -> tuple[float, float, int]:
     return time.perf_counter() - t, time.process_time() - c, n
 
 
-def time_baseline(baseline: Path, path: Path) -> dict[str, list[float] | int]:
-    """One round of both readers with the code installed in ``baseline`` (a child process)."""
-    env = {**os.environ, "PYTHONPATH": str(baseline)}
+def time_child(baseline: Path | None, path: Path) -> dict[str, list[float] | int]:
+    """One round of both readers in a fresh child process: the code installed in ``baseline``
+    (first on its PYTHONPATH), or this tree's (None)."""
+    env = dict(os.environ)
+    env.pop("PYTHONPATH", None)
+    if baseline is not None:
+        env["PYTHONPATH"] = str(baseline)
     out = subprocess.run(
         [sys.executable, __file__, "--round", "--file", str(path)],
         check=True, capture_output=True, text=True, env=env,
@@ -169,18 +173,22 @@ def main() -> int:
     }
     counts: dict[str, int] = {}
     theirs: dict[str, object] = {}
-    for _ in range(runs):  # interleaved rounds
-        for key, bulk in (("one", False), ("bulk", True)):
-            wall, cpu, counts[key] = time_ours(data, bulk)
-            rows[key]["wall"].append(wall)
-            rows[key]["cpu"].append(cpu)
-        if args.baseline:
-            old = time_baseline(args.baseline, path)
+    for k in range(runs):  # interleaved rounds
+        if not args.baseline:
+            for key, bulk in (("one", False), ("bulk", True)):
+                wall, cpu, counts[key] = time_ours(data, bulk)
+                rows[key]["wall"].append(wall)
+                rows[key]["cpu"].append(cpu)
+        # with --baseline both sides run in fresh child processes, in alternating order (the
+        # same code timed in this long-lived process and in a child differs by up to 10 %)
+        sides = (("", None), ("_before", args.baseline)) if args.baseline else ()
+        for suffix, where in sides[:: 1 if k % 2 == 0 else -1]:
+            got = time_child(where, path)
             for key in ("one", "bulk"):
-                wall, cpu = old[key]  # type: ignore[misc]
-                rows[f"{key}_before"]["wall"].append(wall)
-                rows[f"{key}_before"]["cpu"].append(cpu)
-                counts[f"{key}_before"] = int(old[f"{key}_n"])  # type: ignore[arg-type]
+                wall, cpu = got[key]  # type: ignore[misc]
+                rows[key + suffix]["wall"].append(wall)
+                rows[key + suffix]["cpu"].append(cpu)
+                counts[key + suffix] = int(got[f"{key}_n"])  # type: ignore[arg-type]
         theirs = time_dolfyn(path, 1)
         rows["dolfyn"]["wall"] += theirs["wall"]  # type: ignore[arg-type]
         rows["dolfyn"]["cpu"] += theirs["cpu"]  # type: ignore[arg-type]
