@@ -49,10 +49,13 @@ import zenoh
 from auvgw.drivers.spec import (
     CLASS_CACHE_SIZE,
     WIRE_TYPES,
+    Row,
     Wire,
+    WireError,
     WireLayout,
     resolve_type,
 )
+from auvgw.drivers.spec import plan as table_plan
 
 __all__ = [
     "ENVELOPE_VERSION",
@@ -481,7 +484,8 @@ def _layout_reader(
         slots.append((at, code, size))
         return f"@{len(slots) - 1}@"
 
-    def wire_item(node: WireLayout, w: Wire) -> str | None:
+    def wire_item(node: WireLayout, r: Row) -> str | None:
+        w = r.wire
         at = node.base + w.offset
         if w.type == "bytes":
             return slot(at, f"{w.size}s", w.size)
@@ -489,12 +493,12 @@ def _layout_reader(
             return None
         code = WIRE_TYPES[w.type]
         size = struct.calcsize(code)
-        endian = str(w.endian or getattr(node.cls, "__wire_endian__", "<"))
+        endian = r.endian
         if w.shape:  # 1-D: bin of the little-endian wire bytes; N-D: extension 1, native
             if w.type.startswith("f") or endian != "<" or sys.byteorder != "little":
                 return None
-            shape = w.resolve_shape(node.ctx)
-            n = math.prod(shape) * size
+            shape = r.shape
+            n = r.nbytes
             item = slot(at, f"{n}s", n)
             if len(shape) == 1:
                 return item
@@ -527,13 +531,20 @@ def _layout_reader(
 
     def message(node: WireLayout) -> str | None:
         p = _plan(node.cls)
-        rows = {f.name: f.metadata.get("wire") for f in dataclasses.fields(node.cls)}
+        try:  # where the table's rows sit: its compiled plan for the layout's context
+            rows = {r.name: r for r in table_plan(node.cls, node.ctx).rows}
+        except WireError:
+            return None
+        wired = {f.name for f in dataclasses.fields(node.cls) if "wire" in f.metadata}
         hints = _type_hints(node.cls)
         items = []
         for name, enc in zip(p.names, p.encoders, strict=True):
-            w = rows.get(name)
-            if w is not None:
-                item = "None" if name in node.absent else wire_item(node, w)
+            if name in wired:
+                row = rows.get(name)
+                if name in node.absent:
+                    item = "None"
+                else:
+                    item = None if row is None else wire_item(node, row)
             elif name in node.fields:
                 item = value(node.fields[name], hints.get(name, Any), enc)
             else:

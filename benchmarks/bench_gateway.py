@@ -797,6 +797,57 @@ def frame_path(frames: list[bytes], fmt_name: str, n: int = 150) -> dict[str, tu
     return {s: (pct(w[skip:], 0.5), pct(c[skip:], 0.5)) for s, (w, c) in out.items()}
 
 
+def path_rows(devices: dict[str, list[bytes]]) -> dict[str, dict[str, tuple[float, float]]]:
+    """Every stage of :func:`frame_path` for every device, plus "to the puts" and "total"."""
+    out = {}
+    for fmt_name, frames in devices.items():
+        rows = frame_path(frames, fmt_name)
+        stages = list(rows.values())
+        rows["to the puts"] = (stages[0][0] + stages[1][0], stages[0][1] + stages[1][1])
+        rows["total"] = (sum(v[0] for v in stages), sum(v[1] for v in stages))
+        out[fmt_name] = rows
+    return out
+
+
+def path_child(baseline: Path | None) -> dict[str, dict[str, list[float]]]:
+    """:func:`path_rows` in a fresh child process (``baseline`` first on its PYTHONPATH)."""
+    env = {**os.environ, "AUVGW_SHARED": str(shared_dir())}  # the child's own checkout may lack it
+    env.pop("PYTHONPATH", None)
+    if baseline is not None:
+        env["PYTHONPATH"] = str(baseline)
+    out = subprocess.run([sys.executable, __file__, "--path-json"], check=True,
+                         capture_output=True, text=True, env=env)  # fmt: skip
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def print_path_before_after(baseline: Path, rounds: int) -> None:
+    """The per-frame path of this tree and of ``baseline``, interleaved rounds, medians."""
+    runs: dict[str, list[dict[str, dict[str, list[float]]]]] = {"after": [], "before": []}
+    for k in range(rounds):  # alternate which goes first
+        for side in ("after", "before")[:: 1 if k % 2 == 0 else -1]:
+            runs[side].append(path_child(None if side == "after" else baseline))
+    print(
+        f"\nPer-frame path, this tree (after) and {baseline} (before): median us per frame of "
+        f"{rounds} interleaved rounds (order alternating), each a fresh process; load "
+        f"{os.getloadavg()[0]:.1f}\n"
+    )
+    cols = [("format", -8), ("stage", -16), ("warm after", 11), ("before", 8), ("ratio", 7),
+            ("cold after", 11), ("before", 8), ("ratio", 7)]  # fmt: skip
+    print_head(cols)
+    first = runs["after"][0]
+    for fmt_name, stages in first.items():
+        for stage in stages:
+            med = {
+                k: [pct([r[fmt_name][stage][i] for r in runs[k]], 0.5) for i in (0, 1)]
+                for k in runs
+            }
+            a, b = med["after"], med["before"]
+            print(table_line(cols, (
+                fmt_name, stage, f"{a[0]:.1f}", f"{b[0]:.1f}", f"{a[0] / b[0]:.2f}",
+                f"{a[1]:.1f}", f"{b[1]:.1f}", f"{a[1] / b[1]:.2f}",
+            )))  # fmt: skip
+
+
 def print_frame_path(devices: dict[str, list[bytes]]) -> None:
     print(
         "\nPer-frame path in one process (framer -> envelope, the puts, then the decode), median "
@@ -805,11 +856,8 @@ def print_frame_path(devices: dict[str, list[bytes]]) -> None:
     )
     cols = [("format", -8), ("stage", -16), ("warm us", 8), ("cold us", 8)]
     print_head(cols)
-    for fmt_name, frames in devices.items():
-        rows = frame_path(frames, fmt_name)
-        to_puts = tuple(rows["framer"][i] + rows["envelope"][i] for i in (0, 1))
-        total = tuple(sum(v[i] for v in rows.values()) for i in (0, 1))
-        for stage, (warm, cold) in [*rows.items(), ("to the puts", to_puts), ("total", total)]:
+    for fmt_name, rows in path_rows(devices).items():
+        for stage, (warm, cold) in rows.items():
             print(table_line(cols, (fmt_name, stage, f"{warm:.1f}", f"{cold:.1f}")))
 
 
@@ -872,6 +920,10 @@ def main() -> int:
         help="only the per-frame path in this process (framer, decode, envelope; warm and cold)",
     )
     ap.add_argument("--can-speeds", type=float, nargs="+", default=[1.0, 4.0, 10.0])
+    ap.add_argument("--baseline", type=Path, default=None,
+                    help="with --only-path: a plain install of older code, timed as well")
+    ap.add_argument("--path-rounds", type=int, default=5, help="rounds of --baseline")
+    ap.add_argument("--path-json", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
     seconds = 5.0 if args.quick else args.seconds
     shared = shared_dir()
@@ -890,6 +942,12 @@ def main() -> int:
         return 0
     if args.only_can:
         ins_can_run(args)
+        return 0
+    if args.path_json:
+        print(json.dumps(path_rows(devices)))
+        return 0
+    if args.only_path and args.baseline is not None:
+        print_path_before_after(args.baseline, args.path_rounds)
         return 0
     if args.only_path:
         print_frame_path(devices)

@@ -1,6 +1,6 @@
 """PD0 framing + decode throughput on RDI_withBT.000 against dolfyn's reader, in the same run.
 
-    .venv/bin/python benchmarks/bench_pd0.py [--runs 7] [--file PATH]
+    .venv/bin/python benchmarks/bench_pd0.py [--runs 7] [--file PATH] [--baseline DIR]
 
 Ours: the file's bytes (already in memory) fed to :class:`~auvgw.drivers.pd0.Pd0Framer` in
 64 KiB chunks (every checksum verified) and every frame decoded to an
@@ -12,6 +12,11 @@ environment does not have: the script creates (once) a separate venv at
 ``.bench/dolfyn-venv`` with ``python3 -m venv`` and pip-installs exactly those pins, then times
 ``dolfyn.io.rdi.read_rdi(path)`` in a subprocess (import time excluded). dolfyn's time includes
 its own file reading, ensemble parsing and the construction of its xarray Dataset.
+
+``--baseline DIR``: the same two readers of an older version of the code as well ("before"), in
+the same interleaved rounds: ``DIR`` is a plain install of that version (``git worktree add
+/tmp/base main && pip install --no-deps --target DIR /tmp/base``); each round runs this script
+in a child process with ``DIR`` first on ``PYTHONPATH`` (a warm-up, then one timing of each).
 
 The readers are timed in interleaved rounds (ours one by one, ours per chunk, dolfyn), the median
 of the rounds is shown, so a change of machine load affects all of them alike; wall-clock time
@@ -28,6 +33,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
 import statistics
 import subprocess
 import sys
@@ -90,6 +96,30 @@ def time_ours(data: bytes, bulk: bool) -> tuple[float, float, int]:
     return time.perf_counter() - t, time.process_time() - c, n
 
 
+def time_child(baseline: Path | None, path: Path) -> dict[str, list[float] | int]:
+    """One round of both readers in a fresh child process: the code installed in ``baseline``
+    (first on its PYTHONPATH), or this tree's (None)."""
+    env = dict(os.environ)
+    env.pop("PYTHONPATH", None)
+    if baseline is not None:
+        env["PYTHONPATH"] = str(baseline)
+    out = subprocess.run(
+        [sys.executable, __file__, "--round", "--file", str(path)],
+        check=True, capture_output=True, text=True, env=env,
+    )
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def one_round(data: bytes) -> dict[str, list[float] | int]:
+    """``--round``: a warm-up, then one timing of each reader, as JSON (for ``--baseline``)."""
+    time_ours(data, bulk=True)
+    out: dict[str, list[float] | int] = {}
+    for key, bulk in (("one", False), ("bulk", True)):
+        wall, cpu, n = time_ours(data, bulk)
+        out[key], out[f"{key}_n"] = [wall, cpu], n
+    return out
+
+
 def time_dolfyn(path: Path, runs: int) -> dict[str, object]:
     out = subprocess.run(
         [str(dolfyn_python()), "-c", DOLFYN_SCRIPT, str(path), str(runs)],
@@ -118,6 +148,9 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=7, help="timed rounds (>= 5; median shown)")
     ap.add_argument("--file", type=Path, default=None, help="PD0 file (default RDI_withBT.000)")
+    ap.add_argument("--baseline", type=Path, default=None,
+                    help="a plain install of the code before a change: timed as well")
+    ap.add_argument("--round", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
     path = args.file
     if path is None:
@@ -127,20 +160,35 @@ def main() -> int:
             return 2
         path = shared / "data" / "pd0" / "RDI_withBT.000"
     data = path.read_bytes()
+    if args.round:
+        print(json.dumps(one_round(data)))
+        return 0
     runs = max(args.runs, 5)
+    before = ("one_before", "bulk_before") if args.baseline else ()
 
     dolfyn_python()  # create the venv before timing anything
     time_ours(data, bulk=True)  # warm-up: table plans and caches
     rows: dict[str, dict[str, list[float]]] = {
-        k: {"wall": [], "cpu": []} for k in ("one", "bulk", "dolfyn")
+        k: {"wall": [], "cpu": []} for k in ("one", "bulk", *before, "dolfyn")
     }
     counts: dict[str, int] = {}
     theirs: dict[str, object] = {}
-    for _ in range(runs):  # interleaved rounds
-        for key, bulk in (("one", False), ("bulk", True)):
-            wall, cpu, counts[key] = time_ours(data, bulk)
-            rows[key]["wall"].append(wall)
-            rows[key]["cpu"].append(cpu)
+    for k in range(runs):  # interleaved rounds
+        if not args.baseline:
+            for key, bulk in (("one", False), ("bulk", True)):
+                wall, cpu, counts[key] = time_ours(data, bulk)
+                rows[key]["wall"].append(wall)
+                rows[key]["cpu"].append(cpu)
+        # with --baseline both sides run in fresh child processes, in alternating order (the
+        # same code timed in this long-lived process and in a child differs by up to 10 %)
+        sides = (("", None), ("_before", args.baseline)) if args.baseline else ()
+        for suffix, where in sides[:: 1 if k % 2 == 0 else -1]:
+            got = time_child(where, path)
+            for key in ("one", "bulk"):
+                wall, cpu = got[key]  # type: ignore[misc]
+                rows[key + suffix]["wall"].append(wall)
+                rows[key + suffix]["cpu"].append(cpu)
+                counts[key + suffix] = int(got[f"{key}_n"])  # type: ignore[arg-type]
         theirs = time_dolfyn(path, 1)
         rows["dolfyn"]["wall"] += theirs["wall"]  # type: ignore[arg-type]
         rows["dolfyn"]["cpu"] += theirs["cpu"]  # type: ignore[arg-type]
@@ -158,6 +206,7 @@ def main() -> int:
     names = {
         "one": "auvgw Pd0Framer + decode (per frame)",
         "bulk": "auvgw Pd0Framer + decode_many (chunk)",
+        **{k: f"  before: {k.split('_')[0]} (--baseline)" for k in before},
         "dolfyn": f"dolfyn {theirs['version']} read_rdi",
     }
     for k, name in names.items():
@@ -166,6 +215,9 @@ def main() -> int:
               f"{med[k]['cpu']:>8.3f}{rate[k]['cpu'] / rate['dolfyn']['cpu']:>9.1f}x")
     print(f"{'Pathfinder line rate, 115200 baud 8N1':<40}{'':>10}{'':>8}{line_ens:>8.1f}"
           f"{BAUD_BYTES_PER_S / 1e6:>7.3f}{line_ens / rate['dolfyn']['wall']:>9.3f}x")
+    for key in ("one", "bulk") if before else ():
+        print(f"{key}: after / before = {rate[key]['wall'] / rate[key + '_before']['wall']:.3f} "
+              f"(wall), {rate[key]['cpu'] / rate[key + '_before']['cpu']:.3f} (cpu)")
     print(f"bar: auvgw >= 10x dolfyn (ensembles/s). dolfyn import ({theirs['import_s']:.2f} s) "
           "excluded; its time includes reading the file and building its xarray Dataset.")
     print(f"line rate: {BAUD_BYTES_PER_S:.0f} B/s / {pf_size} B per bottom-track-only Pathfinder "

@@ -28,7 +28,6 @@ values are metres and :func:`~auvgw.drivers.spec.raw_value` still gives the wire
 
 from __future__ import annotations
 
-import dataclasses
 import datetime as _dt
 import functools
 import math
@@ -43,12 +42,12 @@ from auvgw.drivers.formats import Format
 from auvgw.drivers.framing import BadFrame, DecodeError, ErrorPolicy, Framer
 from auvgw.drivers.spec import (
     TYPE_FACTORIES,
-    WIRE_TYPES,
-    Wire,
+    Plan,
     WireError,
     decode_block,
     encode_block,
     message,
+    plan,
     raw_value,
     wire,
 )
@@ -543,49 +542,23 @@ class KongsbergDatagram(CommonHeader):
         return DATAGRAM_TYPES.get(self.type_id, f"unknown 0x{self.type_id:02x}")
 
 
-# -- beam records as structured arrays ------------------------------------------------------------
-def _wire_rows(cls: type) -> list[tuple[str, Wire]]:
-    return [(f.name, f.metadata["wire"]) for f in dataclasses.fields(cls) if "wire" in f.metadata]
+# -- beam records: a record table's columns (spec.Plan.columns) -----------------------------------
+_ONE_BEAM = {"n_beams": 1}
 
 
-@functools.lru_cache(maxsize=2 * DEPTH_TABLE_CACHE_SIZE)
-def _record_dtype(cls: type, itemsize: int) -> np.dtype:
-    rows = _wire_rows(cls)
-    return np.dtype(
-        {
-            "names": [name for name, _ in rows],
-            "formats": ["<" + WIRE_TYPES[w.type] for _, w in rows],
-            "offsets": [w.offset for _, w in rows],
-            "itemsize": itemsize,
-        }
-    )
+def _beams(cls: type) -> Plan:
+    """The plan of one beam record of table ``cls`` (rows ``shape=("n_beams",)``: one item per
+    record)."""
+    return plan(cls, _ONE_BEAM)
 
 
 def _decode_records(cls: type, buf: bytes, base: int, n: int, itemsize: int) -> Any:
-    rec = np.frombuffer(buf, dtype=_record_dtype(cls, itemsize), count=n, offset=base)
-    values: dict[str, np.ndarray] = {}
-    for name, w in _wire_rows(cls):
-        raw = rec[name]
-        if w.is_scaled:
-            value = raw.astype(np.float64) * w.scale + w.add
-            if w.invalid is not None:
-                value[raw == w.invalid] = np.nan
-        else:
-            value = raw.astype(raw.dtype.newbyteorder("="))
-        value.flags.writeable = False
-        values[name] = value
-    return cls(**values)
+    return cls(**_beams(cls).columns(buf, base, n, itemsize, "n_beams"))
 
 
 def _encode_records(records: Any, buf: bytearray, base: int, n: int, itemsize: int) -> None:
-    cls = type(records)
-    rec = np.zeros(n, dtype=_record_dtype(cls, itemsize))  # type: ignore[arg-type]
-    for name, _ in _wire_rows(cls):
-        raw = np.asarray(raw_value(records, name))
-        if raw.shape != (n,):
-            raise WireError(f"{cls.__name__}.{name}: shape {raw.shape}, header says ({n},) beams")
-        rec[name] = raw
-    buf[base : base + n * itemsize] = rec.tobytes()
+    values = {r.name: getattr(records, r.name) for r in _beams(type(records)).rows}
+    _beams(type(records)).write_columns(values, buf, base, n, itemsize, "n_beams", "beams")
 
 
 # -- decode / encode -------------------------------------------------------------------------------

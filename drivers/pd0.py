@@ -56,7 +56,7 @@ import numpy as np
 from auvgw.drivers.formats import Format
 from auvgw.drivers.framing import BadFrame, DecodeError, Framer
 from auvgw.drivers.spec import (
-    WIRE_TYPES,
+    Plan,
     Wire,
     WireError,
     WireLayout,
@@ -64,6 +64,9 @@ from auvgw.drivers.spec import (
     encode_block,
     message,
     wire,
+)
+from auvgw.drivers.spec import (
+    plan as table_plan,
 )
 
 __all__ = [
@@ -568,6 +571,7 @@ _FIELD_OF: dict[int, str] = {
     ID_BT_RANGE: "bt_range",
 }
 _CELL_TABLES = frozenset((ID_VELOCITY, ID_CORRELATION, ID_ECHO_INTENSITY, ID_PERCENT_GOOD))
+_CELL_CLASSES = frozenset(_TABLES[i] for i in _CELL_TABLES)
 
 
 @message
@@ -632,198 +636,44 @@ def _wires(cls: type[Any]) -> list[tuple[str, Wire]]:
     return rows
 
 
-class _Plan:
-    """A table compiled for one context and one block length: one ``struct`` unpack for every
-    scalar field, one ``numpy.frombuffer`` per array field, ``None`` for the trailing fields the
-    block is too short for. Same values as :func:`~auvgw.drivers.spec.decode_block` (tested),
-    several times faster: unscaled arrays are read-only views of the (immutable) frame instead
-    of copies, and the frozen message is filled without running its ``__init__`` (every field
-    is supplied). :meth:`decode_bulk` does the same for many ensembles with one numpy record
-    view per field.
-    """
-
-    __slots__ = (
-        "absent", "arrays", "bulk", "cls", "missing", "names", "scaled", "size", "small",
-        "small_struct", "struct",
-    )
-    #: scaled arrays up to this many elements (a Pathfinder's velocity profile included) are
-    #: converted in Python: cheaper than numpy's calls on a warm core for a few elements, and on a
-    #: cold one (one ensemble at a time, the gateway's case) for a few hundred
-    SMALL = 128
-
-    def __init__(self, cls: type[Any], ctx: Mapping[str, int], avail: int) -> None:
-        fmt = ["<2x"]
-        small_fmt = ["<2x"]
-        self.small: list[
-            tuple[str, int, int, float, float, int | None, tuple[int, ...] | None]
-        ] = []
-        self.names: list[str] = []
-        self.scaled: list[tuple[str, float, float, int | None]] = []
-        self.arrays: list[tuple[str, int, np.dtype, int, tuple[int, ...] | None, Wire, bool]] = []
-        self.absent: dict[str, None] = {}
-        #: (field, offset, stop) of the first required field the block is too short for
-        self.missing: tuple[str, int, int] | None = None
-        min_size = cls.MIN_SIZE if cls.MIN_SIZE >= 0 else block_size(cls, ctx)
-        pos = expected = 2
-        for name, w in _wires(cls):
-            if w.offset != expected or (w.endian or cls.__wire_endian__) != "<":
-                raise TypeError(f"{cls.__name__}.{name}: table not contiguous little endian")
-            n = w.nbytes(ctx)
-            expected += n
-            if expected > avail or self.absent:
-                if expected <= min_size and self.missing is None:
-                    self.missing = (name, w.offset, expected)
-                self.absent[name] = None
-                continue
-            code = "<" + WIRE_TYPES.get(w.type, "B")
-            count = n // struct.calcsize(code)
-            shape = w.resolve_shape(ctx)
-            if w.type == "bytes":
-                fmt.append(f"{n}s")
-                small_fmt.append(f"{n}x")
-                self.names.append(name)
-            elif w.shape and w.is_scaled and 0 < count <= self.SMALL:
-                fmt.append(f"{n}x")
-                k = sum(b - a for _, a, b, *_ in self.small)
-                small_fmt.append(f"{count}{code[1]}")
-                nd = shape if len(shape) > 1 else None
-                self.small.append((name, k, k + count, w.scale, w.add, w.invalid, nd))
-            elif w.shape:
-                fmt.append(f"{n}x")
-                small_fmt.append(f"{n}x")
-                self.arrays.append(
-                    (name, pos, np.dtype(code), count, shape if len(shape) > 1 else None, w,
-                     w.is_scaled)
-                )
-            else:
-                fmt.append(code[1])
-                small_fmt.append(f"{n}x")
-                self.names.append(name)
-                if w.is_scaled:
-                    self.scaled.append((name, w.scale, w.add, w.invalid))
-            pos = expected
-        self.cls = cls
-        self.size = pos
-        self.struct = struct.Struct("".join(fmt))
-        self.small_struct = struct.Struct("".join(small_fmt))
-        self.bulk: dict[int, tuple[list[tuple[str, Wire]], np.dtype]] = {}
-
-    def decode(self, buf: bytes, start: int, extra: bytes) -> Any:
-        """Decode the block at ``buf[start:]``; ``buf`` must be ``bytes`` (immutable: unscaled
-        arrays are read-only views of it)."""
-        values = dict(zip(self.names, self.struct.unpack_from(buf, start), strict=True))
-        for name, scale, add, invalid in self.scaled:
-            raw = values[name]
-            values[name] = math.nan if raw == invalid else raw * scale + add
-        if self.small:
-            flat = self.small_struct.unpack_from(buf, start)
-            for name, a, b, scale, add, invalid, shape in self.small:
-                arr = np.array(
-                    [math.nan if r == invalid else r * scale + add for r in flat[a:b]]
-                )
-                arr.flags.writeable = False  # (its reshaped view is read-only too)
-                values[name] = arr if shape is None else arr.reshape(shape)
-        for name, pos, dtype, count, shape, w, scaled in self.arrays:
-            arr = np.frombuffer(buf, dtype=dtype, count=count, offset=start + pos)
-            if shape is not None:
-                arr = arr.reshape(shape)
-            if scaled:
-                raw, arr = arr, arr * w.scale
-                if w.add:
-                    arr += w.add
-                if w.invalid is not None:
-                    np.copyto(arr, np.nan, where=raw == w.invalid)
-                arr.flags.writeable = False
-            values[name] = arr
-        values["extra"] = extra
-        if self.absent:
-            values.update(self.absent)
-        msg: Any = object.__new__(self.cls)
-        msg.__dict__.update(values)
-        return msg
-
-    def _bulk_dtype(self, length: int) -> tuple[list[tuple[str, Wire]], np.dtype]:
-        """The table as a numpy record of ``length`` bytes (one record per ensemble)."""
-        cached = self.bulk.get(length)
-        if cached is not None:
-            return cached
-        fields = [(name, w) for name, w in _wires(self.cls) if name not in self.absent]
-        shapes = {name: shape or (count,) for name, _, _, count, shape, *_ in self.arrays}
-        shapes.update({name: shape or (b - a,) for name, a, b, *_, shape in self.small})
-        formats: list[Any] = []
-        for name, w in fields:
-            if w.type == "bytes":
-                formats.append(("u1", (w.size,)))
-            elif w.shape:
-                formats.append(("<" + WIRE_TYPES[w.type], shapes[name]))
-            else:
-                formats.append("<" + WIRE_TYPES[w.type])
-        dtype = np.dtype(
-            {
-                "names": [name for name, _ in fields],
-                "formats": formats,
-                "offsets": [w.offset for _, w in fields],
-                "itemsize": length,
-            }
-        )
-        self.bulk[length] = (fields, dtype)
-        return fields, dtype
-
-    def decode_bulk(
-        self, joined: bytes, n: int, length: int, start: int, extras: Sequence[bytes]
-    ) -> list[Any]:
-        """Decode this block from ``n`` ensembles of ``length`` bytes laid end to end in
-        ``joined`` (padded by at least ``length`` bytes), the block at ``start`` in each."""
-        fields, dtype = self._bulk_dtype(length)
-        rec = np.ndarray((n,), dtype=dtype, buffer=joined, offset=start)
-        names = [name for name, _ in fields]
-        cols: list[Sequence[Any]] = []
-        for name, w in fields:
-            raw = rec[name]
-            if w.type == "bytes":
-                flat = np.ascontiguousarray(raw).tobytes()
-                cols.append([flat[k * w.size : (k + 1) * w.size] for k in range(n)])
-                continue
-            if w.is_scaled:
-                val = raw * w.scale
-                if w.add:
-                    val += w.add
-                if w.invalid is not None:
-                    np.copyto(val, np.nan, where=raw == w.invalid)
-            else:
-                val = raw
-            if w.shape:
-                if val is not raw:
-                    val.flags.writeable = False
-                cols.append(list(val))
-            else:
-                cols.append(val.tolist())
-        names.append("extra")
-        cols.append(extras)
-        for name in self.absent:
-            names.append(name)
-            cols.append([None] * n)
-        new = object.__new__
-        cls = self.cls
-        out = []
-        for row in zip(*cols, strict=True):
-            msg: Any = new(cls)
-            msg.__dict__.update(zip(names, row, strict=True))
-            out.append(msg)
-        return out
+def _plan(cls: type[Any], ctx: Mapping[str, int], avail: int) -> Plan:
+    """The table's compiled plan (:func:`~auvgw.drivers.spec.plan`) for a block of ``avail``
+    bytes: the trailing rows it is too short for are absent (``None``)."""
+    return table_plan(cls, ctx if cls.ID in _CELL_TABLES else {}, avail)
 
 
-_PLANS: dict[tuple[type, int, int, int], _Plan] = {}
+def _decode(p: Plan, buf: bytes, start: int, extra: bytes) -> Any:
+    """Decode the block at ``buf[start:]`` with plan ``p``; ``buf`` is ``bytes`` (immutable:
+    unscaled arrays are read-only views of it). Every field is supplied, so the frozen message
+    is filled without running its ``__init__``."""
+    values = p.read(buf, start)  # type: ignore[misc]  # PD0 tables always compile
+    values["extra"] = extra
+    msg: Any = object.__new__(p.cls)
+    msg.__dict__.update(values)
+    return msg
 
 
-def _plan(cls: type[Any], ctx: Mapping[str, int], avail: int) -> _Plan:
-    key = (cls, ctx.get("n_cells", -1), ctx.get("n_beams", -1), avail)
-    plan = _PLANS.get(key)
-    if plan is None:
-        if len(_PLANS) > 4096:  # fuzzed input: keep the cache bounded
-            _PLANS.clear()
-        plan = _PLANS[key] = _Plan(cls, ctx, avail)
-    return plan
+def _decode_bulk(
+    p: Plan, joined: bytes, n: int, length: int, start: int, extras: Sequence[bytes]
+) -> list[Any]:
+    """Decode the block at ``start`` of ``n`` ensembles of ``length`` bytes laid end to end in
+    ``joined`` (padded by at least ``length`` bytes): the plan's columns, one record a row."""
+    columns = p.columns(joined, start, n, length)
+    names = [*columns, "extra", *p.absent]
+    cols: list[Sequence[Any]] = []
+    for r in p.rows:
+        col = columns[r.name]
+        cols.append(col if isinstance(col, list) else list(col) if r.shape else col.tolist())
+    cols.append(extras)
+    cols.extend([None] * n for _ in p.absent)
+    new = object.__new__
+    cls = p.cls
+    out = []
+    for row in zip(*cols, strict=True):
+        msg: Any = new(cls)
+        msg.__dict__.update(zip(names, row, strict=True))
+        out.append(msg)
+    return out
 
 
 def _placeholder(w: Wire, ctx: Mapping[str, int]) -> Any:
@@ -927,7 +777,7 @@ class _Template:
             base = hdr.offsets[i]
             fixed_ctx = {"n_beams": frame[base + 8], "n_cells": frame[base + 9]}
         #: (ensemble field or None for a raw block, plan, start, table stop, end, last)
-        self.steps: list[tuple[str, _Plan | None, int, int, int, bool]] = []  # "": unknown ID
+        self.steps: list[tuple[str, Plan | None, int, int, int, bool]] = []  # "": unknown ID
         self.trailer_start = hdr.nbytes
         seen: set[str] = set()
         for i, bid in enumerate(ids):
@@ -949,7 +799,7 @@ class _Template:
                 ctx = fixed_ctx
             plan = _plan(_TABLES[bid], ctx, end - start)
             _check_plan(plan, start, end)
-            stop = start + plan.size
+            stop = start + max(plan.end, 2)
             self.steps.append((name, plan, start, stop, end, last))
             if last:
                 self.trailer_start = stop
@@ -979,7 +829,7 @@ class _Template:
                     unknown.append(WireLayout(RawBlock, start, fields={"data": slice(start, end)}))
                     continue
                 extra = b"" if last else slice(stop, end)
-                ctx = self.ctx if plan.cls.ID in _CELL_TABLES else {}
+                ctx = self.ctx if plan.cls in _CELL_CLASSES else {}
                 fields[name] = WireLayout(
                     plan.cls, start, ctx, frozenset(plan.absent), {"extra": extra}
                 )
@@ -999,11 +849,11 @@ class _Template:
                 key = frame[start : stop if last else end]
                 msg = self.last_fixed.get(key)
                 if msg is None:
-                    msg = plan.decode(frame, start, b"" if last else frame[stop:end])
+                    msg = _decode(plan, frame, start, b"" if last else frame[stop:end])
                     self.last_fixed = {key: msg}
                 values[name] = msg
             else:
-                values[name] = plan.decode(frame, start, b"" if last else frame[stop:end])
+                values[name] = _decode(plan, frame, start, b"" if last else frame[stop:end])
         values["unknown"] = tuple(unknown)
         values["gap"] = frame[self.gap[0] : self.gap[1]]
         values["trailer"] = frame[self.trailer_start : self.nbytes]
@@ -1026,11 +876,11 @@ class _Template:
             hi = stop if last else end
             rows = np.frombuffer(joined, np.uint8, n * length).reshape(n, length)[:, start:hi]
             if (rows == rows[0]).all():  # the same bytes in every ensemble (a fixed leader):
-                one = plan.decode(frames[0], start, b"" if last else frames[0][stop:end])
+                one = _decode(plan, frames[0], start, b"" if last else frames[0][stop:end])
                 columns[name] = [one] * n  # one immutable message, shared
                 continue
             extras = [b""] * n if last or stop == end else [f[stop:end] for f in frames]
-            columns[name] = plan.decode_bulk(joined, n, length, start, extras)
+            columns[name] = _decode_bulk(plan, joined, n, length, start, extras)
         a, b = self.gap
         t, nb = self.trailer_start, self.nbytes
         base = {**_ENSEMBLE_DEFAULTS, **self.fixed}
@@ -1052,10 +902,15 @@ class _Template:
         return out
 
 
-def _check_plan(plan: _Plan, start: int, end: int) -> None:
-    if plan.missing is not None:
-        name, a, b = plan.missing
-        cls = plan.cls
+def _check_plan(p: Plan, start: int, end: int) -> None:
+    """Refuse a block too short for a required row (below the table's ``MIN_SIZE``)."""
+    if not p.absent:
+        return
+    cls: Any = p.cls
+    name = p.absent[0]
+    w = dict(_wires(cls))[name]
+    a, b = w.offset, w.offset + w.nbytes(p.ctx)
+    if b <= (cls.MIN_SIZE if cls.MIN_SIZE >= 0 else block_size(cls, p.ctx)):
         raise DecodeError(
             f"PD0 data type 0x{cls.ID:04X} ({cls.__name__}) at byte {start}: block too short "
             f"({end - start} bytes): field {name} needs bytes {start + a}..{start + b - 1} but "

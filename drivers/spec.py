@@ -26,6 +26,7 @@ import enum
 import functools
 import math
 import struct
+import sys
 import types
 import typing
 from collections.abc import Callable, Mapping
@@ -350,10 +351,14 @@ def decode_block(
 
     Raises :class:`WireError` naming the message, field and absolute offset when ``buf`` is short.
     """
-    if not ctx:
-        plan = _block_plan(cls)
-        if plan is not None and base >= 0 and base + plan.end <= len(buf):
-            return plan.decode(buf, base, extra)
+    p = cls.__dict__.get("__wire_plan__") if not ctx else None  # the common case: no context
+    if p is None:
+        p = _plan_or_none(cls, ctx)
+    if p is not None and p.read is not None and base >= 0 and base + p.end <= len(buf):
+        values = p.read(buf, base)
+        if extra:
+            values.update(extra)
+        return cls(**values)
     return _decode_block_fields(cls, buf, base, ctx, extra)
 
 
@@ -364,7 +369,17 @@ def _decode_block_fields(
     ctx: Mapping[str, int] | None,
     extra: Mapping[str, Any],
 ) -> T:
-    """:func:`decode_block` field by field (shapes from ``ctx``; the precise short-buffer error)."""
+    """The reference walker: :func:`decode_block` field by field, every plan is tested against
+    it (shapes from ``ctx``; the precise short-buffer error)."""
+    values = _walk_values(cls, buf, base, ctx)
+    values.update(extra)
+    return cls(**values)
+
+
+def _walk_values(
+    cls: type, buf: bytes | bytearray | memoryview, base: int, ctx: Mapping[str, int] | None
+) -> dict[str, Any]:
+    """The SI value of every wire row of ``cls`` in ``buf`` at ``base``, one row at a time."""
     ctx = ctx or {}
     values: dict[str, Any] = {}
     n = len(buf)
@@ -390,100 +405,383 @@ def _decode_block_fields(
         if isinstance(value, np.ndarray):
             value.flags.writeable = False
         values[name] = value
-    values.update(extra)
-    return cls(**values)
+    return values
 
 
-@dataclasses.dataclass(frozen=True)
-class _BlockPlan:
-    """A fixed-size table compiled once: its bytes span ``end`` and ``decode(buf, base, extra)``
-    reads every scalar with one ``struct`` call, with :func:`_decode_block_fields`' arithmetic."""
+# -- compiled plans -----------------------------------------------------------------------------
 
-    end: int
-    decode: Callable[[Any, int, Mapping[str, Any]], Any]
-
-
-def _block_plan(cls: type) -> _BlockPlan | None:
-    """The compiled decoder of ``cls`` (cached on the class), or None when a field's shape
-    depends on a context or the scalar fields cannot share one ``struct`` layout."""
-    cached = cls.__dict__.get("__wire_plan__", False)
-    if cached is not False:
-        return cached
-    plan = _compile_block(cls)
-    cls.__wire_plan__ = plan  # type: ignore[attr-defined]
-    return plan
+#: plans kept per message class (one per context and block length; fuzzed input stays bounded)
+PLANS_PER_CLASS = 256
+#: scaled arrays up to this many elements are converted in Python from the plan's one ``struct``
+#: call: cheaper than numpy's calls for a few elements on a warm core, and on a cold one (one
+#: frame at a time, the gateway's case) for a few hundred
+SMALL_ARRAY = 128
+_NATIVE = "<" if sys.byteorder == "little" else ">"
 
 
-def _compile_block(cls: type) -> _BlockPlan | None:
-    fields = _wire_fields(cls)
-    if any(isinstance(d, str) for _, w in fields for d in w.shape):
-        return None
-    scalars = sorted(
-        ((w.offset, name, w) for name, w in fields if w.type in WIRE_TYPES and not w.shape),
-        key=lambda x: x[0],
-    )
-    endians = {_endian(cls, w) for _, _, w in scalars}
-    if len(endians) > 1:
-        return None
-    fmt, pos = [next(iter(endians), "<")], 0
-    for offset, _, w in scalars:
-        if offset < pos:
-            return None  # overlapping fields: left to the field-by-field path
-        fmt.append(f"{offset - pos}x{WIRE_TYPES[w.type]}" if offset > pos else WIRE_TYPES[w.type])
-        pos = offset + w.item_size()
-    layout = struct.Struct("".join(fmt))
-    slot = {name: i for i, (_, name, _) in enumerate(scalars)}
-    ns: dict[str, Any] = {"unpack": layout.unpack_from, "cls": cls, "nan": math.nan}
-    items = []
-    for i, (name, w) in enumerate(fields):
-        if name in slot:
-            r = f"r[{slot[name]}]"
-            if not w.is_scaled:
-                expr = r
+@dataclasses.dataclass(frozen=True, eq=False)
+class Row:
+    """One wire row of a :class:`Plan`: the field ``name``, its :class:`Wire`, its shape resolved
+    with the plan's context, its byte count and its byte order (``"<"``/``">"``)."""
+
+    name: str
+    wire: Wire
+    shape: tuple[int, ...]
+    nbytes: int
+    endian: str
+
+    @property
+    def count(self) -> int:
+        """Wire items of the row (1 for a scalar, a bytes or a str row)."""
+        return math.prod(self.shape) if self.shape else 1
+
+    def record_shape(self, count: str | None) -> tuple[int, ...]:
+        """The row's shape in one record (:meth:`Plan.columns`): without its first dimension
+        when that is the record ``count``."""
+        if count is not None and self.wire.shape[:1] == (count,):
+            return self.shape[1:]
+        return self.shape
+
+    def dtype(self) -> np.dtype:
+        """The numpy dtype of one wire item (``bytes``/``str`` rows: ``u1`` x size)."""
+        w = self.wire
+        if w.type in ("bytes", "str"):
+            return np.dtype((np.uint8, (w.size,)))
+        return np.dtype(self.endian + WIRE_TYPES[w.type])
+
+
+class Plan:
+    """One message table compiled for one context (array shapes) and, optionally, one block
+    length ``avail`` (rows that end past it are absent: ``None``). Built once by :func:`plan`
+    and cached on the class; the walker (:func:`_decode_block_fields`, :func:`encode_block`
+    field by field) is the reference it is tested against on every shipped table
+    (``tests/test_plans.py``).
+
+    * :attr:`read` ``(buf, base) -> {field: value}``: every wire row's SI value (None for an
+      absent row) from one
+      ``struct`` call (scalars, bytes, small scaled arrays) plus one ``numpy.frombuffer`` per
+      other array (read-only views of ``buf`` when it is ``bytes``, copies otherwise); None when
+      the rows cannot share one ``struct`` layout (mixed byte orders, overlapping rows).
+    * :meth:`encode` ``(msg, buf, base)``: every row's raw value (range-checked and rounded as the
+      walker does) written with one ``struct`` call.
+    * :meth:`columns` ``(buf, base, n, stride)``: the rows of ``n`` records ``stride`` bytes
+      apart (Kongsberg beams, PD0 ensembles of one layout) as SI columns, one numpy record view;
+      :meth:`write_columns` the inverse.
+    """
+
+    __slots__ = ("_pack", "_records", "absent", "cls", "ctx", "end", "read", "rows")
+
+    def __init__(self, cls: type, ctx: Mapping[str, int], avail: int | None) -> None:
+        self.cls = cls
+        self.ctx = dict(ctx)
+        rows: list[Row] = []
+        absent: list[str] = []
+        for name, w in sorted(_wire_fields(cls), key=lambda r: r[1].offset):
+            shape = w.resolve_shape(ctx)
+            n = w.nbytes(ctx)
+            if avail is not None and (absent or w.offset + n > avail):
+                absent.append(name)
+                continue
+            rows.append(Row(name, w, shape, n, _endian(cls, w)))
+        order = {name: i for i, (name, _) in enumerate(_wire_fields(cls))}
+        #: the present rows, in table (declaration) order
+        self.rows = tuple(sorted(rows, key=lambda r: order[r.name]))
+        #: the rows the block is too short for (``avail``), in offset order
+        self.absent = tuple(absent)
+        #: bytes spanned by the present rows (from the block start)
+        self.end = max((r.wire.offset + r.nbytes for r in rows), default=0)
+        self._records: dict[tuple[int, str | None], np.dtype] = {}
+        self.read, self._pack = _compile_plan(self)
+
+    def encode(self, msg: Any, buf: bytearray, base: int = 0) -> None:
+        """Write the present rows of ``msg`` into ``buf`` at ``base`` (:func:`encode_block`)."""
+        if self._pack is not None:
+            try:
+                self._pack(msg, buf, base)
+                return
+            except Exception:  # the walker raises exactly what it always did
+                pass
+        _encode_block_fields(msg, buf, base, self.ctx)
+
+    def record_dtype(self, stride: int, count: str | None = None) -> np.dtype:
+        """The present rows as one numpy record of ``stride`` bytes (offsets from its start;
+        ``count``: see :meth:`columns`)."""
+        key = (stride, count)
+        dt = self._records.get(key)
+        if dt is None:
+            formats: list[Any] = []
+            for r in self.rows:
+                shape = r.record_shape(count)
+                formats.append((r.dtype(), shape) if shape else r.dtype())
+            dt = self._records[key] = np.dtype(
+                {
+                    "names": [r.name for r in self.rows],
+                    "formats": formats,
+                    "offsets": [r.wire.offset for r in self.rows],
+                    "itemsize": stride,
+                }
+            )
+        return dt
+
+    def columns(
+        self, buf: bytes, base: int, n: int, stride: int, count: str | None = None
+    ) -> dict[str, Any]:
+        """SI columns of ``n`` records ``stride`` bytes apart from ``base`` in ``buf``: an array
+        of shape ``(n, *record shape)`` per numeric row (read-only; float64 where the row is
+        scaled, the native wire type otherwise), a list per bytes / str row; each record's values
+        are those :func:`decode_block` gives it. ``count`` names the dimension that counts the
+        records of a record table (Kongsberg beams: every row ``shape=("n_beams",)``, one item
+        per record; its plan is built with that dimension 1): it is left out of the record."""
+        rec = np.frombuffer(buf, dtype=self.record_dtype(stride, count), count=n, offset=base)
+        out: dict[str, Any] = {}
+        for r in self.rows:
+            raw = rec[r.name]
+            w = r.wire
+            if w.type in ("bytes", "str"):
+                flat = np.ascontiguousarray(raw).tobytes()
+                items: list[Any] = [flat[k * w.size : (k + 1) * w.size] for k in range(n)]
+                if w.type == "str":
+                    items = [b.rstrip(b"\x00").decode("ascii", "replace") for b in items]
+                out[r.name] = items
+                continue
+            if w.is_scaled:
+                value = _si_array(raw, w.scale, w.add, w.invalid)
+            elif raw.dtype.isnative and type(buf) is bytes:
+                value = raw  # read-only: a view of immutable bytes
             else:
+                value = raw.astype(raw.dtype.newbyteorder("="))
+            value.flags.writeable = False
+            out[r.name] = value
+        return out
+
+    def write_columns(
+        self,
+        columns: Mapping[str, Any],
+        buf: bytearray,
+        base: int,
+        n: int,
+        stride: int,
+        count: str | None = None,
+        unit: str = "records",
+    ) -> None:
+        """Write ``n`` records ``stride`` bytes apart from SI columns (:meth:`columns`' form;
+        bytes between the rows are zero); :class:`WireError` naming the row whose values do not
+        fit or whose shape is not ``(n, *record shape)`` (``unit``: what a record is)."""
+        rec = np.zeros(n, dtype=self.record_dtype(stride, count))
+        for r in self.rows:
+            if r.wire.type in ("bytes", "str"):
+                raise WireError(f"{r.wire.type} rows are not written as columns", field=r.name)
+            raw = np.asarray(_from_si(self.cls, r.name, _column_wire(r.wire), columns[r.name]))
+            if raw.shape != (n, *r.record_shape(count)):
+                raise WireError(
+                    f"{self.cls.__name__}.{r.name}: shape {raw.shape}, header says ({n},) {unit}"
+                )
+            rec[r.name] = raw
+        buf[base : base + n * stride] = rec.tobytes()
+
+
+def _column_wire(w: Wire) -> Wire:
+    """``w`` as an array row (a column of a scalar row is an array)."""
+    return w if w.shape else dataclasses.replace(w, shape=(-1,))
+
+
+def plan(cls: type, ctx: Mapping[str, int] | None = None, avail: int | None = None) -> Plan:
+    """The compiled :class:`Plan` of table ``cls`` for the array dimensions its shapes name in
+    ``ctx`` and, when given, the block length ``avail``: built on first use, then cached on the
+    class (:data:`PLANS_PER_CLASS` at most). Raises :class:`WireError` when ``ctx`` lacks a
+    dimension."""
+    plans = cls.__dict__.get("__wire_plans__")
+    if plans is None:
+        dims = tuple(
+            sorted({d for _, w in _wire_fields(cls) for d in w.shape if isinstance(d, str)})
+        )
+        plans = {"dims": dims}
+        cls.__wire_plans__ = plans  # type: ignore[attr-defined]
+    dims = plans["dims"]
+    key = (tuple(ctx.get(d) for d in dims) if ctx else (None,) * len(dims), avail)
+    p = plans.get(key)
+    if p is None:
+        if len(plans) > PLANS_PER_CLASS:
+            plans.clear()
+            plans["dims"] = dims
+        p = plans[key] = Plan(cls, ctx or {}, avail)
+        if not dims and avail is None:
+            cls.__wire_plan__ = p  # type: ignore[attr-defined]  # decode_block's fast path
+    return p
+
+
+def _plan_or_none(cls: type, ctx: Mapping[str, int] | None) -> Plan | None:
+    try:
+        return plan(cls, ctx)
+    except WireError:  # a dimension missing from the context: the walker's error
+        return None
+
+
+def _compile_plan(
+    p: Plan,
+) -> tuple[Callable[[Any, int], dict[str, Any]] | None, Callable[..., None] | None]:
+    """Generate the plan's reader and its packer (None, None: the rows cannot share one
+    ``struct`` layout)."""
+    endians = {r.endian for r in p.rows if r.wire.type in WIRE_TYPES}
+    if len(endians) > 1:
+        return None, None
+    endian = next(iter(endians), "<")
+    fmt, pos, k = [endian], 0, 0
+    runs: list[tuple[int, list[str]]] = []  # (offset, struct codes) of each contiguous run
+    ns: dict[str, Any] = {"nan": math.nan}
+    items: list[str] = []
+    for i, r in enumerate(sorted(p.rows, key=lambda r: r.wire.offset)):
+        w, at, name = r.wire, r.wire.offset, repr(r.name)
+        if at < pos:
+            return None, None  # overlapping rows (an ASCII table's field positions)
+        pad = f"{at - pos}x" if at > pos else ""
+        code = WIRE_TYPES.get(w.type, "")
+        if not runs or at > pos:
+            runs.append((at, []))  # the packer writes no gap (sync, checksum: not rows)
+        runs[-1][1].append(code if code and not w.shape else f"{r.nbytes}s")
+        pos = at + r.nbytes
+        if not code:  # bytes, str
+            fmt.append(f"{pad}{w.size}s")
+            strip = ".rstrip(b'\\x00').decode('ascii', 'replace')" if w.type == "str" else ""
+            items.append(f"{name}: r[{k}]{strip}")
+            k += 1
+        elif not w.shape:
+            fmt.append(pad + code)
+            item = f"r[{k}]"
+            if w.is_scaled:
                 ns[f"s{i}"], ns[f"a{i}"] = w.scale, w.add
-                expr = f"{r} * s{i} + a{i}"
+                item = f"{item} * s{i} + a{i}"
                 if w.invalid is not None:
                     ns[f"n{i}"] = w.invalid
-                    expr = f"(nan if {r} == n{i} else {expr})"
+                    item = f"(nan if r[{k}] == n{i} else {item})"
+            items.append(f"{name}: {item}")
+            k += 1
+        elif w.is_scaled and 0 < r.count <= SMALL_ARRAY:
+            fmt.append(f"{pad}{r.count}{code}")
+            ns[f"h{i}"] = _small_array(w, r.shape)
+            items.append(f"{name}: h{i}(r[{k}:{k + r.count}])")
+            k += r.count
         else:
-            ns[f"h{i}"] = _field_reader(cls, w)
-            expr = f"h{i}(buf, base)"
-        items.append(f"{name!r}: {expr}")
-    src = (
-        "def decode(buf, base, extra):\n"
-        "    r = unpack(buf, base)\n"
-        f"    values = {{{', '.join(items)}}}\n"
-        "    if extra:\n"
-        "        values.update(extra)\n"
-        "    return cls(**values)\n"
-    )
+            fmt.append(f"{pad}{r.nbytes}x")
+            ns[f"h{i}"] = _array_reader(r)
+            items.append(f"{name}: h{i}(buf, base)")
+    items += [f"{name!r}: None" for name in p.absent]  # the rows the block is too short for
+    ns["unpack"] = struct.Struct("".join(fmt)).unpack_from
+    src = f"def read(buf, base):\n    r = unpack(buf, base)\n    return {{{', '.join(items)}}}\n"
     exec(src, ns)  # the source holds only repr() of field names and generated identifiers
-    end = max((w.offset + w.nbytes({}) for _, w in fields), default=0)
-    return _BlockPlan(max(end, layout.size), ns["decode"])
+    # the packer: every row's raw value converted and checked in table order (the walker's),
+    # then written in offset order with one call
+    convs = [_row_writer(p.cls, r) for r in p.rows]
+    getters = [r.name for r in p.rows]
+    by_offset = sorted(range(len(p.rows)), key=lambda j: p.rows[j].wire.offset)
+    packers, first = [], 0
+    for at, codes in runs:
+        packers.append((struct.Struct(endian + "".join(codes)).pack_into, at, first, len(codes)))
+        first += len(codes)
+
+    def pack(msg: Any, buf: bytearray, base: int) -> None:
+        raws = [conv(getattr(msg, name)) for conv, name in zip(convs, getters, strict=True)]
+        ordered = [raws[j] for j in by_offset]
+        for pack_into, at, a, n in packers:
+            pack_into(buf, base + at, *ordered[a : a + n])
+
+    return ns["read"], pack
 
 
-def _field_reader(cls: type, w: Wire) -> Callable[[Any, int], Any]:
-    """Reads one bytes, str or fixed-shape array field as :func:`_decode_block_fields` does."""
-    size = w.nbytes({})
+def _row_writer(cls: type, r: Row) -> Callable[[Any], Any]:
+    """SI value -> what the plan's ``struct`` packs for row ``r``, with the walker's conversion
+    (:func:`_from_si`) and checks (bytes size, str length, array shape)."""
+    w, label = r.wire, f"{cls.__name__}.{r.name}"
     if w.type == "bytes":
-        return lambda buf, base: bytes(buf[base + w.offset : base + w.offset + size])
-    if w.type == "str":
-        return lambda buf, base: (
-            bytes(buf[base + w.offset : base + w.offset + size])
-            .rstrip(b"\x00")
-            .decode("ascii", "replace")
-        )
-    dt = np.dtype(_endian(cls, w) + WIRE_TYPES[w.type])
-    native, shape, count = dt.newbyteorder("="), w.resolve_shape({}), size // dt.itemsize
 
-    def read_array(buf: Any, base: int) -> Any:
-        raw = np.frombuffer(buf, dtype=dt, count=count, offset=base + w.offset)
-        value = _to_si(w, raw.reshape(shape).astype(native))
+        def write_bytes(value: Any) -> Any:
+            if len(value) != w.size:
+                raise WireError(f"needs {w.size} bytes, got {len(value)}", field=label)
+            return bytes(value)
+
+        return write_bytes
+    if w.type == "str":
+
+        def write_str(value: Any) -> Any:
+            data = str(value).encode("ascii")
+            if len(data) > w.size:
+                raise WireError(f"{value!r} longer than {w.size} bytes", field=label)
+            return data
+
+        return write_str
+    if w.shape:
+        dt = r.dtype()
+
+        def write_array(value: Any) -> Any:
+            arr = np.asarray(_from_si(cls, r.name, w, value))
+            if arr.shape != r.shape:
+                raise WireError(f"shape {arr.shape}, table says {r.shape}", field=label)
+            return arr.astype(dt).tobytes()
+
+        return write_array
+    return functools.partial(_from_si, cls, r.name, w)
+
+
+def _small_array(w: Wire, shape: tuple[int, ...]) -> Callable[[tuple[Any, ...]], np.ndarray]:
+    """A short scaled array from its unpacked raw items, with :func:`_to_si`'s arithmetic."""
+    scale, add, invalid = w.scale, w.add, w.invalid
+    nd = shape if len(shape) > 1 else None
+
+    def small(raws: tuple[Any, ...]) -> np.ndarray:
+        if invalid is None:
+            arr = np.array([x * scale + add for x in raws], dtype=np.float64)
+        else:
+            arr = np.array(
+                [math.nan if x == invalid else x * scale + add for x in raws], dtype=np.float64
+            )
+        arr.flags.writeable = False  # (its reshaped view is read-only too)
+        return arr if nd is None else arr.reshape(nd)
+
+    return small
+
+
+def _si_array(raw: np.ndarray, scale: float, add: float, invalid: int | None) -> np.ndarray:
+    """:func:`_to_si`'s values of a raw array (float64 ``raw * scale + add``, NaN where ``raw ==
+    invalid``) with one multiply, the offset only when non-zero and ``copyto`` for NaN."""
+    value = np.multiply(raw, scale, dtype=np.float64)
+    if add:
+        value += add
+    if invalid is not None:
+        np.copyto(value, math.nan, where=raw == invalid)
+    return value
+
+
+def _array_reader(r: Row) -> Callable[[Any, int], np.ndarray]:
+    """One array row read with ``numpy.frombuffer``: a read-only view of a ``bytes`` buffer when
+    the row is unscaled and native, else a converted copy (:func:`_to_si`'s values: float64
+    ``raw * scale + add``, NaN where ``raw == invalid``)."""
+    w, dt, count, at = r.wire, r.dtype(), r.count, r.wire.offset
+    shape = r.shape if len(r.shape) > 1 else None
+    native = dt.newbyteorder("=")
+    frombuffer = np.frombuffer
+    if w.is_scaled:
+        scale, add, invalid = w.scale, w.add, w.invalid
+
+        def read_scaled(buf: Any, base: int) -> np.ndarray:
+            raw = frombuffer(buf, dtype=dt, count=count, offset=base + at)
+            value = _si_array(raw if shape is None else raw.reshape(shape), scale, add, invalid)
+            value.flags.writeable = False
+            return value
+
+        return read_scaled
+    view_ok = r.endian == _NATIVE or dt.itemsize == 1
+
+    def read_raw(buf: Any, base: int) -> np.ndarray:
+        raw = frombuffer(buf, dtype=dt, count=count, offset=base + at)
+        if shape is not None:
+            raw = raw.reshape(shape)
+        if view_ok and type(buf) is bytes:
+            return raw  # read-only: a view of immutable bytes
+        value = raw.astype(native)
         value.flags.writeable = False
         return value
 
-    return read_array
+    return read_raw
 
 
 def encode_block(
@@ -493,6 +791,20 @@ def encode_block(
     ctx: Mapping[str, int] | None = None,
 ) -> None:
     """Write the wire fields of ``msg`` into ``buf`` at ``base`` (``buf`` must be large enough)."""
+    cls = type(msg)
+    p = cls.__dict__.get("__wire_plan__") if not ctx else None
+    if p is None:
+        p = _plan_or_none(cls, ctx)
+    if p is None:
+        _encode_block_fields(msg, buf, base, ctx)
+    else:
+        p.encode(msg, buf, base)
+
+
+def _encode_block_fields(
+    msg: Any, buf: bytearray, base: int, ctx: Mapping[str, int] | None
+) -> None:
+    """The reference walker of :func:`encode_block`: one field at a time."""
     cls = type(msg)
     ctx = ctx or {}
     for name, w in _wire_fields(cls):

@@ -174,9 +174,9 @@ def test_tables_cover_every_byte_and_documented_sizes() -> None:
         "EchoIntensity": 14, "PercentGood": 14, "BottomTrack": 85, "BottomTrackHighRes": 70,
         "BottomTrackRange": 41,
     }
-    for cls in pd0._TABLES.values():  # a plan refuses a table with a gap or an overlap
+    for cls in pd0._TABLES.values():  # contiguous tables: no gap, no overlap
         plan = pd0._plan(cls, {"n_cells": 3, "n_beams": 4}, 10_000)
-        assert plan.size == block_size(cls, {"n_cells": 3, "n_beams": 4})
+        assert plan.end == block_size(cls, {"n_cells": 3, "n_beams": 4}) and not plan.absent
         pos = 2
         for _, w in wires(cls):
             assert w.offset == pos
@@ -198,9 +198,10 @@ def test_fast_plan_matches_decode_block(cls) -> None:
     for _ in range(20):
         buf = rng.integers(0, 256, size + 5, dtype=np.uint8).tobytes()
         slow = decode_block(cls, buf, 0, ctx, extra=b"xy")
-        fast = pd0._plan(cls, ctx, size).decode(buf, 0, b"xy")
+        fast = pd0._decode(pd0._plan(cls, ctx, size), buf, 0, b"xy")
         assert fast == slow
-        bulk = pd0._plan(cls, ctx, size).decode_bulk(buf + bytes(size + 5), 1, size + 5, 0, [b"xy"])
+        joined = buf + bytes(size + 5)
+        bulk = pd0._decode_bulk(pd0._plan(cls, ctx, size), joined, 1, size + 5, 0, [b"xy"])
         assert bulk == [slow]
 
 
