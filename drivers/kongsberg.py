@@ -447,6 +447,7 @@ def depth_beam_table(z_resolution_cm: int, xy_resolution_cm: int, unsigned_depth
         "__module__": __name__,
         "__qualname__": name,
         "__doc__": f"Depth beam records, z {z_resolution_cm} cm, x/y {xy_resolution_cm} cm.",
+        "TYPE": name,  # each resolution its own registered type (the base's name is shared)
         **rows,
     }
     return message(type(name, (DepthBeams,), ns))
