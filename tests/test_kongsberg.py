@@ -590,7 +590,7 @@ def test_cli_decode_kongsberg_file(tmp_path: Path) -> None:
     assert [m["type"] for m in lines] == ["XYZ88", "Depth", "KongsbergDatagram"]
     assert lines[0] == json.loads(json.dumps(to_jsonable(x)))
     assert lines[0]["beams"]["depth"] == pytest.approx([20.0, 20.25, 20.5, 20.75, 21.0, 21.25])
-    assert lines[1]["beams"]["type"] == "DepthBeams_z1cm_xy1cm_s16"  # the resolution names the table
+    assert lines[1]["beams"]["type"] == "DepthBeams_z1cm_xy1cm_s16"
     assert lines[1]["beams"]["depth"] == pytest.approx([15.0, 15.5, 16.0])
     assert lines[2]["type_id"] == 0x50 and lines[2]["counter"] == 5
     summary = json.loads(run.stderr.strip().splitlines()[-1])
