@@ -214,6 +214,21 @@ def _sim_done(sim: subprocess.Popen[bytes], sim_dir: Path) -> bool:
     return sim.poll() is not None or (sim_dir / "finished").exists()
 
 
+def _streamed_frames(gw_cfg: Any, devices: dict[str, Any]) -> int:
+    """Frames the gateway has read from the devices that speak on their own: a polled device
+    (a host driver, the MSIS head) answers every poll for as long as its port stays open, so its
+    frames never go quiet; counted, they held the drain at its limit while the gateway kept
+    stamping rows past the end of the run (issue 33: 20 s of vehicle time at ``--speed 2``)."""
+    from auvgw.drivers import registry
+
+    polled = {k.format for k in registry.DEVICES if k.host_driver}
+    return sum(
+        int(d.get("frames", 0))
+        for name, d in devices.items()
+        if name not in gw_cfg.devices or gw_cfg.devices[name].format not in polled
+    )
+
+
 def _wait_drained(frames: Callable[[], int], quiet_s: float = 0.5, limit_s: float = 10.0) -> None:
     """Wait until a count has not moved for ``quiet_s``, at most ``limit_s``: the gateway's
     frames (the last read from the held-open ports) or a stage's received messages."""
@@ -433,7 +448,7 @@ def _run_stages(
         if listener:
             gateway.listeners.subscribe(listener)
     if viz is not None:
-        _log_true_map(viz, keys, scenario)
+        _log_true_map(viz, keys, scenario, epoch_ns)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
@@ -446,7 +461,7 @@ def _run_stages(
             stop.wait(0.2)
             progress.tick()
         # the emulators are silent but their ports open: drain, then stop the gateway first
-        _wait_drained(lambda: sum(d["frames"] for d in gateway.status()["devices"].values()))
+        _wait_drained(lambda: _streamed_frames(gw_cfg, gateway.status()["devices"]))
         tail.poll()
     finally:
         status = gateway.status()
@@ -756,9 +771,8 @@ def _run_processes(
         # put has reached it (its received count quiet for two status periods; a loaded machine
         # holds samples in flight for seconds), which drains its queue and publishes its last
         # pose, and the emulators last
-        _wait_drained(lambda: sum(d.get("frames", 0) for d in
-                                  (sub.status(timeout=2.0) or {"devices": {}})["devices"].values()),
-                      quiet_s=1.5)  # fmt: skip
+        _wait_drained(lambda: _streamed_frames(
+            gw_cfg, (sub.status(timeout=2.0) or {"devices": {}})["devices"]), quiet_s=1.5)
         status = sub.status(timeout=2.0) or collector.status.get("gateway") or {"devices": {}}
         for name in ("gateway", "fusion"):
             children.stop(name)
@@ -798,8 +812,9 @@ def _run_processes(
     return 0
 
 
-def _log_true_map(viz: Any, keys: Keys, scenario: Path) -> None:
-    """The scenario's true point and line features, once, on ``truth/map``."""
+def _log_true_map(viz: Any, keys: Keys, scenario: Path, epoch_ns: int) -> None:
+    """The scenario's true point and line features, once, on ``truth/map`` at vehicle time 0
+    (``epoch_ns`` on the stamps' clock)."""
     scn = load_scenario(scenario)
     lines = [
         {"p0": [x1, y1], "p1": [x2, y2],
@@ -811,7 +826,7 @@ def _log_true_map(viz: Any, keys: Keys, scenario: Path) -> None:
     beacons = _true_beacons(scn)
     body["landmarks"] += beacons.pop("landmarks", [])
     body.update(beacons)
-    viz.stage.handle_sample(keys.truth("map"), json.dumps(body).encode(), time.time_ns())
+    viz.stage.handle_sample(keys.truth("map"), json.dumps(body).encode(), epoch_ns)
 
 
 def _print_summary(

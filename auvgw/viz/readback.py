@@ -22,10 +22,13 @@ __all__ = ["EntityRows", "read_recording", "read_views"]
 
 @dataclass
 class EntityRows:
-    """Rows of one entity: ``times`` (ns on ``sensor_time``, sorted), ``columns`` (component
+    """Rows of one entity: ``times`` (ns on ``sensor_time``, sorted; ``written``: as
+    written), ``columns`` (component
     name such as ``Scalars:scalars`` -> one value per row) and ``static`` components."""
 
     times: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    #: the same times in the order the rows were written (chunks in file order)
+    written: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     columns: dict[str, list[Any]] = field(default_factory=dict)
     static: dict[str, Any] = field(default_factory=dict)
 
@@ -65,6 +68,7 @@ def read_recording(path: str | Path, timeline: str = TIMELINE) -> dict[str, Enti
         order = np.argsort(times, kind="stable")
         rows = out[entity]
         rows.times = times[order]
+        rows.written = times
         rows.columns = {n: [vals[i] for i in order] for n, vals in merged.items()}
     return out
 

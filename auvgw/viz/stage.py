@@ -225,7 +225,7 @@ class VizStage(Stage):
         #: magnetic-beacon ranges of the latest window, per map: (t, beacon positions)
         self._ranges: dict[str, tuple[float, list[tuple[float, float]]]] = {}
         self._status: dict[str, tuple[Any, Any]] = {}
-        self._t_last = 0.0  # the newest data time (sensor, odometry stamps), s
+        self._t_last = 0.0  # the newest data time (sensor, odometry stamps), s; never goes back
         #: device registry role -> handler; a message type is shown by the first of its roles
         #: that has one (registry.MessageType.roles)
         self._role_handlers: dict[str, Callable[[str, Any, float], bool]] = {
@@ -340,8 +340,9 @@ class VizStage(Stage):
             if not self._stamps.accept(env.t_recv_ns):  # a forged time never moves the clock
                 return "unknown:stamp"
             if section == "sensor" and env.message is not None:
-                self._t_last = env.t_recv_ns / 1e9
-                return self._sensor(env.device, env.type, env.message, self._t_last)
+                t_stamp = env.t_recv_ns / 1e9
+                self._t_last = max(self._t_last, t_stamp)
+                return self._sensor(env.device, env.type, env.message, t_stamp)
             data: Any = {"v": SCHEMA_VERSION, "type": env.type, "device": env.device,
                          "msg": env.body, "t_recv_ns": env.t_recv_ns}  # fmt: skip
         else:
@@ -359,7 +360,7 @@ class VizStage(Stage):
         if not isinstance(body, Mapping):
             return f"unknown:{section}"
         if section in ("sensor", "nav"):  # data times only: status and SLAM rows follow them
-            self._t_last = t_host
+            self._t_last = max(self._t_last, t_host)
         if section == "sensor":
             return self._sensor_json(device, type_name, body, t_host)
         if section == "nav":
@@ -404,7 +405,7 @@ class VizStage(Stage):
             self.stats.received += 1
         type_name = getattr(msg, "TYPE", type(msg).__name__)
         t_host = t_recv_ns / 1e9
-        self._t_last = t_host
+        self._t_last = max(self._t_last, t_host)
         try:
             with self._map_lock:
                 outcome = self._sensor(device, type_name, msg, t_host)
