@@ -11,7 +11,7 @@ import sys
 import numpy as np
 import pytest
 
-from auvgw.viz.readback import read_recording
+from auvgw.viz.readback import health_metrics, read_recording
 
 DURATION_S = 30.0
 HARBOUR_SPEED_MPS = 1.0  # config/scenarios/harbour.json vehicle.speed_mps
@@ -82,7 +82,7 @@ def test_recording_holds_every_stream_against_truth(demo_run) -> None:
     rec = read_recording(out / "demo.rrd")
     for path in ("map/truth/track", "map/dead_reckoning/track", "sonar/fan", "ins/attitude",
                  "dvl/velocity", "mag/field", "world/multibeam/soundings", "map/truth/lines",
-                 "health/ins/status"):  # fmt: skip
+                 "health/rate/ins"):  # fmt: skip
         assert path in rec and len(rec[path]) > 0, path
     msgs = {n: d["messages"] for n, d in summary["devices"].items()}
     assert len(rec["ins/attitude"]) == msgs["ins"]["Hn100Nav"]
@@ -142,10 +142,10 @@ def test_every_row_is_stamped_on_the_vehicle_clock(run, request) -> None:
     # --speed 2 falls about half the run (here 15 s) early
     slack = int(2.0e9) * int(summary["speed"])
     checked = []
+    stages = ("fusion", "fusion_diagnostics", "slam-vb-aufastslam")
     for path, rows in rec.items():
-        if not len(rows) or not path.startswith(
-            ("map/slam/", "map/dead_reckoning/", "health/fusion", "health/slam-")
-        ):
+        stage_row = path.startswith("health/") and path.rsplit("/", 1)[-1] in stages
+        if not len(rows) or not (stage_row or path.startswith(("map/slam/", "map/dead_reck"))):
             continue
         inside = (rows.times >= t0 - slack) & (rows.times <= t1 + slack)
         assert inside.all(), (path, (rows.times[~inside] - t0) / 1e9, (t1 - t0) / 1e9)
@@ -154,8 +154,8 @@ def test_every_row_is_stamped_on_the_vehicle_clock(run, request) -> None:
     assert any(p.startswith("map/slam/") for p in checked), checked
     # the stages' status rows run on the data's clock to the end (they stopped at half of it)
     for stage in ("fusion", "slam-vb-aufastslam"):
-        rows = rec[f"health/{stage}/status"]
-        assert rows.times[0] >= t0 - slack and rows.times[-1] >= t1 - slack, stage
+        times = [t for t, _ in health_metrics(rec, stage)]
+        assert times[0] >= t0 - slack and times[-1] >= t1 - slack, stage
     # nothing is drawn past the data: the time line a file opens on ends with it
     last = max(int(r.times[-1]) for r in rec.values() if len(r))
     assert last <= t1 + slack, (last - t1) / 1e9
@@ -174,10 +174,5 @@ def test_every_row_is_stamped_on_the_vehicle_clock(run, request) -> None:
 
 
 def _recorded_rates(rec, device: str, start: int, end: int) -> list[float]:
-    """The ``rate_hz`` health rows of ``device`` between ``start`` and ``end`` (ns)."""
-    rows = rec[f"health/{device}/status"]
-    names = rows.static.get("SeriesLines:names") or []
-    idx = next(i for i, n in enumerate(names) if str(n).endswith("rate_hz"))
-    during = (rows.times >= start) & (rows.times <= end)
-    return [v[idx] for v, ok in zip(rows.values("Scalars:scalars"), during, strict=True)
-            if ok and v is not None]  # fmt: skip
+    """The ``rate_hz`` of ``device``'s health rows between ``start`` and ``end`` (ns)."""
+    return [m["rate_hz"] for t, m in health_metrics(rec, device) if start <= t <= end]

@@ -20,6 +20,7 @@ What is logged where (entity paths in :mod:`auvgw.viz.entities`, shown in ``docs
 
 from __future__ import annotations
 
+import itertools
 import logging
 import math
 import queue
@@ -73,9 +74,24 @@ _LUT = np.stack(
 
 #: fixed colours of the well-known trajectories; others take the palette in order of appearance
 _TRACK_COLOURS: dict[str, tuple[int, int, int]] = {
-    "truth": (70, 200, 90),
+    "truth": (240, 240, 240),
     "dead_reckoning": (255, 160, 40),
 }
+#: the true features (walls, piles, beacons): apart from every track
+_TRUE_FEATURES = (90, 190, 110)
+#: line width (px) and draw order of the well-known tracks: the truth widest and underneath,
+#: so three tracks on top of each other all show; others (SLAM) thinnest, on top
+_TRACK_STYLE: dict[str, tuple[float, float]] = {"truth": (4.0, 28.0), "dead_reckoning": (2.5, 30.0)}
+_TRACK_STYLE_OTHER = (1.5, 32.0)
+#: the health views' colours, one per device in order of appearance
+_HEALTH_PALETTE: tuple[tuple[int, int, int], ...] = (
+    (80, 160, 255), (255, 160, 40), (90, 220, 110), (230, 80, 220), (255, 90, 90),
+    (120, 230, 230), (220, 220, 80), (170, 130, 255), (200, 200, 200), (255, 200, 150),
+)  # fmt: skip
+#: spacings (m) of the map's metre grid: the first that draws at most 6 lines across the tracks
+_GRID_STEPS = (5.0, 10.0, 20.0, 50.0, 100.0, 200.0, 500.0, 1000.0, 2000.0, 5000.0)
+#: the sonar fan's range rings, fractions of the range scale
+_RINGS = (0.25, 0.5, 0.75, 1.0)
 #: which trajectory places the vehicle frame (lowest first; others rank 2)
 _RANK: dict[str, int] = {"dead_reckoning": 0, "truth": 1}
 _PALETTE: tuple[tuple[int, int, int], ...] = (
@@ -380,6 +396,14 @@ class RerunLogger(Closing):
         # state of the logging thread
         self._streams: dict[str, _Stream] = {}
         self._health_names: dict[str, tuple[str, ...]] = {}
+        self._device_colours: dict[str, tuple[int, int, int]] = {}
+        self._grid_bounds: tuple[np.ndarray, np.ndarray] | None = None
+        self._mag_first: np.ndarray | None = None
+        self._fan_overlay: float | None = None
+        self._depth_scale_logged = False
+        self._counters: dict[str, dict[str, float]] = {}
+        self._counters_dirty = False
+        self._counters_t = -math.inf
         self._styled: set[str] = set()
         self._tracks: dict[str, _Track] = {}
         self._fan = _Fan(opts.fan_pixels)
@@ -422,7 +446,6 @@ class RerunLogger(Closing):
             self._rec.flush(timeout_sec=timeout_s)
         finally:
             self._rec.disconnect()
-
 
     def stats(self) -> LoggerStats:
         """Current counters (see :class:`LoggerStats`)."""
@@ -761,6 +784,8 @@ class RerunLogger(Closing):
                 self._send(path, s)
         if final and self._grid.counts.size:
             self._log_grid(self._grid_t, final=True)
+        if final and self._counters_dirty and self._t_last:
+            self._log_counters(max(self._t_last, self._counters_t))
         if final and self._fan_t and self._fan_logged_t < self._fan_t:
             self._log_fan(self._fan_t, None)
         dropped = self.stats().dropped
@@ -781,13 +806,56 @@ class RerunLogger(Closing):
             return np.stack([y, -x], axis=-1)
         return np.stack([x, -y], axis=-1)
 
+    def _map_grid(self, uv: np.ndarray) -> None:
+        """The map's metre grid (labelled lines every ``step`` m) and a scale bar, re-logged
+        (static) when a track leaves the area they cover."""
+        lo, hi = np.nanmin(uv, axis=0), np.nanmax(uv, axis=0)
+        b = self._grid_bounds
+        if b is not None and np.all(lo >= b[0]) and np.all(hi <= b[1]):
+            return
+        if b is not None:
+            lo, hi = np.minimum(lo, b[0]), np.maximum(hi, b[1])
+        span = float(np.max(hi - lo))
+        step = next((s for s in _GRID_STEPS if span / s <= 6.0), _GRID_STEPS[-1])
+        lo = np.floor(lo / step - 0.5) * step
+        hi = np.ceil(hi / step + 0.5) * step
+        self._grid_bounds = (lo, hi)
+        east, north = ("E", "N") if self.options.map_frame == "ned" else ("x", "y")
+        us = np.arange(lo[0], hi[0] + step / 2, step)
+        vs = np.arange(lo[1], hi[1] + step / 2, step)
+        strips = [np.array([[u, lo[1]], [u, hi[1]]]) for u in us]
+        strips += [np.array([[lo[0], v], [hi[0], v]]) for v in vs]
+        labels = [f"{east} {u:.0f} m" for u in us] + [f"{north} {-v:.0f} m" for v in vs]
+        self._rec.log(
+            ent.MAP_GRID,
+            rr.LineStrips2D(
+                strips, colors=[(60, 70, 85)], radii=[-0.75], labels=labels, draw_order=[-20.0]
+            ),
+            static=True,
+        )
+        x0, y1 = lo[0] + step / 4, hi[1] - step / 4
+        self._rec.log(
+            f"{ent.MAP_GRID}/scale",
+            rr.LineStrips2D(
+                [np.array([[x0, y1], [x0 + step, y1]])],
+                colors=[(255, 255, 255)],
+                radii=[-2.5],
+                labels=[f"{step:g} m"],
+                draw_order=[60.0],
+            ),
+            static=True,
+        )
+
     def _ellipses(self, centres: np.ndarray, covs: np.ndarray) -> list[np.ndarray]:
         o = self.options
         e = ellipse_strips(centres, covs, o.ellipse_sigma, o.ellipse_vertices)
         return list(self._to_map(e[..., 0], e[..., 1]))
 
-    def _colour(self, name: str) -> tuple[int, int, int]:
+    def _colour(self, name: str, feature: bool = False) -> tuple[int, int, int]:
+        """A track's colour (``feature``: of its landmarks and lines; the true ones apart)."""
         key = ent.track_segment(name)
+        if feature and key == "truth":
+            return _TRUE_FEATURES
         if key in _TRACK_COLOURS:
             return _TRACK_COLOURS[key]
         others = [n for n in self._tracks if ent.track_segment(n) not in _TRACK_COLOURS]
@@ -804,19 +872,28 @@ class RerunLogger(Closing):
                 self._bp_tracks.append(seg)
                 self._rec.send_blueprint(default_blueprint(self._bp_tracks))
             log_static = self._rec.log
+            width, order = _TRACK_STYLE.get(seg, _TRACK_STYLE_OTHER)
             log_static(
                 ent.map_path(name, "track"),
-                rr.LineStrips2D.from_fields(colors=[colour], radii=[-1.5], draw_order=[30.0]),
+                rr.LineStrips2D.from_fields(colors=[colour], radii=[-width], draw_order=[order]),
                 static=True,
             )
             log_static(
                 ent.world_path(name, "track"),
-                rr.LineStrips3D.from_fields(colors=[colour], radii=[-1.5]),
+                rr.LineStrips3D.from_fields(colors=[colour], radii=[-width]),
                 static=True,
             )
+            # the current pose carries the track's name: the map's legend
+            label = seg.replace("slam/", "SLAM ").replace("_", " ")
             log_static(
                 ent.map_path(name, "pose"),
-                rr.Points2D.from_fields(colors=[colour], radii=[-5.0], draw_order=[40.0]),
+                rr.Points2D.from_fields(
+                    colors=[colour],
+                    radii=[-5.0],
+                    draw_order=[40.0],
+                    labels=[label],
+                    show_labels=True,
+                ),
                 rr.Arrows2D.from_fields(colors=[colour], draw_order=[40.0]),
                 rr.LineStrips2D.from_fields(colors=[colour], radii=[-1.0], draw_order=[35.0]),
                 static=True,
@@ -864,10 +941,9 @@ class RerunLogger(Closing):
             if len(pts) >= 2:
                 arr = np.asarray(pts)
                 self._set_time(tr.pending_t)
-                self._rec.log(
-                    ent.map_path(name, "track"),
-                    rr.LineStrips2D([self._to_map(arr[:, 0], arr[:, 1])]),
-                )
+                uv = self._to_map(arr[:, 0], arr[:, 1])
+                self._rec.log(ent.map_path(name, "track"), rr.LineStrips2D([uv]))
+                self._map_grid(uv)
                 self._rec.log(ent.world_path(name, "track"), rr.LineStrips3D([arr]))
                 tr.last_sent = tr.pending[-1]
                 tr.pending = []
@@ -898,7 +974,7 @@ class RerunLogger(Closing):
     def _do_landmarks(
         self, name: str, t: float, mean: np.ndarray, cov: np.ndarray | None, ids: np.ndarray | None
     ) -> None:
-        colour = self._colour(name)
+        colour = self._colour(name, feature=True)
         self._set_time(t)
         labels = None if ids is None else [str(i) for i in ids]
         # the points and their confidence ellipses on one entity (one chunk per flush)
@@ -926,7 +1002,7 @@ class RerunLogger(Closing):
         cov: np.ndarray | None,
         endpoints: np.ndarray | None,
     ) -> None:
-        colour = self._colour(name)
+        colour = self._colour(name, feature=True)
         n = np.stack([np.cos(theta), np.sin(theta)], axis=-1)
         foot = rho[:, None] * n
         if endpoints is not None and len(endpoints) == len(rho):
@@ -995,7 +1071,10 @@ class RerunLogger(Closing):
         if len(v):
             self._static(
                 ent.DVL_VELOCITY,
-                lambda: rr.SeriesLines(names=[f"{n} m/s" for n in names[: len(v)]]),
+                lambda: rr.SeriesLines(
+                    names=[f"{n} m/s" for n in names[: len(v)]],
+                    colors=[(235, 80, 80), (90, 210, 90), (80, 150, 255)][: len(v)],
+                ),
             )
             self._append(ent.DVL_VELOCITY, "scalars", t, tuple(v))
         if not math.isnan(altitude):
@@ -1007,15 +1086,44 @@ class RerunLogger(Closing):
 
     def _log_fan(self, t: float, bearing: float | None) -> None:
         self._set_time(t)
-        image = rr.Image(self._fan.image.copy())
+        img = self._fan.image.copy()
         quality = self.options.fan_jpeg_quality
-        self._rec.log(ent.SONAR_FAN, image if quality is None else image.compress(quality))
+        if quality is None:
+            # the echo levels as they came (0 = no return), in a colour map whose range is the
+            # sweep's own echoes (display gain: the top 0.5 % saturate) so targets stand out
+            echoes = img[img > 0]
+            top = float(np.percentile(echoes, 99.5)) if echoes.size else 255.0
+            self._rec.log(ent.SONAR_FAN, rr.DepthImage(
+                img, meter=1.0, colormap="inferno", depth_range=(1.0, max(top, 2.0))))  # fmt: skip
+        else:
+            self._rec.log(ent.SONAR_FAN, rr.Image(img).compress(quality))
+        if self._fan_overlay != self._fan.range_m:
+            self._fan_overlay = self._fan.range_m
+            self._sonar_overlay(self._fan.range_m)
         if bearing is not None:
             self._rec.log(
                 ent.SONAR_BEAM,
                 rr.LineStrips2D([self._fan.beam(bearing)], colors=[(255, 80, 80)], radii=[-1.0]),
             )
         self._fan_logged_t = t
+
+    def _sonar_overlay(self, range_m: float) -> None:
+        """Range rings every quarter of the range scale (labelled in metres) and the vehicle,
+        bow up, at the centre of the fan (pixels; static, re-logged when the range changes)."""
+        n = self._fan.size
+        c, rad = (n - 1) / 2.0, n / 2.0
+        a = np.linspace(0.0, TWO_PI, 97)
+        rings = [np.column_stack([c + f * rad * np.sin(a), c - f * rad * np.cos(a)])
+                 for f in _RINGS]  # fmt: skip
+        labels = [f"{f * range_m:.3g} m" if math.isfinite(range_m) else "" for f in _RINGS]
+        self._rec.log(ent.SONAR_RINGS, rr.LineStrips2D(
+            rings, colors=[(90, 200, 255)], radii=[-0.75], labels=labels, draw_order=[20.0]),
+            static=True)  # fmt: skip
+        s = max(3.0, n / 40.0)
+        hull = np.array([[c, c - 1.6 * s], [c + s, c + s], [c - s, c + s], [c, c - 1.6 * s]])
+        self._rec.log(ent.SONAR_VEHICLE, rr.LineStrips2D(
+            [hull], colors=[(255, 220, 0)], radii=[-1.5], labels=["vehicle"], draw_order=[30.0]),
+            static=True)  # fmt: skip
 
     def _do_msis(
         self, t: float, bearing: float, bins: np.ndarray, range_m: float, step: float
@@ -1057,6 +1165,8 @@ class RerunLogger(Closing):
             pad = max(1.0, 0.5 * (hi - lo))
             self._depth_range = (lo - pad, hi + pad)
         lo, hi = self._depth_range
+        if not self._depth_scale_logged:
+            self._depth_scale(x0, y0, lo, hi)
         colours = depth_colours(zs, lo, hi)
         self._static(ent.SOUNDINGS, lambda: rr.Points3D.from_fields(radii=[-2.0]))
         self._append(ent.SOUNDINGS, "points3", t, (np.column_stack([xs, ys, zs]), colours))
@@ -1065,6 +1175,33 @@ class RerunLogger(Closing):
         self._grid_t = t
         if t - self._grid_logged_t >= self.options.bathy_period_s:
             self._log_grid(t)
+
+    def _depth_scale(self, x: float, y: float, lo: float, hi: float) -> None:
+        """The depth colour scale in the 3-D view (static): a vertical bar in depth colours from
+        ``lo`` to ``hi`` m 10 m behind the first swath's place (``x``, ``y`` in the map frame), the
+        depths labelled."""
+        self._depth_scale_logged = True
+        x -= 10.0
+        z = np.linspace(lo, hi, 21)
+        segs = [np.array([[x, y, a], [x, y, b]]) for a, b in itertools.pairwise(z)]
+        mids = 0.5 * (z[:-1] + z[1:])
+        ticks = np.linspace(lo, hi, 5)
+        self._rec.log(
+            ent.DEPTH_SCALE,
+            rr.LineStrips3D(segs, colors=depth_colours(mids, lo, hi), radii=[-6.0]),
+            static=True,
+        )
+        self._rec.log(
+            f"{ent.DEPTH_SCALE}/ticks",
+            rr.Points3D(
+                np.column_stack([np.full(5, x), np.full(5, y), ticks]),
+                colors=depth_colours(ticks, lo, hi),
+                radii=[-3.0],
+                labels=[f"depth {d:.1f} m" for d in ticks],
+                show_labels=True,
+            ),
+            static=True,
+        )
 
     def _log_grid(self, t: float, final: bool = False) -> None:
         """The grid cells updated since the last log as depth-coloured discs on the map (the
@@ -1124,21 +1261,69 @@ class RerunLogger(Closing):
         )
 
     def _do_mag(self, t: float, b: np.ndarray) -> None:
-        self._static(ent.MAG_FIELD, lambda: rr.SeriesLines(names=["x nT", "y nT", "z nT"]))
-        self._static(ent.MAG_MAGNITUDE, lambda: rr.SeriesLines(names=["|B| nT"]))
+        xyz = [(235, 80, 80), (90, 210, 90), (80, 150, 255)]  # x red, y green, z blue
+        self._static(ent.MAG_FIELD, lambda: rr.SeriesLines(names=["x nT", "y nT", "z nT"],
+                                                           colors=xyz))  # fmt: skip
+        self._static(ent.MAG_CHANGE, lambda: rr.SeriesLines(names=["x", "y", "z"], colors=xyz))
+        white = [(230, 230, 230)]
+        self._static(ent.MAG_MAGNITUDE, lambda: rr.SeriesLines(names=["|B| nT"], colors=white))
+        if self._mag_first is None:
+            self._mag_first = np.asarray(b, dtype=np.float64).copy()
+        # the field itself spans tens of thousands of nT: its change since the first sample is
+        # what shows a beacon, a heading change or an anomaly of a few nT
+        self._append(ent.MAG_CHANGE, "scalars", t, tuple(np.asarray(b) - self._mag_first))
         self._static(ent.VEHICLE_MAG, lambda: rr.Arrows3D.from_fields(colors=[(0, 200, 255)]))
         self._append(ent.MAG_FIELD, "scalars", t, tuple(b))
         self._append(ent.MAG_MAGNITUDE, "scalars", t, (float(np.linalg.norm(b)),))
         self._append(ent.VEHICLE_MAG, "arrows3", t, tuple(b * self.options.mag_arrow_m_per_nt))
 
     def _do_health(self, device: str, t: float, values: tuple[tuple[str, float], ...]) -> None:
-        path = ent.health_path(device)
-        names = self._health_names.get(path)
-        if names is None:
-            names = self._health_names[path] = tuple(k for k, _ in values)
-            self._static(path, lambda: rr.SeriesLines(names=[f"{device} {n}" for n in names]))
-        got = dict(values)
-        self._append(path, "scalars", t, tuple(got.get(n, math.nan) for n in names))
+        """One status of ``device``: each metric into its group's series (one unit per view,
+        :func:`~auvgw.viz.entities.health_group`), cumulative counters into the table."""
+        groups: dict[str, list[tuple[str, float]]] = {}
+        for name, v in values:
+            group = ent.health_group(name)
+            if group is None:  # the table, and a series no view shows (for tools, tests)
+                self._counters.setdefault(device, {})[name] = v
+                self._counters_dirty = True
+                group = "count"
+            groups.setdefault(group, []).append((name, v))
+        for group, metrics in groups.items():
+            path = ent.health_path(device, group)
+            names = self._health_names.get(path)
+            if names is None:
+                names = self._health_names[path] = tuple(k for k, _ in metrics)
+                colour = self._device_colour(device)
+                self._static(path, lambda n=names, c=colour: rr.SeriesLines(
+                    names=[f"{device} {k}" for k in n],
+                    colors=[c] * len(n), widths=[1.5] * len(n)))  # fmt: skip
+            got = dict(metrics)
+            self._append(path, "scalars", t, tuple(got.get(n, math.nan) for n in names))
+        if self._counters_dirty and t - self._counters_t >= self.options.counters_period_s:
+            self._log_counters(t)
+
+    def _device_colour(self, device: str) -> tuple[int, int, int]:
+        """One colour per device (or stage) across the health views, in order of appearance."""
+        if device not in self._device_colours:
+            palette = _HEALTH_PALETTE
+            self._device_colours[device] = palette[len(self._device_colours) % len(palette)]
+        return self._device_colours[device]
+
+    def _log_counters(self, t: float) -> None:
+        """Every component's latest cumulative counters as one markdown table at ``t``."""
+        self._counters_t, self._counters_dirty = t, False
+        lines = ["| component | counters |", "|---|---|"]
+        for device, counts in sorted(self._counters.items()):
+            cells = ", ".join(
+                f"{k} {v:.0f}" if float(v).is_integer() else f"{k} {v:.3g}"
+                for k, v in counts.items()
+                if math.isfinite(v)
+            )
+            lines.append(f"| {device} | {cells} |")
+        self._set_time(t)
+        self._rec.log(
+            ent.HEALTH_COUNTERS, rr.TextDocument("\n".join(lines), media_type="text/markdown")
+        )
 
     def _do_event(self, device: str, t: float, text: str, level: str) -> None:
         self._set_time(t)

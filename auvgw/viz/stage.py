@@ -225,6 +225,7 @@ class VizStage(Stage):
         #: magnetic-beacon ranges of the latest window, per map: (t, beacon positions)
         self._ranges: dict[str, tuple[float, list[tuple[float, float]]]] = {}
         self._status: dict[str, tuple[Any, Any]] = {}
+        self._losses: dict[str, dict[str, float]] = {}  # the loss counters seen, per device
         self._t_last = 0.0  # the newest data time (sensor, odometry stamps), s; never goes back
         #: device registry role -> handler; a message type is shown by the first of its roles
         #: that has one (registry.MessageType.roles)
@@ -654,6 +655,8 @@ class VizStage(Stage):
         "age_s", "lag_s", "transport_lost",
     )  # fmt: skip
     _HEALTH_FLAGS = ("connected", "stale")
+    #: a device's loss counters: each increase is a WARN event
+    _LOSS_KEYS = ("bad_frames", "decode_errors", "skipped_bytes", "transport_lost")
 
     def _health(self, device: str, body: Mapping[str, Any], t_host: float) -> str:
         if device == "gateway" or "devices" in body:
@@ -679,6 +682,13 @@ class VizStage(Stage):
         for flag in self._HEALTH_FLAGS:
             metrics[flag] = math.nan if body.get(flag) is None else float(bool(body[flag]))
         self.logger.health(device, t, metrics)
+        # a loss counter that grew is an event (the counters themselves are a table, not lines)
+        counts = self._losses.setdefault(device, {})
+        for k in self._LOSS_KEYS:
+            v, before = metrics[k], counts.get(k, 0.0)
+            if v == v and v > before:
+                self.logger.event(device, t, f"{device}: {k} {v:.0f} (+{v - before:.0f})", "WARN")
+                counts[k] = v
         state = (body.get("connected"), body.get("last_error"))
         prev = self._status.get(device)
         if prev != state:
