@@ -57,6 +57,12 @@ from auvgw.ground.procs import Children, free_endpoint, stop_process
 from auvgw.health import device_time_s
 
 DEFAULT_SCENARIO = "harbour"
+#: the demo's vehicle seconds and speed (x real time) unless told otherwise
+DEFAULT_DURATION_S = 180.0
+DEFAULT_SPEED = 2.0
+#: a survey's speed: its whole route (1812 s of survey.json) in about 3 minutes; measured here
+#: with --processes, every INS sample arrives and the bathymetric stage keeps up
+SURVEY_SPEED = 10.0
 #: the emulated vehicle's name (the <v> key segment)
 VEHICLE = "auv1"
 #: RMSE / distance x 100 of VB-AUFastSLAM in the sea trial of Mu et al. 2022 (INS + DVL + MSIS)
@@ -70,8 +76,19 @@ def register(sub: Any) -> None:
         default=DEFAULT_SCENARIO,
         help="shipped scenario name (harbour, survey, beacons) or a scenario JSON file",
     )
-    p.add_argument("--duration", type=float, default=180.0, help="vehicle seconds (default 180)")
-    p.add_argument("--speed", type=float, default=2.0, help="x real time (default 2)")
+    p.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        help=f"vehicle seconds (default {DEFAULT_DURATION_S:.0f}; a survey: its whole route, "
+        "about 30 min, whose tie line crosses every line: the loop closures)",
+    )
+    p.add_argument(
+        "--speed",
+        type=float,
+        default=None,
+        help=f"x real time (default {DEFAULT_SPEED:g}; a survey {SURVEY_SPEED:g}: about 3 min)",
+    )
     p.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder")
     p.add_argument("--rrd", type=Path, default=None, help="Rerun file (default OUT/demo.rrd)")
     p.add_argument("--connect", default=None, help="also stream to a Rerun viewer at this URL")
@@ -247,6 +264,7 @@ def run(args: argparse.Namespace) -> int:
     for stale in (sim_dir / "gateway.toml", sim_dir / "truth.jsonl", sim_dir / "finished"):
         stale.unlink(missing_ok=True)
     scenario = _demo_scenario(_scenario_path(args.scenario), out)
+    _scenario_defaults(args, scenario)
     rrd = None if args.no_viz else (args.rrd or out / "demo.rrd")
     speed = float(args.speed)
     if speed <= 0:
@@ -270,6 +288,26 @@ def run(args: argparse.Namespace) -> int:
     finally:
         stop_process(sim, signal.SIGINT, 20.0)
         sim_log.close()
+
+
+def _scenario_defaults(args: argparse.Namespace, scenario: Path) -> None:
+    """``--duration`` and ``--speed`` where not given: a survey (the bathymetric pipeline) runs
+    its whole route at :data:`SURVEY_SPEED` (its loop closures come with the tie line, after
+    25 minutes: 180 s showed none), any other scenario :data:`DEFAULT_DURATION_S` at
+    :data:`DEFAULT_SPEED`."""
+    if args.duration is not None and args.speed is not None:
+        return
+    scn = load_scenario(scenario)
+    survey = _bathymetric_scenario(scn)
+    if args.speed is None:
+        args.speed = SURVEY_SPEED if survey else DEFAULT_SPEED
+    if args.duration is None:
+        args.duration = DEFAULT_DURATION_S
+        if survey:
+            from auvgw.sim_devices.vehicle import simulate
+            from auvgw.sim_devices.world import World
+
+            args.duration = math.ceil(simulate(scn, World.from_scenario(scn)).duration)
 
 
 def _load_sim_config(sim_dir: Path) -> Any:
@@ -349,8 +387,10 @@ def _run_stages(
     if rrd is not None or args.connect:
         from auvgw.viz.stage import open_viz
 
+        # the SLAM stage's outputs come in-process (on_slam): subscribed too, every SLAM row
+        # was logged twice, and out of order where the two paths crossed (issue 33)
         viz = open_viz(session, gw_cfg.vehicle, rrd=rrd, connect=args.connect,
-                       sections=("slam", "status"))  # fmt: skip
+                       sections=("status",))  # fmt: skip
 
     bathy_map: list[bytes] = []  # the bathymetric stage's latest DEM tile (the whole map last)
 
@@ -530,6 +570,8 @@ def _report(
             _print_magnetic(name, slam_counters, slam_err, nav)
         else:
             _print_slam(name, slam_counters, slam_err)
+            if name == BATHY_NAME:
+                _print_gain(name, slam_err, nav)
         # the VB paper's figure, for the landmark SLAM stage only
         landmark = name != BATHY_NAME and slam_counters.get("component") != MAGNETIC_COMPONENT
         paper = VB_PAPER_RMSE_PCT if landmark else None
@@ -1071,9 +1113,18 @@ def _print_magnetic(
           f"{st['observations']} beacon observations, {counters['landmarks']} beacons mapped, "
           f"{st['bad_payloads']} bad payloads")  # fmt: skip
     _print_vs_truth(name, err, "not enough poses or truth to compare")
-    if err is not None and dr is not None:
-        print(f"  dead reckoning: RMSE/distance x 100 {dr['rmse_pct_distance']:.3f} %; "
-              f"{name} / dead reckoning RMSE: {err['rmse_m'] / dr['rmse_m']:.2f}")  # fmt: skip
+    _print_gain(name, err, dr)
+
+
+def _print_gain(name: str, err: dict[str, float] | None, dr: dict[str, float] | None) -> None:
+    """The SLAM estimate against dead reckoning: RMSE and final error ratios (< 1: SLAM
+    better)."""
+    if err is None or dr is None or not dr["rmse_m"] or not dr["final_m"]:
+        return
+    rmse, final = err["rmse_m"] / dr["rmse_m"], err["final_m"] / dr["final_m"]
+    print(f"  dead reckoning: RMSE/distance x 100 {dr['rmse_pct_distance']:.3f} %, final "
+          f"{dr['final_m']:.2f} m; {name} / dead reckoning: RMSE {rmse:.2f}, "
+          f"final {final:.2f}")  # fmt: skip
 
 
 def _true_beacons(scn: Any) -> dict[str, Any]:
