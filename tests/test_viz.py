@@ -226,12 +226,14 @@ def test_sonar_fan_accumulates_and_resets(tmp_path) -> None:
     wedge = (r > 0.84) & (r < 0.86) & (ang > 42) & (ang < 66)
     assert (last[wedge] == 255).all()  # second sweep paints the wedge ...
     assert (last[on_ring & (ang > 190)] == 0).all()  # ... and was reset: half a turn only
-    # shown in a colour map up to the sweep's strongest echoes (display gain), with range
-    # rings every quarter of the 50 m scale and the vehicle at the centre
+    # shown in a colour map from the sweep's median echo to its strongest (a display gain: the
+    # stored levels are the head's), range rings every quarter of the 50 m scale
     assert fan.values("DepthImage:colormap")[1] is not None
-    assert fan.values("DepthImage:depth_range")[1][0][1] == 200.0  # the ring: the top echoes
-    rings = read_recording(path)[ent.SONAR_RINGS].static
-    assert rings["LineStrips2D:labels"] == ["12.5 m", "25 m", "37.5 m", "50 m"]
+    assert fan.values("DepthImage:depth_range")[1][0] == [200.0, 201.0]  # the ring only
+    lo, hi = fan.values("DepthImage:depth_range")[2][0]
+    assert lo == np.median(last[last > 0]) and hi == max(255.0, lo + 1.0)
+    rings = read_recording(path)[f"{ent.SONAR_RINGS}/labels"].static
+    assert rings["Points2D:labels"] == ["12.5 m", "25 m", "37.5 m", "50 m"]
 
 
 def test_blueprint_names_its_views(tmp_path, recording) -> None:

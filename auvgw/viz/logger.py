@@ -156,6 +156,25 @@ def _same_length(what: str, **arrays: np.ndarray | None) -> None:
         raise ValueError(f"{what}: arrays of different lengths {lengths}")
 
 
+def _disc_m(across: np.ndarray) -> float:
+    """Radius (m) of a sounding's disc: 0.75 x the median spacing of one swath's beams (so
+    neighbours overlap), at least 5 cm."""
+    a = np.sort(np.asarray(across, dtype=np.float64)[np.isfinite(across)])
+    gap = float(np.median(np.diff(a))) if len(a) > 2 else 0.1
+    return max(0.05, 0.75 * gap)
+
+
+def _fan_levels(img: np.ndarray) -> tuple[float, float]:
+    """The fan's display range: from the sweep's median echo level (the speckle's: half of it
+    is drawn black, the rest dark) to its strongest echo, so targets stand out bright whatever
+    the head's gain."""
+    echoes = img[img > 0]
+    if not echoes.size:
+        return 1.0, 255.0
+    lo = float(np.median(echoes))
+    return lo, max(float(echoes.max()), lo + 1.0)
+
+
 # -- accumulated state (owned by the logging thread) --------------------------------------------
 class _Fan:
     """MSIS scan lines accumulated into a Cartesian fan image (forward up, starboard right).
@@ -806,17 +825,18 @@ class RerunLogger(Closing):
             return np.stack([y, -x], axis=-1)
         return np.stack([x, -y], axis=-1)
 
-    def _map_grid(self, uv: np.ndarray) -> None:
-        """The map's metre grid (labelled lines every ``step`` m) and a scale bar, re-logged
-        (static) when a track leaves the area they cover."""
+    def _map_grid(self, uv: np.ndarray, force: bool = False) -> None:
+        """The map's metre grid (lines every ``step`` m, their coordinates along the bottom and
+        left edges), a scale bar and the legend, re-logged (static) when what is drawn (``uv``:
+        tracks, features) leaves the area they cover, or with ``force`` (a new track)."""
         lo, hi = np.nanmin(uv, axis=0), np.nanmax(uv, axis=0)
         b = self._grid_bounds
-        if b is not None and np.all(lo >= b[0]) and np.all(hi <= b[1]):
+        if b is not None and np.all(lo >= b[0]) and np.all(hi <= b[1]) and not force:
             return
         if b is not None:
             lo, hi = np.minimum(lo, b[0]), np.maximum(hi, b[1])
         span = float(np.max(hi - lo))
-        step = next((s for s in _GRID_STEPS if span / s <= 6.0), _GRID_STEPS[-1])
+        step = next((s for s in _GRID_STEPS if span / s <= 5.0), _GRID_STEPS[-1])
         lo = np.floor(lo / step - 0.5) * step
         hi = np.ceil(hi / step + 0.5) * step
         self._grid_bounds = (lo, hi)
@@ -825,15 +845,28 @@ class RerunLogger(Closing):
         vs = np.arange(lo[1], hi[1] + step / 2, step)
         strips = [np.array([[u, lo[1]], [u, hi[1]]]) for u in us]
         strips += [np.array([[lo[0], v], [hi[0], v]]) for v in vs]
-        labels = [f"{east} {u:.0f} m" for u in us] + [f"{north} {-v:.0f} m" for v in vs]
+        grey = (60, 70, 85)
         self._rec.log(
             ent.MAP_GRID,
-            rr.LineStrips2D(
-                strips, colors=[(60, 70, 85)], radii=[-0.75], labels=labels, draw_order=[-20.0]
+            rr.LineStrips2D(strips, colors=[grey], radii=[-0.75], draw_order=[-20.0]),
+            static=True,
+        )
+        # the coordinates: east along the bottom edge, north along the left (v = -north)
+        ticks = np.array([[u, hi[1]] for u in us[1:-1]] + [[lo[0], v] for v in vs[1:-1]])
+        labels = [f"{east} {u:.0f} m" for u in us[1:-1]] + [f"{north} {-v:.0f} m" for v in vs[1:-1]]
+        self._rec.log(
+            f"{ent.MAP_GRID}/ticks",
+            rr.Points2D(
+                ticks,
+                colors=[(150, 160, 175)],
+                radii=[-2.0],
+                labels=labels,
+                show_labels=True,
+                draw_order=[55.0],
             ),
             static=True,
         )
-        x0, y1 = lo[0] + step / 4, hi[1] - step / 4
+        x0, y1 = lo[0] + step / 2, hi[1] - step / 3
         self._rec.log(
             f"{ent.MAP_GRID}/scale",
             rr.LineStrips2D(
@@ -841,6 +874,30 @@ class RerunLogger(Closing):
                 colors=[(255, 255, 255)],
                 radii=[-2.5],
                 labels=[f"{step:g} m"],
+                draw_order=[60.0],
+            ),
+            static=True,
+        )
+        self._map_legend(lo, step)
+
+    def _map_legend(self, lo: np.ndarray, step: float) -> None:
+        """The map's legend in its top-left corner: a short line in each track's colour (and
+        the true features'), labelled with its name."""
+        names = sorted(self._tracks, key=lambda n: (_RANK.get(ent.track_segment(n), 2), n))
+        entries = [(ent.track_segment(n).replace("slam/", "SLAM ").replace("_", " "),
+                    self._tracks[n].colour) for n in names]  # fmt: skip
+        entries.append(("true features", _TRUE_FEATURES))
+        x0, y0, dy = lo[0] + step / 6, lo[1] + step / 6, step / 6
+        strips = [np.array([[x0, y0 + i * dy], [x0 + step / 3, y0 + i * dy]])
+                  for i in range(len(entries))]  # fmt: skip
+        self._rec.log(
+            f"{ent.MAP_GRID}/legend",
+            rr.LineStrips2D(
+                strips,
+                colors=[c for _, c in entries],
+                radii=[-3.0],
+                labels=[n for n, _ in entries],
+                show_labels=True,
                 draw_order=[60.0],
             ),
             static=True,
@@ -883,17 +940,12 @@ class RerunLogger(Closing):
                 rr.LineStrips3D.from_fields(colors=[colour], radii=[-width]),
                 static=True,
             )
-            # the current pose carries the track's name: the map's legend
-            label = seg.replace("slam/", "SLAM ").replace("_", " ")
+            if self._grid_bounds is not None:  # the legend names the new track
+                lo, hi = self._grid_bounds
+                self._map_grid(np.array([lo, hi]), force=True)
             log_static(
                 ent.map_path(name, "pose"),
-                rr.Points2D.from_fields(
-                    colors=[colour],
-                    radii=[-5.0],
-                    draw_order=[40.0],
-                    labels=[label],
-                    show_labels=True,
-                ),
+                rr.Points2D.from_fields(colors=[colour], radii=[-5.0], draw_order=[40.0]),
                 rr.Arrows2D.from_fields(colors=[colour], draw_order=[40.0]),
                 rr.LineStrips2D.from_fields(colors=[colour], radii=[-1.0], draw_order=[35.0]),
                 static=True,
@@ -977,6 +1029,8 @@ class RerunLogger(Closing):
         colour = self._colour(name, feature=True)
         self._set_time(t)
         labels = None if ids is None else [str(i) for i in ids]
+        if len(mean):
+            self._map_grid(self._to_map(mean[:, 0], mean[:, 1]))
         # the points and their confidence ellipses on one entity (one chunk per flush)
         self._rec.log(
             ent.map_path(name, "landmarks"),
@@ -1011,6 +1065,8 @@ class RerunLogger(Closing):
             d = np.stack([-n[:, 1], n[:, 0]], axis=-1) * self.options.line_half_length_m
             seg = np.stack([foot - d, foot + d], axis=1)
         self._set_time(t)
+        if len(seg):
+            self._map_grid(self._to_map(seg[..., 0], seg[..., 1]).reshape(-1, 2))
         self._rec.log(
             ent.map_path(name, "lines"),
             rr.LineStrips2D(
@@ -1091,10 +1147,9 @@ class RerunLogger(Closing):
         if quality is None:
             # the echo levels as they came (0 = no return), in a colour map whose range is the
             # sweep's own echoes (display gain: the top 0.5 % saturate) so targets stand out
-            echoes = img[img > 0]
-            top = float(np.percentile(echoes, 99.5)) if echoes.size else 255.0
+            lo, hi = _fan_levels(img)
             self._rec.log(ent.SONAR_FAN, rr.DepthImage(
-                img, meter=1.0, colormap="inferno", depth_range=(1.0, max(top, 2.0))))  # fmt: skip
+                img, meter=1.0, colormap="inferno", depth_range=(lo, hi)))  # fmt: skip
         else:
             self._rec.log(ent.SONAR_FAN, rr.Image(img).compress(quality))
         if self._fan_overlay != self._fan.range_m:
@@ -1116,13 +1171,21 @@ class RerunLogger(Closing):
         rings = [np.column_stack([c + f * rad * np.sin(a), c - f * rad * np.cos(a)])
                  for f in _RINGS]  # fmt: skip
         labels = [f"{f * range_m:.3g} m" if math.isfinite(range_m) else "" for f in _RINGS]
-        self._rec.log(ent.SONAR_RINGS, rr.LineStrips2D(
-            rings, colors=[(90, 200, 255)], radii=[-0.75], labels=labels, draw_order=[20.0]),
-            static=True)  # fmt: skip
+        self._rec.log(
+            ent.SONAR_RINGS,
+            rr.LineStrips2D(rings, colors=[(90, 200, 255)], radii=[-0.75], draw_order=[20.0]),
+            static=True,
+        )
+        # each ring's range where it crosses the starboard beam (the labels of line strips sit
+        # on top of each other at the centre)
+        at = np.array([[c + f * rad, c] for f in _RINGS])
+        self._rec.log(f"{ent.SONAR_RINGS}/labels", rr.Points2D(
+            at, colors=[(90, 200, 255)], radii=[-1.5], labels=labels, show_labels=True,
+            draw_order=[25.0]), static=True)  # fmt: skip
         s = max(3.0, n / 40.0)
         hull = np.array([[c, c - 1.6 * s], [c + s, c + s], [c - s, c + s], [c, c - 1.6 * s]])
         self._rec.log(ent.SONAR_VEHICLE, rr.LineStrips2D(
-            [hull], colors=[(255, 220, 0)], radii=[-1.5], labels=["vehicle"], draw_order=[30.0]),
+            [hull], colors=[(255, 220, 0)], radii=[-1.5], draw_order=[30.0]),
             static=True)  # fmt: skip
 
     def _do_msis(
@@ -1166,9 +1229,12 @@ class RerunLogger(Closing):
             self._depth_range = (lo - pad, hi + pad)
         lo, hi = self._depth_range
         if not self._depth_scale_logged:
-            self._depth_scale(x0, y0, lo, hi)
+            width = float(np.nanmax(across) - np.nanmin(across)) if len(across) > 1 else 40.0
+            self._depth_scale(x0, y0, lo, hi, max(20.0, 0.5 * width))
         colours = depth_colours(zs, lo, hi)
-        self._static(ent.SOUNDINGS, lambda: rr.Points3D.from_fields(radii=[-2.0]))
+        # discs in metres, sized to the beams' spacing: screen-sized ones left gaps where the
+        # spacing was wider (a white band along the swath, issue 33)
+        self._static(ent.SOUNDINGS, lambda: rr.Points3D.from_fields(radii=[_disc_m(across)]))
         self._append(ent.SOUNDINGS, "points3", t, (np.column_stack([xs, ys, zs]), colours))
         uv = self._to_map(xs, ys)
         self._grid.add(uv[:, 0], uv[:, 1], zs)
@@ -1176,28 +1242,29 @@ class RerunLogger(Closing):
         if t - self._grid_logged_t >= self.options.bathy_period_s:
             self._log_grid(t)
 
-    def _depth_scale(self, x: float, y: float, lo: float, hi: float) -> None:
-        """The depth colour scale in the 3-D view (static): a vertical bar in depth colours from
-        ``lo`` to ``hi`` m 10 m behind the first swath's place (``x``, ``y`` in the map frame), the
-        depths labelled."""
+    def _depth_scale(self, x: float, y: float, lo: float, hi: float, length: float) -> None:
+        """The depth colour scale in the 3-D view (static): a bar ``length`` m long in depth
+        colours from ``lo`` to ``hi`` m, lying at ``hi`` m from 10 m behind the first swath's
+        place (``x``, ``y`` in the map frame) backwards, the depths labelled along it."""
         self._depth_scale_logged = True
-        x -= 10.0
-        z = np.linspace(lo, hi, 21)
-        segs = [np.array([[x, y, a], [x, y, b]]) for a, b in itertools.pairwise(z)]
-        mids = 0.5 * (z[:-1] + z[1:])
-        ticks = np.linspace(lo, hi, 5)
+        frac = np.linspace(0.0, 1.0, 21)
+        px = x - 10.0 - frac * length
+        segs = [np.array([[a, y, hi], [b, y, hi]]) for a, b in itertools.pairwise(px)]
+        mids = lo + (hi - lo) * 0.5 * (frac[:-1] + frac[1:])
         self._rec.log(
             ent.DEPTH_SCALE,
             rr.LineStrips3D(segs, colors=depth_colours(mids, lo, hi), radii=[-6.0]),
             static=True,
         )
+        tf = np.linspace(0.0, 1.0, 5)
+        ticks = lo + (hi - lo) * tf
         self._rec.log(
             f"{ent.DEPTH_SCALE}/ticks",
             rr.Points3D(
-                np.column_stack([np.full(5, x), np.full(5, y), ticks]),
+                np.column_stack([x - 10.0 - tf * length, np.full(5, y), np.full(5, hi)]),
                 colors=depth_colours(ticks, lo, hi),
-                radii=[-3.0],
-                labels=[f"depth {d:.1f} m" for d in ticks],
+                radii=[-4.0],
+                labels=[f"{d:.1f} m" for d in ticks],
                 show_labels=True,
             ),
             static=True,
