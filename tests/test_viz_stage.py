@@ -384,3 +384,23 @@ def test_device_health_panel_shows_age_lag_and_transport_losses(tmp_path) -> Non
     assert rec["health/lag/ins"].static["SeriesLines:names"] == ["ins lag_s"]
     events = [e[0] for e in rec["health/ins/events"].values("TextLog:text")]
     assert "ins: skipped_bytes 37 (+37)" in events and "ins: transport_lost 3 (+3)" in events
+
+
+def test_acoustic_fix_is_a_line_from_the_vehicle_to_the_beacon(tmp_path) -> None:
+    """An acoustic reply (slant range, bearing from the bow, depression) is drawn from the
+    navigation pose to where it places the beacon: horizontal range along heading + bearing."""
+    from auvgw.drivers.acoustic import AcousticReply
+
+    path = tmp_path / "acoustic.rrd"
+    logger = RerunLogger(rrd=path)
+    stage = VizStage(logger, "auv1")
+    odo = _env(_odometry(1000.0, 10.0, 5.0, 0.5), "fusion")
+    assert stage.handle_sample(f"{BASE}/nav/odometry", odo, int(T_RECV * NS)) == "logged"
+    reply = AcousticReply(counter=1, range=25.0, bearing=0.3, depression=math.acos(0.8), beacon=1)
+    assert stage.on_message("acoustic", int((T_RECV + 0.5) * NS), reply) == "logged"
+    stage.stop()
+    logger.close()
+    strips = read_recording(path)["map/acoustic/ranges"].values("LineStrips2D:strips")
+    (start, end), = (np.asarray(s) for s in strips[0])
+    north, east = 10.0 + 20.0 * math.cos(0.8), 5.0 + 20.0 * math.sin(0.8)  # 25 m x 0.8
+    assert start == pytest.approx([5.0, -10.0]) and end == pytest.approx([east, -north])

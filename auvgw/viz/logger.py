@@ -76,6 +76,7 @@ _LUT = np.stack(
 _TRACK_COLOURS: dict[str, tuple[int, int, int]] = {
     "truth": (240, 240, 240),
     "dead_reckoning": (255, 160, 40),
+    "acoustic": (230, 0, 230),  # the acoustic beacon's fixes (map/acoustic/ranges)
 }
 #: the true features (walls, piles, beacons): apart from every track
 _TRUE_FEATURES = (90, 190, 110)

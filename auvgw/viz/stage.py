@@ -13,6 +13,7 @@ role ``velocity`` (PD0 ``ensemble``)           DVL velocity (bottom track, vehic
 role ``sonar`` (SeaNet ``mtheaddata``)         MSIS scan line into the sonar fan
 role ``attitude`` (``roll, pitch, heading``)   INS attitude (HN-100 binary or CAN, PD6 ``sa``)
 role ``field`` (``bx, by, bz`` in nT)          magnetometer (MS3A ASCII or CAN sample)
+role ``range`` (acoustic ``AcousticReply``)    a line from the navigation pose to the fix
 ``nav/odometry``                               ``dead_reckoning`` trajectory with its covariance
 ``slam/<p>/pose``                              ``slam/<p>`` trajectory (+ particles if carried)
 ``slam/<p>/landmarks``, ``slam/<p>/map``       landmarks with covariances, line features
@@ -235,6 +236,7 @@ class VizStage(Stage):
             "sonar": self._msis,
             "attitude": self._attitude,
             "field": self._field,
+            "range": self._acoustic_fix,
         }
         self._classes: dict[str, type] = {}
         self._load_codecs()
@@ -437,6 +439,22 @@ class VizStage(Stage):
             return False
         b = (_float(msg.bx), _float(msg.by), _float(msg.bz))
         self.logger.magnetometer(self._clock(device)(None, t_host), b)
+        return True
+
+    def _acoustic_fix(self, device: str, msg: Any, t_host: float) -> bool:
+        """An acoustic beacon reply (slant ``range`` m, ``bearing`` rad from the bow,
+        ``depression`` rad): a line from the navigation pose to where the fix places the beacon
+        (``map/acoustic/ranges``; it ends on the beacon while the navigation is right)."""
+        if not all(hasattr(msg, n) for n in ("range", "bearing")):
+            return False
+        pose = self._nav or self._truth
+        if pose is None:
+            return True  # nothing to draw it from yet
+        x, y, _, h = pose
+        r = _float(msg.range) * math.cos(_float(getattr(msg, "depression", 0.0), 0.0))
+        b = h + _float(msg.bearing)
+        end = (x + r * math.cos(b), y + r * math.sin(b))
+        self.logger.ranges("acoustic", self._clock(device)(None, t_host), (x, y), [end])
         return True
 
     # sensor handlers (typed messages) -------------------------------------------------------
