@@ -213,9 +213,9 @@ def test_sonar_fan_accumulates_and_resets(tmp_path) -> None:
     logger.close()
     fan = read_recording(path)[ent.SONAR_FAN]
     assert len(fan) == 3  # logged at t0 (first line), the completed sweep, and at close
-    fmt = fan.values("DepthImage:format")
-    first_sweep = _image(fan.values("DepthImage:buffer")[1], fmt[1])
-    last = _image(fan.values("DepthImage:buffer")[2], fmt[2])
+    fmt = fan.values("SegmentationImage:format")
+    first_sweep = _image(fan.values("SegmentationImage:buffer")[1], fmt[1])
+    last = _image(fan.values("SegmentationImage:buffer")[2], fmt[2])
     c, rad = (128 - 1) / 2, 64.0
     yy, xx = np.mgrid[0:128, 0:128]
     r = np.hypot(xx - c, c - yy) / rad
@@ -226,12 +226,17 @@ def test_sonar_fan_accumulates_and_resets(tmp_path) -> None:
     wedge = (r > 0.84) & (r < 0.86) & (ang > 42) & (ang < 66)
     assert (last[wedge] == 255).all()  # second sweep paints the wedge ...
     assert (last[on_ring & (ang > 190)] == 0).all()  # ... and was reset: half a turn only
-    # shown in a colour map from the sweep's median echo to its strongest (a display gain: the
-    # stored levels are the head's), range rings every quarter of the 50 m scale
-    assert fan.values("DepthImage:colormap")[1] is not None
-    assert fan.values("DepthImage:depth_range")[1][0] == [200.0, 201.0]  # the ring only
-    lo, hi = fan.values("DepthImage:depth_range")[2][0]
-    assert lo == np.median(last[last > 0]) and hi == max(255.0, lo + 1.0)
+    # the levels as the head sent them, drawn in the colours of an annotation context whose
+    # scale runs from just below the sweep's median level (black) to its strongest echo (a
+    # display gain); no return black
+    ctx = read_recording(path)[ent.SONAR].values("AnnotationContext:context")[-1][0]
+    colour = {c["class_id"]: c["class_description"]["info"]["color"] for c in ctx}
+    lo = int(np.median(last[last > 0])) - 1
+    assert colour[0] == 0x000000FF  # no return: black
+    assert colour[lo] == 0x000004FF  # just below the median level: the bottom of the scale
+    assert colour[255] == 0xFCFFA4FF  # the strongest echo: the top of the scale
+    red = [colour[v] >> 24 for v in range(lo, 256)]
+    assert red == sorted(red) and red[1] > red[0]  # darker to brighter between
     rings = read_recording(path)[f"{ent.SONAR_RINGS}/labels"].static
     assert rings["Points2D:labels"] == ["12.5 m", "25 m", "37.5 m", "50 m"]
 

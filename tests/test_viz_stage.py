@@ -169,7 +169,7 @@ def test_magnetometer_sonar_health(mapped) -> None:
     )
     fan = rec[ent.SONAR_FAN]
     assert len(fan) == 1
-    img = np.asarray(fan.values("DepthImage:buffer")[0][0], dtype=np.uint8).reshape(256, 256)
+    img = np.asarray(fan.values("SegmentationImage:buffer")[0][0], dtype=np.uint8).reshape(256, 256)
     c = 127.5
     r_px = 128 * 105 / 300  # bins 100..109 of 300 at 45 deg (up-right)
     row, col = (

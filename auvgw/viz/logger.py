@@ -165,6 +165,26 @@ def _disc_m(across: np.ndarray) -> float:
     return max(0.05, 0.75 * gap)
 
 
+#: the sonar fan's colour scale (inferno-like: black, purple, red, orange, pale yellow)
+_FAN_SCALE = np.array(
+    [(0, 0, 4), (40, 11, 84), (101, 21, 110), (159, 42, 99), (212, 72, 66), (245, 125, 21),
+     (250, 193, 39), (252, 255, 164)],
+    dtype=np.float64,
+)  # fmt: skip
+
+
+def _fan_colours(lo: float, hi: float) -> rr.AnnotationContext:
+    """Colours of the fan's 256 echo levels: the scale stretched from ``lo`` (and below: black)
+    to ``hi`` (and above: the top colour); level 0 (no return) black."""
+    f = np.clip((np.arange(256) - lo) / max(hi - lo, 1e-9), 0.0, 1.0)
+    x = np.linspace(0.0, 1.0, len(_FAN_SCALE))
+    rgb = np.stack([np.interp(f, x, _FAN_SCALE[:, c]) for c in range(3)], axis=1).astype(int)
+    rgb[0] = 0
+    return rr.AnnotationContext(
+        [rr.AnnotationInfo(id=i, color=tuple(int(v) for v in c)) for i, c in enumerate(rgb)]
+    )
+
+
 def _fan_levels(img: np.ndarray) -> tuple[float, float]:
     """The fan's display range: from the sweep's median echo level (the speckle's: half of it
     is drawn black, the rest dark) to its strongest echo, so targets stand out bright whatever
@@ -172,7 +192,7 @@ def _fan_levels(img: np.ndarray) -> tuple[float, float]:
     echoes = img[img > 0]
     if not echoes.size:
         return 1.0, 255.0
-    lo = float(np.median(echoes))
+    lo = float(np.median(echoes)) - 1.0  # the median level itself is just not black
     return lo, max(float(echoes.max()), lo + 1.0)
 
 
@@ -420,6 +440,7 @@ class RerunLogger(Closing):
         self._grid_bounds: tuple[np.ndarray, np.ndarray] | None = None
         self._mag_first: np.ndarray | None = None
         self._fan_overlay: float | None = None
+        self._fan_scale: tuple[float, float] | None = None
         self._depth_scale_logged = False
         self._counters: dict[str, dict[str, float]] = {}
         self._counters_dirty = False
@@ -888,7 +909,7 @@ class RerunLogger(Closing):
         entries = [(ent.track_segment(n).replace("slam/", "SLAM ").replace("_", " "),
                     self._tracks[n].colour) for n in names]  # fmt: skip
         entries.append(("true features", _TRUE_FEATURES))
-        x0, y0, dy = lo[0] + step / 6, lo[1] + step / 6, step / 6
+        x0, y0, dy = lo[0] + step / 6, lo[1] + step / 6, step / 4
         strips = [np.array([[x0, y0 + i * dy], [x0 + step / 3, y0 + i * dy]])
                   for i in range(len(entries))]  # fmt: skip
         self._rec.log(
@@ -1030,7 +1051,7 @@ class RerunLogger(Closing):
         colour = self._colour(name, feature=True)
         self._set_time(t)
         labels = None if ids is None else [str(i) for i in ids]
-        if len(mean):
+        if len(mean) and ent.track_segment(name) == "truth":  # estimates may stray far
             self._map_grid(self._to_map(mean[:, 0], mean[:, 1]))
         # the points and their confidence ellipses on one entity (one chunk per flush)
         self._rec.log(
@@ -1066,7 +1087,7 @@ class RerunLogger(Closing):
             d = np.stack([-n[:, 1], n[:, 0]], axis=-1) * self.options.line_half_length_m
             seg = np.stack([foot - d, foot + d], axis=1)
         self._set_time(t)
-        if len(seg):
+        if len(seg) and ent.track_segment(name) == "truth":
             self._map_grid(self._to_map(seg[..., 0], seg[..., 1]).reshape(-1, 2))
         self._rec.log(
             ent.map_path(name, "lines"),
@@ -1148,9 +1169,14 @@ class RerunLogger(Closing):
         if quality is None:
             # the echo levels as they came (0 = no return), in a colour map whose range is the
             # sweep's own echoes (display gain: the top 0.5 % saturate) so targets stand out
+            # the echo levels as the head sent them, each level drawn in the colour of the
+            # sweep's own scale (an annotation context: a display gain from the speckle's level
+            # to the strongest echo), no return black
             lo, hi = _fan_levels(img)
-            self._rec.log(ent.SONAR_FAN, rr.DepthImage(
-                img, meter=1.0, colormap="inferno", depth_range=(lo, hi)))  # fmt: skip
+            if (lo, hi) != self._fan_scale:
+                self._fan_scale = (lo, hi)
+                self._rec.log(ent.SONAR, _fan_colours(lo, hi))
+            self._rec.log(ent.SONAR_FAN, rr.SegmentationImage(img, opacity=1.0))
         else:
             self._rec.log(ent.SONAR_FAN, rr.Image(img).compress(quality))
         if self._fan_overlay != self._fan.range_m:
@@ -1177,9 +1203,10 @@ class RerunLogger(Closing):
             rr.LineStrips2D(rings, colors=[(90, 200, 255)], radii=[-0.75], draw_order=[20.0]),
             static=True,
         )
-        # each ring's range where it crosses the starboard beam (the labels of line strips sit
+        # each ring's range where it crosses the 45 deg bearing (the labels of line strips sit
         # on top of each other at the centre)
-        at = np.array([[c + f * rad, c] for f in _RINGS])
+        d = rad * math.sqrt(0.5)
+        at = np.array([[c + f * d, c - f * d] for f in _RINGS])
         self._rec.log(f"{ent.SONAR_RINGS}/labels", rr.Points2D(
             at, colors=[(90, 200, 255)], radii=[-1.5], labels=labels, show_labels=True,
             draw_order=[25.0]), static=True)  # fmt: skip
