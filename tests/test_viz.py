@@ -365,3 +365,25 @@ def test_depth_colours_scale() -> None:
     assert c.dtype == np.uint8 and c.shape == (5, 3)
     assert c[0].tolist() == [48, 18, 59] and c[2].tolist() == [122, 4, 3]
     assert c[4].tolist() == c[2].tolist()  # clipped
+
+
+def test_map_grid_scale_and_legend(tmp_path) -> None:
+    """The map carries metre coordinates around what is drawn, a scale bar of one grid step and
+    a legend naming every track in its colour; four tracks appearing one by one do not grow
+    the grid (each re-logs the legend)."""
+    path = tmp_path / "grid.rrd"
+    logger = RerunLogger(rrd=path)
+    for name in ("truth", "dead_reckoning", "slam/a", "slam/b"):
+        for i in range(200):  # 200 m north, 100 m east
+            logger.trajectory(name, T0 + i, 10.0 + i, 5.0 + 0.5 * i, 2.0, 0.0)
+    logger.close()
+    rec = read_recording(path)
+    ticks = rec[f"{ent.MAP_GRID}/ticks"].static["Points2D:labels"]
+    assert ticks == ["E 0 m", "E 50 m", "E 100 m", "N 200 m", "N 150 m", "N 100 m", "N 50 m",
+                     "N 0 m"]  # fmt: skip
+    assert rec[f"{ent.MAP_GRID}/scale"].static["LineStrips2D:labels"] == ["50 m"]
+    legend = rec[f"{ent.MAP_GRID}/legend"].static
+    assert legend["LineStrips2D:labels"] == [
+        "truth", "dead reckoning", "SLAM a", "SLAM b", "true features"
+    ]
+    assert len(set(legend["LineStrips2D:colors"])) == 5  # every one its own colour

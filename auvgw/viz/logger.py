@@ -437,7 +437,8 @@ class RerunLogger(Closing):
         self._streams: dict[str, _Stream] = {}
         self._health_names: dict[str, tuple[str, ...]] = {}
         self._device_colours: dict[str, tuple[int, int, int]] = {}
-        self._grid_bounds: tuple[np.ndarray, np.ndarray] | None = None
+        self._grid_bounds: tuple[np.ndarray, np.ndarray] | None = None  # the grid's area
+        self._grid_extent: tuple[np.ndarray, np.ndarray] | None = None  # of what is drawn
         self._mag_first: np.ndarray | None = None
         self._fan_overlay: float | None = None
         self._fan_scale: tuple[float, float] | None = None
@@ -855,8 +856,10 @@ class RerunLogger(Closing):
         b = self._grid_bounds
         if b is not None and np.all(lo >= b[0]) and np.all(hi <= b[1]) and not force:
             return
-        if b is not None:
-            lo, hi = np.minimum(lo, b[0]), np.maximum(hi, b[1])
+        if self._grid_extent is not None:  # what was drawn so far (the grid has margins)
+            lo = np.minimum(lo, self._grid_extent[0])
+            hi = np.maximum(hi, self._grid_extent[1])
+        self._grid_extent = (lo, hi)
         span = float(np.max(hi - lo))
         step = next((s for s in _GRID_STEPS if span / s <= 5.0), _GRID_STEPS[-1])
         lo = np.floor(lo / step - 0.5) * step
@@ -875,7 +878,8 @@ class RerunLogger(Closing):
         )
         # the coordinates: east along the bottom edge, north along the left (v = -north)
         ticks = np.array([[u, hi[1]] for u in us[1:-1]] + [[lo[0], v] for v in vs[1:-1]])
-        labels = [f"{east} {u:.0f} m" for u in us[1:-1]] + [f"{north} {-v:.0f} m" for v in vs[1:-1]]
+        labels = [f"{east} {u + 0.0:.0f} m" for u in us[1:-1]]
+        labels += [f"{north} {0.0 - v:.0f} m" for v in vs[1:-1]]
         self._rec.log(
             f"{ent.MAP_GRID}/ticks",
             rr.Points2D(
@@ -905,7 +909,8 @@ class RerunLogger(Closing):
     def _map_legend(self, lo: np.ndarray, step: float) -> None:
         """The map's legend in its top-left corner: a short line in each track's colour (and
         the true features'), labelled with its name."""
-        names = sorted(self._tracks, key=lambda n: (_RANK.get(ent.track_segment(n), 2), n))
+        first = {"truth": 0, "dead_reckoning": 1}  # then the others as they came
+        names = sorted(self._tracks, key=lambda n: first.get(ent.track_segment(n), 2))
         entries = [(ent.track_segment(n).replace("slam/", "SLAM ").replace("_", " "),
                     self._tracks[n].colour) for n in names]  # fmt: skip
         entries.append(("true features", _TRUE_FEATURES))
@@ -962,9 +967,8 @@ class RerunLogger(Closing):
                 rr.LineStrips3D.from_fields(colors=[colour], radii=[-width]),
                 static=True,
             )
-            if self._grid_bounds is not None:  # the legend names the new track
-                lo, hi = self._grid_bounds
-                self._map_grid(np.array([lo, hi]), force=True)
+            if self._grid_extent is not None:  # the legend names the new track
+                self._map_grid(np.array(self._grid_extent), force=True)
             log_static(
                 ent.map_path(name, "pose"),
                 rr.Points2D.from_fields(colors=[colour], radii=[-5.0], draw_order=[40.0]),
