@@ -64,7 +64,7 @@ VIEW_NAMES: tuple[str, ...] = (
     "DVL velocity (m/s)",
     "Altitude (m)",
     "Bottom lock (1 = locked)",
-    "Magnetic field change since start (nT)",
+    "Magnetic field minus its 10 s mean (nT)",
     "|B| (nT)",
     "Message rate (Hz)",
     "Age of newest sample & silence (s)",

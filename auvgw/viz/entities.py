@@ -83,7 +83,7 @@ MAP_GRID = f"{MAP}/grid"
 DEPTH_SCALE = f"{WORLD}/depth_scale"
 SONAR_RINGS = f"{SONAR}/rings"
 SONAR_VEHICLE = f"{SONAR}/vehicle"
-#: the magnetometer's change since its first sample (nT), where a few nT show
+#: the magnetometer's departure from its running mean (nT), where a few nT show
 MAG_CHANGE = "mag/change"
 
 

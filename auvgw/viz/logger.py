@@ -439,7 +439,8 @@ class RerunLogger(Closing):
         self._device_colours: dict[str, tuple[int, int, int]] = {}
         self._grid_bounds: tuple[np.ndarray, np.ndarray] | None = None  # the grid's area
         self._grid_extent: tuple[np.ndarray, np.ndarray] | None = None  # of what is drawn
-        self._mag_first: np.ndarray | None = None
+        self._mag_mean: np.ndarray | None = None  # running mean of the field (nT)
+        self._mag_t = -math.inf
         self._fan_overlay: float | None = None
         self._fan_scale: tuple[float, float] | None = None
         self._depth_scale_logged = False
@@ -1366,11 +1367,17 @@ class RerunLogger(Closing):
         self._static(ent.MAG_CHANGE, lambda: rr.SeriesLines(names=["x", "y", "z"], colors=xyz))
         white = [(230, 230, 230)]
         self._static(ent.MAG_MAGNITUDE, lambda: rr.SeriesLines(names=["|B| nT"], colors=white))
-        if self._mag_first is None:
-            self._mag_first = np.asarray(b, dtype=np.float64).copy()
-        # the field itself spans tens of thousands of nT: its change since the first sample is
-        # what shows a beacon, a heading change or an anomaly of a few nT
-        self._append(ent.MAG_CHANGE, "scalars", t, tuple(np.asarray(b) - self._mag_first))
+        # the field itself spans tens of thousands of nT, and a turn moves it by as much in the
+        # body frame: its departure from a running mean (time constant mag_baseline_s of device
+        # time) is what shows a beacon's signal or an anomaly of a few nT
+        bb = np.asarray(b, dtype=np.float64)
+        if self._mag_mean is None or t < self._mag_t:
+            self._mag_mean = bb.copy()
+        else:
+            alpha = 1.0 - math.exp(-(t - self._mag_t) / self.options.mag_baseline_s)
+            self._mag_mean += alpha * (bb - self._mag_mean)
+        self._mag_t = t
+        self._append(ent.MAG_CHANGE, "scalars", t, tuple(bb - self._mag_mean))
         self._static(ent.VEHICLE_MAG, lambda: rr.Arrows3D.from_fields(colors=[(0, 200, 255)]))
         self._append(ent.MAG_FIELD, "scalars", t, tuple(b))
         self._append(ent.MAG_MAGNITUDE, "scalars", t, (float(np.linalg.norm(b)),))
