@@ -83,7 +83,7 @@ def test_rerun_shows_the_diagnostics_and_warns(runs, tmp_path):
     import json
 
     from auvgw.viz.logger import RerunLogger
-    from auvgw.viz.readback import read_recording
+    from auvgw.viz.readback import health_metrics, read_recording
     from auvgw.viz.stage import VizStage
 
     _, rs = runs
@@ -100,9 +100,7 @@ def test_rerun_shows_the_diagnostics_and_warns(runs, tmp_path):
     stage.stop()
     logger.close()
     rec = read_recording(path)
-    series = rec["health/fusion_diagnostics/status"]
-    names = [n.removeprefix("fusion_diagnostics ") for n in series.static["SeriesLines:names"]]
-    rows = [dict(zip(names, v, strict=True)) for v in series.values("Scalars:scalars")]
+    rows = [m for _, m in health_metrics(rec, "fusion_diagnostics")]
     assert len(rows) == 3
     assert rows[0]["rejected_share"] < 0.1 and rows[1]["rejected_share"] > 0.5
     assert rows[0]["dvl_noise_x_mps"] == pytest.approx(rs[0]["adapted_sigma"][0])

@@ -21,7 +21,7 @@ from auvgw.viz.logger import (
     depth_colours,
     ellipse_strips,
 )
-from auvgw.viz.readback import read_recording, read_views
+from auvgw.viz.readback import health_metrics, read_recording, read_views
 from auvgw.viz.synthetic import Rates, SyntheticWorld, synthetic_calls
 
 T0 = 1_700_000_000.0
@@ -66,7 +66,8 @@ def test_entity_paths(recording) -> None:
         "map/dead_reckoning/track", "map/dead_reckoning/pose", "map/slam/fastslam2/track",
         "map/slam/fastslam2/landmarks",
         "map/slam/fastslam2/lines", "map/slam/fastslam2/line_cov", "map/slam/fastslam2/particles",
-        "health/ins/status", "health/mbes/events",
+        "health/rate/ins", "health/flags/ins", "health/count/ins", ent.HEALTH_COUNTERS,
+        "health/mbes/events", ent.MAP_GRID, ent.DEPTH_SCALE, ent.SONAR_RINGS, ent.MAG_CHANGE,
     }  # fmt: skip
     assert expected <= set(rec)
     assert {p for p in rec if not rec[p].static and not len(rec[p])} <= {"__properties"}
@@ -89,10 +90,14 @@ def test_row_counts_per_stream(recording) -> None:
         assert len(rec[f"map/slam/fastslam2/{what}"]) == n_slam
     parts = rec["map/slam/fastslam2/particles"].values("Points2D:positions")
     assert {len(p) for p in parts} == {min(Rates().particles, VizOptions().max_particles)}
-    health = rec["health/dvl/status"]
+    # health: one unit per view (rates, flags); the cumulative counters in no view, as a table
+    health = health_metrics(rec, "dvl")
     assert len(health) == DURATION
-    assert health.static["SeriesLines:names"] == ["dvl rate_hz", "dvl bad_frames", "dvl connected"]
-    assert health.values("Scalars:scalars")[0] == [5.0, 0.0, 1.0]
+    assert health[0][1] == {"rate_hz": 5.0, "bad_frames": 0.0, "connected": 1.0}
+    assert rec["health/rate/dvl"].static["SeriesLines:names"] == ["dvl rate_hz"]
+    assert rec["health/flags/dvl"].static["SeriesLines:names"] == ["dvl connected"]
+    table = rec[ent.HEALTH_COUNTERS].values("TextDocument:text")[-1][0]
+    assert "| dvl | bad_frames 0 |" in table
 
 
 def test_values_against_truth(recording) -> None:
@@ -120,6 +125,14 @@ def test_values_against_truth(recording) -> None:
     b = np.array(rec[ent.MAG_FIELD].values("Scalars:scalars"))
     mag = np.array(rec[ent.MAG_MAGNITUDE].values("Scalars:scalars"))[:, 0]
     assert mag == pytest.approx(np.linalg.norm(b, axis=1))
+    # the departure from a running mean (10 s), where a few nT show against tens of thousands
+    change = np.array(rec[ent.MAG_CHANGE].values("Scalars:scalars"))
+    t = rec[ent.MAG_FIELD].times / NS
+    mean = b[0].copy()
+    for k in range(1, len(b)):
+        mean += (1.0 - math.exp(-(t[k] - t[k - 1]) / 10.0)) * (b[k] - mean)
+    assert change[-1] == pytest.approx(b[-1] - mean, abs=1e-6)
+    assert change[0] == pytest.approx([0.0, 0.0, 0.0])
 
 
 def test_truth_track_is_the_truth_path(recording) -> None:
@@ -205,9 +218,9 @@ def test_sonar_fan_accumulates_and_resets(tmp_path) -> None:
     logger.close()
     fan = read_recording(path)[ent.SONAR_FAN]
     assert len(fan) == 3  # logged at t0 (first line), the completed sweep, and at close
-    fmt = fan.values("Image:format")
-    first_sweep = _image(fan.values("Image:buffer")[1], fmt[1])
-    last = _image(fan.values("Image:buffer")[2], fmt[2])
+    fmt = fan.values("SegmentationImage:format")
+    first_sweep = _image(fan.values("SegmentationImage:buffer")[1], fmt[1])
+    last = _image(fan.values("SegmentationImage:buffer")[2], fmt[2])
     c, rad = (128 - 1) / 2, 64.0
     yy, xx = np.mgrid[0:128, 0:128]
     r = np.hypot(xx - c, c - yy) / rad
@@ -218,27 +231,50 @@ def test_sonar_fan_accumulates_and_resets(tmp_path) -> None:
     wedge = (r > 0.84) & (r < 0.86) & (ang > 42) & (ang < 66)
     assert (last[wedge] == 255).all()  # second sweep paints the wedge ...
     assert (last[on_ring & (ang > 190)] == 0).all()  # ... and was reset: half a turn only
+    # the levels as the head sent them, drawn in the colours of an annotation context whose
+    # scale runs from just below the sweep's median level (black) to its strongest echo (a
+    # display gain); no return black
+    ctx = read_recording(path)[ent.SONAR].values("AnnotationContext:context")[-1][0]
+    colour = {c["class_id"]: c["class_description"]["info"]["color"] for c in ctx}
+    lo = int(np.median(last[last > 0])) - 1
+    assert colour[0] == 0x000000FF  # no return: black
+    assert colour[lo] == 0x000004FF  # just below the median level: the bottom of the scale
+    assert colour[255] == 0xFCFFA4FF  # the strongest echo: the top of the scale
+    red = [colour[v] >> 24 for v in range(lo, 256)]
+    assert red == sorted(red) and red[1] > red[0]  # darker to brighter between
+    rings = read_recording(path)[f"{ent.SONAR_RINGS}/labels"].static
+    assert rings["Points2D:labels"] == ["12.5 m", "25 m", "37.5 m", "50 m"]
 
 
 def test_blueprint_names_its_views(tmp_path, recording) -> None:
     bp_file = save_blueprint(tmp_path / "auvgw.rbl")
     views = read_views(bp_file)
     assert sorted(name for _, name, _ in views) == sorted(VIEW_NAMES)
-    kinds = {name: (cls, origin) for cls, name, origin in views}
+    kinds = {name.split(" (")[0]: (cls, origin) for cls, name, origin in views}  # no units
     assert kinds["Map"] == ("2D", "map")
     assert kinds["Swath & bathymetry"] == ("3D", "world")
     assert kinds["Sonar fan"] == ("2D", "sonar")
     assert kinds["Roll & pitch"] == ("TimeSeries", "ins/attitude")
     assert kinds["Heading"] == ("TimeSeries", "ins/heading")
-    assert kinds["DVL velocity"] == ("TimeSeries", "dvl")  # all of dvl/ but the altitude
+    # m/s, metres and the 0/1 lock flag each on their own axis
+    assert kinds["DVL velocity"] == ("TimeSeries", "dvl/velocity")
     assert kinds["Altitude"] == ("TimeSeries", "dvl/altitude")
+    assert kinds["Bottom lock"] == ("TimeSeries", "dvl/bottom_lock")
+    assert kinds["Magnetic field minus its 10 s mean"] == ("TimeSeries", "mag/change")
+    # health: one view per unit, the counters as text
+    assert kinds["Message rate"] == ("TimeSeries", "health/rate")
+    assert kinds["Transport lag"] == ("TimeSeries", "health/lag")
+    assert kinds["Connected & stale"] == ("TimeSeries", "health/flags")
+    assert kinds["Counters"] == ("TextDocument", "health/counters")
+    assert not any(o.startswith("health/count/") or o == "health" for c, o in kinds.values()
+                   if c == "TimeSeries")  # fmt: skip
     # the recording carries the layout, re-sent with the SLAM track once it appeared
     path, _, _ = recording
     assert sorted(name for _, name, _ in read_views(path)) == sorted(VIEW_NAMES)
     bp = default_blueprint(["slam/fastslam2"])
     names = {v.name for v in _views(bp.root_container)}
     assert names == set(VIEW_NAMES)
-    map_view = next(v for v in _views(bp.root_container) if v.name == "Map")
+    map_view = next(v for v in _views(bp.root_container) if v.name.startswith("Map"))
     assert {"map/truth/track", "map/slam/fastslam2/track"} <= set(map_view.visualizer_overrides)
 
 
@@ -334,3 +370,25 @@ def test_depth_colours_scale() -> None:
     assert c.dtype == np.uint8 and c.shape == (5, 3)
     assert c[0].tolist() == [48, 18, 59] and c[2].tolist() == [122, 4, 3]
     assert c[4].tolist() == c[2].tolist()  # clipped
+
+
+def test_map_grid_scale_and_legend(tmp_path) -> None:
+    """The map carries metre coordinates around what is drawn, a scale bar of one grid step and
+    a legend naming every track in its colour; four tracks appearing one by one do not grow
+    the grid (each re-logs the legend)."""
+    path = tmp_path / "grid.rrd"
+    logger = RerunLogger(rrd=path)
+    for name in ("truth", "dead_reckoning", "slam/a", "slam/b"):
+        for i in range(200):  # 200 m north, 100 m east
+            logger.trajectory(name, T0 + i, 10.0 + i, 5.0 + 0.5 * i, 2.0, 0.0)
+    logger.close()
+    rec = read_recording(path)
+    ticks = rec[f"{ent.MAP_GRID}/ticks"].static["Points2D:labels"]
+    assert ticks == ["E 0 m", "E 50 m", "E 100 m", "N 200 m", "N 150 m", "N 100 m", "N 50 m",
+                     "N 0 m"]  # fmt: skip
+    assert rec[f"{ent.MAP_GRID}/scale"].static["LineStrips2D:labels"] == ["50 m"]
+    legend = rec[f"{ent.MAP_GRID}/legend"].static
+    assert legend["LineStrips2D:labels"] == [
+        "truth", "dead reckoning", "SLAM a", "SLAM b", "true features"
+    ]
+    assert len(set(legend["LineStrips2D:colors"])) == 5  # every one its own colour

@@ -18,7 +18,7 @@ from auvgw.ground.procs import free_port
 from auvgw.health import DeviceHealth
 from auvgw.viz import entities as ent
 from auvgw.viz.logger import RerunLogger
-from auvgw.viz.readback import read_recording, read_views
+from auvgw.viz.readback import health_metrics, read_recording, read_views
 from auvgw.viz.stage import VizStage, host_clock, open_viz
 
 T_RECV = 1_763_800_000.0  # host receive time of the samples (s)
@@ -169,7 +169,7 @@ def test_magnetometer_sonar_health(mapped) -> None:
     )
     fan = rec[ent.SONAR_FAN]
     assert len(fan) == 1
-    img = np.asarray(fan.values("Image:buffer")[0][0], dtype=np.uint8).reshape(256, 256)
+    img = np.asarray(fan.values("SegmentationImage:buffer")[0][0], dtype=np.uint8).reshape(256, 256)
     c = 127.5
     r_px = 128 * 105 / 300  # bins 100..109 of 300 at 45 deg (up-right)
     row, col = (
@@ -177,18 +177,19 @@ def test_magnetometer_sonar_health(mapped) -> None:
         round(c + r_px * math.sin(math.radians(45))),
     )
     assert img[row, col] == 250 and img.max() == 250
-    health = rec["health/dvl/status"]
-    names = [n.removeprefix("dvl ") for n in health.static["SeriesLines:names"]]
-    rows = [dict(zip(names, v, strict=True)) for v in health.values("Scalars:scalars")]
+    rows = [m for _, m in health_metrics(rec, "dvl")]
     assert [r["connected"] for r in rows] == [1.0, 0.0]
     assert rows[0]["bad_frames"] == 0.0 and math.isnan(rows[0]["silent_s"])
-    fusion = rec["health/fusion/status"]
+    # a stage's counters: cumulative, so a table (text) and a series in no view, never a line
+    fusion = rec["health/count/fusion"]
     assert fusion.static["SeriesLines:names"] == [
         "fusion stage.published",
         "fusion stage.dropped",
         "fusion filter.dvl_rejected",
     ]
     assert fusion.values("Scalars:scalars") == [[7.0, 0.0, 2.0]]
+    table = rec[ent.HEALTH_COUNTERS].values("TextDocument:text")[-1][0]
+    assert "| fusion | stage.published 7, stage.dropped 0, filter.dvl_rejected 2 |" in table
     events = rec["health/dvl/events"].values("TextLog:text")
     assert events == [["dvl connected"], ["dvl disconnected: port unplugged"]]
 
@@ -333,7 +334,7 @@ def test_cli_errors_and_blueprint(tmp_path, capsys) -> None:
     demo = read_recording(tmp_path / "demo.rrd")
     assert len(demo[ent.INS_ATTITUDE]) == 300 and len(demo[ent.SONAR_FAN]) >= 3
     assert main(["viz", "--save-blueprint", str(tmp_path / "auvgw.rbl")]) == 0
-    names = {name for _, name, _ in read_views(tmp_path / "auvgw.rbl")}
+    names = {name.split(" (")[0] for _, name, _ in read_views(tmp_path / "auvgw.rbl")}
     assert {"Map", "Sonar fan", "Swath & bathymetry", "Roll & pitch", "Heading"} <= names
     assert {"DVL velocity", "Altitude"} <= names
 
@@ -352,8 +353,8 @@ def test_device_health_is_on_the_data_clock(tmp_path) -> None:
         assert stage.handle_sample(f"{BASE}/status/dvl", json.dumps(snap).encode(), host)
     stage.stop()
     logger.close()
-    rows = read_recording(path)["health/dvl/status"]
-    assert list(rows.times) == [int((T_RECV + 20.0 * k) * NS) for k in range(3)]
+    rows = health_metrics(read_recording(path), "dvl")
+    assert [t for t, _ in rows] == [int((T_RECV + 20.0 * k) * NS) for k in range(3)]
 
 
 def test_device_health_panel_shows_age_lag_and_transport_losses(tmp_path) -> None:
@@ -372,9 +373,34 @@ def test_device_health_panel_shows_age_lag_and_transport_losses(tmp_path) -> Non
     assert stage.handle_sample(f"{BASE}/status/ins", json.dumps(snap).encode(), T_RECV + 3)
     stage.stop()
     logger.close()
-    health = read_recording(path)["health/ins/status"]
-    names = [n.removeprefix("ins ") for n in health.static["SeriesLines:names"]]
-    row = dict(zip(names, health.values("Scalars:scalars")[0], strict=True))
+    rec = read_recording(path)
+    [(t, row)] = health_metrics(rec, "ins")
+    assert t == int((T_RECV + 3) * NS)
     assert row["lag_s"] == pytest.approx(0.75) and row["age_s"] == pytest.approx(2.75)
     assert row["transport_lost"] == 3.0 and row["skipped_bytes"] == 37.0
     assert row["silent_s"] == pytest.approx(2.0)
+    # one unit per view: age and silence (s), lag (s) apart; the losses also as events
+    assert rec["health/age/ins"].static["SeriesLines:names"] == ["ins silent_s", "ins age_s"]
+    assert rec["health/lag/ins"].static["SeriesLines:names"] == ["ins lag_s"]
+    events = [e[0] for e in rec["health/ins/events"].values("TextLog:text")]
+    assert "ins: skipped_bytes 37 (+37)" in events and "ins: transport_lost 3 (+3)" in events
+
+
+def test_acoustic_fix_is_a_line_from_the_vehicle_to_the_beacon(tmp_path) -> None:
+    """An acoustic reply (slant range, bearing from the bow, depression) is drawn from the
+    navigation pose to where it places the beacon: horizontal range along heading + bearing."""
+    from auvgw.drivers.acoustic import AcousticReply
+
+    path = tmp_path / "acoustic.rrd"
+    logger = RerunLogger(rrd=path)
+    stage = VizStage(logger, "auv1")
+    odo = _env(_odometry(1000.0, 10.0, 5.0, 0.5), "fusion")
+    assert stage.handle_sample(f"{BASE}/nav/odometry", odo, int(T_RECV * NS)) == "logged"
+    reply = AcousticReply(counter=1, range=25.0, bearing=0.3, depression=math.acos(0.8), beacon=1)
+    assert stage.on_message("acoustic", int((T_RECV + 0.5) * NS), reply) == "logged"
+    stage.stop()
+    logger.close()
+    strips = read_recording(path)["map/acoustic/ranges"].values("LineStrips2D:strips")
+    (start, end), = (np.asarray(s) for s in strips[0])
+    north, east = 10.0 + 20.0 * math.cos(0.8), 5.0 + 20.0 * math.sin(0.8)  # 25 m x 0.8
+    assert start == pytest.approx([5.0, -10.0]) and end == pytest.approx([east, -north])

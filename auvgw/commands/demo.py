@@ -57,6 +57,12 @@ from auvgw.ground.procs import Children, free_endpoint, stop_process
 from auvgw.health import device_time_s
 
 DEFAULT_SCENARIO = "harbour"
+#: the demo's vehicle seconds and speed (x real time) unless told otherwise
+DEFAULT_DURATION_S = 180.0
+DEFAULT_SPEED = 2.0
+#: a survey's speed: its whole route (1812 s of survey.json) in about 3 minutes; measured here
+#: with --processes, every INS sample arrives and the bathymetric stage keeps up
+SURVEY_SPEED = 10.0
 #: the emulated vehicle's name (the <v> key segment)
 VEHICLE = "auv1"
 #: RMSE / distance x 100 of VB-AUFastSLAM in the sea trial of Mu et al. 2022 (INS + DVL + MSIS)
@@ -70,8 +76,20 @@ def register(sub: Any) -> None:
         default=DEFAULT_SCENARIO,
         help="shipped scenario name (harbour, survey, beacons) or a scenario JSON file",
     )
-    p.add_argument("--duration", type=float, default=180.0, help="vehicle seconds (default 180)")
-    p.add_argument("--speed", type=float, default=2.0, help="x real time (default 2)")
+    p.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        help=f"vehicle seconds (default {DEFAULT_DURATION_S:.0f}; a survey with --processes: its "
+        "whole route, about 30 min, whose tie line crosses every line: the loop closures)",
+    )
+    p.add_argument(
+        "--speed",
+        type=float,
+        default=None,
+        help=f"x real time (default {DEFAULT_SPEED:g}; a survey with --processes "
+        f"{SURVEY_SPEED:g}: about 3.5 min)",
+    )
     p.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder")
     p.add_argument("--rrd", type=Path, default=None, help="Rerun file (default OUT/demo.rrd)")
     p.add_argument("--connect", default=None, help="also stream to a Rerun viewer at this URL")
@@ -225,6 +243,21 @@ def _sim_done(sim: subprocess.Popen[bytes], sim_dir: Path) -> bool:
     return sim.poll() is not None or (sim_dir / "finished").exists()
 
 
+def _streamed_frames(gw_cfg: Any, devices: dict[str, Any]) -> int:
+    """Frames the gateway has read from the devices that speak on their own: a polled device
+    (a host driver, the MSIS head) answers every poll for as long as its port stays open, so its
+    frames never go quiet; counted, they held the drain at its limit while the gateway kept
+    stamping rows past the end of the run (issue 33: 20 s of vehicle time at ``--speed 2``)."""
+    from auvgw.drivers import registry
+
+    polled = {k.format for k in registry.DEVICES if k.host_driver}
+    return sum(
+        int(d.get("frames", 0))
+        for name, d in devices.items()
+        if name not in gw_cfg.devices or gw_cfg.devices[name].format not in polled
+    )
+
+
 def _wait_drained(frames: Callable[[], int], quiet_s: float = 0.5, limit_s: float = 10.0) -> None:
     """Wait until a count has not moved for ``quiet_s``, at most ``limit_s``: the gateway's
     frames (the last read from the held-open ports) or a stage's received messages."""
@@ -243,6 +276,7 @@ def run(args: argparse.Namespace) -> int:
     for stale in (sim_dir / "gateway.toml", sim_dir / "truth.jsonl", sim_dir / "finished"):
         stale.unlink(missing_ok=True)
     scenario = _demo_scenario(_scenario_path(args.scenario), out, args.multibeam)
+    _scenario_defaults(args, scenario)
     rrd = None if args.no_viz else (args.rrd or out / "demo.rrd")
     speed = float(args.speed)
     if speed <= 0:
@@ -266,6 +300,30 @@ def run(args: argparse.Namespace) -> int:
     finally:
         stop_process(sim, signal.SIGINT, 20.0)
         sim_log.close()
+
+
+def _scenario_defaults(args: argparse.Namespace, scenario: Path) -> None:
+    """``--duration`` and ``--speed`` where not given: a survey (the bathymetric pipeline) with
+    ``--processes`` runs its whole route at :data:`SURVEY_SPEED` (its loop closures come with the
+    tie line, after 25 minutes: 180 s showed none); any other run :data:`DEFAULT_DURATION_S` at
+    :data:`DEFAULT_SPEED` (one process does not keep up with the survey's devices at 10x: it
+    lost 40 % of the INS frames and dead reckoning diverged, measured here)."""
+    survey = _bathymetric_scenario(load_scenario(scenario))
+    whole = survey and args.processes
+    if args.speed is None:
+        args.speed = SURVEY_SPEED if whole else DEFAULT_SPEED
+    if args.duration is None:
+        args.duration = DEFAULT_DURATION_S
+        if whole:
+            from auvgw.sim_devices.vehicle import simulate
+            from auvgw.sim_devices.world import World
+
+            scn = load_scenario(scenario)
+            args.duration = math.ceil(simulate(scn, World.from_scenario(scn)).duration)
+        elif survey:
+            print("note: the survey's loop closures come with its tie line, after 25 minutes of "
+                  "vehicle time; `auvgw demo --scenario survey --processes` runs the whole route "
+                  f"at {SURVEY_SPEED:g}x", flush=True)  # fmt: skip
 
 
 def _load_sim_config(sim_dir: Path) -> Any:
@@ -345,8 +403,10 @@ def _run_stages(
     if rrd is not None or args.connect:
         from auvgw.viz.stage import open_viz
 
+        # the SLAM stage's outputs come in-process (on_slam): subscribed too, every SLAM row
+        # was logged twice, and out of order where the two paths crossed (issue 33)
         viz = open_viz(session, gw_cfg.vehicle, rrd=rrd, connect=args.connect,
-                       sections=("slam", "status"))  # fmt: skip
+                       sections=("status",))  # fmt: skip
 
     bathy_map: list[bytes] = []  # the bathymetric stage's latest DEM tile (the whole map last)
 
@@ -458,7 +518,7 @@ def _run_stages(
         if listener:
             gateway.listeners.subscribe(listener)
     if viz is not None:
-        _log_true_map(viz, keys, scenario)
+        _log_true_map(viz, keys, scenario, epoch_ns)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
@@ -471,7 +531,7 @@ def _run_stages(
             stop.wait(0.2)
             progress.tick()
         # the emulators are silent but their ports open: drain, then stop the gateway first
-        _wait_drained(lambda: sum(d["frames"] for d in gateway.status()["devices"].values()))
+        _wait_drained(lambda: _streamed_frames(gw_cfg, gateway.status()["devices"]))
         tail.poll()
     finally:
         status = gateway.status()
@@ -545,6 +605,8 @@ def _report(
             _print_magnetic(name, slam_counters, slam_err, nav)
         else:
             _print_slam(name, slam_counters, slam_err)
+            if name == BATHY_NAME:
+                _print_gain(name, slam_err, nav)
         # the VB paper's figure, for the landmark SLAM stage only
         landmark = name != BATHY_NAME and slam_counters.get("component") != MAGNETIC_COMPONENT
         paper = VB_PAPER_RMSE_PCT if landmark else None
@@ -795,9 +857,8 @@ def _run_processes(
         # put has reached it (its received count quiet for two status periods; a loaded machine
         # holds samples in flight for seconds), which drains its queue and publishes its last
         # pose, and the emulators last
-        _wait_drained(lambda: sum(d.get("frames", 0) for d in
-                                  (sub.status(timeout=2.0) or {"devices": {}})["devices"].values()),
-                      quiet_s=1.5)  # fmt: skip
+        _wait_drained(lambda: _streamed_frames(
+            gw_cfg, (sub.status(timeout=2.0) or {"devices": {}})["devices"]), quiet_s=1.5)
         status = sub.status(timeout=2.0) or collector.status.get("gateway") or {"devices": {}}
         for name in ("gateway", "fusion", "swath"):  # (swath, if any: flushes its last swaths)
             children.stop(name)
@@ -837,8 +898,9 @@ def _run_processes(
     return 0
 
 
-def _log_true_map(viz: Any, keys: Keys, scenario: Path) -> None:
-    """The scenario's true point and line features, once, on ``truth/map``."""
+def _log_true_map(viz: Any, keys: Keys, scenario: Path, epoch_ns: int) -> None:
+    """The scenario's true point and line features, once, on ``truth/map`` at vehicle time 0
+    (``epoch_ns`` on the stamps' clock)."""
     scn = load_scenario(scenario)
     lines = [
         {"p0": [x1, y1], "p1": [x2, y2],
@@ -850,7 +912,7 @@ def _log_true_map(viz: Any, keys: Keys, scenario: Path) -> None:
     beacons = _true_beacons(scn)
     body["landmarks"] += beacons.pop("landmarks", [])
     body.update(beacons)
-    viz.stage.handle_sample(keys.truth("map"), json.dumps(body).encode(), time.time_ns())
+    viz.stage.handle_sample(keys.truth("map"), json.dumps(body).encode(), epoch_ns)
 
 
 def _print_summary(
@@ -1118,9 +1180,18 @@ def _print_magnetic(
           f"{st['observations']} beacon observations, {counters['landmarks']} beacons mapped, "
           f"{st['bad_payloads']} bad payloads")  # fmt: skip
     _print_vs_truth(name, err, "not enough poses or truth to compare")
-    if err is not None and dr is not None:
-        print(f"  dead reckoning: RMSE/distance x 100 {dr['rmse_pct_distance']:.3f} %; "
-              f"{name} / dead reckoning RMSE: {err['rmse_m'] / dr['rmse_m']:.2f}")  # fmt: skip
+    _print_gain(name, err, dr)
+
+
+def _print_gain(name: str, err: dict[str, float] | None, dr: dict[str, float] | None) -> None:
+    """The SLAM estimate against dead reckoning: RMSE and final error ratios (< 1: SLAM
+    better)."""
+    if err is None or dr is None or not dr["rmse_m"] or not dr["final_m"]:
+        return
+    rmse, final = err["rmse_m"] / dr["rmse_m"], err["final_m"] / dr["final_m"]
+    print(f"  dead reckoning: RMSE/distance x 100 {dr['rmse_pct_distance']:.3f} %, final "
+          f"{dr['final_m']:.2f} m; {name} / dead reckoning: RMSE {rmse:.2f}, "
+          f"final {final:.2f}")  # fmt: skip
 
 
 def _true_beacons(scn: Any) -> dict[str, Any]:

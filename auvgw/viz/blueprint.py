@@ -7,9 +7,13 @@ Sent with every recording (file or live viewer), so a new user sees everything a
   particles and, underneath, the gridded mean depth (one disc per cell in depth colours).
 * **Swath & bathymetry** (3-D, ``world/**``, NED): every multibeam sounding coloured by depth
   (accumulated), the 3-D trajectories, the vehicle frame with its magnetic field arrow.
-* **Sonar fan** (2-D, ``sonar/**``): the MSIS scan accumulated over the current sweep.
-* **INS attitude**, **DVL**, **Magnetometer**: time series over a window before the cursor.
-* **Device health** and **Events**: per-device counters and text events.
+* **Sonar fan** (2-D, ``sonar/**``): the MSIS scan accumulated over the current sweep, with
+  range rings and the vehicle at the centre.
+* **INS attitude**, **DVL**, **Magnetometer**: time series over a window before the cursor, one
+  unit per axis (flags on their own), units in the view names.
+* **Health** (tabs): message rates, age and silence, transport lag, connection flags, the
+  fusion's checks, one series per device in one colour across the tabs; the cumulative counters
+  as a table (text); the events.
 
 Accumulation is a per-entity visible time range (``-inf .. cursor``) on the ``sensor_time``
 timeline; entity overrides cannot use wildcards, so the layout names every trajectory it
@@ -27,8 +31,14 @@ import rerun.blueprint as rrb
 from auvgw.viz.entities import (
     APPLICATION_ID,
     DVL_ALTITUDE,
+    DVL_BOTTOM_LOCK,
+    DVL_VELOCITY,
+    HEALTH_COUNTERS,
+    HEALTH_GROUPS,
     INS_ATTITUDE,
     INS_HEADING,
+    MAG_CHANGE,
+    MAG_MAGNITUDE,
     MAP,
     MAP_BATHYMETRY,
     SONAR,
@@ -44,19 +54,30 @@ __all__ = ["DEFAULT_TRACKS", "VIEW_NAMES", "default_blueprint", "save_blueprint"
 #: the trajectories every layout accumulates (SLAM pipelines are added as they appear)
 DEFAULT_TRACKS: tuple[str, ...] = ("truth", "dead_reckoning")
 
-#: view names of the default layout, in reading order
+#: view names of the default layout, in reading order (units in the names: one per axis)
 VIEW_NAMES: tuple[str, ...] = (
-    "Map",
-    "Swath & bathymetry",
-    "Sonar fan",
-    "Roll & pitch",
-    "Heading",
-    "DVL velocity",
-    "Altitude",
-    "Magnetometer",
-    "Device health",
+    "Map (m; labels: tracks, landmark ids)",
+    "Swath & bathymetry (NED m, colour = depth)",
+    "Sonar fan (rings every quarter range)",
+    "Roll & pitch (deg)",
+    "Heading (deg)",
+    "DVL velocity (m/s)",
+    "Altitude (m)",
+    "Bottom lock (1 = locked)",
+    "Magnetic field minus its 10 s mean (nT)",
+    "|B| (nT)",
+    "Message rate (Hz)",
+    "Age of newest sample & silence (s)",
+    "Transport lag (s)",
+    "Connected & stale (1 = yes)",
+    "Fusion checks (share, NIS/dof)",
+    "Fusion DVL noise (m/s)",
+    "Counters",
     "Events",
 )
+
+#: the health views' origins, in the order of VIEW_NAMES[10:16] (health/<group>)
+_HEALTH_VIEWS = tuple(f"health/{g}" for g in HEALTH_GROUPS)
 
 
 def _history(timeline: str) -> rrb.VisibleTimeRanges:
@@ -81,44 +102,66 @@ def default_blueprint(
     *,
     timeline: str = TIMELINE,
     series_window_s: float = 120.0,
+    fan_pixels: int = 256,
 ) -> rrb.Blueprint:
     """The auvgw layout; ``tracks`` are the trajectory names whose line strips accumulate
     (``truth``, ``dead_reckoning``, ``slam/<pipeline>``); time series show the last
-    ``series_window_s`` seconds before the cursor."""
+    ``series_window_s`` seconds before the cursor; the sonar view frames the fan image
+    (``fan_pixels`` square)."""
     names = list(dict.fromkeys([*DEFAULT_TRACKS, *tracks]))
+    fan = (0.0, float(fan_pixels))
     history = _history(timeline)
     map_overrides = {map_path(n, "track"): history for n in names}
     map_overrides[MAP_BATHYMETRY] = history
     world_overrides = {world_path(n, "track"): history for n in names}
     world_overrides[SOUNDINGS] = history
     window = _window(timeline, series_window_s)
+    legend = rrb.PlotLegend(corner=rrb.components.Corner2D.LeftTop, visible=True)
+    no_legend = rrb.PlotLegend(visible=False)  # one series, or the name says which is which
+
+    def series(i: int, origin: str, *, key: bool = True, **kw: object) -> rrb.TimeSeriesView:
+        return rrb.TimeSeriesView(name=VIEW_NAMES[i], origin=origin, time_ranges=window,
+                                  plot_legend=legend if key else no_legend, **kw)  # type: ignore[arg-type]  # fmt: skip
+
+    health = [
+        rrb.TimeSeriesView(name=VIEW_NAMES[10 + i], origin=o, plot_legend=legend)
+        for i, o in enumerate(_HEALTH_VIEWS)
+    ]
     views = rrb.Vertical(
         rrb.Horizontal(
-            rrb.Spatial2DView(name=VIEW_NAMES[0], origin=MAP, overrides=map_overrides),
+            rrb.Spatial2DView(
+                name=VIEW_NAMES[0], origin=MAP, overrides=map_overrides, background=[20, 24, 32]
+            ),
             rrb.Spatial3DView(name=VIEW_NAMES[1], origin=WORLD, overrides=world_overrides),
-            rrb.Spatial2DView(name=VIEW_NAMES[2], origin=SONAR, background=[0, 0, 0]),
-            column_shares=[2.0, 2.0, 1.4],
+            rrb.Spatial2DView(
+                name=VIEW_NAMES[2],
+                origin=SONAR,
+                background=[0, 0, 0],
+                visual_bounds=rrb.VisualBounds2D(x_range=fan, y_range=fan),
+            ),
+            column_shares=[2.2, 2.0, 1.2],
         ),
         rrb.Horizontal(
-            # degrees of roll/pitch and of heading, m/s and metres: never on one axis
+            # degrees of roll/pitch and of heading, m/s, metres and flags: never on one axis
+            rrb.Vertical(series(3, INS_ATTITUDE), series(4, INS_HEADING, key=False)),
             rrb.Vertical(
-                rrb.TimeSeriesView(name=VIEW_NAMES[3], origin=INS_ATTITUDE, time_ranges=window),
-                rrb.TimeSeriesView(name=VIEW_NAMES[4], origin=INS_HEADING, time_ranges=window),
-            ),
-            rrb.Vertical(
-                rrb.TimeSeriesView(
-                    name=VIEW_NAMES[5],
-                    origin="dvl",
-                    contents=["+ $origin/**", f"- {DVL_ALTITUDE}"],
-                    time_ranges=window,
+                series(5, DVL_VELOCITY),
+                series(6, DVL_ALTITUDE, key=False),
+                series(
+                    7,
+                    DVL_BOTTOM_LOCK,
+                    key=False,
+                    axis_y=rrb.ScalarAxis(range=(-0.1, 1.1), zoom_lock=True),
                 ),
-                rrb.TimeSeriesView(name=VIEW_NAMES[6], origin=DVL_ALTITUDE, time_ranges=window),
+                row_shares=[2.0, 1.0, 1.0],
             ),
-            rrb.TimeSeriesView(name=VIEW_NAMES[7], origin="mag", time_ranges=window),
+            rrb.Vertical(series(8, MAG_CHANGE), series(9, MAG_MAGNITUDE, key=False)),
             rrb.Tabs(
-                rrb.TimeSeriesView(name=VIEW_NAMES[8], origin="health"),
-                rrb.TextLogView(name=VIEW_NAMES[9], origin="health"),
+                *health,
+                rrb.TextDocumentView(name=VIEW_NAMES[16], origin=HEALTH_COUNTERS),
+                rrb.TextLogView(name=VIEW_NAMES[17], origin="health"),
             ),
+            column_shares=[1.0, 1.0, 1.0, 1.4],
         ),
         row_shares=[3.0, 2.0],
     )

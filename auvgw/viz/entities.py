@@ -11,18 +11,25 @@ import functools
 
 __all__ = [
     "APPLICATION_ID",
+    "DEPTH_SCALE",
     "DVL_ALTITUDE",
     "DVL_BOTTOM_LOCK",
     "DVL_VELOCITY",
+    "HEALTH_COUNTERS",
+    "HEALTH_GROUPS",
     "INS_ATTITUDE",
+    "MAG_CHANGE",
     "MAG_FIELD",
     "MAG_MAGNITUDE",
     "MAP",
     "MAP_BATHYMETRY",
+    "MAP_GRID",
     "MEAN_DEPTH",
     "SONAR",
     "SONAR_BEAM",
     "SONAR_FAN",
+    "SONAR_RINGS",
+    "SONAR_VEHICLE",
     "SOUNDINGS",
     "TIMELINE",
     "VEHICLE",
@@ -30,6 +37,7 @@ __all__ = [
     "VIZ_DROPPED",
     "WORLD",
     "events_path",
+    "health_group",
     "health_path",
     "map_path",
     "track_segment",
@@ -69,6 +77,14 @@ MAG_FIELD = "mag/field"
 MAG_MAGNITUDE = "mag/magnitude"
 #: the logger's own drop counter (the stage's counters are the device ``viz`` health)
 VIZ_DROPPED = "health/viz/logger_dropped"
+#: the map's metre grid and scale bar (static, grown with the tracks)
+MAP_GRID = f"{MAP}/grid"
+#: the depth colour scale beside the soundings (3-D) and the sonar's range rings and vehicle
+DEPTH_SCALE = f"{WORLD}/depth_scale"
+SONAR_RINGS = f"{SONAR}/rings"
+SONAR_VEHICLE = f"{SONAR}/vehicle"
+#: the magnetometer's departure from its running mean (nT), where a few nT show
+MAG_CHANGE = "mag/change"
 
 
 @functools.lru_cache(maxsize=4096)
@@ -90,9 +106,36 @@ def world_path(name: str, what: str) -> str:
     return f"{WORLD}/{track_segment(name)}/{what}"
 
 
-def health_path(device: str) -> str:
-    """Health series of one device (one series per metric): ``health/<device>/status``."""
-    return f"health/{track_segment(device)}/status"
+#: health series groups, one view each (one unit per axis): message rates (Hz), age of the
+#: newest sample and silence (s), transport lag (s), connected / stale flags (0/1), the fusion's
+#: checks (shares of updates, NIS per degree of freedom) and its adapted DVL noise (m/s)
+HEALTH_GROUPS: tuple[str, ...] = ("rate", "age", "lag", "flags", "checks", "noise")
+#: every component's cumulative counters, as a table (TextDocument, markdown) at each time
+HEALTH_COUNTERS = "health/counters"
+
+
+def health_group(metric: str) -> str | None:
+    """The health view of a metric by its name (see :data:`HEALTH_GROUPS`), or None for a
+    cumulative counter (frames, errors, updates: shown as text, never as a line; its series
+    goes to ``health/count/<device>``, in no view)."""
+    if metric.endswith(("rate_hz", "_hz")):
+        return "rate"
+    if metric.endswith(("age_s", "silent_s")):
+        return "age"
+    if metric.endswith("lag_s"):
+        return "lag"
+    if metric in ("connected", "stale"):
+        return "flags"
+    if metric.endswith("_share") or metric.startswith("nis"):
+        return "checks"
+    if metric.endswith("_mps"):
+        return "noise"
+    return None
+
+
+def health_path(device: str, group: str = "rate") -> str:
+    """Health series of one device in one group: ``health/<group>/<device>``."""
+    return f"health/{group}/{track_segment(device)}"
 
 
 def events_path(device: str) -> str:

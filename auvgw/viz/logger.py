@@ -20,6 +20,7 @@ What is logged where (entity paths in :mod:`auvgw.viz.entities`, shown in ``docs
 
 from __future__ import annotations
 
+import itertools
 import logging
 import math
 import queue
@@ -73,9 +74,25 @@ _LUT = np.stack(
 
 #: fixed colours of the well-known trajectories; others take the palette in order of appearance
 _TRACK_COLOURS: dict[str, tuple[int, int, int]] = {
-    "truth": (70, 200, 90),
+    "truth": (240, 240, 240),
     "dead_reckoning": (255, 160, 40),
+    "acoustic": (230, 0, 230),  # the acoustic beacon's fixes (map/acoustic/ranges)
 }
+#: the true features (walls, piles, beacons): apart from every track
+_TRUE_FEATURES = (90, 190, 110)
+#: line width (px) and draw order of the well-known tracks: the truth widest and underneath,
+#: so three tracks on top of each other all show; others (SLAM) thinnest, on top
+_TRACK_STYLE: dict[str, tuple[float, float]] = {"truth": (4.0, 28.0), "dead_reckoning": (2.5, 30.0)}
+_TRACK_STYLE_OTHER = (1.5, 32.0)
+#: the health views' colours, one per device in order of appearance
+_HEALTH_PALETTE: tuple[tuple[int, int, int], ...] = (
+    (80, 160, 255), (255, 160, 40), (90, 220, 110), (230, 80, 220), (255, 90, 90),
+    (120, 230, 230), (220, 220, 80), (170, 130, 255), (200, 200, 200), (255, 200, 150),
+)  # fmt: skip
+#: spacings (m) of the map's metre grid: the first that draws at most 6 lines across the tracks
+_GRID_STEPS = (5.0, 10.0, 20.0, 50.0, 100.0, 200.0, 500.0, 1000.0, 2000.0, 5000.0)
+#: the sonar fan's range rings, fractions of the range scale
+_RINGS = (0.25, 0.5, 0.75, 1.0)
 #: which trajectory places the vehicle frame (lowest first; others rank 2)
 _RANK: dict[str, int] = {"dead_reckoning": 0, "truth": 1}
 _PALETTE: tuple[tuple[int, int, int], ...] = (
@@ -138,6 +155,45 @@ def _same_length(what: str, **arrays: np.ndarray | None) -> None:
     lengths = {k: len(v) for k, v in arrays.items() if v is not None}
     if len(set(lengths.values())) > 1:
         raise ValueError(f"{what}: arrays of different lengths {lengths}")
+
+
+def _disc_m(across: np.ndarray) -> float:
+    """Radius (m) of a sounding's disc: 0.75 x the median spacing of one swath's beams (so
+    neighbours overlap), at least 5 cm."""
+    a = np.sort(np.asarray(across, dtype=np.float64)[np.isfinite(across)])
+    gap = float(np.median(np.diff(a))) if len(a) > 2 else 0.1
+    return max(0.05, 0.75 * gap)
+
+
+#: the sonar fan's colour scale (inferno-like: black, purple, red, orange, pale yellow)
+_FAN_SCALE = np.array(
+    [(0, 0, 4), (40, 11, 84), (101, 21, 110), (159, 42, 99), (212, 72, 66), (245, 125, 21),
+     (250, 193, 39), (252, 255, 164)],
+    dtype=np.float64,
+)  # fmt: skip
+
+
+def _fan_colours(lo: float, hi: float) -> rr.AnnotationContext:
+    """Colours of the fan's 256 echo levels: the scale stretched from ``lo`` (and below: black)
+    to ``hi`` (and above: the top colour); level 0 (no return) black."""
+    f = np.clip((np.arange(256) - lo) / max(hi - lo, 1e-9), 0.0, 1.0)
+    x = np.linspace(0.0, 1.0, len(_FAN_SCALE))
+    rgb = np.stack([np.interp(f, x, _FAN_SCALE[:, c]) for c in range(3)], axis=1).astype(int)
+    rgb[0] = 0
+    return rr.AnnotationContext(
+        [rr.AnnotationInfo(id=i, color=tuple(int(v) for v in c)) for i, c in enumerate(rgb)]
+    )
+
+
+def _fan_levels(img: np.ndarray) -> tuple[float, float]:
+    """The fan's display range: from the sweep's median echo level (the speckle's: half of it
+    is drawn black, the rest dark) to its strongest echo, so targets stand out bright whatever
+    the head's gain."""
+    echoes = img[img > 0]
+    if not echoes.size:
+        return 1.0, 255.0
+    lo = float(np.median(echoes)) - 1.0  # the median level itself is just not black
+    return lo, max(float(echoes.max()), lo + 1.0)
 
 
 # -- accumulated state (owned by the logging thread) --------------------------------------------
@@ -380,6 +436,17 @@ class RerunLogger(Closing):
         # state of the logging thread
         self._streams: dict[str, _Stream] = {}
         self._health_names: dict[str, tuple[str, ...]] = {}
+        self._device_colours: dict[str, tuple[int, int, int]] = {}
+        self._grid_bounds: tuple[np.ndarray, np.ndarray] | None = None  # the grid's area
+        self._grid_extent: tuple[np.ndarray, np.ndarray] | None = None  # of what is drawn
+        self._mag_mean: np.ndarray | None = None  # running mean of the field (nT)
+        self._mag_t = -math.inf
+        self._fan_overlay: float | None = None
+        self._fan_scale: tuple[float, float] | None = None
+        self._depth_scale_logged = False
+        self._counters: dict[str, dict[str, float]] = {}
+        self._counters_dirty = False
+        self._counters_t = -math.inf
         self._styled: set[str] = set()
         self._tracks: dict[str, _Track] = {}
         self._fan = _Fan(opts.fan_pixels)
@@ -422,7 +489,6 @@ class RerunLogger(Closing):
             self._rec.flush(timeout_sec=timeout_s)
         finally:
             self._rec.disconnect()
-
 
     def stats(self) -> LoggerStats:
         """Current counters (see :class:`LoggerStats`)."""
@@ -761,6 +827,8 @@ class RerunLogger(Closing):
                 self._send(path, s)
         if final and self._grid.counts.size:
             self._log_grid(self._grid_t, final=True)
+        if final and self._counters_dirty and self._t_last:
+            self._log_counters(max(self._t_last, self._counters_t))
         if final and self._fan_t and self._fan_logged_t < self._fan_t:
             self._log_fan(self._fan_t, None)
         dropped = self.stats().dropped
@@ -781,13 +849,98 @@ class RerunLogger(Closing):
             return np.stack([y, -x], axis=-1)
         return np.stack([x, -y], axis=-1)
 
+    def _map_grid(self, uv: np.ndarray, force: bool = False) -> None:
+        """The map's metre grid (lines every ``step`` m, their coordinates along the bottom and
+        left edges), a scale bar and the legend, re-logged (static) when what is drawn (``uv``:
+        tracks, features) leaves the area they cover, or with ``force`` (a new track)."""
+        lo, hi = np.nanmin(uv, axis=0), np.nanmax(uv, axis=0)
+        b = self._grid_bounds
+        if b is not None and np.all(lo >= b[0]) and np.all(hi <= b[1]) and not force:
+            return
+        if self._grid_extent is not None:  # what was drawn so far (the grid has margins)
+            lo = np.minimum(lo, self._grid_extent[0])
+            hi = np.maximum(hi, self._grid_extent[1])
+        self._grid_extent = (lo, hi)
+        span = float(np.max(hi - lo))
+        step = next((s for s in _GRID_STEPS if span / s <= 5.0), _GRID_STEPS[-1])
+        lo = np.floor(lo / step - 0.5) * step
+        hi = np.ceil(hi / step + 0.5) * step
+        self._grid_bounds = (lo, hi)
+        east, north = ("E", "N") if self.options.map_frame == "ned" else ("x", "y")
+        us = np.arange(lo[0], hi[0] + step / 2, step)
+        vs = np.arange(lo[1], hi[1] + step / 2, step)
+        strips = [np.array([[u, lo[1]], [u, hi[1]]]) for u in us]
+        strips += [np.array([[lo[0], v], [hi[0], v]]) for v in vs]
+        grey = (60, 70, 85)
+        self._rec.log(
+            ent.MAP_GRID,
+            rr.LineStrips2D(strips, colors=[grey], radii=[-0.75], draw_order=[-20.0]),
+            static=True,
+        )
+        # the coordinates: east along the bottom edge, north along the left (v = -north)
+        ticks = np.array([[u, hi[1]] for u in us[1:-1]] + [[lo[0], v] for v in vs[1:-1]])
+        labels = [f"{east} {u + 0.0:.0f} m" for u in us[1:-1]]
+        labels += [f"{north} {0.0 - v:.0f} m" for v in vs[1:-1]]
+        self._rec.log(
+            f"{ent.MAP_GRID}/ticks",
+            rr.Points2D(
+                ticks,
+                colors=[(150, 160, 175)],
+                radii=[-2.0],
+                labels=labels,
+                show_labels=True,
+                draw_order=[55.0],
+            ),
+            static=True,
+        )
+        x0, y1 = lo[0] + step / 2, hi[1] - step / 3
+        self._rec.log(
+            f"{ent.MAP_GRID}/scale",
+            rr.LineStrips2D(
+                [np.array([[x0, y1], [x0 + step, y1]])],
+                colors=[(255, 255, 255)],
+                radii=[-2.5],
+                labels=[f"{step:g} m"],
+                draw_order=[60.0],
+            ),
+            static=True,
+        )
+        self._map_legend(lo, step)
+
+    def _map_legend(self, lo: np.ndarray, step: float) -> None:
+        """The map's legend in its top-left corner: a short line in each track's colour (and
+        the true features'), labelled with its name."""
+        first = {"truth": 0, "dead_reckoning": 1}  # then the others as they came
+        names = sorted(self._tracks, key=lambda n: first.get(ent.track_segment(n), 2))
+        entries = [(ent.track_segment(n).replace("slam/", "SLAM ").replace("_", " "),
+                    self._tracks[n].colour) for n in names]  # fmt: skip
+        entries.append(("true features", _TRUE_FEATURES))
+        x0, y0, dy = lo[0] + step / 6, lo[1] + step / 6, step / 4
+        strips = [np.array([[x0, y0 + i * dy], [x0 + step / 3, y0 + i * dy]])
+                  for i in range(len(entries))]  # fmt: skip
+        self._rec.log(
+            f"{ent.MAP_GRID}/legend",
+            rr.LineStrips2D(
+                strips,
+                colors=[c for _, c in entries],
+                radii=[-3.0],
+                labels=[n for n, _ in entries],
+                show_labels=True,
+                draw_order=[60.0],
+            ),
+            static=True,
+        )
+
     def _ellipses(self, centres: np.ndarray, covs: np.ndarray) -> list[np.ndarray]:
         o = self.options
         e = ellipse_strips(centres, covs, o.ellipse_sigma, o.ellipse_vertices)
         return list(self._to_map(e[..., 0], e[..., 1]))
 
-    def _colour(self, name: str) -> tuple[int, int, int]:
+    def _colour(self, name: str, feature: bool = False) -> tuple[int, int, int]:
+        """A track's colour (``feature``: of its landmarks and lines; the true ones apart)."""
         key = ent.track_segment(name)
+        if feature and key == "truth":
+            return _TRUE_FEATURES
         if key in _TRACK_COLOURS:
             return _TRACK_COLOURS[key]
         others = [n for n in self._tracks if ent.track_segment(n) not in _TRACK_COLOURS]
@@ -804,16 +957,19 @@ class RerunLogger(Closing):
                 self._bp_tracks.append(seg)
                 self._rec.send_blueprint(default_blueprint(self._bp_tracks))
             log_static = self._rec.log
+            width, order = _TRACK_STYLE.get(seg, _TRACK_STYLE_OTHER)
             log_static(
                 ent.map_path(name, "track"),
-                rr.LineStrips2D.from_fields(colors=[colour], radii=[-1.5], draw_order=[30.0]),
+                rr.LineStrips2D.from_fields(colors=[colour], radii=[-width], draw_order=[order]),
                 static=True,
             )
             log_static(
                 ent.world_path(name, "track"),
-                rr.LineStrips3D.from_fields(colors=[colour], radii=[-1.5]),
+                rr.LineStrips3D.from_fields(colors=[colour], radii=[-width]),
                 static=True,
             )
+            if self._grid_extent is not None:  # the legend names the new track
+                self._map_grid(np.array(self._grid_extent), force=True)
             log_static(
                 ent.map_path(name, "pose"),
                 rr.Points2D.from_fields(colors=[colour], radii=[-5.0], draw_order=[40.0]),
@@ -864,10 +1020,9 @@ class RerunLogger(Closing):
             if len(pts) >= 2:
                 arr = np.asarray(pts)
                 self._set_time(tr.pending_t)
-                self._rec.log(
-                    ent.map_path(name, "track"),
-                    rr.LineStrips2D([self._to_map(arr[:, 0], arr[:, 1])]),
-                )
+                uv = self._to_map(arr[:, 0], arr[:, 1])
+                self._rec.log(ent.map_path(name, "track"), rr.LineStrips2D([uv]))
+                self._map_grid(uv)
                 self._rec.log(ent.world_path(name, "track"), rr.LineStrips3D([arr]))
                 tr.last_sent = tr.pending[-1]
                 tr.pending = []
@@ -898,9 +1053,11 @@ class RerunLogger(Closing):
     def _do_landmarks(
         self, name: str, t: float, mean: np.ndarray, cov: np.ndarray | None, ids: np.ndarray | None
     ) -> None:
-        colour = self._colour(name)
+        colour = self._colour(name, feature=True)
         self._set_time(t)
         labels = None if ids is None else [str(i) for i in ids]
+        if len(mean) and ent.track_segment(name) == "truth":  # estimates may stray far
+            self._map_grid(self._to_map(mean[:, 0], mean[:, 1]))
         # the points and their confidence ellipses on one entity (one chunk per flush)
         self._rec.log(
             ent.map_path(name, "landmarks"),
@@ -926,7 +1083,7 @@ class RerunLogger(Closing):
         cov: np.ndarray | None,
         endpoints: np.ndarray | None,
     ) -> None:
-        colour = self._colour(name)
+        colour = self._colour(name, feature=True)
         n = np.stack([np.cos(theta), np.sin(theta)], axis=-1)
         foot = rho[:, None] * n
         if endpoints is not None and len(endpoints) == len(rho):
@@ -935,6 +1092,8 @@ class RerunLogger(Closing):
             d = np.stack([-n[:, 1], n[:, 0]], axis=-1) * self.options.line_half_length_m
             seg = np.stack([foot - d, foot + d], axis=1)
         self._set_time(t)
+        if len(seg) and ent.track_segment(name) == "truth":
+            self._map_grid(self._to_map(seg[..., 0], seg[..., 1]).reshape(-1, 2))
         self._rec.log(
             ent.map_path(name, "lines"),
             rr.LineStrips2D(
@@ -995,7 +1154,10 @@ class RerunLogger(Closing):
         if len(v):
             self._static(
                 ent.DVL_VELOCITY,
-                lambda: rr.SeriesLines(names=[f"{n} m/s" for n in names[: len(v)]]),
+                lambda: rr.SeriesLines(
+                    names=[f"{n} m/s" for n in names[: len(v)]],
+                    colors=[(235, 80, 80), (90, 210, 90), (80, 150, 255)][: len(v)],
+                ),
             )
             self._append(ent.DVL_VELOCITY, "scalars", t, tuple(v))
         if not math.isnan(altitude):
@@ -1007,15 +1169,57 @@ class RerunLogger(Closing):
 
     def _log_fan(self, t: float, bearing: float | None) -> None:
         self._set_time(t)
-        image = rr.Image(self._fan.image.copy())
+        img = self._fan.image.copy()
         quality = self.options.fan_jpeg_quality
-        self._rec.log(ent.SONAR_FAN, image if quality is None else image.compress(quality))
+        if quality is None:
+            # the echo levels as they came (0 = no return), in a colour map whose range is the
+            # sweep's own echoes (display gain: the top 0.5 % saturate) so targets stand out
+            # the echo levels as the head sent them, each level drawn in the colour of the
+            # sweep's own scale (an annotation context: a display gain from the speckle's level
+            # to the strongest echo), no return black
+            lo, hi = _fan_levels(img)
+            if (lo, hi) != self._fan_scale:
+                self._fan_scale = (lo, hi)
+                self._rec.log(ent.SONAR, _fan_colours(lo, hi))
+            self._rec.log(ent.SONAR_FAN, rr.SegmentationImage(img, opacity=1.0))
+        else:
+            self._rec.log(ent.SONAR_FAN, rr.Image(img).compress(quality))
+        if self._fan_overlay != self._fan.range_m:
+            self._fan_overlay = self._fan.range_m
+            self._sonar_overlay(self._fan.range_m)
         if bearing is not None:
             self._rec.log(
                 ent.SONAR_BEAM,
                 rr.LineStrips2D([self._fan.beam(bearing)], colors=[(255, 80, 80)], radii=[-1.0]),
             )
         self._fan_logged_t = t
+
+    def _sonar_overlay(self, range_m: float) -> None:
+        """Range rings every quarter of the range scale (labelled in metres) and the vehicle,
+        bow up, at the centre of the fan (pixels; static, re-logged when the range changes)."""
+        n = self._fan.size
+        c, rad = (n - 1) / 2.0, n / 2.0
+        a = np.linspace(0.0, TWO_PI, 97)
+        rings = [np.column_stack([c + f * rad * np.sin(a), c - f * rad * np.cos(a)])
+                 for f in _RINGS]  # fmt: skip
+        labels = [f"{f * range_m:.3g} m" if math.isfinite(range_m) else "" for f in _RINGS]
+        self._rec.log(
+            ent.SONAR_RINGS,
+            rr.LineStrips2D(rings, colors=[(90, 200, 255)], radii=[-0.75], draw_order=[20.0]),
+            static=True,
+        )
+        # each ring's range where it crosses the 45 deg bearing (the labels of line strips sit
+        # on top of each other at the centre)
+        d = rad * math.sqrt(0.5)
+        at = np.array([[c + f * d, c - f * d] for f in _RINGS])
+        self._rec.log(f"{ent.SONAR_RINGS}/labels", rr.Points2D(
+            at, colors=[(90, 200, 255)], radii=[-1.5], labels=labels, show_labels=True,
+            draw_order=[25.0]), static=True)  # fmt: skip
+        s = max(3.0, n / 40.0)
+        hull = np.array([[c, c - 1.6 * s], [c + s, c + s], [c - s, c + s], [c, c - 1.6 * s]])
+        self._rec.log(ent.SONAR_VEHICLE, rr.LineStrips2D(
+            [hull], colors=[(255, 220, 0)], radii=[-1.5], draw_order=[30.0]),
+            static=True)  # fmt: skip
 
     def _do_msis(
         self, t: float, bearing: float, bins: np.ndarray, range_m: float, step: float
@@ -1057,14 +1261,47 @@ class RerunLogger(Closing):
             pad = max(1.0, 0.5 * (hi - lo))
             self._depth_range = (lo - pad, hi + pad)
         lo, hi = self._depth_range
+        if not self._depth_scale_logged:
+            width = float(np.nanmax(across) - np.nanmin(across)) if len(across) > 1 else 40.0
+            self._depth_scale(x0, y0, lo, hi, max(20.0, 0.5 * width))
         colours = depth_colours(zs, lo, hi)
-        self._static(ent.SOUNDINGS, lambda: rr.Points3D.from_fields(radii=[-2.0]))
+        # discs in metres, sized to the beams' spacing: screen-sized ones left gaps where the
+        # spacing was wider (a white band along the swath, issue 33)
+        self._static(ent.SOUNDINGS, lambda: rr.Points3D.from_fields(radii=[_disc_m(across)]))
         self._append(ent.SOUNDINGS, "points3", t, (np.column_stack([xs, ys, zs]), colours))
         uv = self._to_map(xs, ys)
         self._grid.add(uv[:, 0], uv[:, 1], zs)
         self._grid_t = t
         if t - self._grid_logged_t >= self.options.bathy_period_s:
             self._log_grid(t)
+
+    def _depth_scale(self, x: float, y: float, lo: float, hi: float, length: float) -> None:
+        """The depth colour scale in the 3-D view (static): a bar ``length`` m long in depth
+        colours from ``lo`` to ``hi`` m, lying at ``hi`` m from 10 m behind the first swath's
+        place (``x``, ``y`` in the map frame) backwards, the depths labelled along it."""
+        self._depth_scale_logged = True
+        frac = np.linspace(0.0, 1.0, 21)
+        px = x - 10.0 - frac * length
+        segs = [np.array([[a, y, hi], [b, y, hi]]) for a, b in itertools.pairwise(px)]
+        mids = lo + (hi - lo) * 0.5 * (frac[:-1] + frac[1:])
+        self._rec.log(
+            ent.DEPTH_SCALE,
+            rr.LineStrips3D(segs, colors=depth_colours(mids, lo, hi), radii=[-6.0]),
+            static=True,
+        )
+        tf = np.linspace(0.0, 1.0, 5)
+        ticks = lo + (hi - lo) * tf
+        self._rec.log(
+            f"{ent.DEPTH_SCALE}/ticks",
+            rr.Points3D(
+                np.column_stack([x - 10.0 - tf * length, np.full(5, y), np.full(5, hi)]),
+                colors=depth_colours(ticks, lo, hi),
+                radii=[-4.0],
+                labels=[f"{d:.1f} m" for d in ticks],
+                show_labels=True,
+            ),
+            static=True,
+        )
 
     def _log_grid(self, t: float, final: bool = False) -> None:
         """The grid cells updated since the last log as depth-coloured discs on the map (the
@@ -1124,21 +1361,75 @@ class RerunLogger(Closing):
         )
 
     def _do_mag(self, t: float, b: np.ndarray) -> None:
-        self._static(ent.MAG_FIELD, lambda: rr.SeriesLines(names=["x nT", "y nT", "z nT"]))
-        self._static(ent.MAG_MAGNITUDE, lambda: rr.SeriesLines(names=["|B| nT"]))
+        xyz = [(235, 80, 80), (90, 210, 90), (80, 150, 255)]  # x red, y green, z blue
+        self._static(ent.MAG_FIELD, lambda: rr.SeriesLines(names=["x nT", "y nT", "z nT"],
+                                                           colors=xyz))  # fmt: skip
+        self._static(ent.MAG_CHANGE, lambda: rr.SeriesLines(names=["x", "y", "z"], colors=xyz))
+        white = [(230, 230, 230)]
+        self._static(ent.MAG_MAGNITUDE, lambda: rr.SeriesLines(names=["|B| nT"], colors=white))
+        # the field itself spans tens of thousands of nT, and a turn moves it by as much in the
+        # body frame: its departure from a running mean (time constant mag_baseline_s of device
+        # time) is what shows a beacon's signal or an anomaly of a few nT
+        bb = np.asarray(b, dtype=np.float64)
+        if self._mag_mean is None or t < self._mag_t:
+            self._mag_mean = bb.copy()
+        else:
+            alpha = 1.0 - math.exp(-(t - self._mag_t) / self.options.mag_baseline_s)
+            self._mag_mean += alpha * (bb - self._mag_mean)
+        self._mag_t = t
+        self._append(ent.MAG_CHANGE, "scalars", t, tuple(bb - self._mag_mean))
         self._static(ent.VEHICLE_MAG, lambda: rr.Arrows3D.from_fields(colors=[(0, 200, 255)]))
         self._append(ent.MAG_FIELD, "scalars", t, tuple(b))
         self._append(ent.MAG_MAGNITUDE, "scalars", t, (float(np.linalg.norm(b)),))
         self._append(ent.VEHICLE_MAG, "arrows3", t, tuple(b * self.options.mag_arrow_m_per_nt))
 
     def _do_health(self, device: str, t: float, values: tuple[tuple[str, float], ...]) -> None:
-        path = ent.health_path(device)
-        names = self._health_names.get(path)
-        if names is None:
-            names = self._health_names[path] = tuple(k for k, _ in values)
-            self._static(path, lambda: rr.SeriesLines(names=[f"{device} {n}" for n in names]))
-        got = dict(values)
-        self._append(path, "scalars", t, tuple(got.get(n, math.nan) for n in names))
+        """One status of ``device``: each metric into its group's series (one unit per view,
+        :func:`~auvgw.viz.entities.health_group`), cumulative counters into the table."""
+        groups: dict[str, list[tuple[str, float]]] = {}
+        for name, v in values:
+            group = ent.health_group(name)
+            if group is None:  # the table, and a series no view shows (for tools, tests)
+                self._counters.setdefault(device, {})[name] = v
+                self._counters_dirty = True
+                group = "count"
+            groups.setdefault(group, []).append((name, v))
+        for group, metrics in groups.items():
+            path = ent.health_path(device, group)
+            names = self._health_names.get(path)
+            if names is None:
+                names = self._health_names[path] = tuple(k for k, _ in metrics)
+                colour = self._device_colour(device)
+                self._static(path, lambda n=names, c=colour: rr.SeriesLines(
+                    names=[f"{device} {k}" for k in n],
+                    colors=[c] * len(n), widths=[1.5] * len(n)))  # fmt: skip
+            got = dict(metrics)
+            self._append(path, "scalars", t, tuple(got.get(n, math.nan) for n in names))
+        if self._counters_dirty and t - self._counters_t >= self.options.counters_period_s:
+            self._log_counters(t)
+
+    def _device_colour(self, device: str) -> tuple[int, int, int]:
+        """One colour per device (or stage) across the health views, in order of appearance."""
+        if device not in self._device_colours:
+            palette = _HEALTH_PALETTE
+            self._device_colours[device] = palette[len(self._device_colours) % len(palette)]
+        return self._device_colours[device]
+
+    def _log_counters(self, t: float) -> None:
+        """Every component's latest cumulative counters as one markdown table at ``t``."""
+        self._counters_t, self._counters_dirty = t, False
+        lines = ["| component | counters |", "|---|---|"]
+        for device, counts in sorted(self._counters.items()):
+            cells = ", ".join(
+                f"{k} {v:.0f}" if float(v).is_integer() else f"{k} {v:.3g}"
+                for k, v in counts.items()
+                if math.isfinite(v)
+            )
+            lines.append(f"| {device} | {cells} |")
+        self._set_time(t)
+        self._rec.log(
+            ent.HEALTH_COUNTERS, rr.TextDocument("\n".join(lines), media_type="text/markdown")
+        )
 
     def _do_event(self, device: str, t: float, text: str, level: str) -> None:
         self._set_time(t)

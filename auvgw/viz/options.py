@@ -55,5 +55,10 @@ class VizOptions:
     depth_range: tuple[float, float] | None = None
     #: highest rate (Hz, device time) of the vehicle's Transform3D (the series keep every sample)
     vehicle_pose_hz: float = 20.0
+    #: time constant (device s) of the magnetometer's running mean; the "change" view shows the
+    #: field minus it
+    mag_baseline_s: float = 10.0
+    #: device seconds between two logs of the counters table (health/counters)
+    counters_period_s: float = 1.0
     #: magnetic arrow length per nT (m/nT): 1e-4 draws 50 000 nT as 5 m
     mag_arrow_m_per_nt: float = 1e-4

@@ -17,15 +17,18 @@ from rerun.chunk import RrdReader
 
 from auvgw.viz.entities import TIMELINE
 
-__all__ = ["EntityRows", "read_recording", "read_views"]
+__all__ = ["EntityRows", "health_metrics", "read_recording", "read_views"]
 
 
 @dataclass
 class EntityRows:
-    """Rows of one entity: ``times`` (ns on ``sensor_time``, sorted), ``columns`` (component
+    """Rows of one entity: ``times`` (ns on ``sensor_time``, sorted; ``written``: as
+    written), ``columns`` (component
     name such as ``Scalars:scalars`` -> one value per row) and ``static`` components."""
 
     times: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    #: the same times in the order the rows were written (chunks in file order)
+    written: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     columns: dict[str, list[Any]] = field(default_factory=dict)
     static: dict[str, Any] = field(default_factory=dict)
 
@@ -65,7 +68,26 @@ def read_recording(path: str | Path, timeline: str = TIMELINE) -> dict[str, Enti
         order = np.argsort(times, kind="stable")
         rows = out[entity]
         rows.times = times[order]
+        rows.written = times
         rows.columns = {n: [vals[i] for i in order] for n, vals in merged.items()}
+    return out
+
+
+def health_metrics(rec: dict[str, EntityRows], device: str) -> list[tuple[int, dict[str, float]]]:
+    """One device's health statuses as logged (every group ``health/<group>/<device>`` holds a
+    row per status): (time ns, metric name such as ``rate_hz`` -> value), in time order."""
+    out: list[tuple[int, dict[str, float]]] = []
+    for path, rows in sorted(rec.items()):
+        parts = path.split("/")
+        if len(parts) != 3 or parts[0] != "health" or parts[2] != device:
+            continue
+        names = [
+            str(n).removeprefix(f"{device} ") for n in rows.static.get("SeriesLines:names") or []
+        ]
+        for i, (t, vals) in enumerate(zip(rows.times, rows.values("Scalars:scalars"), strict=True)):
+            if i == len(out):
+                out.append((int(t), {}))
+            out[i][1].update(zip(names, vals or [], strict=False))
     return out
 
 

@@ -13,6 +13,7 @@ role ``velocity`` (PD0 ``ensemble``)           DVL velocity (bottom track, vehic
 role ``sonar`` (SeaNet ``mtheaddata``)         MSIS scan line into the sonar fan
 role ``attitude`` (``roll, pitch, heading``)   INS attitude (HN-100 binary or CAN, PD6 ``sa``)
 role ``field`` (``bx, by, bz`` in nT)          magnetometer (MS3A ASCII or CAN sample)
+role ``range`` (acoustic ``AcousticReply``)    a line from the navigation pose to the fix
 ``nav/odometry``                               ``dead_reckoning`` trajectory with its covariance
 ``slam/<p>/pose``                              ``slam/<p>`` trajectory (+ particles if carried)
 ``slam/<p>/landmarks``, ``slam/<p>/map``       landmarks with covariances, line features
@@ -226,7 +227,8 @@ class VizStage(Stage):
         self._ranges: dict[str, tuple[float, list[tuple[float, float]]]] = {}
         self._status: dict[str, tuple[Any, Any]] = {}
         self._pilot_mode: str | None = None  # the autopilot's mode last shown
-        self._t_last = 0.0  # the newest data time (sensor, odometry stamps), s
+        self._losses: dict[str, dict[str, float]] = {}  # the loss counters seen, per device
+        self._t_last = 0.0  # the newest data time (sensor, odometry stamps), s; never goes back
         #: device registry role -> handler; a message type is shown by the first of its roles
         #: that has one (registry.MessageType.roles)
         self._role_handlers: dict[str, Callable[[str, Any, float], bool]] = {
@@ -235,6 +237,7 @@ class VizStage(Stage):
             "sonar": self._msis,
             "attitude": self._attitude,
             "field": self._field,
+            "range": self._acoustic_fix,
         }
         self._classes: dict[str, type] = {}
         self._load_codecs()
@@ -341,8 +344,9 @@ class VizStage(Stage):
             if not self._stamps.accept(env.t_recv_ns):  # a forged time never moves the clock
                 return "unknown:stamp"
             if section == "sensor" and env.message is not None:
-                self._t_last = env.t_recv_ns / 1e9
-                return self._sensor(env.device, env.type, env.message, self._t_last)
+                t_stamp = env.t_recv_ns / 1e9
+                self._t_last = max(self._t_last, t_stamp)
+                return self._sensor(env.device, env.type, env.message, t_stamp)
             data: Any = {"v": SCHEMA_VERSION, "type": env.type, "device": env.device,
                          "msg": env.body, "t_recv_ns": env.t_recv_ns}  # fmt: skip
         else:
@@ -360,7 +364,7 @@ class VizStage(Stage):
         if not isinstance(body, Mapping):
             return f"unknown:{section}"
         if section in ("sensor", "nav"):  # data times only: status and SLAM rows follow them
-            self._t_last = t_host
+            self._t_last = max(self._t_last, t_host)
         if section == "sensor":
             return self._sensor_json(device, type_name, body, t_host)
         if section == "nav":
@@ -437,7 +441,7 @@ class VizStage(Stage):
             self.stats.received += 1
         type_name = getattr(msg, "TYPE", type(msg).__name__)
         t_host = t_recv_ns / 1e9
-        self._t_last = t_host
+        self._t_last = max(self._t_last, t_host)
         try:
             with self._map_lock:
                 outcome = self._sensor(device, type_name, msg, t_host)
@@ -468,6 +472,22 @@ class VizStage(Stage):
             return False
         b = (_float(msg.bx), _float(msg.by), _float(msg.bz))
         self.logger.magnetometer(self._clock(device)(None, t_host), b)
+        return True
+
+    def _acoustic_fix(self, device: str, msg: Any, t_host: float) -> bool:
+        """An acoustic beacon reply (slant ``range`` m, ``bearing`` rad from the bow,
+        ``depression`` rad): a line from the navigation pose to where the fix places the beacon
+        (``map/acoustic/ranges``; it ends on the beacon while the navigation is right)."""
+        if not all(hasattr(msg, n) for n in ("range", "bearing")):
+            return False
+        pose = self._nav or self._truth
+        if pose is None:
+            return True  # nothing to draw it from yet
+        x, y, _, h = pose
+        r = _float(msg.range) * math.cos(_float(getattr(msg, "depression", 0.0), 0.0))
+        b = h + _float(msg.bearing)
+        end = (x + r * math.cos(b), y + r * math.sin(b))
+        self.logger.ranges("acoustic", self._clock(device)(None, t_host), (x, y), [end])
         return True
 
     # sensor handlers (typed messages) -------------------------------------------------------
@@ -686,6 +706,8 @@ class VizStage(Stage):
         "age_s", "lag_s", "transport_lost",
     )  # fmt: skip
     _HEALTH_FLAGS = ("connected", "stale")
+    #: a device's loss counters: each increase is a WARN event
+    _LOSS_KEYS = ("bad_frames", "decode_errors", "skipped_bytes", "transport_lost")
 
     def _health(self, device: str, body: Mapping[str, Any], t_host: float) -> str:
         if device == "gateway" or "devices" in body:
@@ -711,6 +733,13 @@ class VizStage(Stage):
         for flag in self._HEALTH_FLAGS:
             metrics[flag] = math.nan if body.get(flag) is None else float(bool(body[flag]))
         self.logger.health(device, t, metrics)
+        # a loss counter that grew is an event (the counters themselves are a table, not lines)
+        counts = self._losses.setdefault(device, {})
+        for k in self._LOSS_KEYS:
+            v, before = metrics[k], counts.get(k, 0.0)
+            if v == v and v > before:
+                self.logger.event(device, t, f"{device}: {k} {v:.0f} (+{v - before:.0f})", "WARN")
+                counts[k] = v
         state = (body.get("connected"), body.get("last_error"))
         prev = self._status.get(device)
         if prev != state:
