@@ -201,14 +201,17 @@ def test_rerun_shows_the_pilot_state_commands_and_the_abort(tmp_path):
     viz.stop()
     logger.close()
     rec = read_recording(path)
-    state = rec["health/pilot-state/status"]
-    names = [n.removeprefix("pilot-state ") for n in state.static["SeriesLines:names"]]
-    rows = [dict(zip(names, v, strict=True)) for v in state.values("Scalars:scalars")]
-    assert len(rows) == 6 and rows[0]["cross_track_m"] == 2.0 and rows[0]["depth_d_m"] == 3.0
-    assert list(state.times) == [round((10.0 + k * DT) * 1e9) for k in range(5)] + [11e9]
-    cmd = rec["health/pilot-command/status"]
-    cnames = [n.removeprefix("pilot-command ") for n in cmd.static["SeriesLines:names"]]
-    last = dict(zip(cnames, cmd.values("Scalars:scalars")[-1], strict=True))
-    assert last["rpm"] == 0.0 and last["stern_deg"] == pytest.approx(-15.0)
+
+    def rows(path: str) -> list[dict[str, float]]:
+        e = rec[path]
+        names = list(e.static["SeriesLines:names"])
+        return [dict(zip(names, v, strict=True)) for v in e.values("Scalars:scalars")]
+
+    track = rows("pilot/track")
+    assert len(track) == 6 and track[0]["cross_track_m"] == 2.0 and track[0]["depth_d_m"] == 3.0
+    times = [round((10.0 + k * DT) * 1e9) for k in range(5)] + [11e9]
+    assert list(rec["pilot/track"].times) == times
+    assert rows("pilot/shaft")[-1]["rpm"] == 0.0
+    assert rows("pilot/fins")[-1]["stern_deg"] == pytest.approx(-15.0)
     assert rec["health/pilot-state/events"].values("TextLog:text") == [
         ["mode running"], ["mode aborted: depth_limit (depth 61.0 m beyond 60 m)"]]

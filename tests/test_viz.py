@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 
 from auvgw.viz import entities as ent
 from auvgw.viz.blueprint import VIEW_NAMES, default_blueprint, save_blueprint
+from auvgw.viz.entities import PILOT_VIEWS
 from auvgw.viz.logger import (
     RerunLogger,
     VizOptions,
@@ -249,7 +250,8 @@ def test_sonar_fan_accumulates_and_resets(tmp_path) -> None:
 def test_blueprint_names_its_views(tmp_path, recording) -> None:
     bp_file = save_blueprint(tmp_path / "auvgw.rbl")
     views = read_views(bp_file)
-    assert sorted(name for _, name, _ in views) == sorted(VIEW_NAMES)
+    assert sorted(name for _, name, _ in views) == sorted([*VIEW_NAMES, *PILOT_VIEWS.values()])
+    assert {(o, n) for _, n, o in views} >= set(PILOT_VIEWS.items())  # one unit per pilot view
     kinds = {name.split(" (")[0]: (cls, origin) for cls, name, origin in views}  # no units
     assert kinds["Map"] == ("2D", "map")
     assert kinds["Swath & bathymetry"] == ("3D", "world")
@@ -270,10 +272,11 @@ def test_blueprint_names_its_views(tmp_path, recording) -> None:
                    if c == "TimeSeries")  # fmt: skip
     # the recording carries the layout, re-sent with the SLAM track once it appeared
     path, _, _ = recording
-    assert sorted(name for _, name, _ in read_views(path)) == sorted(VIEW_NAMES)
+    every = sorted([*VIEW_NAMES, *PILOT_VIEWS.values()])
+    assert sorted(name for _, name, _ in read_views(path)) == every
     bp = default_blueprint(["slam/fastslam2"])
     names = {v.name for v in _views(bp.root_container)}
-    assert names == set(VIEW_NAMES)
+    assert names == set(every)
     map_view = next(v for v in _views(bp.root_container) if v.name.startswith("Map"))
     assert {"map/truth/track", "map/slam/fastslam2/track"} <= set(map_view.visualizer_overrides)
 

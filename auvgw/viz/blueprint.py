@@ -41,6 +41,7 @@ from auvgw.viz.entities import (
     MAG_MAGNITUDE,
     MAP,
     MAP_BATHYMETRY,
+    PILOT_VIEWS,
     SONAR,
     SOUNDINGS,
     TIMELINE,
@@ -160,6 +161,8 @@ def default_blueprint(
                 *health,
                 rrb.TextDocumentView(name=VIEW_NAMES[16], origin=HEALTH_COUNTERS),
                 rrb.TextLogView(name=VIEW_NAMES[17], origin="health"),
+                *(rrb.TimeSeriesView(name=n, origin=o, time_ranges=window, plot_legend=legend)
+                  for o, n in PILOT_VIEWS.items()),  # only the closed loop fills them
             ),
             column_shares=[1.0, 1.0, 1.0, 1.4],
         ),

@@ -112,6 +112,14 @@ def world_path(name: str, what: str) -> str:
 HEALTH_GROUPS: tuple[str, ...] = ("rate", "age", "lag", "flags", "checks", "noise")
 #: every component's cumulative counters, as a table (TextDocument, markdown) at each time
 HEALTH_COUNTERS = "health/counters"
+#: the autopilot's views (auvgw.viz.stage, docs/pilot.md): entity path -> view name, one unit each
+PILOT_VIEWS: dict[str, str] = {
+    "pilot/track": "Pilot: cross-track, along-track, depth set-point (m)",
+    "pilot/setpoints": "Pilot: heading and pitch set-points (deg)",
+    "pilot/speed": "Pilot: speed set-point (m/s)",
+    "pilot/fins": "Pilot: rudder and stern-plane commands (deg)",
+    "pilot/shaft": "Pilot: shaft speed command (rpm)",
+}
 
 
 def health_group(metric: str) -> str | None:

@@ -27,7 +27,7 @@ import queue
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -679,6 +679,12 @@ class RerunLogger(Closing):
         name (a missing metric is NaN, a new one is not shown)."""
         values = tuple((str(k), float(v)) for k, v in metrics.items())
         return self._put("health", (str(device), float(t), values), float(t))
+
+    def series(self, path: str, t: float, metrics: Mapping[str, float]) -> bool:
+        """Named series of one unit on entity ``path`` (e.g. ``pilot/fins``): the names of the
+        first call name the series, later calls are matched by name (missing: NaN)."""
+        values = tuple((str(k), float(v)) for k, v in metrics.items())
+        return self._put("series", (str(path), float(t), values), float(t))
 
     def event(self, device: str, t: float, text: str, level: str = "INFO") -> bool:
         """A text event of one device (``health/<device>/events``)."""
@@ -1395,18 +1401,28 @@ class RerunLogger(Closing):
                 group = "count"
             groups.setdefault(group, []).append((name, v))
         for group, metrics in groups.items():
-            path = ent.health_path(device, group)
-            names = self._health_names.get(path)
-            if names is None:
-                names = self._health_names[path] = tuple(k for k, _ in metrics)
-                colour = self._device_colour(device)
-                self._static(path, lambda n=names, c=colour: rr.SeriesLines(
-                    names=[f"{device} {k}" for k in n],
-                    colors=[c] * len(n), widths=[1.5] * len(n)))  # fmt: skip
-            got = dict(metrics)
-            self._append(path, "scalars", t, tuple(got.get(n, math.nan) for n in names))
+            self._named_series(ent.health_path(device, group), t, metrics, device)
         if self._counters_dirty and t - self._counters_t >= self.options.counters_period_s:
             self._log_counters(t)
+
+    def _do_series(self, path: str, t: float, values: tuple[tuple[str, float], ...]) -> None:
+        self._named_series(path, t, values)
+
+    def _named_series(self, path: str, t: float, metrics: Iterable[tuple[str, float]],
+                      device: str | None = None) -> None:  # fmt: skip
+        """Scalars of named series on ``path``, named (and coloured: one colour per ``device``,
+        else one per series) at the path's first call."""
+        metrics = tuple(metrics)
+        names = self._health_names.get(path)
+        if names is None:
+            names = self._health_names[path] = tuple(k for k, _ in metrics)
+            prefix = f"{device} " if device is not None else ""
+            colours = ([self._device_colour(device)] * len(names) if device is not None
+                       else [_HEALTH_PALETTE[i % len(_HEALTH_PALETTE)] for i in range(len(names))])
+            self._static(path, lambda n=names, c=colours: rr.SeriesLines(
+                names=[f"{prefix}{k}" for k in n], colors=c, widths=[1.5] * len(n)))  # fmt: skip
+        got = dict(metrics)
+        self._append(path, "scalars", t, tuple(got.get(n, math.nan) for n in names))
 
     def _device_colour(self, device: str) -> tuple[int, int, int]:
         """One colour per device (or stage) across the health views, in order of appearance."""

@@ -380,26 +380,32 @@ class VizStage(Stage):
         return f"unknown:{section}"
 
     def _pilot(self, what: str, body: Mapping[str, Any], t_host: float) -> str:
-        """The autopilot (auvgw.stages.pilot, docs/pilot.md) on the odometry's clock: its
-        ``state`` as series of ``health/pilot-state`` (cross-track, set-points in m, deg, m/s)
-        and a ``health/pilot-state/events`` line at each change of mode (an abort with its
-        reason, as an error); its ``command`` as series of ``health/pilot-command``."""
+        """The autopilot (auvgw.stages.pilot, docs/pilot.md) on the odometry's clock, one unit
+        per view (:data:`auvgw.viz.entities.PILOT_VIEWS`): its ``state`` as ``pilot/track``
+        (cross- and along-track error, depth set-point, m), ``pilot/setpoints`` (heading and
+        pitch, deg), ``pilot/speed`` (set-point, m/s) and ``pilot/leg``, with a
+        ``health/pilot-state/events`` line at each change of mode (an abort with its reason, as
+        an error); its ``command`` as ``pilot/fins`` (rudder and stern plane, deg) and
+        ``pilot/shaft`` (rpm)."""
         t = _float(body.get("t"), t_host)
+        deg = math.degrees
         if what == "command":
-            self.logger.health("pilot-command", t, {
-                "rpm": _float(body.get("rpm")),
-                "rudder_deg": math.degrees(_float(body.get("rudder"))),
-                "stern_deg": math.degrees(_float(body.get("stern")))})  # fmt: skip
+            self.logger.series("pilot/fins", t, {
+                "rudder_deg": deg(_float(body.get("rudder"))),
+                "stern_deg": deg(_float(body.get("stern")))})  # fmt: skip
+            self.logger.series("pilot/shaft", t, {"rpm": _float(body.get("rpm"))})
             return "logged"
         if what != "state":
             return f"pilot:{what}"
-        self.logger.health("pilot-state", t, {
-            "leg": _float(body.get("leg")), "cross_track_m": _float(body.get("cross_track")),
+        self.logger.series("pilot/track", t, {
+            "cross_track_m": _float(body.get("cross_track")),
             "along_track_m": _float(body.get("along_track")),
-            "depth_d_m": _float(body.get("depth_d")),
-            "heading_d_deg": math.degrees(_float(body.get("heading_d"))),
-            "pitch_d_deg": math.degrees(_float(body.get("pitch_d"))),
-            "speed_d_mps": _float(body.get("speed_d"))})  # fmt: skip
+            "depth_d_m": _float(body.get("depth_d"))})  # fmt: skip
+        self.logger.series("pilot/setpoints", t, {
+            "heading_d_deg": deg(_float(body.get("heading_d"))),
+            "pitch_d_deg": deg(_float(body.get("pitch_d")))})  # fmt: skip
+        self.logger.series("pilot/speed", t, {"speed_d_mps": _float(body.get("speed_d"))})
+        self.logger.series("pilot/leg", t, {"leg": _float(body.get("leg"))})
         mode = str(body.get("mode", ""))
         if self._pilot_mode != mode:
             self._pilot_mode = mode
