@@ -586,17 +586,33 @@ class MTMPF(BathyFilter):
 
 
 class BPSLAM(BathyFilter):
-    """The paper's BPSLAM comparator (Sec. V-A, A24): every particle stores its own trajectory
-    (``trajs`` (T, N, 2): the m_j N of Table 1), Pmap and Mmap from its own trajectory, the
-    same IDW / MSE gate / eqs. (7)-(8) weights, no alpha, jitter floor only, no LCCD. Estimate:
-    the weighted mean of the particle trajectories."""
+    """The paper's BPSLAM comparator (Sec. V-A, A24) as Barkby's filter runs it: every particle
+    stores its own trajectory (``trajs`` (T, N, 2): the m_j N of Table 1), Pmap and Mmap from
+    its own trajectory, the same IDW / MSE gate / eqs. (7)-(8) likelihood, no alpha, no LCCD.
+
+    Weights (issue 28): with ``closure = 'resampling'`` a sequential importance resampling
+    filter: each ping's likelihood multiplies the weight (``bpslam_weights = 'accumulate'``;
+    ``'replace'`` = the latest ping's only, as before issue 28) and the particles are resampled
+    when ``Neff < f N`` (eq. 13), weights reset to 1/N. Jitter: ``bpslam_sigma_c2`` per ping
+    (its own, tuned on the tuning seeds). With ``closure = 'crossing'`` it gets the same
+    method-agnostic additions as MTM-PF (all options of :class:`BathyConfig`): one resampling
+    per crossing of the accumulated weights, no jitter within a crossing
+    (``jitter_in_crossing``), the dominant mode only (``closure_estimate = 'mode'``) and the
+    evidence test (``min_mode_ratio``). Estimate: the weighted mean of the particle
+    trajectories."""
 
     name = "bpslam"
 
     def __init__(self, cfg: BathyConfig, n_pings: int, rng: np.random.Generator) -> None:
         super().__init__(cfg, n_pings, rng)
-        self.trajs = np.zeros((n_pings, cfg.n_particles, 2))
-        self.w = np.full(cfg.n_particles, 1.0 / cfg.n_particles)
+        n = cfg.n_particles
+        self.trajs = np.zeros((n_pings, n, 2))
+        self.w = np.full(n, 1.0 / n)
+        self.logw = np.zeros(n)  # closure = "crossing": the crossing's accumulated log weights
+        self.crossing_len = 0
+        self.since_match = 0
+        self.weak_crossings = 0
+        self.resamplings = 0
 
     def start(self, x0: np.ndarray, offsets: np.ndarray, depth: np.ndarray) -> None:
         super().start(x0, offsets, depth)
@@ -606,20 +622,65 @@ class BPSLAM(BathyFilter):
         return np.einsum("tnk,n->tk", self.trajs[: self.t + 1], self.w)
 
     def step(self, u: np.ndarray, offsets: np.ndarray, depth: np.ndarray) -> None:
-        cfg, rng, n = self.cfg, self.rng, self.cfg.n_particles
-        step = self._advance(u, offsets, depth, cfg.sigma_c2)  # eq. (2), sigma_m^2 = sigma_c^2
+        cfg = self.cfg
+        var = cfg.bpslam_sigma_c2  # eq. (2) with its own sigma_m^2
+        if cfg.closure == "crossing" and self.crossing_len and not cfg.jitter_in_crossing:
+            var = 0.0  # one offset per particle through a crossing (ours, as MTM-PF)
+        step = self._advance(u, offsets, depth, var)
         t = self.t
         self.trajs[t] = self.trajs[t - 1] + step
-        w = self.weights()
-        if w is not None:
-            self.w = w
-            neff = 1.0 / np.sum(w**2)
+        lik = self.weights()
+        if cfg.closure == "crossing":
+            self._crossing(lik)
+        elif lik is not None:
+            w = lik if cfg.bpslam_weights == "replace" else self.w * lik
+            self.w = w / w.sum()
+            neff = 1.0 / np.sum(self.w**2)  # eq. (13)
             self.neff_log[t] = neff
-            if neff < cfg.neff_fraction * n:
-                i = systematic(w, rng)
-                self.trajs[: t + 1] = self.trajs[: t + 1, i]
-                self.w = np.full(n, 1.0 / n)
+            if neff < cfg.neff_fraction * cfg.n_particles:
+                self._resample(self.w)
         self.estimates[t] = self.w @ self.trajs[t]
+
+    def _crossing(self, lik: np.ndarray | None) -> None:
+        """``closure = 'crossing'``: the crossing's per-ping likelihoods multiplied, one
+        resampling when it ends (as :meth:`MTMPF._crossing`), if Neff < f N and the dominant
+        mode passes ``min_mode_ratio``; otherwise the crossing's weights are dropped."""
+        cfg, n = self.cfg, self.cfg.n_particles
+        if lik is not None:
+            self.logw += np.log(np.maximum(lik, 1e-300))
+            self.crossing_len += 1
+            self.since_match = 0
+        elif self.crossing_len:
+            self.since_match += 1
+        if not self.crossing_len:
+            return
+        wa = np.exp(self.logw - self.logw.max())
+        wa /= wa.sum()
+        neff = 1.0 / np.sum(wa**2)
+        self.neff_log[self.t] = neff
+        if self.since_match < cfg.crossing_gap_pings and self.crossing_len < cfg.crossing_max_pings:
+            return
+        self.logw[:] = 0.0
+        self.crossing_len = self.since_match = 0
+        if neff >= cfg.neff_fraction * n:
+            return
+        x = self.trajs[self.t]
+        r = cfg.mode_radius_m
+        evidence = cfg.closure_estimate == "mode" and cfg.min_mode_ratio > 1
+        if evidence and mode_ratio(x, wa, r, cfg.mode_apart_m) < cfg.min_mode_ratio:
+            self.weak_crossings += 1  # too little evidence: no resampling
+            return
+        if cfg.closure_estimate == "mode":
+            wa = mode_weights(x, wa, cfg.mode_radius_m)
+        self._resample(wa)
+
+    def _resample(self, w: np.ndarray) -> None:
+        """Systematic resampling (A20) of whole trajectories; weights back to 1/N."""
+        n, t = self.cfg.n_particles, self.t
+        i = systematic(w, self.rng)
+        self.trajs[: t + 1] = self.trajs[: t + 1, i]
+        self.w = np.full(n, 1.0 / n)
+        self.resamplings += 1
 
     def weights(self) -> np.ndarray | None:
         """Weights from each particle's own Pmap / Mmap; None when no particle overlaps."""
@@ -666,7 +727,8 @@ class BPSLAM(BathyFilter):
         w_m, gate, _ = match_weights(
             z_pm.reshape(k, -1), z_mm, valid, mask.reshape(k, -1).sum(1), cfg, use_alpha=False
         )
-        return fill_weights(n, near[gate], w_m[gate], cfg, w0=1.0 / n)  # as written (A5)
+        # unmatched particles as cfg.unmatched_weight says ('uniform' = 1/N as written, A5)
+        return fill_weights(n, near[gate], w_m[gate], cfg, bad=near[~gate])
 
 
 FILTERS: dict[str, type[BathyFilter]] = {"mtm-pf": MTMPF, "bpslam": BPSLAM, "dr": DeadReckoning}
