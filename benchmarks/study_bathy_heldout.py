@@ -89,10 +89,14 @@ def report(out: Path) -> None:
     pairs = []
     for p in sorted({r.split("/")[0] for r in rows}):
         pairs += [(f"{p}/dr", f"{p}/bpslam"), (f"{p}/bpslam", f"{p}/mtm-pf")]
+    pairs += [("engineered/dr", f"{p}/bpslam") for p in ("literal", "engineered_nodrift")]
+    pairs += [
+        ("engineered/dr", f"{p}/mtm-pf") for p in ("literal", "engineered", "engineered_nodrift")
+    ]
     for a in ("bpslam", "mtm-pf"):
         pairs.append((f"literal/{a}", f"engineered/{a}"))
-    pairs.append(("engineered/bpslam", "literal/bpslam"))
-    comp = paired_rows(finals, [(a, b) for a, b in pairs if a != b])
+    pairs.append(("engineered_nodrift/mtm-pf", "engineered/mtm-pf"))
+    comp = paired_rows(finals, pairs)
     if comp:
         lines += [
             "", "Paired final error, other vs base:", "",

@@ -14,7 +14,7 @@ import pytest
 from auvgw.config.scenario import Scenario
 from auvgw.slam.bathymetric.config import BathyConfig
 from auvgw.slam.bathymetric.evaluate import run_filter
-from auvgw.slam.bathymetric.filters import BPSLAM
+from auvgw.slam.bathymetric.filters import BPSLAM, own_nearest
 from auvgw.slam.bathymetric.heldout import SPLIT, load_frozen, paired_rows, run_rows
 from auvgw.slam.bathymetric.simulate import DRModel, simulate_survey
 from auvgw.slam.evaluation.heldout import (
@@ -95,7 +95,7 @@ def test_bpslam_jitter_is_its_own() -> None:
     matches: zero jitter and no process noise keep every particle on the DR track."""
     sim = simulate_survey(Scenario.model_validate(TINY), np.random.default_rng(4))
     cfg = BathyConfig(n_particles=20, bpslam_sigma_c2=0.0, omega_sigma_m=0.0, sigma_c2=5.0)
-    res, f = run_filter("bpslam", sim, cfg, np.random.default_rng(0))
+    res, _ = run_filter("bpslam", sim, cfg, np.random.default_rng(0))
     np.testing.assert_allclose(res.final, sim.dr, atol=1e-9)
 
 
@@ -170,3 +170,23 @@ def test_paired_bootstrap() -> None:
     assert rows[0]["diff"] == 1.0 and rows[0]["other_better"] == 0
     with pytest.raises(ValueError, match="same runs"):
         paired_bootstrap_arrays(base, base[:3])
+
+
+def test_own_nearest_is_the_brute_force_search() -> None:
+    """BPSLAM's overlap test searches only the history near the particles (``own_nearest``);
+    it finds what the whole (h, N) distance matrix finds."""
+    rng = np.random.default_rng(8)
+    for spread in (0.1, 1.0, 5.0):
+        h, n = 400, 50
+        ref = np.column_stack([np.linspace(0, 300, h), 20 * np.sin(np.linspace(0, 9, h))])
+        trajs = ref[:, None, :] + np.cumsum(rng.normal(0, spread, (h, n, 2)), axis=0) / 10
+        mean = trajs.mean(1)
+        dev = np.linalg.norm(trajs - mean[:, None], axis=2).max(0)
+        x = trajs[rng.integers(0, h, n), np.arange(n)] + rng.normal(0, 8, (n, 2))
+        d2 = ((trajs - x[None]) ** 2).sum(-1)
+        tlp = d2.argmin(0)
+        near = np.flatnonzero(d2[tlp, np.arange(n)] <= 10.0**2)
+        got_t, got_near = own_nearest(trajs, x, mean, dev, 10.0)
+        np.testing.assert_array_equal(got_near, near)
+        np.testing.assert_array_equal(got_t[near], tlp[near])
+        assert 0 < len(near) < n

@@ -32,6 +32,7 @@ __all__ = [
     "mode_ratio",
     "mode_weights",
     "no_match_weight",
+    "own_nearest",
     "systematic",
 ]
 
@@ -144,6 +145,27 @@ def mode_odds(x: np.ndarray, w: np.ndarray, radius_m: float, apart_m: float) -> 
     return float(w[near].sum()) / rest if rest > 0 else float("inf")
 
 
+def own_nearest(
+    trajs: np.ndarray, x: np.ndarray, ref: np.ndarray, dev: np.ndarray, radius_m: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """For each particle ``n``: the time of the point of its own history ``trajs[:, n]``
+    ((h, N, 2), m) nearest to ``x[n]`` ((N, 2)), and the particles whose nearest point is
+    within ``radius_m``. Exact, without the (h, N) distance matrix: ``dev[n]`` (m) bounds
+    ``|trajs[t, n] - ref[t]|`` over every t for a reference track ``ref`` ((h, 2)), so a time
+    within ``radius_m`` of particle ``n`` lies within ``radius_m + dev[n]`` of ``ref``; only
+    the union of those times is searched (the history near the particles: a crossing). The
+    time of a particle found beyond ``radius_m`` is meaningless (never used)."""
+    n = len(x)
+    balls = _tree(ref).query_ball_point(x, radius_m + dev + 1e-9)
+    cand = np.unique(np.concatenate([np.asarray(b, dtype=np.intp) for b in balls]))
+    if len(cand) == 0:
+        return np.zeros(n, dtype=np.intp), np.zeros(0, dtype=np.intp)
+    d2 = ((trajs[cand] - x[None]) ** 2).sum(-1)  # (C, N)
+    k = d2.argmin(0)
+    near = np.flatnonzero(d2[k, np.arange(n)] <= radius_m**2)
+    return cand[k], near
+
+
 class BathyFilter:
     """Common storage: the swaths (offsets, depths) of every ping, preallocated for ``n_pings``."""
 
@@ -159,6 +181,7 @@ class BathyFilter:
         "traj",
         "covered",
         "trajs",
+        "ref",
     )
 
     def __init__(self, cfg: BathyConfig, n_pings: int, rng: np.random.Generator) -> None:
@@ -607,6 +630,10 @@ class BPSLAM(BathyFilter):
         super().__init__(cfg, n_pings, rng)
         n = cfg.n_particles
         self.trajs = np.zeros((n_pings, n, 2))
+        # the particles' mean track and each particle's largest distance from it (m): the
+        # bound that lets own_nearest search only the history near the particles
+        self.ref = np.zeros((n_pings, 2))
+        self.dev = np.zeros(n)
         self.w = np.full(n, 1.0 / n)
         self.logw = np.zeros(n)  # closure = "crossing": the crossing's accumulated log weights
         self.crossing_len = 0
@@ -617,6 +644,7 @@ class BPSLAM(BathyFilter):
     def start(self, x0: np.ndarray, offsets: np.ndarray, depth: np.ndarray) -> None:
         super().start(x0, offsets, depth)
         self.trajs[0] = x0
+        self.ref[0] = x0
 
     def trajectory(self) -> np.ndarray:
         return np.einsum("tnk,n->tk", self.trajs[: self.t + 1], self.w)
@@ -629,6 +657,8 @@ class BPSLAM(BathyFilter):
         step = self._advance(u, offsets, depth, var)
         t = self.t
         self.trajs[t] = self.trajs[t - 1] + step
+        self.ref[t] = self.trajs[t].mean(0)
+        self.dev = np.maximum(self.dev, np.linalg.norm(self.trajs[t] - self.ref[t], axis=1))
         lik = self.weights()
         if cfg.closure == "crossing":
             self._crossing(lik)
@@ -679,6 +709,8 @@ class BPSLAM(BathyFilter):
         n, t = self.cfg.n_particles, self.t
         i = systematic(w, self.rng)
         self.trajs[: t + 1] = self.trajs[: t + 1, i]
+        self.ref[: t + 1] = self.trajs[: t + 1].mean(1)
+        self.dev = np.linalg.norm(self.trajs[: t + 1] - self.ref[: t + 1, None], axis=2).max(0)
         self.w = np.full(n, 1.0 / n)
         self.resamplings += 1
 
@@ -690,9 +722,7 @@ class BPSLAM(BathyFilter):
         if h < 2:
             return None
         x = self.trajs[t]
-        d2 = ((self.trajs[:h] - x[None]) ** 2).sum(-1)  # (h, N): own history
-        tlp = d2.argmin(0)
-        near = np.flatnonzero(d2[tlp, np.arange(n)] <= cfg.radius_m**2)
+        tlp, near = own_nearest(self.trajs[:h], x, self.ref[:h], self.dev, cfg.radius_m)
         self.matched[t] = len(near)
         if len(near) == 0:
             return None
