@@ -117,6 +117,22 @@ def report(out: Path) -> None:
     print("\n".join(lines))
 
 
+def merge(dirs: list[Path], out: Path) -> None:
+    """OUT/meta.json and OUT/runs.jsonl joining studies of the same surveys (seed, scenarios,
+    nav model and N equal; rows differ), so their rows are paired run by run."""
+    metas = [json.loads((d / "meta.json").read_text()) for d in dirs]
+    keys = ("purpose", "seed", "scenarios", "nav", "particles")
+    if any(tuple(m[k] for k in keys) != tuple(metas[0][k] for k in keys) for m in metas):
+        raise SystemExit(f"--merge: {', '.join(map(str, dirs))} are not the same surveys")
+    meta = {**metas[0], "rows": [r for m in metas for r in m["rows"]]}
+    meta["command"] = "\n".join(m["command"] for m in metas)
+    meta["params"] = "; ".join(dict.fromkeys(m["params"] for m in metas))
+    meta["runs"] = min(m["runs"] for m in metas)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "meta.json").write_text(json.dumps(meta, indent=1))
+    (out / "runs.jsonl").write_text("".join((d / "runs.jsonl").read_text() for d in dirs))
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--purpose", choices=("tuning", "test"), required=True)
@@ -130,8 +146,13 @@ def main() -> int:
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--report", action="store_true", help="only rebuild the tables")
+    ap.add_argument(
+        "--merge", default="", help="DIR,DIR,...: one table of studies of the same surveys"
+    )
     args = ap.parse_args()
-    if args.report:
+    if args.merge:
+        merge([Path(d) for d in args.merge.split(",")], args.out)
+    if args.report or args.merge:
         report(args.out)
         return 0
     frozen = load_frozen(args.frozen)
