@@ -196,6 +196,10 @@ class BathyFilter:
         self.neff_log = np.full(n_pings, np.nan)
         # the true positions (T, 2), given only for the diagnostic lccd_mode = 'oracle'
         self.oracle_truth: np.ndarray | None = None
+        # closure = "crossing": accumulated log weights, pings in / since the crossing
+        self.logw = np.zeros(cfg.n_particles)
+        self.crossing_len = 0
+        self.since_match = 0
 
     def _store(self, offsets: np.ndarray, depth: np.ndarray) -> None:
         if self.offsets is None:
@@ -245,6 +249,30 @@ class BathyFilter:
     def trajectory(self) -> np.ndarray:
         """Final estimate of every ping so far, (t + 1, 2) m."""
         raise NotImplementedError
+
+    def _crossing_end(self, w: np.ndarray | None) -> tuple[np.ndarray, float] | None:
+        """``closure = 'crossing'`` (ours): multiply this ping's normalised weights ``w`` (None:
+        no overlap) into the crossing's (log-summed in ``logw``); when the crossing ends
+        (``crossing_gap_pings`` pings without overlap, or ``crossing_max_pings``) return its
+        normalised weights and their Neff (eq. 13) and start the next crossing, else None."""
+        cfg = self.cfg
+        if w is not None:
+            self.logw += np.log(np.maximum(w, 1e-300))
+            self.crossing_len += 1
+            self.since_match = 0
+        elif self.crossing_len:
+            self.since_match += 1
+        if not self.crossing_len:
+            return None
+        wa = np.exp(self.logw - self.logw.max())
+        wa /= wa.sum()
+        neff = 1.0 / float(np.sum(wa**2))
+        self.neff_log[self.t] = neff
+        if self.since_match < cfg.crossing_gap_pings and self.crossing_len < cfg.crossing_max_pings:
+            return None
+        self.logw[:] = 0.0
+        self.crossing_len = self.since_match = 0
+        return wa, neff
 
     def bytes_held(self) -> int:
         """Bytes of the filter's state arrays (map, trajectories, particles)."""
@@ -312,10 +340,6 @@ class MTMPF(BathyFilter):
         # the first ping of the accepted loop intervals it re-anchored the track at
         self.bias = np.zeros(2)
         self.anchor_t = -1
-        # closure = "crossing": accumulated log weights, pings in / since the crossing
-        self.logw = np.zeros(cfg.n_particles)
-        self.crossing_len = 0
-        self.since_match = 0
         self._tlp = np.zeros(cfg.n_particles, dtype=int)
         self._parts: list[np.ndarray] = []  # log weights of the crossing's pings with evidence
         self.weak_crossings = 0  # crossings below min_mode_ratio (no closure)
@@ -436,26 +460,13 @@ class MTMPF(BathyFilter):
         one resampling = one closure."""
         cfg, n = self.cfg, self.cfg.n_particles
         if w is not None:
-            lw_ping = np.log(np.maximum(w, 1e-300))
-            self.logw += lw_ping
             if np.ptp(w) > 0:  # a ping with evidence (not all 1/N)
-                self._parts.append(lw_ping)
-            self.crossing_len += 1
-            self.since_match = 0
+                self._parts.append(np.log(np.maximum(w, 1e-300)))
             self._tlp = tlp
-        elif self.crossing_len:
-            self.since_match += 1
-        if not self.crossing_len:
+        ended = self._crossing_end(w)
+        if ended is None:
             return
-        lw = self.logw - self.logw.max()
-        wa = np.exp(lw)
-        wa /= wa.sum()
-        neff = 1.0 / np.sum(wa**2)
-        self.neff_log[self.t] = neff
-        if self.since_match < cfg.crossing_gap_pings and self.crossing_len < cfg.crossing_max_pings:
-            return
-        self.logw[:] = 0.0
-        self.crossing_len = self.since_match = 0
+        wa, neff = ended
         parts, self._parts = self._parts, []
         if neff < cfg.neff_fraction * n and self.t - cfg.t_l >= 2:
             weak = cfg.closure_estimate == "mode" and cfg.min_mode_ratio > 1
@@ -635,9 +646,6 @@ class BPSLAM(BathyFilter):
         self.ref = np.zeros((n_pings, 2))
         self.dev = np.zeros(n)
         self.w = np.full(n, 1.0 / n)
-        self.logw = np.zeros(n)  # closure = "crossing": the crossing's accumulated log weights
-        self.crossing_len = 0
-        self.since_match = 0
         self.weak_crossings = 0
         self.resamplings = 0
 
@@ -676,22 +684,10 @@ class BPSLAM(BathyFilter):
         resampling when it ends (as :meth:`MTMPF._crossing`), if Neff < f N and the dominant
         mode passes ``min_mode_ratio``; otherwise the crossing's weights are dropped."""
         cfg, n = self.cfg, self.cfg.n_particles
-        if lik is not None:
-            self.logw += np.log(np.maximum(lik, 1e-300))
-            self.crossing_len += 1
-            self.since_match = 0
-        elif self.crossing_len:
-            self.since_match += 1
-        if not self.crossing_len:
+        ended = self._crossing_end(lik)
+        if ended is None:
             return
-        wa = np.exp(self.logw - self.logw.max())
-        wa /= wa.sum()
-        neff = 1.0 / np.sum(wa**2)
-        self.neff_log[self.t] = neff
-        if self.since_match < cfg.crossing_gap_pings and self.crossing_len < cfg.crossing_max_pings:
-            return
-        self.logw[:] = 0.0
-        self.crossing_len = self.since_match = 0
+        wa, neff = ended
         if neff >= cfg.neff_fraction * n:
             return
         x = self.trajs[self.t]
