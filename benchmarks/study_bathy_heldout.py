@@ -86,6 +86,16 @@ def report(out: Path) -> None:
             f"{np.mean([x['loops_accepted'] for x in rs]):.1f} | "
             f"{np.mean([x['runtime_s'] for x in rs]):.1f} |"
         )
+    scns = meta["scenarios"]
+    if len(scns) > 1 and whole:
+        lines += ["", "Final error by test scenario, mean (m) over its runs:", "",
+                  "| row | " + " | ".join(scns) + " |", "|---|" + "---|" * len(scns)]  # fmt: skip
+        for r in rows:
+            cells = []
+            for k in range(len(scns)):
+                fe = [by[r][i]["final_error_m"] for i in whole if i % len(scns) == k]
+                cells.append(f"{np.mean(fe):.2f} ({len(fe)})" if fe else "-")
+            lines.append(f"| {r} | " + " | ".join(cells) + " |")
     pairs = []
     for p in sorted({r.split("/")[0] for r in rows}):
         pairs += [(f"{p}/dr", f"{p}/bpslam"), (f"{p}/bpslam", f"{p}/mtm-pf")]
