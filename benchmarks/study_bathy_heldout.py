@@ -107,13 +107,17 @@ def report(out: Path) -> None:
         pairs.append((f"literal/{a}", f"engineered/{a}"))
     pairs.append(("engineered_nodrift/mtm-pf", "engineered/mtm-pf"))
     comp = paired_rows(finals, pairs)
-    if comp:
+    rms = {r: [by[r][i]["rms_m"] for i in whole] for r in rows}
+    comp_rms = paired_rows(rms, pairs)
+    for what, cs in (("final error", comp), ("RMS error of the final trajectory", comp_rms)):
+        if not cs:
+            continue
         lines += [
-            "", "Paired final error, other vs base:", "",
+            "", f"Paired {what}, other vs base:", "",
             "| other vs base | base mean (m) | other mean (m) | difference (m) [95 % CI] | "
             "ratio of means [95 % CI] | runs other lower |", "|---|---|---|---|---|---|",
         ]  # fmt: skip
-        for c in comp:
+        for c in cs:
             lines.append(
                 f"| {c['other']} vs {c['base']} | {c['base_mean']:.2f} | {c['other_mean']:.2f} "
                 f"| {c['diff']:+.2f} [{c['diff_ci'][0]:+.2f}, {c['diff_ci'][1]:+.2f}] | "
@@ -122,7 +126,17 @@ def report(out: Path) -> None:
             )
     (out / "tables.md").write_text("\n".join(lines) + "\n")
     (out / "results.json").write_text(
-        json.dumps({"meta": meta, "runs": whole, "finals": finals, "paired": comp}, indent=1)
+        json.dumps(
+            {
+                "meta": meta,
+                "runs": whole,
+                "finals": finals,
+                "rms": rms,
+                "paired": comp,
+                "paired_rms": comp_rms,
+            },
+            indent=1,
+        )
     )
     print("\n".join(lines))
 
