@@ -221,7 +221,9 @@ def _small_scenario() -> Scenario:
 def test_one_noise_free_particle_reproduces_the_truth() -> None:
     scn = _small_scenario()
     sim = simulate_survey(scn, np.random.default_rng(4), dr=DRModel(0.0, 0.0))
-    cfg = BathyConfig(n_particles=1, sigma_c2=0.0, jitter_a=0.0, omega_sigma_m=0.0)
+    cfg = BathyConfig(
+        n_particles=1, sigma_c2=0.0, jitter_a=0.0, omega_sigma_m=0.0, bpslam_sigma_c2=0.0
+    )
     for name in ("mtm-pf", "bpslam"):
         res, f = run_filter(name, sim, cfg, np.random.default_rng(0))
         assert len(res.final) == len(sim.t) > 100

@@ -241,3 +241,18 @@ class BathyConfig(BaseModel):
     lccd_linkage: str = Field("single", description="scipy linkage method (A15)")
     lccd_disjoint_m: float = Field(1e6, gt=0, description="distance of disjoint loops (A14)")
     grid_cell_m: float = Field(2.0, gt=0, description="DEM cell of the final map (ours)")
+    bpslam_weights: Literal["accumulate", "replace"] = Field(
+        "accumulate",
+        description="BPSLAM's weights between resamplings: 'accumulate' (issue 28, Barkby "
+        "2011/2012 and any SIR filter) = each ping's likelihood multiplies the previous "
+        "weight, reset to 1/N by a resampling; 'replace' = the weight is the latest ping's "
+        "likelihood (the rule the paper gives its own method, A6; what BPSLAM did before "
+        "issue 28)",
+    )
+    bpslam_sigma_c2: float = Field(
+        1.0,
+        ge=0,
+        description="BPSLAM's jitter per ping (m^2, its eq. 3 floor; BPSLAM has no A term): "
+        "1 = the paper's sigma_c^2; the held-out protocol tunes its own value on the tuning "
+        "seeds (docs/results/bathymetric/heldout/frozen.json)",
+    )

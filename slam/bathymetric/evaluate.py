@@ -157,6 +157,7 @@ def run_filter(
         extra={
             "loops_overturned": float(sum(lc.overturned for lc in f.loops)),
             "weak_crossings": float(getattr(f, "weak_crossings", 0)),
+            "resamplings": float(getattr(f, "resamplings", len(f.loops))),
             **error_budget(f, sim),
         },
     )

@@ -32,6 +32,7 @@ __all__ = [
     "mode_ratio",
     "mode_weights",
     "no_match_weight",
+    "own_nearest",
     "systematic",
 ]
 
@@ -144,6 +145,27 @@ def mode_odds(x: np.ndarray, w: np.ndarray, radius_m: float, apart_m: float) -> 
     return float(w[near].sum()) / rest if rest > 0 else float("inf")
 
 
+def own_nearest(
+    trajs: np.ndarray, x: np.ndarray, ref: np.ndarray, dev: np.ndarray, radius_m: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """For each particle ``n``: the time of the point of its own history ``trajs[:, n]``
+    ((h, N, 2), m) nearest to ``x[n]`` ((N, 2)), and the particles whose nearest point is
+    within ``radius_m``. Exact, without the (h, N) distance matrix: ``dev[n]`` (m) bounds
+    ``|trajs[t, n] - ref[t]|`` over every t for a reference track ``ref`` ((h, 2)), so a time
+    within ``radius_m`` of particle ``n`` lies within ``radius_m + dev[n]`` of ``ref``; only
+    the union of those times is searched (the history near the particles: a crossing). The
+    time of a particle found beyond ``radius_m`` is meaningless (never used)."""
+    n = len(x)
+    balls = _tree(ref).query_ball_point(x, radius_m + dev + 1e-9)
+    cand = np.unique(np.concatenate([np.asarray(b, dtype=np.intp) for b in balls]))
+    if len(cand) == 0:
+        return np.zeros(n, dtype=np.intp), np.zeros(0, dtype=np.intp)
+    d2 = ((trajs[cand] - x[None]) ** 2).sum(-1)  # (C, N)
+    k = d2.argmin(0)
+    near = np.flatnonzero(d2[k, np.arange(n)] <= radius_m**2)
+    return cand[k], near
+
+
 class BathyFilter:
     """Common storage: the swaths (offsets, depths) of every ping, preallocated for ``n_pings``."""
 
@@ -159,6 +181,7 @@ class BathyFilter:
         "traj",
         "covered",
         "trajs",
+        "ref",
     )
 
     def __init__(self, cfg: BathyConfig, n_pings: int, rng: np.random.Generator) -> None:
@@ -173,6 +196,10 @@ class BathyFilter:
         self.neff_log = np.full(n_pings, np.nan)
         # the true positions (T, 2), given only for the diagnostic lccd_mode = 'oracle'
         self.oracle_truth: np.ndarray | None = None
+        # closure = "crossing": accumulated log weights, pings in / since the crossing
+        self.logw = np.zeros(cfg.n_particles)
+        self.crossing_len = 0
+        self.since_match = 0
 
     def _store(self, offsets: np.ndarray, depth: np.ndarray) -> None:
         if self.offsets is None:
@@ -222,6 +249,30 @@ class BathyFilter:
     def trajectory(self) -> np.ndarray:
         """Final estimate of every ping so far, (t + 1, 2) m."""
         raise NotImplementedError
+
+    def _crossing_end(self, w: np.ndarray | None) -> tuple[np.ndarray, float] | None:
+        """``closure = 'crossing'`` (ours): multiply this ping's normalised weights ``w`` (None:
+        no overlap) into the crossing's (log-summed in ``logw``); when the crossing ends
+        (``crossing_gap_pings`` pings without overlap, or ``crossing_max_pings``) return its
+        normalised weights and their Neff (eq. 13) and start the next crossing, else None."""
+        cfg = self.cfg
+        if w is not None:
+            self.logw += np.log(np.maximum(w, 1e-300))
+            self.crossing_len += 1
+            self.since_match = 0
+        elif self.crossing_len:
+            self.since_match += 1
+        if not self.crossing_len:
+            return None
+        wa = np.exp(self.logw - self.logw.max())
+        wa /= wa.sum()
+        neff = 1.0 / float(np.sum(wa**2))
+        self.neff_log[self.t] = neff
+        if self.since_match < cfg.crossing_gap_pings and self.crossing_len < cfg.crossing_max_pings:
+            return None
+        self.logw[:] = 0.0
+        self.crossing_len = self.since_match = 0
+        return wa, neff
 
     def bytes_held(self) -> int:
         """Bytes of the filter's state arrays (map, trajectories, particles)."""
@@ -289,10 +340,6 @@ class MTMPF(BathyFilter):
         # the first ping of the accepted loop intervals it re-anchored the track at
         self.bias = np.zeros(2)
         self.anchor_t = -1
-        # closure = "crossing": accumulated log weights, pings in / since the crossing
-        self.logw = np.zeros(cfg.n_particles)
-        self.crossing_len = 0
-        self.since_match = 0
         self._tlp = np.zeros(cfg.n_particles, dtype=int)
         self._parts: list[np.ndarray] = []  # log weights of the crossing's pings with evidence
         self.weak_crossings = 0  # crossings below min_mode_ratio (no closure)
@@ -413,26 +460,13 @@ class MTMPF(BathyFilter):
         one resampling = one closure."""
         cfg, n = self.cfg, self.cfg.n_particles
         if w is not None:
-            lw_ping = np.log(np.maximum(w, 1e-300))
-            self.logw += lw_ping
             if np.ptp(w) > 0:  # a ping with evidence (not all 1/N)
-                self._parts.append(lw_ping)
-            self.crossing_len += 1
-            self.since_match = 0
+                self._parts.append(np.log(np.maximum(w, 1e-300)))
             self._tlp = tlp
-        elif self.crossing_len:
-            self.since_match += 1
-        if not self.crossing_len:
+        ended = self._crossing_end(w)
+        if ended is None:
             return
-        lw = self.logw - self.logw.max()
-        wa = np.exp(lw)
-        wa /= wa.sum()
-        neff = 1.0 / np.sum(wa**2)
-        self.neff_log[self.t] = neff
-        if self.since_match < cfg.crossing_gap_pings and self.crossing_len < cfg.crossing_max_pings:
-            return
-        self.logw[:] = 0.0
-        self.crossing_len = self.since_match = 0
+        wa, neff = ended
         parts, self._parts = self._parts, []
         if neff < cfg.neff_fraction * n and self.t - cfg.t_l >= 2:
             weak = cfg.closure_estimate == "mode" and cfg.min_mode_ratio > 1
@@ -586,40 +620,95 @@ class MTMPF(BathyFilter):
 
 
 class BPSLAM(BathyFilter):
-    """The paper's BPSLAM comparator (Sec. V-A, A24): every particle stores its own trajectory
-    (``trajs`` (T, N, 2): the m_j N of Table 1), Pmap and Mmap from its own trajectory, the
-    same IDW / MSE gate / eqs. (7)-(8) weights, no alpha, jitter floor only, no LCCD. Estimate:
-    the weighted mean of the particle trajectories."""
+    """The paper's BPSLAM comparator (Sec. V-A, A24) as Barkby's filter runs it: every particle
+    stores its own trajectory (``trajs`` (T, N, 2): the m_j N of Table 1), Pmap and Mmap from
+    its own trajectory, the same IDW / MSE gate / eqs. (7)-(8) likelihood, no alpha, no LCCD.
+
+    Weights (issue 28): with ``closure = 'resampling'`` a sequential importance resampling
+    filter: each ping's likelihood multiplies the weight (``bpslam_weights = 'accumulate'``;
+    ``'replace'`` = the latest ping's only, as before issue 28) and the particles are resampled
+    when ``Neff < f N`` (eq. 13), weights reset to 1/N. Jitter: ``bpslam_sigma_c2`` per ping
+    (its own, tuned on the tuning seeds). With ``closure = 'crossing'`` it gets the same
+    method-agnostic additions as MTM-PF (all options of :class:`BathyConfig`): one resampling
+    per crossing of the accumulated weights, no jitter within a crossing
+    (``jitter_in_crossing``), the dominant mode only (``closure_estimate = 'mode'``) and the
+    evidence test (``min_mode_ratio``). Estimate: the weighted mean of the particle
+    trajectories."""
 
     name = "bpslam"
 
     def __init__(self, cfg: BathyConfig, n_pings: int, rng: np.random.Generator) -> None:
         super().__init__(cfg, n_pings, rng)
-        self.trajs = np.zeros((n_pings, cfg.n_particles, 2))
-        self.w = np.full(cfg.n_particles, 1.0 / cfg.n_particles)
+        n = cfg.n_particles
+        self.trajs = np.zeros((n_pings, n, 2))
+        # the particles' mean track and each particle's largest distance from it (m): the
+        # bound that lets own_nearest search only the history near the particles
+        self.ref = np.zeros((n_pings, 2))
+        self.dev = np.zeros(n)
+        self.w = np.full(n, 1.0 / n)
+        self.weak_crossings = 0
+        self.resamplings = 0
 
     def start(self, x0: np.ndarray, offsets: np.ndarray, depth: np.ndarray) -> None:
         super().start(x0, offsets, depth)
         self.trajs[0] = x0
+        self.ref[0] = x0
 
     def trajectory(self) -> np.ndarray:
         return np.einsum("tnk,n->tk", self.trajs[: self.t + 1], self.w)
 
     def step(self, u: np.ndarray, offsets: np.ndarray, depth: np.ndarray) -> None:
-        cfg, rng, n = self.cfg, self.rng, self.cfg.n_particles
-        step = self._advance(u, offsets, depth, cfg.sigma_c2)  # eq. (2), sigma_m^2 = sigma_c^2
+        cfg = self.cfg
+        var = cfg.bpslam_sigma_c2  # eq. (2) with its own sigma_m^2
+        if cfg.closure == "crossing" and self.crossing_len and not cfg.jitter_in_crossing:
+            var = 0.0  # one offset per particle through a crossing (ours, as MTM-PF)
+        step = self._advance(u, offsets, depth, var)
         t = self.t
         self.trajs[t] = self.trajs[t - 1] + step
-        w = self.weights()
-        if w is not None:
-            self.w = w
-            neff = 1.0 / np.sum(w**2)
+        self.ref[t] = self.trajs[t].mean(0)
+        self.dev = np.maximum(self.dev, np.linalg.norm(self.trajs[t] - self.ref[t], axis=1))
+        lik = self.weights()
+        if cfg.closure == "crossing":
+            self._crossing(lik)
+        elif lik is not None:
+            w = lik if cfg.bpslam_weights == "replace" else self.w * lik
+            self.w = w / w.sum()
+            neff = 1.0 / np.sum(self.w**2)  # eq. (13)
             self.neff_log[t] = neff
-            if neff < cfg.neff_fraction * n:
-                i = systematic(w, rng)
-                self.trajs[: t + 1] = self.trajs[: t + 1, i]
-                self.w = np.full(n, 1.0 / n)
+            if neff < cfg.neff_fraction * cfg.n_particles:
+                self._resample(self.w)
         self.estimates[t] = self.w @ self.trajs[t]
+
+    def _crossing(self, lik: np.ndarray | None) -> None:
+        """``closure = 'crossing'``: the crossing's per-ping likelihoods multiplied, one
+        resampling when it ends (as :meth:`MTMPF._crossing`), if Neff < f N and the dominant
+        mode passes ``min_mode_ratio``; otherwise the crossing's weights are dropped."""
+        cfg, n = self.cfg, self.cfg.n_particles
+        ended = self._crossing_end(lik)
+        if ended is None:
+            return
+        wa, neff = ended
+        if neff >= cfg.neff_fraction * n:
+            return
+        x = self.trajs[self.t]
+        r = cfg.mode_radius_m
+        evidence = cfg.closure_estimate == "mode" and cfg.min_mode_ratio > 1
+        if evidence and mode_ratio(x, wa, r, cfg.mode_apart_m) < cfg.min_mode_ratio:
+            self.weak_crossings += 1  # too little evidence: no resampling
+            return
+        if cfg.closure_estimate == "mode":
+            wa = mode_weights(x, wa, cfg.mode_radius_m)
+        self._resample(wa)
+
+    def _resample(self, w: np.ndarray) -> None:
+        """Systematic resampling (A20) of whole trajectories; weights back to 1/N."""
+        n, t = self.cfg.n_particles, self.t
+        i = systematic(w, self.rng)
+        self.trajs[: t + 1] = self.trajs[: t + 1, i]
+        self.ref[: t + 1] = self.trajs[: t + 1].mean(1)
+        self.dev = np.linalg.norm(self.trajs[: t + 1] - self.ref[: t + 1, None], axis=2).max(0)
+        self.w = np.full(n, 1.0 / n)
+        self.resamplings += 1
 
     def weights(self) -> np.ndarray | None:
         """Weights from each particle's own Pmap / Mmap; None when no particle overlaps."""
@@ -629,9 +718,7 @@ class BPSLAM(BathyFilter):
         if h < 2:
             return None
         x = self.trajs[t]
-        d2 = ((self.trajs[:h] - x[None]) ** 2).sum(-1)  # (h, N): own history
-        tlp = d2.argmin(0)
-        near = np.flatnonzero(d2[tlp, np.arange(n)] <= cfg.radius_m**2)
+        tlp, near = own_nearest(self.trajs[:h], x, self.ref[:h], self.dev, cfg.radius_m)
         self.matched[t] = len(near)
         if len(near) == 0:
             return None
@@ -666,7 +753,8 @@ class BPSLAM(BathyFilter):
         w_m, gate, _ = match_weights(
             z_pm.reshape(k, -1), z_mm, valid, mask.reshape(k, -1).sum(1), cfg, use_alpha=False
         )
-        return fill_weights(n, near[gate], w_m[gate], cfg, w0=1.0 / n)  # as written (A5)
+        # unmatched particles as cfg.unmatched_weight says ('uniform' = 1/N as written, A5)
+        return fill_weights(n, near[gate], w_m[gate], cfg, bad=near[~gate])
 
 
 FILTERS: dict[str, type[BathyFilter]] = {"mtm-pf": MTMPF, "bpslam": BPSLAM, "dr": DeadReckoning}

@@ -19,17 +19,68 @@ from auvgw.sim_devices.multibeam import DEFAULT_NOISE
 from auvgw.sim_devices.vehicle import simulate as simulate_truth
 from auvgw.sim_devices.world import World
 
-__all__ = ["BathyRun", "DRModel", "simulate_survey", "swath_offsets"]
+__all__ = ["NAV_MODELS", "BathyRun", "DRModel", "simulate_survey", "swath_offsets"]
+
+
+NAV_MODELS = ("eq28", "turning", "insdvl")
 
 
 @dataclass(frozen=True)
 class DRModel:
-    """The paper's synthetic dead reckoning, eq. (28): per DR step and per axis,
-    ``x_DR(t) = x_DR(t-1) + x_true(t) - x_true(t-1) + N(bias_m, sigma_m^2)`` (A21: both axes,
-    one step per ping at 1 Hz)."""
+    """Synthetic dead reckoning from the truth: ``x_DR(t) = x_DR(t-1) + x_true(t) -
+    x_true(t-1) + e(t)`` per ping (NED, m). ``kind`` chooses the step error ``e(t)``:
+
+    - ``eq28``: the paper's eq. (28), ``N(bias_m, sigma_m^2)`` per axis (A21: both axes, one
+      step per ping at 1 Hz): a constant world-frame bias.
+    - ``turning`` (issue 28, a turning current): a world-frame bias of the same size
+      (``bias_m`` per axis, so ``sqrt(2) bias_m`` long) whose direction turns from 45 deg
+      (eq. 28's) through ``turn_deg`` at a constant rate over the mission, plus the same noise.
+    - ``insdvl`` (issue 28, an INS + DVL-style error applied to the DR): each true step is
+      scaled by ``1 + s`` (DVL scale factor, ``s ~ N(0, scale_sigma^2)`` per run) and rotated by
+      ``mu + psi(t)`` (DVL-to-INS misalignment ``mu ~ N(0, misalign_sigma_deg^2)`` per run plus
+      an INS heading error ``psi``, first-order Gauss-Markov of std ``heading_sigma_deg`` and
+      time constant ``heading_tau_s``), plus the same white noise: a drift that turns with the
+      vehicle (body frame). Swaths stay geo-referenced with the true heading (A30): only the
+      DR carries the error.
+    """
 
     bias_m: float = 0.012  # m_e, eq. (28)
     sigma_m: float = 0.01  # sigma_e, eq. (28)
+    kind: str = "eq28"
+    turn_deg: float = 180.0
+    heading_sigma_deg: float = 1.0
+    heading_tau_s: float = 900.0
+    misalign_sigma_deg: float = 0.5
+    scale_sigma: float = 0.005
+
+    def __post_init__(self) -> None:
+        if self.kind not in NAV_MODELS:
+            raise ValueError(f"nav model {self.kind!r}: not one of {list(NAV_MODELS)}")
+
+    def errors(self, truth: np.ndarray, dt_s: float, rng: np.random.Generator) -> np.ndarray:
+        """Step errors ``e(t)`` (T-1, 2) m of a DR over the true positions ``truth`` (T, 2) m
+        sampled every ``dt_s`` s."""
+        d = np.diff(truth, axis=0)
+        n = len(d)
+        if self.kind == "eq28":
+            return rng.normal(self.bias_m, self.sigma_m, (n, 2))
+        noise = rng.normal(0.0, self.sigma_m, (n, 2))
+        if self.kind == "turning":
+            ang = math.radians(45.0) + math.radians(self.turn_deg) * np.arange(n) / max(n - 1, 1)
+            b = math.sqrt(2) * self.bias_m
+            return b * np.column_stack([np.cos(ang), np.sin(ang)]) + noise
+        a = math.exp(-dt_s / self.heading_tau_s)
+        sig = math.radians(self.heading_sigma_deg)
+        psi = np.empty(n)
+        psi[0] = rng.normal(0.0, sig)
+        kicks = rng.normal(0.0, sig * math.sqrt(1 - a * a), n)
+        for k in range(1, n):
+            psi[k] = a * psi[k - 1] + kicks[k]
+        rot = psi + rng.normal(0.0, math.radians(self.misalign_sigma_deg))
+        s = 1.0 + rng.normal(0.0, self.scale_sigma)
+        c, sn = np.cos(rot), np.sin(rot)
+        moved = s * np.column_stack([c * d[:, 0] - sn * d[:, 1], sn * d[:, 0] + c * d[:, 1]])
+        return moved - d + noise
 
 
 @dataclass
@@ -110,7 +161,7 @@ def simulate_survey(
     sigma = np.sqrt(sig_d**2 + (sig_r * rng_m) ** 2)
     depth = seabed + rng.normal(0.0, 1.0, seabed.shape) * sigma
     drm = dr or DRModel()
-    steps = np.diff(truth, axis=0) + rng.normal(drm.bias_m, drm.sigma_m, (len(t) - 1, 2))
+    steps = np.diff(truth, axis=0) + drm.errors(truth, 1.0 / rate, rng)
     dr_pos = np.vstack([truth[:1], truth[:1] + np.cumsum(steps, axis=0)])  # eq. (28)
     return BathyRun(
         t=t,

@@ -18,7 +18,7 @@ import numpy as np
 from auvgw.config.scenario import Scenario
 from auvgw.slam.bathymetric.config import BathyConfig
 from auvgw.slam.bathymetric.evaluate import BathyResult, grid_dem, run_filter
-from auvgw.slam.bathymetric.simulate import BathyRun, simulate_survey
+from auvgw.slam.bathymetric.simulate import BathyRun, DRModel, simulate_survey
 from auvgw.slam.evaluation.executor import map_unordered
 
 __all__ = ["BathyStudy", "format_bathy_table", "monte_carlo", "plot_bathy", "run_one", "summary"]
@@ -34,21 +34,26 @@ class BathyStudy:
     config: BathyConfig = field(default_factory=BathyConfig)
     seed: int = 0
     max_pings: int | None = None
+    nav: DRModel = field(default_factory=DRModel)  # the DR error model (simulate.DRModel)
 
 
 @functools.lru_cache(maxsize=2)
-def _survey(scn_json: str, seed: int, run: int, max_pings: int | None) -> tuple[BathyRun, Any]:
+def _survey(
+    scn_json: str, seed: int, run: int, max_pings: int | None, nav: DRModel | None = None
+) -> tuple[BathyRun, Any]:
     from auvgw.sim_devices.world import World
 
     scn = Scenario.model_validate_json(scn_json)
     world = World.from_scenario(scn)
     rng = np.random.default_rng(np.random.SeedSequence([seed, run]))
-    return simulate_survey(scn, rng, max_pings=max_pings, world=world), world
+    return simulate_survey(scn, rng, dr=nav, max_pings=max_pings, world=world), world
 
 
 def run_one(study: BathyStudy, run: int, algorithm: str) -> BathyResult:
     """Run ``run`` of ``study`` through ``algorithm``."""
-    sim, world = _survey(study.scenario.model_dump_json(), study.seed, run, study.max_pings)
+    sim, world = _survey(
+        study.scenario.model_dump_json(), study.seed, run, study.max_pings, study.nav
+    )
     rng = np.random.default_rng(
         np.random.SeedSequence([study.seed, run, zlib.crc32(algorithm.encode())])
     )
@@ -229,7 +234,7 @@ def plot_bathy(results: Sequence[BathyResult], study: BathyStudy, out: Path, tit
 
     out.mkdir(parents=True, exist_ok=True)
     name = study.scenario.name
-    sim, _ = _survey(study.scenario.model_dump_json(), study.seed, 0, study.max_pings)
+    sim, _ = _survey(study.scenario.model_dump_json(), study.seed, 0, study.max_pings, study.nav)
     r0 = [r for r in results if r.run == 0]
     first = r0[0]
     xy = first.final[:, None, :] + sim.offsets

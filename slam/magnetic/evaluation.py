@@ -54,6 +54,7 @@ import numpy as np
 
 from auvgw.config.scenario import Scenario
 from auvgw.ground.errors import UserError
+from auvgw.slam.evaluation.heldout import TEST_SEED_MIN, paired_bootstrap_arrays, seed_split
 from auvgw.slam.evaluation.simulate import SimRun, simulate
 from auvgw.slam.magnetic.demod import (
     BeaconAmplitudes,
@@ -89,17 +90,10 @@ __all__ = [
 
 DEFAULT_MODEL = Path(__file__).resolve().parents[2] / "config" / "magnetic_mlp.npz"
 GRAVITY = 9.81
-#: base seeds from here up are held-out test seeds (module docstring); below: tuning seeds
-TEST_SEED_MIN = 1000
 #: the scenarios the parameters were chosen on (module docstring)
 TUNING_SCENARIOS = ("beacons_amb", "beacons_amb_v03", "beacons_dense")
 #: the paired comparisons reported when both algorithms ran: (baseline, other)
 PAIRS = (("acoustic-only", "amb-slam"), ("mb-slam-fej", "amb-slam"), ("mb-slam", "mb-slam-fej"))
-
-
-def seed_split(seed: int) -> str:
-    """``"test"`` for a held-out base seed (``>= TEST_SEED_MIN``), else ``"tuning"``."""
-    return "test" if seed >= TEST_SEED_MIN else "tuning"
 
 
 @dataclass(frozen=True)
@@ -547,23 +541,15 @@ def paired_bootstrap(
     the mean RMSEs ``other / base``, each with a 95 % percentile bootstrap interval over the runs
     (``n_boot`` resamples of the run indices, generator seeded ``seed``), and how many runs
     ``other`` was better in."""
-    a, b = np.asarray(base["rmse_runs"], float), np.asarray(other["rmse_runs"], float)
+    a, b = base["rmse_runs"], other["rmse_runs"]
     if len(a) != len(b) or len(a) < 2:
         raise ValueError(
             f"paired comparison needs the same runs (>= 2) of both, got "
             f"{base['algorithm']} x {len(a)} and {other['algorithm']} x {len(b)}"
         )
-    idx = np.random.default_rng(seed).integers(0, len(a), (n_boot, len(a)))
-    ma, mb = a[idx].mean(1), b[idx].mean(1)
-    diff_ci = np.quantile(mb - ma, [0.025, 0.975])
-    ratio_ci = np.quantile(mb / np.maximum(ma, 1e-12), [0.025, 0.975])
-    return {
-        "base": base["algorithm"], "other": other["algorithm"], "runs": len(a),
-        "base_rmse": float(a.mean()), "other_rmse": float(b.mean()),
-        "diff": float((b - a).mean()), "diff_ci": [float(x) for x in diff_ci],
-        "ratio": float(b.mean() / a.mean()) if a.mean() > 0 else math.nan,
-        "ratio_ci": [float(x) for x in ratio_ci], "other_better": int((b < a).sum()),
-    }  # fmt: skip
+    c = paired_bootstrap_arrays(a, b, n_boot, seed)
+    return {"base": base["algorithm"], "other": other["algorithm"],
+            "base_rmse": c.pop("base_mean"), "other_rmse": c.pop("other_mean"), **c}  # fmt: skip
 
 
 def format_pairs(title: str, pairs: list[dict[str, Any]], markdown: bool = False) -> str:
