@@ -628,13 +628,15 @@ class Gateway:
         (None: never): ``reopen_silent_periods`` times its period (``expected_period_s``, or the
         median interval of its recent frame-bearing reads), at least ``stale_after_s`` (the
         device is reported stale first), doubled for each reopen in a row that brought no
-        frame (up to :data:`MAX_SILENT_BACKOFF` times). Never for a file replay."""
+        frame (up to :data:`MAX_SILENT_BACKOFF` times). Never for a file replay or a UDP port."""
         cfg = dev.cfg
         period = cfg.expected_period_s
         if period is None and len(dev.frame_reads) >= 3:
             period = statistics.median(b - a for a, b in itertools.pairwise(dev.frame_reads))
-        if not cfg.reopen_silent_periods or period is None or cfg.transport.kind == "file":
-            return None  # (a file replayed again would repeat its data)
+        if not cfg.reopen_silent_periods or period is None or cfg.transport.kind in ("file", "udp"):
+            # a file replayed again would repeat its data; a UDP socket has no link to renew
+            # (reopening it only drops what is in flight)
+            return None
         limit = max(cfg.reopen_silent_periods * period, cfg.stale_after_s)
         return limit * min(2**dev.silent_reopens, MAX_SILENT_BACKOFF)
 

@@ -120,7 +120,7 @@ def format_validation_error(
         elif typ == "missing":
             msg = "missing (required)"
         elif typ == "extra_forbidden":
-            msg = f"unknown key {loc[-1]!r}" if loc else "unknown key"
+            msg = "unknown key"  # (the path names it)
         elif typ == "union_tag_not_found":
             loc, msg = (*loc, "kind"), f"missing; must be one of {choices}"
         elif typ == "union_tag_invalid":
