@@ -451,7 +451,7 @@ def depth_beam_table(z_resolution_cm: int, xy_resolution_cm: int, unsigned_depth
         "TYPE": name,  # each resolution its own registered type (the base's name is shared)
         **rows,
     }
-    table = message(type(name, (DepthBeams,), ns))
+    table: type = message(type(name, (DepthBeams,), ns))
     # found by name through TYPE_FACTORIES (this cache, bounded), never held by the registry:
     # a sender choosing a new resolution per datagram must not grow memory
     MESSAGE_TYPES.pop(name, None)
