@@ -35,6 +35,7 @@ COMPONENTS = (
     "slam-landmark",
     "slam-magnetic",
     "slam-bathymetric",
+    "pilot",
     "recorder",
     "viz",
     "shore",
