@@ -181,8 +181,9 @@ def _owned() -> dict[str, set[tuple[str, str]]]:
             ("declare_queryable", k.config("gateway")),
         },
         "fusion": stage("fusion", [k.odometry()]),
-        "pilot": stage("pilot", [k.cmd("actuators"), f"{k.base}/pilot/command",
-                                 f"{k.base}/pilot/state"]),  # fmt: skip
+        "pilot": stage(
+            "pilot", [k.cmd("actuators"), f"{k.base}/pilot/command", f"{k.base}/pilot/state"]
+        ),
         "slam-landmark": landmark,
         **{
             f"slam-{s.name}": stage(f"slam-{s.name}", [k.slam(s.name, w) for w in s.outputs])
