@@ -423,11 +423,14 @@ class Autopilot:
 
     def _asked_at(self, t: float) -> tuple[float, float, float, float]:
         """What the actuators should show once the command of time ``t`` reached them: the
-        first step after it (whose model has followed that command), or the newest."""
-        for row in self._asked:
-            if row[0] > t + 1e-9:
-                return row
-        return self._asked[-1]
+        first step after it (whose model has followed that command), or the newest. Searched
+        from the newest: ``t`` is a step or two old."""
+        found = self._asked[-1]
+        for row in reversed(self._asked):
+            if row[0] <= t + 1e-9:
+                break
+            found = row
+        return found
 
     def _abort(self, reason: str, detail: str) -> None:
         if self.mode != "aborted":

@@ -41,7 +41,6 @@ import numpy as np
 from auvgw.drivers.formats import Format
 from auvgw.drivers.framing import BadFrame, DecodeError, ErrorPolicy, Framer
 from auvgw.drivers.spec import (
-    MESSAGE_TYPES,
     TYPE_FACTORIES,
     Plan,
     WireError,
@@ -451,11 +450,9 @@ def depth_beam_table(z_resolution_cm: int, xy_resolution_cm: int, unsigned_depth
         "TYPE": name,  # each resolution its own registered type (the base's name is shared)
         **rows,
     }
-    table: type = message(type(name, (DepthBeams,), ns))
     # found by name through TYPE_FACTORIES (this cache, bounded), never held by the registry:
     # a sender choosing a new resolution per datagram must not grow memory
-    MESSAGE_TYPES.pop(name, None)
-    return table
+    return message(type(name, (DepthBeams,), ns), register=False)
 
 
 _DEPTH_TABLE_NAME = re.compile(r"DepthBeams_z(\d+)cm_xy(\d+)cm_([us])16")

@@ -240,20 +240,23 @@ def message_base(cls: type[T]) -> type[T]:
 
 
 @typing.overload
-def message(cls: type[T], /) -> type[T]: ...
+def message(cls: type[T], /, *, register: bool = True) -> type[T]: ...
 @typing.overload
-def message(*, endian: str = "<") -> Callable[[type[T]], type[T]]: ...
+def message(*, endian: str = "<", register: bool = True) -> Callable[[type[T]], type[T]]: ...
 @typing.dataclass_transform(frozen_default=True, field_specifiers=(wire, dataclasses.field))
-def message(cls: type[T] | None = None, *, endian: str = "<") -> Any:
+def message(cls: type[T] | None = None, *, endian: str = "<", register: bool = True) -> Any:
     """Class decorator: a frozen, slotted dataclass with array-aware equality.
 
-    ``endian`` is the default byte order of the table ("<" little, ">" big).
+    ``endian`` is the default byte order of the table ("<" little, ">" big). ``register``:
+    False for a table built on demand and found by name through :data:`TYPE_FACTORIES` (kept
+    out of :data:`MESSAGE_TYPES`, so the factory's own cache bounds how many live).
     """
 
     def wrap(c: type[T]) -> type[T]:
         c.__wire_endian__ = endian  # type: ignore[attr-defined]
         dc = dataclasses.dataclass(frozen=True, eq=False)(c)
-        MESSAGE_TYPES[getattr(dc, "TYPE", dc.__name__)] = dc
+        if register:
+            MESSAGE_TYPES[getattr(dc, "TYPE", dc.__name__)] = dc
 
         def __eq__(self: Any, other: object) -> bool:
             if type(other) is not type(self):

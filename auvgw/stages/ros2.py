@@ -147,8 +147,9 @@ class RosStage(Stage):
         for m in msgs:
             self.put(m, t_ns)
 
-    def put(self, m: ros2.RosMessage, t_ns: int) -> None:
-        """Send ROS 2 message ``m`` stamped ``t_ns`` (the subclass's sink)."""
+    def put(self, m: ros2.RosMessage, t_ns: int) -> object:
+        """Send ROS 2 message ``m`` stamped ``t_ns`` (the subclass's sink; what it returns is
+        the subclass's)."""
         raise NotImplementedError
 
     def topic(self, m: ros2.RosMessage) -> str:
@@ -219,15 +220,14 @@ class Ros2Bridge(RosStage):
         #: the publishers each bus key's samples went to (:meth:`wanted`; a tuple replaced, never
         #: changed in place: the Zenoh callbacks and the gateway's listeners read it)
         self._made: dict[str, tuple[_Endpoint, ...]] = {}
-        self._last_ep: _Endpoint | None = None
 
     def status_fields(self) -> dict[str, Any]:
         return {"domain_id": self.config.domain_id, "namespace": self.config.namespace,
                 "node": self.config.node, "ros_topics": sorted(self._endpoints)}  # fmt: skip
 
-    def put(self, m: ros2.RosMessage, t_ns: int) -> None:
+    def put(self, m: ros2.RosMessage, t_ns: int) -> _Endpoint | None:
         """Publish ROS 2 message ``m`` (stamp ``t_ns``) on its topic, declaring the publisher and
-        its liveliness token the first time."""
+        its liveliness token the first time; its endpoint (None in-process)."""
         topic = self.topic(m)
         cdr = ros2.serialize(m)
         key = self._keys.get((topic, m.type))
@@ -236,7 +236,6 @@ class Ros2Bridge(RosStage):
         ep = self._endpoints.get(key)
         if ep is None and self.session is not None:
             ep = self._declare(topic, m.type, key)
-        self._last_ep = ep
         if ep is not None:
             ep.seq += 1
             try:
@@ -246,6 +245,7 @@ class Ros2Bridge(RosStage):
         self.count(m, topic)
         if self.on_publish is not None:
             self.on_publish(key, cdr, t_ns)
+        return ep
 
     def wanted(self, key: str) -> bool:
         """Take a sample on bus ``key`` only if a subscriber matches one of the topics that key's
@@ -261,10 +261,7 @@ class Ros2Bridge(RosStage):
 
     def emit(self, key: str, msgs: list[ros2.RosMessage], t_ns: int) -> None:
         made = set(self._made.get(key, ()))
-        for m in msgs:
-            self.put(m, t_ns)
-            if self._last_ep is not None:
-                made.add(self._last_ep)
+        made.update(ep for m in msgs if (ep := self.put(m, t_ns)) is not None)
         if made:
             self._made[key] = tuple(made)
 
