@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
@@ -169,10 +169,8 @@ def fly(
         t = i * dt
         if nav_lost_at is None or t < nav_lost_at:
             ap.nav(_nav(t, x, noise or NavNoise(), rng if noise is not None else None))
-        fb = _feedback(t, applied, act)
-        if act.latency_s > 0:
-            fb = replace(fb, cmd_t=acting.t if acting is not None else -math.inf)
-        ap.feedback(fb)
+        cmd_t = None if act.latency_s <= 0 else acting.t if acting is not None else -math.inf
+        ap.feedback(_feedback(t, applied, act, cmd_t))
         cmd: ActuatorCommand = ap.step(t)
         st = ap.status
         ts.append(t)
@@ -202,9 +200,10 @@ def fly(
                   done_t)  # fmt: skip
 
 
-def _feedback(t: float, applied: list[float], act: ActuatorModel) -> ActuatorFeedback:
+def _feedback(t: float, applied: list[float], act: ActuatorModel,
+              cmd_t: float | None = None) -> ActuatorFeedback:  # fmt: skip
     faults = act.fault[0] if act.fault is not None and t >= act.fault[1] else 0
-    return ActuatorFeedback(t, applied[2], applied[0], applied[1], faults)
+    return ActuatorFeedback(t, applied[2], applied[0], applied[1], faults, cmd_t)
 
 
 def _actuate(t: float, dt: float, applied: list[float], cmd: ActuatorCommand,
