@@ -331,6 +331,9 @@ def dvl_from_pd6(msg: Any, t: float) -> DvlSample:
 
 # -- per-device adapter ---------------------------------------------------------------------------
 
+#: the warm-up releases its samples after this many at the latest (a paused clock)
+_WARMUP_MAX_SAMPLES = 1000
+
 
 @dataclass
 class AdapterStats:
@@ -368,6 +371,7 @@ class MessageAdapter:
         clock: Mapping[str, Any] | None = None,
         require_aligned: bool = True,
         high_res: bool = True,
+        warmup_s: float = 0.0,
     ) -> None:
         self.ins_device = ins_device or "ins"
         self.dvl_device = dvl_device or "dvl"
@@ -377,6 +381,11 @@ class MessageAdapter:
         self.high_res = high_res
         self.clocks: dict[str, DeviceClock] = {}
         self.stats = AdapterStats()
+        self.warmup_s = float(warmup_s)
+        #: receive time (s) the warm-up ends at (None: not begun, -inf: over)
+        self._warm_end: float | None = None
+        #: held samples: (device, sample, the clock offset it was mapped with)
+        self._held: list[tuple[str, InsSample | DvlSample, float]] = []
 
     def roles(self, device: str, msg: Any) -> tuple[bool, bool]:
         """``(attitude, velocity)``: what a message of ``device`` gives the filter."""
@@ -414,7 +423,46 @@ class MessageAdapter:
     ) -> list[InsSample | DvlSample]:
         """The samples of one decoded message received at ``t_recv_s`` (s): attitude and/or
         velocity (a PD0 ensemble of a DVL that is both sources gives both); empty when it is
-        ignored or unusable (counted)."""
+        ignored or unusable (counted), or while the device's clock is warming up.
+
+        Warm-up (``warmup_s`` > 0): a device's clock offset is the smallest receive delay seen,
+        and the first frames after a port opens arrive late (a backlog, a cold pipeline). Mapped
+        at once, they would stand ``delta`` late on the common clock until a faster frame
+        lowers the offset; the INS samples after it then fall on times the filter has passed
+        and the motion between is lost (``delta`` x speed of position). So every sample of the
+        first ``warmup_s`` s of receive time (from the first message of any device) is held,
+        and all are released together, in the order they came, each re-timed with its device's
+        offset learnt over the window. A device first heard after the window is not held."""
+        out = self._adapt_all(device, t_recv_s, msg)
+        if not out:
+            return out
+        if self._warm_end is None:
+            if self.warmup_s <= 0:
+                return out
+            self._warm_end = t_recv_s + self.warmup_s
+        if not self._held and t_recv_s >= self._warm_end:
+            return out
+        off = self.clocks[device].offset or 0.0
+        self._held.extend((device, s, off) for s in out)
+        if t_recv_s < self._warm_end and len(self._held) < _WARMUP_MAX_SAMPLES:
+            return []
+        return self.flush()
+
+    def flush(self) -> list[InsSample | DvlSample]:
+        """Release the samples still held in the warm-up (its end, or the end of the data),
+        each re-timed with its device's offset as learnt now; see :meth:`adapt_all`."""
+        held, self._held = self._held, []
+        self._warm_end = -math.inf if self._warm_end is not None else None
+        out = []
+        for d, s, o in held:
+            off = self.clocks[d].offset or 0.0
+            # a move below 1 us is the clock's skew creep over the window, not a late frame
+            out.append(s if abs(off - o) < 1e-6 else s._replace(t=s.t + (off - o)))
+        return out
+
+    def _adapt_all(
+        self, device: str, t_recv_s: float, msg: Any
+    ) -> list[InsSample | DvlSample]:
         att, vel = self.roles(device, msg)
         if not (att or vel):
             self.stats.ignored += 1

@@ -71,9 +71,10 @@ def test_a_normal_run_ends_connected_without_warnings(demo_run) -> None:
 def test_dead_reckoning_follows_the_truth(demo_run) -> None:
     _, _, summary = demo_run
     nav = summary["navigation"]["dead_reckoning"]
-    # over the span the gateway saw (it starts later on a busy machine), at the route's 1 m/s
-    assert nav["distance_m"] > 0.8 * summary["ins_time_span_s"] * HARBOUR_SPEED_MPS > 8.0
-    assert nav["rmse_m"] < 1.0, nav  # DVL-aided DR over tens of metres: decimetres
+    # scored from its first DVL fix (the DVL's port may open seconds after the INS's on a busy
+    # machine), over the DVL's span at the route's 1 m/s
+    assert nav["distance_m"] > 0.8 * summary["dvl_time_span_s"] * HARBOUR_SPEED_MPS > 8.0
+    assert nav["rmse_m"] < 0.5, nav  # DVL-aided DR over tens of metres: decimetres (0.10-0.17)
     assert summary["fusion"]["filter"]["dvl_updates"] > 50
 
 

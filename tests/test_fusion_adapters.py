@@ -213,6 +213,30 @@ def test_adapter_drops_unaligned_ins_and_binds_one_device_per_role():
     assert a.adapt("ins", 100.02, _nav(time=50.01)).t == pytest.approx(100.01 - 0.005)
 
 
+def test_warm_up_retimes_the_late_first_frames_after_a_port_opens():
+    """The first INS frames are read 0.6 s late (a backlog), then on time. Mapped at once they
+    stand late and the on-time frames after them fall before the filter's time (the motion
+    between is lost); held for the warm-up, every frame is released on its true time, in order,
+    together with the DVL's."""
+    dev = np.arange(300) * 0.01  # 100 Hz for 3 s
+    host = np.maximum(1000.6, 1000.0 + dev + 0.005)  # the port opened 0.6 s in: a backlog
+    plain = MessageAdapter(dvl_device=None)
+    mapped = [plain.adapt("ins", h, _nav(time=d)).t for d, h in zip(dev, host, strict=True)]
+    assert len(set(mapped)) < 300 - 55  # the backlog all on one time: its motion is lost
+    warm = MessageAdapter(dvl_device=None, warmup_s=2.0)
+    out = []
+    for d, h in zip(dev, host, strict=True):
+        out += warm.adapt_all("ins", h, _nav(time=d))
+        if h - host[0] < 2.0:
+            assert not out  # held
+    out += warm.flush()
+    t = np.array([s.t for s in out])
+    assert len(t) == 300 and np.all(np.diff(t) > 0)
+    assert np.abs(t - (1000.0 + dev + 0.005)).max() < 1e-9
+    # after the window, samples pass at once
+    assert warm.adapt("ins", host[-1] + 0.01, _nav(time=3.0)).t == pytest.approx(1003.005)
+
+
 # -- device clocks -------------------------------------------------------------------------------
 
 

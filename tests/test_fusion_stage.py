@@ -99,13 +99,14 @@ def test_stage_feed_is_adapter_plus_navfilter_and_counts_everything(data):
     n_ins, n_can, n_dvl = counts(msgs)
     assert (n_ins, n_can, n_dvl) == (1001, 1001, 51)
     # the same samples pushed by hand into a NavFilter give the same odometry
-    adapter = MessageAdapter("ins", None, cfg.latency_s)
+    adapter = MessageAdapter("ins", None, cfg.latency_s, warmup_s=cfg.clock_warmup_s)
     nav = NavFilter(cfg.filter)
     ref: list[Odometry] = []
     for t_ns, device, msg in msgs:
-        s = adapter.adapt(device, t_ns / 1e9, msg)
-        if s is not None:
+        for s in adapter.adapt_all(device, t_ns / 1e9, msg):
             ref += nav.push(s)
+    for s in adapter.flush():
+        ref += nav.push(s)
     ref += nav.flush()
     assert out == ref and len(out) == n_ins
     c = stage.counters()

@@ -165,19 +165,27 @@ class _Track:
         self.x.append(x)
         self.y.append(y)
 
+    def add_odometry(self, t: float, x: float, y: float, coasting: bool) -> None:
+        """Dead reckoning is scored from its first DVL fix: before it the filter has no
+        velocity and holds its start position whatever the vehicle does (how long depends on
+        which port the gateway opened first), after it the fix's correction carries back."""
+        if self.t or not coasting:
+            self.add(t, x, y)
+
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return np.asarray(self.t), np.asarray(self.x), np.asarray(self.y)
 
 
-def _path_error(est: _Track, truth: _Track) -> dict[str, float] | None:
-    """Horizontal error of ``est`` against ``truth`` (interpolated at the estimate's times);
-    ``samples``: the estimates scored, ``outside_truth``: those left out, stamped outside the
-    truth log's span (the last swath's pose may be stamped after the last truth sample)."""
+def _path_error(est: _Track, truth: _Track, since: float = -math.inf) -> dict[str, float] | None:
+    """Horizontal error of ``est`` against ``truth`` (interpolated at the estimate's times),
+    from vehicle time ``since`` (s); ``samples``: the estimates scored, ``outside_truth``: those
+    left out, stamped outside the truth log's span (the last swath's pose may be stamped after
+    the last truth sample) or before ``since``."""
     te, xe, ye = est.arrays()
     tt, xt, yt = truth.arrays()
     if len(te) < 2 or len(tt) < 2:
         return None
-    keep = (te >= tt[0]) & (te <= tt[-1])
+    keep = (te >= max(tt[0], since)) & (te <= tt[-1])
     if keep.sum() < 2:
         return None
     te, xe, ye = te[keep], xe[keep], ye[keep]
@@ -459,7 +467,7 @@ def _run_stages(
 
     def on_odometry(o: Any) -> None:
         with lock:
-            dead_reckoning.add(o.t - epoch_s, o.x, o.y)
+            dead_reckoning.add_odometry(o.t - epoch_s, o.x, o.y, o.coasting)
         if viz is not None:
             payload, _ = encode_envelope(o, "fusion", int(o.t * 1e9), 0)
             viz.stage.handle_sample(keys.odometry(), payload, int(o.t * 1e9))
@@ -600,7 +608,8 @@ def _report(
     slam_counters = None
     if slam is not None and slam[1] is not None:
         name, slam_counters = slam
-        slam_err = _path_error(slam_track, truth)
+        # over the same span as dead reckoning's: from the first DVL fix
+        slam_err = _path_error(slam_track, truth, dead_reckoning.t[0] if dead_reckoning.t else 0.0)
         if slam_counters.get("component") == MAGNETIC_COMPONENT:
             _print_magnetic(name, slam_counters, slam_err, nav)
         else:
@@ -651,7 +660,9 @@ class _Collector:
         env = decode_envelope(sample.payload.to_bytes())
         o = env.body
         with self.lock:
-            self.dead_reckoning.add(o["t"] - self.epoch_s, o["x"], o["y"])
+            self.dead_reckoning.add_odometry(
+                o["t"] - self.epoch_s, o["x"], o["y"], bool(o["coasting"])
+            )
             self.odometry_stamps.append((env.t_recv_ns / 1e9, time.time()))
 
     def _on_slam(self, sample: Any) -> None:
@@ -939,7 +950,8 @@ def _print_summary(
         print("navigation error: not enough odometry or truth to compare")
     else:
         print(
-            f"dead reckoning vs truth over {err['distance_m']:.0f} m: RMSE {err['rmse_m']:.2f} m "
+            f"dead reckoning vs truth over {err['distance_m']:.0f} m from its first DVL fix: "
+            f"RMSE {err['rmse_m']:.2f} m "
             f"(x {err['rmse_x_m']:.2f}, y {err['rmse_y_m']:.2f}), final {err['final_m']:.2f} m, "
             f"RMSE/distance {err['rmse_pct_distance']:.3f} %"
         )

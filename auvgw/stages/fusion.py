@@ -84,8 +84,11 @@ class FusionStageConfig(StageConfig):
     and offline choose the same sources. ``latency_s``: per device, the fixed delay between the
     device's time stamp and the host's receive time (e.g. the frame's transmission time, bytes x
     10 / baud), subtracted when mapping its clock. ``clock_skew`` (s/s) and ``clock_jump_s``:
-    see :class:`~auvgw.fusion.adapters.DeviceClock`. ``require_aligned``: drop INS solutions
-    flagged not aligned or in error. ``high_res``: prefer the PD0 0x5803 velocity.
+    see :class:`~auvgw.fusion.adapters.DeviceClock`. ``clock_warmup_s``: each device's samples
+    are held for this long (s of receive time) while its clock offset is learnt, so the late
+    first frames after a port opens do not cost motion (see
+    :meth:`~auvgw.fusion.adapters.MessageAdapter.adapt_all`). ``require_aligned``: drop INS
+    solutions flagged not aligned or in error. ``high_res``: prefer the PD0 0x5803 velocity.
     """
 
     model_config = ConfigDict(extra="forbid", populate_by_name=True)
@@ -95,6 +98,7 @@ class FusionStageConfig(StageConfig):
     latency_s: dict[str, float] = Field(default_factory=dict)
     clock_skew: float = Field(1e-4, ge=0)
     clock_jump_s: float = Field(1.0, gt=0)
+    clock_warmup_s: float = Field(2.0, ge=0, le=60)
     require_aligned: bool = True
     high_res: bool = True
     filter: FusionConfig = FusionConfig()
@@ -140,6 +144,7 @@ class FusionStage(Stage):
             clock={"skew": cfg.clock_skew, "jump_s": cfg.clock_jump_s},
             require_aligned=cfg.require_aligned,
             high_res=cfg.high_res,
+            warmup_s=cfg.clock_warmup_s,
         )
         self.nav = NavFilter(cfg.filter)
         self.on_odometry = on_odometry
@@ -170,7 +175,10 @@ class FusionStage(Stage):
     def flush(self) -> list[Odometry]:
         """Release (and publish) everything the filter still holds (end of data, shutdown)."""
         with self._lock:
-            out = self.nav.flush()
+            out = []
+            for sample in self.adapter.flush():
+                out += self.nav.push(sample)
+            out += self.nav.flush()
             self._emit(out)
             return out
 
