@@ -83,6 +83,9 @@ class SpheroidHydro:
     """1/2 rho D Cd_2D dx (kg/m^2): one strip's cross-flow drag per (v + x r)|v + x r|."""
     strips: tuple[float, ...]
     """x of the strip points (m), -L/2 .. L/2."""
+    strip_moments: tuple[float, float, float, float]
+    """sum of x^k over the strip points, k = 0..3 (the cross-flow sums when no strip changes
+    the sign of its flow)."""
     lin: tuple[float, float, float, float, float, float]
     decay: float
     rudder: float
@@ -221,6 +224,7 @@ def _load_spheroid(v: Any) -> VehicleParams:
     aspect = diam * diam / area
     n_strips = int(v("damping", "crossflow_strips"))
     dx = length / n_strips
+    strips = tuple(-a + i * dx for i in range(n_strips + 1))
     ja = float(v("propulsion", "Ja_max"))
     kt0, kq0 = float(v("propulsion", "KT_0")), float(v("propulsion", "KQ_0"))
     hydro = SpheroidHydro(
@@ -230,7 +234,10 @@ def _load_spheroid(v: Any) -> VehicleParams:
         cl_alpha=math.pi * aspect / (1.0 + math.sqrt(1.0 + (aspect / 2.0) ** 2)),
         induced=1.0 / (math.pi * float(v("damping", "oswald")) * aspect),
         crossflow=0.5 * rho * diam * float(v("damping", "Cd_2D")) * dx,
-        strips=tuple(-a + i * dx for i in range(n_strips + 1)),
+        strips=strips,
+        strip_moments=(
+            float(len(strips)), sum(strips), sum(x * x for x in strips), sum(x**3 for x in strips)
+        ),
         lin=(0.0,) * 6,
         decay=float(v("damping", "decay")),
         rudder=0.5 * rho * float(v("fins", "A_rudder")) * float(v("fins", "CL_rudder")),
@@ -459,12 +466,19 @@ def _tau_spheroid(p: VehicleParams, s: SpheroidHydro, nu_r: tuple[float, ...],
         tau[4] -= lin[4] * q
         tau[5] -= lin[5] * k * r
         # cross-flow drag by strip theory, horizontal plane only (as in the source)
-        y_h = n_h = 0.0
-        for x in s.strips:
-            vl = v + x * r
-            f = vl * abs(vl)
-            y_h += f
-            n_h += x * f
+        x_end = s.strips[-1]
+        if abs(v) >= abs(r) * x_end:  # one sign along the hull: sums of (v + x r)^2 x^k
+            m0, m1, m2, m3 = s.strip_moments
+            sgn = 1.0 if v > 0 else -1.0
+            y_h = sgn * (v * v * m0 + 2.0 * v * r * m1 + r * r * m2)
+            n_h = sgn * (v * v * m1 + 2.0 * v * r * m2 + r * r * m3)
+        else:
+            y_h = n_h = 0.0
+            for x in s.strips:
+                vl = v + x * r
+                f = vl * abs(vl)
+                y_h += f
+                n_h += x * f
         tau[1] -= s.crossflow * y_h
         tau[5] -= s.crossflow * n_h
     alpha = math.atan2(w, u)

@@ -209,3 +209,17 @@ def test_fossen_passive_vehicle_rights_itself_and_dissipates() -> None:
     assert abs(x[8]) < 0.05  # W = B: no depth change
     assert energies[-1] < 1e-3 * e0
     assert all(b <= a + 1e-9 for a, b in itertools.pairwise(energies))
+
+
+def test_fossen_crossflow_closed_form_equals_the_strip_sum() -> None:
+    s = PF.spheroid
+    assert s is not None
+    for v, r in [(0.3, 0.1), (-0.3, 0.2), (0.05, 0.4), (0.0, -0.3), (-0.2, 0.0), (0.0, 0.0)]:
+        nu = np.array([1.5, v, 0.0, 0.0, 0.0, r])
+        tau = d.forces(PF, nu, np.zeros(3))
+        lin = s.lin
+        k = math.exp(-s.decay * math.hypot(1.5, v))
+        y = -s.crossflow * sum((v + x * r) * abs(v + x * r) for x in s.strips) - lin[1] * k * v
+        n = -s.crossflow * sum(x * (v + x * r) * abs(v + x * r) for x in s.strips) - lin[5] * k * r
+        assert tau[1] == pytest.approx(y, rel=1e-9, abs=1e-12)
+        assert tau[5] == pytest.approx(n, rel=1e-9, abs=1e-12)
