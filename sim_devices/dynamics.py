@@ -13,7 +13,8 @@ Model (Fossen 2021, relative-velocity form for an irrotational current):
 ``M = M_RB + M_A`` (rigid body, ch. 3; added mass), ``C_RB`` in its linear-velocity-independent
 form (ch. 3), ``C_A`` in the skew-symmetric added-mass form, ``g`` the restoring forces (ch. 4),
 cross-flow quadratic drag, body and fin lift (Prestero 2001) and the propeller.
-Parameters come from ``config/vehicles/remus100.toml`` (every number cites its source).
+Parameters come from ``config/vehicles/remus100.toml`` (Prestero 2001, the default) or
+``remus100_fossen.toml`` (Fossen 2021, :class:`SpheroidHydro`); every number cites its source.
 """
 
 from __future__ import annotations
