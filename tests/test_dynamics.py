@@ -181,6 +181,21 @@ def test_fossen_set_speed_at_full_shaft_speed() -> None:
     # the header's 2.5 m/s at 1525 rpm (the propeller line's anchor, so a consistency check)
     x = _run(PF, np.zeros(12), [0, 0, 1525], 60.0, dt=0.05)
     assert float(np.linalg.norm(x[:3])) == pytest.approx(2.5, rel=0.10)
+    # and the implementation: the surge balance solved by hand, (1 - t) rho D^4 (KT0 n^2 +
+    # dKT/dJ (w U / D) n) = 1/2 rho U^2 S CD0 + M11 / T_surge exp(-3 U) U
+    s = PF.spheroid
+    assert s is not None
+    n = 1525 / 60
+
+    def surplus(u: float) -> float:
+        thrust = (1 - s.t_prop) * s.rho * s.d_prop**4 * (
+            s.kt[0] * n * n + s.kt[1] * s.wake * u / s.d_prop * n)
+        return thrust - 0.5 * s.rho * u * u * s.area * s.cd0 - s.lin[0] * math.exp(-3 * u) * u
+
+    lo, hi = 2.0, 3.0
+    for _ in range(50):
+        lo, hi = ((lo + hi) / 2, hi) if surplus((lo + hi) / 2) > 0 else (lo, (lo + hi) / 2)
+    assert x[0] == pytest.approx(lo, rel=2e-3)
 
 
 def test_fossen_passive_vehicle_rights_itself_and_dissipates() -> None:
