@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+import json
 import math
 from dataclasses import replace
 from pathlib import Path
@@ -224,3 +225,26 @@ def test_fossen_crossflow_closed_form_equals_the_strip_sum() -> None:
         n = -s.crossflow * sum(x * (v + x * r) * abs(v + x * r) for x in s.strips) - lin[5] * k * r
         assert tau[1] == pytest.approx(y, rel=1e-9, abs=1e-12)
         assert tau[5] == pytest.approx(n, rel=1e-9, abs=1e-12)
+
+
+def test_a_scenario_selects_the_fossen_set(tmp_path: Path) -> None:
+    """vehicle.dynamics.params of a closed-loop scenario picks the file; the stable vehicle,
+    with no controller at all (zero fins, the scenario's rpm), keeps its heading and depth."""
+    from auvgw.config.scenario import load_scenario
+    from auvgw.sim_devices.closedloop import ClosedLoopTruth
+    from auvgw.sim_devices.world import World
+
+    root = d.REMUS100_FILE.parent.parent
+    data = json.loads((root / "scenarios" / "closed_loop.json").read_text())
+    data["vehicle"]["dynamics"]["params"] = str(d.REMUS100_FOSSEN_FILE)
+    path = tmp_path / "fossen.json"
+    path.write_text(json.dumps(data))
+    scn = load_scenario(path)
+    truth = ClosedLoopTruth(scn, World.from_scenario(scn))
+    assert truth.params.spheroid is not None
+    start = truth.state.copy()
+    truth.at(10.0)
+    assert truth.steps == round(10.0 / truth.dt)
+    assert abs(truth.state[11] - start[11]) < math.radians(1.0)
+    assert abs(truth.state[8] - start[8]) < 0.2
+    assert truth.state[0] > 1.0
