@@ -13,7 +13,8 @@ Model (Fossen 2021, relative-velocity form for an irrotational current):
 ``M = M_RB + M_A`` (rigid body, ch. 3; added mass), ``C_RB`` in its linear-velocity-independent
 form (ch. 3), ``C_A`` in the skew-symmetric added-mass form, ``g`` the restoring forces (ch. 4),
 cross-flow quadratic drag, body and fin lift (Prestero 2001) and the propeller.
-Parameters come from ``config/vehicles/remus100.toml`` (every number cites its source).
+Parameters come from ``config/vehicles/remus100.toml`` (Prestero 2001, the default) or
+``remus100_fossen.toml`` (Fossen 2021, :class:`SpheroidHydro`); every number cites its source.
 """
 
 from __future__ import annotations
@@ -30,7 +31,9 @@ from numpy.typing import NDArray
 __all__ = [
     "PITCH_LIMIT",
     "REMUS100_FILE",
+    "REMUS100_FOSSEN_FILE",
     "PitchSingularityError",
+    "SpheroidHydro",
     "VehicleParams",
     "coriolis",
     "coriolis_force",
@@ -47,11 +50,55 @@ __all__ = [
 Array = NDArray[np.float64]
 
 REMUS100_FILE = Path(__file__).resolve().parent.parent / "config" / "vehicles" / "remus100.toml"
+REMUS100_FOSSEN_FILE = REMUS100_FILE.with_name("remus100_fossen.toml")
+"""Fossen's 2021 spheroid REMUS 100 (open-loop stable), the second published parameter set."""
 
 
 def skew(a: Array) -> Array:
     """The cross-product matrix S(a), S(a) b = a x b (Fossen ch. 2)."""
     return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+
+
+@dataclass(frozen=True)
+class SpheroidHydro:
+    """Fossen's spheroid hydrodynamics (Handbook 2nd ed. 2021, 8.4.2; his REMUS 100 model),
+    used instead of Prestero's derivatives when a parameter file says ``form = "spheroid"``.
+
+    No Munk moment (the C_A entries of the pitch and yaw rows in u, v and p are zero, as in the
+    source), diagonal linear damping ``lin`` (N s/m, N m s/rad; surge, sway and yaw times
+    ``exp(-decay U_r)``), hull drag and lift in the vertical plane, strip-theory cross-flow
+    drag in the horizontal plane, fins at ``x_fin`` and a propeller whose thrust falls linearly
+    with the advance number. Inputs keep Prestero's signs (positive rudder: bow to port;
+    positive stern plane: bow down); the source's are the opposite, so they are negated here.
+    """
+
+    rho: float
+    area: float
+    """S, planform area (m^2): the hull's lift and drag reference."""
+    cd0: float
+    cl_alpha: float
+    """Hull lift slope (1/rad), pi AR / (1 + sqrt(1 + (AR/2)^2)), AR = D^2 / S."""
+    induced: float
+    """1 / (pi e AR): induced drag CD = cd0 + induced CL^2."""
+    crossflow: float
+    """1/2 rho D Cd_2D dx (kg/m^2): one strip's cross-flow drag per (v + x r)|v + x r|."""
+    strips: tuple[float, ...]
+    """x of the strip points (m), -L/2 .. L/2."""
+    strip_moments: tuple[float, float, float, float]
+    """sum of x^k over the strip points, k = 0..3 (the cross-flow sums when no strip changes
+    the sign of its flow)."""
+    lin: tuple[float, float, float, float, float, float]
+    decay: float
+    rudder: float
+    """1/2 rho A_r CL_r (kg/m): rudder force per U^2 rad."""
+    stern: float
+    x_fin: float
+    d_prop: float
+    t_prop: float
+    wake: float
+    kt: tuple[float, float]
+    """KT at J = 0 and its slope dKT/dJ (linear in the advance number J = Va / (n D))."""
+    kq: tuple[float, float]
 
 
 @dataclass(frozen=True)
@@ -85,6 +132,8 @@ class VehicleParams:
     max_rudder: float
     max_stern: float
     max_rpm: float
+    spheroid: SpheroidHydro | None = None
+    """Fossen's spheroid hydrodynamics; None: Prestero's derivatives (the fields above)."""
     damping: bool = True
     lift: bool = True
     propulsion: bool = True
@@ -114,6 +163,8 @@ def load_params(path: Path = REMUS100_FILE) -> VehicleParams:
     def v(s: str, k: str) -> Any:
         return _value(t, s, k, path)
 
+    if "model" in t and v("model", "form") == "spheroid":
+        return _load_spheroid(v)
     mass = float(v("rigid_body", "mass"))
     g = float(v("rigid_body", "gravity"))
     quad = tuple(float(v("damping", k)) for k in
@@ -151,6 +202,80 @@ def load_params(path: Path = REMUS100_FILE) -> VehicleParams:
         max_stern=float(v("limits", "stern")),
         max_rpm=float(v("limits", "rpm")),
     )
+
+
+def _load_spheroid(v: Any) -> VehicleParams:
+    """Fossen's spheroid REMUS 100 from its file: mass, inertia and added mass of a prolate
+    spheroid (Lamb's k-factors), damping from time constants (Handbook 2021, 8.4.2)."""
+    length, diam = float(v("rigid_body", "length")), float(v("rigid_body", "diameter"))
+    rho, g = float(v("rigid_body", "rho")), float(v("rigid_body", "gravity"))
+    a, b = length / 2.0, diam / 2.0
+    mass = 4.0 / 3.0 * math.pi * rho * a * b * b
+    ix, iy = 0.4 * mass * b * b, 0.2 * mass * (a * a + b * b)
+    e = math.sqrt(1.0 - (b / a) ** 2)
+    log_e = math.log((1.0 + e) / (1.0 - e))
+    alpha0 = 2.0 * (1.0 - e * e) / e**3 * (0.5 * log_e - e)
+    beta0 = 1.0 / (e * e) - (1.0 - e * e) / (2.0 * e**3) * log_e
+    k1, k2 = alpha0 / (2.0 - alpha0), beta0 / (2.0 - beta0)
+    dab = beta0 - alpha0
+    k_prime = e**4 * dab / ((2.0 - e * e) * (2.0 * e * e - (2.0 - e * e) * dab))
+    a44 = float(v("rigid_body", "added_roll_ratio")) * ix
+    r_g = tuple(float(x) for x in v("rigid_body", "r_g"))
+    area = float(v("damping", "planform")) * length * diam
+    aspect = diam * diam / area
+    n_strips = int(v("damping", "crossflow_strips"))
+    dx = length / n_strips
+    strips = tuple(-a + i * dx for i in range(n_strips + 1))
+    ja = float(v("propulsion", "Ja_max"))
+    kt0, kq0 = float(v("propulsion", "KT_0")), float(v("propulsion", "KQ_0"))
+    hydro = SpheroidHydro(
+        rho=rho,
+        area=area,
+        cd0=float(v("damping", "Cd")) * math.pi * b * b / area,
+        cl_alpha=math.pi * aspect / (1.0 + math.sqrt(1.0 + (aspect / 2.0) ** 2)),
+        induced=1.0 / (math.pi * float(v("damping", "oswald")) * aspect),
+        crossflow=0.5 * rho * diam * float(v("damping", "Cd_2D")) * dx,
+        strips=strips,
+        strip_moments=(
+            float(len(strips)), sum(strips), sum(x * x for x in strips), sum(x**3 for x in strips)
+        ),
+        lin=(0.0,) * 6,
+        decay=float(v("damping", "decay")),
+        rudder=0.5 * rho * float(v("fins", "A_rudder")) * float(v("fins", "CL_rudder")),
+        stern=0.5 * rho * float(v("fins", "A_stern")) * float(v("fins", "CL_stern")),
+        x_fin=-a,
+        d_prop=float(v("propulsion", "D_prop")),
+        t_prop=float(v("propulsion", "t_prop")),
+        wake=float(v("propulsion", "wake")),
+        kt=(kt0, (float(v("propulsion", "KT_max")) - kt0) / ja),
+        kq=(kq0, (float(v("propulsion", "KQ_max")) - kq0) / ja),
+    )
+    weight = mass * g
+    p = VehicleParams(
+        mass=mass, weight=weight, buoyancy=weight, r_g=r_g, r_b=(0.0, 0.0, 0.0),  # type: ignore[arg-type]
+        inertia=(ix, iy, iy),
+        added=(-mass * k1, -mass * k2, -mass * k2, -a44, -k_prime * iy, -k_prime * iy, 0.0, 0.0),
+        quad=(0.0,) * 10, linear=(0.0,) * 6, body_lift=0.0, x_cp=0.0,  # type: ignore[arg-type]
+        fin_lift=0.0, x_fin=-a, thrust_coeff=0.0, torque_per_thrust=0.0,
+        max_rudder=float(v("limits", "rudder")), max_stern=float(v("limits", "stern")),
+        max_rpm=float(v("limits", "rpm")), spheroid=hydro,
+    )
+    if [float(x) for x in v("rigid_body", "r_b")] != [0.0, 0.0, 0.0]:
+        raise ValueError("spheroid form: r_b must be the origin (CB at the CO, as in the source)")
+    # linear damping from time constants and damping ratios, on the total mass matrix
+    m = mass_matrix(p)
+    zbg = r_g[2] * weight
+    w_roll, w_pitch = math.sqrt(zbg / m[3, 3]), math.sqrt(zbg / m[4, 4])
+    t_sway = float(v("damping", "T_sway"))
+    lin = (
+        m[0, 0] / float(v("damping", "T_surge")),
+        m[1, 1] / t_sway,
+        m[2, 2] / t_sway,
+        m[3, 3] * 2.0 * float(v("damping", "zeta_roll")) * w_roll,
+        m[4, 4] * 2.0 * float(v("damping", "zeta_pitch")) * w_pitch,
+        m[5, 5] / float(v("damping", "T_yaw")),
+    )
+    return replace(p, spheroid=replace(hydro, lin=lin))
 
 
 def mass_matrices(p: VehicleParams) -> tuple[Array, Array]:
@@ -200,6 +325,8 @@ def coriolis(p: VehicleParams, nu: Array) -> tuple[Array, Array]:
     c_a[:3, 3:] = -skew(a)
     c_a[3:, :3] = -skew(a)
     c_a[3:, 3:] = -skew(b)
+    if p.spheroid is not None:  # the source's C_A: no Munk moment
+        c_a[4, 0] = c_a[4, 3] = c_a[5, 0] = c_a[5, 1] = 0.0
     return c_rb, c_a
 
 
@@ -289,6 +416,8 @@ Vec3 = tuple[float, float, float]
 
 def _tau(p: VehicleParams, nu_r: tuple[float, ...], inputs: Vec3) -> list[float]:
     """Damping, lift, fin and propeller forces as floats (the hot path of :func:`rhs`)."""
+    if p.spheroid is not None:
+        return _tau_spheroid(p, p.spheroid, nu_r, inputs)
     u, v, w, pr, q, r = nu_r
     tau = [0.0] * 6
     if p.damping:
@@ -319,6 +448,67 @@ def _tau(p: VehicleParams, nu_r: tuple[float, ...], inputs: Vec3) -> list[float]
         thrust = p.thrust_coeff * n * abs(n)
         tau[0] += thrust
         tau[3] += p.torque_per_thrust * thrust
+    return tau
+
+
+def _tau_spheroid(p: VehicleParams, s: SpheroidHydro, nu_r: tuple[float, ...],
+                  inputs: Vec3) -> list[float]:
+    """Fossen's spheroid forces (Handbook 2021, 8.4.2, as coded in his remus100 model)."""
+    u, v, w, pr, q, r = nu_r
+    tau = [0.0] * 6
+    speed2 = u * u + v * v + w * w
+    speed = math.sqrt(speed2)
+    if p.damping:
+        lin, k = s.lin, math.exp(-s.decay * speed)
+        tau[0] -= lin[0] * k * u
+        tau[1] -= lin[1] * k * v
+        tau[2] -= lin[2] * w
+        tau[3] -= lin[3] * pr
+        tau[4] -= lin[4] * q
+        tau[5] -= lin[5] * k * r
+        # cross-flow drag by strip theory, horizontal plane only (as in the source)
+        x_end = s.strips[-1]
+        if abs(v) >= abs(r) * x_end:  # one sign along the hull: sums of (v + x r)^2 x^k
+            m0, m1, m2, m3 = s.strip_moments
+            sgn = 1.0 if v > 0 else -1.0
+            y_h = sgn * (v * v * m0 + 2.0 * v * r * m1 + r * r * m2)
+            n_h = sgn * (v * v * m1 + 2.0 * v * r * m2 + r * r * m3)
+        else:
+            y_h = n_h = 0.0
+            for x in s.strips:
+                vl = v + x * r
+                f = vl * abs(vl)
+                y_h += f
+                n_h += x * f
+        tau[1] -= s.crossflow * y_h
+        tau[5] -= s.crossflow * n_h
+    alpha = math.atan2(w, u)
+    ca, sa = math.cos(alpha), math.sin(alpha)
+    cl = s.cl_alpha * alpha
+    dyn_p = 0.5 * s.rho * speed2 * s.area
+    if p.damping:  # hull drag, parasitic and induced, along the flow
+        f_drag = dyn_p * (s.cd0 + s.induced * cl * cl)
+        tau[0] -= ca * f_drag
+        tau[2] -= sa * f_drag
+    if p.lift:
+        f_lift = dyn_p * cl  # hull lift, normal to the flow, at the origin
+        tau[0] += sa * f_lift
+        tau[2] -= ca * f_lift
+        d_r, d_s = -inputs[0], -inputs[1]  # the source's fin signs
+        u_h2, u_v2 = u * u + v * v, u * u + w * w
+        y_r = -s.rudder * u_h2 * d_r
+        z_s = -s.stern * u_v2 * d_s
+        tau[0] -= s.rudder * u_h2 * d_r * d_r + s.stern * u_v2 * d_s * d_s
+        tau[1] += y_r
+        tau[2] += z_s
+        tau[4] += s.x_fin * z_s  # the source's moment arm and sign
+        tau[5] += s.x_fin * y_r
+    if p.propulsion:
+        n = inputs[2] / 60.0
+        j_term = s.wake * speed / s.d_prop * abs(n) if n > 0 else 0.0
+        d4 = s.rho * s.d_prop**4
+        tau[0] += (1.0 - s.t_prop) * d4 * (s.kt[0] * n * abs(n) + s.kt[1] * j_term)
+        tau[3] += d4 * s.d_prop * (s.kq[0] * n * abs(n) + s.kq[1] * j_term)
     return tau
 
 
@@ -361,6 +551,10 @@ def _coriolis_force(p: VehicleParams, c: _Cache, nu: tuple[float, ...]) -> list[
     axw = _cross(a, w)
     axv = _cross(a, v1)
     bxw = _cross(b, w)
+    if p.spheroid is not None:  # the zeroed Munk entries of C_A (see coriolis)
+        munk_m = -a[2] * nu[0] - b[2] * nu[3]
+        munk_n = a[1] * nu[0] - a[0] * nu[1]
+        axv = (axv[0], axv[1] + munk_m, axv[2] + munk_n)
     return [
         m * (wxv[0] - wxrgw[0]) - axw[0],
         m * (wxv[1] - wxrgw[1]) - axw[1],
