@@ -530,11 +530,15 @@ def print_all_devices(phases: list[AllPhase]) -> None:
             print(table_line(cols, (speed, r.port, r.sent, r.counted, r.lost, r.bad,
                                     r.dropped_bytes)))  # fmt: skip
     print("\nPayload size per message on the bus (MessagePack envelope v3) against its raw frame")
-    print("(CAN: several raw frames per decoded epoch), from the first phase's traffic:\n")
+    print("(CAN: several raw frames per decoded epoch), from the first phase's traffic (a port")
+    print("only later phases have: the first of those):\n")
     cols = [("port", -18), ("raw B/frame", 11), ("env B/msg", 10), ("env/raw", 8),
             ("env B/raw B", 11)]  # fmt: skip
     print_head(cols)
-    for port, (nr, br, ne, be) in sorted(phases[0].sizes.items()) if phases else []:
+    sizes: dict[str, list[int]] = {}
+    for ph in phases:  # the first phase's; a port only later phases have (the GeoSwath), theirs
+        sizes = {**ph.sizes, **sizes}
+    for port, (nr, br, ne, be) in sorted(sizes.items()):
         if nr and ne:
             print(table_line(cols, (port, f"{br / nr:.0f}", f"{be / ne:.0f}",
                                     f"{be / ne / (br / nr):.2f}x", f"{be / br:.2f}x")))  # fmt: skip
@@ -558,8 +562,8 @@ def print_all_devices(phases: list[AllPhase]) -> None:
         if on and off:
             a, b = sum(on) / len(on), sum(off) / len(off)
             print(f"GeoSwath at {speed:g}x: gateway CPU {a:.1f} % with it against {b:.1f} % "
-                  f"without ({a / b:.2f}x, +{a - b:.1f} % of a core), interleaved in the same "
-                  f"run; frames lost with it {lost} (bar: 0)")  # fmt: skip
+                  f"without ({a / b:.2f}x, {a - b:+.1f} % of a core; means of {len(on)} runs "
+                  f"each, interleaved); frames lost with it {lost} (bar: 0)")  # fmt: skip
     for speed, mode in sorted({(ph.speed, ph.ros2) for ph in phases if ph.ros2}):
         got = sum(ph.ros2_received for ph in phases if (ph.speed, ph.ros2) == (speed, mode))
         seen = f"; {got} ROS 2 messages received" if mode == "watched" else ""
