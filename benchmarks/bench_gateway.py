@@ -490,7 +490,7 @@ def all_devices_phase(
                 status = again
             for sub in size_subs:
                 sub.undeclare()
-        sim_rc = sim.wait(60 + duration / speed)
+        sim_rc = sim.wait(120 + 2 * duration / speed)  # a loaded machine slows the emulators
         reader.join(10)
     finally:
         for p in (sim, gw):
@@ -559,8 +559,8 @@ def print_all_devices(phases: list[AllPhase]) -> None:
         on = [ph.cpu_pct for ph in phases if ph.speed == speed and ph.geoswath]
         off = [ph.cpu_pct for ph in phases if ph.speed == speed and not ph.geoswath]
         lost = sum(r.lost for ph in phases if ph.speed == speed and ph.geoswath for r in ph.rows)
-        if on and off:
-            a, b = sum(on) / len(on), sum(off) / len(off)
+        a, b = (sum(on) / len(on), sum(off) / len(off)) if on and off else (0.0, 0.0)
+        if b > 0:
             print(f"GeoSwath at {speed:g}x: gateway CPU {a:.1f} % with it against {b:.1f} % "
                   f"without ({a / b:.2f}x, {a - b:+.1f} % of a core; means of {len(on)} runs "
                   f"each, interleaved); frames lost with it {lost} (bar: 0)")  # fmt: skip
