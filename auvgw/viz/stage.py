@@ -534,8 +534,8 @@ class VizStage(Stage):
         opts = self.logger.options
         side = int(ping.header["side"])
         t = self._clock(device)(_float(ping.header.get("ping_time")), t_host)
-        if t - self._raw_ping_t.get((device, side), -math.inf) < opts.raw_ping_period_s:
-            return True
+        if 0.0 <= t - self._raw_ping_t.get((device, side), -math.inf) < opts.raw_ping_period_s:
+            return True  # shown less often (a clock that went back shows the ping at once)
         self._raw_ping_t[(device, side)] = t
         a, r, amp, _ = ping_samples(ping, SwathProcessing(frequency_hz=opts.geoswath_frequency_hz))
         self.logger.raw_ping(device, t, side, np.degrees(a), r, amp)
