@@ -22,6 +22,8 @@ MS3A sample (serial or CAN)      sensor_msgs/msg/MagneticField (T)           ``m
 PD0 ensemble                     geometry_msgs/msg/TwistWithCovarianceStamped ``twist``
                                  sensor_msgs/msg/Range (altitude)            ``altitude``
 XYZ 88 / Depth (multibeam)       sensor_msgs/msg/PointCloud2 (x y z intensity) ``points``
+GeoSwath swath (XYZ 88 of the     sensor_msgs/msg/PointCloud2 (frame          ``points``
+swath stage, ``<device>_swath``)  ``<device>_swath``: the reference point)
 SeaNet mtHeadData (MSIS)         sensor_msgs/msg/PointCloud2 (one scan line)  ``returns``
 fusion Odometry                  nav_msgs/msg/Odometry (``odom`` -> ``base_link``) ``odometry``
 SLAM pose                        geometry_msgs/msg/PoseWithCovarianceStamped ``pose``
@@ -30,6 +32,12 @@ raw frame                        auvgw_msgs/msg/RawFrame (:data:`RAW_FRAME_MSG`)
 anything else (status, truth,    auvgw_msgs/msg/Decoded (:data:`DECODED_MSG`: type name
 PD6, SeaNet control, ...)        and the JSON body)
 ===============================  ==========================================  =================
+
+A GeoSwath's swaths (:mod:`auvgw.stages.swath`, device ``<device>_swath``) are soundings re the
+vehicle's reference point (the processing applied the transducer's lever arm), levelled and
+heading-aligned like a Kongsberg XYZ 88 re its transducer: their frame ``<device>_swath`` sits at
+``base_link`` with its axes (:func:`static_tf_for_config`); roll and pitch are left in, as for
+the Kongsberg multibeam's frame.
 
 The DVL twist is in the frame the DVL reports: RDI instrument axes in frame ``<device>`` (beam
 and instrument coordinates), or ``base_link`` FLU (ship and earth coordinates, made body by
@@ -319,11 +327,15 @@ def dvl_msgs(msg: Any, device: str, t_ns: int) -> list[RosMessage]:
 
 def swath_msg(msg: Any, device: str, t_ns: int) -> Any:
     """Multibeam beams (along x forward, across y starboard, depth z down, m from the transmit
-    transducer) as a PointCloud2 in frame ``device`` (FLU), intensity = reflectivity (dB)."""
+    transducer) as a PointCloud2 in frame ``device`` (FLU), intensity = reflectivity (dB); a
+    beam without a detection (XYZ 88 detection info bit 7; Depth: depth 0, which the sonar
+    writes for one) is a NaN point, never a sounding at the transducer."""
     b = msg.beams
     xyz = np.column_stack(
         [np.asarray(b.along, float), -np.asarray(b.across, float), -np.asarray(b.depth, float)]
     )
+    valid = b.valid if hasattr(b, "valid") else np.asarray(b.depth) != 0
+    xyz[~np.asarray(valid, dtype=bool)] = np.nan
     refl = getattr(b, "reflectivity", None)
     return _cloud(t_ns, device, xyz, None if refl is None else np.asarray(refl, float))
 
@@ -453,11 +465,16 @@ def static_tf(mounts: Mapping[str, Any], t_ns: int) -> Any:
 def static_tf_for_config(config: Mapping[str, Any], t_ns: int) -> Any:
     """``/tf_static`` of a gateway configuration (its JSON form): every device's frame under
     ``base_link``, at its ``[ros2.mounts]`` mount, or at the reference point with the vehicle's
-    axes for a device with none (so every sensor frame is placed); None without devices."""
+    axes for a device with none (so every sensor frame is placed), and the swath frame
+    ``<device>_swath`` of each GeoSwath device (raw samples the swath stage turns into swaths re
+    the reference point) at the reference point; None without devices."""
     from types import SimpleNamespace
 
     mounts = dict((config.get("ros2") or {}).get("mounts") or {})
-    devices = config.get("devices") or {}
+    devices = dict(config.get("devices") or {})
+    raw = {dev.format for dev, m in registry.message_types() if "samples" in m.roles}
+    devices.update({f"{d}_swath": {} for d, c in list(devices.items())
+                    if isinstance(c, Mapping) and c.get("format") in raw})  # fmt: skip
     placed = {
         d: SimpleNamespace(lever_arm_m=tuple(m.get("lever_arm_m", (0.0, 0.0, 0.0))),
                            rpy_deg=tuple(m.get("rpy_deg", (0.0, 0.0, 0.0))))

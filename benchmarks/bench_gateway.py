@@ -44,6 +44,12 @@ the niced gateway waits for the scheduler, and the latencies (``read p50``: ``os
 gateway's receive stamp, before any gateway code runs) and the 10x losses (emulators whose ptys
 fill while the gateway waits) measure that wait; compare with the load printed beside them.
 
+``--geoswath N``: N pairs of all-devices runs at 1x and ``--all-factor``, each without and then
+with the GeoSwath emulator (harbour terrain, 250 kHz, sides alternating, 4 pings/s of about
+4000 samples, one UDP datagram each) beside the five; the gateway's CPU with it against without,
+same run, and its frames lost (bar: 0). The swath processing's own cost per ping is
+``benchmarks/bench_geoswath.py``'s (it runs in the swath stage, not the gateway).
+
 Third table, **INS over CAN** (``--can-seconds``, 0 to skip; ``--only-can``): an emulated
 SLCAN adapter in this process sends HN-100 epochs (8 frames per 100 Hz sample, pre-encoded) at
 1x, 4x and 10x (800, 3200, 8000 frames/s) to ``auvgw run``; per speed the frames sent, dropped
@@ -355,14 +361,21 @@ class AllPhase:
     ros2: str = ""
     #: ROS 2 messages this script received (watched)
     ros2_received: int = 0
+    #: the GeoSwath emulator ran too (--geoswath)
+    geoswath: bool = False
 
 
-def all_devices_scenario(path: Path, t_open: float, t_close: float) -> Path:
-    """A copy of the harbour scenario: INS CAN off; every device silent before ``t_open`` and
+def all_devices_scenario(
+    path: Path, t_open: float, t_close: float, geoswath: bool = False
+) -> Path:
+    """A copy of the harbour scenario: INS CAN off; with ``geoswath`` the GeoSwath emulator on
+    (250 kHz, sides alternating, 4 pings/s: UDP); every device silent before ``t_open`` and
     from ``t_close`` (vehicle s)."""
     scn = json.loads((REPO_ROOT / "config" / "scenarios" / "harbour.json").read_text())
     devices = scn.setdefault("devices", {})
-    for name in ALL_DEVICES:
+    if geoswath:
+        devices.setdefault("geoswath", {})["enabled"] = True
+    for name in (*ALL_DEVICES, *(("geoswath",) if geoswath else ())):
         faults = devices.setdefault(name, {}).setdefault("faults", {})
         faults["stall"] = [*faults.get("stall", []), [0.0, t_open], [t_close, 1e9]]
     devices["ins"].setdefault("options", {})["can"] = False
@@ -387,19 +400,20 @@ def all_devices_phase(
     warm_s: float = 8.0,
     tail_s: float = 6.0,
     ros2: str = "",
+    geoswath: bool = False,
 ) -> AllPhase:
     """Every emulated device at ``speed`` for ``seconds`` of wall time, read by ``auvgw run``
     (``ros2``: with its ``[ros2]`` bridge on, "watched": and a subscriber here on every ROS 2
-    data key of domain 0)."""
+    data key of domain 0; ``geoswath``: the GeoSwath on UDP as well)."""
     from auvgw.drivers.can_codec import DbcCodec
     from auvgw.ground.paths import config_file
     from auvgw.sim_devices.runner import gateway_toml
     from auvgw.subscribe import GatewaySubscriber
 
-    out = Path(tempfile.mkdtemp(prefix=f"all-{speed:g}x{'-ros2-' + ros2 if ros2 else ''}-",
-                                dir=tmp))  # fmt: skip
+    tag = f"{'-ros2-' + ros2 if ros2 else ''}{'-geoswath' if geoswath else ''}"
+    out = Path(tempfile.mkdtemp(prefix=f"all-{speed:g}x{tag}-", dir=tmp))
     t_open, t_close = warm_s * speed, (warm_s + seconds) * speed
-    scn = all_devices_scenario(tmp / f"harbour-{speed:g}x.json", t_open, t_close)
+    scn = all_devices_scenario(tmp / f"harbour-{speed:g}x{tag}.json", t_open, t_close, geoswath)
     duration = t_close + tail_s * speed
     sim_log = open(out / "sim.log", "wb")  # noqa: SIM115 - closed below
     sim = subprocess.Popen(
@@ -476,7 +490,7 @@ def all_devices_phase(
                 status = again
             for sub in size_subs:
                 sub.undeclare()
-        sim_rc = sim.wait(60 + duration / speed)
+        sim_rc = sim.wait(120 + 2 * duration / speed)  # a loaded machine slows the emulators
         reader.join(10)
     finally:
         for p in (sim, gw):
@@ -499,7 +513,7 @@ def all_devices_phase(
         rows.append(AllRow(p, sent, int(st.get("frames", -1)), int(st.get("bad_frames", 0)),
                            dropped))  # fmt: skip
     cpu = (c1 - c0) / CLK_TCK / (m1 - m0) * 100
-    return AllPhase(speed, seconds, cpu, rows, sim_rc, sizes, ros2, ros2_seen[0])
+    return AllPhase(speed, seconds, cpu, rows, sim_rc, sizes, ros2, ros2_seen[0], geoswath)
 
 
 def print_all_devices(phases: list[AllPhase]) -> None:
@@ -507,19 +521,24 @@ def print_all_devices(phases: list[AllPhase]) -> None:
         "\nAll five emulated devices (harbour scenario, auvgw sim --processes; INS CAN off, "
         f"see the docstring); machine load {os.getloadavg()[0]:.1f}\n"
     )
-    cols = [("speed", 5), ("port", -18), ("sent", 7), ("counted", 8), ("lost", 5), ("bad", 4),
+    cols = [("speed", 8), ("port", -18), ("sent", 7), ("counted", 8), ("lost", 5), ("bad", 4),
             ("sim dropped B", 13)]  # fmt: skip
     print_head(cols)
     for ph in phases:
         for r in ph.rows:
-            print(table_line(cols, (f"{ph.speed:g}x", r.port, r.sent, r.counted, r.lost, r.bad,
+            speed = f"{ph.speed:g}x{'+gs' if ph.geoswath else ''}"
+            print(table_line(cols, (speed, r.port, r.sent, r.counted, r.lost, r.bad,
                                     r.dropped_bytes)))  # fmt: skip
     print("\nPayload size per message on the bus (MessagePack envelope v3) against its raw frame")
-    print("(CAN: several raw frames per decoded epoch), from the first phase's traffic:\n")
+    print("(CAN: several raw frames per decoded epoch), from the first phase's traffic (a port")
+    print("only later phases have: the first of those):\n")
     cols = [("port", -18), ("raw B/frame", 11), ("env B/msg", 10), ("env/raw", 8),
             ("env B/raw B", 11)]  # fmt: skip
     print_head(cols)
-    for port, (nr, br, ne, be) in sorted(phases[0].sizes.items()) if phases else []:
+    sizes: dict[str, list[int]] = {}
+    for ph in phases:  # the first phase's; a port only later phases have (the GeoSwath), theirs
+        sizes = {**ph.sizes, **sizes}
+    for port, (nr, br, ne, be) in sorted(sizes.items()):
         if nr and ne:
             print(table_line(cols, (port, f"{br / nr:.0f}", f"{be / ne:.0f}",
                                     f"{be / ne / (br / nr):.2f}x", f"{be / br:.2f}x")))  # fmt: skip
@@ -527,8 +546,8 @@ def print_all_devices(phases: list[AllPhase]) -> None:
     for ph in phases:
         lost = sum(r.lost for r in ph.rows)
         print(
-            f"at {ph.speed:g}x{f' with [ros2], {ph.ros2}' if ph.ros2 else ''} "
-            f"({ph.seconds:g} s sending): "
+            f"at {ph.speed:g}x{f' with [ros2], {ph.ros2}' if ph.ros2 else ''}"
+            f"{' with the GeoSwath' if ph.geoswath else ''} ({ph.seconds:g} s sending): "
             f"gateway CPU {ph.cpu_pct:.1f} % of a core (target < 35 % at 10x); frames lost "
             f"{lost} (bar: 0); sim exit {ph.sim_rc}"
         )
@@ -536,6 +555,15 @@ def print_all_devices(phases: list[AllPhase]) -> None:
         cpus = [ph.cpu_pct for ph in phases if ph.speed == speed and ph.ros2 == mode]
         return sum(cpus) / len(cpus) if cpus else float("nan")
 
+    for speed in sorted({ph.speed for ph in phases if ph.geoswath}):
+        on = [ph.cpu_pct for ph in phases if ph.speed == speed and ph.geoswath]
+        off = [ph.cpu_pct for ph in phases if ph.speed == speed and not ph.geoswath]
+        lost = sum(r.lost for ph in phases if ph.speed == speed and ph.geoswath for r in ph.rows)
+        a, b = (sum(on) / len(on), sum(off) / len(off)) if on and off else (0.0, 0.0)
+        if b > 0:
+            print(f"GeoSwath at {speed:g}x: gateway CPU {a:.1f} % with it against {b:.1f} % "
+                  f"without ({a / b:.2f}x, {a - b:+.1f} % of a core; means of {len(on)} runs "
+                  f"each, interleaved); frames lost with it {lost} (bar: 0)")  # fmt: skip
     for speed, mode in sorted({(ph.speed, ph.ros2) for ph in phases if ph.ros2}):
         got = sum(ph.ros2_received for ph in phases if (ph.speed, ph.ros2) == (speed, mode))
         seen = f"; {got} ROS 2 messages received" if mode == "watched" else ""
@@ -752,12 +780,14 @@ def all_devices_run(args: argparse.Namespace) -> list[AllPhase]:
     seconds = 10.0 if args.quick else args.all_seconds
     with tempfile.TemporaryDirectory(prefix="bench-gw-all-") as tmp:
         speeds = (args.all_factor,) if args.ros2 else (1.0, args.all_factor)
-        # with --ros2: plain and bridged runs interleaved, so the machine's drift hits both
+        # with --ros2 (--geoswath): plain and bridged runs (runs with the GeoSwath)
+        # interleaved, so the machine's drift hits both
         return [
-            all_devices_phase(Path(tmp), k, seconds, warm_s=args.all_warm, ros2=r)
-            for _ in range(args.ros2 or 1)
+            all_devices_phase(Path(tmp), k, seconds, warm_s=args.all_warm, ros2=r, geoswath=g)
+            for _ in range(max(args.ros2, args.geoswath, 1))
             for k in speeds
             for r in (("", "unwatched", "watched") if args.ros2 else ("",))
+            for g in ((False, True) if args.geoswath else (False,))
         ]
 
 
@@ -907,6 +937,9 @@ def main() -> int:
                     help="all-devices run: N triples at --all-factor, without the gateway's "
                          "[ros2] bridge, with it and no ROS 2 subscriber, with it and a "
                          "subscriber on every topic")  # fmt: skip
+    ap.add_argument("--geoswath", type=int, default=0, metavar="N",
+                    help="all-devices run: N pairs at 1x and --all-factor, without and with "
+                         "the GeoSwath emulator (UDP) beside the five devices")  # fmt: skip
     ap.add_argument(
         "--can-seconds",
         type=float,

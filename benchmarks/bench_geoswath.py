@@ -13,12 +13,17 @@ Second table: per ping of each model (125, 250, 500 kHz) over the flat 40 m seab
 altitude, the emulator's samples (``side_samples``: the terrain fan and the defects), the encode,
 and the swath processing (``ping_soundings``: range, angle, filters, geometry, across-track
 median; then ``SwathProcessor.add``, the binning of a 1 Hz swath amortised), with the
-processing's ratio to the decode of the same ping.
+processing's ratio to the decode of the same ping, and the share of one core the processing
+(the swath stage's work) takes at 4 pings/s (1x) and 40 pings/s (10x).
+
+Times are this process's CPU time (``time.process_time``) unless ``--wall``: on a shared machine
+at a load of several times its cores, wall times mostly measure the wait for a core.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import time
 
@@ -30,6 +35,10 @@ from auvgw.sim_devices.world import FlatTerrain, World
 from auvgw.slam.bathymetric.swath_processing import SwathProcessing, SwathProcessor, ping_soundings
 
 SIZES = (1000, 4000, 16000)
+#: the timer (main: CPU time of this process unless --wall)
+clock = time.process_time
+#: pings per second of one GeoSwath (sides alternating) at nominal speed
+PING_RATE_HZ = 4.0
 
 
 def build(n: int, k: int, rng: np.random.Generator) -> GeoSwathPing:
@@ -52,7 +61,13 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rounds", type=int, default=7)
     ap.add_argument("--pings", type=int, default=200)
+    ap.add_argument("--wall", action="store_true",
+                    help="time on the wall clock (default: this process's CPU time, which a "
+                         "loaded machine's waits for a core leave out)")  # fmt: skip
     args = ap.parse_args()
+    global clock
+    clock = time.perf_counter if args.wall else time.process_time
+    print(f"({'wall' if args.wall else 'CPU'} time; machine load {os.getloadavg()[0]:.1f})\n")
     codec = default_codec()
     rng = np.random.default_rng(0)
     print(
@@ -66,22 +81,22 @@ def main() -> None:
         stream = b"".join(wire)
         times: dict[str, list[float]] = {"enc": [], "dec": [], "frm": []}
         for _ in range(args.rounds):
-            t = time.perf_counter()
+            t = clock()
             for p in pings:
                 codec.encode(p)
-            times["enc"].append(time.perf_counter() - t)
-            t = time.perf_counter()
+            times["enc"].append(clock() - t)
+            t = clock()
             for w in wire:
                 codec.decode(w)
-            times["dec"].append(time.perf_counter() - t)
-            t = time.perf_counter()
+            times["dec"].append(clock() - t)
+            t = clock()
             fr = GeoSwathFramer(codec)
             got = 0
             for i in range(0, len(stream), 1 << 16):
                 for rec in fr.feed(stream[i : i + (1 << 16)]):
                     codec.decode_ping(rec.data)
                     got += 1
-            times["frm"].append(time.perf_counter() - t)
+            times["frm"].append(clock() - t)
             assert got == len(pings) and fr.stats.bad_frames == 0
         us = {k: statistics.median(v) / len(pings) * 1e6 for k, v in times.items()}
         print(
@@ -92,20 +107,20 @@ def main() -> None:
     print()
     print(
         "| model kHz | samples | emulate us | encode us | decode us | soundings us "
-        "| processor us | processor/decode |"
+        "| processor us | processor/decode | processing % core 1x | 10x |"
     )
-    print("|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     world = World(terrain=FlatTerrain(40.0), sound_speed=1500.0)
     for freq, max_range in MODELS.items():
         k_pings = max(args.pings // 10, 8)
         cfg = SwathProcessing(frequency_hz=freq)
         t_em: dict[str, list[float]] = {"emu": [], "enc": [], "dec": [], "snd": [], "proc": []}
         for _ in range(args.rounds):
-            t = time.perf_counter()
+            t = clock()
             raws = [side_samples(world, np.array([0.25 * k, 0.0, 25.0]), 0.0, 0.01, 0.02,
                                  k % 2, freq, max_range, rng) for k in range(k_pings)]  # fmt: skip
-            t_em["emu"].append(time.perf_counter() - t)
-            t = time.perf_counter()
+            t_em["emu"].append(clock() - t)
+            t = clock()
             wire = [
                 codec.encode(codec.make_ping(
                     {"ping_time": 1000.0 + 0.25 * k, "side": k % 2},
@@ -114,25 +129,26 @@ def main() -> None:
                 ))
                 for k, r in enumerate(raws)
             ]  # fmt: skip
-            t_em["enc"].append(time.perf_counter() - t)
-            t = time.perf_counter()
+            t_em["enc"].append(clock() - t)
+            t = clock()
             decoded = [codec.decode_ping(w) for w in wire]
-            t_em["dec"].append(time.perf_counter() - t)
-            t = time.perf_counter()
+            t_em["dec"].append(clock() - t)
+            t = clock()
             for p in decoded:
                 ping_soundings(p, cfg)
-            t_em["snd"].append(time.perf_counter() - t)
+            t_em["snd"].append(clock() - t)
             proc = SwathProcessor(cfg)
-            t = time.perf_counter()
+            t = clock()
             for p in decoded:
                 proc.add(p)
             proc.flush()
-            t_em["proc"].append(time.perf_counter() - t)
+            t_em["proc"].append(clock() - t)
         us = {k: statistics.median(v) / k_pings * 1e6 for k, v in t_em.items()}
         print(
             f"| {freq // 1000} | {len(raws[0].time)} | {us['emu']:.0f} | {us['enc']:.0f} | "
             f"{us['dec']:.0f} | {us['snd']:.0f} | {us['proc']:.0f} | "
-            f"{us['proc'] / us['dec']:.1f} |"
+            f"{us['proc'] / us['dec']:.1f} | {us['proc'] * PING_RATE_HZ / 1e4:.1f} | "
+            f"{us['proc'] * PING_RATE_HZ / 1e3:.1f} |"
         )
 
 

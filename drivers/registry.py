@@ -49,6 +49,8 @@ ROLES: dict[str, str] = {
     "velocity": "bottom-track velocity and altitude: fusion's velocity source, Rerun DVL plot",
     "sonar": "one imaging-sonar ping (bearing, bins): landmark SLAM features, Rerun sonar view",
     "swath": "one multibeam swath (per-beam xyz): bathymetric SLAM, Rerun point cloud",
+    "samples": "one side's raw interferometric samples (time, angle, amplitude): the swath "
+    "stage's input, Rerun raw-ping view",
     "field": "a magnetic flux density vector (nT): magnetic SLAM, Rerun field plot",
     "range": "a range (and bearing) to an acoustic beacon: magnetic SLAM's anchor",
     "actuators": "measured shaft speed, fin angles, motor current and faults of the vehicle's "
@@ -178,7 +180,7 @@ DEVICES: tuple[DeviceKind, ...] = (
         table_codec=f"{_D}.geoswath:GeoSwathCodec",
         emulator=Emulator("geoswath", f"{_S}.geoswath:GeoSwathEmulator", default_on=False),
         protocol_doc="geoswath.md",
-        messages=(MessageType("GeoSwathPing"), MessageType("RdfFileHeader")),
+        messages=(MessageType("GeoSwathPing", roles=("samples",)), MessageType("RdfFileHeader")),
     ),
     DeviceKind(
         "ms3a", f"{_D}.ms3a:FORMAT", table="ms3a.toml", table_codec=f"{_D}.ms3a:Ms3aCodec",

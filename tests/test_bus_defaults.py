@@ -164,6 +164,7 @@ def _check_ros2_readers(path: Path, envelopes: list[tuple[str, bytes]]) -> None:
         if name == "points":
             b = msg.beams
             xyzi = np.column_stack([b.along, -b.across, -b.depth, b.reflectivity])
+            xyzi[~b.valid, :3] = np.nan  # no detection: a NaN point
             return tuple(xyzi.astype("<f4").reshape(-1))
         if name in ("twist", "altitude"):
             # the DVL: bottom-track velocity in the frame it reports (ship here, levelled into

@@ -42,6 +42,19 @@ def _max_hn100(frame: bytes) -> bytes:
     return frame[:2] + struct.pack("<H", 0xFFFF) + frame[4:]
 
 
+def _max_geoswath(ping: bytes) -> bytes:
+    """The most RAA samples the table allows, ``ping_size`` raised to match (no sync, no
+    checksum: the header is self-consistent and claims about 200 kB)."""
+    from auvgw.drivers.geoswath import default_codec
+
+    lay = default_codec().layout
+    out = bytearray(ping)
+    n, size = struct.unpack_from("<i", out, 32)[0], struct.unpack_from("<i", out, 16)[0]
+    struct.pack_into("<i", out, 32, lay.max_samples)
+    struct.pack_into("<i", out, 16, size + (lay.max_samples - n) * 6)
+    return bytes(out)
+
+
 def _unterminated(line: bytes) -> bytes:
     return line.rstrip(b"\r\n")  # a line claims everything up to its terminator
 
@@ -51,6 +64,7 @@ MAXIMAL = {
     "seanet": _max_seanet,
     "kongsberg": _max_kongsberg,
     "hn100": _max_hn100,
+    "geoswath": _max_geoswath,
     "ms3a": _unterminated,
     "pd6": _unterminated,
 }

@@ -414,7 +414,7 @@ def _run_stages(
         # the SLAM stage's outputs come in-process (on_slam): subscribed too, every SLAM row
         # was logged twice, and out of order where the two paths crossed (issue 33)
         viz = open_viz(session, gw_cfg.vehicle, rrd=rrd, connect=args.connect,
-                       sections=("status",))  # fmt: skip
+                       options=_viz_options(scn), sections=("status",))  # fmt: skip
 
     bathy_map: list[bytes] = []  # the bathymetric stage's latest DEM tile (the whole map last)
 
@@ -799,7 +799,7 @@ def _run_processes(
         magnetic = not args.no_slam and _is_magnetic(scn)
         if bathy and scn.devices.geoswath.enabled:  # its pings -> the swath stage -> SLAM
             slam_cfg = _bathy_config(VEHICLE, "geoswath_swath")
-            khz = float(scn.devices.geoswath.options.get("model_khz", 250))
+            khz = _geoswath_khz(scn)
             children.start("swath", ["swath", "--vehicle", VEHICLE, "--device", "geoswath",
                                      "--set", f"frequency_hz={khz * 1000.0}",
                                      "--connect", hub, "--listen", free_endpoint()])  # fmt: skip
@@ -1059,6 +1059,19 @@ def _bathy_stage(gw_cfg: Any, session: Any, on_publish: Any) -> Any:
     return BathymetricStage(cfg, session=session, on_publish=on_publish)
 
 
+def _viz_options(scn: Any) -> Any:
+    """The Rerun logger's options: the GeoSwath's frequency (its raw pings' sample times count
+    wavelengths) from the scenario's model."""
+    from auvgw.viz.options import VizOptions
+
+    return VizOptions(geoswath_frequency_hz=_geoswath_khz(scn) * 1000.0)
+
+
+def _geoswath_khz(scn: Any) -> float:
+    """The scenario's GeoSwath model (kHz: 125, 250 or 500)."""
+    return float(scn.devices.geoswath.options.get("model_khz", 250))
+
+
 def _swath_stage(gw_cfg: Any, scn: Any, session: Any, on_publish: Any) -> Any:
     """The in-process swath stage on the gateway's GeoSwath device (None: none), processing
     at the frequency of the scenario's GeoSwath model."""
@@ -1067,7 +1080,7 @@ def _swath_stage(gw_cfg: Any, scn: Any, session: Any, on_publish: Any) -> Any:
     device = _geoswath_device(gw_cfg)
     if device is None:
         return None
-    khz = float(scn.devices.geoswath.options.get("model_khz", 250))
+    khz = _geoswath_khz(scn)
     cfg = SwathStageConfig(vehicle=gw_cfg.vehicle, device=device,
                            processing={"frequency_hz": khz * 1000.0})  # fmt: skip
     return SwathStage(cfg, session=session, on_publish=on_publish)

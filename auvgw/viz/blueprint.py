@@ -7,6 +7,9 @@ Sent with every recording (file or live viewer), so a new user sees everything a
   particles and, underneath, the gridded mean depth (one disc per cell in depth colours).
 * **Swath & bathymetry** (3-D, ``world/**``, NED): every multibeam sounding coloured by depth
   (accumulated), the 3-D trajectories, the vehicle frame with its magnetic field arrow.
+* **GeoSwath raw ping** (2-D, ``raw_ping/**``, under the swath view once a GeoSwath ping came):
+  the latest ping of each side, slant range (m, down) against return angle (deg, port
+  negative), one point per sample coloured by amplitude.
 * **Sonar fan** (2-D, ``sonar/**``): the MSIS scan accumulated over the current sweep, with
   range rings and the vehicle at the centre.
 * **INS attitude**, **DVL**, **Magnetometer**: time series over a window before the cursor, one
@@ -42,6 +45,7 @@ from auvgw.viz.entities import (
     MAP,
     MAP_BATHYMETRY,
     PILOT_VIEWS,
+    RAW_PING,
     SONAR,
     SOUNDINGS,
     TIMELINE,
@@ -50,7 +54,7 @@ from auvgw.viz.entities import (
     world_path,
 )
 
-__all__ = ["DEFAULT_TRACKS", "VIEW_NAMES", "default_blueprint", "save_blueprint"]
+__all__ = ["DEFAULT_TRACKS", "RAW_PING_VIEW", "VIEW_NAMES", "default_blueprint", "save_blueprint"]
 
 #: the trajectories every layout accumulates (SLAM pipelines are added as they appear)
 DEFAULT_TRACKS: tuple[str, ...] = ("truth", "dead_reckoning")
@@ -75,6 +79,11 @@ VIEW_NAMES: tuple[str, ...] = (
     "Fusion DVL noise (m/s)",
     "Counters",
     "Events",
+)
+
+#: the GeoSwath raw-ping view (in the layout once a raw ping was logged)
+RAW_PING_VIEW = (
+    "GeoSwath raw ping (x: return angle deg, port < 0; y: slant range m; colour: amplitude)"
 )
 
 #: the health views' origins, in the order of VIEW_NAMES[10:16] (health/<group>)
@@ -104,11 +113,12 @@ def default_blueprint(
     timeline: str = TIMELINE,
     series_window_s: float = 120.0,
     fan_pixels: int = 256,
+    raw_ping: bool = False,
 ) -> rrb.Blueprint:
     """The auvgw layout; ``tracks`` are the trajectory names whose line strips accumulate
     (``truth``, ``dead_reckoning``, ``slam/<pipeline>``); time series show the last
     ``series_window_s`` seconds before the cursor; the sonar view frames the fan image
-    (``fan_pixels`` square)."""
+    (``fan_pixels`` square); ``raw_ping`` puts the GeoSwath raw-ping view under the swath."""
     names = list(dict.fromkeys([*DEFAULT_TRACKS, *tracks]))
     fan = (0.0, float(fan_pixels))
     history = _history(timeline)
@@ -128,12 +138,18 @@ def default_blueprint(
         rrb.TimeSeriesView(name=VIEW_NAMES[10 + i], origin=o, plot_legend=legend)
         for i, o in enumerate(_HEALTH_VIEWS)
     ]
+    swath: rrb.Spatial3DView | rrb.Vertical = rrb.Spatial3DView(
+        name=VIEW_NAMES[1], origin=WORLD, overrides=world_overrides
+    )
+    if raw_ping:  # the raw samples beside the swath they make
+        swath = rrb.Vertical(swath, rrb.Spatial2DView(name=RAW_PING_VIEW, origin=RAW_PING,
+                                                      background=[0, 0, 0]), row_shares=[1.6, 1.0])
     views = rrb.Vertical(
         rrb.Horizontal(
             rrb.Spatial2DView(
                 name=VIEW_NAMES[0], origin=MAP, overrides=map_overrides, background=[20, 24, 32]
             ),
-            rrb.Spatial3DView(name=VIEW_NAMES[1], origin=WORLD, overrides=world_overrides),
+            swath,
             rrb.Spatial2DView(
                 name=VIEW_NAMES[2],
                 origin=SONAR,

@@ -25,6 +25,7 @@ __all__ = [
     "MAP_BATHYMETRY",
     "MAP_GRID",
     "MEAN_DEPTH",
+    "RAW_PING",
     "SONAR",
     "SONAR_BEAM",
     "SONAR_FAN",
@@ -40,6 +41,7 @@ __all__ = [
     "health_group",
     "health_path",
     "map_path",
+    "raw_ping_path",
     "track_segment",
     "world_path",
 ]
@@ -52,6 +54,10 @@ TIMELINE = "sensor_time"
 MAP = "map"
 WORLD = "world"
 SONAR = "sonar"
+#: the latest raw ping of each GeoSwath side: ``raw_ping/<device>/<port|starboard>``, a 2-D
+#: chart (x return angle, deg from the vertical, port negative; y slant range, m, down), one
+#: point per sample coloured by amplitude
+RAW_PING = "raw_ping"
 
 #: gridded mean depth on the map: the cells updated since the previous log, as discs in depth
 #: colours (the layout accumulates them)
@@ -99,6 +105,11 @@ def track_segment(name: str) -> str:
 def map_path(name: str, what: str) -> str:
     """2-D map entity of trajectory ``name``: ``map/<name>/<what>``."""
     return f"{MAP}/{track_segment(name)}/{what}"
+
+
+def raw_ping_path(device: str, side: int) -> str:
+    """Raw-ping entity of one GeoSwath side (0 port, 1 starboard): ``raw_ping/<device>/<side>``."""
+    return f"{RAW_PING}/{track_segment(device)}/{'starboard' if side == 1 else 'port'}"
 
 
 def world_path(name: str, what: str) -> str:

@@ -47,6 +47,7 @@ __all__ = [
     "LoggerStats",
     "RerunLogger",
     "VizOptions",
+    "amplitude_colours",
     "depth_colours",
     "ellipse_strips",
 ]
@@ -171,6 +172,18 @@ _FAN_SCALE = np.array(
      (250, 193, 39), (252, 255, 164)],
     dtype=np.float64,
 )  # fmt: skip
+
+
+def amplitude_colours(amp: np.ndarray) -> np.ndarray:
+    """RGB (n, 3) uint8 of sonar amplitudes on the fan's inferno-like scale, logarithmic from
+    the 1st (black) to the 99.5th percentile (pale yellow) of ``amp``."""
+    la = np.log10(np.maximum(np.asarray(amp, dtype=np.float64), 1.0))
+    if not la.size:
+        return np.zeros((0, 3), dtype=np.uint8)
+    lo, hi = np.percentile(la, [1.0, 99.5])
+    f = np.clip((la - lo) / max(hi - lo, 1e-9), 0.0, 1.0)
+    x = np.linspace(0.0, 1.0, len(_FAN_SCALE))
+    return np.stack([np.interp(f, x, _FAN_SCALE[:, c]) for c in range(3)], axis=1).astype(np.uint8)
 
 
 def _fan_colours(lo: float, hi: float) -> rr.AnnotationContext:
@@ -420,6 +433,7 @@ class RerunLogger(Closing):
             self._rec.connect_grpc(connect)
         self._send_blueprint = blueprint
         self._bp_tracks: list[str] = list(DEFAULT_TRACKS)
+        self._bp_raw_ping = False  # the layout has the GeoSwath raw-ping view
         if blueprint:
             self._rec.send_blueprint(default_blueprint(self._bp_tracks))
         self._q: queue.Queue[Any] = queue.Queue(maxsize=max(1, opts.queue_size))
@@ -647,6 +661,21 @@ class RerunLogger(Closing):
             ok &= v
         pose = (float(x), float(y), float(z), float(heading))
         return self._put("swath", (float(t), a[ok], c[ok], d[ok], pose), float(t))
+
+    def raw_ping(
+        self, device: str, t: float, side: int, angle_deg: Any, range_m: Any, amplitude: Any
+    ) -> bool:
+        """The raw samples of one GeoSwath ping of ``side`` (0 port, 1 starboard): return angle
+        (deg from the vertical, positive outward on that side), slant range (m) and amplitude
+        (wire counts) per sample, drawn on ``raw_ping/<device>/<side>`` (replacing that side's
+        previous ping) at x = the angle (port negative), y = the range, coloured by amplitude
+        (log scale, the ping's 1st to 99.5th percentile); at most ``raw_ping_max_samples``
+        (every k-th sample beyond)."""
+        a = np.array(angle_deg, dtype=np.float64).reshape(-1)
+        r = np.array(range_m, dtype=np.float64).reshape(-1)
+        amp = np.array(amplitude, dtype=np.float64).reshape(-1)
+        _same_length("raw_ping", angle=a, range=r, amplitude=amp)
+        return self._put("raw_ping", (str(device), float(t), int(side), a, r, amp), float(t))
 
     # bathymetric SLAM map (slam/<p>/cloud and slam/<p>/map DEM tiles) ------------------------
     def seabed(self, name: str, t: float, points: Any) -> bool:
@@ -961,7 +990,9 @@ class RerunLogger(Closing):
             seg = ent.track_segment(name)
             if self._send_blueprint and seg not in self._bp_tracks:
                 self._bp_tracks.append(seg)
-                self._rec.send_blueprint(default_blueprint(self._bp_tracks))
+                self._rec.send_blueprint(
+                    default_blueprint(self._bp_tracks, raw_ping=self._bp_raw_ping)
+                )
             log_static = self._rec.log
             width, order = _TRACK_STYLE.get(seg, _TRACK_STYLE_OTHER)
             log_static(
@@ -1241,6 +1272,24 @@ class RerunLogger(Closing):
         self._fan_t = t
         if t - self._fan_logged_t >= self.options.fan_period_s:
             self._log_fan(t, bearing)
+
+    def _do_raw_ping(
+        self, device: str, t: float, side: int, a: np.ndarray, r: np.ndarray, amp: np.ndarray
+    ) -> None:
+        if self._send_blueprint and not self._bp_raw_ping:
+            self._bp_raw_ping = True
+            self._rec.send_blueprint(default_blueprint(self._bp_tracks, raw_ping=True))
+        ok = np.isfinite(a) & np.isfinite(r) & np.isfinite(amp)
+        a, r, amp = a[ok], r[ok], amp[ok]
+        step = -(-len(a) // max(1, self.options.raw_ping_max_samples))  # ceil
+        a, r, amp = a[::step], r[::step], amp[::step]
+        x = -a if side == 0 else a
+        self._set_time(t)
+        self._rec.log(
+            ent.raw_ping_path(device, side),
+            rr.Points2D(np.column_stack([x, r]), colors=amplitude_colours(amp),
+                        radii=rr.Radius.ui_points(1.5)),
+        )  # fmt: skip
 
     def _do_swath(
         self,

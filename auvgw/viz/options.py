@@ -62,3 +62,10 @@ class VizOptions:
     counters_period_s: float = 1.0
     #: magnetic arrow length per nT (m/nT): 1e-4 draws 50 000 nT as 5 m
     mag_arrow_m_per_nt: float = 1e-4
+    #: the GeoSwath's sonar frequency (Hz): its RAA sample times count wavelengths, and the
+    #: broadcast ping does not say (the swath stage's ``frequency_hz``)
+    geoswath_frequency_hz: float = 250_000.0
+    #: device seconds between two raw-ping views of one GeoSwath side (the latest ping is shown)
+    raw_ping_period_s: float = 1.0
+    #: samples drawn of a raw ping at most (every k-th sample beyond)
+    raw_ping_max_samples: int = 4096

@@ -17,7 +17,7 @@ from rerun.chunk import RrdReader
 
 from auvgw.viz.entities import TIMELINE
 
-__all__ = ["EntityRows", "health_metrics", "read_recording", "read_views"]
+__all__ = ["EntityRows", "health_metrics", "read_layouts", "read_recording", "read_views"]
 
 
 @dataclass
@@ -91,14 +91,23 @@ def health_metrics(rec: dict[str, EntityRows], device: str) -> list[tuple[int, d
     return out
 
 
+def read_layouts(path: str | Path) -> list[list[tuple[str, str, str]]]:
+    """The views (class, display name, origin) of every layout stored in ``path`` (a logger
+    re-sends its layout as views are added; the stores come in no guaranteed order)."""
+    reader = RrdReader(str(path))
+    return [_views(reader, store) for store in reader.blueprints()]
+
+
 def read_views(path: str | Path) -> list[tuple[str, str, str]]:
     """(class, display name, origin) of every view in the last layout stored in ``path``."""
     reader = RrdReader(str(path))
     stores = reader.blueprints()
-    if not stores:
-        return []
+    return _views(reader, stores[-1]) if stores else []
+
+
+def _views(reader: RrdReader, store: Any) -> list[tuple[str, str, str]]:
     views: list[tuple[str, str, str]] = []
-    for chunk in reader.stream(store=stores[-1]):
+    for chunk in reader.stream(store=store):
         rb = chunk.to_record_batch()
         if "ViewBlueprint:class_identifier" not in rb.schema.names:
             continue

@@ -11,6 +11,9 @@ role ``swath`` (Kongsberg XYZ 88, Depth)      swath points + bathymetric grid, p
 role ``velocity`` (PD0 ``ensemble``)           DVL velocity (bottom track, vehicle over bottom),
                                                altitude, bottom lock
 role ``sonar`` (SeaNet ``mtheaddata``)         MSIS scan line into the sonar fan
+role ``samples`` (GeoSwath ``geoswathping``)   the latest raw ping per side (range against
+                                               return angle, amplitude), every
+                                               ``raw_ping_period_s`` device s
 role ``attitude`` (``roll, pitch, heading``)   INS attitude (HN-100 binary or CAN, PD6 ``sa``)
 role ``field`` (``bx, by, bz`` in nT)          magnetometer (MS3A ASCII or CAN sample)
 role ``range`` (acoustic ``AcousticReply``)    a line from the navigation pose to the fix
@@ -74,7 +77,7 @@ IGNORED_TYPES = frozenset(
 #: registry roles whose handlers need the typed message (rebuilt from JSON with the codec's
 #: class, its module imported lazily so a missing or broken codec only loses its own messages);
 #: the other roles' handlers read plain fields
-_TYPED_ROLES = ("swath", "velocity", "sonar")
+_TYPED_ROLES = ("swath", "velocity", "sonar", "samples")
 
 
 class _Obj:
@@ -229,10 +232,12 @@ class VizStage(Stage):
         self._pilot_mode: str | None = None  # the autopilot's mode last shown
         self._losses: dict[str, dict[str, float]] = {}  # the loss counters seen, per device
         self._t_last = 0.0  # the newest data time (sensor, odometry stamps), s; never goes back
+        self._raw_ping_t: dict[tuple[str, int], float] = {}  # raw ping shown last, per side
         #: device registry role -> handler; a message type is shown by the first of its roles
         #: that has one (registry.MessageType.roles)
         self._role_handlers: dict[str, Callable[[str, Any, float], bool]] = {
             "swath": self._swath,
+            "samples": self._raw_ping,
             "velocity": self._dvl,
             "sonar": self._msis,
             "attitude": self._attitude,
@@ -516,6 +521,24 @@ class VizStage(Stage):
         self.logger.swath(
             t, xyz[:, 0], xyz[:, 1], xyz[:, 2], x=x, y=y, z=z0, heading=h, valid=valid
         )
+        return True
+
+    def _raw_ping(self, device: str, ping: Any, t_host: float) -> bool:
+        """A GeoSwath ping: its samples' return angle (deg) and slant range (m, at the ping's
+        MINISVS sound speed and the configured ``geoswath_frequency_hz``) with their amplitude,
+        every ``raw_ping_period_s`` device seconds per side."""
+        if not hasattr(ping, "arrays") or "raa" not in ping.arrays:
+            return False
+        from auvgw.slam.bathymetric.swath_processing import SwathProcessing, ping_samples
+
+        opts = self.logger.options
+        side = int(ping.header["side"])
+        t = self._clock(device)(_float(ping.header.get("ping_time")), t_host)
+        if 0.0 <= t - self._raw_ping_t.get((device, side), -math.inf) < opts.raw_ping_period_s:
+            return True  # shown less often (a clock that went back shows the ping at once)
+        self._raw_ping_t[(device, side)] = t
+        a, r, amp, _ = ping_samples(ping, SwathProcessing(frequency_hz=opts.geoswath_frequency_hz))
+        self.logger.raw_ping(device, t, side, np.degrees(a), r, amp)
         return True
 
     _FRAME_AXES: Mapping[int, tuple[str, str, str]] = {

@@ -52,6 +52,7 @@ __all__ = [
     "SwathProcessing",
     "SwathProcessor",
     "bin_swath",
+    "ping_samples",
     "ping_soundings",
 ]
 
@@ -119,14 +120,23 @@ def _first(ping: GeoSwathPing, array: str, name: str, default: float) -> float:
     return float(cols[name][0])
 
 
-def ping_soundings(ping: GeoSwathPing, cfg: SwathProcessing) -> PingSoundings:
-    """Steps 1-4 of the module docstring for one ping (vectorised over its samples)."""
+def ping_samples(
+    ping: GeoSwathPing, cfg: SwathProcessing
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """Step 1 of the module docstring: each RAA sample's return angle ``a`` (rad from the body
+    vertical, positive outward on the ping's side), slant range ``r`` (m) and amplitude (wire
+    counts), and the sound speed used (m/s)."""
     raa = ping.arrays["raa"]
     c = cfg.sound_speed or _first(ping, "minisvs", "velocity", 1500.0)
     r = c * (np.asarray(raa["time"], float) / cfg.frequency_hz) / 2.0
     sine = np.asarray(raa["sine"], float) / SINE_SCALE
-    amp = np.asarray(raa["amplitude"], float)
     a = np.arcsin(np.clip(sine, -1.0, 1.0))
+    return a, r, np.asarray(raa["amplitude"], float), c
+
+
+def ping_soundings(ping: GeoSwathPing, cfg: SwathProcessing) -> PingSoundings:
+    """Steps 1-4 of the module docstring for one ping (vectorised over its samples)."""
+    a, r, amp, c = ping_samples(ping, cfg)
     ok_amp = amp >= cfg.min_amplitude
     ok_ang = (a >= math.radians(cfg.nadir_gap_deg)) & (a <= math.radians(cfg.max_angle_deg))
     ok_rng = (r >= cfg.min_range_m) & (r <= cfg.max_range_m)
