@@ -179,6 +179,13 @@ class AutopilotConfig:
     max_depth: float = 60.0
     fault_mask: int = 0xFFFFFFFF
     fin_rate: float = math.radians(60.0)  #: fin servo slew rate (rad/s) of the expected model
+    #: the fin servo's first-order time constant (s) of the expected model (0: a pure slew); a
+    #: servo with a lag runs ``fin_rate * fin_tau`` behind a pure slew while it moves
+    fin_tau: float = 0.0
+    #: s either side of the applied command's time: the fin is judged against the model's
+    #: values over that window (the command reached the servo some time after it was sent and
+    #: the feedback was sampled some time after that; neither is known to the step)
+    fin_window_s: float = 0.1
     fin_tolerance: float = math.radians(3.0)
     fin_jam_s: float = 0.4
     rpm_tolerance: float = 150.0
@@ -250,13 +257,17 @@ class _Watch:
 
 @dataclass
 class _Expected:
-    """A rate-limited model of an actuator following its command (what a healthy one shows)."""
+    """A model of an actuator following its command (what a healthy one shows): a first-order
+    lag of time constant ``tau`` (s; 0: none) whose speed is limited to ``rate`` per s."""
 
     rate: float
+    tau: float = 0.0
     value: float = 0.0
 
     def follow(self, cmd: float, dt: float) -> float:
-        self.value += _clip(cmd - self.value, self.rate * dt)
+        e = cmd - self.value
+        step = e if self.tau <= 0 else e * (1.0 - math.exp(-dt / self.tau))
+        self.value += _clip(step, self.rate * dt)
         return self.value
 
 
@@ -285,8 +296,8 @@ class Autopilot:
         self._depth_ref: float | None = None
         self._rpm = 0.0
         self._cmd = ActuatorCommand(0.0, 0.0, 0.0, 0.0)
-        self._exp_rudder = _Expected(c.fin_rate)
-        self._exp_stern = _Expected(c.fin_rate)
+        self._exp_rudder = _Expected(c.fin_rate, c.fin_tau)
+        self._exp_stern = _Expected(c.fin_rate, c.fin_tau)
         self._watch = {k: _Watch() for k in ("rudder", "stern", "thruster")}
         #: (t, expected rudder, expected stern, commanded rpm) of the last steps: what the
         #: actuators should show for the command of time t (:class:`ActuatorFeedback` cmd_t)
@@ -409,9 +420,12 @@ class Autopilot:
         if fb.faults & c.fault_mask:
             self._abort("actuator_fault", f"fault word 0x{fb.faults:08x}")
             return
-        _, exp_r, exp_s, rpm_asked = self._asked_at(fb.t if fb.cmd_t is None else fb.cmd_t)
-        for name, meas, exp in (("rudder", fb.rudder, exp_r), ("stern", fb.stern, exp_s)):
-            off = abs(meas - exp)
+        t_cmd = fb.t if fb.cmd_t is None else fb.cmd_t
+        _, exp_r, exp_s, rpm_asked = self._asked_at(t_cmd)
+        band = self._band(t_cmd, c.fin_window_s)
+        for i, name, meas, exp in ((0, "rudder", fb.rudder, exp_r), (1, "stern", fb.stern, exp_s)):
+            lo, hi = band[i]
+            off = max(lo - meas, meas - hi, 0.0)
             if self._watch[name].held(off > c.fin_tolerance, t) >= c.fin_jam_s:
                 self._abort(f"{name}_jammed", f"measured {math.degrees(meas):.1f} deg, expected "
                             f"{math.degrees(exp):.1f} deg for {c.fin_jam_s:g} s")  # fmt: skip
@@ -420,6 +434,20 @@ class Autopilot:
         if self._watch["thruster"].held(off > c.rpm_tolerance, t) >= c.thruster_s:
             self._abort("thruster", f"measured {fb.rpm:.0f} rpm, commanded {rpm_asked:.0f} "
                         f"rpm for {c.thruster_s:g} s")  # fmt: skip
+
+    def _band(self, t: float, w: float) -> tuple[tuple[float, float], tuple[float, float]]:
+        """The (low, high) of the expected rudder and stern over the steps within ``w`` s of
+        ``t`` (at least the one :meth:`_asked_at` picks)."""
+        row = self._asked_at(t)
+        r_lo = r_hi = row[1]
+        s_lo = s_hi = row[2]
+        for ts, er, es, _ in reversed(self._asked):
+            if ts < t - w:
+                break
+            if ts <= t + w:
+                r_lo, r_hi = min(r_lo, er), max(r_hi, er)
+                s_lo, s_hi = min(s_lo, es), max(s_hi, es)
+        return (r_lo, r_hi), (s_lo, s_hi)
 
     def _asked_at(self, t: float) -> tuple[float, float, float, float]:
         """What the actuators should show once the command of time ``t`` reached them: the

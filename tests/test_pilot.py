@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -286,3 +287,46 @@ def test_a_monte_carlo_run_is_seeded_by_study_and_run_and_stays_within_the_bars(
         assert r.abort_reason == "" and not math.isnan(r.done_t)
         assert r.xte_rms <= 2.0 and r.depth_rms <= 0.3
         assert math.hypot(*r.current[:2]) <= 0.3 and abs(r.offset) <= 3.0
+
+
+def test_a_healthy_lagging_servo_behind_a_latency_is_not_a_jam():
+    """Through the chain a pitch loop swinging the stern plane aborted ``stern_jammed`` on a
+    healthy fin: the emulated controller (``auvgw.sim_devices.actuators``: 30 deg/s and a 0.1 s
+    first-order lag) runs rate x tau = 3 deg behind a pure slew while it moves, a command
+    reaches it some 40 ms after it was sent and its 20 Hz feedback is sampled at its own ticks.
+    With the lag in the check's model (``fin_tau``) and the fin judged over the model's values
+    within ``fin_window_s`` of the applied command's time, a healthy servo under random full
+    swings is never called jammed, and a jammed one still is (once the swings leave it 0.4 s
+    away from where it stuck)."""
+    from auvgw.sim_devices.actuators import ActuatorLimits
+    from auvgw.sim_devices.actuators import ActuatorModel as Servo
+
+    swings = np.random.default_rng(3).choice([-0.3, 0.3], 100)
+    for jam_at in (None, 5.0):
+        ap = Autopilot(SHORT, AutopilotConfig(fin_rate=math.radians(30.0), fin_tau=0.1,
+                                              feedback_timeout_s=0.5))  # fmt: skip
+        jams = {} if jam_at is None else {"stern_jam": [(jam_at, 1e9)]}
+        servo = Servo(ActuatorLimits(command_timeout_s=100.0), rpm=0.0,
+                      faults_at=lambda t, j=jams: {k for k, w in j.items() if w[0][0] <= t})
+        sent: dict[int, float] = {}
+        in_flight: list[tuple[float, int, object]] = []
+        for tick in range(1000):  # 10 s in 10 ms ticks: pilot and feedback at 20 Hz, 40 ms
+            t = tick * 0.01
+            while in_flight and in_flight[0][0] <= t + 1e-9:
+                _, seq, cmd = in_flight.pop(0)
+                servo.command(t, cmd.rpm, cmd.rudder, cmd.stern, seq)
+            if tick % 5 == 2:  # the controller's feedback, between the pilot's steps
+                r = servo.read(t)
+                ap.feedback(ActuatorFeedback(t, r.rpm, r.rudder, r.stern, 0,
+                                             sent.get(r.cmd_seq)))  # fmt: skip
+            if tick % 5 == 0:  # the pitch swings the stern plane +-20 deg every 0.1 s
+                ap.nav(_fix(t, 1.5 * t, 0.0, pitch=swings[tick // 10]))
+                cmd = ap.step(t)
+                sent[tick] = t
+                in_flight.append((t + 0.04, tick, cmd))
+            if ap.status.mode == "aborted":
+                break
+        if jam_at is None:
+            assert ap.status.mode == "running", ap.status.abort_detail
+        else:
+            assert ap.status.abort_reason == "stern_jammed" and ap.status.t > jam_at

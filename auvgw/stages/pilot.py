@@ -68,11 +68,15 @@ class PilotStageConfig(StageConfig):
     #: the fin servos' slew rate (deg/s) the jam check expects: the vehicle's controller's (the
     #: emulated one's ``fin_rate_dps``, 30 by default)
     fin_rate_dps: float = Field(30.0, gt=0, le=1000)
+    #: the fin servos' time constant (s) the jam check expects (the emulated one's
+    #: ``fin_tau_s``, 0.1 by default): while a fin moves it runs rate x tau behind a pure slew
+    fin_tau_s: float = Field(0.1, ge=0, le=10)
 
     def autopilot(self) -> AutopilotConfig:
         return AutopilotConfig(nav_timeout_s=self.nav_timeout_s, max_depth=self.max_depth,
                                feedback_timeout_s=self.feedback_timeout_s,
-                               fin_rate=math.radians(self.fin_rate_dps))  # fmt: skip
+                               fin_rate=math.radians(self.fin_rate_dps),
+                               fin_tau=self.fin_tau_s)  # fmt: skip
 
 
 @dataclass
