@@ -182,10 +182,11 @@ class AutopilotConfig:
     #: the fin servo's first-order time constant (s) of the expected model (0: a pure slew); a
     #: servo with a lag runs ``fin_rate * fin_tau`` behind a pure slew while it moves
     fin_tau: float = 0.0
-    #: s either side of the applied command's time: the fin is judged against the model's
-    #: values over that window (the command reached the servo some time after it was sent and
-    #: the feedback was sampled some time after that; neither is known to the step)
-    fin_window_s: float = 0.1
+    #: s before and after the applied command's time over which the fin is judged against the
+    #: model's values: the command reached the servo some time after it was stamped (the
+    #: navigation's age, the bus, CAN: 0.1-0.2 s through the chain), so a healthy servo shows
+    #: the model's value of up to that long before; the feedback is sampled between steps
+    fin_window_s: tuple[float, float] = (0.3, 0.1)
     fin_tolerance: float = math.radians(3.0)
     fin_jam_s: float = 0.4
     rpm_tolerance: float = 150.0
@@ -435,16 +436,17 @@ class Autopilot:
             self._abort("thruster", f"measured {fb.rpm:.0f} rpm, commanded {rpm_asked:.0f} "
                         f"rpm for {c.thruster_s:g} s")  # fmt: skip
 
-    def _band(self, t: float, w: float) -> tuple[tuple[float, float], tuple[float, float]]:
-        """The (low, high) of the expected rudder and stern over the steps within ``w`` s of
-        ``t`` (at least the one :meth:`_asked_at` picks)."""
+    def _band(self, t: float, w: tuple[float, float]
+              ) -> tuple[tuple[float, float], tuple[float, float]]:  # fmt: skip
+        """The (low, high) of the expected rudder and stern over the steps from ``w[0]`` s
+        before ``t`` to ``w[1]`` s after (at least the one :meth:`_asked_at` picks)."""
         row = self._asked_at(t)
         r_lo = r_hi = row[1]
         s_lo = s_hi = row[2]
         for ts, er, es, _ in reversed(self._asked):
-            if ts < t - w:
+            if ts < t - w[0]:
                 break
-            if ts <= t + w:
+            if ts <= t + w[1]:
                 r_lo, r_hi = min(r_lo, er), max(r_hi, er)
                 s_lo, s_hi = min(s_lo, es), max(s_hi, es)
         return (r_lo, r_hi), (s_lo, s_hi)
