@@ -115,6 +115,15 @@ def register(sub: Any) -> None:
         help="--processes: host seconds from the sim's gateway.toml to vehicle time 0, for the "
         "gateway process to start and open every port (default 10)",
     )
+    p.add_argument(
+        "--closed-loop",
+        action="store_true",
+        help="fly --mission with the reference autopilot through the whole chain (the "
+        "closed-loop scenario; sim, gateway, fusion, pilot, viz, record each a process) and "
+        "print the errors against the truth (auvgw/commands/demo_closed_loop.py)",
+    )
+    p.add_argument("--mission", type=Path, default=None,
+                   help="--closed-loop: mission file (default config/missions/box.toml)")
     p.set_defaults(func=run)
 
 
@@ -270,6 +279,10 @@ def _wait_drained(frames: Callable[[], int], quiet_s: float = 0.5, limit_s: floa
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.closed_loop:
+        from auvgw.commands.demo_closed_loop import run_closed_loop
+
+        return run_closed_loop(args)
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
     sim_dir = out / "sim"
