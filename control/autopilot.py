@@ -182,11 +182,6 @@ class AutopilotConfig:
     #: the fin servo's first-order time constant (s) of the expected model (0: a pure slew); a
     #: servo with a lag runs ``fin_rate * fin_tau`` behind a pure slew while it moves
     fin_tau: float = 0.0
-    #: s before and after the applied command's time over which the fin is judged against the
-    #: model's values: the command reached the servo some time after it was stamped (the
-    #: navigation's age, the bus, CAN: 0.1-0.2 s through the chain), so a healthy servo shows
-    #: the model's value of up to that long before; the feedback is sampled between steps
-    fin_window_s: tuple[float, float] = (0.3, 0.1)
     fin_tolerance: float = math.radians(3.0)
     fin_jam_s: float = 0.4
     rpm_tolerance: float = 150.0
@@ -297,11 +292,14 @@ class Autopilot:
         self._depth_ref: float | None = None
         self._rpm = 0.0
         self._cmd = ActuatorCommand(0.0, 0.0, 0.0, 0.0)
-        self._exp_rudder = _Expected(c.fin_rate, c.fin_tau)
-        self._exp_stern = _Expected(c.fin_rate, c.fin_tau)
+        #: the fins as a healthy servo shows them, driven by the commands the feedback says
+        #: were applied, on the feedback's clock (:meth:`_check_actuators`)
+        self._exp_fins = (_Expected(c.fin_rate, c.fin_tau), _Expected(c.fin_rate, c.fin_tau))
+        self._fin_band = ((0.0, 0.0), (0.0, 0.0))  # (low, high) rad of each, the newest
+        self._fb_judged: float | None = None  # time of the newest feedback the model took
         self._watch = {k: _Watch() for k in ("rudder", "stern", "thruster")}
-        #: (t, expected rudder, expected stern, commanded rpm) of the last steps: what the
-        #: actuators should show for the command of time t (:class:`ActuatorFeedback` cmd_t)
+        #: (t, commanded rpm, rudder, stern) of the last steps: what the actuators were asked at
+        #: time t (:class:`ActuatorFeedback` cmd_t names the newest they had applied)
         self._asked: deque[tuple[float, float, float, float]] = deque(maxlen=400)
         wp = self.mission.waypoints[0]
         self.status = PilotStatus(0.0, self.mode, 0, self.mission.n_legs, 0.0, 0.0, 0.0, 0.0,
@@ -328,7 +326,7 @@ class Autopilot:
             self._t_start = t
         if self.mode in ("aborted", "done"):
             return self._surface(t)
-        self._check_actuators(t, dt)
+        self._check_actuators(t)
         nav = self._nav
         c = self.config
         if self.mode != "aborted":
@@ -401,12 +399,10 @@ class Autopilot:
             self.leg += 1
             self.ilos.y_int = 0.0
 
-    def _check_actuators(self, t: float, dt: float) -> None:
+    def _check_actuators(self, t: float) -> None:
         c = self.config
         fb = self._fb
-        exp_r = self._exp_rudder.follow(self._cmd.rudder, dt)
-        exp_s = self._exp_stern.follow(self._cmd.stern, dt)
-        self._asked.append((t, exp_r, exp_s, self._cmd.rpm))
+        self._asked.append((t, self._cmd.rpm, self._cmd.rudder, self._cmd.stern))
         if c.feedback_timeout_s <= 0:
             return
         assert self._t_start is not None
@@ -421,13 +417,28 @@ class Autopilot:
         if fb.faults & c.fault_mask:
             self._abort("actuator_fault", f"fault word 0x{fb.faults:08x}")
             return
-        t_cmd = fb.t if fb.cmd_t is None else fb.cmd_t
-        _, exp_r, exp_s, rpm_asked = self._asked_at(t_cmd)
-        band = self._band(t_cmd, c.fin_window_s)
-        for i, name, meas, exp in ((0, "rudder", fb.rudder, exp_r), (1, "stern", fb.stern, exp_s)):
-            lo, hi = band[i]
+        _, rpm_asked, cmd_r, cmd_s = self._asked_at(fb.t if fb.cmd_t is None else fb.cmd_t)
+        if self._fb_judged is None or fb.t > self._fb_judged:
+            # the servo model follows the command the feedback says was applied, from the last
+            # feedback to this one: whatever the loop's latency or a stall on the way, a healthy
+            # fin is between the model's values before and after (it took the command somewhere
+            # in that interval), within rate x tau of its lag
+            h = 0.0 if self._fb_judged is None else fb.t - self._fb_judged
+            band = []
+            for model, meas, cmd in zip(self._exp_fins, (fb.rudder, fb.stern), (cmd_r, cmd_s),
+                                        strict=True):  # fmt: skip
+                if self._fb_judged is None:
+                    model.value = meas  # where the fins are when the checks start
+                before = model.value
+                after = model.follow(cmd, h)
+                band.append((min(before, after), max(before, after)))
+            self._fin_band = (band[0], band[1])
+            self._fb_judged = fb.t
+        for (lo, hi), name, meas in zip(self._fin_band, ("rudder", "stern"),
+                                        (fb.rudder, fb.stern), strict=True):  # fmt: skip
             off = max(lo - meas, meas - hi, 0.0)
             if self._watch[name].held(off > c.fin_tolerance, t) >= c.fin_jam_s:
+                exp = hi if meas > hi else lo
                 self._abort(f"{name}_jammed", f"measured {math.degrees(meas):.1f} deg, expected "
                             f"{math.degrees(exp):.1f} deg for {c.fin_jam_s:g} s")  # fmt: skip
                 return
@@ -436,25 +447,10 @@ class Autopilot:
             self._abort("thruster", f"measured {fb.rpm:.0f} rpm, commanded {rpm_asked:.0f} "
                         f"rpm for {c.thruster_s:g} s")  # fmt: skip
 
-    def _band(self, t: float, w: tuple[float, float]
-              ) -> tuple[tuple[float, float], tuple[float, float]]:  # fmt: skip
-        """The (low, high) of the expected rudder and stern over the steps from ``w[0]`` s
-        before ``t`` to ``w[1]`` s after (at least the one :meth:`_asked_at` picks)."""
-        row = self._asked_at(t)
-        r_lo = r_hi = row[1]
-        s_lo = s_hi = row[2]
-        for ts, er, es, _ in reversed(self._asked):
-            if ts < t - w[0]:
-                break
-            if ts <= t + w[1]:
-                r_lo, r_hi = min(r_lo, er), max(r_hi, er)
-                s_lo, s_hi = min(s_lo, es), max(s_hi, es)
-        return (r_lo, r_hi), (s_lo, s_hi)
-
     def _asked_at(self, t: float) -> tuple[float, float, float, float]:
-        """What the actuators should show once the command of time ``t`` reached them: the
-        first step after it (whose model has followed that command), or the newest. Searched
-        from the newest: ``t`` is a step or two old."""
+        """The row of the command of time ``t`` (a step's row holds the command of the step
+        before it): the first row after ``t``, or the newest. Searched from the newest: ``t``
+        is a few steps old."""
         found = self._asked[-1]
         for row in reversed(self._asked):
             if row[0] <= t + 1e-9:
