@@ -152,7 +152,7 @@ class AutopilotConfig:
     # heading -> yaw-rate set-point (1/s), yaw rate -> rudder (rad per rad/s, per rad)
     heading_kp: float = 0.5
     max_yaw_rate: float = math.radians(8.0)
-    yaw_rate_kp: float = 3.0
+    yaw_rate_kp: float = 1.5
     yaw_rate_ki: float = 0.3
     # depth -> pitch set-point (rad per m, rad per m s, rad per m/s)
     depth_kp: float = 0.2
@@ -162,9 +162,9 @@ class AutopilotConfig:
     max_pitch_d: float = math.radians(25.0)
     depth_rate: float = 0.5  #: m/s the depth set-point moves at
     # pitch -> stern plane
-    pitch_kp: float = 2.0
+    pitch_kp: float = 1.0
     pitch_ki: float = 0.3
-    pitch_kd: float = 1.5
+    pitch_kd: float = 2.5
     # speed -> rpm
     rpm_per_mps: float = 610.0  #: feed-forward (rpm per m/s)
     speed_kp: float = 200.0

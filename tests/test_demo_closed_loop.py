@@ -84,5 +84,5 @@ def test_the_pilot_is_in_the_rerun_file_and_the_recording(demo_run) -> None:
         assert entity in rec and len(rec[entity].times) > 50, (entity, sorted(rec)[:40])
     with open(out / "demo.mcap", "rb") as f:
         topics = {ch.topic for _s, ch, _m in make_reader(f).iter_messages()}
-    assert {"auv/auv1/pilot/command", "auv/auv1/pilot/state", "auv/auv1/cmd/actuators",
-            "auv/auv1/sensor/actuators/actuatorstate"} <= topics, sorted(topics)  # fmt: skip
+    assert {"/auv1/pilot/command", "/auv1/pilot/state", "/auv1/cmd/actuators",
+            "/auv1/sensor/actuators/actuatorstate", "/auv1/truth/pose"} <= topics, sorted(topics)
