@@ -316,8 +316,7 @@ def fly_chain(run: ChainRun, progress: bool = False) -> ChainResult:
             time.sleep(0.1)
         gw = sub.status(timeout=2.0) or {}
         res.commands = dict((gw.get("devices", {}).get("actuators") or {}).get("commands") or {})
-        for name in ("pilot", "gateway", "fusion", "viz", "record", "sim"):
-            children.stop(name)
+        _stop_all(children, ("pilot", "gateway", "fusion", "viz", "record", "sim"))
         tail.poll()
     finally:
         children.close()
@@ -343,6 +342,24 @@ def fly_chain(run: ChainRun, progress: bool = False) -> ChainResult:
     for k, v in sc.items():
         setattr(res, k, v)
     return res
+
+
+def _stop_all(children: Any, names: tuple[str, ...], grace_s: float = 15.0) -> None:
+    """SIGINT to every child in ``names`` at once (in that order), then wait for each (killed
+    after ``grace_s``): their clean stops overlap."""
+    import signal
+
+    from auvgw.ground.procs import stop_process
+
+    procs = [(n, children.procs[n]) for n in names if n in children.procs]
+    for _, p in procs:
+        if p.poll() is None:
+            p.send_signal(signal.SIGINT)
+    for n, p in procs:
+        code, killed = stop_process(p, None, grace_s)
+        children.exit_codes[n] = code
+        if killed:
+            children.killed.append(n)
 
 
 def _wait_file(path: Path, proc: Any, children: Any, timeout_s: float) -> None:
