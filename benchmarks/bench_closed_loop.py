@@ -28,6 +28,7 @@ machine's load average and core count.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import os
 import statistics
@@ -95,7 +96,7 @@ def loop_latency(speed: float, seconds: float, out: Path) -> tuple[list[float], 
     """Host seconds from each INS frame to the actuator command stepped on it (see the module
     docstring), for ``seconds`` of vehicle time at ``speed``; and the run's counters."""
     from auvgw.bus import Keys, decode_envelope, open_session
-    from auvgw.commands.demo import _fusion_config, _gateway_toml
+    from auvgw.commands.demo_parts import _fusion_config, _gateway_toml
     from auvgw.config.bus import BusConfig
     from auvgw.ground.procs import Children, free_endpoint
     from auvgw.subscribe import GatewaySubscriber
@@ -114,10 +115,8 @@ def loop_latency(speed: float, seconds: float, out: Path) -> tuple[list[float], 
     def hooked_frame(frame: Any) -> None:
         h = time.monotonic()
         on_frame(frame)
-        try:
+        with contextlib.suppress(Exception):  # not a command: the emulator counted it
             arrived.setdefault(int(act.codec.decode_frame(frame).seq), h)
-        except Exception:  # noqa: BLE001 (not a command: the emulator counted it)
-            pass
 
     ins.serial.send = hooked_send
     act.can.adapter.on_frame = hooked_frame
@@ -146,7 +145,7 @@ def loop_latency(speed: float, seconds: float, out: Path) -> tuple[list[float], 
         start_at = time.monotonic() + 12.0
         cfg = r.write_gateway_config(out / "sim" / "gateway.toml", vehicle="auv1",
                                      start_at=start_at)  # fmt: skip
-        epoch_ns = int(open(cfg).read().split("epoch_ns = ")[1].split()[0])
+        epoch_ns = int(Path(cfg).read_text().split("epoch_ns = ")[1].split()[0])
         children.start("gateway", ["run", "--config", str(_gateway_toml(
             out / "sim", out, free_endpoint(), hub))])  # fmt: skip
         while sub.alive(timeout=0.5) < {"fusion", "pilot", "gateway", "ins", "actuators"}:

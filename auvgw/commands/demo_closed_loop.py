@@ -126,7 +126,7 @@ def score(mission: Mission, truth: np.ndarray, states: list[tuple[float, int, st
         if i < 0 or states[i][2] != "running":
             continue
         leg = states[i][1]
-        t, n, e, d = truth[k]
+        _, n, e, d = truth[k]
         xte.append(cross_track(mission, leg, n, e))
         dz.append(d - mission.leg(leg)[1].depth)
         keep.append(k)
@@ -220,7 +220,12 @@ def _duration(mission: Mission, run: ChainRun) -> float:
 def fly_chain(run: ChainRun, progress: bool = False) -> ChainResult:
     """Fly ``run`` through the chain (see the module docstring) and score it against the truth."""
     from auvgw.bus import Keys, open_session
-    from auvgw.commands.demo import _fusion_config, _gateway_toml, _load_sim_config, _TruthTail
+    from auvgw.commands.demo_parts import (
+    _fusion_config,
+    _gateway_toml,
+    _load_sim_config,
+    _TruthTail,
+)
     from auvgw.config.bus import BusConfig
     from auvgw.config.scenario import load_scenario
     from auvgw.ground.procs import Children, free_endpoint

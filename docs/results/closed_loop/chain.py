@@ -54,7 +54,8 @@ def main() -> None:
         timer = r.pilot.get("stage", {}).get("timer_steps", "?")
         print(f"{case:14s} {end:22s} {r.legs_done:2d}/{r.n_legs:<2d} {done:>7s} "
               f"{r.xte_rms:6.2f} ({r.xte_max:5.2f}) {r.depth_rms:7.3f} ({r.depth_max:5.2f}) "
-              f"{r.nav_rms:6.2f}/{r.nav_final:5.2f} {r.commands.get('forwarded', 0):6d}/{refused:<5d} "
+              f"{r.nav_rms:6.2f}/{r.nav_final:5.2f} "
+              f"{r.commands.get('forwarded', 0):6d}/{refused:<5d} "
               f"{timer!s:>6s} {r.wall_s:7.0f} {os.getloadavg()[0]:5.1f}", flush=True)  # fmt: skip
 
 
