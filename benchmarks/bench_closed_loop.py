@@ -142,7 +142,7 @@ def loop_latency(speed: float, seconds: float, out: Path) -> tuple[list[float], 
         children.start("pilot", ["pilot", "--mission", str(config_file("missions/box.toml")),
                                  "--feedback-timeout", "0", "--nav-timeout", "2",
                                  "--connect", hub, "--listen", free_endpoint()])  # fmt: skip
-        start_at = time.monotonic() + 12.0
+        start_at = time.monotonic() + 30.0
         cfg = r.write_gateway_config(out / "sim" / "gateway.toml", vehicle="auv1",
                                      start_at=start_at)  # fmt: skip
         epoch_ns = int(Path(cfg).read_text().split("epoch_ns = ")[1].split()[0])

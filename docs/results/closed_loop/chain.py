@@ -28,6 +28,10 @@ def main() -> None:
     ap.add_argument("--cases", default="box@1,box@4,lawnmower@4,lawnmower@1")
     ap.add_argument("--out", type=Path, default=Path("/tmp/chain"))
     ap.add_argument("--dvl-dropout", default=None, metavar="T0,T1")
+    ap.add_argument("--start-delay", type=float, default=25.0, metavar="S",
+                    help="host s from the sim's gateway.toml to vehicle time 0 (the gateway's "
+                    "start on a loaded machine)")
+    ap.add_argument("--max-vehicle-s", type=float, default=None, metavar="S")
     ap.add_argument("--feedback-timeout", type=float, default=1.0, metavar="S",
                     help="auvgw pilot --feedback-timeout (0: no fin / thruster checks)")
     args = ap.parse_args()
@@ -45,7 +49,8 @@ def main() -> None:
         name, speed = case.split("@")
         run = ChainRun(mission=config_file(f"missions/{name}.toml"), speed=float(speed),
                        out=args.out / case.replace("@", "_"), faults=faults,
-                       feedback_timeout=args.feedback_timeout)  # fmt: skip
+                       feedback_timeout=args.feedback_timeout, start_delay=args.start_delay,
+                       max_vehicle_s=args.max_vehicle_s)  # fmt: skip
         r = fly_chain(run)
         refused = sum(v for k, v in r.commands.items()
                       if isinstance(v, int) and k not in ("forwarded", "last_seq"))  # fmt: skip
