@@ -94,7 +94,9 @@ class ActuatorFeedback:
     """What the actuators report at time ``t`` (s): measured shaft ``rpm``, ``rudder`` and
     ``stern`` plane angles (rad) and the ``faults`` word (bits set: faults); ``cmd_t``: the time
     (s) of the newest command they had applied (their echo of its sequence number), so the
-    checks compare them with what was asked then, whatever the loop's latency (None: ``t``)."""
+    checks compare them with what was asked then, whatever the loop's latency (None: ``t``;
+    before the autopilot's start, e.g. ``-inf``: they apply none of its commands yet, and are
+    not judged)."""
 
     t: float
     rpm: float
@@ -411,9 +413,14 @@ class Autopilot:
             self._abort("actuators_silent", f"no actuator feedback for {t - last:.2f} s "
                         f"(limit {c.feedback_timeout_s:g} s)")  # fmt: skip
             return
-        if fb is None or fb.t < self._t_start + c.feedback_timeout_s:
-            return  # feedback from before the first commands could reach the actuators (their
-            # command timeout bit, fins at rest) says nothing of them: judged from then on
+        if fb is None:
+            return
+        if fb.cmd_t is None:
+            if fb.t < self._t_start + c.feedback_timeout_s:
+                return  # feedback from before the first commands could reach the actuators
+                # (their command timeout bit, fins at rest) says nothing of them
+        elif fb.cmd_t < self._t_start:
+            return  # they apply none of our commands yet (however long the way is)
         if fb.faults & c.fault_mask:
             self._abort("actuator_fault", f"fault word 0x{fb.faults:08x}")
             return

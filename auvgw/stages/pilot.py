@@ -138,6 +138,8 @@ class PilotStage(Stage):
         if device == self.config.actuators_device and hasattr(message, "faults"):
             sent_at = getattr(self.sink, "sent_at", None)
             cmd_t = sent_at(int(message.cmd_seq)) if sent_at is not None else None
+            if sent_at is not None and cmd_t is None:
+                cmd_t = -math.inf  # they echo no command of ours: applying none yet
             self.feed_actuators(ActuatorFeedback(
                 t=t_recv_ns * 1e-9, rpm=float(message.shaft_rpm), rudder=float(message.rudder),
                 stern=float(message.stern), faults=int(message.faults), cmd_t=cmd_t))  # fmt: skip
@@ -220,7 +222,7 @@ class PilotStage(Stage):
 class BusCommands:
     """A :data:`~auvgw.control.autopilot.CommandSink` that puts each command on
     ``auv/<v>/cmd/<device>`` as the actuators' DBC ``ActuatorCommand`` (rpm, rudder and stern
-    plane in rad, a sequence number counting from 0; the gateway's gate starts a new stream
+    plane in rad, a sequence number counting from 1; the gateway's gate starts a new stream
     after a quiet spell, so a restarted pilot is taken)."""
 
     def __init__(self, session: zenoh.Session, vehicle: str, device: str = "actuators") -> None:
@@ -230,7 +232,8 @@ class BusCommands:
         self._type = actuators_can().types[COMMAND_TYPE]
         self._modulo = SEQ_MODULO
         self._pub = session.declare_publisher(Keys(vehicle).cmd(device))
-        self.seq = -1
+        # the first command is 1: the controller echoes 0 before it has applied any
+        self.seq = 0
         self._sent: dict[int, float] = {}  # seq -> the command's time (s), the last 1024
 
     def sent_at(self, seq: int) -> float | None:
