@@ -329,3 +329,21 @@ def test_a_healthy_lagging_servo_behind_a_latency_is_not_a_jam():
             assert ap.status.mode == "running", ap.status.abort_detail
         else:
             assert ap.status.abort_reason == "stern_jammed" and ap.status.t > jam_at
+
+
+def test_feedback_is_judged_once_it_echoes_a_command_of_this_pilot():
+    """Before the actuators apply any of the pilot's commands (their echo names none: ``cmd_t``
+    before the start), their command-timeout bit and resting fins say nothing of them, however
+    long the first commands take; from the first echo of one, the fault word aborts."""
+    ap = Autopilot(SHORT, AutopilotConfig(feedback_timeout_s=0.5))
+    timeout_bit = 0x10
+    for k in range(60):  # 3 s of a slow start: not judged
+        t = 0.05 * k
+        ap.nav(_fix(t, 1.5 * t, 0.0))
+        ap.feedback(ActuatorFeedback(t, 0.0, 0.0, 0.0, timeout_bit, -math.inf))
+        ap.step(t)
+    assert ap.status.mode == "running"
+    ap.nav(_fix(3.0, 4.5, 0.0))
+    ap.feedback(ActuatorFeedback(3.0, 0.0, 0.0, 0.0, timeout_bit, 2.9))  # echoes one of ours
+    ap.step(3.0)
+    assert ap.status.abort_reason == "actuator_fault"
