@@ -54,6 +54,7 @@ from auvgw.commands.demo_parts import (
     _gateway_toml,
     _load_sim_config,
     _TruthTail,
+    _wait_for,
 )
 from auvgw.config.bus import BusConfig
 from auvgw.config.scenario import ScenarioError, load_scenario
@@ -211,16 +212,6 @@ def _path_error(est: _Track, truth: _Track) -> dict[str, float] | None:
         "final_m": float(err[-1]),
         "rmse_pct_distance": 100.0 * rmse / dist if dist > 0 else math.nan,
     }
-
-
-def _wait_for(path: Path, proc: subprocess.Popen[bytes], timeout_s: float) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not path.is_file():
-        if proc.poll() is not None:
-            raise UserError(f"the emulated vehicle stopped early (exit {proc.returncode})")
-        if time.monotonic() > deadline:
-            raise UserError(f"the emulated vehicle wrote no {path.name} in {timeout_s:.0f} s")
-        time.sleep(0.1)
 
 
 def _sim_argv(scenario: Path, speed: float, duration: float, sim_dir: Path) -> list[str]:

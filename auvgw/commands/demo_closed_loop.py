@@ -221,11 +221,12 @@ def fly_chain(run: ChainRun, progress: bool = False) -> ChainResult:
     """Fly ``run`` through the chain (see the module docstring) and score it against the truth."""
     from auvgw.bus import Keys, open_session
     from auvgw.commands.demo_parts import (
-    _fusion_config,
-    _gateway_toml,
-    _load_sim_config,
-    _TruthTail,
-)
+        _fusion_config,
+        _gateway_toml,
+        _load_sim_config,
+        _TruthTail,
+        _wait_for,
+    )
     from auvgw.config.bus import BusConfig
     from auvgw.config.scenario import load_scenario
     from auvgw.ground.procs import Children, free_endpoint
@@ -279,7 +280,7 @@ def fly_chain(run: ChainRun, progress: bool = False) -> ChainResult:
             "sim", "--scenario", str(run.scenario), "--speed", str(run.speed), "--duration",
             str(duration), "--out", str(sim_dir), "--vehicle", VEHICLE, "--hold",
             "--start-delay", str(run.start_delay)])  # fmt: skip
-        _wait_file(sim_dir / "gateway.toml", sim, children, 120.0)
+        _wait_for(sim_dir / "gateway.toml", sim, 120.0)
         epoch_s = _load_sim_config(sim_dir).clock.epoch_ns / 1e9
         follow = _Follow(session, VEHICLE, epoch_s, out)
         children.start("gateway", ["run", "--config",
@@ -365,16 +366,6 @@ def _stop_all(children: Any, names: tuple[str, ...], grace_s: float = 15.0) -> N
         children.exit_codes[n] = code
         if killed:
             children.killed.append(n)
-
-
-def _wait_file(path: Path, proc: Any, children: Any, timeout_s: float) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not path.is_file():
-        if proc.poll() is not None:
-            raise UserError(f"the emulated vehicle stopped early: {children.tail('sim')}")
-        if time.monotonic() > deadline:
-            raise UserError(f"the emulated vehicle wrote no {path.name} in {timeout_s:.0f} s")
-        time.sleep(0.1)
 
 
 def _wait_alive(sub: Any, wanted: set[str], children: Any, timeout_s: float) -> None:

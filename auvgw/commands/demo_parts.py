@@ -6,13 +6,15 @@ settings."""
 from __future__ import annotations
 
 import json
+import subprocess
+import time
 from pathlib import Path
 from typing import Any
 
 from auvgw.commands.common import UserError
 from auvgw.config.gateway import ConfigError, load_gateway_config
 
-__all__ = ["_TruthTail", "_fusion_config", "_gateway_toml", "_load_sim_config"]
+__all__ = ["_TruthTail", "_fusion_config", "_gateway_toml", "_load_sim_config", "_wait_for"]
 
 
 class _TruthTail:
@@ -97,3 +99,13 @@ def _gateway_toml(sim_dir: Path, out: Path, listen: str, hub: str) -> Path:
     path.write_text(gateway_toml(data, f"auvgw demo --processes: {sim_dir / 'gateway.toml'} "
                                        "on the demo's bus"))  # fmt: skip
     return path
+
+
+def _wait_for(path: Path, proc: subprocess.Popen[bytes], timeout_s: float) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not path.is_file():
+        if proc.poll() is not None:
+            raise UserError(f"the emulated vehicle stopped early (exit {proc.returncode})")
+        if time.monotonic() > deadline:
+            raise UserError(f"the emulated vehicle wrote no {path.name} in {timeout_s:.0f} s")
+        time.sleep(0.1)
