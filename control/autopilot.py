@@ -342,6 +342,8 @@ class Autopilot:
             return self._surface(t)
         if nav is None:
             return self._hold(t)
+        if self.mode == "waiting" and self._fb is not None:
+            self._rpm = self._fb.rpm  # bumpless: the shaft speed slews on from where it is
         self.mode = "running"
         a, b, y_e, s = self._leg_geometry(nav)
         pi_h = math.atan2(b.east - a.east, b.north - a.north)

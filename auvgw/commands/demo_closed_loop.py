@@ -281,7 +281,7 @@ def fly_chain(run: ChainRun, progress: bool = False) -> ChainResult:
             str(duration), "--out", str(sim_dir), "--vehicle", VEHICLE, "--hold",
             "--start-delay", str(run.start_delay)])  # fmt: skip
         _wait_for(sim_dir / "gateway.toml", sim, 120.0)
-        epoch_s = _load_sim_config(sim_dir).clock.epoch_ns / 1e9
+        epoch_s = _read_when_written(lambda: _load_sim_config(sim_dir)).clock.epoch_ns / 1e9
         follow = _Follow(session, VEHICLE, epoch_s, out)
         children.start("gateway", ["run", "--config",
                                    str(_gateway_toml(sim_dir, out, free_endpoint(), hub))])
@@ -348,6 +348,19 @@ def fly_chain(run: ChainRun, progress: bool = False) -> ChainResult:
     for k, v in sc.items():
         setattr(res, k, v)
     return res
+
+
+def _read_when_written(read: Any, timeout_s: float = 10.0) -> Any:
+    """``read()``, again while it fails for at most ``timeout_s``: the sim may still be
+    writing the file that has just appeared."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            return read()
+        except UserError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.1)
 
 
 def _stop_all(children: Any, names: tuple[str, ...], grace_s: float = 15.0) -> None:
