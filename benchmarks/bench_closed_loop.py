@@ -2,6 +2,8 @@
 bare RK4 step, and the emulated vehicle at a --speed with the INS and the actuators running.
 
     .venv/bin/python benchmarks/bench_closed_loop.py [--seconds 20] [--runs 3] [--speeds 1,4,8]
+    nice -n 10 .venv/bin/python benchmarks/bench_closed_loop.py --latency [--seconds 60]
+        [--speeds 1,4]
 
 Part 1 (one thread, no ports): vehicle seconds integrated per host second, median of ``runs``,
 ``dynamics.step`` alone and ``ClosedLoopTruth.at`` stepping the same vehicle through the
@@ -9,14 +11,31 @@ actuator model (20 Hz commands of a heading hold), and their ratio in the same r
 ``Runner`` on the closed-loop scenario (INS at 100 Hz on a pty, actuators on SLCAN, nobody
 reading: the ports drop what they cannot hold) for ``seconds / speed`` host seconds at each
 speed: the clock's late ticks and largest lag, and the process CPU per host second.
+
+``--latency``: the loop's latency through the whole chain, from a sensor frame's bytes to the
+actuator command it causes. The emulated vehicle runs in this process (``Runner`` on the
+closed-loop scenario, hooked), the gateway, the fusion and ``auvgw pilot`` (box mission) each
+in its own process. Start: the host time an INS frame is handed to its pty (paced out at the
+line's baud from then). End: the host time the ``ActuatorCommand`` CAN frame the gateway wrote
+reaches the emulated controller's SLCAN adapter. A command is tied to its INS frame by its time:
+the pilot stamps each command with the time of the odometry sample it stepped on, which is the
+INS sample's (its device clock mapped onto the gateway's vehicle-paced stamps, within the
+smallest transport delay: the frame's 10 ms tick is taken as the one at or before). Printed:
+p50 / p90 / p99 / max in host ms and in vehicle ms (x speed), the number of commands, the
+machine's load average and core count.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import math
+import os
 import statistics
 import tempfile
 import time
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -73,12 +92,120 @@ def emulated(speed: float, seconds: float) -> tuple[int, float, float]:
     return st["late_ticks"], st["max_lag_s"], st["process_cpu_s"] / wall
 
 
+def loop_latency(speed: float, seconds: float, out: Path) -> tuple[list[float], dict[str, Any]]:
+    """Host seconds from each INS frame to the actuator command stepped on it (see the module
+    docstring), for ``seconds`` of vehicle time at ``speed``; and the run's counters."""
+    from auvgw.bus import Keys, decode_envelope, open_session
+    from auvgw.commands.demo_parts import _fusion_config, _gateway_toml
+    from auvgw.config.bus import BusConfig
+    from auvgw.ground.procs import Children, free_endpoint
+    from auvgw.subscribe import GatewaySubscriber
+
+    scn = load_scenario(SCENARIO)
+    r = Runner(scn, RunOptions(out_dir=out / "sim", speed=speed))
+    ins, act = r.emulator("ins"), r.emulator("actuators")
+    written: dict[int, float] = {}  # INS tick (10 ms of vehicle time) -> host s handed to pty
+    arrived: dict[int, float] = {}  # command seq -> host s its CAN frame reached the adapter
+    ins_send, on_frame = ins.serial.send, act.can.adapter.on_frame
+
+    def hooked_send(frame: bytes, t: float, at: float | None = None) -> bool:
+        written[math.floor(t * 100 + 1e-6)] = time.monotonic()
+        return bool(ins_send(frame, t, at))
+
+    def hooked_frame(frame: Any) -> None:
+        h = time.monotonic()
+        on_frame(frame)
+        with contextlib.suppress(Exception):  # not a command: the emulator counted it
+            arrived.setdefault(int(act.codec.decode_frame(frame).seq), h)
+
+    ins.serial.send = hooked_send
+    act.can.adapter.on_frame = hooked_frame
+    keys = Keys("auv1")
+    hub = free_endpoint()
+    session = open_session(BusConfig(listen=[hub]))
+    sub = GatewaySubscriber("auv1", session=session)
+    children = Children(out)
+    cmds: list[tuple[int, int, float]] = []  # (seq, stamp ns, host s) of each command put
+
+    def on_cmd(sample: Any) -> None:
+        env = decode_envelope(sample.payload.to_bytes())
+        cmds.append((int(env.seq), env.t_recv_ns, time.monotonic()))
+
+    cmd_sub = session.declare_subscriber(keys.cmd("actuators"), on_cmd)
+    try:
+        fusion = _fusion_config("auv1", (0.0, 0.0, scn.vehicle.depth_m), scn.devices.ins.noise)
+        fusion = fusion.model_copy(update={"filter": fusion.filter.model_copy(
+            update={"max_latency_s": 0.03})})  # fmt: skip
+        (out / "fusion.json").write_text(fusion.model_dump_json())
+        children.start("fusion", ["fusion", "--settings", str(out / "fusion.json"),
+                                  "--connect", hub, "--listen", free_endpoint()])  # fmt: skip
+        children.start("pilot", ["pilot", "--mission", str(config_file("missions/box.toml")),
+                                 "--feedback-timeout", "0", "--nav-timeout", "2",
+                                 "--connect", hub, "--listen", free_endpoint()])  # fmt: skip
+        start_at = time.monotonic() + 30.0
+        cfg = r.write_gateway_config(out / "sim" / "gateway.toml", vehicle="auv1",
+                                     start_at=start_at)  # fmt: skip
+        epoch_ns = int(Path(cfg).read_text().split("epoch_ns = ")[1].split()[0])
+        children.start("gateway", ["run", "--config", str(_gateway_toml(
+            out / "sim", out, free_endpoint(), hub))])  # fmt: skip
+        while sub.alive(timeout=0.5) < {"fusion", "pilot", "gateway", "ins", "actuators"}:
+            if time.monotonic() > start_at - 0.5:
+                raise SystemExit("the chain was not up before vehicle time 0")
+            time.sleep(0.2)
+        r.start(duration=seconds, start_at=start_at)
+        load0 = os.getloadavg()
+        while r.running:
+            time.sleep(0.2)
+        for name in ("pilot", "gateway", "fusion"):
+            children.stop(name)
+        stats = {"load": (load0, os.getloadavg()), "commands": len(cmds),
+                 "applied": len(arrived), "ins_frames": len(written)}  # fmt: skip
+    finally:
+        for name in list(children.procs):
+            children.stop(name, grace_s=5.0)
+        children.close()
+        cmd_sub.undeclare()
+        sub.close()
+        session.close()
+        r.close()
+    lat = []
+    for seq, stamp_ns, _ in cmds:
+        tick = math.floor((stamp_ns - epoch_ns) / 1e7 + 1e-6)  # the INS tick at or before it
+        if seq in arrived and tick in written and tick > 0:
+            lat.append(arrived[seq] - written[tick])
+    return lat, stats
+
+
+def _pct(v: list[float], q: float) -> float:
+    return float(np.percentile(np.asarray(v), q)) if v else math.nan
+
+
+def main_latency(args: argparse.Namespace) -> None:
+    print(f"loop latency: INS frame to the pty -> the ActuatorCommand it causes at the CAN "
+          f"adapter ({args.seconds:g} vehicle s per speed; {os.cpu_count()} cores)")  # fmt: skip
+    print(f"{'speed':>5s} {'n':>5s} {'p50 ms':>7s} {'p90':>7s} {'p99':>7s} {'max':>7s}  "
+          f"{'vehicle p50':>11s} {'p99':>7s}  load avg (start -> end)")  # fmt: skip
+    for sp in (float(v) for v in args.speeds.split(",")):
+        with tempfile.TemporaryDirectory() as tmp:
+            lat, st = loop_latency(sp, args.seconds, Path(tmp))
+        ms = [1e3 * x for x in lat]
+        (l0, l1) = st["load"]
+        print(f"{sp:5g} {len(ms):5d} {_pct(ms, 50):7.1f} {_pct(ms, 90):7.1f} {_pct(ms, 99):7.1f} "
+              f"{max(ms, default=math.nan):7.1f}  {sp * _pct(ms, 50):11.1f} "
+              f"{sp * _pct(ms, 99):7.1f}  {l0[0]:.1f} -> {l1[0]:.1f} (1 min), "
+              f"{l1[1]:.1f} (5 min)", flush=True)  # fmt: skip
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=20.0, help="vehicle seconds per case")
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--speeds", default="1,4,8")
+    ap.add_argument("--latency", action="store_true", help="the loop latency through the chain")
     args = ap.parse_args()
+    if args.latency:
+        main_latency(args)
+        return
     b = [bare(args.seconds) for _ in range(args.runs)]
     o = [online(args.seconds) for _ in range(args.runs)]
     mb, mo = statistics.median(b), statistics.median(o)

@@ -94,7 +94,9 @@ class ActuatorFeedback:
     """What the actuators report at time ``t`` (s): measured shaft ``rpm``, ``rudder`` and
     ``stern`` plane angles (rad) and the ``faults`` word (bits set: faults); ``cmd_t``: the time
     (s) of the newest command they had applied (their echo of its sequence number), so the
-    checks compare them with what was asked then, whatever the loop's latency (None: ``t``)."""
+    checks compare them with what was asked then, whatever the loop's latency (None: ``t``;
+    before the autopilot's start, e.g. ``-inf``: they apply none of its commands yet, and are
+    not judged)."""
 
     t: float
     rpm: float
@@ -152,7 +154,7 @@ class AutopilotConfig:
     # heading -> yaw-rate set-point (1/s), yaw rate -> rudder (rad per rad/s, per rad)
     heading_kp: float = 0.5
     max_yaw_rate: float = math.radians(8.0)
-    yaw_rate_kp: float = 3.0
+    yaw_rate_kp: float = 1.5
     yaw_rate_ki: float = 0.3
     # depth -> pitch set-point (rad per m, rad per m s, rad per m/s)
     depth_kp: float = 0.2
@@ -162,9 +164,9 @@ class AutopilotConfig:
     max_pitch_d: float = math.radians(25.0)
     depth_rate: float = 0.5  #: m/s the depth set-point moves at
     # pitch -> stern plane
-    pitch_kp: float = 2.0
+    pitch_kp: float = 1.0
     pitch_ki: float = 0.3
-    pitch_kd: float = 1.5
+    pitch_kd: float = 2.5
     # speed -> rpm
     rpm_per_mps: float = 610.0  #: feed-forward (rpm per m/s)
     speed_kp: float = 200.0
@@ -179,6 +181,9 @@ class AutopilotConfig:
     max_depth: float = 60.0
     fault_mask: int = 0xFFFFFFFF
     fin_rate: float = math.radians(60.0)  #: fin servo slew rate (rad/s) of the expected model
+    #: the fin servo's first-order time constant (s) of the expected model (0: a pure slew); a
+    #: servo with a lag runs ``fin_rate * fin_tau`` behind a pure slew while it moves
+    fin_tau: float = 0.0
     fin_tolerance: float = math.radians(3.0)
     fin_jam_s: float = 0.4
     rpm_tolerance: float = 150.0
@@ -250,13 +255,17 @@ class _Watch:
 
 @dataclass
 class _Expected:
-    """A rate-limited model of an actuator following its command (what a healthy one shows)."""
+    """A model of an actuator following its command (what a healthy one shows): a first-order
+    lag of time constant ``tau`` (s; 0: none) whose speed is limited to ``rate`` per s."""
 
     rate: float
+    tau: float = 0.0
     value: float = 0.0
 
     def follow(self, cmd: float, dt: float) -> float:
-        self.value += _clip(cmd - self.value, self.rate * dt)
+        e = cmd - self.value
+        step = e if self.tau <= 0 else e * (1.0 - math.exp(-dt / self.tau))
+        self.value += _clip(step, self.rate * dt)
         return self.value
 
 
@@ -285,11 +294,14 @@ class Autopilot:
         self._depth_ref: float | None = None
         self._rpm = 0.0
         self._cmd = ActuatorCommand(0.0, 0.0, 0.0, 0.0)
-        self._exp_rudder = _Expected(c.fin_rate)
-        self._exp_stern = _Expected(c.fin_rate)
+        #: the fins as a healthy servo shows them, driven by the commands the feedback says
+        #: were applied, on the feedback's clock (:meth:`_check_actuators`)
+        self._exp_fins = (_Expected(c.fin_rate, c.fin_tau), _Expected(c.fin_rate, c.fin_tau))
+        self._fin_band = ((0.0, 0.0), (0.0, 0.0))  # (low, high) rad of each, the newest
+        self._fb_judged: float | None = None  # time of the newest feedback the model took
         self._watch = {k: _Watch() for k in ("rudder", "stern", "thruster")}
-        #: (t, expected rudder, expected stern, commanded rpm) of the last steps: what the
-        #: actuators should show for the command of time t (:class:`ActuatorFeedback` cmd_t)
+        #: (t, commanded rpm, rudder, stern) of the last steps: what the actuators were asked at
+        #: time t (:class:`ActuatorFeedback` cmd_t names the newest they had applied)
         self._asked: deque[tuple[float, float, float, float]] = deque(maxlen=400)
         wp = self.mission.waypoints[0]
         self.status = PilotStatus(0.0, self.mode, 0, self.mission.n_legs, 0.0, 0.0, 0.0, 0.0,
@@ -316,7 +328,7 @@ class Autopilot:
             self._t_start = t
         if self.mode in ("aborted", "done"):
             return self._surface(t)
-        self._check_actuators(t, dt)
+        self._check_actuators(t)
         nav = self._nav
         c = self.config
         if self.mode != "aborted":
@@ -330,6 +342,8 @@ class Autopilot:
             return self._surface(t)
         if nav is None:
             return self._hold(t)
+        if self.mode == "waiting" and self._fb is not None:
+            self._rpm = self._fb.rpm  # bumpless: the shaft speed slews on from where it is
         self.mode = "running"
         a, b, y_e, s = self._leg_geometry(nav)
         pi_h = math.atan2(b.east - a.east, b.north - a.north)
@@ -389,12 +403,10 @@ class Autopilot:
             self.leg += 1
             self.ilos.y_int = 0.0
 
-    def _check_actuators(self, t: float, dt: float) -> None:
+    def _check_actuators(self, t: float) -> None:
         c = self.config
         fb = self._fb
-        exp_r = self._exp_rudder.follow(self._cmd.rudder, dt)
-        exp_s = self._exp_stern.follow(self._cmd.stern, dt)
-        self._asked.append((t, exp_r, exp_s, self._cmd.rpm))
+        self._asked.append((t, self._cmd.rpm, self._cmd.rudder, self._cmd.stern))
         if c.feedback_timeout_s <= 0:
             return
         assert self._t_start is not None
@@ -403,16 +415,39 @@ class Autopilot:
             self._abort("actuators_silent", f"no actuator feedback for {t - last:.2f} s "
                         f"(limit {c.feedback_timeout_s:g} s)")  # fmt: skip
             return
-        if fb is None or fb.t < self._t_start + c.feedback_timeout_s:
-            return  # feedback from before the first commands could reach the actuators (their
-            # command timeout bit, fins at rest) says nothing of them: judged from then on
+        if fb is None:
+            return
+        if fb.cmd_t is None:
+            if fb.t < self._t_start + c.feedback_timeout_s:
+                return  # feedback from before the first commands could reach the actuators
+                # (their command timeout bit, fins at rest) says nothing of them
+        elif fb.cmd_t < self._t_start:
+            return  # they apply none of our commands yet (however long the way is)
         if fb.faults & c.fault_mask:
             self._abort("actuator_fault", f"fault word 0x{fb.faults:08x}")
             return
-        _, exp_r, exp_s, rpm_asked = self._asked_at(fb.t if fb.cmd_t is None else fb.cmd_t)
-        for name, meas, exp in (("rudder", fb.rudder, exp_r), ("stern", fb.stern, exp_s)):
-            off = abs(meas - exp)
+        _, rpm_asked, cmd_r, cmd_s = self._asked_at(fb.t if fb.cmd_t is None else fb.cmd_t)
+        if self._fb_judged is None or fb.t > self._fb_judged:
+            # the servo model follows the command the feedback says was applied, from the last
+            # feedback to this one: whatever the loop's latency or a stall on the way, a healthy
+            # fin is between the model's values before and after (it took the command somewhere
+            # in that interval), within rate x tau of its lag
+            h = 0.0 if self._fb_judged is None else fb.t - self._fb_judged
+            band = []
+            for model, meas, cmd in zip(self._exp_fins, (fb.rudder, fb.stern), (cmd_r, cmd_s),
+                                        strict=True):  # fmt: skip
+                if self._fb_judged is None:
+                    model.value = meas  # where the fins are when the checks start
+                before = model.value
+                after = model.follow(cmd, h)
+                band.append((min(before, after), max(before, after)))
+            self._fin_band = (band[0], band[1])
+            self._fb_judged = fb.t
+        for (lo, hi), name, meas in zip(self._fin_band, ("rudder", "stern"),
+                                        (fb.rudder, fb.stern), strict=True):  # fmt: skip
+            off = max(lo - meas, meas - hi, 0.0)
             if self._watch[name].held(off > c.fin_tolerance, t) >= c.fin_jam_s:
+                exp = hi if meas > hi else lo
                 self._abort(f"{name}_jammed", f"measured {math.degrees(meas):.1f} deg, expected "
                             f"{math.degrees(exp):.1f} deg for {c.fin_jam_s:g} s")  # fmt: skip
                 return
@@ -422,9 +457,9 @@ class Autopilot:
                         f"rpm for {c.thruster_s:g} s")  # fmt: skip
 
     def _asked_at(self, t: float) -> tuple[float, float, float, float]:
-        """What the actuators should show once the command of time ``t`` reached them: the
-        first step after it (whose model has followed that command), or the newest. Searched
-        from the newest: ``t`` is a step or two old."""
+        """The row of the command of time ``t`` (a step's row holds the command of the step
+        before it): the first row after ``t``, or the newest. Searched from the newest: ``t``
+        is a few steps old."""
         found = self._asked[-1]
         for row in reversed(self._asked):
             if row[0] <= t + 1e-9:

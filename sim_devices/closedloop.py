@@ -14,7 +14,9 @@ from the next step on.
 Sampling a past time (the sonar's ping time) interpolates the stored steps of the last
 ``history_s`` seconds. The fields are those of :class:`~auvgw.sim_devices.vehicle.Truth`:
 ``u, v`` are the body surge and sway over ground, ``w`` the vertical speed (down), ``yaw_rate,
-roll_rate, pitch_rate`` the body rates r, p, q, ``an, ae, ad`` the NED acceleration over the
+roll_rate, pitch_rate`` the Euler angle rates (as in the scripted truth; they were the body rates
+r, p, q, which the INS then turned as if Euler rates: 4 % of r and a q sin(roll) share wrong at
+the 16 deg of roll the propeller torque gives), ``an, ae, ad`` the NED acceleration over the
 last step, ``speed`` the speed through the water and ``steer`` 0. Pure apart from a lock: no
 clock, no port.
 """
@@ -33,7 +35,7 @@ from auvgw.sim_devices import dynamics
 from auvgw.sim_devices.vehicle import TRUTH_FIELDS, TruthSample
 from auvgw.sim_devices.world import World
 
-__all__ = ["ClosedLoopTruth", "Inputs"]
+__all__ = ["ClosedLoopTruth", "Inputs", "euler_rates"]
 
 #: ``inputs(t) -> (rudder rad, stern rad, shaft rpm)`` at vehicle time ``t``
 Inputs = Callable[[float], Sequence[float]]
@@ -41,6 +43,18 @@ Inputs = Callable[[float], Sequence[float]]
 _TWO_PI = 2.0 * math.pi
 _HEADING = TRUTH_FIELDS.index("heading")
 _ROLL = TRUTH_FIELDS.index("roll")
+
+
+def euler_rates(roll: float, pitch: float, p: float, q: float,
+                r: float) -> tuple[float, float, float]:  # fmt: skip
+    """ZYX Euler angle rates (roll, pitch, heading rates, rad/s) from the body rates ``p, q, r``
+    (rad/s, FRD) at ``roll``, ``pitch`` (rad): Fossen 2021 eq. 2.41, ``T(Theta) omega``. The
+    truth's ``roll_rate, pitch_rate, yaw_rate`` are these (the INS turns them back into body
+    rates, :func:`auvgw.sim_devices.ins.body_rates`)."""
+    sf, cf = math.sin(roll), math.cos(roll)
+    ct, tt = math.cos(pitch), math.tan(pitch)
+    a = q * sf + r * cf
+    return p + a * tt, q * cf - r * sf, a / ct
 
 
 class ClosedLoopTruth:
@@ -150,12 +164,14 @@ class ClosedLoopTruth:
         x, y, z = float(s[6]), float(s[7]), float(s[8])
         seabed = float(self.world.terrain.depth(np.array([x]), np.array([y]))[0])
         vn, ve, vd = (float(v) for v in self._vel)
+        phi_dot, theta_dot, psi_dot = euler_rates(float(s[9]), float(s[10]), float(s[3]),
+                                                  float(s[4]), float(s[5]))  # fmt: skip
         rel = s[0:3] - dynamics.rotation(float(s[9]), float(s[10]), float(s[11])).T @ self.current
         row = {
             "t": self._t, "x": x, "y": y, "z": z, "heading": self._heading, "roll": self._roll,
             "pitch": float(s[10]), "u": float(s[0]), "v": float(s[1]), "w": vd,
-            "yaw_rate": float(s[5]), "altitude": seabed - z, "seabed_depth": seabed,
-            "roll_rate": float(s[3]), "pitch_rate": float(s[4]), "vn": vn, "ve": ve, "vd": vd,
+            "yaw_rate": psi_dot, "altitude": seabed - z, "seabed_depth": seabed,
+            "roll_rate": phi_dot, "pitch_rate": theta_dot, "vn": vn, "ve": ve, "vd": vd,
             "an": float(acc[0]), "ae": float(acc[1]), "ad": float(acc[2]),
             "speed": float(np.linalg.norm(rel)), "steer": 0.0,
         }  # fmt: skip

@@ -35,6 +35,7 @@ from auvgw.sim_devices.actuators import ActuatorEmulator, ActuatorLimits, Actuat
 from auvgw.sim_devices.clock import SimClock
 from auvgw.sim_devices.closedloop import ClosedLoopTruth
 from auvgw.sim_devices.emulator import SimContext
+from auvgw.sim_devices.ins import body_rates
 from auvgw.sim_devices.world import World
 from auvgw.testing import REPO, wait_until
 
@@ -321,6 +322,19 @@ def test_closed_loop_truth_is_causal_and_samples_the_past() -> None:
     b = truth.at(0.5)  # the past: interpolated, nothing integrated
     assert truth.steps == 100 and b.t == 0.5 and b.x < a.x
     assert a.x == pytest.approx(1.3, rel=0.1) and a.z == pytest.approx(5.0, abs=0.1)
+
+
+def test_the_ins_reports_the_dynamics_body_rates() -> None:
+    """The truth's rates are Euler angle rates (the scripted truth's, which the INS emulator
+    turns into body rates); the closed-loop truth stored the body rates p, q, r there, so a
+    rolled vehicle (the propeller torque's roll) reported a wrong yaw rate to the autopilot. The
+    INS's rates must be the dynamics state's p, q, r, rolled and pitched, in a turn."""
+    scn = load_scenario(SCENARIO)
+    truth = ClosedLoopTruth(scn, World.from_scenario(scn), inputs=lambda _t: (-0.2, 0.1, 1500.0))
+    s = truth.at(3.0)  # a turn, rolled and pitched by the fins and the propeller torque
+    pqr = truth.state[3:6]
+    assert abs(s.roll) > 0.05 and abs(s.pitch) > 0.05 and abs(pqr[2]) > 0.05
+    np.testing.assert_allclose(body_rates(s), pqr, atol=1e-9)
 
 
 def test_scenario_checks_the_closed_loop_keys() -> None:

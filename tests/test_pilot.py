@@ -220,7 +220,7 @@ def test_an_actuator_fault_is_detected_within_a_second_and_the_vehicle_surfaces(
     after = f.t > f.abort_t
     assert (f.commands[after, 0] == 0.0).all() and (f.commands[after, 2] < 0).all()
     # positively buoyant, shaft off: 20 s on it is rising (a jammed stern plane first coasts down)
-    assert f.states[-1, 8] < f.states[f.t == f.abort_t][0, 8] - 1.0
+    assert f.states[-1, 8] < f.states[f.t == f.abort_t][0, 8] - 0.5
 
 
 def test_a_fin_stuck_where_it_was_is_caught_once_the_command_moves_away():
@@ -286,3 +286,64 @@ def test_a_monte_carlo_run_is_seeded_by_study_and_run_and_stays_within_the_bars(
         assert r.abort_reason == "" and not math.isnan(r.done_t)
         assert r.xte_rms <= 2.0 and r.depth_rms <= 0.3
         assert math.hypot(*r.current[:2]) <= 0.3 and abs(r.offset) <= 3.0
+
+
+def test_a_healthy_lagging_servo_behind_a_latency_is_not_a_jam():
+    """Through the chain a pitch loop swinging the stern plane aborted ``stern_jammed`` on a
+    healthy fin: the emulated controller (``auvgw.sim_devices.actuators``: 30 deg/s and a 0.1 s
+    first-order lag) runs rate x tau = 3 deg behind a pure slew while it moves, a command
+    reaches it some 40 ms after it was sent and its 20 Hz feedback is sampled at its own ticks.
+    With the lag in the check's model (``fin_tau``) and the fin judged over the model's values
+    within ``fin_window_s`` of the applied command's time, a healthy servo under random full
+    swings is never called jammed, and a jammed one still is (once the swings leave it 0.4 s
+    away from where it stuck)."""
+    from auvgw.sim_devices.actuators import ActuatorLimits
+    from auvgw.sim_devices.actuators import ActuatorModel as Servo
+
+    swings = np.random.default_rng(3).choice([-0.3, 0.3], 100)
+    for jam_at in (None, 5.0):
+        ap = Autopilot(SHORT, AutopilotConfig(fin_rate=math.radians(30.0), fin_tau=0.1,
+                                              feedback_timeout_s=0.5))  # fmt: skip
+        jams = {} if jam_at is None else {"stern_jam": [(jam_at, 1e9)]}
+        servo = Servo(ActuatorLimits(command_timeout_s=100.0), rpm=0.0,
+                      faults_at=lambda t, j=jams: {k for k, w in j.items() if w[0][0] <= t})
+        sent: dict[int, float] = {}
+        in_flight: list[tuple[float, int, object]] = []
+        for tick in range(1000):  # 10 s in 10 ms ticks: pilot and feedback at 20 Hz, 40 ms
+            t = tick * 0.01
+            while in_flight and in_flight[0][0] <= t + 1e-9:
+                _, seq, cmd = in_flight.pop(0)
+                servo.command(t, cmd.rpm, cmd.rudder, cmd.stern, seq)
+            if tick % 5 == 2:  # the controller's feedback, between the pilot's steps
+                r = servo.read(t)
+                ap.feedback(ActuatorFeedback(t, r.rpm, r.rudder, r.stern, 0,
+                                             sent.get(r.cmd_seq)))  # fmt: skip
+            if tick % 5 == 0:  # the pitch swings the stern plane +-20 deg every 0.1 s
+                ap.nav(_fix(t, 1.5 * t, 0.0, pitch=swings[tick // 10]))
+                cmd = ap.step(t)
+                sent[tick] = t
+                in_flight.append((t + 0.04, tick, cmd))
+            if ap.status.mode == "aborted":
+                break
+        if jam_at is None:
+            assert ap.status.mode == "running", ap.status.abort_detail
+        else:
+            assert ap.status.abort_reason == "stern_jammed" and ap.status.t > jam_at
+
+
+def test_feedback_is_judged_once_it_echoes_a_command_of_this_pilot():
+    """Before the actuators apply any of the pilot's commands (their echo names none: ``cmd_t``
+    before the start), their command-timeout bit and resting fins say nothing of them, however
+    long the first commands take; from the first echo of one, the fault word aborts."""
+    ap = Autopilot(SHORT, AutopilotConfig(feedback_timeout_s=0.5))
+    timeout_bit = 0x10
+    for k in range(60):  # 3 s of a slow start: not judged
+        t = 0.05 * k
+        ap.nav(_fix(t, 1.5 * t, 0.0))
+        ap.feedback(ActuatorFeedback(t, 0.0, 0.0, 0.0, timeout_bit, -math.inf))
+        ap.step(t)
+    assert ap.status.mode == "running"
+    ap.nav(_fix(3.0, 4.5, 0.0))
+    ap.feedback(ActuatorFeedback(3.0, 0.0, 0.0, 0.0, timeout_bit, 2.9))  # echoes one of ours
+    ap.step(3.0)
+    assert ap.status.abort_reason == "actuator_fault"

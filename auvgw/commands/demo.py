@@ -49,8 +49,14 @@ import numpy as np
 
 from auvgw.bus import Keys, decode_envelope, encode_envelope, open_session
 from auvgw.commands.common import UserError, add_command
+from auvgw.commands.demo_parts import (
+    _fusion_config,
+    _gateway_toml,
+    _load_sim_config,
+    _TruthTail,
+    _wait_for,
+)
 from auvgw.config.bus import BusConfig
-from auvgw.config.gateway import ConfigError, load_gateway_config
 from auvgw.config.scenario import ScenarioError, load_scenario
 from auvgw.ground.paths import config_file
 from auvgw.ground.procs import Children, free_endpoint, stop_process
@@ -115,6 +121,15 @@ def register(sub: Any) -> None:
         help="--processes: host seconds from the sim's gateway.toml to vehicle time 0, for the "
         "gateway process to start and open every port (default 10)",
     )
+    p.add_argument(
+        "--closed-loop",
+        action="store_true",
+        help="fly --mission with the reference autopilot through the whole chain (the "
+        "closed-loop scenario; sim, gateway, fusion, pilot, viz, record each a process) and "
+        "print the errors against the truth (auvgw/commands/demo_closed_loop.py)",
+    )
+    p.add_argument("--mission", type=Path, default=None,
+                   help="--closed-loop: mission file (default config/missions/box.toml)")
     p.set_defaults(func=run)
 
 
@@ -207,40 +222,6 @@ def _path_error(est: _Track, truth: _Track, since: float = -math.inf) -> dict[st
     }
 
 
-class _TruthTail:
-    """Follows the simulator's truth log (JSON lines), feeding each sample to ``on_sample``."""
-
-    def __init__(self, path: Path, on_sample: Any) -> None:
-        self.path = path
-        self.on_sample = on_sample
-        self._pos = 0
-        self._partial = ""
-
-    def poll(self) -> None:
-        if not self.path.is_file():
-            return
-        with open(self.path) as fh:
-            fh.seek(self._pos)
-            data = fh.read()
-            self._pos = fh.tell()
-        text = self._partial + data
-        lines = text.split("\n")
-        self._partial = lines.pop()
-        for line in lines:
-            if line.strip():
-                self.on_sample(json.loads(line))
-
-
-def _wait_for(path: Path, proc: subprocess.Popen[bytes], timeout_s: float) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not path.is_file():
-        if proc.poll() is not None:
-            raise UserError(f"the emulated vehicle stopped early (exit {proc.returncode})")
-        if time.monotonic() > deadline:
-            raise UserError(f"the emulated vehicle wrote no {path.name} in {timeout_s:.0f} s")
-        time.sleep(0.1)
-
-
 def _sim_argv(scenario: Path, speed: float, duration: float, sim_dir: Path) -> list[str]:
     return ["sim", "--scenario", str(scenario), "--speed", str(speed), "--duration",
             str(duration), "--out", str(sim_dir), "--vehicle", VEHICLE, "--hold"]  # fmt: skip
@@ -278,6 +259,10 @@ def _wait_drained(frames: Callable[[], int], quiet_s: float = 0.5, limit_s: floa
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.closed_loop:
+        from auvgw.commands.demo_closed_loop import run_closed_loop
+
+        return run_closed_loop(args)
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
     sim_dir = out / "sim"
@@ -332,46 +317,6 @@ def _scenario_defaults(args: argparse.Namespace, scenario: Path) -> None:
             print("note: the survey's loop closures come with its tie line, after 25 minutes of "
                   "vehicle time; `auvgw demo --scenario survey --processes` runs the whole route "
                   f"at {SURVEY_SPEED:g}x", flush=True)  # fmt: skip
-
-
-def _load_sim_config(sim_dir: Path) -> Any:
-    """The gateway configuration ``auvgw sim`` wrote, with its vehicle-paced clock."""
-    try:
-        gw_cfg = load_gateway_config(sim_dir / "gateway.toml")
-    except ConfigError as exc:
-        raise UserError(str(exc)) from exc
-    if gw_cfg.clock.epoch_ns is None:
-        raise UserError(f"{gw_cfg.source}: no [clock] epoch_ns (vehicle time 0) from auvgw sim")
-    return gw_cfg
-
-
-def _fusion_config(
-    vehicle: str, position_m: tuple[float, float, float], ins_noise: dict[str, float] | None = None
-) -> Any:
-    """The demo's fusion stage: dead reckoning starts from the true position (what a GNSS fix at
-    the surface gives a real vehicle). The INS heading error model follows the emulated INS
-    (``ins_noise``: the scenario's ``devices.ins.noise``): with ``heading_bias_deg`` > 0 its
-    heading error is Gauss-Markov (RMS ``heading_bias_deg``, correlation time
-    ``heading_bias_tau_s``, default 300 s), and so is the filter's (``heading_error_sigma_deg``,
-    ``heading_error_tau_s``); otherwise it is white (``heading_deg``, default 0.3 deg), tau = 0."""
-    from auvgw.fusion.config import FusionConfig, InitialState
-    from auvgw.sim_devices.ins import DEFAULT_NOISE, HEADING_ERROR
-    from auvgw.stages.fusion import FusionStageConfig
-
-    noise = ins_noise or {}
-    bias = float(noise.get("heading_bias_deg", 0.0))
-    if bias > 0:
-        sigma = bias
-        tau = float(noise.get("heading_bias_tau_s", HEADING_ERROR["heading_bias_tau_s"]))
-    else:
-        sigma, tau = float(noise.get("heading_deg", DEFAULT_NOISE["heading_deg"])), 0.0
-    filt = FusionConfig(
-        initial=InitialState(position_m=position_m, position_sigma_m=(0.5, 0.5, 0.5)),
-        heading_error_sigma_deg=sigma,
-        heading_error_tau_s=tau,
-        pitch_error_tau_s=0.0,
-    )
-    return FusionStageConfig(vehicle=vehicle, ins_device="ins", dvl_device="dvl", filter=filt)
 
 
 def _slam_config(vehicle: str, msis: str | None, scn: Any) -> Any:
@@ -743,26 +688,6 @@ def _wait_alive(
             raise UserError(f"{what}: no {', '.join(sorted(missing))} on the bus after "
                             f"{timeout_s:.0f} s")  # fmt: skip
         time.sleep(0.1)
-
-
-def _gateway_toml(sim_dir: Path, out: Path, listen: str, hub: str) -> Path:
-    """The sim's gateway.toml joined to this demo's bus (listen on its own port, connect to the
-    hub); everything else, the [clock] included, as the sim wrote it."""
-    import tomllib
-
-    from auvgw.config.gateway import parse_gateway_config
-    from auvgw.sim_devices.runner import gateway_toml
-
-    data = tomllib.loads((sim_dir / "gateway.toml").read_text())
-    data["bus"] = {"mode": "peer", "listen": [listen], "connect": [hub]}
-    path = out / "gateway.toml"
-    try:
-        parse_gateway_config(data, source=str(path))
-    except ConfigError as exc:
-        raise UserError(str(exc)) from exc
-    path.write_text(gateway_toml(data, f"auvgw demo --processes: {sim_dir / 'gateway.toml'} "
-                                       "on the demo's bus"))  # fmt: skip
-    return path
 
 
 def _run_processes(

@@ -52,6 +52,9 @@ def register(sub: Any) -> None:
     p.add_argument("--fin-rate", type=float, default=30.0, metavar="DEG_S",
                    help="the fin servos' slew rate the jam check expects (default 30 deg/s, "
                    "the emulated controller's)")  # fmt: skip
+    p.add_argument("--fin-tau", type=float, default=0.1, metavar="S",
+                   help="the fin servos' time constant the jam check expects (default 0.1 s, "
+                   "the emulated controller's)")  # fmt: skip
     p.add_argument("--actuators", default="actuators", metavar="DEVICE",
                    help="the actuators' device name in the gateway (default actuators)")
     p.add_argument("--no-commands", action="store_true",
@@ -82,13 +85,15 @@ def run(args: argparse.Namespace) -> int:
             raise UserError(f"{opt} must be > 0, got {value}")
     if not 0 < args.fin_rate <= 1000:
         raise UserError(f"--fin-rate must be in (0, 1000] deg/s, got {args.fin_rate}")
+    if not 0 <= args.fin_tau <= 10:
+        raise UserError(f"--fin-tau must be in [0, 10] s, got {args.fin_tau}")
     if not args.feedback_timeout >= 0:
         raise UserError(f"--feedback-timeout must be >= 0, got {args.feedback_timeout}")
     cfg = PilotStageConfig(vehicle=args.vehicle, control_period_s=args.period,
                            nav_timeout_s=args.nav_timeout, max_depth=args.max_depth,
                            feedback_timeout_s=args.feedback_timeout,
                            actuators_device=args.actuators,
-                           fin_rate_dps=args.fin_rate)  # fmt: skip
+                           fin_rate_dps=args.fin_rate, fin_tau_s=args.fin_tau)  # fmt: skip
 
     def make(session: Any) -> PilotStage:
         sink = None if args.no_commands else BusCommands(session, args.vehicle, args.actuators)

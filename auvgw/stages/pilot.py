@@ -68,11 +68,15 @@ class PilotStageConfig(StageConfig):
     #: the fin servos' slew rate (deg/s) the jam check expects: the vehicle's controller's (the
     #: emulated one's ``fin_rate_dps``, 30 by default)
     fin_rate_dps: float = Field(30.0, gt=0, le=1000)
+    #: the fin servos' time constant (s) the jam check expects (the emulated one's
+    #: ``fin_tau_s``, 0.1 by default): while a fin moves it runs rate x tau behind a pure slew
+    fin_tau_s: float = Field(0.1, ge=0, le=10)
 
     def autopilot(self) -> AutopilotConfig:
         return AutopilotConfig(nav_timeout_s=self.nav_timeout_s, max_depth=self.max_depth,
                                feedback_timeout_s=self.feedback_timeout_s,
-                               fin_rate=math.radians(self.fin_rate_dps))  # fmt: skip
+                               fin_rate=math.radians(self.fin_rate_dps),
+                               fin_tau=self.fin_tau_s)  # fmt: skip
 
 
 @dataclass
@@ -134,6 +138,8 @@ class PilotStage(Stage):
         if device == self.config.actuators_device and hasattr(message, "faults"):
             sent_at = getattr(self.sink, "sent_at", None)
             cmd_t = sent_at(int(message.cmd_seq)) if sent_at is not None else None
+            if sent_at is not None and cmd_t is None:
+                cmd_t = -math.inf  # they echo no command of ours: applying none yet
             self.feed_actuators(ActuatorFeedback(
                 t=t_recv_ns * 1e-9, rpm=float(message.shaft_rpm), rudder=float(message.rudder),
                 stern=float(message.stern), faults=int(message.faults), cmd_t=cmd_t))  # fmt: skip
@@ -216,7 +222,7 @@ class PilotStage(Stage):
 class BusCommands:
     """A :data:`~auvgw.control.autopilot.CommandSink` that puts each command on
     ``auv/<v>/cmd/<device>`` as the actuators' DBC ``ActuatorCommand`` (rpm, rudder and stern
-    plane in rad, a sequence number counting from 0; the gateway's gate starts a new stream
+    plane in rad, a sequence number counting from 1; the gateway's gate starts a new stream
     after a quiet spell, so a restarted pilot is taken)."""
 
     def __init__(self, session: zenoh.Session, vehicle: str, device: str = "actuators") -> None:
@@ -226,7 +232,8 @@ class BusCommands:
         self._type = actuators_can().types[COMMAND_TYPE]
         self._modulo = SEQ_MODULO
         self._pub = session.declare_publisher(Keys(vehicle).cmd(device))
-        self.seq = -1
+        # the first command is 1: the controller echoes 0 before it has applied any
+        self.seq = 0
         self._sent: dict[int, float] = {}  # seq -> the command's time (s), the last 1024
 
     def sent_at(self, seq: int) -> float | None:

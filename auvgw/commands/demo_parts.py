@@ -1,0 +1,111 @@
+"""Parts of ``auvgw demo`` shared by its modes (the survey and harbour runs in
+:mod:`auvgw.commands.demo`, the closed loop in :mod:`auvgw.commands.demo_closed_loop`): the sim's
+truth log followed, its gateway configuration read and joined to the demo's bus, the fusion's
+settings."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import time
+from pathlib import Path
+from typing import Any
+
+from auvgw.commands.common import UserError
+from auvgw.config.gateway import ConfigError, load_gateway_config
+
+__all__ = ["_TruthTail", "_fusion_config", "_gateway_toml", "_load_sim_config", "_wait_for"]
+
+
+class _TruthTail:
+    """Follows the simulator's truth log (JSON lines), feeding each sample to ``on_sample``."""
+
+    def __init__(self, path: Path, on_sample: Any) -> None:
+        self.path = path
+        self.on_sample = on_sample
+        self._pos = 0
+        self._partial = ""
+
+    def poll(self) -> None:
+        if not self.path.is_file():
+            return
+        with open(self.path) as fh:
+            fh.seek(self._pos)
+            data = fh.read()
+            self._pos = fh.tell()
+        text = self._partial + data
+        lines = text.split("\n")
+        self._partial = lines.pop()
+        for line in lines:
+            if line.strip():
+                self.on_sample(json.loads(line))
+
+
+def _load_sim_config(sim_dir: Path) -> Any:
+    """The gateway configuration ``auvgw sim`` wrote, with its vehicle-paced clock."""
+    try:
+        gw_cfg = load_gateway_config(sim_dir / "gateway.toml")
+    except ConfigError as exc:
+        raise UserError(str(exc)) from exc
+    if gw_cfg.clock.epoch_ns is None:
+        raise UserError(f"{gw_cfg.source}: no [clock] epoch_ns (vehicle time 0) from auvgw sim")
+    return gw_cfg
+
+
+def _fusion_config(
+    vehicle: str, position_m: tuple[float, float, float], ins_noise: dict[str, float] | None = None
+) -> Any:
+    """The demo's fusion stage: dead reckoning starts from the true position (what a GNSS fix at
+    the surface gives a real vehicle). The INS heading error model follows the emulated INS
+    (``ins_noise``: the scenario's ``devices.ins.noise``): with ``heading_bias_deg`` > 0 its
+    heading error is Gauss-Markov (RMS ``heading_bias_deg``, correlation time
+    ``heading_bias_tau_s``, default 300 s), and so is the filter's (``heading_error_sigma_deg``,
+    ``heading_error_tau_s``); otherwise it is white (``heading_deg``, default 0.3 deg), tau = 0."""
+    from auvgw.fusion.config import FusionConfig, InitialState
+    from auvgw.sim_devices.ins import DEFAULT_NOISE, HEADING_ERROR
+    from auvgw.stages.fusion import FusionStageConfig
+
+    noise = ins_noise or {}
+    bias = float(noise.get("heading_bias_deg", 0.0))
+    if bias > 0:
+        sigma = bias
+        tau = float(noise.get("heading_bias_tau_s", HEADING_ERROR["heading_bias_tau_s"]))
+    else:
+        sigma, tau = float(noise.get("heading_deg", DEFAULT_NOISE["heading_deg"])), 0.0
+    filt = FusionConfig(
+        initial=InitialState(position_m=position_m, position_sigma_m=(0.5, 0.5, 0.5)),
+        heading_error_sigma_deg=sigma,
+        heading_error_tau_s=tau,
+        pitch_error_tau_s=0.0,
+    )
+    return FusionStageConfig(vehicle=vehicle, ins_device="ins", dvl_device="dvl", filter=filt)
+
+
+def _gateway_toml(sim_dir: Path, out: Path, listen: str, hub: str) -> Path:
+    """The sim's gateway.toml joined to this demo's bus (listen on its own port, connect to the
+    hub); everything else, the [clock] included, as the sim wrote it."""
+    import tomllib
+
+    from auvgw.config.gateway import parse_gateway_config
+    from auvgw.sim_devices.runner import gateway_toml
+
+    data = tomllib.loads((sim_dir / "gateway.toml").read_text())
+    data["bus"] = {"mode": "peer", "listen": [listen], "connect": [hub]}
+    path = out / "gateway.toml"
+    try:
+        parse_gateway_config(data, source=str(path))
+    except ConfigError as exc:
+        raise UserError(str(exc)) from exc
+    path.write_text(gateway_toml(data, f"auvgw demo --processes: {sim_dir / 'gateway.toml'} "
+                                       "on the demo's bus"))  # fmt: skip
+    return path
+
+
+def _wait_for(path: Path, proc: subprocess.Popen[bytes], timeout_s: float) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not path.is_file():
+        if proc.poll() is not None:
+            raise UserError(f"the emulated vehicle stopped early (exit {proc.returncode})")
+        if time.monotonic() > deadline:
+            raise UserError(f"the emulated vehicle wrote no {path.name} in {timeout_s:.0f} s")
+        time.sleep(0.1)
