@@ -32,7 +32,6 @@ import functools
 import io
 import json
 import logging
-import queue
 import re
 import struct
 import threading
@@ -64,6 +63,7 @@ from auvgw.decoding import DeviceDecoder, make_decoders
 from auvgw.drivers.spec import to_jsonable
 from auvgw.ground.errors import DataError
 from auvgw.ground.paths import config_file
+from auvgw.ground.worker import Worker
 
 log = logging.getLogger(__name__)
 
@@ -97,7 +97,6 @@ GATEWAY_METADATA = "auvgw.gateway"
 #: MCAP metadata record written when a recording is closed
 RECORDING_METADATA = "auvgw.recording"
 _ATT_LEN = struct.Struct("<H")
-_STOP = "stop"
 
 
 class RecordingError(DataError):
@@ -296,9 +295,10 @@ class _Pending:
     t_rx_ns: int
 
 
-class McapRecorder:
+class McapRecorder(Worker[_Pending | str]):
     """Writes samples to an MCAP file (ROS 2 profile, :class:`Ros2McapWriter`) from a
-    background thread.
+    background thread (a :class:`~auvgw.ground.worker.Worker` with an unbounded queue: a
+    recording never drops a sample to keep up).
 
     :meth:`add` is cheap and thread-safe (it only queues), so it can be called from Zenoh
     callbacks; :meth:`close` drains the queue, writes the closing metadata and the MCAP summary.
@@ -323,11 +323,10 @@ class McapRecorder:
         self.skipped = 0
         self._f: IO[bytes] = file if file is not None else open(self.path, "wb")  # noqa: SIM115
         self._w = Ros2McapWriter(self._f, vehicle, chunk_size)
-        self._q: queue.SimpleQueue[_Pending | str] = queue.SimpleQueue()
         self._config_written = False
         self._closed = False
-        self._thread = threading.Thread(target=self._drain, name="mcap-writer", daemon=True)
-        self._thread.start()
+        super().__init__(0, thread_name="mcap-writer")
+        self.start_worker()
 
     @property
     def counts(self) -> Counter[str]:
@@ -340,7 +339,7 @@ class McapRecorder:
         if self.failed.is_set():
             self.lost += 1
             return
-        self._q.put(_Pending(key, payload, attachment, encoding, time.time_ns()))
+        self.submit(_Pending(key, payload, attachment, encoding, time.time_ns()))
 
     def set_gateway_config(self, config_json: str) -> None:
         """Write the gateway configuration record (once; later calls are ignored)."""
@@ -352,51 +351,49 @@ class McapRecorder:
             "schema_version": str(SCHEMA_VERSION),
             "config": config_json,
         }
-        self._q.put(json.dumps(meta))  # written in order, after the samples queued before it
+        self.submit(json.dumps(meta))  # written in order, after the samples queued before it
 
     @property
     def has_config(self) -> bool:
         return self._config_written
 
-    def _drain(self) -> None:
-        while True:
-            p = self._q.get()
-            if p == _STOP:
-                return
-            if self.failed.is_set():
-                self.lost += not isinstance(p, str)
-                continue
-            try:
-                if isinstance(p, str):
-                    meta = json.loads(p)
-                    with contextlib.suppress(ValueError, KeyError, AttributeError):
-                        cfg = json.loads(meta["config"])
-                        devices = cfg.get("devices", {})
-                        self._w.wire_formats.update({k: d["format"] for k, d in devices.items()})
-                        # every sensor frame placed under base_link (the configured mounts)
-                        static = ros2.static_tf_for_config(cfg, self.t_start_ns)
-                        if static is not None:
-                            msg = ros2.RosMessage("/tf_static", ros2.TF_TYPE, static)
-                            self._w.write_ros("", [msg], self.t_start_ns,
-                                              self.t_start_ns)  # fmt: skip
-                    self._w.add_metadata(GATEWAY_METADATA, meta)
-                else:
-                    self._w.write(p.key, p.payload, p.attachment, p.encoding, p.t_rx_ns)
-            except (ValueError, KeyError, TypeError, struct.error) as exc:
-                self.skipped += 1
-                log.warning("%s: sample not recorded: %s", getattr(p, "key", "metadata"), exc)
-            except OSError as exc:  # disk full, I/O error: stop writing, keep draining
-                self.error = exc
-                self.lost += not isinstance(p, str)
-                self.failed.set()
+    def _work_describe(self, item: _Pending | str) -> str:
+        return item.key if isinstance(item, _Pending) else "metadata"
+
+    def _work_item(self, p: _Pending | str) -> None:
+        if self.failed.is_set():
+            self.lost += not isinstance(p, str)
+            return
+        try:
+            if isinstance(p, str):
+                meta = json.loads(p)
+                with contextlib.suppress(ValueError, KeyError, AttributeError):
+                    cfg = json.loads(meta["config"])
+                    devices = cfg.get("devices", {})
+                    self._w.wire_formats.update({k: d["format"] for k, d in devices.items()})
+                    # every sensor frame placed under base_link (the configured mounts)
+                    static = ros2.static_tf_for_config(cfg, self.t_start_ns)
+                    if static is not None:
+                        msg = ros2.RosMessage("/tf_static", ros2.TF_TYPE, static)
+                        self._w.write_ros("", [msg], self.t_start_ns,
+                                          self.t_start_ns)  # fmt: skip
+                self._w.add_metadata(GATEWAY_METADATA, meta)
+            else:
+                self._w.write(p.key, p.payload, p.attachment, p.encoding, p.t_rx_ns)
+        except (ValueError, KeyError, TypeError, struct.error) as exc:
+            self.skipped += 1
+            log.warning("%s: sample not recorded: %s", getattr(p, "key", "metadata"), exc)
+        except OSError as exc:  # disk full, I/O error: stop writing, keep draining
+            self.error = exc
+            self.lost += not isinstance(p, str)
+            self.failed.set()
 
     def close(self) -> None:
         """Flush everything, write the closing metadata and the summary, close the file."""
         if self._closed:
             return
         self._closed = True
-        self._q.put(_STOP)
-        self._thread.join()
+        self.stop_worker(None)
         if self.failed.is_set():  # no summary: the file is read up to its last whole chunk
             with contextlib.suppress(OSError):
                 self._f.close()

@@ -23,7 +23,6 @@ from __future__ import annotations
 import itertools
 import logging
 import math
-import queue
 import threading
 import time
 from collections import Counter
@@ -37,6 +36,7 @@ import rerun as rr
 
 from auvgw.ground.closing import Closing
 from auvgw.ground.geometry import TWO_PI, quaternion_zyx, wrap_angle
+from auvgw.ground.worker import Worker
 from auvgw.viz import entities as ent
 from auvgw.viz.blueprint import DEFAULT_TRACKS, default_blueprint
 from auvgw.viz.entities import APPLICATION_ID, TIMELINE
@@ -53,7 +53,9 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-_STOP = object()
+#: a queued logger call: (kind, data time s, the view's arguments)
+_Item = tuple[str, float, tuple[Any, ...]]
+
 
 #: turbo-like colour scale (low values dark blue, high values dark red), 11 control points
 _TURBO = np.array(
@@ -376,7 +378,7 @@ class _Stream:
 
 
 # -- the logger --------------------------------------------------------------------------------
-class RerunLogger(Closing):
+class RerunLogger(Closing, Worker[_Item]):
     """Logs a run to an ``.rrd`` file (``rrd``) and/or a running viewer (``connect``, a
     ``rerun+http://host:9876/proxy`` URL) without ever blocking the caller.
 
@@ -422,14 +424,10 @@ class RerunLogger(Closing):
         self._bp_tracks: list[str] = list(DEFAULT_TRACKS)
         if blueprint:
             self._rec.send_blueprint(default_blueprint(self._bp_tracks))
-        self._q: queue.Queue[Any] = queue.Queue(maxsize=max(1, opts.queue_size))
+        super().__init__(max(1, opts.queue_size), period_s=opts.flush_period_s)
         self._lock = threading.Lock()
         self._dropped: Counter[str] = Counter()
-        self._processed = 0
-        self._errors = 0
-        self._last_error = ""
         self._closed = False
-        self._thread: threading.Thread | None = None
         self._handlers: dict[str, Callable[..., None]] = {
             name[4:]: getattr(self, name) for name in dir(self) if name.startswith("_do_")
         }
@@ -469,22 +467,15 @@ class RerunLogger(Closing):
     # -- lifecycle -------------------------------------------------------------------------
     def start(self) -> None:
         """Start the logging thread (idempotent)."""
-        if self._thread is None:
-            self._thread = threading.Thread(target=self._run, name="rerun-logger", daemon=True)
-            self._thread.start()
+        self.start_worker()
 
     def close(self, timeout_s: float = 30.0) -> None:
         """Stop accepting items, log what is queued, send the batches, flush and disconnect."""
         if self._closed:
             return
         self._closed = True
-        self.start()
-        assert self._thread is not None
-        try:
-            self._q.put(_STOP, timeout=timeout_s)
-        except queue.Full:
-            log.warning("rerun logger: queue still full after %.0f s; closing anyway", timeout_s)
-        self._thread.join(timeout_s)
+        self.start_worker()
+        self.stop_worker(timeout_s)
         try:
             self._rec.flush(timeout_sec=timeout_s)
         finally:
@@ -494,22 +485,19 @@ class RerunLogger(Closing):
         """Current counters (see :class:`LoggerStats`)."""
         with self._lock:
             dropped = dict(self._dropped)
+        w = self.worker_stats()
         return LoggerStats(
-            processed=self._processed,
+            processed=w.handled,
             dropped=sum(dropped.values()),
-            errors=self._errors,
-            queued=self._q.qsize(),
+            errors=w.errors,
+            queued=w.queued,
             dropped_by_kind=dropped,
-            last_error=self._last_error,
+            last_error=w.last_error,
         )
 
     def _put(self, kind: str, args: tuple[Any, ...], t: float) -> bool:
-        if not self._closed:
-            try:
-                self._q.put_nowait((kind, t, args))
-                return True
-            except queue.Full:
-                pass
+        if self.submit((kind, t, args)):
+            return True
         with self._lock:
             self._dropped[kind] += 1
         return False
@@ -705,46 +693,30 @@ class RerunLogger(Closing):
         return self._put("acoustic_beacon", (name, float(t), float(x), float(y)), float(t))
 
     # -- the logging thread ----------------------------------------------------------------
-    def _run(self) -> None:
-        rec = self._rec
-        rec.set_log_tick_enabled(False)
-        rec.set_log_time_enabled(False)
+    def _work_started(self) -> None:
+        self._rec.set_log_tick_enabled(False)
+        self._rec.set_log_time_enabled(False)
         self._static_setup()
-        period = self.options.flush_period_s
-        next_flush = time.monotonic() + period
-        while True:
-            try:
-                item = self._q.get(timeout=max(0.0, next_flush - time.monotonic()))
-            except queue.Empty:
-                item = None
-            if item is _STOP:
-                break
-            if item is not None:
-                kind, t, args = item
-                if t > self._t_last:
-                    self._t_last = t
-                try:
-                    self._handlers[kind](*args)
-                except Exception as exc:  # a bad item must never stop the logger
-                    self._errors += 1
-                    self._last_error = f"{kind}: {type(exc).__name__}: {exc}"
-                    if self._errors <= 5:
-                        log.warning("rerun logger: %s", self._last_error)
-                self._processed += 1
-            device_due = self._t_last - self._t_flushed >= period
-            if device_due or time.monotonic() >= next_flush:
-                self._t_flushed = self._t_last
-                self._safe_flush(final=False)
-                next_flush = time.monotonic() + period
-        self._safe_flush(final=True)
 
-    def _safe_flush(self, final: bool) -> None:
+    def _work_item(self, item: _Item) -> None:
+        kind, t, args = item
+        if t > self._t_last:
+            self._t_last = t
         try:
-            self._flush(final)
-        except Exception as exc:
-            self._errors += 1
-            self._last_error = f"flush: {type(exc).__name__}: {exc}"
-            log.warning("rerun logger: %s", self._last_error)
+            self._handlers[kind](*args)
+        finally:  # batches cut at device-time flushes, failed item or not
+            if self._t_last - self._t_flushed >= self.options.flush_period_s:
+                self._work_tick()
+
+    def _work_describe(self, item: _Item) -> str:
+        return item[0]
+
+    def _work_tick(self) -> None:
+        self._t_flushed = self._t_last
+        self._flush(final=False)
+
+    def _work_finished(self) -> None:
+        self._flush(final=True)
 
     def _set_time(self, t: float) -> None:
         if self.options.time_kind == "timestamp":
