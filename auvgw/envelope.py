@@ -539,6 +539,7 @@ def _layout_reader(
         hints = _type_hints(node.cls)
         items = []
         for name, enc in zip(p.names, p.encoders, strict=True):
+            item: str | None
             if name in wired:
                 row = rows.get(name)
                 if name in node.absent:
@@ -587,7 +588,8 @@ def pack_body(msg: Any, trusted: bool = False) -> list[Any]:
     """The positional body of a message (its class's table order; see the module docstring).
     ``trusted``: the message comes straight from its codec's decode, so every scaled array is
     ``raw * scale + add`` of integers and its raw values are recovered without checking."""
-    return _plan(type(msg)).pack(msg, trusted)
+    cls: type = type(msg)
+    return _plan(cls).pack(msg, trusted)
 
 
 def unpack_body(cls: type, body: list[Any]) -> Any:
@@ -691,7 +693,8 @@ def encode_envelope(
         payload = pack_envelope(type_name, 0, wire, device, t_recv_ns, seq, _enc_any(named))
     else:
         type_name = str(getattr(msg, "TYPE", type(msg).__name__))
-        p = _plan(type(msg))
+        cls: type = type(msg)
+        p = _plan(cls)
         payload = pack_envelope(
             type_name, p.schema, wire, device, t_recv_ns, seq, p.pack(msg, decoded)
         )

@@ -243,11 +243,11 @@ def sample_to_ros(
         except (AttributeError, TypeError, ValueError) as exc:  # no standard form: keep the body
             log.debug("%s/%s: %s; recorded as %s", section, rest, exc, ros2.DECODED_TYPE)
             typed = hasattr(msg, "__dataclass_fields__")
-            body = (
+            fields = (
                 to_jsonable(msg) if typed else {k: v for k, v in vars(msg).items() if k != "TYPE"}
             )
             msgs = [ros2.decoded_msg(f"{section}/{rest}", source, env.type, env.t_recv_ns,
-                                     env.seq, body)]  # fmt: skip
+                                     env.seq, fields)]  # fmt: skip
         return msgs, env.t_recv_ns, env.seq
     text = payload.decode("utf-8", errors="replace")
     try:

@@ -597,9 +597,9 @@ def _report(
     nav = _path_error(dead_reckoning, truth)
     _print_summary(status, fusion_counters, nav, rrd, wall)
     navigation: dict[str, Any] = {"dead_reckoning": nav}
-    slam_counters = None
+    slam_counters: dict[str, Any] | None = None
     if slam is not None and slam[1] is not None:
-        name, slam_counters = slam
+        name, slam_counters = slam[0], slam[1]
         slam_err = _path_error(slam_track, truth)
         if slam_counters.get("component") == MAGNETIC_COMPONENT:
             _print_magnetic(name, slam_counters, slam_err, nav)

@@ -27,6 +27,7 @@ from collections.abc import Iterable
 from pathlib import Path
 
 import rerun.blueprint as rrb
+from rerun.datatypes import EntityPath
 
 from auvgw.viz.entities import (
     APPLICATION_ID,
@@ -112,9 +113,13 @@ def default_blueprint(
     names = list(dict.fromkeys([*DEFAULT_TRACKS, *tracks]))
     fan = (0.0, float(fan_pixels))
     history = _history(timeline)
-    map_overrides = {map_path(n, "track"): history for n in names}
+    map_overrides: dict[EntityPath | str, rrb.VisibleTimeRanges] = {
+        map_path(n, "track"): history for n in names
+    }
     map_overrides[MAP_BATHYMETRY] = history
-    world_overrides = {world_path(n, "track"): history for n in names}
+    world_overrides: dict[EntityPath | str, rrb.VisibleTimeRanges] = {
+        world_path(n, "track"): history for n in names
+    }
     world_overrides[SOUNDINGS] = history
     window = _window(timeline, series_window_s)
     legend = rrb.PlotLegend(corner=rrb.components.Corner2D.LeftTop, visible=True)

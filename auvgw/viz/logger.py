@@ -852,7 +852,7 @@ class RerunLogger(Closing, Worker[_Item]):
         grey = (60, 70, 85)
         self._rec.log(
             ent.MAP_GRID,
-            rr.LineStrips2D(strips, colors=[grey], radii=[-0.75], draw_order=[-20.0]),
+            rr.LineStrips2D(strips, colors=[grey], radii=[-0.75], draw_order=-20.0),
             static=True,
         )
         # the coordinates: east along the bottom edge, north along the left (v = -north)
@@ -867,7 +867,7 @@ class RerunLogger(Closing, Worker[_Item]):
                 radii=[-2.0],
                 labels=labels,
                 show_labels=True,
-                draw_order=[55.0],
+                draw_order=55.0,
             ),
             static=True,
         )
@@ -879,7 +879,7 @@ class RerunLogger(Closing, Worker[_Item]):
                 colors=[(255, 255, 255)],
                 radii=[-2.5],
                 labels=[f"{step:g} m"],
-                draw_order=[60.0],
+                draw_order=60.0,
             ),
             static=True,
         )
@@ -904,7 +904,7 @@ class RerunLogger(Closing, Worker[_Item]):
                 radii=[-3.0],
                 labels=[n for n, _ in entries],
                 show_labels=True,
-                draw_order=[60.0],
+                draw_order=60.0,
             ),
             static=True,
         )
@@ -938,7 +938,7 @@ class RerunLogger(Closing, Worker[_Item]):
             width, order = _TRACK_STYLE.get(seg, _TRACK_STYLE_OTHER)
             log_static(
                 ent.map_path(name, "track"),
-                rr.LineStrips2D.from_fields(colors=[colour], radii=[-width], draw_order=[order]),
+                rr.LineStrips2D.from_fields(colors=[colour], radii=[-width], draw_order=order),
                 static=True,
             )
             log_static(
@@ -950,9 +950,9 @@ class RerunLogger(Closing, Worker[_Item]):
                 self._map_grid(np.array(self._grid_extent), force=True)
             log_static(
                 ent.map_path(name, "pose"),
-                rr.Points2D.from_fields(colors=[colour], radii=[-5.0], draw_order=[40.0]),
-                rr.Arrows2D.from_fields(colors=[colour], draw_order=[40.0]),
-                rr.LineStrips2D.from_fields(colors=[colour], radii=[-1.0], draw_order=[35.0]),
+                rr.Points2D.from_fields(colors=[colour], radii=[-5.0], draw_order=40.0),
+                rr.Arrows2D.from_fields(colors=[colour], draw_order=40.0),
+                rr.LineStrips2D.from_fields(colors=[colour], radii=[-1.0], draw_order=35.0),
                 static=True,
             )
         return tr
@@ -1026,7 +1026,8 @@ class RerunLogger(Closing, Worker[_Item]):
             )
             if not self._attitude_seen and ent.track_segment(name) == self._vehicle_src:
                 q = attitude_quaternion(0.0, 0.0, 0.0 if math.isnan(heading) else heading)
-                self._rec.log(ent.VEHICLE, rr.Transform3D(translation=[x, y, z], quaternion=q))
+                self._rec.log(ent.VEHICLE, rr.Transform3D(translation=[x, y, z],
+                                                          quaternion=rr.Quaternion(xyzw=q)))
 
     def _do_landmarks(
         self, name: str, t: float, mean: np.ndarray, cov: np.ndarray | None, ids: np.ndarray | None
@@ -1045,7 +1046,7 @@ class RerunLogger(Closing, Worker[_Item]):
                 radii=[-4.0],
                 labels=labels,
                 show_labels=labels is not None and len(labels) <= 40,
-                draw_order=[45.0],
+                draw_order=45.0,
             ),
             rr.LineStrips2D(
                 [] if cov is None else self._ellipses(mean, cov), colors=[colour], radii=[-1.0]
@@ -1097,7 +1098,7 @@ class RerunLogger(Closing, Worker[_Item]):
                 self._to_map(p[:, 0], p[:, 1]),
                 colors=[self._colour(name)],
                 radii=[-1.5],
-                draw_order=[20.0],
+                draw_order=20.0,
             ),
         )
 
@@ -1183,7 +1184,7 @@ class RerunLogger(Closing, Worker[_Item]):
         labels = [f"{f * range_m:.3g} m" if math.isfinite(range_m) else "" for f in _RINGS]
         self._rec.log(
             ent.SONAR_RINGS,
-            rr.LineStrips2D(rings, colors=[(90, 200, 255)], radii=[-0.75], draw_order=[20.0]),
+            rr.LineStrips2D(rings, colors=[(90, 200, 255)], radii=[-0.75], draw_order=20.0),
             static=True,
         )
         # each ring's range where it crosses the 45 deg bearing (the labels of line strips sit
@@ -1192,11 +1193,11 @@ class RerunLogger(Closing, Worker[_Item]):
         at = np.array([[c + f * d, c - f * d] for f in _RINGS])
         self._rec.log(f"{ent.SONAR_RINGS}/labels", rr.Points2D(
             at, colors=[(90, 200, 255)], radii=[-1.5], labels=labels, show_labels=True,
-            draw_order=[25.0]), static=True)  # fmt: skip
+            draw_order=25.0), static=True)  # fmt: skip
         s = max(3.0, n / 40.0)
         hull = np.array([[c, c - 1.6 * s], [c + s, c + s], [c - s, c + s], [c, c - 1.6 * s]])
         self._rec.log(ent.SONAR_VEHICLE, rr.LineStrips2D(
-            [hull], colors=[(255, 220, 0)], radii=[-1.5], draw_order=[30.0]),
+            [hull], colors=[(255, 220, 0)], radii=[-1.5], draw_order=30.0),
             static=True)  # fmt: skip
 
     def _do_msis(
@@ -1391,8 +1392,9 @@ class RerunLogger(Closing, Worker[_Item]):
             prefix = f"{device} " if device is not None else ""
             colours = ([self._device_colour(device)] * len(names) if device is not None
                        else [_HEALTH_PALETTE[i % len(_HEALTH_PALETTE)] for i in range(len(names))])
-            self._static(path, lambda n=names, c=colours: rr.SeriesLines(
-                names=[f"{prefix}{k}" for k in n], colors=c, widths=[1.5] * len(n)))  # fmt: skip
+            series = rr.SeriesLines(names=[f"{prefix}{k}" for k in names], colors=colours,
+                                    widths=[1.5] * len(names))  # fmt: skip
+            self._static(path, lambda: series)
         got = dict(metrics)
         self._append(path, "scalars", t, tuple(got.get(n, math.nan) for n in names))
 
@@ -1430,7 +1432,7 @@ class RerunLogger(Closing, Worker[_Item]):
         self._rec.log(
             ent.map_path(name, "ranges"),
             rr.LineStrips2D(list(self._to_map(seg[..., 0], seg[..., 1])),
-                            colors=[self._colour(name)], radii=[-1.0], draw_order=[25.0]),
+                            colors=[self._colour(name)], radii=[-1.0], draw_order=25.0),
         )  # fmt: skip
 
     def _do_acoustic_beacon(self, name: str, t: float, x: float, y: float) -> None:
@@ -1438,5 +1440,5 @@ class RerunLogger(Closing, Worker[_Item]):
         self._rec.log(
             ent.map_path(name, "acoustic_beacon"),
             rr.Points2D(self._to_map([x], [y]), colors=[ACOUSTIC_COLOUR], radii=[-7.0],
-                        labels=["acoustic beacon"], draw_order=[50.0]),
+                        labels=["acoustic beacon"], draw_order=50.0),
         )  # fmt: skip
