@@ -21,10 +21,10 @@ import json
 from pathlib import Path
 from typing import Any
 
-from auvgw.commands.common import UserError, add_command, add_duration
+from auvgw.commands.common import SubParsers, UserError, add_command, add_duration
 
 
-def register(sub: Any) -> None:
+def register(sub: SubParsers) -> None:
     from auvgw.bus import add_bus_arguments
 
     p = add_command(sub, "ros2", __doc__)

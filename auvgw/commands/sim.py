@@ -29,13 +29,13 @@ import time
 from pathlib import Path
 from typing import Any
 
-from auvgw.commands.common import UserError, add_command, handle_stop_signals
+from auvgw.commands.common import SubParsers, UserError, add_command, handle_stop_signals
 from auvgw.drivers import registry
 
 log = logging.getLogger(__name__)
 
 
-def register(sub: Any) -> None:
+def register(sub: SubParsers) -> None:
     p = add_command(sub, "sim", __doc__)
     p.add_argument("--scenario", "-s", required=True, type=Path, help="scenario file (JSON)")
     p.add_argument(

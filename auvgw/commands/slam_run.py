@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from auvgw.bus import add_bus_arguments
-from auvgw.commands.common import UserError, add_duration, open_output
+from auvgw.commands.common import SubParsers, UserError, add_duration, open_output
 from auvgw.commands.slam_common import (
     Paths,
     check_recording,
@@ -48,7 +48,7 @@ from auvgw.ground.errors import format_validation_error
 HELP = "run the SLAM stage (fusion odometry + MSIS features), live or over a recording"
 
 
-def register(sub: Any) -> None:
+def register(sub: SubParsers) -> None:
     """``auvgw slam-run`` (also ``auvgw slam run``, :func:`configure`)."""
     configure(
         sub.add_parser(

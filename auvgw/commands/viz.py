@@ -19,7 +19,7 @@ import threading
 from pathlib import Path
 from typing import Any
 
-from auvgw.commands.common import UserError, add_command, handle_stop_signals
+from auvgw.commands.common import SubParsers, UserError, add_command, handle_stop_signals
 from auvgw.config.bus import BusConfig
 from auvgw.viz.options import VizOptions
 
@@ -57,7 +57,7 @@ def add_output_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
-def register(sub: Any) -> None:
+def register(sub: SubParsers) -> None:
     p = add_command(sub, "viz", __doc__)
     add_output_arguments(p)
     p.add_argument("--vehicle", default=None, help="vehicle name (default: from --config, auv1)")

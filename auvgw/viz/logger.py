@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 import rerun as rr
+from numpy.typing import ArrayLike
 
 from auvgw.ground.closing import Closing
 from auvgw.ground.geometry import TWO_PI, quaternion_zyx, wrap_angle
@@ -55,6 +56,8 @@ log = logging.getLogger(__name__)
 
 #: a queued logger call: (kind, data time s, the view's arguments)
 _Item = tuple[str, float, tuple[Any, ...]]
+#: a row of a batched stream: scalars, a transform or vector, (points, colours)
+_Row = Sequence[float] | np.ndarray | tuple[np.ndarray, np.ndarray]
 
 
 #: turbo-like colour scale (low values dark blue, high values dark red), 11 control points
@@ -373,7 +376,7 @@ class _Stream:
     def __init__(self, kind: str) -> None:
         self.kind = kind
         self.times: list[float] = []
-        self.rows: list[Any] = []
+        self.rows: list[_Row] = []
         self.first_host = 0.0  # time.monotonic() of the first pending row
 
 
@@ -511,7 +514,7 @@ class RerunLogger(Closing, Worker[_Item]):
         y: float,
         z: float = math.nan,
         heading: float = math.nan,
-        cov_xy: Any = None,
+        cov_xy: ArrayLike | None = None,
     ) -> bool:
         """One pose of trajectory ``name`` (``truth``, ``dead_reckoning``, ``slam/<pipeline>``):
         position (m), heading (rad), optional 2x2 horizontal covariance (m^2). The line strip
@@ -521,7 +524,14 @@ class RerunLogger(Closing, Worker[_Item]):
         args = (name, float(t), float(x), float(y), float(z), float(heading), cov)
         return self._put("trajectory", args, float(t))
 
-    def landmarks(self, name: str, t: float, mean: Any, cov: Any = None, ids: Any = None) -> bool:
+    def landmarks(
+        self,
+        name: str,
+        t: float,
+        mean: ArrayLike,
+        cov: ArrayLike | None = None,
+        ids: ArrayLike | None = None,
+    ) -> bool:
         """Point features of map ``name``: ``mean (L, 2)`` m, ``cov (L, 2, 2)`` m^2 (drawn as
         confidence ellipses), ``ids (L,)``. Replaces the previous set."""
         m = np.array(mean, dtype=np.float64).reshape(-1, 2)
@@ -534,10 +544,10 @@ class RerunLogger(Closing, Worker[_Item]):
         self,
         name: str,
         t: float,
-        rho: Any,
-        theta: Any,
-        cov: Any = None,
-        endpoints: Any = None,
+        rho: ArrayLike,
+        theta: ArrayLike,
+        cov: ArrayLike | None = None,
+        endpoints: ArrayLike | None = None,
     ) -> bool:
         """Line features of map ``name`` in normal form ``x cos(theta) + y sin(theta) = rho``
         (m, rad, map frame axes), ``cov (K, 2, 2)`` over (rho, theta) drawn as the ellipse of the
@@ -549,7 +559,9 @@ class RerunLogger(Closing, Worker[_Item]):
         _same_length("lines", rho=r, theta=th, cov=c, endpoints=e)
         return self._put("lines", (name, float(t), r, th, c, e), float(t))
 
-    def particles(self, name: str, t: float, poses: Any, weights: Any = None) -> bool:
+    def particles(
+        self, name: str, t: float, poses: ArrayLike, weights: ArrayLike | None = None
+    ) -> bool:
         """Particle cloud of filter ``name``: ``poses (N, 2+)`` (x, y first, m); an evenly
         spaced subsample of ``max_particles`` is drawn (the heaviest first when ``weights``)."""
         p = np.asarray(poses, dtype=np.float64)
@@ -567,11 +579,11 @@ class RerunLogger(Closing, Worker[_Item]):
         return self._put("particles", (name, float(t), p), float(t))
 
     def attitude(
-        self, t: float, roll: float, pitch: float, heading: float, position: Any = None
+        self, t: float, roll: float, pitch: float, heading: float, position: ArrayLike | None = None
     ) -> bool:
         """INS attitude (rad): the vehicle's Transform3D (at ``position`` NED m if given, else at
         the latest position of the navigation trajectory) and roll/pitch/heading series (deg)."""
-        pos = None if position is None else tuple(float(v) for v in position)
+        pos = None if position is None else tuple(float(v) for v in np.ravel(position))
         return self._put(
             "attitude", (float(t), float(roll), float(pitch), float(heading), pos), float(t)
         )
@@ -579,7 +591,7 @@ class RerunLogger(Closing, Worker[_Item]):
     def dvl(
         self,
         t: float,
-        velocity: Any,
+        velocity: ArrayLike,
         altitude: float = math.nan,
         names: Sequence[str] = ("x", "y", "z"),
         bottom_lock: bool | None = None,
@@ -593,7 +605,7 @@ class RerunLogger(Closing, Worker[_Item]):
         self,
         t: float,
         bearing: float,
-        bins: Any,
+        bins: ArrayLike,
         range_m: float,
         step: float = 0.0,
         max_value: int = 255,
@@ -612,15 +624,15 @@ class RerunLogger(Closing, Worker[_Item]):
     def swath(
         self,
         t: float,
-        along: Any,
-        across: Any,
-        depth: Any,
+        along: ArrayLike,
+        across: ArrayLike,
+        depth: ArrayLike,
         *,
         x: float = 0.0,
         y: float = 0.0,
         z: float = 0.0,
         heading: float = 0.0,
-        valid: Any = None,
+        valid: ArrayLike | None = None,
     ) -> bool:
         """One multibeam ping: soundings ``along`` (forward), ``across`` (starboard), ``depth``
         (down) in m from the transducer, placed at the transducer position ``x, y, z`` (map frame,
@@ -637,7 +649,7 @@ class RerunLogger(Closing, Worker[_Item]):
         return self._put("swath", (float(t), a[ok], c[ok], d[ok], pose), float(t))
 
     # bathymetric SLAM map (slam/<p>/cloud and slam/<p>/map DEM tiles) ------------------------
-    def seabed(self, name: str, t: float, points: Any) -> bool:
+    def seabed(self, name: str, t: float, points: ArrayLike) -> bool:
         """Soundings placed by a SLAM trajectory, ``points`` (P, 3) x, y (map frame, m), depth
         (m, down): depth-coloured 3-D points on ``world/<name>/seabed`` (accumulated like the
         multibeam soundings)."""
@@ -645,7 +657,9 @@ class RerunLogger(Closing, Worker[_Item]):
         pts = pts[np.all(np.isfinite(pts), axis=1)]
         return self._put("seabed", (str(name), float(t), pts), float(t))
 
-    def dem(self, name: str, t: float, x0: float, y0: float, cell_m: float, depth: Any) -> bool:
+    def dem(
+        self, name: str, t: float, x0: float, y0: float, cell_m: float, depth: ArrayLike
+    ) -> bool:
         """A DEM tile of a SLAM map: ``depth[i][j]`` (m, NaN = empty) the mean depth of the
         ``cell_m`` cell centred at ``x0 + (i + 0.5) cell_m, y0 + (j + 0.5) cell_m`` (map
         frame): depth-coloured discs on ``map/<name>/dem`` (each tile replaces the last)."""
@@ -655,7 +669,7 @@ class RerunLogger(Closing, Worker[_Item]):
         args = (str(name), float(t), float(x0), float(y0), float(cell_m), grid)
         return self._put("dem", args, float(t))
 
-    def magnetometer(self, t: float, b_nt: Any) -> bool:
+    def magnetometer(self, t: float, b_nt: ArrayLike) -> bool:
         """Magnetic flux density (nT, sensor axes = body axes): field series, magnitude and an
         arrow on the vehicle."""
         b = np.array(b_nt, dtype=np.float64).reshape(-1)[:3]
@@ -679,7 +693,7 @@ class RerunLogger(Closing, Worker[_Item]):
         return self._put("event", (str(device), float(t), str(text), str(level)), float(t))
 
     # -- magnetic beacons (AMB-SLAM) --------------------------------------------------------
-    def ranges(self, name: str, t: float, origin: Any, targets: Any) -> bool:
+    def ranges(self, name: str, t: float, origin: ArrayLike, targets: ArrayLike) -> bool:
         """Beacon observations of ``name`` (``slam/magnetic``): one line per observed beacon
         from the vehicle at ``origin (x, y)`` to ``targets (K, 2)`` (m, map frame), on
         ``map/<name>/ranges``; replaces the previous set."""
@@ -730,7 +744,9 @@ class RerunLogger(Closing, Worker[_Item]):
             return rr.TimeColumn(TIMELINE, timestamp=arr)
         return rr.TimeColumn(TIMELINE, duration=arr)
 
-    def _static(self, path: str, make: Callable[[], Any]) -> None:
+    def _static(
+        self, path: str, make: Callable[[], rr.AsComponents | tuple[rr.AsComponents, ...]]
+    ) -> None:
         """Log ``make()`` (archetypes: styles, series names) once per entity, as static data."""
         if path not in self._styled:
             self._styled.add(path)
@@ -758,7 +774,7 @@ class RerunLogger(Closing, Worker[_Item]):
             s = self._streams[path] = _Stream(kind)
         return s
 
-    def _append(self, path: str, kind: str, t: float, row: Any) -> None:
+    def _append(self, path: str, kind: str, t: float, row: _Row) -> None:
         s = self._stream(path, kind)
         if not s.rows:
             s.first_host = time.monotonic()
@@ -774,7 +790,8 @@ class RerunLogger(Closing, Worker[_Item]):
         s.times, s.rows = [], []
         index = [self._time_column(times)]
         if s.kind == "scalars":
-            cols: Any = rr.Scalars.columns(scalars=np.asarray(rows, dtype=np.float64))
+            scalars = np.asarray(rows, dtype=np.float64)
+            cols: rr.ComponentColumnList = rr.Scalars.columns(scalars=scalars)
         elif s.kind == "transform":
             arr = np.asarray(rows, dtype=np.float64)
             cols = rr.Transform3D.columns(translation=arr[:, :3], quaternion=arr[:, 3:])
@@ -784,7 +801,7 @@ class RerunLogger(Closing, Worker[_Item]):
             pos = np.concatenate([r[0] for r in rows]).astype(np.float32)
             col = np.concatenate([r[1] for r in rows])
             cols = rr.Points3D.columns(positions=pos, colors=col).partition(
-                [len(r[0]) for r in rows]
+                [len(r[0]) for r in rows if isinstance(r, tuple)]
             )
         else:  # pragma: no cover - kinds are internal
             raise ValueError(f"unknown stream kind {s.kind}")
@@ -820,7 +837,7 @@ class RerunLogger(Closing, Worker[_Item]):
             self._rec.flush(timeout_sec=0.0)
 
     # -- map helpers -----------------------------------------------------------------------
-    def _to_map(self, x: Any, y: Any) -> np.ndarray:
+    def _to_map(self, x: ArrayLike, y: ArrayLike) -> np.ndarray:
         """Map-frame (x, y) -> 2-D view coordinates (u right, v down), stacked on the last axis."""
         x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
         if self.options.map_frame == "ned":
