@@ -44,7 +44,7 @@ from typing import IO, Any, NamedTuple
 
 from mcap.exceptions import EndOfFile, McapError
 from mcap.reader import NonSeekingReader, make_reader
-from mcap.records import Channel, Chunk, Footer, Message, Schema
+from mcap.records import Channel, Chunk, Footer, McapRecord, Message, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 from pydantic import ValidationError
@@ -534,10 +534,14 @@ class ScanReport:
     indexed: bool = False  #: read through the summary's chunk index (else a linear scan)
 
 
-def _all_records(data: bytes, emit_chunks: bool = False) -> list[Any]:
+#: a scanned message: its schema (None: schemaless), channel and the message record
+_Scanned = tuple[Schema | None, Channel, Message]
+
+
+def _all_records(data: bytes, emit_chunks: bool = False) -> list[McapRecord]:
     """Every record of ``data`` (records with no magic around them, as in a chunk); the mcap
     reader signals their end with ``EndOfFile``."""
-    out: list[Any] = []
+    out: list[McapRecord] = []
     reader = StreamReader(io.BytesIO(data), skip_magic=True, emit_chunks=emit_chunks,
                           record_size_limit=len(data))  # fmt: skip
     try:
@@ -550,7 +554,7 @@ def _all_records(data: bytes, emit_chunks: bool = False) -> list[Any]:
     return out
 
 
-def _decompress(chunk: Any) -> bytes:
+def _decompress(chunk: Chunk) -> bytes:
     if chunk.compression == "zstd":
         import zstandard
 
@@ -565,7 +569,7 @@ def _decompress(chunk: Any) -> bytes:
     raise ValueError(f"compression {chunk.compression!r} unknown")
 
 
-def _chunk_records(chunk: Any) -> list[Any]:
+def _chunk_records(chunk: Chunk) -> list[McapRecord]:
     """The records of a chunk, after its CRC is checked (a ValueError naming what is wrong)."""
     import zlib
 
@@ -582,8 +586,9 @@ def _chunk_records(chunk: Any) -> list[Any]:
     return _all_records(data)
 
 
-def scan_recording(path: str | Path, report: ScanReport | None = None) -> Iterator[
-        tuple[Any, Any, Any]]:  # fmt: skip
+def scan_recording(
+    path: str | Path, report: ScanReport | None = None
+) -> Iterator[_Scanned]:
     """Every message of a recording as ``(schema, channel, message)`` records in file order,
     each chunk's CRC checked: a damaged chunk costs that chunk only (a :class:`Damage` in
     ``report`` and one warning line naming the file, the byte offset and the time range lost),
@@ -593,10 +598,10 @@ def scan_recording(path: str | Path, report: ScanReport | None = None) -> Iterat
     to resume at."""
     path = Path(path)
     report = report if report is not None else ScanReport()
-    schemas: dict[int, Any] = {}
-    channels: dict[int, Any] = {}
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
 
-    def take(records: list[Any]) -> Iterator[tuple[Any, Any, Any]]:
+    def take(records: list[McapRecord]) -> Iterator[_Scanned]:
         for rec in records:
             if isinstance(rec, Schema):
                 schemas[rec.id] = rec
@@ -612,7 +617,7 @@ def scan_recording(path: str | Path, report: ScanReport | None = None) -> Iterat
         report.damaged.append(d)
         log.warning("%s", d.line(path))
 
-    def chunk_messages(chunk: Any, at: int) -> Iterator[tuple[Any, Any, Any]]:
+    def chunk_messages(chunk: Chunk, at: int) -> Iterator[_Scanned]:
         report.chunks += 1
         try:
             records = _chunk_records(chunk)
@@ -733,19 +738,19 @@ def recorded_paths(cfg: GatewayConfig) -> dict[str, str]:
 
 
 def _ros2_sample(
-    type_name: str, meta: Mapping[str, str], topic: str, msg: Any, zenc: str
+    type_name: str, meta: Mapping[str, str], topic: str, msg: Message, zenc: str
 ) -> RecordedSample:
     """A recorded ROS 2 message as the bus sample it came from: raw frames with their
     attachment, Decoded messages with their JSON text, standard types as CDR bytes."""
     key = meta.get("key", topic)
     if type_name == ros2.RAW_FRAME_TYPE:
-        m = ros2.typestore().deserialize_cdr(msg.data, type_name)
+        m = ros2.read_raw_frame(msg.data)
         t_ns = m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
         att = pack_raw_attachment(t_ns, m.seq, m.stream_offset)
         return RecordedSample(key, msg.log_time, att, bytes(m.data), RAW_ENCODING, zenc)
     if type_name == ros2.DECODED_TYPE:
-        m = ros2.typestore().deserialize_cdr(msg.data, type_name)
-        return RecordedSample(key, msg.log_time, None, m.json.encode(), "json", zenc)
+        d = ros2.read_decoded(msg.data)
+        return RecordedSample(key, msg.log_time, None, d.json.encode(), "json", zenc)
     return RecordedSample(key, msg.log_time, None, msg.data, MESSAGE_ENCODING, zenc)
 
 
