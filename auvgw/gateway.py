@@ -36,6 +36,7 @@ import zenoh
 from auvgw.bus import (
     SCHEMA_VERSION,
     Keys,
+    Undeclarable,
     encode_envelope,
     envelope_encoding,
     json_encoding,
@@ -246,7 +247,7 @@ class Gateway:
                     dev.gate = CommandGate(can.codec)
         self._stamp = cfg.clock.stamp
         self._threads: list[threading.Thread] = []
-        self._decls: list[Any] = []
+        self._decls: list[Undeclarable] = []
         self._status_pubs: dict[str, zenoh.Publisher] = {}
         self._alone = False  # check_alone found no other gateway of this vehicle
         self._started = False

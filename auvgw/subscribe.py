@@ -132,7 +132,7 @@ class Stream(Closing):
             return env
         return dataclasses.replace(env, message=typed_message(env.type, env.body, env.schema))
 
-    def get(self, timeout: float | None = None) -> Any:
+    def get(self, timeout: float | None = None) -> Envelope | RawFrame | None:
         """The next envelope (or raw frame), or None when nothing arrives within ``timeout`` s."""
         deadline = None if timeout is None else time.monotonic() + timeout
         while True:
@@ -145,10 +145,10 @@ class Stream(Closing):
             if out is not None:
                 return out
 
-    def __iter__(self) -> Iterator[Any]:
+    def __iter__(self) -> Iterator[Envelope | RawFrame]:
         return self.iter()
 
-    def iter(self, timeout: float | None = None) -> Iterator[Any]:
+    def iter(self, timeout: float | None = None) -> Iterator[Envelope | RawFrame]:
         """Items until none arrives for ``timeout`` seconds (None: until closed)."""
         while (item := self.get(timeout)) is not None:
             yield item
@@ -199,12 +199,12 @@ class GatewaySubscriber(Closing):
     ) -> Iterator[Envelope]:
         """Decoded envelopes (``.message`` typed) until none arrives for ``timeout`` seconds."""
         with self.stream(device, kind) as s:
-            yield from s.iter(timeout)
+            yield from (e for e in s.iter(timeout) if isinstance(e, Envelope))
 
     def frames(self, device: str | None = None, timeout: float | None = None) -> Iterator[RawFrame]:
         """Raw frames with their attachments until none arrives for ``timeout`` seconds."""
         with self.stream(device, raw=True) as s:
-            yield from s.iter(timeout)
+            yield from (f for f in s.iter(timeout) if isinstance(f, RawFrame))
 
     def wait_ready(self, timeout: float = 10.0) -> bool:
         """Wait for a gateway status sample; True once one arrived.

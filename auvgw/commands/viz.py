@@ -141,11 +141,10 @@ def _bus(args: argparse.Namespace) -> tuple[str, BusConfig]:
         # a second process on the gateway's host connects to the gateway's listen endpoints
         bus = BusConfig(mode="peer", connect=[*cfg.bus.connect, *cfg.bus.listen])
     if args.bus_config is not None:  # its [bus] table, --bus-* options over it
-        from types import SimpleNamespace
 
         from auvgw.bus import bus_from_args
 
-        given = SimpleNamespace(
+        given = argparse.Namespace(
             bus_config=args.bus_config,
             mode=args.bus_mode,
             connect=args.bus_connect or [],

@@ -48,7 +48,15 @@ from typing import Any, ClassVar
 import zenoh
 from pydantic import BaseModel, ConfigDict, Field
 
-from auvgw.bus import SCHEMA_VERSION, Envelope, Keys, decode_envelope, json_encoding, undeclare
+from auvgw.bus import (
+    SCHEMA_VERSION,
+    Envelope,
+    Keys,
+    Undeclarable,
+    decode_envelope,
+    json_encoding,
+    undeclare,
+)
 from auvgw.fusion.odometry import Odometry
 from auvgw.ground.worker import Worker
 from auvgw.stages import StampGuard, log_bad_payload
@@ -132,7 +140,7 @@ class Stage(Worker[_Item]):
         self._drop_lock = threading.Lock()  # queue_dropped (Zenoh callbacks, never _lock)
         self._pubs: dict[str, zenoh.Publisher] = {}
         self._status_pub: zenoh.Publisher | None = None
-        self._decls: list[Any] = []
+        self._decls: list[Undeclarable] = []
         self._started = self._stopped = False
         self._stamps = StampGuard(config.max_stamp_jump_s)
 
