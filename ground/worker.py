@@ -136,7 +136,7 @@ class Worker(Generic[T]):
         self._w_period_s = period_s
         self._w_thread_name = thread_name or self.worker_name
         self._w_thread: threading.Thread | None = None
-        self._w_stopping = threading.Event()
+        self._w_stopping = False  # set once by stop_worker (a bool: read per item, no call)
         self._w_finished = threading.Event()
         self._w_handled = 0
         self._w_errors = 0
@@ -164,7 +164,7 @@ class Worker(Generic[T]):
     @final
     def start_worker(self) -> None:
         """Start the worker thread (idempotent; not after :meth:`stop_worker`)."""
-        if self._w_thread is None and not self._w_stopping.is_set():
+        if self._w_thread is None and not self._w_stopping:
             t = threading.Thread(target=self._w_loop, name=self._w_thread_name, daemon=True)
             self._w_thread = t
             t.start()
@@ -185,9 +185,7 @@ class Worker(Generic[T]):
     def submit(self, item: T) -> bool:
         """Queue ``item`` for the worker without blocking; False (counted as dropped) when the
         queue is full or the worker stopping."""
-        if self._w_stopping.is_set():
-            self._w_inbox.close()
-        return self._w_inbox.put(item)
+        return self._w_inbox.put(item)  # closed by stop_worker
 
     @final
     def stop_worker(self, timeout_s: float | None = 5.0) -> bool:
@@ -195,9 +193,9 @@ class Worker(Generic[T]):
         makes progress: ``timeout_s`` s without any gives up on it, None waits for ever); never
         started: the queue is handled on the calling thread. True if the worker finished.
         Safe to call more than once."""
-        if not self._w_stopping.is_set():
-            self._w_stopping.set()
+        if not self._w_stopping:
             self._w_inbox.close()
+            self._w_stopping = True
             with contextlib.suppress(queue.Full):  # a full queue wakes the worker anyway
                 self._w_inbox.queue.put_nowait(_WAKE)
             if self._w_thread is None:
@@ -221,7 +219,7 @@ class Worker(Generic[T]):
         next_tick = math.inf if period is None else time.monotonic() + period
         q = self._w_inbox.queue
         while True:
-            stopping = self._w_stopping.is_set()
+            stopping = self._w_stopping
             try:
                 if stopping:
                     item = q.get_nowait()

@@ -25,9 +25,9 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import rerun.blueprint as rrb
-from rerun.datatypes import EntityPath
 
 from auvgw.viz.entities import (
     APPLICATION_ID,
@@ -50,6 +50,9 @@ from auvgw.viz.entities import (
     map_path,
     world_path,
 )
+
+if TYPE_CHECKING:
+    from rerun.datatypes import EntityPath
 
 __all__ = ["DEFAULT_TRACKS", "VIEW_NAMES", "default_blueprint", "save_blueprint"]
 
