@@ -19,6 +19,7 @@ they do not understand without guessing from the key.
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import logging
 import struct
@@ -27,7 +28,7 @@ import threading
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import zenoh
 
@@ -74,7 +75,13 @@ SCHEMA_VERSION = 1
 RAW_ATTACHMENT = struct.Struct("<qQQ")
 
 
-def undeclare(entities: Iterable[Any]) -> None:
+class Undeclarable(Protocol):
+    """A Zenoh declaration (publisher, subscriber, queryable, liveliness token)."""
+
+    def undeclare(self) -> object: ...
+
+
+def undeclare(entities: Iterable[Undeclarable]) -> None:
     """Undeclare Zenoh entities (publishers, subscribers, queryables, tokens), ignoring the ones a
     closing session has already dropped."""
     for e in entities:
@@ -238,7 +245,9 @@ class InputWatch:
         self._subs.clear()
 
 
-def add_bus_arguments(parser: Any, title: str | None = None, mode: bool = True) -> None:
+def add_bus_arguments(
+    parser: argparse.ArgumentParser, title: str | None = None, mode: bool = True
+) -> None:
     """``--mode/--connect/--listen`` options of a command that joins the bus (``mode=False``:
     no ``--mode``, e.g. ``auvgw run`` whose configuration has it)."""
     from auvgw.config.bus import DEFAULT_ENDPOINT, ENDPOINT_ENV
@@ -292,7 +301,7 @@ def load_bus_table(path: Path) -> dict[str, Any]:
     return table
 
 
-def bus_from_args(args: Any, hub: bool = False) -> BusConfig:
+def bus_from_args(args: argparse.Namespace, hub: bool = False) -> BusConfig:
     """The :class:`BusConfig` of :func:`add_bus_arguments` options (raises ValueError, one line
     per problem). With no endpoint given, the one-machine default: listen on the default
     endpoint (``hub``: the gateway's role, e.g. ``auvgw replay``) or connect to it."""

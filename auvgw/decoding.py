@@ -13,13 +13,17 @@ import struct
 import time
 from collections import Counter
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from auvgw.config.gateway import ConfigError, DeviceConfig, GatewayConfig
 from auvgw.drivers import registry
 from auvgw.drivers.formats import Format, format_from_table, get_format
 from auvgw.drivers.framing import ErrorPolicy, Frame, Framer
 from auvgw.envelope import layout_body
+
+if TYPE_CHECKING:
+    from auvgw.drivers.can_codec import CanDeviceCodec
+    from auvgw.drivers.transports import Chunk
 
 __all__ = [
     "DecodedItem",
@@ -95,7 +99,7 @@ class DeviceDecoder:
         self,
         name: str,
         fmt: Format | None,
-        can_codec: Any = None,
+        can_codec: CanDeviceCodec | None = None,
         datagrams: bool = False,
         max_partial_age_s: float | None = None,
     ) -> None:
@@ -178,11 +182,13 @@ class DeviceDecoder:
         except Exception:  # the decode's error, which item() reports
             return None
 
-    def frames(self, chunk: Any) -> list[Frame]:
+    def frames(self, chunk: Chunk) -> list[Frame]:
         """Raw frames completed by one transport chunk (a
         :class:`~auvgw.drivers.transports.Chunk`), not decoded yet (:meth:`item` with
         :attr:`verified`)."""
         if self.can is not None:
+            if chunk.can_id is None:
+                raise ValueError(f"{self.name}: a CAN decoder was given a chunk with no CAN id")
             self._closed.frames += 1
             return [Frame(pack_can_raw(chunk.can_id, chunk.is_extended_id, chunk.data), 0)]
         assert self._framer is not None
@@ -195,7 +201,7 @@ class DeviceDecoder:
         """Frames of :meth:`frames` passed this decoder's framer (CAN frames have none)."""
         return self.can is None
 
-    def feed(self, chunk: Any) -> list[DecodedItem]:
+    def feed(self, chunk: Chunk) -> list[DecodedItem]:
         """Items completed by one transport chunk (:meth:`frames`, decoded)."""
         return [self.item(f.data, f.offset, self.verified) for f in self.frames(chunk)]
 

@@ -40,7 +40,7 @@ import typing
 import zlib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeAlias
 
 import msgspec
 import numpy as np
@@ -90,6 +90,19 @@ _F32 = struct.Struct(">f")
 SMALL_ARRAY = 128
 _F32_NAN = msgspec.Raw(b"\xca\x7f\xc0\x00\x00")
 
+#: a value ready for MessagePack, as an encoder gives it (msgspec packs it as it is: a numpy
+#: array through :func:`_enc_hook`, ``Raw`` bytes verbatim, an ``Ext`` as an extension)
+Packed: TypeAlias = (
+    bool | int | float | str | bytes | np.ndarray | msgspec.Raw | msgspec.msgpack.Ext
+    | list["Packed"] | dict[str, "Packed"] | None
+)  # fmt: skip
+#: a field's encoder: (its SI value, as the message holds it; trusted) -> what travels
+Encoder: TypeAlias = Callable[[Any, bool], Packed]
+#: a field's decoder: what MessagePack gave back -> the SI value
+Decoder: TypeAlias = Callable[[Any], Any]
+#: what a field-by-field walk of a table gives: (encode or None, decode, schema text)
+Coders: TypeAlias = tuple[Encoder | None, Decoder, str]
+
 
 class SchemaError(ValueError):
     """An envelope's body does not fit the reader's table of its type (names type and field)."""
@@ -115,7 +128,7 @@ class Envelope:
     schema: int = 0
 
 
-def _enc_float(v: float) -> Any:
+def _enc_float(v: float) -> Packed:
     """float32 when it holds ``v`` exactly (MessagePack 0xca, 5 bytes), else float64."""
     if v != v:
         return _F32_NAN
@@ -126,11 +139,11 @@ def _enc_float(v: float) -> Any:
     return msgspec.Raw(b"\xca" + b) if _F32.unpack(b)[0] == v else v
 
 
-def _enc_number(v: Any, trusted: bool) -> Any:
+def _enc_number(v: Any, trusted: bool) -> Packed:
     return _enc_float(v) if type(v) is float else v
 
 
-def _enc_any(v: Any, trusted: bool = False) -> Any:
+def _enc_any(v: Any, trusted: bool = False) -> Packed:
     """A value with no table row to guide it."""
     t = type(v)
     if t is float:
@@ -159,7 +172,7 @@ class _Typed:
     """Extension 2 as read: a nested message's type name and positional body."""
 
     name: str
-    body: list[Any]
+    body: list[Packed]
 
 
 def _dec_typed(v: Any) -> Any:
@@ -175,7 +188,7 @@ def _is_message_class(tp: Any) -> bool:
     return isinstance(tp, type) and dataclasses.is_dataclass(tp)
 
 
-def _hint_coders(tp: Any) -> tuple[Callable[[Any, bool], Any] | None, Callable[[Any], Any], str]:
+def _hint_coders(tp: Any) -> Coders:
     """(encode, decode, schema text) of a field with no wire row, from its type hint."""
     origin, args = typing.get_origin(tp), typing.get_args(tp)
     if origin in (types.UnionType, typing.Union):
@@ -194,9 +207,9 @@ def _hint_coders(tp: Any) -> tuple[Callable[[Any, bool], Any] | None, Callable[[
         #: (message, its body) of the last codec output packed here: a codec shares one
         #: immutable nested message while its bytes repeat (a PD0 fixed leader), so the body
         #: is packed once, not per frame (one tuple, replaced whole: safe across threads)
-        last: tuple[Any, list[Any] | None] = (None, None)
+        last: tuple[object, list[Packed] | None] = (None, None)
 
-        def enc_msg(v: Any, t: bool) -> Any:
+        def enc_msg(v: Any, t: bool) -> Packed:
             nonlocal last
             if type(v) is not cls:
                 return _typed_ext(v, t)
@@ -247,7 +260,7 @@ def _readonly(a: np.ndarray) -> np.ndarray:
     return a
 
 
-def _wire_coders(w: Wire) -> tuple[Callable[[Any, bool], Any] | None, Callable[[Any], Any], str]:
+def _wire_coders(w: Wire) -> Coders:
     """(encode, decode, schema text) of a wire row: raw wire values where they give the exact
     SI value back (the codec's own ``raw * scale + add``), else the SI value itself."""
     desc = f"{w.type}{list(w.shape) if w.shape else ''}*{w.scale!r}+{w.add!r}!{w.invalid}"
@@ -261,7 +274,7 @@ def _wire_coders(w: Wire) -> tuple[Callable[[Any, bool], Any] | None, Callable[[
         info = np.iinfo(np.dtype(WIRE_TYPES[w.type]))
         lo, hi = int(info.min), int(info.max)
 
-        def enc_scalar(v: Any, t: bool) -> Any:
+        def enc_scalar(v: Any, t: bool) -> Packed:
             if v is None or type(v) is bool:
                 return v
             try:
@@ -286,7 +299,7 @@ def _wire_coders(w: Wire) -> tuple[Callable[[Any, bool], Any] | None, Callable[[
     limits: Any = np.iinfo(native) if is_int else None
     code = "%d" + WIRE_TYPES[w.type]
 
-    def enc_small(a: np.ndarray) -> Any:
+    def enc_small(a: np.ndarray) -> Packed:
         """A short array of the codec's ``raw * scale + add`` as its raw values, in Python
         (numpy's calls cost more below a few hundred elements, most of all on a cold core: one
         frame at a time): the numpy path's float operations, rounding (half to even) and output
@@ -305,7 +318,7 @@ def _wire_coders(w: Wire) -> tuple[Callable[[Any, bool], Any] | None, Callable[[
         head = _array_head(native, a.shape)
         return msgspec.msgpack.Ext(EXT_NDARRAY, head + struct.pack("=" + code % len(ints), *ints))
 
-    def enc_array(v: Any, trusted: bool) -> Any:
+    def enc_array(v: Any, trusted: bool) -> Packed:
         if v is None:
             return None
         a = v if type(v) is np.ndarray else np.asarray(v)
@@ -359,11 +372,11 @@ def _wire_coders(w: Wire) -> tuple[Callable[[Any, bool], Any] | None, Callable[[
 
 def _linear_coders(
     scale: float, offset: float, factor: float
-) -> tuple[Callable[[Any, bool], Any], Callable[[Any], Any], str]:
+) -> tuple[Encoder, Decoder, str]:
     """A CAN signal decoded as ``float(raw * scale + offset) * factor`` (cantools, then the
     codec's unit factor): its raw integer where that gives the value back exactly."""
 
-    def enc(v: Any, t: bool) -> Any:
+    def enc(v: Any, t: bool) -> Packed:
         if type(v) is not float:
             return _enc_any(v, t)
         if not math.isfinite(v):
@@ -384,16 +397,16 @@ class _Plan:
     cls: type
     names: tuple[str, ...]
     #: None where the value travels as it is (integers, strings, bytes)
-    encoders: tuple[Callable[[Any, bool], Any] | None, ...]
-    decoders: tuple[Callable[[Any], Any], ...]
+    encoders: tuple[Encoder | None, ...]
+    decoders: tuple[Decoder, ...]
     schema: int
     #: ``pack(msg, trusted) -> body``, generated for the class (see :func:`_packer`)
-    pack: Callable[[Any, bool], list[Any]]
+    pack: Callable[[Any, bool], list[Packed]]
 
 
 def _packer(
-    names: tuple[str, ...], encoders: tuple[Callable[[Any, bool], Any] | None, ...]
-) -> Callable[[Any, bool], list[Any]]:
+    names: tuple[str, ...], encoders: tuple[Encoder | None, ...]
+) -> Callable[[Any, bool], list[Packed]]:
     """A function building the positional body of one class: one list display of attribute
     reads and encoder calls (no loop, no zip, no per-field lookup)."""
     ns: dict[str, Any] = {}
@@ -439,7 +452,7 @@ def _plan(cls: type) -> _Plan:
     )
 
 
-def layout_body(layout: WireLayout, frame: bytes) -> tuple[str, int, list[Any]] | None:
+def layout_body(layout: WireLayout, frame: bytes) -> tuple[str, int, list[Packed]] | None:
     """(type, schema, body) of the envelope of the message ``layout`` places in ``frame``, read
     straight from the frame's bytes (the gateway's hot path: no message, no numpy), by a
     function generated once per layout from the codec's tables (:func:`_layout_reader`). The
@@ -465,7 +478,7 @@ def _hint_names(hint: Any, cls: type) -> bool:
 @functools.lru_cache(maxsize=4096)  # one per layout a codec serves; fuzzed ones stay bounded
 def _layout_reader(
     layout: WireLayout,
-) -> tuple[str, int, Callable[[bytes], list[Any]]] | None:
+) -> tuple[str, int, Callable[[bytes], list[Packed]]] | None:
     """Generate ``read(frame) -> body`` for one layout: one ``struct`` unpack of every wire field
     of every nested table (integers as the raw integers the envelope sends for them, integer
     arrays as their little-endian wire bytes, N-D ones as extension 1 with a constant head,
@@ -514,7 +527,7 @@ def _layout_reader(
             return None
         return item
 
-    def value(v: Any, hint: Any, enc: Callable[[Any, bool], Any] | None) -> str | None:
+    def value(v: Any, hint: Any, enc: Encoder | None) -> str | None:
         if v is None:
             return "None"
         if isinstance(v, WireLayout):
@@ -539,6 +552,7 @@ def _layout_reader(
         hints = _type_hints(node.cls)
         items = []
         for name, enc in zip(p.names, p.encoders, strict=True):
+            item: str | None
             if name in wired:
                 row = rows.get(name)
                 if name in node.absent:
@@ -583,11 +597,12 @@ def schema_id(cls: type) -> int:
     return _plan(cls).schema
 
 
-def pack_body(msg: Any, trusted: bool = False) -> list[Any]:
+def pack_body(msg: Any, trusted: bool = False) -> list[Packed]:
     """The positional body of a message (its class's table order; see the module docstring).
     ``trusted``: the message comes straight from its codec's decode, so every scaled array is
     ``raw * scale + add`` of integers and its raw values are recovered without checking."""
-    return _plan(type(msg)).pack(msg, trusted)
+    cls: type = type(msg)
+    return _plan(cls).pack(msg, trusted)
 
 
 def unpack_body(cls: type, body: list[Any]) -> Any:
@@ -628,7 +643,7 @@ def _array_head(dtype: np.dtype, shape: tuple[int, ...]) -> bytes:
     return head
 
 
-def _enc_hook(obj: Any) -> Any:
+def _enc_hook(obj: object) -> Packed:
     if isinstance(obj, np.ndarray):
         return msgspec.msgpack.Ext(EXT_NDARRAY, _array_head(obj.dtype, obj.shape) + obj.tobytes())
     if isinstance(obj, np.generic):
@@ -665,7 +680,7 @@ def envelope_encoding(type_name: str) -> zenoh.Encoding:
 
 
 def pack_envelope(
-    type_name: str, schema: int, wire: str, device: str, t_ns: int, seq: int, body: Any
+    type_name: str, schema: int, wire: str, device: str, t_ns: int, seq: int, body: Packed
 ) -> bytes:
     """The envelope bytes (module docstring) of a positional ``body`` (:func:`pack_body`,
     :func:`layout_body`) or a map of fields (schema 0)."""
@@ -691,7 +706,8 @@ def encode_envelope(
         payload = pack_envelope(type_name, 0, wire, device, t_recv_ns, seq, _enc_any(named))
     else:
         type_name = str(getattr(msg, "TYPE", type(msg).__name__))
-        p = _plan(type(msg))
+        cls: type = type(msg)
+        p = _plan(cls)
         payload = pack_envelope(
             type_name, p.schema, wire, device, t_recv_ns, seq, p.pack(msg, decoded)
         )
@@ -742,8 +758,8 @@ SCHEMA_MAX = 0xFFFF
 BODY_DEPTH_MAX = 32
 
 
-def _check_header(version: int, type_name: Any, device: Any, t_ns: Any, seq: Any,
-                  wire: Any = "", schema: Any = 0) -> None:  # fmt: skip
+def _check_header(version: int, type_name: object, device: object, t_ns: object, seq: object,
+                  wire: object = "", schema: object = 0) -> None:  # fmt: skip
     """Every header field at the edges of its type (module docstring); a ValueError naming the
     version, the field and the value otherwise. ``bool`` is no integer here."""
     if (type(t_ns) is int and 0 <= t_ns <= T_NS_MAX and type(seq) is int
@@ -753,12 +769,12 @@ def _check_header(version: int, type_name: Any, device: Any, t_ns: Any, seq: Any
             and len(wire) <= NAME_MAX):  # fmt: skip
         return  # the usual case, at sensor rate: one expression
 
-    def name(field: str, v: Any) -> None:
+    def name(field: str, v: object) -> None:
         if type(v) is not str or len(v) > NAME_MAX:
             raise ValueError(f"envelope v{version}: {field} must be a string of at most "
                              f"{NAME_MAX} characters, got {_short(v)}")  # fmt: skip
 
-    def integer(field: str, v: Any, hi: int) -> None:
+    def integer(field: str, v: object, hi: int) -> None:
         if type(v) is not int or not 0 <= v <= hi:
             raise ValueError(f"envelope v{version}: {field} must be an integer in 0..{hi}, "
                              f"got {_short(v)}")  # fmt: skip
@@ -771,12 +787,12 @@ def _check_header(version: int, type_name: Any, device: Any, t_ns: Any, seq: Any
     integer("schema", schema, SCHEMA_MAX)
 
 
-def _short(v: Any) -> str:
+def _short(v: object) -> str:
     text = repr(v)
     return f"{type(v).__name__} {text[:40]}{'...' if len(text) > 40 else ''}"
 
 
-def _depth_ok(v: Any, left: int = BODY_DEPTH_MAX) -> bool:
+def _depth_ok(v: object, left: int = BODY_DEPTH_MAX) -> bool:
     """Whether ``v`` nests at most ``left`` containers deep (iterative: no recursion limit)."""
     stack = [(v, left)]
     while stack:

@@ -17,6 +17,7 @@ gateway. Behaviour and payloads are documented in docs/gateway.md and docs/bus.m
 from __future__ import annotations
 
 import contextlib
+import functools
 import itertools
 import json
 import logging
@@ -35,6 +36,7 @@ import zenoh
 from auvgw.bus import (
     SCHEMA_VERSION,
     Keys,
+    Undeclarable,
     encode_envelope,
     envelope_encoding,
     json_encoding,
@@ -245,7 +247,7 @@ class Gateway:
                     dev.gate = CommandGate(can.codec)
         self._stamp = cfg.clock.stamp
         self._threads: list[threading.Thread] = []
-        self._decls: list[Any] = []
+        self._decls: list[Undeclarable] = []
         self._status_pubs: dict[str, zenoh.Publisher] = {}
         self._alone = False  # check_alone found no other gateway of this vehicle
         self._started = False
@@ -279,9 +281,8 @@ class Gateway:
         self._decls.append(s.declare_queryable(self.keys.config("gateway"), self._answer_config))
         for component in ("gateway", *self.devices):
             key = self.keys.status(component)
-            self._decls.append(
-                s.declare_queryable(key, lambda q, c=component: self._answer_status(q, c))
-            )
+            answer = functools.partial(self._answer_status, component=component)
+            self._decls.append(s.declare_queryable(key, answer))
             self._status_pubs[component] = s.declare_publisher(key, congestion_control=_DROP)
         for dev in self.devices.values():
             dev.pubs["raw"] = s.declare_publisher(
@@ -292,7 +293,7 @@ class Gateway:
             if dev.gate is not None:
                 self._decls.append(
                     s.declare_subscriber(
-                        self.keys.cmd(dev.name), lambda smp, d=dev: self._on_command(d, smp)
+                        self.keys.cmd(dev.name), functools.partial(self._on_command, dev)
                     )
                 )
             dev.thread = threading.Thread(
@@ -564,8 +565,8 @@ class Gateway:
                     puts.append((pub, payload, None, enc))
                 items.append(item)
         finally:
-            for pub, payload, attachment, enc in puts:
-                pub.put(payload, attachment=attachment, encoding=enc)
+            for out, data, att, encoding in puts:
+                out.put(data, attachment=att, encoding=encoding)
         for item in items:
             self._decoded(dev, item, t_recv_ns, t_ns, transport, host)
 

@@ -32,7 +32,6 @@ import functools
 import io
 import json
 import logging
-import queue
 import re
 import struct
 import threading
@@ -45,7 +44,7 @@ from typing import IO, Any, NamedTuple
 
 from mcap.exceptions import EndOfFile, McapError
 from mcap.reader import NonSeekingReader, make_reader
-from mcap.records import Channel, Chunk, Footer, Message, Schema
+from mcap.records import Channel, Chunk, Footer, McapRecord, Message, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 from pydantic import ValidationError
@@ -64,6 +63,7 @@ from auvgw.decoding import DeviceDecoder, make_decoders
 from auvgw.drivers.spec import to_jsonable
 from auvgw.ground.errors import DataError
 from auvgw.ground.paths import config_file
+from auvgw.ground.worker import Worker
 
 log = logging.getLogger(__name__)
 
@@ -97,7 +97,6 @@ GATEWAY_METADATA = "auvgw.gateway"
 #: MCAP metadata record written when a recording is closed
 RECORDING_METADATA = "auvgw.recording"
 _ATT_LEN = struct.Struct("<H")
-_STOP = "stop"
 
 
 class RecordingError(DataError):
@@ -244,11 +243,11 @@ def sample_to_ros(
         except (AttributeError, TypeError, ValueError) as exc:  # no standard form: keep the body
             log.debug("%s/%s: %s; recorded as %s", section, rest, exc, ros2.DECODED_TYPE)
             typed = hasattr(msg, "__dataclass_fields__")
-            body = (
+            fields = (
                 to_jsonable(msg) if typed else {k: v for k, v in vars(msg).items() if k != "TYPE"}
             )
             msgs = [ros2.decoded_msg(f"{section}/{rest}", source, env.type, env.t_recv_ns,
-                                     env.seq, body)]  # fmt: skip
+                                     env.seq, fields)]  # fmt: skip
         return msgs, env.t_recv_ns, env.seq
     text = payload.decode("utf-8", errors="replace")
     try:
@@ -296,9 +295,10 @@ class _Pending:
     t_rx_ns: int
 
 
-class McapRecorder:
+class McapRecorder(Worker[_Pending | str]):
     """Writes samples to an MCAP file (ROS 2 profile, :class:`Ros2McapWriter`) from a
-    background thread.
+    background thread (a :class:`~auvgw.ground.worker.Worker` with an unbounded queue: a
+    recording never drops a sample to keep up).
 
     :meth:`add` is cheap and thread-safe (it only queues), so it can be called from Zenoh
     callbacks; :meth:`close` drains the queue, writes the closing metadata and the MCAP summary.
@@ -323,11 +323,10 @@ class McapRecorder:
         self.skipped = 0
         self._f: IO[bytes] = file if file is not None else open(self.path, "wb")  # noqa: SIM115
         self._w = Ros2McapWriter(self._f, vehicle, chunk_size)
-        self._q: queue.SimpleQueue[_Pending | str] = queue.SimpleQueue()
         self._config_written = False
         self._closed = False
-        self._thread = threading.Thread(target=self._drain, name="mcap-writer", daemon=True)
-        self._thread.start()
+        super().__init__(0, thread_name="mcap-writer")
+        self.start_worker()
 
     @property
     def counts(self) -> Counter[str]:
@@ -340,7 +339,7 @@ class McapRecorder:
         if self.failed.is_set():
             self.lost += 1
             return
-        self._q.put(_Pending(key, payload, attachment, encoding, time.time_ns()))
+        self.submit(_Pending(key, payload, attachment, encoding, time.time_ns()))
 
     def set_gateway_config(self, config_json: str) -> None:
         """Write the gateway configuration record (once; later calls are ignored)."""
@@ -352,51 +351,49 @@ class McapRecorder:
             "schema_version": str(SCHEMA_VERSION),
             "config": config_json,
         }
-        self._q.put(json.dumps(meta))  # written in order, after the samples queued before it
+        self.submit(json.dumps(meta))  # written in order, after the samples queued before it
 
     @property
     def has_config(self) -> bool:
         return self._config_written
 
-    def _drain(self) -> None:
-        while True:
-            p = self._q.get()
-            if p == _STOP:
-                return
-            if self.failed.is_set():
-                self.lost += not isinstance(p, str)
-                continue
-            try:
-                if isinstance(p, str):
-                    meta = json.loads(p)
-                    with contextlib.suppress(ValueError, KeyError, AttributeError):
-                        cfg = json.loads(meta["config"])
-                        devices = cfg.get("devices", {})
-                        self._w.wire_formats.update({k: d["format"] for k, d in devices.items()})
-                        # every sensor frame placed under base_link (the configured mounts)
-                        static = ros2.static_tf_for_config(cfg, self.t_start_ns)
-                        if static is not None:
-                            msg = ros2.RosMessage("/tf_static", ros2.TF_TYPE, static)
-                            self._w.write_ros("", [msg], self.t_start_ns,
-                                              self.t_start_ns)  # fmt: skip
-                    self._w.add_metadata(GATEWAY_METADATA, meta)
-                else:
-                    self._w.write(p.key, p.payload, p.attachment, p.encoding, p.t_rx_ns)
-            except (ValueError, KeyError, TypeError, struct.error) as exc:
-                self.skipped += 1
-                log.warning("%s: sample not recorded: %s", getattr(p, "key", "metadata"), exc)
-            except OSError as exc:  # disk full, I/O error: stop writing, keep draining
-                self.error = exc
-                self.lost += not isinstance(p, str)
-                self.failed.set()
+    def _work_describe(self, item: _Pending | str) -> str:
+        return item.key if isinstance(item, _Pending) else "metadata"
+
+    def _work_item(self, p: _Pending | str) -> None:
+        if self.failed.is_set():
+            self.lost += not isinstance(p, str)
+            return
+        try:
+            if isinstance(p, str):
+                meta = json.loads(p)
+                with contextlib.suppress(ValueError, KeyError, AttributeError):
+                    cfg = json.loads(meta["config"])
+                    devices = cfg.get("devices", {})
+                    self._w.wire_formats.update({k: d["format"] for k, d in devices.items()})
+                    # every sensor frame placed under base_link (the configured mounts)
+                    static = ros2.static_tf_for_config(cfg, self.t_start_ns)
+                    if static is not None:
+                        msg = ros2.RosMessage("/tf_static", ros2.TF_TYPE, static)
+                        self._w.write_ros("", [msg], self.t_start_ns,
+                                          self.t_start_ns)  # fmt: skip
+                self._w.add_metadata(GATEWAY_METADATA, meta)
+            else:
+                self._w.write(p.key, p.payload, p.attachment, p.encoding, p.t_rx_ns)
+        except (ValueError, KeyError, TypeError, struct.error) as exc:
+            self.skipped += 1
+            log.warning("%s: sample not recorded: %s", getattr(p, "key", "metadata"), exc)
+        except OSError as exc:  # disk full, I/O error: stop writing, keep draining
+            self.error = exc
+            self.lost += not isinstance(p, str)
+            self.failed.set()
 
     def close(self) -> None:
         """Flush everything, write the closing metadata and the summary, close the file."""
         if self._closed:
             return
         self._closed = True
-        self._q.put(_STOP)
-        self._thread.join()
+        self.stop_worker(None)
         if self.failed.is_set():  # no summary: the file is read up to its last whole chunk
             with contextlib.suppress(OSError):
                 self._f.close()
@@ -537,10 +534,14 @@ class ScanReport:
     indexed: bool = False  #: read through the summary's chunk index (else a linear scan)
 
 
-def _all_records(data: bytes, emit_chunks: bool = False) -> list[Any]:
+#: a scanned message: its schema (None: schemaless), channel and the message record
+_Scanned = tuple[Schema | None, Channel, Message]
+
+
+def _all_records(data: bytes, emit_chunks: bool = False) -> list[McapRecord]:
     """Every record of ``data`` (records with no magic around them, as in a chunk); the mcap
     reader signals their end with ``EndOfFile``."""
-    out: list[Any] = []
+    out: list[McapRecord] = []
     reader = StreamReader(io.BytesIO(data), skip_magic=True, emit_chunks=emit_chunks,
                           record_size_limit=len(data))  # fmt: skip
     try:
@@ -553,7 +554,7 @@ def _all_records(data: bytes, emit_chunks: bool = False) -> list[Any]:
     return out
 
 
-def _decompress(chunk: Any) -> bytes:
+def _decompress(chunk: Chunk) -> bytes:
     if chunk.compression == "zstd":
         import zstandard
 
@@ -568,7 +569,7 @@ def _decompress(chunk: Any) -> bytes:
     raise ValueError(f"compression {chunk.compression!r} unknown")
 
 
-def _chunk_records(chunk: Any) -> list[Any]:
+def _chunk_records(chunk: Chunk) -> list[McapRecord]:
     """The records of a chunk, after its CRC is checked (a ValueError naming what is wrong)."""
     import zlib
 
@@ -585,8 +586,9 @@ def _chunk_records(chunk: Any) -> list[Any]:
     return _all_records(data)
 
 
-def scan_recording(path: str | Path, report: ScanReport | None = None) -> Iterator[
-        tuple[Any, Any, Any]]:  # fmt: skip
+def scan_recording(
+    path: str | Path, report: ScanReport | None = None
+) -> Iterator[_Scanned]:
     """Every message of a recording as ``(schema, channel, message)`` records in file order,
     each chunk's CRC checked: a damaged chunk costs that chunk only (a :class:`Damage` in
     ``report`` and one warning line naming the file, the byte offset and the time range lost),
@@ -596,10 +598,10 @@ def scan_recording(path: str | Path, report: ScanReport | None = None) -> Iterat
     to resume at."""
     path = Path(path)
     report = report if report is not None else ScanReport()
-    schemas: dict[int, Any] = {}
-    channels: dict[int, Any] = {}
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
 
-    def take(records: list[Any]) -> Iterator[tuple[Any, Any, Any]]:
+    def take(records: list[McapRecord]) -> Iterator[_Scanned]:
         for rec in records:
             if isinstance(rec, Schema):
                 schemas[rec.id] = rec
@@ -615,7 +617,7 @@ def scan_recording(path: str | Path, report: ScanReport | None = None) -> Iterat
         report.damaged.append(d)
         log.warning("%s", d.line(path))
 
-    def chunk_messages(chunk: Any, at: int) -> Iterator[tuple[Any, Any, Any]]:
+    def chunk_messages(chunk: Chunk, at: int) -> Iterator[_Scanned]:
         report.chunks += 1
         try:
             records = _chunk_records(chunk)
@@ -736,19 +738,19 @@ def recorded_paths(cfg: GatewayConfig) -> dict[str, str]:
 
 
 def _ros2_sample(
-    type_name: str, meta: Mapping[str, str], topic: str, msg: Any, zenc: str
+    type_name: str, meta: Mapping[str, str], topic: str, msg: Message, zenc: str
 ) -> RecordedSample:
     """A recorded ROS 2 message as the bus sample it came from: raw frames with their
     attachment, Decoded messages with their JSON text, standard types as CDR bytes."""
     key = meta.get("key", topic)
     if type_name == ros2.RAW_FRAME_TYPE:
-        m = ros2.typestore().deserialize_cdr(msg.data, type_name)
+        m = ros2.read_raw_frame(msg.data)
         t_ns = m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
         att = pack_raw_attachment(t_ns, m.seq, m.stream_offset)
         return RecordedSample(key, msg.log_time, att, bytes(m.data), RAW_ENCODING, zenc)
     if type_name == ros2.DECODED_TYPE:
-        m = ros2.typestore().deserialize_cdr(msg.data, type_name)
-        return RecordedSample(key, msg.log_time, None, m.json.encode(), "json", zenc)
+        d = ros2.read_decoded(msg.data)
+        return RecordedSample(key, msg.log_time, None, d.json.encode(), "json", zenc)
     return RecordedSample(key, msg.log_time, None, msg.data, MESSAGE_ENCODING, zenc)
 
 

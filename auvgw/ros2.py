@@ -52,14 +52,99 @@ import dataclasses
 import json
 import math
 import re
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from functools import cache
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple, Protocol, SupportsFloat, cast
 
 import numpy as np
 
 from auvgw.drivers import registry
 from auvgw.ground.geometry import quaternion_zyx
+
+if TYPE_CHECKING:  # rosbags' own message classes (the type store builds the same at run time)
+    from rosbags.typesys.store import Typestore
+    from rosbags.typesys.stores.ros2_humble import (
+        diagnostic_msgs__msg__DiagnosticArray as DiagnosticArray,
+    )
+    from rosbags.typesys.stores.ros2_humble import geometry_msgs__msg__Point as Point
+    from rosbags.typesys.stores.ros2_humble import geometry_msgs__msg__Pose as Pose
+    from rosbags.typesys.stores.ros2_humble import (
+        geometry_msgs__msg__PoseWithCovarianceStamped as PoseWithCovarianceStamped,
+    )
+    from rosbags.typesys.stores.ros2_humble import geometry_msgs__msg__Quaternion as Quaternion
+    from rosbags.typesys.stores.ros2_humble import (
+        geometry_msgs__msg__TransformStamped as TransformStamped,
+    )
+    from rosbags.typesys.stores.ros2_humble import geometry_msgs__msg__Vector3 as Vector3
+    from rosbags.typesys.stores.ros2_humble import nav_msgs__msg__Odometry as RosOdometry
+    from rosbags.typesys.stores.ros2_humble import sensor_msgs__msg__Imu as Imu
+    from rosbags.typesys.stores.ros2_humble import (
+        sensor_msgs__msg__MagneticField as MagneticField,
+    )
+    from rosbags.typesys.stores.ros2_humble import sensor_msgs__msg__PointCloud2 as PointCloud2
+    from rosbags.typesys.stores.ros2_humble import std_msgs__msg__Header as Header
+    from rosbags.typesys.stores.ros2_humble import tf2_msgs__msg__TFMessage as TFMessage
+
+    from auvgw.fusion.odometry import Odometry
+
+#: a 3-vector of anything ``float()`` takes (a tuple, a numpy row)
+Vec3 = Iterable[SupportsFloat]
+
+
+class InertialSample(Protocol):
+    """What :func:`imu_msg` reads of an INS solution (HN-100 binary or CAN): attitude (rad,
+    NED), body rates (rad/s, FRD) and accelerations (m/s^2, FRD)."""
+
+    @property
+    def roll(self) -> float: ...
+    @property
+    def pitch(self) -> float: ...
+    @property
+    def heading(self) -> float: ...
+    @property
+    def rate_x(self) -> float: ...
+    @property
+    def rate_y(self) -> float: ...
+    @property
+    def rate_z(self) -> float: ...
+    @property
+    def accel_x(self) -> float: ...
+    @property
+    def accel_y(self) -> float: ...
+    @property
+    def accel_z(self) -> float: ...
+
+
+class FieldSample(Protocol):
+    """What :func:`magnetic_field_msg` reads of a magnetometer sample: the field, nT, FRD."""
+
+    @property
+    def bx(self) -> float: ...
+    @property
+    def by(self) -> float: ...
+    @property
+    def bz(self) -> float: ...
+
+
+class PlanarPose(Protocol):
+    """A pose on the map plane: ``x`` north, ``y`` east (m), ``heading`` (rad)."""
+
+    @property
+    def x(self) -> float: ...
+    @property
+    def y(self) -> float: ...
+    @property
+    def heading(self) -> float: ...
+
+
+class MountLike(Protocol):
+    """A sensor mount (:class:`auvgw.config.ros2.Mount`): lever arm (m, body FRD) and roll,
+    pitch, yaw (deg)."""
+
+    @property
+    def lever_arm_m(self) -> tuple[float, float, float]: ...
+    @property
+    def rpy_deg(self) -> tuple[float, float, float]: ...
 
 __all__ = [
     "DECODED_MSG",
@@ -136,7 +221,7 @@ class RosMessage(NamedTuple):
 
 
 @cache
-def typestore() -> Any:
+def typestore() -> Typestore:
     """The rosbags type store (ROS 2 Humble) with the auvgw_msgs types registered."""
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
@@ -146,6 +231,37 @@ def typestore() -> Any:
     types.update(get_types_from_msg(DECODED_MSG, DECODED_TYPE))
     ts.register(types)
     return ts
+
+
+class RawFrameRos(Protocol):
+    """``auvgw_msgs/msg/RawFrame`` as read back (the type store builds its class at run time)."""
+
+    header: Header
+    device: str
+    wire_format: str
+    seq: int
+    stream_offset: int
+    data: np.ndarray
+
+
+class DecodedRos(Protocol):
+    """``auvgw_msgs/msg/Decoded`` as read back."""
+
+    header: Header
+    source: str
+    type: str
+    seq: int
+    json: str
+
+
+def read_raw_frame(cdr: bytes) -> RawFrameRos:
+    """A RawFrame message from its CDR bytes."""
+    return cast("RawFrameRos", typestore().deserialize_cdr(cdr, RAW_FRAME_TYPE))
+
+
+def read_decoded(cdr: bytes) -> DecodedRos:
+    """A Decoded message from its CDR bytes."""
+    return cast("DecodedRos", typestore().deserialize_cdr(cdr, DECODED_TYPE))
 
 
 @cache
@@ -167,13 +283,13 @@ def _t(name: str) -> Any:
 # -- frames ----------------------------------------------------------------------------------------
 
 
-def enu_from_ned(v: Any) -> tuple[float, float, float]:
+def enu_from_ned(v: Vec3) -> tuple[float, float, float]:
     """A NED vector (north, east, down) as ENU (east, north, up)."""
     n, e, d = (float(x) for x in v)
     return e, n, -d
 
 
-def flu_from_frd(v: Any) -> tuple[float, float, float]:
+def flu_from_frd(v: Vec3) -> tuple[float, float, float]:
     """A body FRD vector (forward, starboard, down) as FLU (forward, left, up)."""
     f, s, d = (float(x) for x in v)
     return f, -s, -d
@@ -198,28 +314,28 @@ def ros_topic(namespace: str, vehicle: str, topic: str) -> str:
 # -- building blocks -------------------------------------------------------------------------------
 
 
-def _header(t_ns: int, frame_id: str) -> Any:
+def _header(t_ns: int, frame_id: str) -> Header:
     t = _t("builtin_interfaces/msg/Time")(
         sec=int(t_ns // 1_000_000_000), nanosec=int(t_ns % 1_000_000_000)
     )
     return _t("std_msgs/msg/Header")(stamp=t, frame_id=frame_id)
 
 
-def _vec3(v: Any) -> Any:
+def _vec3(v: Vec3) -> Vector3:
     x, y, z = (float(a) for a in v)
     return _t("geometry_msgs/msg/Vector3")(x=x, y=y, z=z)
 
 
-def _quat(q: tuple[float, float, float, float]) -> Any:
+def _quat(q: tuple[float, float, float, float]) -> Quaternion:
     return _t("geometry_msgs/msg/Quaternion")(x=q[0], y=q[1], z=q[2], w=q[3])
 
 
-def _point(v: Any) -> Any:
+def _point(v: Vec3) -> Point:
     x, y, z = (float(a) for a in v)
     return _t("geometry_msgs/msg/Point")(x=x, y=y, z=z)
 
 
-def _cloud(t_ns: int, frame: str, xyz: np.ndarray, intensity: np.ndarray | None) -> Any:
+def _cloud(t_ns: int, frame: str, xyz: np.ndarray, intensity: np.ndarray | None) -> PointCloud2:
     """PointCloud2 of float32 x, y, z, intensity (NaN points kept: ``is_dense`` False)."""
     PF = _t("sensor_msgs/msg/PointField")
     n = len(xyz)
@@ -270,7 +386,7 @@ def decoded_msg(
 # -- per stream ------------------------------------------------------------------------------------
 
 
-def imu_msg(msg: Any, device: str, t_ns: int) -> Any:
+def imu_msg(msg: InertialSample, device: str, t_ns: int) -> Imu:
     """An HN-100 solution (serial or CAN) as sensor_msgs/Imu in frame ``device`` (FLU)."""
     q = quaternion_enu_flu(msg.heading, msg.pitch, msg.roll)
     zeros = np.zeros(9)
@@ -283,7 +399,7 @@ def imu_msg(msg: Any, device: str, t_ns: int) -> Any:
     )  # fmt: skip
 
 
-def magnetic_field_msg(msg: Any, device: str, t_ns: int) -> Any:
+def magnetic_field_msg(msg: FieldSample, device: str, t_ns: int) -> MagneticField:
     """An MS3A sample (nT, sensor FRD axes) as sensor_msgs/MagneticField (T, FLU)."""
     b = flu_from_frd((msg.bx, msg.by, msg.bz))
     return _t("sensor_msgs/msg/MagneticField")(
@@ -325,7 +441,7 @@ def dvl_msgs(msg: Any, device: str, t_ns: int) -> list[RosMessage]:
     ]
 
 
-def swath_msg(msg: Any, device: str, t_ns: int) -> Any:
+def swath_msg(msg: Any, device: str, t_ns: int) -> PointCloud2:
     """Multibeam beams (along x forward, across y starboard, depth z down, m from the transmit
     transducer) as a PointCloud2 in frame ``device`` (FLU), intensity = reflectivity (dB); a
     beam without a detection (XYZ 88 detection info bit 7; Depth: depth 0, which the sonar
@@ -340,7 +456,9 @@ def swath_msg(msg: Any, device: str, t_ns: int) -> Any:
     return _cloud(t_ns, device, xyz, None if refl is None else np.asarray(refl, float))
 
 
-def scanline_msg(msg: Any, device: str, t_ns: int, sound_speed: float = DEFAULT_SOUND_SPEED) -> Any:
+def scanline_msg(
+    msg: Any, device: str, t_ns: int, sound_speed: float = DEFAULT_SOUND_SPEED
+) -> PointCloud2:
     """One MSIS scan line: a point per bin at the bin's centre range along the transducer
     bearing (rad, clockwise from forward seen from above, i.e. towards starboard), FLU frame
     ``device``, intensity = the bin's amplitude."""
@@ -362,7 +480,7 @@ _J_TWIST[0, 5] = 1.0
 _J_TWIST[1, 6] = _J_TWIST[2, 7] = -1.0
 
 
-def odometry_msg(o: Any, t_ns: int) -> Any:
+def odometry_msg(o: Odometry, t_ns: int) -> RosOdometry:
     """fusion Odometry (NED, body FRD) as nav_msgs/Odometry: pose of ``base_link`` in ``odom``
     (ENU), twist in ``base_link`` (FLU)."""
     cov = np.asarray(o.covariance, float)
@@ -383,7 +501,7 @@ def odometry_msg(o: Any, t_ns: int) -> Any:
     )
 
 
-def slam_pose_msg(body: Mapping[str, Any], t_ns: int) -> Any:
+def slam_pose_msg(body: Mapping[str, Any], t_ns: int) -> PoseWithCovarianceStamped:
     """A SLAM pose (map NED x, y, heading and its 3 x 3 covariance) as PoseWithCovarianceStamped
     in ``map`` (ENU; z 0: the pipelines are 2-D)."""
     cov6 = np.zeros((6, 6))
@@ -402,7 +520,7 @@ def slam_pose_msg(body: Mapping[str, Any], t_ns: int) -> Any:
     )
 
 
-def landmarks_msg(body: Mapping[str, Any], t_ns: int) -> Any:
+def landmarks_msg(body: Mapping[str, Any], t_ns: int) -> PointCloud2:
     """SLAM point landmarks (map NED x, y) as a PointCloud2 in ``map`` (ENU), intensity = id."""
     mean = np.asarray(body.get("mean") or np.zeros((0, 2)), float).reshape(-1, 2)
     xyz = np.column_stack([mean[:, 1], mean[:, 0], np.zeros(len(mean))])
@@ -411,8 +529,8 @@ def landmarks_msg(body: Mapping[str, Any], t_ns: int) -> Any:
 
 
 def _transform(
-    t_ns: int, parent: str, child: str, xyz: Any, q: tuple[float, float, float, float]
-) -> Any:
+    t_ns: int, parent: str, child: str, xyz: Vec3, q: tuple[float, float, float, float]
+) -> TransformStamped:
     return _t("geometry_msgs/msg/TransformStamped")(
         header=_header(t_ns, parent),
         child_frame_id=child,
@@ -422,19 +540,19 @@ def _transform(
     )
 
 
-def tf_msg(transforms: list[Any]) -> Any:
+def tf_msg(transforms: list[TransformStamped]) -> TFMessage:
     """tf2_msgs/TFMessage of ``TransformStamped`` messages (``/tf``, ``/tf_static``)."""
     return _t("tf2_msgs/msg/TFMessage")(transforms=transforms)
 
 
-def odom_tf(o: Any, t_ns: int) -> Any:
+def odom_tf(o: Odometry, t_ns: int) -> TransformStamped:
     """The fusion's ``odom`` -> ``base_link`` transform (REP 105: the odometry's pose, ENU,
     FLU)."""
     return _transform(t_ns, FRAME_ODOM, FRAME_BASE, enu_from_ned((o.x, o.y, o.z)),
                       quaternion_enu_flu(o.heading, o.pitch, o.roll))  # fmt: skip
 
 
-def map_odom_tf(slam: Mapping[str, Any], odom: Any, t_ns: int) -> Any:
+def map_odom_tf(slam: Mapping[str, float], odom: PlanarPose, t_ns: int) -> TransformStamped:
     """``map`` -> ``odom`` from a SLAM pose (map NED x, y, heading) and the odometry at the same
     time (NED x, y, heading): the 2-D correction ``T_map_base * T_odom_base^-1`` (REP 105), in ENU
     (z and the odometry's roll and pitch are the odometry's own: the pipelines are 2-D)."""
@@ -448,7 +566,7 @@ def map_odom_tf(slam: Mapping[str, Any], odom: Any, t_ns: int) -> Any:
                       quaternion_zyx(0.0, 0.0, -dh))  # fmt: skip
 
 
-def static_tf(mounts: Mapping[str, Any], t_ns: int) -> Any:
+def static_tf(mounts: Mapping[str, MountLike], t_ns: int) -> TFMessage:
     """``/tf_static``: ``base_link`` -> each sensor's frame (named after its device) from its
     mount: ``lever_arm_m`` (body FRD, m, from the vehicle reference point) and ``rpy_deg`` (roll,
     pitch, yaw of the sensor's axes in body FRD, degrees), both written FLU here (REP 103)."""
@@ -462,7 +580,7 @@ def static_tf(mounts: Mapping[str, Any], t_ns: int) -> Any:
     return tf_msg(out)
 
 
-def static_tf_for_config(config: Mapping[str, Any], t_ns: int) -> Any:
+def static_tf_for_config(config: Mapping[str, Any], t_ns: int) -> TFMessage | None:
     """``/tf_static`` of a gateway configuration (its JSON form): every device's frame under
     ``base_link``, at its ``[ros2.mounts]`` mount, or at the reference point with the vehicle's
     axes for a device with none (so every sensor frame is placed), and the swath frame
@@ -491,7 +609,7 @@ class TfTracker:
 
     def __init__(self, keep: int = 2048) -> None:
         self._t: list[int] = []
-        self._odom: list[Any] = []
+        self._odom: list[_Ned] = []
         self._keep = keep
 
     def feed(self, msgs: list[RosMessage], t_ns: int) -> list[RosMessage]:
@@ -519,7 +637,7 @@ class _Ned(NamedTuple):
     heading: float  #: rad from north towards east
 
 
-def _ned_of_pose(pose: Any) -> _Ned:
+def _ned_of_pose(pose: Pose) -> _Ned:
     """x, y (NED) and heading of a ROS pose (ENU position, FLU -> ENU orientation)."""
     q = pose.orientation
     yaw_enu = math.atan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z))
@@ -538,7 +656,7 @@ def _diag_value(v: Any) -> str:
     return str(v)
 
 
-def diagnostics_msg(status: Mapping[str, Any], t_ns: int) -> Any:
+def diagnostics_msg(status: Mapping[str, Any], t_ns: int) -> DiagnosticArray:
     """A component's status JSON as diagnostic_msgs/DiagnosticArray: one DiagnosticStatus per
     gateway device, of the gateway's status or a device's own (name
     ``auvgw/<vehicle>/<device>``, hardware_id its port; OK, WARN when it has bad frames or decode

@@ -44,6 +44,7 @@ from auvgw.config.bus import BusConfig
 from auvgw.drivers.spec import from_jsonable
 from auvgw.envelope import SchemaError, message_class, typed_body
 from auvgw.ground.closing import Closing
+from auvgw.ground.worker import Inbox
 
 log = logging.getLogger(__name__)
 
@@ -88,14 +89,20 @@ class RawFrame:
 
 
 class Stream(Closing):
-    """A declared subscription whose samples queue up until iterated (see :meth:`get`)."""
+    """A declared subscription whose samples queue up until iterated (see :meth:`get`): the
+    consumer's own thread takes them from an :class:`~auvgw.ground.worker.Inbox` (bounded, never
+    blocking the Zenoh callback, counting what it refuses)."""
 
     def __init__(self, session: zenoh.Session, key: str, raw: bool, queue_size: int) -> None:
         self.key = key
         self.raw = raw
-        self.dropped = 0
-        self._q: queue.Queue[tuple[str, bytes, bytes | None]] = queue.Queue(queue_size)
+        self._inbox: Inbox[tuple[str, bytes, bytes | None]] = Inbox(queue_size)
         self._sub = session.declare_subscriber(key, self._on_sample)
+
+    @property
+    def dropped(self) -> int:
+        """Samples dropped because the consumer fell ``queue_size`` behind."""
+        return self._inbox.dropped
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         att = sample.attachment
@@ -104,10 +111,7 @@ class Stream(Closing):
             sample.payload.to_bytes(),
             None if att is None else att.to_bytes(),
         )
-        try:
-            self._q.put_nowait(item)
-        except queue.Full:
-            self.dropped += 1
+        self._inbox.put(item)
 
     def _convert(self, item: tuple[str, bytes, bytes | None]) -> Envelope | RawFrame | None:
         key, payload, att = item
@@ -128,23 +132,23 @@ class Stream(Closing):
             return env
         return dataclasses.replace(env, message=typed_message(env.type, env.body, env.schema))
 
-    def get(self, timeout: float | None = None) -> Any:
+    def get(self, timeout: float | None = None) -> Envelope | RawFrame | None:
         """The next envelope (or raw frame), or None when nothing arrives within ``timeout`` s."""
         deadline = None if timeout is None else time.monotonic() + timeout
         while True:
             left = None if deadline is None else max(0.0, deadline - time.monotonic())
             try:
-                item = self._q.get(timeout=left)
+                item = self._inbox.get(left)
             except queue.Empty:
                 return None
             out = self._convert(item)
             if out is not None:
                 return out
 
-    def __iter__(self) -> Iterator[Any]:
+    def __iter__(self) -> Iterator[Envelope | RawFrame]:
         return self.iter()
 
-    def iter(self, timeout: float | None = None) -> Iterator[Any]:
+    def iter(self, timeout: float | None = None) -> Iterator[Envelope | RawFrame]:
         """Items until none arrives for ``timeout`` seconds (None: until closed)."""
         while (item := self.get(timeout)) is not None:
             yield item
@@ -195,12 +199,12 @@ class GatewaySubscriber(Closing):
     ) -> Iterator[Envelope]:
         """Decoded envelopes (``.message`` typed) until none arrives for ``timeout`` seconds."""
         with self.stream(device, kind) as s:
-            yield from s.iter(timeout)
+            yield from (e for e in s.iter(timeout) if isinstance(e, Envelope))
 
     def frames(self, device: str | None = None, timeout: float | None = None) -> Iterator[RawFrame]:
         """Raw frames with their attachments until none arrives for ``timeout`` seconds."""
         with self.stream(device, raw=True) as s:
-            yield from s.iter(timeout)
+            yield from (f for f in s.iter(timeout) if isinstance(f, RawFrame))
 
     def wait_ready(self, timeout: float = 10.0) -> bool:
         """Wait for a gateway status sample; True once one arrived.

@@ -874,7 +874,7 @@ class PolledEmulator(Emulator):
         ping duration (s), where the head offers them."""
         out = {**super().stats(), "poll": asdict(self.poll)}
         head_stats = getattr(self.head, "stats", None)
-        if hasattr(head_stats, "as_dict"):
+        if head_stats is not None and hasattr(head_stats, "as_dict"):
             out["head"] = head_stats.as_dict()
         ping = getattr(self.head, "ping_duration_s", None)
         if callable(ping):

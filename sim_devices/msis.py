@@ -549,10 +549,14 @@ def serve_on_port(
 
 
 class _Hits(Protocol):
-    range_m: np.ndarray
-    incidence: np.ndarray
-    kind: np.ndarray
-    index: np.ndarray
+    @property
+    def range_m(self) -> np.ndarray: ...
+    @property
+    def incidence(self) -> np.ndarray: ...
+    @property
+    def kind(self) -> np.ndarray: ...
+    @property
+    def index(self) -> np.ndarray: ...
 
 
 def _erf(x: np.ndarray) -> np.ndarray:

@@ -378,7 +378,7 @@ class Runner(Closing):
         em = self.emulator(device)
         now = self.clock.now()
         current = list(getattr(em.faults.settings, key))
-        return em.set_faults(**{key: [*current, (now, now + float(seconds))]})
+        return em.set_faults(None, **{key: [*current, (now, now + float(seconds))]})
 
     def unplug_for(self, device: str, seconds: float) -> FaultSettings:
         """Unplug the device's ports from now for ``seconds`` vehicle seconds."""
@@ -476,7 +476,8 @@ class Runner(Closing):
         path = self.options.truth_log
         if path is not None and path.suffix == ".npz" and self._started:
             rows = np.asarray(self._truth_rows, float).reshape(-1, len(TRUTH_FIELDS))
-            np.savez(path, **{f: rows[:, i] for i, f in enumerate(TRUTH_FIELDS)})
+            columns = {f: rows[:, i] for i, f in enumerate(TRUTH_FIELDS)}
+            np.savez(path, allow_pickle=False, **columns)
 
     # -- run --------------------------------------------------------------------------------------
     def start(self, duration: float | None = None, start_at: float | None = None) -> None:

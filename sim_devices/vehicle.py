@@ -91,10 +91,10 @@ def motion_step(
     """
     c, s = np.cos(heading), np.sin(heading)
     return (
-        x + (u * c - v * s) * dt,
-        y + (u * s + v * c) * dt,
-        z + w * dt,
-        wrap_angle(heading + r * dt),
+        np.asarray(x + (u * c - v * s) * dt),
+        np.asarray(y + (u * s + v * c) * dt),
+        np.asarray(z + w * dt),
+        np.asarray(wrap_angle(heading + r * dt)),
     )
 
 

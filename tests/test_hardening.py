@@ -77,7 +77,7 @@ def test_malformed_bus_payloads_are_counted_logged_and_survived(stage_kind, capl
         for payload in MALFORMED:
             pub.put(payload)
         _wait(lambda: stage.stats.bad_payloads == len(MALFORMED), "bad payload counts")
-        assert stage._worker is not None and stage._worker.is_alive()
+        assert stage.worker_alive
         # the worker still serves: one more is counted too
         pub.put(b"[]")
         _wait(lambda: stage.stats.bad_payloads == len(MALFORMED) + 1, "one more")

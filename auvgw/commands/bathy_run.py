@@ -21,12 +21,15 @@ from __future__ import annotations
 
 import argparse
 import json
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from auvgw.ground.errors import UserError, format_validation_error
 
+if TYPE_CHECKING:
+    from auvgw.stages.bathymetric import BathymetricStageConfig
 
-def stage_config(args: argparse.Namespace, vehicle: str) -> Any:
+
+def stage_config(args: argparse.Namespace, vehicle: str) -> BathymetricStageConfig:
     """The stage's settings from ``--particles``, ``--seed``, ``--multibeam`` and ``--set``."""
     from pydantic import ValidationError
 

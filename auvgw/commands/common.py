@@ -14,7 +14,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from types import FrameType
-from typing import TYPE_CHECKING, Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO, TypeAlias
 
 from auvgw.commands import COMMANDS
 from auvgw.ground.errors import ConfigError, UserError
@@ -25,17 +25,20 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
+#: what a command's ``register`` is given: the CLI's sub-command parsers
+SubParsers: TypeAlias = "argparse._SubParsersAction[argparse.ArgumentParser]"
+
 __all__ = [
-    "UserError", "add_command", "add_decode_config", "add_duration", "add_signature_arguments",
-    "check_signature_args", "decode_config", "handle_stop_signals", "load_or_fail",
-    "open_output", "study_algorithms",
+    "SubParsers", "UserError", "add_command", "add_decode_config", "add_duration",
+    "add_signature_arguments", "check_signature_args", "decode_config", "handle_stop_signals",
+    "load_or_fail", "open_output", "study_algorithms",
 ]  # fmt: skip
 
 
-def add_command(sub: Any, name: str, doc: str | None) -> argparse.ArgumentParser:
+def add_command(sub: SubParsers, name: str, doc: str | None) -> argparse.ArgumentParser:
     """The parser of command ``name`` (its help line from :data:`COMMANDS`, ``doc``, the
     module docstring, as its description, line breaks kept)."""
-    return sub.add_parser(  # type: ignore[no-any-return]
+    return sub.add_parser(
         name, help=COMMANDS[name][1], description=doc,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )  # fmt: skip

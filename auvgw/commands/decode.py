@@ -12,8 +12,8 @@ import json
 import sys
 from collections import Counter
 from pathlib import Path
-from typing import Any
 
+from auvgw.commands.common import SubParsers
 from auvgw.drivers import registry
 from auvgw.drivers.formats import FORMATS, format_from_table, get_format
 from auvgw.drivers.framing import DecodeError
@@ -21,7 +21,7 @@ from auvgw.drivers.spec import WireError, to_jsonable
 from auvgw.ground.errors import UserError
 
 
-def register(sub: Any) -> None:
+def register(sub: SubParsers) -> None:
     p = sub.add_parser("decode", help="decode a capture file to JSON lines")
     p.add_argument("--format", "-f", required=True, choices=sorted(FORMATS), help="wire format")
     p.add_argument("file", type=Path, help="capture file (raw bytes as received, or a .V4LOG)")

@@ -43,12 +43,12 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
 
 from auvgw.bus import Keys, decode_envelope, encode_envelope, open_session
-from auvgw.commands.common import UserError, add_command
+from auvgw.commands.common import SubParsers, UserError, add_command
 from auvgw.commands.demo_parts import (
     _fusion_config,
     _gateway_toml,
@@ -62,6 +62,23 @@ from auvgw.ground.paths import config_file
 from auvgw.ground.procs import Children, free_endpoint, stop_process
 from auvgw.health import device_time_s
 
+if TYPE_CHECKING:
+    import zenoh
+
+    from auvgw.config.gateway import GatewayConfig
+    from auvgw.config.scenario import Scenario
+    from auvgw.fusion.odometry import Odometry
+    from auvgw.stages.bathymetric import BathymetricStage, BathymetricStageConfig
+    from auvgw.stages.fusion import FusionStage
+    from auvgw.stages.magnetic import MagneticStage
+    from auvgw.stages.slam import SlamStage, SlamStageConfig
+    from auvgw.stages.swath import SwathStage
+    from auvgw.subscribe import GatewaySubscriber
+    from auvgw.viz.stage import VizRunner
+
+    #: the in-process SLAM stage of a demo
+    DemoSlam = SlamStage | BathymetricStage | MagneticStage
+
 DEFAULT_SCENARIO = "harbour"
 #: the demo's vehicle seconds and speed (x real time) unless told otherwise
 DEFAULT_DURATION_S = 180.0
@@ -71,11 +88,15 @@ DEFAULT_SPEED = 2.0
 SURVEY_SPEED = 10.0
 #: the emulated vehicle's name (the <v> key segment)
 VEHICLE = "auv1"
+#: a stage's in-process publication hook: (key, payload, stamp ns)
+OnPublish = Callable[[str, bytes, int], object]
+#: one truth sample of the simulator's log (t s, x, y, z m, heading rad...)
+TruthSample = dict[str, float]
 #: RMSE / distance x 100 of VB-AUFastSLAM in the sea trial of Mu et al. 2022 (INS + DVL + MSIS)
 VB_PAPER_RMSE_PCT = 0.742
 
 
-def register(sub: Any) -> None:
+def register(sub: SubParsers) -> None:
     p = add_command(sub, "demo", __doc__)
     p.add_argument(
         "--scenario",
@@ -232,7 +253,7 @@ def _sim_done(sim: subprocess.Popen[bytes], sim_dir: Path) -> bool:
     return sim.poll() is not None or (sim_dir / "finished").exists()
 
 
-def _streamed_frames(gw_cfg: Any, devices: dict[str, Any]) -> int:
+def _streamed_frames(gw_cfg: GatewayConfig, devices: dict[str, dict[str, int]]) -> int:
     """Frames the gateway has read from the devices that speak on their own: a polled device
     (a host driver, the MSIS head) answers every poll for as long as its port stays open, so its
     frames never go quiet; counted, they held the drain at its limit while the gateway kept
@@ -319,7 +340,14 @@ def _scenario_defaults(args: argparse.Namespace, scenario: Path) -> None:
                   f"at {SURVEY_SPEED:g}x", flush=True)  # fmt: skip
 
 
-def _slam_config(vehicle: str, msis: str | None, scn: Any) -> Any:
+def _sim_epoch_ns(gw_cfg: GatewayConfig) -> int:
+    """The gateway's vehicle time 0 (ns on the stamps' clock), from ``auvgw sim``."""
+    if gw_cfg.clock.epoch_ns is None:
+        raise UserError(f"{gw_cfg.source}: no [clock] epoch_ns (vehicle time 0) from auvgw sim")
+    return gw_cfg.clock.epoch_ns
+
+
+def _slam_config(vehicle: str, msis: str | None, scn: Scenario) -> SlamStageConfig:
     """The demo's SLAM stage on the MSIS point features (scenario sound speed, target size)."""
     from auvgw.stages.slam import SlamStageConfig
 
@@ -345,7 +373,7 @@ def _run_stages(
 
     gw_cfg = _load_sim_config(sim_dir)
     keys = Keys(gw_cfg.vehicle)
-    epoch_ns: int = gw_cfg.clock.epoch_ns
+    epoch_ns = _sim_epoch_ns(gw_cfg)
     epoch_s = epoch_ns / 1e9  # stamps (s) - epoch_s = vehicle seconds
     truth, dead_reckoning, slam_track = _Track(), _Track(), _Track()
     lock = threading.Lock()
@@ -380,7 +408,7 @@ def _run_stages(
 
     sonar = {dev.format for dev, m in registry.message_types() if "sonar" in m.roles}
     msis = [n for n, d in gw_cfg.devices.items() if d.format in sonar and d.enabled]
-    slam: Any = None
+    slam: DemoSlam | None = None
     if args.no_slam:
         pass
     elif _is_magnetic(scn):  # the magnetic beacons' AMB-SLAM instead of the MSIS features
@@ -410,7 +438,7 @@ def _run_stages(
     if swath is not None:
         swath.start(subscribe=False)
 
-    def on_odometry(o: Any) -> None:
+    def on_odometry(o: Odometry) -> None:
         with lock:
             dead_reckoning.add_odometry(o.t - epoch_s, o.x, o.y, o.coasting)
         if viz is not None:
@@ -419,9 +447,9 @@ def _run_stages(
         if slam is not None:
             slam.post_odometry(o)
 
-    fusion_box: list[Any] = []
+    fusion_box: list[FusionStage] = []
 
-    def start_fusion(t_vehicle: float) -> Any:
+    def start_fusion(t_vehicle: float) -> FusionStage:
         """Dead reckoning from the true position at the first INS sample the gateway got."""
         deadline = time.monotonic() + 3.0
         while True:  # the truth log trails the vehicle by its write buffer
@@ -457,7 +485,7 @@ def _run_stages(
 
     truth_pub = session.declare_publisher(keys.truth("pose"))
 
-    def on_truth(sample: dict[str, Any]) -> None:
+    def on_truth(sample: TruthSample) -> None:
         with lock:
             truth.add(sample["t"], sample["x"], sample["y"])
         body = json.dumps(sample).encode()
@@ -550,9 +578,9 @@ def _report(
     nav = _path_error(dead_reckoning, truth)
     _print_summary(status, fusion_counters, nav, rrd, wall)
     navigation: dict[str, Any] = {"dead_reckoning": nav}
-    slam_counters = None
+    slam_counters: dict[str, Any] | None = None
     if slam is not None and slam[1] is not None:
-        name, slam_counters = slam
+        name, slam_counters = slam[0], slam[1]
         # over the same span as dead reckoning's: from the first DVL fix
         slam_err = _path_error(slam_track, truth, dead_reckoning.t[0] if dead_reckoning.t else 0.0)
         if slam_counters.get("component") == MAGNETIC_COMPONENT:
@@ -589,7 +617,7 @@ class _Collector:
     """This process's subscriptions in ``--processes`` mode: odometry (stamped time, vehicle
     time, host arrival), SLAM poses and the latest status of every component."""
 
-    def __init__(self, session: Any, keys: Keys, epoch_s: float) -> None:
+    def __init__(self, session: zenoh.Session, keys: Keys, epoch_s: float) -> None:
         self.epoch_s = epoch_s
         self.lock = threading.Lock()
         self.dead_reckoning, self.slam, self.truth = _Track(), _Track(), _Track()
@@ -601,7 +629,7 @@ class _Collector:
             session.declare_subscriber(keys.status("*"), self._on_status),
         ]
 
-    def _on_odometry(self, sample: Any) -> None:
+    def _on_odometry(self, sample: zenoh.Sample) -> None:
         env = decode_envelope(sample.payload.to_bytes())
         o = env.body
         with self.lock:
@@ -610,12 +638,12 @@ class _Collector:
             )
             self.odometry_stamps.append((env.t_recv_ns / 1e9, time.time()))
 
-    def _on_slam(self, sample: Any) -> None:
+    def _on_slam(self, sample: zenoh.Sample) -> None:
         p = json.loads(sample.payload.to_bytes())
         with self.lock:
             self.slam.add(p["t"] - self.epoch_s, p["x"], p["y"])
 
-    def _on_status(self, sample: Any) -> None:
+    def _on_status(self, sample: zenoh.Sample) -> None:
         component = str(sample.key_expr).rsplit("/", 1)[-1]
         with self.lock:
             self.status[component] = json.loads(sample.payload.to_bytes())
@@ -675,7 +703,7 @@ class _Collector:
 
 
 def _wait_alive(
-    sub: Any, wanted: set[str], children: Children, timeout_s: float, what: str
+    sub: GatewaySubscriber, wanted: set[str], children: Children, timeout_s: float, what: str
 ) -> float:
     """Wait until every component in ``wanted`` holds its liveliness token; host time then."""
     deadline = time.monotonic() + timeout_s
@@ -737,21 +765,21 @@ def _run_processes(
             slam_part = (BATHY_NAME, "slam-bathymetric")
             wanted |= {"multibeam", slam_part[1]}
         elif not args.no_slam and not magnetic:
-            slam_cfg = _slam_config(VEHICLE, "msis", scn)
+            lm_cfg = _slam_config(VEHICLE, "msis", scn)
             children.start("slam", [
                 "slam-run", "--vehicle", VEHICLE, "--msis", "msis",
-                "--algorithm", slam_cfg.algorithm, "--particles", str(slam_cfg.n_particles),
-                "--seed", str(slam_cfg.seed), "--sound-speed", str(slam_cfg.sound_speed_mps),
-                "--target-radius", str(slam_cfg.target_radius_m),
+                "--algorithm", lm_cfg.algorithm, "--particles", str(lm_cfg.n_particles),
+                "--seed", str(lm_cfg.seed), "--sound-speed", str(lm_cfg.sound_speed_mps),
+                "--target-radius", str(lm_cfg.target_radius_m),
                 "--connect", hub, "--listen", free_endpoint(),
             ])  # fmt: skip
-            slam_part = (slam_cfg.display_name, f"slam-{slam_cfg.pipeline_name}")
+            slam_part = (lm_cfg.display_name, f"slam-{lm_cfg.pipeline_name}")
             wanted |= {"msis", slam_part[1]}
         sim = children.start("sim", [*_sim_argv(scenario, speed, args.duration, sim_dir),
                                      "--start-delay", str(args.start_delay)])  # fmt: skip
         _wait_for(sim_dir / "gateway.toml", sim, 120.0)
         gw_cfg = _load_sim_config(sim_dir)
-        epoch_ns: int = gw_cfg.clock.epoch_ns
+        epoch_ns = _sim_epoch_ns(gw_cfg)
         collector = _Collector(session, keys, epoch_ns / 1e9)
         if bathy:
             map_tap = _BathyMapTap(session, keys)
@@ -834,7 +862,7 @@ def _run_processes(
     return 0
 
 
-def _log_true_map(viz: Any, keys: Keys, scenario: Path, epoch_ns: int) -> None:
+def _log_true_map(viz: VizRunner, keys: Keys, scenario: Path, epoch_ns: int) -> None:
     """The scenario's true point and line features, once, on ``truth/map`` at vehicle time 0
     (``epoch_ns`` on the stamps' clock)."""
     scn = load_scenario(scenario)
@@ -844,10 +872,9 @@ def _log_true_map(viz: Any, keys: Keys, scenario: Path, epoch_ns: int) -> None:
          "theta": math.atan2(-(x2 - x1), y2 - y1)}
         for x1, y1, x2, y2 in scn.features.lines
     ]  # fmt: skip
-    body = {"t": 0.0, "landmarks": [list(p) for p in scn.point_features()], "lines": lines}
     beacons = _true_beacons(scn)
-    body["landmarks"] += beacons.pop("landmarks", [])
-    body.update(beacons)
+    landmarks = [list(p) for p in scn.point_features()] + beacons.pop("landmarks", [])
+    body = {"t": 0.0, "landmarks": landmarks, "lines": lines, **beacons}
     viz.stage.handle_sample(keys.truth("map"), json.dumps(body).encode(), epoch_ns)
 
 
@@ -946,7 +973,7 @@ BATHY_FILTER: dict[str, Any] = {
 }
 
 
-def _bathymetric_scenario(scn: Any) -> bool:
+def _bathymetric_scenario(scn: Scenario) -> bool:
     """A survey: multibeam on, no point or line features and no magnetic beacons to map, so the
     demo's SLAM is the bathymetric pipeline."""
     return bool(
@@ -957,7 +984,7 @@ def _bathymetric_scenario(scn: Any) -> bool:
     )
 
 
-def _bathy_config(vehicle: str, multibeam: str | None) -> Any:
+def _bathy_config(vehicle: str, multibeam: str | None) -> BathymetricStageConfig:
     from auvgw.stages.bathymetric import BathymetricStageConfig
 
     return BathymetricStageConfig(
@@ -966,13 +993,15 @@ def _bathy_config(vehicle: str, multibeam: str | None) -> Any:
     )  # fmt: skip
 
 
-def _geoswath_device(gw_cfg: Any) -> str | None:
+def _geoswath_device(gw_cfg: GatewayConfig) -> str | None:
     """The gateway's GeoSwath device, if any."""
     gs = [n for n, d in gw_cfg.devices.items() if d.format == "geoswath" and d.enabled]
     return gs[0] if gs else None
 
 
-def _bathy_stage(gw_cfg: Any, session: Any, on_publish: Any) -> Any:
+def _bathy_stage(
+    gw_cfg: GatewayConfig, session: zenoh.Session, on_publish: OnPublish
+) -> BathymetricStage:
     """The in-process bathymetric stage on the gateway's Kongsberg device (or the swaths the
     swath stage makes of its GeoSwath device's pings)."""
     from auvgw.stages.bathymetric import BathymetricStage
@@ -997,7 +1026,9 @@ def _geoswath_khz(scn: Any) -> float:
     return float(scn.devices.geoswath.options.get("model_khz", 250))
 
 
-def _swath_stage(gw_cfg: Any, scn: Any, session: Any, on_publish: Any) -> Any:
+def _swath_stage(
+    gw_cfg: GatewayConfig, scn: Scenario, session: zenoh.Session, on_publish: OnPublish
+) -> SwathStage | None:
     """The in-process swath stage on the gateway's GeoSwath device (None: none), processing
     at the frequency of the scenario's GeoSwath model."""
     from auvgw.stages.swath import SwathStage, SwathStageConfig
@@ -1011,7 +1042,7 @@ def _swath_stage(gw_cfg: Any, scn: Any, session: Any, on_publish: Any) -> Any:
     return SwathStage(cfg, session=session, on_publish=on_publish)
 
 
-def _bathy_argv(cfg: Any, hub: str) -> list[str]:
+def _bathy_argv(cfg: BathymetricStageConfig, hub: str) -> list[str]:
     """``auvgw slam run --pipeline bathymetric`` with the demo's settings, on the hub."""
     sets = [a for k, v in cfg.filter.items() for a in ("--set", f"{k}={json.dumps(v)}")]
     return ["slam", "run", "--pipeline", "bathymetric", "--vehicle", cfg.vehicle,
@@ -1020,7 +1051,7 @@ def _bathy_argv(cfg: Any, hub: str) -> list[str]:
             "--connect", hub, "--listen", free_endpoint()]  # fmt: skip
 
 
-def _slam_name(stage: Any) -> str:
+def _slam_name(stage: DemoSlam) -> str:
     """The in-process SLAM stage's name in the summary."""
     name = getattr(stage.config, "display_name", None)
     if name is not None:
@@ -1039,11 +1070,11 @@ class _BathyMapTap:
     """``--processes``: the bathymetric stage's latest ``slam/bathymetric/map`` payload (the
     whole map once the stage has flushed)."""
 
-    def __init__(self, session: Any, keys: Keys) -> None:
+    def __init__(self, session: zenoh.Session, keys: Keys) -> None:
         self.last: list[bytes] = []
         self._sub = session.declare_subscriber(keys.slam("bathymetric", "map"), self._on_map)
 
-    def _on_map(self, sample: Any) -> None:
+    def _on_map(self, sample: zenoh.Sample) -> None:
         self.last[:] = [sample.payload.to_bytes()]
 
     def close(self) -> None:
@@ -1052,7 +1083,7 @@ class _BathyMapTap:
         undeclare([self._sub])
 
 
-def _bathy_map_summary(last: list[bytes], scn: Any) -> dict[str, Any]:
+def _bathy_map_summary(last: list[bytes], scn: Scenario) -> dict[str, Any]:
     """``{"bathymetric_map": ...}``: the stage's last DEM against the scenario's true terrain
     (depth of each cell centre): cells, mean / median |error| m, share under 2 m (the paper's
     registration measure); empty when no map was published."""
@@ -1085,21 +1116,21 @@ MAGNETIC_COMPONENT = "slam-magnetic"
 MAGNETIC_NAME = "AMB-SLAM"
 
 
-def _is_magnetic(scn: Any) -> bool:
+def _is_magnetic(scn: Scenario) -> bool:
     """A scenario for the magnetic stage: magnetic beacons and an emulated magnetometer (the
     MSIS SLAM stage otherwise)."""
     return bool(scn.magnetic_beacons) and scn.devices.magnetometer.enabled
 
 
-def _mag_rate_hz(scn: Any) -> float:
+def _mag_rate_hz(scn: Scenario) -> float:
     from auvgw.sim_devices.magnetometer import MagnetometerEmulator
 
     return float(scn.devices.magnetometer.rate_hz or MagnetometerEmulator.nominal_rate_hz)
 
 
 def _magnetic_stage(
-    scenario: Path, scn: Any, epoch_ns: int, session: Any, on_publish: Any
-) -> Any:
+    scenario: Path, scn: Scenario, epoch_ns: int, session: zenoh.Session, on_publish: OnPublish
+) -> MagneticStage:
     """The in-process magnetic stage: the scenario's channels and acoustic beacon, the serial
     magnetometer timed by its counter from the gateway's epoch (the beacons' phase reference)."""
     from auvgw.stages.magnetic import MagneticStage, config_from_scenario
@@ -1111,7 +1142,7 @@ def _magnetic_stage(
     return MagneticStage(cfg, session=session, on_publish=on_publish)
 
 
-def _magnetic_argv(scenario: Path, scn: Any, epoch_ns: int, hub: str) -> list[str]:
+def _magnetic_argv(scenario: Path, scn: Scenario, epoch_ns: int, hub: str) -> list[str]:
     """``auvgw slam run --pipeline magnetic`` as the demo's SLAM process (see
     :func:`_magnetic_stage`)."""
     return ["slam", "run", "--pipeline", "magnetic", "--vehicle", VEHICLE,
@@ -1144,10 +1175,15 @@ def _print_gain(name: str, err: dict[str, float] | None, dr: dict[str, float] | 
           f"final {final:.2f}")  # fmt: skip
 
 
-def _true_beacons(scn: Any) -> dict[str, Any]:
+class _Beacons(TypedDict, total=False):
+    landmarks: list[list[float]]  # the magnetic beacons, [x, y] m
+    acoustic_beacon: list[float]  # [x, y] m
+
+
+def _true_beacons(scn: Scenario) -> _Beacons:
     """The scenario's magnetic beacons (``landmarks``, [x, y] m) and acoustic beacon
     (``acoustic_beacon``) for ``truth/map`` (nothing without beacons)."""
-    out: dict[str, Any] = {}
+    out: _Beacons = {}
     if scn.magnetic_beacons:
         out["landmarks"] = [[b.x, b.y] for b in scn.magnetic_beacons]
     if scn.acoustic_beacon is not None:

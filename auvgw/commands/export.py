@@ -17,12 +17,18 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from auvgw.commands.common import UserError, add_command, add_decode_config, decode_config
+from auvgw.commands.common import (
+    SubParsers,
+    UserError,
+    add_command,
+    add_decode_config,
+    decode_config,
+)
 
 __all__ = ["export_ros2"]
 
 
-def register(sub: Any) -> None:
+def register(sub: SubParsers) -> None:
     p = add_command(sub, "export", __doc__)
     p.add_argument("file", type=Path, help="recording to convert (.mcap)")
     p.add_argument("--ros2", action="store_true", required=True, help="ROS 2 profile (CDR)")

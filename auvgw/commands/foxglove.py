@@ -14,12 +14,11 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import Any
 
-from auvgw.commands.common import add_command, add_duration
+from auvgw.commands.common import SubParsers, add_command, add_duration
 
 
-def register(sub: Any) -> None:
+def register(sub: SubParsers) -> None:
     from auvgw.bus import add_bus_arguments
 
     p = add_command(sub, "foxglove", __doc__)

@@ -43,17 +43,23 @@ import logging
 import math
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from auvgw.bus import add_bus_arguments
-from auvgw.commands.common import UserError, add_command, add_duration, open_output
+from auvgw.commands.common import SubParsers, UserError, add_command, add_duration, open_output
+
+if TYPE_CHECKING:
+    from auvgw.fusion.csvlog import CsvLog
+    from auvgw.fusion.odometry import Odometry
+    from auvgw.fusion.samples import DepthSample, PositionFix
+    from auvgw.stages.fusion import FusionStageConfig
 
 log = logging.getLogger(__name__)
 
 __all__ = ["register", "run"]
 
 
-def register(sub: Any) -> None:
+def register(sub: SubParsers) -> None:
     p = add_command(sub, "fusion", __doc__)
     p.add_argument(
         "action",
@@ -121,7 +127,7 @@ def register(sub: Any) -> None:
     p.set_defaults(func=run)
 
 
-def _settings(args: argparse.Namespace) -> Any:
+def _settings(args: argparse.Namespace) -> FusionStageConfig:
     from auvgw.stages.fusion import FusionStageConfig, SettingsError, load_stage_config
 
     try:
@@ -149,7 +155,7 @@ def run(args: argparse.Namespace) -> int:
     return _online(args, cfg)
 
 
-def _read_log(args: argparse.Namespace) -> Any:
+def _read_log(args: argparse.Namespace) -> CsvLog:
     from auvgw.fusion.csvlog import LogError, load_column_map, read_csv_log
 
     if args.csv is None or args.columns is None:
@@ -164,7 +170,7 @@ def _read_log(args: argparse.Namespace) -> Any:
     return log_
 
 
-def _calibrate(args: argparse.Namespace, cfg: Any) -> int:
+def _calibrate(args: argparse.Namespace, cfg: FusionStageConfig) -> int:
     from auvgw.fusion.calibrate import CalibrationError, calibrate_dvl
     from auvgw.fusion.frames import wrap_angle
 
@@ -181,7 +187,7 @@ def _calibrate(args: argparse.Namespace, cfg: Any) -> int:
     return 0
 
 
-def _csv(args: argparse.Namespace, cfg: Any) -> int:
+def _csv(args: argparse.Namespace, cfg: FusionStageConfig) -> int:
     import heapq
 
     from auvgw.drivers.spec import to_jsonable
@@ -190,7 +196,9 @@ def _csv(args: argparse.Namespace, cfg: Any) -> int:
     log_ = _read_log(args)
     nav = NavFilter(cfg.filter)
     summary = _Summary()
-    aiding = heapq.merge(log_.depth, log_.fixes, key=lambda x: x.t)
+    depth: list[DepthSample | PositionFix] = [*log_.depth]
+    fixes: list[DepthSample | PositionFix] = [*log_.fixes]
+    aiding = heapq.merge(depth, fixes, key=lambda x: x.t)
     out_file = open_output(args.out)
     try:
         for o in iter_filter(log_.ins, log_.dvl, depth=aiding, nav=nav):
@@ -240,7 +248,7 @@ def print_diagnostics(d: dict[str, Any]) -> None:
         print(f"  WARNING: {w}")
 
 
-def _online(args: argparse.Namespace, cfg: Any) -> int:
+def _online(args: argparse.Namespace, cfg: FusionStageConfig) -> int:
     from auvgw.commands.run import serve_stage
     from auvgw.stages.fusion import FusionStage
 
@@ -254,7 +262,7 @@ def _online(args: argparse.Namespace, cfg: Any) -> int:
     return 0
 
 
-def _offline(args: argparse.Namespace, cfg: Any) -> int:
+def _offline(args: argparse.Namespace, cfg: FusionStageConfig) -> int:
     from auvgw.recording import RecordingError, iter_recording
     from auvgw.stages.fusion import FusionStage
 
@@ -266,7 +274,7 @@ def _offline(args: argparse.Namespace, cfg: Any) -> int:
     out_file = open_output(args.out)  # closed in finally
     summary = _Summary()
 
-    def on_odometry(o: Any) -> None:
+    def on_odometry(o: Odometry) -> None:
         summary.add(o)
         if out_file is not None:
             from auvgw.drivers.spec import to_jsonable
@@ -299,12 +307,12 @@ class _Summary:
 
     def __init__(self) -> None:
         self.n = 0
-        self.first: Any = None
-        self.last: Any = None
+        self.first: Odometry | None = None
+        self.last: Odometry | None = None
         self.distance = 0.0
         self.coasting = 0
 
-    def add(self, o: Any) -> None:
+    def add(self, o: Odometry) -> None:
         if self.first is None:
             self.first = o
         if o.increment is not None:
@@ -314,7 +322,7 @@ class _Summary:
         self.n += 1
 
     def print(self, path: Path) -> None:
-        if self.n == 0:
+        if self.first is None or self.last is None:
             return
         a, b = self.first, self.last
         sig = math.sqrt(max(float(b.cov_xy.trace()), 0.0))

@@ -27,11 +27,11 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from auvgw.commands.common import add_command, add_duration
+from auvgw.commands.common import SubParsers, add_command, add_duration
 from auvgw.ground.errors import UserError
 
 
-def register(sub: Any) -> None:
+def register(sub: SubParsers) -> None:
     from auvgw.bus import add_bus_arguments
 
     p = add_command(sub, "pilot", __doc__)

@@ -20,12 +20,17 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import Any
 
 import zenoh
 
 from auvgw.bus import InputWatch, Keys, add_bus_arguments, bus_from_args, open_cli_session
-from auvgw.commands.common import UserError, add_command, add_duration, handle_stop_signals
+from auvgw.commands.common import (
+    SubParsers,
+    UserError,
+    add_command,
+    add_duration,
+    handle_stop_signals,
+)
 from auvgw.recording import McapRecorder
 
 log = logging.getLogger(__name__)
@@ -37,7 +42,7 @@ DRAIN_QUIET_S = 0.3
 DRAIN_MAX_S = 2.0
 
 
-def register(sub: Any) -> None:
+def register(sub: SubParsers) -> None:
     p = add_command(sub, "record", __doc__)
     p.add_argument("--vehicle", default="auv1", help="vehicle name (default auv1)")
     p.add_argument("--out", "-o", required=True, type=Path, metavar="FILE.mcap", help="output file")

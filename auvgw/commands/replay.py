@@ -23,7 +23,6 @@ import threading
 import time
 from collections import Counter
 from pathlib import Path
-from typing import Any
 
 import zenoh
 
@@ -39,6 +38,7 @@ from auvgw.bus import (
     unpack_raw_attachment,
 )
 from auvgw.commands.common import (
+    SubParsers,
     UserError,
     add_command,
     add_decode_config,
@@ -58,7 +58,7 @@ DERIVED_SECTIONS = frozenset({"sensor", "nav", "slam", "status"})
 _OCTETS = zenoh.Encoding.APPLICATION_OCTET_STREAM
 
 
-def register(sub: Any) -> None:
+def register(sub: SubParsers) -> None:
     p = add_command(sub, "replay", __doc__)
     p.add_argument("file", type=Path, help="recording made by auvgw record (.mcap)")
     p.add_argument(

@@ -19,12 +19,15 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from auvgw.commands.common import UserError, add_command, add_duration
+from auvgw.commands.common import SubParsers, UserError, add_command, add_duration
+
+if TYPE_CHECKING:
+    from auvgw.stages.ros2 import Ros2BridgeConfig
 
 
-def register(sub: Any) -> None:
+def register(sub: SubParsers) -> None:
     from auvgw.bus import add_bus_arguments
 
     p = add_command(sub, "ros2", __doc__)
@@ -48,7 +51,7 @@ def register(sub: Any) -> None:
     p.set_defaults(func=run)
 
 
-def bridge_config(args: argparse.Namespace) -> Any:
+def bridge_config(args: argparse.Namespace) -> Ros2BridgeConfig:
     """The bridge's settings from the options (``--mounts`` read); a :class:`UserError` naming
     the file or option that is wrong."""
     from pydantic import ValidationError

@@ -9,17 +9,16 @@ from __future__ import annotations
 import argparse
 import threading
 from pathlib import Path
-from typing import Any
 
 from pydantic import ValidationError
 
 from auvgw.bus import load_bus_table, open_cli_session
-from auvgw.commands.common import handle_stop_signals
+from auvgw.commands.common import SubParsers, handle_stop_signals
 from auvgw.config.bus import DEFAULT_ENDPOINT, BusConfig, default_endpoint
 from auvgw.ground.errors import UserError, format_validation_error
 
 
-def register(sub: Any) -> None:
+def register(sub: SubParsers) -> None:
     p = sub.add_parser("router", help="run a Zenoh router (for multi-process / multi-host buses)")
     p.add_argument(
         "--listen",

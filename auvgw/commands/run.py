@@ -14,11 +14,17 @@ import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, TypeVar
 
 import zenoh
 
-from auvgw.commands.common import UserError, add_command, handle_stop_signals, load_or_fail
+from auvgw.commands.common import (
+    SubParsers,
+    UserError,
+    add_command,
+    handle_stop_signals,
+    load_or_fail,
+)
 from auvgw.config.gateway import ConfigError, GatewayConfig
 from auvgw.gateway import Gateway, GatewayRunning, probe_running_gateway
 
@@ -40,8 +46,14 @@ class RunSettings:
     viz_connect: str | None = None
     exit_when_done: bool = False
 
+if TYPE_CHECKING:
+    from auvgw.stages.base import Stage
 
-def register(sub: Any) -> None:
+#: the stage a command serves (:func:`serve_stage`)
+S = TypeVar("S", bound="Stage")
+
+
+def register(sub: SubParsers) -> None:
     p = add_command(sub, "run", __doc__)
     p.add_argument("--config", "-c", required=True, type=Path, help="gateway configuration (TOML)")
     p.add_argument(
@@ -81,10 +93,10 @@ def register(sub: Any) -> None:
 
 def serve_stage(
     args: argparse.Namespace,
-    make: Callable[[zenoh.Session], Any],
-    banner: Callable[[Any], str],
-    inputs: Callable[[Any], list[str]] | None = None,
-) -> Any:
+    make: Callable[[zenoh.Session], S],
+    banner: Callable[[S], str],
+    inputs: Callable[[S], list[str]] | None = None,
+) -> S:
     """Run a bus stage from a command line: open the session of the bus options (``--listen``,
     ``--connect``, ...), ``make(session)`` the stage, start it, print ``banner(stage)``, run
     until ``--duration`` seconds or SIGINT/SIGTERM, stop it (flushing) and close the session.
@@ -173,7 +185,7 @@ def serve(settings: RunSettings, stop: threading.Event | None = None) -> int:
         )
         gateway.listeners.subscribe(viz.on_message)
     # on the gateway's session, from the bus like any stage (never on the raw frames' path)
-    bridges: list[Any] = []
+    bridges: list[Stage] = []
     if cfg.ros2.enabled or cfg.foxglove.enabled:
         from auvgw.stages.ros2 import Ros2Bridge, Ros2BridgeConfig
 
@@ -193,8 +205,8 @@ def serve(settings: RunSettings, stop: threading.Event | None = None) -> int:
             for b in bridges:  # before the devices: no message reaches a stopped worker
                 b.start()
                 gateway.listeners.subscribe(b.post)
-                if hasattr(b, "port"):
-                    log.info("foxglove: ws://%s:%d", b.host, b.port)
+                if (port := getattr(b, "port", None)) is not None:
+                    log.info("foxglove: ws://%s:%d", getattr(b, "host", ""), port)
             gateway.start()
             while not stop.wait(0.2):
                 if settings.exit_when_done and gateway.finished.is_set():

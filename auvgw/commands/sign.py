@@ -14,12 +14,11 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import Any
 
-from auvgw.commands.common import UserError, add_command
+from auvgw.commands.common import SubParsers, UserError, add_command
 
 
-def register(sub: Any) -> None:
+def register(sub: SubParsers) -> None:
     p = add_command(sub, "sign", __doc__)
     p.add_argument("files", type=Path, nargs="*", metavar="FILE.mcap", help="recordings to sign")
     p.add_argument("--key", type=Path, metavar="KEY", help="Ed25519 private key (PEM)")

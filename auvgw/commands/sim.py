@@ -27,15 +27,18 @@ import tempfile
 import threading
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
-from auvgw.commands.common import UserError, add_command, handle_stop_signals
+from auvgw.commands.common import SubParsers, UserError, add_command, handle_stop_signals
 from auvgw.drivers import registry
+
+if TYPE_CHECKING:
+    from auvgw.sim_devices.runner import DeviceProcesses, Runner
 
 log = logging.getLogger(__name__)
 
 
-def register(sub: Any) -> None:
+def register(sub: SubParsers) -> None:
     p = add_command(sub, "sim", __doc__)
     p.add_argument("--scenario", "-s", required=True, type=Path, help="scenario file (JSON)")
     p.add_argument(
@@ -103,7 +106,7 @@ def register(sub: Any) -> None:
     p.set_defaults(func=run)  # fmt: skip
 
 
-def _print_ports(runner: Any) -> None:
+def _print_ports(runner: Runner | DeviceProcesses) -> None:
     print(f"  {'device':18s} {'format':9s} {'transport':9s} {'open this':44s} now", flush=True)
     for ep in runner.endpoints():
         print(f"  {ep.name:18s} {ep.format:9s} {ep.kind:9s} {ep.target:44s} {ep.path or '-'}")
@@ -111,7 +114,7 @@ def _print_ports(runner: Any) -> None:
         print(f"  {name:18s} not emulated: {why}")
 
 
-def _print_stats(runner: Any) -> None:
+def _print_stats(runner: Runner | DeviceProcesses) -> None:
     st = runner.stats()
     print(f"stopped at vehicle time {st['vehicle_time']:.2f} s "
           f"(clock max lag {st['max_lag_s']:.3f} s, late ticks {st['late_ticks']})")  # fmt: skip
@@ -170,13 +173,16 @@ def run(args: argparse.Namespace) -> int:
     control = out / "faults.json"
     if args.processes and args.speed == 0:
         raise UserError("--processes needs a real-time clock: --speed > 0")
+    if args.processes and args.hold:  # the device processes have no drain nor one clock to hold
+        raise UserError("--hold is for a one-process run (without --processes)")
     try:
         options = RunOptions(
             out_dir=out, speed=args.speed, devices=devices, truth_log=truth_log,
             truth_rate_hz=args.truth_rate,
         )  # fmt: skip
         if args.processes:
-            runner: Any = DeviceProcesses(args.scenario, options, control=control)
+            runner: Runner | DeviceProcesses = DeviceProcesses(args.scenario, options,
+                                                               control=control)  # fmt: skip
         else:
             runner = Runner(scn, options)
     except (ScenarioError, ValueError, OSError) as exc:
@@ -210,7 +216,7 @@ def run(args: argparse.Namespace) -> int:
         while not stop.is_set() and runner.running:
             stop.wait(0.2)
         runner.stop()
-        if args.hold and not stop.is_set():
+        if args.hold and not stop.is_set() and isinstance(runner, Runner):
             runner.flush()
             (out / "finished").write_text(f"{runner.vehicle_time:.3f}\n")
             print("finished; ports held open until SIGINT/SIGTERM", flush=True)

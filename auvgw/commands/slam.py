@@ -27,7 +27,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from auvgw.commands.common import UserError, study_algorithms
+from auvgw.commands.common import SubParsers, UserError, study_algorithms
 
 __all__ = ["command_line", "parse_noise", "register", "run"]
 
@@ -53,7 +53,7 @@ def parse_noise(text: str) -> tuple[float, float]:
     return n, p
 
 
-def register(sub: Any) -> None:
+def register(sub: SubParsers) -> None:
     p = sub.add_parser("slam", help="SLAM tools (evaluation against simulated ground truth)")
     ssub = p.add_subparsers(dest="slam_command", required=True, metavar="SUBCOMMAND")
     e = ssub.add_parser("eval", help="Monte Carlo comparison of SLAM filters")

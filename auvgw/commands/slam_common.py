@@ -12,12 +12,19 @@ import argparse
 import json
 import math
 import sys
-from collections.abc import Callable
-from typing import Any
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from auvgw.ground.errors import UserError
+
+if TYPE_CHECKING:
+    import zenoh
+
+    from auvgw.fusion.odometry import Odometry
+    from auvgw.stages.base import Stage
+    from auvgw.stages.fusion import FusionStage, FusionStageConfig
 
 
 class Paths:
@@ -51,7 +58,7 @@ def track_error(
             "rmse_pct_distance": 100 * rmse / dist if dist > 0 else math.nan}  # fmt: skip
 
 
-def fusion_settings(args: argparse.Namespace) -> Any:
+def fusion_settings(args: argparse.Namespace) -> FusionStageConfig:
     from auvgw.stages.fusion import FusionStageConfig, SettingsError, load_stage_config
 
     cfg = FusionStageConfig()
@@ -64,7 +71,9 @@ def fusion_settings(args: argparse.Namespace) -> Any:
     return cfg.model_copy(update=named)
 
 
-def serve_slam(args: argparse.Namespace, make: Callable[[Any], Any], name: str) -> int:
+def serve_slam(
+    args: argparse.Namespace, make: Callable[[zenoh.Session], Stage], name: str
+) -> int:
     """Run the stage ``make(session)`` on the bus until stopped (``slam run``, both pipelines);
     its counters on stderr at the end."""
     from auvgw.commands.run import serve_stage
@@ -86,8 +95,8 @@ def check_recording(args: argparse.Namespace) -> None:
 
 
 def replay_recording(
-    args: argparse.Namespace, stage: Any, paths: Paths, flush: bool = True
-) -> Any:
+    args: argparse.Namespace, stage: Stage, paths: Paths, flush: bool = True
+) -> FusionStage:
     """The recording through the fusion stage (``--fusion-settings``) and ``stage``, in recording
     order, fed in-process: the fusion's odometry (also into ``paths.dr``) and every decoded
     message go to ``stage``; the simulation truth into ``paths.truth``. Returns the fusion
@@ -95,7 +104,7 @@ def replay_recording(
     from auvgw.recording import RecordingError, iter_recording
     from auvgw.stages.fusion import FusionStage
 
-    def on_odometry(o: Any) -> None:
+    def on_odometry(o: Odometry) -> None:
         paths.dr.append((o.t, o.x, o.y))
         stage.feed_odometry(o)
 
@@ -119,7 +128,9 @@ def replay_recording(
     return fusion
 
 
-def report_truth(fusion: Any, paths: Paths, track: list[Any], name: str) -> None:
+def report_truth(
+    fusion: FusionStage, paths: Paths, track: Sequence[tuple[float, ...]], name: str
+) -> None:
     """Print dead reckoning's (``paths.dr``) and the stage's error against the recording's truth
     (``paths.truth``, simulation time moved to the odometry clock): RMSE (m) over the distance
     (m) and RMSE / distance x 100 (``track``: the stage's ``(t s, x m, y m, ...)`` poses;

@@ -30,12 +30,12 @@ import argparse
 import json
 import math
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from auvgw.bus import add_bus_arguments
-from auvgw.commands.common import UserError, add_duration, open_output
+from auvgw.commands.common import SubParsers, UserError, add_duration, open_output
 from auvgw.commands.slam_common import (
     Paths,
     check_recording,
@@ -45,10 +45,14 @@ from auvgw.commands.slam_common import (
 )
 from auvgw.ground.errors import format_validation_error
 
+if TYPE_CHECKING:
+    from auvgw.stages.fusion import FusionStage
+    from auvgw.stages.slam import SlamStage, SlamStageConfig
+
 HELP = "run the SLAM stage (fusion odometry + MSIS features), live or over a recording"
 
 
-def register(sub: Any) -> None:
+def register(sub: SubParsers) -> None:
     """``auvgw slam-run`` (also ``auvgw slam run``, :func:`configure`)."""
     configure(
         sub.add_parser(
@@ -121,7 +125,7 @@ def _configure_bathymetric(p: argparse.ArgumentParser) -> None:
     )  # fmt: skip
 
 
-def _stage_config(args: argparse.Namespace, vehicle: str = "auv1") -> Any:
+def _stage_config(args: argparse.Namespace, vehicle: str = "auv1") -> SlamStageConfig:
     from pydantic import ValidationError
 
     from auvgw.stages.slam import SlamStageConfig
@@ -189,7 +193,7 @@ def _offline(args: argparse.Namespace) -> int:
     return _report(args.recording, slam, fusion, paths)
 
 
-def _report(path: Path, slam: Any, fusion: Any, paths: Paths) -> int:
+def _report(path: Path, slam: SlamStage, fusion: FusionStage, paths: Paths) -> int:
     c = slam.counters()
     st = c["stage"]
     print(f"{path}: {c['algorithm']} over {st['odometry']} odometry samples, {st['pings']} scan "

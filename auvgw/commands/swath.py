@@ -22,12 +22,12 @@ import sys
 from typing import Any
 
 from auvgw.bus import add_bus_arguments
-from auvgw.commands.common import UserError, add_command, add_duration
+from auvgw.commands.common import SubParsers, UserError, add_command, add_duration
 
 __all__ = ["register", "run"]
 
 
-def register(sub: Any) -> None:
+def register(sub: SubParsers) -> None:
     p = add_command(sub, "swath", __doc__)
     p.add_argument("--vehicle", default="auv1", help="vehicle name (default auv1)")
     p.add_argument("--device", default=None, help="the GeoSwath gateway device (default: any)")

@@ -17,12 +17,16 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import Any
 
-from auvgw.commands.common import add_command, add_signature_arguments, check_signature_args
+from auvgw.commands.common import (
+    SubParsers,
+    add_command,
+    add_signature_arguments,
+    check_signature_args,
+)
 
 
-def register(sub: Any) -> None:
+def register(sub: SubParsers) -> None:
     p = add_command(sub, "verify", __doc__)
     p.add_argument("files", type=Path, nargs="+", metavar="FILE.mcap")
     add_signature_arguments(p)

@@ -19,7 +19,7 @@ import threading
 from pathlib import Path
 from typing import Any
 
-from auvgw.commands.common import UserError, add_command, handle_stop_signals
+from auvgw.commands.common import SubParsers, UserError, add_command, handle_stop_signals
 from auvgw.config.bus import BusConfig
 from auvgw.viz.options import VizOptions
 
@@ -57,7 +57,7 @@ def add_output_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
-def register(sub: Any) -> None:
+def register(sub: SubParsers) -> None:
     p = add_command(sub, "viz", __doc__)
     add_output_arguments(p)
     p.add_argument("--vehicle", default=None, help="vehicle name (default: from --config, auv1)")
@@ -141,11 +141,10 @@ def _bus(args: argparse.Namespace) -> tuple[str, BusConfig]:
         # a second process on the gateway's host connects to the gateway's listen endpoints
         bus = BusConfig(mode="peer", connect=[*cfg.bus.connect, *cfg.bus.listen])
     if args.bus_config is not None:  # its [bus] table, --bus-* options over it
-        from types import SimpleNamespace
 
         from auvgw.bus import bus_from_args
 
-        given = SimpleNamespace(
+        given = argparse.Namespace(
             bus_config=args.bus_config,
             mode=args.bus_mode,
             connect=args.bus_connect or [],

@@ -5,24 +5,6 @@ subclass of :class:`auvgw.stages.base.Stage` (queue, worker, status, liveliness,
 from __future__ import annotations
 
 import logging
-import queue
-import threading
-import time
-
-
-def join_draining(worker: threading.Thread, q: queue.Queue, stall_s: float) -> bool:
-    """Wait for ``worker`` to drain ``q`` and exit. It may take as long as it needs while it makes
-    progress (the queue shrinks); it is given up on only after ``stall_s`` seconds without
-    progress, so a busy machine slows the drain down but never cuts it short. True if it exited."""
-    last, deadline = q.qsize(), time.monotonic() + stall_s
-    while worker.is_alive():
-        worker.join(min(0.2, stall_s))
-        size = q.qsize()
-        if size < last:
-            last, deadline = size, time.monotonic() + stall_s
-        elif time.monotonic() > deadline:
-            return False
-    return True
 
 
 def log_bad_payload(

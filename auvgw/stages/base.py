@@ -27,8 +27,8 @@ or a message whose handling fails is counted (``bad_payloads``) and logged (the 
 queryable on the same key answers them on demand; the liveliness token
 ``auv/<v>/alive/<component>`` is declared last, so once it is seen the subscriptions are in
 place. :meth:`Stage.stop` withdraws the subscriptions, lets the worker drain the queue for as long
-as it makes progress (:func:`~auvgw.stages.join_draining`), flushes, publishes a last status and
-withdraws everything else.
+as it makes progress (the :class:`~auvgw.ground.worker.Worker` base), flushes, publishes a last
+status and withdraws everything else.
 
 In-process, a stage is fed on the calling thread (:meth:`Stage.feed`) or queued for its worker
 (:meth:`Stage.post`, :meth:`Stage.post_odometry`: the feeding thread is never held up).
@@ -39,7 +39,6 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
-import queue
 import threading
 import time
 from collections.abc import Callable
@@ -49,9 +48,18 @@ from typing import Any, ClassVar
 import zenoh
 from pydantic import BaseModel, ConfigDict, Field
 
-from auvgw.bus import SCHEMA_VERSION, Envelope, Keys, decode_envelope, json_encoding, undeclare
+from auvgw.bus import (
+    SCHEMA_VERSION,
+    Envelope,
+    Keys,
+    Undeclarable,
+    decode_envelope,
+    json_encoding,
+    undeclare,
+)
 from auvgw.fusion.odometry import Odometry
-from auvgw.stages import StampGuard, join_draining, log_bad_payload
+from auvgw.ground.worker import Worker
+from auvgw.stages import StampGuard, log_bad_payload
 
 __all__ = ["DROP", "BusCounters", "PipelineStage", "Stage", "StageConfig"]
 
@@ -88,7 +96,7 @@ class StageConfig(BaseModel):
     max_stamp_jump_s: float = Field(300.0, gt=0, le=86_400.0)
 
 
-class Stage:
+class Stage(Worker[_Item]):
     """Queue, worker, envelope decoding, status, liveliness and stop/flush of a bus stage (see
     the module docstring for the subclass contract).
 
@@ -96,6 +104,9 @@ class Stage:
     counters (a :class:`BusCounters`, published under ``"stage"``); ``session``: the Zenoh
     session (None: in-process only); ``on_publish(key, payload, t_ns)``: called at every
     publication; ``keys``: the vehicle's key expressions (None: ``Keys(config.vehicle)``).
+
+    The queue and the worker thread are the :class:`~auvgw.ground.worker.Worker` base's (items:
+    a bound call ``(fn, args)``; its tick publishes the status).
     """
 
     #: short name: logs, the worker thread, the default component
@@ -118,6 +129,8 @@ class Stage:
         on_publish: Callable[[str, bytes, int], object] | None = None,
         keys: Keys | None = None,
     ) -> None:
+        super().__init__(config.queue_size, period_s=config.status_period_s,
+                         thread_name=f"{self.name}-stage")  # fmt: skip
         self.keys = keys or Keys(config.vehicle)
         self.stats = stats
         self.session = session
@@ -125,11 +138,9 @@ class Stage:
         self.status_period_s = config.status_period_s
         self._lock = threading.RLock()  # the subclass's state and the counters
         self._drop_lock = threading.Lock()  # queue_dropped (Zenoh callbacks, never _lock)
-        self._queue: queue.Queue[_Item | None] = queue.Queue(max(1, config.queue_size))
         self._pubs: dict[str, zenoh.Publisher] = {}
         self._status_pub: zenoh.Publisher | None = None
-        self._decls: list[Any] = []
-        self._worker: threading.Thread | None = None
+        self._decls: list[Undeclarable] = []
         self._started = self._stopped = False
         self._stamps = StampGuard(config.max_stamp_jump_s)
 
@@ -184,14 +195,12 @@ class Stage:
         self._post(self.feed_odometry, (o,))
 
     def _post(self, fn: Callable[..., object], args: tuple[Any, ...]) -> None:
-        if self._worker is None:
+        if not self.worker_started:
             raise RuntimeError(f"{type(self).__name__}.post needs start() (or call feed)")
         self._enqueue(fn, args)
 
     def _enqueue(self, fn: Callable[..., object], args: tuple[Any, ...]) -> None:
-        try:
-            self._queue.put_nowait((fn, args))
-        except queue.Full:
+        if not self.submit((fn, args)):
             with self._drop_lock:
                 self.stats.queue_dropped += 1
 
@@ -264,13 +273,6 @@ class Stage:
             # declarations travel in order: once this token is seen, the subscriptions are in place
             self._decls.append(s.liveliness().declare_token(self.keys.alive(self.component)))
 
-    def start_worker(self) -> None:
-        """Start the worker thread (idempotent)."""
-        if self._worker is None:
-            self._worker = threading.Thread(target=self._run, name=f"{self.name}-stage",
-                                            daemon=True)  # fmt: skip
-            self._worker.start()
-
     def subscribe(self) -> None:
         """Subscribe to :meth:`input_keys` on the session."""
         assert self.session is not None
@@ -282,27 +284,15 @@ class Stage:
         if self.wanted(key):
             self._enqueue(self.handle_sample, (key, sample.payload.to_bytes(), time.time_ns()))
 
-    def _run(self) -> None:
-        period = self.status_period_s
-        next_status = time.monotonic() + period
-        while True:
-            try:
-                item = self._queue.get(timeout=max(0.0, next_status - time.monotonic()))
-            except queue.Empty:
-                item = ()  # type: ignore[assignment]
-            if item is None:
-                break
-            if item:
-                self._call(*item)
-            if time.monotonic() >= next_status:
-                self.publish_status()
-                next_status = time.monotonic() + period
+    def _work_item(self, item: _Item) -> None:
+        fn, args = item
+        fn(*args)
 
-    def _call(self, fn: Callable[..., object], args: tuple[Any, ...]) -> None:
-        try:
-            fn(*args)
-        except Exception:  # one bad input must not stop the stage
-            log.exception("%s: %s failed", self.name, getattr(fn, "__name__", fn))
+    def _work_describe(self, item: _Item) -> str:
+        return f"{self.name}: {getattr(item[0], '__name__', item[0])}"
+
+    def _work_tick(self) -> None:
+        self.publish_status()
 
     def handle_sample(self, key: str, payload: bytes, t_arrival_ns: int | None = None) -> object:
         """One bus payload: its envelope decoded and the typed message given to
@@ -338,16 +328,6 @@ class Stage:
             log_bad_payload(self.name, key, exc, self.stats.bad_payloads, exc_info)
             self.stats.bad_payloads += 1
 
-    def _drain(self) -> None:
-        """Run what is queued on the calling thread (a stage stopped without a worker)."""
-        while True:
-            try:
-                item = self._queue.get_nowait()
-            except queue.Empty:
-                return
-            if item is not None:
-                self._call(*item)
-
     def stop(self, flush: bool = True, timeout_s: float = 5.0) -> None:
         """Withdraw the subscriptions, drain the queue (on the worker for as long as it makes
         progress, ``timeout_s`` without any gives up on it; without a worker on the calling
@@ -357,13 +337,7 @@ class Stage:
             return
         self._stopped = True
         undeclare(d for d in self._decls if isinstance(d, zenoh.Subscriber))
-        if self._worker is not None:
-            self._queue.put(None)
-            if not join_draining(self._worker, self._queue, timeout_s):
-                log.warning("%s: the worker made no progress for %.1f s; stopping without it",
-                            type(self).__name__, timeout_s)  # fmt: skip
-        else:
-            self._drain()
+        self.stop_worker(timeout_s)
         if flush:
             self.flush()
         self.publish_status()

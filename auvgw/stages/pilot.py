@@ -202,9 +202,8 @@ class PilotStage(Stage):
                 "abort_reason": s.abort_reason}  # fmt: skip
 
     # -- the timer ------------------------------------------------------------------------------
-    def start_worker(self) -> None:
-        super().start_worker()
-        if self._timer is None:
+    def _work_started(self) -> None:  # the control timer runs while the worker does
+        if self._timer is None and not self._timer_stop.is_set():
             self._timer = threading.Thread(target=self._run_timer, name="pilot-timer", daemon=True)
             self._timer.start()
 

@@ -72,13 +72,13 @@ class _Endpoint:
 
     __slots__ = ("gid", "listener", "matching", "pub", "seq", "token")
 
-    def __init__(self, pub: zenoh.Publisher, token: Any, gid: bytes) -> None:
+    def __init__(self, pub: zenoh.Publisher, token: zenoh.LivelinessToken, gid: bytes) -> None:
         self.pub, self.token, self.gid, self.seq = pub, token, gid, 0
         # zenoh's stubs type matching_status as a bool; it is a MatchingStatus
         self.matching = bool(cast(Any, pub.matching_status).matching)
         self.listener = pub.declare_matching_listener(self._matched)
 
-    def _matched(self, status: Any) -> None:
+    def _matched(self, status: zenoh.MatchingStatus) -> None:
         self.matching = bool(status.matching)
 
 
@@ -216,7 +216,7 @@ class Ros2Bridge(RosStage):
         self._keys: dict[tuple[str, str], str] = {}
         self._session_id = str(session.info.zid()) if session is not None else "0" * 32
         self._next_entity = 1
-        self._node_token: Any = None
+        self._node_token: zenoh.LivelinessToken | None = None
         #: the publishers each bus key's samples went to (:meth:`wanted`; a tuple replaced, never
         #: changed in place: the Zenoh callbacks and the gateway's listeners read it)
         self._made: dict[str, tuple[_Endpoint, ...]] = {}

@@ -20,8 +20,9 @@ Counters on ``auv/<v>/status/swath``: pings, swaths, samples dropped by each fil
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from pydantic import Field
 
@@ -29,6 +30,11 @@ from auvgw.drivers.geoswath import GeoSwathPing
 from auvgw.envelope import encode_envelope
 from auvgw.slam.bathymetric.swath_processing import SwathProcessing, SwathProcessor
 from auvgw.stages.base import BusCounters, Stage, StageConfig
+
+if TYPE_CHECKING:
+    import zenoh
+
+    from auvgw.drivers import kongsberg
 
 __all__ = ["SwathStage", "SwathStageConfig", "SwathStats"]
 
@@ -72,7 +78,10 @@ class SwathStage(Stage):
     outputs = (KIND_OUT,)
 
     def __init__(
-        self, config: SwathStageConfig, session: Any = None, on_publish: Any = None
+        self,
+        config: SwathStageConfig,
+        session: zenoh.Session | None = None,
+        on_publish: Callable[[str, bytes, int], object] | None = None,
     ) -> None:
         self.config = config
         self.processing = config.swath_processing()
@@ -116,7 +125,7 @@ class SwathStage(Stage):
                 self._publish(device, sw)
         return None
 
-    def _publish(self, device: str, swath: Any) -> None:
+    def _publish(self, device: str, swath: kongsberg.XYZ88) -> None:
         t_ns = int((swath.device_time + self._offset_s.get(device, 0.0)) * 1e9)
         self._seq += 1
         payload, enc = encode_envelope(

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import rerun.blueprint as rrb
 
@@ -53,6 +54,9 @@ from auvgw.viz.entities import (
     map_path,
     world_path,
 )
+
+if TYPE_CHECKING:
+    from rerun.datatypes import EntityPath
 
 __all__ = ["DEFAULT_TRACKS", "RAW_PING_VIEW", "VIEW_NAMES", "default_blueprint", "save_blueprint"]
 
@@ -122,9 +126,13 @@ def default_blueprint(
     names = list(dict.fromkeys([*DEFAULT_TRACKS, *tracks]))
     fan = (0.0, float(fan_pixels))
     history = _history(timeline)
-    map_overrides = {map_path(n, "track"): history for n in names}
+    map_overrides: dict[EntityPath | str, rrb.VisibleTimeRanges] = {
+        map_path(n, "track"): history for n in names
+    }
     map_overrides[MAP_BATHYMETRY] = history
-    world_overrides = {world_path(n, "track"): history for n in names}
+    world_overrides: dict[EntityPath | str, rrb.VisibleTimeRanges] = {
+        world_path(n, "track"): history for n in names
+    }
     world_overrides[SOUNDINGS] = history
     window = _window(timeline, series_window_s)
     legend = rrb.PlotLegend(corner=rrb.components.Corner2D.LeftTop, visible=True)

@@ -23,7 +23,6 @@ from __future__ import annotations
 import itertools
 import logging
 import math
-import queue
 import threading
 import time
 from collections import Counter
@@ -34,9 +33,11 @@ from typing import Any
 
 import numpy as np
 import rerun as rr
+from numpy.typing import ArrayLike
 
 from auvgw.ground.closing import Closing
 from auvgw.ground.geometry import TWO_PI, quaternion_zyx, wrap_angle
+from auvgw.ground.worker import Worker
 from auvgw.viz import entities as ent
 from auvgw.viz.blueprint import DEFAULT_TRACKS, default_blueprint
 from auvgw.viz.entities import APPLICATION_ID, TIMELINE
@@ -54,7 +55,11 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-_STOP = object()
+#: a queued logger call: (kind, data time s, the view's arguments)
+_Item = tuple[str, float, tuple[Any, ...]]
+#: a row of a batched stream: scalars, a transform or vector, (points, colours)
+_Row = Sequence[float] | np.ndarray | tuple[np.ndarray, np.ndarray]
+
 
 #: turbo-like colour scale (low values dark blue, high values dark red), 11 control points
 _TURBO = np.array(
@@ -384,12 +389,12 @@ class _Stream:
     def __init__(self, kind: str) -> None:
         self.kind = kind
         self.times: list[float] = []
-        self.rows: list[Any] = []
+        self.rows: list[_Row] = []
         self.first_host = 0.0  # time.monotonic() of the first pending row
 
 
 # -- the logger --------------------------------------------------------------------------------
-class RerunLogger(Closing):
+class RerunLogger(Closing, Worker[_Item]):
     """Logs a run to an ``.rrd`` file (``rrd``) and/or a running viewer (``connect``, a
     ``rerun+http://host:9876/proxy`` URL) without ever blocking the caller.
 
@@ -436,14 +441,10 @@ class RerunLogger(Closing):
         self._bp_raw_ping = False  # the layout has the GeoSwath raw-ping view
         if blueprint:
             self._rec.send_blueprint(default_blueprint(self._bp_tracks))
-        self._q: queue.Queue[Any] = queue.Queue(maxsize=max(1, opts.queue_size))
+        super().__init__(max(1, opts.queue_size), period_s=opts.flush_period_s)
         self._lock = threading.Lock()
         self._dropped: Counter[str] = Counter()
-        self._processed = 0
-        self._errors = 0
-        self._last_error = ""
         self._closed = False
-        self._thread: threading.Thread | None = None
         self._handlers: dict[str, Callable[..., None]] = {
             name[4:]: getattr(self, name) for name in dir(self) if name.startswith("_do_")
         }
@@ -483,22 +484,15 @@ class RerunLogger(Closing):
     # -- lifecycle -------------------------------------------------------------------------
     def start(self) -> None:
         """Start the logging thread (idempotent)."""
-        if self._thread is None:
-            self._thread = threading.Thread(target=self._run, name="rerun-logger", daemon=True)
-            self._thread.start()
+        self.start_worker()
 
     def close(self, timeout_s: float = 30.0) -> None:
         """Stop accepting items, log what is queued, send the batches, flush and disconnect."""
         if self._closed:
             return
         self._closed = True
-        self.start()
-        assert self._thread is not None
-        try:
-            self._q.put(_STOP, timeout=timeout_s)
-        except queue.Full:
-            log.warning("rerun logger: queue still full after %.0f s; closing anyway", timeout_s)
-        self._thread.join(timeout_s)
+        self.start_worker()
+        self.stop_worker(timeout_s)
         try:
             self._rec.flush(timeout_sec=timeout_s)
         finally:
@@ -508,22 +502,19 @@ class RerunLogger(Closing):
         """Current counters (see :class:`LoggerStats`)."""
         with self._lock:
             dropped = dict(self._dropped)
+        w = self.worker_stats()
         return LoggerStats(
-            processed=self._processed,
+            processed=w.handled,
             dropped=sum(dropped.values()),
-            errors=self._errors,
-            queued=self._q.qsize(),
+            errors=w.errors,
+            queued=w.queued,
             dropped_by_kind=dropped,
-            last_error=self._last_error,
+            last_error=w.last_error,
         )
 
     def _put(self, kind: str, args: tuple[Any, ...], t: float) -> bool:
-        if not self._closed:
-            try:
-                self._q.put_nowait((kind, t, args))
-                return True
-            except queue.Full:
-                pass
+        if self.submit((kind, t, args)):
+            return True
         with self._lock:
             self._dropped[kind] += 1
         return False
@@ -537,7 +528,7 @@ class RerunLogger(Closing):
         y: float,
         z: float = math.nan,
         heading: float = math.nan,
-        cov_xy: Any = None,
+        cov_xy: ArrayLike | None = None,
     ) -> bool:
         """One pose of trajectory ``name`` (``truth``, ``dead_reckoning``, ``slam/<pipeline>``):
         position (m), heading (rad), optional 2x2 horizontal covariance (m^2). The line strip
@@ -547,7 +538,14 @@ class RerunLogger(Closing):
         args = (name, float(t), float(x), float(y), float(z), float(heading), cov)
         return self._put("trajectory", args, float(t))
 
-    def landmarks(self, name: str, t: float, mean: Any, cov: Any = None, ids: Any = None) -> bool:
+    def landmarks(
+        self,
+        name: str,
+        t: float,
+        mean: ArrayLike,
+        cov: ArrayLike | None = None,
+        ids: ArrayLike | None = None,
+    ) -> bool:
         """Point features of map ``name``: ``mean (L, 2)`` m, ``cov (L, 2, 2)`` m^2 (drawn as
         confidence ellipses), ``ids (L,)``. Replaces the previous set."""
         m = np.array(mean, dtype=np.float64).reshape(-1, 2)
@@ -560,10 +558,10 @@ class RerunLogger(Closing):
         self,
         name: str,
         t: float,
-        rho: Any,
-        theta: Any,
-        cov: Any = None,
-        endpoints: Any = None,
+        rho: ArrayLike,
+        theta: ArrayLike,
+        cov: ArrayLike | None = None,
+        endpoints: ArrayLike | None = None,
     ) -> bool:
         """Line features of map ``name`` in normal form ``x cos(theta) + y sin(theta) = rho``
         (m, rad, map frame axes), ``cov (K, 2, 2)`` over (rho, theta) drawn as the ellipse of the
@@ -575,7 +573,9 @@ class RerunLogger(Closing):
         _same_length("lines", rho=r, theta=th, cov=c, endpoints=e)
         return self._put("lines", (name, float(t), r, th, c, e), float(t))
 
-    def particles(self, name: str, t: float, poses: Any, weights: Any = None) -> bool:
+    def particles(
+        self, name: str, t: float, poses: ArrayLike, weights: ArrayLike | None = None
+    ) -> bool:
         """Particle cloud of filter ``name``: ``poses (N, 2+)`` (x, y first, m); an evenly
         spaced subsample of ``max_particles`` is drawn (the heaviest first when ``weights``)."""
         p = np.asarray(poses, dtype=np.float64)
@@ -593,11 +593,11 @@ class RerunLogger(Closing):
         return self._put("particles", (name, float(t), p), float(t))
 
     def attitude(
-        self, t: float, roll: float, pitch: float, heading: float, position: Any = None
+        self, t: float, roll: float, pitch: float, heading: float, position: ArrayLike | None = None
     ) -> bool:
         """INS attitude (rad): the vehicle's Transform3D (at ``position`` NED m if given, else at
         the latest position of the navigation trajectory) and roll/pitch/heading series (deg)."""
-        pos = None if position is None else tuple(float(v) for v in position)
+        pos = None if position is None else tuple(float(v) for v in np.ravel(position))
         return self._put(
             "attitude", (float(t), float(roll), float(pitch), float(heading), pos), float(t)
         )
@@ -605,7 +605,7 @@ class RerunLogger(Closing):
     def dvl(
         self,
         t: float,
-        velocity: Any,
+        velocity: ArrayLike,
         altitude: float = math.nan,
         names: Sequence[str] = ("x", "y", "z"),
         bottom_lock: bool | None = None,
@@ -619,7 +619,7 @@ class RerunLogger(Closing):
         self,
         t: float,
         bearing: float,
-        bins: Any,
+        bins: ArrayLike,
         range_m: float,
         step: float = 0.0,
         max_value: int = 255,
@@ -638,15 +638,15 @@ class RerunLogger(Closing):
     def swath(
         self,
         t: float,
-        along: Any,
-        across: Any,
-        depth: Any,
+        along: ArrayLike,
+        across: ArrayLike,
+        depth: ArrayLike,
         *,
         x: float = 0.0,
         y: float = 0.0,
         z: float = 0.0,
         heading: float = 0.0,
-        valid: Any = None,
+        valid: ArrayLike | None = None,
     ) -> bool:
         """One multibeam ping: soundings ``along`` (forward), ``across`` (starboard), ``depth``
         (down) in m from the transducer, placed at the transducer position ``x, y, z`` (map frame,
@@ -678,7 +678,7 @@ class RerunLogger(Closing):
         return self._put("raw_ping", (str(device), float(t), int(side), a, r, amp), float(t))
 
     # bathymetric SLAM map (slam/<p>/cloud and slam/<p>/map DEM tiles) ------------------------
-    def seabed(self, name: str, t: float, points: Any) -> bool:
+    def seabed(self, name: str, t: float, points: ArrayLike) -> bool:
         """Soundings placed by a SLAM trajectory, ``points`` (P, 3) x, y (map frame, m), depth
         (m, down): depth-coloured 3-D points on ``world/<name>/seabed`` (accumulated like the
         multibeam soundings)."""
@@ -686,7 +686,9 @@ class RerunLogger(Closing):
         pts = pts[np.all(np.isfinite(pts), axis=1)]
         return self._put("seabed", (str(name), float(t), pts), float(t))
 
-    def dem(self, name: str, t: float, x0: float, y0: float, cell_m: float, depth: Any) -> bool:
+    def dem(
+        self, name: str, t: float, x0: float, y0: float, cell_m: float, depth: ArrayLike
+    ) -> bool:
         """A DEM tile of a SLAM map: ``depth[i][j]`` (m, NaN = empty) the mean depth of the
         ``cell_m`` cell centred at ``x0 + (i + 0.5) cell_m, y0 + (j + 0.5) cell_m`` (map
         frame): depth-coloured discs on ``map/<name>/dem`` (each tile replaces the last)."""
@@ -696,7 +698,7 @@ class RerunLogger(Closing):
         args = (str(name), float(t), float(x0), float(y0), float(cell_m), grid)
         return self._put("dem", args, float(t))
 
-    def magnetometer(self, t: float, b_nt: Any) -> bool:
+    def magnetometer(self, t: float, b_nt: ArrayLike) -> bool:
         """Magnetic flux density (nT, sensor axes = body axes): field series, magnitude and an
         arrow on the vehicle."""
         b = np.array(b_nt, dtype=np.float64).reshape(-1)[:3]
@@ -720,7 +722,7 @@ class RerunLogger(Closing):
         return self._put("event", (str(device), float(t), str(text), str(level)), float(t))
 
     # -- magnetic beacons (AMB-SLAM) --------------------------------------------------------
-    def ranges(self, name: str, t: float, origin: Any, targets: Any) -> bool:
+    def ranges(self, name: str, t: float, origin: ArrayLike, targets: ArrayLike) -> bool:
         """Beacon observations of ``name`` (``slam/magnetic``): one line per observed beacon
         from the vehicle at ``origin (x, y)`` to ``targets (K, 2)`` (m, map frame), on
         ``map/<name>/ranges``; replaces the previous set."""
@@ -734,46 +736,30 @@ class RerunLogger(Closing):
         return self._put("acoustic_beacon", (name, float(t), float(x), float(y)), float(t))
 
     # -- the logging thread ----------------------------------------------------------------
-    def _run(self) -> None:
-        rec = self._rec
-        rec.set_log_tick_enabled(False)
-        rec.set_log_time_enabled(False)
+    def _work_started(self) -> None:
+        self._rec.set_log_tick_enabled(False)
+        self._rec.set_log_time_enabled(False)
         self._static_setup()
-        period = self.options.flush_period_s
-        next_flush = time.monotonic() + period
-        while True:
-            try:
-                item = self._q.get(timeout=max(0.0, next_flush - time.monotonic()))
-            except queue.Empty:
-                item = None
-            if item is _STOP:
-                break
-            if item is not None:
-                kind, t, args = item
-                if t > self._t_last:
-                    self._t_last = t
-                try:
-                    self._handlers[kind](*args)
-                except Exception as exc:  # a bad item must never stop the logger
-                    self._errors += 1
-                    self._last_error = f"{kind}: {type(exc).__name__}: {exc}"
-                    if self._errors <= 5:
-                        log.warning("rerun logger: %s", self._last_error)
-                self._processed += 1
-            device_due = self._t_last - self._t_flushed >= period
-            if device_due or time.monotonic() >= next_flush:
-                self._t_flushed = self._t_last
-                self._safe_flush(final=False)
-                next_flush = time.monotonic() + period
-        self._safe_flush(final=True)
 
-    def _safe_flush(self, final: bool) -> None:
+    def _work_item(self, item: _Item) -> None:
+        kind, t, args = item
+        if t > self._t_last:
+            self._t_last = t
         try:
-            self._flush(final)
-        except Exception as exc:
-            self._errors += 1
-            self._last_error = f"flush: {type(exc).__name__}: {exc}"
-            log.warning("rerun logger: %s", self._last_error)
+            self._handlers[kind](*args)
+        finally:  # batches cut at device-time flushes, failed item or not
+            if self._t_last - self._t_flushed >= self.options.flush_period_s:
+                self._work_tick()
+
+    def _work_describe(self, item: _Item) -> str:
+        return item[0]
+
+    def _work_tick(self) -> None:
+        self._t_flushed = self._t_last
+        self._flush(final=False)
+
+    def _work_finished(self) -> None:
+        self._flush(final=True)
 
     def _set_time(self, t: float) -> None:
         if self.options.time_kind == "timestamp":
@@ -787,7 +773,9 @@ class RerunLogger(Closing):
             return rr.TimeColumn(TIMELINE, timestamp=arr)
         return rr.TimeColumn(TIMELINE, duration=arr)
 
-    def _static(self, path: str, make: Callable[[], Any]) -> None:
+    def _static(
+        self, path: str, make: Callable[[], rr.AsComponents | tuple[rr.AsComponents, ...]]
+    ) -> None:
         """Log ``make()`` (archetypes: styles, series names) once per entity, as static data."""
         if path not in self._styled:
             self._styled.add(path)
@@ -815,7 +803,7 @@ class RerunLogger(Closing):
             s = self._streams[path] = _Stream(kind)
         return s
 
-    def _append(self, path: str, kind: str, t: float, row: Any) -> None:
+    def _append(self, path: str, kind: str, t: float, row: _Row) -> None:
         s = self._stream(path, kind)
         if not s.rows:
             s.first_host = time.monotonic()
@@ -831,7 +819,8 @@ class RerunLogger(Closing):
         s.times, s.rows = [], []
         index = [self._time_column(times)]
         if s.kind == "scalars":
-            cols: Any = rr.Scalars.columns(scalars=np.asarray(rows, dtype=np.float64))
+            scalars = np.asarray(rows, dtype=np.float64)
+            cols: rr.ComponentColumnList = rr.Scalars.columns(scalars=scalars)
         elif s.kind == "transform":
             arr = np.asarray(rows, dtype=np.float64)
             cols = rr.Transform3D.columns(translation=arr[:, :3], quaternion=arr[:, 3:])
@@ -841,7 +830,7 @@ class RerunLogger(Closing):
             pos = np.concatenate([r[0] for r in rows]).astype(np.float32)
             col = np.concatenate([r[1] for r in rows])
             cols = rr.Points3D.columns(positions=pos, colors=col).partition(
-                [len(r[0]) for r in rows]
+                [len(r[0]) for r in rows if isinstance(r, tuple)]
             )
         else:  # pragma: no cover - kinds are internal
             raise ValueError(f"unknown stream kind {s.kind}")
@@ -877,7 +866,7 @@ class RerunLogger(Closing):
             self._rec.flush(timeout_sec=0.0)
 
     # -- map helpers -----------------------------------------------------------------------
-    def _to_map(self, x: Any, y: Any) -> np.ndarray:
+    def _to_map(self, x: ArrayLike, y: ArrayLike) -> np.ndarray:
         """Map-frame (x, y) -> 2-D view coordinates (u right, v down), stacked on the last axis."""
         x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
         if self.options.map_frame == "ned":
@@ -909,7 +898,7 @@ class RerunLogger(Closing):
         grey = (60, 70, 85)
         self._rec.log(
             ent.MAP_GRID,
-            rr.LineStrips2D(strips, colors=[grey], radii=[-0.75], draw_order=[-20.0]),
+            rr.LineStrips2D(strips, colors=[grey], radii=[-0.75], draw_order=-20.0),
             static=True,
         )
         # the coordinates: east along the bottom edge, north along the left (v = -north)
@@ -924,7 +913,7 @@ class RerunLogger(Closing):
                 radii=[-2.0],
                 labels=labels,
                 show_labels=True,
-                draw_order=[55.0],
+                draw_order=55.0,
             ),
             static=True,
         )
@@ -936,7 +925,7 @@ class RerunLogger(Closing):
                 colors=[(255, 255, 255)],
                 radii=[-2.5],
                 labels=[f"{step:g} m"],
-                draw_order=[60.0],
+                draw_order=60.0,
             ),
             static=True,
         )
@@ -961,7 +950,7 @@ class RerunLogger(Closing):
                 radii=[-3.0],
                 labels=[n for n, _ in entries],
                 show_labels=True,
-                draw_order=[60.0],
+                draw_order=60.0,
             ),
             static=True,
         )
@@ -997,7 +986,7 @@ class RerunLogger(Closing):
             width, order = _TRACK_STYLE.get(seg, _TRACK_STYLE_OTHER)
             log_static(
                 ent.map_path(name, "track"),
-                rr.LineStrips2D.from_fields(colors=[colour], radii=[-width], draw_order=[order]),
+                rr.LineStrips2D.from_fields(colors=[colour], radii=[-width], draw_order=order),
                 static=True,
             )
             log_static(
@@ -1009,9 +998,9 @@ class RerunLogger(Closing):
                 self._map_grid(np.array(self._grid_extent), force=True)
             log_static(
                 ent.map_path(name, "pose"),
-                rr.Points2D.from_fields(colors=[colour], radii=[-5.0], draw_order=[40.0]),
-                rr.Arrows2D.from_fields(colors=[colour], draw_order=[40.0]),
-                rr.LineStrips2D.from_fields(colors=[colour], radii=[-1.0], draw_order=[35.0]),
+                rr.Points2D.from_fields(colors=[colour], radii=[-5.0], draw_order=40.0),
+                rr.Arrows2D.from_fields(colors=[colour], draw_order=40.0),
+                rr.LineStrips2D.from_fields(colors=[colour], radii=[-1.0], draw_order=35.0),
                 static=True,
             )
         return tr
@@ -1085,7 +1074,8 @@ class RerunLogger(Closing):
             )
             if not self._attitude_seen and ent.track_segment(name) == self._vehicle_src:
                 q = attitude_quaternion(0.0, 0.0, 0.0 if math.isnan(heading) else heading)
-                self._rec.log(ent.VEHICLE, rr.Transform3D(translation=[x, y, z], quaternion=q))
+                self._rec.log(ent.VEHICLE, rr.Transform3D(translation=[x, y, z],
+                                                          quaternion=rr.Quaternion(xyzw=q)))
 
     def _do_landmarks(
         self, name: str, t: float, mean: np.ndarray, cov: np.ndarray | None, ids: np.ndarray | None
@@ -1104,7 +1094,7 @@ class RerunLogger(Closing):
                 radii=[-4.0],
                 labels=labels,
                 show_labels=labels is not None and len(labels) <= 40,
-                draw_order=[45.0],
+                draw_order=45.0,
             ),
             rr.LineStrips2D(
                 [] if cov is None else self._ellipses(mean, cov), colors=[colour], radii=[-1.0]
@@ -1156,7 +1146,7 @@ class RerunLogger(Closing):
                 self._to_map(p[:, 0], p[:, 1]),
                 colors=[self._colour(name)],
                 radii=[-1.5],
-                draw_order=[20.0],
+                draw_order=20.0,
             ),
         )
 
@@ -1242,7 +1232,7 @@ class RerunLogger(Closing):
         labels = [f"{f * range_m:.3g} m" if math.isfinite(range_m) else "" for f in _RINGS]
         self._rec.log(
             ent.SONAR_RINGS,
-            rr.LineStrips2D(rings, colors=[(90, 200, 255)], radii=[-0.75], draw_order=[20.0]),
+            rr.LineStrips2D(rings, colors=[(90, 200, 255)], radii=[-0.75], draw_order=20.0),
             static=True,
         )
         # each ring's range where it crosses the 45 deg bearing (the labels of line strips sit
@@ -1251,11 +1241,11 @@ class RerunLogger(Closing):
         at = np.array([[c + f * d, c - f * d] for f in _RINGS])
         self._rec.log(f"{ent.SONAR_RINGS}/labels", rr.Points2D(
             at, colors=[(90, 200, 255)], radii=[-1.5], labels=labels, show_labels=True,
-            draw_order=[25.0]), static=True)  # fmt: skip
+            draw_order=25.0), static=True)  # fmt: skip
         s = max(3.0, n / 40.0)
         hull = np.array([[c, c - 1.6 * s], [c + s, c + s], [c - s, c + s], [c, c - 1.6 * s]])
         self._rec.log(ent.SONAR_VEHICLE, rr.LineStrips2D(
-            [hull], colors=[(255, 220, 0)], radii=[-1.5], draw_order=[30.0]),
+            [hull], colors=[(255, 220, 0)], radii=[-1.5], draw_order=30.0),
             static=True)  # fmt: skip
 
     def _do_msis(
@@ -1468,8 +1458,9 @@ class RerunLogger(Closing):
             prefix = f"{device} " if device is not None else ""
             colours = ([self._device_colour(device)] * len(names) if device is not None
                        else [_HEALTH_PALETTE[i % len(_HEALTH_PALETTE)] for i in range(len(names))])
-            self._static(path, lambda n=names, c=colours: rr.SeriesLines(
-                names=[f"{prefix}{k}" for k in n], colors=c, widths=[1.5] * len(n)))  # fmt: skip
+            series = rr.SeriesLines(names=[f"{prefix}{k}" for k in names], colors=colours,
+                                    widths=[1.5] * len(names))  # fmt: skip
+            self._static(path, lambda: series)
         got = dict(metrics)
         self._append(path, "scalars", t, tuple(got.get(n, math.nan) for n in names))
 
@@ -1507,7 +1498,7 @@ class RerunLogger(Closing):
         self._rec.log(
             ent.map_path(name, "ranges"),
             rr.LineStrips2D(list(self._to_map(seg[..., 0], seg[..., 1])),
-                            colors=[self._colour(name)], radii=[-1.0], draw_order=[25.0]),
+                            colors=[self._colour(name)], radii=[-1.0], draw_order=25.0),
         )  # fmt: skip
 
     def _do_acoustic_beacon(self, name: str, t: float, x: float, y: float) -> None:
@@ -1515,5 +1506,5 @@ class RerunLogger(Closing):
         self._rec.log(
             ent.map_path(name, "acoustic_beacon"),
             rr.Points2D(self._to_map([x], [y]), colors=[ACOUSTIC_COLOUR], radii=[-7.0],
-                        labels=["acoustic beacon"], draw_order=[50.0]),
+                        labels=["acoustic beacon"], draw_order=50.0),
         )  # fmt: skip

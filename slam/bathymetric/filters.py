@@ -22,6 +22,7 @@ from auvgw.slam.bathymetric.loops import (
     loop_valid,
 )
 from auvgw.slam.bathymetric.matching import idw, match_weights
+from auvgw.slam.resampling import systematic_resample
 
 __all__ = [
     "BPSLAM",
@@ -33,7 +34,6 @@ __all__ = [
     "mode_weights",
     "no_match_weight",
     "own_nearest",
-    "systematic",
 ]
 
 
@@ -47,14 +47,6 @@ def jitter_variance(t_r: int, cfg: BathyConfig) -> float:
     """sigma_m^2 of eq. (3): sigma_c^2 + A exp(-t_r / C), with A = 0 while t_r < B (A8)."""
     a = cfg.jitter_a if t_r >= cfg.jitter_b else 0.0
     return cfg.sigma_c2 + a * float(np.exp(-t_r / cfg.jitter_c))
-
-
-def systematic(w: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Low-variance (systematic) resampling indices of normalised weights ``w`` (A20)."""
-    n = len(w)
-    c = np.cumsum(w)
-    c[-1] = 1.0
-    return np.searchsorted(c, (rng.random() + np.arange(n)) / n)
 
 
 def no_match_weight(n: int, cfg: BathyConfig) -> float:
@@ -519,7 +511,7 @@ class MTMPF(BathyFilter):
         s_before = self.traj[t].copy()
         if cfg.closure == "crossing" and cfg.closure_estimate == "mode":
             w = mode_weights(self.x, w, cfg.mode_radius_m)
-        self.x = self.x[systematic(w, self.rng)]
+        self.x = self.x[systematic_resample(w, self.rng)]  # A20
         s_after = self.x.mean(0)
         m = s_after - s_before  # eq. (14)
         h = t - cfg.t_l
@@ -703,7 +695,7 @@ class BPSLAM(BathyFilter):
     def _resample(self, w: np.ndarray) -> None:
         """Systematic resampling (A20) of whole trajectories; weights back to 1/N."""
         n, t = self.cfg.n_particles, self.t
-        i = systematic(w, self.rng)
+        i = systematic_resample(w, self.rng)  # A20
         self.trajs[: t + 1] = self.trajs[: t + 1, i]
         self.ref[: t + 1] = self.trajs[: t + 1].mean(1)
         self.dev = np.linalg.norm(self.trajs[: t + 1] - self.ref[: t + 1, None], axis=2).max(0)

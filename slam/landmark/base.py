@@ -41,6 +41,7 @@ from auvgw.slam.landmark.association import (
 )
 from auvgw.slam.landmark.unscented import sqrt_psd
 from auvgw.slam.models import MotionModel, ObservationModel, wrap_angle
+from auvgw.slam.resampling import systematic_resample
 
 __all__ = [
     "LandmarkFilter",
@@ -130,15 +131,6 @@ def quad2(v: np.ndarray, s_inv: np.ndarray) -> np.ndarray:
     a = s_inv[..., 0, 0] * v[..., 0] + s_inv[..., 0, 1] * v[..., 1]
     b = s_inv[..., 1, 0] * v[..., 0] + s_inv[..., 1, 1] * v[..., 1]
     return v[..., 0] * a + v[..., 1] * b
-
-
-def systematic_resample(w: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Indices drawn by systematic resampling of normalised weights ``w (N,)``."""
-    n = w.shape[0]
-    positions = (rng.random() + np.arange(n)) / n
-    c = np.cumsum(w)
-    c[-1] = 1.0
-    return np.minimum(np.searchsorted(c, positions), n - 1)
 
 
 def mahalanobis_all(
