@@ -121,6 +121,15 @@ def test_stage_reproduces_the_batch_filter_and_maps_the_true_terrain(tiny: Bathy
     assert c["pings"] == len(sim.t)
     assert c["loops_accepted"] + c["loops_rejected"] == len(loops) >= 1
     assert last["loops"] == [c["loops_accepted"], c["loops_rejected"]]
+    # the smoothed trajectory, once, at flush before the whole map: the batch filter's final
+    # (corrected) trajectory at the swaths' times, and the time of each accepted closure
+    tracks = [(i, b) for i, (k, b) in enumerate(published) if k.endswith("/track")]
+    assert len(tracks) == 1 and published[tracks[0][0] + 1][0].endswith("/map")
+    track = tracks[0][1]
+    np.testing.assert_allclose(track["t"], sim.t)
+    np.testing.assert_allclose(np.column_stack([track["x"], track["y"]]), batch.final, atol=1e-3)
+    assert track["closures_t"] == [float(sim.t[lp.t_end]) for lp in loops if lp.accepted]
+    assert track["loops"] == last["loops"]
 
 
 def test_stage_places_swaths_at_the_odometry_and_spaces_pings(tiny: BathyRun) -> None:
@@ -260,7 +269,9 @@ def test_stage_output_in_rerun(tmp_path: Path, tiny: BathyRun) -> None:
                                       float(sim.heading[k])))  # fmt: skip
     stage.flush()
     logger.close()
-    assert outcomes and set(outcomes) == {"logged"}
+    # every output drawn but the smoothed track (one at flush), which the viz stage leaves alone
+    drawn = [o for o, (k, _) in zip(outcomes, published, strict=True) if not k.endswith("/track")]
+    assert drawn and set(drawn) == {"logged"} and len(drawn) == len(outcomes) - 1
     rec = read_recording(path)
     track = rec[ent.world_path("slam/bathymetric", "track")]
     assert len(track) >= 1

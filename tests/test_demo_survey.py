@@ -54,3 +54,28 @@ def test_pose_track_and_map_are_consistent_with_truth(survey_run) -> None:
     assert m["cells"] > 2000  # a 200 m line under a ~180 m swath, 2 m cells
     assert m["median_abs_error_m"] < 1.0 and m["share_under_2m"] > 0.9
     assert "bathymetric map vs true terrain" in stdout
+
+
+def test_report_prints_filtered_smoothed_and_closures(survey_run) -> None:
+    """Issue 33's "figures printed by the demo": the filtered (published poses) and smoothed
+    (the stage's trajectory after every closure, at flush) errors, the closures and the DR / SLAM
+    ratios, in the printed report and in summary.json."""
+    _, stdout, summary = survey_run
+    nav = summary["navigation"]
+    smoothed, filtered = nav["slam_smoothed"], nav["slam"]
+    # one smoothed pose per used swath, stamped as the filtered ones
+    assert smoothed["samples"] + smoothed["outside_truth"] == summary["slam"]["stage"]["pings"]
+    assert smoothed["distance_m"] == pytest.approx(filtered["distance_m"], rel=0.01)
+    # no crossing in 200 m: no closure, so the smoothed track is the filtered one
+    assert nav["closures_vehicle_s"] == [] and summary["slam"]["loops_accepted"] == 0
+    assert smoothed["rmse_m"] == pytest.approx(filtered["rmse_m"], abs=0.01)
+    lines = {ln.split(" vs ", 1)[0]: ln for ln in stdout.splitlines() if " vs " in ln}
+    assert "SLAM filtered (mtm-pf (bathymetric PF-SLAM): each pose as published)" in lines
+    assert f"RMSE {smoothed['rmse_m']:.2f} m" in lines[
+        "SLAM smoothed (mtm-pf mean trajectory after every closure)"]  # fmt: skip
+    assert "loop closures accepted: 0, none" in stdout
+    ratio = lines["bathymetric SLAM"]
+    dr = nav["dead_reckoning"]
+    assert f"final DR {dr['final_m']:.2f} m / filtered {filtered['final_m']:.2f} m" in ratio
+    assert f"/ smoothed {smoothed['rmse_m']:.2f} m = " in ratio
+

@@ -130,6 +130,14 @@ def register(sub: SubParsers) -> None:
         "processed into swaths by the swath stage (auvgw.stages.swath) for the bathymetric SLAM",
     )
     p.add_argument(
+        "--seed",
+        type=int,
+        default=None,
+        help="the scenario's emulator seed (every device's noise draws; default: the "
+        "scenario's). Tuning runs take seeds below 1000, reported runs 1000 and up "
+        "(auvgw.slam.evaluation.heldout)",
+    )
+    p.add_argument(
         "--processes",
         action="store_true",
         help="sim, gateway, fusion and SLAM each in its own OS process (this one only collects)",
@@ -164,11 +172,17 @@ def _scenario_path(name: str) -> Path:
     return shipped
 
 
-def _demo_scenario(src: Path, out: Path, multibeam: str = "kongsberg") -> Path:
+def _demo_scenario(
+    src: Path, out: Path, multibeam: str = "kongsberg", seed: int | None = None
+) -> Path:
     """The scenario with the INS on serial only: python-can's slcan reader handles ~1400 CAN
     frames/s here, and the HN-100's 800 frames/s x speed would overrun it (the CAN form of the
     INS is exercised by the tests; the magnetometer keeps its CAN form). ``multibeam``
-    "geoswath": the GeoSwath emulator replaces a multibeam the scenario has on."""
+    "geoswath": the GeoSwath emulator replaces a multibeam the scenario has on. ``seed``: the
+    emulators' seed instead of the scenario's. A survey (the bathymetric pipeline) runs without
+    the devices that pipeline does not read (:data:`SURVEY_IDLE_DEVICES`) unless its file turns
+    them on: on a loaded host they only add lag, and the INS clock resets lag causes move dead
+    reckoning's stamps off the vehicle's time."""
     try:
         scn = load_scenario(src)
     except ScenarioError as exc:
@@ -177,6 +191,11 @@ def _demo_scenario(src: Path, out: Path, multibeam: str = "kongsberg") -> Path:
     devices = data.setdefault("devices", {})
     ins = devices.setdefault("ins", {})
     ins.setdefault("options", {})["can"] = False
+    if seed is not None:
+        data["seed"] = seed
+    if _bathymetric_scenario(scn):
+        for name in SURVEY_IDLE_DEVICES:
+            devices.setdefault(name, {}).setdefault("enabled", False)
     if multibeam == "geoswath" and scn.devices.multibeam.enabled:
         devices["multibeam"] = {**devices.get("multibeam", {}), "enabled": False}
         devices["geoswath"] = {**devices.get("geoswath", {}), "enabled": True}
@@ -289,7 +308,7 @@ def run(args: argparse.Namespace) -> int:
     sim_dir = out / "sim"
     for stale in (sim_dir / "gateway.toml", sim_dir / "truth.jsonl", sim_dir / "finished"):
         stale.unlink(missing_ok=True)
-    scenario = _demo_scenario(_scenario_path(args.scenario), out, args.multibeam)
+    scenario = _demo_scenario(_scenario_path(args.scenario), out, args.multibeam, args.seed)
     _scenario_defaults(args, scenario)
     rrd = None if args.no_viz else (args.rrd or out / "demo.rrd")
     speed = float(args.speed)
@@ -390,10 +409,13 @@ def _run_stages(
                        options=_viz_options(scn), sections=("status",))  # fmt: skip
 
     bathy_map: list[bytes] = []  # the bathymetric stage's latest DEM tile (the whole map last)
+    bathy_track: list[bytes] = []  # its smoothed trajectory (at flush)
 
     def on_slam(key: str, payload: bytes, t_ns: int) -> None:
         if key.endswith("/bathymetric/map"):
             bathy_map[:] = [payload]
+        if key.endswith("/bathymetric/track"):
+            bathy_track[:] = [payload]
         if key.endswith("/pose"):
             p = json.loads(payload)
             with lock:
@@ -540,6 +562,7 @@ def _run_stages(
          "dvl_time_span_s": dvl_span[1] - dvl_span[0] if dvl_span else 0.0,
          **({"swath": swath_counters} if swath_counters is not None else {}),
          **_bathy_map_summary(bathy_map, scn)},
+        smoothed=_smoothed_track(bathy_track, epoch_s),
     )  # fmt: skip
     return 0
 
@@ -573,8 +596,11 @@ def _report(
     wall: float,
     speed: float,
     extra: dict[str, Any],
+    smoothed: tuple[_Track, list[float]] | None = None,
 ) -> dict[str, Any]:
-    """Print the summary and write ``summary.json`` (both modes); returns the summary."""
+    """Print the summary and write ``summary.json`` (both modes); returns the summary.
+    ``smoothed``: the bathymetric stage's smoothed trajectory and its closures' vehicle times
+    (:func:`_smoothed_track`)."""
     nav = _path_error(dead_reckoning, truth)
     _print_summary(status, fusion_counters, nav, rrd, wall)
     navigation: dict[str, Any] = {"dead_reckoning": nav}
@@ -589,6 +615,7 @@ def _report(
             _print_slam(name, slam_counters, slam_err)
             if name == BATHY_NAME:
                 _print_gain(name, slam_err, nav)
+                navigation.update(_bathy_report(nav, slam_err, smoothed, truth))
         # the VB paper's figure, for the landmark SLAM stage only
         landmark = name != BATHY_NAME and slam_counters.get("component") != MAGNETIC_COMPONENT
         paper = VB_PAPER_RMSE_PCT if landmark else None
@@ -672,7 +699,11 @@ class _Collector:
             done = all(st.get("stopped") for st in last)
             if done and map_tap is not None:
                 pings = last[-1].get("pings")
-                done = bool(map_tap.last) and json.loads(map_tap.last[-1]).get("pings") == pings
+                done = (
+                    bool(map_tap.last)
+                    and bool(map_tap.track)
+                    and json.loads(map_tap.last[-1]).get("pings") == pings
+                )
             if done:
                 return
             time.sleep(0.05)
@@ -854,6 +885,7 @@ def _run_processes(
         speed, {"processes": procs, "odometry_timing": c.timing(),
                 "ready_vehicle_s": ready_vehicle_s,
                 **_bathy_map_summary(map_tap.last if map_tap else [], scn)},
+        smoothed=_smoothed_track(map_tap.track if map_tap else [], epoch_ns / 1e9),
     )  # fmt: skip
     bad = [n for n, p in procs.items() if p["exit_code"] != 0]
     if bad:
@@ -916,14 +948,16 @@ def _print_summary(
 def _print_slam(name: str, counters: dict[str, Any], err: dict[str, float] | None) -> None:
     st = counters["stage"]
     paper = f" (VB paper sea trial: {VB_PAPER_RMSE_PCT} %)"
+    label = f"SLAM ({name})"
     if counters.get("component") == "slam-bathymetric":
         _print_bathy(counters)
         paper = ""
+        label = f"SLAM filtered ({name}: each pose as published)"
     else:
         print(f"slam: {st['pings']} scan lines, {st['point_features']} point and "
               f"{st['line_features']} line features, {st['updates']} updates, "
               f"{counters['landmarks']} landmarks")  # fmt: skip
-    _print_vs_truth(f"SLAM ({name})", err, "not enough SLAM poses or truth to compare", paper)
+    _print_vs_truth(label, err, "not enough SLAM poses or truth to compare", paper)
 
 
 def _print_vs_truth(label: str, err: dict[str, float] | None, missing: str, tail: str = "") -> None:
@@ -960,6 +994,10 @@ BATHY_NAME = "mtm-pf (bathymetric PF-SLAM)"
 #:   28); the emulated INS heading bias and DVL scale / misalignment turn with each leg, so an
 #:   estimated bias would be wrong on the next leg (issue 14 session 6; not measured here).
 BATHY_PARTICLES = 200
+#: emulated devices a survey's demo leaves off (the bathymetric pipeline reads the INS, DVL and
+#: multibeam only): the MSIS (polled) and the magnetometer (serial and SLCAN) took 118,000 of
+#: the 317,000 frames of a whole-route run here
+SURVEY_IDLE_DEVICES = ("msis", "magnetometer")
 BATHY_FILTER: dict[str, Any] = {
     "mse_max_m2": 4.0,
     "lccd": False,
@@ -1068,19 +1106,71 @@ def _print_bathy(counters: dict[str, Any]) -> None:
 
 class _BathyMapTap:
     """``--processes``: the bathymetric stage's latest ``slam/bathymetric/map`` payload (the
-    whole map once the stage has flushed)."""
+    whole map once the stage has flushed) and its smoothed trajectory (``track``, at flush)."""
 
     def __init__(self, session: zenoh.Session, keys: Keys) -> None:
         self.last: list[bytes] = []
-        self._sub = session.declare_subscriber(keys.slam("bathymetric", "map"), self._on_map)
+        self.track: list[bytes] = []
+        self._subs = [
+            session.declare_subscriber(keys.slam("bathymetric", "map"), self._on_map),
+            session.declare_subscriber(keys.slam("bathymetric", "track"), self._on_track),
+        ]
 
     def _on_map(self, sample: zenoh.Sample) -> None:
         self.last[:] = [sample.payload.to_bytes()]
 
+    def _on_track(self, sample: Any) -> None:
+        self.track[:] = [sample.payload.to_bytes()]
+
     def close(self) -> None:
         from auvgw.bus import undeclare
 
-        undeclare([self._sub])
+        undeclare(self._subs)
+
+
+def _smoothed_track(payloads: list[bytes], epoch_s: float) -> tuple[_Track, list[float]] | None:
+    """The bathymetric stage's ``track`` payload (the last of ``payloads``; None without one)
+    as a vehicle-time track and its accepted closures' vehicle times (s)."""
+    if not payloads:
+        return None
+    body = json.loads(payloads[-1])
+    track = _Track([t - epoch_s for t in body["t"]], list(body["x"]), list(body["y"]))
+    return track, [t - epoch_s for t in body.get("closures_t", [])]
+
+
+def _ratio(dr: float, slam: float) -> str:
+    return f"{dr / slam:.2f}x" if slam > 0 else "inf"
+
+
+def _bathy_report(
+    dr: dict[str, float] | None,
+    filtered: dict[str, float] | None,
+    smoothed: tuple[_Track, list[float]] | None,
+    truth: _Track,
+) -> dict[str, Any]:
+    """The bathymetric SLAM's report lines (issues 28, 31, 33): the smoothed trajectory
+    (mtm-pf's mean trajectory after every accepted closure) against the truth, then one line
+    of dead reckoning against the filtered (published pose) and smoothed estimates, as
+    DR / SLAM ratios (> 1: SLAM better), and when the closures came. Returns the summary's
+    ``slam_smoothed`` and ``closures_vehicle_s``."""
+    if smoothed is None:
+        print("SLAM smoothed: no trajectory from the bathymetric stage")
+        return {"slam_smoothed": None, "closures_vehicle_s": None}
+    track, closures = smoothed
+    err = _path_error(track, truth)
+    _print_vs_truth("SLAM smoothed (mtm-pf mean trajectory after every closure)", err,
+                    "not enough smoothed poses or truth to compare")  # fmt: skip
+    when = (f"at vehicle t = {', '.join(f'{t:.0f}' for t in closures)} s" if closures
+            else "none")  # fmt: skip
+    print(f"loop closures accepted: {len(closures)}, {when}")
+    if dr is not None and filtered is not None and err is not None:
+        fin, rms = dr["final_m"], dr["rmse_m"]
+        print(f"bathymetric SLAM vs dead reckoning (DR / SLAM, > 1: SLAM better): final "
+              f"DR {fin:.2f} m / filtered {filtered['final_m']:.2f} m = "
+              f"{_ratio(fin, filtered['final_m'])}; RMSE DR {rms:.2f} m / filtered "
+              f"{filtered['rmse_m']:.2f} m = {_ratio(rms, filtered['rmse_m'])}, / smoothed "
+              f"{err['rmse_m']:.2f} m = {_ratio(rms, err['rmse_m'])}")  # fmt: skip
+    return {"slam_smoothed": err, "closures_vehicle_s": closures}
 
 
 def _bathy_map_summary(last: list[bytes], scn: Scenario) -> dict[str, Any]:

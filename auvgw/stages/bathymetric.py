@@ -29,7 +29,12 @@ Published (JSON) on ``auv/<v>/slam/bathymetric/``:
   (rows over x, ``null`` where empty), ``pings``, ``loops`` (accepted, rejected);
 * ``cloud`` with each ``map``: the latest ``map_period_pings`` swaths' soundings (every
   ``cloud_beam_stride``-th beam) placed by the corrected trajectory, ``points`` ``[[x, y,
-  depth], ...]`` (m, NED, depth down).
+  depth], ...]`` (m, NED, depth down);
+* ``track`` at flush, before the whole map: the *smoothed* trajectory, the filter's estimate of
+  the whole path once every closure is in (mtm-pf's mean trajectory corrected by every accepted
+  closure, eqs. 15-22), where ``pose`` is the *filtered* one (each ping's estimate when it was
+  made, which a later closure cannot move): ``t`` (the used swaths' times), ``x``, ``y`` (NED
+  m), ``closures_t`` (time of the ping each accepted closure was made at), ``loops``.
 
 Counters on ``auv/<v>/status/slam-bathymetric``. A malformed payload is counted and logged,
 never stops the worker; a swath with fewer than 2 valid soundings is counted (``bad_swaths``).
@@ -133,8 +138,8 @@ class BathymetricStage(PipelineStage):
     :class:`~auvgw.stages.base.PipelineStage`)."""
 
     name = PIPELINE
-    outputs = ("pose", "map", "cloud")
-    bulk_outputs = frozenset({"map", "cloud"})
+    outputs = ("pose", "map", "cloud", "track")
+    bulk_outputs = frozenset({"map", "cloud", "track"})
     stats_type = BathymetricStats
     stats: BathymetricStats
     config: BathymetricStageConfig
@@ -275,6 +280,15 @@ class BathymetricStage(PipelineStage):
         cloud = recent.reshape(-1, n_b, 3)[:, ::stride].reshape(-1, 3)
         self._put("cloud", {"t": t, "points": np.round(cloud, 3).tolist()}, t)
 
+    def _publish_track(self) -> None:
+        """The smoothed trajectory (``track``, see the module docstring)."""
+        n = self.online.pings
+        xy = np.round(self.online.filter.trajectory()[:n], 3)
+        times = self.ping_times[:n]
+        closures = [times[lp.t_end] for lp in self.online.filter.loops if lp.accepted]
+        self._put("track", {"t": times, "x": xy[:, 0].tolist(), "y": xy[:, 1].tolist(),
+                            "closures_t": closures, "loops": self._loops()}, times[-1])  # fmt: skip
+
     def status_fields(self) -> dict[str, Any]:
         """Particles, pings in the filter and loop closures (accepted, rejected)."""
         acc, rej = self._loops()
@@ -284,9 +298,10 @@ class BathymetricStage(PipelineStage):
 
     def flush(self) -> None:
         """End of data: swaths still waiting for odometry are dropped (counted as
-        ``pending_dropped``); the whole map is published."""
+        ``pending_dropped``); the smoothed trajectory and the whole map are published."""
         with self._lock:
             self.stats.pending_dropped += len(self._swaths)
             self._swaths.clear()
             if self.online.pings > 0 and self.ping_times:
+                self._publish_track()
                 self._publish_map(self.ping_times[-1], None)
