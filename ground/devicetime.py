@@ -37,7 +37,14 @@ class DeviceClock:
     most ``skew`` s/s (a slower device clock). A device clock that jumps backward makes every
     difference exceed the estimate; once they have exceeded it by more than ``jump_s`` for
     ``confirm`` samples AND ``confirm_s`` seconds of receive time (so a backlog after a stall is
-    not taken for a jump), the estimate restarts from the current difference. ``wrap_s``: the
+    not taken for a jump), the estimate restarts from the current difference. Lag alone (frames
+    late while the device's own time runs on without going back: a loaded host, a stalled
+    reader) also makes the differences exceed the estimate, and mapping late frames onto their
+    true times is then right: so when the device time did not go back where the excess began,
+    the restart needs the excess to last ``lag_confirm_s`` s of device time as well (a common
+    clock that itself jumped, as a gateway restarted on another epoch; 0: no such wait). Before
+    this, frames a few seconds late at 10x reset the INS clock forward, the fusion coasted over
+    the gap and dead reckoning ended 175-325 m off. ``wrap_s``: the
     device time wraps after this many seconds (unwrapped here). ``latency_s``: a known fixed
     delay between the device's time stamp and reception (e.g. frame bytes x 10 / baud),
     subtracted from every mapped time. ``sync_s``: a device clock that reads UTC (beyond
@@ -55,6 +62,7 @@ class DeviceClock:
         jump_s: float = 1.0,
         confirm: int = 3,
         confirm_s: float = 0.5,
+        lag_confirm_s: float = 30.0,
         wrap_s: float | None = None,
         sync_s: float | None = None,
     ) -> None:
@@ -63,6 +71,7 @@ class DeviceClock:
         self.jump_s = float(jump_s)
         self.confirm = int(confirm)
         self.confirm_s = float(confirm_s)
+        self.lag_confirm_s = float(lag_confirm_s)
         self.wrap_s = wrap_s
         self.sync_s = sync_s
         self.offset: float | None = None
@@ -72,6 +81,8 @@ class DeviceClock:
         self._wrap_base = 0.0
         self._excess_n = 0
         self._excess_since = math.nan
+        self._excess_dev_since = math.nan
+        self._excess_backward = False
 
     def _unwrap(self, t_device: float) -> float:
         w = self.wrap_s
@@ -103,10 +114,16 @@ class DeviceClock:
             elif d - off > self.jump_s:
                 if self._excess_n == 0:
                     self._excess_since = t_recv
+                    self._excess_dev_since = t_dev
+                    self._excess_backward = t_dev < self._last_dev
                 self._excess_n += 1
                 if (
                     self._excess_n >= self.confirm
                     and t_recv - self._excess_since >= self.confirm_s
+                    and (
+                        self._excess_backward
+                        or t_dev - self._excess_dev_since >= self.lag_confirm_s
+                    )
                 ):
                     off = d
                     self._excess_n = 0

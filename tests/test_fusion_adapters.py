@@ -274,6 +274,27 @@ def test_clock_jumps_forward_at_once_and_backward_after_confirmation():
     assert all(ok[:50]) and not any(ok[50:53]) and all(ok[53:]) and c.stats.resets == 1
 
 
+def test_lag_is_not_a_clock_jump_but_a_new_common_epoch_is_after_a_while():
+    """Frames 5 s late for 10 s (a loaded host at 10x): the device time runs on, so they map
+    onto their true times, no reset. A common clock that jumps 100 s for good (a gateway
+    restarted on another epoch): followed once the excess has lasted 30 s of device time."""
+    dev = np.arange(6000) * 0.01
+    host = 100.0 + dev + 0.005
+    host[1000:2000] += 5.0 * np.minimum(1.0, np.arange(1000) / 100.0)  # lag builds to 5 s
+    host[2000:2500] = np.maximum(host[1999], host[2000:2500])  # then the backlog drains
+    c = DeviceClock()
+    mapped = np.array([c.to_common(d, h) for d, h in zip(dev, host, strict=True)])
+    assert c.stats.resets == 0
+    np.testing.assert_allclose(mapped, 100.005 + dev, atol=3e-3)  # the 1e-4 s/s skew creep
+    c = DeviceClock()
+    host = 100.0 + dev + 0.005 + np.where(dev >= 10.0, 100.0, 0.0)
+    mapped = np.array([c.to_common(d, h) for d, h in zip(dev, host, strict=True)])
+    assert c.stats.resets == 1
+    # until then on the old epoch (plus the skew creep over the 100 s step: 0.01 s)
+    np.testing.assert_allclose(mapped[dev < 40.0], 100.005 + dev[dev < 40.0], atol=0.02)
+    np.testing.assert_allclose(mapped[dev >= 40.01], host[dev >= 40.01], atol=5e-3)
+
+
 def test_a_backlog_after_a_stall_is_not_a_clock_jump():
     c = DeviceClock(confirm=3, confirm_s=0.5)
     dev = np.arange(300) * 0.01

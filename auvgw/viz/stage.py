@@ -104,7 +104,9 @@ def host_clock(jump_s: float = 1.0, sync_s: float = 60.0) -> DeviceClock:
     least delayed sample), re-anchored at once when the offset grows by more than ``jump_s``
     (clock reset or jump): the samples keep the device's own spacing on the host's time line.
     """
-    return DeviceClock(skew=0.0, jump_s=jump_s, confirm=1, confirm_s=0.0, sync_s=sync_s)
+    return DeviceClock(
+        skew=0.0, jump_s=jump_s, confirm=1, confirm_s=0.0, lag_confirm_s=0.0, sync_s=sync_s
+    )
 
 
 @dataclass
