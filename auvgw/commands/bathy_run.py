@@ -26,6 +26,26 @@ from typing import Any
 from auvgw.ground.errors import UserError, format_validation_error
 
 
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The bathymetric pipeline's own options (on ``auvgw slam run``'s parser)."""
+    g = p.add_argument_group("bathymetric pipeline (--pipeline bathymetric)")
+    g.add_argument("--multibeam", default=None,
+                   help="gateway device of the multibeam (default: any)")
+    g.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="a stage or filter setting (repeatable), e.g. radius_m=40")  # fmt: skip
+
+
+def demo_accepts(scn: Any) -> bool:
+    """A survey (``auvgw demo`` runs this pipeline on it): multibeam on, no point or line
+    features and no magnetic beacons to map."""
+    return bool(
+        (scn.devices.multibeam.enabled or scn.devices.geoswath.enabled)
+        and not len(scn.point_features())
+        and not scn.features.lines
+        and not getattr(scn, "magnetic_beacons", None)
+    )
+
+
 def stage_config(args: argparse.Namespace, vehicle: str) -> Any:
     """The stage's settings from ``--particles``, ``--seed``, ``--multibeam`` and ``--set``."""
     from pydantic import ValidationError

@@ -55,6 +55,7 @@ from auvgw.config.scenario import ScenarioError, load_scenario
 from auvgw.ground.paths import config_file
 from auvgw.ground.procs import Children, free_endpoint, stop_process
 from auvgw.health import device_time_s
+from auvgw.slam import pipelines
 
 DEFAULT_SCENARIO = "harbour"
 #: the demo's vehicle seconds and speed (x real time) unless told otherwise
@@ -74,7 +75,9 @@ def register(sub: Any) -> None:
     p.add_argument(
         "--scenario",
         default=DEFAULT_SCENARIO,
-        help="shipped scenario name (harbour, survey, beacons) or a scenario JSON file",
+        help="shipped scenario name ("
+        + ", ".join(f"{r.demo_scenario}: {r.name} SLAM" for r in pipelines.PIPELINES)
+        + ") or a scenario JSON file",
     )
     p.add_argument(
         "--duration",
@@ -411,7 +414,7 @@ def _run_stages(
     bathy_map: list[bytes] = []  # the bathymetric stage's latest DEM tile (the whole map last)
 
     def on_slam(key: str, payload: bytes, t_ns: int) -> None:
-        if key.endswith("/bathymetric/map"):
+        if key == keys.slam(BATHYMETRIC.name, "map"):
             bathy_map[:] = [payload]
         if key.endswith("/pose"):
             p = json.loads(payload)
@@ -793,12 +796,12 @@ def _run_processes(
                                      "--set", f"frequency_hz={khz * 1000.0}",
                                      "--connect", hub, "--listen", free_endpoint()])  # fmt: skip
             children.start("slam", _bathy_argv(slam_cfg, hub))
-            slam_part = (BATHY_NAME, "slam-bathymetric")
+            slam_part = (BATHY_NAME, f"slam-{BATHYMETRIC.name}")
             wanted |= {"geoswath", "swath", slam_part[1]}
         elif bathy:
             slam_cfg = _bathy_config(VEHICLE, "multibeam")
             children.start("slam", _bathy_argv(slam_cfg, hub))
-            slam_part = (BATHY_NAME, "slam-bathymetric")
+            slam_part = (BATHY_NAME, f"slam-{BATHYMETRIC.name}")
             wanted |= {"multibeam", slam_part[1]}
         elif not args.no_slam and not magnetic:
             slam_cfg = _slam_config(VEHICLE, "msis", scn)
@@ -1009,15 +1012,15 @@ BATHY_FILTER: dict[str, Any] = {
 }
 
 
+#: the registry records of the pipelines the demo wires itself (in process and as processes)
+BATHYMETRIC = pipelines.get("bathymetric")
+MAGNETIC = pipelines.get("magnetic")
+
+
 def _bathymetric_scenario(scn: Any) -> bool:
-    """A survey: multibeam on, no point or line features and no magnetic beacons to map, so the
-    demo's SLAM is the bathymetric pipeline."""
-    return bool(
-        (scn.devices.multibeam.enabled or scn.devices.geoswath.enabled)
-        and not len(scn.point_features())
-        and not scn.features.lines
-        and not getattr(scn, "magnetic_beacons", None)
-    )
+    """A survey: the registry gives the scenario to the bathymetric pipeline
+    (:func:`auvgw.commands.bathy_run.demo_accepts`)."""
+    return pipelines.for_demo(scn) is BATHYMETRIC
 
 
 def _bathy_config(vehicle: str, multibeam: str | None) -> Any:
@@ -1064,7 +1067,7 @@ def _swath_stage(gw_cfg: Any, scn: Any, session: Any, on_publish: Any) -> Any:
 def _bathy_argv(cfg: Any, hub: str) -> list[str]:
     """``auvgw slam run --pipeline bathymetric`` with the demo's settings, on the hub."""
     sets = [a for k, v in cfg.filter.items() for a in ("--set", f"{k}={json.dumps(v)}")]
-    return ["slam", "run", "--pipeline", "bathymetric", "--vehicle", cfg.vehicle,
+    return ["slam", "run", "--pipeline", BATHYMETRIC.name, "--vehicle", cfg.vehicle,
             "--multibeam", str(cfg.multibeam_device), "--particles", str(cfg.n_particles),
             "--seed", str(cfg.seed), *sets,
             "--connect", hub, "--listen", free_endpoint()]  # fmt: skip
@@ -1091,7 +1094,7 @@ class _BathyMapTap:
 
     def __init__(self, session: Any, keys: Keys) -> None:
         self.last: list[bytes] = []
-        self._sub = session.declare_subscriber(keys.slam("bathymetric", "map"), self._on_map)
+        self._sub = session.declare_subscriber(keys.slam(BATHYMETRIC.name, "map"), self._on_map)
 
     def _on_map(self, sample: Any) -> None:
         self.last[:] = [sample.payload.to_bytes()]
@@ -1131,14 +1134,14 @@ def _bathy_map_summary(last: list[bytes], scn: Any) -> dict[str, Any]:
 # -- the beacons scenario: AMB-SLAM on the magnetometer and the acoustic beacon -----------------
 
 #: the magnetic stage's status component and the name the summary gives it
-MAGNETIC_COMPONENT = "slam-magnetic"
+MAGNETIC_COMPONENT = f"slam-{MAGNETIC.name}"
 MAGNETIC_NAME = "AMB-SLAM"
 
 
 def _is_magnetic(scn: Any) -> bool:
-    """A scenario for the magnetic stage: magnetic beacons and an emulated magnetometer (the
-    MSIS SLAM stage otherwise)."""
-    return bool(scn.magnetic_beacons) and scn.devices.magnetometer.enabled
+    """A scenario for the magnetic stage: the registry gives it to the magnetic pipeline
+    (:func:`auvgw.commands.magnetic_run.demo_accepts`; the MSIS SLAM stage otherwise)."""
+    return pipelines.for_demo(scn) is MAGNETIC
 
 
 def _mag_rate_hz(scn: Any) -> float:
@@ -1164,7 +1167,7 @@ def _magnetic_stage(
 def _magnetic_argv(scenario: Path, scn: Any, epoch_ns: int, hub: str) -> list[str]:
     """``auvgw slam run --pipeline magnetic`` as the demo's SLAM process (see
     :func:`_magnetic_stage`)."""
-    return ["slam", "run", "--pipeline", "magnetic", "--vehicle", VEHICLE,
+    return ["slam", "run", "--pipeline", MAGNETIC.name, "--vehicle", VEHICLE,
             "--scenario", str(scenario), "--mag-device", "magnetometer",
             "--mag-rate", str(_mag_rate_hz(scn)), "--clock-epoch-ns", str(epoch_ns),
             "--connect", hub, "--listen", free_endpoint()]  # fmt: skip

@@ -37,10 +37,8 @@ never stops the worker; a swath with fewer than 2 valid soundings is counted (``
 
 from __future__ import annotations
 
-import bisect
 import logging
 import math
-from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
@@ -51,6 +49,7 @@ from auvgw.fusion.odometry import Odometry
 from auvgw.slam.bathymetric.config import BathyConfig
 from auvgw.slam.bathymetric.evaluate import grid_dem
 from auvgw.slam.bathymetric.online import OnlineBathy
+from auvgw.slam.history import HeldSamples, StateHistory
 from auvgw.stages.base import BusCounters, PipelineStage, StageConfig
 
 log = logging.getLogger(__name__)
@@ -145,9 +144,8 @@ class BathymetricStage(PipelineStage):
         self.online = OnlineBathy(self.bathy, np.random.default_rng(cfg.seed), cfg.n_beams)
         #: time of each ping given to the filter (s, odometry clock)
         self.ping_times: list[float] = []
-        self._t_odo: deque[float] = deque()
-        self._odo: deque[tuple[float, float, float]] = deque()  # x, y, unwrapped heading
-        self._swaths: deque[tuple[float, Any]] = deque()
+        self._odo = StateHistory(3, angles=(2,))  # x, y (m NED), heading (rad)
+        self._swaths: HeldSamples[Any] = HeldSamples(cfg.max_pending_swaths)
         self._last_xy: tuple[float, float] | None = None
 
     def input_keys(self) -> list[str]:
@@ -160,29 +158,20 @@ class BathymetricStage(PipelineStage):
         """One odometry sample (in time order; a stale one is ignored)."""
         with self._lock:
             self.stats.odometry += 1
-            if self._t_odo and o.t <= self._t_odo[-1]:
+            if not self._odo.append(o.t, (o.x, o.y, o.heading)):
                 return
-            h = o.heading
-            if self._odo:
-                h = self._odo[-1][2] + math.remainder(h - self._odo[-1][2], math.tau)
-            self._t_odo.append(o.t)
-            self._odo.append((o.x, o.y, h))
             self._drain()
-            while self._t_odo and self._t_odo[0] < o.t - self.config.odometry_window_s:
-                self._t_odo.popleft()
-                self._odo.popleft()
+            self._odo.trim(o.t - self.config.odometry_window_s)
 
     def feed_swath(self, t: float, msg: Any) -> None:
         """One decoded XYZ 88 / Depth datagram received at ``t`` (s, odometry clock)."""
         with self._lock:
             self.stats.swaths += 1
-            if self._t_odo and t < self._t_odo[0]:
+            first = self._odo.first_t
+            if first is not None and t < first:
                 self.stats.before_odometry += 1
                 return
-            if len(self._swaths) >= self.config.max_pending_swaths:
-                self._swaths.popleft()
-                self.stats.pending_dropped += 1
-            self._swaths.append((float(t), msg))
+            self.stats.pending_dropped += self._swaths.hold(t, msg)
             self._drain()
 
     def feed(self, device: str, t_recv_ns: int, message: Any) -> None:
@@ -194,27 +183,13 @@ class BathymetricStage(PipelineStage):
         if (want is None or device == want) and message_kind(message) in SWATH_KINDS:
             self.feed_swath(t_recv_ns * 1e-9, message)
 
-    def _pose_at(self, t: float) -> tuple[float, float, float]:
-        t_odo = self._t_odo
-        k = bisect.bisect_left(t_odo, t)
-        if k == 0:
-            return self._odo[0]
-        if k >= len(t_odo):
-            return self._odo[-1]
-        t0, t1 = t_odo[k - 1], t_odo[k]
-        w = (t - t0) / (t1 - t0) if t1 > t0 else 1.0
-        a, b = self._odo[k - 1], self._odo[k]
-        return (a[0] + w * (b[0] - a[0]), a[1] + w * (b[1] - a[1]), a[2] + w * (b[2] - a[2]))
-
     def _drain(self) -> None:
-        if not self._t_odo:
-            return
-        while self._swaths and self._swaths[0][0] <= self._t_odo[-1]:
-            t, msg = self._swaths.popleft()
-            if t < self._t_odo[0]:
+        for t, msg in self._swaths.release(self._odo.last_t):
+            pose = self._odo.at(t)
+            if pose is None:
                 self.stats.before_odometry += 1
                 continue
-            x, y, h = self._pose_at(t)
+            x, y, h = (float(v) for v in pose)
             last = self._last_xy
             if last is not None and math.hypot(x - last[0], y - last[1]) < (
                 self.config.min_ping_spacing_m
@@ -286,7 +261,6 @@ class BathymetricStage(PipelineStage):
         """End of data: swaths still waiting for odometry are dropped (counted as
         ``pending_dropped``); the whole map is published."""
         with self._lock:
-            self.stats.pending_dropped += len(self._swaths)
-            self._swaths.clear()
+            self.stats.pending_dropped += self._swaths.clear()
             if self.online.pings > 0 and self.ping_times:
                 self._publish_map(self.ping_times[-1], None)

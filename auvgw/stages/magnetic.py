@@ -45,7 +45,6 @@ from __future__ import annotations
 
 import logging
 import math
-from collections import deque
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -55,7 +54,7 @@ from pydantic import Field
 
 from auvgw.drivers import registry
 from auvgw.fusion.odometry import Odometry
-from auvgw.slam.history import StateHistory
+from auvgw.slam.history import HeldSamples, StateHistory, compose_increments
 from auvgw.slam.magnetic.filters import MAGNETIC_ALGORITHMS, make_magnetic
 from auvgw.slam.magnetic.mlp import MLP
 from auvgw.slam.magnetic.online import MagneticOnline
@@ -164,13 +163,13 @@ class MagneticStage(PipelineStage):
         self.net = MLP.load(cfg.model)
         self.online: MagneticOnline | None = None
         self._att = StateHistory(3, angles=(0, 1, 2))  # heading, pitch, roll (rad)
-        self._mags: deque[tuple[float, np.ndarray]] = deque()
-        #: acoustic fixes (t, z, r) that came before the first odometry sample did
-        self._fixes: deque[tuple[float, np.ndarray, np.ndarray]] = deque()
+        self._mags: HeldSamples[np.ndarray] = HeldSamples(cfg.max_pending_mag)
+        #: acoustic fixes (z, r) at t that came before the first odometry sample did
+        self._fixes: HeldSamples[tuple[np.ndarray, np.ndarray]] = HeldSamples(MAX_PENDING_FIXES)
         self._t_pub: float | None = None
         self._t_odo = -math.inf  # end of the odometry given to the filter (input clock, s)
-        #: odometry being composed: dx, dy (m, body frame at its start), dheading, dt, count
-        self._acc: tuple[float, float, float, float, int] = (0.0, 0.0, 0.0, 0.0, 0)
+        #: odometry increments being composed into one filter prediction
+        self._incs: list[Any] = []
         self._t0 = cfg.clock_epoch_s  # vehicle clock zero on the input clock, s
         self._mag_device = cfg.mag_device
         self._counter: tuple[int, int] | None = None  # (last raw counter, wraps * modulus)
@@ -201,8 +200,9 @@ class MagneticStage(PipelineStage):
             if self.online is None:
                 self.online = self._make(o)
                 self._t_odo = o.t
-                while self._fixes:  # the fixes that came before it (odometry lags the sensors)
-                    self._add_fix(*self._fixes.popleft(), t_first=o.t)
+                # the fixes that came before it (odometry lags the sensors)
+                for t, (z, r) in self._fixes.release(math.inf):
+                    self._add_fix(t, z, r, t_first=o.t)
             elif o.increment is not None:
                 self._compose(o.t, o.increment)
             self._att.append(o.t, (o.heading, o.pitch, o.roll))
@@ -216,15 +216,12 @@ class MagneticStage(PipelineStage):
         the start, m; ``dheading`` rad) over ``odometry_period_s`` into one filter prediction
         ending at ``t``, its control noise scaled by ``1/n`` (the variance of ``n`` steps)."""
         assert self.online is not None
-        dx, dy, dh, dt, n = self._acc
-        c, s = math.cos(dh), math.sin(dh)
-        self._acc = (dx + c * inc.dx - s * inc.dy, dy + s * inc.dx + c * inc.dy,
-                     dh + inc.dheading, dt + inc.dt, n + 1)  # fmt: skip
-        dx, dy, dh, dt, n = self._acc
+        self._incs.append(inc)
+        dx, dy, dh, dt = compose_increments(self._incs)
         if dt >= self.config.odometry_period_s - 1e-9 and dt > 0:
             self.online.add_odometry(t - self._t0, np.array([dx / dt, dy / dt, dh / dt]), dt,
-                                     q_scale=1.0 / n)  # fmt: skip
-            self._acc = (0.0, 0.0, 0.0, 0.0, 0)
+                                     q_scale=1.0 / len(self._incs))  # fmt: skip
+            self._incs.clear()
             self._t_odo = t
 
     def feed_mag(self, t: float, b_body_nt: np.ndarray) -> None:
@@ -234,10 +231,7 @@ class MagneticStage(PipelineStage):
             if first is not None and t < first:
                 self.stats.mag_before_odometry += 1
                 return
-            if len(self._mags) >= self.config.max_pending_mag:
-                self._mags.popleft()
-                self.stats.mag_dropped += 1
-            self._mags.append((float(t), np.asarray(b_body_nt, float)))
+            self.stats.mag_dropped += self._mags.hold(t, np.asarray(b_body_nt, float))
             self._drain_mag()
 
     def feed_acoustic(
@@ -253,10 +247,7 @@ class MagneticStage(PipelineStage):
         r = np.diag([c.acoustic_sigma_range_m**2, math.radians(c.acoustic_sigma_bearing_deg) ** 2])
         with self._lock:
             if self.online is None:  # held until the first odometry sample arrives
-                if len(self._fixes) >= MAX_PENDING_FIXES:
-                    self._fixes.popleft()
-                    self.stats.acoustic_dropped += 1
-                self._fixes.append((t, z, r))
+                self.stats.acoustic_dropped += self._fixes.hold(t, (z, r))
             else:
                 self._add_fix(t, z, r, None)
 
@@ -303,11 +294,9 @@ class MagneticStage(PipelineStage):
         return self._t0 + (base + counter) / rate
 
     def _drain_mag(self) -> None:
-        last = self._att.last_t
-        if self.online is None or last is None:
+        if self.online is None:
             return
-        while self._mags and self._mags[0][0] <= last:
-            t, b = self._mags.popleft()
+        for t, b in self._mags.release(self._att.last_t):
             att = self._att.at(t, hold_first=True)
             assert att is not None
             h, p, r = (float(v) for v in att)

@@ -53,6 +53,7 @@ import numpy as np
 from auvgw.bus import SCHEMA_VERSION, Keys, decode_envelope
 from auvgw.drivers.spec import from_jsonable, resolve_type
 from auvgw.ground.devicetime import DeviceClock
+from auvgw.slam import pipelines
 from auvgw.stages.base import BusCounters, Stage, StageConfig
 from auvgw.viz.logger import RerunLogger, VizOptions
 
@@ -612,14 +613,19 @@ class VizStage(Stage):
         return shown
 
     def _slam(self, pipeline: str, what: str, body: Mapping[str, Any], t_host: float) -> str:
+        """A SLAM output, shown by its view in the pipeline registry
+        (:data:`auvgw.slam.pipelines.OUTPUT_VIEWS`): the pipeline publishing under ``pipeline``
+        names the view of each of its outputs ``what``."""
         name = f"slam/{pipeline}"
         # a SLAM output's t is on the odometry's clock, the stamps' (vehicle-paced under a
         # [clock]): its own row time as it is; mapping it against the host's arrival time made
         # rows at --speed 2 land at about half their vehicle time (issue 33)
         t = _float(body.get("t"), t_host)
+        record = pipelines.for_segment(pipeline)
+        view = record.view_of(what) if record is not None else None
         shown = False
         pose = self._pose_of(body)
-        if what == "pose" and pose is not None:
+        if view == "pose" and pose is not None:
             cov = body.get("cov", body.get("covariance"))
             cxy = None if cov is None else np.asarray(cov, dtype=np.float64)[:2, :2]
             self.logger.trajectory(name, t, *pose, cxy)
@@ -628,22 +634,27 @@ class VizStage(Stage):
         if particles is not None:
             self.logger.particles(name, t, particles, body.get("weights"))
             shown = True
-        if what in ("cloud", "map"):
-            shown |= self._seabed_map(name, body, t)
-        if what in ("landmarks", "map"):
+        if view == "dem":
+            shown |= self._dem(name, body, t)
+        elif view == "cloud":
+            shown |= self._seabed(name, body, t)
+        elif view == "landmarks":
             shown |= self._map_features(name, body, t)
-        if what == "observations":
+        elif view == "ranges":
             shown |= self._beacon_ranges(name, body, t)
         return "logged" if shown else f"slam:{what}"
 
-    def _seabed_map(self, name: str, body: Mapping[str, Any], t: float) -> bool:
-        """Bathymetric SLAM map (auvgw.stages.bathymetric): a ``cloud`` of ``points`` [[x, y,
-        depth]] as seabed points, a DEM tile (``depth`` grid, ``cell_m``, ``x0``, ``y0``)."""
-        if "cell_m" in body and "depth" in body:
-            grid = [[math.nan if v is None else v for v in row] for row in body["depth"]]
-            self.logger.dem(name, t, _float(body["x0"]), _float(body["y0"]),
-                            _float(body["cell_m"]), grid)  # fmt: skip
-            return True
+    def _dem(self, name: str, body: Mapping[str, Any], t: float) -> bool:
+        """A DEM tile (bathymetric SLAM's ``map``: ``depth`` grid, ``cell_m``, ``x0``, ``y0``)."""
+        if "cell_m" not in body or "depth" not in body:
+            return False
+        grid = [[math.nan if v is None else v for v in row] for row in body["depth"]]
+        self.logger.dem(name, t, _float(body["x0"]), _float(body["y0"]), _float(body["cell_m"]),
+                        grid)  # fmt: skip
+        return True
+
+    def _seabed(self, name: str, body: Mapping[str, Any], t: float) -> bool:
+        """Seabed points (bathymetric SLAM's ``cloud``: ``points`` [[x, y, depth]])."""
         pts = body.get("points")
         if pts is not None and len(pts) and len(pts[0]) == 3:
             self.logger.seabed(name, t, pts)

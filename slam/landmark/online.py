@@ -55,7 +55,7 @@ from auvgw.slam.features import (
     SonarFeatureExtractor,
     SonarMount,
 )
-from auvgw.slam.history import StateHistory
+from auvgw.slam.history import HeldSamples, Increment, StateHistory, compose_increments
 from auvgw.slam.landmark.base import LandmarkFilter, LandmarkMap, ParticleFilterSLAM
 from auvgw.slam.landmark.registry import ALGORITHMS, DISPLAY_NAMES, make_filter
 from auvgw.slam.models import LineFeature, RangeBearing, VelocityModel, wrap_angle
@@ -69,18 +69,6 @@ __all__ = [
     "Ping",
     "compose_increments",
 ]
-
-
-class Increment(Protocol):
-    """One odometry motion increment (:class:`auvgw.fusion.MotionIncrement`)."""
-
-    @property
-    def t1(self) -> float: ...  # end time, s
-
-    @property
-    def dt(self) -> float: ...  # duration, s
-
-    def apply(self, x: float, y: float, heading: float) -> tuple[float, float, float]: ...
 
 
 class OdometrySample(Protocol):
@@ -237,17 +225,6 @@ def _length(ln: Any) -> float:
     return float(np.hypot(*(e[1] - e[0])))
 
 
-def compose_increments(incs: Sequence[Increment]) -> tuple[float, float, float, float]:
-    """The motion of consecutive increments as one: ``(dx forward, dy starboard, dheading,
-    dt)`` in the body frame at the first increment's start (m, m, rad, s)."""
-    x = y = h = 0.0
-    dt = 0.0
-    for inc in incs:
-        x, y, h = inc.apply(x, y, h)
-        dt += inc.dt
-    return x, y, h, dt
-
-
 def ping_intensity(msg: Ping) -> np.ndarray:
     """A scan line's bins as receiver dB (8-bit: 0-255 over 80 dB; 4-bit: ``ad_low`` plus the
     nibble's share of ``ad_span``)."""
@@ -279,7 +256,7 @@ class LandmarkOnline:
         self.lines: deque[dict[str, Any]] = deque(maxlen=cfg.max_lines)
         self.poses = StateHistory(3, angles=(2,))
         self._incs: deque[Increment] = deque()
-        self._pings: deque[tuple[float, Ping]] = deque()
+        self._pings: HeldSamples[Ping] = HeldSamples(cfg.max_pending_pings)
         self._t_filter: float | None = None
         self._t_pub: float | None = None
         self._t_heading: float | None = None
@@ -297,8 +274,8 @@ class LandmarkOnline:
         elif o.increment is not None:
             self._incs.append(o.increment)
         self.poses.append(o.t, (o.x, o.y, o.heading))
-        while self._pings and self._pings[0][0] <= o.t:
-            self._process_ping(*self._pings.popleft())
+        for t, ping in self._pings.release(o.t):
+            self._process_ping(t, ping)
         assert self._t_filter is not None
         if o.t - self._t_filter >= self.config.predict_period_s:
             self._predict_to(o.t)
@@ -316,10 +293,7 @@ class LandmarkOnline:
         if last is not None and t <= last:
             self._process_ping(t, msg)
             return
-        self._pings.append((t, msg))
-        if len(self._pings) > self.config.max_pending_pings:
-            self._pings.popleft()
-            self.stats.pings_dropped += 1
+        self.stats.pings_dropped += self._pings.hold(t, msg)
 
     def finish(self) -> float | None:
         """End of data: predict to the newest odometry and make an estimate due there (its
