@@ -56,6 +56,7 @@ from auvgw.bus import (
     SCHEMA_VERSION,
     decode_envelope,
     pack_raw_attachment,
+    parse_key,
     unpack_raw_attachment,
     wire_format_of,
 )
@@ -104,12 +105,8 @@ class RecordingError(DataError):
     """A recording that cannot be read or used; the message names the file."""
 
 
-def key_section(key: str) -> tuple[str, str, str]:
-    """(vehicle, section, rest) of ``auv/<vehicle>/<section>/<rest>``."""
-    parts = key.split("/", 3)
-    if len(parts) < 4 or parts[0] != "auv":
-        raise ValueError(f"{key!r} is not an auvgw key (auv/<vehicle>/<section>/...)")
-    return parts[1], parts[2], parts[3]
+#: (vehicle, section, rest) of ``auv/<vehicle>/<section>/<rest>`` (:func:`auvgw.bus.parse_key`)
+key_section = parse_key
 
 
 def pack_raw_record(attachment: bytes, payload: bytes) -> bytes:

@@ -6,7 +6,8 @@ A :class:`Stage` owns the plumbing; a subclass gives only what is its own:
   :meth:`Stage.wanted` (a cheap filter on a key, run in the Zenoh callback before anything is
   parsed);
 * **per-message handling**: :meth:`Stage.feed` ``(device, t_recv_ns, message)`` (the gateway's
-  ``on_message`` signature) and, for stages that use the fusion's odometry,
+  ``on_message`` signature; :meth:`Stage.from_source` keeps one device per role: the configured
+  one, else the first seen) and, for stages that use the fusion's odometry,
   :meth:`Stage.feed_odometry`; :meth:`Stage.dispatch` routes each decoded bus message to them
   (override it for anything else);
 * **outputs**: the names in :attr:`Stage.outputs`, each published on :meth:`Stage.key`
@@ -132,6 +133,8 @@ class Stage:
         self._worker: threading.Thread | None = None
         self._started = self._stopped = False
         self._stamps = StampGuard(config.max_stamp_jump_s)
+        #: the device used in each role (:meth:`from_source`); None: the first one seen
+        self.sources: dict[str, str | None] = {}
 
     # -- what a subclass gives ------------------------------------------------------------------
     @property
@@ -157,6 +160,17 @@ class Stage:
 
     def feed_odometry(self, o: Odometry) -> None:
         """One fusion odometry sample (stages that use it override this)."""
+
+    def from_source(self, role: str, device: str) -> bool:
+        """Whether a message of ``device`` in ``role`` (a device-registry role: ``sonar``,
+        ``swath``, ``field``...) is used: the stage takes one device per role, the one named in
+        :attr:`sources` (from its settings), else the first one seen (then fixed), so a serial and
+        a CAN copy of one sensor, or two sensors of a kind, never both feed a pipeline."""
+        with self._lock:
+            want = self.sources.get(role)
+            if want is None:
+                self.sources[role] = want = device
+            return device == want
 
     def dispatch(self, env: Envelope, message: Any) -> None:
         """One decoded bus message: odometry to :meth:`feed_odometry`, the rest to

@@ -67,7 +67,7 @@ ONLINE_DEFAULTS: dict[str, Any] = {"drift_estimate": False}
 class BathymetricStageConfig(StageConfig):
     """Settings of the bathymetric stage.
 
-    ``multibeam_device``: the gateway device whose swaths are used (None: any);
+    ``multibeam_device``: the gateway device whose swaths are used (None: the first seen);
     ``n_particles``, ``seed``: the filter's particles and random seed; ``filter``: any other
     :class:`~auvgw.slam.bathymetric.config.BathyConfig` value by name (``radius_m``, ``t_p``...);
     ``n_beams``: soundings kept per swath (resampled evenly across track);
@@ -147,6 +147,7 @@ class BathymetricStage(PipelineStage):
         self._odo = StateHistory(3, angles=(2,))  # x, y (m NED), heading (rad)
         self._swaths: HeldSamples[Any] = HeldSamples(cfg.max_pending_swaths)
         self._last_xy: tuple[float, float] | None = None
+        self.sources["swath"] = cfg.multibeam_device
 
     def input_keys(self) -> list[str]:
         """Odometry and the multibeam's XYZ 88 and Depth datagrams."""
@@ -175,12 +176,11 @@ class BathymetricStage(PipelineStage):
             self._drain()
 
     def feed(self, device: str, t_recv_ns: int, message: Any) -> None:
-        """One decoded gateway message (``on_message`` signature): swaths of the configured
-        multibeam are used, everything else ignored."""
+        """One decoded gateway message (``on_message`` signature): swaths of the multibeam (the
+        configured one, else the first seen) are used, everything else ignored."""
         from auvgw.decoding import message_kind
 
-        want = self.config.multibeam_device
-        if (want is None or device == want) and message_kind(message) in SWATH_KINDS:
+        if message_kind(message) in SWATH_KINDS and self.from_source("swath", device):
             self.feed_swath(t_recv_ns * 1e-9, message)
 
     def _drain(self) -> None:

@@ -171,7 +171,7 @@ class MagneticStage(PipelineStage):
         #: odometry increments being composed into one filter prediction
         self._incs: list[Any] = []
         self._t0 = cfg.clock_epoch_s  # vehicle clock zero on the input clock, s
-        self._mag_device = cfg.mag_device
+        self.sources["field"] = cfg.mag_device
         self._counter: tuple[int, int] | None = None  # (last raw counter, wraps * modulus)
 
     def input_keys(self) -> list[str]:
@@ -269,9 +269,7 @@ class MagneticStage(PipelineStage):
         kind = message_kind(message)
         if kind == MAG_KIND:
             with self._lock:
-                if self._mag_device is None:
-                    self._mag_device = device
-                if device != self._mag_device:
+                if not self.from_source("field", device):
                     self.stats.mag_other_device += 1
                     return
                 t = self._mag_time(t_recv_ns, int(message.counter))

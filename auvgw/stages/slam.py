@@ -96,7 +96,12 @@ class SlamStage(Stage):
         self.config = cfg = config or SlamStageConfig()
         super().__init__(cfg, SlamStats(), session, on_publish=on_publish)
         self.online = LandmarkOnline(cfg, stats=self.stats)
-        self.msis_device = cfg.msis_device
+        self.sources["sonar"] = cfg.msis_device
+
+    @property
+    def msis_device(self) -> str | None:
+        """The gateway device of the MSIS head used (None: none seen yet)."""
+        return self.sources.get("sonar")
 
     @property
     def track(self) -> list[tuple[float, float, float, float]]:
@@ -129,11 +134,9 @@ class SlamStage(Stage):
         the MSIS head are used, everything else is ignored. ``t_recv_ns``: the odometry clock."""
         if not isinstance(message, sn.HeadData):
             return
+        if not self.from_source("sonar", device):
+            return
         with self._lock:
-            if self.msis_device is None:
-                self.msis_device = device
-            if device != self.msis_device:
-                return
             self.stats.received += 1
             self.online.add_ping(t_recv_ns / 1e9, message)
 

@@ -335,11 +335,11 @@ class VizStage(Stage):
         return "unknown"
 
     def _handle(self, key: str, payload: bytes, t_host: float) -> str:
-        base = self.keys.base + "/"
-        if not key.startswith(base):
+        split = self.keys.split(key)
+        if split is None:
             return "unknown:key"
-        parts = key[len(base) :].split("/")
-        section = parts[0]
+        section = split[0]
+        parts = [section, *split[1].split("/")] if split[1] else [section]
         if section in ("sensor", "nav"):  # envelopes (MessagePack; JSON of the previous release)
             env = decode_envelope(payload, key)
             if not self._stamps.accept(env.t_recv_ns):  # a forged time never moves the clock
