@@ -224,8 +224,9 @@ def sample_to_ros(
     section: str, rest: str, payload: bytes, t_rx_ns: int
 ) -> tuple[list[ros2.RosMessage], int, int]:
     """(ROS 2 messages, stamp ns, sequence) of a non-raw bus sample: an envelope (``sensor/``,
-    ``nav/``: stamped with its receive time) or a JSON document (SLAM outputs stamped with their
-    ``t`` on the odometry clock; status and truth with ``t_rx_ns``, when the recorder got it)."""
+    ``nav/``: stamped with its receive time; SLAM outputs, :mod:`auvgw.slam.outputs`, stamped
+    with their ``t`` on the odometry clock) or a JSON document (status and truth with
+    ``t_rx_ns``, when the recorder got it; a JSON SLAM output with its ``t``)."""
     from auvgw.subscribe import envelope_message
 
     if section in ("sensor", "nav"):
@@ -247,6 +248,12 @@ def sample_to_ros(
             msgs = [ros2.decoded_msg(f"{section}/{rest}", source, env.type, env.t_recv_ns,
                                      env.seq, body)]  # fmt: skip
         return msgs, env.t_recv_ns, env.seq
+    if section == "slam" and payload[:1] != b"{":  # a declared SLAM output (auvgw.slam.outputs)
+        from auvgw.subscribe import slam_output
+
+        out = slam_output(payload, f"{section}/{rest}")
+        t_ns = round(float(out["t"]) * 1e9)
+        return ros2.to_ros(section, rest, out, t_ns), t_ns, 0
     text = payload.decode("utf-8", errors="replace")
     try:
         body: Any = json.loads(text)

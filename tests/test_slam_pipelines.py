@@ -20,6 +20,7 @@ from auvgw.fusion.odometry import Odometry
 from auvgw.ground.paths import config_file
 from auvgw.slam import pipelines
 from auvgw.slam.history import HeldSamples
+from auvgw.slam.outputs import PoseEstimate
 from auvgw.stages.base import BusCounters, PipelineStage, StageConfig
 
 # -- the registry ---------------------------------------------------------------------------------
@@ -123,8 +124,7 @@ class ToyStage(PipelineStage):
             if pose is not None:
                 self.stats.published += 1
                 self.track.append(pose)
-                t, x, y, h = pose
-                self._put("pose", {"t": t, "x": x, "y": y, "heading": h}, t)
+                self.publish_message("pose", PoseEstimate(*pose), pose[0])
 
 
 # the run module's three functions (the record's ``run`` is this module)
@@ -141,12 +141,15 @@ def live(args: argparse.Namespace) -> int:
 
 def offline(args: argparse.Namespace) -> int:
     from auvgw.commands.slam_common import Paths, check_recording, replay_recording
+    from auvgw.subscribe import slam_output
 
     check_recording(args)
-    stage = ToyStage(ToyConfig(every=args.toy_every))
+    poses: list[dict[str, Any]] = []
+    stage = ToyStage(ToyConfig(every=args.toy_every),
+                     on_publish=lambda key, payload, _t: poses.append(slam_output(payload, key)))
     paths = Paths()
     replay_recording(args, stage, paths)
-    print(json.dumps({"odometry": len(paths.dr), "track": stage.track}))
+    print(json.dumps({"odometry": len(paths.dr), "track": stage.track, "poses": poses}))
     return 0
 
 
@@ -217,6 +220,9 @@ def test_a_toy_pipeline_runs_through_slam_run_and_slam_eval(tmp_path: Path, toy,
     n = out["odometry"]
     assert n > 100 and len(out["track"]) == n // 7
     assert out["track"][0][0] < out["track"][-1][0]
+    # what it published on the bus: declared messages, one per pose of its track
+    assert [[p["t"], p["x"], p["y"], p["heading"]] for p in out["poses"]] == out["track"]
+    assert {p["type"] for p in out["poses"]} == {"SlamPose"}
 
     assert cli_main(["slam", "eval", "--pipeline", "toy", "--scenario", "world.json"]) == 0
     assert capsys.readouterr().out == "toy evaluation of dr on world.json\n"

@@ -87,6 +87,7 @@ def offline(args: argparse.Namespace) -> int:
     closures, and its error against the recorded truth beside dead reckoning's."""
     from auvgw.commands.slam_common import Paths, check_recording, replay_recording, report_truth
     from auvgw.stages.bathymetric import BathymetricStage
+    from auvgw.subscribe import slam_output
 
     cfg = stage_config(args, "auv1")
     check_recording(args)
@@ -98,7 +99,7 @@ def offline(args: argparse.Namespace) -> int:
 
     def on_publish(key: str, payload: bytes, _t_ns: int) -> None:
         if out_file is not None:
-            out_file.write(payload.decode() + "\n")
+            out_file.write(json.dumps(slam_output(payload, key)) + "\n")
 
     stage = BathymetricStage(cfg, on_publish=on_publish)
     paths = Paths()

@@ -56,6 +56,7 @@ from auvgw.ground.paths import config_file
 from auvgw.ground.procs import Children, free_endpoint, stop_process
 from auvgw.health import device_time_s
 from auvgw.slam import pipelines
+from auvgw.subscribe import slam_output
 
 DEFAULT_SCENARIO = "harbour"
 #: the demo's vehicle seconds and speed (x real time) unless told otherwise
@@ -417,7 +418,7 @@ def _run_stages(
         if key == keys.slam(BATHYMETRIC.name, "map"):
             bathy_map[:] = [payload]
         if key.endswith("/pose"):
-            p = json.loads(payload)
+            p = slam_output(payload, key)
             with lock:
                 slam_track.add(p["t"] - epoch_s, p["x"], p["y"])
         if viz is not None:
@@ -658,7 +659,7 @@ class _Collector:
             self.odometry_stamps.append((env.t_recv_ns / 1e9, time.time()))
 
     def _on_slam(self, sample: Any) -> None:
-        p = json.loads(sample.payload.to_bytes())
+        p = slam_output(sample.payload.to_bytes(), str(sample.key_expr))
         with self.lock:
             self.slam.add(p["t"] - self.epoch_s, p["x"], p["y"])
 
@@ -691,7 +692,7 @@ class _Collector:
             done = all(st.get("stopped") for st in last)
             if done and map_tap is not None:
                 pings = last[-1].get("pings")
-                done = bool(map_tap.last) and json.loads(map_tap.last[-1]).get("pings") == pings
+                done = bool(map_tap.last) and slam_output(map_tap.last[-1]).get("pings") == pings
             if done:
                 return
             time.sleep(0.05)
@@ -1113,7 +1114,7 @@ def _bathy_map_summary(last: list[bytes], scn: Any) -> dict[str, Any]:
         return {}
     from auvgw.sim_devices.world import World
 
-    body = json.loads(last[-1])
+    body = slam_output(last[-1])
     grid = np.array([[math.nan if v is None else v for v in row] for row in body["depth"]], float)
     i, j = np.nonzero(np.isfinite(grid))
     cell = float(body["cell_m"])

@@ -150,21 +150,22 @@ def live(args: argparse.Namespace) -> int:
 def offline(args: argparse.Namespace) -> int:
     """The landmark stage over ``--recording`` (see the module docstring)."""
     from auvgw.stages.slam import SlamStage
+    from auvgw.subscribe import slam_output
 
     cfg = _stage_config(args)
     check_recording(args)
     paths = Paths()
     out_file = open_output(args.out)  # closed in finally
-    last_map: list[bytes] = []
+    last_map: list[str] = []
 
     def on_publish(key: str, payload: bytes, _t_ns: int) -> None:
+        p = slam_output(payload, key)
         if key.endswith("/pose"):
-            p = json.loads(payload)
             paths.slam.append((p["t"], p["x"], p["y"]))
             if out_file is not None:
-                out_file.write(payload.decode() + "\n")
+                out_file.write(json.dumps(p) + "\n")
         else:
-            last_map[:] = [payload]
+            last_map[:] = [json.dumps(p)]
 
     slam = SlamStage(cfg, on_publish=on_publish)
     try:
@@ -172,7 +173,7 @@ def offline(args: argparse.Namespace) -> int:
     finally:
         if out_file is not None:
             if last_map:
-                out_file.write(last_map[0].decode() + "\n")
+                out_file.write(last_map[0] + "\n")
             out_file.close()
     return _report(args.recording, slam, fusion, paths)
 

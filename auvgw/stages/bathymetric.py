@@ -50,6 +50,7 @@ from auvgw.slam.bathymetric.config import BathyConfig
 from auvgw.slam.bathymetric.evaluate import grid_dem
 from auvgw.slam.bathymetric.online import OnlineBathy
 from auvgw.slam.history import HeldSamples, StateHistory
+from auvgw.slam.outputs import Cloud, Dem, PoseEstimate
 from auvgw.stages.base import BusCounters, PipelineStage, StageConfig
 
 log = logging.getLogger(__name__)
@@ -220,14 +221,14 @@ class BathymetricStage(PipelineStage):
         hd = math.remainder(heading, math.tau)
         self.stats.published += 1
         self.track.append((t, float(est[0]), float(est[1]), hd))
-        self._put("pose", {"t": t, "x": float(est[0]), "y": float(est[1]), "heading": hd,
-                           "cov": cov.tolist(), "dr": [dr[0], dr[1]],
-                           "ping": self.online.pings - 1}, t)  # fmt: skip
+        self.publish_message("pose", PoseEstimate(
+            t, float(est[0]), float(est[1]), hd, cov=np.asarray(cov, float),
+            dr=(float(dr[0]), float(dr[1])), ping=self.online.pings - 1), t)  # fmt: skip
 
-    def _loops(self) -> list[int]:
+    def _loops(self) -> tuple[int, int]:
         loops = self.online.filter.loops
         acc = sum(1 for lp in loops if lp.accepted)
-        return [acc, len(loops) - acc]
+        return acc, len(loops) - acc
 
     def _publish_map(self, t: float, last_pings: int | None) -> None:
         """DEM tile over the latest ``last_pings`` swaths (None: the whole map) and the cloud."""
@@ -240,15 +241,14 @@ class BathymetricStage(PipelineStage):
             inside = np.all((pts[:, :2] >= lo) & (pts[:, :2] <= hi), axis=1)
             pts = pts[inside]
         grid, (x0, y0) = grid_dem(pts, self.bathy.grid_cell_m)
-        depth = [[None if math.isnan(v) else round(float(v), 3) for v in row] for row in grid]
         self.stats.maps += 1
-        self._put("map", {"t": t, "cell_m": self.bathy.grid_cell_m, "x0": x0, "y0": y0,
-                          "depth": depth, "pings": self.online.pings,
-                          "loops": self._loops()}, t)  # fmt: skip
+        self.publish_message("map", Dem(t, self.bathy.grid_cell_m, float(x0), float(y0),
+                                        np.round(np.asarray(grid, float), 3), self.online.pings,
+                                        self._loops()), t)  # fmt: skip
         n_b = self.online.n_beams
         stride = self.config.cloud_beam_stride
         cloud = recent.reshape(-1, n_b, 3)[:, ::stride].reshape(-1, 3)
-        self._put("cloud", {"t": t, "points": np.round(cloud, 3).tolist()}, t)
+        self.publish_message("cloud", Cloud(t, np.round(cloud, 3)), t)
 
     def status_fields(self) -> dict[str, Any]:
         """Particles, pings in the filter and loop closures (accepted, rejected)."""

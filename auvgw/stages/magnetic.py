@@ -45,7 +45,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -59,6 +59,7 @@ from auvgw.slam.magnetic.filters import MAGNETIC_ALGORITHMS, make_magnetic
 from auvgw.slam.magnetic.mlp import MLP
 from auvgw.slam.magnetic.online import MagneticOnline
 from auvgw.slam.models import VelocityModel
+from auvgw.slam.outputs import BeaconRange, PointMap, PoseEstimate
 from auvgw.stages.base import BusCounters, PipelineStage, StageConfig
 
 log = logging.getLogger(__name__)
@@ -308,9 +309,9 @@ class MagneticStage(PipelineStage):
             x, y, hd = self.online.filt.xs[:3]
             for ob in obs:
                 self.stats.observations += 1
-                d = asdict(ob)
-                d.update(t=ob.t + self._t0, x=float(x), y=float(y), heading=float(hd))
-                self._put("observations", d, t)
+                self.publish_message("observations", BeaconRange(
+                    ob.t + self._t0, ob.freq, ob.amp_nt, ob.snr, ob.z, np.asarray(ob.r, float),
+                    float(x), float(y), float(hd)), t)  # fmt: skip
             if self.online.horizon != horizon:  # a window was demodulated
                 self._publish_pose(landmarks=True, t_mag=t)
 
@@ -329,18 +330,19 @@ class MagneticStage(PipelineStage):
         self._t_pub = t
         self.stats.published += 1
         self.track.append((t, float(x[0]), float(x[1]), float(x[2])))
-        self._put("pose", {"t": t, "x": float(x[0]), "y": float(x[1]), "heading": float(x[2]),
-                           "cov": p.tolist(), "t_mag": t_mag}, t)  # fmt: skip
+        self.publish_message("pose", PoseEstimate(t, float(x[0]), float(x[1]), float(x[2]),
+                                                  cov=np.asarray(p, float), t_mag=t_mag), t)
         if landmarks:
             f = self.online.filt
             n = f.n_lm
-            mean = f.xs[3 : 3 + 2 * n].reshape(n, 2)
-            cov = [f.p[3 + 2 * i : 5 + 2 * i, 3 + 2 * i : 5 + 2 * i].tolist() for i in range(n)]
-            body: dict[str, Any] = {"t": t, "mean": mean.tolist(), "cov": cov,
-                                    "ids": list(range(n))}  # fmt: skip
-            if self.config.anchor_xy is not None:
-                body["acoustic_beacon"] = list(self.config.anchor_xy)
-            self._put("landmarks", body, t)
+            mean = np.asarray(f.xs[3 : 3 + 2 * n], float).reshape(n, 2)
+            cov = np.array([f.p[3 + 2 * i : 5 + 2 * i, 3 + 2 * i : 5 + 2 * i] for i in range(n)],
+                           float).reshape(n, 2, 2)  # fmt: skip
+            anchor = self.config.anchor_xy
+            self.publish_message("landmarks", PointMap(
+                t, mean, cov, np.arange(n),
+                acoustic_beacon=None if anchor is None else (float(anchor[0]), float(anchor[1])),
+            ), t)  # fmt: skip
 
     def status_fields(self) -> dict[str, Any]:
         """Algorithm and the number of beacons mapped."""

@@ -157,8 +157,8 @@ class SlamStage(Stage):
     def _publish(self, t: float) -> None:
         self.stats.published += 1
         on = self.online
-        for what, body in (("pose", on.pose_message(t)), ("landmarks", on.landmarks_message(t))):
-            self.publish_json(what, body, t, f"Slam{what.title()}")
+        self.publish_message("pose", on.pose_message(t), t)
+        self.publish_message("landmarks", on.landmarks_message(t), t)
 
     def status_fields(self) -> dict[str, Any]:
         """Algorithm, MSIS device, extractor, map sizes, Neff and resamples."""

@@ -55,6 +55,7 @@ from auvgw.drivers.spec import from_jsonable, resolve_type
 from auvgw.ground.devicetime import DeviceClock
 from auvgw.slam import pipelines
 from auvgw.stages.base import BusCounters, Stage, StageConfig
+from auvgw.subscribe import slam_output
 from auvgw.viz.logger import RerunLogger, VizOptions
 
 __all__ = ["SECTIONS", "StageStats", "VizRunner", "VizStage", "host_clock", "open_viz"]
@@ -172,13 +173,19 @@ def _points(value: Any) -> tuple[np.ndarray, np.ndarray | None]:
 
 def _lines(value: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
     """(rho, theta, cov, endpoints) from a list of {"rho", "theta", "cov"?, "p0"?, "p1"?} or
-    [rho, theta] pairs, or {"rho": [...], "theta": [...], "cov": [...]}."""
+    [rho, theta] pairs, or {"rho": [...], "theta": [...], "cov": [...], "p0"?: [...], "p1"?:
+    [...]} (a :class:`~auvgw.slam.outputs.LineSet`)."""
     if isinstance(value, Mapping):
         rho = np.asarray(value.get("rho", []), dtype=np.float64).reshape(-1)
         theta = np.asarray(value.get("theta", []), dtype=np.float64).reshape(-1)
         cov = value.get("cov")
         c = None if cov is None else np.asarray(cov, dtype=np.float64).reshape(-1, 2, 2)
-        return rho, theta, c, None
+        p0, p1 = value.get("p0"), value.get("p1")
+        e = None
+        if p0 is not None and p1 is not None and len(p0) == len(p1) == len(rho):
+            e = np.stack([np.asarray(p0, np.float64).reshape(-1, 2),
+                          np.asarray(p1, np.float64).reshape(-1, 2)], axis=1)  # fmt: skip
+        return rho, theta, c, e
     items = list(value or [])
     if items and isinstance(items[0], Mapping):
         rho = np.array([_float(v.get("rho")) for v in items])
@@ -350,6 +357,8 @@ class VizStage(Stage):
                 return self._sensor(env.device, env.type, env.message, t_stamp)
             data: Any = {"v": SCHEMA_VERSION, "type": env.type, "device": env.device,
                          "msg": env.body, "t_recv_ns": env.t_recv_ns}  # fmt: skip
+        elif section == "slam":  # a declared SLAM output (auvgw.slam.outputs), or JSON
+            data = slam_output(payload, key)
         else:
             data = json.loads(payload)
         type_name, device, body = "", parts[1] if len(parts) > 1 else "", data

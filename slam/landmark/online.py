@@ -59,6 +59,7 @@ from auvgw.slam.history import HeldSamples, Increment, StateHistory, compose_inc
 from auvgw.slam.landmark.base import LandmarkFilter, LandmarkMap, ParticleFilterSLAM
 from auvgw.slam.landmark.registry import ALGORITHMS, DISPLAY_NAMES, make_filter
 from auvgw.slam.models import LineFeature, RangeBearing, VelocityModel, wrap_angle
+from auvgw.slam.outputs import LineSet, PointMap, PoseEstimate
 
 __all__ = [
     "Increment",
@@ -408,23 +409,16 @@ class LandmarkOnline:
             self.stats.predictions += 1
 
     # -- estimates ------------------------------------------------------------------------------
-    def pose_message(self, t: float) -> dict[str, Any]:
-        """The pose JSON at ``t``: estimate ``x``, ``y`` (m, NED), ``heading`` (rad), 3 x 3
-        ``cov``, an evenly spaced subsample of the ``particles`` with their ``weights``,
-        ``neff``."""
+    def pose_message(self, t: float) -> PoseEstimate:
+        """The pose estimate at ``t``: ``x``, ``y`` (m, NED), ``heading`` (rad), 3 x 3 ``cov``,
+        an evenly spaced subsample of the ``particles`` with their ``weights``, ``neff``."""
         f = self.filter
         assert f is not None
         est = f.estimate()
-        body: dict[str, Any] = {
-            "t": t,
-            "x": float(est[0]),
-            "y": float(est[1]),
-            "heading": float(est[2]),
-            "algorithm": self.config.algorithm,
-        }
         parts = getattr(f, "x", None)
         weights = getattr(f, "weights", None)
-        cov: Any
+        cov: Any = None
+        sample = w_sample = None
         if isinstance(parts, np.ndarray) and parts.ndim == 2 and weights is not None:
             w = weights()
             d = parts - est
@@ -433,17 +427,16 @@ class LandmarkOnline:
             k = min(self.config.max_particles_published, len(parts))
             if k:
                 idx = np.linspace(0, len(parts) - 1, k).astype(int)
-                body["particles"] = np.round(parts[idx], 4).tolist()
-                body["weights"] = w[idx].tolist()
+                sample, w_sample = np.round(parts[idx], 4), np.asarray(w[idx], float)
         elif isinstance(joint := getattr(f, "p", None), np.ndarray):
             cov = joint[:3, :3]  # EKF family: the pose block of the joint covariance
-        else:
-            cov = None
-        if cov is not None:
-            body["cov"] = np.asarray(cov, float).tolist()
         neff = f.neff
-        body["neff"] = None if not math.isfinite(neff) else float(neff)
-        return body
+        return PoseEstimate(
+            t, float(est[0]), float(est[1]), float(est[2]),
+            cov=None if cov is None else np.asarray(cov, float), particles=sample,
+            weights=w_sample, neff=float(neff) if math.isfinite(neff) else None,
+            algorithm=self.config.algorithm,
+        )  # fmt: skip
 
     def maps(self) -> tuple[LandmarkMap, LandmarkMap]:
         """The filter's point landmarks and line landmarks (``(rho, theta)``, map frame)."""
@@ -453,22 +446,24 @@ class LandmarkOnline:
         kind = next((i for i, m in enumerate(models) if isinstance(m, LineFeature)), -1)
         return lm.of_kind(0), lm.of_kind(kind if kind > 0 else -1)
 
-    def landmarks_message(self, t: float) -> dict[str, Any]:
-        """The map JSON at ``t``: point landmarks with covariances, the line layer (observations
-        placed with the SLAM pose) and the filter's wall landmarks (``line_landmarks``: ``rho``,
-        ``theta`` and their 2 x 2 covariance in the map frame)."""
+    def landmarks_message(self, t: float) -> PointMap:
+        """The map at ``t``: point landmarks with covariances, the line layer (observations
+        placed with the SLAM pose, ``lines``) and the filter's wall landmarks
+        (``line_landmarks``: ``rho``, ``theta`` and their 2 x 2 covariance in the map frame)."""
         pts, walls = self.maps()
-        return {
-            "t": t,
-            "mean": np.asarray(pts.mean, float).tolist(),
-            "cov": np.asarray(pts.cov, float).tolist(),
-            "ids": np.asarray(pts.ids).astype(int).tolist(),
-            "lines": list(self.lines),
-            "line_landmarks": [
-                {"rho": float(m[0]), "theta": float(m[1]), "cov": np.asarray(c).tolist()}
-                for m, c in zip(walls.mean, walls.cov, strict=True)
-            ],
-        }
+        obs = list(self.lines)
+        col = {k: np.array([ln[k] for ln in obs], float)
+               for k in ("rho", "theta", "cov", "p0", "p1")}  # fmt: skip
+        lines = LineSet(col["rho"], col["theta"], col["cov"].reshape(-1, 2, 2),
+                        col["p0"].reshape(-1, 2), col["p1"].reshape(-1, 2))  # fmt: skip
+        wm = np.asarray(walls.mean, float).reshape(-1, 2)
+        return PointMap(
+            t, np.asarray(pts.mean, float).reshape(-1, 2),
+            np.asarray(pts.cov, float).reshape(-1, 2, 2), np.asarray(pts.ids).astype(int),
+            lines=lines,
+            line_landmarks=LineSet(wm[:, 0], wm[:, 1],
+                                   np.asarray(walls.cov, float).reshape(-1, 2, 2)),
+        )  # fmt: skip
 
     def summary(self) -> dict[str, Any]:
         """Algorithm, extractor counts, map sizes, Neff and resamples (JSON-ready)."""
