@@ -15,7 +15,7 @@ from typing import Any
 
 import pytest
 
-from auvgw.config.scenario import Scenario, load_scenario
+from auvgw.config.scenario import load_scenario
 from auvgw.fusion.odometry import Odometry
 from auvgw.ground.paths import config_file
 from auvgw.slam import pipelines
@@ -196,17 +196,14 @@ def test_a_toy_pipeline_runs_through_slam_run_and_slam_eval(tmp_path: Path, toy,
         dvl_stream,
         emulate,
         fusion_settings,
+        harbour_ins_dvl,
         ins_dvl_frames,
         ins_output,
         write_recording,
     )
 
     # an INS + DVL recording of the harbour, as `auvgw record` writes it
-    data = json.loads(config_file("scenarios/harbour.json").read_text())
-    data["duration_s"] = REC_S + 1.0
-    data["devices"] = {"ins": {"options": {"serial": False, "can": False}},
-                       "dvl": {"options": {"serial": False}}}  # fmt: skip
-    scn = Scenario.model_validate(data)
+    scn = harbour_ins_dvl(REC_S + 1.0)
     em = emulate(scn, tmp_path)
     ins, dvl = ins_output(em, 0.0, REC_S), dvl_stream(em, 0.0, REC_S)
     rec = write_recording(tmp_path / "run.mcap", "s1", {"ins": "hn100", "dvl": "pd0"},

@@ -290,23 +290,19 @@ def test_slam_run_over_a_recording_is_the_in_process_stage(tmp_path, capsys):
     """A recording as ``auvgw record`` writes it (INS, DVL and MSIS raw frames of the emulated
     harbour + the truth): ``auvgw slam-run`` gives the poses of the stages fed in-process."""
     from auvgw.cli import main as cli_main
-    from auvgw.config.scenario import Scenario
     from auvgw.testing.fusion_emulated import (
         HOST_EPOCH,
         dvl_stream,
         emulate,
         feed_through_fusion,
         fusion_settings,
+        harbour_ins_dvl,
         ins_dvl_frames,
         ins_output,
         write_recording,
     )
 
-    data = json.loads(config_file("scenarios/harbour.json").read_text())
-    data["duration_s"] = REC_S + 1.0
-    data["devices"] = {"ins": {"options": {"serial": False, "can": False}},
-                       "dvl": {"options": {"serial": False}}}  # fmt: skip
-    scn = Scenario.model_validate(data)
+    scn = harbour_ins_dvl(REC_S + 1.0)
     em = emulate(scn, tmp_path)
     ins = ins_output(em, 0.0, REC_S)
     dvl = dvl_stream(em, 0.0, REC_S)
