@@ -16,7 +16,7 @@ stamps):
   vehicle has moved ``min_ping_spacing_m`` since the last used one (the paper pings at 1 Hz
   at 2.2 m/s; a 5 Hz multibeam at 1.7 m/s would make the T_p = 20 swath submap 7 m long).
 
-Published (JSON) on ``auv/<v>/slam/bathymetric/``:
+Published (envelopes of :mod:`auvgw.slam.outputs` messages) on ``auv/<v>/slam/bathymetric/``:
 
 * ``pose`` after every used swath: ``t``, ``x``, ``y`` (the filter's corrected position),
   ``heading`` (the odometry's: the filter estimates position only), ``cov`` (2 x 2, the particle

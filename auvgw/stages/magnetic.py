@@ -28,8 +28,8 @@ Time origin: the beacons are driven ``m cos(2 pi f t)`` on the vehicle clock, wh
 the vehicle clock); every time is shifted by it before the demodulator and the filter and back on
 output.
 
-Published (JSON, the shapes of ``docs/viz.md``): ``auv/<v>/slam/magnetic/pose`` (``t``, ``x``,
-``y``, ``heading``, ``cov`` 3x3; ``t`` the end of the odometry applied, odometry composed over
+Published (envelopes of :mod:`auvgw.slam.outputs` messages):
+``auv/<v>/slam/magnetic/pose`` (``t``, ``x``, ``y``, ``heading``, ``cov`` 3x3; ``t`` the end of the odometry applied, odometry composed over
 ``odometry_period_s`` per filter prediction) after every demodulated window (every ``hop_s`` of
 magnetometer time; ``t_mag``: the sample that completed it, for latency) and otherwise every
 ``publish_period_s`` of odometry time (``t_mag`` null); ``.../landmarks`` (``t``, ``mean``,

@@ -3,12 +3,14 @@ in-process), pose and map onto it. The pipeline itself (pose interpolation, feat
 association, filter stepping, heading aiding) is :class:`auvgw.slam.landmark.online.LandmarkOnline`,
 which runs without a bus; this module only chooses the MSIS head, counts and publishes.
 
-Published (JSON, as ``docs/viz.md`` "JSON accepted" describes) on
-``auv/<v>/slam/<pipeline>/pose``: ``t``, ``x``, ``y``, ``heading``, ``cov`` (3 x 3 over x, y,
-heading), an evenly spaced subsample of the ``particles`` with their ``weights``, ``neff``; and
-on ``auv/<v>/slam/<pipeline>/landmarks``: ``t``, ``mean``, ``cov``, ``ids`` and ``lines``
-(``rho``, ``theta``, ``cov``, ``p0``, ``p1`` in the map frame), each time the pipeline has an
-estimate due (every ``publish_period_s`` of odometry time) and at :meth:`SlamStage.flush`.
+Published (envelopes of the declared messages of :mod:`auvgw.slam.outputs`) on
+``auv/<v>/slam/<pipeline>/pose`` a :class:`~auvgw.slam.outputs.PoseEstimate`: ``t``, ``x``,
+``y``, ``heading``, ``cov`` (3 x 3 over x, y, heading), an evenly spaced subsample of the
+``particles`` with their ``weights``, ``neff``; and on ``auv/<v>/slam/<pipeline>/landmarks`` a
+:class:`~auvgw.slam.outputs.PointMap`: ``t``, ``mean``, ``cov``, ``ids``, ``lines`` (``rho``,
+``theta``, ``cov``, ``p0``, ``p1`` in the map frame) and ``line_landmarks``, each time the
+pipeline has an estimate due (every ``publish_period_s`` of odometry time) and at
+:meth:`SlamStage.flush`.
 Counters on ``auv/<v>/status/slam-<pipeline>``.
 
 Times are seconds on the odometry clock (the clock of the gateway's receive stamps online: the
@@ -79,7 +81,7 @@ class SlamStage(Stage):
     """Odometry + MSIS scan lines -> SLAM pose and map (see the module docstring).
 
     ``session``: publish on it (None: in-process only). ``on_publish``: called with ``(key,
-    JSON payload bytes, t_ns)`` at every publication (the demo logs them into Rerun).
+    envelope bytes, t_ns)`` at every publication (the demo logs them into Rerun).
     """
 
     name = "slam"
