@@ -30,8 +30,8 @@ output.
 
 Published (envelopes of :mod:`auvgw.slam.outputs` messages):
 ``auv/<v>/slam/magnetic/pose`` (``t``, ``x``, ``y``, ``heading``, ``cov`` 3x3; ``t`` the end
-of the odometry applied, odometry composed over ``odometry_period_s`` per filter prediction) after every demodulated window (every ``hop_s`` of
-magnetometer time; ``t_mag``: the sample that completed it, for latency) and otherwise every
+of the odometry applied, odometry composed over ``odometry_period_s`` per filter prediction)
+after every demodulated window (every ``hop_s`` of magnetometer time; ``t_mag``: the sample that completed it, for latency) and otherwise every
 ``publish_period_s`` of odometry time (``t_mag`` null); ``.../landmarks`` (``t``, ``mean``,
 ``cov``, ``ids``: the beacons; ``acoustic_beacon``: its known ``[x, y]``) with each pose after a
 window; ``.../observations``
