@@ -28,17 +28,17 @@ Time origin: the beacons are driven ``m cos(2 pi f t)`` on the vehicle clock, wh
 the vehicle clock); every time is shifted by it before the demodulator and the filter and back on
 output.
 
-Published (envelopes of :mod:`auvgw.slam.outputs` messages):
-``auv/<v>/slam/magnetic/pose`` (``t``, ``x``, ``y``, ``heading``, ``cov`` 3x3; ``t`` the end
-of the odometry applied, odometry composed over ``odometry_period_s`` per filter prediction)
-after every demodulated window (every ``hop_s`` of magnetometer time; ``t_mag``: the sample that completed it, for latency) and otherwise every
-``publish_period_s`` of odometry time (``t_mag`` null); ``.../landmarks`` (``t``, ``mean``,
-``cov``, ``ids``: the beacons; ``acoustic_beacon``: its known ``[x, y]``) with each pose after a
-window; ``.../observations``
-(one per demodulated beacon observation: ``t``, ``freq``, ``amp_nt``, ``snr``, ``z`` = [range m,
-bearing rad], ``r``, plus ``x``, ``y``, ``heading`` of the pose it is seen from, for range
-lines). Counters on ``auv/<v>/status/slam-magnetic``. A malformed payload is counted and
-logged, never stops the worker.
+Published (envelopes of :mod:`auvgw.slam.outputs` messages): ``auv/<v>/slam/magnetic/pose`` (a
+``PoseEstimate``: ``t``, ``x``, ``y``, ``heading``, ``cov`` 3x3; ``t`` the end of the odometry
+applied, odometry composed over ``odometry_period_s`` per filter prediction) after every
+demodulated window (every ``hop_s`` of magnetometer time; ``t_mag``: the sample that completed
+it, for latency) and otherwise every ``publish_period_s`` of odometry time (``t_mag`` None);
+``.../landmarks`` (a ``PointMap``: ``t``, ``mean``, ``cov``, ``ids``: the beacons;
+``acoustic_beacon``: its known ``[x, y]``) with each pose after a window; ``.../observations``
+(a ``BeaconRange`` per demodulated beacon observation: ``t``, ``freq``, ``amp_nt``, ``snr``,
+``z`` = [range m, bearing rad], ``r``, plus ``x``, ``y``, ``heading`` of the pose it is seen
+from, for range lines). Counters on ``auv/<v>/status/slam-magnetic``. A malformed payload is
+counted and logged, never stops the worker.
 """
 
 from __future__ import annotations
