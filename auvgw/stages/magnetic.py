@@ -54,7 +54,7 @@ from pydantic import Field
 
 from auvgw.drivers import registry
 from auvgw.fusion.odometry import Odometry
-from auvgw.slam.history import HeldSamples, StateHistory, compose_increments
+from auvgw.slam.history import HeldSamples, Increment, StateHistory, compose_increments
 from auvgw.slam.magnetic.filters import MAGNETIC_ALGORITHMS, make_magnetic
 from auvgw.slam.magnetic.mlp import MLP
 from auvgw.slam.magnetic.online import MagneticOnline
@@ -170,7 +170,7 @@ class MagneticStage(PipelineStage):
         self._t_pub: float | None = None
         self._t_odo = -math.inf  # end of the odometry given to the filter (input clock, s)
         #: odometry increments being composed into one filter prediction
-        self._incs: list[Any] = []
+        self._incs: list[Increment] = []
         self._t0 = cfg.clock_epoch_s  # vehicle clock zero on the input clock, s
         self.sources["field"] = cfg.mag_device
         self._counter: tuple[int, int] | None = None  # (last raw counter, wraps * modulus)
