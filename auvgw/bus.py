@@ -162,6 +162,24 @@ class Keys:
     def all(self, section: str = "**") -> str:
         return f"{self.base}/{section}"
 
+    def split(self, key: str) -> tuple[str, str] | None:
+        """``(section, rest)`` of a key of this vehicle, ``auv/<v>/<section>/<rest>`` (``rest``
+        empty when the key ends at the section); None for any other key."""
+        base = self.base + "/"
+        if not key.startswith(base):
+            return None
+        section, _, rest = key[len(base) :].partition("/")
+        return section, rest
+
+
+def parse_key(key: str, root: str = "auv") -> tuple[str, str, str]:
+    """``(vehicle, section, rest)`` of any vehicle's key ``auv/<vehicle>/<section>/<rest>``; a
+    ``ValueError`` for anything else (a recording's channels, replay, export)."""
+    parts = key.split("/", 3)
+    if len(parts) < 4 or parts[0] != root:
+        raise ValueError(f"{key!r} is not an auvgw key ({root}/<vehicle>/<section>/...)")
+    return parts[1], parts[2], parts[3]
+
 
 def pack_raw_attachment(t_recv_ns: int, seq: int, offset: int = 0) -> bytes:
     return RAW_ATTACHMENT.pack(t_recv_ns, seq, offset)

@@ -720,8 +720,8 @@ _codecs_lock = threading.Lock()
 
 def message_class(type_name: str) -> type | None:
     """The class of a message type name, loading once, if needed, every codec module, the
-    shipped CAN DBCs (``HN100_Sample``, ``MS3A_Sample``, ``ActuatorState``, ...) and the
-    fusion ``Odometry``."""
+    shipped CAN DBCs (``HN100_Sample``, ``MS3A_Sample``, ``ActuatorState``, ...), the
+    fusion ``Odometry`` and the SLAM outputs (:mod:`auvgw.slam.outputs`)."""
     cls = resolve_type(type_name)
     if cls is not None:
         return cls
@@ -737,7 +737,8 @@ def message_class(type_name: str) -> type | None:
                 except Exception as exc:  # a codec that cannot load only loses its own types
                     log.debug("codec %s not loaded: %s", name, exc)
             try:
-                import auvgw.fusion.odometry  # noqa: F401 - registers Odometry
+                import auvgw.fusion.odometry
+                import auvgw.slam.outputs  # noqa: F401 - registers the SLAM outputs
                 from auvgw.drivers.can_codec import shipped_can_types
 
                 shipped_can_types()

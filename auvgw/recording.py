@@ -55,6 +55,7 @@ from auvgw.bus import (
     SCHEMA_VERSION,
     decode_envelope,
     pack_raw_attachment,
+    parse_key,
     unpack_raw_attachment,
     wire_format_of,
 )
@@ -103,12 +104,8 @@ class RecordingError(DataError):
     """A recording that cannot be read or used; the message names the file."""
 
 
-def key_section(key: str) -> tuple[str, str, str]:
-    """(vehicle, section, rest) of ``auv/<vehicle>/<section>/<rest>``."""
-    parts = key.split("/", 3)
-    if len(parts) < 4 or parts[0] != "auv":
-        raise ValueError(f"{key!r} is not an auvgw key (auv/<vehicle>/<section>/...)")
-    return parts[1], parts[2], parts[3]
+#: (vehicle, section, rest) of ``auv/<vehicle>/<section>/<rest>`` (:func:`auvgw.bus.parse_key`)
+key_section = parse_key
 
 
 def pack_raw_record(attachment: bytes, payload: bytes) -> bytes:
@@ -226,8 +223,9 @@ def sample_to_ros(
     section: str, rest: str, payload: bytes, t_rx_ns: int
 ) -> tuple[list[ros2.RosMessage], int, int]:
     """(ROS 2 messages, stamp ns, sequence) of a non-raw bus sample: an envelope (``sensor/``,
-    ``nav/``: stamped with its receive time) or a JSON document (SLAM outputs stamped with their
-    ``t`` on the odometry clock; status and truth with ``t_rx_ns``, when the recorder got it)."""
+    ``nav/``: stamped with its receive time; SLAM outputs, :mod:`auvgw.slam.outputs`, stamped
+    with their ``t`` on the odometry clock) or a JSON document (status and truth with
+    ``t_rx_ns``, when the recorder got it; a JSON SLAM output with its ``t``)."""
     from auvgw.subscribe import envelope_message
 
     if section in ("sensor", "nav"):
@@ -249,6 +247,12 @@ def sample_to_ros(
             msgs = [ros2.decoded_msg(f"{section}/{rest}", source, env.type, env.t_recv_ns,
                                      env.seq, fields)]  # fmt: skip
         return msgs, env.t_recv_ns, env.seq
+    if section == "slam" and payload[:1] != b"{":  # a declared SLAM output (auvgw.slam.outputs)
+        from auvgw.subscribe import slam_output
+
+        out = slam_output(payload, f"{section}/{rest}")
+        t_ns = round(float(out["t"]) * 1e9)
+        return ros2.to_ros(section, rest, out, t_ns), t_ns, 0
     text = payload.decode("utf-8", errors="replace")
     try:
         body: Any = json.loads(text)

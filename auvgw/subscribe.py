@@ -41,14 +41,21 @@ import zenoh
 
 from auvgw.bus import Envelope, Keys, decode_envelope, open_session, unpack_raw_attachment
 from auvgw.config.bus import BusConfig
-from auvgw.drivers.spec import from_jsonable
+from auvgw.drivers.spec import from_jsonable, to_jsonable
 from auvgw.envelope import SchemaError, message_class, typed_body
 from auvgw.ground.closing import Closing
 from auvgw.ground.worker import Inbox
 
 log = logging.getLogger(__name__)
 
-__all__ = ["GatewaySubscriber", "RawFrame", "Stream", "envelope_message", "typed_message"]
+__all__ = [
+    "GatewaySubscriber",
+    "RawFrame",
+    "Stream",
+    "envelope_message",
+    "slam_output",
+    "typed_message",
+]
 
 
 def typed_message(type_name: str, body: Any, schema: int | None = None) -> Any:
@@ -72,6 +79,33 @@ def envelope_message(env: Envelope) -> Any:
     if env.message is not None:
         return env.message
     return typed_message(env.type, env.body, env.schema)
+
+
+def slam_output(payload: bytes, key: str = "") -> dict[str, Any]:
+    """A SLAM output (``auv/<v>/slam/<pipeline>/<what>``) as its field map: the envelope of a
+    declared message (:mod:`auvgw.slam.outputs`) as :func:`~auvgw.drivers.spec.to_jsonable`
+    gives it (NaN as None, with its ``type``), or a JSON object as it is (any producer of the
+    JSON docs/viz.md accepts). A ``ValueError`` (naming ``key``) for anything else."""
+    import auvgw.slam.outputs  # noqa: F401 - registers the SLAM output types
+
+    if payload[:1] == b"{":
+        try:
+            body: dict[str, Any] = json.loads(payload)
+        except ValueError as exc:
+            raise ValueError(f"{key}: not a JSON object ({exc})") from None
+        return body
+    try:
+        env = decode_envelope(payload, key)
+    except ValueError as exc:
+        raise ValueError(f"{key}: {exc}") from None
+    msg = envelope_message(env)
+    if msg is not None:
+        out = to_jsonable(msg)
+        if isinstance(out, dict):
+            return out
+    if isinstance(env.body, dict):
+        return {"type": env.type, **env.body}
+    raise ValueError(f"{key}: a {env.type} envelope is not a SLAM output")
 
 
 @dataclass(frozen=True, slots=True)

@@ -23,6 +23,7 @@ from auvgw.slam.bathymetric.evaluate import run_filter
 from auvgw.slam.bathymetric.online import ned_offsets
 from auvgw.slam.bathymetric.simulate import BathyRun, simulate_survey
 from auvgw.stages.bathymetric import BathymetricStage, BathymetricStageConfig
+from auvgw.subscribe import slam_output
 from auvgw.testing.bathy_helpers import TINY
 
 #: transducer depth of the emulated swaths (m): the stage must add it to the beam depths
@@ -68,7 +69,7 @@ def test_stage_reproduces_the_batch_filter_and_maps_the_true_terrain(tiny: Bathy
     published: list[tuple[str, dict]] = []
     cfg = BathymetricStageConfig(n_particles=50, seed=9, n_beams=n_b, min_ping_spacing_m=0.0,
                                  map_period_pings=50)  # fmt: skip
-    stage = BathymetricStage(cfg, on_publish=lambda k, p, _t: published.append((k, json.loads(p))))
+    stage = BathymetricStage(cfg, on_publish=lambda k, p, _t: published.append((k, slam_output(p))))
     seen = []  # what the stage is given: the swaths as decoded (float32 on the wire)
     for k in range(len(sim.t)):
         t = float(sim.t[k])
@@ -196,7 +197,7 @@ def test_stage_process_on_the_bus(tmp_path: Path, tiny: BathyRun) -> None:
         what = str(sample.key_expr).rsplit("/", 1)[-1]
         with lock:
             got["status" if what == "slam-bathymetric" else what].append(
-                json.loads(sample.payload.to_bytes())
+                slam_output(sample.payload.to_bytes())
             )
 
     try:
@@ -256,7 +257,7 @@ def test_stage_output_in_rerun(tmp_path: Path, tiny: BathyRun) -> None:
     published: list[tuple[str, dict]] = []
 
     def on_publish(key: str, payload: bytes, t_ns: int) -> None:
-        published.append((key, json.loads(payload)))
+        published.append((key, slam_output(payload)))
         outcomes.append(viz.handle_sample(key, payload, t_ns))
 
     cfg = BathymetricStageConfig(n_particles=20, n_beams=sim.depth.shape[1],
@@ -330,7 +331,7 @@ def test_slam_run_bathymetric_over_a_recording(tmp_path: Path, capsys) -> None:
     # the same stages fed in-process, message by message
     got: list[dict] = []
     stage = BathymetricStage(BathymetricStageConfig(n_particles=20),
-                             on_publish=lambda k, p, _t: got.append(json.loads(p)) if
+                             on_publish=lambda k, p, _t: got.append(slam_output(p)) if
                              k.endswith("/pose") else None)  # fmt: skip
     feed_through_fusion(fcfg, stage, raw)
     assert got == poses

@@ -11,6 +11,7 @@ import numpy as np
 
 from auvgw.slam.magnetic.stream import stage_inputs
 from auvgw.stages.magnetic import MagneticStage, config_from_scenario
+from auvgw.subscribe import slam_output
 
 SCENARIO = Path(__file__).resolve().parents[1] / "config" / "scenarios" / "beacons_amb.json"
 
@@ -20,7 +21,7 @@ def test_stage_publishes_pose_map_and_observations_and_beats_dead_reckoning() ->
     sim = inputs.prep.sim
     published: list[tuple[str, dict]] = []
     cfg = config_from_scenario(SCENARIO, x0=tuple(float(x) for x in sim.truth[0]))
-    stage = MagneticStage(cfg, on_publish=lambda k, p, _t: published.append((k, json.loads(p))))
+    stage = MagneticStage(cfg, on_publish=lambda k, p, _t: published.append((k, slam_output(p))))
     inputs.feed(stage)
     # malformed bus payloads are counted, never raised
     stage.handle("auv1/sensor/ms3a/magnetometer", b"\x00not an envelope")
@@ -80,7 +81,7 @@ def test_stage_process_on_the_bus_publishes_poses_and_observations(tmp_path: Pat
         what = str(sample.key_expr).rsplit("/", 1)[-1]
         with lock:
             got["status" if what == "slam-magnetic" else what].append(
-                json.loads(sample.payload.to_bytes())
+                slam_output(sample.payload.to_bytes())
             )
 
     try:

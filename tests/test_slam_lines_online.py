@@ -167,10 +167,10 @@ def test_stage_feeds_the_walls_to_the_filter_and_holds_the_heading(harbour_run):
     assert c["stage"]["line_updates"] >= 5 and c["line_landmarks"] >= 2
     assert c["line_landmarks"] <= c["stage"]["line_features"]
     body = [b for k, b, _ in published if k.endswith("/landmarks")][-1]
-    assert len(body["line_landmarks"]) == c["line_landmarks"]
+    walls = body["line_landmarks"]  # a LineSet: one column per field
+    assert len(walls["rho"]) == len(walls["theta"]) == c["line_landmarks"]
     assert len(body["mean"]) == c["landmarks"]  # the point layer holds points only
-    lm = body["line_landmarks"][0]
-    assert {"rho", "theta", "cov"} <= set(lm) and np.array(lm["cov"]).shape == (2, 2)
+    assert np.array(walls["cov"]).shape == (c["line_landmarks"], 2, 2)
     runs = {}
     for lines in (True, False):
         cfg2 = cfg.model_copy(

@@ -6,7 +6,6 @@ from __future__ import annotations
 import math
 from dataclasses import asdict
 
-import numpy as np
 import pytest
 import test_slam_stage
 
@@ -64,7 +63,7 @@ def test_pipeline_without_a_bus_gives_the_stage_estimates(harbour_run):
         assert c[k] == v, k
     assert online.stats.updates >= 3 and online.summary()["landmarks"] >= 3
     body = online.landmarks_message(online.track[-1][0])
-    assert np.array(body["mean"]).shape == (online.summary()["landmarks"], 2)
+    assert body.mean.shape == (online.summary()["landmarks"], 2)
 
 
 def test_pings_wait_for_the_odometry_that_covers_them(harbour_run):

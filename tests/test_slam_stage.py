@@ -24,6 +24,7 @@ from auvgw.sim_devices.vehicle import simulate
 from auvgw.sim_devices.world import World
 from auvgw.slam.features import PoseTrack
 from auvgw.stages.slam import SlamStage, SlamStageConfig, compose_increments
+from auvgw.subscribe import slam_output
 from auvgw.testing import wait_until
 
 DURATION_S = 150.0
@@ -87,7 +88,7 @@ def drifted(t: np.ndarray, truth: np.ndarray, bias: float) -> np.ndarray:
 def run_events(cfg: SlamStageConfig, events: list[tuple]) -> tuple[SlamStage, list]:
     """A stage fed in-process (on this thread) with the events; its publications."""
     published: list[tuple[str, dict, int]] = []
-    stage = SlamStage(cfg, on_publish=lambda k, p, t: published.append((k, json.loads(p), t)))
+    stage = SlamStage(cfg, on_publish=lambda k, p, t: published.append((k, slam_output(p), t)))
     for ev in events:
         if ev[0] == "odometry":
             stage.feed_odometry(ev[1])
@@ -187,7 +188,9 @@ def test_stage_maps_the_piles_and_publishes_a_steady_pose(harbour_run):
     early = min(range(len(lm)), key=lambda k: first[maps[-1]["ids"][k]])
     assert np.min(np.hypot(*(world.points - lm[early]).T)) < 2.0
     # lines in the map frame, near true walls in direction
-    assert maps[-1]["lines"] and {"rho", "theta", "p0", "p1", "cov"} <= set(maps[-1]["lines"][0])
+    ls = maps[-1]["lines"]  # a LineSet: one column per field, a row per observed wall
+    n = len(ls["rho"])
+    assert n and all(len(ls[k]) == n for k in ("theta", "p0", "p1", "cov"))
 
 
 def test_slam_pose_follows_the_vehicle_no_worse_than_the_odometry(harbour_run):
@@ -224,7 +227,7 @@ def test_posted_and_bus_inputs_run_on_the_worker_like_direct_feeding(harbour_run
         keys = Keys(cfg.vehicle)
         sub = session.declare_subscriber(
             keys.slam("vb-aufastslam", "pose"),
-            lambda s: got.append(json.loads(s.payload.to_bytes())),
+            lambda s: got.append(slam_output(s.payload.to_bytes())),
         )
         bus = SlamStage(cfg.model_copy(update={"msis_device": "msis"}), session=session)
         bus.start()
@@ -287,23 +290,19 @@ def test_slam_run_over_a_recording_is_the_in_process_stage(tmp_path, capsys):
     """A recording as ``auvgw record`` writes it (INS, DVL and MSIS raw frames of the emulated
     harbour + the truth): ``auvgw slam-run`` gives the poses of the stages fed in-process."""
     from auvgw.cli import main as cli_main
-    from auvgw.config.scenario import Scenario
     from auvgw.testing.fusion_emulated import (
         HOST_EPOCH,
         dvl_stream,
         emulate,
         feed_through_fusion,
         fusion_settings,
+        harbour_ins_dvl,
         ins_dvl_frames,
         ins_output,
         write_recording,
     )
 
-    data = json.loads(config_file("scenarios/harbour.json").read_text())
-    data["duration_s"] = REC_S + 1.0
-    data["devices"] = {"ins": {"options": {"serial": False, "can": False}},
-                       "dvl": {"options": {"serial": False}}}  # fmt: skip
-    scn = Scenario.model_validate(data)
+    scn = harbour_ins_dvl(REC_S + 1.0)
     em = emulate(scn, tmp_path)
     ins = ins_output(em, 0.0, REC_S)
     dvl = dvl_stream(em, 0.0, REC_S)
@@ -343,7 +342,7 @@ def test_slam_run_over_a_recording_is_the_in_process_stage(tmp_path, capsys):
     # the same stages fed in-process, message by message
     got: list[dict] = []
     slam = SlamStage(SlamStageConfig(sound_speed_mps=world.sound_speed),
-                     on_publish=lambda k, p, _t: got.append(json.loads(p)) if k.endswith("/pose")
+                     on_publish=lambda k, p, _t: got.append(slam_output(p)) if k.endswith("/pose")
                      else None)  # fmt: skip
     feed_through_fusion(fcfg, slam, raw)
     assert got == poses

@@ -15,6 +15,7 @@ from auvgw.commands.demo import _true_beacons
 from auvgw.config.scenario import load_scenario
 from auvgw.slam.magnetic.stream import stage_inputs
 from auvgw.stages.magnetic import MagneticStage, config_from_scenario
+from auvgw.subscribe import slam_output
 from auvgw.viz.logger import RerunLogger
 from auvgw.viz.readback import read_recording
 from auvgw.viz.stage import VizStage
@@ -35,7 +36,7 @@ def test_beacons_ellipses_ranges_and_acoustic_beacon_read_back(tmp_path: Path) -
     published: list[tuple[str, dict]] = []
 
     def on_publish(key: str, payload: bytes, t_ns: int) -> None:
-        published.append((key, json.loads(payload)))
+        published.append((key, slam_output(payload)))
         assert viz.handle_sample(key, payload, t_ns) == "logged", key
 
     cfg = config_from_scenario(SCENARIO, x0=tuple(float(x) for x in sim.truth[0]))

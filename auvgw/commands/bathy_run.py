@@ -28,6 +28,25 @@ from auvgw.ground.errors import UserError, format_validation_error
 if TYPE_CHECKING:
     from auvgw.stages.bathymetric import BathymetricStageConfig
 
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The bathymetric pipeline's own options (on ``auvgw slam run``'s parser)."""
+    g = p.add_argument_group("bathymetric pipeline (--pipeline bathymetric)")
+    g.add_argument("--multibeam", default=None,
+                   help="gateway device of the multibeam (default: any)")
+    g.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="a stage or filter setting (repeatable), e.g. radius_m=40")  # fmt: skip
+
+
+def demo_accepts(scn: Any) -> bool:
+    """A survey (``auvgw demo`` runs this pipeline on it): multibeam on, no point or line
+    features and no magnetic beacons to map."""
+    return bool(
+        (scn.devices.multibeam.enabled or scn.devices.geoswath.enabled)
+        and not len(scn.point_features())
+        and not scn.features.lines
+        and not getattr(scn, "magnetic_beacons", None)
+    )
+
 
 def stage_config(args: argparse.Namespace, vehicle: str) -> BathymetricStageConfig:
     """The stage's settings from ``--particles``, ``--seed``, ``--multibeam`` and ``--set``."""
@@ -70,6 +89,7 @@ def offline(args: argparse.Namespace) -> int:
     closures, and its error against the recorded truth beside dead reckoning's."""
     from auvgw.commands.slam_common import Paths, check_recording, replay_recording, report_truth
     from auvgw.stages.bathymetric import BathymetricStage
+    from auvgw.subscribe import slam_output
 
     cfg = stage_config(args, "auv1")
     check_recording(args)
@@ -81,7 +101,7 @@ def offline(args: argparse.Namespace) -> int:
 
     def on_publish(key: str, payload: bytes, _t_ns: int) -> None:
         if out_file is not None:
-            out_file.write(payload.decode() + "\n")
+            out_file.write(json.dumps(slam_output(payload, key)) + "\n")
 
     stage = BathymetricStage(cfg, on_publish=on_publish)
     paths = Paths()

@@ -61,6 +61,8 @@ from auvgw.config.scenario import ScenarioError, load_scenario
 from auvgw.ground.paths import config_file
 from auvgw.ground.procs import Children, free_endpoint, stop_process
 from auvgw.health import device_time_s
+from auvgw.slam import pipelines
+from auvgw.subscribe import slam_output
 
 if TYPE_CHECKING:
     import zenoh
@@ -101,7 +103,9 @@ def register(sub: SubParsers) -> None:
     p.add_argument(
         "--scenario",
         default=DEFAULT_SCENARIO,
-        help="shipped scenario name (harbour, survey, beacons) or a scenario JSON file",
+        help="shipped scenario name ("
+        + ", ".join(f"{r.demo_scenario}: {r.name} SLAM" for r in pipelines.PIPELINES)
+        + ") or a scenario JSON file",
     )
     p.add_argument(
         "--duration",
@@ -412,12 +416,12 @@ def _run_stages(
     bathy_track: list[bytes] = []  # its smoothed trajectory (at flush)
 
     def on_slam(key: str, payload: bytes, t_ns: int) -> None:
-        if key.endswith("/bathymetric/map"):
+        if key == keys.slam(BATHYMETRIC.name, "map"):
             bathy_map[:] = [payload]
         if key.endswith("/bathymetric/track"):
             bathy_track[:] = [payload]
         if key.endswith("/pose"):
-            p = json.loads(payload)
+            p = slam_output(payload, key)
             with lock:
                 slam_track.add(p["t"] - epoch_s, p["x"], p["y"])
         if viz is not None:
@@ -666,7 +670,7 @@ class _Collector:
             self.odometry_stamps.append((env.t_recv_ns / 1e9, time.time()))
 
     def _on_slam(self, sample: zenoh.Sample) -> None:
-        p = json.loads(sample.payload.to_bytes())
+        p = slam_output(sample.payload.to_bytes(), str(sample.key_expr))
         with self.lock:
             self.slam.add(p["t"] - self.epoch_s, p["x"], p["y"])
 
@@ -702,7 +706,7 @@ class _Collector:
                 done = (
                     bool(map_tap.last)
                     and bool(map_tap.track)
-                    and json.loads(map_tap.last[-1]).get("pings") == pings
+                    and slam_output(map_tap.last[-1]).get("pings") == pings
                 )
             if done:
                 return
@@ -788,12 +792,12 @@ def _run_processes(
                                      "--set", f"frequency_hz={khz * 1000.0}",
                                      "--connect", hub, "--listen", free_endpoint()])  # fmt: skip
             children.start("slam", _bathy_argv(slam_cfg, hub))
-            slam_part = (BATHY_NAME, "slam-bathymetric")
+            slam_part = (BATHY_NAME, f"slam-{BATHYMETRIC.name}")
             wanted |= {"geoswath", "swath", slam_part[1]}
         elif bathy:
             slam_cfg = _bathy_config(VEHICLE, "multibeam")
             children.start("slam", _bathy_argv(slam_cfg, hub))
-            slam_part = (BATHY_NAME, "slam-bathymetric")
+            slam_part = (BATHY_NAME, f"slam-{BATHYMETRIC.name}")
             wanted |= {"multibeam", slam_part[1]}
         elif not args.no_slam and not magnetic:
             lm_cfg = _slam_config(VEHICLE, "msis", scn)
@@ -1011,15 +1015,15 @@ BATHY_FILTER: dict[str, Any] = {
 }
 
 
+#: the registry records of the pipelines the demo wires itself (in process and as processes)
+BATHYMETRIC = pipelines.get("bathymetric")
+MAGNETIC = pipelines.get("magnetic")
+
+
 def _bathymetric_scenario(scn: Scenario) -> bool:
-    """A survey: multibeam on, no point or line features and no magnetic beacons to map, so the
-    demo's SLAM is the bathymetric pipeline."""
-    return bool(
-        (scn.devices.multibeam.enabled or scn.devices.geoswath.enabled)
-        and not len(scn.point_features())
-        and not scn.features.lines
-        and not getattr(scn, "magnetic_beacons", None)
-    )
+    """A survey: the registry gives the scenario to the bathymetric pipeline
+    (:func:`auvgw.commands.bathy_run.demo_accepts`)."""
+    return pipelines.for_demo(scn) is BATHYMETRIC
 
 
 def _bathy_config(vehicle: str, multibeam: str | None) -> BathymetricStageConfig:
@@ -1083,7 +1087,7 @@ def _swath_stage(
 def _bathy_argv(cfg: BathymetricStageConfig, hub: str) -> list[str]:
     """``auvgw slam run --pipeline bathymetric`` with the demo's settings, on the hub."""
     sets = [a for k, v in cfg.filter.items() for a in ("--set", f"{k}={json.dumps(v)}")]
-    return ["slam", "run", "--pipeline", "bathymetric", "--vehicle", cfg.vehicle,
+    return ["slam", "run", "--pipeline", BATHYMETRIC.name, "--vehicle", cfg.vehicle,
             "--multibeam", str(cfg.multibeam_device), "--particles", str(cfg.n_particles),
             "--seed", str(cfg.seed), *sets,
             "--connect", hub, "--listen", free_endpoint()]  # fmt: skip
@@ -1112,8 +1116,8 @@ class _BathyMapTap:
         self.last: list[bytes] = []
         self.track: list[bytes] = []
         self._subs = [
-            session.declare_subscriber(keys.slam("bathymetric", "map"), self._on_map),
-            session.declare_subscriber(keys.slam("bathymetric", "track"), self._on_track),
+            session.declare_subscriber(keys.slam(BATHYMETRIC.name, "map"), self._on_map),
+            session.declare_subscriber(keys.slam(BATHYMETRIC.name, "track"), self._on_track),
         ]
 
     def _on_map(self, sample: zenoh.Sample) -> None:
@@ -1133,7 +1137,7 @@ def _smoothed_track(payloads: list[bytes], epoch_s: float) -> tuple[_Track, list
     as a vehicle-time track and its accepted closures' vehicle times (s)."""
     if not payloads:
         return None
-    body = json.loads(payloads[-1])
+    body = slam_output(payloads[-1])
     track = _Track([t - epoch_s for t in body["t"]], list(body["x"]), list(body["y"]))
     return track, [t - epoch_s for t in body.get("closures_t", [])]
 
@@ -1181,14 +1185,15 @@ def _bathy_map_summary(last: list[bytes], scn: Scenario) -> dict[str, Any]:
         return {}
     from auvgw.sim_devices.world import World
 
-    body = json.loads(last[-1])
+    body = slam_output(last[-1])
     grid = np.array([[math.nan if v is None else v for v in row] for row in body["depth"]], float)
     i, j = np.nonzero(np.isfinite(grid))
     cell = float(body["cell_m"])
     x = float(body["x0"]) + (i + 0.5) * cell
     y = float(body["y0"]) + (j + 0.5) * cell
     err = np.abs(grid[i, j] - World.from_scenario(scn).depth(x, y))
-    out = {"cells": len(err), "pings": body.get("pings"), "loops": body.get("loops"),
+    out: dict[str, Any] = {"cells": len(err), "pings": body.get("pings"),
+                           "loops": body.get("loops"),
            "mean_abs_error_m": float(err.mean()) if len(err) else None,
            "median_abs_error_m": float(np.median(err)) if len(err) else None,
            "share_under_2m": float(np.mean(err < 2.0)) if len(err) else None}  # fmt: skip
@@ -1202,14 +1207,14 @@ def _bathy_map_summary(last: list[bytes], scn: Scenario) -> dict[str, Any]:
 # -- the beacons scenario: AMB-SLAM on the magnetometer and the acoustic beacon -----------------
 
 #: the magnetic stage's status component and the name the summary gives it
-MAGNETIC_COMPONENT = "slam-magnetic"
+MAGNETIC_COMPONENT = f"slam-{MAGNETIC.name}"
 MAGNETIC_NAME = "AMB-SLAM"
 
 
 def _is_magnetic(scn: Scenario) -> bool:
-    """A scenario for the magnetic stage: magnetic beacons and an emulated magnetometer (the
-    MSIS SLAM stage otherwise)."""
-    return bool(scn.magnetic_beacons) and scn.devices.magnetometer.enabled
+    """A scenario for the magnetic stage: the registry gives it to the magnetic pipeline
+    (:func:`auvgw.commands.magnetic_run.demo_accepts`; the MSIS SLAM stage otherwise)."""
+    return pipelines.for_demo(scn) is MAGNETIC
 
 
 def _mag_rate_hz(scn: Scenario) -> float:
@@ -1235,7 +1240,7 @@ def _magnetic_stage(
 def _magnetic_argv(scenario: Path, scn: Scenario, epoch_ns: int, hub: str) -> list[str]:
     """``auvgw slam run --pipeline magnetic`` as the demo's SLAM process (see
     :func:`_magnetic_stage`)."""
-    return ["slam", "run", "--pipeline", "magnetic", "--vehicle", VEHICLE,
+    return ["slam", "run", "--pipeline", MAGNETIC.name, "--vehicle", VEHICLE,
             "--scenario", str(scenario), "--mag-device", "magnetometer",
             "--mag-rate", str(_mag_rate_hz(scn)), "--clock-epoch-ns", str(epoch_ns),
             "--connect", hub, "--listen", free_endpoint()]  # fmt: skip

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 from typing import Any
 
 from auvgw.ground.errors import UserError
@@ -31,6 +32,8 @@ from auvgw.ground.errors import UserError
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """The magnetic pipeline's own options (on ``auvgw slam run``'s parser)."""
     g = p.add_argument_group("magnetic pipeline (--pipeline magnetic)")
+    g.add_argument("--scenario", type=Path, default=None, metavar="FILE.json",
+                   help="beacons scenario giving the channels and the acoustic beacon")
     g.add_argument("--mag-device", default=None, metavar="NAME",
                    help="gateway device of the magnetometer (default: the first seen)")
     g.add_argument("--mag-rate", type=float, default=None, metavar="HZ",
@@ -39,6 +42,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--clock-epoch-ns", type=int, default=0, metavar="NS",
                    help="vehicle time 0 on the stamp clock, ns (the gateway's [clock] epoch_ns; "
                    "the beacons' phase reference; default 0)")  # fmt: skip
+
+
+def demo_accepts(scn: Any) -> bool:
+    """A scenario ``auvgw demo`` runs this pipeline on: magnetic beacons and an emulated
+    magnetometer."""
+    return bool(scn.magnetic_beacons) and scn.devices.magnetometer.enabled
 
 
 def stage_config(args: argparse.Namespace, vehicle: str) -> Any:

@@ -28,11 +28,9 @@ from pathlib import Path
 from typing import Any
 
 from auvgw.commands.common import SubParsers, UserError, study_algorithms
+from auvgw.slam import pipelines
 
-__all__ = ["command_line", "parse_noise", "register", "run"]
-
-LANDMARK_DEFAULT = "fastslam1,fastslam2,ufastslam,vb-afastslam,vb-aufastslam"
-BATHY_DEFAULT = "mtm-pf,bpslam,dr"
+__all__ = ["command_line", "parse_noise", "register", "run", "run_landmark", "run_magnetic"]
 
 
 def parse_noise(text: str) -> tuple[float, float]:
@@ -60,11 +58,9 @@ def register(sub: SubParsers) -> None:
     e.add_argument("--scenario", required=True, type=Path, help="scenario JSON file")
     e.add_argument(
         "--pipeline",
-        default="landmark",
-        choices=["landmark", "bathymetric", "magnetic"],
-        help="landmark filters on point/line features; bathymetric PF-SLAM on multibeam "
-        "swaths (mtm-pf, bpslam, dr; docs/slam_bathymetric.md); or the magnetic-beacon "
-        "pipeline (amb-slam, acoustic-only, mb-slam, mb-slam-fej, dr; docs/slam_magnetic.md)",
+        default=pipelines.default().name,
+        choices=pipelines.names(),
+        help="; ".join(f"{p.name}: {p.summary}" for p in pipelines.PIPELINES),
     )
     e.add_argument(
         "--variant",
@@ -76,8 +72,8 @@ def register(sub: SubParsers) -> None:
     e.add_argument(
         "--algorithms",
         default=None,
-        help="comma-separated algorithm names (default: landmark "
-        f"{LANDMARK_DEFAULT}; bathymetric {BATHY_DEFAULT})",
+        help="comma-separated algorithm names (default: "
+        + "; ".join(f"{p.name} {p.eval_algorithms}" for p in pipelines.PIPELINES) + ")",
     )
     e.add_argument("--runs", type=int, default=10, help="Monte Carlo runs per noise setting")
     e.add_argument(
@@ -142,13 +138,11 @@ def register(sub: SubParsers) -> None:
 
 
 def command_line(args: argparse.Namespace) -> str:
-    """The ``auvgw slam eval`` command line equivalent to ``args`` (recorded with the tables)."""
-    if getattr(args, "pipeline", "landmark") == "bathymetric":
-        from auvgw.commands.slam_bathy import command_line as bathy_command_line
-
-        return bathy_command_line(args)
+    """The ``auvgw slam eval`` command line equivalent to ``args`` (recorded with the tables;
+    the bathymetric evaluation records its own, :func:`auvgw.commands.slam_bathy.command_line`)."""
+    pipe = pipelines.get(args.pipeline)
     parts = ["auvgw", "slam", "eval", "--scenario", str(args.scenario)]
-    parts += ["--pipeline", args.pipeline] if args.pipeline != "landmark" else []
+    parts += ["--pipeline", pipe.name] if pipe != pipelines.default() else []
     for t in args.variant or []:
         parts += ["--variant", t]
     parts += ["--features", args.features] if args.features != "points" else []
@@ -156,7 +150,7 @@ def command_line(args: argparse.Namespace) -> str:
     for t in args.noise or []:
         parts += ["--noise", t]
     parts += ["--jobs", str(args.jobs)]
-    if args.pipeline != "magnetic":  # its filters are EKFs; its association is a --variant key
+    if pipe.particle_filters:
         parts += ["--particles", str(args.particles), "--association", args.association]
     parts += ["--seed", str(args.seed)]
     if args.r0_scale != 1.0:
@@ -189,17 +183,26 @@ def _advance(bar: Any) -> Any:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the study and print the tables; returns the exit code."""
-    if args.pipeline == "bathymetric":
-        from auvgw.commands.slam_bathy import run as run_bathy
-
-        return run_bathy(args)
+    """Run the pipeline's evaluation (its registry record's ``evaluation``, with its default
+    ``--algorithms``) and print the tables; returns the exit code."""
+    pipe = pipelines.get(args.pipeline)
     if args.algorithms is None:
-        args.algorithms = LANDMARK_DEFAULT
-    if args.pipeline == "magnetic":
-        from auvgw.slam.magnetic.evaluation import run_cli
+        args.algorithms = pipe.eval_algorithms
+    entry: Any = pipelines.load(pipe.evaluation)
+    return int(entry(args))
 
-        return run_cli(args, command_line(args))
+
+def run_magnetic(args: argparse.Namespace) -> int:
+    """``slam eval --pipeline magnetic``: :func:`auvgw.slam.magnetic.evaluation.run_cli` with
+    the command line recorded beside its tables."""
+    from auvgw.slam.magnetic.evaluation import run_cli
+
+    return run_cli(args, command_line(args))
+
+
+def run_landmark(args: argparse.Namespace) -> int:
+    """``slam eval --pipeline landmark``: the Monte Carlo study of the landmark filters, on
+    local processes or a Dask cluster (``--dask``)."""
     from contextlib import ExitStack
 
     from auvgw.slam.evaluation.executor import ExecutorError, open_executor

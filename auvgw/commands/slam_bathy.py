@@ -76,7 +76,6 @@ def run(args: argparse.Namespace) -> int:
     )
     from auvgw.slam.evaluation.executor import ExecutorError, open_executor
 
-    args.algorithms = args.algorithms or "mtm-pf,bpslam,dr"
     algorithms = study_algorithms(args, FILTERS)
     try:
         cfg = BathyConfig(**{"n_particles": args.particles, **parse_sets(args.set)})

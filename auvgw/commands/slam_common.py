@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from auvgw.bus import parse_key
 from auvgw.ground.errors import UserError
 
 if TYPE_CHECKING:
@@ -116,7 +117,7 @@ def replay_recording(
                 if rec.key.endswith("/pose") and isinstance(s, dict) and "t" in s:
                     paths.truth.append((float(s["t"]), float(s["x"]), float(s["y"])))
                 continue
-            device = rec.key.rsplit("/", 1)[-1]
+            device = parse_key(rec.key)[2]
             for msg in rec.messages:
                 fusion.feed(device, rec.t_recv_ns, msg)
                 stage.feed(device, rec.t_recv_ns, msg)

@@ -44,6 +44,7 @@ from auvgw.commands.slam_common import (
     track_error,
 )
 from auvgw.ground.errors import format_validation_error
+from auvgw.slam import pipelines
 
 if TYPE_CHECKING:
     from auvgw.stages.fusion import FusionStage
@@ -65,9 +66,8 @@ def register(sub: SubParsers) -> None:
 
 
 def configure(p: argparse.ArgumentParser) -> None:
-    """The options of the SLAM stage command on parser ``p``."""
-    from auvgw.slam.landmark.registry import ALGORITHMS
-
+    """The options of the SLAM stage command on parser ``p``: the common ones, then each
+    registered pipeline's own (its ``run`` module's ``add_arguments``)."""
     p.add_argument(
         "--recording",
         type=Path,
@@ -77,27 +77,13 @@ def configure(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--vehicle", default="auv1", help="live: vehicle name (default auv1)")
     add_duration(p, "live: ")
-    p.add_argument(
-        "--target-radius",
-        type=float,
-        default=0.6,
-        metavar="M",
-        help="radius of the point targets, m (default 0.6)",
-    )
-    p.add_argument("--algorithm", default="vb-aufastslam", choices=sorted(ALGORITHMS))
-    p.add_argument("--pipeline", default="landmark",
-                   choices=("landmark", "magnetic", "bathymetric"),
-                   help="landmark: MSIS features (default); magnetic: AMB-SLAM on the MS3A and "
-                   "acoustic beacon (auvgw.commands.magnetic_run); bathymetric: mtm-pf on the "
-                   "multibeam swaths (auvgw.commands.bathy_run)")  # fmt: skip
-    p.add_argument("--scenario", type=Path, default=None, metavar="FILE.json",
-                   help="magnetic: beacons scenario giving the channels and the acoustic beacon")
+    p.add_argument("--pipeline", default=pipelines.default().name, choices=pipelines.names(),
+                   help="; ".join(f"{r.name}: {r.summary}" for r in pipelines.PIPELINES)
+                   + f" (default {pipelines.default().name})")  # fmt: skip
     p.add_argument("--particles", type=int, default=50, help="particles (default 50)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--msis", default=None, help="gateway device of the MSIS (default: first)")
     p.add_argument("--ins", default=None, help="gateway device of the INS (default: first)")
     p.add_argument("--dvl", default=None, help="gateway device of the DVL (default: first)")
-    p.add_argument("--sound-speed", type=float, default=1500.0, help="m/s (default 1500)")
     p.add_argument(
         "--fusion-settings",
         type=Path,
@@ -106,23 +92,27 @@ def configure(p: argparse.ArgumentParser) -> None:
         help="fusion stage settings (TOML/JSON, as auvgw fusion --settings)",
     )
     p.add_argument("--out", type=Path, default=None, help="offline: JSON lines of the SLAM output")
-    _configure_bathymetric(p)
-    from auvgw.commands import magnetic_run
-
-    magnetic_run.add_arguments(p)
+    for record in pipelines.PIPELINES:
+        pipelines.load(record.run).add_arguments(p)
     add_bus_arguments(p)
     p.set_defaults(func=run)  # fmt: skip
 
 
-def _configure_bathymetric(p: argparse.ArgumentParser) -> None:
-    """The options only ``--pipeline bathymetric`` reads (auvgw.commands.bathy_run)."""
-    p.add_argument(
-        "--multibeam", default=None, help="bathymetric: gateway device of the multibeam (any)"
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The landmark pipeline's own options (on ``auvgw slam run``'s parser)."""
+    from auvgw.slam.landmark.registry import ALGORITHMS
+
+    g = p.add_argument_group("landmark pipeline (--pipeline landmark)")
+    g.add_argument("--algorithm", default="vb-aufastslam", choices=sorted(ALGORITHMS))
+    g.add_argument("--msis", default=None, help="gateway device of the MSIS (default: first)")
+    g.add_argument(
+        "--target-radius",
+        type=float,
+        default=0.6,
+        metavar="M",
+        help="radius of the point targets, m (default 0.6)",
     )
-    p.add_argument(
-        "--set", action="append", default=[], metavar="KEY=VALUE",
-        help="bathymetric: a stage or filter setting (repeatable), e.g. radius_m=40",
-    )  # fmt: skip
+    g.add_argument("--sound-speed", type=float, default=1500.0, help="m/s (default 1500)")
 
 
 def _stage_config(args: argparse.Namespace, vehicle: str = "auv1") -> SlamStageConfig:
@@ -145,42 +135,41 @@ def _stage_config(args: argparse.Namespace, vehicle: str = "auv1") -> SlamStageC
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.pipeline in ("magnetic", "bathymetric"):
-        from auvgw.commands import bathy_run, magnetic_run
-
-        module = magnetic_run if args.pipeline == "magnetic" else bathy_run
-        return module.live(args) if args.recording is None else module.offline(args)
-    if args.recording is None:
-        if args.out is not None or args.fusion_settings is not None:
-            raise UserError("--out and --fusion-settings are for --recording (offline) runs")
-        return _live(args)
-    return _offline(args)
+    """The pipeline's ``live`` (on the bus) or, with ``--recording``, ``offline`` entry (its
+    registry record's ``run`` module); returns the exit code."""
+    module = pipelines.load(pipelines.get(args.pipeline).run)
+    if args.recording is None and (args.out is not None or args.fusion_settings is not None):
+        raise UserError("--out and --fusion-settings are for --recording (offline) runs")
+    return int(module.live(args) if args.recording is None else module.offline(args))
 
 
-def _live(args: argparse.Namespace) -> int:
+def live(args: argparse.Namespace) -> int:
+    """Serve the landmark stage on the bus (``slam run`` without ``--recording``)."""
     from auvgw.stages.slam import SlamStage
 
     cfg = _stage_config(args, args.vehicle)
     return serve_slam(args, lambda session: SlamStage(cfg, session), cfg.display_name)
 
 
-def _offline(args: argparse.Namespace) -> int:
+def offline(args: argparse.Namespace) -> int:
+    """The landmark stage over ``--recording`` (see the module docstring)."""
     from auvgw.stages.slam import SlamStage
+    from auvgw.subscribe import slam_output
 
     cfg = _stage_config(args)
     check_recording(args)
     paths = Paths()
     out_file = open_output(args.out)  # closed in finally
-    last_map: list[bytes] = []
+    last_map: list[str] = []
 
     def on_publish(key: str, payload: bytes, _t_ns: int) -> None:
+        p = slam_output(payload, key)
         if key.endswith("/pose"):
-            p = json.loads(payload)
             paths.slam.append((p["t"], p["x"], p["y"]))
             if out_file is not None:
-                out_file.write(payload.decode() + "\n")
+                out_file.write(json.dumps(p) + "\n")
         else:
-            last_map[:] = [payload]
+            last_map[:] = [json.dumps(p)]
 
     slam = SlamStage(cfg, on_publish=on_publish)
     try:
@@ -188,7 +177,7 @@ def _offline(args: argparse.Namespace) -> int:
     finally:
         if out_file is not None:
             if last_map:
-                out_file.write(last_map[0].decode() + "\n")
+                out_file.write(last_map[0] + "\n")
             out_file.close()
     return _report(args.recording, slam, fusion, paths)
 

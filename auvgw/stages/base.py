@@ -6,11 +6,13 @@ A :class:`Stage` owns the plumbing; a subclass gives only what is its own:
   :meth:`Stage.wanted` (a cheap filter on a key, run in the Zenoh callback before anything is
   parsed);
 * **per-message handling**: :meth:`Stage.feed` ``(device, t_recv_ns, message)`` (the gateway's
-  ``on_message`` signature) and, for stages that use the fusion's odometry,
+  ``on_message`` signature; :meth:`Stage.from_source` keeps one device per role: the configured
+  one, else the first seen) and, for stages that use the fusion's odometry,
   :meth:`Stage.feed_odometry`; :meth:`Stage.dispatch` routes each decoded bus message to them
   (override it for anything else);
 * **outputs**: the names in :attr:`Stage.outputs`, each published on :meth:`Stage.key`
-  ``(what)`` with :meth:`Stage.publish` / :meth:`Stage.publish_json` (which also call
+  ``(what)`` with :meth:`Stage.publish`, :meth:`Stage.publish_message` (a declared message as an
+  envelope) or :meth:`Stage.publish_json` (which all call
   ``on_publish(key, payload, t_ns)``, the in-process hook);
 * **status**: :attr:`Stage.status_schema` (None: no status, queryable nor liveliness on the bus)
   and :meth:`Stage.status_fields`, merged into :meth:`Stage.counters` after the common fields;
@@ -54,6 +56,7 @@ from auvgw.bus import (
     Keys,
     Undeclarable,
     decode_envelope,
+    encode_envelope,
     json_encoding,
     undeclare,
 )
@@ -143,6 +146,9 @@ class Stage(Worker[_Item]):
         self._decls: list[Undeclarable] = []
         self._started = self._stopped = False
         self._stamps = StampGuard(config.max_stamp_jump_s)
+        self._seq = 0  # envelopes published (publish_message)
+        #: the device used in each role (:meth:`from_source`); None: the first one seen
+        self.sources: dict[str, str | None] = {}
 
     # -- what a subclass gives ------------------------------------------------------------------
     @property
@@ -168,6 +174,17 @@ class Stage(Worker[_Item]):
 
     def feed_odometry(self, o: Odometry) -> None:
         """One fusion odometry sample (stages that use it override this)."""
+
+    def from_source(self, role: str, device: str) -> bool:
+        """Whether a message of ``device`` in ``role`` (a device-registry role: ``sonar``,
+        ``swath``, ``field``...) is used: the stage takes one device per role, the one named in
+        :attr:`sources` (from its settings), else the first one seen (then fixed), so a serial and
+        a CAN copy of one sensor, or two sensors of a kind, never both feed a pipeline."""
+        with self._lock:
+            want = self.sources.get(role)
+            if want is None:
+                self.sources[role] = want = device
+            return device == want
 
     def dispatch(self, env: Envelope, message: Any) -> None:
         """One decoded bus message: odometry to :meth:`feed_odometry`, the rest to
@@ -219,6 +236,16 @@ class Stage(Worker[_Item]):
     def publish_json(self, what: str, body: dict[str, Any], t: float, schema: str) -> None:
         """Publish ``body`` as JSON (type ``schema``) on output ``what``; ``t``: its time, s."""
         self.publish(what, json.dumps(body).encode(), json_encoding(schema), int(t * 1e9))
+
+    def publish_message(self, what: str, msg: Any, t: float) -> None:
+        """Publish a declared message (:mod:`auvgw.slam.outputs`) on output ``what`` as an
+        envelope, like the sensors' (device: the stage's component); ``t``: its time, s."""
+        with self._drop_lock:
+            self._seq += 1
+            seq = self._seq
+        t_ns = int(t * 1e9)
+        payload, enc = encode_envelope(msg, self.component, t_ns, seq)
+        self.publish(what, payload, enc, t_ns)
 
     def counters(self) -> dict[str, Any]:
         """Every counter, JSON-ready: the common fields (``stopped``: the last status, sent at
@@ -357,15 +384,16 @@ class Stage(Worker[_Item]):
 
 class PipelineStage(Stage):
     """A SLAM pipeline stage (bathymetric, magnetic): output ``what`` on
-    ``auv/<v>/slam/<name>/<what>`` as JSON of type ``<Name><What>``, status (``<Name>Status``)
-    and liveliness as ``slam-<name>``, every decoded bus message counted as ``received``.
+    ``auv/<v>/slam/<name>/<what>`` (a declared message, :meth:`Stage.publish_message`), status
+    (``<Name>Status``) and liveliness as ``slam-<name>``, every decoded bus message counted as
+    ``received``.
 
     ``config``: the stage's settings (kept as ``self.config``); ``session``: publish on it
     (None: in-process only); ``on_publish(key, payload, t_ns)`` is called at every
     publication. A subclass names its counters in :attr:`stats_type` and builds its own state
     in :meth:`setup`."""
 
-    #: the JSON type of output ``what`` is this prefix + ``what.capitalize()`` (``<Name>``)
+    #: the status JSON type is this prefix + ``Status`` (``<Name>``)
     schema_prefix: ClassVar[str] = ""
     #: the stage's counters, made at construction
     stats_type: ClassVar[type[BusCounters]] = BusCounters
@@ -398,9 +426,6 @@ class PipelineStage(Stage):
     def key(self, what: str) -> str:
         """``auv/<v>/slam/<name>/<what>``."""
         return self.keys.slam(self.name, what)
-
-    def _put(self, what: str, body: dict[str, Any], t: float) -> None:
-        self.publish_json(what, body, t, f"{self.schema_prefix}{what.capitalize()}")
 
     def dispatch(self, env: Envelope, message: Any) -> None:
         """One decoded bus message (counted as received)."""

@@ -16,7 +16,7 @@ stamps):
   vehicle has moved ``min_ping_spacing_m`` since the last used one (the paper pings at 1 Hz
   at 2.2 m/s; a 5 Hz multibeam at 1.7 m/s would make the T_p = 20 swath submap 7 m long).
 
-Published (JSON) on ``auv/<v>/slam/bathymetric/``:
+Published (envelopes of :mod:`auvgw.slam.outputs` messages) on ``auv/<v>/slam/bathymetric/``:
 
 * ``pose`` after every used swath: ``t``, ``x``, ``y`` (the filter's corrected position),
   ``heading`` (the odometry's: the filter estimates position only), ``cov`` (2 x 2, the particle
@@ -42,10 +42,8 @@ never stops the worker; a swath with fewer than 2 valid soundings is counted (``
 
 from __future__ import annotations
 
-import bisect
 import logging
 import math
-from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
@@ -56,6 +54,8 @@ from auvgw.fusion.odometry import Odometry
 from auvgw.slam.bathymetric.config import BathyConfig
 from auvgw.slam.bathymetric.evaluate import grid_dem
 from auvgw.slam.bathymetric.online import OnlineBathy
+from auvgw.slam.history import HeldSamples, StateHistory
+from auvgw.slam.outputs import Cloud, Dem, PoseEstimate, Track
 from auvgw.stages.base import BusCounters, PipelineStage, StageConfig
 
 log = logging.getLogger(__name__)
@@ -73,7 +73,7 @@ ONLINE_DEFAULTS: dict[str, Any] = {"drift_estimate": False}
 class BathymetricStageConfig(StageConfig):
     """Settings of the bathymetric stage.
 
-    ``multibeam_device``: the gateway device whose swaths are used (None: any);
+    ``multibeam_device``: the gateway device whose swaths are used (None: the first seen);
     ``n_particles``, ``seed``: the filter's particles and random seed; ``filter``: any other
     :class:`~auvgw.slam.bathymetric.config.BathyConfig` value by name (``radius_m``, ``t_p``...);
     ``n_beams``: soundings kept per swath (resampled evenly across track);
@@ -150,10 +150,10 @@ class BathymetricStage(PipelineStage):
         self.online = OnlineBathy(self.bathy, np.random.default_rng(cfg.seed), cfg.n_beams)
         #: time of each ping given to the filter (s, odometry clock)
         self.ping_times: list[float] = []
-        self._t_odo: deque[float] = deque()
-        self._odo: deque[tuple[float, float, float]] = deque()  # x, y, unwrapped heading
-        self._swaths: deque[tuple[float, Any]] = deque()
+        self._odo = StateHistory(3, angles=(2,))  # x, y (m NED), heading (rad)
+        self._swaths: HeldSamples[Any] = HeldSamples(cfg.max_pending_swaths)
         self._last_xy: tuple[float, float] | None = None
+        self.sources["swath"] = cfg.multibeam_device
 
     def input_keys(self) -> list[str]:
         """Odometry and the multibeam's XYZ 88 and Depth datagrams."""
@@ -165,61 +165,37 @@ class BathymetricStage(PipelineStage):
         """One odometry sample (in time order; a stale one is ignored)."""
         with self._lock:
             self.stats.odometry += 1
-            if self._t_odo and o.t <= self._t_odo[-1]:
+            if not self._odo.append(o.t, (o.x, o.y, o.heading)):
                 return
-            h = o.heading
-            if self._odo:
-                h = self._odo[-1][2] + math.remainder(h - self._odo[-1][2], math.tau)
-            self._t_odo.append(o.t)
-            self._odo.append((o.x, o.y, h))
             self._drain()
-            while self._t_odo and self._t_odo[0] < o.t - self.config.odometry_window_s:
-                self._t_odo.popleft()
-                self._odo.popleft()
+            self._odo.trim(o.t - self.config.odometry_window_s)
 
     def feed_swath(self, t: float, msg: Any) -> None:
         """One decoded XYZ 88 / Depth datagram received at ``t`` (s, odometry clock)."""
         with self._lock:
             self.stats.swaths += 1
-            if self._t_odo and t < self._t_odo[0]:
+            first = self._odo.first_t
+            if first is not None and t < first:
                 self.stats.before_odometry += 1
                 return
-            if len(self._swaths) >= self.config.max_pending_swaths:
-                self._swaths.popleft()
-                self.stats.pending_dropped += 1
-            self._swaths.append((float(t), msg))
+            self.stats.pending_dropped += self._swaths.hold(t, msg)
             self._drain()
 
     def feed(self, device: str, t_recv_ns: int, message: Any) -> None:
-        """One decoded gateway message (``on_message`` signature): swaths of the configured
-        multibeam are used, everything else ignored."""
+        """One decoded gateway message (``on_message`` signature): swaths of the multibeam (the
+        configured one, else the first seen) are used, everything else ignored."""
         from auvgw.decoding import message_kind
 
-        want = self.config.multibeam_device
-        if (want is None or device == want) and message_kind(message) in SWATH_KINDS:
+        if message_kind(message) in SWATH_KINDS and self.from_source("swath", device):
             self.feed_swath(t_recv_ns * 1e-9, message)
 
-    def _pose_at(self, t: float) -> tuple[float, float, float]:
-        t_odo = self._t_odo
-        k = bisect.bisect_left(t_odo, t)
-        if k == 0:
-            return self._odo[0]
-        if k >= len(t_odo):
-            return self._odo[-1]
-        t0, t1 = t_odo[k - 1], t_odo[k]
-        w = (t - t0) / (t1 - t0) if t1 > t0 else 1.0
-        a, b = self._odo[k - 1], self._odo[k]
-        return (a[0] + w * (b[0] - a[0]), a[1] + w * (b[1] - a[1]), a[2] + w * (b[2] - a[2]))
-
     def _drain(self) -> None:
-        if not self._t_odo:
-            return
-        while self._swaths and self._swaths[0][0] <= self._t_odo[-1]:
-            t, msg = self._swaths.popleft()
-            if t < self._t_odo[0]:
+        for t, msg in self._swaths.release(self._odo.last_t):
+            pose = self._odo.at(t)
+            if pose is None:
                 self.stats.before_odometry += 1
                 continue
-            x, y, h = self._pose_at(t)
+            x, y, h = (float(v) for v in pose)
             last = self._last_xy
             if last is not None and math.hypot(x - last[0], y - last[1]) < (
                 self.config.min_ping_spacing_m
@@ -250,14 +226,14 @@ class BathymetricStage(PipelineStage):
         hd = math.remainder(heading, math.tau)
         self.stats.published += 1
         self.track.append((t, float(est[0]), float(est[1]), hd))
-        self._put("pose", {"t": t, "x": float(est[0]), "y": float(est[1]), "heading": hd,
-                           "cov": cov.tolist(), "dr": [dr[0], dr[1]],
-                           "ping": self.online.pings - 1}, t)  # fmt: skip
+        self.publish_message("pose", PoseEstimate(
+            t, float(est[0]), float(est[1]), hd, cov=np.asarray(cov, float),
+            dr=(float(dr[0]), float(dr[1])), ping=self.online.pings - 1), t)  # fmt: skip
 
-    def _loops(self) -> list[int]:
+    def _loops(self) -> tuple[int, int]:
         loops = self.online.filter.loops
         acc = sum(1 for lp in loops if lp.accepted)
-        return [acc, len(loops) - acc]
+        return acc, len(loops) - acc
 
     def _publish_map(self, t: float, last_pings: int | None) -> None:
         """DEM tile over the latest ``last_pings`` swaths (None: the whole map) and the cloud."""
@@ -270,15 +246,14 @@ class BathymetricStage(PipelineStage):
             inside = np.all((pts[:, :2] >= lo) & (pts[:, :2] <= hi), axis=1)
             pts = pts[inside]
         grid, (x0, y0) = grid_dem(pts, self.bathy.grid_cell_m)
-        depth = [[None if math.isnan(v) else round(float(v), 3) for v in row] for row in grid]
         self.stats.maps += 1
-        self._put("map", {"t": t, "cell_m": self.bathy.grid_cell_m, "x0": x0, "y0": y0,
-                          "depth": depth, "pings": self.online.pings,
-                          "loops": self._loops()}, t)  # fmt: skip
+        self.publish_message("map", Dem(t, self.bathy.grid_cell_m, float(x0), float(y0),
+                                        np.round(np.asarray(grid, float), 3), self.online.pings,
+                                        self._loops()), t)  # fmt: skip
         n_b = self.online.n_beams
         stride = self.config.cloud_beam_stride
         cloud = recent.reshape(-1, n_b, 3)[:, ::stride].reshape(-1, 3)
-        self._put("cloud", {"t": t, "points": np.round(cloud, 3).tolist()}, t)
+        self.publish_message("cloud", Cloud(t, np.round(cloud, 3)), t)
 
     def _publish_track(self) -> None:
         """The smoothed trajectory (``track``, see the module docstring)."""
@@ -286,8 +261,9 @@ class BathymetricStage(PipelineStage):
         xy = np.round(self.online.filter.trajectory()[:n], 3)
         times = self.ping_times[:n]
         closures = [times[lp.t_end] for lp in self.online.filter.loops if lp.accepted]
-        self._put("track", {"t": times, "x": xy[:, 0].tolist(), "y": xy[:, 1].tolist(),
-                            "closures_t": closures, "loops": self._loops()}, times[-1])  # fmt: skip
+        track = Track(np.asarray(times, dtype=np.float64), xy[:, 0], xy[:, 1],
+                      np.asarray(closures, dtype=np.float64), self._loops())  # fmt: skip
+        self.publish_message("track", track, times[-1])
 
     def status_fields(self) -> dict[str, Any]:
         """Particles, pings in the filter and loop closures (accepted, rejected)."""
@@ -300,8 +276,7 @@ class BathymetricStage(PipelineStage):
         """End of data: swaths still waiting for odometry are dropped (counted as
         ``pending_dropped``); the smoothed trajectory and the whole map are published."""
         with self._lock:
-            self.stats.pending_dropped += len(self._swaths)
-            self._swaths.clear()
+            self.stats.pending_dropped += self._swaths.clear()
             if self.online.pings > 0 and self.ping_times:
                 self._publish_track()
                 self._publish_map(self.ping_times[-1], None)

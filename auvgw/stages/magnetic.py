@@ -28,25 +28,24 @@ Time origin: the beacons are driven ``m cos(2 pi f t)`` on the vehicle clock, wh
 the vehicle clock); every time is shifted by it before the demodulator and the filter and back on
 output.
 
-Published (JSON, the shapes of ``docs/viz.md``): ``auv/<v>/slam/magnetic/pose`` (``t``, ``x``,
-``y``, ``heading``, ``cov`` 3x3; ``t`` the end of the odometry applied, odometry composed over
-``odometry_period_s`` per filter prediction) after every demodulated window (every ``hop_s`` of
-magnetometer time; ``t_mag``: the sample that completed it, for latency) and otherwise every
-``publish_period_s`` of odometry time (``t_mag`` null); ``.../landmarks`` (``t``, ``mean``,
-``cov``, ``ids``: the beacons; ``acoustic_beacon``: its known ``[x, y]``) with each pose after a
-window; ``.../observations``
-(one per demodulated beacon observation: ``t``, ``freq``, ``amp_nt``, ``snr``, ``z`` = [range m,
-bearing rad], ``r``, plus ``x``, ``y``, ``heading`` of the pose it is seen from, for range
-lines). Counters on ``auv/<v>/status/slam-magnetic``. A malformed payload is counted and
-logged, never stops the worker.
+Published (envelopes of :mod:`auvgw.slam.outputs` messages): ``auv/<v>/slam/magnetic/pose`` (a
+``PoseEstimate``: ``t``, ``x``, ``y``, ``heading``, ``cov`` 3x3; ``t`` the end of the odometry
+applied, odometry composed over ``odometry_period_s`` per filter prediction) after every
+demodulated window (every ``hop_s`` of magnetometer time; ``t_mag``: the sample that completed
+it, for latency) and otherwise every ``publish_period_s`` of odometry time (``t_mag`` None);
+``.../landmarks`` (a ``PointMap``: ``t``, ``mean``, ``cov``, ``ids``: the beacons;
+``acoustic_beacon``: its known ``[x, y]``) with each pose after a window; ``.../observations``
+(a ``BeaconRange`` per demodulated beacon observation: ``t``, ``freq``, ``amp_nt``, ``snr``,
+``z`` = [range m, bearing rad], ``r``, plus ``x``, ``y``, ``heading`` of the pose it is seen
+from, for range lines). Counters on ``auv/<v>/status/slam-magnetic``. A malformed payload is
+counted and logged, never stops the worker.
 """
 
 from __future__ import annotations
 
 import logging
 import math
-from collections import deque
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -55,11 +54,12 @@ from pydantic import Field
 
 from auvgw.drivers import registry
 from auvgw.fusion.odometry import Odometry
-from auvgw.slam.history import StateHistory
+from auvgw.slam.history import HeldSamples, Increment, StateHistory, compose_increments
 from auvgw.slam.magnetic.filters import MAGNETIC_ALGORITHMS, make_magnetic
 from auvgw.slam.magnetic.mlp import MLP
 from auvgw.slam.magnetic.online import MagneticOnline
 from auvgw.slam.models import VelocityModel
+from auvgw.slam.outputs import BeaconRange, PointMap, PoseEstimate
 from auvgw.stages.base import BusCounters, PipelineStage, StageConfig
 
 log = logging.getLogger(__name__)
@@ -164,15 +164,15 @@ class MagneticStage(PipelineStage):
         self.net = MLP.load(cfg.model)
         self.online: MagneticOnline | None = None
         self._att = StateHistory(3, angles=(0, 1, 2))  # heading, pitch, roll (rad)
-        self._mags: deque[tuple[float, np.ndarray]] = deque()
-        #: acoustic fixes (t, z, r) that came before the first odometry sample did
-        self._fixes: deque[tuple[float, np.ndarray, np.ndarray]] = deque()
+        self._mags: HeldSamples[np.ndarray] = HeldSamples(cfg.max_pending_mag)
+        #: acoustic fixes (z, r) at t that came before the first odometry sample did
+        self._fixes: HeldSamples[tuple[np.ndarray, np.ndarray]] = HeldSamples(MAX_PENDING_FIXES)
         self._t_pub: float | None = None
         self._t_odo = -math.inf  # end of the odometry given to the filter (input clock, s)
-        #: odometry being composed: dx, dy (m, body frame at its start), dheading, dt, count
-        self._acc: tuple[float, float, float, float, int] = (0.0, 0.0, 0.0, 0.0, 0)
+        #: odometry increments being composed into one filter prediction
+        self._incs: list[Increment] = []
         self._t0 = cfg.clock_epoch_s  # vehicle clock zero on the input clock, s
-        self._mag_device = cfg.mag_device
+        self.sources["field"] = cfg.mag_device
         self._counter: tuple[int, int] | None = None  # (last raw counter, wraps * modulus)
 
     def input_keys(self) -> list[str]:
@@ -201,8 +201,9 @@ class MagneticStage(PipelineStage):
             if self.online is None:
                 self.online = self._make(o)
                 self._t_odo = o.t
-                while self._fixes:  # the fixes that came before it (odometry lags the sensors)
-                    self._add_fix(*self._fixes.popleft(), t_first=o.t)
+                # the fixes that came before it (odometry lags the sensors)
+                for t, (z, r) in self._fixes.release(math.inf):
+                    self._add_fix(t, z, r, t_first=o.t)
             elif o.increment is not None:
                 self._compose(o.t, o.increment)
             self._att.append(o.t, (o.heading, o.pitch, o.roll))
@@ -216,15 +217,12 @@ class MagneticStage(PipelineStage):
         the start, m; ``dheading`` rad) over ``odometry_period_s`` into one filter prediction
         ending at ``t``, its control noise scaled by ``1/n`` (the variance of ``n`` steps)."""
         assert self.online is not None
-        dx, dy, dh, dt, n = self._acc
-        c, s = math.cos(dh), math.sin(dh)
-        self._acc = (dx + c * inc.dx - s * inc.dy, dy + s * inc.dx + c * inc.dy,
-                     dh + inc.dheading, dt + inc.dt, n + 1)  # fmt: skip
-        dx, dy, dh, dt, n = self._acc
+        self._incs.append(inc)
+        dx, dy, dh, dt = compose_increments(self._incs)
         if dt >= self.config.odometry_period_s - 1e-9 and dt > 0:
             self.online.add_odometry(t - self._t0, np.array([dx / dt, dy / dt, dh / dt]), dt,
-                                     q_scale=1.0 / n)  # fmt: skip
-            self._acc = (0.0, 0.0, 0.0, 0.0, 0)
+                                     q_scale=1.0 / len(self._incs))  # fmt: skip
+            self._incs.clear()
             self._t_odo = t
 
     def feed_mag(self, t: float, b_body_nt: np.ndarray) -> None:
@@ -234,10 +232,7 @@ class MagneticStage(PipelineStage):
             if first is not None and t < first:
                 self.stats.mag_before_odometry += 1
                 return
-            if len(self._mags) >= self.config.max_pending_mag:
-                self._mags.popleft()
-                self.stats.mag_dropped += 1
-            self._mags.append((float(t), np.asarray(b_body_nt, float)))
+            self.stats.mag_dropped += self._mags.hold(t, np.asarray(b_body_nt, float))
             self._drain_mag()
 
     def feed_acoustic(
@@ -253,10 +248,7 @@ class MagneticStage(PipelineStage):
         r = np.diag([c.acoustic_sigma_range_m**2, math.radians(c.acoustic_sigma_bearing_deg) ** 2])
         with self._lock:
             if self.online is None:  # held until the first odometry sample arrives
-                if len(self._fixes) >= MAX_PENDING_FIXES:
-                    self._fixes.popleft()
-                    self.stats.acoustic_dropped += 1
-                self._fixes.append((t, z, r))
+                self.stats.acoustic_dropped += self._fixes.hold(t, (z, r))
             else:
                 self._add_fix(t, z, r, None)
 
@@ -278,9 +270,7 @@ class MagneticStage(PipelineStage):
         kind = message_kind(message)
         if kind == MAG_KIND:
             with self._lock:
-                if self._mag_device is None:
-                    self._mag_device = device
-                if device != self._mag_device:
+                if not self.from_source("field", device):
                     self.stats.mag_other_device += 1
                     return
                 t = self._mag_time(t_recv_ns, int(message.counter))
@@ -303,11 +293,9 @@ class MagneticStage(PipelineStage):
         return self._t0 + (base + counter) / rate
 
     def _drain_mag(self) -> None:
-        last = self._att.last_t
-        if self.online is None or last is None:
+        if self.online is None:
             return
-        while self._mags and self._mags[0][0] <= last:
-            t, b = self._mags.popleft()
+        for t, b in self._mags.release(self._att.last_t):
             att = self._att.at(t, hold_first=True)
             assert att is not None
             h, p, r = (float(v) for v in att)
@@ -321,9 +309,9 @@ class MagneticStage(PipelineStage):
             x, y, hd = self.online.filt.xs[:3]
             for ob in obs:
                 self.stats.observations += 1
-                d = asdict(ob)
-                d.update(t=ob.t + self._t0, x=float(x), y=float(y), heading=float(hd))
-                self._put("observations", d, t)
+                self.publish_message("observations", BeaconRange(
+                    ob.t + self._t0, ob.freq, ob.amp_nt, ob.snr, ob.z, np.asarray(ob.r, float),
+                    float(x), float(y), float(hd)), t)  # fmt: skip
             if self.online.horizon != horizon:  # a window was demodulated
                 self._publish_pose(landmarks=True, t_mag=t)
 
@@ -342,18 +330,19 @@ class MagneticStage(PipelineStage):
         self._t_pub = t
         self.stats.published += 1
         self.track.append((t, float(x[0]), float(x[1]), float(x[2])))
-        self._put("pose", {"t": t, "x": float(x[0]), "y": float(x[1]), "heading": float(x[2]),
-                           "cov": p.tolist(), "t_mag": t_mag}, t)  # fmt: skip
+        self.publish_message("pose", PoseEstimate(t, float(x[0]), float(x[1]), float(x[2]),
+                                                  cov=np.asarray(p, float), t_mag=t_mag), t)
         if landmarks:
             f = self.online.filt
             n = f.n_lm
-            mean = f.xs[3 : 3 + 2 * n].reshape(n, 2)
-            cov = [f.p[3 + 2 * i : 5 + 2 * i, 3 + 2 * i : 5 + 2 * i].tolist() for i in range(n)]
-            body: dict[str, Any] = {"t": t, "mean": mean.tolist(), "cov": cov,
-                                    "ids": list(range(n))}  # fmt: skip
-            if self.config.anchor_xy is not None:
-                body["acoustic_beacon"] = list(self.config.anchor_xy)
-            self._put("landmarks", body, t)
+            mean = np.asarray(f.xs[3 : 3 + 2 * n], float).reshape(n, 2)
+            cov = np.array([f.p[3 + 2 * i : 5 + 2 * i, 3 + 2 * i : 5 + 2 * i] for i in range(n)],
+                           float).reshape(n, 2, 2)  # fmt: skip
+            anchor = self.config.anchor_xy
+            self.publish_message("landmarks", PointMap(
+                t, mean, cov, np.arange(n),
+                acoustic_beacon=None if anchor is None else (float(anchor[0]), float(anchor[1])),
+            ), t)  # fmt: skip
 
     def status_fields(self) -> dict[str, Any]:
         """Algorithm and the number of beacons mapped."""

@@ -3,12 +3,14 @@ in-process), pose and map onto it. The pipeline itself (pose interpolation, feat
 association, filter stepping, heading aiding) is :class:`auvgw.slam.landmark.online.LandmarkOnline`,
 which runs without a bus; this module only chooses the MSIS head, counts and publishes.
 
-Published (JSON, as ``docs/viz.md`` "JSON accepted" describes) on
-``auv/<v>/slam/<pipeline>/pose``: ``t``, ``x``, ``y``, ``heading``, ``cov`` (3 x 3 over x, y,
-heading), an evenly spaced subsample of the ``particles`` with their ``weights``, ``neff``; and
-on ``auv/<v>/slam/<pipeline>/landmarks``: ``t``, ``mean``, ``cov``, ``ids`` and ``lines``
-(``rho``, ``theta``, ``cov``, ``p0``, ``p1`` in the map frame), each time the pipeline has an
-estimate due (every ``publish_period_s`` of odometry time) and at :meth:`SlamStage.flush`.
+Published (envelopes of the declared messages of :mod:`auvgw.slam.outputs`) on
+``auv/<v>/slam/<pipeline>/pose`` a :class:`~auvgw.slam.outputs.PoseEstimate`: ``t``, ``x``,
+``y``, ``heading``, ``cov`` (3 x 3 over x, y, heading), an evenly spaced subsample of the
+``particles`` with their ``weights``, ``neff``; and on ``auv/<v>/slam/<pipeline>/landmarks`` a
+:class:`~auvgw.slam.outputs.PointMap`: ``t``, ``mean``, ``cov``, ``ids``, ``lines`` (``rho``,
+``theta``, ``cov``, ``p0``, ``p1`` in the map frame) and ``line_landmarks``, each time the
+pipeline has an estimate due (every ``publish_period_s`` of odometry time) and at
+:meth:`SlamStage.flush`.
 Counters on ``auv/<v>/status/slam-<pipeline>``.
 
 Times are seconds on the odometry clock (the clock of the gateway's receive stamps online: the
@@ -79,7 +81,7 @@ class SlamStage(Stage):
     """Odometry + MSIS scan lines -> SLAM pose and map (see the module docstring).
 
     ``session``: publish on it (None: in-process only). ``on_publish``: called with ``(key,
-    JSON payload bytes, t_ns)`` at every publication (the demo logs them into Rerun).
+    envelope bytes, t_ns)`` at every publication (the demo logs them into Rerun).
     """
 
     name = "slam"
@@ -96,7 +98,12 @@ class SlamStage(Stage):
         self.config = cfg = config or SlamStageConfig()
         super().__init__(cfg, SlamStats(), session, on_publish=on_publish)
         self.online = LandmarkOnline(cfg, stats=self.stats)
-        self.msis_device = cfg.msis_device
+        self.sources["sonar"] = cfg.msis_device
+
+    @property
+    def msis_device(self) -> str | None:
+        """The gateway device of the MSIS head used (None: none seen yet)."""
+        return self.sources.get("sonar")
 
     @property
     def track(self) -> list[tuple[float, float, float, float]]:
@@ -129,11 +136,9 @@ class SlamStage(Stage):
         the MSIS head are used, everything else is ignored. ``t_recv_ns``: the odometry clock."""
         if not isinstance(message, sn.HeadData):
             return
+        if not self.from_source("sonar", device):
+            return
         with self._lock:
-            if self.msis_device is None:
-                self.msis_device = device
-            if device != self.msis_device:
-                return
             self.stats.received += 1
             self.online.add_ping(t_recv_ns / 1e9, message)
 
@@ -154,8 +159,8 @@ class SlamStage(Stage):
     def _publish(self, t: float) -> None:
         self.stats.published += 1
         on = self.online
-        for what, body in (("pose", on.pose_message(t)), ("landmarks", on.landmarks_message(t))):
-            self.publish_json(what, body, t, f"Slam{what.title()}")
+        self.publish_message("pose", on.pose_message(t), t)
+        self.publish_message("landmarks", on.landmarks_message(t), t)
 
     def status_fields(self) -> dict[str, Any]:
         """Algorithm, MSIS device, extractor, map sizes, Neff and resamples."""

@@ -56,7 +56,9 @@ import numpy as np
 from auvgw.bus import SCHEMA_VERSION, Keys, decode_envelope
 from auvgw.drivers.spec import from_jsonable, resolve_type
 from auvgw.ground.devicetime import DeviceClock
+from auvgw.slam import pipelines
 from auvgw.stages.base import BusCounters, Stage, StageConfig
+from auvgw.subscribe import slam_output
 from auvgw.viz.logger import RerunLogger, VizOptions
 
 __all__ = ["SECTIONS", "StageStats", "VizRunner", "VizStage", "host_clock", "open_viz"]
@@ -176,13 +178,19 @@ def _points(value: Any) -> tuple[np.ndarray, np.ndarray | None]:
 
 def _lines(value: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
     """(rho, theta, cov, endpoints) from a list of {"rho", "theta", "cov"?, "p0"?, "p1"?} or
-    [rho, theta] pairs, or {"rho": [...], "theta": [...], "cov": [...]}."""
+    [rho, theta] pairs, or {"rho": [...], "theta": [...], "cov": [...], "p0"?: [...], "p1"?:
+    [...]} (a :class:`~auvgw.slam.outputs.LineSet`)."""
     if isinstance(value, Mapping):
         rho = np.asarray(value.get("rho", []), dtype=np.float64).reshape(-1)
         theta = np.asarray(value.get("theta", []), dtype=np.float64).reshape(-1)
         cov = value.get("cov")
         c = None if cov is None else np.asarray(cov, dtype=np.float64).reshape(-1, 2, 2)
-        return rho, theta, c, None
+        p0, p1 = value.get("p0"), value.get("p1")
+        e = None
+        if p0 is not None and p1 is not None and len(p0) == len(p1) == len(rho):
+            e = np.stack([np.asarray(p0, np.float64).reshape(-1, 2),
+                          np.asarray(p1, np.float64).reshape(-1, 2)], axis=1)  # fmt: skip
+        return rho, theta, c, e
     items = list(value or [])
     if items and isinstance(items[0], Mapping):
         rho = np.array([_float(v.get("rho")) for v in items])
@@ -341,11 +349,11 @@ class VizStage(Stage):
         return "unknown"
 
     def _handle(self, key: str, payload: bytes, t_host: float) -> str:
-        base = self.keys.base + "/"
-        if not key.startswith(base):
+        split = self.keys.split(key)
+        if split is None:
             return "unknown:key"
-        parts = key[len(base) :].split("/")
-        section = parts[0]
+        section = split[0]
+        parts = [section, *split[1].split("/")] if split[1] else [section]
         if section in ("sensor", "nav"):  # envelopes (MessagePack; JSON of the previous release)
             env = decode_envelope(payload, key)
             if not self._stamps.accept(env.t_recv_ns):  # a forged time never moves the clock
@@ -356,6 +364,8 @@ class VizStage(Stage):
                 return self._sensor(env.device, env.type, env.message, t_stamp)
             data: Any = {"v": SCHEMA_VERSION, "type": env.type, "device": env.device,
                          "msg": env.body, "t_recv_ns": env.t_recv_ns}  # fmt: skip
+        elif section == "slam":  # a declared SLAM output (auvgw.slam.outputs), or JSON
+            data = slam_output(payload, key)
         else:
             data = json.loads(payload)
         type_name, device, body = "", parts[1] if len(parts) > 1 else "", data
@@ -637,14 +647,19 @@ class VizStage(Stage):
         return shown
 
     def _slam(self, pipeline: str, what: str, body: Mapping[str, Any], t_host: float) -> str:
+        """A SLAM output, shown by its view in the pipeline registry
+        (:data:`auvgw.slam.pipelines.OUTPUT_VIEWS`): the pipeline publishing under ``pipeline``
+        names the view of each of its outputs ``what``."""
         name = f"slam/{pipeline}"
         # a SLAM output's t is on the odometry's clock, the stamps' (vehicle-paced under a
         # [clock]): its own row time as it is; mapping it against the host's arrival time made
         # rows at --speed 2 land at about half their vehicle time (issue 33)
         t = _float(body.get("t"), t_host)
+        record = pipelines.for_segment(pipeline)
+        view = record.view_of(what) if record is not None else None
         shown = False
         pose = self._pose_of(body)
-        if what == "pose" and pose is not None:
+        if view == "pose" and pose is not None:
             cov = body.get("cov", body.get("covariance"))
             cxy = None if cov is None else np.asarray(cov, dtype=np.float64)[:2, :2]
             self.logger.trajectory(name, t, *pose, cxy)
@@ -653,22 +668,40 @@ class VizStage(Stage):
         if particles is not None:
             self.logger.particles(name, t, particles, body.get("weights"))
             shown = True
-        if what in ("cloud", "map"):
-            shown |= self._seabed_map(name, body, t)
-        if what in ("landmarks", "map"):
+        if view == "dem":
+            shown |= self._dem(name, body, t)
+        elif view == "cloud":
+            shown |= self._seabed(name, body, t)
+        elif view == "landmarks":
             shown |= self._map_features(name, body, t)
-        if what == "observations":
+        elif view == "ranges":
             shown |= self._beacon_ranges(name, body, t)
+        elif view == "path":
+            shown |= self._path(name, body)
         return "logged" if shown else f"slam:{what}"
 
-    def _seabed_map(self, name: str, body: Mapping[str, Any], t: float) -> bool:
-        """Bathymetric SLAM map (auvgw.stages.bathymetric): a ``cloud`` of ``points`` [[x, y,
-        depth]] as seabed points, a DEM tile (``depth`` grid, ``cell_m``, ``x0``, ``y0``)."""
-        if "cell_m" in body and "depth" in body:
-            grid = [[math.nan if v is None else v for v in row] for row in body["depth"]]
-            self.logger.dem(name, t, _float(body["x0"]), _float(body["y0"]),
-                            _float(body["cell_m"]), grid)  # fmt: skip
-            return True
+    def _path(self, name: str, body: Mapping[str, Any]) -> bool:
+        """A smoothed trajectory (bathymetric SLAM's ``track``: ``t``, ``x``, ``y`` per pose,
+        sent once at the end): its own track ``<name>-smoothed``, each pose at its time."""
+        t, x, y = body.get("t"), body.get("x"), body.get("y")
+        if not isinstance(t, list) or not isinstance(x, list) or not isinstance(y, list):
+            return False
+        for ti, xi, yi in zip(t, x, y, strict=False):
+            if ti is not None and xi is not None and yi is not None:
+                self.logger.trajectory(f"{name}-smoothed", float(ti), float(xi), float(yi))
+        return bool(t)
+
+    def _dem(self, name: str, body: Mapping[str, Any], t: float) -> bool:
+        """A DEM tile (bathymetric SLAM's ``map``: ``depth`` grid, ``cell_m``, ``x0``, ``y0``)."""
+        if "cell_m" not in body or "depth" not in body:
+            return False
+        grid = [[math.nan if v is None else v for v in row] for row in body["depth"]]
+        self.logger.dem(name, t, _float(body["x0"]), _float(body["y0"]), _float(body["cell_m"]),
+                        grid)  # fmt: skip
+        return True
+
+    def _seabed(self, name: str, body: Mapping[str, Any], t: float) -> bool:
+        """Seabed points (bathymetric SLAM's ``cloud``: ``points`` [[x, y, depth]])."""
         pts = body.get("points")
         if pts is not None and len(pts) and len(pts[0]) == 3:
             self.logger.seabed(name, t, pts)

@@ -55,10 +55,11 @@ from auvgw.slam.features import (
     SonarFeatureExtractor,
     SonarMount,
 )
-from auvgw.slam.history import StateHistory
+from auvgw.slam.history import HeldSamples, Increment, StateHistory, compose_increments
 from auvgw.slam.landmark.base import LandmarkFilter, LandmarkMap, ParticleFilterSLAM
 from auvgw.slam.landmark.registry import ALGORITHMS, DISPLAY_NAMES, make_filter
 from auvgw.slam.models import LineFeature, RangeBearing, VelocityModel, wrap_angle
+from auvgw.slam.outputs import LineSet, PointMap, PoseEstimate
 
 __all__ = [
     "Increment",
@@ -69,18 +70,6 @@ __all__ = [
     "Ping",
     "compose_increments",
 ]
-
-
-class Increment(Protocol):
-    """One odometry motion increment (:class:`auvgw.fusion.MotionIncrement`)."""
-
-    @property
-    def t1(self) -> float: ...  # end time, s
-
-    @property
-    def dt(self) -> float: ...  # duration, s
-
-    def apply(self, x: float, y: float, heading: float) -> tuple[float, float, float]: ...
 
 
 class OdometrySample(Protocol):
@@ -237,17 +226,6 @@ def _length(ln: Any) -> float:
     return float(np.hypot(*(e[1] - e[0])))
 
 
-def compose_increments(incs: Sequence[Increment]) -> tuple[float, float, float, float]:
-    """The motion of consecutive increments as one: ``(dx forward, dy starboard, dheading,
-    dt)`` in the body frame at the first increment's start (m, m, rad, s)."""
-    x = y = h = 0.0
-    dt = 0.0
-    for inc in incs:
-        x, y, h = inc.apply(x, y, h)
-        dt += inc.dt
-    return x, y, h, dt
-
-
 def ping_intensity(msg: Ping) -> np.ndarray:
     """A scan line's bins as receiver dB (8-bit: 0-255 over 80 dB; 4-bit: ``ad_low`` plus the
     nibble's share of ``ad_span``)."""
@@ -279,7 +257,7 @@ class LandmarkOnline:
         self.lines: deque[dict[str, Any]] = deque(maxlen=cfg.max_lines)
         self.poses = StateHistory(3, angles=(2,))
         self._incs: deque[Increment] = deque()
-        self._pings: deque[tuple[float, Ping]] = deque()
+        self._pings: HeldSamples[Ping] = HeldSamples(cfg.max_pending_pings)
         self._t_filter: float | None = None
         self._t_pub: float | None = None
         self._t_heading: float | None = None
@@ -297,8 +275,8 @@ class LandmarkOnline:
         elif o.increment is not None:
             self._incs.append(o.increment)
         self.poses.append(o.t, (o.x, o.y, o.heading))
-        while self._pings and self._pings[0][0] <= o.t:
-            self._process_ping(*self._pings.popleft())
+        for t, ping in self._pings.release(o.t):
+            self._process_ping(t, ping)
         assert self._t_filter is not None
         if o.t - self._t_filter >= self.config.predict_period_s:
             self._predict_to(o.t)
@@ -316,10 +294,7 @@ class LandmarkOnline:
         if last is not None and t <= last:
             self._process_ping(t, msg)
             return
-        self._pings.append((t, msg))
-        if len(self._pings) > self.config.max_pending_pings:
-            self._pings.popleft()
-            self.stats.pings_dropped += 1
+        self.stats.pings_dropped += self._pings.hold(t, msg)
 
     def finish(self) -> float | None:
         """End of data: predict to the newest odometry and make an estimate due there (its
@@ -434,23 +409,16 @@ class LandmarkOnline:
             self.stats.predictions += 1
 
     # -- estimates ------------------------------------------------------------------------------
-    def pose_message(self, t: float) -> dict[str, Any]:
-        """The pose JSON at ``t``: estimate ``x``, ``y`` (m, NED), ``heading`` (rad), 3 x 3
-        ``cov``, an evenly spaced subsample of the ``particles`` with their ``weights``,
-        ``neff``."""
+    def pose_message(self, t: float) -> PoseEstimate:
+        """The pose estimate at ``t``: ``x``, ``y`` (m, NED), ``heading`` (rad), 3 x 3 ``cov``,
+        an evenly spaced subsample of the ``particles`` with their ``weights``, ``neff``."""
         f = self.filter
         assert f is not None
         est = f.estimate()
-        body: dict[str, Any] = {
-            "t": t,
-            "x": float(est[0]),
-            "y": float(est[1]),
-            "heading": float(est[2]),
-            "algorithm": self.config.algorithm,
-        }
         parts = getattr(f, "x", None)
         weights = getattr(f, "weights", None)
-        cov: Any
+        cov: Any = None
+        sample = w_sample = None
         if isinstance(parts, np.ndarray) and parts.ndim == 2 and weights is not None:
             w = weights()
             d = parts - est
@@ -459,17 +427,16 @@ class LandmarkOnline:
             k = min(self.config.max_particles_published, len(parts))
             if k:
                 idx = np.linspace(0, len(parts) - 1, k).astype(int)
-                body["particles"] = np.round(parts[idx], 4).tolist()
-                body["weights"] = w[idx].tolist()
+                sample, w_sample = np.round(parts[idx], 4), np.asarray(w[idx], float)
         elif isinstance(joint := getattr(f, "p", None), np.ndarray):
             cov = joint[:3, :3]  # EKF family: the pose block of the joint covariance
-        else:
-            cov = None
-        if cov is not None:
-            body["cov"] = np.asarray(cov, float).tolist()
         neff = f.neff
-        body["neff"] = None if not math.isfinite(neff) else float(neff)
-        return body
+        return PoseEstimate(
+            t, float(est[0]), float(est[1]), float(est[2]),
+            cov=None if cov is None else np.asarray(cov, float), particles=sample,
+            weights=w_sample, neff=float(neff) if math.isfinite(neff) else None,
+            algorithm=self.config.algorithm,
+        )  # fmt: skip
 
     def maps(self) -> tuple[LandmarkMap, LandmarkMap]:
         """The filter's point landmarks and line landmarks (``(rho, theta)``, map frame)."""
@@ -479,22 +446,24 @@ class LandmarkOnline:
         kind = next((i for i, m in enumerate(models) if isinstance(m, LineFeature)), -1)
         return lm.of_kind(0), lm.of_kind(kind if kind > 0 else -1)
 
-    def landmarks_message(self, t: float) -> dict[str, Any]:
-        """The map JSON at ``t``: point landmarks with covariances, the line layer (observations
-        placed with the SLAM pose) and the filter's wall landmarks (``line_landmarks``: ``rho``,
-        ``theta`` and their 2 x 2 covariance in the map frame)."""
+    def landmarks_message(self, t: float) -> PointMap:
+        """The map at ``t``: point landmarks with covariances, the line layer (observations
+        placed with the SLAM pose, ``lines``) and the filter's wall landmarks
+        (``line_landmarks``: ``rho``, ``theta`` and their 2 x 2 covariance in the map frame)."""
         pts, walls = self.maps()
-        return {
-            "t": t,
-            "mean": np.asarray(pts.mean, float).tolist(),
-            "cov": np.asarray(pts.cov, float).tolist(),
-            "ids": np.asarray(pts.ids).astype(int).tolist(),
-            "lines": list(self.lines),
-            "line_landmarks": [
-                {"rho": float(m[0]), "theta": float(m[1]), "cov": np.asarray(c).tolist()}
-                for m, c in zip(walls.mean, walls.cov, strict=True)
-            ],
-        }
+        obs = list(self.lines)
+        col = {k: np.array([ln[k] for ln in obs], float)
+               for k in ("rho", "theta", "cov", "p0", "p1")}  # fmt: skip
+        lines = LineSet(col["rho"], col["theta"], col["cov"].reshape(-1, 2, 2),
+                        col["p0"].reshape(-1, 2), col["p1"].reshape(-1, 2))  # fmt: skip
+        wm = np.asarray(walls.mean, float).reshape(-1, 2)
+        return PointMap(
+            t, np.asarray(pts.mean, float).reshape(-1, 2),
+            np.asarray(pts.cov, float).reshape(-1, 2, 2), np.asarray(pts.ids).astype(int),
+            lines=lines,
+            line_landmarks=LineSet(wm[:, 0], wm[:, 1],
+                                   np.asarray(walls.cov, float).reshape(-1, 2, 2)),
+        )  # fmt: skip
 
     def summary(self) -> dict[str, Any]:
         """Algorithm, extractor counts, map sizes, Neff and resamples (JSON-ready)."""

@@ -45,6 +45,16 @@ NEES_2SIGMA = 4.0
 NEES_95 = 5.991
 
 
+def harbour_ins_dvl(duration_s: float) -> Scenario:
+    """``config/scenarios/harbour.json`` cut at ``duration_s`` with only the INS and the DVL,
+    their ports off (frames made offline, e.g. for :func:`write_recording`)."""
+    data = json.loads(config_file("scenarios/harbour.json").read_text())
+    data["duration_s"] = duration_s
+    data["devices"] = {"ins": {"options": {"serial": False, "can": False}},
+                       "dvl": {"options": {"serial": False}}}  # fmt: skip
+    return Scenario.model_validate(data)
+
+
 def survey_scenario(
     duration_s: float | None = None, bottom_lock_loss: tuple[tuple[float, float], ...] = ()
 ) -> Scenario:

@@ -1,0 +1,218 @@
+"""The SLAM-pipeline registry: one record per pipeline, the one place a pipeline is declared.
+
+Every list of pipelines the rest of the project needs is derived from :data:`PIPELINES`: the
+``--pipeline`` choices and help of ``auvgw slam eval`` and ``auvgw slam run``, the evaluation
+each one runs and its default algorithms, the stage ``slam run`` serves or replays a recording
+through and the options it adds to that command, the pipeline ``auvgw demo`` runs on a scenario,
+and the Rerun view each of its outputs goes to (:mod:`auvgw.viz.stage`). A new pipeline is its own
+files plus one :class:`Pipeline` record here (``docs/adding-a-pipeline.md``).
+
+Like the device registry (:mod:`auvgw.drivers.registry`), it names classes and functions by
+``"module:attribute"`` strings and imports none of them, so reading it costs nothing and the
+algorithms' layer never imports the service: :func:`load` imports a target when it is used.
+"""
+
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass
+from typing import Any
+
+__all__ = [
+    "OUTPUT_VIEWS",
+    "PIPELINES",
+    "Output",
+    "Pipeline",
+    "default",
+    "for_demo",
+    "for_segment",
+    "get",
+    "load",
+    "names",
+    "register",
+    "unregister",
+]
+
+#: what a pipeline output is, i.e. the Rerun view it goes to (docs/viz.md, "JSON accepted")
+OUTPUT_VIEWS: dict[str, str] = {
+    "pose": "the pipeline's pose estimate (x, y m NED, heading rad, cov): its trajectory, the "
+    "particles it carries",
+    "landmarks": "a point map (mean, cov, ids), optional line features and acoustic beacon",
+    "dem": "a DEM tile (cell_m, x0, y0, depth grid m): one disc per cell in depth colours",
+    "cloud": "seabed points [[x, y, depth], ...] (m, NED, depth down): accumulated",
+    "path": "a smoothed trajectory (t, x, y m NED per pose) sent once at the end: its own track "
+    "beside the filtered one",
+    "ranges": "one beacon observation (z = [range m, bearing rad] from x, y, heading): a line "
+    "from the vehicle to where it places the beacon",
+}
+
+
+@dataclass(frozen=True)
+class Output:
+    """One output of a pipeline's stage: its key segment ``what`` (``auv/<v>/slam/<p>/<what>``)
+    and its view (a key of :data:`OUTPUT_VIEWS`)."""
+
+    what: str
+    view: str
+
+    def __post_init__(self) -> None:
+        if self.view not in OUTPUT_VIEWS:
+            raise ValueError(f"output {self.what}: unknown view {self.view!r}")
+
+
+@dataclass(frozen=True)
+class Pipeline:
+    """One SLAM pipeline.
+
+    ``name``: its ``--pipeline`` value and key segment (``auv/<v>/slam/<name>/...``);
+    ``summary``: one line for the commands' help; ``online``: ``"module:Class"`` of its pure
+    online class (no bus: arrays and messages in, estimates out); ``stage``: ``"module:Class"``
+    of its bus stage; ``run``: the module of its ``slam run`` entry: ``add_arguments(parser)``
+    (its own options), ``live(args)`` and ``offline(args)`` (over ``--recording``), each
+    returning the exit code; ``evaluation``: ``"module:callable"`` of ``slam eval`` for it,
+    ``run(args) -> exit code``; ``eval_algorithms``: its default ``--algorithms``;
+    ``particle_filters``: its evaluation reads ``--particles`` and ``--association`` (recorded
+    in the command line); ``outputs``: what its stage publishes; ``demo_scenario``: the shipped
+    scenario ``auvgw demo --scenario`` runs it on; ``demo_accepts``: ``"module:callable"``,
+    ``accepts(scenario) -> bool``, whether the demo runs this pipeline on a scenario (None: the
+    fallback, when no other record accepts it); ``any_segment``: its stage's key segment is its
+    algorithm's name (the landmark filters), so a segment no record names is this pipeline's;
+    ``doc``: its page in ``docs/``.
+    """
+
+    name: str
+    summary: str
+    online: str
+    stage: str
+    run: str
+    evaluation: str
+    eval_algorithms: str
+    outputs: tuple[Output, ...]
+    demo_scenario: str
+    demo_accepts: str | None = None
+    particle_filters: bool = True
+    any_segment: bool = False
+    doc: str = ""
+
+    def view_of(self, what: str) -> str | None:
+        """The view of output ``what`` (None: not an output of this pipeline)."""
+        return next((o.view for o in self.outputs if o.what == what), None)
+
+    @property
+    def output_names(self) -> tuple[str, ...]:
+        """The outputs' key segments, in order (a stage's ``outputs``)."""
+        return tuple(o.what for o in self.outputs)
+
+
+_C = "auvgw.commands"
+_SB = "auvgw.slam.bathymetric"
+_SM = "auvgw.slam.magnetic"
+
+#: every pipeline; the demo tries them in this order (the fallback, ``demo_accepts`` None, last)
+PIPELINES: list[Pipeline] = [
+    Pipeline(
+        "magnetic",
+        "AMB-SLAM on the MS3A magnetometer and the acoustic beacon (amb-slam, acoustic-only, "
+        "mb-slam, mb-slam-fej, dr; docs/slam_magnetic.md)",
+        online=f"{_SM}.online:MagneticOnline",
+        stage="auvgw.stages.magnetic:MagneticStage",
+        run=f"{_C}.magnetic_run",
+        evaluation=f"{_C}.slam:run_magnetic",
+        eval_algorithms="amb-slam,acoustic-only,mb-slam,mb-slam-fej,dr",  # MAGNETIC_ALGORITHMS
+        particle_filters=False,  # EKFs; the association is a --variant key
+        outputs=(Output("pose", "pose"), Output("landmarks", "landmarks"),
+                 Output("observations", "ranges")),
+        demo_scenario="beacons",
+        demo_accepts=f"{_C}.magnetic_run:demo_accepts",
+        doc="slam_magnetic.md",
+    ),
+    Pipeline(
+        "bathymetric",
+        "mtm-pf PF-SLAM on the multibeam swaths (mtm-pf, bpslam, dr; "
+        "docs/slam_bathymetric.md)",
+        online=f"{_SB}.online:OnlineBathy",
+        stage="auvgw.stages.bathymetric:BathymetricStage",
+        run=f"{_C}.bathy_run",
+        evaluation=f"{_C}.slam_bathy:run",
+        eval_algorithms="mtm-pf,bpslam,dr",
+        outputs=(Output("pose", "pose"), Output("map", "dem"), Output("cloud", "cloud"),
+                 Output("track", "path")),
+        demo_scenario="survey",
+        demo_accepts=f"{_C}.bathy_run:demo_accepts",
+        doc="slam_bathymetric.md",
+    ),
+    Pipeline(
+        "landmark",
+        "the landmark filters on MSIS point and line features (FastSLAM family, EKF family; "
+        "docs/slam_online.md)",
+        online="auvgw.slam.landmark.online:LandmarkOnline",
+        stage="auvgw.stages.slam:SlamStage",
+        run=f"{_C}.slam_run",
+        evaluation=f"{_C}.slam:run_landmark",
+        eval_algorithms="fastslam1,fastslam2,ufastslam,vb-afastslam,vb-aufastslam",
+        # "map": the landmark map under its older name (docs/viz.md, JSON accepted)
+        outputs=(Output("pose", "pose"), Output("landmarks", "landmarks"),
+                 Output("map", "landmarks")),
+        demo_scenario="harbour",
+        any_segment=True,
+        doc="slam_online.md",
+    ),
+]
+
+
+def names() -> list[str]:
+    """Every pipeline's name, in registry order."""
+    return [p.name for p in PIPELINES]
+
+
+def get(name: str) -> Pipeline:
+    """The record of pipeline ``name`` (KeyError names the known ones)."""
+    for p in PIPELINES:
+        if p.name == name:
+            return p
+    raise KeyError(f"unknown SLAM pipeline {name!r}; known: {', '.join(names())}")
+
+
+def default() -> Pipeline:
+    """The pipeline commands run unless told otherwise (the fallback: ``demo_accepts`` None)."""
+    return next(p for p in PIPELINES if p.demo_accepts is None)
+
+
+def for_segment(segment: str) -> Pipeline | None:
+    """The pipeline publishing under ``auv/<v>/slam/<segment>/``: the record of that name, else
+    the one whose segment is its algorithm's name (None: no such record)."""
+    for p in PIPELINES:
+        if p.name == segment:
+            return p
+    return next((p for p in PIPELINES if p.any_segment), None)
+
+
+def for_demo(scenario: Any) -> Pipeline:
+    """The pipeline ``auvgw demo`` runs on a loaded scenario: the first record whose
+    ``demo_accepts`` takes it, else the fallback."""
+    for p in PIPELINES:
+        if p.demo_accepts is not None and load(p.demo_accepts)(scenario):
+            return p
+    return default()
+
+
+def register(pipeline: Pipeline) -> None:
+    """Add a record (before the fallback, so the demo tries it first); a name taken is a
+    ValueError. For a site's own pipeline, and tests."""
+    if pipeline.name in names():
+        raise ValueError(f"SLAM pipeline {pipeline.name!r} is already registered")
+    PIPELINES.insert(len(PIPELINES) - 1 if PIPELINES[-1].demo_accepts is None else
+                     len(PIPELINES), pipeline)  # fmt: skip
+
+
+def unregister(name: str) -> None:
+    """Remove the record of ``name`` (tests)."""
+    PIPELINES.remove(get(name))
+
+
+def load(target: str) -> Any:
+    """The object a ``"module:attribute"`` string names (imports the module); a bare module
+    name gives the module."""
+    module, _, attr = target.partition(":")
+    mod = importlib.import_module(module)
+    return getattr(mod, attr) if attr else mod
