@@ -257,6 +257,7 @@ def _path_error(est: _Track, truth: _Track, since: float = -math.inf) -> dict[st
     return {
         "samples": len(te),
         "outside_truth": int(len(keep) - len(te)),
+        "from_s": float(te[0]),
         "distance_m": dist,
         "rmse_m": rmse,
         "rmse_x_m": float(np.sqrt(np.mean(ex**2))),
@@ -1161,7 +1162,8 @@ def _bathy_report(
         print("SLAM smoothed: no trajectory from the bathymetric stage")
         return {"slam_smoothed": None, "closures_vehicle_s": None}
     track, closures = smoothed
-    err = _path_error(track, truth)
+    # over the filtered estimate's span (from dead reckoning's first DVL fix)
+    err = _path_error(track, truth, filtered["from_s"] if filtered else -math.inf)
     _print_vs_truth("SLAM smoothed (mtm-pf mean trajectory after every closure)", err,
                     "not enough smoothed poses or truth to compare")  # fmt: skip
     when = (f"at vehicle t = {', '.join(f'{t:.0f}' for t in closures)} s" if closures
