@@ -171,6 +171,11 @@ def main() -> int:
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--report", action="store_true", help="only rebuild the tables")
     ap.add_argument(
+        "--resume",
+        action="store_true",
+        help="keep OUT/runs.jsonl's whole runs (same command) and run only the ones after them",
+    )
+    ap.add_argument(
         "--merge", default="", help="DIR,DIR,...: one table of studies of the same surveys"
     )
     args = ap.parse_args()
@@ -195,6 +200,16 @@ def main() -> int:
         rows.append((preset, alg, cfg))
     scns = [load_scenario(f"config/scenarios/{n}.json") for n in args.scenarios.split(",")]
     args.out.mkdir(parents=True, exist_ok=True)
+    first, kept = 0, ""
+    if args.resume and (args.out / "runs.jsonl").exists():
+        old = json.loads((args.out / "meta.json").read_text())
+        if old["rows"] != [f"{p}/{a}" for p, a, _ in rows] or old["seed"] != args.seed:
+            print(f"--resume: {args.out} holds other rows or another seed", file=sys.stderr)
+            return 2
+        recs = [json.loads(x) for x in (args.out / "runs.jsonl").read_text().splitlines() if x]
+        done = [sum(r["run"] == i for r in recs) == len(rows) for i in range(args.runs)]
+        first = done.index(False) if False in done else args.runs
+        kept = "".join(json.dumps(r) + "\n" for r in recs if r["run"] < first)
     meta = {
         "command": " ".join(["python", *sys.argv]), "purpose": args.purpose, "seed": args.seed,
         "scenarios": [s.name for s in scns], "nav": args.nav, "particles": args.particles,
@@ -202,19 +217,23 @@ def main() -> int:
         "params": f"{args.frozen} at commit {rev or 'UNCOMMITTED'}"
         + (f", with {' '.join(args.set)}" if args.set else ""),
     }  # fmt: skip
-    (args.out / "meta.json").write_text(json.dumps(meta, indent=1))
     from auvgw.slam.bathymetric.heldout import run_rows
 
+    if first:
+        meta["command"] = f"{old['command']}\n{meta['command']}  # runs {first}-"
+    (args.out / "meta.json").write_text(json.dumps(meta, indent=1))
     with open(args.out / "runs.jsonl", "w") as fh:
+        fh.write(kept)
         t0 = time.time()
         for i, preset, alg, res in run_rows(
-            scns, rows, args.runs, args.seed, DRModel(kind=args.nav), args.purpose
+            scns, rows, args.runs, args.seed, DRModel(kind=args.nav), args.purpose, first
         ):
             rec = {
                 "run": i, "row": f"{preset}/{alg}", "scenario": scns[i % len(scns)].name,
                 "final_error_m": res.final_error_m, "rms_m": res.rms_m,
                 "runtime_s": res.runtime_s, "loops_accepted": res.loops_accepted,
                 "resamplings": res.extra.get("resamplings", 0.0),
+                **{k: v for k, v in res.extra.items() if k.startswith("spread_")},
             }  # fmt: skip
             fh.write(json.dumps(rec) + "\n")
             fh.flush()

@@ -81,14 +81,15 @@ def run_rows(
     seed: int,
     nav: DRModel,
     purpose: Literal["tuning", "test"],
+    first: int = 0,
 ) -> Iterator[tuple[int, str, str, BathyResult]]:
-    """Every run ``0 .. runs-1`` through every ``(preset, algorithm, config)`` row, run by run
+    """Every run ``first .. runs-1`` through every ``(preset, algorithm, config)`` row, run by run
     (so a study cut short still holds whole runs); refuses a seed or scenario outside
     ``purpose``'s split. The filter of row ``(preset, alg)`` on run ``i`` draws from
     ``SeedSequence([seed, i, crc32(alg)])``: the same draws in every preset."""
     for s in scenarios:
         SPLIT.check(seed, s.name, purpose)
-    for i in range(runs):
+    for i in range(first, runs):
         scn = scenarios[i % len(scenarios)]
         sim, world = _survey(scn.model_dump_json(), seed, i, None, nav)
         for preset, alg, cfg in rows:
