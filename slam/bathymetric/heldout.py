@@ -33,7 +33,15 @@ __all__ = ["SPLIT", "Frozen", "load_frozen", "paired_rows", "row_config", "run_r
 #: test scenarios: new terrains (and one mirrored route) made for issue 28, never tuned on
 SPLIT = Split(
     tuning=("bathy_survey", "bathy_sandfield", "bathy_sandwaves", "bathy_lccd"),
-    test=("bathy_test_a", "bathy_test_b", "bathy_test_c"),
+    test=(
+        "bathy_test_a",
+        "bathy_test_b",
+        "bathy_test_c",
+        # claim C14: the same terrains, routes cut before the tie lines (no crossings)
+        "bathy_test_a_nocross",
+        "bathy_test_b_nocross",
+        "bathy_test_c_nocross",
+    ),
 )
 
 
