@@ -106,8 +106,10 @@ def report(out: Path) -> None:
                   "Fig. 11):", "", "| row | " + " | ".join(lags) + " |",
                   "|---|" + "---|" * len(lags)]  # fmt: skip
         for r in rows:
-            cells = [np.nanmean([by[r][i].get(k, np.nan) for i in whole]) for k in lags]
-            lines.append(f"| {r} | " + " | ".join(f"{c:.2f}" for c in cells) + " |")
+            vals = [[v for i in whole if (v := by[r][i].get(k, np.nan)) == v] for k in lags]
+            if any(vals):  # rows without the log (older studies) are left out
+                cells = [f"{np.mean(v):.2f}" if v else "-" for v in vals]
+                lines.append(f"| {r} | " + " | ".join(cells) + " |")
     pairs = []
     for p in sorted({r.split("/")[0] for r in rows}):
         pairs += [(f"{p}/dr", f"{p}/bpslam"), (f"{p}/bpslam", f"{p}/mtm-pf")]
