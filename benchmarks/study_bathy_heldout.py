@@ -96,6 +96,20 @@ def report(out: Path) -> None:
                 fe = [by[r][i]["final_error_m"] for i in whole if i % len(scns) == k]
                 cells.append(f"{np.mean(fe):.2f} ({len(fe)})" if fe else "-")
             lines.append(f"| {r} | " + " | ".join(cells) + " |")
+    keys = ("spread_before_m", "spread_lag1_m", "spread_lag10_m", "spread_lag30_m",
+            "spread_lag100_m")  # fmt: skip
+    lags = [k for k in keys if any(k in by[r].get(i, {}) for r in rows for i in whole)]
+    if lags:
+        lines += ["", "Cloud spread (m, RMS distance of the particles from their weighted "
+                  "centre) just before and L pings after each resampling (MTM-PF: each accepted "
+                  "closure), mean over the resamplings of a run, then over the runs (claim C4, "
+                  "Fig. 11):", "", "| row | " + " | ".join(lags) + " |",
+                  "|---|" + "---|" * len(lags)]  # fmt: skip
+        for r in rows:
+            vals = [[v for i in whole if (v := by[r][i].get(k, np.nan)) == v] for k in lags]
+            if any(vals):  # rows without the log (older studies) are left out
+                cells = [f"{np.mean(v):.2f}" if v else "-" for v in vals]
+                lines.append(f"| {r} | " + " | ".join(cells) + " |")
     pairs = []
     for p in sorted({r.split("/")[0] for r in rows}):
         pairs += [(f"{p}/dr", f"{p}/bpslam"), (f"{p}/bpslam", f"{p}/mtm-pf")]
@@ -106,6 +120,11 @@ def report(out: Path) -> None:
     for a in ("bpslam", "mtm-pf"):
         pairs.append((f"literal/{a}", f"engineered/{a}"))
     pairs.append(("engineered_nodrift/mtm-pf", "engineered/mtm-pf"))
+    for p in sorted({r.split("/")[0] for r in rows} - {"engineered", "literal"}):
+        # ablations, claims, other drift models: against the engineered rows
+        pairs += [(f"engineered/{a}", f"{p}/{a}") for a in ("mtm-pf", "bpslam")]
+        pairs += [("engineered/bpslam", f"{p}/mtm-pf"), ("engineered/dr", f"{p}/mtm-pf")]
+    pairs = list(dict.fromkeys(pairs))
     comp = paired_rows(finals, pairs)
     rms = {r: [by[r][i]["rms_m"] for i in whole] for r in rows}
     comp_rms = paired_rows(rms, pairs)
@@ -171,6 +190,11 @@ def main() -> int:
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--report", action="store_true", help="only rebuild the tables")
     ap.add_argument(
+        "--resume",
+        action="store_true",
+        help="keep OUT/runs.jsonl's whole runs (same command) and run only the ones after them",
+    )
+    ap.add_argument(
         "--merge", default="", help="DIR,DIR,...: one table of studies of the same surveys"
     )
     args = ap.parse_args()
@@ -195,6 +219,16 @@ def main() -> int:
         rows.append((preset, alg, cfg))
     scns = [load_scenario(f"config/scenarios/{n}.json") for n in args.scenarios.split(",")]
     args.out.mkdir(parents=True, exist_ok=True)
+    first, kept = 0, ""
+    if args.resume and (args.out / "runs.jsonl").exists():
+        old = json.loads((args.out / "meta.json").read_text())
+        if old["rows"] != [f"{p}/{a}" for p, a, _ in rows] or old["seed"] != args.seed:
+            print(f"--resume: {args.out} holds other rows or another seed", file=sys.stderr)
+            return 2
+        recs = [json.loads(x) for x in (args.out / "runs.jsonl").read_text().splitlines() if x]
+        done = [sum(r["run"] == i for r in recs) == len(rows) for i in range(args.runs)]
+        first = done.index(False) if False in done else args.runs
+        kept = "".join(json.dumps(r) + "\n" for r in recs if r["run"] < first)
     meta = {
         "command": " ".join(["python", *sys.argv]), "purpose": args.purpose, "seed": args.seed,
         "scenarios": [s.name for s in scns], "nav": args.nav, "particles": args.particles,
@@ -202,19 +236,23 @@ def main() -> int:
         "params": f"{args.frozen} at commit {rev or 'UNCOMMITTED'}"
         + (f", with {' '.join(args.set)}" if args.set else ""),
     }  # fmt: skip
-    (args.out / "meta.json").write_text(json.dumps(meta, indent=1))
     from auvgw.slam.bathymetric.heldout import run_rows
 
+    if first:
+        meta["command"] = f"{old['command']}\n{meta['command']}  # runs {first}-"
+    (args.out / "meta.json").write_text(json.dumps(meta, indent=1))
     with open(args.out / "runs.jsonl", "w") as fh:
+        fh.write(kept)
         t0 = time.time()
         for i, preset, alg, res in run_rows(
-            scns, rows, args.runs, args.seed, DRModel(kind=args.nav), args.purpose
+            scns, rows, args.runs, args.seed, DRModel(kind=args.nav), args.purpose, first
         ):
             rec = {
                 "run": i, "row": f"{preset}/{alg}", "scenario": scns[i % len(scns)].name,
                 "final_error_m": res.final_error_m, "rms_m": res.rms_m,
                 "runtime_s": res.runtime_s, "loops_accepted": res.loops_accepted,
                 "resamplings": res.extra.get("resamplings", 0.0),
+                **{k: v for k, v in res.extra.items() if k.startswith("spread_")},
             }  # fmt: skip
             fh.write(json.dumps(rec) + "\n")
             fh.flush()

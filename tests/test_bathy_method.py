@@ -13,9 +13,16 @@ from scipy.spatial import cKDTree
 from auvgw.config.scenario import Scenario
 from auvgw.sim_devices.world import ProceduralTerrain
 from auvgw.slam.bathymetric.config import BathyConfig
-from auvgw.slam.bathymetric.evaluate import error_budget, grid_dem, label_loops, run_filter
+from auvgw.slam.bathymetric.evaluate import (
+    error_budget,
+    grid_dem,
+    label_loops,
+    run_filter,
+    spread_after_resampling,
+)
 from auvgw.slam.bathymetric.filters import (
     MTMPF,
+    BodyDrift,
     fill_weights,
     jitter_variance,
     mode_odds,
@@ -780,3 +787,121 @@ def test_drift_estimate_waits_for_agreeing_closures(min_agree: int) -> None:
         np.testing.assert_allclose(lone, f.drift.estimate([wrong], 2800))
         assert np.abs(lone - drift).max() > 0.005  # the wrong closure's rate
         np.testing.assert_allclose(f.bias, f.drift.estimate([wrong, *right], 2800))
+
+
+def _body_dr(truth: np.ndarray, s: float, psi_deg: float) -> np.ndarray:
+    """A DR track of ``truth`` (T, 2) m whose every step is scaled by 1 + s and rotated by
+    psi_deg: a constant body-frame (DVL scale + heading) error."""
+    th = math.radians(psi_deg)
+    rot = np.array([[math.cos(th), -math.sin(th)], [math.sin(th), math.cos(th)]])
+    u = (1 + s) * np.diff(truth, axis=0) @ rot.T
+    return np.vstack([truth[:1], truth[:1] + np.cumsum(u, axis=0)])
+
+
+def test_body_drift_recovers_scale_and_heading_and_turns_with_the_vehicle() -> None:
+    """BodyDrift: closures over a lawnmower (legs north, east, south) whose DR steps are 1 %
+    long and 1 deg rotated; the fit gives s and psi, and the estimated error of every ping is
+    the DR error, which turns with the vehicle (along and across each leg, not one world
+    direction)."""
+    legs = [np.linspace((0, 0), (600, 0), 300, endpoint=False)]
+    legs.append(np.linspace((600, 0), (600, 100), 50, endpoint=False))
+    legs.append(np.linspace((600, 100), (0, 100), 300))
+    truth = np.vstack(legs)
+    dr = _body_dr(truth, 0.01, 1.0)
+    lcs = [
+        LoopClosure(np.zeros(2), a, a + 200, dr[a], dr[a + 200], truth[a], truth[a + 200],
+                    dr[a + 200], accepted=True)
+        for a in range(0, len(truth) - 200, 100)
+    ]  # fmt: skip
+    cfg = BathyConfig(body_gm_sigma_deg=0.0, body_heading_sigma_deg=2.0, closure_sigma_m=0.05)
+    bd = BodyDrift(cfg)
+    s, psi = bd.fit(lcs, dr)
+    assert s == pytest.approx(0.01, rel=0.02)
+    np.testing.assert_allclose(np.degrees(psi), 1.0, rtol=0.02)
+    err = dr - truth
+    np.testing.assert_allclose(bd.cumulative(s, psi, dr), err, atol=0.05 * np.abs(err).max())
+    steps = np.diff(err, axis=0)
+    assert steps[0] @ steps[-1] < 0  # the step error reversed with the vehicle
+    # a closure 20 m off the others fails the gate and is dropped before the refit
+    bad = LoopClosure(np.zeros(2), 50, 350, dr[50], dr[350], truth[50], truth[350] + 20,
+                      dr[350], accepted=True)  # fmt: skip
+    s2, psi2 = bd.fit([*lcs, bad], dr)
+    np.testing.assert_allclose(psi2, psi, rtol=0.02)
+    assert s2 == pytest.approx(s, rel=0.02)
+    # no closure: the prior mean, 0
+    assert bd.fit([], dr)[0] == 0.0
+
+
+def test_body_drift_estimate_reanchors_the_track_and_corrects_the_prediction() -> None:
+    """drift_frame = 'body': one accepted closure over [1000, 3000] on a straight track north
+    with a 1 %, 1 deg body-frame DR error. Before it the mean trajectory is DR (the error
+    piled up since the start); the re-anchor moves [0, 1000) by -E(t) and the rest rigidly
+    by -E(1000): the track matches the truth, the particles move with it, and the next
+    prediction removes (s I + psi J) u from the DR step (DR stays raw)."""
+    t0, t1 = 1000, 3000
+    cfg = BathyConfig(
+        n_particles=3, drift_estimate=True, drift_frame="body", drift_min_agree=1,
+        lccd=False, t_l=5000, sigma_c2=0.0, jitter_a=0.0, omega_sigma_m=0.0,
+        body_gm_sigma_deg=0.0, body_heading_sigma_deg=2.0, body_scale_sigma=0.02,
+    )  # fmt: skip
+    f = MTMPF(cfg, t1 + 10, np.random.default_rng(0))
+    t = np.arange(t1 + 1.0)
+    truth = np.column_stack([t, np.zeros_like(t)])
+    f.t = t1
+    f.dr[: t1 + 1] = _body_dr(truth, 0.01, 1.0)
+    e0 = f.dr[t0] - truth[t0]
+    f.traj[: t1 + 1] = truth + e0  # the closure removed the drift over [t0, t1] ...
+    f.traj[:t0] = f.dr[:t0]  # ... not before it
+    f.x = truth[t1] + e0 + np.array([[0.0, 0.0], [0.3, 0.0], [0.0, 0.3]])
+    f.loops = [
+        LoopClosure(np.zeros(2), t0, t1, f.dr[t0].copy(), f.dr[t1].copy(), f.traj[t0].copy(),
+                    f.traj[t1].copy(), f.dr[t1].copy(), accepted=True)
+    ]  # fmt: skip
+    x_before = f.x.copy()
+    f._reanchor()
+    assert f.body_s == pytest.approx(0.01, rel=0.05)
+    np.testing.assert_allclose(np.degrees(f.body_psi), 1.0, rtol=0.05)
+    assert np.abs(f.traj[: t1 + 1] - truth).max() < 0.05 * np.linalg.norm(e0)
+    np.testing.assert_allclose(f.x - x_before, np.broadcast_to(f.x[0] - x_before[0], (3, 2)))
+    x1 = f.x.copy()
+    u = f.dr[t1] - f.dr[t1 - 1]
+    f.step(u, np.zeros((4, 2)), np.full(4, 30.0))
+    corr = f.body_s * u + f.body_psi[-1] * np.array([-u[1], u[0]])
+    np.testing.assert_allclose(f.x, x1 + u - corr)
+    np.testing.assert_allclose(f.x[0], x1[0] + (1.0, 0.0), atol=1e-3)  # the true step
+    np.testing.assert_allclose(f.dr[t1 + 1], f.dr[t1] + u)
+
+
+def test_insdvl_heading_error_is_gauss_markov_and_the_scale_runs_along_track() -> None:
+    """DRModel 'insdvl' (the body-frame nav error): on a straight track east (1 m per ping)
+    the heading error recovered from the step errors has the spec's std and its lag-tau
+    autocorrelation is e^-1; with the scale factor alone the error runs along the track and
+    its per-run std is scale_sigma."""
+    truth = np.column_stack([np.zeros(20001), np.arange(20001.0)])
+    m = DRModel(kind="insdvl", sigma_m=0.0, heading_sigma_deg=2.0, heading_tau_s=50.0,
+                misalign_sigma_deg=0.0, scale_sigma=0.0)  # fmt: skip
+    e = m.errors(truth, 1.0, np.random.default_rng(3))
+    psi = np.degrees(np.arctan2(-e[:, 0], 1.0 + e[:, 1]))  # rotation of a step east
+    assert psi.std() == pytest.approx(2.0, rel=0.15)
+    c = np.corrcoef(psi[:-50], psi[50:])[0, 1]
+    assert c == pytest.approx(math.exp(-1), abs=0.1)
+    m = DRModel(kind="insdvl", sigma_m=0.0, heading_sigma_deg=0.0, misalign_sigma_deg=0.0,
+                scale_sigma=0.01)  # fmt: skip
+    s = [m.errors(truth[:3], 1.0, np.random.default_rng(k)) for k in range(400)]
+    assert np.abs(np.array(s)[:, :, 0]).max() == 0.0  # nothing across the track
+    assert np.std([x[0, 1] for x in s]) == pytest.approx(0.01, rel=0.15)
+
+
+def test_spread_after_resampling_reads_the_logged_cloud() -> None:
+    """Claim C4's measure: cloud_std is the RMS distance from the cloud's centre; the spread
+    before and L pings after each logged resampling is averaged over the resamplings."""
+    f = MTMPF(BathyConfig(n_particles=2), 200, np.random.default_rng(0))
+    f.x = np.array([[0.0, 0.0], [2.0, 0.0]])
+    assert f.cloud_std() == pytest.approx(1.0)
+    f.t = 150
+    f.spread[:] = np.arange(200.0)
+    f.resampled_at = [20, 60]
+    out = spread_after_resampling(f)
+    assert out["spread_before_m"] == pytest.approx(39.0)  # pings 19 and 59
+    assert out["spread_lag10_m"] == pytest.approx(50.0)
+    assert out["spread_lag100_m"] == pytest.approx(120.0)  # 60 + 100 is past t: only 20's

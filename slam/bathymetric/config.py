@@ -199,6 +199,34 @@ class BathyConfig(BaseModel):
         "carries the whole DR drift since the known start: it moves by -b t, everything "
         "after it rigidly by -b t_first",
     )
+    drift_frame: Literal["world", "body"] = Field(
+        "world",
+        description="drift_estimate's model (ours): 'world' = a DR bias constant in the world "
+        "frame, m per ping per axis (eq. 28's; loops.DriftModel); 'body' (issue 28) = an "
+        "INS + DVL error that turns with the vehicle: each DR step u is (1 + s) R(psi) times "
+        "the true one (DVL scale factor s, heading error psi = DVL/INS misalignment + INS "
+        "heading bias + a Gauss-Markov drift), estimated from the accepted closures by "
+        "filters.BodyDrift (psi piecewise constant over body_block_pings, a Gaussian-process "
+        "prior from the body_* spec)",
+    )
+    body_scale_sigma: float = Field(
+        0.005, ge=0, description="'body': prior std of the DVL scale factor s (1; the spec)"
+    )
+    body_heading_sigma_deg: float = Field(
+        0.5,
+        ge=0,
+        description="'body': prior std of the constant heading error (deg): misalignment + "
+        "heading bias (both rotate every DR step alike in 2-D)",
+    )
+    body_gm_sigma_deg: float = Field(
+        1.0, ge=0, description="'body': std of the Gauss-Markov heading drift (deg)"
+    )
+    body_gm_tau_pings: float = Field(
+        900.0, gt=0, description="'body': time constant of the heading drift (pings)"
+    )
+    body_block_pings: int = Field(
+        60, ge=1, description="'body': pings over which psi is held constant (estimation grid)"
+    )
     drift_min_agree: int = Field(
         2,
         ge=1,

@@ -4,6 +4,7 @@ against the true terrain (A23), and the final map as a gridded DEM."""
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 
@@ -93,6 +94,21 @@ def error_budget(f: BathyFilter, sim: BathyRun) -> dict[str, float]:
     }
 
 
+SPREAD_LAGS = (1, 10, 30, 100)
+
+
+def spread_after_resampling(f: BathyFilter) -> dict[str, float]:
+    """Claim C4 (Fig. 11): the cloud's spread (m, :meth:`BathyFilter.cloud_std`) just before
+    each resampling (``spread_before_m``) and ``L`` pings after it (``spread_lag{L}_m``), means
+    over the run's resamplings that have ``L`` pings after them (NaN without any)."""
+    at = np.asarray(f.resampled_at, dtype=int)
+    out = {"spread_before_m": float(f.spread[at - 1].mean()) if len(at) else math.nan}
+    for lag in SPREAD_LAGS:
+        k = at[at + lag < f.t]
+        out[f"spread_lag{lag}_m"] = float(f.spread[k + lag].mean()) if len(k) else math.nan
+    return out
+
+
 def map_registration(points: np.ndarray, depth_fn: object) -> tuple[float, float]:
     """(mean |z - z_true(x_hat, y_hat)|, share < 2 m) of soundings placed by an estimate (A23)."""
     err = np.abs(points[:, 2] - depth_fn(points[:, 0], points[:, 1]))  # type: ignore[operator]
@@ -159,6 +175,7 @@ def run_filter(
             "weak_crossings": float(getattr(f, "weak_crossings", 0)),
             "resamplings": float(getattr(f, "resamplings", len(f.loops))),
             **error_budget(f, sim),
+            **spread_after_resampling(f),
         },
     )
     if depth_fn is not None:

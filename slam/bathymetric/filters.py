@@ -28,6 +28,7 @@ __all__ = [
     "BPSLAM",
     "MTMPF",
     "BathyFilter",
+    "BodyDrift",
     "DeadReckoning",
     "jitter_variance",
     "mode_ratio",
@@ -158,6 +159,85 @@ def own_nearest(
     return cand[k], near
 
 
+class BodyDrift:
+    """``drift_frame = 'body'`` (ours, issue 28): a DR error that turns with the vehicle. Each
+    DR step is ``u_k = (1 + s) R(psi_k) d_k + w_k`` for the true step ``d_k`` (NED, m): a DVL
+    scale factor ``s`` and a heading error ``psi_k`` (rad; DVL/INS misalignment + INS heading
+    bias, constant, plus a Gauss-Markov drift), i.e. to first order an error ``e_k = (s I +
+    psi_k J) u_k`` with ``J`` the +90 deg rotation. A closure over ``[a, b]`` measures the DR
+    drift ``-V(t_end)`` of eq. (25), ``sum_{a<k<=b} e_k = s (DR_b - DR_a) + J sum psi_k u_k``:
+    linear in ``(s, psi)``. ``psi`` is held constant over blocks of ``body_block_pings``
+    pings and estimated with ``s`` as the posterior mean of a Gaussian prior from the spec
+    (``s ~ N(0, body_scale_sigma^2)``; ``psi`` block covariance ``sigma_h^2 + sigma_gm^2
+    exp(-|dt| / tau)``) given the closures, each with the alignment error ``closure_sigma_m``
+    and the DR white noise ``omega_sigma_m`` per axis. While the worst closure's residual
+    fails ``drift_gate_chi2`` it is dropped and the fit repeated. Over a closed loop the constant
+    part nearly cancels (``DR_b - DR_a`` is within R), so the closures mostly see the heading
+    drift; the prior carries the rest."""
+
+    def __init__(self, cfg: BathyConfig) -> None:
+        self.k = cfg.body_block_pings
+        self.s2 = cfg.body_scale_sigma**2
+        self.h2 = math.radians(cfg.body_heading_sigma_deg) ** 2
+        self.g2 = math.radians(cfg.body_gm_sigma_deg) ** 2
+        self.tau = cfg.body_gm_tau_pings
+        self.a2, self.e2 = cfg.closure_sigma_m**2, cfg.omega_sigma_m**2
+        self.gate = cfg.drift_gate_chi2
+
+    def blocks(self, t: int) -> int:
+        """Blocks of psi up to ping ``t`` and the next step's (step k lies in (k-1) // K)."""
+        return t // self.k + 1
+
+    def _rows(self, lc: LoopClosure, dr: np.ndarray, m: int) -> np.ndarray:
+        """(2, 1 + m) design of one closure: the drift it measures = rows @ (s, psi)."""
+        e = np.arange(m + 1) * self.k
+        a, b = lc.t_loop, lc.t_end
+        u = dr[np.clip(b, e[:-1], e[1:]).clip(max=len(dr) - 1)]
+        u = u - dr[np.clip(a, e[:-1], e[1:]).clip(max=len(dr) - 1)]  # (m, 2) per block
+        d = dr[b] - dr[a]
+        return np.array([[d[0], *(-u[:, 1])], [d[1], *u[:, 0]]])
+
+    def prior(self, m: int) -> np.ndarray:
+        """Prior covariance (1 + m, 1 + m) of (s, psi_0 .. psi_{m-1})."""
+        c = np.arange(m) * self.k
+        p = np.zeros((m + 1, m + 1))
+        p[0, 0] = self.s2
+        p[1:, 1:] = self.h2 + self.g2 * np.exp(-np.abs(c[:, None] - c[None, :]) / self.tau)
+        return p
+
+    def fit(self, loops: list[LoopClosure], dr: np.ndarray) -> tuple[float, np.ndarray]:
+        """``(s, psi)``: posterior means of the scale factor (1) and of each block's heading
+        error (rad, (m,)) given ``loops`` and the DR track ``dr`` (t + 1, 2) m."""
+        m = self.blocks(len(dr) - 1)
+        p = self.prior(m)
+        use = list(loops)
+        z = np.zeros(m + 1)
+        while use:
+            h = np.vstack([self._rows(lc, dr, m) for lc in use])
+            y = np.concatenate([-lc.v_end for lc in use])
+            r = np.repeat([self.a2 + self.e2 * max(lc.t_end - lc.t_loop, 1) for lc in use], 2)
+            z = p @ h.T @ np.linalg.solve(h @ p @ h.T + np.diag(r), y)
+            res = ((y - h @ z) ** 2 / r).reshape(-1, 2).sum(1)
+            worst = int(np.argmax(res))
+            if res[worst] <= self.gate:
+                return float(z[0]), z[1:]
+            del use[worst]
+        return 0.0, np.zeros(m)
+
+    def step_error(self, s: float, psi: np.ndarray, u: np.ndarray, k: np.ndarray) -> np.ndarray:
+        """First-order DR error ``(s I + psi J) u`` (K, 2) m of steps ``u`` (K, 2) numbered
+        ``k`` (K,) (step k moves ping k-1 to k); blocks beyond ``psi`` use its last value."""
+        if len(psi) == 0:
+            return s * u
+        ps = psi[np.minimum((k - 1) // self.k, len(psi) - 1)][:, None]
+        return s * u + ps * np.column_stack([-u[:, 1], u[:, 0]])
+
+    def cumulative(self, s: float, psi: np.ndarray, dr: np.ndarray) -> np.ndarray:
+        """Estimated DR error at every ping of ``dr`` (t + 1, 2) m, 0 at the start."""
+        e = self.step_error(s, psi, np.diff(dr, axis=0), np.arange(1, len(dr)))
+        return np.vstack([np.zeros((1, 2)), np.cumsum(e, axis=0)])
+
+
 class BathyFilter:
     """Common storage: the swaths (offsets, depths) of every ping, preallocated for ``n_pings``."""
 
@@ -174,6 +254,9 @@ class BathyFilter:
         "covered",
         "trajs",
         "ref",
+        "pred_corr",
+        "shift",
+        "spread",
     )
 
     def __init__(self, cfg: BathyConfig, n_pings: int, rng: np.random.Generator) -> None:
@@ -186,6 +269,10 @@ class BathyFilter:
         self.loops: list[LoopClosure] = []
         self.matched = np.zeros(n_pings, dtype=np.int32)
         self.neff_log = np.full(n_pings, np.nan)
+        # the cloud's spread after each ping (m, :meth:`cloud_std`) and the pings at which the
+        # particles were resampled (an accepted closure for MTM-PF): Fig. 11, claim C4
+        self.spread = np.zeros(n_pings)
+        self.resampled_at: list[int] = []
         # the true positions (T, 2), given only for the diagnostic lccd_mode = 'oracle'
         self.oracle_truth: np.ndarray | None = None
         # closure = "crossing": accumulated log weights, pings in / since the crossing
@@ -231,6 +318,7 @@ class BathyFilter:
         """Next ping: store DR and swath; return the particles' motion of eq. (2),
         u + omega + N(0, var), (N, 2)."""
         cfg, rng, n = self.cfg, self.rng, self.cfg.n_particles
+        self.spread[self.t] = self.cloud_std()  # the previous ping's, after its resampling
         self.t += 1
         self.dr[self.t] = self.dr[self.t - 1] + u
         self._store(offsets, depth)
@@ -241,6 +329,10 @@ class BathyFilter:
     def trajectory(self) -> np.ndarray:
         """Final estimate of every ping so far, (t + 1, 2) m."""
         raise NotImplementedError
+
+    def cloud_std(self) -> float:
+        """Spread of the particles now, sqrt of the trace of their (weighted) covariance (m)."""
+        return 0.0
 
     def _crossing_end(self, w: np.ndarray | None) -> tuple[np.ndarray, float] | None:
         """``closure = 'crossing'`` (ours): multiply this ping's normalised weights ``w`` (None:
@@ -332,6 +424,12 @@ class MTMPF(BathyFilter):
         # the first ping of the accepted loop intervals it re-anchored the track at
         self.bias = np.zeros(2)
         self.anchor_t = -1
+        # drift_frame = 'body': the error model, its estimate, the correction removed from
+        # each DR step in prediction and the re-anchoring shift applied at each ping (m)
+        self.body = BodyDrift(cfg) if cfg.drift_frame == "body" else None
+        self.body_s, self.body_psi = 0.0, np.zeros(0)
+        self.pred_corr = np.zeros((n_pings, 2))
+        self.shift = np.zeros((n_pings, 2))
         self._tlp = np.zeros(cfg.n_particles, dtype=int)
         self._parts: list[np.ndarray] = []  # log weights of the crossing's pings with evidence
         self.weak_crossings = 0  # crossings below min_mode_ratio (no closure)
@@ -344,14 +442,24 @@ class MTMPF(BathyFilter):
     def trajectory(self) -> np.ndarray:
         return self.traj[: self.t + 1]
 
+    def cloud_std(self) -> float:
+        return float(np.sqrt(((self.x - self.x.mean(0)) ** 2).sum(1).mean()))
+
     # -- one ping -----------------------------------------------------------------------------
     def step(self, u: np.ndarray, offsets: np.ndarray, depth: np.ndarray) -> None:
         cfg, n = self.cfg, self.cfg.n_particles
         var = jitter_variance(self.t_r, cfg)
         if cfg.closure == "crossing" and self.crossing_len and not cfg.jitter_in_crossing:
             var = 0.0  # one offset per particle through a crossing (ours)
-        self.x += self._advance(u, offsets, depth, var) - self.bias  # eq. (2), u - b (ours)
+        b = self.bias
+        if self.body is not None:  # the body-frame error of this step (ours)
+            k = np.array([self.t + 1])
+            b = self.body.step_error(self.body_s, self.body_psi, u[None], k)[0]
+        self.x += self._advance(u, offsets, depth, var) - b  # eq. (2), u - b (ours)
         t = self.t
+        if self.body is not None:
+            self.pred_corr[t] = b
+            self.shift[t] = self.shift[t - 1]
         self.t_r += 1
         self.traj[t] = self.x.mean(0)  # S_p, unweighted centroid (A7)
         w, tlp = self.weights()
@@ -549,12 +657,39 @@ class MTMPF(BathyFilter):
         t_a, delta = correction_ramp(covered, t_loop, t, m)  # eqs. (15)-(22)
         self.traj[t_a : t + 1] += delta
         loop.t_a, loop.delta = t_a, delta
+        self.resampled_at.append(t)
         self.covered[t_loop : t + 1] = True  # A19
         self.t_r = 1
         if cfg.lccd and self.lccd.overturned_now:
             self._overturn(loop, self.lccd.overturned_now)
         if cfg.drift_estimate:
             self._reanchor()
+
+    def _reanchor_body(self) -> None:
+        """``drift_estimate`` with ``drift_frame = 'body'`` (ours): :class:`BodyDrift` fitted
+        to the accepted closures (once ``drift_min_agree`` of them exist) gives the DR error
+        ``E(t)``; the stretch before ``t_f`` (the first accepted loop's start, which no closure
+        corrects) must carry ``-E(t)`` in all, everything after it ``-E(t_f)`` rigidly (as
+        :meth:`_reanchor`). Of that, the prediction already removed ``P(t)`` (the sum of
+        ``pred_corr``); the rest is the re-anchoring ``shift``, applied as its change."""
+        assert self.body is not None
+        acc = [lc for lc in self.loops if lc.accepted]
+        if not acc:
+            return
+        t = self.t
+        dr = self.dr[: t + 1]
+        if len(acc) >= self.cfg.drift_min_agree:
+            self.body_s, self.body_psi = self.body.fit(acc, dr)
+        else:
+            self.body_s, self.body_psi = 0.0, np.zeros(0)
+        e = self.body.cumulative(self.body_s, self.body_psi, dr)
+        p = np.cumsum(self.pred_corr[: t + 1], axis=0)
+        tt = np.minimum(np.arange(t + 1), min(lc.t_loop for lc in acc))
+        target = e[tt] - p[tt]
+        change = target - self.shift[: t + 1]
+        self.traj[: t + 1] -= change
+        self.x -= change[t]
+        self.shift[: t + 1] = target
 
     def _reanchor(self) -> None:
         """``drift_estimate`` (ours): the DR bias from the accepted closures
@@ -567,6 +702,9 @@ class MTMPF(BathyFilter):
         earliest loop was overturned) the stretch it freed gets the applied bias's ramp. With
         ``drift_min_agree`` > 1 the bias comes from the largest agreeing set of the accepted
         closures (:meth:`DriftModel.largest_agreeing`), and is 0 while that set is smaller."""
+        if self.body is not None:
+            self._reanchor_body()
+            return
         acc = [lc for lc in self.loops if lc.accepted]
         if not acc:
             return
@@ -649,6 +787,10 @@ class BPSLAM(BathyFilter):
     def trajectory(self) -> np.ndarray:
         return np.einsum("tnk,n->tk", self.trajs[: self.t + 1], self.w)
 
+    def cloud_std(self) -> float:
+        x = self.trajs[self.t]
+        return float(np.sqrt(self.w @ ((x - self.w @ x) ** 2).sum(1)))
+
     def step(self, u: np.ndarray, offsets: np.ndarray, depth: np.ndarray) -> None:
         cfg = self.cfg
         var = cfg.bpslam_sigma_c2  # eq. (2) with its own sigma_m^2
@@ -701,6 +843,7 @@ class BPSLAM(BathyFilter):
         self.dev = np.linalg.norm(self.trajs[: t + 1] - self.ref[: t + 1, None], axis=2).max(0)
         self.w = np.full(n, 1.0 / n)
         self.resamplings += 1
+        self.resampled_at.append(t)
 
     def weights(self) -> np.ndarray | None:
         """Weights from each particle's own Pmap / Mmap; None when no particle overlaps."""

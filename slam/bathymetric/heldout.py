@@ -33,7 +33,15 @@ __all__ = ["SPLIT", "Frozen", "load_frozen", "paired_rows", "row_config", "run_r
 #: test scenarios: new terrains (and one mirrored route) made for issue 28, never tuned on
 SPLIT = Split(
     tuning=("bathy_survey", "bathy_sandfield", "bathy_sandwaves", "bathy_lccd"),
-    test=("bathy_test_a", "bathy_test_b", "bathy_test_c"),
+    test=(
+        "bathy_test_a",
+        "bathy_test_b",
+        "bathy_test_c",
+        # claim C14: the same terrains, routes cut before the tie lines (no crossings)
+        "bathy_test_a_nocross",
+        "bathy_test_b_nocross",
+        "bathy_test_c_nocross",
+    ),
 )
 
 
@@ -81,14 +89,15 @@ def run_rows(
     seed: int,
     nav: DRModel,
     purpose: Literal["tuning", "test"],
+    first: int = 0,
 ) -> Iterator[tuple[int, str, str, BathyResult]]:
-    """Every run ``0 .. runs-1`` through every ``(preset, algorithm, config)`` row, run by run
+    """Every run ``first .. runs-1`` through every ``(preset, algorithm, config)`` row, run by run
     (so a study cut short still holds whole runs); refuses a seed or scenario outside
     ``purpose``'s split. The filter of row ``(preset, alg)`` on run ``i`` draws from
     ``SeedSequence([seed, i, crc32(alg)])``: the same draws in every preset."""
     for s in scenarios:
         SPLIT.check(seed, s.name, purpose)
-    for i in range(runs):
+    for i in range(first, runs):
         scn = scenarios[i % len(scenarios)]
         sim, world = _survey(scn.model_dump_json(), seed, i, None, nav)
         for preset, alg, cfg in rows:
