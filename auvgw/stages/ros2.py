@@ -15,6 +15,13 @@ rmw_zenoh see them. Beside the vehicle's topics (``/<namespace>/<vehicle>/sensor
   published at start and again every ``static_period_s`` (rmw_zenoh's transient-local cache is a
   Zenoh publication cache this bridge does not keep: a late subscriber waits at most one period);
 * ``/diagnostics``: every component's status as a ``diagnostic_msgs/DiagnosticArray``.
+
+Commands the other way: for each device in ``commands`` (opt-in) the bridge is a ROS 2
+subscription of ``<namespace>/<vehicle>/cmd/<device>`` (``auvgw_msgs/msg/ActuatorCommand``, its
+``MS`` liveliness token and data key as rmw_zenoh writes them) and puts each message it takes on
+the bus command key ``auv/<v>/cmd/<device>`` as the actuators' ``ActuatorCommand`` envelope, so the
+gateway's :class:`~auvgw.drivers.actuators.CommandGate` checks it (ranges, sequence) like any
+other; bytes that are no such message are counted (``bad_commands``) and dropped.
 """
 
 from __future__ import annotations
@@ -32,6 +39,7 @@ import zenoh
 from auvgw import ros2
 from auvgw.config.ros2 import Mount, Ros2Config
 from auvgw.decoding import message_kind
+from auvgw.envelope import encode_envelope
 from auvgw.rmw_zenoh import (
     DEFAULT_QOS,
     SENSOR_QOS,
@@ -43,6 +51,7 @@ from auvgw.rmw_zenoh import (
     pack_attachment,
     topic_token,
 )
+from auvgw.stages import log_bad_payload
 from auvgw.stages.base import DROP, BusCounters, Stage, StageConfig
 
 __all__ = ["Mount", "Ros2Bridge", "Ros2BridgeConfig", "RosStage"]
@@ -58,12 +67,16 @@ class Ros2BridgeConfig(StageConfig, Ros2Config):
 class Ros2Counters(BusCounters):
     """``received``: bus samples taken; ``published``: ROS 2 messages put; ``topics``: ROS 2
     publishers declared; ``tf``: transforms put on ``/tf``; ``unwatched``: samples not converted
-    because no subscriber matched any of the topics they make (:meth:`RosStage.wanted`)."""
+    because no subscriber matched any of the topics they make (:meth:`RosStage.wanted`);
+    ``commands``: ROS 2 commands put on the bus command key; ``bad_commands``: ROS 2 samples on a
+    command topic that were no command (bad CDR), dropped."""
 
     published: int = 0
     topics: int = 0
     tf: int = 0
     unwatched: int = 0
+    commands: int = 0
+    bad_commands: int = 0
 
 
 class _Endpoint:
@@ -220,6 +233,7 @@ class Ros2Bridge(RosStage):
         #: the publishers each bus key's samples went to (:meth:`wanted`; a tuple replaced, never
         #: changed in place: the Zenoh callbacks and the gateway's listeners read it)
         self._made: dict[str, tuple[_Endpoint, ...]] = {}
+        self._cmd_decls: list[Any] = []
 
     def status_fields(self) -> dict[str, Any]:
         return {"domain_id": self.config.domain_id, "namespace": self.config.namespace,
@@ -280,18 +294,72 @@ class Ros2Bridge(RosStage):
         return ep
 
 
+    # -- commands from ROS 2 -----------------------------------------------------------------
+    def command_topic(self, device: str) -> str:
+        """The ROS 2 topic of ``device``'s commands: ``<namespace>/<vehicle>/cmd/<device>``."""
+        return ros2.ros_topic(self.config.namespace, self.keys.vehicle, f"cmd/{device}")
+
+    def on_ros_command(self, device: str, cdr: bytes) -> bytes | None:
+        """A ROS 2 command message (CDR ``auvgw_msgs/msg/ActuatorCommand``) for ``device`` as the
+        bus's command envelope (the actuators' ``ActuatorCommand``, source ``ros2``, stamped
+        with the message's header or, unset, now), counted in ``commands``; bytes that are no
+        such message are counted in ``bad_commands`` (logged: the first and every 100th), None.
+        """
+        try:
+            cmd, stamp = ros2.actuator_command(cdr)
+            payload, _ = encode_envelope(cmd, "ros2", stamp or time.time_ns(), int(cmd.seq))
+        except ValueError as exc:
+            with self._lock:
+                seen = self.stats.bad_commands
+                self.stats.bad_commands += 1
+            log_bad_payload(self.name, self.command_topic(device), exc, seen)
+            return None
+        with self._lock:
+            self.stats.commands += 1
+        return payload
+
+    def _declare_commands(self) -> None:
+        """One ROS 2 subscription (data key and ``MS`` token) per ``commands`` device, whose
+        messages go to the bus command key (in the Zenoh callback: a command is small and late
+        is worse than a short callback)."""
+        assert self.session is not None
+        s, c = self.session, self.config
+        for device in c.commands:
+            topic = self.command_topic(device)
+            key = data_key(c.domain_id, topic, ros2.ACTUATOR_COMMAND_TYPE)
+            token = topic_token(c.domain_id, self._session_id, 0, self._next_entity, "MS",
+                                c.namespace, c.node, topic, ros2.ACTUATOR_COMMAND_TYPE,
+                                DEFAULT_QOS)  # fmt: skip
+            self._next_entity += 1
+            pub = s.declare_publisher(self.keys.cmd(device))
+
+            def take(sample: zenoh.Sample, device: str = device, pub: Any = pub) -> None:
+                payload = self.on_ros_command(device, sample.payload.to_bytes())
+                if payload is not None:
+                    with contextlib.suppress(zenoh.ZError):
+                        pub.put(payload)
+
+            self._cmd_decls += [s.declare_subscriber(key, take), pub,
+                                s.liveliness().declare_token(token)]  # fmt: skip
+
     def start(self, subscribe: bool = True) -> None:
         """The node's token first (a ROS graph shows the node before its publishers), then the
-        stage (subscriptions, status, liveliness) and ``/tf_static``."""
+        stage (subscriptions, status, liveliness), the command subscriptions and
+        ``/tf_static``."""
         if self.session is not None and self._node_token is None:
             self._node_token = self.session.liveliness().declare_token(
                 node_token(self.config.domain_id, self._session_id, 0, self.config.namespace,
                            self.config.node))  # fmt: skip
         super().start(subscribe)
+        self._declare_commands()
         self.publish_static(time.time_ns())
 
     def stop(self, flush: bool = True, timeout_s: float = 5.0) -> None:
         """Stop the stage, then withdraw every publisher and token (the node's last)."""
+        for d in self._cmd_decls:  # the subscriptions first: no command after this
+            with contextlib.suppress(zenoh.ZError):
+                d.undeclare()
+        self._cmd_decls.clear()
         super().stop(flush, timeout_s)
         for ep in self._endpoints.values():
             for d in (ep.listener, ep.token, ep.pub):
