@@ -11,8 +11,9 @@ ROS 2 node on rmw_zenoh would (data keys, CDR, attachments, liveliness tokens), 
 "rpy_deg": [r, p, y]}``, body FRD) and ``/diagnostics``; ``--commands DEVICE`` (repeatable)
 takes that device's commands from ROS 2 (``<namespace>/<vehicle>/cmd/<device>``,
 ``auvgw_msgs/msg/ActuatorCommand``) onto the bus command key, where the gateway checks them;
-``auvgw run`` does the same in the gateway with ``[ros2] enabled = true``. ``list`` prints the ROS 2 graph of a domain as
-``ros2 node list`` and ``ros2 topic list -t`` would; ``echo`` prints a topic's messages. All three
+``auvgw run`` does the same in the gateway with ``[ros2] enabled = true``. ``list`` prints the
+ROS 2 graph of a domain as ``ros2 node list`` and ``ros2 topic list -t`` would; ``echo`` prints a
+topic's messages. All three
 join the bus with the usual options (``--connect``, default the local router's endpoint); a ROS 2
 node on rmw_zenoh reaches them through the same router. See docs/ros2.md.
 """
