@@ -71,7 +71,7 @@ def bridge_config(args: argparse.Namespace) -> Any:
     try:
         return Ros2BridgeConfig(
             vehicle=args.vehicle, domain_id=args.domain_id, namespace=args.namespace,
-            node=args.node, mounts=mounts, enabled=True, commands=args.commands,
+            node=args.node, mounts=mounts, enabled=True, commands=getattr(args, "commands", []),
         )  # fmt: skip
     except ValidationError as exc:
         raise UserError(format_validation_error(exc)) from None
