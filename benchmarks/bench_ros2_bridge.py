@@ -66,8 +66,9 @@ def _nav(i: int) -> Hn100Nav:
                     dvl_aided=None, error=None)  # fmt: skip
 
 
-def run_case(case: str, rate: float, seconds: float) -> tuple[float, float, int]:
-    """(CPU % of a core, us per message, messages the subscriber got) of one case."""
+def run_case(case: str, rate: float, seconds: float) -> tuple[float, float, int, int]:
+    """(CPU % of a core, us per message, messages the subscriber got, messages the bridge put)
+    of one case."""
     bridge_on, watched, batch_s, held = CASES[case]
     ep = endpoint(free_port())
     msgs = [_nav(i) for i in range(1000)]
@@ -112,9 +113,11 @@ def run_case(case: str, rate: float, seconds: float) -> tuple[float, float, int]
                 got = int(sub.stdout.readline()) - len(devices)  # the 8 first: before the window
             sub.stdin.close()
             sub.wait(30)
+        put = 0
         if bridge is not None:
             bridge.stop()
-    return 100 * (c1 - c0) / (t1 - t0), 1e6 * (c1 - c0) / n, got
+            put = bridge.stats.published - len(devices) - int(bridge.stats.tf)
+    return 100 * (c1 - c0) / (t1 - t0), 1e6 * (c1 - c0) / n, got, put
 
 
 def _feed(bridge: Ros2Bridge | None, devices: list[str], msgs: list[Hn100Nav], n: int,
@@ -133,25 +136,25 @@ def main() -> int:
     ap.add_argument("--seconds", type=float, default=6.0, help="seconds per case (default 6)")
     ap.add_argument("--rounds", type=int, default=2, help="interleaved rounds (default 2)")
     args = ap.parse_args()
-    res: dict[str, list[tuple[float, float, int]]] = {c: [] for c in CASES}
+    res: dict[str, list[tuple[float, float, int, int]]] = {c: [] for c in CASES}
     for r in range(args.rounds):
         for case in CASES:
             res[case].append(run_case(case, args.rate, args.seconds))
-            cpu, us, got = res[case][-1]
-            print(f"round {r + 1} {case}: {cpu:.1f} % ({us:.1f} us/msg), received {got}",
-                  file=sys.stderr, flush=True)  # fmt: skip
+            cpu, us, got, put = res[case][-1]
+            print(f"round {r + 1} {case}: {cpu:.1f} % ({us:.1f} us/msg), put {put}, "
+                  f"received {got}", file=sys.stderr, flush=True)  # fmt: skip
     n = int(args.rate * args.seconds)
-    base = statistics.median(c for c, _, _ in res["no bridge"])
+    base = statistics.median(r[0] for r in res["no bridge"])
     print(f"\nROS 2 bridge, {args.rate:g} Imu messages/s on 8 topics, {args.seconds:g} s per case, "
           f"median of {args.rounds} interleaved rounds (load {os.getloadavg()[0]:.0f} at the end)")
-    print("| case | process CPU (% of a core) | bridge's share | us per message | received |")
+    print("| case | process CPU (% of a core) | bridge's share | us per message | put, received |")
     print("|---|---|---|---|---|")
     for case, rows in res.items():
-        cpu = statistics.median(c for c, _, _ in rows)
-        got = min(g for _, _, g in rows)
+        cpu = statistics.median(r[0] for r in rows)
+        put, got = min(r[3] for r in rows), min(r[2] for r in rows)
         share = (cpu - base) * 1e4 / args.rate
         print(f"| {case} | {cpu:.1f} | {cpu - base:+.1f} | {share:.0f} | "
-              f"{got if CASES[case][1] else '-'} of {n} |")
+              f"{f'{put}, {got} of {n}' if CASES[case][1] else '-'} |")
     return 0
 
 
