@@ -86,15 +86,12 @@ def ros_type_name(dds_type: str) -> str:
 def _hash_store() -> Any:
     """The rosbags type store whose definitions give the hashes: ROS 2 Jazzy (the first release
     with rmw_zenoh), with auvgw's own types (:mod:`auvgw.ros2`) registered."""
-    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+    from rosbags.typesys import Stores, get_typestore
 
     from auvgw import ros2
 
     ts = get_typestore(Stores.ROS2_JAZZY)
-    types: dict[str, Any] = {}
-    types.update(get_types_from_msg(ros2.RAW_FRAME_MSG, ros2.RAW_FRAME_TYPE))
-    types.update(get_types_from_msg(ros2.DECODED_MSG, ros2.DECODED_TYPE))
-    ts.register(types)
+    ts.register(ros2.auvgw_types())
     return ts
 
 

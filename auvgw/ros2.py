@@ -147,6 +147,8 @@ class MountLike(Protocol):
     def rpy_deg(self) -> tuple[float, float, float]: ...
 
 __all__ = [
+    "ACTUATOR_COMMAND_MSG",
+    "ACTUATOR_COMMAND_TYPE",
     "DECODED_MSG",
     "DECODED_TYPE",
     "DIAGNOSTICS_TYPE",
@@ -155,6 +157,8 @@ __all__ = [
     "TF_TYPE",
     "RosMessage",
     "TfTracker",
+    "actuator_command",
+    "auvgw_types",
     "decoded_msg",
     "diagnostics_msg",
     "enu_from_ned",
@@ -195,6 +199,21 @@ uint64 seq              # sequence of the raw frame (sensors) or of the publishe
 string json             # the message's fields, JSON (NaN as null)
 """
 
+#: ROS type of an actuator command (a ROS 2 node's commands in, on
+#: ``<namespace>/<vehicle>/cmd/<device>``: :meth:`auvgw.stages.ros2.Ros2Bridge.on_ros_command`)
+#: and its definition: no standard ROS 2 type carries a shaft speed and two fin angles, so this
+#: is ``config/actuators.dbc``'s ``ActuatorCommand`` field for field, in SI units
+ACTUATOR_COMMAND_TYPE = "auvgw_msgs/msg/ActuatorCommand"
+ACTUATOR_COMMAND_MSG = """\
+# A command to the vehicle's actuators (config/actuators.dbc ActuatorCommand): the gateway checks
+# it (DBC ranges, sequence) and sends it to the motor/fin controller on CAN (docs/ros2.md).
+std_msgs/Header header  # stamp: when the command was made (0: when the bridge took it)
+uint16 seq              # sequence number modulo 65536; one not newer than the last is refused
+float64 shaft_rpm       # commanded shaft speed, rpm, positive ahead (DBC range +-1600)
+float64 rudder          # rudder angle, rad; positive turns the vehicle to port (+-30 deg)
+float64 stern           # stern-plane angle, rad; positive pitches the nose down (+-30 deg)
+"""
+
 #: the standard topics and types of transforms and diagnostics (absolute topic names: not
 #: under ``/<vehicle>``, where tf2, Foxglove and rqt look for them)
 TF_TYPE = "tf2_msgs/msg/TFMessage"
@@ -220,16 +239,24 @@ class RosMessage(NamedTuple):
     msg: Any
 
 
+def auvgw_types() -> dict[str, Any]:
+    """The auvgw_msgs types (rosbags' parsed definitions), to register in a type store."""
+    from rosbags.typesys import get_types_from_msg
+
+    types: dict[str, Any] = {}
+    for text, name in ((RAW_FRAME_MSG, RAW_FRAME_TYPE), (DECODED_MSG, DECODED_TYPE),
+                       (ACTUATOR_COMMAND_MSG, ACTUATOR_COMMAND_TYPE)):  # fmt: skip
+        types.update(get_types_from_msg(text, name))
+    return types
+
+
 @cache
 def typestore() -> Typestore:
     """The rosbags type store (ROS 2 Humble) with the auvgw_msgs types registered."""
-    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+    from rosbags.typesys import Stores, get_typestore
 
     ts = get_typestore(Stores.ROS2_HUMBLE)
-    types: dict[str, Any] = {}
-    types.update(get_types_from_msg(RAW_FRAME_MSG, RAW_FRAME_TYPE))
-    types.update(get_types_from_msg(DECODED_MSG, DECODED_TYPE))
-    ts.register(types)
+    ts.register(auvgw_types())
     return ts
 
 
@@ -278,6 +305,27 @@ def serialize(m: RosMessage) -> bytes:
 
 def _t(name: str) -> Any:
     return typestore().types[name]
+
+
+def actuator_command(cdr: bytes) -> tuple[Any, int]:
+    """The actuators' DBC ``ActuatorCommand`` (:mod:`auvgw.drivers.actuators`; rad, rpm) of a
+    CDR ``auvgw_msgs/msg/ActuatorCommand``, and its header stamp (ns, 0 when unset); a
+    ``ValueError`` naming what is wrong for bytes that are not one. The ranges are not checked
+    here: the gateway's :class:`~auvgw.drivers.actuators.CommandGate` does, and counts."""
+    from auvgw.drivers.actuators import COMMAND_TYPE, actuators_can
+
+    if len(cdr) < 4 or cdr[:2] not in (b"\x00\x00", b"\x00\x01"):
+        raise ValueError(f"{len(cdr)} bytes without a CDR encapsulation header (00 00 or 00 01)")
+    try:
+        m = typestore().deserialize_cdr(cdr, ACTUATOR_COMMAND_TYPE)
+    except Exception as exc:  # rosbags raises what struct / its own checks raise
+        raise ValueError(f"not a CDR {ACTUATOR_COMMAND_TYPE} ({len(cdr)} bytes): "
+                         f"{type(exc).__name__}: {exc}") from None  # fmt: skip
+    stamp = int(m.header.stamp.sec) * 1_000_000_000 + int(m.header.stamp.nanosec)
+    cmd = actuators_can().types[COMMAND_TYPE](
+        seq=int(m.seq), shaft_rpm=float(m.shaft_rpm), rudder=float(m.rudder), stern=float(m.stern)
+    )
+    return cmd, stamp
 
 
 # -- frames ----------------------------------------------------------------------------------------

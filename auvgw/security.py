@@ -36,6 +36,7 @@ COMPONENTS = (
     "slam-magnetic",
     "slam-bathymetric",
     "pilot",
+    "ros2",
     "recorder",
     "viz",
     "shore",

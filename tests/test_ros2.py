@@ -7,6 +7,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from auvgw import ros2
@@ -135,3 +137,49 @@ def test_slam_pose_raw_and_fallback_messages():
     d = _roundtrip(st)
     assert (st.topic, st.type, d.source) == ("status/gateway", ros2.DECODED_TYPE, "gateway")
     assert d.json == '{"v":1,"vehicle":"auv1"}'
+
+
+def _command_cdr(seq: int, rpm: float, rudder: float, stern: float, stamp_ns: int = 0) -> bytes:
+    t = ros2._t("builtin_interfaces/msg/Time")(sec=stamp_ns // 10**9, nanosec=stamp_ns % 10**9)
+    m = ros2._t(ros2.ACTUATOR_COMMAND_TYPE)(
+        header=ros2._t("std_msgs/msg/Header")(stamp=t, frame_id="base_link"), seq=seq,
+        shaft_rpm=rpm, rudder=rudder, stern=stern)  # fmt: skip
+    return ros2.serialize(ros2.RosMessage("cmd/actuators", ros2.ACTUATOR_COMMAND_TYPE, m))
+
+
+def test_a_ros2_command_becomes_the_gates_command_envelope():
+    """The bridge's command side in-process: a CDR ActuatorCommand becomes the bus envelope of
+    the DBC's ActuatorCommand (same fields, source ros2, its stamp), which the gateway's gate
+    forwards; one out of the DBC's range is the gate's to refuse; bytes that are no command are
+    counted and give None."""
+    from auvgw.bus import decode_envelope
+    from auvgw.drivers.actuators import CommandGate, CommandRefused
+    from auvgw.stages.ros2 import Ros2Bridge, Ros2BridgeConfig
+
+    bridge = Ros2Bridge(Ros2BridgeConfig(vehicle="v", namespace="/fleet", commands=["actuators"]))
+    assert bridge.command_topic("actuators") == "/fleet/v/cmd/actuators"
+    payload = bridge.on_ros_command("actuators", _command_cdr(7, 500.0, 0.1, -0.05, 123))
+    env = decode_envelope(payload, "auv/v/cmd/x")
+    assert (env.type, env.device, env.t_recv_ns, env.seq) == ("ActuatorCommand", "ros2", 123, 7)
+    m = env.message
+    assert (m.seq, m.shaft_rpm, m.rudder, m.stern) == (7, 500.0, 0.1, -0.05)
+    gate = CommandGate()
+    gate.sent(gate.check(m))
+    wild = decode_envelope(bridge.on_ros_command("actuators", _command_cdr(8, 9999.0, 0, 0)), "k")
+    with pytest.raises(CommandRefused, match="out_of_range"):
+        gate.check(wild.message)
+    good = _command_cdr(9, 0.0, 0.0, 0.0)
+    for bad in (b"", b"\x00\x01\x00\x00\x07", good[:-3], b"\x00\x01\x00\x00" + b"\xff" * 60,
+                b"\x13\x37" + good[2:]):  # fmt: skip
+        assert bridge.on_ros_command("actuators", bad) is None
+    assert (bridge.stats.commands, bridge.stats.bad_commands) == (2, 5)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.binary(max_size=80))
+def test_no_bytes_on_a_command_topic_raise(data: bytes):
+    from auvgw.stages.ros2 import Ros2Bridge, Ros2BridgeConfig
+
+    bridge = Ros2Bridge(Ros2BridgeConfig(vehicle="v", commands=["actuators"]))
+    out = bridge.on_ros_command("actuators", data)
+    assert (out is None) == (bridge.stats.bad_commands == 1)

@@ -33,6 +33,13 @@ SHIPPED = config_file("security/router.toml").parent
 TESTED_BLOCK = re.compile(r"<!-- tested: tests/test_security_acl\.py.*?-->\s*```sh\n(.*?)```", re.S)
 PUT_PROC = str(REPO / "tests" / "bus_put_proc.py")
 SENSOR, NAV, SLAM = "auv/v/sensor/dvl/ensemble", "auv/v/nav/odometry", "auv/v/slam/ekf/pose"
+CMD, MARK = "auv/v/cmd/actuators", "auv/v/sensor/dvl/marker"
+
+
+def _ros_key(topic: str, ros_type: str) -> str:
+    from auvgw.rmw_zenoh import data_key
+
+    return data_key(0, topic, ros_type)
 
 
 def _doc_commands() -> list[str]:
@@ -88,18 +95,44 @@ def test_documented_router_speaks_tls_only(documented_router):
             return b"over-tls" in got
 
         wait_until(delivered, what="a sample from the gateway's session at fusion's")
-        sub.undeclare()
+        # the gateway's ROS 2 bridge hands a ROS 2 command to the gateway's gate in its own
+        # session: delivered there, while the router forwards it to nobody else (the gateway
+        # identity may not send commands); the sensor sample put after it is the marker
+        mine: list[bytes] = []
+        heard: list[str] = []
+        own = gw.declare_subscriber(CMD, lambda s: mine.append(s.payload.to_bytes()))
+        # declared in order: once the marker's subscription works, the command's is in place
+        cmd_sub = fusion.declare_subscriber(CMD, lambda s: heard.append("cmd"))
+        mark_sub = fusion.declare_subscriber(MARK, lambda s: heard.append("marker"))
+
+        def marked() -> bool:
+            gw.put(CMD, b"from-the-bridge")
+            gw.put(MARK, b"marker")
+            return "marker" in heard
+
+        wait_until(marked, what="the marker after a command at fusion's")
+        assert mine and set(mine) == {b"from-the-bridge"} and "cmd" not in heard
+        for d in (sub, own, cmd_sub, mark_sub):
+            d.undeclare()
     for plain in (f"tcp/127.0.0.1:{port}", f"tcp/localhost:{port}"):
         with pytest.raises(zenoh.ZError, match="Unable to connect"):
             open_session(BusConfig(mode="client", connect=[plain]))
 
 
 def test_each_identity_publishes_on_its_own_keys_only(documented_router):
-    """The gateway, fusion and a landmark SLAM stage, each with its own certificate in its own
-    process, put on sensor/, nav/ and slam/ alike; a subscriber (the recorder's identity) gets
-    each key from its owner only."""
+    """The gateway, fusion, a landmark SLAM stage, the pilot and a ROS 2 node, each with its own
+    certificate in its own process, put on sensor/, nav/, slam/, cmd/ and the ROS 2 keys alike;
+    a subscriber (the recorder's identity) gets each key from its owner only: no stage's
+    certificate sends an actuator command (only the pilot's), the ROS 2 sensor topic comes from
+    the gateway (its bridge) only, the ROS 2 command topic from the pilot and the ROS 2 node."""
+    from auvgw.ros2 import ACTUATOR_COMMAND_TYPE
+
     tmp, _port, procs = documented_router
-    seen: dict[str, set[str]] = {SENSOR: set(), NAV: set(), SLAM: set()}
+    ros_imu = _ros_key("/v/sensor/ins/imu", "sensor_msgs/msg/Imu")
+    ros_cmd = _ros_key("/v/cmd/actuators", ACTUATOR_COMMAND_TYPE)
+    owners = {SENSOR: {"gateway"}, NAV: {"fusion"}, SLAM: {"slam-landmark"}, CMD: {"pilot"},
+              ros_imu: {"gateway"}, ros_cmd: {"pilot", "ros2"}}  # fmt: skip
+    seen: dict[str, set[str]] = {k: set() for k in owners}
     count: dict[tuple[str, str], int] = {}
     lock = threading.Lock()
 
@@ -111,27 +144,27 @@ def test_each_identity_publishes_on_its_own_keys_only(documented_router):
 
     def owners_heard(n: int) -> bool:
         with lock:
-            return all(
-                count.get(k, 0) >= n
-                for k in ((SENSOR, "gateway"), (NAV, "fusion"), (SLAM, "slam-landmark"))
-            )
+            return all(count.get((k, o), 0) >= n for k, who in owners.items() for o in who)
 
     with open_session(_bus(tmp, "recorder")) as rec:
-        sub = rec.declare_subscriber("auv/v/**", keep)
+        subs = [rec.declare_subscriber(k, keep) for k in ("auv/v/**", "0/**")]
         # each process puts first on the keys it does not own, last on its own: once its own
         # key's sample of a round arrives, the router has judged that round's forgeries
         for name, keys in (
-            ("slam-landmark", (SENSOR, NAV, SLAM)),
-            ("gateway", (NAV, SLAM, SENSOR)),
-            ("fusion", (SENSOR, SLAM, NAV)),
+            ("slam-landmark", (SENSOR, NAV, CMD, ros_imu, ros_cmd, SLAM)),
+            ("gateway", (NAV, SLAM, CMD, ros_cmd, SENSOR, ros_imu)),
+            ("fusion", (SENSOR, SLAM, CMD, ros_imu, ros_cmd, NAV)),
+            ("pilot", (SENSOR, ros_imu, CMD, ros_cmd)),
+            ("ros2", (CMD, SENSOR, ros_imu, ros_cmd)),
         ):
             toml = tmp / "config" / "security" / f"{name}-bus.toml"
             proc = procs.start([PYTHON, PUT_PROC, str(toml), name, *keys], name)
             proc.wait_line("ready")
         wait_until(lambda: owners_heard(20), timeout=30, what="20 rounds from every owner")
-        sub.undeclare()
+        for sub in subs:
+            sub.undeclare()
     with lock:
-        assert seen == {SENSOR: {"gateway"}, NAV: {"fusion"}, SLAM: {"slam-landmark"}}
+        assert seen == owners
 
 
 def _allowed(acl: dict, identity: str, flow: str, message: str, key: str) -> bool:
@@ -154,6 +187,8 @@ def _allowed(acl: dict, identity: str, flow: str, message: str, key: str) -> boo
 def _owned() -> dict[str, set[tuple[str, str]]]:
     """(message, key) each identity must be able to send: the keys the code publishes on."""
     from auvgw.bus import Keys
+    from auvgw.rmw_zenoh import DEFAULT_QOS, node_token, topic_token
+    from auvgw.ros2 import ACTUATOR_COMMAND_TYPE, TF_TYPE, ros_topic
     from auvgw.stages.bathymetric import BathymetricStage
     from auvgw.stages.magnetic import MagneticStage
     from auvgw.stages.slam import SlamStage, SlamStageConfig
@@ -172,6 +207,21 @@ def _owned() -> dict[str, set[tuple[str, str]]]:
     for algorithm in ALGORITHMS:
         pipe = SlamStageConfig(vehicle="v", algorithm=algorithm).pipeline_name
         landmark |= stage(f"slam-{pipe}", [k.slam(pipe, w) for w in SlamStage.outputs])
+    # ROS 2 (domain 0): the bridge's topics, under a namespace and at the root, and the graph
+    # tokens of a node, a publisher and a subscription
+    zid = "8b2091e6f4a6c7d1" * 2
+    ros_out = {("put", _ros_key(ros_topic("/fleet", "v", t), ros_type)) for t, ros_type in (
+        ("sensor/dvl/twist", "geometry_msgs/msg/TwistWithCovarianceStamped"),
+        ("nav/odometry", "nav_msgs/msg/Odometry"),
+        ("slam/ekf/pose", "geometry_msgs/msg/PoseWithCovarianceStamped"),
+        ("status/fusion", "auvgw_msgs/msg/Decoded"), ("/tf", TF_TYPE), ("/tf_static", TF_TYPE),
+        ("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray"))}  # fmt: skip
+    cmd_topic = ros_topic("/fleet", "v", "cmd/actuators")
+    graph = {("liveliness_token", node_token(0, zid, 0, "/fleet", "auvgw_bridge")),
+             *(("liveliness_token", topic_token(0, zid, 0, 1, kind, "/fleet", "auvgw_bridge",
+                                                cmd_topic, ACTUATOR_COMMAND_TYPE, DEFAULT_QOS))
+               for kind in ("MP", "MS"))}  # fmt: skip
+    ros_cmd = {("put", _ros_key(cmd_topic, ACTUATOR_COMMAND_TYPE))}
     return {
         "gateway": {
             ("put", k.raw("dvl")),
@@ -179,11 +229,14 @@ def _owned() -> dict[str, set[tuple[str, str]]]:
             *stage("gateway", []),
             *stage("dvl", []),
             ("declare_queryable", k.config("gateway")),
+            *ros_out,
+            *graph,
         },
         "fusion": stage("fusion", [k.odometry()]),
         "pilot": stage(
             "pilot", [k.cmd("actuators"), f"{k.base}/pilot/command", f"{k.base}/pilot/state"]
-        ),
+        ) | graph | ros_cmd,
+        "ros2": graph | ros_cmd,
         "slam-landmark": landmark,
         **{
             f"slam-{s.name}": stage(f"slam-{s.name}", [k.slam(s.name, w) for w in s.outputs])
@@ -195,8 +248,10 @@ def _owned() -> dict[str, set[tuple[str, str]]]:
 def test_shipped_acl_gives_each_identity_its_own_keys_only():
     """Every key a component's code sends on is allowed to its identity and to no other but
     the gateway's status/alive (the landmark rule lists every algorithm's key segment, so a new
-    one fails here); every vehicle
-    identity and the shore receive everything; the router's identity may do nothing."""
+    one fails here): the ROS 2 bridge's topics to the gateway only, the ROS 2 command topic and
+    graph tokens to the pilot and the ROS 2 identity (and the tokens to the gateway); every
+    vehicle identity and the shore receive everything, ROS 2 included; the router's identity may
+    do nothing."""
     acl = tomllib.loads((SHIPPED / "router.toml").read_text())["bus"]["access_control"]
     owned = _owned()
     everything = set().union(*owned.values())
@@ -209,8 +264,9 @@ def test_shipped_acl_gives_each_identity_its_own_keys_only():
             assert _allowed(acl, identity, "ingress", message, key) == mine, (identity, key)
             receives = identity != "router"
             assert _allowed(acl, identity, "egress", "put", key) == receives, (identity, key)
-        listens = _allowed(acl, identity, "ingress", "declare_subscriber", "auv/v/sensor/dvl/x")
-        assert listens == (identity != "router")
+        for key in ("auv/v/sensor/dvl/x", "0/v/sensor/dvl/twist/t/h"):
+            listens = _allowed(acl, identity, "ingress", "declare_subscriber", key)
+            assert listens == (identity != "router"), (identity, key)
     subjects = {s["id"]: s["cert_common_names"] for s in acl["subjects"]}
     assert subjects == {c: [c] for c in COMPONENTS if c != "router"}
     for component in subjects:

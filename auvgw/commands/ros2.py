@@ -1,15 +1,19 @@
 """``auvgw ros2``: the vehicle on ROS 2 (rmw_zenoh_cpp), live.
 
     auvgw ros2 bridge [--vehicle auv1] [--domain-id 0] [--namespace /fleet] [--mounts M.json]
+                      [--commands actuators]
     auvgw ros2 list [--domain-id 0]
     auvgw ros2 echo /auv1/sensor/ins/imu [--count 5]
 
 ``bridge`` republishes the vehicle's decoded sensors, odometry, SLAM outputs and status as a
 ROS 2 node on rmw_zenoh would (data keys, CDR, attachments, liveliness tokens), with ``/tf``,
 ``/tf_static`` (``--mounts``: a JSON object device -> ``{"lever_arm_m": [x, y, z],
-"rpy_deg": [r, p, y]}``, body FRD) and ``/diagnostics``; ``auvgw run`` does the same in the
-gateway with ``[ros2] enabled = true``. ``list`` prints the ROS 2 graph of a domain as
-``ros2 node list`` and ``ros2 topic list -t`` would; ``echo`` prints a topic's messages. All three
+"rpy_deg": [r, p, y]}``, body FRD) and ``/diagnostics``; ``--commands DEVICE`` (repeatable)
+takes that device's commands from ROS 2 (``<namespace>/<vehicle>/cmd/<device>``,
+``auvgw_msgs/msg/ActuatorCommand``) onto the bus command key, where the gateway checks them;
+``auvgw run`` does the same in the gateway with ``[ros2] enabled = true``. ``list`` prints the
+ROS 2 graph of a domain as ``ros2 node list`` and ``ros2 topic list -t`` would; ``echo`` prints a
+topic's messages. All three
 join the bus with the usual options (``--connect``, default the local router's endpoint); a ROS 2
 node on rmw_zenoh reaches them through the same router. See docs/ros2.md.
 """
@@ -37,6 +41,8 @@ def register(sub: SubParsers) -> None:
     b.add_argument("--mounts", type=Path, default=None, metavar="JSON",
                    help="sensor mounts for /tf_static (device: lever_arm_m, rpy_deg)")  # fmt: skip
     b.add_argument("--node", default="auvgw_bridge", help="ROS node name")
+    b.add_argument("--commands", action="append", default=[], metavar="DEVICE",
+                   help="take DEVICE's commands from ROS 2 (repeatable; default none)")  # fmt: skip
     add_duration(b)
     lst = verbs.add_parser("list", help="the ROS 2 graph: nodes, topics and their types")
     e = verbs.add_parser("echo", help="print a topic's messages")
@@ -68,7 +74,7 @@ def bridge_config(args: argparse.Namespace) -> Ros2BridgeConfig:
     try:
         return Ros2BridgeConfig(
             vehicle=args.vehicle, domain_id=args.domain_id, namespace=args.namespace,
-            node=args.node, mounts=mounts, enabled=True,
+            node=args.node, mounts=mounts, enabled=True, commands=getattr(args, "commands", []),
         )  # fmt: skip
     except ValidationError as exc:
         raise UserError(format_validation_error(exc)) from None

@@ -15,6 +15,13 @@ rmw_zenoh see them. Beside the vehicle's topics (``/<namespace>/<vehicle>/sensor
   published at start and again every ``static_period_s`` (rmw_zenoh's transient-local cache is a
   Zenoh publication cache this bridge does not keep: a late subscriber waits at most one period);
 * ``/diagnostics``: every component's status as a ``diagnostic_msgs/DiagnosticArray``.
+
+Commands the other way: for each device in ``commands`` (opt-in) the bridge is a ROS 2
+subscription of ``<namespace>/<vehicle>/cmd/<device>`` (``auvgw_msgs/msg/ActuatorCommand``, its
+``MS`` liveliness token and data key as rmw_zenoh writes them) and puts each message it takes on
+the bus command key ``auv/<v>/cmd/<device>`` as the actuators' ``ActuatorCommand`` envelope, so the
+gateway's :class:`~auvgw.drivers.actuators.CommandGate` checks it (ranges, sequence) like any
+other; bytes that are no such message are counted (``bad_commands``) and dropped.
 """
 
 from __future__ import annotations
@@ -32,6 +39,7 @@ import zenoh
 from auvgw import ros2
 from auvgw.config.ros2 import Mount, Ros2Config
 from auvgw.decoding import message_kind
+from auvgw.envelope import encode_envelope
 from auvgw.rmw_zenoh import (
     DEFAULT_QOS,
     SENSOR_QOS,
@@ -43,6 +51,7 @@ from auvgw.rmw_zenoh import (
     pack_attachment,
     topic_token,
 )
+from auvgw.stages import log_bad_payload
 from auvgw.stages.base import DROP, BusCounters, Stage, StageConfig
 
 __all__ = ["Mount", "Ros2Bridge", "Ros2BridgeConfig", "RosStage"]
@@ -58,12 +67,16 @@ class Ros2BridgeConfig(StageConfig, Ros2Config):
 class Ros2Counters(BusCounters):
     """``received``: bus samples taken; ``published``: ROS 2 messages put; ``topics``: ROS 2
     publishers declared; ``tf``: transforms put on ``/tf``; ``unwatched``: samples not converted
-    because no subscriber matched any of the topics they make (:meth:`RosStage.wanted`)."""
+    because no subscriber matched any of the topics they make (:meth:`RosStage.wanted`);
+    ``commands``: ROS 2 commands put on the bus command key; ``bad_commands``: ROS 2 samples on a
+    command topic that were no command (bad CDR), dropped."""
 
     published: int = 0
     topics: int = 0
     tf: int = 0
     unwatched: int = 0
+    commands: int = 0
+    bad_commands: int = 0
 
 
 class _Endpoint:
@@ -101,22 +114,24 @@ class RosStage(Stage):
         #: :meth:`post`, from the gateway's listeners, no envelope round trip)
         self.sections = sections
         #: s a batch of posted messages waits for more (:meth:`post`)
-        self.batch_s = 0.005
+        self.batch_s = config.batch_ms / 1000
         self._batch: deque[tuple[str, int, Any]] = deque()
         self._batch_queued = False
         self.stats: Ros2Counters = self.stats  # type: ignore[assignment]
         self._static_lock = threading.Lock()
         self._static_at = -float("inf")  # monotonic s of the last /tf_static
         self._tf = ros2.TfTracker()  # map -> odom
+        self._topics: dict[str, str] = {}
 
     def input_keys(self) -> list[str]:
         return [self.keys.all(f"{s}/**") for s in self.sections]
 
     def post(self, device: str, t_recv_ns: int, message: Any) -> None:
         """:meth:`feed` on the worker, in batches: the first message of a batch queues one
-        call that waits ``batch_s`` and takes every message posted meanwhile (the gateway's
-        listener at 1000 messages/s wakes the worker 200 times a second, not 1000: a wake costs
-        more than a message's conversion). A message nobody would see (:meth:`wanted`) is
+        call that waits ``batch_s`` (``[ros2] batch_ms``) and takes every message posted
+        meanwhile (the gateway's listener at 1000 messages/s wakes the worker 50 times a second
+        at 20 ms, not 1000: a wake costs more than a message's conversion, and the puts of a
+        batch go out together, :meth:`_call`). A message nobody would see (:meth:`wanted`) is
         counted and left there."""
         if not self.wanted(self.keys.sensor(device, message_kind(message))):
             return
@@ -153,8 +168,15 @@ class RosStage(Stage):
         raise NotImplementedError
 
     def topic(self, m: ros2.RosMessage) -> str:
-        """The fully qualified topic of ``m`` (:func:`auvgw.ros2.ros_topic` under the namespace)."""
-        return ros2.ros_topic(self.config.namespace, self.keys.vehicle, m.topic)
+        """The fully qualified topic of ``m`` (:func:`auvgw.ros2.ros_topic` under the namespace;
+        remembered, up to 4096 names)."""
+        full = self._topics.get(m.topic)
+        if full is None:
+            if len(self._topics) >= 4096:
+                self._topics.clear()
+            full = self._topics[m.topic] = ros2.ros_topic(self.config.namespace,
+                                                          self.keys.vehicle, m.topic)  # fmt: skip
+        return full
 
     # -- bus side ---------------------------------------------------------------------------
     def handle_sample(self, key: str, payload: bytes, t_arrival_ns: int | None = None) -> object:
@@ -220,6 +242,10 @@ class Ros2Bridge(RosStage):
         #: the publishers each bus key's samples went to (:meth:`wanted`; a tuple replaced, never
         #: changed in place: the Zenoh callbacks and the gateway's listeners read it)
         self._made: dict[str, tuple[_Endpoint, ...]] = {}
+        self._cmd_decls: list[Any] = []
+        #: puts held back on the worker (:meth:`_call`): (endpoint, CDR, attachment)
+        self._held: list[tuple[_Endpoint, bytes, bytes]] = []
+        self._holder: int | None = None  # the thread whose puts are held (the worker, in a call)
 
     def status_fields(self) -> dict[str, Any]:
         return {"domain_id": self.config.domain_id, "namespace": self.config.namespace,
@@ -238,14 +264,47 @@ class Ros2Bridge(RosStage):
             ep = self._declare(topic, m.type, key)
         if ep is not None:
             ep.seq += 1
-            try:
-                ep.pub.put(cdr, attachment=pack_attachment(ep.seq, t_ns, ep.gid))
-            except zenoh.ZError as exc:
-                log.warning("ros2: cannot publish %s: %s", topic, exc)
+            att = pack_attachment(ep.seq, t_ns, ep.gid)
+            if self.hold_puts and self._holder == threading.get_ident():
+                self._held.append((ep, cdr, att))
+            else:
+                self._send(ep, cdr, att)
         self.count(m, topic)
         if self.on_publish is not None:
             self.on_publish(key, cdr, t_ns)
         return ep
+
+    @staticmethod
+    def _send(ep: _Endpoint, cdr: bytes, att: bytes) -> None:
+        try:
+            ep.pub.put(cdr, attachment=att)
+        except zenoh.ZError as exc:
+            log.warning("ros2: cannot publish on %s: %s", ep.pub.key_expr, exc)
+
+    def _send_held(self) -> None:
+        held, self._held = self._held, []
+        for item in held:
+            self._send(*item)
+
+    #: puts held back at most (:meth:`_call`)
+    MAX_HELD = 64
+    #: hold the worker's puts (:meth:`_call`); False: each put as it is made (the bridge before
+    #: this, which ``benchmarks/bench_ros2_bridge.py`` measures against)
+    hold_puts = True
+
+    def _call(self, fn: Any, args: tuple[Any, ...]) -> None:
+        """Run a queued call (a batch of sensor messages, a bus sample) with the puts it makes
+        held back, and send what is held once the queue is empty (or :attr:`MAX_HELD` are held):
+        Zenoh's sender then wakes once per group of messages, not once per message (measured
+        here: a put between conversions costs about 60 us of CPU, one of a group of 8 about
+        15; docs/ros2.md)."""
+        self._holder = threading.get_ident()
+        try:
+            super()._call(fn, args)
+        finally:
+            self._holder = None
+        if len(self._held) >= self.MAX_HELD or self._queue.empty():
+            self._send_held()
 
     def wanted(self, key: str) -> bool:
         """Take a sample on bus ``key`` only if a subscriber matches one of the topics that key's
@@ -280,19 +339,74 @@ class Ros2Bridge(RosStage):
         return ep
 
 
+    # -- commands from ROS 2 -----------------------------------------------------------------
+    def command_topic(self, device: str) -> str:
+        """The ROS 2 topic of ``device``'s commands: ``<namespace>/<vehicle>/cmd/<device>``."""
+        return ros2.ros_topic(self.config.namespace, self.keys.vehicle, f"cmd/{device}")
+
+    def on_ros_command(self, device: str, cdr: bytes) -> bytes | None:
+        """A ROS 2 command message (CDR ``auvgw_msgs/msg/ActuatorCommand``) for ``device`` as the
+        bus's command envelope (the actuators' ``ActuatorCommand``, source ``ros2``, stamped
+        with the message's header or, unset, now), counted in ``commands``; bytes that are no
+        such message are counted in ``bad_commands`` (logged: the first and every 100th), None.
+        """
+        try:
+            cmd, stamp = ros2.actuator_command(cdr)
+            payload, _ = encode_envelope(cmd, "ros2", stamp or time.time_ns(), int(cmd.seq))
+        except ValueError as exc:
+            with self._lock:
+                seen = self.stats.bad_commands
+                self.stats.bad_commands += 1
+            log_bad_payload(self.name, self.command_topic(device), exc, seen)
+            return None
+        with self._lock:
+            self.stats.commands += 1
+        return payload
+
+    def _declare_commands(self) -> None:
+        """One ROS 2 subscription (data key and ``MS`` token) per ``commands`` device, whose
+        messages go to the bus command key (in the Zenoh callback: a command is small and late
+        is worse than a short callback)."""
+        assert self.session is not None
+        s, c = self.session, self.config
+        for device in c.commands:
+            topic = self.command_topic(device)
+            key = data_key(c.domain_id, topic, ros2.ACTUATOR_COMMAND_TYPE)
+            token = topic_token(c.domain_id, self._session_id, 0, self._next_entity, "MS",
+                                c.namespace, c.node, topic, ros2.ACTUATOR_COMMAND_TYPE,
+                                DEFAULT_QOS)  # fmt: skip
+            self._next_entity += 1
+            pub = s.declare_publisher(self.keys.cmd(device))
+
+            def take(sample: zenoh.Sample, device: str = device, pub: Any = pub) -> None:
+                payload = self.on_ros_command(device, sample.payload.to_bytes())
+                if payload is not None:
+                    with contextlib.suppress(zenoh.ZError):
+                        pub.put(payload)
+
+            self._cmd_decls += [s.declare_subscriber(key, take), pub,
+                                s.liveliness().declare_token(token)]  # fmt: skip
+
     def start(self, subscribe: bool = True) -> None:
         """The node's token first (a ROS graph shows the node before its publishers), then the
-        stage (subscriptions, status, liveliness) and ``/tf_static``."""
+        stage (subscriptions, status, liveliness), the command subscriptions and
+        ``/tf_static``."""
         if self.session is not None and self._node_token is None:
             self._node_token = self.session.liveliness().declare_token(
                 node_token(self.config.domain_id, self._session_id, 0, self.config.namespace,
                            self.config.node))  # fmt: skip
         super().start(subscribe)
+        self._declare_commands()
         self.publish_static(time.time_ns())
 
     def stop(self, flush: bool = True, timeout_s: float = 5.0) -> None:
         """Stop the stage, then withdraw every publisher and token (the node's last)."""
+        for d in self._cmd_decls:  # the subscriptions first: no command after this
+            with contextlib.suppress(zenoh.ZError):
+                d.undeclare()
+        self._cmd_decls.clear()
         super().stop(flush, timeout_s)
+        self._send_held()  # the worker's last call saw its stop mark still queued
         for ep in self._endpoints.values():
             for d in (ep.listener, ep.token, ep.pub):
                 with contextlib.suppress(zenoh.ZError):
