@@ -317,7 +317,7 @@ def actuator_command(cdr: bytes) -> tuple[Any, int]:
     if len(cdr) < 4 or cdr[:2] not in (b"\x00\x00", b"\x00\x01"):
         raise ValueError(f"{len(cdr)} bytes without a CDR encapsulation header (00 00 or 00 01)")
     try:
-        m = typestore().deserialize_cdr(cdr, ACTUATOR_COMMAND_TYPE)
+        m: Any = typestore().deserialize_cdr(cdr, ACTUATOR_COMMAND_TYPE)
     except Exception as exc:  # rosbags raises what struct / its own checks raise
         raise ValueError(f"not a CDR {ACTUATOR_COMMAND_TYPE} ({len(cdr)} bytes): "
                          f"{type(exc).__name__}: {exc}") from None  # fmt: skip

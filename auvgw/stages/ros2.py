@@ -131,7 +131,7 @@ class RosStage(Stage):
         call that waits ``batch_s`` (``[ros2] batch_ms``) and takes every message posted
         meanwhile (the gateway's listener at 1000 messages/s wakes the worker 50 times a second
         at 20 ms, not 1000: a wake costs more than a message's conversion, and the puts of a
-        batch go out together, :meth:`_call`). A message nobody would see (:meth:`wanted`) is
+        batch go out together, :meth:`_work_item`). A message nobody would see (:meth:`wanted`) is
         counted and left there."""
         if not self.wanted(self.keys.sensor(device, message_kind(message))):
             return
@@ -243,7 +243,7 @@ class Ros2Bridge(RosStage):
         #: changed in place: the Zenoh callbacks and the gateway's listeners read it)
         self._made: dict[str, tuple[_Endpoint, ...]] = {}
         self._cmd_decls: list[Any] = []
-        #: puts held back on the worker (:meth:`_call`): (endpoint, CDR, attachment)
+        #: puts held back on the worker (:meth:`_work_item`): (endpoint, CDR, attachment)
         self._held: list[tuple[_Endpoint, bytes, bytes]] = []
         self._holder: int | None = None  # the thread whose puts are held (the worker, in a call)
 
@@ -286,13 +286,13 @@ class Ros2Bridge(RosStage):
         for item in held:
             self._send(*item)
 
-    #: puts held back at most (:meth:`_call`)
+    #: puts held back at most (:meth:`_work_item`)
     MAX_HELD = 64
-    #: hold the worker's puts (:meth:`_call`); False: each put as it is made (the bridge before
+    #: hold the worker's puts (:meth:`_work_item`); False: each put as it is made (the bridge before
     #: this, which ``benchmarks/bench_ros2_bridge.py`` measures against)
     hold_puts = True
 
-    def _call(self, fn: Any, args: tuple[Any, ...]) -> None:
+    def _work_item(self, item: tuple[Any, tuple[Any, ...]]) -> None:
         """Run a queued call (a batch of sensor messages, a bus sample) with the puts it makes
         held back, and send what is held once the queue is empty (or :attr:`MAX_HELD` are held):
         Zenoh's sender then wakes once per group of messages, not once per message (measured
@@ -300,10 +300,10 @@ class Ros2Bridge(RosStage):
         15; docs/ros2.md)."""
         self._holder = threading.get_ident()
         try:
-            super()._call(fn, args)
+            super()._work_item(item)
         finally:
             self._holder = None
-        if len(self._held) >= self.MAX_HELD or self._queue.empty():
+        if len(self._held) >= self.MAX_HELD or self._w_inbox.queue.empty():
             self._send_held()
 
     def wanted(self, key: str) -> bool:
