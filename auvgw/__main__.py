@@ -1,7 +1,5 @@
 """``python -m auvgw``: the same as the ``auvgw`` console script."""
 
-import sys
+from auvgw.cli import entry
 
-from auvgw.cli import main
-
-sys.exit(main())
+entry()

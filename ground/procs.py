@@ -15,7 +15,15 @@ import sys
 from pathlib import Path
 from typing import IO, Any
 
-__all__ = ["Children", "endpoint", "free_endpoint", "free_port", "stop_process"]
+__all__ = [
+    "Children",
+    "end_without_finalising",
+    "ending_without_finalising",
+    "endpoint",
+    "free_endpoint",
+    "free_port",
+    "stop_process",
+]
 
 
 def free_port(host: str = "127.0.0.1") -> int:
@@ -109,3 +117,18 @@ class Children:
         """Per child: pid, exit code and whether it had to be killed."""
         return {n: {"pid": p.pid, "exit_code": self.exit_codes.get(n, p.returncode),
                     "killed": n in self.killed} for n, p in self.procs.items()}  # fmt: skip
+
+
+_END_WITHOUT_FINALISING = [False]
+
+
+def end_without_finalising() -> None:
+    """Called by a command whose clean stop is complete (every output flushed, its bus session
+    closed): the ``auvgw`` entry point (:func:`auvgw.cli.entry`) then ends the process with
+    ``os._exit``, without the interpreter's finalisation."""
+    _END_WITHOUT_FINALISING[0] = True
+
+
+def ending_without_finalising() -> bool:
+    """Whether :func:`end_without_finalising` was called."""
+    return _END_WITHOUT_FINALISING[0]

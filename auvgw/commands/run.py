@@ -27,6 +27,7 @@ from auvgw.commands.common import (
 )
 from auvgw.config.gateway import ConfigError, GatewayConfig
 from auvgw.gateway import Gateway, GatewayRunning, probe_running_gateway
+from auvgw.ground.procs import end_without_finalising
 
 log = logging.getLogger(__name__)
 
@@ -218,6 +219,7 @@ def serve(settings: RunSettings, stop: threading.Event | None = None) -> int:
             if viz is not None:
                 viz.close()
             gateway.stop()
+    end_without_finalising()  # stopped cleanly: nothing left for the interpreter's exit
     return 0
 
 
