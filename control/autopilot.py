@@ -187,6 +187,9 @@ class AutopilotConfig:
     fin_tolerance: float = math.radians(3.0)
     fin_jam_s: float = 0.4
     rpm_tolerance: float = 150.0
+    #: the shaft's first-order time constant (s) of the expected model (the emulated controller's
+    #: 0.3 s; 0: none): a healthy shaft spinning up lies between the model before and after
+    shaft_tau: float = 0.3
     thruster_s: float = 0.6
     feedback_timeout_s: float = 0.5  #: 0: no feedback expected (no fin/thruster checks)
     surface_stern: float = math.radians(15.0)  #: bow-up stern plane while surfacing (rad)
@@ -298,6 +301,8 @@ class Autopilot:
         #: were applied, on the feedback's clock (:meth:`_check_actuators`)
         self._exp_fins = (_Expected(c.fin_rate, c.fin_tau), _Expected(c.fin_rate, c.fin_tau))
         self._fin_band = ((0.0, 0.0), (0.0, 0.0))  # (low, high) rad of each, the newest
+        self._exp_rpm = _Expected(1e9, c.shaft_tau)  # no slew limit: a lag only
+        self._rpm_band = (0.0, 0.0)  # (low, high) rpm, the newest
         self._fb_judged: float | None = None  # time of the newest feedback the model took
         self._watch = {k: _Watch() for k in ("rudder", "stern", "thruster")}
         #: (t, commanded rpm, rudder, stern) of the last steps: what the actuators were asked at
@@ -442,6 +447,11 @@ class Autopilot:
                 after = model.follow(cmd, h)
                 band.append((min(before, after), max(before, after)))
             self._fin_band = (band[0], band[1])
+            if self._fb_judged is None:
+                self._exp_rpm.value = fb.rpm
+            before = self._exp_rpm.value
+            after = self._exp_rpm.follow(rpm_asked, h)
+            self._rpm_band = (min(before, after), max(before, after))
             self._fb_judged = fb.t
         for (lo, hi), name, meas in zip(self._fin_band, ("rudder", "stern"),
                                         (fb.rudder, fb.stern), strict=True):  # fmt: skip
@@ -451,7 +461,8 @@ class Autopilot:
                 self._abort(f"{name}_jammed", f"measured {math.degrees(meas):.1f} deg, expected "
                             f"{math.degrees(exp):.1f} deg for {c.fin_jam_s:g} s")  # fmt: skip
                 return
-        off = abs(fb.rpm - rpm_asked)
+        lo, hi = self._rpm_band
+        off = max(lo - fb.rpm, fb.rpm - hi, 0.0)
         if self._watch["thruster"].held(off > c.rpm_tolerance, t) >= c.thruster_s:
             self._abort("thruster", f"measured {fb.rpm:.0f} rpm, commanded {rpm_asked:.0f} "
                         f"rpm for {c.thruster_s:g} s")  # fmt: skip

@@ -257,8 +257,10 @@ def fly_chain(run: ChainRun, progress: bool = False) -> ChainResult:
         x0, y0, _ = scn.start_pose
         settings = out / "fusion.json"
         fusion = _fusion_config(VEHICLE, (x0, y0, scn.vehicle.depth_m), scn.devices.ins.noise)
-        fusion = fusion.model_copy(update={"filter": fusion.filter.model_copy(
-            update={"max_latency_s": run.fusion_lag_s})})
+        # no clock warm-up: the pilot steers on the first frames, and vehicle time 0 waits for
+        # the stages, so the ports are open before any frame (no backlog to learn around)
+        filt = fusion.filter.model_copy(update={"max_latency_s": run.fusion_lag_s})
+        fusion = fusion.model_copy(update={"clock_warmup_s": 0.0, "filter": filt})
         settings.write_text(fusion.model_dump_json(indent=1))
         children.start("fusion", ["fusion", "--settings", str(settings), "--connect", hub,
                                   "--listen", free_endpoint()])  # fmt: skip
