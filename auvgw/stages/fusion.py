@@ -86,7 +86,8 @@ class FusionStageConfig(StageConfig):
     10 / baud), subtracted when mapping its clock. ``clock_skew`` (s/s) and ``clock_jump_s``:
     see :class:`~auvgw.fusion.adapters.DeviceClock`. ``clock_warmup_s``: each device's samples
     are held for this long (s of receive time) while its clock offset is learnt, so the late
-    first frames after a port opens do not cost motion (see
+    first frames after a port opens do not cost motion (0: off; the demo uses 2 s; the held
+    samples are processed and published in one burst at the window's end; see
     :meth:`~auvgw.fusion.adapters.MessageAdapter.adapt_all`). ``require_aligned``: drop INS
     solutions flagged not aligned or in error. ``high_res``: prefer the PD0 0x5803 velocity.
     """
@@ -98,7 +99,7 @@ class FusionStageConfig(StageConfig):
     latency_s: dict[str, float] = Field(default_factory=dict)
     clock_skew: float = Field(1e-4, ge=0)
     clock_jump_s: float = Field(1.0, gt=0)
-    clock_warmup_s: float = Field(2.0, ge=0, le=60)
+    clock_warmup_s: float = Field(0.0, ge=0, le=60)
     require_aligned: bool = True
     high_res: bool = True
     filter: FusionConfig = FusionConfig()
