@@ -24,8 +24,8 @@ ATTACKER = "127.0.0.2"
 #: datagrams sent before waiting for the gateway to catch up (well inside the default socket
 #: receive buffer, so the kernel drops none of them)
 BATCH = 200
-N_REJECTED = 2_000
-N_ALLOWED = 1_000
+N_REJECTED = 1_000
+N_ALLOWED = 300
 
 
 def _crafted(i: int) -> bytes:
@@ -142,8 +142,8 @@ def test_udp_flood_memory_is_flat_when_rejected_and_bounded_when_allowed():
                 f"traced MB: start {m0:.2f}, after {N_REJECTED} rejected {m1:.2f}, "
                 f"after {N_ALLOWED} allowed {m2:.2f}"
             )
-            # unbounded, 1,000 new tables cost about 18 MB (18 kB each)
-            assert m2 - m1 < 8.0, f"allowed flood grew traced memory by {m2 - m1:.2f} MB"
+            # unbounded, 300 new tables cost about 5.4 MB (18 kB each); measured growth: 0.0 MB
+            assert m2 - m1 < 3.0, f"allowed flood grew traced memory by {m2 - m1:.2f} MB"
             assert kongsberg.depth_beam_table.cache_info().currsize <= (
                 kongsberg.DEPTH_TABLE_CACHE_SIZE
             )
