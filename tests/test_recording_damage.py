@@ -27,7 +27,7 @@ def _samples(path, report=None):
 
 def test_every_single_byte_flip_costs_a_chunk_at_most_and_never_a_traceback(tmp_path):
     path = tmp_path / "small.mcap"
-    _recording(path, 24)  # five chunks; each flip re-reads the file: cost ~ length squared
+    _recording(path, 24)  # six chunks; each flip re-reads the file: cost ~ length squared
     good = _samples(path)
     assert len(good) == 24
     data = path.read_bytes()
