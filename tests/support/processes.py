@@ -132,13 +132,16 @@ class Procs:
 
 
 def run_demo_processes(
-    out: Path, scenario: str, duration_s: float, speed: float, timeout_s: float
+    out: Path, scenario: str, duration_s: float, speed: float, timeout_s: float,
+    viz: bool = False,
 ) -> tuple[int, str, dict[str, Any]]:
-    """``auvgw demo --processes --scenario S --no-viz`` into ``out``, waited for up to
-    ``timeout_s``: (the demo's pid, its output, its ``summary.json``); it must exit 0."""
+    """``auvgw demo --processes --scenario S`` into ``out``, waited for up to ``timeout_s``:
+    (the demo's pid, its output, its ``summary.json``); it must exit 0. Without ``viz``,
+    ``--no-viz``; with it the gateway records ``out/demo.rrd``."""
     demo = subprocess.Popen(
         [sys.executable, "-m", "auvgw", "demo", "--processes", "--scenario", scenario,
-         "--duration", str(duration_s), "--speed", str(speed), "--no-viz", "--out", str(out)],
+         "--duration", str(duration_s), "--speed", str(speed), "--out", str(out),
+         *([] if viz else ["--no-viz"])],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
     )  # fmt: skip
     try:
