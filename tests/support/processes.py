@@ -132,7 +132,11 @@ class Procs:
 
 
 def run_demo_processes(
-    out: Path, scenario: str, duration_s: float, speed: float, timeout_s: float,
+    out: Path,
+    scenario: str,
+    duration_s: float,
+    speed: float,
+    timeout_s: float,
     viz: bool = False,
 ) -> tuple[int, str, dict[str, Any]]:
     """``auvgw demo --processes --scenario S`` into ``out``, waited for up to ``timeout_s``:
