@@ -6,6 +6,7 @@ The router runs in its own process (``auvgw router --bus-config``)."""
 from __future__ import annotations
 
 import shutil
+import signal
 import threading
 from pathlib import Path
 
@@ -179,7 +180,7 @@ def test_gateway_record_fusion_and_slam_run_over_mutual_tls_with_acl(secure_bus,
                 "-o",
                 str(tmp / "trip.mcap"),
                 "--duration",
-                "20",
+                "60",
                 *bus_arg("recorder"),
             ],
             "record",
@@ -210,6 +211,9 @@ def test_gateway_record_fusion_and_slam_run_over_mutual_tls_with_acl(secure_bus,
         env = decode_envelope(got_odom.payload.to_bytes())
         assert env.device == "fusion" and env.t_recv_ns > 0
         assert str(got_pose.key_expr).startswith("auv/auv1/slam/")
+        # by the first SLAM pose the recorder has seen seconds of 100 Hz INS frames: stop it as
+        # a user would (SIGINT), rather than waiting out a wall-time duration
+        rec.p.send_signal(signal.SIGINT)
         assert rec.p.wait(120) == 0, rec.stderr()
         odom.undeclare()
         pose.undeclare()
