@@ -8,6 +8,12 @@ factories (:mod:`auvgw.decoding`, :mod:`auvgw.hostdrivers`), the emulators and t
 type (``auv/<v>/sensor/<device>/<kind>``, docs/bus.md) and the role each type plays for fusion,
 SLAM and the Rerun logger.
 
+A site adds its own device without a fork: an installed distribution whose entry points in the
+group :data:`ENTRY_POINT_GROUP` (``auvgw.devices``) name a :class:`DeviceKind` has it appended
+after the built-ins (:func:`plugin_records`); one that fails to load or reuses a built-in name is
+left out with a one-line error naming its distribution and entry point (:data:`PLUGIN_ERRORS`,
+logged), and the built-ins keep working (docs/adding-a-device.md).
+
 It lives in ``drivers/`` because a device kind is first a wire protocol; it names codecs,
 emulators and host drivers by ``"module:attribute"`` strings and imports none of them, so reading
 it costs nothing (``auvgw --help`` imports no numpy) and no table is read until a format is used.
@@ -16,13 +22,18 @@ it costs nothing (``auvgw --help`` imports no numpy) and no table is read until 
 from __future__ import annotations
 
 import importlib
-from collections.abc import Iterator
+import logging
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
+from importlib import metadata
 from typing import Any
 
 __all__ = [
+    "BUILTIN",
     "CAN_FORMAT",
     "DEVICES",
+    "ENTRY_POINT_GROUP",
+    "PLUGIN_ERRORS",
     "ROLES",
     "DeviceKind",
     "Emulator",
@@ -35,6 +46,7 @@ __all__ = [
     "kinds_with_role",
     "load",
     "message_types",
+    "plugin_records",
     "roles_of",
     "types_with_role",
 ]
@@ -129,8 +141,8 @@ class DeviceKind:
 _D = "auvgw.drivers"
 _S = "auvgw.sim_devices"
 
-#: every device kind, in the order emulators are built and listed
-DEVICES: tuple[DeviceKind, ...] = (
+#: the device kinds shipped with auvgw, in the order emulators are built and listed
+BUILTIN: tuple[DeviceKind, ...] = (
     DeviceKind(
         "hn100", f"{_D}.hn100:FORMAT", table="hn100.toml", table_codec=f"{_D}.hn100:Hn100Codec",
         dbc="hn100.dbc", emulator=Emulator("ins", f"{_S}.ins:InsEmulator"),
@@ -210,6 +222,72 @@ DEVICES: tuple[DeviceKind, ...] = (
     ),
 )  # fmt: skip
 
+#: the entry-point group a site's distribution names its own :class:`DeviceKind` records in
+ENTRY_POINT_GROUP = "auvgw.devices"
+
+log = logging.getLogger(__name__)
+
+
+def _names(d: DeviceKind) -> list[tuple[str, str]]:
+    """The names a record claims that no other record may: its format, its message types and
+    its emulator's scenario key."""
+    out = [("format", d.format), *(("message type", m.type) for m in d.messages)]
+    if d.emulator is not None:
+        out.append(("emulator key", d.emulator.key))
+    return out
+
+
+def _targets(d: DeviceKind) -> list[str]:
+    """The ``"module:attribute"`` strings of a record (checked in form, not imported)."""
+    named = [d.codec, d.table_codec, d.host_driver, d.emulator and d.emulator.factory]
+    return [t for t in named if t is not None]
+
+
+def plugin_records(
+    builtin: Iterable[DeviceKind], entry_points: Iterable[metadata.EntryPoint] | None = None
+) -> tuple[tuple[DeviceKind, ...], tuple[str, ...]]:
+    """The device kinds the ``auvgw.devices`` entry points name (default: those of the installed
+    distributions), in entry-point order, and one line per entry point left out: one that fails
+    to import, names something that is not a :class:`DeviceKind`, a malformed
+    ``"module:attribute"``, or a format, message type or emulator key that a built-in (or an
+    earlier plugin) already has. Each line names the distribution and the entry point."""
+    if entry_points is None:
+        entry_points = metadata.entry_points(group=ENTRY_POINT_GROUP)
+    taken = {n: "a built-in device" for d in builtin for n in _names(d)}
+    records: list[DeviceKind] = []
+    errors: list[str] = []
+    for ep in entry_points:
+        dist = f"{ep.dist.name} {ep.dist.version}" if ep.dist is not None else "unknown"
+        where = f"device plugin {ep.name!r} ({ep.value}, distribution {dist})"
+        try:
+            record = ep.load()
+        except Exception as exc:  # a plugin's import may raise anything: say it, run without it
+            errors.append(f"{where}: not loaded: {type(exc).__name__}: {exc}")
+            continue
+        if not isinstance(record, DeviceKind):
+            errors.append(f"{where}: not loaded: names a {type(record).__name__}, not a "
+                          "registry.DeviceKind")  # fmt: skip
+            continue
+        bad = [t for t in _targets(record) if not all(t.partition(":")[::2])]
+        clash = [(what, n, taken[(what, n)]) for what, n in _names(record) if (what, n) in taken]
+        if bad:
+            errors.append(f"{where}: not loaded: {bad[0]!r} is not 'module:attribute'")
+        elif clash:
+            what, n, owner = clash[0]
+            errors.append(f"{where}: not loaded: its {what} {n!r} collides with {owner}")
+        else:
+            records.append(record)
+            taken.update(dict.fromkeys(_names(record), f"device plugin {ep.name!r}"))
+    return tuple(records), tuple(errors)
+
+
+_PLUGINS, PLUGIN_ERRORS = plugin_records(BUILTIN)
+for _line in PLUGIN_ERRORS:
+    log.error("auvgw: %s", _line)
+
+#: every device kind: the built-ins, then the sites' own (entry points ``auvgw.devices``)
+DEVICES: tuple[DeviceKind, ...] = BUILTIN + _PLUGINS
+
 _BY_FORMAT = {d.format: d for d in DEVICES}
 _BY_TYPE = {m.type: m for d in DEVICES for m in d.messages}
 
@@ -231,7 +309,8 @@ def device(fmt: str) -> DeviceKind:
     try:
         return _BY_FORMAT[fmt]
     except KeyError:
-        raise KeyError(f"unknown format {fmt!r}; known: {', '.join(_BY_FORMAT)}") from None
+        failed = "".join(f"; {e}" for e in PLUGIN_ERRORS)
+        raise KeyError(f"unknown format {fmt!r}; known: {', '.join(_BY_FORMAT)}{failed}") from None
 
 
 def device_formats() -> tuple[str, ...]:

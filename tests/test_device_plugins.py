@@ -1,0 +1,223 @@
+"""A site's own device through the ``auvgw.devices`` entry point, without a fork.
+
+The site's distribution is built here as it is installed: a ``.dist-info`` folder (``METADATA``,
+``entry_points.txt``) beside its package, on the ``sys.path`` (``PYTHONPATH``) of a real ``auvgw``
+process; no pip. Its device is a toy depth sensor with its own declarative line table
+(``$TOYD,<counter>,<depth m>*HH``), the in-tree pattern of ``drivers/acoustic.py``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from functools import reduce
+from importlib import metadata
+from pathlib import Path
+
+import pytest
+
+from auvgw.drivers import registry
+from auvgw.testing.format_samples import PD6_LINES
+
+TOY_TABLE = """\
+[line]
+start = "$"
+header = "TOYD"
+separator = ","
+terminator = "\\r\\n"
+max_length = 40
+
+[line.checksum]
+kind = "xor8"
+delimiter = "*"
+hex_case = "upper"
+
+[[fields]]
+name = "counter"
+width = 4
+sign = "never"
+
+[[fields]]
+name = "depth"
+width = 7
+decimals = 2
+sign = "never"
+units = "m"
+"""
+
+#: the record module: imports nothing but the registry (reading it costs nothing)
+TOY_RECORD = """\
+from pathlib import Path
+
+from auvgw.drivers.registry import DeviceKind, MessageType
+
+DEVICE = DeviceKind(
+    "toy", "toy_device.codec:FORMAT",
+    table=str(Path(__file__).with_name("toy.toml")), table_codec="toy_device.codec:ToyCodec",
+    messages=(MessageType("ToyDepth"),),
+)
+"""
+
+TOY_CODEC = """\
+from auvgw.drivers.formats import Format
+from auvgw.drivers.tablecodec import AsciiLineCodec, AsciiLineFramer, shipped_codec
+
+
+class ToyCodec(AsciiLineCodec, device="toy"):
+    DOC = "Toy depth sensor line. depth: m below the surface; counter: line count."
+    REQUIRED_FIELDS = {"counter": "", "depth": "m"}
+
+
+default_codec, __getattr__ = shipped_codec(ToyCodec.from_toml, ToyCodec.MESSAGE)
+
+
+class ToyFramer(AsciiLineFramer, shipped=default_codec):
+    pass
+
+
+FORMAT = Format.of_codec("toy", "a toy depth sensor (a site's own device)", default_codec)
+"""
+
+
+def _line(counter: int, depth: float) -> bytes:
+    body = f"TOYD,{counter:04d},{depth:07.2f}"
+    xor = reduce(lambda a, b: a ^ b, body.encode(), 0)
+    return f"${body}*{xor:02X}\r\n".encode()
+
+
+def _dist(site: Path, name: str, entry_points: str, files: dict[str, str]) -> None:
+    """An installed distribution ``name`` 0.1 in ``site``: its dist-info and its files."""
+    info = site / f"{name.replace('-', '_')}-0.1.dist-info"
+    info.mkdir(parents=True)
+    (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {name}\nVersion: 0.1\n")
+    (info / "entry_points.txt").write_text(f"[auvgw.devices]\n{entry_points}\n")
+    for rel, text in files.items():
+        (site / rel).parent.mkdir(parents=True, exist_ok=True)
+        (site / rel).write_text(text)
+
+
+def _toy(site: Path) -> None:
+    _dist(site, "toy-device", "toy = toy_device:DEVICE", {
+        "toy_device/__init__.py": TOY_RECORD,
+        "toy_device/codec.py": TOY_CODEC,
+        "toy_device/toy.toml": TOY_TABLE,
+    })  # fmt: skip
+
+
+def _broken(site: Path) -> None:
+    """Two bad plugins: one that cannot import, one that takes the built-in name ``pd0``."""
+    _dist(site, "broken-device", "broken = broken_device:DEVICE", {
+        "broken_device/__init__.py": "import no_such_module_anywhere\n",
+    })  # fmt: skip
+    _dist(site, "clashing-device", "mypd0 = clashing_device:DEVICE", {
+        "clashing_device/__init__.py": "from auvgw.drivers.registry import DeviceKind\n"
+        "DEVICE = DeviceKind('pd0', 'clashing_device:FORMAT')\n",
+    })  # fmt: skip
+
+
+def _auvgw(site: Path, *args: str | Path) -> subprocess.CompletedProcess[str]:
+    env = {**os.environ, "PYTHONPATH": str(site)}
+    return subprocess.run(
+        [sys.executable, "-m", "auvgw", *map(str, args)],
+        capture_output=True, text=True, env=env, timeout=60, cwd=site,
+    )  # fmt: skip
+
+
+@pytest.fixture
+def site(tmp_path: Path) -> Path:
+    s = tmp_path / "site-packages"
+    s.mkdir()
+    return s
+
+
+def test_a_site_device_decodes_and_is_a_gateway_format(site, tmp_path):
+    _toy(site)
+    capture = tmp_path / "toy.bin"
+    capture.write_bytes(_line(1, 12.5) + b"noise$TOYD" + _line(2, 13.25) + _line(9999, 0.0))
+    r = _auvgw(site, "decode", "--format", "toy", capture)
+    assert r.returncode == 0, r.stderr
+    rows = [json.loads(x) for x in r.stdout.splitlines()]
+    assert [(m["type"], m["counter"], m["depth"]) for m in rows] == [
+        ("ToyDepth", 1, 12.5), ("ToyDepth", 2, 13.25), ("ToyDepth", 9999, 0.0),
+    ]  # fmt: skip
+    summary = json.loads(r.stderr.splitlines()[-1])
+    assert summary["frames"] == 3 and summary["skipped_bytes"] == len(b"noise$TOYD")
+
+    cfg = tmp_path / "gateway.toml"
+    cfg.write_text(
+        '[devices.depth]\nformat = "toy"\n'
+        f'transport = {{ kind = "file", path = "{capture}" }}\n'
+        '[devices.dvl]\nformat = "pd0"\ntransport = { kind = "file", path = "dvl.bin" }\n'
+    )
+    r = _auvgw(site, "run", "--check", "--config", cfg)
+    assert (r.returncode, r.stderr) == (0, ""), r.stderr
+    assert r.stdout.startswith(f"{cfg}: ok (2 device(s)")
+    # the site table route (the registry's table_codec) comes with it
+    cfg.write_text(cfg.read_text().replace('format = "toy"\n', f'format = "toy"\ntable = "{site}'
+                                           '/toy_device/toy.toml"\n'))  # fmt: skip
+    assert _auvgw(site, "run", "--check", "--config", cfg).returncode == 0
+
+
+def test_bad_plugins_are_one_line_each_and_the_builtins_keep_working(site, tmp_path):
+    _toy(site)
+    _broken(site)
+    capture = tmp_path / "toy.bin"
+    capture.write_bytes(_line(7, 1.0))
+    r = _auvgw(site, "decode", "--format", "toy", capture)
+    assert r.returncode == 0, r.stderr
+    assert [json.loads(x)["counter"] for x in r.stdout.splitlines()] == [7]
+    errors = sorted(r.stderr.splitlines()[:-1])  # the last line: the summary
+    assert errors == [
+        "auvgw: device plugin 'broken' (broken_device:DEVICE, distribution broken-device 0.1): "
+        "not loaded: ModuleNotFoundError: No module named 'no_such_module_anywhere'",
+        "auvgw: device plugin 'mypd0' (clashing_device:DEVICE, distribution clashing-device "
+        "0.1): not loaded: its format 'pd0' collides with a built-in device",
+    ]
+    lines = tmp_path / "dvl.pd6"
+    lines.write_bytes(b"".join(PD6_LINES))
+    r = _auvgw(site, "decode", "--format", "pd6", "--quiet", lines)
+    assert r.returncode == 0, r.stderr
+    summary = json.loads(r.stderr.splitlines()[-1])
+    assert (summary["frames"], summary["bad_frames"]) == (len(PD6_LINES), 0)
+
+
+def _records(site: Path, monkeypatch: pytest.MonkeyPatch) -> tuple[tuple, tuple[str, ...]]:
+    monkeypatch.syspath_prepend(str(site))
+    eps = [ep for d in metadata.distributions(path=[str(site)]) for ep in d.entry_points]
+    return registry.plugin_records(registry.BUILTIN, sorted(eps, key=lambda e: e.name))
+
+
+def test_plugin_records_refuse_what_is_not_a_new_device(site, monkeypatch):
+    rec = "from auvgw.drivers.registry import DeviceKind, Emulator, MessageType\n"
+    _dist(site, "p-one", "a_notarecord = p_one:THING\nb_badtarget = p_one:BAD\n"
+          "c_type = p_one:TYPE\nd_emu = p_one:EMU\ne_good = p_one:GOOD\nf_again = p_one:GOOD",
+          {"p_one.py": rec + "THING = 3\n"
+           "BAD = DeviceKind('x1', 'no_colon_here')\n"
+           "TYPE = DeviceKind('x2', 'm:F', messages=(MessageType('Hn100Nav'),))\n"
+           "EMU = DeviceKind('x3', 'm:F', emulator=Emulator('dvl', 'm:E'))\n"
+           "GOOD = DeviceKind('x4', 'm:F', messages=(MessageType('X4Msg'),))\n"})  # fmt: skip
+    records, errors = _records(site, monkeypatch)
+    assert [r.format for r in records] == ["x4"]
+    where = "(p_one:{}, distribution p-one 0.1): not loaded: "
+    assert list(errors) == [
+        f"device plugin 'a_notarecord' {where.format('THING')}names a int, not a "
+        "registry.DeviceKind",
+        f"device plugin 'b_badtarget' {where.format('BAD')}'no_colon_here' is not "
+        "'module:attribute'",
+        f"device plugin 'c_type' {where.format('TYPE')}its message type 'Hn100Nav' collides "
+        "with a built-in device",
+        f"device plugin 'd_emu' {where.format('EMU')}its emulator key 'dvl' collides with a "
+        "built-in device",
+        f"device plugin 'f_again' {where.format('GOOD')}its format 'x4' collides with device "
+        "plugin 'e_good'",
+    ]
+
+
+def test_the_installed_registry_is_the_builtins_when_no_plugin_is_installed():
+    installed = metadata.entry_points(group=registry.ENTRY_POINT_GROUP)
+    assert registry.DEVICES[: len(registry.BUILTIN)] == registry.BUILTIN
+    assert len(registry.DEVICES) == len(registry.BUILTIN) + len(installed) - len(
+        registry.PLUGIN_ERRORS
+    )
