@@ -239,7 +239,7 @@ def _names(d: DeviceKind) -> list[tuple[str, str]]:
 
 def _targets(d: DeviceKind) -> list[str]:
     """The ``"module:attribute"`` strings of a record (checked in form, not imported)."""
-    named = [d.codec, d.table_codec, d.host_driver, d.emulator and d.emulator.factory]
+    named = [d.codec, d.table_codec, d.host_driver, d.emulator.factory if d.emulator else None]
     return [t for t in named if t is not None]
 
 

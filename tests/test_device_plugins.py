@@ -8,18 +8,27 @@ process; no pip. Its device is a toy depth sensor with its own declarative line 
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import math
 import os
 import subprocess
 import sys
+import typing
 from functools import reduce
 from importlib import metadata
 from pathlib import Path
 
 import pytest
 
-from auvgw.drivers import registry
+from auvgw.drivers import registry, roles
+from auvgw.drivers.can_codec import shipped_can_types
+from auvgw.drivers.spec import resolve_type
+from auvgw.fusion import adapters
+from auvgw.fusion.samples import DvlSample
 from auvgw.testing.format_samples import PD6_LINES
+
+REPO = Path(__file__).resolve().parents[1]
 
 TOY_TABLE = """\
 [line]
@@ -145,19 +154,16 @@ def test_a_site_device_decodes_and_is_a_gateway_format(site, tmp_path):
     summary = json.loads(r.stderr.splitlines()[-1])
     assert summary["frames"] == 3 and summary["skipped_bytes"] == len(b"noise$TOYD")
 
+    # the gateway takes it, with the site-table route of the registry's table_codec
     cfg = tmp_path / "gateway.toml"
     cfg.write_text(
-        '[devices.depth]\nformat = "toy"\n'
+        f'[devices.depth]\nformat = "toy"\ntable = "{site}/toy_device/toy.toml"\n'
         f'transport = {{ kind = "file", path = "{capture}" }}\n'
         '[devices.dvl]\nformat = "pd0"\ntransport = { kind = "file", path = "dvl.bin" }\n'
     )
     r = _auvgw(site, "run", "--check", "--config", cfg)
     assert (r.returncode, r.stderr) == (0, ""), r.stderr
     assert r.stdout.startswith(f"{cfg}: ok (2 device(s)")
-    # the site table route (the registry's table_codec) comes with it
-    cfg.write_text(cfg.read_text().replace('format = "toy"\n', f'format = "toy"\ntable = "{site}'
-                                           '/toy_device/toy.toml"\n'))  # fmt: skip
-    assert _auvgw(site, "run", "--check", "--config", cfg).returncode == 0
 
 
 def test_bad_plugins_are_one_line_each_and_the_builtins_keep_working(site, tmp_path):
@@ -221,3 +227,121 @@ def test_the_installed_registry_is_the_builtins_when_no_plugin_is_installed():
     assert len(registry.DEVICES) == len(registry.BUILTIN) + len(installed) - len(
         registry.PLUGIN_ERRORS
     )
+
+
+# -- roles as Protocols (drivers/roles.py) ---------------------------------------------------------
+
+
+def _units(f: dataclasses.Field) -> str | None:
+    """The decoded units a message class declares for a field (its table's wire row or its DBC
+    signal), None when it declares none."""
+    w = f.metadata.get("wire")
+    return w.units if w is not None else f.metadata.get("units")
+
+
+def _problems(cls: type, protocol: type) -> list[str]:
+    """What ``cls`` lacks of ``protocol``: each member a field of the member's type and declared
+    unit, or a property (of that return type when annotated)."""
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls)} if dataclasses.is_dataclass(cls) else {}
+    out = []
+    for name, (tp, unit) in roles.members(protocol).items():
+        if name in fields:
+            got, units = hints.get(name), _units(fields[name])
+            if got != tp and not (tp is float and got in (float, int)):
+                out.append(f"{name}: {got} is not {tp}")
+            if units is not None and units != unit:
+                out.append(f"{name}: declared in {units!r}, the role reads {unit!r}")
+        elif isinstance(getattr(cls, name, None), property):
+            got = typing.get_type_hints(getattr(cls, name).fget).get("return", tp)
+            if got != tp:
+                out.append(f"{name}: property of {got}, not {tp}")
+        else:
+            out.append(f"{name}: missing")
+    return out
+
+
+def _role_types() -> list[tuple[str, str]]:
+    return [(m.type, r) for _, m in registry.message_types() for r in m.roles
+            if r in roles.ROLE_PROTOCOLS]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def message_classes() -> dict[str, type]:
+    for d in registry.DEVICES:
+        if d.codec is not None:
+            registry.load(d.codec)
+    shipped_can_types()
+    classes = {t: resolve_type(t) for t, _ in _role_types()}
+    assert None not in classes.values(), classes
+    return classes  # type: ignore[return-value]
+
+
+@pytest.mark.parametrize(("type_name", "role"), _role_types())
+def test_every_message_type_with_a_role_has_what_its_consumers_read(
+    message_classes, type_name, role
+):
+    """Structurally, over the declared fields and their units; a type read by an adapter of its
+    own (PD0, PD6 bottom track) is named in fusion's OWN_ADAPTERS, and only while it lacks the
+    role's members (so the list cannot go stale)."""
+    problems = _problems(message_classes[type_name], roles.ROLE_PROTOCOLS[role])
+    own = type_name in adapters.OWN_ADAPTERS.get(role, frozenset())
+    assert bool(problems) == own, problems or f"{type_name} is {role} now: not in OWN_ADAPTERS"
+
+
+def test_the_structural_check_refuses_a_wrong_unit_a_missing_member_and_a_wrong_type():
+    @dataclasses.dataclass(frozen=True)
+    class Compass:
+        roll: float = dataclasses.field(default=0.0, metadata={"units": "deg"})
+        pitch: int = 0
+
+    assert _problems(Compass, roles.Attitude) == [
+        "roll: declared in 'deg', the role reads 'rad'",
+        "heading: missing",
+    ]
+    assert _problems(Compass, roles.Field)[:1] == ["counter: missing"]
+    # pitch an int passes a float member (a DBC's unscaled signal); a str would not
+    Bad = dataclasses.make_dataclass("Bad", [("range", str), ("bearing", float),
+                                             ("depression", float)])  # fmt: skip
+    assert _problems(Bad, roles.Range) == ["range: <class 'str'> is not <class 'float'>"]
+
+
+def test_the_magnetic_stage_reads_a_can_magnetometer_sample_as_a_field(message_classes):
+    """The CAN sample has bx, by, bz (the Field role) but not the serial class's ``b_nt``
+    property, which the stage used to read: a CAN magnetometer as its source raised."""
+    from auvgw.stages.magnetic import MagneticStage, config_from_scenario
+
+    can = message_classes["MS3A_Sample"](counter=5, bx=1.5, by=-2.0, bz=40000.0, status=0)
+    stage = MagneticStage(config_from_scenario(REPO / "config" / "scenarios" / "beacons_amb.json"))
+    stage.feed("magnetometer_can", 2_000_000_000, can)
+    held = list(stage._mags.release(math.inf))
+    assert [(t, list(b)) for t, b in held] == [(2.0, [1.5, -2.0, 40000.0])]
+
+
+@dataclasses.dataclass(frozen=True)
+class SiteDvl:
+    """A site's own DVL message, read by the velocity role's members."""
+
+    TYPE: typing.ClassVar[str] = "site.Dvl"
+    time: float
+    velocity: tuple[float, float, float]
+    frame: str = "body"
+    bottom_lock: bool = True
+
+
+def test_fusion_reads_a_velocity_type_without_an_adapter_of_its_own_by_its_role(monkeypatch):
+    monkeypatch.setattr(adapters, "VELOCITY_TYPES", adapters.VELOCITY_TYPES | {"site.Dvl"})
+    a = adapters.MessageAdapter(ins_device="ins", dvl_device="dvl")
+    s1 = a.adapt("dvl", 100.0, SiteDvl(10.0, (1.0, 0.1, 0.0)))
+    s2 = a.adapt("dvl", 100.6, SiteDvl(10.5, (1.2, 0.0, 0.0), bottom_lock=False))
+    assert s1 == DvlSample(t=100.0, velocity=(1.0, 0.1, 0.0), bottom_lock=True, frame="body")
+    assert s2 is not None and s2.t == pytest.approx(100.5) and not s2.bottom_lock
+    assert all(math.isnan(c) for c in s2.velocity)
+    assert a.adapt("dvl", 101.0, SiteDvl(11.0, (1.0, 0.0, 0.0), frame="ship")) is None
+    assert (a.stats.dvl, a.stats.errors) == (2, 1)
+    assert a.stats.last_error == (
+        "dvl: SiteDvl: frame 'ship' is not one of instrument, body, earth"
+    )
+    assert adapters.dvl_from_velocity(SiteDvl(1.0, (0.0, 0.0, 0.0))).frame == "body"
+    with pytest.raises(adapters.AdapterError, match=r"no field 'time' .* role 'velocity'"):
+        adapters.dvl_from_velocity(DvlSample(t=1.0, velocity=(0.0, 0.0, 0.0)))  # type: ignore[arg-type]
