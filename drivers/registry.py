@@ -23,10 +23,15 @@ from __future__ import annotations
 
 import importlib
 import logging
+import os
+import re
+import sys
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
-from importlib import metadata
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # imported when a distribution declares the group (some 50-100 ms)
+    from importlib import metadata
 
 __all__ = [
     "BUILTIN",
@@ -243,6 +248,28 @@ def _targets(d: DeviceKind) -> list[str]:
     return [t for t in named if t is not None]
 
 
+def _group_declared(group: str) -> bool:
+    """Whether a distribution on ``sys.path`` declares entry points of ``group`` (its
+    ``*.dist-info`` / ``*.egg-info`` ``entry_points.txt``): a few ms, where importing
+    :mod:`importlib.metadata` to ask costs more than the rest of the registry. Zipped
+    distributions are not looked in."""
+    header = re.compile(rf"^\s*\[\s*{re.escape(group)}\s*\]", re.M)
+    for entry in sys.path:
+        try:
+            with os.scandir(entry or ".") as it:
+                infos = [e.path for e in it if e.name.endswith((".dist-info", ".egg-info"))]
+        except OSError:  # a zip, a missing folder
+            continue
+        for info in infos:
+            try:
+                with open(os.path.join(info, "entry_points.txt"), encoding="utf-8") as f:
+                    if header.search(f.read()):
+                        return True
+            except OSError:
+                continue
+    return False
+
+
 def plugin_records(
     builtin: Iterable[DeviceKind], entry_points: Iterable[metadata.EntryPoint] | None = None
 ) -> tuple[tuple[DeviceKind, ...], tuple[str, ...]]:
@@ -252,6 +279,10 @@ def plugin_records(
     ``"module:attribute"``, or a format, message type or emulator key that a built-in (or an
     earlier plugin) already has. Each line names the distribution and the entry point."""
     if entry_points is None:
+        if not _group_declared(ENTRY_POINT_GROUP):
+            return (), ()
+        from importlib import metadata
+
         entry_points = metadata.entry_points(group=ENTRY_POINT_GROUP)
     taken = {n: "a built-in device" for d in builtin for n in _names(d)}
     records: list[DeviceKind] = []

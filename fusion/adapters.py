@@ -125,14 +125,14 @@ class AdapterError(DataError):
 # -- INS -----------------------------------------------------------------------------------------
 
 
-def _require(msg: Any, protocol: type) -> None:
-    """:class:`AdapterError` naming what ``msg`` lacks of a role's members."""
-    missing = [n for n in roles.members(protocol) if not hasattr(msg, n)]
-    if missing:
-        raise AdapterError(
-            f"{type(msg).__name__}: no field {missing[0]!r} (a message of role "
-            f"{roles.role_of(protocol)!r} needs {', '.join(roles.members(protocol))})"
-        )
+def _missing(msg: Any, protocol: type) -> AdapterError:
+    """The error of a message that lacks a role's members (called once a read has failed, so
+    the good path pays nothing): it names the first missing one."""
+    missing = [n for n in roles.members(protocol) if not hasattr(msg, n)] or ["?"]
+    return AdapterError(
+        f"{type(msg).__name__}: no field {missing[0]!r} (a message of role "
+        f"{roles.role_of(protocol)!r} needs {', '.join(roles.members(protocol))})"
+    )
 
 
 def ins_usable(msg: Any) -> bool:
@@ -155,16 +155,18 @@ def ins_from_hn100(msg: roles.Ins, t: float | None = None) -> InsSample:
     is None when any component is invalid (NaN); NaN attitude or rates make the sample unusable
     (:meth:`InsSample.is_finite`), which the filter counts and drops.
     """
-    _require(msg, roles.Ins)
-    accel = (float(msg.accel_x), float(msg.accel_y), float(msg.accel_z))
-    return InsSample(
-        t=float(msg.time) if t is None else float(t),
-        roll=float(msg.roll),
-        pitch=float(msg.pitch),
-        heading=float(msg.heading),
-        rates=(float(msg.rate_x), float(msg.rate_y), float(msg.rate_z)),
-        accel=accel if all(math.isfinite(a) for a in accel) else None,
-    )
+    try:
+        accel = (float(msg.accel_x), float(msg.accel_y), float(msg.accel_z))
+        return InsSample(
+            t=float(msg.time) if t is None else float(t),
+            roll=float(msg.roll),
+            pitch=float(msg.pitch),
+            heading=float(msg.heading),
+            rates=(float(msg.rate_x), float(msg.rate_y), float(msg.rate_z)),
+            accel=accel if all(math.isfinite(a) for a in accel) else None,
+        )
+    except AttributeError:
+        raise _missing(msg, roles.Ins) from None
 
 
 def ins_time_wrap(msg_type: type) -> float | None:
@@ -308,9 +310,11 @@ def attitude_from_pd6(msg: roles.Attitude, t: float) -> InsSample:
     """An attitude message (a PD6 ``:SA`` sentence, any type of role ``attitude`` without an
     adapter of its own: roll, pitch, heading in rad) as an attitude sample at ``t`` (no
     rates)."""
-    _require(msg, roles.Attitude)
-    return InsSample(t=float(t), roll=float(msg.roll), pitch=float(msg.pitch),
-                     heading=float(msg.heading))
+    try:
+        return InsSample(t=float(t), roll=float(msg.roll), pitch=float(msg.pitch),
+                         heading=float(msg.heading))  # fmt: skip
+    except AttributeError:
+        raise _missing(msg, roles.Attitude) from None
 
 
 def dvl_from_pd6(msg: Any, t: float) -> DvlSample:
@@ -340,19 +344,21 @@ def dvl_from_velocity(msg: roles.Velocity) -> DvlSample:
     """A message of role ``velocity`` read by its role's members (a site's own DVL; PD0 and PD6
     have adapters of their own): at its device ``time`` (s), ``velocity`` (m/s) in ``frame``
     axes, NaN without ``bottom_lock``."""
-    _require(msg, roles.Velocity)
-    frame = msg.frame
+    try:
+        frame, vel = msg.frame, tuple(float(c) for c in msg.velocity)
+        t, lock = float(msg.time), bool(msg.bottom_lock)
+    except AttributeError:
+        raise _missing(msg, roles.Velocity) from None
     if frame not in typing.get_args(roles.VelocityFrame):
         raise AdapterError(
             f"{type(msg).__name__}: frame {frame!r} is not one of "
             f"{', '.join(typing.get_args(roles.VelocityFrame))}"
         )
-    vel = tuple(float(c) for c in msg.velocity)
     if len(vel) != 3:
         raise AdapterError(f"{type(msg).__name__}: velocity has {len(vel)} components, not 3")
-    lock = bool(msg.bottom_lock) and all(math.isfinite(c) for c in vel)
-    return DvlSample(t=float(msg.time), velocity=vel if lock else (math.nan,) * 3,
-                     bottom_lock=lock, frame=frame)  # fmt: skip
+    lock = lock and all(math.isfinite(c) for c in vel)
+    return DvlSample(t=t, velocity=vel if lock else (math.nan,) * 3, bottom_lock=lock,
+                     frame=frame)  # fmt: skip
 
 
 # -- clocks --------------------------------------------------------------------------------------

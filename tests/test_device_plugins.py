@@ -343,5 +343,7 @@ def test_fusion_reads_a_velocity_type_without_an_adapter_of_its_own_by_its_role(
         "dvl: SiteDvl: frame 'ship' is not one of instrument, body, earth"
     )
     assert adapters.dvl_from_velocity(SiteDvl(1.0, (0.0, 0.0, 0.0))).frame == "body"
+    with pytest.raises(adapters.AdapterError, match=r"^SiteDvl: no field 'roll' .* role 'ins'"):
+        adapters.ins_from_hn100(SiteDvl(1.0, (0.0, 0.0, 0.0)))  # type: ignore[arg-type]
     with pytest.raises(adapters.AdapterError, match=r"no field 'time' .* role 'velocity'"):
         adapters.dvl_from_velocity(DvlSample(t=1.0, velocity=(0.0, 0.0, 0.0)))  # type: ignore[arg-type]
