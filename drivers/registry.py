@@ -38,6 +38,7 @@ __all__ = [
     "CAN_FORMAT",
     "DEVICES",
     "ENTRY_POINT_GROUP",
+    "ONE_KIND_ROLES",
     "PLUGIN_ERRORS",
     "ROLES",
     "DeviceKind",
@@ -248,6 +249,23 @@ def _targets(d: DeviceKind) -> list[str]:
     return [t for t in named if t is not None]
 
 
+#: roles whose consumers subscribe to one bus kind (the landmark stage's ``sonar``, the magnetic
+#: stage's ``field`` and ``range``): a plugin's type of such a role takes the built-ins' kind
+ONE_KIND_ROLES = ("sonar", "field", "range")
+
+
+def _kind_clash(record: DeviceKind, builtin: Iterable[DeviceKind]) -> str | None:
+    """Why a record's message type of a :data:`ONE_KIND_ROLES` role cannot join (its kind is
+    not the one its consumers read), or None."""
+    for m in record.messages:
+        for role in set(m.roles) & set(ONE_KIND_ROLES):
+            kinds = sorted({b.kind for d in builtin for b in d.messages if role in b.roles})
+            if kinds and m.kind not in kinds:
+                return (f"its message type {m.type!r} of role {role!r} has kind {m.kind!r}: the "
+                        f"consumers of {role!r} read kind {kinds[0]!r} only")  # fmt: skip
+    return None
+
+
 def _group_declared(group: str) -> bool:
     """Whether a distribution on ``sys.path`` declares entry points of ``group`` (its
     ``*.dist-info`` / ``*.egg-info`` ``entry_points.txt``): a few ms, where importing
@@ -276,14 +294,16 @@ def plugin_records(
     """The device kinds the ``auvgw.devices`` entry points name (default: those of the installed
     distributions), in entry-point order, and one line per entry point left out: one that fails
     to import, names something that is not a :class:`DeviceKind`, a malformed
-    ``"module:attribute"``, or a format, message type or emulator key that a built-in (or an
-    earlier plugin) already has. Each line names the distribution and the entry point."""
+    ``"module:attribute"``, a type of a :data:`ONE_KIND_ROLES` role under another kind, or a
+    format, message type or emulator key that a built-in (or an earlier plugin) already has.
+    Each line names the distribution and the entry point."""
     if entry_points is None:
         if not _group_declared(ENTRY_POINT_GROUP):
             return (), ()
         from importlib import metadata
 
         entry_points = metadata.entry_points(group=ENTRY_POINT_GROUP)
+    builtin = tuple(builtin)
     taken = {n: "a built-in device" for d in builtin for n in _names(d)}
     records: list[DeviceKind] = []
     errors: list[str] = []
@@ -301,8 +321,11 @@ def plugin_records(
             continue
         bad = [t for t in _targets(record) if not all(t.partition(":")[::2])]
         clash = [(what, n, taken[(what, n)]) for what, n in _names(record) if (what, n) in taken]
+        kind_clash = _kind_clash(record, builtin)
         if bad:
             errors.append(f"{where}: not loaded: {bad[0]!r} is not 'module:attribute'")
+        elif kind_clash:
+            errors.append(f"{where}: not loaded: {kind_clash}")
         elif clash:
             what, n, owner = clash[0]
             errors.append(f"{where}: not loaded: its {what} {n!r} collides with {owner}")

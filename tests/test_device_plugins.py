@@ -198,14 +198,18 @@ def _records(site: Path, monkeypatch: pytest.MonkeyPatch) -> tuple[tuple, tuple[
 def test_plugin_records_refuse_what_is_not_a_new_device(site, monkeypatch):
     rec = "from auvgw.drivers.registry import DeviceKind, Emulator, MessageType\n"
     _dist(site, "p-one", "a_notarecord = p_one:THING\nb_badtarget = p_one:BAD\n"
-          "c_type = p_one:TYPE\nd_emu = p_one:EMU\ne_good = p_one:GOOD\nf_again = p_one:GOOD",
+          "c_type = p_one:TYPE\nd_emu = p_one:EMU\ne_good = p_one:GOOD\nf_again = p_one:GOOD\n"
+          "g_kind = p_one:MAG\nh_mag = p_one:MAG2",
           {"p_one.py": rec + "THING = 3\n"
            "BAD = DeviceKind('x1', 'no_colon_here')\n"
            "TYPE = DeviceKind('x2', 'm:F', messages=(MessageType('Hn100Nav'),))\n"
            "EMU = DeviceKind('x3', 'm:F', emulator=Emulator('dvl', 'm:E'))\n"
-           "GOOD = DeviceKind('x4', 'm:F', messages=(MessageType('X4Msg'),))\n"})  # fmt: skip
+           "GOOD = DeviceKind('x4', 'm:F', messages=(MessageType('X4Msg'),))\n"
+           "MAG = DeviceKind('x5', 'm:F', messages=(MessageType('X5Mag', roles=('field',)),))\n"
+           "MAG2 = DeviceKind('x6', 'm:F', messages=(MessageType('X6Mag', 'magnetometer', "
+           "('field',)),))\n"})  # fmt: skip
     records, errors = _records(site, monkeypatch)
-    assert [r.format for r in records] == ["x4"]
+    assert [r.format for r in records] == ["x4", "x6"]
     where = "(p_one:{}, distribution p-one 0.1): not loaded: "
     assert list(errors) == [
         f"device plugin 'a_notarecord' {where.format('THING')}names a int, not a "
@@ -218,6 +222,8 @@ def test_plugin_records_refuse_what_is_not_a_new_device(site, monkeypatch):
         "built-in device",
         f"device plugin 'f_again' {where.format('GOOD')}its format 'x4' collides with device "
         "plugin 'e_good'",
+        f"device plugin 'g_kind' {where.format('MAG')}its message type 'X5Mag' of role 'field' "
+        "has kind 'x5mag': the consumers of 'field' read kind 'magnetometer' only",
     ]
 
 
