@@ -126,14 +126,6 @@ def _broken(site: Path) -> None:
     })  # fmt: skip
 
 
-def _auvgw(site: Path, *args: str | Path) -> subprocess.CompletedProcess[str]:
-    env = {**os.environ, "PYTHONPATH": str(site)}
-    return subprocess.run(
-        [sys.executable, "-m", "auvgw", *map(str, args)],
-        capture_output=True, text=True, env=env, timeout=60, cwd=site,
-    )  # fmt: skip
-
-
 @pytest.fixture
 def site(tmp_path: Path) -> Path:
     s = tmp_path / "site-packages"
@@ -141,11 +133,25 @@ def site(tmp_path: Path) -> Path:
     return s
 
 
-def test_a_site_device_decodes_and_is_a_gateway_format(site, tmp_path):
+@pytest.fixture
+def auvgw(site: Path):
+    """``auvgw ARGS`` in a process whose ``sys.path`` has the site's distributions."""
+
+    def run(*args: str | Path) -> subprocess.CompletedProcess[str]:
+        env = {**os.environ, "PYTHONPATH": str(site)}
+        return subprocess.run(
+            [sys.executable, "-m", "auvgw", *map(str, args)],
+            capture_output=True, text=True, env=env, timeout=60, cwd=site,
+        )  # fmt: skip
+
+    return run
+
+
+def test_a_site_device_decodes_and_is_a_gateway_format(site, auvgw, tmp_path):
     _toy(site)
     capture = tmp_path / "toy.bin"
     capture.write_bytes(_line(1, 12.5) + b"noise$TOYD" + _line(2, 13.25) + _line(9999, 0.0))
-    r = _auvgw(site, "decode", "--format", "toy", capture)
+    r = auvgw("decode", "--format", "toy", capture)
     assert r.returncode == 0, r.stderr
     rows = [json.loads(x) for x in r.stdout.splitlines()]
     assert [(m["type"], m["counter"], m["depth"]) for m in rows] == [
@@ -161,17 +167,17 @@ def test_a_site_device_decodes_and_is_a_gateway_format(site, tmp_path):
         f'transport = {{ kind = "file", path = "{capture}" }}\n'
         '[devices.dvl]\nformat = "pd0"\ntransport = { kind = "file", path = "dvl.bin" }\n'
     )
-    r = _auvgw(site, "run", "--check", "--config", cfg)
+    r = auvgw("run", "--check", "--config", cfg)
     assert (r.returncode, r.stderr) == (0, ""), r.stderr
     assert r.stdout.startswith(f"{cfg}: ok (2 device(s)")
 
 
-def test_bad_plugins_are_one_line_each_and_the_builtins_keep_working(site, tmp_path):
+def test_bad_plugins_are_one_line_each_and_the_builtins_keep_working(site, auvgw, tmp_path):
     _toy(site)
     _broken(site)
     capture = tmp_path / "toy.bin"
     capture.write_bytes(_line(7, 1.0))
-    r = _auvgw(site, "decode", "--format", "toy", capture)
+    r = auvgw("decode", "--format", "toy", capture)
     assert r.returncode == 0, r.stderr
     assert [json.loads(x)["counter"] for x in r.stdout.splitlines()] == [7]
     errors = sorted(r.stderr.splitlines()[:-1])  # the last line: the summary
@@ -183,7 +189,7 @@ def test_bad_plugins_are_one_line_each_and_the_builtins_keep_working(site, tmp_p
     ]
     lines = tmp_path / "dvl.pd6"
     lines.write_bytes(b"".join(PD6_LINES))
-    r = _auvgw(site, "decode", "--format", "pd6", "--quiet", lines)
+    r = auvgw("decode", "--format", "pd6", "--quiet", lines)
     assert r.returncode == 0, r.stderr
     summary = json.loads(r.stderr.splitlines()[-1])
     assert (summary["frames"], summary["bad_frames"]) == (len(PD6_LINES), 0)
