@@ -8,6 +8,12 @@ factories (:mod:`auvgw.decoding`, :mod:`auvgw.hostdrivers`), the emulators and t
 type (``auv/<v>/sensor/<device>/<kind>``, docs/bus.md) and the role each type plays for fusion,
 SLAM and the Rerun logger.
 
+A site adds its own device without a fork: an installed distribution whose entry points in the
+group :data:`ENTRY_POINT_GROUP` (``auvgw.devices``) name a :class:`DeviceKind` has it appended
+after the built-ins (:func:`plugin_records`); one that fails to load or reuses a built-in name is
+left out with a one-line error naming its distribution and entry point (:data:`PLUGIN_ERRORS`,
+logged), and the built-ins keep working (docs/adding-a-device.md).
+
 It lives in ``drivers/`` because a device kind is first a wire protocol; it names codecs,
 emulators and host drivers by ``"module:attribute"`` strings and imports none of them, so reading
 it costs nothing (``auvgw --help`` imports no numpy) and no table is read until a format is used.
@@ -16,13 +22,24 @@ it costs nothing (``auvgw --help`` imports no numpy) and no table is read until 
 from __future__ import annotations
 
 import importlib
-from collections.abc import Iterator
+import logging
+import os
+import re
+import sys
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # imported when a distribution declares the group (some 50-100 ms)
+    from importlib import metadata
 
 __all__ = [
+    "BUILTIN",
     "CAN_FORMAT",
     "DEVICES",
+    "ENTRY_POINT_GROUP",
+    "ONE_KIND_ROLES",
+    "PLUGIN_ERRORS",
     "ROLES",
     "DeviceKind",
     "Emulator",
@@ -35,6 +52,7 @@ __all__ = [
     "kinds_with_role",
     "load",
     "message_types",
+    "plugin_records",
     "roles_of",
     "types_with_role",
 ]
@@ -129,8 +147,8 @@ class DeviceKind:
 _D = "auvgw.drivers"
 _S = "auvgw.sim_devices"
 
-#: every device kind, in the order emulators are built and listed
-DEVICES: tuple[DeviceKind, ...] = (
+#: the device kinds shipped with auvgw, in the order emulators are built and listed
+BUILTIN: tuple[DeviceKind, ...] = (
     DeviceKind(
         "hn100", f"{_D}.hn100:FORMAT", table="hn100.toml", table_codec=f"{_D}.hn100:Hn100Codec",
         dbc="hn100.dbc", emulator=Emulator("ins", f"{_S}.ins:InsEmulator"),
@@ -210,6 +228,120 @@ DEVICES: tuple[DeviceKind, ...] = (
     ),
 )  # fmt: skip
 
+#: the entry-point group a site's distribution names its own :class:`DeviceKind` records in
+ENTRY_POINT_GROUP = "auvgw.devices"
+
+log = logging.getLogger(__name__)
+
+
+def _names(d: DeviceKind) -> list[tuple[str, str]]:
+    """The names a record claims that no other record may: its format, its message types and
+    its emulator's scenario key."""
+    out = [("format", d.format), *(("message type", m.type) for m in d.messages)]
+    if d.emulator is not None:
+        out.append(("emulator key", d.emulator.key))
+    return out
+
+
+def _targets(d: DeviceKind) -> list[str]:
+    """The ``"module:attribute"`` strings of a record (checked in form, not imported)."""
+    named = [d.codec, d.table_codec, d.host_driver, d.emulator.factory if d.emulator else None]
+    return [t for t in named if t is not None]
+
+
+#: roles whose consumers subscribe to one bus kind (the landmark stage's ``sonar``, the magnetic
+#: stage's ``field`` and ``range``): a plugin's type of such a role takes the built-ins' kind
+ONE_KIND_ROLES = ("sonar", "field", "range")
+
+
+def _kind_clash(record: DeviceKind, builtin: Iterable[DeviceKind]) -> str | None:
+    """Why a record's message type of a :data:`ONE_KIND_ROLES` role cannot join (its kind is
+    not the one its consumers read), or None."""
+    for m in record.messages:
+        for role in set(m.roles) & set(ONE_KIND_ROLES):
+            kinds = sorted({b.kind for d in builtin for b in d.messages if role in b.roles})
+            if kinds and m.kind not in kinds:
+                return (f"its message type {m.type!r} of role {role!r} has kind {m.kind!r}: the "
+                        f"consumers of {role!r} read kind {kinds[0]!r} only")  # fmt: skip
+    return None
+
+
+def _group_declared(group: str) -> bool:
+    """Whether a distribution on ``sys.path`` declares entry points of ``group`` (its
+    ``*.dist-info`` / ``*.egg-info`` ``entry_points.txt``): a few ms, where importing
+    :mod:`importlib.metadata` to ask costs more than the rest of the registry. Zipped
+    distributions are not looked in."""
+    header = re.compile(rf"^\s*\[\s*{re.escape(group)}\s*\]", re.M)
+    for entry in sys.path:
+        try:
+            with os.scandir(entry or ".") as it:
+                infos = [e.path for e in it if e.name.endswith((".dist-info", ".egg-info"))]
+        except OSError:  # a zip, a missing folder
+            continue
+        for info in infos:
+            try:
+                with open(os.path.join(info, "entry_points.txt"), encoding="utf-8") as f:
+                    if header.search(f.read()):
+                        return True
+            except OSError:
+                continue
+    return False
+
+
+def plugin_records(
+    builtin: Iterable[DeviceKind], entry_points: Iterable[metadata.EntryPoint] | None = None
+) -> tuple[tuple[DeviceKind, ...], tuple[str, ...]]:
+    """The device kinds the ``auvgw.devices`` entry points name (default: those of the installed
+    distributions), in entry-point order, and one line per entry point left out: one that fails
+    to import, names something that is not a :class:`DeviceKind`, a malformed
+    ``"module:attribute"``, a type of a :data:`ONE_KIND_ROLES` role under another kind, or a
+    format, message type or emulator key that a built-in (or an earlier plugin) already has.
+    Each line names the distribution and the entry point."""
+    if entry_points is None:
+        if not _group_declared(ENTRY_POINT_GROUP):
+            return (), ()
+        from importlib import metadata
+
+        entry_points = metadata.entry_points(group=ENTRY_POINT_GROUP)
+    builtin = tuple(builtin)
+    taken = {n: "a built-in device" for d in builtin for n in _names(d)}
+    records: list[DeviceKind] = []
+    errors: list[str] = []
+    for ep in entry_points:
+        dist = f"{ep.dist.name} {ep.dist.version}" if ep.dist is not None else "unknown"
+        where = f"device plugin {ep.name!r} ({ep.value}, distribution {dist})"
+        try:
+            record = ep.load()
+        except Exception as exc:  # a plugin's import may raise anything: say it, run without it
+            errors.append(f"{where}: not loaded: {type(exc).__name__}: {exc}")
+            continue
+        if not isinstance(record, DeviceKind):
+            errors.append(f"{where}: not loaded: names a {type(record).__name__}, not a "
+                          "registry.DeviceKind")  # fmt: skip
+            continue
+        bad = [t for t in _targets(record) if not all(t.partition(":")[::2])]
+        clash = [(what, n, taken[(what, n)]) for what, n in _names(record) if (what, n) in taken]
+        kind_clash = _kind_clash(record, builtin)
+        if bad:
+            errors.append(f"{where}: not loaded: {bad[0]!r} is not 'module:attribute'")
+        elif kind_clash:
+            errors.append(f"{where}: not loaded: {kind_clash}")
+        elif clash:
+            what, n, owner = clash[0]
+            errors.append(f"{where}: not loaded: its {what} {n!r} collides with {owner}")
+        else:
+            records.append(record)
+            taken.update(dict.fromkeys(_names(record), f"device plugin {ep.name!r}"))
+    return tuple(records), tuple(errors)
+
+
+_PLUGINS, PLUGIN_ERRORS = plugin_records(BUILTIN)
+for _line in PLUGIN_ERRORS:
+    log.error("auvgw: %s", _line)
+
+#: every device kind: the built-ins, then the sites' own (entry points ``auvgw.devices``)
+DEVICES: tuple[DeviceKind, ...] = BUILTIN + _PLUGINS
+
 _BY_FORMAT = {d.format: d for d in DEVICES}
 _BY_TYPE = {m.type: m for d in DEVICES for m in d.messages}
 
@@ -231,7 +363,8 @@ def device(fmt: str) -> DeviceKind:
     try:
         return _BY_FORMAT[fmt]
     except KeyError:
-        raise KeyError(f"unknown format {fmt!r}; known: {', '.join(_BY_FORMAT)}") from None
+        failed = "".join(f"; {e}" for e in PLUGIN_ERRORS)
+        raise KeyError(f"unknown format {fmt!r}; known: {', '.join(_BY_FORMAT)}{failed}") from None
 
 
 def device_formats() -> tuple[str, ...]:

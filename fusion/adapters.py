@@ -8,6 +8,10 @@ Pure functions and small state machines over the codecs' immutable messages (no 
 * :func:`dvl_from_pd0`: a PD0 :class:`~auvgw.drivers.pd0.Ensemble` -> :class:`DvlSample` at the
   device time of the variable leader's RTC, with the velocity in the frame the fixed leader names
   (EX bits 3-4), bottom lock from the valid beams, altitude and the DVL's pressure depth.
+* any other message type of role ``attitude`` or ``velocity`` (a site's own device, registered
+  through the ``auvgw.devices`` entry point) is read by its role's members
+  (:class:`~auvgw.drivers.roles.Attitude`, :class:`~auvgw.drivers.roles.Velocity`): the types
+  read by an adapter of their own are :data:`OWN_ADAPTERS`.
 * :class:`DeviceClock`: maps one device's own clock onto the common clock (host receive time)
   from (device time, receive time) pairs; :class:`MessageAdapter` does all of it per device, as
   the bus stage and the offline recording mode both use it (so both give identical samples).
@@ -42,13 +46,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import typing
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from auvgw.drivers import pd0, registry
+from auvgw.drivers import pd0, registry, roles
 from auvgw.drivers.spec import WIRE_TYPES
 from auvgw.fusion.frames import beam_matrix
 from auvgw.fusion.samples import DvlSample, InsSample
@@ -59,6 +64,7 @@ from auvgw.ground.geometry import body_to_ned_matrix
 __all__ = [
     "ATTITUDE_TYPES",
     "INS_TYPES",
+    "OWN_ADAPTERS",
     "PD0_TYPES",
     "PD6_VELOCITY_TYPES",
     "RDI_DOWN_BEAM3_FORWARD_DEG",
@@ -73,6 +79,7 @@ __all__ = [
     "beam_matrix",
     "dvl_from_pd0",
     "dvl_from_pd6",
+    "dvl_from_velocity",
     "ins_from_hn100",
     "ins_time_wrap",
     "ins_usable",
@@ -90,6 +97,13 @@ PD6_VELOCITY_TYPES = {"pd6.BI": "instrument", "pd6.BS": "body", "pd6.BE": "earth
 ATTITUDE_TYPES = registry.types_with_role("attitude")
 #: every message type that can be a velocity source (the registry's role ``velocity``)
 VELOCITY_TYPES = registry.types_with_role("velocity")
+#: role -> the types of that role read by an adapter of their own, not by the role's members
+#: (:data:`auvgw.drivers.roles.ROLE_PROTOCOLS`): PD0 carries its attitude in the variable leader
+#: and its velocity in beams and leaders, PD6 its bottom track in each sentence's own axes
+OWN_ADAPTERS: dict[str, frozenset[str]] = {
+    "attitude": PD0_TYPES,
+    "velocity": PD0_TYPES | frozenset(PD6_VELOCITY_TYPES),
+}
 
 #: ``DvlMount.rotation_deg`` (roll, pitch, yaw) of RDI instrument axes (X starboard, Y forward,
 #: Z up) for a down-facing DVL with beam 3 forward: ``Rz(90) Ry(0) Rx(180)`` maps (X, Y, Z) to
@@ -111,14 +125,14 @@ class AdapterError(DataError):
 # -- INS -----------------------------------------------------------------------------------------
 
 
-def _field(msg: Any, name: str) -> Any:
-    try:
-        return getattr(msg, name)
-    except AttributeError:
-        raise AdapterError(
-            f"{type(msg).__name__}: no field {name!r} (an HN-100 solution needs time, roll, "
-            "pitch, heading, rate_x/y/z, accel_x/y/z)"
-        ) from None
+def _missing(msg: Any, protocol: type) -> AdapterError:
+    """The error of a message that lacks a role's members (called once a read has failed, so
+    the good path pays nothing): it names the first missing one."""
+    missing = [n for n in roles.members(protocol) if not hasattr(msg, n)] or ["?"]
+    return AdapterError(
+        f"{type(msg).__name__}: no field {missing[0]!r} (a message of role "
+        f"{roles.role_of(protocol)!r} needs {', '.join(roles.members(protocol))})"
+    )
 
 
 def ins_usable(msg: Any) -> bool:
@@ -133,7 +147,7 @@ def ins_usable(msg: Any) -> bool:
     return error in (False, 0, "OK")
 
 
-def ins_from_hn100(msg: Any, t: float | None = None) -> InsSample:
+def ins_from_hn100(msg: roles.Ins, t: float | None = None) -> InsSample:
     """An HN-100 solution (serial ``Hn100Nav`` or CAN ``HN100_Sample``, SI) as an InsSample.
 
     ``t``: the sample's time on the common clock; default the DEVICE time ``msg.time`` (s).
@@ -141,23 +155,18 @@ def ins_from_hn100(msg: Any, t: float | None = None) -> InsSample:
     is None when any component is invalid (NaN); NaN attitude or rates make the sample unusable
     (:meth:`InsSample.is_finite`), which the filter counts and drops.
     """
-    accel = (
-        float(_field(msg, "accel_x")),
-        float(_field(msg, "accel_y")),
-        float(_field(msg, "accel_z")),
-    )
-    return InsSample(
-        t=float(_field(msg, "time")) if t is None else float(t),
-        roll=float(_field(msg, "roll")),
-        pitch=float(_field(msg, "pitch")),
-        heading=float(_field(msg, "heading")),
-        rates=(
-            float(_field(msg, "rate_x")),
-            float(_field(msg, "rate_y")),
-            float(_field(msg, "rate_z")),
-        ),
-        accel=accel if all(math.isfinite(a) for a in accel) else None,
-    )
+    try:
+        accel = (float(msg.accel_x), float(msg.accel_y), float(msg.accel_z))
+        return InsSample(
+            t=float(msg.time) if t is None else float(t),
+            roll=float(msg.roll),
+            pitch=float(msg.pitch),
+            heading=float(msg.heading),
+            rates=(float(msg.rate_x), float(msg.rate_y), float(msg.rate_z)),
+            accel=accel if all(math.isfinite(a) for a in accel) else None,
+        )
+    except AttributeError:
+        raise _missing(msg, roles.Ins) from None
 
 
 def ins_time_wrap(msg_type: type) -> float | None:
@@ -297,10 +306,15 @@ def attitude_from_pd0(ens: pd0.Ensemble, t: float) -> InsSample | None:
                      heading=float(var.heading))
 
 
-def attitude_from_pd6(msg: Any, t: float) -> InsSample:
-    """A PD6 ``:SA`` sentence (pitch, roll, heading in rad) as an attitude sample at ``t``."""
-    return InsSample(t=float(t), roll=float(msg.roll), pitch=float(msg.pitch),
-                     heading=float(msg.heading))
+def attitude_from_pd6(msg: roles.Attitude, t: float) -> InsSample:
+    """An attitude message (a PD6 ``:SA`` sentence, any type of role ``attitude`` without an
+    adapter of its own: roll, pitch, heading in rad) as an attitude sample at ``t`` (no
+    rates)."""
+    try:
+        return InsSample(t=float(t), roll=float(msg.roll), pitch=float(msg.pitch),
+                         heading=float(msg.heading))  # fmt: skip
+    except AttributeError:
+        raise _missing(msg, roles.Attitude) from None
 
 
 def dvl_from_pd6(msg: Any, t: float) -> DvlSample:
@@ -324,6 +338,27 @@ def dvl_from_pd6(msg: Any, t: float) -> DvlSample:
     if not lock:
         vel = (math.nan, math.nan, math.nan)
     return DvlSample(t=float(t), velocity=vel, bottom_lock=lock, frame=frame)  # type: ignore[arg-type]
+
+
+def dvl_from_velocity(msg: roles.Velocity) -> DvlSample:
+    """A message of role ``velocity`` read by its role's members (a site's own DVL; PD0 and PD6
+    have adapters of their own): at its device ``time`` (s), ``velocity`` (m/s) in ``frame``
+    axes, NaN without ``bottom_lock``."""
+    try:
+        frame, vel = msg.frame, tuple(float(c) for c in msg.velocity)
+        t, lock = float(msg.time), bool(msg.bottom_lock)
+    except AttributeError:
+        raise _missing(msg, roles.Velocity) from None
+    if frame not in typing.get_args(roles.VelocityFrame):
+        raise AdapterError(
+            f"{type(msg).__name__}: frame {frame!r} is not one of "
+            f"{', '.join(typing.get_args(roles.VelocityFrame))}"
+        )
+    if len(vel) != 3:
+        raise AdapterError(f"{type(msg).__name__}: velocity has {len(vel)} components, not 3")
+    lock = lock and all(math.isfinite(c) for c in vel)
+    return DvlSample(t=t, velocity=vel if lock else (math.nan,) * 3, bottom_lock=lock,
+                     frame=frame)  # fmt: skip
 
 
 # -- clocks --------------------------------------------------------------------------------------
@@ -491,9 +526,16 @@ class MessageAdapter:
                     self.stats.dvl += 1
                     out.append(d._replace(t=t))
                 return out
-            if name not in PD6_VELOCITY_TYPES and name != "pd6.SA":
-                raise AdapterError(f"no fusion adapter for message type {name}")
-            # PD6: no device time in the sentence
+            if vel and name not in PD6_VELOCITY_TYPES:
+                # a velocity type without an adapter of its own: its role's members
+                d = dvl_from_velocity(msg)
+                t = self._clock(device, type(msg), "dvl").to_common(d.t, t_recv_s)
+                if att:
+                    self.stats.ins += 1
+                    out.append(attitude_from_pd6(msg, t))
+                self.stats.dvl += 1
+                return [*out, d._replace(t=t)]
+            # PD6 and any other attitude type: no device time in the message
             t = self._clock(device, type(msg), "ins" if att else "dvl").to_common(
                 t_recv_s, t_recv_s
             )

@@ -9,9 +9,10 @@ stamps):
   yaw_rate)`` over ``dt`` (the :class:`~auvgw.slam.models.VelocityModel`); its attitude
   ``(heading, pitch, roll)`` - the INS attitude the fusion stage carries - joins a short history
   used to rotate each magnetometer sample to NED;
-* **magnetometer** (the decoded MS3A sample, kind ``magnetometer`` whatever the wire; ``b_nt``
-  sensor axes = body axes; one device, ``mag_device`` or the first seen): it waits until the
-  odometry covers its time, then goes to
+* **magnetometer** (the decoded MS3A sample, kind ``magnetometer`` whatever the wire, read as
+  a :class:`~auvgw.drivers.roles.Field`: ``bx, by, bz`` nT, sensor axes = body axes; one
+  device, ``mag_device`` or the first seen): it waits until the odometry covers its time, then
+  goes to
   :meth:`~auvgw.slam.magnetic.online.MagneticOnline.add_mag` with the attitude interpolated at
   its time. Its time is the receive stamp, or with ``mag_rate_hz`` the sample clock
   ``clock_epoch_s + n / mag_rate_hz`` (``n`` the unwrapped MS3A counter): the demodulator is
@@ -52,7 +53,7 @@ from typing import Any
 import numpy as np
 from pydantic import Field
 
-from auvgw.drivers import registry
+from auvgw.drivers import registry, roles
 from auvgw.fusion.odometry import Odometry
 from auvgw.slam.history import HeldSamples, Increment, StateHistory, compose_increments
 from auvgw.slam.magnetic.filters import MAGNETIC_ALGORITHMS, make_magnetic
@@ -269,15 +270,17 @@ class MagneticStage(PipelineStage):
 
         kind = message_kind(message)
         if kind == MAG_KIND:
+            mag: roles.Field = message  # serial Ms3aSample or CAN MS3A_Sample: bx, by, bz nT
             with self._lock:
                 if not self.from_source("field", device):
                     self.stats.mag_other_device += 1
                     return
-                t = self._mag_time(t_recv_ns, int(message.counter))
-            self.feed_mag(t, np.asarray(message.b_nt, float))
+                t = self._mag_time(t_recv_ns, int(mag.counter))
+            self.feed_mag(t, np.array([mag.bx, mag.by, mag.bz], float))
         elif kind == ACOUSTIC_KIND:
-            self.feed_acoustic(t_recv_ns * 1e-9, float(message.range), float(message.bearing),
-                               float(message.depression))  # fmt: skip
+            fix: roles.Range = message
+            self.feed_acoustic(t_recv_ns * 1e-9, float(fix.range), float(fix.bearing),
+                               float(fix.depression))  # fmt: skip
 
     def _mag_time(self, t_recv_ns: int, counter: int) -> float:
         """A magnetometer sample's time on the input clock: its receive stamp, or with
