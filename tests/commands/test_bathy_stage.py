@@ -171,6 +171,7 @@ def test_stage_places_swaths_at_the_odometry_and_spaces_pings(tiny: BathyRun) ->
     assert stage.stats.bad_payloads == 2
 
 
+@pytest.mark.e2e
 def test_stage_process_on_the_bus(tmp_path: Path, tiny: BathyRun) -> None:
     """``auvgw slam run --pipeline bathymetric`` as its own process: odometry and XYZ 88
     envelopes published on the bus by this process; a malformed payload is counted, the worker

@@ -168,12 +168,14 @@ def case_results(tmp_path_factory):
     return {name: (paths[name], procs[name]) for name in CASES}
 
 
+@pytest.mark.e2e
 @pytest.mark.parametrize("name", sorted(CASES))
 def test_bad_config_gives_its_message_and_exit_code_2(case_results, name):
     path, proc = case_results[name]
     check(proc, path, CASES[name][1])
 
 
+@pytest.mark.e2e
 def test_every_problem_gets_its_own_line(tmp_path):
     path = tmp_path / "many.toml"
     path.write_text(
@@ -188,6 +190,7 @@ def test_every_problem_gets_its_own_line(tmp_path):
     ), lines
 
 
+@pytest.mark.e2e
 def test_missing_file(tmp_path):
     path = tmp_path / "absent.toml"
     check(run_config(path), path, ["no such configuration file"])
@@ -222,6 +225,7 @@ def test_unreadable_files_in_process(tmp_path, capsys, content, expected):
     check(subprocess.CompletedProcess([], rc, "", capsys.readouterr().err), path, [expected])
 
 
+@pytest.mark.e2e
 def test_listen_port_in_use(tmp_path):
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

@@ -1,7 +1,7 @@
 """Generic fusion inputs: named sources chosen the same whatever the arrival order, PD6 and
 PD0-compass adapters, beam / earth DVL frames, position fixes, heading offset and declination.
 
-The two-INS check uses 10 s of the emulated survey (tests/fusion_emulated.py): the HN-100
+The two-INS check uses 10 s of the emulated survey (tests/support/fusion_emulated.py): the HN-100
 binary frames as device ``ins`` and a second INS ``ins_b`` (the same frames with the heading
 turned by 3 deg, so choosing it would change the odometry), fed to the in-process stage in two
 arrival orders - each INS's frames first in turn - as a live run and a replay would see them.

@@ -4,7 +4,7 @@ messages (identical values, not merely close).
 
 Messages are 10 s of the emulated survey: HN-100 binary frames (device ``ins``), the same
 measurements on CAN (``ins_can``, to be ignored: one INS feeds the filter) and PD0 ensembles
-(``dvl``), decoded by the drivers (tests/fusion_emulated.py).
+(``dvl``), decoded by the drivers (tests/support/fusion_emulated.py).
 """
 
 from __future__ import annotations
@@ -47,10 +47,10 @@ from auvgw.testing.fusion_emulated import (
     survey_scenario,
 )
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]
 AUVGW = str(REPO / ".venv" / "bin" / "auvgw")
 PYTHON = str(REPO / ".venv" / "bin" / "python")
-PUBLISHER = str(Path(__file__).with_name("fusion_publisher_proc.py"))
+PUBLISHER = str(REPO / "tests" / "fusion_publisher_proc.py")
 T0, T1 = 100.0, 110.0
 VEHICLE = "fus1"
 HOST_EPOCH_NS = int(HOST_EPOCH * 1e9)
@@ -318,6 +318,7 @@ FORGED: list[bytes] = [
 ]
 
 
+@pytest.mark.e2e
 def test_stage_process_publishes_the_offline_odometry(data, tmp_path):
     """Three processes: this test (a Zenoh router and the odometry subscriber), ``auvgw
     fusion`` (the stage) and a publisher of gateway envelopes. The odometry on
@@ -325,6 +326,7 @@ def test_stage_process_publishes_the_offline_odometry(data, tmp_path):
     _run_stage_process(data, tmp_path, forged=[])
 
 
+@pytest.mark.e2e
 def test_forged_envelopes_mid_stream_change_no_odometry(data, tmp_path):
     """The same run with the :data:`FORGED` envelopes sent on the DVL's key in the middle of the
     stream: every one is refused and counted, and the odometry is the same, sample for sample,

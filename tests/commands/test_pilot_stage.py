@@ -83,6 +83,7 @@ def test_in_process_the_stage_commands_what_the_autopilot_does_and_publishes_its
     assert (c["mode"], c["leg"], c["n_legs"], c["mission"]) == ("running", 1, 2, "hook")
 
 
+@pytest.mark.e2e
 def test_auvgw_pilot_flies_the_model_over_the_bus_then_surfaces_when_navigation_stops(procs,
                                                                                      tmp_path):
     """``auvgw pilot`` in its own process; this one runs the dynamics, publishes the odometry

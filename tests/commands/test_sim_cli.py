@@ -61,6 +61,7 @@ def _read_until(proc: subprocess.Popen[str], marker: str, timeout: float = 60.0)
     pytest.fail(f"no {marker!r} from auvgw sim; got {lines}; stderr {proc.stderr.read()}")  # type: ignore[union-attr]
 
 
+@pytest.mark.e2e
 def test_sim_serves_its_ports_and_stops_cleanly_on_sigint(tmp_path: Path) -> None:
     out = tmp_path / "out"
     proc = _sim("--scenario", str(_scenario(tmp_path)), "--speed", "5", "--out", str(out))
@@ -122,6 +123,7 @@ def test_sim_serves_its_ports_and_stops_cleanly_on_sigint(tmp_path: Path) -> Non
     assert (out / "truth.jsonl").stat().st_size > 0
 
 
+@pytest.mark.e2e
 @pytest.mark.parametrize("processes", [False, True], ids=["one-process", "process-per-device"])
 def test_sim_runs_for_a_duration_and_applies_the_fault_control_file(
     tmp_path: Path, processes: bool

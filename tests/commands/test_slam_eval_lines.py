@@ -266,6 +266,7 @@ def test_map_of_lines_averages_angles_on_the_circle():
     assert lm.cov[0, 1, 1] == pytest.approx(1e-4 + 1e-4, rel=1e-3)  # + spread 0.01^2
 
 
+@pytest.mark.e2e
 def test_slam_run_is_also_a_slam_subcommand(tmp_path):
     """``auvgw slam run`` (the issue's spelling) and ``auvgw slam-run`` are one command; a missing
     recording is one line naming the file, exit 2."""

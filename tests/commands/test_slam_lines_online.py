@@ -19,7 +19,7 @@ PILES = np.array([[30.0, 20.0], [70.0, 40.0], [50.0, 10.0]])
 SIG_RHO, SIG_TH = 0.05, math.radians(0.3)
 SIG_R, SIG_B = 0.2, math.radians(1.0)
 DT = 0.5
-#: the emulated harbour run of tests/test_slam_stage.py (a module-scoped fixture)
+#: the emulated harbour run of tests/commands/test_slam_stage.py (a module-scoped fixture)
 harbour_run = test_slam_stage.harbour_run
 YAW_BIAS = math.radians(0.03)  # rad/s in the odometry's yaw rate
 
@@ -155,9 +155,10 @@ def test_other_kinds_need_their_noise_and_known_ids_are_per_kind():
     assert lm.of_kind(1).mean.shape == (1, 2)
 
 
+@pytest.mark.e2e
 def test_stage_feeds_the_walls_to_the_filter_and_holds_the_heading(harbour_run):
-    """The harbour run of tests/test_slam_stage.py (odometry with a 0.05 deg/s yaw-rate bias,
-    emulated MSIS at 50 m, 150 s): with ``use_lines`` (the default) the walls update the
+    """The harbour run of tests/commands/test_slam_stage.py (odometry with a 0.05 deg/s yaw-rate
+    bias, emulated MSIS at 50 m, 150 s): with ``use_lines`` (the default) the walls update the
     filter and hold the heading; with the points only the path drifts with the odometry. The
     control noise covers the bias (``sigma_yaw_rate_dps`` 0.3, "raise it for a poorer
     odometry"), else no feature can pull the estimate off the odometry."""

@@ -35,7 +35,7 @@ def test_every_record_names_what_exists(record: pipelines.Pipeline) -> None:
     assert callable(pipelines.load(record.evaluation))
     assert set(stage.outputs) <= set(record.output_names)  # the viz knows every output
     assert config_file(f"scenarios/{record.demo_scenario}.json").is_file()
-    assert (Path(__file__).parents[1] / "docs" / record.doc).is_file()
+    assert (Path(__file__).parents[2] / "docs" / record.doc).is_file()
 
 
 def _landmark_stage() -> type:

@@ -208,6 +208,7 @@ def test_slam_pose_follows_the_vehicle_no_worse_than_the_odometry(harbour_run):
     assert np.max(np.abs(slam_err - dr_err)) < 2.0
 
 
+@pytest.mark.e2e
 def test_posted_and_bus_inputs_run_on_the_worker_like_direct_feeding(harbour_run):
     """``post``/``post_odometry`` (the demo) and the bus subscriptions (a real Zenoh session)
     go through the stage's worker thread: the same poses as feeding on the caller's thread."""

@@ -13,6 +13,7 @@ from auvgw.ground.paths import REPO_ROOT
 HEAVY = ("scipy", "numpy", "zenoh", "rerun", "matplotlib", "pydantic")
 
 
+@pytest.mark.e2e
 def test_help_imports_no_command_module_and_no_heavy_library():
     code = (
         "import sys\n"
@@ -35,6 +36,7 @@ def test_each_listed_command_is_registered_by_its_module(name):
     assert name in sub.choices  # type: ignore[operator]
 
 
+@pytest.mark.e2e
 @pytest.mark.parametrize(
     "folder", ["ground", "drivers", "fusion", "slam", "sim_devices", "control", "config"]
 )

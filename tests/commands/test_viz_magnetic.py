@@ -20,7 +20,7 @@ from auvgw.viz.logger import RerunLogger
 from auvgw.viz.readback import read_recording
 from auvgw.viz.stage import VizStage
 
-SCENARIO = Path(__file__).resolve().parents[1] / "config" / "scenarios" / "beacons_amb.json"
+SCENARIO = Path(__file__).resolve().parents[2] / "config" / "scenarios" / "beacons_amb.json"
 
 
 def _to_map(x: float, y: float) -> tuple[float, float]:

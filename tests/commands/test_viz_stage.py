@@ -251,6 +251,7 @@ def test_device_clock() -> None:
     assert c(0.5, 1001.0) == pytest.approx(1001.0)  # device clock reset: re-anchored
 
 
+@pytest.mark.e2e
 def test_stage_over_zenoh(tmp_path) -> None:
     """A real Zenoh session: the stage's subscribers get the puts, the file gets the data."""
     path = tmp_path / "bus.rrd"
@@ -275,6 +276,7 @@ def test_stage_over_zenoh(tmp_path) -> None:
     assert rec[ent.MAG_FIELD].values("Scalars:scalars")[0] == [100.0, 200.0, 300.0]
 
 
+@pytest.mark.e2e
 def test_stage_queue_full_drops_with_a_counter(tmp_path) -> None:
     """The Zenoh callback never blocks: with the mapping thread not started, a 3-slot queue keeps
     3 samples and counts the rest as dropped."""
@@ -297,6 +299,7 @@ def test_stage_queue_full_drops_with_a_counter(tmp_path) -> None:
     assert len(read_recording(tmp_path / "drop.rrd")[ent.MAG_FIELD]) == 3
 
 
+@pytest.mark.e2e
 def test_cli_records_from_the_bus(tmp_path) -> None:
     path = tmp_path / "cli.rrd"
     port = free_port()

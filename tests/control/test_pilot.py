@@ -29,7 +29,7 @@ from auvgw.control.mission import (
     load_mission,
 )
 
-MISSIONS = Path(__file__).resolve().parents[1] / "config" / "missions"
+MISSIONS = Path(__file__).resolve().parents[2] / "config" / "missions"
 SHORT = Mission(lawnmower((0.0, 0.0), 120.0, 20.0, 2, 0.0, 5.0, 1.5), 5.0)
 
 

@@ -642,6 +642,7 @@ def test_format_registry_and_doc_layout_match_table() -> None:
         assert re.search(row, doc), f"docs/protocols/hn100.md lacks the row for {f.name}"
 
 
+@pytest.mark.e2e
 def test_cli_decode_json_lines_and_summary(tmp_path: Path) -> None:
     path = tmp_path / "ins.bin"
     path.write_bytes(b"\x00" * 10 + G[0] + bytes(BAD_CRC) + G[2] + G[3])
@@ -662,6 +663,7 @@ def test_cli_decode_json_lines_and_summary(tmp_path: Path) -> None:
     assert (summary["frames"], summary["bad_frames"], summary["skipped_bytes"]) == (3, 1, 84)
 
 
+@pytest.mark.e2e
 def test_cli_wrong_file_is_one_line_error(tmp_path: Path) -> None:
     path = tmp_path / "mag.txt"
     path.write_bytes(b"$MS3A,000001,+000001.0,+000002.0,+000003.0*5D\r\n" * 20)

@@ -576,6 +576,7 @@ def test_fuzz_corrupted_stream_keeps_every_untouched_datagram(seed: int) -> None
 
 
 # -- the CLI ---------------------------------------------------------------------------------------
+@pytest.mark.e2e
 def test_cli_decode_kongsberg_file(tmp_path: Path) -> None:
     x, d = xyz(1, 6), dep(2, 3)
     pos = generic(0x50, bytes(21), 5)
@@ -599,6 +600,7 @@ def test_cli_decode_kongsberg_file(tmp_path: Path) -> None:
     assert summary["decode_errors"] == 0
 
 
+@pytest.mark.e2e
 def test_cli_rejects_a_file_that_is_not_kongsberg(tmp_path: Path) -> None:
     path = tmp_path / "notes.txt"
     path.write_text("depth 12.5 m at 12:00\n" * 200)

@@ -8,6 +8,8 @@ import json
 import subprocess
 import sys
 
+import pytest
+
 PROBE = r"""
 import builtins, io, json
 opened = []
@@ -42,6 +44,7 @@ print(json.dumps({"at_import": at_import, "after": opened[len(at_import):], "nam
 """
 
 
+@pytest.mark.e2e
 def test_no_table_read_at_import_and_read_once_on_first_use():
     out = subprocess.run([sys.executable, "-c", PROBE], capture_output=True, text=True,
                          check=True, timeout=120)  # fmt: skip

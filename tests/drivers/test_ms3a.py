@@ -417,6 +417,7 @@ def test_format_registry_and_doc() -> None:
     assert L[0].decode().strip() in doc or "$MS3A,000123,+021345.6,-001234.5,+043210.0*5D" in doc
 
 
+@pytest.mark.e2e
 def test_cli_decode_json_lines_and_summary(tmp_path: Path) -> None:
     path = tmp_path / "mag.log"
     path.write_bytes(L[0][20:] + L[1] + _bad_checksum() + L[2] + L[3])
@@ -436,6 +437,7 @@ def test_cli_decode_json_lines_and_summary(tmp_path: Path) -> None:
     assert (summary["frames"], summary["bad_frames"], summary["skipped_bytes"]) == (3, 1, 27 + N)
 
 
+@pytest.mark.e2e
 def test_cli_wrong_file_is_one_line_error(tmp_path: Path) -> None:
     path = tmp_path / "ins.bin"
     path.write_bytes(bytes(range(256)) * 8)

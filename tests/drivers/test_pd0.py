@@ -738,6 +738,7 @@ def auvgw_cmd() -> list[str]:
     return [str(exe)] if exe.exists() else [sys.executable, "-m", "auvgw.cli"]
 
 
+@pytest.mark.e2e
 def test_cli_decode_real_file(shared_data: Path) -> None:
     path = shared_data / "pd0" / "RDI_withBT.000"
     out = subprocess.run(
@@ -757,6 +758,7 @@ def test_cli_decode_real_file(shared_data: Path) -> None:
     assert summary["decode_errors"] == 0
 
 
+@pytest.mark.e2e
 def test_cli_decode_not_pd0(tmp_path: Path) -> None:
     path = tmp_path / "notes.txt"
     path.write_bytes(b"this is not a PD0 capture\n" * 200 + b"\x7f\x7f\x00\x00junk")

@@ -324,6 +324,7 @@ def auvgw_cmd() -> list[str]:
     return [str(exe)] if exe.exists() else [sys.executable, "-m", "auvgw.cli"]
 
 
+@pytest.mark.e2e
 def test_cli_decode_pd6(tmp_path: Path) -> None:
     path = tmp_path / "dvl.pd6"
     path.write_bytes(b"noise\r\n" + STREAM * 3 + b":XX,1\r\n")
@@ -340,6 +341,7 @@ def test_cli_decode_pd6(tmp_path: Path) -> None:
     assert (summary["frames"], summary["bad_frames"], summary["skipped_bytes"]) == (33, 1, 7 + 7)
 
 
+@pytest.mark.e2e
 def test_cli_decode_not_pd6(tmp_path: Path) -> None:
     path = tmp_path / "x.bin"
     path.write_bytes(bytes(range(256)) * 8)

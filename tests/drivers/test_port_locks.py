@@ -16,6 +16,8 @@ from auvgw.drivers.portlock import PortLock, PortLockedError, lock_holder
 from auvgw.drivers.transports import TransportOpenError, open_transport
 from auvgw.testing import PYTHON, wait_until
 
+pytestmark = pytest.mark.e2e
+
 HOLDER = """
 import sys
 from auvgw.drivers.transports import open_transport

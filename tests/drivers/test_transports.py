@@ -42,7 +42,7 @@ from auvgw.drivers.transports import (
     replay_schedule,
 )
 
-DOCS = Path(__file__).resolve().parent.parent / "docs" / "transports.md"
+DOCS = Path(__file__).resolve().parents[2] / "docs" / "transports.md"
 
 
 # --- helpers ----------------------------------------------------------------------------------
@@ -87,6 +87,7 @@ def drain_master(fd: int) -> bytes:
 # --- serial -----------------------------------------------------------------------------------
 
 
+@pytest.mark.e2e
 def test_pty_bytes_arrive_in_order_with_increasing_receive_times(pty_pair):
     fds, path = pty_pair
     with open_transport({"kind": "serial", "url": path, "baud": 115200}) as t:
@@ -105,6 +106,7 @@ def test_pty_bytes_arrive_in_order_with_increasing_receive_times(pty_pair):
         assert t.read(0.02) is None  # nothing more
 
 
+@pytest.mark.e2e
 def test_pty_large_stream_beyond_pty_buffer(pty_pair):
     fds, path = pty_pair
     payload = random.Random(7).randbytes(50_000)  # > the 16 KiB an unread pty holds
@@ -124,6 +126,7 @@ def test_pty_large_stream_beyond_pty_buffer(pty_pair):
     assert all(len(c.data) <= 65536 for c in chunks)
 
 
+@pytest.mark.e2e
 def test_pty_write_reaches_the_other_end(pty_pair):
     fds, path = pty_pair
     with open_transport({"kind": "serial", "url": path}) as t:
@@ -133,6 +136,7 @@ def test_pty_write_reaches_the_other_end(pty_pair):
         assert drain_master(fds["master"]) == b"@\x00\x0cpoll\n"
 
 
+@pytest.mark.e2e
 def test_pty_writer_closing_raises_disconnected_naming_the_port(pty_pair):
     fds, path = pty_pair
     t = open_transport({"kind": "serial", "url": path})
@@ -272,6 +276,7 @@ def _slcan_on(path: str):
     )
 
 
+@pytest.mark.e2e
 def test_can_slcan_adapter_on_a_pty(pty_pair):
     """python-can's real slcan driver against a pty: the way an emulated USB-CAN adapter works."""
     fds, path = pty_pair
@@ -548,6 +553,7 @@ def test_error_format_for_a_model_embedding_transport():
     )
 
 
+@pytest.mark.e2e
 def test_can_slcan_reads_bursts_and_split_frames_in_order(pty_pair):
     """The slcan port is read in bulk (drivers/slcanbus.py BulkSlcanBus): frames of a burst, and a
     frame whose bytes arrive in two writes, come out whole and in order."""
@@ -597,6 +603,7 @@ def _count_selects(monkeypatch) -> list[int]:
     return waits
 
 
+@pytest.mark.e2e
 def test_can_slcan_idle_line_waits_without_polling(pty_pair, monkeypatch):
     """A quiet slcan line is waited on with ``select`` (one wake when bytes come), not polled
     with python-can's 1 ms ``read(1)``: a 0.3 s read of nothing waits once or twice."""
@@ -613,6 +620,7 @@ def test_can_slcan_idle_line_waits_without_polling(pty_pair, monkeypatch):
     t.close()
 
 
+@pytest.mark.e2e
 def test_can_slcan_drain_takes_a_burst_without_waiting(pty_pair, monkeypatch):
     """``drain()`` after a read: the frames whose lines came in the same read of the adapter,
     in order, without waiting on the port (no ``select``); an error line (BELL) ends it; with

@@ -220,6 +220,7 @@ def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run([*cmd, *args], capture_output=True, text=True, timeout=120)
 
 
+@pytest.mark.e2e
 def test_cli_decodes_a_v4log(log_file: Path) -> None:
     res = run_cli("decode", "--format", "v4log", str(log_file))
     assert res.returncode == 0, res.stderr
@@ -233,6 +234,7 @@ def test_cli_decodes_a_v4log(log_file: Path) -> None:
     assert summary["messages"] == {"V4LogRecord": 10}
 
 
+@pytest.mark.e2e
 def test_cli_decodes_a_raw_seanet_capture(tmp_path: Path) -> None:
     raw = tmp_path / "capture.bin"
     items = sample_items()
@@ -246,6 +248,7 @@ def test_cli_decodes_a_raw_seanet_capture(tmp_path: Path) -> None:
     assert (summary["frames"], summary["bad_frames"], summary["skipped_bytes"]) == (10, 0, 5)
 
 
+@pytest.mark.e2e
 def test_cli_wrong_file_is_one_line_exit_2(tmp_path: Path, log_file: Path) -> None:
     raw = tmp_path / "capture.bin"
     raw.write_bytes(b"".join(sn.encode(m) for _, m in sample_items()))

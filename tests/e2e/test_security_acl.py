@@ -30,7 +30,9 @@ pytestmark = pytest.mark.skipif(shutil.which("openssl") is None, reason="needs t
 DOC = REPO / "docs" / "security.md"
 SHIPPED = config_file("security/router.toml").parent
 #: a fenced shell block the doc marks for this test
-TESTED_BLOCK = re.compile(r"<!-- tested: tests/test_security_acl\.py.*?-->\s*```sh\n(.*?)```", re.S)
+TESTED_BLOCK = re.compile(
+    r"<!-- tested: tests/e2e/test_security_acl\.py.*?-->\s*```sh\n(.*?)```", re.S
+)
 PUT_PROC = str(REPO / "tests" / "bus_put_proc.py")
 SENSOR, NAV, SLAM = "auv/v/sensor/dvl/ensemble", "auv/v/nav/odometry", "auv/v/slam/ekf/pose"
 CMD, MARK = "auv/v/cmd/actuators", "auv/v/sensor/dvl/marker"
@@ -44,7 +46,9 @@ def _ros_key(topic: str, ros_type: str) -> str:
 
 def _doc_commands() -> list[str]:
     blocks = TESTED_BLOCK.findall(DOC.read_text())
-    assert len(blocks) == 1, f"{DOC}: {len(blocks)} blocks marked for tests/test_security_acl.py"
+    assert len(blocks) == 1, (
+        f"{DOC}: {len(blocks)} blocks marked for tests/e2e/test_security_acl.py"
+    )
     return [ln.strip() for ln in blocks[0].splitlines() if ln.strip() and not ln.startswith("#")]
 
 

@@ -41,6 +41,7 @@ def test_which_endpoints_open_the_bus_beyond_this_machine(endpoints, open_to):
                      ).open_beyond_loopback() == ["multicast scouting"]  # fmt: skip
 
 
+@pytest.mark.e2e
 def test_an_open_bus_beyond_loopback_warns_at_start_up(caplog):
     with caplog.at_level(logging.WARNING, logger="auvgw.bus"):
         with open_session(BusConfig(listen=[f"tcp/127.0.0.1:{free_port()}"])):

@@ -147,6 +147,7 @@ def test_a_format_that_cannot_load_is_a_config_error_naming_the_field():
         make_decoders(cfg)
 
 
+@pytest.mark.e2e
 def test_in_process_gateway_reopens_after_a_reader_error(shared_data):
     """``socket://`` to a local server that drops the connection: the device is reported
     disconnected, reopened with backoff, and frames from the second connection still flow."""
@@ -217,6 +218,7 @@ def test_the_documented_example_configuration_is_valid():
     assert cfg.devices["sonar"].msis is not None and cfg.devices["sonar"].msis.n_bins == 300
 
 
+@pytest.mark.e2e
 def test_a_frame_whose_envelope_fails_still_goes_out_raw(shared_data, tmp_path, monkeypatch):
     """Raw first holds when building a frame's envelope raises (fault injected into the
     envelope encoder): its raw sample is on the bus, the reader error is reported, and the
@@ -259,6 +261,7 @@ def test_a_frame_whose_envelope_fails_still_goes_out_raw(shared_data, tmp_path, 
     assert [decode_envelope(d.payload.to_bytes()).seq & 0xFFFFFFFF for d in dec[:2]] == [1, 2]
 
 
+@pytest.mark.e2e
 def test_a_frame_the_codec_rejects_goes_out_raw_only(shared_data, tmp_path):
     """Between good ensembles (a capture replayed in a loop), one with a good checksum whose
     layout the codec refuses (a data type 1 byte long): it goes out raw, no decoded sample is
@@ -306,6 +309,7 @@ def test_a_frame_the_codec_rejects_goes_out_raw_only(shared_data, tmp_path):
     assert st["bad_frames"] == 0 and st["frames"] >= 3 * st["decode_errors"]
 
 
+@pytest.mark.e2e
 def test_writes_closer_than_the_read_interval_are_read_together(tmp_path):
     """``read_interval_s``: while bytes keep coming, a serial port is read at most that often,
     so writes closer together are read (and stamped) together; every frame still comes out.
@@ -344,6 +348,7 @@ def test_writes_closer_than_the_read_interval_are_read_together(tmp_path):
                                                 "transport": {"kind": "serial", "url": "x"}}}})
 
 
+@pytest.mark.e2e
 def test_silence_limit_learns_the_period_floors_at_stale_and_backs_off():
     """When an open but silent device is reopened (host seconds): ``reopen_silent_periods``
     times its period (configured, or the median interval of its frame-bearing reads), at

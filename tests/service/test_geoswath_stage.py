@@ -63,6 +63,7 @@ def test_stage_publishes_swaths_the_bathymetric_stage_takes(tmp_path: Path) -> N
     assert bathy.stats.swaths == 6  # taken as the multibeam's swaths (waiting for odometry)
 
 
+@pytest.mark.e2e
 def test_swath_settings_are_checked() -> None:
     """A bad processing value is refused where the stage is configured, ``auvgw swath --set``
     in one line on stderr with exit code 2."""

@@ -60,6 +60,7 @@ def _wait(pred, what: str, timeout: float = 60.0) -> None:
         time.sleep(0.02)
 
 
+@pytest.mark.e2e
 @pytest.mark.parametrize("stage_kind", ["fusion", "slam"])
 def test_malformed_bus_payloads_are_counted_logged_and_survived(stage_kind, caplog) -> None:
     keys = Keys("hard1")
@@ -91,6 +92,7 @@ def test_malformed_bus_payloads_are_counted_logged_and_survived(stage_kind, capl
     assert not any(r.levelno >= logging.ERROR for r in caplog.records)
 
 
+@pytest.mark.e2e
 def test_raw_sequence_numbers_are_unique_across_a_gateway_restart(tmp_path, shared_data) -> None:
     """Two runs of a gateway over the same capture: the second run's raw sequence numbers
     (``session_id << 32 | n``) repeat none of the first run's."""
@@ -146,6 +148,7 @@ def test_relative_device_paths_resolve_against_the_config_file(tmp_path, monkeyp
     assert cfg.devices["web"].transport.url == "socket://h:1"
 
 
+@pytest.mark.e2e
 def test_a_config_with_relative_ports_connects_from_another_directory(procs, tmp_path) -> None:
     """A gateway started elsewhere (systemd starts in /) opens ``url = "ports/dvl"`` next to
     its configuration file and delivers the device's frames."""

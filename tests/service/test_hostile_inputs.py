@@ -5,7 +5,7 @@ traffic's outputs are unchanged (compared with a run of the good traffic alone).
 
 The stages are driven in-process through :meth:`Stage.handle_sample`, the path every bus payload
 takes (the end-to-end form, a forged message sent to a running ``auvgw fusion``, is
-``tests/test_fusion_stage.py::test_forged_envelopes_mid_stream_change_no_odometry``)."""
+``tests/commands/test_fusion_stage.py::test_forged_envelopes_mid_stream_change_no_odometry``)."""
 
 from __future__ import annotations
 

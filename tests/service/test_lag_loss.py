@@ -49,6 +49,7 @@ def test_lag_tracker_measures_against_the_best_offset_and_rebases_on_a_clock_ste
     assert device_time_s(object()) is None
 
 
+@pytest.mark.e2e
 def test_a_stalled_device_ages_a_backlog_lags_and_garbage_is_skipped(tmp_path: Path) -> None:
     """A real pty and the in-process gateway: a burst of ten solutions, one second of nothing,
     then ten more that continue the device clock (as a reader that fell one second behind would
@@ -119,6 +120,7 @@ def test_udp_datagrams_the_kernel_dropped_are_counted() -> None:
         t.close()
 
 
+@pytest.mark.e2e
 def test_slcan_adapter_overruns_are_counted(tmp_path: Path) -> None:
     """An emulated USB-CAN adapter whose host link stalls (the gateway does not read) loses
     frames and sets its data-overrun flag; the transport asks (Lawicel ``F``) and counts it,
@@ -158,6 +160,7 @@ def test_slcan_adapter_overruns_are_counted(tmp_path: Path) -> None:
         adapter.close()
 
 
+@pytest.mark.e2e
 def test_malformed_slcan_lines_are_dropped_and_counted_not_a_reconnect() -> None:
     """Lines cut by bytes lost on the host link (the end of one frame joined to the next, a
     wrong length for the DLC, a bad digit) are dropped and counted; the frames around them
@@ -185,6 +188,7 @@ def test_malformed_slcan_lines_are_dropped_and_counted_not_a_reconnect() -> None
         os.close(slave)
 
 
+@pytest.mark.e2e
 def test_gateway_status_counts_udp_kernel_drops_and_garbage_as_lost_bytes() -> None:
     """The in-process gateway on a UDP port with a 2 KiB receive buffer: a flood of garbage
     datagrams (1000 B, no Kongsberg frame in them) is either read, then skipped by the framer

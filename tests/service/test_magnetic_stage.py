@@ -8,12 +8,13 @@ import math
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from auvgw.slam.magnetic.stream import stage_inputs
 from auvgw.stages.magnetic import MagneticStage, config_from_scenario
 from auvgw.subscribe import slam_output
 
-SCENARIO = Path(__file__).resolve().parents[1] / "config" / "scenarios" / "beacons_amb.json"
+SCENARIO = Path(__file__).resolve().parents[2] / "config" / "scenarios" / "beacons_amb.json"
 
 
 def test_stage_publishes_pose_map_and_observations_and_beats_dead_reckoning() -> None:
@@ -50,6 +51,7 @@ def test_stage_publishes_pose_map_and_observations_and_beats_dead_reckoning() ->
     assert rmse < rmse_dr and rmse < 8.0  # measured 5.93 m against DR 18.5 m
 
 
+@pytest.mark.e2e
 def test_stage_process_on_the_bus_publishes_poses_and_observations(tmp_path: Path) -> None:
     """The stage as its own process (``auvgw slam run --pipeline magnetic``): odometry, MS3A and
     acoustic-reply envelopes published on the bus by this process (30 s of vehicle time at

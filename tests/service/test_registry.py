@@ -12,7 +12,7 @@ import pytest
 
 from auvgw.drivers import registry
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_derived_lists_are_the_registry() -> None:
@@ -84,6 +84,7 @@ def test_bus_doc_lists_the_public_kinds() -> None:
     assert documented == {m.kind for _, m in registry.message_types()}
 
 
+@pytest.mark.e2e
 def test_decode_help_lists_the_registered_formats() -> None:
     out = subprocess.run([sys.executable, "-m", "auvgw", "decode", "--help"],
                          capture_output=True, text=True, check=True).stdout  # fmt: skip
@@ -94,6 +95,7 @@ def test_decode_help_lists_the_registered_formats() -> None:
     assert "hn100/geoswath/ms3a/acoustic" in out
 
 
+@pytest.mark.e2e
 def test_sim_help_lists_the_emulators() -> None:
     out = subprocess.run([sys.executable, "-m", "auvgw", "sim", "--help"],
                          capture_output=True, text=True, check=True).stdout  # fmt: skip

@@ -7,10 +7,13 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from auvgw.drivers.framing import read_file_frames
 from auvgw.drivers.pd0 import Pd0Framer, decode
 from auvgw.viz.readback import read_recording
+
+pytestmark = pytest.mark.e2e
 
 
 def test_run_records_every_ensemble_of_a_real_capture(tmp_path, shared_data) -> None:

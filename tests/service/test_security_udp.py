@@ -98,6 +98,7 @@ def _flood(sock: socket.socket, port: int, start: int, n: int, done, what: str) 
         wait_until(lambda s=sent: done(s), timeout=60.0, what=f"{what}: {sent} datagrams")
 
 
+@pytest.mark.e2e
 def test_udp_flood_memory_is_flat_when_rejected_and_bounded_when_allowed():
     port = free_port()
     cfg = parse_gateway_config(

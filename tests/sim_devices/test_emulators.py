@@ -546,7 +546,7 @@ def test_faults_switch_at_run_time_and_through_the_control_file(tmp_path: Path) 
 
 def test_msis_head_is_silent_until_polled_and_pings_the_walls(tmp_path: Path) -> None:
     scn = Scenario.model_validate(
-        {**json.loads((Path(__file__).parents[1] / "config/scenarios/harbour.json").read_text()),
+        {**json.loads((Path(__file__).parents[2] / "config/scenarios/harbour.json").read_text()),
          "devices": {"msis": {"options": {"alive_period_s": 1.0}}}}
     )
     with Runner(scn, RunOptions(out_dir=tmp_path, speed=10, devices=["msis"])) as r:

@@ -137,6 +137,7 @@ def test_exact_counts_for_any_seed_and_rates(
     assert f.stats.bad_frames == inj.counts.bad_frames
 
 
+@pytest.mark.e2e
 def test_exact_counts_through_a_real_pty_read_by_pyserial() -> None:
     fs = FaultSettings(garbage_p=0.3, corrupt_p=0.1, truncate_p=0.1)
     rng = np.random.default_rng(11)
@@ -211,6 +212,7 @@ def test_garbage_never_contains_sync_bytes() -> None:
 # -- time windows, noise, run-time switching -------------------------------------------------
 
 
+@pytest.mark.e2e
 def test_windows_stalls_unplug_bottom_lock_and_clock_jumps() -> None:
     fs = FaultSettings(
         unplug=[(10.0, 12.0)],

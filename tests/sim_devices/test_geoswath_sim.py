@@ -168,6 +168,7 @@ def test_processing_applies_attitude_lever_arm_and_filters() -> None:
     assert np.max(np.abs(med.depth + 25 - SEABED)) < 1.0
 
 
+@pytest.mark.e2e
 def test_binning_and_the_along_track_window() -> None:
     cfg = SwathProcessing(n_bins=41, along_window=3)
     procs = SwathProcessor(cfg)

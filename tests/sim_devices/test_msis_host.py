@@ -399,6 +399,7 @@ def test_echo_of_a_wall_through_the_whole_chain():
 # -- over a real pty ------------------------------------------------------------------------------
 
 
+@pytest.mark.e2e
 def test_exchange_over_a_real_pty():
     master, slave = os.openpty()
     tty.setraw(slave)
@@ -480,6 +481,7 @@ def poll_over_serial(ser: serial.Serial, host: SeaNetHost, n_pings: int) -> list
     return got
 
 
+@pytest.mark.e2e
 @pytest.mark.parametrize("faulty", [False, True])
 def test_head_served_on_a_pty_port_with_the_sim_clock(faulty):
     """serve_on_port: the head on a paced PtyPort, pings delayed on the simulation clock, the

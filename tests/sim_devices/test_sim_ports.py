@@ -45,6 +45,7 @@ def test_pacer_schedules_bytes_at_the_line_rate() -> None:
 # -- pty ports with pyserial -----------------------------------------------------------------
 
 
+@pytest.mark.e2e
 def test_pty_delivers_exact_bytes_both_ways(tmp_path: Path) -> None:
     rng = np.random.default_rng(0)
     chunks = [
@@ -70,6 +71,7 @@ def test_pty_delivers_exact_bytes_both_ways(tmp_path: Path) -> None:
         assert port.stats.writes == 200 and port.stats.bytes_dropped == 0
 
 
+@pytest.mark.e2e
 def test_pty_on_receive_callback() -> None:
     seen: list[bytes] = []
     with PtyPort("msis", 115200, speed=0, on_receive=seen.append) as port:
@@ -83,6 +85,7 @@ def test_pty_on_receive_callback() -> None:
         assert port.read(timeout=0) == b"", "with a callback nothing is buffered"
 
 
+@pytest.mark.e2e
 def test_pty_is_paced_at_the_baud_scaled_by_the_clock() -> None:
     clock = SimClock(speed=4.0)
     n = 1920  # 0.5 s on a 38400 baud 8N1 line, 0.125 s at 4 x real time
@@ -103,6 +106,7 @@ def test_pty_is_paced_at_the_baud_scaled_by_the_clock() -> None:
         assert reads > 3, "the bytes trickle in, not all at once"
 
 
+@pytest.mark.e2e
 def test_short_frames_go_out_whole_and_long_ones_in_quantum_chunks() -> None:
     clock = SimClock(speed=10.0)
     frame = bytes(range(74))  # an INS frame: 6.4 ms on a 115200 line, 0.64 ms at 10 x
@@ -123,6 +127,7 @@ def test_short_frames_go_out_whole_and_long_ones_in_quantum_chunks() -> None:
         assert port.stats.bytes_written == 20 * len(frame) + len(long)
 
 
+@pytest.mark.e2e
 def test_unplug_gives_serial_exception_and_replug_comes_back_on_the_symlink(tmp_path: Path) -> None:
     link = tmp_path / "run" / "dvl"
     with PtyPort("dvl", 115200, speed=0, link=link) as port:
@@ -149,6 +154,7 @@ def test_unplug_gives_serial_exception_and_replug_comes_back_on_the_symlink(tmp_
         assert first.startswith("/dev/pts/")
 
 
+@pytest.mark.e2e
 def test_full_pty_drops_and_counts_without_blocking_the_emulator() -> None:
     with PtyPort("ins", None, speed=0, block_timeout_s=0.1) as port:
         for _ in range(100):  # 100 kB into a pty nobody reads (it holds about 16 KiB)
@@ -164,6 +170,7 @@ def test_full_pty_drops_and_counts_without_blocking_the_emulator() -> None:
             assert _read_exactly(s, 11) == b"fresh frame"
 
 
+@pytest.mark.e2e
 def test_bounded_queue_drops_what_the_baud_cannot_carry() -> None:
     with PtyPort("slow", 300, speed=1.0, max_queue_bytes=100) as port:
         assert port.write(b"a" * 50)  # 1.7 s on the line
@@ -213,6 +220,7 @@ def test_encode_frame_lawicel_lines() -> None:
         encode_frame(can.Message(arbitration_id=0x800, is_extended_id=False))
 
 
+@pytest.mark.e2e
 def test_python_can_slcan_talks_to_the_adapter(tmp_path: Path) -> None:
     with SlcanAdapter(speed=0, link=tmp_path / "can0") as adapter:
         bus = can.Bus(interface="slcan", channel=adapter.device, sleep_after_open=0, bitrate=250000)
@@ -267,6 +275,7 @@ def _exchange(s: serial.Serial, cmd: bytes) -> bytes:
     return bytes(out)
 
 
+@pytest.mark.e2e
 def test_adapter_protocol_answers_bells_acks_status_and_timestamps() -> None:
     clock = SimClock(speed=0, start_time=61.5)
     with SlcanAdapter(clock=clock) as adapter, serial.Serial(adapter.device, timeout=0.05) as s:

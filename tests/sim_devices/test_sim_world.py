@@ -694,7 +694,7 @@ def test_clock_external_events_are_scheduled_while_running() -> None:
 
 
 def test_the_documented_example_scenario_loads_and_drives(tmp_path: Path) -> None:
-    doc = (Path(__file__).resolve().parent.parent / "docs" / "scenarios.md").read_text()
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "scenarios.md").read_text()
     example = doc.split("## A small example", 1)[1].split("```json", 1)[1].split("```", 1)[0]
     scn = load_scenario(_write(tmp_path, json.loads(example)))
     truth = simulate(scn)

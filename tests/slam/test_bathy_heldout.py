@@ -25,7 +25,7 @@ from auvgw.slam.evaluation.heldout import (
 )
 from auvgw.testing.bathy_helpers import TINY
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 FROZEN = ROOT / "docs/results/bathymetric/heldout/frozen.json"
 
 

@@ -27,7 +27,7 @@ from auvgw.slam.magnetic.evaluation import (
     seed_split,
 )
 
-SCENARIO = Path(__file__).resolve().parents[1] / "config" / "scenarios" / "beacons_amb.json"
+SCENARIO = Path(__file__).resolve().parents[2] / "config" / "scenarios" / "beacons_amb.json"
 DENSE = SCENARIO.with_name("beacons_dense.json")
 
 
@@ -79,6 +79,7 @@ def test_first_half_keeps_only_the_first_half_beacons() -> None:
     assert np.all(prep.beacons[:, 1] < 300)  # the serpentine's first half is the south
 
 
+@pytest.mark.e2e
 def test_cli_pipeline_magnetic_writes_tables_and_plots(tmp_path: Path) -> None:
     out = tmp_path / "res"
     cmd = [sys.executable, "-m", "auvgw", "slam", "eval", "--pipeline", "magnetic",
@@ -113,6 +114,7 @@ def test_cli_pipeline_magnetic_writes_tables_and_plots(tmp_path: Path) -> None:
     assert 0.0 <= aco["nees_pose_in"] <= 1.0 and aco["n_landmarks"] == 0.0
 
 
+@pytest.mark.e2e
 def test_cli_pipeline_magnetic_rejects_options_it_does_not_read() -> None:
     """The recorded "Made by" line lists only options the pipeline reads: the others are
     user errors (exit 2, one line)."""

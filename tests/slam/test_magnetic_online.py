@@ -13,7 +13,7 @@ from auvgw.slam.magnetic.filters import make_magnetic
 from auvgw.slam.magnetic.mlp import MLP
 from auvgw.slam.magnetic.online import MagneticOnline
 
-SCENARIO = Path(__file__).resolve().parents[1] / "config" / "scenarios" / "beacons_amb.json"
+SCENARIO = Path(__file__).resolve().parents[2] / "config" / "scenarios" / "beacons_amb.json"
 
 
 def test_online_chain_tracks_the_vehicle_and_publishes_observations() -> None:

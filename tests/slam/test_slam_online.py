@@ -12,7 +12,7 @@ import test_slam_stage
 from auvgw.slam.history import StateHistory
 from auvgw.slam.landmark.online import LandmarkOnline, LandmarkOnlineConfig
 
-#: the emulated harbour run of tests/test_slam_stage.py (a module-scoped fixture)
+#: the emulated harbour run of tests/commands/test_slam_stage.py (a module-scoped fixture)
 harbour_run = test_slam_stage.harbour_run
 
 
@@ -41,6 +41,7 @@ def test_history_interpolates_angles_the_short_way_and_trims():
         h.append(20.0, (1.0, 2.0))
 
 
+@pytest.mark.e2e
 def test_pipeline_without_a_bus_gives_the_stage_estimates(harbour_run):
     """The pure pipeline fed the harbour run gives the very poses the stage published, and its
     counters are the stage's."""
@@ -66,6 +67,7 @@ def test_pipeline_without_a_bus_gives_the_stage_estimates(harbour_run):
     assert body.mean.shape == (online.summary()["landmarks"], 2)
 
 
+@pytest.mark.e2e
 def test_pings_wait_for_the_odometry_that_covers_them(harbour_run):
     """A ping ahead of the odometry is held (not placed with a stale pose); one older than
     the whole odometry history is counted and dropped; too many waiting drop the oldest."""
