@@ -36,6 +36,7 @@ def _same(a: list, b: list) -> None:
         )
 
 
+@pytest.mark.e2e
 def test_bathymetric_trials_are_identical_here_in_processes_and_on_dask() -> None:
     pytest.importorskip("distributed")
     study = _study()
@@ -50,6 +51,7 @@ def test_bathymetric_trials_are_identical_here_in_processes_and_on_dask() -> Non
         _same(here, monte_carlo(study, ex))
 
 
+@pytest.mark.e2e
 def test_landmark_trials_on_dask_match_the_serial_ones(shared_data, tmp_path) -> None:
     pytest.importorskip("distributed")
     from auvgw.slam.evaluation import runner

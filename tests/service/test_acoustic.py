@@ -59,6 +59,7 @@ def test_any_line_roundtrips_and_corruption_loses_no_good_line(chunk: int) -> No
         AcousticFramer(policy=ErrorPolicy.RAISE, source="ac.log").feed(bad_sum)
 
 
+@pytest.mark.e2e
 def test_emulator_on_a_pty_reports_range_and_bearing_and_the_gateway_decodes(
     tmp_path: Path,
 ) -> None:

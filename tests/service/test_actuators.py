@@ -238,6 +238,7 @@ def _first_time(samples, start: int, cond) -> float:
     raise AssertionError("never")
 
 
+@pytest.mark.e2e
 def test_emulated_limits_measured_from_the_feedback(tmp_path: Path) -> None:
     """Commands at t ~ 0.2 s: rudder +30 deg (saturates at 20, rate limit 30 deg/s), shaft
     1000 -> 1100 rpm (tau 0.3 s, under the rate limit), stern 0.1 deg (inside the 0.2 deg dead

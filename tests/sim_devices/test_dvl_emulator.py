@@ -509,6 +509,7 @@ class Reader:
         return b"".join(self.chunks)
 
 
+@pytest.mark.e2e
 def test_runner_serves_the_dvl_on_a_pty(tmp_path: Path) -> None:
     """The runner's DVL on its pty, read with pyserial at 20x real time: every ensemble arrives
     in order, the velocity matches the truth within the noise, lock follows the fault window."""

@@ -198,6 +198,7 @@ def test_truth_at_matches_a_reference_interpolation(tmp_path: Path) -> None:
 # -- INS ---------------------------------------------------------------------------------------
 
 
+@pytest.mark.e2e
 def test_ins_serial_frames_match_the_truth_within_the_seed_noise(tmp_path: Path) -> None:
     scn = make_scenario(devices={"ins": {"options": {"can": False}}})
     with Runner(scn, RunOptions(out_dir=tmp_path, speed=20, devices=["ins"])) as r:
@@ -247,6 +248,7 @@ def test_ins_serial_frames_match_the_truth_within_the_seed_noise(tmp_path: Path)
         assert r.emulators["ins"].errors == 0
 
 
+@pytest.mark.e2e
 def test_ins_can_bursts_through_python_can_slcan_with_exact_dropouts(tmp_path: Path) -> None:
     scn = make_scenario(
         devices={"ins": {"options": {"serial": False}, "faults": {"dropout_p": 0.1}}}
@@ -291,6 +293,7 @@ def _expected_mag(r: Runner, t: float) -> np.ndarray:
     return body_to_ned(s.heading, s.pitch, s.roll).T @ b * 1e9
 
 
+@pytest.mark.e2e
 def test_magnetometer_serial_and_can_report_the_world_field(tmp_path: Path) -> None:
     scn = make_scenario(devices={"magnetometer": {"noise": {"field_nt": 2.0}}})
     with Runner(scn, RunOptions(out_dir=tmp_path, speed=10, devices=["magnetometer"])) as r:
@@ -321,6 +324,7 @@ def test_magnetometer_serial_and_can_report_the_world_field(tmp_path: Path) -> N
         assert np.max(np.abs(np.linalg.norm([m.b_nt for m in lines], axis=1) - earth)) > 50
 
 
+@pytest.mark.e2e
 def test_magnetometer_field_falls_with_the_cube_of_the_range_to_a_beacon(tmp_path: Path) -> None:
     # one strong coil, no Earth field; the AUV drives straight away along the coil's axis
     scn = make_scenario(
@@ -417,6 +421,7 @@ FAULTS = {"garbage_p": 0.2, "garbage_max_bytes": 40, "corrupt_p": 0.06, "truncat
           "dropout_p": 0.03}  # fmt: skip
 
 
+@pytest.mark.e2e
 def test_garbage_and_corruption_are_counted_exactly_and_lose_no_good_frame(tmp_path: Path):
     sock = _bind_udp()
     scn = make_scenario(
@@ -459,6 +464,7 @@ def test_garbage_and_corruption_are_counted_exactly_and_lose_no_good_frame(tmp_p
     sock.close()
 
 
+@pytest.mark.e2e
 def test_unplug_stall_and_clock_jump_windows(tmp_path: Path) -> None:
     faults = {"unplug": [[1.0, 1.5]], "stall": [[2.5, 3.0]], "clock_jumps": [[3.2, 100.0]]}
     scn = make_scenario(devices={"ins": {"options": {"can": False}, "faults": faults}})
@@ -501,6 +507,7 @@ def test_noise_bursts_multiply_the_covariance(tmp_path: Path) -> None:
     assert em.faults.counts.noise_bursts == bursts.sum()
 
 
+@pytest.mark.e2e
 def test_faults_switch_at_run_time_and_through_the_control_file(tmp_path: Path) -> None:
     scn = make_scenario(devices={"ins": {"faults": {"dropout_p": 0.1}}})
     with Runner(scn, RunOptions(out_dir=tmp_path, devices=["ins", "magnetometer"])) as r:
@@ -544,6 +551,7 @@ def test_faults_switch_at_run_time_and_through_the_control_file(tmp_path: Path) 
 # -- MSIS (host-polled) ------------------------------------------------------------------------
 
 
+@pytest.mark.e2e
 def test_msis_head_is_silent_until_polled_and_pings_the_walls(tmp_path: Path) -> None:
     scn = Scenario.model_validate(
         {**json.loads((Path(__file__).parents[2] / "config/scenarios/harbour.json").read_text()),
@@ -611,6 +619,7 @@ def test_msis_head_is_silent_until_polled_and_pings_the_walls(tmp_path: Path) ->
 # -- configuration and logs --------------------------------------------------------------------
 
 
+@pytest.mark.e2e
 def test_gateway_configuration_points_at_every_port(tmp_path: Path) -> None:
     with Runner(make_scenario(), RunOptions(out_dir=tmp_path)) as r:
         path = r.write_gateway_config(tmp_path / "gw.toml", vehicle="sim-1")
@@ -647,6 +656,7 @@ def test_gateway_toml_writer_round_trips() -> None:
     assert tomllib.loads(gateway_toml(data, "header\nlines")) == data
 
 
+@pytest.mark.e2e
 def test_truth_callback_and_logs(tmp_path: Path) -> None:
     seen: list[Any] = []
     scn = make_scenario(devices={"magnetometer": {"options": {"can": False}}})

@@ -441,6 +441,7 @@ def test_bearing_noise_turns_the_beam_but_not_the_reported_bearing():
         np.testing.assert_allclose(steps, 32 * 0.05625, atol=1e-6)
 
 
+@pytest.mark.e2e
 def test_emulated_head_takes_scenario_noise_and_bursts(tmp_path, caplog):
     """Through the simulator (``make_msis``): ``devices.msis.noise`` and the per-ping burst
     multiplier of the emulator (counted in its ``noise_samples``); unknown noise keys are an
