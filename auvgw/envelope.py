@@ -457,9 +457,9 @@ def layout_body(layout: WireLayout, frame: bytes) -> tuple[str, int, list[Packed
     straight from the frame's bytes (the gateway's hot path: no message, no numpy), by a
     function generated once per layout from the codec's tables (:func:`_layout_reader`). The
     body is the one :func:`pack_body` gives for the decoded message
-    (tests/test_envelope_bytes.py: every ensemble of the real PD0 files, emulated PD0 and HN-100
-    frames); None where a field has no such form (an ASCII ``str`` row, a float scaled by the
-    table: decode, then pack)."""
+    (tests/service/test_envelope_bytes.py: every ensemble of the real PD0 files, emulated PD0
+    and HN-100 frames); None where a field has no such form (an ASCII ``str`` row, a float
+    scaled by the table: decode, then pack)."""
     got = _layout_reader(layout)
     if got is None:
         return None

@@ -3,7 +3,7 @@
 The HN-100 and Pathfinder emulators' encoders are called for every tick (no ptys, as fast as
 possible), their byte streams framed and decoded by the drivers, and the messages fed in arrival
 order to the in-process fusion stage (the code the bus stage runs), with the filter settings of
-the emulators' noise model (tests/fusion_emulated.py, docs/fusion.md "Emulated survey").
+the emulators' noise model (tests/support/fusion_emulated.py, docs/fusion.md "Emulated survey").
 
 Prints two tables:
 

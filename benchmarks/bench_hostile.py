@@ -129,7 +129,7 @@ def sweep(n_inputs: int) -> None:
 
     from auvgw.testing.hostile import hostile_payloads
 
-    sys.path.insert(0, str(REPO / "tests"))
+    sys.path.insert(0, str(REPO / "tests" / "service"))
     import test_hostile_inputs as t  # the battery's own stage factories and traffic
 
     warnings.simplefilter("ignore", NonInteractiveExampleWarning)
@@ -167,7 +167,7 @@ def sweep(n_inputs: int) -> None:
     for name, n, good_out, lost, refused in rows:
         print(f"  {name:12} {n:12d} {good_out:13d} {lost:5d} {refused:17d}")
     print("  bar: lost 0 in every stage (viz: its outputs are Rerun rows, counted as refused or "
-          "unknown here; the recorder: tests/test_hostile_inputs.py)")
+          "unknown here; the recorder: tests/service/test_hostile_inputs.py)")
 
 
 def _lost(clean: list, out: list) -> int:

@@ -458,7 +458,7 @@ class Plan:
     length ``avail`` (rows that end past it are absent: ``None``). Built once by :func:`plan`
     and cached on the class; the walker (:func:`_decode_block_fields`, :func:`encode_block`
     field by field) is the reference it is tested against on every shipped table
-    (``tests/test_plans.py``).
+    (``tests/service/test_plans.py``).
 
     * :attr:`read` ``(buf, base) -> {field: value}``: every wire row's SI value (None for an
       absent row) from one

@@ -119,7 +119,7 @@ class Worker(Generic[T]):
     ``period_s`` on the worker thread, host clock), :meth:`_work_started` and
     :meth:`_work_finished` (first and last thing on the worker thread) and :meth:`_work_describe`
     (an item in error messages). It never overrides the public methods (:func:`typing.final`;
-    ``tests/test_worker.py`` checks every subclass).
+    ``tests/ground/test_worker.py`` checks every subclass).
 
     ``queue_size``: items waiting before :meth:`submit` refuses (0: unbounded); ``period_s``:
     the tick period (None: no tick); ``thread_name``: the thread's name (default

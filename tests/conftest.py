@@ -1,14 +1,25 @@
-"""Shared fixtures: the real recordings in ../shared/data (required under CI=true)."""
+"""Shared fixtures (the real recordings in ../shared/data, required under CI=true), the unit and
+real_data marks, and the check that a test starting processes, ptys or Zenoh sessions is marked
+``e2e`` (tests/README.md)."""
 
 from __future__ import annotations
 
 import os
-import re
+import sys
 from pathlib import Path
 
 import pytest
 
 from auvgw.ground.paths import shared_dir
+
+#: test modules are one flat namespace (their basenames are unique; pytest refuses two alike), so a
+#: test imports a sibling's helpers from any folder (``from test_emulators import SerialReader``)
+sys.path[:0] = sorted(
+    str(d) for d in Path(__file__).parent.iterdir() if d.is_dir() and any(d.glob("test_*.py"))
+)
+
+#: a test not marked ``e2e`` that starts a process, a pty or a Zenoh session fails
+pytest_plugins = ["auvgw.testing.e2e_marks"]
 
 
 @pytest.fixture(scope="session")
@@ -65,33 +76,13 @@ def slcan_adapter(tmp_path):
         a.close()
 
 
-#: a test whose own code contains one of these runs real processes, ports or a bus: ``e2e``
-_E2E_SIGNS = re.compile(r"subprocess\.|open_session\(|\bPty|SimRunner|zenoh\.|\bAUVGW\b")
-
-
-def _source(func: object) -> str:
-    import inspect
-
-    try:
-        return inspect.getsource(func)  # type: ignore[arg-type]
-    except (OSError, TypeError):
-        return ""
-
-
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Mark every test ``e2e`` (processes, ptys, a Zenoh session), ``real_data`` (recordings
-    from ../shared) or ``unit``, from what it uses, so ``make test-fast`` (``-m "not e2e"``)
-    needs no marker in the test files and a new test is classified by what it does."""
+    """Mark every test not marked ``e2e`` (``tests/e2e/`` by folder, elsewhere by its own mark)
+    ``real_data`` (recordings from ../shared) or ``unit``, from the fixtures it uses."""
     for item in items:
-        fixtures = set(getattr(item, "fixturenames", ()))
-        funcs = [getattr(item, "function", None)]
-        info = getattr(item, "_fixtureinfo", None)
-        for defs in (info.name2fixturedefs.values() if info else ()):
-            funcs += [d.func for d in defs if d.baseid]  # the project's fixtures, not pytest's
-        source = "".join(_source(f) for f in funcs)
-        if "procs" in fixtures or _E2E_SIGNS.search(source):
-            item.add_marker(pytest.mark.e2e)
-        elif fixtures & {"shared_data", "papers_dir"}:
+        if item.get_closest_marker("e2e"):
+            continue
+        if set(getattr(item, "fixturenames", ())) & {"shared_data", "papers_dir"}:
             item.add_marker(pytest.mark.real_data)
         else:
             item.add_marker(pytest.mark.unit)

@@ -1,4 +1,4 @@
-"""Publisher process of tests/test_fusion_stage.py: gateway-style envelopes onto the bus.
+"""Publisher process of tests/commands/test_fusion_stage.py: gateway-style envelopes onto the bus.
 
 ``python fusion_publisher_proc.py --connect EP --vehicle V --file ENVELOPES.jsonl``: joins the
 bus as a client of EP, waits for the fusion stage's liveliness token (its subscriptions are

@@ -12,6 +12,7 @@ not (they never run).
 from __future__ import annotations
 
 import ast
+import subprocess
 from pathlib import Path
 
 import pytest
@@ -164,3 +165,66 @@ def test_the_circle_finder_finds_a_planted_circle(graph):
     planted = {k: set(v) for k, v in graph.items()}
     planted["auvgw.ground.geometry"].add("auvgw.fusion.ekf")  # ekf imports geometry
     assert any({"auvgw.fusion.ekf", "auvgw.ground.geometry"} <= set(c) for c in _circles(planted))
+
+
+#: test folder -> the layer of the product it mirrors (tests/README.md); ``e2e`` runs everything
+TEST_FOLDERS: dict[str, int] = {
+    "ground": 0,
+    "drivers": 1,
+    "config": 1,
+    "fusion": 2,
+    "slam": 2,
+    "sim_devices": 2,
+    "control": 2,
+    "service": 3,
+    "commands": 4,
+    "e2e": 4,
+}
+TESTS = REPO_ROOT / "tests"
+
+
+def test_every_test_module_sits_in_a_folder_that_mirrors_the_product():
+    modules = sorted(TESTS.rglob("test_*.py"))
+    assert len(modules) > 100
+    misplaced = [
+        rel.as_posix()
+        for rel in (m.relative_to(TESTS) for m in modules)
+        if rel.parts != ("test_architecture.py",)
+        and (len(rel.parts) != 2 or rel.parts[0] not in TEST_FOLDERS)
+    ]
+    assert misplaced == [], f"put each in one of tests/{{{','.join(TEST_FOLDERS)}}}/"
+
+
+def test_no_test_imports_a_layer_above_its_folder():
+    """A test lives with the highest layer it imports: ``tests/slam/`` runs without the service
+    or the commands (``auvgw.testing``, the test house, is not counted)."""
+    known = _modules()
+    bad = sorted(
+        f"tests/{folder}/{m.name} imports {d} ({LAYER_NAMES[_layer(d)]})"
+        for folder, layer in TEST_FOLDERS.items()
+        for m in sorted((TESTS / folder).glob("test_*.py"))
+        for d in _imports(m, known)
+        if _layer(d) > layer
+    )
+    assert bad == [], "\n".join(bad)
+
+
+@pytest.mark.e2e  # it starts a pytest process, whose tests open a pty and start a process
+def test_an_unmarked_test_that_starts_a_pty_fails_and_a_marked_one_runs(tmp_path):
+    from auvgw.testing import PYTHON
+
+    (tmp_path / "test_planted.py").write_text(
+        "import os, subprocess, sys\nimport pytest\n\n"
+        "def test_unmarked():\n    a, b = os.openpty()\n    os.close(a)\n    os.close(b)\n\n"
+        "@pytest.mark.e2e\ndef test_marked():\n"
+        "    subprocess.run([sys.executable, '-c', ''], check=True)\n\n"
+        "def test_pure():\n    assert sum([1, 1]) == 2\n"
+    )
+    out = subprocess.run(
+        [PYTHON, "-m", "pytest", "-q", "-p", "auvgw.testing.e2e_marks", "-p", "no:cacheprovider",
+         "-o", "markers=e2e", "test_planted.py"],
+        cwd=tmp_path, capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert out.returncode == 1, out.stdout + out.stderr
+    assert "test_planted.py::test_unmarked started a pty but is not marked e2e" in out.stdout
+    assert "1 failed, 2 passed" in out.stdout, out.stdout

@@ -38,7 +38,7 @@ beacon passed at 5 m/s is not a constant tone: its amplitude modulation has side
 ``(q + 1) / T`` nearly collinear. The plan: channels spaced ``(amp_order + 1) / T`` (1.5 Hz at
 T = 2 s, q = 2: 1.0, 2.5, ..., 8.5 Hz), fitted jointly, reused between beacons more than
 ``reuse_distance_m`` apart (2 x 25 m sensor range + 20 m margin). Leakage (measured, tested in
-``tests/test_magnetic_demod.py``): a silent channel next to a beacon passed at 6 m reads within
+``tests/slam/test_magnetic_demod.py``): a silent channel next to a beacon passed at 6 m reads within
 4 of its own stated sigmas of zero (at most ~4 % of the neighbour's peak, flagged by a low
 ``snr``); at 0.5 Hz spacing with q = 2 the ghost exceeded the real beacon.
 """

@@ -10,7 +10,9 @@ and benchmarks import it without editing ``sys.path``).
 * data - :func:`pd0_frames`, :func:`local_decoded`, :func:`read_jsonl`, :func:`frame_counters`;
 * emulation helpers - :mod:`~auvgw.testing.fusion_emulated`, :mod:`~auvgw.testing.fusion_lowcost`,
   :mod:`~auvgw.testing.slam_helpers`, :mod:`~auvgw.testing.format_samples`,
-  :mod:`~auvgw.testing.bathy_helpers`.
+  :mod:`~auvgw.testing.bathy_helpers`;
+* :mod:`~auvgw.testing.e2e_marks` - the pytest plugin (loaded by tests/conftest.py) that fails a
+  test not marked ``e2e`` that starts a process, a pty or a Zenoh session.
 """
 
 if __name__ != "auvgw.testing":

@@ -3,7 +3,7 @@ CLI entry (``auvgw run --check --config F``, ``auvgw sim --check --scenario F``)
 
 The outcome of a file is ``ok`` (exit 0), ``error`` (exit 2, every stderr line names the file)
 or ``traceback`` (anything else: an exception out of ``main``, another exit code, an error line
-without the file). ``tests/test_config_fuzz.py`` runs a few hundred examples;
+without the file). ``tests/sim_devices/test_config_fuzz.py`` runs a few hundred examples;
 ``benchmarks/config_fuzz.py`` thousands, and starts the gateway on the accepted ones.
 """
 

@@ -1,7 +1,8 @@
 """Good frames of every registered format, as the codecs (or the real PD0 recording) make them,
-and the reference builders they come from: shared by the format tests (tests/test_<format>.py
-import their samples from here), tests/test_codec_laws.py (every format of the device registry
-must have samples here), tests/test_framers_never_stall.py and benchmarks/reliability.py."""
+and the reference builders they come from: shared by the format tests
+(tests/drivers/test_<format>.py import their samples from here), tests/drivers/test_codec_laws.py
+(every format of the device registry must have samples here),
+tests/service/test_framers_never_stall.py and benchmarks/reliability.py."""
 
 from __future__ import annotations
 

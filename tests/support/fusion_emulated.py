@@ -1,7 +1,7 @@
 """The fusion over the EMULATED survey, offline: the HN-100 and Pathfinder emulators' own
 encoders called tick by tick (no ptys, no clock, as fast as possible), their byte streams framed
 and decoded by the drivers, adapted and filtered by the same in-process fusion stage the bus
-runs. Used by tests/test_fusion_emulated.py and benchmarks/bench_fusion_emulated.py.
+runs. Used by tests/service/test_fusion_emulated.py and benchmarks/bench_fusion_emulated.py.
 
 Receive times model the serial lines: each tick's frame starts at the tick (or when the line is
 free) and arrives when its last byte has crossed at 115200 baud (10 bits per byte); the host

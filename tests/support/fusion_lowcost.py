@@ -2,8 +2,8 @@
 truth (``auvgw.sim_devices.vehicle.simulate``) sampled at the AHRS rate, and sensor samples
 with the scenario's low-cost figures (``auvgw.fusion.synthetic.simulate_sensors``: AHRS with
 white noise and a heading-dependent compass deviation, DVL at 1.5 Hz with white noise, spikes
-and a mounting yaw). Used by tests/test_fusion_lowcost.py, benchmarks/study_fusion_lowcost.py
-and the calibration test.
+and a mounting yaw). Used by tests/service/test_fusion_lowcost.py,
+benchmarks/study_fusion_lowcost.py and the calibration test.
 
 Filters compared: the fusion with its DEFAULT noise settings (spec prior, VB-adapted DVL noise)
 and the mounting given in the config; the same filter told the TRUE DVL noise (fixed, not

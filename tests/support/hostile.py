@@ -1,8 +1,8 @@
 """Hostile bus payloads for tests and benchmarks (issue 27): envelopes of every version with
 fields at the edges of their types, wrong types, deep nesting, huge sizes, raw bytes.
 
-:func:`hostile_payloads` is a Hypothesis strategy (``tests/test_hostile_inputs.py`` draws from it,
-``benchmarks/bench_hostile.py`` sweeps thousands of its examples)."""
+:func:`hostile_payloads` is a Hypothesis strategy (``tests/service/test_hostile_inputs.py``
+draws from it, ``benchmarks/bench_hostile.py`` sweeps thousands of its examples)."""
 
 from __future__ import annotations
 

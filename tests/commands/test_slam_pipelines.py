@@ -1,0 +1,230 @@
+"""The SLAM-pipeline registry (auvgw.slam.pipelines): every record's targets exist and agree with
+their stage, the demo's choice per shipped scenario, the Rerun stage's views; and a toy pipeline
+registered here, in the test, runs through ``auvgw slam run`` and ``auvgw slam eval`` without a
+line of the commands knowing it (docs/adding-a-pipeline.md shows the same example)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from auvgw.config.scenario import load_scenario
+from auvgw.fusion.odometry import Odometry
+from auvgw.ground.paths import config_file
+from auvgw.slam import pipelines
+from auvgw.slam.history import HeldSamples
+from auvgw.slam.outputs import PoseEstimate
+from auvgw.stages.base import BusCounters, PipelineStage, StageConfig
+
+# -- the registry ---------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("record", pipelines.PIPELINES, ids=lambda r: r.name)
+def test_every_record_names_what_exists(record: pipelines.Pipeline) -> None:
+    online, stage = pipelines.load(record.online), pipelines.load(record.stage)
+    assert isinstance(online, type) and issubclass(stage, PipelineStage | _landmark_stage())
+    run = pipelines.load(record.run)
+    assert all(callable(getattr(run, f)) for f in ("add_arguments", "live", "offline"))
+    assert callable(pipelines.load(record.evaluation))
+    assert set(stage.outputs) <= set(record.output_names)  # the viz knows every output
+    assert config_file(f"scenarios/{record.demo_scenario}.json").is_file()
+    assert (Path(__file__).parents[2] / "docs" / record.doc).is_file()
+
+
+def _landmark_stage() -> type:
+    from auvgw.stages.slam import SlamStage
+
+    return SlamStage
+
+
+@pytest.mark.parametrize("record", pipelines.PIPELINES, ids=lambda r: r.name)
+def test_the_demo_runs_each_pipeline_on_its_own_scenario(record: pipelines.Pipeline) -> None:
+    scn = load_scenario(config_file(f"scenarios/{record.demo_scenario}.json"))
+    assert pipelines.for_demo(scn) is record
+
+
+def test_lookups_and_their_errors() -> None:
+    assert pipelines.names() == ["magnetic", "bathymetric", "landmark"]
+    assert pipelines.default().name == "landmark"
+    # the landmark stage's key segment is its algorithm's name
+    assert pipelines.for_segment("vb-aufastslam") is pipelines.get("landmark")
+    assert pipelines.for_segment("bathymetric").view_of("map") == "dem"
+    assert pipelines.get("landmark").view_of("map") == "landmarks"
+    assert pipelines.get("magnetic").view_of("observations") == "ranges"
+    assert pipelines.get("magnetic").view_of("cloud") is None
+    with pytest.raises(KeyError, match="unknown SLAM pipeline 'sonar'; known: magnetic"):
+        pipelines.get("sonar")
+    with pytest.raises(ValueError, match="already registered"):
+        pipelines.register(pipelines.get("magnetic"))
+    with pytest.raises(ValueError, match="unknown view 'mesh'"):
+        pipelines.Output("map", "mesh")
+
+
+def test_held_samples_are_bounded_and_counted() -> None:
+    held: HeldSamples[str] = HeldSamples(2)
+    assert [held.hold(t, s) for t, s in ((1.0, "a"), (2.0, "b"), (3.0, "c"))] == [0, 0, 1]
+    assert (held.dropped, held.held, len(held)) == (1, 3, 2)
+    assert list(held.release(None)) == []
+    assert list(held.release(2.5)) == [(2.0, "b")]
+    assert held.clear() == 1 and len(held) == 0
+    with pytest.raises(ValueError, match="limit 0"):
+        HeldSamples(0)
+
+
+# -- a toy pipeline, registered in the test --------------------------------------------------------
+# Its whole code: a pure online class, a stage, a run module (this one) and one record.
+
+
+class ToyOnline:
+    """Dead reckoning every ``every``-th odometry sample: the pose ``(t, x, y, heading)``."""
+
+    def __init__(self, every: int) -> None:
+        self.every = every
+        self.seen = 0
+
+    def add(
+        self, t: float, x: float, y: float, heading: float
+    ) -> tuple[float, float, float, float] | None:
+        self.seen += 1
+        return (t, x, y, heading) if self.seen % self.every == 0 else None
+
+
+class ToyConfig(StageConfig):
+    every: int = 5
+
+
+@dataclass
+class ToyStats(BusCounters):
+    published: int = 0
+
+
+class ToyStage(PipelineStage):
+    name = "toy"
+    outputs = ("pose",)
+    stats_type = ToyStats
+    stats: ToyStats
+    config: ToyConfig
+
+    def setup(self) -> None:
+        self.online = ToyOnline(self.config.every)
+
+    def input_keys(self) -> list[str]:
+        return [self.keys.odometry()]
+
+    def feed_odometry(self, o: Odometry) -> None:
+        with self._lock:
+            pose = self.online.add(o.t, o.x, o.y, o.heading)
+            if pose is not None:
+                self.stats.published += 1
+                self.track.append(pose)
+                self.publish_message("pose", PoseEstimate(*pose), pose[0])
+
+
+# the run module's three functions (the record's ``run`` is this module)
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument_group("toy pipeline").add_argument("--toy-every", type=int, default=5)
+
+
+def live(args: argparse.Namespace) -> int:
+    from auvgw.commands.slam_common import serve_slam
+
+    cfg = ToyConfig(vehicle=args.vehicle, every=args.toy_every)
+    return serve_slam(args, lambda session: ToyStage(cfg, session), "toy")
+
+
+def offline(args: argparse.Namespace) -> int:
+    from auvgw.commands.slam_common import Paths, check_recording, replay_recording
+    from auvgw.subscribe import slam_output
+
+    check_recording(args)
+    poses: list[dict[str, Any]] = []
+    stage = ToyStage(ToyConfig(every=args.toy_every),
+                     on_publish=lambda key, payload, _t: poses.append(slam_output(payload, key)))
+    paths = Paths()
+    replay_recording(args, stage, paths)
+    print(json.dumps({"odometry": len(paths.dr), "track": stage.track, "poses": poses}))
+    return 0
+
+
+def evaluate(args: argparse.Namespace) -> int:
+    print(f"toy evaluation of {args.algorithms} on {args.scenario.name}")
+    return 0
+
+
+def accepts(scn: Any) -> bool:
+    return scn.name == "toy-world"
+
+
+TOY = pipelines.Pipeline(
+    "toy",
+    "dead reckoning, every n-th odometry sample (a test)",
+    online=f"{__name__}:ToyOnline",
+    stage=f"{__name__}:ToyStage",
+    run=__name__,
+    evaluation=f"{__name__}:evaluate",
+    eval_algorithms="dr",
+    outputs=(pipelines.Output("pose", "pose"),),
+    demo_scenario="harbour",
+    demo_accepts=f"{__name__}:accepts",
+)
+
+
+@pytest.fixture
+def toy() -> Iterator[pipelines.Pipeline]:
+    assert sys.modules[__name__]  # the record's targets are this module's names
+    pipelines.register(TOY)
+    try:
+        yield TOY
+    finally:
+        pipelines.unregister("toy")
+    assert "toy" not in pipelines.names()
+
+
+REC_S = 8.0
+
+
+def test_a_toy_pipeline_runs_through_slam_run_and_slam_eval(tmp_path: Path, toy, capsys) -> None:
+    from auvgw.cli import main as cli_main
+    from auvgw.testing.fusion_emulated import (
+        dvl_stream,
+        emulate,
+        fusion_settings,
+        harbour_ins_dvl,
+        ins_dvl_frames,
+        ins_output,
+        write_recording,
+    )
+
+    # an INS + DVL recording of the harbour, as `auvgw record` writes it
+    scn = harbour_ins_dvl(REC_S + 1.0)
+    em = emulate(scn, tmp_path)
+    ins, dvl = ins_output(em, 0.0, REC_S), dvl_stream(em, 0.0, REC_S)
+    rec = write_recording(tmp_path / "run.mcap", "s1", {"ins": "hn100", "dvl": "pd0"},
+                          ins_dvl_frames(ins, dvl), em.truth)  # fmt: skip
+    settings, _ = fusion_settings(tmp_path / "fusion.json", "s1", em, ins, dvl)
+
+    argv = ["slam", "run", "--pipeline", "toy", "--recording", str(rec),
+            "--fusion-settings", str(settings), "--toy-every", "7"]  # fmt: skip
+    assert cli_main(argv) == 0
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    n = out["odometry"]
+    assert n > 100 and len(out["track"]) == n // 7
+    assert out["track"][0][0] < out["track"][-1][0]
+    # what it published on the bus: declared messages, one per pose of its track
+    assert [[p["t"], p["x"], p["y"], p["heading"]] for p in out["poses"]] == out["track"]
+    assert {p["type"] for p in out["poses"]} == {"SlamPose"}
+
+    assert cli_main(["slam", "eval", "--pipeline", "toy", "--scenario", "world.json"]) == 0
+    assert capsys.readouterr().out == "toy evaluation of dr on world.json\n"
+
+    # the demo would run it on a scenario it accepts, the Rerun stage shows its pose as a pose
+    assert pipelines.for_demo(scn.model_copy(update={"name": "toy-world"})) is toy
+    assert pipelines.for_demo(scn) is pipelines.get("landmark")
+    assert pipelines.for_segment("toy") is toy and toy.view_of("pose") == "pose"
