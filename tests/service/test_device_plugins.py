@@ -28,7 +28,7 @@ from auvgw.fusion import adapters
 from auvgw.fusion.samples import DvlSample
 from auvgw.testing.format_samples import PD6_LINES
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 TOY_TABLE = """\
 [line]
@@ -147,6 +147,7 @@ def auvgw(site: Path):
     return run
 
 
+@pytest.mark.e2e  # runs auvgw processes
 def test_a_site_device_decodes_and_is_a_gateway_format(site, auvgw, tmp_path):
     _toy(site)
     capture = tmp_path / "toy.bin"
@@ -172,6 +173,7 @@ def test_a_site_device_decodes_and_is_a_gateway_format(site, auvgw, tmp_path):
     assert r.stdout.startswith(f"{cfg}: ok (2 device(s)")
 
 
+@pytest.mark.e2e  # runs auvgw processes
 def test_bad_plugins_are_one_line_each_and_the_builtins_keep_working(site, auvgw, tmp_path):
     _toy(site)
     _broken(site)
