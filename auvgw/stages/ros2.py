@@ -36,7 +36,7 @@ from typing import Any, ClassVar, cast
 
 import zenoh
 
-from auvgw import ros2
+from auvgw import ros2, ros2_cdr
 from auvgw.config.ros2 import Mount, Ros2Config
 from auvgw.decoding import message_kind
 from auvgw.envelope import encode_envelope
@@ -153,9 +153,13 @@ class RosStage(Stage):
         with self._lock:
             self.stats.received += 1
         if self.wanted(key):
-            msgs = ros2.to_ros("sensor", device, message, t_recv_ns, kind=kind)
-            self.emit(key, msgs, t_recv_ns)
+            self.emit_sensor(key, device, message, t_recv_ns, kind)
         return None
+
+    def emit_sensor(self, key: str, device: str, message: Any, t_ns: int, kind: str) -> None:
+        """:meth:`emit` the ROS 2 messages of a decoded sensor message (device ``device``,
+        stamp ``t_ns``, bus key ``key``: its ``kind``)."""
+        self.emit(key, ros2.to_ros("sensor", device, message, t_ns, kind=kind), t_ns)
 
     def emit(self, key: str, msgs: list[ros2.RosMessage], t_ns: int) -> None:
         """:meth:`put` each of ``msgs``, made from a sample on bus key ``key``."""
@@ -167,15 +171,15 @@ class RosStage(Stage):
         the subclass's)."""
         raise NotImplementedError
 
-    def topic(self, m: ros2.RosMessage) -> str:
-        """The fully qualified topic of ``m`` (:func:`auvgw.ros2.ros_topic` under the namespace;
-        remembered, up to 4096 names)."""
-        full = self._topics.get(m.topic)
+    def topic(self, rel_topic: str) -> str:
+        """The fully qualified topic of a :class:`~auvgw.ros2.RosMessage` topic
+        (:func:`auvgw.ros2.ros_topic` under the namespace; remembered, up to 4096 names)."""
+        full = self._topics.get(rel_topic)
         if full is None:
             if len(self._topics) >= 4096:
                 self._topics.clear()
-            full = self._topics[m.topic] = ros2.ros_topic(self.config.namespace,
-                                                          self.keys.vehicle, m.topic)  # fmt: skip
+            full = ros2.ros_topic(self.config.namespace, self.keys.vehicle, rel_topic)
+            self._topics[rel_topic] = full
         return full
 
     # -- bus side ---------------------------------------------------------------------------
@@ -215,11 +219,11 @@ class RosStage(Stage):
         if time.monotonic() - self._static_at >= self.config.static_period_s:
             self.publish_static(time.time_ns())
 
-    def count(self, m: ros2.RosMessage, topic: str) -> None:
-        """Count one message put on ``topic``."""
+    def count(self, m: ros2.RosMessage | None, topic: str) -> None:
+        """Count one message put on ``topic`` (``m``: the message, None for CDR alone)."""
         with self._lock:
             self.stats.published += 1
-            if m.type == ros2.TF_TYPE and topic == "/tf":
+            if m is not None and m.type == ros2.TF_TYPE and topic == "/tf":
                 self.stats.tf += len(m.msg.transforms)
 
 
@@ -254,14 +258,37 @@ class Ros2Bridge(RosStage):
     def put(self, m: ros2.RosMessage, t_ns: int) -> _Endpoint | None:
         """Publish ROS 2 message ``m`` (stamp ``t_ns``) on its topic, declaring the publisher and
         its liveliness token the first time; its endpoint (None in-process)."""
-        topic = self.topic(m)
-        cdr = ros2.serialize(m)
-        key = self._keys.get((topic, m.type))
+        return self.put_cdr(m.topic, m.type, ros2.serialize(m), t_ns, m)
+
+    #: the sensors' CDR from :mod:`auvgw.ros2_cdr`'s compiled writers (:meth:`emit_sensor`);
+    #: False: rosbags objects and ``serialize_cdr`` for every message (the same bytes, slower:
+    #: ``benchmarks/bench_ros2_bridge.py`` measures one against the other)
+    compiled = True
+
+    def emit_sensor(self, key: str, device: str, message: Any, t_ns: int, kind: str) -> None:
+        """A decoded sensor message's ROS 2 messages written by :func:`auvgw.ros2_cdr.
+        sensor_cdr` (no rosbags objects), or, for one with no standard form, by
+        :func:`auvgw.ros2.to_ros` (:meth:`RosStage.emit_sensor`)."""
+        out = ros2_cdr.sensor_cdr(device, message, t_ns) if self.compiled else None
+        if out is None:
+            super().emit_sensor(key, device, message, t_ns, kind)
+            return
+        self._remember(key, [self.put_cdr(topic, ros_type, cdr, t_ns)
+                             for topic, ros_type, cdr in out])  # fmt: skip
+
+    def put_cdr(self, rel_topic: str, ros_type: str, cdr: bytes, t_ns: int,
+                m: ros2.RosMessage | None = None) -> _Endpoint | None:  # fmt: skip
+        """Publish the CDR bytes of a ``ros_type`` message on topic ``rel_topic`` (a
+        :class:`~auvgw.ros2.RosMessage` topic), stamped ``t_ns``, declaring the publisher and
+        its liveliness token the first time; its endpoint (None in-process). ``m``: the message
+        itself, when there is one (``/tf`` counts its transforms)."""
+        topic = self.topic(rel_topic)
+        key = self._keys.get((topic, ros_type))
         if key is None:
-            key = self._keys[(topic, m.type)] = data_key(self.config.domain_id, topic, m.type)
+            key = self._keys[(topic, ros_type)] = data_key(self.config.domain_id, topic, ros_type)
         ep = self._endpoints.get(key)
         if ep is None and self.session is not None:
-            ep = self._declare(topic, m.type, key)
+            ep = self._declare(topic, ros_type, key)
         if ep is not None:
             ep.seq += 1
             att = pack_attachment(ep.seq, t_ns, ep.gid)
@@ -319,10 +346,13 @@ class Ros2Bridge(RosStage):
         return False
 
     def emit(self, key: str, msgs: list[ros2.RosMessage], t_ns: int) -> None:
-        made = set(self._made.get(key, ()))
-        made.update(ep for m in msgs if (ep := self.put(m, t_ns)) is not None)
-        if made:
-            self._made[key] = tuple(made)
+        self._remember(key, [self.put(m, t_ns) for m in msgs])
+
+    def _remember(self, key: str, eps: list[_Endpoint | None]) -> None:
+        """Note the publishers a sample on bus ``key`` went to (:meth:`wanted`)."""
+        made = self._made.get(key, ())
+        if any(ep is not None and ep not in made for ep in eps):
+            self._made[key] = tuple({*made, *(ep for ep in eps if ep is not None)})
 
     def _declare(self, topic: str, ros_type: str, key: str) -> _Endpoint:
         assert self.session is not None
