@@ -541,9 +541,10 @@ def scanline_points(
     """(xyz FLU, m; bin amplitudes) of an MSIS scan line (:func:`scanline_msg`)."""
     bins = np.asarray(msg.bins, float)
     r = (np.arange(len(bins)) + 0.5) * msg.bin_length(sound_speed)
-    xyz = np.column_stack(
-        [r * math.cos(msg.bearing), -r * math.sin(msg.bearing), np.zeros(len(bins))]
-    )
+    xyz = np.empty((len(bins), 3))  # filled in place: the bridge does this 200 times a second
+    np.multiply(r, math.cos(msg.bearing), out=xyz[:, 0])
+    np.multiply(-r, math.sin(msg.bearing), out=xyz[:, 1])
+    xyz[:, 2] = 0.0
     return xyz, bins
 
 

@@ -451,9 +451,18 @@ def all_devices_phase(
     )  # fmt: skip
     ports = list(cfg["devices"])
     bridge = None
+    bridge_ep = free_endpoint()
+    watcher: zenoh.Session | None = None
     if ros2 == "own process":  # the bridge beside the gateway: sensors as envelopes from the bus
+        # a peer of the gateway that listens too: the ROS 2 node below connects to it (Zenoh
+        # peers do not route between other peers: docs/bus.md)
         bridge = subprocess.Popen([str(BIN / "auvgw"), "ros2", "bridge", "--vehicle", "benchall",
-                                   "--connect", ep], stderr=gw_log, cwd=REPO_ROOT)  # fmt: skip
+                                   "--connect", ep, "--listen", bridge_ep], stdout=subprocess.PIPE,
+                                  stderr=gw_log, text=True, cwd=REPO_ROOT)  # fmt: skip
+        assert bridge.stdout is not None
+        if not bridge.stdout.readline().startswith("ros2 bridge running"):
+            raise SystemExit(f"auvgw ros2 bridge did not start; see {out / 'gateway.log'}")
+        watcher = open_session(BusConfig(connect=[bridge_ep]))
     try:
         with GatewaySubscriber("benchall", BusConfig(connect=[ep])) as me:
             sizes: dict[str, list[int]] = {}
@@ -468,8 +477,9 @@ def all_devices_phase(
             size_subs = [me.session.declare_subscriber(f"auv/benchall/{sec}/**", on_sample)
                          for sec in ("raw", "sensor")]  # fmt: skip
             ros2_seen = [0]
-            if ros2 in ("watched", "own process"):  # a ROS 2 node echoing every topic
-                size_subs.append(me.session.declare_subscriber(
+            if ros2 in ("watched", "own process"):  # a ROS 2 node echoing every topic, connected
+                # to the gateway (its [ros2] bridge) or to the bridge's own process
+                size_subs.append((watcher or me.session).declare_subscriber(
                     "0/**", lambda _s: ros2_seen.__setitem__(0, ros2_seen[0] + 1)))
             deadline = time.monotonic() + 60
             while not all((me.status(p) or {}).get("connected") for p in ports):
@@ -509,6 +519,8 @@ def all_devices_phase(
             sim_rc = -1
         reader.join(10)
     finally:
+        if watcher is not None:
+            watcher.close()
         for p in (sim, gw, *([bridge] if bridge is not None else [])):
             stop_process(p, signal.SIGTERM, 15.0)
         sim_log.close()

@@ -133,9 +133,11 @@ class RosStage(Stage):
         at 20 ms, not 1000: a wake costs more than a message's conversion, and the puts of a
         batch go out together, :meth:`_work_item`). A message nobody would see (:meth:`wanted`) is
         counted and left there."""
-        if not self.wanted(self.keys.sensor(device, message_kind(message))):
+        kind = message_kind(message)
+        key = self.keys.sensor(device, kind)
+        if not self.wanted(key):
             return
-        self._batch.append((device, t_recv_ns, message))
+        self._batch.append((key, device, message, t_recv_ns, kind))
         if not self._batch_queued:
             self._batch_queued = True
             self._post(self._take_batch, ())
@@ -143,8 +145,14 @@ class RosStage(Stage):
     def _take_batch(self) -> None:
         time.sleep(self.batch_s)
         self._batch_queued = False  # before taking: a post from now on queues the next batch
-        while self._batch:
-            self.feed(*self._batch.popleft())
+        n = 0
+        try:
+            while self._batch:  # each checked by post() (wanted): converted, counted once
+                self.emit_sensor(*self._batch.popleft())
+                n += 1
+        finally:
+            with self._lock:
+                self.stats.received += n
 
     def feed(self, device: str, t_recv_ns: int, message: Any) -> object:
         """One decoded sensor message in-process (the gateway's listener, via :meth:`post`)."""
