@@ -39,7 +39,7 @@ import zenoh
 from auvgw import ros2, ros2_cdr
 from auvgw.config.ros2 import Mount, Ros2Config
 from auvgw.decoding import message_kind
-from auvgw.envelope import encode_envelope
+from auvgw.envelope import decode_envelope, encode_envelope
 from auvgw.rmw_zenoh import (
     DEFAULT_QOS,
     SENSOR_QOS,
@@ -53,6 +53,7 @@ from auvgw.rmw_zenoh import (
 )
 from auvgw.stages import log_bad_payload
 from auvgw.stages.base import DROP, BusCounters, Stage, StageConfig
+from auvgw.subscribe import envelope_message
 
 __all__ = ["Mount", "Ros2Bridge", "Ros2BridgeConfig", "RosStage"]
 
@@ -258,6 +259,7 @@ class Ros2Bridge(RosStage):
         #: puts held back on the worker (:meth:`_work_item`): (endpoint, CDR, attachment)
         self._held: list[tuple[_Endpoint, bytes, bytes]] = []
         self._holder: int | None = None  # the thread whose puts are held (the worker, in a call)
+        self._sensor_base = self.keys.base + "/sensor/"
 
     def status_fields(self) -> dict[str, Any]:
         return {"domain_id": self.config.domain_id, "namespace": self.config.namespace,
@@ -281,8 +283,37 @@ class Ros2Bridge(RosStage):
         if out is None:
             super().emit_sensor(key, device, message, t_ns, kind)
             return
+        self._put_all(key, out, t_ns)
+
+    def _put_all(self, key: str, out: list[tuple[str, str, bytes]], t_ns: int) -> None:
+        """:meth:`put_cdr` each (topic, ROS type, CDR) of a sample on bus key ``key``."""
         self._remember(key, [self.put_cdr(topic, ros_type, cdr, t_ns)
                              for topic, ros_type, cdr in out])  # fmt: skip
+
+    def handle_sample(self, key: str, payload: bytes, t_arrival_ns: int | None = None) -> object:
+        """A decoded sensor sample of a standard ROS 2 form straight from its envelope to the
+        compiled writers (``auvgw ros2 bridge`` takes the gateway's sensors this way: no
+        rosbags objects); every other sample, and one whose envelope or conversion fails, as
+        :meth:`RosStage.handle_sample` takes it (which counts what is wrong)."""
+        if not (self.compiled and key.startswith(self._sensor_base)):
+            return super().handle_sample(key, payload, t_arrival_ns)
+        try:
+            env = decode_envelope(payload)
+            msg = envelope_message(env)
+            device = key[len(self._sensor_base):].partition("/")[0]
+            out = None if msg is None else ros2_cdr.sensor_cdr(device, msg, env.t_recv_ns)
+        except Exception:  # RosStage.handle_sample takes it again and counts what is wrong
+            out = None
+        if out is None:
+            return super().handle_sample(key, payload, t_arrival_ns)
+        if not self._stamps.accept(env.t_recv_ns):
+            self._bad_payload(key, ValueError(
+                f"stamp {env.t_recv_ns} ns implausible against the stage's clock"))
+            return None
+        self._put_all(key, out, env.t_recv_ns)
+        with self._lock:
+            self.stats.received += 1
+        return None
 
     def put_cdr(self, rel_topic: str, ros_type: str, cdr: bytes, t_ns: int,
                 m: ros2.RosMessage | None = None) -> _Endpoint | None:  # fmt: skip
