@@ -116,7 +116,8 @@ class RosStage(Stage):
         self.sections = sections
         #: s a batch of posted messages waits for more (:meth:`post`)
         self.batch_s = config.batch_ms / 1000
-        self._batch: deque[tuple[str, int, Any]] = deque()
+        #: (bus key, device, message, receive ns, kind) posted, waiting for the worker
+        self._batch: deque[tuple[str, str, Any, int, str]] = deque()
         self._batch_queued = False
         self.stats: Ros2Counters = self.stats  # type: ignore[assignment]
         self._static_lock = threading.Lock()
