@@ -332,7 +332,7 @@ class Ros2Bridge(RosStage):
         if ep is not None:
             ep.seq += 1
             att = pack_attachment(ep.seq, t_ns, ep.gid)
-            if self.hold_puts and self._holder == threading.get_ident():
+            if self._holder == threading.get_ident():
                 self._held.append((ep, cdr, att))
             else:
                 self._send(ep, cdr, att)
@@ -355,9 +355,6 @@ class Ros2Bridge(RosStage):
 
     #: puts held back at most (:meth:`_work_item`)
     MAX_HELD = 64
-    #: hold the worker's puts (:meth:`_work_item`); False: each put as it is made (the bridge before
-    #: this, which ``benchmarks/bench_ros2_bridge.py`` measures against)
-    hold_puts = True
 
     def _work_item(self, item: tuple[Any, tuple[Any, ...]]) -> None:
         """Run a queued call (a batch of sensor messages, a bus sample) with the puts it makes
