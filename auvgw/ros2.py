@@ -383,13 +383,19 @@ def _point(v: Vec3) -> Point:
     return _t("geometry_msgs/msg/Point")(x=x, y=y, z=z)
 
 
+def cloud_points(xyz: np.ndarray, intensity: np.ndarray | None) -> np.ndarray:
+    """The (n, 4) little-endian float32 x, y, z, intensity rows of a :func:`_cloud`."""
+    cols = np.empty((len(xyz), 4), dtype="<f4")
+    cols[:, :3] = xyz
+    cols[:, 3] = 0.0 if intensity is None else intensity
+    return cols
+
+
 def _cloud(t_ns: int, frame: str, xyz: np.ndarray, intensity: np.ndarray | None) -> PointCloud2:
     """PointCloud2 of float32 x, y, z, intensity (NaN points kept: ``is_dense`` False)."""
     PF = _t("sensor_msgs/msg/PointField")
     n = len(xyz)
-    cols = np.empty((n, 4), dtype="<f4")
-    cols[:, :3] = xyz
-    cols[:, 3] = 0.0 if intensity is None else intensity
+    cols = cloud_points(xyz, intensity)
     fields = [PF(name=c, offset=4 * i, datatype=PF.FLOAT32, count=1) for i, c in enumerate("xyz")]
     fields.append(PF(name="intensity", offset=12, datatype=PF.FLOAT32, count=1))
     return _t("sensor_msgs/msg/PointCloud2")(
@@ -456,32 +462,52 @@ def magnetic_field_msg(msg: FieldSample, device: str, t_ns: int) -> MagneticFiel
     )  # fmt: skip
 
 
-def dvl_msgs(msg: Any, device: str, t_ns: int) -> list[RosMessage]:
-    """A PD0 ensemble as a twist (the DVL's frame, see the module docstring) and an altitude."""
+class DvlReading(NamedTuple):
+    """What :func:`dvl_msgs` publishes of a PD0 ensemble."""
+
+    frame: str  #: ``base_link`` (ship / earth coordinates) or the device (beam / instrument)
+    velocity: tuple[float, float, float]  #: m/s in ``frame`` (FLU for ``base_link``)
+    bottom_lock: bool
+    altitude: float  #: m
+    field_of_view: float  #: rad (twice the beam angle; 0 unknown)
+
+
+def dvl_reading(msg: Any, device: str) -> DvlReading | None:
+    """The twist and altitude of a PD0 ensemble (see the module docstring), None for an
+    ensemble the fusion's adapter refuses."""
     from auvgw.fusion.adapters import AdapterError, dvl_from_pd0
 
     try:
         s = dvl_from_pd0(msg, t=0.0)
     except AdapterError:
-        return []
+        return None
     if s.frame == "body":
         frame, v = FRAME_BASE, flu_from_frd(s.velocity)
     else:
         frame, v = device, (float(s.velocity[0]), float(s.velocity[1]), float(s.velocity[2]))
-    twist = _t("geometry_msgs/msg/Twist")(linear=_vec3(v), angular=_vec3((0.0, 0.0, 0.0)))
+    beam = msg.fixed_leader.beam_angle if msg.fixed_leader is not None else None
+    fov = float(2 * math.radians(beam)) if beam else 0.0
+    return DvlReading(frame, v, bool(s.bottom_lock), float(s.altitude), fov)
+
+
+def dvl_msgs(msg: Any, device: str, t_ns: int) -> list[RosMessage]:
+    """A PD0 ensemble as a twist (the DVL's frame, see the module docstring) and an altitude."""
+    d = dvl_reading(msg, device)
+    if d is None:
+        return []
+    twist = _t("geometry_msgs/msg/Twist")(linear=_vec3(d.velocity),
+                                          angular=_vec3((0.0, 0.0, 0.0)))  # fmt: skip
     cov = np.zeros(36)
-    if not s.bottom_lock:
+    if not d.bottom_lock:
         cov[0] = -1.0  # ROS convention: this field is not valid
     tw = _t("geometry_msgs/msg/TwistWithCovarianceStamped")(
-        header=_header(t_ns, frame),
+        header=_header(t_ns, d.frame),
         twist=_t("geometry_msgs/msg/TwistWithCovariance")(twist=twist, covariance=cov),
     )
     R = _t("sensor_msgs/msg/Range")
-    beam = msg.fixed_leader.beam_angle if msg.fixed_leader is not None else None
     rng = R(
-        header=_header(t_ns, device), radiation_type=R.ULTRASOUND,
-        field_of_view=float(2 * math.radians(beam)) if beam else 0.0,
-        min_range=0.0, max_range=float("inf"), range=float(s.altitude),
+        header=_header(t_ns, device), radiation_type=R.ULTRASOUND, field_of_view=d.field_of_view,
+        min_range=0.0, max_range=float("inf"), range=d.altitude,
     )  # fmt: skip
     return [
         RosMessage(f"sensor/{device}/twist", "geometry_msgs/msg/TwistWithCovarianceStamped", tw),
@@ -489,11 +515,8 @@ def dvl_msgs(msg: Any, device: str, t_ns: int) -> list[RosMessage]:
     ]
 
 
-def swath_msg(msg: Any, device: str, t_ns: int) -> PointCloud2:
-    """Multibeam beams (along x forward, across y starboard, depth z down, m from the transmit
-    transducer) as a PointCloud2 in frame ``device`` (FLU), intensity = reflectivity (dB); a
-    beam without a detection (XYZ 88 detection info bit 7; Depth: depth 0, which the sonar
-    writes for one) is a NaN point, never a sounding at the transducer."""
+def swath_points(msg: Any) -> tuple[np.ndarray, np.ndarray | None]:
+    """(xyz FLU, m; reflectivity dB or None) of a multibeam ping (:func:`swath_msg`)."""
     b = msg.beams
     xyz = np.column_stack(
         [np.asarray(b.along, float), -np.asarray(b.across, float), -np.asarray(b.depth, float)]
@@ -501,7 +524,28 @@ def swath_msg(msg: Any, device: str, t_ns: int) -> PointCloud2:
     valid = b.valid if hasattr(b, "valid") else np.asarray(b.depth) != 0
     xyz[~np.asarray(valid, dtype=bool)] = np.nan
     refl = getattr(b, "reflectivity", None)
-    return _cloud(t_ns, device, xyz, None if refl is None else np.asarray(refl, float))
+    return xyz, None if refl is None else np.asarray(refl, float)
+
+
+def swath_msg(msg: Any, device: str, t_ns: int) -> PointCloud2:
+    """Multibeam beams (along x forward, across y starboard, depth z down, m from the transmit
+    transducer) as a PointCloud2 in frame ``device`` (FLU), intensity = reflectivity (dB); a
+    beam without a detection (XYZ 88 detection info bit 7; Depth: depth 0, which the sonar
+    writes for one) is a NaN point, never a sounding at the transducer."""
+    return _cloud(t_ns, device, *swath_points(msg))
+
+
+def scanline_points(
+    msg: Any, sound_speed: float = DEFAULT_SOUND_SPEED
+) -> tuple[np.ndarray, np.ndarray]:
+    """(xyz FLU, m; bin amplitudes) of an MSIS scan line (:func:`scanline_msg`)."""
+    bins = np.asarray(msg.bins, float)
+    r = (np.arange(len(bins)) + 0.5) * msg.bin_length(sound_speed)
+    xyz = np.empty((len(bins), 3))  # filled in place: the bridge does this 200 times a second
+    np.multiply(r, math.cos(msg.bearing), out=xyz[:, 0])
+    np.multiply(-r, math.sin(msg.bearing), out=xyz[:, 1])
+    xyz[:, 2] = 0.0
+    return xyz, bins
 
 
 def scanline_msg(
@@ -510,12 +554,7 @@ def scanline_msg(
     """One MSIS scan line: a point per bin at the bin's centre range along the transducer
     bearing (rad, clockwise from forward seen from above, i.e. towards starboard), FLU frame
     ``device``, intensity = the bin's amplitude."""
-    bins = np.asarray(msg.bins, float)
-    r = (np.arange(len(bins)) + 0.5) * msg.bin_length(sound_speed)
-    xyz = np.column_stack(
-        [r * math.cos(msg.bearing), -r * math.sin(msg.bearing), np.zeros(len(bins))]
-    )
-    return _cloud(t_ns, device, xyz, bins)
+    return _cloud(t_ns, device, *scanline_points(msg, sound_speed))
 
 
 #: Odometry state (x, y, z, heading, pitch, u, v, w) -> ROS pose (x, y, z, roll, pitch, yaw) ENU
@@ -764,6 +803,22 @@ def _type_name(msg: Any) -> str:
     return getattr(msg, "TYPE", type(msg).__name__)
 
 
+def sensor_form(msg: Any) -> str | None:
+    """The standard ROS 2 form of a decoded sensor message: ``imu`` (sensor_msgs/Imu),
+    ``magnetic_field``, ``dvl`` (a twist and a Range), ``points`` (a multibeam PointCloud2),
+    ``returns`` (an MSIS scan line's PointCloud2), or None (``auvgw_msgs/Decoded``)."""
+    name = _type_name(msg)
+    if name in _INS:
+        return "imu"
+    if name in _MAG:
+        return "magnetic_field"
+    if name == "pd0.Ensemble":
+        return "dvl"
+    if name in _SWATH:
+        return "points"
+    return "returns" if name == "mtHeadData" else None
+
+
 def _jsonable(msg: Any) -> Any:
     from auvgw.drivers.spec import to_jsonable
 
@@ -785,18 +840,19 @@ def to_ros(
     """
     if section == "sensor":
         name = _type_name(msg)
-        if name in _INS:
+        form = sensor_form(msg)
+        if form == "imu":
             return [
                 RosMessage(
                     f"sensor/{source}/imu", "sensor_msgs/msg/Imu", imu_msg(msg, source, t_ns)
                 )
             ]
-        if name in _MAG:
+        if form == "magnetic_field":
             return [RosMessage(f"sensor/{source}/magnetic_field", "sensor_msgs/msg/MagneticField",
                                magnetic_field_msg(msg, source, t_ns))]  # fmt: skip
-        if name == "pd0.Ensemble":
+        if form == "dvl":
             return dvl_msgs(msg, source, t_ns)
-        if name in _SWATH:
+        if form == "points":
             return [
                 RosMessage(
                     f"sensor/{source}/points",
@@ -804,7 +860,7 @@ def to_ros(
                     swath_msg(msg, source, t_ns),
                 )
             ]
-        if name == "mtHeadData":
+        if form == "returns":
             return [RosMessage(f"sensor/{source}/returns", "sensor_msgs/msg/PointCloud2",
                                scanline_msg(msg, source, t_ns))]  # fmt: skip
         return [

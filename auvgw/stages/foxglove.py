@@ -48,7 +48,7 @@ class FoxgloveStage(RosStage):
     def put(self, m: ros2.RosMessage, t_ns: int) -> None:
         """Log ``m`` on its topic's channel (declared, with its ``ros2msg`` schema, the first
         time)."""
-        topic = self.topic(m)
+        topic = self.topic(m.topic)
         ch = self._channels.get(topic)
         if ch is None:
             schema = self._fg.Schema(name=m.type, encoding="ros2msg",

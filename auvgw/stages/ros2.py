@@ -36,10 +36,10 @@ from typing import Any, ClassVar, cast
 
 import zenoh
 
-from auvgw import ros2
+from auvgw import ros2, ros2_cdr
 from auvgw.config.ros2 import Mount, Ros2Config
 from auvgw.decoding import message_kind
-from auvgw.envelope import encode_envelope
+from auvgw.envelope import decode_envelope, encode_envelope
 from auvgw.rmw_zenoh import (
     DEFAULT_QOS,
     SENSOR_QOS,
@@ -53,6 +53,7 @@ from auvgw.rmw_zenoh import (
 )
 from auvgw.stages import log_bad_payload
 from auvgw.stages.base import DROP, BusCounters, Stage, StageConfig
+from auvgw.subscribe import envelope_message
 
 __all__ = ["Mount", "Ros2Bridge", "Ros2BridgeConfig", "RosStage"]
 
@@ -115,7 +116,8 @@ class RosStage(Stage):
         self.sections = sections
         #: s a batch of posted messages waits for more (:meth:`post`)
         self.batch_s = config.batch_ms / 1000
-        self._batch: deque[tuple[str, int, Any]] = deque()
+        #: (bus key, device, message, receive ns, kind) posted, waiting for the worker
+        self._batch: deque[tuple[str, str, Any, int, str]] = deque()
         self._batch_queued = False
         self.stats: Ros2Counters = self.stats  # type: ignore[assignment]
         self._static_lock = threading.Lock()
@@ -133,9 +135,11 @@ class RosStage(Stage):
         at 20 ms, not 1000: a wake costs more than a message's conversion, and the puts of a
         batch go out together, :meth:`_work_item`). A message nobody would see (:meth:`wanted`) is
         counted and left there."""
-        if not self.wanted(self.keys.sensor(device, message_kind(message))):
+        kind = message_kind(message)
+        key = self.keys.sensor(device, kind)
+        if not self.wanted(key):
             return
-        self._batch.append((device, t_recv_ns, message))
+        self._batch.append((key, device, message, t_recv_ns, kind))
         if not self._batch_queued:
             self._batch_queued = True
             self._post(self._take_batch, ())
@@ -143,8 +147,14 @@ class RosStage(Stage):
     def _take_batch(self) -> None:
         time.sleep(self.batch_s)
         self._batch_queued = False  # before taking: a post from now on queues the next batch
-        while self._batch:
-            self.feed(*self._batch.popleft())
+        n = 0
+        try:
+            while self._batch:  # each checked by post() (wanted): converted, counted once
+                self.emit_sensor(*self._batch.popleft())
+                n += 1
+        finally:
+            with self._lock:
+                self.stats.received += n
 
     def feed(self, device: str, t_recv_ns: int, message: Any) -> object:
         """One decoded sensor message in-process (the gateway's listener, via :meth:`post`)."""
@@ -153,9 +163,13 @@ class RosStage(Stage):
         with self._lock:
             self.stats.received += 1
         if self.wanted(key):
-            msgs = ros2.to_ros("sensor", device, message, t_recv_ns, kind=kind)
-            self.emit(key, msgs, t_recv_ns)
+            self.emit_sensor(key, device, message, t_recv_ns, kind)
         return None
+
+    def emit_sensor(self, key: str, device: str, message: Any, t_ns: int, kind: str) -> None:
+        """:meth:`emit` the ROS 2 messages of a decoded sensor message (device ``device``,
+        stamp ``t_ns``, bus key ``key``: its ``kind``)."""
+        self.emit(key, ros2.to_ros("sensor", device, message, t_ns, kind=kind), t_ns)
 
     def emit(self, key: str, msgs: list[ros2.RosMessage], t_ns: int) -> None:
         """:meth:`put` each of ``msgs``, made from a sample on bus key ``key``."""
@@ -167,15 +181,15 @@ class RosStage(Stage):
         the subclass's)."""
         raise NotImplementedError
 
-    def topic(self, m: ros2.RosMessage) -> str:
-        """The fully qualified topic of ``m`` (:func:`auvgw.ros2.ros_topic` under the namespace;
-        remembered, up to 4096 names)."""
-        full = self._topics.get(m.topic)
+    def topic(self, rel_topic: str) -> str:
+        """The fully qualified topic of a :class:`~auvgw.ros2.RosMessage` topic
+        (:func:`auvgw.ros2.ros_topic` under the namespace; remembered, up to 4096 names)."""
+        full = self._topics.get(rel_topic)
         if full is None:
             if len(self._topics) >= 4096:
                 self._topics.clear()
-            full = self._topics[m.topic] = ros2.ros_topic(self.config.namespace,
-                                                          self.keys.vehicle, m.topic)  # fmt: skip
+            full = ros2.ros_topic(self.config.namespace, self.keys.vehicle, rel_topic)
+            self._topics[rel_topic] = full
         return full
 
     # -- bus side ---------------------------------------------------------------------------
@@ -215,11 +229,11 @@ class RosStage(Stage):
         if time.monotonic() - self._static_at >= self.config.static_period_s:
             self.publish_static(time.time_ns())
 
-    def count(self, m: ros2.RosMessage, topic: str) -> None:
-        """Count one message put on ``topic``."""
+    def count(self, m: ros2.RosMessage | None, topic: str) -> None:
+        """Count one message put on ``topic`` (``m``: the message, None for CDR alone)."""
         with self._lock:
             self.stats.published += 1
-            if m.type == ros2.TF_TYPE and topic == "/tf":
+            if m is not None and m.type == ros2.TF_TYPE and topic == "/tf":
                 self.stats.tf += len(m.msg.transforms)
 
 
@@ -246,6 +260,7 @@ class Ros2Bridge(RosStage):
         #: puts held back on the worker (:meth:`_work_item`): (endpoint, CDR, attachment)
         self._held: list[tuple[_Endpoint, bytes, bytes]] = []
         self._holder: int | None = None  # the thread whose puts are held (the worker, in a call)
+        self._sensor_base = self.keys.base + "/sensor/"
 
     def status_fields(self) -> dict[str, Any]:
         return {"domain_id": self.config.domain_id, "namespace": self.config.namespace,
@@ -254,18 +269,70 @@ class Ros2Bridge(RosStage):
     def put(self, m: ros2.RosMessage, t_ns: int) -> _Endpoint | None:
         """Publish ROS 2 message ``m`` (stamp ``t_ns``) on its topic, declaring the publisher and
         its liveliness token the first time; its endpoint (None in-process)."""
-        topic = self.topic(m)
-        cdr = ros2.serialize(m)
-        key = self._keys.get((topic, m.type))
+        return self.put_cdr(m.topic, m.type, ros2.serialize(m), t_ns, m)
+
+    #: the sensors' CDR from :mod:`auvgw.ros2_cdr`'s compiled writers (:meth:`emit_sensor`);
+    #: False: rosbags objects and ``serialize_cdr`` for every message (the same bytes, slower:
+    #: ``benchmarks/bench_ros2_bridge.py`` measures one against the other)
+    compiled = True
+
+    def emit_sensor(self, key: str, device: str, message: Any, t_ns: int, kind: str) -> None:
+        """A decoded sensor message's ROS 2 messages written by :func:`auvgw.ros2_cdr.
+        sensor_cdr` (no rosbags objects), or, for one with no standard form, by
+        :func:`auvgw.ros2.to_ros` (:meth:`RosStage.emit_sensor`)."""
+        out = ros2_cdr.sensor_cdr(device, message, t_ns) if self.compiled else None
+        if out is None:
+            super().emit_sensor(key, device, message, t_ns, kind)
+            return
+        self._put_all(key, out, t_ns)
+
+    def _put_all(self, key: str, out: list[tuple[str, str, bytes]], t_ns: int) -> None:
+        """:meth:`put_cdr` each (topic, ROS type, CDR) of a sample on bus key ``key``."""
+        self._remember(key, [self.put_cdr(topic, ros_type, cdr, t_ns)
+                             for topic, ros_type, cdr in out])  # fmt: skip
+
+    def handle_sample(self, key: str, payload: bytes, t_arrival_ns: int | None = None) -> object:
+        """A decoded sensor sample of a standard ROS 2 form straight from its envelope to the
+        compiled writers (``auvgw ros2 bridge`` takes the gateway's sensors this way: no
+        rosbags objects); every other sample, and one whose envelope or conversion fails, as
+        :meth:`RosStage.handle_sample` takes it (which counts what is wrong)."""
+        if not (self.compiled and key.startswith(self._sensor_base)):
+            return super().handle_sample(key, payload, t_arrival_ns)
+        try:
+            env = decode_envelope(payload)
+            msg = envelope_message(env)
+            device = key[len(self._sensor_base):].partition("/")[0]
+            out = None if msg is None else ros2_cdr.sensor_cdr(device, msg, env.t_recv_ns)
+        except Exception:  # RosStage.handle_sample takes it again and counts what is wrong
+            out = None
+        if out is None:
+            return super().handle_sample(key, payload, t_arrival_ns)
+        if not self._stamps.accept(env.t_recv_ns):
+            self._bad_payload(key, ValueError(
+                f"stamp {env.t_recv_ns} ns implausible against the stage's clock"))
+            return None
+        self._put_all(key, out, env.t_recv_ns)
+        with self._lock:
+            self.stats.received += 1
+        return None
+
+    def put_cdr(self, rel_topic: str, ros_type: str, cdr: bytes, t_ns: int,
+                m: ros2.RosMessage | None = None) -> _Endpoint | None:  # fmt: skip
+        """Publish the CDR bytes of a ``ros_type`` message on topic ``rel_topic`` (a
+        :class:`~auvgw.ros2.RosMessage` topic), stamped ``t_ns``, declaring the publisher and
+        its liveliness token the first time; its endpoint (None in-process). ``m``: the message
+        itself, when there is one (``/tf`` counts its transforms)."""
+        topic = self.topic(rel_topic)
+        key = self._keys.get((topic, ros_type))
         if key is None:
-            key = self._keys[(topic, m.type)] = data_key(self.config.domain_id, topic, m.type)
+            key = self._keys[(topic, ros_type)] = data_key(self.config.domain_id, topic, ros_type)
         ep = self._endpoints.get(key)
         if ep is None and self.session is not None:
-            ep = self._declare(topic, m.type, key)
+            ep = self._declare(topic, ros_type, key)
         if ep is not None:
             ep.seq += 1
             att = pack_attachment(ep.seq, t_ns, ep.gid)
-            if self.hold_puts and self._holder == threading.get_ident():
+            if self._holder == threading.get_ident():
                 self._held.append((ep, cdr, att))
             else:
                 self._send(ep, cdr, att)
@@ -288,9 +355,6 @@ class Ros2Bridge(RosStage):
 
     #: puts held back at most (:meth:`_work_item`)
     MAX_HELD = 64
-    #: hold the worker's puts (:meth:`_work_item`); False: each put as it is made (the bridge before
-    #: this, which ``benchmarks/bench_ros2_bridge.py`` measures against)
-    hold_puts = True
 
     def _work_item(self, item: tuple[Any, tuple[Any, ...]]) -> None:
         """Run a queued call (a batch of sensor messages, a bus sample) with the puts it makes
@@ -319,10 +383,13 @@ class Ros2Bridge(RosStage):
         return False
 
     def emit(self, key: str, msgs: list[ros2.RosMessage], t_ns: int) -> None:
-        made = set(self._made.get(key, ()))
-        made.update(ep for m in msgs if (ep := self.put(m, t_ns)) is not None)
-        if made:
-            self._made[key] = tuple(made)
+        self._remember(key, [self.put(m, t_ns) for m in msgs])
+
+    def _remember(self, key: str, eps: list[_Endpoint | None]) -> None:
+        """Note the publishers a sample on bus ``key`` went to (:meth:`wanted`)."""
+        made = self._made.get(key, ())
+        if any(ep is not None and ep not in made for ep in eps):
+            self._made[key] = tuple({*made, *(ep for ep in eps if ep is not None)})
 
     def _declare(self, topic: str, ros_type: str, key: str) -> _Endpoint:
         assert self.session is not None

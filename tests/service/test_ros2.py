@@ -183,3 +183,73 @@ def test_no_bytes_on_a_command_topic_raise(data: bytes):
     bridge = Ros2Bridge(Ros2BridgeConfig(vehicle="v", commands=["actuators"]))
     out = bridge.on_ros_command("actuators", data)
     assert (out is None) == (bridge.stats.bad_commands == 1)
+
+
+# -- compiled CDR writers (auvgw/ros2_cdr.py): the bridge's bytes are rosbags' ---------------------
+
+
+def _reference(source: str, msg, t_ns: int) -> list[tuple[str, str, bytes]]:
+    return [(m.topic, m.type, bytes(ros2.serialize(m)))
+            for m in ros2.to_ros("sensor", source, msg, t_ns)]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def sensor_samples(shared_data, tmp_path_factory) -> list[tuple[str, object]]:
+    """(format, decoded message) of every format's sample frames with a standard ROS 2 form
+    (PD0's from the real recording)."""
+    from auvgw.drivers.formats import FORMATS, get_format
+    from auvgw.testing.format_samples import stream_samples
+
+    out = []
+    for fmt in FORMATS:
+        _, frames = stream_samples(fmt, shared_data, tmp_path_factory.mktemp(fmt))
+        out += [(fmt, m) for f in frames for m in get_format(fmt).decode(f)
+                if ros2.sensor_form(m) is not None]  # fmt: skip
+    return out
+
+
+@pytest.mark.parametrize("device", ["i", "ins", "dvl_1", "multibeam"])  # every frame_id padding
+def test_compiled_cdr_is_rosbags_cdr_for_every_sensor_form(sensor_samples, device):
+    from auvgw.ros2_cdr import sensor_cdr
+
+    assert {ros2.sensor_form(m) for _, m in sensor_samples} == {
+        "imu", "magnetic_field", "dvl", "points", "returns"}  # fmt: skip
+    for i, (fmt, msg) in enumerate(sensor_samples):
+        t_ns = 1_700_000_000_000_000_000 + 123_456_789 * i
+        assert sensor_cdr(device, msg, t_ns) == _reference(device, msg, t_ns), (fmt, msg)
+    status = {"v": 1}
+    assert sensor_cdr(device, status, 0) is None  # no standard form: to_ros's Decoded
+
+
+_floats = st.floats(allow_nan=True, allow_infinity=True, width=64)
+
+
+@settings(max_examples=40, deadline=None)
+@given(device=st.text("abcdefghijklmnopqrstuvwxyz_0123456789", min_size=1, max_size=12),
+       t_ns=st.integers(0, 2**62), angles=st.lists(st.floats(allow_infinity=False), min_size=3,
+                                                    max_size=3),
+       v=st.lists(_floats, min_size=12, max_size=12))  # fmt: skip
+def test_compiled_imu_and_field_cdr_equal_rosbags_for_any_values(device, t_ns, angles, v):
+    """Any values (NaN and infinities too; the angles finite, as ``math.cos`` needs)."""
+    from auvgw.drivers.ms3a import Ms3aSample
+    from auvgw.ros2_cdr import sensor_cdr
+
+    roll, pitch, heading = angles
+    nav = Hn100Nav(seq=1, status=0, time=1.0, roll=roll, pitch=pitch, heading=heading,
+                   rate_x=v[3], rate_y=v[4], rate_z=v[5], accel_x=v[6], accel_y=v[7], accel_z=v[8],
+                   vel_n=0.0, vel_e=0.0, vel_d=0.0, latitude=0.0, longitude=0.0, depth=0.0,
+                   aligned=None, gnss_aided=None, dvl_aided=None, error=None)  # fmt: skip
+    assert sensor_cdr(device, nav, t_ns) == _reference(device, nav, t_ns)
+    mag = Ms3aSample(counter=1, bx=v[9], by=v[10], bz=v[11])
+    assert sensor_cdr(device, mag, t_ns) == _reference(device, mag, t_ns)
+
+
+def test_cdr_struct_refuses_sizes_that_do_not_fit_the_type():
+    from auvgw.ros2_cdr import cdr_struct
+
+    # encapsulation, stamp (2 x 4), frame_id "ab" (4 + 3), 1 byte to align the doubles to 8
+    assert cdr_struct("sensor_msgs/msg/Imu", (2,)).size == 4 + 8 + 7 + 1 + 37 * 8
+    with pytest.raises(ValueError, match="end before a string"):
+        cdr_struct("sensor_msgs/msg/Imu", ())
+    with pytest.raises(ValueError, match="longer than"):
+        cdr_struct("sensor_msgs/msg/Imu", (3, 1))
