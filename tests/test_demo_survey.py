@@ -6,6 +6,8 @@ odometry it was given, and a seabed map that matches the true terrain."""
 
 from __future__ import annotations
 
+import json
+
 import pytest
 
 from auvgw.testing import run_demo_processes
@@ -80,3 +82,25 @@ def test_report_prints_filtered_smoothed_and_closures(survey_run) -> None:
     assert f"final DR {dr['final_m']:.2f} m / filtered {filtered['final_m']:.2f} m" in ratio
     assert f"/ smoothed {smoothed['rmse_m']:.2f} m = " in ratio
 
+
+
+def test_the_stage_process_runs_the_demo_settings() -> None:
+    """The settings frozen for issues 28 and 33 (docs/results/bathymetric/e2e) reach the stage
+    process's command line (``slam run --set``) and its filter: the overlap radius of half the
+    swath, the filter's own likelihood and closure defaults."""
+    import argparse
+
+    from auvgw.commands.bathy_run import stage_config
+    from auvgw.commands.demo import BATHY_FILTER, _bathy_argv, _bathy_config
+    from auvgw.slam.bathymetric.config import BathyConfig
+
+    argv = _bathy_argv(_bathy_config("auv1", "multibeam"), "tcp/127.0.0.1:1")
+    sets = [argv[i + 1] for i, a in enumerate(argv) if a == "--set"]
+    assert {k: json.loads(v) for k, _, v in (s.partition("=") for s in sets)} == BATHY_FILTER
+    args = argparse.Namespace(particles=200, seed=0, multibeam="multibeam", set=sets)
+    cfg = stage_config(args, "auv1").bathy_config()
+    # R = 90 m: half the 180 m swath (the lines are 80 m apart)
+    assert cfg.radius_m == 90.0 and not cfg.drift_estimate and not cfg.lccd
+    defaults = BathyConfig()
+    for key in ("sigma_s_m", "unmatched_weight", "jitter_in_crossing", "closure_estimate"):
+        assert getattr(cfg, key) == getattr(defaults, key), key
