@@ -38,10 +38,41 @@ from auvgw.slam.evaluation.heldout import seed_split
 MULTIBEAMS = {"xyz88": "kongsberg", "geoswath": "geoswath"}
 
 
-def run_one(out: Path, seed: int, multibeam: str, speed: float, viz: bool) -> dict[str, Any]:
-    """One demo run; its summary.json, or ``{"error": ...}`` when it failed."""
+#: runs the demo with ``BATHY_FILTER`` updated from the JSON object in argv[1] (``--set``): the
+#: demo hands its settings to the stage process (``slam run --set``)
+PATCHED_DEMO = (
+    "import json, sys; import auvgw.commands.demo as d; "
+    "d.BATHY_FILTER.update(json.loads(sys.argv.pop(1))); "
+    "from auvgw.cli import main; sys.exit(main())"
+)
+
+
+def parse_sets(sets: list[str]) -> dict[str, Any]:
+    """``key=json`` pairs (``radius_m=90``) as a dict of filter settings."""
+    out: dict[str, Any] = {}
+    for kv in sets:
+        key, sep, value = kv.partition("=")
+        if not sep:
+            raise SystemExit(f"--set {kv}: expected key=value")
+        out[key] = json.loads(value)
+    return out
+
+
+def run_one(
+    out: Path,
+    seed: int,
+    multibeam: str,
+    speed: float,
+    viz: bool,
+    scenario: str = "survey",
+    sets: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """One demo run; its summary.json, or ``{"error": ...}`` when it failed. ``sets``: filter
+    settings over the demo's ``BATHY_FILTER`` (tuning runs)."""
     out.mkdir(parents=True, exist_ok=True)
-    argv = [sys.executable, "-m", "auvgw", "demo", "--scenario", "survey", "--processes",
+    head = [sys.executable, "-c", PATCHED_DEMO, json.dumps(sets)] if sets else [
+        sys.executable, "-m", "auvgw"]  # fmt: skip
+    argv = [*head, "demo", "--scenario", scenario, "--processes",
             "--multibeam", MULTIBEAMS[multibeam], "--seed", str(seed), "--out", str(out),
             "--speed", str(speed), *([] if viz else ["--no-viz"])]  # fmt: skip
     t0 = time.monotonic()
@@ -67,20 +98,24 @@ def row(seed: int, multibeam: str, s: dict[str, Any]) -> str:
     fusion = s.get("fusion") or {}
     gaps = (fusion.get("filter") or {}).get("ins_gaps", "-")
     resets = ((fusion.get("clocks") or {}).get("ins") or {}).get("resets", "-")
+    buf = fusion.get("buffer") or {}
+    compass = ((fusion.get("diagnostics") or {}).get("compass_deviation") or {}).get("applied")
     return (
         f"| {seed} | {multibeam} | {dr['final_m']:.2f} | {dr['rmse_m']:.2f} | "
         f"{flt['final_m']:.2f} | {flt['rmse_m']:.2f} | {smo_rmse:.2f} | "
         f"{slam.get('loops_accepted', 0)} / {slam.get('loops_rejected', 0)} | {first} | "
         f"{dr['final_m'] / flt['final_m']:.2f} | {dr['rmse_m'] / flt['rmse_m']:.2f} | "
-        f"{dr['rmse_m'] / smo_rmse:.2f} | {gaps} / {resets} | {s['wall_s']:.0f} |"
+        f"{dr['rmse_m'] / smo_rmse:.2f} | {gaps} / {resets} | {buf.get('ins_duplicate', '-')} / "
+        f"{buf.get('aiding_late', '-')} | {'yes' if compass else 'no'} | {s['wall_s']:.0f} |"
     )
 
 
 HEADER = (
     "| seed | multibeam | DR final | DR RMSE | SLAM filtered final | SLAM filtered RMSE | "
     "SLAM smoothed RMSE | closures acc / rej | first closure (vehicle s) | DR/SLAM final | "
-    "DR/SLAM RMSE filtered | DR/SLAM RMSE smoothed | INS gaps / clock resets | wall s |\n"
-    "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
+    "DR/SLAM RMSE filtered | DR/SLAM RMSE smoothed | INS gaps / clock resets | "
+    "INS duplicates / DVL aiding_late | compass deviation applied | wall s |\n"
+    "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
 )
 
 
@@ -96,18 +131,24 @@ def main() -> None:
                     "a load average of 16 on 2 cores the fusion lost INS frames and dead "
                     "reckoning ended 211 m off)")  # fmt: skip
     ap.add_argument("--viz", action="store_true", help="keep each run's Rerun recording")
+    ap.add_argument("--scenario", default="survey", help="shipped scenario name or JSON file")
+    ap.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=JSON",
+                    help="a filter setting over the demo's BATHY_FILTER (tuning runs only)")
     a = ap.parse_args()
+    sets = parse_sets(a.sets)
+    if sets and a.purpose != "tuning":
+        ap.error("--set: settings are tuned on tuning seeds only; freeze them in the demo")
     wrong = [s for s in a.seeds if seed_split(s) != a.purpose]
     if wrong:
         ap.error(f"--purpose {a.purpose}: seeds {wrong} are not {a.purpose} seeds (test >= 1000)")
     rows = []
     for seed in a.seeds:
         for mb in a.multibeam:
-            s = run_one(a.out / f"{mb}-{seed}", seed, mb, a.speed, a.viz)
+            s = run_one(a.out / f"{mb}-{seed}", seed, mb, a.speed, a.viz, a.scenario, sets)
             rows.append(row(seed, mb, s))
             print(rows[-1], flush=True)
-    print(f"\nauvgw demo --scenario survey --processes --speed {a.speed:g}, {a.purpose} seeds "
-          f"{a.seeds}; metres")  # fmt: skip
+    print(f"\nauvgw demo --scenario {a.scenario} --processes --speed {a.speed:g}, {a.purpose} "
+          f"seeds {a.seeds}, settings {sets or 'of the demo'}; metres")  # fmt: skip
     print(HEADER)
     print("\n".join(rows))
 

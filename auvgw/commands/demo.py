@@ -342,8 +342,9 @@ def run(args: argparse.Namespace) -> int:
 
 def _scenario_defaults(args: argparse.Namespace, scenario: Path) -> None:
     """``--duration`` and ``--speed`` where not given: a survey (the bathymetric pipeline) with
-    ``--processes`` runs its whole route at :data:`SURVEY_SPEED` (its loop closures come with the
-    tie line, after 25 minutes: 180 s showed none); any other run :data:`DEFAULT_DURATION_S` at
+    ``--processes`` runs its whole route at :data:`SURVEY_SPEED` (its first loop closure comes
+    with the second line, about 5 minutes in, the gain over dead reckoning with the whole
+    route); any other run :data:`DEFAULT_DURATION_S` at
     :data:`DEFAULT_SPEED` (one process does not keep up with the survey's devices at 10x: it
     lost 40 % of the INS frames and dead reckoning diverged, measured here)."""
     survey = _bathymetric_scenario(load_scenario(scenario))
@@ -359,9 +360,9 @@ def _scenario_defaults(args: argparse.Namespace, scenario: Path) -> None:
             scn = load_scenario(scenario)
             args.duration = math.ceil(simulate(scn, World.from_scenario(scn)).duration)
         elif survey:
-            print("note: the survey's loop closures come with its tie line, after 25 minutes of "
-                  "vehicle time; `auvgw demo --scenario survey --processes` runs the whole route "
-                  f"at {SURVEY_SPEED:g}x", flush=True)  # fmt: skip
+            print("note: the survey's first loop closure comes with its second line, about 5 "
+                  "minutes of vehicle time in; `auvgw demo --scenario survey --processes` runs "
+                  f"the whole route at {SURVEY_SPEED:g}x", flush=True)  # fmt: skip
 
 
 def _sim_epoch_ns(gw_cfg: GatewayConfig) -> int:
@@ -992,12 +993,18 @@ BATHY_NAME = "mtm-pf (bathymetric PF-SLAM)"
 #:   with the paper's values, as much as the INS + DVL drift itself.
 #: RMS error 2.76 / 2.56 / 3.65 m against DR's 3.79 / 3.53 / 3.88 m (paper values: 2.36 / 3.15 /
 #: 4.93 m, no closure at all: the centroid's random walk).
-#: - unmatched_weight = uniform, jitter_in_crossing = true, sigma_s_m = 0.3, closure_estimate =
-#:   mean: the weighting, crossing proposal and closure these were measured with (issue 14
-#:   changed the defaults on the eq. 28 study; not yet measured on the INS + DVL drift).
-#: - drift_estimate = false: it models the DR error as a bias constant in the world frame (eq.
-#:   28); the emulated INS heading bias and DVL scale / misalignment turn with each leg, so an
-#:   estimated bias would be wrong on the next leg (issue 14 session 6; not measured here).
+#: Frozen for issues 28 and 33 on tuning seeds 11-14 (docs/results/bathymetric/e2e/tables.md,
+#: "Tuning"; offline with the survey's own INS + DVL errors, then one run end to end):
+#: - radius_m = 90 (Sec. V-A's R; paper 10): half the 180 m swath, so a ping is matched wherever
+#:   its swath overlaps an older one by half its width or more: every line after the first
+#:   overlaps its neighbour 80 m away, and the closures come along the whole route (first at
+#:   vehicle t ~ 300 s) instead of only at the tie line after 84 % of it (R = 10 m);
+#: - sigma_s_m, unmatched_weight, jitter_in_crossing and closure_estimate at the filter's
+#:   defaults (0.15 m measured, neutral, off, mode): the demo's older values (0.3 m, uniform,
+#:   on, mean) gave closures 1-3 m off the truth, as large as the drift they correct; these
+#:   0.1-0.7 m (median).
+#: - drift_estimate = false: the world-frame bias of eq. 28 would be wrong on the next leg
+#:   (the emulated INS heading bias and DVL scale turn with the vehicle).
 BATHY_PARTICLES = 200
 #: emulated devices a survey's demo leaves off (the bathymetric pipeline reads the INS, DVL and
 #: multibeam only): the MSIS (polled) and the magnetometer (serial and SLCAN) took 118,000 of
@@ -1008,10 +1015,7 @@ BATHY_FILTER: dict[str, Any] = {
     "lccd": False,
     "sigma_c2": 0.05,
     "jitter_a": 0.1,
-    "unmatched_weight": "uniform",
-    "jitter_in_crossing": True,
-    "sigma_s_m": 0.3,
-    "closure_estimate": "mean",
+    "radius_m": 90.0,
     "drift_estimate": False,
 }
 

@@ -6,11 +6,13 @@ odometry it was given, and a seabed map that matches the true terrain."""
 
 from __future__ import annotations
 
+import json
+
 import pytest
 
 from auvgw.testing import run_demo_processes
 
-DURATION_S = 120.0  # 200 m of the first survey line at 1.7 m/s
+DURATION_S = 90.0  # 150 m of the first survey line at 1.7 m/s
 SPEED = 3.0
 
 
@@ -47,11 +49,12 @@ def test_pose_track_and_map_are_consistent_with_truth(survey_run) -> None:
     assert slam["samples"] + slam["outside_truth"] == summary["slam"]["stage"]["published"]
     assert slam["outside_truth"] <= 3
     assert slam["distance_m"] == pytest.approx(dr["distance_m"], rel=0.1)
-    # no crossing in 200 m: the particle centroid follows dead reckoning (~1 % of distance)
+    # no overlap on one straight line (the overlap test skips the last t_l = 60 pings, 120 m,
+    # more than the demo's R = 90 m): the particle centroid follows dead reckoning
     assert slam["rmse_m"] < 2.0 * dr["rmse_m"] + 1.0 and slam["rmse_pct_distance"] < 3.0
     # the seabed map (the stage's final DEM, the whole map) against the true terrain
     m = summary["bathymetric_map"]
-    assert m["cells"] > 2000  # a 200 m line under a ~180 m swath, 2 m cells
+    assert m["cells"] > 2000  # a 150 m line under a ~180 m swath, 2 m cells
     assert m["median_abs_error_m"] < 1.0 and m["share_under_2m"] > 0.9
     assert "bathymetric map vs true terrain" in stdout
 
@@ -66,7 +69,7 @@ def test_report_prints_filtered_smoothed_and_closures(survey_run) -> None:
     # one smoothed pose per used swath, stamped as the filtered ones
     assert smoothed["samples"] + smoothed["outside_truth"] == summary["slam"]["stage"]["pings"]
     assert smoothed["distance_m"] == pytest.approx(filtered["distance_m"], rel=0.01)
-    # no crossing in 200 m: no closure, so the smoothed track is the filtered one
+    # no overlap yet: no closure, so the smoothed track is the filtered one
     assert nav["closures_vehicle_s"] == [] and summary["slam"]["loops_accepted"] == 0
     assert smoothed["rmse_m"] == pytest.approx(filtered["rmse_m"], abs=0.01)
     lines = {ln.split(" vs ", 1)[0]: ln for ln in stdout.splitlines() if " vs " in ln}
@@ -79,3 +82,25 @@ def test_report_prints_filtered_smoothed_and_closures(survey_run) -> None:
     assert f"final DR {dr['final_m']:.2f} m / filtered {filtered['final_m']:.2f} m" in ratio
     assert f"/ smoothed {smoothed['rmse_m']:.2f} m = " in ratio
 
+
+
+def test_the_stage_process_runs_the_demo_settings() -> None:
+    """The settings frozen for issues 28 and 33 (docs/results/bathymetric/e2e) reach the stage
+    process's command line (``slam run --set``) and its filter: the overlap radius of half the
+    swath, the filter's own likelihood and closure defaults."""
+    import argparse
+
+    from auvgw.commands.bathy_run import stage_config
+    from auvgw.commands.demo import BATHY_FILTER, _bathy_argv, _bathy_config
+    from auvgw.slam.bathymetric.config import BathyConfig
+
+    argv = _bathy_argv(_bathy_config("auv1", "multibeam"), "tcp/127.0.0.1:1")
+    sets = [argv[i + 1] for i, a in enumerate(argv) if a == "--set"]
+    assert {k: json.loads(v) for k, _, v in (s.partition("=") for s in sets)} == BATHY_FILTER
+    args = argparse.Namespace(particles=200, seed=0, multibeam="multibeam", set=sets)
+    cfg = stage_config(args, "auv1").bathy_config()
+    # R = 90 m: half the 180 m swath (the lines are 80 m apart)
+    assert cfg.radius_m == 90.0 and not cfg.drift_estimate and not cfg.lccd
+    defaults = BathyConfig()
+    for key in ("sigma_s_m", "unmatched_weight", "jitter_in_crossing", "closure_estimate"):
+        assert getattr(cfg, key) == getattr(defaults, key), key
