@@ -196,6 +196,7 @@ class GeoSwathEmulator(Emulator):
             GeoSwathFramer,
             self.option("udp_port", 0),
             host=self.option("udp_host", ctx.udp_host),
+            extra={"geoswath": {"model_khz": self.frequency // 1000}},
         )
 
     def transducer(self, s: TruthSample) -> np.ndarray:
