@@ -812,8 +812,13 @@ def _run_processes(
             ])  # fmt: skip
             slam_part = (lm_cfg.display_name, f"slam-{lm_cfg.pipeline_name}")
             wanted |= {"msis", slam_part[1]}
+        # the GeoSwath's emulator (numpy work on 4000-sample pings) in its own process, so it
+        # never holds the INS emulator's interpreter (issue 31: in one sim process its pings
+        # made the INS frames leave 40-58 vehicle s late at 10x); every device then has its own
         sim = children.start("sim", [*_sim_argv(scenario, speed, args.duration, sim_dir),
-                                     "--start-delay", str(args.start_delay)])  # fmt: skip
+                                     "--start-delay", str(args.start_delay),
+                                     *(["--processes"] if scn.devices.geoswath.enabled
+                                       else [])])  # fmt: skip
         _wait_for(sim_dir / "gateway.toml", sim, 120.0)
         gw_cfg = _load_sim_config(sim_dir)
         epoch_ns = _sim_epoch_ns(gw_cfg)
