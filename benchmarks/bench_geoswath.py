@@ -16,6 +16,13 @@ median; then ``SwathProcessor.add``, the binning of a 1 Hz swath amortised), wit
 processing's ratio to the decode of the same ping, and the share of one core the processing
 (the swath stage's work) takes at 4 pings/s (1x) and 40 pings/s (10x).
 
+Third table: the emulator on the terrain of ``config/scenarios/survey.json`` (four octaves of
+relief, what the end-to-end survey runs; the flat seabed above is nearly free to cast): per
+ping, ``side_samples`` with every terrain evaluation in double precision (before issue 31's
+fix: the sim process fell behind at 10x) and as shipped (its 721-ray fan and amplitudes with
+the terrain's single-precision depth), their ratio and the share of a core each takes at 10x
+(40 pings/s).
+
 Times are this process's CPU time (``time.process_time``) unless ``--wall``: on a shared machine
 at a load of several times its cores, wall times mostly measure the wait for a core.
 """
@@ -29,9 +36,11 @@ import time
 
 import numpy as np
 
+from auvgw.config.scenario import load_scenario
 from auvgw.drivers.geoswath import GeoSwathFramer, GeoSwathPing, default_codec
+from auvgw.ground.paths import config_file
 from auvgw.sim_devices.geoswath import MODELS, side_samples
-from auvgw.sim_devices.world import FlatTerrain, World
+from auvgw.sim_devices.world import FlatTerrain, TerrainModel, World
 from auvgw.slam.bathymetric.swath_processing import SwathProcessing, SwathProcessor, ping_soundings
 
 SIZES = (1000, 4000, 16000)
@@ -150,6 +159,50 @@ def main() -> None:
             f"{us['proc'] / us['dec']:.1f} | {us['proc'] * PING_RATE_HZ / 1e4:.1f} | "
             f"{us['proc'] * PING_RATE_HZ / 1e3:.1f} |"
         )
+    survey_emulator(args.rounds, max(args.pings // 10, 8), rng)
+
+
+class _Float64(TerrainModel):
+    """A terrain without a coarse depth: every evaluation in double precision (the emulator
+    before issue 31's fix)."""
+
+    def __init__(self, inner: TerrainModel) -> None:
+        self.inner = inner
+
+    def depth(self, x: np.ndarray | float, y: np.ndarray | float) -> np.ndarray:
+        return self.inner.depth(x, y)
+
+    def gradient(
+        self, x: np.ndarray | float, y: np.ndarray | float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        return self.inner.gradient(x, y)
+
+    @property
+    def bounds(self) -> tuple[float, float]:
+        return self.inner.bounds
+
+
+def survey_emulator(rounds: int, k_pings: int, rng: np.random.Generator) -> None:
+    """The third table (see the module docstring): 250 kHz pings on the survey's terrain."""
+    print()
+    print("| survey.json terrain | side_samples us (float64) | shipped (float32 fan) | ratio "
+          "| % of a core at 10x, float64 / shipped |")  # fmt: skip
+    print("|---|---|---|---|---|")
+    world = World.from_scenario(load_scenario(config_file("scenarios/survey.json")))
+    worlds = {"f64": World(terrain=_Float64(world.terrain), sound_speed=world.sound_speed),
+              "f32": world}  # fmt: skip
+    t_s: dict[str, list[float]] = {k: [] for k in worlds}
+    for _ in range(rounds):
+        for key, w in worlds.items():
+            t = clock()
+            for k in range(k_pings):
+                side_samples(w, np.array([100.0 + 0.5 * k, 50.0, 25.0]), 0.3 + 0.01 * k, 0.01,
+                             0.02, k % 2, 250_000, 195.0, rng)  # fmt: skip
+            t_s[key].append(clock() - t)
+    us = {k: statistics.median(v) / k_pings * 1e6 for k, v in t_s.items()}
+    print(f"| 250 kHz, 4062 samples | {us['f64']:.0f} | {us['f32']:.0f} | "
+          f"{us['f64'] / us['f32']:.1f} | {us['f64'] * PING_RATE_HZ / 1e3:.1f} / "
+          f"{us['f32'] * PING_RATE_HZ / 1e3:.1f} |")  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -31,7 +31,7 @@ import types
 import typing
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from pydantic import (
     BaseModel,
@@ -103,6 +103,20 @@ class MsisPolling(_Model):
     )
 
 
+class GeoSwathModel(_Model):
+    """Which GeoSwath Plus the device is: its sonar frequency. The broadcast ping does not
+    carry it, and its RAA sample times count wavelengths (slant range = c t / (2 f))."""
+
+    model_khz: Literal[125, 250, 500] = Field(
+        250, description="the GeoSwath Plus model: 125, 250 or 500 kHz"
+    )
+
+    @property
+    def frequency_hz(self) -> float:
+        """The sonar frequency, Hz."""
+        return float(self.model_khz) * 1000.0
+
+
 class DeviceConfig(_Model):
     """One device: its wire format, its transport, and format-specific options."""
 
@@ -122,6 +136,7 @@ class DeviceConfig(_Model):
         description="site table replacing the shipped one (formats with a registry table)",
     )
     msis: MsisPolling | None = None
+    geoswath: GeoSwathModel | None = None
     stale_after_s: float = Field(
         2.0, ge=0.01, le=3600, description="report the device silent after this, s"
     )
@@ -192,7 +207,7 @@ class DeviceConfig(_Model):
 
 
 #: a device's own options table (the registry's ``options``) -> its model
-_OPTIONS: dict[str, type[_Model]] = {"msis": MsisPolling}
+_OPTIONS: dict[str, type[_Model]] = {"msis": MsisPolling, "geoswath": GeoSwathModel}
 
 
 class ClockConfig(_Model):

@@ -125,7 +125,8 @@ class DeviceKind:
     device may speak it (False for file containers such as ``.V4LOG``); ``table``: the shipped
     table in ``config/`` a site may replace, loaded by ``table_codec`` (``"module:Class"`` with
     ``from_toml(path)``); ``dbc``: the shipped CAN database of the same device; ``options``: the
-    name of the device's own options table in the gateway configuration (``msis``);
+    name of the device's own options table in the gateway configuration (``msis``,
+    ``geoswath``);
     ``host_driver``: ``"module:callable"`` making the gateway's host driver from the device's
     configuration (a polled device); ``emulator``: see :class:`Emulator`; ``protocol_doc``: its
     page in ``docs/protocols/``; ``messages``: the message types it decodes (CAN ones included).
@@ -195,7 +196,7 @@ BUILTIN: tuple[DeviceKind, ...] = (
     ),
     DeviceKind(
         "geoswath", f"{_D}.geoswath:FORMAT", table="geoswath.toml",
-        table_codec=f"{_D}.geoswath:GeoSwathCodec",
+        table_codec=f"{_D}.geoswath:GeoSwathCodec", options="geoswath",
         emulator=Emulator("geoswath", f"{_S}.geoswath:GeoSwathEmulator", default_on=False),
         protocol_doc="geoswath.md",
         messages=(MessageType("GeoSwathPing", roles=("samples",)), MessageType("RdfFileHeader")),

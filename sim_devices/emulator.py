@@ -345,9 +345,17 @@ class UdpChannel(_ByteChannel):
 
     kind = "udp"
 
-    def __init__(self, name: str, fmt: str, sender: UdpSender, injector: FaultInjector) -> None:
+    def __init__(
+        self,
+        name: str,
+        fmt: str,
+        sender: UdpSender,
+        injector: FaultInjector,
+        extra: dict[str, Any] | None = None,
+    ) -> None:
         super().__init__(name, fmt, injector)
         self.sender = sender
+        self.extra = dict(extra or {})
 
     @property
     def port(self) -> UdpSender:
@@ -362,7 +370,7 @@ class UdpChannel(_ByteChannel):
     def endpoint(self) -> Endpoint:
         host, port = self.sender.address
         transport = {"kind": "udp", "host": host, "port": int(port)}
-        return Endpoint(self.name, self.format, "udp", f"{host}:{port}", "", transport)
+        return Endpoint(self.name, self.format, "udp", f"{host}:{port}", "", transport, self.extra)
 
 
 # -- the emulator base -------------------------------------------------------------------------
@@ -495,12 +503,15 @@ class Emulator:
         port: int,
         host: str | None = None,
         name: str | None = None,
+        extra: dict[str, Any] | None = None,
     ) -> UdpChannel:
-        """Datagrams to ``host:port`` (``port`` 0: a free port picked now)."""
+        """Datagrams to ``host:port`` (``port`` 0: a free port picked now); ``extra``: keys of
+        the gateway device table (the GeoSwath's ``geoswath`` model)."""
         name = name or self.name
         host = host or self.ctx.udp_host
         port = port or free_udp_port(host)
-        ch = UdpChannel(name, fmt, UdpSender(port, host, name=name), self.injector(name, framer))
+        sender = UdpSender(port, host, name=name)
+        ch = UdpChannel(name, fmt, sender, self.injector(name, framer), extra)
         self.channels.append(ch)
         return ch
 

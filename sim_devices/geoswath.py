@@ -108,7 +108,7 @@ def side_samples(
     theta = np.radians(np.linspace(0.0, max_angle_deg, fan))
     rot = body_to_ned(heading, pitch, roll)
     d = (rot @ np.stack([np.zeros_like(theta), sgn * np.sin(theta), np.cos(theta)])).T
-    slant = first_crossing(world.terrain, position, d, max_range_m * 1.05, samples=24)
+    slant = first_crossing(world.terrain, position, d, max_range_m * 1.05, samples=24, exact=False)
     reach = np.where(np.isfinite(slant), slant, np.inf)
     env = np.maximum.accumulate(reach)  # a sample's return comes from the first angle reaching r
     first = float(env[0]) if np.isfinite(env[0]) else math.inf
@@ -126,7 +126,7 @@ def side_samples(
     dirs = rot @ np.stack([np.zeros_like(a), sgn * np.sin(a), np.cos(a)])  # (3, n)
     hx = position[0] + r * dirs[0]
     hy = position[1] + r * dirs[1]
-    gx, gy = world.terrain.gradient(hx, hy)
+    gx, gy = world.terrain.gradient_coarse(hx, hy)
     cos_inc = np.abs(-gx * dirs[0] - gy * dirs[1] + dirs[2]) / np.sqrt(gx * gx + gy * gy + 1.0)
     amp = AMPLITUDE_SCALE * (cos_inc**2 + 0.05)
     # the interferometer's angle noise: towards nadir, at long range
@@ -196,6 +196,7 @@ class GeoSwathEmulator(Emulator):
             GeoSwathFramer,
             self.option("udp_port", 0),
             host=self.option("udp_host", ctx.udp_host),
+            extra={"geoswath": {"model_khz": self.frequency // 1000}},
         )
 
     def transducer(self, s: TruthSample) -> np.ndarray:

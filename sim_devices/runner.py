@@ -544,6 +544,13 @@ class Runner(Closing):
                 if hasattr(port, "wait_drained"):
                     port.wait_drained(drain_timeout)
 
+    def hold(self) -> float:
+        """The run is over: :meth:`stop`, :meth:`flush`, and keep the ports open (the devices
+        silent) until :meth:`close`; the vehicle time reached."""
+        self.stop()
+        self.flush()
+        return self.vehicle_time
+
     def close(self) -> None:
         """Stop everything, release the ports and write the truth log."""
         if self._closed:
@@ -602,11 +609,16 @@ def child_main(argv: list[str] | None = None) -> None:
             if args.get("control"):
                 runner.watch_control(args["control"], only_mine=True)
             # the ports stay open after the run's end until the parent says stop (or goes
-            # away), so readers can drain them; "finish": the run reached its end, so this
-            # device's clock (behind the parent's on a busy machine) first sends every sample
-            # up to it
-            if sys.stdin.readline().strip() == "finish":
+            # away), so readers can drain them; "finish" / "hold": the run reached its end, so
+            # this device's clock (behind the parent's on a busy machine) first sends every
+            # sample up to it; "hold": then the device goes silent, its ports open, and says
+            # so, until the next line
+            word = sys.stdin.readline().strip()
+            if word in ("finish", "hold"):
                 runner.wait(_FINISH_TIMEOUT_S)
+            if word == "hold":
+                print(json.dumps({"held": runner.hold()}), flush=True)
+                sys.stdin.readline()
         runner.stop()
         print(json.dumps({"stats": runner.stats()}), flush=True)
     finally:
@@ -756,6 +768,20 @@ class DeviceProcesses(Closing):
                 return False
             time.sleep(0.05)
         return True
+
+    def hold(self) -> float:
+        """The run reached its end: each device process catches up with it, goes silent and
+        keeps its ports open (readers drain them) until :meth:`stop`; the vehicle time every
+        device reached (the least)."""
+        self.truth_runner.stop()
+        for proc in self.procs.values():
+            self._send(proc, "hold")
+        reached = [self.truth_runner.vehicle_time]
+        for proc in self.procs.values():
+            msg = self._read(proc, _FINISH_TIMEOUT_S + 30.0)
+            if msg is not None and "held" in msg:
+                reached.append(float(msg["held"]))
+        return min(reached)
 
     def stop(self) -> None:
         """Stop every device process (collecting its counters) and the truth clock. After the

@@ -407,12 +407,13 @@ def _run_stages(
     session = open_session(BusConfig())
     viz = None
     if rrd is not None or args.connect:
+        from auvgw.viz.options import gateway_viz_options
         from auvgw.viz.stage import open_viz
 
         # the SLAM stage's outputs come in-process (on_slam): subscribed too, every SLAM row
         # was logged twice, and out of order where the two paths crossed (issue 33)
         viz = open_viz(session, gw_cfg.vehicle, rrd=rrd, connect=args.connect,
-                       options=_viz_options(scn), sections=("status",))  # fmt: skip
+                       options=gateway_viz_options(gw_cfg), sections=("status",))  # fmt: skip
 
     bathy_map: list[bytes] = []  # the bathymetric stage's latest DEM tile (the whole map last)
     bathy_track: list[bytes] = []  # its smoothed trajectory (at flush)
@@ -462,7 +463,7 @@ def _run_stages(
             viz.stage.handle_sample(key, payload, t_ns)
 
     # GeoSwath raw pings -> swaths (XYZ 88 on auv/<v>/sensor/<device>_swath/xyz88) -> SLAM
-    swath = _swath_stage(gw_cfg, scn, session, on_swath)
+    swath = _swath_stage(gw_cfg, session, on_swath)
     if swath is not None:
         swath.start(subscribe=False)
 
@@ -812,8 +813,13 @@ def _run_processes(
             ])  # fmt: skip
             slam_part = (lm_cfg.display_name, f"slam-{lm_cfg.pipeline_name}")
             wanted |= {"msis", slam_part[1]}
+        # the GeoSwath's emulator (numpy work on 4000-sample pings) in its own process, so it
+        # never holds the INS emulator's interpreter (issue 31: in one sim process its pings
+        # made the INS frames leave 40-58 vehicle s late at 10x); every device then has its own
         sim = children.start("sim", [*_sim_argv(scenario, speed, args.duration, sim_dir),
-                                     "--start-delay", str(args.start_delay)])  # fmt: skip
+                                     "--start-delay", str(args.start_delay),
+                                     *(["--processes"] if scn.devices.geoswath.enabled
+                                       else [])])  # fmt: skip
         _wait_for(sim_dir / "gateway.toml", sim, 120.0)
         gw_cfg = _load_sim_config(sim_dir)
         epoch_ns = _sim_epoch_ns(gw_cfg)
@@ -1060,32 +1066,25 @@ def _bathy_stage(
     return BathymetricStage(cfg, session=session, on_publish=on_publish)
 
 
-def _viz_options(scn: Any) -> Any:
-    """The Rerun logger's options: the GeoSwath's frequency (its raw pings' sample times count
-    wavelengths) from the scenario's model."""
-    from auvgw.viz.options import VizOptions
-
-    return VizOptions(geoswath_frequency_hz=_geoswath_khz(scn) * 1000.0)
-
-
 def _geoswath_khz(scn: Any) -> float:
     """The scenario's GeoSwath model (kHz: 125, 250 or 500)."""
     return float(scn.devices.geoswath.options.get("model_khz", 250))
 
 
 def _swath_stage(
-    gw_cfg: GatewayConfig, scn: Scenario, session: zenoh.Session, on_publish: OnPublish
+    gw_cfg: GatewayConfig, session: zenoh.Session, on_publish: OnPublish
 ) -> SwathStage | None:
     """The in-process swath stage on the gateway's GeoSwath device (None: none), processing
-    at the frequency of the scenario's GeoSwath model."""
+    at the frequency of the device's model (its gateway configuration)."""
+    from auvgw.config.gateway import GeoSwathModel
     from auvgw.stages.swath import SwathStage, SwathStageConfig
 
     device = _geoswath_device(gw_cfg)
     if device is None:
         return None
-    khz = _geoswath_khz(scn)
+    f_hz = (gw_cfg.devices[device].geoswath or GeoSwathModel()).frequency_hz
     cfg = SwathStageConfig(vehicle=gw_cfg.vehicle, device=device,
-                           processing={"frequency_hz": khz * 1000.0})  # fmt: skip
+                           processing={"frequency_hz": f_hz})  # fmt: skip
     return SwathStage(cfg, session=session, on_publish=on_publish)
 
 

@@ -173,6 +173,7 @@ def serve(settings: RunSettings, stop: threading.Event | None = None) -> int:
         raise
     viz = None
     if settings.viz_rrd is not None or settings.viz_connect is not None:
+        from auvgw.viz.options import gateway_viz_options
         from auvgw.viz.stage import open_viz
 
         # sensor data reaches the Rerun stage in-process (no JSON round trip); estimates and
@@ -182,6 +183,7 @@ def serve(settings: RunSettings, stop: threading.Event | None = None) -> int:
             cfg.vehicle,
             rrd=settings.viz_rrd,
             connect=settings.viz_connect,
+            options=gateway_viz_options(cfg),
             sections=("nav", "slam", "truth", "status"),
         )
         gateway.listeners.subscribe(viz.on_message)

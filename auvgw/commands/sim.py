@@ -173,8 +173,6 @@ def run(args: argparse.Namespace) -> int:
     control = out / "faults.json"
     if args.processes and args.speed == 0:
         raise UserError("--processes needs a real-time clock: --speed > 0")
-    if args.processes and args.hold:  # the device processes have no drain nor one clock to hold
-        raise UserError("--hold is for a one-process run (without --processes)")
     try:
         options = RunOptions(
             out_dir=out, speed=args.speed, devices=devices, truth_log=truth_log,
@@ -215,12 +213,11 @@ def run(args: argparse.Namespace) -> int:
         runner.start(duration=until, start_at=start_at)
         while not stop.is_set() and runner.running:
             stop.wait(0.2)
-        runner.stop()
-        if args.hold and not stop.is_set() and isinstance(runner, Runner):
-            runner.flush()
-            (out / "finished").write_text(f"{runner.vehicle_time:.3f}\n")
+        if args.hold and not stop.is_set():
+            (out / "finished").write_text(f"{runner.hold():.3f}\n")
             print("finished; ports held open until SIGINT/SIGTERM", flush=True)
             stop.wait()
+        runner.stop()
         _print_stats(runner)
     finally:
         runner.close()

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Literal
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, Literal
 
-__all__ = ["VizOptions"]
+if TYPE_CHECKING:
+    from auvgw.config.gateway import GatewayConfig
+
+__all__ = ["VizOptions", "gateway_viz_options"]
 
 
 @dataclass(frozen=True)
@@ -65,7 +68,20 @@ class VizOptions:
     #: the GeoSwath's sonar frequency (Hz): its RAA sample times count wavelengths, and the
     #: broadcast ping does not say (the swath stage's ``frequency_hz``)
     geoswath_frequency_hz: float = 250_000.0
+    #: per GeoSwath device, its frequency (Hz), where known (a gateway device's model)
+    geoswath_frequencies_hz: dict[str, float] = field(default_factory=dict)
     #: device seconds between two raw-ping views of one GeoSwath side (the latest ping is shown)
     raw_ping_period_s: float = 1.0
     #: samples drawn of a raw ping at most (every k-th sample beyond)
     raw_ping_max_samples: int = 4096
+
+
+def gateway_viz_options(cfg: GatewayConfig, options: VizOptions | None = None) -> VizOptions:
+    """``options`` (default :class:`VizOptions`) with each GeoSwath device's frequency from its
+    gateway configuration (``[devices.<name>.geoswath] model_khz``)."""
+    freqs = {
+        name: dev.geoswath.frequency_hz
+        for name, dev in cfg.devices.items()
+        if dev.geoswath is not None
+    }
+    return replace(options or VizOptions(), geoswath_frequencies_hz=freqs)

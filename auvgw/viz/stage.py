@@ -537,8 +537,9 @@ class VizStage(Stage):
 
     def _raw_ping(self, device: str, ping: Any, t_host: float) -> bool:
         """A GeoSwath ping: its samples' return angle (deg) and slant range (m, at the ping's
-        MINISVS sound speed and the configured ``geoswath_frequency_hz``) with their amplitude,
-        every ``raw_ping_period_s`` device seconds per side."""
+        MINISVS sound speed and the device's frequency: ``geoswath_frequencies_hz``, else
+        ``geoswath_frequency_hz``) with their amplitude, every ``raw_ping_period_s`` device
+        seconds per side."""
         if not hasattr(ping, "arrays") or "raa" not in ping.arrays:
             return False
         from auvgw.slam.bathymetric.swath_processing import SwathProcessing, ping_samples
@@ -549,7 +550,8 @@ class VizStage(Stage):
         if 0.0 <= t - self._raw_ping_t.get((device, side), -math.inf) < opts.raw_ping_period_s:
             return True  # shown less often (a clock that went back shows the ping at once)
         self._raw_ping_t[(device, side)] = t
-        a, r, amp, _ = ping_samples(ping, SwathProcessing(frequency_hz=opts.geoswath_frequency_hz))
+        f_hz = opts.geoswath_frequencies_hz.get(device, opts.geoswath_frequency_hz)
+        a, r, amp, _ = ping_samples(ping, SwathProcessing(frequency_hz=f_hz))
         self.logger.raw_ping(device, t, side, np.degrees(a), r, amp)
         return True
 

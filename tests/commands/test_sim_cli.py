@@ -164,3 +164,36 @@ def test_sim_bad_input_is_a_one_line_error(tmp_path: Path, capsys: pytest.Captur
     assert "unknown device(s) sonar" in capsys.readouterr().err
     assert main([*args, "--speed", "-1"]) == 2
     assert "--speed must be >= 0" in capsys.readouterr().err
+
+
+def test_sim_holds_the_ports_of_its_device_processes(tmp_path: Path) -> None:
+    """``--processes --hold`` (the GeoSwath survey demo's sim, issue 31: the GeoSwath's numpy
+    work in its own process, never in the INS's interpreter): at the run's end every device
+    process has sent every sample up to it, writes ``finished`` and keeps its ports open,
+    silent, until SIGTERM; the gateway configuration names the GeoSwath's model."""
+    scn = tmp_path / "gs.json"
+    scn.write_text(json.dumps({**SCENARIO, "devices": {"geoswath": {"enabled": True}}}))
+    out = tmp_path / "out"
+    proc = _sim("--scenario", str(scn), "--speed", "2", "--duration", "3", "--out", str(out),
+                "--devices", "ins,geoswath", "--processes", "--hold")  # fmt: skip
+    try:
+        head = "\n".join(_read_until(proc, "finished; ports held open", timeout=120.0))
+        assert "one process per device" in head
+        assert (out / "finished").read_text().strip() == "3.000"
+        assert os.path.exists(os.readlink(out / "ports" / "ins"))  # the pty is still there
+        cfg = load_gateway_config(out / "gateway.toml")
+        assert set(cfg.devices) == {"ins", "ins_can", "geoswath"}
+        gs = cfg.devices["geoswath"].geoswath
+        assert gs is not None and gs.model_khz == 250
+        assert proc.poll() is None  # held until told
+        proc.send_signal(signal.SIGTERM)
+        stdout, stderr = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 0, stderr
+    assert "stopped at vehicle time 3.00 s" in stdout and "Traceback" not in stderr
+    stats = {ln.split()[0]: ln.split() for ln in stdout.splitlines() if ln.startswith("  ")}
+    assert stats["ins"][1:3] == ["samples", "301"] and stats["geoswath"][1:3] == ["samples", "13"]
+    assert not any((out / "ports").iterdir()), "ports are gone after the sim stops"

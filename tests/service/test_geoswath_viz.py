@@ -1,7 +1,9 @@
 """The GeoSwath in Rerun: emulated raw pings through the Rerun stage (in-process and as bus
 envelopes) beside the swaths the swath stage makes of them, read back from a real ``.rrd``: the
 raw-ping entity of each side holds the latest ping's samples at plausible angles and ranges, and
-the layout shows it next to the swath view."""
+the layout shows it next to the swath view. The sample times count wavelengths, so the ranges
+hold only with the model's frequency: it comes from the gateway configuration the emulator
+writes (``[devices.<name>.geoswath] model_khz``, what ``auvgw run --viz-rrd`` reads)."""
 
 from __future__ import annotations
 
@@ -10,13 +12,16 @@ from pathlib import Path
 
 import numpy as np
 
+from auvgw.config.gateway import parse_gateway_config
 from auvgw.drivers.geoswath import default_codec
 from auvgw.envelope import encode_envelope
+from auvgw.sim_devices.runner import gateway_config
 from auvgw.stages.swath import SwathStage, SwathStageConfig
 from auvgw.testing.geoswath import survey_context
 from auvgw.viz import entities as ent
 from auvgw.viz.blueprint import RAW_PING_VIEW
 from auvgw.viz.logger import RerunLogger, VizOptions
+from auvgw.viz.options import gateway_viz_options
 from auvgw.viz.readback import read_layouts, read_recording
 from auvgw.viz.stage import VizStage
 
@@ -28,12 +33,16 @@ def test_raw_pings_beside_the_swath_in_a_recording(tmp_path: Path) -> None:
     em = survey_context(tmp_path, {"model_khz": 500})  # 95 m range: about 4000 samples a ping
     codec = default_codec()
     rrd = tmp_path / "gs.rrd"
-    opts = VizOptions(geoswath_frequency_hz=em.frequency, raw_ping_period_s=0.9,
-                      raw_ping_max_samples=MAX_SAMPLES, time_kind="duration")  # fmt: skip
+    gw_cfg = parse_gateway_config(gateway_config(em.endpoints()))
+    (gs,) = gw_cfg.devices  # the emulator's device, its model (500 kHz, not the default 250)
+    assert gw_cfg.devices[gs].geoswath is not None
+    assert gw_cfg.devices[gs].geoswath.frequency_hz == em.frequency == 500_000
+    opts = gateway_viz_options(gw_cfg, VizOptions(raw_ping_period_s=0.9,
+                               raw_ping_max_samples=MAX_SAMPLES, time_kind="duration"))  # fmt: skip
     logger = RerunLogger(rrd=rrd, options=opts)
     viz = VizStage(logger, "auv1")
     swath = SwathStage(
-        SwathStageConfig(device="gs", processing={"frequency_hz": em.frequency}),
+        SwathStageConfig(device=gs, processing={"frequency_hz": em.frequency}),
         on_publish=lambda key, payload, t_ns: viz.handle_sample(key, payload, t_ns),
     )
     pings = []
@@ -43,13 +52,13 @@ def test_raw_pings_beside_the_swath_in_a_recording(tmp_path: Path) -> None:
                 ping = codec.decode_ping(d)
                 pings.append(ping)
                 t_ns = int((float(ping.header["ping_time"]) + LAG_S) * 1e9)
-                swath.feed("gs", t_ns, ping)
+                swath.feed(gs, t_ns, ping)
                 if k % 2:  # the starboard pings as bus envelopes, the port ones in-process
-                    payload, _ = encode_envelope(ping, "gs", t_ns, k, wire="geoswath")
-                    assert viz.handle_sample("auv/auv1/sensor/gs/geoswathping", payload,
+                    payload, _ = encode_envelope(ping, gs, t_ns, k, wire="geoswath")
+                    assert viz.handle_sample(f"auv/auv1/sensor/{gs}/geoswathping", payload,
                                              t_ns) == "logged"  # fmt: skip
                 else:
-                    assert viz.on_message("gs", t_ns, ping) == "logged"
+                    assert viz.on_message(gs, t_ns, ping) == "logged"
         swath.flush()
     finally:
         em.close()
@@ -59,7 +68,7 @@ def test_raw_pings_beside_the_swath_in_a_recording(tmp_path: Path) -> None:
     assert len(rec[ent.SOUNDINGS].times) > 0  # the processed swaths
     c = float(pings[0].arrays["minisvs"]["velocity"][0])
     for side, name in ((0, "port"), (1, "starboard")):
-        rows = rec[f"{ent.RAW_PING}/gs/{name}"]
+        rows = rec[f"{ent.RAW_PING}/{gs}/{name}"]
         # one view per 0.9 device s of each side's 2 Hz pings: 50, 51, 52, 53 (+ offset)
         assert len(rows.times) == 4
         xy = np.asarray(rows.values("Points2D:positions")[-1], dtype=np.float64)

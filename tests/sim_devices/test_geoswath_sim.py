@@ -13,7 +13,14 @@ from auvgw.drivers import kongsberg
 from auvgw.drivers.formats import get_format
 from auvgw.drivers.geoswath import GeoSwathPing, default_codec
 from auvgw.sim_devices.geoswath import NOISE_FLOOR, SideSamples, side_samples
-from auvgw.sim_devices.world import FlatTerrain, World, body_to_ned
+from auvgw.sim_devices.world import (
+    FlatTerrain,
+    ProceduralTerrain,
+    TerrainModel,
+    World,
+    body_to_ned,
+    first_crossing,
+)
 from auvgw.slam.bathymetric.swath_processing import (
     SwathProcessing,
     SwathProcessor,
@@ -214,3 +221,62 @@ def test_survey_sample_meets_the_accuracy_bar(tmp_path: Path) -> None:
     share, n = within(res)
     assert n > 500 and share >= 0.95
     assert abs(float(np.nanmean(res.error))) < 0.05
+
+
+class _Counting(ProceduralTerrain):
+    """The survey's kind of terrain, counting its exact and coarse evaluations (points)."""
+
+    def __init__(self) -> None:
+        super().__init__(40.0, 8.0, 150.0, seed=42, octaves=4)
+        self.exact = self.coarse = 0
+
+    def depth(self, x, y):  # type: ignore[no-untyped-def]
+        self.exact += np.size(np.broadcast(np.asarray(x), np.asarray(y)))
+        return super().depth(x, y)
+
+    def gradient(self, x, y):  # type: ignore[no-untyped-def]
+        self.exact += np.size(np.broadcast(np.asarray(x), np.asarray(y)))
+        return super().gradient(x, y)
+
+    def depth_coarse(self, x, y):  # type: ignore[no-untyped-def]
+        self.coarse += np.size(np.broadcast(np.asarray(x), np.asarray(y)))
+        return super().depth_coarse(x, y)
+
+
+def test_the_emulator_casts_its_fan_in_single_precision() -> None:
+    """Issue 31's end-to-end break: at 10x the survey's GeoSwath pings cost the emulator 11 ms of
+    CPU each in double precision (45 % of a core beside the INS's 1000 ticks/s in the sim
+    process, whose clock then fell 40-58 vehicle s behind). Its rays and amplitudes use the
+    terrain's coarse (float32) depth, never the exact one; the fan's ranges stay within the
+    terrain's ``coarse_tol_m`` of the exact cast, and the exact cast is unchanged by its coarse
+    bracket."""
+    terrain = _Counting()
+    world = World(terrain=terrain, sound_speed=1500.0)
+    pos = np.array([120.0, -60.0, 25.0])
+    s = side_samples(world, pos, 0.4, 0.01, 0.03, 1, 250_000, 195.0, np.random.default_rng(1))
+    assert terrain.exact == 0 and terrain.coarse > 10_000
+    assert np.isfinite(s.true_angle).sum() > 0.3 * len(s.time)  # past the water column
+    theta = np.radians(np.linspace(0.0, 85.0, 721))
+    d = (body_to_ned(0.4, 0.01, 0.03) @ np.stack([0 * theta, np.sin(theta), np.cos(theta)])).T
+    coarse = first_crossing(terrain, pos, d, 205.0, samples=24, exact=False)
+    exact = first_crossing(terrain, pos, d, 205.0, samples=24)
+    reference = first_crossing(_Exact(terrain), pos, d, 205.0, samples=24)
+    hit = np.isfinite(reference)
+    assert hit.sum() > 600 and np.array_equal(hit, np.isfinite(exact))
+    assert np.array_equal(hit, np.isfinite(coarse))
+    assert np.max(np.abs(exact[hit] - reference[hit])) < 1e-9
+    assert 0 < np.max(np.abs(coarse[hit] - reference[hit])) < terrain.coarse_tol_m
+
+
+class _Exact(TerrainModel):
+    """A terrain with no coarse depth: :func:`first_crossing` as it was, all in float64."""
+
+    def __init__(self, inner: TerrainModel) -> None:
+        self.inner = inner
+
+    def depth(self, x, y):  # type: ignore[no-untyped-def]
+        return self.inner.depth(x, y)
+
+    @property
+    def bounds(self) -> tuple[float, float]:
+        return self.inner.bounds
