@@ -166,6 +166,7 @@ def test_sim_bad_input_is_a_one_line_error(tmp_path: Path, capsys: pytest.Captur
     assert "--speed must be >= 0" in capsys.readouterr().err
 
 
+@pytest.mark.e2e
 def test_sim_holds_the_ports_of_its_device_processes(tmp_path: Path) -> None:
     """``--processes --hold`` (the GeoSwath survey demo's sim, issue 31: the GeoSwath's numpy
     work in its own process, never in the INS's interpreter): at the run's end every device

@@ -11,6 +11,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from auvgw.config.gateway import parse_gateway_config
 from auvgw.drivers.geoswath import default_codec
@@ -98,3 +99,37 @@ def test_raw_pings_beside_the_swath_in_a_recording(tmp_path: Path) -> None:
     (raw,) = [v for v in layouts if RAW_PING_VIEW in v]
     assert raw[RAW_PING_VIEW] == ("2D", ent.RAW_PING)
     assert raw["Swath & bathymetry (NED m, colour = depth)"] == ("3D", ent.WORLD)
+
+
+def test_the_gateway_device_names_its_model(tmp_path: Path) -> None:
+    """``[devices.<name>.geoswath] model_khz``: the frequency the broadcast ping does not carry
+    (the Rerun stage's raw-ping ranges); 250 kHz when left out, a wrong model named, and the
+    table refused on another format."""
+    from auvgw.config.gateway import load_gateway_config
+    from auvgw.ground.errors import ConfigError
+    from auvgw.viz.options import gateway_viz_options
+
+    udp = '[devices.{name}.transport]\nkind = "udp"\nport = {port}\n'
+    head = 'vehicle = "auv1"\n'
+
+    def write(body: str) -> Path:
+        p = tmp_path / "gw.toml"
+        p.write_text(head + body)
+        return p
+
+    cfg = load_gateway_config(write(
+        '[devices.gs1]\nformat = "geoswath"\n[devices.gs1.geoswath]\nmodel_khz = 500\n'
+        + udp.format(name="gs1", port=47001)
+        + '[devices.gs2]\nformat = "geoswath"\n' + udp.format(name="gs2", port=47002)
+    ))  # fmt: skip
+    assert gateway_viz_options(cfg).geoswath_frequencies_hz == {"gs1": 500e3, "gs2": 250e3}
+    with pytest.raises(ConfigError, match=r"gs1.*geoswath.*model_khz"):
+        load_gateway_config(write(
+            '[devices.gs1]\nformat = "geoswath"\n[devices.gs1.geoswath]\nmodel_khz = 300\n'
+            + udp.format(name="gs1", port=47001)
+        ))  # fmt: skip
+    with pytest.raises(ConfigError, match="'geoswath' only applies to format 'geoswath'"):
+        load_gateway_config(write(
+            '[devices.mb]\nformat = "kongsberg"\n[devices.mb.geoswath]\nmodel_khz = 250\n'
+            + udp.format(name="mb", port=47003)
+        ))  # fmt: skip
