@@ -364,10 +364,10 @@ def test_fuzz_corrupted_stream_keeps_every_untouched_ping(ops, data, chunk: int)
             b = bytearray(p)
             b[data.draw(st.integers(0, len(p) - 1))] ^= 1 << data.draw(st.integers(0, 7))
             stream += b
-        elif op == "truncate":  # the next ping's header whole inside the cut one's claim, after
-            # up to 200 bytes of garbage before it (found by Hypothesis: a cut of one header
-            # length, one garbage byte, is the open case below)
-            stream += p[: data.draw(st.integers(1, max(1, len(p) - HSIZE - 200)))]
+        elif op == "truncate":  # its header whole, and the next ping's header whole inside
+            # its claim after up to 200 bytes of garbage (Hypothesis found both open cases
+            # below: a cut of one header length before one garbage byte; a cut inside the header)
+            stream += p[: data.draw(st.integers(HSIZE, max(HSIZE, len(p) - HSIZE - 200)))]
         else:
             stream += data.draw(st.binary(max_size=200)) + p
             kept.append(p)
@@ -396,4 +396,13 @@ def test_a_ping_cut_in_its_last_header_length_costs_itself_only_over_udp(cut: in
 def test_a_ping_cut_in_its_last_header_length_in_a_byte_stream(chunk: int) -> None:
     _, pings = rdf_bytes(3, seed=4)
     _, got = frame_all(pings[0][:-20] + pings[1] + pings[2], file_mode=False, chunk=chunk)
+    assert got == pings[1:]
+
+
+@pytest.mark.xfail(strict=True, reason="open: in a byte stream a ping cut inside its own header "
+                   "(51 of 64 bytes kept) takes the next ping's first bytes into its header; the "
+                   "spliced ping decodes (no checksum) and the next ping is lost")
+def test_a_ping_cut_inside_its_header_in_a_byte_stream() -> None:
+    _, pings = rdf_bytes(2, seed=2)
+    _, got = frame_all(pings[0][:51] + pings[1], file_mode=False, chunk=1)
     assert got == pings[1:]
