@@ -69,6 +69,10 @@ class ChainRun:
     max_vehicle_s: float | None = None
     fusion_lag_s: float = FUSION_LAG_S
     nav_timeout: float = 2.0
+    #: the sim paced by the pilot (``auvgw sim --lockstep``); False: free-running on the host
+    #: clock, where a stalled process delays the loop in vehicle time
+    lockstep: bool = True
+    lockstep_step: float = 0.15
 
 
 @dataclass
@@ -77,7 +81,8 @@ class ChainResult:
     completed (``legs_done`` of ``n_legs``), ``done_vehicle_s`` (None: not done), errors
     against the truth while running (m: ``xte_rms``, ``xte_max``, ``depth_rms``,
     ``depth_max``), ``nav_rms`` (odometry position against the truth, m, horizontal),
-    ``flown_s`` (vehicle s running), the gateway's command counters and the exit codes."""
+    ``flown_s`` (vehicle s running), the gateway's command counters, the exit codes and the
+    lock-step summary."""
 
     mode: str = "waiting"
     abort_reason: str = ""
@@ -95,6 +100,9 @@ class ChainResult:
     pilot: dict[str, Any] = field(default_factory=dict)
     processes: dict[str, Any] = field(default_factory=dict)
     wall_s: float = 0.0
+    #: the lock-step sim's closing line (answers, holds, host s held, hold timeouts); "" when
+    #: free-running
+    lockstep: str = ""
 
     def line(self) -> str:
         """One line: mode, legs, errors against the truth."""
@@ -238,7 +246,7 @@ def fly_chain(run: ChainRun, progress: bool = False) -> ChainResult:
     out.mkdir(parents=True, exist_ok=True)
     sim_dir = out / "sim"
     sim_dir.mkdir(exist_ok=True)
-    for stale in ("gateway.toml", "truth.jsonl", "finished", "faults.json"):
+    for stale in ("gateway.toml", "truth.jsonl", "finished", "faults.json", "clock"):
         (sim_dir / stale).unlink(missing_ok=True)
     if run.faults:
         (sim_dir / "faults.json").write_text(json.dumps(run.faults))
@@ -264,9 +272,10 @@ def fly_chain(run: ChainRun, progress: bool = False) -> ChainResult:
         settings.write_text(fusion.model_dump_json(indent=1))
         children.start("fusion", ["fusion", "--settings", str(settings), "--connect", hub,
                                   "--listen", free_endpoint()])  # fmt: skip
+        lockstep = ["--lockstep", str(sim_dir / "clock")] if run.lockstep else []
         children.start("pilot", ["pilot", "--mission", str(run.mission), "--vehicle", VEHICLE,
                                  "--feedback-timeout", str(run.feedback_timeout),
-                                 "--nav-timeout", str(run.nav_timeout),
+                                 "--nav-timeout", str(run.nav_timeout), *lockstep,
                                  "--connect", hub, "--listen", free_endpoint()])  # fmt: skip
         wanted = {"fusion", "pilot", "gateway", "ins", "dvl", "actuators"}
         if run.rrd is not None:
@@ -281,7 +290,9 @@ def fly_chain(run: ChainRun, progress: bool = False) -> ChainResult:
         sim = children.start("sim", [
             "sim", "--scenario", str(run.scenario), "--speed", str(run.speed), "--duration",
             str(duration), "--out", str(sim_dir), "--vehicle", VEHICLE, "--hold",
-            "--start-delay", str(run.start_delay)])  # fmt: skip
+            "--start-delay", str(run.start_delay),
+            *(["--lockstep", "--lockstep-step", str(run.lockstep_step), "--connect", hub,
+                "--listen", free_endpoint()] if run.lockstep else [])])  # fmt: skip
         _wait_for(sim_dir / "gateway.toml", sim, 120.0)
         epoch_s = _read_when_written(lambda: _load_sim_config(sim_dir)).clock.epoch_ns / 1e9
         follow = _Follow(session, VEHICLE, epoch_s, out)
@@ -337,6 +348,11 @@ def fly_chain(run: ChainRun, progress: bool = False) -> ChainResult:
     res.processes = children.report()
     res.wall_s = time.monotonic() - t0
     res.pilot = dict(follow.status.get("pilot") or {})
+    sim_log = out / "sim.log"
+    if run.lockstep and sim_log.exists():
+        lines = [ln for ln in sim_log.read_text(errors="replace").splitlines()
+                 if ln.startswith("lock-step: ") and "answers" in ln]  # fmt: skip
+        res.lockstep = lines[-1][len("lock-step: "):] if lines else "no summary (sim killed?)"
     last = follow.last_state
     res.mode = str(last.get("mode", "waiting"))
     res.abort_reason = str(last.get("abort_reason", ""))
@@ -415,6 +431,8 @@ def run_closed_loop(args: argparse.Namespace) -> int:
     print()
     print("pilot: " + res.line())
     print(f"commands at the gateway: {json.dumps(res.commands)}")
+    if res.lockstep:
+        print(f"lock-step: {res.lockstep}")
     print("processes: " + ", ".join(f"{n} exit {p['exit_code']}" + (" (killed)" if p["killed"]
                                     else "") for n, p in res.processes.items()))  # fmt: skip
     if run.rrd is not None:

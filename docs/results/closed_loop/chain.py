@@ -10,7 +10,10 @@ case: how the mission ended, legs, vehicle time to ``done``, cross-track and dep
 the truth (RMS, final), commands forwarded / refused at the gateway, the pilot's timer steps
 (steps made without odometry: stalls on the host), the wall time and the load average.
 ``--dvl-dropout T0,T1``: the DVL unplugged from vehicle T0 to T1 s (the sim's fault control
-file), so the navigation drift shows in the flown path. Output: chain.txt (verbatim).
+file), so the navigation drift shows in the flown path. The sim runs in lock-step with the pilot
+(``auvgw sim --lockstep``: vehicle time waits for the pilot's answers, so host stalls stretch
+wall time, not vehicle time; the ``lock-step`` line after each case says how often and how long
+it held); ``--free-running``: on the host clock, as before. Output: chain.txt (verbatim).
 """
 
 from __future__ import annotations
@@ -34,12 +37,18 @@ def main() -> None:
     ap.add_argument("--max-vehicle-s", type=float, default=None, metavar="S")
     ap.add_argument("--feedback-timeout", type=float, default=1.0, metavar="S",
                     help="auvgw pilot --feedback-timeout (0: no fin / thruster checks)")
+    ap.add_argument("--free-running", action="store_true",
+                    help="the sim on the host clock (no lock-step)")
+    ap.add_argument("--lockstep-step", type=float, default=0.15, metavar="S",
+                    help="auvgw sim --lockstep-step (vehicle s past the pilot's last answer)")
     args = ap.parse_args()
     faults = None
     if args.dvl_dropout:
         t0, t1 = (float(v) for v in args.dvl_dropout.split(","))
         faults = {"dvl": {"unplug": [[t0, t1]]}}
         print(f"DVL unplugged from vehicle t = {t0:g} to {t1:g} s")
+    print("sim free-running on the host clock" if args.free_running else
+          f"sim in lock-step with the pilot (step {args.lockstep_step:g} s)")
     print(f"auvgw pilot --feedback-timeout {args.feedback_timeout:g}"
           + (" (fin and thruster checks off)" if args.feedback_timeout == 0 else ""))
     print(f"{'case':14s} {'end':22s} {'legs':>5s} {'done s':>7s} {'XTE RMS (max)':>15s} "
@@ -50,7 +59,8 @@ def main() -> None:
         run = ChainRun(mission=config_file(f"missions/{name}.toml"), speed=float(speed),
                        out=args.out / case.replace("@", "_"), faults=faults,
                        feedback_timeout=args.feedback_timeout, start_delay=args.start_delay,
-                       max_vehicle_s=args.max_vehicle_s)  # fmt: skip
+                       max_vehicle_s=args.max_vehicle_s, lockstep=not args.free_running,
+                       lockstep_step=args.lockstep_step)  # fmt: skip
         r = fly_chain(run)
         refused = sum(v for k, v in r.commands.items()
                       if isinstance(v, int) and k not in ("forwarded", "last_seq"))  # fmt: skip
@@ -62,6 +72,8 @@ def main() -> None:
               f"{r.nav_rms:6.2f}/{r.nav_final:5.2f} "
               f"{r.commands.get('forwarded', 0):6d}/{refused:<5d} "
               f"{timer!s:>6s} {r.wall_s:7.0f} {os.getloadavg()[0]:5.1f}", flush=True)  # fmt: skip
+        if r.lockstep:
+            print(f"  lock-step: {r.lockstep}", flush=True)
 
 
 if __name__ == "__main__":
