@@ -44,6 +44,8 @@ from auvgw.commands.common import SubParsers, UserError, add_command, handle_sto
 from auvgw.drivers import registry
 
 if TYPE_CHECKING:
+    import zenoh
+
     from auvgw.sim_devices.runner import DeviceProcesses, Runner
 
 log = logging.getLogger(__name__)
@@ -235,7 +237,16 @@ def run(args: argparse.Namespace) -> int:
         lockstep = None
         if args.lockstep and isinstance(runner, Runner):
             assert start_at is not None
-            lockstep = signals.enter_context(_Lockstep(runner, args, out / "clock", start_at))
+            from auvgw.bus import bus_from_args, open_cli_session
+
+            try:
+                bus = bus_from_args(args)
+            except ValueError as exc:
+                raise UserError(str(exc)) from exc
+            lockstep = signals.enter_context(Lockstep(
+                runner, args.vehicle, args.lockstep_step, args.lockstep_timeout,
+                args.lockstep_first, out / "clock", start_at, open_cli_session(bus),
+                own_session=True))  # fmt: skip
         try:
             cfg = runner.write_gateway_config(
                 out / "gateway.toml", vehicle=args.vehicle, start_at=start_at,
@@ -282,48 +293,49 @@ def _load_epoch_ns(path: Path) -> int:
     return epoch
 
 
-class _Lockstep:
-    """The sim's side of lock-step: the controller's answers (``auv/<V>/pilot/ack``) move the
-    clock's hold limit; every new anchor goes to the clock file (:mod:`auvgw.ground.simclock`).
-    """
+class Lockstep:
+    """The sim's side of lock-step: the controller's answers (``auv/<vehicle>/pilot/ack`` on
+    ``session``) move ``runner``'s clock hold limit (``step``, ``timeout``, ``first``: see
+    :meth:`~auvgw.sim_devices.clock.SimClock.lockstep`); every new anchor goes to the clock file
+    ``clock_file`` (:mod:`auvgw.ground.simclock`). Set :attr:`epoch_ns` (the gateway's ``[clock]
+    epoch_ns``), then :meth:`begin` before the runner starts at the host instant ``start_at``.
+    Closing it withdraws the subscriber (and closes ``session`` if ``own_session``)."""
 
-    def __init__(self, runner: Runner, args: argparse.Namespace, clock_file: Path,
-                 start_at: float) -> None:  # fmt: skip
-        from auvgw.bus import Keys, bus_from_args, open_cli_session
+    def __init__(self, runner: Runner, vehicle: str, step: float, timeout: float, first: float,
+                 clock_file: Path, start_at: float, session: zenoh.Session,
+                 own_session: bool = False) -> None:  # fmt: skip
+        from auvgw.bus import Keys
         from auvgw.ground.simclock import ClockFileWriter
         from auvgw.stages.pilot import ACK
 
         self.clock = runner.clock
-        self.args = args
-        self.key = f"{Keys(args.vehicle).base}/pilot/{ACK}"
+        self.key = f"{Keys(vehicle).base}/pilot/{ACK}"
         self.epoch_ns = 0
         self.bad = 0  # answers that could not be read
+        self._params = (step, timeout, first)
         self._writer = ClockFileWriter(clock_file)
         self._start_at = start_at
-        try:
-            bus = bus_from_args(args)
-        except ValueError as exc:
-            raise UserError(str(exc)) from exc
-        self._session = open_cli_session(bus)
+        self._session = session
+        self._own = own_session
         self._sub: object | None = None
 
-    def __enter__(self) -> _Lockstep:
+    def __enter__(self) -> Lockstep:
         return self
 
     def __exit__(self, *_exc: object) -> None:
         if self._sub is not None:
             self._sub.undeclare()  # type: ignore[attr-defined]
-        self._session.close()
+        if self._own:
+            self._session.close()
         self._writer.close()
 
     def begin(self) -> None:
-        """Hold the clock at ``--lockstep-first`` and listen for answers (before the start)."""
-        a = self.args
+        """Hold the clock at ``first`` and listen for answers (before the start)."""
 
         def on_anchor(t: float, host: float, speed: float, limit: float) -> None:
             self._writer.publish(t, host, speed, limit, self.epoch_ns)
 
-        self.clock.lockstep(a.lockstep_step, a.lockstep_timeout, a.lockstep_first, on_anchor)
+        self.clock.lockstep(*self._params, on_anchor)
         # the anchor of vehicle time 0 before the clock starts: readers map the host clock
         self._writer.publish(0.0, self._start_at, self.clock.speed, self.clock.limit,
                              self.epoch_ns)  # fmt: skip
