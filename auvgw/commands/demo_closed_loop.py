@@ -73,6 +73,9 @@ class ChainRun:
     #: clock, where a stalled process delays the loop in vehicle time
     lockstep: bool = True
     lockstep_step: float = 0.15
+    #: start the vehicle on the mission (at its first waypoint and depth, heading along leg 0,
+    #: as the in-process runs do) instead of at the scenario's start pose
+    start_on_mission: bool = False
 
 
 @dataclass
@@ -241,9 +244,11 @@ def fly_chain(run: ChainRun, progress: bool = False) -> ChainResult:
     from auvgw.subscribe import GatewaySubscriber
 
     mission = load_mission(run.mission)
-    scn = load_scenario(run.scenario)
     out = run.out
     out.mkdir(parents=True, exist_ok=True)
+    scenario = _scenario_on_mission(run.scenario, mission, out) if run.start_on_mission \
+        else run.scenario  # fmt: skip
+    scn = load_scenario(scenario)
     sim_dir = out / "sim"
     sim_dir.mkdir(exist_ok=True)
     for stale in ("gateway.toml", "truth.jsonl", "finished", "faults.json", "clock"):
@@ -288,7 +293,7 @@ def fly_chain(run: ChainRun, progress: bool = False) -> ChainResult:
         # only for the gateway (start_delay after the sim's gateway.toml)
         _wait_alive(sub, {"fusion", "pilot"}, children, 120.0)
         sim = children.start("sim", [
-            "sim", "--scenario", str(run.scenario), "--speed", str(run.speed), "--duration",
+            "sim", "--scenario", str(scenario), "--speed", str(run.speed), "--duration",
             str(duration), "--out", str(sim_dir), "--vehicle", VEHICLE, "--hold",
             "--start-delay", str(run.start_delay),
             *(["--lockstep", "--lockstep-step", str(run.lockstep_step), "--connect", hub,
@@ -366,6 +371,19 @@ def fly_chain(run: ChainRun, progress: bool = False) -> ChainResult:
     for k, v in sc.items():
         setattr(res, k, v)
     return res
+
+
+def _scenario_on_mission(scenario: Path, mission: Mission, out: Path) -> Path:
+    """``OUT/scenario.json``: ``scenario`` with the vehicle starting at the mission's first
+    waypoint and depth, heading along leg 0 (its route's two points set the start heading)."""
+    data = json.loads(scenario.read_text())
+    a, b = mission.leg(0)
+    data["vehicle"]["waypoints"] = [[a.north, a.east], [b.north, b.east]]
+    data["vehicle"]["depth_m"] = a.depth
+    data["name"] = f"{data.get('name', 'scenario')}-on-{mission.name}"
+    path = out / "scenario.json"
+    path.write_text(json.dumps(data, indent=1))
+    return path
 
 
 def _read_when_written(read: Any, timeout_s: float = 10.0) -> Any:

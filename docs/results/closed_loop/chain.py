@@ -37,6 +37,9 @@ def main() -> None:
     ap.add_argument("--max-vehicle-s", type=float, default=None, metavar="S")
     ap.add_argument("--feedback-timeout", type=float, default=1.0, metavar="S",
                     help="auvgw pilot --feedback-timeout (0: no fin / thruster checks)")
+    ap.add_argument("--scenario-start", action="store_true",
+                    help="start at the scenario's pose (5 m, heading north) instead of on the "
+                    "mission (its first waypoint and depth, heading along leg 0, as in-process)")
     ap.add_argument("--free-running", action="store_true",
                     help="the sim on the host clock (no lock-step)")
     ap.add_argument("--lockstep-step", type=float, default=0.15, metavar="S",
@@ -47,8 +50,10 @@ def main() -> None:
         t0, t1 = (float(v) for v in args.dvl_dropout.split(","))
         faults = {"dvl": {"unplug": [[t0, t1]]}}
         print(f"DVL unplugged from vehicle t = {t0:g} to {t1:g} s")
-    print("sim free-running on the host clock" if args.free_running else
-          f"sim in lock-step with the pilot (step {args.lockstep_step:g} s)")
+    print(("sim free-running on the host clock" if args.free_running else
+           f"sim in lock-step with the pilot (step {args.lockstep_step:g} s)")
+          + ("; start at the scenario's pose" if args.scenario_start else
+             "; start on the mission (first waypoint and depth, heading along leg 0)"))
     print(f"auvgw pilot --feedback-timeout {args.feedback_timeout:g}"
           + (" (fin and thruster checks off)" if args.feedback_timeout == 0 else ""))
     print(f"{'case':14s} {'end':22s} {'legs':>5s} {'done s':>7s} {'XTE RMS (max)':>15s} "
@@ -60,7 +65,8 @@ def main() -> None:
                        out=args.out / case.replace("@", "_"), faults=faults,
                        feedback_timeout=args.feedback_timeout, start_delay=args.start_delay,
                        max_vehicle_s=args.max_vehicle_s, lockstep=not args.free_running,
-                       lockstep_step=args.lockstep_step)  # fmt: skip
+                       lockstep_step=args.lockstep_step,
+                       start_on_mission=not args.scenario_start)  # fmt: skip
         r = fly_chain(run)
         refused = sum(v for k, v in r.commands.items()
                       if isinstance(v, int) and k not in ("forwarded", "last_seq"))  # fmt: skip
