@@ -19,11 +19,36 @@ it held); ``--free-running``: on the host clock, as before. Output: chain.txt (v
 from __future__ import annotations
 
 import argparse
+import json
 import os
 from pathlib import Path
 
-from auvgw.commands.demo_closed_loop import ChainRun, fly_chain
+import numpy as np
+
+from auvgw.commands.demo_closed_loop import ChainRun, fly_chain, score
+from auvgw.commands.demo_parts import _load_sim_config
+from auvgw.control.mission import load_mission
 from auvgw.ground.paths import config_file
+
+
+def windows(out: Path, mission: Path, spans: list[tuple[str, float, float]]) -> None:
+    """Per vehicle-time window ``(label, t0, t1)`` of a finished run in ``out``: the truth's
+    cross-track and depth error against the plan and the odometry's error against the truth
+    (RMS, max or final), from the run's files (truth log, the pilot's states, the odometry)."""
+    epoch = _load_sim_config(out / "sim").clock.epoch_ns / 1e9
+    truth = np.array([(s["t"], s["x"], s["y"], s["z"]) for s in
+                      map(json.loads, (out / "sim" / "truth.jsonl").read_text().splitlines())])
+    states = sorted((s["t"] - epoch, int(s["leg"]), str(s["mode"])) for s in
+                    map(json.loads, (out / "pilot_state.jsonl").read_text().splitlines()))
+    odo = np.array(sorted((o["t"] - epoch, o["x"], o["y"]) for o in
+                          map(json.loads, (out / "odometry.jsonl").read_text().splitlines())))
+    m = load_mission(mission)
+    for label, t0, t1 in spans:
+        sel = truth[(truth[:, 0] >= t0) & (truth[:, 0] <= t1)]
+        sc = score(m, sel, states, odo)
+        print(f"  {label:26s} XTE RMS {sc['xte_rms']:5.2f} (max {sc['xte_max']:5.2f})  depth RMS "
+              f"{sc['depth_rms']:6.3f}  nav error RMS {sc['nav_rms']:5.2f} (at the end "
+              f"{sc['nav_final']:5.2f}) m", flush=True)  # fmt: skip
 
 
 def main() -> None:
@@ -80,6 +105,11 @@ def main() -> None:
               f"{timer!s:>6s} {r.wall_s:7.0f} {os.getloadavg()[0]:5.1f}", flush=True)  # fmt: skip
         if r.lockstep:
             print(f"  lock-step: {r.lockstep}", flush=True)
+        if faults:
+            windows(run.out, run.mission, [
+                ("before the dropout", 0.0, t0), (f"DVL out ({t0:g}-{t1:g} s)", t0, t1),
+                (f"after ({t1:g}-{t1 + 120:g} s)", t1, t1 + 120),
+                (f"the rest ({t1 + 120:g} s-)", t1 + 120, 1e9)])  # fmt: skip
 
 
 if __name__ == "__main__":
