@@ -130,6 +130,7 @@ class SimClock:
         self.holds = 0  #: times vehicle time reached the hold limit and stood still
         self.held_s = 0.0  #: host s spent holding
         self.hold_timeouts = 0  #: holds released by the wall timeout, not by an answer
+        self.timeout_times: list[float] = []  #: vehicle s of the first 20 of them
 
     # -- time ---------------------------------------------------------------------------------
     @property
@@ -189,6 +190,8 @@ class SimClock:
         self._t_anchor, self._real_anchor = self._limit, host
         if host - self._held_since > self._hold_timeout:
             self.hold_timeouts += 1
+            if len(self.timeout_times) < 20:
+                self.timeout_times.append(self._limit)
             self._move_limit(self._limit + self._step, host)
         return self._t_anchor
 

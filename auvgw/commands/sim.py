@@ -277,7 +277,7 @@ def run(args: argparse.Namespace) -> int:
             stop.wait()
         _print_stats(runner)
         if lockstep is not None:
-            print(lockstep.summary(), flush=True)
+            print(f"lock-step: {lockstep.summary()}", flush=True)
     finally:
         runner.close()
         signals.close()
@@ -352,8 +352,11 @@ class Lockstep:
         self.clock.answered(t - self.epoch_ns / 1e9)
 
     def summary(self) -> str:
-        """One line: answers, holds, held host time, timeouts."""
+        """One line: answers, holds, held host time, timeouts (and the vehicle times of the
+        first few)."""
         c = self.clock
-        return (f"lock-step: {c.answers} answers, {c.holds} holds ({c.held_s:.1f} host s held), "
-                f"{c.hold_timeouts} hold timeouts, {self.bad} unreadable answers; "
-                f"limit at the end {c.limit:.2f} s")  # fmt: skip
+        at = ", ".join(f"{t:.2f}" for t in c.timeout_times[:5])
+        more = ", ..." if c.hold_timeouts > 5 else ""
+        return (f"{c.answers} answers, {c.holds} holds ({c.held_s:.1f} host s held), "
+                f"{c.hold_timeouts} hold timeouts" + (f" (at vehicle t {at}{more} s)" if at else "")
+                + f", {self.bad} unreadable answers; limit at the end {c.limit:.2f} s")  # fmt: skip
