@@ -27,6 +27,7 @@ relative to the file's folder; a ``dbc``/``table`` name not found there is one s
 
 from __future__ import annotations
 
+import time
 import types
 import typing
 from collections.abc import Mapping
@@ -247,6 +248,20 @@ class ClockConfig(_Model):
         if self.time_scale == 1.0 or self.epoch_ns is None:
             return t_recv_ns
         return self.epoch_ns + round((t_recv_ns - self.epoch_ns) * self.time_scale)
+
+    def paced_monotonic(self) -> float:
+        """Host monotonic seconds, or with ``sim_clock`` the sim's vehicle time over
+        ``time_scale``: it runs like the host clock while the sim runs and stands still while
+        a lock-step sim holds, so a device is not judged silent (and reopened) for a hold."""
+        if self.sim_clock is not None:
+            if self._reader is None:
+                from auvgw.ground.simclock import ClockFileReader
+
+                self._reader = ClockFileReader(self.sim_clock)
+            v = self._reader.vehicle_s()
+            if v is not None:
+                return float(v) / self.time_scale
+        return time.monotonic()
 
     def vehicle_s(self, t_ns: int) -> float:
         """Vehicle seconds of a stamped time (needs ``epoch_ns``)."""

@@ -632,6 +632,13 @@ def test_lockstep_holds_vehicle_time_until_answered_and_times_out_a_silent_contr
     assert c.now() == pytest.approx(2.15) and c.hold_timeouts == 1
     host[0] += 0.01
     assert c.now() == pytest.approx(2.19) and c.limit == pytest.approx(2.3)
+    # the gateway's clock on that file: stamps and its silence watchdog's clock stand at the
+    # limit while the sim holds there (this host's clock is long past the fake anchors)
+    from auvgw.config.gateway import ClockConfig
+
+    gw = ClockConfig(time_scale=4.0, epoch_ns=7_000_000_000, sim_clock=str(tmp_path / "clock"))
+    assert gw.stamp(time.time_ns()) == 7_000_000_000 + 2_300_000_000
+    assert gw.paced_monotonic() == pytest.approx(2.3 / 4.0)
     with pytest.raises(ValueError):
         SimClock(speed=0).lockstep(0.15, 5.0, 1.0)
     writer.close()
