@@ -237,10 +237,15 @@ def test_against_a_lockstep_sim_the_timer_counts_vehicle_time_and_odometry_is_an
     # the host moves on, the sim's clock does not (a stall): no timer step, no nav_lost
     stage.tick()
     assert stage.stats.timer_steps == 0 and stage.autopilot.status.mode == "running"
+    # vehicle time moves on 0.1 s and holds (the sim waits on us): one timer step, not one a tick
+    clock.publish(10.1, time.monotonic(), 1.0, 10.1, int(epoch * 1e9))
+    for _ in range(5):
+        stage.tick()
+    assert stage.stats.timer_steps == 1 and stage.autopilot.status.mode == "running"
     # vehicle time moves 2.6 s on without odometry: the navigation is lost in vehicle time
     clock.publish(12.6, time.monotonic(), 1.0, 12.6, int(epoch * 1e9))
     stage.tick()
-    assert stage.stats.timer_steps == 1
+    assert stage.stats.timer_steps == 2
     st = stage.autopilot.status
     assert (st.mode, st.abort_reason) == ("aborted", "nav_lost"), st
     clock.close()

@@ -129,6 +129,7 @@ class PilotStage(Stage):
         self.autopilot = Autopilot(mission, self.config.autopilot())
         self.sink = sink
         self._t_last_step: float | None = None  # of the last input-driven step
+        self._t_stepped: float | None = None  # of the last step, input or timer
         self._period_tol = self.config.control_period_s * (1.0 - 1e-6)  # inputs at the period
         self._t_input: float | None = None  # newest odometry time (s)
         self._host_input: float | None = None  # the timer's clock when it came (s)
@@ -198,11 +199,16 @@ class PilotStage(Stage):
             if self._host_input is None:  # the lock-step clock appeared after the input
                 self._host_input = now
             idle = now - self._host_input
-            if idle >= self.config.control_period_s:
+            t = self._t_input + idle
+            # a period on from the last step too: a lock-step clock stands still while the sim
+            # holds, and stepping again at the same time would flood the actuators
+            if idle >= self.config.control_period_s and (
+                    self._t_stepped is None or t - self._t_stepped >= self._period_tol):
                 self.stats.timer_steps += 1
-                self._step(self._t_input + idle)
+                self._step(t)
 
     def _step(self, t: float) -> None:
+        self._t_stepped = t
         cmd = self.autopilot.step(t)
         self.stats.steps += 1
         if self.sink is not None:
