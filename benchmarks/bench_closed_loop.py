@@ -144,8 +144,10 @@ def loop_latency(speed: float, seconds: float, out: Path, lockstep: bool = False
     step = None
     try:
         fusion = _fusion_config("auv1", (0.0, 0.0, scn.vehicle.depth_m), scn.devices.ins.noise)
-        fusion = fusion.model_copy(update={"filter": fusion.filter.model_copy(
-            update={"max_latency_s": 0.03})})  # fmt: skip
+        # as the closed-loop demo runs it: a 0.03 s lag and no clock warm-up (a warm-up holds
+        # the first 2 s of samples back, which a lock-step sim waits on in a hold)
+        filt = fusion.filter.model_copy(update={"max_latency_s": 0.03})
+        fusion = fusion.model_copy(update={"clock_warmup_s": 0.0, "filter": filt})
         (out / "fusion.json").write_text(fusion.model_dump_json())
         children.start("fusion", ["fusion", "--settings", str(out / "fusion.json"),
                                   "--connect", hub, "--listen", free_endpoint()])  # fmt: skip
