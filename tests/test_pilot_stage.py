@@ -234,6 +234,13 @@ def test_against_a_lockstep_sim_the_timer_counts_vehicle_time_and_odometry_is_an
         stage.feed_odometry(odometry(epoch + 9.9 + 0.05 * k, x))
     acks = [b["t"] for k, b in published if k == "auv/auv1/pilot/ack"]
     assert acks == pytest.approx([epoch + 9.9, epoch + 9.95, epoch + 10.0])
+    # with the feedback checked, an answer waits for the actuators' feedback too
+    cfg = PilotStageConfig(feedback_timeout_s=1.0, lockstep_clock=str(tmp_path / "clock"))
+    checked = PilotStage(MISSION, cfg,
+                         on_publish=lambda k, b, t: published.append((k, json.loads(b))))
+    checked.feed_actuators(ActuatorFeedback(epoch + 9.0, 1000.0, 0.0, 0.0))
+    checked.feed_odometry(odometry(epoch + 9.9, x))
+    assert published[-1] == ("auv/auv1/pilot/ack", {"t": pytest.approx(epoch + 9.5)})
     # the host moves on, the sim's clock does not (a stall): no timer step, no nav_lost
     stage.tick()
     assert stage.stats.timer_steps == 0 and stage.autopilot.status.mode == "running"

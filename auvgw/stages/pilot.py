@@ -17,8 +17,9 @@ last odometry's time plus the host time since, so a silent navigation is caught 
 ``nav_timeout_s`` + one period and the vehicle surfaces. Against a lock-step sim
 (``lockstep_clock``: the sim's clock file, :mod:`auvgw.ground.simclock`) the timer counts
 *vehicle* time instead (a stalled host then delays nothing in vehicle time), and every odometry
-sample is answered on ``auv/<v>/pilot/ack`` (``{"t": s}``, the odometry time acted on; type
-``PilotAck``), which lets the sim's clock run on. Each step's
+sample is answered on ``auv/<v>/pilot/ack`` (``{"t": s}``, the odometry time acted on, held
+back to half the feedback timeout past the newest actuator feedback when the feedback is
+checked; type ``PilotAck``), which lets the sim's clock run on. Each step's
 :class:`~auvgw.control.autopilot.ActuatorCommand` goes to the ``sink`` (a
 :data:`~auvgw.control.autopilot.CommandSink`; :class:`BusCommands` puts it on
 ``auv/<v>/cmd/<device>`` as the actuators' ``ActuatorCommand``, which the gateway checks and
@@ -130,6 +131,7 @@ class PilotStage(Stage):
         self.sink = sink
         self._t_last_step: float | None = None  # of the last input-driven step
         self._t_stepped: float | None = None  # of the last step, input or timer
+        self._t_feedback: float | None = None  # newest actuator feedback time (s)
         self._period_tol = self.config.control_period_s * (1.0 - 1e-6)  # inputs at the period
         self._t_input: float | None = None  # newest odometry time (s)
         self._host_input: float | None = None  # the timer's clock when it came (s)
@@ -173,6 +175,8 @@ class PilotStage(Stage):
         with self._lock:
             self.stats.feedback += 1
             self.autopilot.feedback(fb)
+            if self._t_feedback is None or fb.t > self._t_feedback:
+                self._t_feedback = fb.t
 
     def post_actuators(self, fb: ActuatorFeedback) -> None:
         """:meth:`feed_actuators` on the worker thread (after :meth:`start`)."""
@@ -187,7 +191,18 @@ class PilotStage(Stage):
             self._t_last_step = t
             self._step(t)
         if self.config.lockstep_clock is not None:  # answered up to t (after its command)
-            self.publish_json(ACK, {"t": t}, t, "PilotAck")
+            self.publish_json(ACK, {"t": self._ack_time(t)}, t, "PilotAck")
+
+    def _ack_time(self, t: float) -> float:
+        """The time a lock-step sim may take as answered: the odometry's ``t``, held back to
+        half the feedback timeout past the newest actuator feedback once feedback is judged
+        (the sim then waits for a starved feedback path instead of the pilot calling the
+        actuators silent; a really silent one still passes the timeout after the sim's hold
+        timeouts)."""
+        fto = self.config.feedback_timeout_s
+        if fto > 0 and self._t_feedback is not None:
+            return min(t, self._t_feedback + fto / 2)
+        return t
 
     def tick(self) -> None:
         """Step on the timer's clock (host; vehicle in lock-step) while no odometry comes (the
