@@ -246,6 +246,7 @@ class Gateway:
                 if COMMAND_TYPE in can.codec.types:
                     dev.gate = CommandGate(can.codec)
         self._stamp = cfg.clock.stamp
+        self._paced = cfg.clock.paced_monotonic  # the silence watchdog's clock
         self._threads: list[threading.Thread] = []
         self._decls: list[Undeclarable] = []
         self._status_pubs: dict[str, zenoh.Publisher] = {}
@@ -626,10 +627,12 @@ class Gateway:
     @staticmethod
     def silence_limit(dev: _Device) -> float | None:
         """Host seconds without a frame after which an open device is closed and reopened
-        (None: never): ``reopen_silent_periods`` times its period (``expected_period_s``, or the
-        median interval of its recent frame-bearing reads), at least ``stale_after_s`` (the
-        device is reported stale first), doubled for each reopen in a row that brought no
-        frame (up to :data:`MAX_SILENT_BACKOFF` times). Never for a file replay or a UDP port."""
+        (None: never; with a lock-step sim's clock, seconds of ``ClockConfig.paced_monotonic``,
+        which stands still while the sim holds its vehicle time): ``reopen_silent_periods``
+        times its period (``expected_period_s``, or the median interval of its recent
+        frame-bearing reads), at least ``stale_after_s`` (the device is reported stale first),
+        doubled for each reopen in a row that brought no frame (up to
+        :data:`MAX_SILENT_BACKOFF` times). Never for a file replay or a UDP port."""
         cfg = dev.cfg
         period = cfg.expected_period_s
         if period is None and len(dev.frame_reads) >= 3:
@@ -670,7 +673,7 @@ class Gateway:
         with dev.cmd_lock:
             dev.transport = transport
         # judged silent from its last frame; from the open only after a silent reopen
-        last_frame = time.monotonic() if dev.silent_reopens else None
+        last_frame = self._paced() if dev.silent_reopens else None
         try:
             token = self.session.liveliness().declare_token(self.keys.alive(dev.name))
             if host is not None:
@@ -691,7 +694,8 @@ class Gateway:
                     dev.framed = True
                     now = time.monotonic()
                     if frames:
-                        dev.frame_reads.append(now)
+                        paced = self._paced()
+                        dev.frame_reads.append(paced)
                         if dev.silent_reopens:
                             log.warning(
                                 "%s: frames again after %d reopen(s) for silence: the "
@@ -699,7 +703,7 @@ class Gateway:
                                 dev.name,
                                 dev.silent_reopens,
                             )
-                        last_frame, dev.silent_reopens = now, 0
+                        last_frame, dev.silent_reopens = paced, 0
                     if dev.deferred:
                         if now - dev.deferred_since >= SETTLE_S:
                             self._settle(dev, transport)
@@ -709,7 +713,7 @@ class Gateway:
                     self._settle(dev, transport)
                 elif dev.framed:
                     self._update_framing(dev)
-                elif self._silent(dev, last_frame, time.monotonic()):
+                elif self._silent(dev, last_frame, self._paced()):
                     break
                 self._update_rejected(dev, transport)
                 if (now := time.monotonic()) >= next_loss_poll:

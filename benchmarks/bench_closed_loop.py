@@ -21,8 +21,10 @@ reaches the emulated controller's SLCAN adapter. A command is tied to its INS fr
 the pilot stamps each command with the time of the odometry sample it stepped on, which is the
 INS sample's (its device clock mapped onto the gateway's vehicle-paced stamps, within the
 smallest transport delay: the frame's 10 ms tick is taken as the one at or before). Printed:
-p50 / p90 / p99 / max in host ms and in vehicle ms (x speed), the number of commands, the
-machine's load average and core count.
+p50 / p90 / p99 / max in host ms and in vehicle ms (the sim's clock when the CAN frame arrived
+minus the INS frame's time), the number of commands, the machine's load average and core count;
+``--sim free|lockstep|both``: the sim on the host clock, or paced by the pilot (``auvgw sim
+--lockstep``: its vehicle latency stays bounded however the host stalls).
 """
 
 from __future__ import annotations
@@ -39,6 +41,7 @@ from typing import Any
 
 import numpy as np
 
+from auvgw.commands.sim import Lockstep
 from auvgw.config.scenario import load_scenario
 from auvgw.ground.paths import config_file
 from auvgw.sim_devices import dynamics
@@ -48,6 +51,8 @@ from auvgw.sim_devices.runner import Runner, RunOptions
 from auvgw.sim_devices.world import World
 
 SCENARIO = config_file("scenarios/closed_loop.json")
+#: vehicle s the lock-step sim may run past the pilot's last answer (``auvgw sim`` default)
+LOCKSTEP_STEP_S = 0.15
 
 
 def bare(seconds: float) -> float:
@@ -92,9 +97,11 @@ def emulated(speed: float, seconds: float) -> tuple[int, float, float]:
     return st["late_ticks"], st["max_lag_s"], st["process_cpu_s"] / wall
 
 
-def loop_latency(speed: float, seconds: float, out: Path) -> tuple[list[float], dict[str, Any]]:
-    """Host seconds from each INS frame to the actuator command stepped on it (see the module
-    docstring), for ``seconds`` of vehicle time at ``speed``; and the run's counters."""
+def loop_latency(speed: float, seconds: float, out: Path, lockstep: bool = False,
+                 ) -> tuple[list[tuple[float, float]], dict[str, Any]]:  # fmt: skip
+    """(host s, vehicle s) from each INS frame to the actuator command stepped on it (see the
+    module docstring), for ``seconds`` of vehicle time at ``speed`` (``lockstep``: the sim
+    paced by the pilot); and the run's counters."""
     from auvgw.bus import Keys, decode_envelope, open_session
     from auvgw.commands.demo_parts import _fusion_config, _gateway_toml
     from auvgw.config.bus import BusConfig
@@ -105,7 +112,8 @@ def loop_latency(speed: float, seconds: float, out: Path) -> tuple[list[float], 
     r = Runner(scn, RunOptions(out_dir=out / "sim", speed=speed))
     ins, act = r.emulator("ins"), r.emulator("actuators")
     written: dict[int, float] = {}  # INS tick (10 ms of vehicle time) -> host s handed to pty
-    arrived: dict[int, float] = {}  # command seq -> host s its CAN frame reached the adapter
+    # command seq -> (host s, vehicle s) its CAN frame reached the adapter
+    arrived: dict[int, tuple[float, float]] = {}
     ins_send, on_frame = ins.serial.send, act.can.adapter.on_frame
 
     def hooked_send(frame: bytes, t: float, at: float | None = None) -> bool:
@@ -113,10 +121,10 @@ def loop_latency(speed: float, seconds: float, out: Path) -> tuple[list[float], 
         return bool(ins_send(frame, t, at))
 
     def hooked_frame(frame: Any) -> None:
-        h = time.monotonic()
+        h, v = time.monotonic(), r.clock.now()
         on_frame(frame)
         with contextlib.suppress(Exception):  # not a command: the emulator counted it
-            arrived.setdefault(int(act.codec.decode_frame(frame).seq), h)
+            arrived.setdefault(int(act.codec.decode_frame(frame).seq), (h, v))
 
     ins.serial.send = hooked_send
     act.can.adapter.on_frame = hooked_frame
@@ -132,20 +140,31 @@ def loop_latency(speed: float, seconds: float, out: Path) -> tuple[list[float], 
         cmds.append((int(env.seq), env.t_recv_ns, time.monotonic()))
 
     cmd_sub = session.declare_subscriber(keys.cmd("actuators"), on_cmd)
+    clock_file = out / "sim" / "clock"
+    step = None
     try:
         fusion = _fusion_config("auv1", (0.0, 0.0, scn.vehicle.depth_m), scn.devices.ins.noise)
-        fusion = fusion.model_copy(update={"filter": fusion.filter.model_copy(
-            update={"max_latency_s": 0.03})})  # fmt: skip
+        # as the closed-loop demo runs it: a 0.03 s lag and no clock warm-up (a warm-up holds
+        # the first 2 s of samples back, which a lock-step sim waits on in a hold)
+        filt = fusion.filter.model_copy(update={"max_latency_s": 0.03})
+        fusion = fusion.model_copy(update={"clock_warmup_s": 0.0, "filter": filt})
         (out / "fusion.json").write_text(fusion.model_dump_json())
         children.start("fusion", ["fusion", "--settings", str(out / "fusion.json"),
                                   "--connect", hub, "--listen", free_endpoint()])  # fmt: skip
         children.start("pilot", ["pilot", "--mission", str(config_file("missions/box.toml")),
                                  "--feedback-timeout", "0", "--nav-timeout", "2",
+                                 *(["--lockstep", str(clock_file)] if lockstep else []),
                                  "--connect", hub, "--listen", free_endpoint()])  # fmt: skip
         start_at = time.monotonic() + 30.0
+        if lockstep:
+            step = Lockstep(r, "auv1", LOCKSTEP_STEP_S, 5.0, 1.0, clock_file, start_at, session)
         cfg = r.write_gateway_config(out / "sim" / "gateway.toml", vehicle="auv1",
-                                     start_at=start_at)  # fmt: skip
+                                     start_at=start_at,
+                                     sim_clock=clock_file if lockstep else None)  # fmt: skip
         epoch_ns = int(Path(cfg).read_text().split("epoch_ns = ")[1].split()[0])
+        if step is not None:
+            step.epoch_ns = epoch_ns
+            step.begin()
         children.start("gateway", ["run", "--config", str(_gateway_toml(
             out / "sim", out, free_endpoint(), hub))])  # fmt: skip
         while sub.alive(timeout=0.5) < {"fusion", "pilot", "gateway", "ins", "actuators"}:
@@ -159,8 +178,11 @@ def loop_latency(speed: float, seconds: float, out: Path) -> tuple[list[float], 
         for name in ("pilot", "gateway", "fusion"):
             children.stop(name)
         stats = {"load": (load0, os.getloadavg()), "commands": len(cmds),
-                 "applied": len(arrived), "ins_frames": len(written)}  # fmt: skip
+                 "applied": len(arrived), "ins_frames": len(written),
+                 "lockstep": step.summary() if step is not None else ""}  # fmt: skip
     finally:
+        if step is not None:
+            step.__exit__()
         for name in list(children.procs):
             children.stop(name, grace_s=5.0)
         children.close()
@@ -172,7 +194,7 @@ def loop_latency(speed: float, seconds: float, out: Path) -> tuple[list[float], 
     for seq, stamp_ns, _ in cmds:
         tick = math.floor((stamp_ns - epoch_ns) / 1e7 + 1e-6)  # the INS tick at or before it
         if seq in arrived and tick in written and tick > 0:
-            lat.append(arrived[seq] - written[tick])
+            lat.append((arrived[seq][0] - written[tick], arrived[seq][1] - tick / 100))
     return lat, stats
 
 
@@ -183,17 +205,24 @@ def _pct(v: list[float], q: float) -> float:
 def main_latency(args: argparse.Namespace) -> None:
     print(f"loop latency: INS frame to the pty -> the ActuatorCommand it causes at the CAN "
           f"adapter ({args.seconds:g} vehicle s per speed; {os.cpu_count()} cores)")  # fmt: skip
-    print(f"{'speed':>5s} {'n':>5s} {'p50 ms':>7s} {'p90':>7s} {'p99':>7s} {'max':>7s}  "
-          f"{'vehicle p50':>11s} {'p99':>7s}  load avg (start -> end)")  # fmt: skip
+    print(f"{'sim':>11s} {'speed':>5s} {'n':>5s} {'p50 ms':>7s} {'p90':>7s} {'p99':>7s} "
+          f"{'max':>7s}  {'vehicle p50':>11s} {'p99':>7s} {'max':>7s}  "
+          "load avg (start -> end)")  # fmt: skip
+    modes = {"free": [False], "lockstep": [True], "both": [False, True]}[args.sim]
     for sp in (float(v) for v in args.speeds.split(",")):
-        with tempfile.TemporaryDirectory() as tmp:
-            lat, st = loop_latency(sp, args.seconds, Path(tmp))
-        ms = [1e3 * x for x in lat]
-        (l0, l1) = st["load"]
-        print(f"{sp:5g} {len(ms):5d} {_pct(ms, 50):7.1f} {_pct(ms, 90):7.1f} {_pct(ms, 99):7.1f} "
-              f"{max(ms, default=math.nan):7.1f}  {sp * _pct(ms, 50):11.1f} "
-              f"{sp * _pct(ms, 99):7.1f}  {l0[0]:.1f} -> {l1[0]:.1f} (1 min), "
-              f"{l1[1]:.1f} (5 min)", flush=True)  # fmt: skip
+        for ls in modes:
+            with tempfile.TemporaryDirectory() as tmp:
+                lat, st = loop_latency(sp, args.seconds, Path(tmp), lockstep=ls)
+            ms = [1e3 * h for h, _ in lat]
+            vms = [1e3 * v for _, v in lat]
+            (l0, l1) = st["load"]
+            print(f"{'lock-step' if ls else 'free':>11s} {sp:5g} {len(ms):5d} "
+                  f"{_pct(ms, 50):7.1f} {_pct(ms, 90):7.1f} {_pct(ms, 99):7.1f} "
+                  f"{max(ms, default=math.nan):7.1f}  {_pct(vms, 50):11.1f} {_pct(vms, 99):7.1f} "
+                  f"{max(vms, default=math.nan):7.1f}  {l0[0]:.1f} -> {l1[0]:.1f} (1 min), "
+                  f"{l1[1]:.1f} (5 min)", flush=True)  # fmt: skip
+            if st["lockstep"]:
+                print(f"{'':11s} lock-step: {st['lockstep']}", flush=True)
 
 
 def main() -> None:
@@ -202,6 +231,8 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--speeds", default="1,4,8")
     ap.add_argument("--latency", action="store_true", help="the loop latency through the chain")
+    ap.add_argument("--sim", choices=("free", "lockstep", "both"), default="both",
+                    help="--latency: the sim free-running, in lock-step with the pilot, or both")
     args = ap.parse_args()
     if args.latency:
         main_latency(args)

@@ -27,6 +27,7 @@ relative to the file's folder; a ``dbc``/``table`` name not found there is one s
 
 from __future__ import annotations
 
+import time
 import types
 import typing
 from collections.abc import Mapping
@@ -37,6 +38,7 @@ from pydantic import (
     BaseModel,
     ConfigDict,
     Field,
+    PrivateAttr,
     ValidationError,
     ValidationInfo,
     field_validator,
@@ -219,6 +221,11 @@ class ClockConfig(_Model):
     0; the gateway then stamps ``epoch_ns + (t_recv_ns - epoch_ns) * time_scale``, a
     *vehicle-paced* time: it advances one second per vehicle second, every device clock keeps a
     constant offset to it, and ``(t - epoch_ns) / 1e9`` is the vehicle time in seconds.
+
+    A lock-step sim (``auvgw sim --lockstep``) holds its vehicle time back while the controller
+    has not answered, so host time no longer maps onto it: ``sim_clock`` names the sim's clock
+    file (:mod:`auvgw.ground.simclock`) and the gateway stamps its vehicle time at receipt
+    (``epoch_ns`` + vehicle ns; the scaled host time until the file is written).
     """
 
     time_scale: float = Field(1.0, gt=0, le=1000, description="stamped s per host s")
@@ -228,6 +235,11 @@ class ClockConfig(_Model):
         le=MAX_EPOCH_NS,
         description="host time of vehicle time 0, ns since the Unix epoch",
     )
+    sim_clock: str | None = Field(
+        None, min_length=1, max_length=4096,
+        description="a lock-step sim's clock file: stamp its vehicle time at receipt",
+    )
+    _reader: Any = PrivateAttr(None)
 
     @model_validator(mode="after")
     def _epoch_when_scaled(self) -> ClockConfig:
@@ -240,9 +252,31 @@ class ClockConfig(_Model):
 
     def stamp(self, t_recv_ns: int) -> int:
         """The time the gateway publishes for a host receive time (both ns)."""
+        if self.sim_clock is not None:
+            if self._reader is None:
+                from auvgw.ground.simclock import ClockFileReader
+
+                self._reader = ClockFileReader(self.sim_clock)
+            now = self._reader.stamp_ns(t_recv_ns)
+            if now is not None:
+                return int(now)
         if self.time_scale == 1.0 or self.epoch_ns is None:
             return t_recv_ns
         return self.epoch_ns + round((t_recv_ns - self.epoch_ns) * self.time_scale)
+
+    def paced_monotonic(self) -> float:
+        """Host monotonic seconds, or with ``sim_clock`` the sim's vehicle time over
+        ``time_scale``: it runs like the host clock while the sim runs and stands still while
+        a lock-step sim holds, so a device is not judged silent (and reopened) for a hold."""
+        if self.sim_clock is not None:
+            if self._reader is None:
+                from auvgw.ground.simclock import ClockFileReader
+
+                self._reader = ClockFileReader(self.sim_clock)
+            v = self._reader.vehicle_s()
+            if v is not None:
+                return float(v) / self.time_scale
+        return time.monotonic()
 
     def vehicle_s(self, t_ns: int) -> float:
         """Vehicle seconds of a stamped time (needs ``epoch_ns``)."""

@@ -15,6 +15,14 @@ and dispatched in time order by :meth:`SimClock.run` (in the calling thread) or
 (``t0 + n period``, no drift), so device timestamps stay exact even when a callback runs late;
 late ticks are never skipped, they are counted (:attr:`SimClock.late_ticks`, :attr:`max_lag`).
 
+Lock-step (:meth:`SimClock.lockstep`, speed > 0): vehicle time does not run past a *hold
+limit*, the vehicle time the controller under test last answered (:meth:`SimClock.answered`)
+plus a bounded step; while held the clock stands still, so a stalled host stretches wall time
+instead of vehicle time. A hold longer than a wall timeout is counted
+(:attr:`SimClock.hold_timeouts`) and released by one step, so a silent controller slows the run
+but never hangs it. ``on_anchor`` is told every new anchor (for the processes that read the
+clock through :mod:`auvgw.ground.simclock`).
+
 Everything is thread-safe (one condition variable).
 """
 
@@ -112,6 +120,17 @@ class SimClock:
         self._thread_cpu = 0.0
         self.late_ticks = 0
         self.max_lag = 0.0
+        # lock-step: the hold limit (vehicle s), step (vehicle s), wall timeout (host s)
+        self._limit = math.inf
+        self._step = 0.0
+        self._hold_timeout = math.inf
+        self._held_since: float | None = None  # host s the current hold began
+        self._on_anchor: Callable[[float, float, float, float], object] | None = None
+        self.answers = 0  #: controller answers taken (lock-step)
+        self.holds = 0  #: times vehicle time reached the hold limit and stood still
+        self.held_s = 0.0  #: host s spent holding
+        self.hold_timeouts = 0  #: holds released by the wall timeout, not by an answer
+        self.timeout_times: list[float] = []  #: vehicle s of the first 20 of them
 
     # -- time ---------------------------------------------------------------------------------
     @property
@@ -147,6 +166,8 @@ class SimClock:
             if not self._started:
                 self._real_anchor = self._time_fn() if at is None else float(at)
                 self._started = True
+                if self._on_anchor is not None:
+                    self._on_anchor(self._t_anchor, self._real_anchor, self._speed, self._limit)
                 self._cv.notify_all()
 
     def stop(self) -> None:
@@ -158,7 +179,64 @@ class SimClock:
     def _now(self) -> float:
         if not self._started or self._speed == 0:
             return self._t_anchor
-        return self._t_anchor + (self._time_fn() - self._real_anchor) * self._speed
+        host = self._time_fn()
+        t = self._t_anchor + (host - self._real_anchor) * self._speed
+        if t <= self._limit:
+            return t
+        # held at the limit: the clock stands still (re-anchored there) until it moves
+        if self._held_since is None:  # since the host instant it reached the limit
+            self._held_since = self._real_anchor + (self._limit - self._t_anchor) / self._speed
+            self.holds += 1
+        self._t_anchor, self._real_anchor = self._limit, host
+        if host - self._held_since > self._hold_timeout:
+            self.hold_timeouts += 1
+            if len(self.timeout_times) < 20:
+                self.timeout_times.append(self._limit)
+            self._move_limit(self._limit + self._step, host)
+        return self._t_anchor
+
+    # -- lock-step ----------------------------------------------------------------------------
+    def lockstep(self, step: float, timeout: float, first: float,
+                 on_anchor: Callable[[float, float, float, float], object] | None = None,
+                 ) -> None:  # fmt: skip
+        """Turn lock-step on (speed > 0): vehicle time holds at ``first`` (vehicle s) until
+        :meth:`answered`, then at each answer + ``step`` (s); a hold longer than ``timeout``
+        host s moves the limit one ``step`` on and counts in :attr:`hold_timeouts`.
+        ``on_anchor(t_anchor, host_anchor, speed, limit)`` is called with every new anchor
+        (lock held: keep it short)."""
+        if self._speed == 0:
+            raise ValueError("lock-step needs a real-time clock (speed > 0)")
+        if not (step > 0 and timeout > 0):
+            raise ValueError(f"lock-step step and timeout must be > 0, got {step}, {timeout}")
+        with self._cv:
+            self._step, self._hold_timeout, self._on_anchor = float(step), float(timeout), on_anchor
+            self._move_limit(float(first), self._time_fn())
+
+    @property
+    def limit(self) -> float:
+        """The hold limit (vehicle s; inf: free-running)."""
+        return self._limit
+
+    def answered(self, t: float) -> None:
+        """The controller has answered everything up to vehicle time ``t`` (s): vehicle time
+        may run on to ``t`` + the lock-step step."""
+        with self._cv:
+            self.answers += 1
+            if t + self._step > self._limit:
+                self._move_limit(t + self._step, self._time_fn())
+
+    def _move_limit(self, limit: float, host: float) -> None:
+        """Re-anchor at the current time (lock held), then move the limit and tell."""
+        if self._started and self._speed > 0:  # where the clock is now, held or not
+            t = self._t_anchor + (host - self._real_anchor) * self._speed
+            self._t_anchor, self._real_anchor = min(self._limit, t), host
+        if self._held_since is not None:
+            self.held_s += host - self._held_since
+            self._held_since = None
+        self._limit = limit
+        if self._on_anchor is not None and self._started:
+            self._on_anchor(self._t_anchor, self._real_anchor, self._speed, limit)
+        self._cv.notify_all()
 
     def now(self) -> float:
         """Current vehicle time, s."""
@@ -173,6 +251,8 @@ class SimClock:
             self._t_anchor = self._now()
             self._real_anchor = self._time_fn()
             self._speed = float(speed)
+            if self._on_anchor is not None:
+                self._on_anchor(self._t_anchor, self._real_anchor, self._speed, self._limit)
             self._maybe_advance()
             self._cv.notify_all()
 
@@ -234,6 +314,8 @@ class SimClock:
                         self._cv.wait()
                 else:
                     remaining = (deadline - self._now()) / self._speed
+                    if math.isfinite(self._limit):  # held: wake to judge the hold's timeout
+                        remaining = min(remaining, 0.05)
                     self._cv.wait(min(remaining, 3600.0) if math.isfinite(remaining) else None)
         finally:
             del self._waiting[me]

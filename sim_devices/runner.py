@@ -162,16 +162,22 @@ def _process_cpu_s() -> float:
     return ru.ru_utime + ru.ru_stime
 
 
-def gateway_clock(speed: float, start_at: float) -> dict[str, Any] | None:
+def gateway_clock(speed: float, start_at: float,
+                  sim_clock: Path | None = None) -> dict[str, Any] | None:  # fmt: skip
     """The gateway's ``[clock]`` section for a run at ``speed`` x real time whose vehicle time 0
     is the host ``time.monotonic()`` instant ``start_at``: ``time_scale = speed`` and
     ``epoch_ns``, that instant on the Unix clock (ns), so the gateway stamps vehicle-paced
     receive times and ``(t_recv_ns - epoch_ns) / 1e9`` is vehicle seconds (docs/gateway.md).
-    None at speed 0 (as fast as possible: no fixed mapping to host time)."""
+    None at speed 0 (as fast as possible: no fixed mapping to host time). ``sim_clock``: a
+    lock-step run's clock file (:mod:`auvgw.ground.simclock`), which the gateway then reads.
+    """
     if not speed > 0:
         return None
     epoch_ns = time.time_ns() + round((start_at - time.monotonic()) * 1e9)
-    return {"time_scale": float(speed), "epoch_ns": epoch_ns}
+    clock: dict[str, Any] = {"time_scale": float(speed), "epoch_ns": epoch_ns}
+    if sim_clock is not None:
+        clock["sim_clock"] = str(sim_clock)
+    return clock
 
 
 def gateway_config(
@@ -330,10 +336,13 @@ class Runner(Closing):
         return gateway_config(self.endpoints(), vehicle, clock)
 
     def write_gateway_config(
-        self, path: str | Path, vehicle: str = "auv1", start_at: float | None = None
+        self, path: str | Path, vehicle: str = "auv1", start_at: float | None = None,
+        sim_clock: Path | None = None,
     ) -> Path:
-        """Validate :meth:`gateway_config` with the gateway's own model and write it as TOML."""
-        clock = None if start_at is None else gateway_clock(self.clock.speed, start_at)
+        """Validate :meth:`gateway_config` with the gateway's own model and write it as TOML
+        (``sim_clock``: see :func:`gateway_clock`)."""
+        clock = None if start_at is None else gateway_clock(self.clock.speed, start_at,
+                                                            sim_clock)  # fmt: skip
         return write_gateway_config(
             path, self.endpoints(), vehicle, self.scenario.name, self.ctx.port_dir, clock
         )

@@ -69,6 +69,13 @@ class ChainRun:
     max_vehicle_s: float | None = None
     fusion_lag_s: float = FUSION_LAG_S
     nav_timeout: float = 2.0
+    #: the sim paced by the pilot (``auvgw sim --lockstep``); False: free-running on the host
+    #: clock, where a stalled process delays the loop in vehicle time
+    lockstep: bool = True
+    lockstep_step: float = 0.15
+    #: start the vehicle on the mission (at its first waypoint and depth, heading along leg 0,
+    #: as the in-process runs do) instead of at the scenario's start pose
+    start_on_mission: bool = False
 
 
 @dataclass
@@ -77,7 +84,8 @@ class ChainResult:
     completed (``legs_done`` of ``n_legs``), ``done_vehicle_s`` (None: not done), errors
     against the truth while running (m: ``xte_rms``, ``xte_max``, ``depth_rms``,
     ``depth_max``), ``nav_rms`` (odometry position against the truth, m, horizontal),
-    ``flown_s`` (vehicle s running), the gateway's command counters and the exit codes."""
+    ``flown_s`` (vehicle s running), the gateway's command counters, the exit codes and the
+    lock-step summary."""
 
     mode: str = "waiting"
     abort_reason: str = ""
@@ -95,6 +103,9 @@ class ChainResult:
     pilot: dict[str, Any] = field(default_factory=dict)
     processes: dict[str, Any] = field(default_factory=dict)
     wall_s: float = 0.0
+    #: the lock-step sim's closing line (answers, holds, host s held, hold timeouts); "" when
+    #: free-running
+    lockstep: str = ""
 
     def line(self) -> str:
         """One line: mode, legs, errors against the truth."""
@@ -233,12 +244,14 @@ def fly_chain(run: ChainRun, progress: bool = False) -> ChainResult:
     from auvgw.subscribe import GatewaySubscriber
 
     mission = load_mission(run.mission)
-    scn = load_scenario(run.scenario)
     out = run.out
     out.mkdir(parents=True, exist_ok=True)
+    scenario = _scenario_on_mission(run.scenario, mission, out) if run.start_on_mission \
+        else run.scenario  # fmt: skip
+    scn = load_scenario(scenario)
     sim_dir = out / "sim"
     sim_dir.mkdir(exist_ok=True)
-    for stale in ("gateway.toml", "truth.jsonl", "finished", "faults.json"):
+    for stale in ("gateway.toml", "truth.jsonl", "finished", "faults.json", "clock"):
         (sim_dir / stale).unlink(missing_ok=True)
     if run.faults:
         (sim_dir / "faults.json").write_text(json.dumps(run.faults))
@@ -264,9 +277,10 @@ def fly_chain(run: ChainRun, progress: bool = False) -> ChainResult:
         settings.write_text(fusion.model_dump_json(indent=1))
         children.start("fusion", ["fusion", "--settings", str(settings), "--connect", hub,
                                   "--listen", free_endpoint()])  # fmt: skip
+        lockstep = ["--lockstep", str(sim_dir / "clock")] if run.lockstep else []
         children.start("pilot", ["pilot", "--mission", str(run.mission), "--vehicle", VEHICLE,
                                  "--feedback-timeout", str(run.feedback_timeout),
-                                 "--nav-timeout", str(run.nav_timeout),
+                                 "--nav-timeout", str(run.nav_timeout), *lockstep,
                                  "--connect", hub, "--listen", free_endpoint()])  # fmt: skip
         wanted = {"fusion", "pilot", "gateway", "ins", "dvl", "actuators"}
         if run.rrd is not None:
@@ -279,9 +293,11 @@ def fly_chain(run: ChainRun, progress: bool = False) -> ChainResult:
         # only for the gateway (start_delay after the sim's gateway.toml)
         _wait_alive(sub, {"fusion", "pilot"}, children, 120.0)
         sim = children.start("sim", [
-            "sim", "--scenario", str(run.scenario), "--speed", str(run.speed), "--duration",
+            "sim", "--scenario", str(scenario), "--speed", str(run.speed), "--duration",
             str(duration), "--out", str(sim_dir), "--vehicle", VEHICLE, "--hold",
-            "--start-delay", str(run.start_delay)])  # fmt: skip
+            "--start-delay", str(run.start_delay),
+            *(["--lockstep", "--lockstep-step", str(run.lockstep_step), "--connect", hub,
+                "--listen", free_endpoint()] if run.lockstep else [])])  # fmt: skip
         _wait_for(sim_dir / "gateway.toml", sim, 120.0)
         epoch_s = _read_when_written(lambda: _load_sim_config(sim_dir)).clock.epoch_ns / 1e9
         follow = _Follow(session, VEHICLE, epoch_s, out)
@@ -337,6 +353,11 @@ def fly_chain(run: ChainRun, progress: bool = False) -> ChainResult:
     res.processes = children.report()
     res.wall_s = time.monotonic() - t0
     res.pilot = dict(follow.status.get("pilot") or {})
+    sim_log = out / "sim.log"
+    if run.lockstep and sim_log.exists():
+        lines = [ln for ln in sim_log.read_text(errors="replace").splitlines()
+                 if ln.startswith("lock-step: ") and "answers" in ln]  # fmt: skip
+        res.lockstep = lines[-1][len("lock-step: "):] if lines else "no summary (sim killed?)"
     last = follow.last_state
     res.mode = str(last.get("mode", "waiting"))
     res.abort_reason = str(last.get("abort_reason", ""))
@@ -350,6 +371,19 @@ def fly_chain(run: ChainRun, progress: bool = False) -> ChainResult:
     for k, v in sc.items():
         setattr(res, k, v)
     return res
+
+
+def _scenario_on_mission(scenario: Path, mission: Mission, out: Path) -> Path:
+    """``OUT/scenario.json``: ``scenario`` with the vehicle starting at the mission's first
+    waypoint and depth, heading along leg 0 (its route's two points set the start heading)."""
+    data = json.loads(scenario.read_text())
+    a, b = mission.leg(0)
+    data["vehicle"]["waypoints"] = [[a.north, a.east], [b.north, b.east]]
+    data["vehicle"]["depth_m"] = a.depth
+    data["name"] = f"{data.get('name', 'scenario')}-on-{mission.name}"
+    path = out / "scenario.json"
+    path.write_text(json.dumps(data, indent=1))
+    return path
 
 
 def _read_when_written(read: Any, timeout_s: float = 10.0) -> Any:
@@ -415,6 +449,8 @@ def run_closed_loop(args: argparse.Namespace) -> int:
     print()
     print("pilot: " + res.line())
     print(f"commands at the gateway: {json.dumps(res.commands)}")
+    if res.lockstep:
+        print(f"lock-step: {res.lockstep}")
     print("processes: " + ", ".join(f"{n} exit {p['exit_code']}" + (" (killed)" if p["killed"]
                                     else "") for n, p in res.processes.items()))  # fmt: skip
     if run.rrd is not None:

@@ -59,6 +59,10 @@ def register(sub: SubParsers) -> None:
                    help="the actuators' device name in the gateway (default actuators)")
     p.add_argument("--no-commands", action="store_true",
                    help="publish the set-points only, send no command to the actuators")
+    p.add_argument("--lockstep", type=Path, default=None, metavar="CLOCK",
+                   help="against a lock-step sim (auvgw sim --lockstep): its clock file "
+                   "(OUT/clock); the navigation timeout counts its vehicle time and every "
+                   "odometry sample is answered on auv/<V>/pilot/ack")  # fmt: skip
     add_duration(p)
     add_bus_arguments(p)
     p.set_defaults(func=run)
@@ -93,7 +97,9 @@ def run(args: argparse.Namespace) -> int:
                            nav_timeout_s=args.nav_timeout, max_depth=args.max_depth,
                            feedback_timeout_s=args.feedback_timeout,
                            actuators_device=args.actuators,
-                           fin_rate_dps=args.fin_rate, fin_tau_s=args.fin_tau)  # fmt: skip
+                           fin_rate_dps=args.fin_rate, fin_tau_s=args.fin_tau,
+                           lockstep_clock=None if args.lockstep is None
+                           else str(args.lockstep))  # fmt: skip
 
     def make(session: Any) -> PilotStage:
         sink = None if args.no_commands else BusCommands(session, args.vehicle, args.actuators)

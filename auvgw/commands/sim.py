@@ -16,6 +16,17 @@ object per line: t, x, y, z, heading, roll, pitch, ... in SI / NED / radians) an
 file ``faults.json``: write ``{"ins": {"corrupt_p": 0.1}, "dvl": {"unplug": [[30, 40]]}}`` (the
 scenario's FaultSettings fields; windows in vehicle seconds) and each device's faults become the
 scenario's plus those; delete the file to restore them.
+
+``--lockstep`` (closed loop, one process, ``--speed`` > 0): the sim is paced by the controller
+under test, as HIL benches' synchronous modes are. It joins the bus (``--connect``) and takes
+the controller's answers on ``auv/<V>/pilot/ack`` (JSON ``{"t": s}``: the newest odometry time
+the controller has acted on, on the gateway's stamp clock; ``auvgw pilot --lockstep`` sends
+them); vehicle time never runs more than ``--lockstep-step`` past the last answer, so a stalled
+host stretches wall time, not vehicle time. A hold longer than ``--lockstep-timeout`` host s
+moves on one step and is counted (printed at the end). The clock is shared through
+``OUT/clock`` (:mod:`auvgw.ground.simclock`): gateway.toml's ``[clock] sim_clock`` makes the
+gateway stamp vehicle time, and ``auvgw pilot --lockstep OUT/clock`` times its navigation
+timeout in vehicle time.
 """
 
 from __future__ import annotations
@@ -33,6 +44,8 @@ from auvgw.commands.common import SubParsers, UserError, add_command, handle_sto
 from auvgw.drivers import registry
 
 if TYPE_CHECKING:
+    import zenoh
+
     from auvgw.sim_devices.runner import DeviceProcesses, Runner
 
 log = logging.getLogger(__name__)
@@ -103,6 +116,20 @@ def register(sub: SubParsers) -> None:
         help="run each device in its own process on one shared clock (uses every "
         "core; one Python process runs on about one)",
     )
+    g = p.add_argument_group("lock-step (closed loop: the sim paced by the controller)")
+    g.add_argument("--lockstep", action="store_true",
+                   help="hold vehicle time within --lockstep-step of the controller's last "
+                   "answer (auv/<V>/pilot/ack); needs --speed > 0, one process")
+    g.add_argument("--lockstep-step", type=float, default=0.15, metavar="S",
+                   help="vehicle s the clock may run past the last answer (default 0.15)")
+    g.add_argument("--lockstep-timeout", type=float, default=5.0, metavar="S",
+                   help="host s a hold may last before the clock moves on one step anyway "
+                   "(counted; default 5)")
+    g.add_argument("--lockstep-first", type=float, default=1.0, metavar="S",
+                   help="vehicle s the clock runs before the first answer (default 1)")
+    from auvgw.bus import add_bus_arguments
+
+    add_bus_arguments(p, "Zenoh bus (--lockstep only: where the controller's answers come from)")
     p.set_defaults(func=run)  # fmt: skip
 
 
@@ -173,6 +200,13 @@ def run(args: argparse.Namespace) -> int:
     control = out / "faults.json"
     if args.processes and args.speed == 0:
         raise UserError("--processes needs a real-time clock: --speed > 0")
+    if args.lockstep:
+        if args.speed == 0 or args.processes:
+            raise UserError("--lockstep needs one process (no --processes) and --speed > 0")
+        for opt in ("step", "timeout", "first"):
+            v = getattr(args, f"lockstep_{opt}")
+            if not 0 < v <= 3600:
+                raise UserError(f"--lockstep-{opt} must be > 0 and <= 3600 s, got {v}")
     try:
         options = RunOptions(
             out_dir=out, speed=args.speed, devices=devices, truth_log=truth_log,
@@ -198,12 +232,32 @@ def run(args: argparse.Namespace) -> int:
         _print_ports(runner)
         # vehicle time 0 is fixed now, so the gateway configuration can carry its epoch
         start_at = time.monotonic() + args.start_delay if args.speed > 0 else None
+        lockstep = None
+        if args.lockstep and isinstance(runner, Runner):
+            assert start_at is not None
+            from auvgw.bus import bus_from_args, open_cli_session
+
+            try:
+                bus = bus_from_args(args)
+            except ValueError as exc:
+                raise UserError(str(exc)) from exc
+            lockstep = signals.enter_context(Lockstep(
+                runner, args.vehicle, args.lockstep_step, args.lockstep_timeout,
+                args.lockstep_first, out / "clock", start_at, open_cli_session(bus),
+                own_session=True))  # fmt: skip
         try:
             cfg = runner.write_gateway_config(
-                out / "gateway.toml", vehicle=args.vehicle, start_at=start_at
+                out / "gateway.toml", vehicle=args.vehicle, start_at=start_at,
+                **({"sim_clock": out / "clock"} if lockstep is not None else {}),
             )
         except ValueError as exc:
             raise UserError(f"gateway configuration: {exc}") from exc
+        if lockstep is not None:
+            lockstep.epoch_ns = _load_epoch_ns(cfg)
+            lockstep.begin()
+            print(f"lock-step: answers on {lockstep.key}, step {args.lockstep_step:g} s, "
+                  f"hold timeout {args.lockstep_timeout:g} host s; clock file {out / 'clock'}",
+                  flush=True)  # fmt: skip
         runner.watch_control(control)
         print(f"gateway config: {cfg}")
         if truth_log is not None:
@@ -219,7 +273,87 @@ def run(args: argparse.Namespace) -> int:
             stop.wait()
         runner.stop()
         _print_stats(runner)
+        if lockstep is not None:
+            print(f"lock-step: {lockstep.summary()}", flush=True)
     finally:
         runner.close()
         signals.close()
     return 0
+
+
+def _load_epoch_ns(path: Path) -> int:
+    """``[clock] epoch_ns`` of the gateway configuration just written."""
+    from auvgw.config.gateway import load_gateway_config
+
+    epoch = load_gateway_config(path).clock.epoch_ns
+    assert epoch is not None
+    return epoch
+
+
+class Lockstep:
+    """The sim's side of lock-step: the controller's answers (``auv/<vehicle>/pilot/ack`` on
+    ``session``) move ``runner``'s clock hold limit (``step``, ``timeout``, ``first``: see
+    :meth:`~auvgw.sim_devices.clock.SimClock.lockstep`); every new anchor goes to the clock file
+    ``clock_file`` (:mod:`auvgw.ground.simclock`). Set :attr:`epoch_ns` (the gateway's ``[clock]
+    epoch_ns``), then :meth:`begin` before the runner starts at the host instant ``start_at``.
+    Closing it withdraws the subscriber (and closes ``session`` if ``own_session``)."""
+
+    def __init__(self, runner: Runner, vehicle: str, step: float, timeout: float, first: float,
+                 clock_file: Path, start_at: float, session: zenoh.Session,
+                 own_session: bool = False) -> None:  # fmt: skip
+        from auvgw.bus import Keys
+        from auvgw.ground.simclock import ClockFileWriter
+        from auvgw.stages.pilot import ACK
+
+        self.clock = runner.clock
+        self.key = f"{Keys(vehicle).base}/pilot/{ACK}"
+        self.epoch_ns = 0
+        self.bad = 0  # answers that could not be read
+        self._params = (step, timeout, first)
+        self._writer = ClockFileWriter(clock_file)
+        self._start_at = start_at
+        self._session = session
+        self._own = own_session
+        self._sub: object | None = None
+
+    def __enter__(self) -> Lockstep:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        if self._sub is not None:
+            self._sub.undeclare()  # type: ignore[attr-defined]
+        if self._own:
+            self._session.close()
+        self._writer.close()
+
+    def begin(self) -> None:
+        """Hold the clock at ``first`` and listen for answers (before the start)."""
+
+        def on_anchor(t: float, host: float, speed: float, limit: float) -> None:
+            self._writer.publish(t, host, speed, limit, self.epoch_ns)
+
+        self.clock.lockstep(*self._params, on_anchor)
+        # the anchor of vehicle time 0 before the clock starts: readers map the host clock
+        self._writer.publish(0.0, self._start_at, self.clock.speed, self.clock.limit,
+                             self.epoch_ns)  # fmt: skip
+        self._sub = self._session.declare_subscriber(self.key, self._on_ack)
+
+    def _on_ack(self, sample: object) -> None:
+        import json
+
+        try:
+            t = float(json.loads(sample.payload.to_bytes())["t"])  # type: ignore[attr-defined]
+        except (ValueError, KeyError, TypeError):
+            self.bad += 1
+            return
+        self.clock.answered(t - self.epoch_ns / 1e9)
+
+    def summary(self) -> str:
+        """One line: answers, holds, held host time, timeouts (and the vehicle times of the
+        first few)."""
+        c = self.clock
+        at = ", ".join(f"{t:.2f}" for t in c.timeout_times[:5])
+        more = ", ..." if c.hold_timeouts > 5 else ""
+        return (f"{c.answers} answers, {c.holds} holds ({c.held_s:.1f} host s held), "
+                f"{c.hold_timeouts} hold timeouts" + (f" (at vehicle t {at}{more} s)" if at else "")
+                + f", {self.bad} unreadable answers; limit at the end {c.limit:.2f} s")  # fmt: skip

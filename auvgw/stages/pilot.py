@@ -14,7 +14,12 @@ Inputs:
 The autopilot steps on the odometry, every ``control_period_s`` of its time (the feedback is
 latched for the next step); while no odometry arrives a timer (host clock) steps it on from the
 last odometry's time plus the host time since, so a silent navigation is caught in
-``nav_timeout_s`` + one period and the vehicle surfaces. Each step's
+``nav_timeout_s`` + one period and the vehicle surfaces. Against a lock-step sim
+(``lockstep_clock``: the sim's clock file, :mod:`auvgw.ground.simclock`) the timer counts
+*vehicle* time instead (a stalled host then delays nothing in vehicle time), and every odometry
+sample is answered on ``auv/<v>/pilot/ack`` (``{"t": s}``, the odometry time acted on, held
+back to half the feedback timeout past the newest actuator feedback when the feedback is
+checked; type ``PilotAck``), which lets the sim's clock run on. Each step's
 :class:`~auvgw.control.autopilot.ActuatorCommand` goes to the ``sink`` (a
 :data:`~auvgw.control.autopilot.CommandSink`; :class:`BusCommands` puts it on
 ``auv/<v>/cmd/<device>`` as the actuators' ``ActuatorCommand``, which the gateway checks and
@@ -51,7 +56,11 @@ from auvgw.control.mission import Mission
 from auvgw.fusion.odometry import Odometry
 from auvgw.stages.base import BusCounters, Stage, StageConfig
 
-__all__ = ["BusCommands", "PilotStage", "PilotStageConfig", "PilotStats", "nav_fix"]
+__all__ = ["ACK", "BusCommands", "PilotStage", "PilotStageConfig", "PilotStats", "nav_fix"]
+
+
+#: the output a lock-step sim waits on (``auv/<v>/pilot/ack``)
+ACK = "ack"
 
 
 class PilotStageConfig(StageConfig):
@@ -71,6 +80,8 @@ class PilotStageConfig(StageConfig):
     #: the fin servos' time constant (s) the jam check expects (the emulated one's
     #: ``fin_tau_s``, 0.1 by default): while a fin moves it runs rate x tau behind a pure slew
     fin_tau_s: float = Field(0.1, ge=0, le=10)
+    #: a lock-step sim's clock file: the timer counts its vehicle time, odometry is answered
+    lockstep_clock: str | None = Field(None, min_length=1, max_length=4096)
 
     def autopilot(self) -> AutopilotConfig:
         return AutopilotConfig(nav_timeout_s=self.nav_timeout_s, max_depth=self.max_depth,
@@ -101,7 +112,7 @@ class PilotStage(Stage):
 
     name = "pilot"
     status_schema = "PilotStatus"
-    outputs = ("command", "state")
+    outputs = ("command", "state", ACK)
 
     def __init__(
         self,
@@ -119,9 +130,16 @@ class PilotStage(Stage):
         self.autopilot = Autopilot(mission, self.config.autopilot())
         self.sink = sink
         self._t_last_step: float | None = None  # of the last input-driven step
+        self._t_stepped: float | None = None  # of the last step, input or timer
+        self._t_feedback: float | None = None  # newest actuator feedback time (s)
         self._period_tol = self.config.control_period_s * (1.0 - 1e-6)  # inputs at the period
         self._t_input: float | None = None  # newest odometry time (s)
-        self._host_input = 0.0  # host monotonic time it came
+        self._host_input: float | None = None  # the timer's clock when it came (s)
+        self._clock: Callable[[], float | None] = time.monotonic
+        if self.config.lockstep_clock is not None:
+            from auvgw.ground.simclock import ClockFileReader
+
+            self._clock = ClockFileReader(self.config.lockstep_clock).vehicle_s
         self._timer_stop = threading.Event()
         self._timer: threading.Thread | None = None
 
@@ -157,6 +175,8 @@ class PilotStage(Stage):
         with self._lock:
             self.stats.feedback += 1
             self.autopilot.feedback(fb)
+            if self._t_feedback is None or fb.t > self._t_feedback:
+                self._t_feedback = fb.t
 
     def post_actuators(self, fb: ActuatorFeedback) -> None:
         """:meth:`feed_actuators` on the worker thread (after :meth:`start`)."""
@@ -165,23 +185,45 @@ class PilotStage(Stage):
     def _input(self, t: float) -> None:
         if self._t_input is None or t > self._t_input:
             self._t_input = t
-            self._host_input = time.monotonic()
+            self._host_input = self._clock()
         # timer steps do not count here: an input that comes back steps at once
         if self._t_last_step is None or t - self._t_last_step >= self._period_tol:
             self._t_last_step = t
             self._step(t)
+        if self.config.lockstep_clock is not None:  # answered up to t (after its command)
+            self.publish_json(ACK, {"t": self._ack_time(t)}, t, "PilotAck")
+
+    def _ack_time(self, t: float) -> float:
+        """The time a lock-step sim may take as answered: the odometry's ``t``, held back to
+        half the feedback timeout past the newest actuator feedback once feedback is judged
+        (the sim then waits for a starved feedback path instead of the pilot calling the
+        actuators silent; a really silent one still passes the timeout after the sim's hold
+        timeouts)."""
+        fto = self.config.feedback_timeout_s
+        if fto > 0 and self._t_feedback is not None:
+            return min(t, self._t_feedback + fto / 2)
+        return t
 
     def tick(self) -> None:
-        """Step on the host clock while no odometry comes (the timer calls it on the worker)."""
+        """Step on the timer's clock (host; vehicle in lock-step) while no odometry comes (the
+        timer calls it on the worker)."""
         with self._lock:
-            if self._t_input is None:
+            now = self._clock()
+            if self._t_input is None or now is None:
                 return
-            idle = time.monotonic() - self._host_input
-            if idle >= self.config.control_period_s:
+            if self._host_input is None:  # the lock-step clock appeared after the input
+                self._host_input = now
+            idle = now - self._host_input
+            t = self._t_input + idle
+            # a period on from the last step too: a lock-step clock stands still while the sim
+            # holds, and stepping again at the same time would flood the actuators
+            if idle >= self.config.control_period_s and (
+                    self._t_stepped is None or t - self._t_stepped >= self._period_tol):
                 self.stats.timer_steps += 1
-                self._step(self._t_input + idle)
+                self._step(t)
 
     def _step(self, t: float) -> None:
+        self._t_stepped = t
         cmd = self.autopilot.step(t)
         self.stats.steps += 1
         if self.sink is not None:

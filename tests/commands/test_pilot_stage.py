@@ -216,3 +216,44 @@ def test_rerun_shows_the_pilot_state_commands_and_the_abort(tmp_path):
     assert rows("pilot/fins")[-1]["stern_deg"] == pytest.approx(-15.0)
     assert rec["health/pilot-state/events"].values("TextLog:text") == [
         ["mode running"], ["mode aborted: depth_limit (depth 61.0 m beyond 60 m)"]]
+
+
+def test_against_a_lockstep_sim_the_timer_counts_vehicle_time_and_odometry_is_answered(tmp_path):
+    import time
+
+    from auvgw.ground.simclock import ClockFileWriter
+
+    clock = ClockFileWriter(tmp_path / "clock")
+    epoch = 1_000.0
+    published: list[tuple[str, dict]] = []
+    stage = PilotStage(MISSION, PilotStageConfig(nav_timeout_s=2.0, feedback_timeout_s=0.0,
+                                                 lockstep_clock=str(tmp_path / "clock")),
+                       on_publish=lambda k, b, t: published.append((k, json.loads(b))))  # fmt: skip
+    x = trimmed_start(MISSION)
+    clock.publish(10.0, time.monotonic(), 1.0, 10.0, int(epoch * 1e9))  # held at 10 s
+    for k in range(3):
+        stage.feed_odometry(odometry(epoch + 9.9 + 0.05 * k, x))
+    acks = [b["t"] for k, b in published if k == "auv/auv1/pilot/ack"]
+    assert acks == pytest.approx([epoch + 9.9, epoch + 9.95, epoch + 10.0])
+    # with the feedback checked, an answer waits for the actuators' feedback too
+    cfg = PilotStageConfig(feedback_timeout_s=1.0, lockstep_clock=str(tmp_path / "clock"))
+    checked = PilotStage(MISSION, cfg,
+                         on_publish=lambda k, b, t: published.append((k, json.loads(b))))
+    checked.feed_actuators(ActuatorFeedback(epoch + 9.0, 1000.0, 0.0, 0.0))
+    checked.feed_odometry(odometry(epoch + 9.9, x))
+    assert published[-1] == ("auv/auv1/pilot/ack", {"t": pytest.approx(epoch + 9.5)})
+    # the host moves on, the sim's clock does not (a stall): no timer step, no nav_lost
+    stage.tick()
+    assert stage.stats.timer_steps == 0 and stage.autopilot.status.mode == "running"
+    # vehicle time moves on 0.1 s and holds (the sim waits on us): one timer step, not one a tick
+    clock.publish(10.1, time.monotonic(), 1.0, 10.1, int(epoch * 1e9))
+    for _ in range(5):
+        stage.tick()
+    assert stage.stats.timer_steps == 1 and stage.autopilot.status.mode == "running"
+    # vehicle time moves 2.6 s on without odometry: the navigation is lost in vehicle time
+    clock.publish(12.6, time.monotonic(), 1.0, 12.6, int(epoch * 1e9))
+    stage.tick()
+    assert stage.stats.timer_steps == 2
+    st = stage.autopilot.status
+    assert (st.mode, st.abort_reason) == ("aborted", "nav_lost"), st
+    clock.close()

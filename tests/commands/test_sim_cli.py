@@ -164,6 +164,10 @@ def test_sim_bad_input_is_a_one_line_error(tmp_path: Path, capsys: pytest.Captur
     assert "unknown device(s) sonar" in capsys.readouterr().err
     assert main([*args, "--speed", "-1"]) == 2
     assert "--speed must be >= 0" in capsys.readouterr().err
+    assert main([*args, "--lockstep", "--speed", "0"]) == 2
+    assert "--lockstep needs one process" in capsys.readouterr().err
+    assert main([*args, "--lockstep", "--lockstep-timeout", "0"]) == 2
+    assert "--lockstep-timeout must be > 0" in capsys.readouterr().err
 
 
 @pytest.mark.e2e

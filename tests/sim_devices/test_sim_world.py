@@ -595,6 +595,56 @@ def test_clock_speed_factor_with_an_injected_host_clock() -> None:
         SimClock(speed=-1)
 
 
+def test_lockstep_holds_vehicle_time_until_answered_and_times_out_a_silent_controller(
+    tmp_path: Path,
+) -> None:
+    from auvgw.ground.simclock import ClockFileReader, ClockFileWriter
+
+    host = [100.0]
+    c = SimClock(speed=4.0, time_fn=lambda: host[0])
+    writer = ClockFileWriter(tmp_path / "clock")
+    reader = ClockFileReader(tmp_path / "clock")
+    assert reader.state() is None, "nothing published yet"
+    c.lockstep(0.15, 5.0, 1.0, lambda *a: writer.publish(*a, epoch_ns=7_000_000_000))
+    c.start()
+    host[0] += 0.1
+    assert c.now() == pytest.approx(0.4)
+    host[0] += 3.0  # a stalled controller: vehicle time stands at the first limit
+    assert c.now() == pytest.approx(1.0) and c.holds == 1
+    c.answered(0.8)  # an answer inside the limit moves nothing
+    assert c.limit == 1.0
+    c.answered(2.0)  # vehicle time runs on from where it stood, not from the host clock
+    assert c.limit == pytest.approx(2.15)
+    host[0] += 0.2
+    assert c.now() == pytest.approx(1.8) and c.held_s == pytest.approx(2.85)
+    # the file carries every anchor; a reader computes the same time from its own host clock
+    st = reader.state()
+    assert st is not None and st[2] == 4.0 and st[3] == pytest.approx(2.15)
+    assert st.vehicle_s(host[0]) == pytest.approx(1.8)
+    assert st.vehicle_s(host[0] - 5.0) == pytest.approx(1.0), "no extrapolation back"
+    assert st.vehicle_s(host[0] + 60.0) == pytest.approx(2.15), "held at the limit"
+    # a hold longer than the timeout moves one step on and is counted
+    host[0] += 1.0
+    assert c.now() == pytest.approx(2.15) and c.holds == 2
+    host[0] += 4.0  # 4.9 s after it reached the limit
+    assert c.now() == pytest.approx(2.15) and c.hold_timeouts == 0
+    host[0] += 0.2
+    assert c.now() == pytest.approx(2.15) and c.hold_timeouts == 1
+    host[0] += 0.01
+    assert c.now() == pytest.approx(2.19) and c.limit == pytest.approx(2.3)
+    # the gateway's clock on that file: stamps and its silence watchdog's clock stand at the
+    # limit while the sim holds there (this host's clock is long past the fake anchors)
+    from auvgw.config.gateway import ClockConfig
+
+    gw = ClockConfig(time_scale=4.0, epoch_ns=7_000_000_000, sim_clock=str(tmp_path / "clock"))
+    assert gw.stamp(time.time_ns()) == 7_000_000_000 + 2_300_000_000
+    assert gw.paced_monotonic() == pytest.approx(2.3 / 4.0)
+    with pytest.raises(ValueError):
+        SimClock(speed=0).lockstep(0.15, 5.0, 1.0)
+    writer.close()
+    reader.close()
+
+
 def test_clock_start_at_a_given_host_instant() -> None:
     host = [100.0]
     c = SimClock(speed=10.0, time_fn=lambda: host[0])

@@ -1,0 +1,137 @@
+"""The simulation's vehicle clock shared between processes on one host, through a small file.
+
+A lock-step simulation (``auvgw sim --lockstep``) holds its vehicle time back while the
+controller under test has not answered, so vehicle time no longer follows the host clock. The
+processes that stamp or judge time by it (the gateway's receive stamps, the pilot's
+no-odometry timer) read it here instead of scaling the host clock. The file holds the clock's
+*anchor*, written only when it changes (the sim's clock is re-anchored each time its hold limit
+moves), and every reader computes the current time itself from the host's monotonic clock,
+which all processes of one host share::
+
+    vehicle s = min(limit, t_anchor + (time.monotonic() - mono_anchor) * speed)
+    stamp ns  = epoch_ns + vehicle s * 1e9       (the gateway's [clock] stamp clock)
+
+Layout (little endian, 64 bytes): ``u64 seq | f64 t_anchor | f64 mono_anchor | f64 speed |
+f64 limit | i64 epoch_ns | u64 seq`` then padding. A writer bumps both sequence numbers around
+an update (seqlock); a reader retries while they differ or are odd.
+"""
+
+from __future__ import annotations
+
+import math
+import mmap
+import os
+import struct
+import time
+from pathlib import Path
+
+__all__ = ["ClockFileReader", "ClockFileWriter", "ClockState"]
+
+_BODY = struct.Struct("<ddddq")
+_SEQ = struct.Struct("<Q")
+_SIZE = 64
+_END = _SEQ.size + _BODY.size
+
+
+class ClockState(tuple[float, float, float, float, int]):
+    """``(t_anchor, mono_anchor, speed, limit, epoch_ns)``: vehicle s at host monotonic s,
+    vehicle s per host s, the hold limit (vehicle s, inf: none), vehicle time 0 on the stamp
+    clock (ns since the Unix epoch)."""
+
+    __slots__ = ()
+
+    def vehicle_s(self, mono: float) -> float:
+        """Vehicle time (s) at host monotonic time ``mono`` (s); before the anchor's host time,
+        the anchor's vehicle time (the clock may have been held then: no extrapolation back)."""
+        t_anchor, mono_anchor, speed, limit, _ = self
+        return min(limit, t_anchor + max(0.0, mono - mono_anchor) * speed)
+
+
+class ClockFileWriter:
+    """Creates the clock file at ``path`` (a new file put in place whole: a reader of an older
+    one keeps its own) and publishes anchors into it."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        tmp = self.path.with_name(self.path.name + ".new")
+        fd = os.open(tmp, os.O_RDWR | os.O_CREAT | os.O_TRUNC, 0o644)
+        try:
+            os.ftruncate(fd, _SIZE)
+            self._map = mmap.mmap(fd, _SIZE)
+        finally:
+            os.close(fd)
+        os.replace(tmp, self.path)
+        self._seq = 0
+
+    def publish(self, t_anchor: float, mono_anchor: float, speed: float, limit: float,
+                epoch_ns: int) -> None:  # fmt: skip
+        """Write a new anchor (see the module docstring for the fields and units)."""
+        self._seq += 1  # odd: an update is under way
+        _SEQ.pack_into(self._map, 0, self._seq)
+        _BODY.pack_into(self._map, _SEQ.size, t_anchor, mono_anchor, speed, limit, epoch_ns)
+        self._seq += 1
+        _SEQ.pack_into(self._map, _END, self._seq)
+        _SEQ.pack_into(self._map, 0, self._seq)
+
+    def close(self) -> None:
+        self._map.close()
+
+
+class ClockFileReader:
+    """Reads the clock file at ``path``; a file not written yet reads as None (it may appear
+    later: the reader opens it on first use)."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self._map: mmap.mmap | None = None
+
+    def _open(self) -> mmap.mmap | None:
+        if self._map is None:
+            try:
+                fd = os.open(self.path, os.O_RDONLY)
+            except FileNotFoundError:
+                return None
+            try:
+                if os.fstat(fd).st_size < _SIZE:
+                    return None
+                self._map = mmap.mmap(fd, _SIZE, access=mmap.ACCESS_READ)
+            finally:
+                os.close(fd)
+        return self._map
+
+    def state(self) -> ClockState | None:
+        """The current anchor, or None before the first one was written."""
+        m = self._open()
+        if m is None:
+            return None
+        for _ in range(1000):
+            (a,) = _SEQ.unpack_from(m, 0)
+            body = _BODY.unpack_from(m, _SEQ.size)
+            (b,) = _SEQ.unpack_from(m, _END)
+            (c,) = _SEQ.unpack_from(m, 0)
+            if a == b == c and a % 2 == 0:
+                return None if a == 0 else ClockState(body)
+        raise RuntimeError(f"{self.path}: the clock file kept changing while read")
+
+    def vehicle_s(self) -> float | None:
+        """Vehicle time now (s), None before the clock was written."""
+        st = self.state()
+        return None if st is None else st.vehicle_s(time.monotonic())
+
+    def stamp_ns(self, at_unix_ns: int | None = None) -> int | None:
+        """Vehicle time on the stamp clock (``epoch_ns`` + vehicle ns) now, or at the host
+        instant ``at_unix_ns`` (``time.time_ns()``, e.g. a receive time); None before the
+        clock was written."""
+        st = self.state()
+        if st is None:
+            return None
+        mono = time.monotonic()
+        if at_unix_ns is not None:
+            mono -= (time.time_ns() - at_unix_ns) * 1e-9
+        v = st.vehicle_s(mono)
+        return st[4] + round(v * 1e9) if math.isfinite(v) else None
+
+    def close(self) -> None:
+        if self._map is not None:
+            self._map.close()
+            self._map = None
