@@ -240,9 +240,16 @@ def main() -> int:
 
     if first:
         meta["command"] = f"{old['command']}\n{meta['command']}  # runs {first}-"
+        if meta["params"] not in old["params"]:  # the frozen file moved on (presets added)
+            meta["params"] = (
+                f"{old['params']} (runs 0-{first - 1}); {meta['params']} (runs {first}-)"
+            )
+        else:
+            meta["params"] = old["params"]
     (args.out / "meta.json").write_text(json.dumps(meta, indent=1))
     with open(args.out / "runs.jsonl", "w") as fh:
         fh.write(kept)
+        fh.flush()  # a study stopped in its first new run keeps the runs it resumed from
         t0 = time.time()
         for i, preset, alg, res in run_rows(
             scns, rows, args.runs, args.seed, DRModel(kind=args.nav), args.purpose, first
