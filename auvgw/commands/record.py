@@ -4,7 +4,9 @@ Subscribes to ``auv/<V>/**``: raw frames with their attachments, decoded sensors
 SLAM outputs, status and simulation ground truth, and writes them to an MCAP file with the gateway's
 configuration (queried from ``auv/<V>/config/gateway``), so ``auvgw replay FILE`` needs nothing
 else. Records until SIGINT/SIGTERM or ``--duration`` seconds; prints ``recording ...`` on stdout
-once its subscriptions have reached the gateway; says so on stderr when no raw frame arrives
+once its subscriptions have reached the gateway and ``gateway configuration stored ...`` once
+the gateway answered its configuration query (a stop before that tries once more); says so on
+stderr when no raw frame arrives
 within a few seconds, and exits 1 when it recorded nothing. With ``--sign-key KEY`` (an
 Ed25519 key, ``auvgw sign --new-key``; checked before recording) the finished file is signed
 into ``FILE.mcap.sig`` (docs/security.md). Layout and rationale: auvgw/recording.py,
@@ -40,6 +42,8 @@ log = logging.getLogger(__name__)
 #: (at most DRAIN_MAX_S), so what was published before the stop is in the file
 DRAIN_QUIET_S = 0.3
 DRAIN_MAX_S = 2.0
+#: one last query for the gateway configuration when stopped before any answer came (s)
+CONFIG_LAST_TRY_S = 3.0
 
 
 def register(sub: SubParsers) -> None:
@@ -176,6 +180,18 @@ def run(args: argparse.Namespace) -> int:
                         args.wait_gateway,
                     )
                 print(f"recording {keys.all('**')} to {out}", flush=True)
+
+                def fetch_config(timeout_s: float) -> None:
+                    try:
+                        cfg = _query_config(session, keys, timeout_s, args.gateway_zid)
+                    except ValueError as exc:
+                        log.warning("gateway configuration is not JSON: %s", exc)
+                        return
+                    if cfg is not None:
+                        rec.set_gateway_config(cfg)
+                        print("gateway configuration stored: the recording replays without "
+                              "--config", flush=True)  # fmt: skip
+
                 t_end = None if args.duration is None else time.monotonic() + args.duration
                 next_query = 0.0
                 while (
@@ -184,13 +200,7 @@ def run(args: argparse.Namespace) -> int:
                     and (t_end is None or time.monotonic() < t_end)
                 ):
                     if not rec.has_config and time.monotonic() >= next_query:
-                        try:
-                            cfg = _query_config(session, keys, 1.0, args.gateway_zid)
-                        except ValueError as exc:
-                            log.warning("gateway configuration is not JSON: %s", exc)
-                            cfg = None
-                        if cfg is not None:
-                            rec.set_gateway_config(cfg)
+                        fetch_config(1.0)
                         next_query = time.monotonic() + 1.0
                     wait = 0.1 if t_end is None else max(0.0, min(0.1, t_end - time.monotonic()))
                     stop.wait(wait)
@@ -203,6 +213,8 @@ def run(args: argparse.Namespace) -> int:
                     and time.monotonic() - last_sample[0] < DRAIN_QUIET_S
                 ):
                     time.sleep(0.02)
+                if not rec.has_config:  # stopped before an answer came (a prompt Ctrl-C)
+                    fetch_config(CONFIG_LAST_TRY_S)
             finally:
                 watch.close()
                 for s in subs:

@@ -211,9 +211,11 @@ def test_gateway_record_fusion_and_slam_run_over_mutual_tls_with_acl(secure_bus,
         env = decode_envelope(got_odom.payload.to_bytes())
         assert env.device == "fusion" and env.t_recv_ns > 0
         assert str(got_pose.key_expr).startswith("auv/auv1/slam/")
-        # by the first SLAM pose the recorder has seen seconds of 100 Hz INS frames: stop it as
-        # a user would (SIGINT), rather than waiting out a wall-time duration
-        rec.p.send_signal(signal.SIGINT)
+        # by the first SLAM pose the recorder has seen seconds of 100 Hz INS frames: once it
+        # has the gateway's configuration too, stop it as a user would (SIGINT), rather than
+        # waiting out a wall-time duration
+        rec.wait_line("gateway configuration stored", timeout=120)
+        rec.signal(signal.SIGINT)
         assert rec.p.wait(120) == 0, rec.stderr()
         odom.undeclare()
         pose.undeclare()

@@ -213,9 +213,11 @@ def test_the_documented_example_configuration_is_valid():
     text = (REPO_ROOT / "docs" / "gateway.md").read_text()
     block = re.findall(r"```toml\n(.*?)```", text, re.S)[0]
     cfg = parse_gateway_config(tomllib.loads(block), "docs/gateway.md")
-    assert set(cfg.devices) == {"dvl", "sonar", "mbes", "ins", "mag_can", "replayed"}
+    assert set(cfg.devices) == {"dvl", "sonar", "mbes", "geoswath", "ins", "mag_can", "replayed"}
     assert {d.transport.kind for d in cfg.devices.values()} == {"serial", "udp", "can", "file"}
     assert cfg.devices["sonar"].msis is not None and cfg.devices["sonar"].msis.n_bins == 300
+    gs = cfg.devices["geoswath"].geoswath
+    assert gs is not None and gs.model_khz in (125, 250, 500)
 
 
 @pytest.mark.e2e
