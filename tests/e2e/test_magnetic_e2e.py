@@ -104,36 +104,32 @@ def test_the_recording_holds_the_beacons_the_map_and_the_ranges(beacons_run) -> 
         assert ab == [[250.0, -250.0]], (name, ab)
 
 
-def test_in_process_demo_runs_amb_slam() -> None:
+def test_in_process_demo_runs_amb_slam(tmp_path) -> None:
     """``auvgw demo --scenario beacons`` (gateway, fusion, magnetic stage and Rerun in one
     process, the emulators in another; the gateway opens the ports once the sim is up, a few
     vehicle seconds late at 4x), 60 s: the first two beacons. The summary names AMB-SLAM, and
     the recording holds the true beacons and the estimated ones (the recording's content is
     checked in full on the ``--processes`` run above)."""
-    import tempfile
-    from pathlib import Path
-
     from auvgw.viz.readback import read_recording
 
-    with tempfile.TemporaryDirectory() as tmp:
-        out = Path(tmp)
-        res = subprocess.run(
-            [sys.executable, "-m", "auvgw", "demo", "--scenario", "beacons", "--duration", "60",
-             "--speed", str(SPEED), "--out", str(out)],
-            capture_output=True, text=True, timeout=240,
-        )  # fmt: skip
-        assert res.returncode == 0, res.stdout + res.stderr
-        summary = json.loads((out / "summary.json").read_text())
-        nav = summary["navigation"]
-        assert nav["slam_algorithm"] == "AMB-SLAM"
-        assert summary["slam"]["component"] == "slam-magnetic"
-        assert summary["slam"]["stage"]["observations"] >= 10 and summary["slam"]["landmarks"] >= 1
-        # (the error against the truth is the --processes test's: in one process the fusion
-        # starts at the first INS sample the late-opened gateway reads, from the truth logged by
-        # then, and on a starved machine that falls back to the scenario's start pose)
-        assert nav["slam"]["samples"] > 100 and nav["dead_reckoning"] is not None
-        assert "AMB-SLAM vs truth over" in res.stdout
-        rec = read_recording(out / "demo.rrd")
-        assert len(rec["map/truth/landmarks"].values("Points2D:positions")[-1]) == 20
-        est = rec["map/slam/magnetic/landmarks"].values("Points2D:positions")[-1]
-        assert len(est) == summary["slam"]["landmarks"]
+    out = tmp_path
+    res = subprocess.run(
+        [sys.executable, "-m", "auvgw", "demo", "--scenario", "beacons", "--duration", "60",
+         "--speed", str(SPEED), "--out", str(out)],
+        capture_output=True, text=True, timeout=240,
+    )  # fmt: skip
+    assert res.returncode == 0, res.stdout + res.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    nav = summary["navigation"]
+    assert nav["slam_algorithm"] == "AMB-SLAM"
+    assert summary["slam"]["component"] == "slam-magnetic"
+    assert summary["slam"]["stage"]["observations"] >= 10 and summary["slam"]["landmarks"] >= 1
+    # (the error against the truth is the --processes test's: in one process the fusion
+    # starts at the first INS sample the late-opened gateway reads, from the truth logged by
+    # then, and on a starved machine that falls back to the scenario's start pose)
+    assert nav["slam"]["samples"] > 100 and nav["dead_reckoning"] is not None
+    assert "AMB-SLAM vs truth over" in res.stdout
+    rec = read_recording(out / "demo.rrd")
+    assert len(rec["map/truth/landmarks"].values("Points2D:positions")[-1]) == 20
+    est = rec["map/slam/magnetic/landmarks"].values("Points2D:positions")[-1]
+    assert len(est) == summary["slam"]["landmarks"]
