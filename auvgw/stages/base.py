@@ -16,7 +16,14 @@ A :class:`Stage` owns the plumbing; a subclass gives only what is its own:
   ``on_publish(key, payload, t_ns)``, the in-process hook);
 * **status**: :attr:`Stage.status_schema` (None: no status, queryable nor liveliness on the bus)
   and :meth:`Stage.status_fields`, merged into :meth:`Stage.counters` after the common fields;
-* **flush**: :meth:`Stage.flush`, called at :meth:`Stage.stop` after the queue is drained.
+* **flush**: :meth:`Stage.flush`, called at :meth:`Stage.stop` after the queue is drained;
+* **its own start and stop**: :meth:`Stage.on_start` (its servers, tokens, extra
+  subscriptions: after the outputs, status and worker are up, before the subscriptions and the
+  liveliness token) and :meth:`Stage.on_stop` (stop what feeds the worker besides the
+  subscriptions: timers, command subscriptions; first thing at stop), with what must live
+  until the end handed to :meth:`Stage.keep` (withdrawn after the last status, the last kept
+  first). A subclass never overrides :meth:`Stage.start` or :meth:`Stage.stop`
+  (``tests/service/test_stage_hooks.py`` walks them).
 
 The base does the rest. Zenoh callbacks only copy the payload into a bounded queue (counting
 ``queue_dropped`` when it is full: a callback never blocks the network thread); one worker thread
@@ -202,6 +209,24 @@ class Stage(Worker[_Item]):
         """End of data: publish what is held back (called by :meth:`stop`)."""
         return None
 
+    def on_start(self, subscribe: bool) -> None:
+        """The stage's own start, called once by :meth:`start` after the outputs, the status
+        and the worker are up and before the subscriptions (``subscribe``: whether they are
+        made) and the liveliness token: declare servers, tokens and extra subscriptions here,
+        each handed to :meth:`keep`."""
+
+    def on_stop(self) -> None:
+        """The stage's own stop, called once first thing by :meth:`stop` (before the
+        subscriptions are withdrawn and the queue drained): stop what feeds the worker besides
+        the subscriptions (timers, command subscriptions)."""
+
+    def keep(self, decl: Undeclarable) -> Undeclarable:
+        """Hold ``decl`` (a Zenoh declaration, or anything with ``undeclare()``) until
+        :meth:`stop`, which withdraws it after the last status (a subscription: with the
+        stage's subscriptions, before the queue is drained), the last kept first; ``decl``."""
+        self._decls.append(decl)
+        return decl
+
     # -- in-process use -------------------------------------------------------------------------
     def post(self, device: str, t_recv_ns: int, message: Any) -> None:
         """:meth:`feed` on the worker thread (after :meth:`start`): returns at once."""
@@ -294,6 +319,7 @@ class Stage(Worker[_Item]):
             self._status_pub = s.declare_publisher(status_key, congestion_control=DROP)
             self._decls.append(s.declare_queryable(status_key, self._answer_status))
         self.start_worker()
+        self.on_start(subscribe)
         if subscribe:
             self.subscribe()
         if self.status_schema is not None:
@@ -356,19 +382,20 @@ class Stage(Worker[_Item]):
             self.stats.bad_payloads += 1
 
     def stop(self, flush: bool = True, timeout_s: float = 5.0) -> None:
-        """Withdraw the subscriptions, drain the queue (on the worker for as long as it makes
-        progress, ``timeout_s`` without any gives up on it; without a worker on the calling
-        thread), :meth:`flush` (``flush``), publish a last status and withdraw every other
-        declaration. Safe to call more than once."""
+        """:meth:`on_stop`, withdraw the subscriptions, drain the queue (on the worker for as
+        long as it makes progress, ``timeout_s`` without any gives up on it; without a worker on
+        the calling thread), :meth:`flush` (``flush``), publish a last status and withdraw every
+        other declaration (the last declared first). Safe to call more than once."""
         if self._stopped:
             return
         self._stopped = True
+        self.on_stop()
         undeclare(d for d in self._decls if isinstance(d, zenoh.Subscriber))
         self.stop_worker(timeout_s)
         if flush:
             self.flush()
         self.publish_status()
-        undeclare(d for d in self._decls if not isinstance(d, zenoh.Subscriber))
+        undeclare(d for d in reversed(self._decls) if not isinstance(d, zenoh.Subscriber))
         undeclare(self._pubs.values())
         undeclare([self._status_pub] if self._status_pub is not None else [])
         self._pubs.clear()

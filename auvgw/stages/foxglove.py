@@ -59,29 +59,28 @@ class FoxgloveStage(RosStage):
         ch.log(ros2.serialize(m), log_time=max(0, t_ns))
         self.count(m, topic)
 
-    def start(self, subscribe: bool = True) -> None:
-        """The server first (it takes clients from then on), then the stage."""
+    def on_start(self, subscribe: bool) -> None:
+        """The server first (it takes clients from then on; stopped at :meth:`stop`, after the
+        last status), then ``/tf_static``."""
         self.start_server()
-        super().start(subscribe)
-        self.publish_static(_now())
+        super().on_start(subscribe)
 
     def start_server(self) -> None:
-        """Start the WebSocket server (idempotent); :attr:`port` is then the bound port."""
+        """Start the WebSocket server (idempotent; stopped at :meth:`stop`); :attr:`port` is then
+        the bound port."""
         if self._server is None:
             self._server = self._fg.start_server(name=f"auvgw {self.keys.vehicle}",
                                                  host=self.host, port=self.port,
                                                  context=self._context)  # fmt: skip
             self.port = int(self._server.port)
-
-    def stop(self, flush: bool = True, timeout_s: float = 5.0) -> None:
-        """Stop the stage, then the server."""
-        super().stop(flush, timeout_s)
-        if self._server is not None:
-            self._server.stop()
-            self._server = None
+            self.keep(_Stopping(self._server))
 
 
-def _now() -> int:
-    import time
+class _Stopping:
+    """A server (anything with ``stop()``) as a declaration :meth:`Stage.keep` withdraws."""
 
-    return time.time_ns()
+    def __init__(self, server: Any) -> None:
+        self.server = server
+
+    def undeclare(self) -> None:
+        self.server.stop()

@@ -244,20 +244,15 @@ class FusionStage(Stage):
         """:meth:`subscription_key`."""
         return [self.subscription_key()]
 
-    def start(self, subscribe: bool = True) -> None:
-        """Declare the publishers, status queryable and liveliness token and, with
-        ``subscribe``, the subscription and its worker thread (needs a session).
-
-        ``subscribe=False`` is for a stage fed in-process (``Gateway(..., on_message=stage.feed)``
-        in ``auvgw demo``) that still publishes odometry and status on the bus."""
-        first = not self._started
-        super().start(subscribe)
-        if first:
-            log.info(
-                "fusion stage for vehicle %r: %s",
-                self.config.vehicle,
-                f"subscribed to {self.subscription_key()}" if subscribe else "fed in-process",
-            )
+    def on_start(self, subscribe: bool) -> None:
+        """Log where the stage's input comes from: the bus, or in-process
+        (``Gateway(..., on_message=stage.feed)`` in ``auvgw demo``, ``subscribe=False``: it still
+        publishes odometry and status on the bus)."""
+        log.info(
+            "fusion stage for vehicle %r: %s",
+            self.config.vehicle,
+            f"subscribed to {self.subscription_key()}" if subscribe else "fed in-process",
+        )
 
     def publish_status(self) -> None:
         """The status, after logging each new kind of diagnostics warning once while it lasts."""

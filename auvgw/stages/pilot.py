@@ -253,11 +253,11 @@ class PilotStage(Stage):
         while not self._timer_stop.wait(self.config.control_period_s):
             self._enqueue(self.tick, ())
 
-    def stop(self, flush: bool = True, timeout_s: float = 5.0) -> None:
+    def on_stop(self) -> None:
+        """The control timer first: no tick is queued once the queue drains."""
         self._timer_stop.set()
         if self._timer is not None:
             self._timer.join()
-        super().stop(flush, timeout_s)
 
 
 class BusCommands:

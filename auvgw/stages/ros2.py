@@ -214,6 +214,10 @@ class RosStage(Stage):
             self.stats.received += 1
         return None
 
+    def on_start(self, subscribe: bool) -> None:
+        """``/tf_static`` once the outputs are up (then every ``static_period_s``)."""
+        self.publish_static(time.time_ns())
+
     def publish_static(self, t_ns: int) -> None:
         """``/tf_static`` from the configured mounts (nothing without mounts)."""
         if self.config.mounts:
@@ -252,11 +256,9 @@ class Ros2Bridge(RosStage):
         self._keys: dict[tuple[str, str], str] = {}
         self._session_id = str(session.info.zid()) if session is not None else "0" * 32
         self._next_entity = 1
-        self._node_token: zenoh.LivelinessToken | None = None
         #: the publishers each bus key's samples went to (:meth:`wanted`; a tuple replaced, never
         #: changed in place: the Zenoh callbacks and the gateway's listeners read it)
         self._made: dict[str, tuple[_Endpoint, ...]] = {}
-        self._cmd_decls: list[Any] = []
         #: puts held back on the worker (:meth:`_work_item`): (endpoint, CDR, attachment)
         self._held: list[tuple[_Endpoint, bytes, bytes]] = []
         self._holder: int | None = None  # the thread whose puts are held (the worker, in a call)
@@ -401,10 +403,11 @@ class Ros2Bridge(RosStage):
         pub = self.session.declare_publisher(key, congestion_control=DROP)
         token = self.session.liveliness().declare_token(token_key)
         ep = self._endpoints[key] = _Endpoint(pub, token, entity_gid(token_key))
+        for d in (pub, token, ep.listener):  # withdrawn at stop, the listener first
+            self.keep(d)
         with self._lock:
             self.stats.topics += 1
         return ep
-
 
     # -- commands from ROS 2 -----------------------------------------------------------------
     def command_topic(self, device: str) -> str:
@@ -451,39 +454,21 @@ class Ros2Bridge(RosStage):
                     with contextlib.suppress(zenoh.ZError):
                         pub.put(payload)
 
-            self._cmd_decls += [s.declare_subscriber(key, take), pub,
-                                s.liveliness().declare_token(token)]  # fmt: skip
+            for d in (pub, s.liveliness().declare_token(token), s.declare_subscriber(key, take)):
+                self.keep(d)  # withdrawn at stop: the subscription first, no command after it
 
-    def start(self, subscribe: bool = True) -> None:
-        """The node's token first (a ROS graph shows the node before its publishers), then the
-        stage (subscriptions, status, liveliness), the command subscriptions and
-        ``/tf_static``."""
-        if self.session is not None and self._node_token is None:
-            self._node_token = self.session.liveliness().declare_token(
+    def on_start(self, subscribe: bool) -> None:
+        """The node's token first (a ROS graph shows the node before its publishers; withdrawn
+        last), the command subscriptions, then ``/tf_static``."""
+        if self.session is not None:
+            self.keep(self.session.liveliness().declare_token(
                 node_token(self.config.domain_id, self._session_id, 0, self.config.namespace,
-                           self.config.node))  # fmt: skip
-        super().start(subscribe)
-        self._declare_commands()
-        self.publish_static(time.time_ns())
+                           self.config.node)))  # fmt: skip
+            self._declare_commands()
+        super().on_start(subscribe)
 
-    def stop(self, flush: bool = True, timeout_s: float = 5.0) -> None:
-        """Stop the stage, then withdraw every publisher and token (the node's last)."""
-        for d in self._cmd_decls:  # the subscriptions first: no command after this
-            with contextlib.suppress(zenoh.ZError):
-                d.undeclare()
-        self._cmd_decls.clear()
-        super().stop(flush, timeout_s)
+    def _work_finished(self) -> None:
         self._send_held()  # the worker's last call saw its stop mark still queued
-        for ep in self._endpoints.values():
-            for d in (ep.listener, ep.token, ep.pub):
-                with contextlib.suppress(zenoh.ZError):
-                    d.undeclare()
-        self._endpoints.clear()
-        self._made.clear()
-        if self._node_token is not None:
-            with contextlib.suppress(zenoh.ZError):
-                self._node_token.undeclare()
-            self._node_token = None
 
 
 def _qos(topic: str) -> Qos:
