@@ -54,9 +54,11 @@ from auvgw.commands.common import SubParsers, UserError, add_command
 from auvgw.commands.demo_parts import (
     DemoContext,
     DemoPlan,
+    TruthSample,
     _fusion_config,
     _gateway_toml,
     _load_sim_config,
+    _sim_epoch_ns,
     _TruthTail,
     _wait_for,
 )
@@ -99,8 +101,6 @@ SURVEY_SPEED = 10.0
 VEHICLE = "auv1"
 #: a stage's in-process publication hook: (key, payload, stamp ns)
 OnPublish = Callable[[str, bytes, int], object]
-#: one truth sample of the simulator's log (t s, x, y, z m, heading rad...)
-TruthSample = dict[str, float]
 #: RMSE / distance x 100 of VB-AUFastSLAM in the sea trial of Mu et al. 2022 (INS + DVL + MSIS)
 VB_PAPER_RMSE_PCT = 0.742
 
@@ -372,13 +372,6 @@ def _scenario_defaults(args: argparse.Namespace, scenario: Path) -> None:
                   f"the whole route at {SURVEY_SPEED:g}x", flush=True)  # fmt: skip
 
 
-def _sim_epoch_ns(gw_cfg: GatewayConfig) -> int:
-    """The gateway's vehicle time 0 (ns on the stamps' clock), from ``auvgw sim``."""
-    if gw_cfg.clock.epoch_ns is None:
-        raise UserError(f"{gw_cfg.source}: no [clock] epoch_ns (vehicle time 0) from auvgw sim")
-    return gw_cfg.clock.epoch_ns
-
-
 def _run_stages(
     args: argparse.Namespace,
     sim: subprocess.Popen[bytes],
@@ -495,7 +488,7 @@ def _run_stages(
     ins_span: list[float] = []  # device time of the first and the latest INS sample, s
     dvl_span: list[float] = []  # the same of the DVL's ensembles (their RTC), s
 
-    def to_fusion(device: str, t_ns: int, msg: Any) -> None:
+    def to_fusion(device: str, t_ns: int, msg: object) -> None:
         # t_ns: the gateway's vehicle-paced stamp (its [clock] section)
         if device == "dvl" and (t_dvl := device_time_s(msg)) is not None:
             dvl_span[:] = [dvl_span[0] if dvl_span else t_dvl, t_dvl]
@@ -823,7 +816,7 @@ def _run_processes(
             print(f"  warning: every part was up only at vehicle t = {ready_vehicle_s:.1f} s "
                   "(dead reckoning starts from the pose at t = 0)", flush=True)  # fmt: skip
 
-        def on_truth(sample: dict[str, Any]) -> None:
+        def on_truth(sample: TruthSample) -> None:
             assert collector is not None
             with collector.lock:
                 collector.truth.add(sample["t"], sample["x"], sample["y"])

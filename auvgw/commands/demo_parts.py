@@ -12,7 +12,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from auvgw.commands.common import UserError
 from auvgw.config.gateway import ConfigError, load_gateway_config
@@ -26,12 +26,18 @@ __all__ = [
     "DemoContext",
     "DemoPlan",
     "DemoProcess",
+    "TruthSample",
     "_TruthTail",
     "_fusion_config",
     "_gateway_toml",
     "_load_sim_config",
+    "_sim_epoch_ns",
     "_wait_for",
 ]
+
+
+#: one truth sample of the simulator's log (t s, x, y, z m, heading rad...)
+TruthSample = dict[str, float]
 
 
 @dataclass(frozen=True)
@@ -79,7 +85,7 @@ class DemoPlan:
 class _TruthTail:
     """Follows the simulator's truth log (JSON lines), feeding each sample to ``on_sample``."""
 
-    def __init__(self, path: Path, on_sample: Callable[[dict[str, Any]], object]) -> None:
+    def __init__(self, path: Path, on_sample: Callable[[TruthSample], object]) -> None:
         self.path = path
         self.on_sample = on_sample
         self._pos = 0
@@ -106,9 +112,15 @@ def _load_sim_config(sim_dir: Path) -> GatewayConfig:
         gw_cfg = load_gateway_config(sim_dir / "gateway.toml")
     except ConfigError as exc:
         raise UserError(str(exc)) from exc
+    _sim_epoch_ns(gw_cfg)  # a UserError without one
+    return gw_cfg
+
+
+def _sim_epoch_ns(gw_cfg: GatewayConfig) -> int:
+    """The gateway's vehicle time 0 (ns on the stamps' clock), from ``auvgw sim``."""
     if gw_cfg.clock.epoch_ns is None:
         raise UserError(f"{gw_cfg.source}: no [clock] epoch_ns (vehicle time 0) from auvgw sim")
-    return gw_cfg
+    return gw_cfg.clock.epoch_ns
 
 
 def _fusion_config(

@@ -50,7 +50,7 @@ import json
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass
 from typing import Any, ClassVar
 
@@ -71,14 +71,17 @@ from auvgw.fusion.odometry import Odometry
 from auvgw.ground.worker import Worker
 from auvgw.stages import StampGuard, log_bad_payload
 
-__all__ = ["DROP", "BusCounters", "PipelineStage", "Stage", "StageConfig"]
+__all__ = ["DROP", "BusCounters", "OnPublish", "PipelineStage", "Stage", "StageConfig"]
 
 log = logging.getLogger(__name__)
 
 #: outputs and status never stall the stage on a slow subscriber
 DROP = zenoh.CongestionControl.DROP
 
-_Item = tuple[Callable[..., object], tuple[Any, ...]]
+#: a stage's in-process publication hook: (key, payload, stamp ns)
+OnPublish = Callable[[str, bytes, int], object]
+#: a queued call: the bound method and its arguments
+_Item = tuple[Callable[..., object], tuple[object, ...]]
 
 
 @dataclass
@@ -136,7 +139,7 @@ class Stage(Worker[_Item]):
         stats: BusCounters,
         session: zenoh.Session | None = None,
         *,
-        on_publish: Callable[[str, bytes, int], object] | None = None,
+        on_publish: OnPublish | None = None,
         keys: Keys | None = None,
     ) -> None:
         super().__init__(config.queue_size, period_s=config.status_period_s,
@@ -175,7 +178,7 @@ class Stage(Worker[_Item]):
         """Whether a sample on ``key`` is queued (runs in the Zenoh callback: keep it cheap)."""
         return True
 
-    def feed(self, device: str, t_recv_ns: int, message: Any) -> object:
+    def feed(self, device: str, t_recv_ns: int, message: object) -> object:
         """One decoded message of ``device`` received at ``t_recv_ns`` (the stamp clock, ns)."""
         return None
 
@@ -193,7 +196,7 @@ class Stage(Worker[_Item]):
                 self.sources[role] = want = device
             return device == want
 
-    def dispatch(self, env: Envelope, message: Any) -> None:
+    def dispatch(self, env: Envelope, message: object) -> None:
         """One decoded bus message: odometry to :meth:`feed_odometry`, the rest to
         :meth:`feed` with the envelope's device and receive stamp."""
         if isinstance(message, Odometry):
@@ -201,7 +204,7 @@ class Stage(Worker[_Item]):
         else:
             self.feed(env.device, int(env.t_recv_ns), message)
 
-    def status_fields(self) -> dict[str, Any]:
+    def status_fields(self) -> dict[str, object]:
         """The stage's own status fields (JSON-ready), after the common ones."""
         return {}
 
@@ -228,7 +231,7 @@ class Stage(Worker[_Item]):
         return decl
 
     # -- in-process use -------------------------------------------------------------------------
-    def post(self, device: str, t_recv_ns: int, message: Any) -> None:
+    def post(self, device: str, t_recv_ns: int, message: object) -> None:
         """:meth:`feed` on the worker thread (after :meth:`start`): returns at once."""
         self._post(self.feed, (device, t_recv_ns, message))
 
@@ -236,12 +239,12 @@ class Stage(Worker[_Item]):
         """:meth:`feed_odometry` on the worker thread (after :meth:`start`): returns at once."""
         self._post(self.feed_odometry, (o,))
 
-    def _post(self, fn: Callable[..., object], args: tuple[Any, ...]) -> None:
+    def _post(self, fn: Callable[..., object], args: tuple[object, ...]) -> None:
         if not self.worker_started:
             raise RuntimeError(f"{type(self).__name__}.post needs start() (or call feed)")
         self._enqueue(fn, args)
 
-    def _enqueue(self, fn: Callable[..., object], args: tuple[Any, ...]) -> None:
+    def _enqueue(self, fn: Callable[..., object], args: tuple[object, ...]) -> None:
         if not self.submit((fn, args)):
             with self._drop_lock:
                 self.stats.queue_dropped += 1
@@ -258,11 +261,11 @@ class Stage(Worker[_Item]):
         if self.on_publish is not None:
             self.on_publish(self.key(what), payload, t_ns)
 
-    def publish_json(self, what: str, body: dict[str, Any], t: float, schema: str) -> None:
+    def publish_json(self, what: str, body: Mapping[str, object], t: float, schema: str) -> None:
         """Publish ``body`` as JSON (type ``schema``) on output ``what``; ``t``: its time, s."""
         self.publish(what, json.dumps(body).encode(), json_encoding(schema), int(t * 1e9))
 
-    def publish_message(self, what: str, msg: Any, t: float) -> None:
+    def publish_message(self, what: str, msg: object, t: float) -> None:
         """Publish a declared message (:mod:`auvgw.slam.outputs`) on output ``what`` as an
         envelope, like the sensors' (device: the stage's component); ``t``: its time, s."""
         with self._drop_lock:
@@ -425,7 +428,7 @@ class PipelineStage(Stage):
     #: the stage's counters, made at construction
     stats_type: ClassVar[type[BusCounters]] = BusCounters
 
-    def __init_subclass__(cls, **kw: Any) -> None:
+    def __init_subclass__(cls, **kw: object) -> None:
         super().__init_subclass__(**kw)
         cls.schema_prefix = cls.name.capitalize()
         cls.status_schema = f"{cls.schema_prefix}Status"
@@ -434,7 +437,7 @@ class PipelineStage(Stage):
         self,
         config: StageConfig,
         session: zenoh.Session | None = None,
-        on_publish: Callable[[str, bytes, int], object] | None = None,
+        on_publish: OnPublish | None = None,
     ) -> None:
         self.config = config
         super().__init__(config, self.stats_type(), session, on_publish=on_publish)
@@ -454,7 +457,7 @@ class PipelineStage(Stage):
         """``auv/<v>/slam/<name>/<what>``."""
         return self.keys.slam(self.name, what)
 
-    def dispatch(self, env: Envelope, message: Any) -> None:
+    def dispatch(self, env: Envelope, message: object) -> None:
         """One decoded bus message (counted as received)."""
         with self._lock:
             self.stats.received += 1

@@ -36,7 +36,7 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, cast
+from typing import cast
 
 import zenoh
 from pydantic import AliasChoices, ConfigDict, Field
@@ -161,7 +161,7 @@ class FusionStage(Stage):
         return self.keys.odometry()
 
     # -- in-process use -----------------------------------------------------------------------
-    def feed(self, device: str, t_recv_ns: int, message: Any) -> list[Odometry]:
+    def feed(self, device: str, t_recv_ns: int, message: object) -> list[Odometry]:
         """One decoded message of ``device`` received at ``t_recv_ns`` (host ns since the Unix
         epoch); returns (and publishes, with a session) the odometry that became final."""
         with self._lock:
@@ -194,7 +194,7 @@ class FusionStage(Stage):
             if self.on_odometry is not None:
                 self.on_odometry(o)
 
-    def status_fields(self) -> dict[str, Any]:
+    def status_fields(self) -> dict[str, object]:
         """Adapter, device clocks, filter, reorder buffer, diagnostics and the last sample."""
         a = self.adapter
         last = self.last

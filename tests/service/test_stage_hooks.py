@@ -13,6 +13,7 @@ import pytest
 
 from auvgw.slam import pipelines
 from auvgw.stages.base import BusCounters, Stage, StageConfig
+from auvgw.testing.overrides import overrides, subclasses
 
 #: the base's lifecycle methods a subclass never redefines
 LIFECYCLE = ("start", "stop")
@@ -21,16 +22,8 @@ LIFECYCLE = ("start", "stop")
 PENDING = {"auvgw.viz.stage.VizStage.start", "auvgw.viz.stage.VizStage.stop"}
 
 
-def _subclasses(cls: type) -> set[type]:
-    out: set[type] = set()
-    for sub in cls.__subclasses__():
-        out |= {sub, *_subclasses(sub)}
-    return out
-
-
 def _overrides(classes: set[type]) -> set[str]:
-    return {f"{c.__module__}.{c.__qualname__}.{n}" for c in classes for n in LIFECYCLE
-            if n in vars(c)}  # fmt: skip
+    return set(overrides(classes, LIFECYCLE))
 
 
 def _import_stages() -> None:
@@ -45,7 +38,7 @@ def _import_stages() -> None:
 
 def test_no_stage_overrides_start_or_stop() -> None:
     _import_stages()
-    subs = _subclasses(Stage)
+    subs = subclasses(Stage)
     names = {c.__qualname__ for c in subs}
     assert {"FusionStage", "PilotStage", "Ros2Bridge", "FoxgloveStage", "VizStage",
             "MagneticStage", "BathymetricStage", "SlamStage", "SwathStage"} <= names  # fmt: skip
@@ -60,7 +53,7 @@ def test_the_check_finds_a_planted_override() -> None:
             super().stop(flush, timeout_s)
 
     assert _overrides({Bad}) == {f"{__name__}.{Bad.__qualname__}.stop"}
-    assert Bad in _subclasses(Stage)
+    assert Bad in subclasses(Stage)
     del Bad
     gc.collect()  # out of Stage.__subclasses__() again
 
