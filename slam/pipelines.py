@@ -3,9 +3,10 @@
 Every list of pipelines the rest of the project needs is derived from :data:`PIPELINES`: the
 ``--pipeline`` choices and help of ``auvgw slam eval`` and ``auvgw slam run``, the evaluation
 each one runs and its default algorithms, the stage ``slam run`` serves or replays a recording
-through and the options it adds to that command, the pipeline ``auvgw demo`` runs on a scenario,
-and the Rerun view each of its outputs goes to (:mod:`auvgw.viz.stage`). A new pipeline is its own
-files plus one :class:`Pipeline` record here (``docs/adding-a-pipeline.md``).
+through and the options it adds to that command, the pipeline ``auvgw demo`` runs on a scenario
+and the processes ``auvgw demo --processes`` starts for it, and the Rerun view each of its
+outputs goes to (:mod:`auvgw.viz.stage`). A new pipeline is its own files plus one
+:class:`Pipeline` record here (``docs/adding-a-pipeline.md``).
 
 Like the device registry (:mod:`auvgw.drivers.registry`), it names classes and functions by
 ``"module:attribute"`` strings and imports none of them, so reading it costs nothing and the
