@@ -3,9 +3,10 @@
 Every list of pipelines the rest of the project needs is derived from :data:`PIPELINES`: the
 ``--pipeline`` choices and help of ``auvgw slam eval`` and ``auvgw slam run``, the evaluation
 each one runs and its default algorithms, the stage ``slam run`` serves or replays a recording
-through and the options it adds to that command, the pipeline ``auvgw demo`` runs on a scenario,
-and the Rerun view each of its outputs goes to (:mod:`auvgw.viz.stage`). A new pipeline is its own
-files plus one :class:`Pipeline` record here (``docs/adding-a-pipeline.md``).
+through and the options it adds to that command, the pipeline ``auvgw demo`` runs on a scenario
+and the processes ``auvgw demo --processes`` starts for it, and the Rerun view each of its
+outputs goes to (:mod:`auvgw.viz.stage`). A new pipeline is its own files plus one
+:class:`Pipeline` record here (``docs/adding-a-pipeline.md``).
 
 Like the device registry (:mod:`auvgw.drivers.registry`), it names classes and functions by
 ``"module:attribute"`` strings and imports none of them, so reading it costs nothing and the
@@ -73,7 +74,10 @@ class Pipeline:
     ``run(args) -> exit code``; ``eval_algorithms``: its default ``--algorithms``;
     ``particle_filters``: its evaluation reads ``--particles`` and ``--association`` (recorded
     in the command line); ``outputs``: what its stage publishes; ``demo_scenario``: the shipped
-    scenario ``auvgw demo --scenario`` runs it on; ``demo_accepts``: ``"module:callable"``,
+    scenario ``auvgw demo --scenario`` runs it on; ``demo_processes``: ``"module:callable"``,
+    ``plan(ctx) -> DemoPlan`` (:mod:`auvgw.commands.demo_parts`), the processes its stage needs
+    in ``auvgw demo --processes``, the components the demo waits for and its stage's status
+    component and summary name; ``demo_accepts``: ``"module:callable"``,
     ``accepts(scenario) -> bool``, whether the demo runs this pipeline on a scenario (None: the
     fallback, when no other record accepts it); ``any_segment``: its stage's key segment is its
     algorithm's name (the landmark filters), so a segment no record names is this pipeline's;
@@ -89,6 +93,7 @@ class Pipeline:
     eval_algorithms: str
     outputs: tuple[Output, ...]
     demo_scenario: str
+    demo_processes: str
     demo_accepts: str | None = None
     particle_filters: bool = True
     any_segment: bool = False
@@ -123,6 +128,7 @@ PIPELINES: list[Pipeline] = [
         outputs=(Output("pose", "pose"), Output("landmarks", "landmarks"),
                  Output("observations", "ranges")),
         demo_scenario="beacons",
+        demo_processes=f"{_C}.magnetic_run:demo_plan",
         demo_accepts=f"{_C}.magnetic_run:demo_accepts",
         doc="slam_magnetic.md",
     ),
@@ -138,6 +144,7 @@ PIPELINES: list[Pipeline] = [
         outputs=(Output("pose", "pose"), Output("map", "dem"), Output("cloud", "cloud"),
                  Output("track", "path")),
         demo_scenario="survey",
+        demo_processes=f"{_C}.bathy_run:demo_plan",
         demo_accepts=f"{_C}.bathy_run:demo_accepts",
         doc="slam_bathymetric.md",
     ),
@@ -154,6 +161,7 @@ PIPELINES: list[Pipeline] = [
         outputs=(Output("pose", "pose"), Output("landmarks", "landmarks"),
                  Output("map", "landmarks")),
         demo_scenario="harbour",
+        demo_processes=f"{_C}.slam_run:demo_plan",
         any_segment=True,
         doc="slam_online.md",
     ),

@@ -23,10 +23,50 @@ import argparse
 import json
 from typing import TYPE_CHECKING, Any
 
+from auvgw.commands.demo_parts import DemoContext, DemoPlan, DemoProcess
 from auvgw.ground.errors import UserError, format_validation_error
+from auvgw.ground.procs import free_endpoint
 
 if TYPE_CHECKING:
+    from auvgw.config.scenario import Scenario
     from auvgw.stages.bathymetric import BathymetricStageConfig
+
+#: the stage's name in the demo's summary
+DISPLAY_NAME = "mtm-pf (bathymetric PF-SLAM)"
+#: the demo's bathymetric stage settings (filter values by name, BathyConfig), checked offline
+#: by benchmarks/study_bathy_demo.py on survey.json (1530 pings at 2 m, N = 200, 3 surveys, DR
+#: drifting 0.003 m per ping and axis as the emulated INS + DVL does: RMS error 3.5-3.9 m):
+#: - mse_max_m2 = 4 (paper 0.5): the relief (8 m, four octaves) is rougher than the paper's; a
+#:   particle a few metres off fails the 0.5 m^2 gate, and no crossing ever matched;
+#: - lccd off: the tie line crosses each line once, and LCCD (a closure is accepted only when
+#:   another agrees with it) rejected every crossing;
+#: - sigma_c2 = 0.05 m^2, jitter_a = 0.1 m^2 (paper 1, 1, for its eq. 28 DR): the unweighted
+#:   centroid of N particles random-walks sqrt(T sigma_c2 / N) per axis, 3.7 m over this survey
+#:   with the paper's values, as much as the INS + DVL drift itself.
+#: RMS error 2.76 / 2.56 / 3.65 m against DR's 3.79 / 3.53 / 3.88 m (paper values: 2.36 / 3.15 /
+#: 4.93 m, no closure at all: the centroid's random walk).
+#: Frozen for issues 28 and 33 on tuning seeds 11-14 (docs/results/bathymetric/e2e/tables.md,
+#: "Tuning"; offline with the survey's own INS + DVL errors, then one run end to end):
+#: - radius_m = 90 (Sec. V-A's R; paper 10): half the 180 m swath, so a ping is matched wherever
+#:   its swath overlaps an older one by half its width or more: every line after the first
+#:   overlaps its neighbour 80 m away, and the closures come along the whole route (first at
+#:   vehicle t ~ 300 s) instead of only at the tie line after 84 % of it (R = 10 m);
+#: - sigma_s_m, unmatched_weight, jitter_in_crossing and closure_estimate at the filter's
+#:   defaults (0.15 m measured, neutral, off, mode): the demo's older values (0.3 m, uniform,
+#:   on, mean) gave closures 1-3 m off the truth, as large as the drift they correct; these
+#:   0.1-0.7 m (median).
+#: - drift_estimate = false: the world-frame bias of eq. 28 would be wrong on the next leg
+#:   (the emulated INS heading bias and DVL scale turn with the vehicle).
+DEMO_PARTICLES = 200
+DEMO_FILTER: dict[str, Any] = {
+    "mse_max_m2": 4.0,
+    "lccd": False,
+    "sigma_c2": 0.05,
+    "jitter_a": 0.1,
+    "radius_m": 90.0,
+    "drift_estimate": False,
+}
+
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """The bathymetric pipeline's own options (on ``auvgw slam run``'s parser)."""
@@ -37,7 +77,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="a stage or filter setting (repeatable), e.g. radius_m=40")  # fmt: skip
 
 
-def demo_accepts(scn: Any) -> bool:
+def demo_accepts(scn: Scenario) -> bool:
     """A survey (``auvgw demo`` runs this pipeline on it): multibeam on, no point or line
     features and no magnetic beacons to map."""
     return bool(
@@ -46,6 +86,52 @@ def demo_accepts(scn: Any) -> bool:
         and not scn.features.lines
         and not getattr(scn, "magnetic_beacons", None)
     )
+
+
+def demo_config(vehicle: str, multibeam: str | None) -> BathymetricStageConfig:
+    """The demo's stage settings (:data:`DEMO_PARTICLES`, :data:`DEMO_FILTER`) on gateway
+    device ``multibeam`` (None: any)."""
+    from auvgw.stages.bathymetric import BathymetricStageConfig
+
+    return BathymetricStageConfig(
+        vehicle=vehicle, multibeam_device=multibeam, n_particles=DEMO_PARTICLES,
+        filter=dict(DEMO_FILTER),
+    )  # fmt: skip
+
+
+def demo_argv(cfg: BathymetricStageConfig, hub: str) -> list[str]:
+    """``auvgw slam run --pipeline bathymetric`` with the settings ``cfg``, on the bus ``hub``."""
+    sets = [a for k, v in cfg.filter.items() for a in ("--set", f"{k}={json.dumps(v)}")]
+    return ["slam", "run", "--pipeline", "bathymetric", "--vehicle", cfg.vehicle,
+            "--multibeam", str(cfg.multibeam_device), "--particles", str(cfg.n_particles),
+            "--seed", str(cfg.seed), *sets,
+            "--connect", hub, "--listen", free_endpoint()]  # fmt: skip
+
+
+def geoswath_khz(scn: Scenario) -> float:
+    """The scenario's GeoSwath model (kHz: 125, 250 or 500)."""
+    return float(scn.devices.geoswath.options.get("model_khz", 250))
+
+
+def demo_plan(ctx: DemoContext) -> DemoPlan:
+    """``demo --processes`` on a survey: this stage on the Kongsberg multibeam or, with the
+    GeoSwath on, on the swaths the swath stage (its own process, at the model's frequency)
+    makes of its pings; both up before vehicle t = 0."""
+    component = "slam-bathymetric"
+    procs: tuple[DemoProcess, ...]
+    if ctx.scn.devices.geoswath.enabled:  # its pings -> the swath stage -> SLAM
+        cfg = demo_config(ctx.vehicle, "geoswath_swath")
+        khz = geoswath_khz(ctx.scn)
+        swath = DemoProcess("swath", lambda _: [
+            "swath", "--vehicle", ctx.vehicle, "--device", "geoswath",
+            "--set", f"frequency_hz={khz * 1000.0}", *ctx.bus_args()])  # fmt: skip
+        procs = (swath, DemoProcess("slam", lambda _: demo_argv(cfg, ctx.hub)))
+        alive = {"geoswath", "swath", component}
+    else:
+        cfg = demo_config(ctx.vehicle, "multibeam")
+        procs = (DemoProcess("slam", lambda _: demo_argv(cfg, ctx.hub)),)
+        alive = {"multibeam", component}
+    return DemoPlan(procs, frozenset(alive), component, DISPLAY_NAME)
 
 
 def stage_config(args: argparse.Namespace, vehicle: str) -> BathymetricStageConfig:

@@ -48,14 +48,23 @@ from typing import TYPE_CHECKING, Any, TypedDict
 import numpy as np
 
 from auvgw.bus import Keys, decode_envelope, encode_envelope, open_session
+from auvgw.commands.bathy_run import DISPLAY_NAME as BATHY_NAME
+from auvgw.commands.bathy_run import demo_config as _bathy_config
 from auvgw.commands.common import SubParsers, UserError, add_command
 from auvgw.commands.demo_parts import (
+    DemoContext,
+    DemoPlan,
+    TruthSample,
     _fusion_config,
     _gateway_toml,
     _load_sim_config,
+    _sim_epoch_ns,
     _TruthTail,
     _wait_for,
 )
+from auvgw.commands.magnetic_run import DISPLAY_NAME as MAGNETIC_NAME
+from auvgw.commands.magnetic_run import mag_rate_hz
+from auvgw.commands.slam_run import demo_config as _slam_config
 from auvgw.config.bus import BusConfig
 from auvgw.config.scenario import ScenarioError, load_scenario
 from auvgw.ground.paths import config_file
@@ -70,10 +79,10 @@ if TYPE_CHECKING:
     from auvgw.config.gateway import GatewayConfig
     from auvgw.config.scenario import Scenario
     from auvgw.fusion.odometry import Odometry
-    from auvgw.stages.bathymetric import BathymetricStage, BathymetricStageConfig
+    from auvgw.stages.bathymetric import BathymetricStage
     from auvgw.stages.fusion import FusionStage
     from auvgw.stages.magnetic import MagneticStage
-    from auvgw.stages.slam import SlamStage, SlamStageConfig
+    from auvgw.stages.slam import SlamStage
     from auvgw.stages.swath import SwathStage
     from auvgw.subscribe import GatewaySubscriber
     from auvgw.viz.stage import VizRunner
@@ -92,8 +101,6 @@ SURVEY_SPEED = 10.0
 VEHICLE = "auv1"
 #: a stage's in-process publication hook: (key, payload, stamp ns)
 OnPublish = Callable[[str, bytes, int], object]
-#: one truth sample of the simulator's log (t s, x, y, z m, heading rad...)
-TruthSample = dict[str, float]
 #: RMSE / distance x 100 of VB-AUFastSLAM in the sea trial of Mu et al. 2022 (INS + DVL + MSIS)
 VB_PAPER_RMSE_PCT = 0.742
 
@@ -365,25 +372,6 @@ def _scenario_defaults(args: argparse.Namespace, scenario: Path) -> None:
                   f"the whole route at {SURVEY_SPEED:g}x", flush=True)  # fmt: skip
 
 
-def _sim_epoch_ns(gw_cfg: GatewayConfig) -> int:
-    """The gateway's vehicle time 0 (ns on the stamps' clock), from ``auvgw sim``."""
-    if gw_cfg.clock.epoch_ns is None:
-        raise UserError(f"{gw_cfg.source}: no [clock] epoch_ns (vehicle time 0) from auvgw sim")
-    return gw_cfg.clock.epoch_ns
-
-
-def _slam_config(vehicle: str, msis: str | None, scn: Scenario) -> SlamStageConfig:
-    """The demo's SLAM stage on the MSIS point features (scenario sound speed, target size)."""
-    from auvgw.stages.slam import SlamStageConfig
-
-    return SlamStageConfig(
-        vehicle=vehicle,
-        msis_device=msis,
-        sound_speed_mps=scn.sound_speed_mps,
-        target_radius_m=scn.features.point_radius_m,
-    )
-
-
 def _run_stages(
     args: argparse.Namespace,
     sim: subprocess.Popen[bytes],
@@ -500,7 +488,7 @@ def _run_stages(
     ins_span: list[float] = []  # device time of the first and the latest INS sample, s
     dvl_span: list[float] = []  # the same of the DVL's ensembles (their RTC), s
 
-    def to_fusion(device: str, t_ns: int, msg: Any) -> None:
+    def to_fusion(device: str, t_ns: int, msg: object) -> None:
         # t_ns: the gateway's vehicle-paced stamp (its [clock] section)
         if device == "dvl" and (t_dvl := device_time_s(msg)) is not None:
             dvl_span[:] = [dvl_span[0] if dvl_span else t_dvl, t_dvl]
@@ -693,7 +681,7 @@ class _Collector:
         undeclare(self._subs)
 
     def wait_stopped(
-        self, components: list[str], map_tap: _BathyMapTap | None, limit_s: float = 10.0
+        self, components: list[str], map_tap: _MapTap | None, limit_s: float = 10.0
     ) -> None:
         """Wait (at most ``limit_s``) for the last status of each stage in ``components`` (its
         ``stopped`` status, put after every pose and odometry sample it published) and, with
@@ -773,7 +761,7 @@ def _run_processes(
         signal.signal(sig, lambda *_: stop.set())
     t_start = time.monotonic()
     collector: _Collector | None = None
-    map_tap: _BathyMapTap | None = None
+    map_tap: _MapTap | None = None
     slam_part: tuple[str, str] | None = None  # the SLAM stage's display name and component
     truth_pub = session.declare_publisher(keys.truth("pose"))
     try:
@@ -786,33 +774,17 @@ def _run_processes(
         children.start("fusion", ["fusion", "--settings", str(settings),
                                   "--connect", hub, "--listen", free_endpoint()])  # fmt: skip
         wanted = {"fusion", "gateway", "ins", "dvl"}
-        bathy = not args.no_slam and _bathymetric_scenario(scn)
-        magnetic = not args.no_slam and _is_magnetic(scn)
-        if bathy and scn.devices.geoswath.enabled:  # its pings -> the swath stage -> SLAM
-            slam_cfg = _bathy_config(VEHICLE, "geoswath_swath")
-            khz = _geoswath_khz(scn)
-            children.start("swath", ["swath", "--vehicle", VEHICLE, "--device", "geoswath",
-                                     "--set", f"frequency_hz={khz * 1000.0}",
-                                     "--connect", hub, "--listen", free_endpoint()])  # fmt: skip
-            children.start("slam", _bathy_argv(slam_cfg, hub))
-            slam_part = (BATHY_NAME, f"slam-{BATHYMETRIC.name}")
-            wanted |= {"geoswath", "swath", slam_part[1]}
-        elif bathy:
-            slam_cfg = _bathy_config(VEHICLE, "multibeam")
-            children.start("slam", _bathy_argv(slam_cfg, hub))
-            slam_part = (BATHY_NAME, f"slam-{BATHYMETRIC.name}")
-            wanted |= {"multibeam", slam_part[1]}
-        elif not args.no_slam and not magnetic:
-            lm_cfg = _slam_config(VEHICLE, "msis", scn)
-            children.start("slam", [
-                "slam-run", "--vehicle", VEHICLE, "--msis", "msis",
-                "--algorithm", lm_cfg.algorithm, "--particles", str(lm_cfg.n_particles),
-                "--seed", str(lm_cfg.seed), "--sound-speed", str(lm_cfg.sound_speed_mps),
-                "--target-radius", str(lm_cfg.target_radius_m),
-                "--connect", hub, "--listen", free_endpoint(),
-            ])  # fmt: skip
-            slam_part = (lm_cfg.display_name, f"slam-{lm_cfg.pipeline_name}")
-            wanted |= {"msis", slam_part[1]}
+        # the SLAM pipeline's processes, as its registry record says (demo_processes)
+        record = None if args.no_slam else pipelines.for_demo(scn)
+        ctx = DemoContext(scenario, scn, VEHICLE, hub, free_endpoint)
+        plan: DemoPlan | None = None if record is None else pipelines.load(
+            record.demo_processes)(ctx)  # fmt: skip
+        if plan is not None:
+            slam_part = (plan.display, plan.component)
+            wanted |= plan.alive
+            for proc in plan.processes:
+                if not proc.after_clock:
+                    children.start(proc.name, proc.argv(None))
         # the GeoSwath's emulator (numpy work on 4000-sample pings) in its own process, so it
         # never holds the INS emulator's interpreter (issue 31: in one sim process its pings
         # made the INS frames leave 40-58 vehicle s late at 10x); every device then has its own
@@ -824,28 +796,27 @@ def _run_processes(
         gw_cfg = _load_sim_config(sim_dir)
         epoch_ns = _sim_epoch_ns(gw_cfg)
         collector = _Collector(session, keys, epoch_ns / 1e9)
-        if bathy:
-            map_tap = _BathyMapTap(session, keys)
+        if record is not None and _MapTap.taps(record):
+            map_tap = _MapTap(session, keys, record)
         gw_argv = ["run", "--config", str(_gateway_toml(sim_dir, out, free_endpoint(), hub))]
         if rrd is not None:
             gw_argv += ["--viz-rrd", str(rrd)]
         if args.connect:
             gw_argv += ["--viz-connect", args.connect]
         children.start("gateway", gw_argv)
-        if magnetic:  # after gateway.toml: its [clock] epoch is the beacons' phase reference
-            children.start("slam", _magnetic_argv(scenario, scn, epoch_ns, hub))
-            slam_part = (MAGNETIC_NAME, MAGNETIC_COMPONENT)
-            wanted |= {"magnetometer", "acoustic", MAGNETIC_COMPONENT}
+        for proc in plan.processes if plan is not None else ():
+            if proc.after_clock:  # after gateway.toml: its [clock] epoch (vehicle time 0)
+                children.start(proc.name, proc.argv(epoch_ns))
         ready = _wait_alive(sub, wanted, children, 120.0, "--processes")
-        if magnetic and rrd is not None:  # the true beacons, for the gateway's Rerun recording
-            body = {"t": 0.0, **_true_beacons(scn)}
-            session.put(keys.truth("map"), json.dumps(body).encode())
+        beacons = _true_beacons(scn)
+        if beacons and rrd is not None:  # the true beacons, for the gateway's Rerun recording
+            session.put(keys.truth("map"), json.dumps({"t": 0.0, **beacons}).encode())
         ready_vehicle_s = (ready - epoch_ns / 1e9) * speed
         if ready_vehicle_s > 0:
             print(f"  warning: every part was up only at vehicle t = {ready_vehicle_s:.1f} s "
                   "(dead reckoning starts from the pose at t = 0)", flush=True)  # fmt: skip
 
-        def on_truth(sample: dict[str, Any]) -> None:
+        def on_truth(sample: TruthSample) -> None:
             assert collector is not None
             with collector.lock:
                 collector.truth.add(sample["t"], sample["x"], sample["y"])
@@ -985,45 +956,10 @@ def _print_vs_truth(label: str, err: dict[str, float] | None, missing: str, tail
 
 # -- the bathymetric pipeline on survey scenarios (issue 14) -----------------------------------
 
-#: the bathymetric stage's name in the summary
-BATHY_NAME = "mtm-pf (bathymetric PF-SLAM)"
-#: the demo's bathymetric stage settings (filter values by name, BathyConfig), checked offline
-#: by benchmarks/study_bathy_demo.py on survey.json (1530 pings at 2 m, N = 200, 3 surveys, DR
-#: drifting 0.003 m per ping and axis as the emulated INS + DVL does: RMS error 3.5-3.9 m):
-#: - mse_max_m2 = 4 (paper 0.5): the relief (8 m, four octaves) is rougher than the paper's; a
-#:   particle a few metres off fails the 0.5 m^2 gate, and no crossing ever matched;
-#: - lccd off: the tie line crosses each line once, and LCCD (a closure is accepted only when
-#:   another agrees with it) rejected every crossing;
-#: - sigma_c2 = 0.05 m^2, jitter_a = 0.1 m^2 (paper 1, 1, for its eq. 28 DR): the unweighted
-#:   centroid of N particles random-walks sqrt(T sigma_c2 / N) per axis, 3.7 m over this survey
-#:   with the paper's values, as much as the INS + DVL drift itself.
-#: RMS error 2.76 / 2.56 / 3.65 m against DR's 3.79 / 3.53 / 3.88 m (paper values: 2.36 / 3.15 /
-#: 4.93 m, no closure at all: the centroid's random walk).
-#: Frozen for issues 28 and 33 on tuning seeds 11-14 (docs/results/bathymetric/e2e/tables.md,
-#: "Tuning"; offline with the survey's own INS + DVL errors, then one run end to end):
-#: - radius_m = 90 (Sec. V-A's R; paper 10): half the 180 m swath, so a ping is matched wherever
-#:   its swath overlaps an older one by half its width or more: every line after the first
-#:   overlaps its neighbour 80 m away, and the closures come along the whole route (first at
-#:   vehicle t ~ 300 s) instead of only at the tie line after 84 % of it (R = 10 m);
-#: - sigma_s_m, unmatched_weight, jitter_in_crossing and closure_estimate at the filter's
-#:   defaults (0.15 m measured, neutral, off, mode): the demo's older values (0.3 m, uniform,
-#:   on, mean) gave closures 1-3 m off the truth, as large as the drift they correct; these
-#:   0.1-0.7 m (median).
-#: - drift_estimate = false: the world-frame bias of eq. 28 would be wrong on the next leg
-#:   (the emulated INS heading bias and DVL scale turn with the vehicle).
-BATHY_PARTICLES = 200
 #: emulated devices a survey's demo leaves off (the bathymetric pipeline reads the INS, DVL and
 #: multibeam only): the MSIS (polled) and the magnetometer (serial and SLCAN) took 118,000 of
 #: the 317,000 frames of a whole-route run here
 SURVEY_IDLE_DEVICES = ("msis", "magnetometer")
-BATHY_FILTER: dict[str, Any] = {
-    "mse_max_m2": 4.0,
-    "lccd": False,
-    "sigma_c2": 0.05,
-    "jitter_a": 0.1,
-    "radius_m": 90.0,
-    "drift_estimate": False,
-}
 
 
 #: the registry records of the pipelines the demo wires itself (in process and as processes)
@@ -1035,15 +971,6 @@ def _bathymetric_scenario(scn: Scenario) -> bool:
     """A survey: the registry gives the scenario to the bathymetric pipeline
     (:func:`auvgw.commands.bathy_run.demo_accepts`)."""
     return pipelines.for_demo(scn) is BATHYMETRIC
-
-
-def _bathy_config(vehicle: str, multibeam: str | None) -> BathymetricStageConfig:
-    from auvgw.stages.bathymetric import BathymetricStageConfig
-
-    return BathymetricStageConfig(
-        vehicle=vehicle, multibeam_device=multibeam, n_particles=BATHY_PARTICLES,
-        filter=dict(BATHY_FILTER),
-    )  # fmt: skip
 
 
 def _geoswath_device(gw_cfg: GatewayConfig) -> str | None:
@@ -1066,11 +993,6 @@ def _bathy_stage(
     return BathymetricStage(cfg, session=session, on_publish=on_publish)
 
 
-def _geoswath_khz(scn: Any) -> float:
-    """The scenario's GeoSwath model (kHz: 125, 250 or 500)."""
-    return float(scn.devices.geoswath.options.get("model_khz", 250))
-
-
 def _swath_stage(
     gw_cfg: GatewayConfig, session: zenoh.Session, on_publish: OnPublish
 ) -> SwathStage | None:
@@ -1088,15 +1010,6 @@ def _swath_stage(
     return SwathStage(cfg, session=session, on_publish=on_publish)
 
 
-def _bathy_argv(cfg: BathymetricStageConfig, hub: str) -> list[str]:
-    """``auvgw slam run --pipeline bathymetric`` with the demo's settings, on the hub."""
-    sets = [a for k, v in cfg.filter.items() for a in ("--set", f"{k}={json.dumps(v)}")]
-    return ["slam", "run", "--pipeline", BATHYMETRIC.name, "--vehicle", cfg.vehicle,
-            "--multibeam", str(cfg.multibeam_device), "--particles", str(cfg.n_particles),
-            "--seed", str(cfg.seed), *sets,
-            "--connect", hub, "--listen", free_endpoint()]  # fmt: skip
-
-
 def _slam_name(stage: DemoSlam) -> str:
     """The in-process SLAM stage's name in the summary."""
     name = getattr(stage.config, "display_name", None)
@@ -1112,22 +1025,28 @@ def _print_bathy(counters: dict[str, Any]) -> None:
           f"{counters['loops_rejected']} rejected; {st['maps']} maps")  # fmt: skip
 
 
-class _BathyMapTap:
-    """``--processes``: the bathymetric stage's latest ``slam/bathymetric/map`` payload (the
-    whole map once the stage has flushed) and its smoothed trajectory (``track``, at flush)."""
+class _MapTap:
+    """``--processes``: a pipeline's latest DEM payload (its output of view ``dem``: the whole map
+    once the stage has flushed) and its smoothed trajectory (view ``path``, at flush)."""
 
-    def __init__(self, session: zenoh.Session, keys: Keys) -> None:
+    def __init__(self, session: zenoh.Session, keys: Keys, record: pipelines.Pipeline) -> None:
         self.last: list[bytes] = []
         self.track: list[bytes] = []
+        what = {o.view: o.what for o in record.outputs}
         self._subs = [
-            session.declare_subscriber(keys.slam(BATHYMETRIC.name, "map"), self._on_map),
-            session.declare_subscriber(keys.slam(BATHYMETRIC.name, "track"), self._on_track),
+            session.declare_subscriber(keys.slam(record.name, what["dem"]), self._on_map),
+            session.declare_subscriber(keys.slam(record.name, what["path"]), self._on_track),
         ]
+
+    @staticmethod
+    def taps(record: pipelines.Pipeline) -> bool:
+        """Whether ``record``'s stage publishes a DEM and a smoothed trajectory."""
+        return {"dem", "path"} <= {o.view for o in record.outputs}
 
     def _on_map(self, sample: zenoh.Sample) -> None:
         self.last[:] = [sample.payload.to_bytes()]
 
-    def _on_track(self, sample: Any) -> None:
+    def _on_track(self, sample: zenoh.Sample) -> None:
         self.track[:] = [sample.payload.to_bytes()]
 
     def close(self) -> None:
@@ -1211,21 +1130,14 @@ def _bathy_map_summary(last: list[bytes], scn: Scenario) -> dict[str, Any]:
 
 # -- the beacons scenario: AMB-SLAM on the magnetometer and the acoustic beacon -----------------
 
-#: the magnetic stage's status component and the name the summary gives it
+#: the magnetic stage's status component
 MAGNETIC_COMPONENT = f"slam-{MAGNETIC.name}"
-MAGNETIC_NAME = "AMB-SLAM"
 
 
 def _is_magnetic(scn: Scenario) -> bool:
     """A scenario for the magnetic stage: the registry gives it to the magnetic pipeline
     (:func:`auvgw.commands.magnetic_run.demo_accepts`; the MSIS SLAM stage otherwise)."""
     return pipelines.for_demo(scn) is MAGNETIC
-
-
-def _mag_rate_hz(scn: Scenario) -> float:
-    from auvgw.sim_devices.magnetometer import MagnetometerEmulator
-
-    return float(scn.devices.magnetometer.rate_hz or MagnetometerEmulator.nominal_rate_hz)
 
 
 def _magnetic_stage(
@@ -1236,19 +1148,10 @@ def _magnetic_stage(
     from auvgw.stages.magnetic import MagneticStage, config_from_scenario
 
     cfg = config_from_scenario(
-        scenario, vehicle=VEHICLE, mag_device="magnetometer", mag_rate_hz=_mag_rate_hz(scn),
+        scenario, vehicle=VEHICLE, mag_device="magnetometer", mag_rate_hz=mag_rate_hz(scn),
         clock_epoch_s=epoch_ns / 1e9,
     )  # fmt: skip
     return MagneticStage(cfg, session=session, on_publish=on_publish)
-
-
-def _magnetic_argv(scenario: Path, scn: Scenario, epoch_ns: int, hub: str) -> list[str]:
-    """``auvgw slam run --pipeline magnetic`` as the demo's SLAM process (see
-    :func:`_magnetic_stage`)."""
-    return ["slam", "run", "--pipeline", MAGNETIC.name, "--vehicle", VEHICLE,
-            "--scenario", str(scenario), "--mag-device", "magnetometer",
-            "--mag-rate", str(_mag_rate_hz(scn)), "--clock-epoch-ns", str(epoch_ns),
-            "--connect", hub, "--listen", free_endpoint()]  # fmt: skip
 
 
 def _print_magnetic(

@@ -25,9 +25,10 @@ import json
 import math
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
@@ -35,6 +36,14 @@ from auvgw.commands.common import UserError
 from auvgw.control.closed_loop import cross_track
 from auvgw.control.mission import Mission, load_mission
 from auvgw.ground.paths import config_file
+
+if TYPE_CHECKING:
+    import zenoh
+
+    from auvgw.ground.procs import Children
+    from auvgw.subscribe import GatewaySubscriber
+
+_T = TypeVar("_T")
 
 __all__ = ["ChainResult", "ChainRun", "fly_chain", "run_closed_loop", "score"]
 
@@ -161,7 +170,7 @@ def score(mission: Mission, truth: np.ndarray, states: list[tuple[float, int, st
 class _Follow:
     """This process's subscriptions: the pilot's state, the odometry and the status keys."""
 
-    def __init__(self, session: Any, vehicle: str, epoch_s: float, out: Path) -> None:
+    def __init__(self, session: zenoh.Session, vehicle: str, epoch_s: float, out: Path) -> None:
         from auvgw.bus import Keys, decode_envelope
 
         self._decode = decode_envelope
@@ -182,24 +191,24 @@ class _Follow:
             session.declare_subscriber(f"{keys.base}/pilot/command", self._on_command),
         ]
 
-    def _on_state(self, sample: Any) -> None:
+    def _on_state(self, sample: zenoh.Sample) -> None:
         s = json.loads(sample.payload.to_bytes())
         with self.lock:
             self.states.append((float(s["t"]) - self.epoch_s, int(s["leg"]), str(s["mode"])))
             self.last_state = s
             self._files["pilot_state"].write(json.dumps(s) + "\n")
 
-    def _on_command(self, sample: Any) -> None:
+    def _on_command(self, sample: zenoh.Sample) -> None:
         with self.lock:
             self._files["pilot_command"].write(sample.payload.to_bytes().decode() + "\n")
 
-    def _on_odometry(self, sample: Any) -> None:
+    def _on_odometry(self, sample: zenoh.Sample) -> None:
         o = self._decode(sample.payload.to_bytes()).body
         with self.lock:
             self.odometry.append((float(o["t"]) - self.epoch_s, float(o["x"]), float(o["y"])))
             self._files["odometry"].write(json.dumps(o, default=_jsonable) + "\n")
 
-    def _on_status(self, sample: Any) -> None:
+    def _on_status(self, sample: zenoh.Sample) -> None:
         component = str(sample.key_expr).rsplit("/", 1)[-1]
         with self.lock:
             self.status[component] = json.loads(sample.payload.to_bytes())
@@ -217,7 +226,7 @@ class _Follow:
                 f.close()
 
 
-def _jsonable(v: Any) -> Any:
+def _jsonable(v: object) -> object:
     return v.tolist() if hasattr(v, "tolist") else str(v)
 
 
@@ -232,9 +241,11 @@ def fly_chain(run: ChainRun, progress: bool = False) -> ChainResult:
     """Fly ``run`` through the chain (see the module docstring) and score it against the truth."""
     from auvgw.bus import Keys, open_session
     from auvgw.commands.demo_parts import (
+        TruthSample,
         _fusion_config,
         _gateway_toml,
         _load_sim_config,
+        _sim_epoch_ns,
         _TruthTail,
         _wait_for,
     )
@@ -299,7 +310,7 @@ def fly_chain(run: ChainRun, progress: bool = False) -> ChainResult:
             *(["--lockstep", "--lockstep-step", str(run.lockstep_step), "--connect", hub,
                 "--listen", free_endpoint()] if run.lockstep else [])])  # fmt: skip
         _wait_for(sim_dir / "gateway.toml", sim, 120.0)
-        epoch_s = _read_when_written(lambda: _load_sim_config(sim_dir)).clock.epoch_ns / 1e9
+        epoch_s = _sim_epoch_ns(_read_when_written(lambda: _load_sim_config(sim_dir))) / 1e9
         follow = _Follow(session, VEHICLE, epoch_s, out)
         children.start("gateway", ["run", "--config",
                                    str(_gateway_toml(sim_dir, out, free_endpoint(), hub))])
@@ -309,7 +320,7 @@ def fly_chain(run: ChainRun, progress: bool = False) -> ChainResult:
             raise UserError(f"every part was up only at vehicle t = {ready_vehicle_s:.1f} s: "
                             "raise --start-delay")  # fmt: skip
 
-        def on_truth(s: dict[str, Any]) -> None:
+        def on_truth(s: TruthSample) -> None:
             truth_rows.append((s["t"], s["x"], s["y"], s["z"]))
             truth_pub.put(json.dumps(s).encode())
 
@@ -386,7 +397,7 @@ def _scenario_on_mission(scenario: Path, mission: Mission, out: Path) -> Path:
     return path
 
 
-def _read_when_written(read: Any, timeout_s: float = 10.0) -> Any:
+def _read_when_written(read: Callable[[], _T], timeout_s: float = 10.0) -> _T:
     """``read()``, again while it fails for at most ``timeout_s``: the sim may still be
     writing the file that has just appeared."""
     deadline = time.monotonic() + timeout_s
@@ -399,7 +410,7 @@ def _read_when_written(read: Any, timeout_s: float = 10.0) -> Any:
             time.sleep(0.1)
 
 
-def _stop_all(children: Any, names: tuple[str, ...], grace_s: float = 15.0) -> None:
+def _stop_all(children: Children, names: tuple[str, ...], grace_s: float = 15.0) -> None:
     """SIGINT to every child in ``names`` at once (in that order), then wait for each (killed
     after ``grace_s``): their clean stops overlap."""
     import signal
@@ -417,7 +428,9 @@ def _stop_all(children: Any, names: tuple[str, ...], grace_s: float = 15.0) -> N
             children.killed.append(n)
 
 
-def _wait_alive(sub: Any, wanted: set[str], children: Any, timeout_s: float) -> None:
+def _wait_alive(
+    sub: GatewaySubscriber, wanted: set[str], children: Children, timeout_s: float
+) -> None:
     deadline = time.monotonic() + timeout_s
     while True:
         name = children.exited()

@@ -1,26 +1,91 @@
 """Parts of ``auvgw demo`` shared by its modes (the survey and harbour runs in
 :mod:`auvgw.commands.demo`, the closed loop in :mod:`auvgw.commands.demo_closed_loop`): the sim's
 truth log followed, its gateway configuration read and joined to the demo's bus, the fusion's
-settings."""
+settings, and what a SLAM pipeline's record says it needs in ``demo --processes``
+(:class:`DemoPlan`, from its ``demo_processes`` entry)."""
 
 from __future__ import annotations
 
 import json
 import subprocess
 import time
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 from auvgw.commands.common import UserError
 from auvgw.config.gateway import ConfigError, load_gateway_config
 
-__all__ = ["_TruthTail", "_fusion_config", "_gateway_toml", "_load_sim_config", "_wait_for"]
+if TYPE_CHECKING:
+    from auvgw.config.gateway import GatewayConfig
+    from auvgw.config.scenario import Scenario
+    from auvgw.stages.fusion import FusionStageConfig
+
+__all__ = [
+    "DemoContext",
+    "DemoPlan",
+    "DemoProcess",
+    "TruthSample",
+    "_TruthTail",
+    "_fusion_config",
+    "_gateway_toml",
+    "_load_sim_config",
+    "_sim_epoch_ns",
+    "_wait_for",
+]
+
+
+#: one truth sample of the simulator's log (t s, x, y, z m, heading rad...)
+TruthSample = dict[str, float]
+
+
+@dataclass(frozen=True)
+class DemoContext:
+    """What a pipeline's demo processes are made from: the scenario (``scenario``: its file,
+    ``scn``: loaded), the vehicle, the bus hub every child connects to (``hub``) and ``listen``,
+    which gives each child an endpoint of its own (a free one per call)."""
+
+    scenario: Path
+    scn: Scenario
+    vehicle: str
+    hub: str
+    listen: Callable[[], str]
+
+    def bus_args(self) -> list[str]:
+        """``--connect <hub> --listen <a free endpoint>``: a child on the demo's bus."""
+        return ["--connect", self.hub, "--listen", self.listen()]
+
+
+@dataclass(frozen=True)
+class DemoProcess:
+    """One child process of a pipeline in ``demo --processes``: its name (the demo's
+    ``Children``), its ``auvgw`` arguments; ``after_clock``: started once the sim's gateway
+    configuration gives vehicle time 0 (its ``[clock] epoch_ns``), which ``argv`` is then
+    called with (else with None, before the sim starts: up before vehicle t = 0)."""
+
+    name: str
+    argv: Callable[[int | None], list[str]]
+    after_clock: bool = False
+
+
+@dataclass(frozen=True)
+class DemoPlan:
+    """What a SLAM pipeline needs in ``demo --processes`` (its record's ``demo_processes``
+    entry, ``plan(ctx: DemoContext) -> DemoPlan``): its processes (in start order), the
+    components the demo waits for on the bus before vehicle t = 0 (its devices and stages, by
+    liveliness), its stage's status component and its name in the summary."""
+
+    processes: tuple[DemoProcess, ...]
+    alive: frozenset[str]
+    component: str
+    display: str
 
 
 class _TruthTail:
     """Follows the simulator's truth log (JSON lines), feeding each sample to ``on_sample``."""
 
-    def __init__(self, path: Path, on_sample: Any) -> None:
+    def __init__(self, path: Path, on_sample: Callable[[TruthSample], object]) -> None:
         self.path = path
         self.on_sample = on_sample
         self._pos = 0
@@ -41,20 +106,26 @@ class _TruthTail:
                 self.on_sample(json.loads(line))
 
 
-def _load_sim_config(sim_dir: Path) -> Any:
+def _load_sim_config(sim_dir: Path) -> GatewayConfig:
     """The gateway configuration ``auvgw sim`` wrote, with its vehicle-paced clock."""
     try:
         gw_cfg = load_gateway_config(sim_dir / "gateway.toml")
     except ConfigError as exc:
         raise UserError(str(exc)) from exc
+    _sim_epoch_ns(gw_cfg)  # a UserError without one
+    return gw_cfg
+
+
+def _sim_epoch_ns(gw_cfg: GatewayConfig) -> int:
+    """The gateway's vehicle time 0 (ns on the stamps' clock), from ``auvgw sim``."""
     if gw_cfg.clock.epoch_ns is None:
         raise UserError(f"{gw_cfg.source}: no [clock] epoch_ns (vehicle time 0) from auvgw sim")
-    return gw_cfg
+    return gw_cfg.clock.epoch_ns
 
 
 def _fusion_config(
     vehicle: str, position_m: tuple[float, float, float], ins_noise: dict[str, float] | None = None
-) -> Any:
+) -> FusionStageConfig:
     """The demo's fusion stage: dead reckoning starts from the true position (what a GNSS fix at
     the surface gives a real vehicle). The INS heading error model follows the emulated INS
     (``ins_noise``: the scenario's ``devices.ins.noise``): with ``heading_bias_deg`` > 0 its

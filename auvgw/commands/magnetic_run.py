@@ -24,9 +24,17 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
+from auvgw.commands.demo_parts import DemoContext, DemoPlan, DemoProcess
 from auvgw.ground.errors import UserError
+
+if TYPE_CHECKING:
+    from auvgw.config.scenario import Scenario
+    from auvgw.stages.magnetic import MagneticStageConfig
+
+#: the stage's name in the demo's summary
+DISPLAY_NAME = "AMB-SLAM"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -44,13 +52,45 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "the beacons' phase reference; default 0)")  # fmt: skip
 
 
-def demo_accepts(scn: Any) -> bool:
+def demo_accepts(scn: Scenario) -> bool:
     """A scenario ``auvgw demo`` runs this pipeline on: magnetic beacons and an emulated
     magnetometer."""
     return bool(scn.magnetic_beacons) and scn.devices.magnetometer.enabled
 
 
-def stage_config(args: argparse.Namespace, vehicle: str) -> Any:
+def mag_rate_hz(scn: Scenario) -> float:
+    """The scenario's magnetometer rate (Hz; its emulator's nominal one unless set)."""
+    from auvgw.sim_devices.magnetometer import MagnetometerEmulator
+
+    return float(scn.devices.magnetometer.rate_hz or MagnetometerEmulator.nominal_rate_hz)
+
+
+def demo_argv(scenario: Path, scn: Scenario, vehicle: str, epoch_ns: int,
+              bus: list[str]) -> list[str]:  # fmt: skip
+    """``auvgw slam run --pipeline magnetic`` as the demo's SLAM process: the scenario's channels
+    and acoustic beacon, the serial magnetometer timed by its counter from the gateway's epoch
+    (``epoch_ns``: vehicle time 0, the beacons' phase reference); ``bus``: its bus options."""
+    return ["slam", "run", "--pipeline", "magnetic", "--vehicle", vehicle,
+            "--scenario", str(scenario), "--mag-device", "magnetometer",
+            "--mag-rate", str(mag_rate_hz(scn)), "--clock-epoch-ns", str(epoch_ns),
+            *bus]  # fmt: skip
+
+
+def demo_plan(ctx: DemoContext) -> DemoPlan:
+    """``demo --processes`` on a beacons scenario: this stage, started once the sim's
+    ``[clock]`` epoch (the beacons' phase reference) is known."""
+
+    def argv(epoch_ns: int | None) -> list[str]:
+        assert epoch_ns is not None  # after_clock
+        return demo_argv(ctx.scenario, ctx.scn, ctx.vehicle, epoch_ns, ctx.bus_args())
+
+    component = "slam-magnetic"
+    return DemoPlan((DemoProcess("slam", argv, after_clock=True),),
+                    frozenset({"magnetometer", "acoustic", component}), component,
+                    DISPLAY_NAME)  # fmt: skip
+
+
+def stage_config(args: argparse.Namespace, vehicle: str) -> MagneticStageConfig:
     """The stage's settings from ``--scenario`` (required) and the magnetic options."""
     from pydantic import ValidationError
 

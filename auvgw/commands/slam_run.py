@@ -36,6 +36,7 @@ import numpy as np
 
 from auvgw.bus import add_bus_arguments
 from auvgw.commands.common import SubParsers, UserError, add_duration, open_output
+from auvgw.commands.demo_parts import DemoContext, DemoPlan, DemoProcess
 from auvgw.commands.slam_common import (
     Paths,
     check_recording,
@@ -47,6 +48,7 @@ from auvgw.ground.errors import format_validation_error
 from auvgw.slam import pipelines
 
 if TYPE_CHECKING:
+    from auvgw.config.scenario import Scenario
     from auvgw.stages.fusion import FusionStage
     from auvgw.stages.slam import SlamStage, SlamStageConfig
 
@@ -113,6 +115,32 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="radius of the point targets, m (default 0.6)",
     )
     g.add_argument("--sound-speed", type=float, default=1500.0, help="m/s (default 1500)")
+
+
+def demo_config(vehicle: str, msis: str | None, scn: Scenario) -> SlamStageConfig:
+    """The demo's stage on the MSIS point features of gateway device ``msis`` (the scenario's
+    sound speed and target size)."""
+    from auvgw.stages.slam import SlamStageConfig
+
+    return SlamStageConfig(
+        vehicle=vehicle,
+        msis_device=msis,
+        sound_speed_mps=scn.sound_speed_mps,
+        target_radius_m=scn.features.point_radius_m,
+    )
+
+
+def demo_plan(ctx: DemoContext) -> DemoPlan:
+    """``demo --processes`` on a scenario of point and line features: this stage on the MSIS,
+    up before vehicle t = 0."""
+    cfg = demo_config(ctx.vehicle, "msis", ctx.scn)
+    argv = ["slam-run", "--vehicle", ctx.vehicle, "--msis", "msis",
+            "--algorithm", cfg.algorithm, "--particles", str(cfg.n_particles),
+            "--seed", str(cfg.seed), "--sound-speed", str(cfg.sound_speed_mps),
+            "--target-radius", str(cfg.target_radius_m), *ctx.bus_args()]  # fmt: skip
+    component = f"slam-{cfg.pipeline_name}"
+    return DemoPlan((DemoProcess("slam", lambda _: argv),), frozenset({"msis", component}),
+                    component, cfg.display_name)  # fmt: skip
 
 
 def _stage_config(args: argparse.Namespace, vehicle: str = "auv1") -> SlamStageConfig:

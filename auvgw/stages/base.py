@@ -16,7 +16,14 @@ A :class:`Stage` owns the plumbing; a subclass gives only what is its own:
   ``on_publish(key, payload, t_ns)``, the in-process hook);
 * **status**: :attr:`Stage.status_schema` (None: no status, queryable nor liveliness on the bus)
   and :meth:`Stage.status_fields`, merged into :meth:`Stage.counters` after the common fields;
-* **flush**: :meth:`Stage.flush`, called at :meth:`Stage.stop` after the queue is drained.
+* **flush**: :meth:`Stage.flush`, called at :meth:`Stage.stop` after the queue is drained;
+* **its own start and stop**: :meth:`Stage.on_start` (its servers, tokens, extra
+  subscriptions: after the outputs, status and worker are up, before the subscriptions and the
+  liveliness token) and :meth:`Stage.on_stop` (stop what feeds the worker besides the
+  subscriptions: timers, command subscriptions; first thing at stop), with what must live
+  until the end handed to :meth:`Stage.keep` (withdrawn after the last status, the last kept
+  first). A subclass never overrides :meth:`Stage.start` or :meth:`Stage.stop`
+  (``tests/service/test_stage_hooks.py`` walks them).
 
 The base does the rest. Zenoh callbacks only copy the payload into a bounded queue (counting
 ``queue_dropped`` when it is full: a callback never blocks the network thread); one worker thread
@@ -43,7 +50,7 @@ import json
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass
 from typing import Any, ClassVar
 
@@ -64,14 +71,17 @@ from auvgw.fusion.odometry import Odometry
 from auvgw.ground.worker import Worker
 from auvgw.stages import StampGuard, log_bad_payload
 
-__all__ = ["DROP", "BusCounters", "PipelineStage", "Stage", "StageConfig"]
+__all__ = ["DROP", "BusCounters", "OnPublish", "PipelineStage", "Stage", "StageConfig"]
 
 log = logging.getLogger(__name__)
 
 #: outputs and status never stall the stage on a slow subscriber
 DROP = zenoh.CongestionControl.DROP
 
-_Item = tuple[Callable[..., object], tuple[Any, ...]]
+#: a stage's in-process publication hook: (key, payload, stamp ns)
+OnPublish = Callable[[str, bytes, int], object]
+#: a queued call: the bound method and its arguments
+_Item = tuple[Callable[..., object], tuple[object, ...]]
 
 
 @dataclass
@@ -129,7 +139,7 @@ class Stage(Worker[_Item]):
         stats: BusCounters,
         session: zenoh.Session | None = None,
         *,
-        on_publish: Callable[[str, bytes, int], object] | None = None,
+        on_publish: OnPublish | None = None,
         keys: Keys | None = None,
     ) -> None:
         super().__init__(config.queue_size, period_s=config.status_period_s,
@@ -168,7 +178,7 @@ class Stage(Worker[_Item]):
         """Whether a sample on ``key`` is queued (runs in the Zenoh callback: keep it cheap)."""
         return True
 
-    def feed(self, device: str, t_recv_ns: int, message: Any) -> object:
+    def feed(self, device: str, t_recv_ns: int, message: object) -> object:
         """One decoded message of ``device`` received at ``t_recv_ns`` (the stamp clock, ns)."""
         return None
 
@@ -186,7 +196,7 @@ class Stage(Worker[_Item]):
                 self.sources[role] = want = device
             return device == want
 
-    def dispatch(self, env: Envelope, message: Any) -> None:
+    def dispatch(self, env: Envelope, message: object) -> None:
         """One decoded bus message: odometry to :meth:`feed_odometry`, the rest to
         :meth:`feed` with the envelope's device and receive stamp."""
         if isinstance(message, Odometry):
@@ -194,7 +204,7 @@ class Stage(Worker[_Item]):
         else:
             self.feed(env.device, int(env.t_recv_ns), message)
 
-    def status_fields(self) -> dict[str, Any]:
+    def status_fields(self) -> dict[str, object]:
         """The stage's own status fields (JSON-ready), after the common ones."""
         return {}
 
@@ -202,8 +212,26 @@ class Stage(Worker[_Item]):
         """End of data: publish what is held back (called by :meth:`stop`)."""
         return None
 
+    def on_start(self, subscribe: bool) -> None:
+        """The stage's own start, called once by :meth:`start` after the outputs, the status
+        and the worker are up and before the subscriptions (``subscribe``: whether they are
+        made) and the liveliness token: declare servers, tokens and extra subscriptions here,
+        each handed to :meth:`keep`."""
+
+    def on_stop(self) -> None:
+        """The stage's own stop, called once first thing by :meth:`stop` (before the
+        subscriptions are withdrawn and the queue drained): stop what feeds the worker besides
+        the subscriptions (timers, command subscriptions)."""
+
+    def keep(self, decl: Undeclarable) -> Undeclarable:
+        """Hold ``decl`` (a Zenoh declaration, or anything with ``undeclare()``) until
+        :meth:`stop`, which withdraws it after the last status (a subscription: with the
+        stage's subscriptions, before the queue is drained), the last kept first; ``decl``."""
+        self._decls.append(decl)
+        return decl
+
     # -- in-process use -------------------------------------------------------------------------
-    def post(self, device: str, t_recv_ns: int, message: Any) -> None:
+    def post(self, device: str, t_recv_ns: int, message: object) -> None:
         """:meth:`feed` on the worker thread (after :meth:`start`): returns at once."""
         self._post(self.feed, (device, t_recv_ns, message))
 
@@ -211,12 +239,12 @@ class Stage(Worker[_Item]):
         """:meth:`feed_odometry` on the worker thread (after :meth:`start`): returns at once."""
         self._post(self.feed_odometry, (o,))
 
-    def _post(self, fn: Callable[..., object], args: tuple[Any, ...]) -> None:
+    def _post(self, fn: Callable[..., object], args: tuple[object, ...]) -> None:
         if not self.worker_started:
             raise RuntimeError(f"{type(self).__name__}.post needs start() (or call feed)")
         self._enqueue(fn, args)
 
-    def _enqueue(self, fn: Callable[..., object], args: tuple[Any, ...]) -> None:
+    def _enqueue(self, fn: Callable[..., object], args: tuple[object, ...]) -> None:
         if not self.submit((fn, args)):
             with self._drop_lock:
                 self.stats.queue_dropped += 1
@@ -233,11 +261,11 @@ class Stage(Worker[_Item]):
         if self.on_publish is not None:
             self.on_publish(self.key(what), payload, t_ns)
 
-    def publish_json(self, what: str, body: dict[str, Any], t: float, schema: str) -> None:
+    def publish_json(self, what: str, body: Mapping[str, object], t: float, schema: str) -> None:
         """Publish ``body`` as JSON (type ``schema``) on output ``what``; ``t``: its time, s."""
         self.publish(what, json.dumps(body).encode(), json_encoding(schema), int(t * 1e9))
 
-    def publish_message(self, what: str, msg: Any, t: float) -> None:
+    def publish_message(self, what: str, msg: object, t: float) -> None:
         """Publish a declared message (:mod:`auvgw.slam.outputs`) on output ``what`` as an
         envelope, like the sensors' (device: the stage's component); ``t``: its time, s."""
         with self._drop_lock:
@@ -294,6 +322,7 @@ class Stage(Worker[_Item]):
             self._status_pub = s.declare_publisher(status_key, congestion_control=DROP)
             self._decls.append(s.declare_queryable(status_key, self._answer_status))
         self.start_worker()
+        self.on_start(subscribe)
         if subscribe:
             self.subscribe()
         if self.status_schema is not None:
@@ -356,19 +385,20 @@ class Stage(Worker[_Item]):
             self.stats.bad_payloads += 1
 
     def stop(self, flush: bool = True, timeout_s: float = 5.0) -> None:
-        """Withdraw the subscriptions, drain the queue (on the worker for as long as it makes
-        progress, ``timeout_s`` without any gives up on it; without a worker on the calling
-        thread), :meth:`flush` (``flush``), publish a last status and withdraw every other
-        declaration. Safe to call more than once."""
+        """:meth:`on_stop`, withdraw the subscriptions, drain the queue (on the worker for as
+        long as it makes progress, ``timeout_s`` without any gives up on it; without a worker on
+        the calling thread), :meth:`flush` (``flush``), publish a last status and withdraw every
+        other declaration (the last declared first). Safe to call more than once."""
         if self._stopped:
             return
         self._stopped = True
+        self.on_stop()
         undeclare(d for d in self._decls if isinstance(d, zenoh.Subscriber))
         self.stop_worker(timeout_s)
         if flush:
             self.flush()
         self.publish_status()
-        undeclare(d for d in self._decls if not isinstance(d, zenoh.Subscriber))
+        undeclare(d for d in reversed(self._decls) if not isinstance(d, zenoh.Subscriber))
         undeclare(self._pubs.values())
         undeclare([self._status_pub] if self._status_pub is not None else [])
         self._pubs.clear()
@@ -398,7 +428,7 @@ class PipelineStage(Stage):
     #: the stage's counters, made at construction
     stats_type: ClassVar[type[BusCounters]] = BusCounters
 
-    def __init_subclass__(cls, **kw: Any) -> None:
+    def __init_subclass__(cls, **kw: object) -> None:
         super().__init_subclass__(**kw)
         cls.schema_prefix = cls.name.capitalize()
         cls.status_schema = f"{cls.schema_prefix}Status"
@@ -407,7 +437,7 @@ class PipelineStage(Stage):
         self,
         config: StageConfig,
         session: zenoh.Session | None = None,
-        on_publish: Callable[[str, bytes, int], object] | None = None,
+        on_publish: OnPublish | None = None,
     ) -> None:
         self.config = config
         super().__init__(config, self.stats_type(), session, on_publish=on_publish)
@@ -427,7 +457,7 @@ class PipelineStage(Stage):
         """``auv/<v>/slam/<name>/<what>``."""
         return self.keys.slam(self.name, what)
 
-    def dispatch(self, env: Envelope, message: Any) -> None:
+    def dispatch(self, env: Envelope, message: object) -> None:
         """One decoded bus message (counted as received)."""
         with self._lock:
             self.stats.received += 1

@@ -50,6 +50,7 @@ from typing import Any
 import numpy as np
 from pydantic import Field
 
+from auvgw.drivers.kongsberg import XYZ88, Depth
 from auvgw.fusion.odometry import Odometry
 from auvgw.slam.bathymetric.config import BathyConfig
 from auvgw.slam.bathymetric.evaluate import grid_dem
@@ -64,6 +65,8 @@ __all__ = ["BathymetricStage", "BathymetricStageConfig", "BathymetricStats", "sw
 
 PIPELINE = "bathymetric"
 SWATH_KINDS = ("xyz88", "depth")
+#: a swath the stage takes (the messages of :data:`SWATH_KINDS`)
+Swath = XYZ88 | Depth
 
 
 #: BathyConfig values the online stage uses unless its ``filter`` says otherwise
@@ -116,7 +119,7 @@ class BathymetricStats(BusCounters):
     maps: int = 0  #: map (DEM tile + cloud) publications
 
 
-def swath_soundings(msg: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def swath_soundings(msg: Swath) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(across, along, depth)`` (m: starboard, forward, down from the water surface) of the
     valid beams of a decoded XYZ 88 or Depth datagram: the beam depth (from the transmit
     transducer) plus the transducer depth."""
@@ -151,7 +154,7 @@ class BathymetricStage(PipelineStage):
         #: time of each ping given to the filter (s, odometry clock)
         self.ping_times: list[float] = []
         self._odo = StateHistory(3, angles=(2,))  # x, y (m NED), heading (rad)
-        self._swaths: HeldSamples[Any] = HeldSamples(cfg.max_pending_swaths)
+        self._swaths: HeldSamples[Swath] = HeldSamples(cfg.max_pending_swaths)
         self._last_xy: tuple[float, float] | None = None
         self.sources["swath"] = cfg.multibeam_device
 
@@ -170,7 +173,7 @@ class BathymetricStage(PipelineStage):
             self._drain()
             self._odo.trim(o.t - self.config.odometry_window_s)
 
-    def feed_swath(self, t: float, msg: Any) -> None:
+    def feed_swath(self, t: float, msg: Swath) -> None:
         """One decoded XYZ 88 / Depth datagram received at ``t`` (s, odometry clock)."""
         with self._lock:
             self.stats.swaths += 1
@@ -181,12 +184,10 @@ class BathymetricStage(PipelineStage):
             self.stats.pending_dropped += self._swaths.hold(t, msg)
             self._drain()
 
-    def feed(self, device: str, t_recv_ns: int, message: Any) -> None:
+    def feed(self, device: str, t_recv_ns: int, message: object) -> None:
         """One decoded gateway message (``on_message`` signature): swaths of the multibeam (the
         configured one, else the first seen) are used, everything else ignored."""
-        from auvgw.decoding import message_kind
-
-        if message_kind(message) in SWATH_KINDS and self.from_source("swath", device):
+        if isinstance(message, XYZ88 | Depth) and self.from_source("swath", device):
             self.feed_swath(t_recv_ns * 1e-9, message)
 
     def _drain(self) -> None:
@@ -265,7 +266,7 @@ class BathymetricStage(PipelineStage):
                       np.asarray(closures, dtype=np.float64), self._loops())  # fmt: skip
         self.publish_message("track", track, times[-1])
 
-    def status_fields(self) -> dict[str, Any]:
+    def status_fields(self) -> dict[str, object]:
         """Particles, pings in the filter and loop closures (accepted, rejected)."""
         acc, rej = self._loops()
         return {"algorithm": "mtm-pf", "n_particles": self.bathy.n_particles,

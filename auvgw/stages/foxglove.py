@@ -12,12 +12,17 @@ vehicle-paced under a ``[clock]``).
 from __future__ import annotations
 
 import logging
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
 import zenoh
 
 from auvgw import ros2
+from auvgw.bus import Keys
+from auvgw.stages.base import OnPublish
 from auvgw.stages.ros2 import Ros2BridgeConfig, RosStage
+
+if TYPE_CHECKING:
+    import foxglove
 
 __all__ = ["FoxgloveStage"]
 
@@ -32,17 +37,19 @@ class FoxgloveStage(RosStage):
     status_schema: ClassVar[str | None] = "FoxgloveStatus"
 
     def __init__(self, config: Ros2BridgeConfig, session: zenoh.Session | None = None, *,
-                 host: str = "127.0.0.1", port: int = 8765, **kw: Any) -> None:  # fmt: skip
+                 host: str = "127.0.0.1", port: int = 8765,
+                 sections: tuple[str, ...] = RosStage.SECTIONS, on_publish: OnPublish | None = None,
+                 keys: Keys | None = None) -> None:  # fmt: skip
         import foxglove
 
-        super().__init__(config, session, **kw)
+        super().__init__(config, session, sections=sections, on_publish=on_publish, keys=keys)
         self._fg = foxglove
         self._context = foxglove.Context()
-        self._channels: dict[str, Any] = {}
-        self._server: Any = None
+        self._channels: dict[str, foxglove.Channel] = {}
+        self._server: foxglove.WebSocketServer | None = None
         self.host, self.port = host, port
 
-    def status_fields(self) -> dict[str, Any]:
+    def status_fields(self) -> dict[str, object]:
         return {"host": self.host, "port": self.port, "topics": sorted(self._channels)}
 
     def put(self, m: ros2.RosMessage, t_ns: int) -> None:
@@ -59,29 +66,28 @@ class FoxgloveStage(RosStage):
         ch.log(ros2.serialize(m), log_time=max(0, t_ns))
         self.count(m, topic)
 
-    def start(self, subscribe: bool = True) -> None:
-        """The server first (it takes clients from then on), then the stage."""
+    def on_start(self, subscribe: bool) -> None:
+        """The server first (it takes clients from then on; stopped at :meth:`stop`, after the
+        last status), then ``/tf_static``."""
         self.start_server()
-        super().start(subscribe)
-        self.publish_static(_now())
+        super().on_start(subscribe)
 
     def start_server(self) -> None:
-        """Start the WebSocket server (idempotent); :attr:`port` is then the bound port."""
+        """Start the WebSocket server (idempotent; stopped at :meth:`stop`); :attr:`port` is then
+        the bound port."""
         if self._server is None:
             self._server = self._fg.start_server(name=f"auvgw {self.keys.vehicle}",
                                                  host=self.host, port=self.port,
                                                  context=self._context)  # fmt: skip
             self.port = int(self._server.port)
-
-    def stop(self, flush: bool = True, timeout_s: float = 5.0) -> None:
-        """Stop the stage, then the server."""
-        super().stop(flush, timeout_s)
-        if self._server is not None:
-            self._server.stop()
-            self._server = None
+            self.keep(_Stopping(self._server))
 
 
-def _now() -> int:
-    import time
+class _Stopping:
+    """A server (anything with ``stop()``) as a declaration :meth:`Stage.keep` withdraws."""
 
-    return time.time_ns()
+    def __init__(self, server: foxglove.WebSocketServer) -> None:
+        self.server = server
+
+    def undeclare(self) -> None:
+        self.server.stop()

@@ -36,7 +36,7 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, cast
+from typing import cast
 
 import zenoh
 from pydantic import AliasChoices, ConfigDict, Field
@@ -161,7 +161,7 @@ class FusionStage(Stage):
         return self.keys.odometry()
 
     # -- in-process use -----------------------------------------------------------------------
-    def feed(self, device: str, t_recv_ns: int, message: Any) -> list[Odometry]:
+    def feed(self, device: str, t_recv_ns: int, message: object) -> list[Odometry]:
         """One decoded message of ``device`` received at ``t_recv_ns`` (host ns since the Unix
         epoch); returns (and publishes, with a session) the odometry that became final."""
         with self._lock:
@@ -194,7 +194,7 @@ class FusionStage(Stage):
             if self.on_odometry is not None:
                 self.on_odometry(o)
 
-    def status_fields(self) -> dict[str, Any]:
+    def status_fields(self) -> dict[str, object]:
         """Adapter, device clocks, filter, reorder buffer, diagnostics and the last sample."""
         a = self.adapter
         last = self.last
@@ -244,20 +244,15 @@ class FusionStage(Stage):
         """:meth:`subscription_key`."""
         return [self.subscription_key()]
 
-    def start(self, subscribe: bool = True) -> None:
-        """Declare the publishers, status queryable and liveliness token and, with
-        ``subscribe``, the subscription and its worker thread (needs a session).
-
-        ``subscribe=False`` is for a stage fed in-process (``Gateway(..., on_message=stage.feed)``
-        in ``auvgw demo``) that still publishes odometry and status on the bus."""
-        first = not self._started
-        super().start(subscribe)
-        if first:
-            log.info(
-                "fusion stage for vehicle %r: %s",
-                self.config.vehicle,
-                f"subscribed to {self.subscription_key()}" if subscribe else "fed in-process",
-            )
+    def on_start(self, subscribe: bool) -> None:
+        """Log where the stage's input comes from: the bus, or in-process
+        (``Gateway(..., on_message=stage.feed)`` in ``auvgw demo``, ``subscribe=False``: it still
+        publishes odometry and status on the bus)."""
+        log.info(
+            "fusion stage for vehicle %r: %s",
+            self.config.vehicle,
+            f"subscribed to {self.subscription_key()}" if subscribe else "fed in-process",
+        )
 
     def publish_status(self) -> None:
         """The status, after logging each new kind of diagnostics warning once while it lasts."""

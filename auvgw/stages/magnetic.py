@@ -48,7 +48,7 @@ import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from pydantic import Field
@@ -213,7 +213,7 @@ class MagneticStage(PipelineStage):
                 self._publish_pose(landmarks=False)
             self._att.trim(o.t - self.config.odometry_window_s)
 
-    def _compose(self, t: float, inc: Any) -> None:
+    def _compose(self, t: float, inc: Increment) -> None:
         """Compose odometry increments (``dx`` forward, ``dy`` starboard in the body frame at
         the start, m; ``dheading`` rad) over ``odometry_period_s`` into one filter prediction
         ending at ``t``, its control noise scaled by ``1/n`` (the variance of ``n`` steps)."""
@@ -263,14 +263,15 @@ class MagneticStage(PipelineStage):
         self.online.add_acoustic(t - self._t0, z, r)
         self.stats.acoustic += 1
 
-    def feed(self, device: str, t_recv_ns: int, message: Any) -> None:
+    def feed(self, device: str, t_recv_ns: int, message: object) -> None:
         """One decoded gateway message (``on_message`` signature): magnetometer samples and
         acoustic replies are used, everything else ignored."""
         from auvgw.decoding import message_kind
 
         kind = message_kind(message)
         if kind == MAG_KIND:
-            mag: roles.Field = message  # serial Ms3aSample or CAN MS3A_Sample: bx, by, bz nT
+            # its kind's messages have the role (serial Ms3aSample, CAN MS3A_Sample: bx, by, bz nT)
+            mag = cast("roles.Field", message)
             with self._lock:
                 if not self.from_source("field", device):
                     self.stats.mag_other_device += 1
@@ -278,7 +279,7 @@ class MagneticStage(PipelineStage):
                 t = self._mag_time(t_recv_ns, int(mag.counter))
             self.feed_mag(t, np.array([mag.bx, mag.by, mag.bz], float))
         elif kind == ACOUSTIC_KIND:
-            fix: roles.Range = message
+            fix = cast("roles.Range", message)
             self.feed_acoustic(t_recv_ns * 1e-9, float(fix.range), float(fix.bearing),
                                float(fix.depression))  # fmt: skip
 
@@ -347,7 +348,7 @@ class MagneticStage(PipelineStage):
                 acoustic_beacon=None if anchor is None else (float(anchor[0]), float(anchor[1])),
             ), t)  # fmt: skip
 
-    def status_fields(self) -> dict[str, Any]:
+    def status_fields(self) -> dict[str, object]:
         """Algorithm and the number of beacons mapped."""
         n = self.online.filt.n_lm if self.online is not None else 0
         return {"algorithm": self.config.algorithm, "landmarks": n}

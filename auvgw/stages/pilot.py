@@ -39,7 +39,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import Protocol, runtime_checkable
 
 import zenoh
 from pydantic import Field
@@ -88,6 +88,23 @@ class PilotStageConfig(StageConfig):
                                feedback_timeout_s=self.feedback_timeout_s,
                                fin_rate=math.radians(self.fin_rate_dps),
                                fin_tau=self.fin_tau_s)  # fmt: skip
+
+
+@runtime_checkable
+class ActuatorStateLike(Protocol):
+    """The actuators' ``ActuatorState`` sample (the DBC's, decoded): what the stage reads of it
+    (rpm, rudder and stern plane rad, fault word, the ``cmd_seq`` last applied)."""
+
+    @property
+    def shaft_rpm(self) -> float: ...
+    @property
+    def rudder(self) -> float: ...
+    @property
+    def stern(self) -> float: ...
+    @property
+    def faults(self) -> int: ...
+    @property
+    def cmd_seq(self) -> int: ...
 
 
 @dataclass
@@ -150,10 +167,10 @@ class PilotStage(Stage):
     def input_keys(self) -> list[str]:
         return [self.keys.odometry(), self.keys.sensor(self.config.actuators_device, "*")]
 
-    def feed(self, device: str, t_recv_ns: int, message: Any) -> object:
+    def feed(self, device: str, t_recv_ns: int, message: object) -> object:
         """The actuators' ``ActuatorState`` (measured rpm, fin angles in rad, fault word) as
         feedback at its receive stamp; anything else is ignored."""
-        if device == self.config.actuators_device and hasattr(message, "faults"):
+        if device == self.config.actuators_device and isinstance(message, ActuatorStateLike):
             sent_at = getattr(self.sink, "sent_at", None)
             cmd_t = sent_at(int(message.cmd_seq)) if sent_at is not None else None
             if sent_at is not None and cmd_t is None:
@@ -231,14 +248,14 @@ class PilotStage(Stage):
         self.publish_json("command", command_json(cmd), t, "PilotCommand")
         self.publish_json("state", self.state_json(), t, "PilotState")
 
-    def state_json(self) -> dict[str, Any]:
+    def state_json(self) -> dict[str, object]:
         """The autopilot's state as published on ``pilot/state``."""
         s = self.autopilot.status
         body = asdict(s)
         body.pop("command")
         return body
 
-    def status_fields(self) -> dict[str, Any]:
+    def status_fields(self) -> dict[str, object]:
         s = self.autopilot.status
         return {"mission": self.mission.name, "mode": s.mode, "leg": s.leg, "n_legs": s.n_legs,
                 "abort_reason": s.abort_reason}  # fmt: skip
@@ -253,11 +270,11 @@ class PilotStage(Stage):
         while not self._timer_stop.wait(self.config.control_period_s):
             self._enqueue(self.tick, ())
 
-    def stop(self, flush: bool = True, timeout_s: float = 5.0) -> None:
+    def on_stop(self) -> None:
+        """The control timer first: no tick is queued once the queue drains."""
         self._timer_stop.set()
         if self._timer is not None:
             self._timer.join()
-        super().stop(flush, timeout_s)
 
 
 class BusCommands:

@@ -31,12 +31,14 @@ import logging
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, ClassVar, cast
+from typing import ClassVar, cast
 
 import zenoh
 
 from auvgw import ros2, ros2_cdr
+from auvgw.bus import Keys
 from auvgw.config.ros2 import Mount, Ros2Config
 from auvgw.decoding import message_kind
 from auvgw.envelope import decode_envelope, encode_envelope
@@ -52,7 +54,7 @@ from auvgw.rmw_zenoh import (
     topic_token,
 )
 from auvgw.stages import log_bad_payload
-from auvgw.stages.base import DROP, BusCounters, Stage, StageConfig
+from auvgw.stages.base import DROP, BusCounters, OnPublish, Stage, StageConfig
 from auvgw.subscribe import envelope_message
 
 __all__ = ["Mount", "Ros2Bridge", "Ros2BridgeConfig", "RosStage"]
@@ -89,7 +91,7 @@ class _Endpoint:
     def __init__(self, pub: zenoh.Publisher, token: zenoh.LivelinessToken, gid: bytes) -> None:
         self.pub, self.token, self.gid, self.seq = pub, token, gid, 0
         # zenoh's stubs type matching_status as a bool; it is a MatchingStatus
-        self.matching = bool(cast(Any, pub.matching_status).matching)
+        self.matching = bool(cast("zenoh.MatchingStatus", pub.matching_status).matching)
         self.listener = pub.declare_matching_listener(self._matched)
 
     def _matched(self, status: zenoh.MatchingStatus) -> None:
@@ -108,8 +110,9 @@ class RosStage(Stage):
     SECTIONS: ClassVar[tuple[str, ...]] = ("sensor", "nav", "slam", "status")
 
     def __init__(self, config: Ros2BridgeConfig, session: zenoh.Session | None = None, *,
-                 sections: tuple[str, ...] = SECTIONS, **kw: Any) -> None:  # fmt: skip
-        super().__init__(config, Ros2Counters(), session, **kw)
+                 sections: tuple[str, ...] = SECTIONS, on_publish: OnPublish | None = None,
+                 keys: Keys | None = None) -> None:  # fmt: skip
+        super().__init__(config, Ros2Counters(), session, on_publish=on_publish, keys=keys)
         self.config = config
         #: the sections taken from the bus (in the gateway, the sensors come in-process:
         #: :meth:`post`, from the gateway's listeners, no envelope round trip)
@@ -117,7 +120,7 @@ class RosStage(Stage):
         #: s a batch of posted messages waits for more (:meth:`post`)
         self.batch_s = config.batch_ms / 1000
         #: (bus key, device, message, receive ns, kind) posted, waiting for the worker
-        self._batch: deque[tuple[str, str, Any, int, str]] = deque()
+        self._batch: deque[tuple[str, str, object, int, str]] = deque()
         self._batch_queued = False
         self.stats: Ros2Counters = self.stats  # type: ignore[assignment]
         self._static_lock = threading.Lock()
@@ -128,7 +131,7 @@ class RosStage(Stage):
     def input_keys(self) -> list[str]:
         return [self.keys.all(f"{s}/**") for s in self.sections]
 
-    def post(self, device: str, t_recv_ns: int, message: Any) -> None:
+    def post(self, device: str, t_recv_ns: int, message: object) -> None:
         """:meth:`feed` on the worker, in batches: the first message of a batch queues one
         call that waits ``batch_s`` (``[ros2] batch_ms``) and takes every message posted
         meanwhile (the gateway's listener at 1000 messages/s wakes the worker 50 times a second
@@ -156,7 +159,7 @@ class RosStage(Stage):
             with self._lock:
                 self.stats.received += n
 
-    def feed(self, device: str, t_recv_ns: int, message: Any) -> object:
+    def feed(self, device: str, t_recv_ns: int, message: object) -> object:
         """One decoded sensor message in-process (the gateway's listener, via :meth:`post`)."""
         kind = message_kind(message)
         key = self.keys.sensor(device, kind)
@@ -166,7 +169,7 @@ class RosStage(Stage):
             self.emit_sensor(key, device, message, t_recv_ns, kind)
         return None
 
-    def emit_sensor(self, key: str, device: str, message: Any, t_ns: int, kind: str) -> None:
+    def emit_sensor(self, key: str, device: str, message: object, t_ns: int, kind: str) -> None:
         """:meth:`emit` the ROS 2 messages of a decoded sensor message (device ``device``,
         stamp ``t_ns``, bus key ``key``: its ``kind``)."""
         self.emit(key, ros2.to_ros("sensor", device, message, t_ns, kind=kind), t_ns)
@@ -214,6 +217,10 @@ class RosStage(Stage):
             self.stats.received += 1
         return None
 
+    def on_start(self, subscribe: bool) -> None:
+        """``/tf_static`` once the outputs are up (then every ``static_period_s``)."""
+        self.publish_static(time.time_ns())
+
     def publish_static(self, t_ns: int) -> None:
         """``/tf_static`` from the configured mounts (nothing without mounts)."""
         if self.config.mounts:
@@ -245,24 +252,23 @@ class Ros2Bridge(RosStage):
     name: ClassVar[str] = "ros2"
     status_schema: ClassVar[str | None] = "Ros2BridgeStatus"
 
-    def __init__(self, config: Ros2BridgeConfig, session: zenoh.Session | None = None,
-                 **kw: Any) -> None:  # fmt: skip
-        super().__init__(config, session, **kw)
+    def __init__(self, config: Ros2BridgeConfig, session: zenoh.Session | None = None, *,
+                 sections: tuple[str, ...] = RosStage.SECTIONS, on_publish: OnPublish | None = None,
+                 keys: Keys | None = None) -> None:  # fmt: skip
+        super().__init__(config, session, sections=sections, on_publish=on_publish, keys=keys)
         self._endpoints: dict[str, _Endpoint] = {}
         self._keys: dict[tuple[str, str], str] = {}
         self._session_id = str(session.info.zid()) if session is not None else "0" * 32
         self._next_entity = 1
-        self._node_token: zenoh.LivelinessToken | None = None
         #: the publishers each bus key's samples went to (:meth:`wanted`; a tuple replaced, never
         #: changed in place: the Zenoh callbacks and the gateway's listeners read it)
         self._made: dict[str, tuple[_Endpoint, ...]] = {}
-        self._cmd_decls: list[Any] = []
         #: puts held back on the worker (:meth:`_work_item`): (endpoint, CDR, attachment)
         self._held: list[tuple[_Endpoint, bytes, bytes]] = []
         self._holder: int | None = None  # the thread whose puts are held (the worker, in a call)
         self._sensor_base = self.keys.base + "/sensor/"
 
-    def status_fields(self) -> dict[str, Any]:
+    def status_fields(self) -> dict[str, object]:
         return {"domain_id": self.config.domain_id, "namespace": self.config.namespace,
                 "node": self.config.node, "ros_topics": sorted(self._endpoints)}  # fmt: skip
 
@@ -276,7 +282,7 @@ class Ros2Bridge(RosStage):
     #: ``benchmarks/bench_ros2_bridge.py`` measures one against the other)
     compiled = True
 
-    def emit_sensor(self, key: str, device: str, message: Any, t_ns: int, kind: str) -> None:
+    def emit_sensor(self, key: str, device: str, message: object, t_ns: int, kind: str) -> None:
         """A decoded sensor message's ROS 2 messages written by :func:`auvgw.ros2_cdr.
         sensor_cdr` (no rosbags objects), or, for one with no standard form, by
         :func:`auvgw.ros2.to_ros` (:meth:`RosStage.emit_sensor`)."""
@@ -356,7 +362,7 @@ class Ros2Bridge(RosStage):
     #: puts held back at most (:meth:`_work_item`)
     MAX_HELD = 64
 
-    def _work_item(self, item: tuple[Any, tuple[Any, ...]]) -> None:
+    def _work_item(self, item: tuple[Callable[..., object], tuple[object, ...]]) -> None:
         """Run a queued call (a batch of sensor messages, a bus sample) with the puts it makes
         held back, and send what is held once the queue is empty (or :attr:`MAX_HELD` are held):
         Zenoh's sender then wakes once per group of messages, not once per message (measured
@@ -401,10 +407,11 @@ class Ros2Bridge(RosStage):
         pub = self.session.declare_publisher(key, congestion_control=DROP)
         token = self.session.liveliness().declare_token(token_key)
         ep = self._endpoints[key] = _Endpoint(pub, token, entity_gid(token_key))
+        for d in (pub, token, ep.listener):  # withdrawn at stop, the listener first
+            self.keep(d)
         with self._lock:
             self.stats.topics += 1
         return ep
-
 
     # -- commands from ROS 2 -----------------------------------------------------------------
     def command_topic(self, device: str) -> str:
@@ -445,45 +452,28 @@ class Ros2Bridge(RosStage):
             self._next_entity += 1
             pub = s.declare_publisher(self.keys.cmd(device))
 
-            def take(sample: zenoh.Sample, device: str = device, pub: Any = pub) -> None:
+            def take(sample: zenoh.Sample, device: str = device,
+                     pub: zenoh.Publisher = pub) -> None:  # fmt: skip
                 payload = self.on_ros_command(device, sample.payload.to_bytes())
                 if payload is not None:
                     with contextlib.suppress(zenoh.ZError):
                         pub.put(payload)
 
-            self._cmd_decls += [s.declare_subscriber(key, take), pub,
-                                s.liveliness().declare_token(token)]  # fmt: skip
+            for d in (pub, s.liveliness().declare_token(token), s.declare_subscriber(key, take)):
+                self.keep(d)  # withdrawn at stop: the subscription first, no command after it
 
-    def start(self, subscribe: bool = True) -> None:
-        """The node's token first (a ROS graph shows the node before its publishers), then the
-        stage (subscriptions, status, liveliness), the command subscriptions and
-        ``/tf_static``."""
-        if self.session is not None and self._node_token is None:
-            self._node_token = self.session.liveliness().declare_token(
+    def on_start(self, subscribe: bool) -> None:
+        """The node's token first (a ROS graph shows the node before its publishers; withdrawn
+        last), the command subscriptions, then ``/tf_static``."""
+        if self.session is not None:
+            self.keep(self.session.liveliness().declare_token(
                 node_token(self.config.domain_id, self._session_id, 0, self.config.namespace,
-                           self.config.node))  # fmt: skip
-        super().start(subscribe)
-        self._declare_commands()
-        self.publish_static(time.time_ns())
+                           self.config.node)))  # fmt: skip
+            self._declare_commands()
+        super().on_start(subscribe)
 
-    def stop(self, flush: bool = True, timeout_s: float = 5.0) -> None:
-        """Stop the stage, then withdraw every publisher and token (the node's last)."""
-        for d in self._cmd_decls:  # the subscriptions first: no command after this
-            with contextlib.suppress(zenoh.ZError):
-                d.undeclare()
-        self._cmd_decls.clear()
-        super().stop(flush, timeout_s)
+    def _work_finished(self) -> None:
         self._send_held()  # the worker's last call saw its stop mark still queued
-        for ep in self._endpoints.values():
-            for d in (ep.listener, ep.token, ep.pub):
-                with contextlib.suppress(zenoh.ZError):
-                    d.undeclare()
-        self._endpoints.clear()
-        self._made.clear()
-        if self._node_token is not None:
-            with contextlib.suppress(zenoh.ZError):
-                self._node_token.undeclare()
-            self._node_token = None
 
 
 def _qos(topic: str) -> Qos:

@@ -31,7 +31,6 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
 
 import zenoh
 
@@ -131,7 +130,7 @@ class SlamStage(Stage):
             if self.online.add_odometry(o):
                 self._publish(o.t)
 
-    def feed(self, device: str, t_recv_ns: int, message: Any) -> None:
+    def feed(self, device: str, t_recv_ns: int, message: object) -> None:
         """One decoded gateway message (the gateway's ``on_message`` signature); scan lines of
         the MSIS head are used, everything else is ignored. ``t_recv_ns``: the odometry clock."""
         if not isinstance(message, sn.HeadData):
@@ -142,7 +141,7 @@ class SlamStage(Stage):
             self.stats.received += 1
             self.online.add_ping(t_recv_ns / 1e9, message)
 
-    def post(self, device: str, t_recv_ns: int, message: Any) -> None:
+    def post(self, device: str, t_recv_ns: int, message: object) -> None:
         """:meth:`feed` on the stage's worker thread (after :meth:`start`); only scan lines are
         queued."""
         if isinstance(message, sn.HeadData):
@@ -162,7 +161,7 @@ class SlamStage(Stage):
         self.publish_message("pose", on.pose_message(t), t)
         self.publish_message("landmarks", on.landmarks_message(t), t)
 
-    def status_fields(self) -> dict[str, Any]:
+    def status_fields(self) -> dict[str, object]:
         """Algorithm, MSIS device, extractor, map sizes, Neff and resamples."""
         return {"algorithm": self.config.algorithm, "msis_device": self.msis_device,
                 **self.online.summary()}  # fmt: skip

@@ -105,7 +105,7 @@ class SwathStage(Stage):
     def input_keys(self) -> list[str]:
         return [self.keys.sensor(self.config.device or "*", KIND_IN)]
 
-    def feed(self, device: str, t_recv_ns: int, message: Any) -> object:
+    def feed(self, device: str, t_recv_ns: int, message: object) -> object:
         """One decoded gateway message: GeoSwath pings of the configured device are processed,
         everything else ignored; publishes the swaths the ping completes."""
         want = self.config.device
@@ -142,5 +142,5 @@ class SwathStage(Stage):
                     self._publish(device, sw)
         return None
 
-    def status_fields(self) -> dict[str, Any]:
+    def status_fields(self) -> dict[str, object]:
         return {"device": self.config.device, "output_device": self.out_device()}

@@ -15,6 +15,7 @@ from typing import Any
 
 import pytest
 
+from auvgw.commands.demo_parts import DemoContext, DemoPlan, DemoProcess
 from auvgw.config.scenario import load_scenario
 from auvgw.fusion.odometry import Odometry
 from auvgw.ground.paths import config_file
@@ -48,6 +49,41 @@ def _landmark_stage() -> type:
 def test_the_demo_runs_each_pipeline_on_its_own_scenario(record: pipelines.Pipeline) -> None:
     scn = load_scenario(config_file(f"scenarios/{record.demo_scenario}.json"))
     assert pipelines.for_demo(scn) is record
+
+
+#: each shipped pipeline's processes in `demo --processes` on its scenario: (name, started after
+#: the sim's clock, its `auvgw` command), the components waited for, its status component
+DEMO_PLANS = {
+    "magnetic": ([("slam", True, ["slam", "run", "--pipeline", "magnetic"])],
+                 {"magnetometer", "acoustic", "slam-magnetic"}, "slam-magnetic"),
+    "bathymetric": ([("slam", False, ["slam", "run", "--pipeline", "bathymetric"])],
+                    {"multibeam", "slam-bathymetric"}, "slam-bathymetric"),
+    "landmark": ([("slam", False, ["slam-run"])], {"msis", "slam-vb-aufastslam"},
+                 "slam-vb-aufastslam"),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("record", pipelines.PIPELINES, ids=lambda r: r.name)
+def test_each_record_gives_its_demo_processes(record: pipelines.Pipeline) -> None:
+    """The processes ``demo --processes`` starts for a pipeline come from its record, each on
+    the demo's bus (its hub, an endpoint of its own); one started after the sim's clock is
+    given the clock's epoch."""
+    path = config_file(f"scenarios/{record.demo_scenario}.json")
+    ports = iter(range(2, 10))
+    ctx = DemoContext(path, load_scenario(path), "auv1", "tcp/127.0.0.1:1",
+                      lambda: f"tcp/127.0.0.1:{next(ports)}")  # fmt: skip
+    plan = pipelines.load(record.demo_processes)(ctx)
+    procs, alive, component = DEMO_PLANS[record.name]
+    argvs = [p.argv(123 if p.after_clock else None) for p in plan.processes]
+    assert [(p.name, p.after_clock, a[:len(cmd)]) for p, a, (_, _, cmd)
+            in zip(plan.processes, argvs, procs, strict=True)] == procs  # fmt: skip
+    assert plan.alive == alive and plan.component == component and plan.display
+    for argv in argvs:
+        i = argv.index("--connect")
+        assert argv[i + 1] == "tcp/127.0.0.1:1" and argv[i + 2] == "--listen"
+    assert len({a[a.index("--listen") + 1] for a in argvs}) == len(argvs)
+    if record.name == "magnetic":
+        assert argvs[0][argvs[0].index("--clock-epoch-ns") + 1] == "123"
 
 
 def test_lookups_and_their_errors() -> None:
@@ -162,6 +198,12 @@ def accepts(scn: Any) -> bool:
     return scn.name == "toy-world"
 
 
+def demo_plan(ctx: DemoContext) -> DemoPlan:
+    argv = ["slam", "run", "--pipeline", "toy", "--vehicle", ctx.vehicle, *ctx.bus_args()]
+    return DemoPlan((DemoProcess("slam", lambda _: argv),), frozenset({"ins", "slam-toy"}),
+                    "slam-toy", "toy (every n-th odometry sample)")  # fmt: skip
+
+
 TOY = pipelines.Pipeline(
     "toy",
     "dead reckoning, every n-th odometry sample (a test)",
@@ -172,6 +214,7 @@ TOY = pipelines.Pipeline(
     eval_algorithms="dr",
     outputs=(pipelines.Output("pose", "pose"),),
     demo_scenario="harbour",
+    demo_processes=f"{__name__}:demo_plan",
     demo_accepts=f"{__name__}:accepts",
 )
 
@@ -228,3 +271,10 @@ def test_a_toy_pipeline_runs_through_slam_run_and_slam_eval(tmp_path: Path, toy,
     assert pipelines.for_demo(scn.model_copy(update={"name": "toy-world"})) is toy
     assert pipelines.for_demo(scn) is pipelines.get("landmark")
     assert pipelines.for_segment("toy") is toy and toy.view_of("pose") == "pose"
+    # and its processes in `demo --processes` are the ones its record names
+    ctx = DemoContext(Path("world.json"), scn, "auv1", "tcp/127.0.0.1:1",
+                      lambda: "tcp/127.0.0.1:2")  # fmt: skip
+    plan = pipelines.load(toy.demo_processes)(ctx)
+    assert [(p.name, p.argv(None)) for p in plan.processes] == [
+        ("slam", ["slam", "run", "--pipeline", "toy", "--vehicle", "auv1",
+                  "--connect", "tcp/127.0.0.1:1", "--listen", "tcp/127.0.0.1:2"])]  # fmt: skip

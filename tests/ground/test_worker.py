@@ -11,6 +11,7 @@ import threading
 
 from auvgw.ground.worker import Inbox, Worker
 from auvgw.testing import wait_until
+from auvgw.testing.overrides import overrides, subclasses
 
 
 class _Recorder(Worker[int]):
@@ -126,16 +127,8 @@ PUBLIC = sorted(n for n, v in vars(Worker).items()
                 if not n.startswith("_") and (callable(v) or isinstance(v, property)))  # fmt: skip
 
 
-def _subclasses(cls: type) -> set[type]:
-    out: set[type] = set()
-    for sub in cls.__subclasses__():
-        out |= {sub, *_subclasses(sub)}
-    return out
-
-
 def _overrides(classes: set[type]) -> list[str]:
-    return sorted(f"{c.__module__}.{c.__qualname__}.{n}" for c in classes for n in PUBLIC
-                  if n in vars(c))  # fmt: skip
+    return overrides(classes, PUBLIC)
 
 
 def _import_users() -> None:
@@ -150,7 +143,7 @@ def _import_users() -> None:
 def test_no_worker_overrides_the_public_methods() -> None:
     assert {"start_worker", "stop_worker", "submit", "worker_stats"} <= set(PUBLIC)
     _import_users()
-    subs = _subclasses(Worker)
+    subs = subclasses(Worker)
     names = {c.__qualname__ for c in subs}
     # the users: every bus stage, the Rerun logger's thread and the MCAP writer
     assert {"Stage", "VizStage", "FusionStage", "RerunLogger", "McapRecorder"} <= names
