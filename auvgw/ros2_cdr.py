@@ -123,7 +123,12 @@ _FLOAT32 = 7  # sensor_msgs/PointField.FLOAT32
 
 
 def _stamp(t_ns: int, frame: str) -> tuple[int, bytes, tuple[Any, ...]]:
-    """(len(frame), its bytes, the header's packed values) of a ``std_msgs/Header``."""
+    """(len(frame), its bytes, the header's packed values) of a ``std_msgs/Header``.
+
+    ``builtin_interfaces/Time.sec`` is an int32: a stamp outside 1901-2038 raises ValueError."""
+    if not -(2**31) * 1_000_000_000 <= t_ns < 2**31 * 1_000_000_000:
+        raise ValueError(f"stamp {t_ns} ns is outside builtin_interfaces/Time's int32 seconds "
+                         "(1901-12-13 to 2038-01-19 UTC)")
     f = frame.encode()
     return len(f), f, (ENCAPSULATION, t_ns // 1_000_000_000, t_ns % 1_000_000_000, len(f) + 1, f)
 
