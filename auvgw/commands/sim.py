@@ -294,18 +294,28 @@ class Lockstep:
     """The sim's side of lock-step: the controller's answers (``auv/<vehicle>/pilot/ack`` on
     ``session``) move ``runner``'s clock hold limit (``step``, ``timeout``, ``first``: see
     :meth:`~auvgw.sim_devices.clock.SimClock.lockstep`); every new anchor goes to the clock file
-    ``clock_file`` (:mod:`auvgw.ground.simclock`). Set :attr:`epoch_ns` (the gateway's ``[clock]
-    epoch_ns``), then :meth:`begin` before the runner starts at the host instant ``start_at``.
+    ``clock_file`` (:mod:`auvgw.ground.simclock`). An answer that carries the ``seq`` of the
+    controller's newest command counts once the emulated actuators have applied it
+    (:class:`~auvgw.sim_devices.actuators.CommandGate`; ``gate_commands`` False: at once).
+    Set :attr:`epoch_ns` (the gateway's ``[clock] epoch_ns``), then :meth:`begin` before the
+    runner starts at the host instant ``start_at``.
     Closing it withdraws the subscriber (and closes ``session`` if ``own_session``)."""
 
     def __init__(self, runner: Runner, vehicle: str, step: float, timeout: float, first: float,
                  clock_file: Path, start_at: float, session: zenoh.Session,
-                 own_session: bool = False) -> None:  # fmt: skip
+                 own_session: bool = False, gate_commands: bool = True) -> None:  # fmt: skip
         from auvgw.bus import Keys
         from auvgw.ground.simclock import ClockFileWriter
+        from auvgw.sim_devices.actuators import ActuatorEmulator, CommandGate
         from auvgw.stages.pilot import ACK
 
         self.clock = runner.clock
+        #: answers that carry a command's ``seq`` count once the emulated actuators have it
+        self.gate: CommandGate | None = None
+        acts = [em for em in runner.emulators.values() if isinstance(em, ActuatorEmulator)]
+        if gate_commands and len(acts) == 1:
+            self.gate = CommandGate(self.clock.answered)
+            acts[0].on_applied = self.gate.applied
         self.key = f"{Keys(vehicle).base}/pilot/{ACK}"
         self.epoch_ns = 0
         self.bad = 0  # answers that could not be read
@@ -342,11 +352,19 @@ class Lockstep:
         import json
 
         try:
-            t = float(json.loads(sample.payload.to_bytes())["t"])  # type: ignore[attr-defined]
-        except (ValueError, KeyError, TypeError):
+            body = json.loads(sample.payload.to_bytes())  # type: ignore[attr-defined]
+            t = float(body["t"])
+            seq = body.get("seq")
+            if seq is not None and (type(seq) is not int or seq < 0):
+                raise ValueError(f"seq {seq!r}")
+        except (ValueError, KeyError, TypeError, AttributeError):
             self.bad += 1
             return
-        self.clock.answered(t - self.epoch_ns / 1e9)
+        t -= self.epoch_ns / 1e9
+        if self.gate is not None:
+            self.gate.answered(t, seq)
+        else:
+            self.clock.answered(t)
 
     def summary(self) -> str:
         """One line: answers, holds, held host time, timeouts (and the vehicle times of the
@@ -356,4 +374,6 @@ class Lockstep:
         more = ", ..." if c.hold_timeouts > 5 else ""
         return (f"{c.answers} answers, {c.holds} holds ({c.held_s:.1f} host s held), "
                 f"{c.hold_timeouts} hold timeouts" + (f" (at vehicle t {at}{more} s)" if at else "")
-                + f", {self.bad} unreadable answers; limit at the end {c.limit:.2f} s")  # fmt: skip
+                + f", {self.bad} unreadable answers"
+                + (f", {self.gate.waited} waited for their command" if self.gate else ", ungated")
+                + f"; limit at the end {c.limit:.2f} s")  # fmt: skip
