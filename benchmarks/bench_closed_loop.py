@@ -20,7 +20,9 @@ line's baud from then). End: the host time the ``ActuatorCommand`` CAN frame the
 reaches the emulated controller's SLCAN adapter. A command is tied to its INS frame by its time:
 the pilot stamps each command with the time of the odometry sample it stepped on, which is the
 INS sample's (its device clock mapped onto the gateway's vehicle-paced stamps, within the
-smallest transport delay: the frame's 10 ms tick is taken as the one at or before). Printed:
+smallest transport delay: the frame's 10 ms tick is taken as the one at or before). INS frames
+before vehicle t ``LOCKSTEP_FIRST_S`` are not counted: a lock-step sim runs that long before it
+waits for the first answer, so their commands measure the start, not the loop. Printed:
 p50 / p90 / p99 / max in host ms and in vehicle ms (the sim's clock when the CAN frame arrived
 minus the INS frame's time), the number of commands, the machine's load average and core count;
 ``--sim free,ungated,lockstep`` (any of them; ``both`` = ``free,lockstep``): the sim on the
@@ -55,6 +57,9 @@ from auvgw.sim_devices.world import World
 SCENARIO = config_file("scenarios/closed_loop.json")
 #: vehicle s the lock-step sim may run past the pilot's last answer (``auvgw sim`` default)
 LOCKSTEP_STEP_S = 0.15
+#: vehicle s the lock-step sim runs before the pilot's first answer (``auvgw sim`` default):
+#: unanswered, so commands caused by INS frames before it are not counted (in every mode)
+LOCKSTEP_FIRST_S = 1.0
 
 
 def bare(seconds: float) -> float:
@@ -147,8 +152,9 @@ def loop_latency(speed: float, seconds: float, out: Path, lockstep: bool = False
     step = None
     try:
         fusion = _fusion_config("auv1", (0.0, 0.0, scn.vehicle.depth_m), scn.devices.ins.noise)
-        # as the closed-loop demo runs it: a 0.03 s lag and no clock warm-up (a warm-up holds
-        # the first 2 s of samples back, which a lock-step sim waits on in a hold)
+        # a 0.03 s lag as in the closed-loop demo, and no clock warm-up: the demo's holds the
+        # first 2 s of odometry back (its sim's first hold and captive start make room for it,
+        # demo_closed_loop.lockstep_first_s), and the latency counts from vehicle t 1 s
         filt = fusion.filter.model_copy(update={"max_latency_s": 0.03})
         fusion = fusion.model_copy(update={"clock_warmup_s": 0.0, "filter": filt})
         (out / "fusion.json").write_text(fusion.model_dump_json())
@@ -160,8 +166,8 @@ def loop_latency(speed: float, seconds: float, out: Path, lockstep: bool = False
                                  "--connect", hub, "--listen", free_endpoint()])  # fmt: skip
         start_at = time.monotonic() + 30.0
         if lockstep:
-            step = Lockstep(r, "auv1", LOCKSTEP_STEP_S, 5.0, 1.0, clock_file, start_at, session,
-                            gate_commands=gate)  # fmt: skip
+            step = Lockstep(r, "auv1", LOCKSTEP_STEP_S, 5.0, LOCKSTEP_FIRST_S, clock_file,
+                            start_at, session, gate_commands=gate)  # fmt: skip
         cfg = r.write_gateway_config(out / "sim" / "gateway.toml", vehicle="auv1",
                                      start_at=start_at,
                                      sim_clock=clock_file if lockstep else None)  # fmt: skip
@@ -197,7 +203,7 @@ def loop_latency(speed: float, seconds: float, out: Path, lockstep: bool = False
     lat = []
     for seq, stamp_ns, _ in cmds:
         tick = math.floor((stamp_ns - epoch_ns) / 1e7 + 1e-6)  # the INS tick at or before it
-        if seq in arrived and tick in written and tick > 0:
+        if seq in arrived and tick in written and tick >= round(LOCKSTEP_FIRST_S * 100):
             lat.append((arrived[seq][0] - written[tick], arrived[seq][1] - tick / 100))
     return lat, stats
 
@@ -208,7 +214,8 @@ def _pct(v: list[float], q: float) -> float:
 
 def main_latency(args: argparse.Namespace) -> None:
     print(f"loop latency: INS frame to the pty -> the ActuatorCommand it causes at the CAN "
-          f"adapter ({args.seconds:g} vehicle s per speed; {os.cpu_count()} cores)")  # fmt: skip
+          f"adapter ({args.seconds:g} vehicle s per speed, INS frames from vehicle t "
+          f"{LOCKSTEP_FIRST_S:g} s on; {os.cpu_count()} cores)")  # fmt: skip
     print(f"{'sim':>11s} {'speed':>5s} {'n':>5s} {'p50 ms':>7s} {'p90':>7s} {'p99':>7s} "
           f"{'max':>7s}  {'vehicle p50':>11s} {'p99':>7s} {'max':>7s}  "
           "load avg (start -> end)")  # fmt: skip

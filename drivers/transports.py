@@ -309,8 +309,8 @@ class SerialTransport(Transport[serial.SerialBase]):
         self._socket_like = False
         self._posix = False
         self._icount0: tuple[int, ...] | None = None  # driver counters at open (None: no ioctl)
-        #: readable-but-empty reads of a device (transient until they persist; see
-        #: :mod:`~auvgw.drivers.emptyreads`); counted over every connection
+        #: readable-but-empty reads of the device on this connection (transient until they
+        #: persist; see :mod:`~auvgw.drivers.emptyreads`)
         self.empty_reads = EmptyReads(None)
 
     @property
@@ -346,8 +346,7 @@ class SerialTransport(Transport[serial.SerialBase]):
         self._posix = self._fd is not None and type(ser) is serial.Serial
         self._handle = ser
         self._icount0 = self._icount()
-        path = c.url if "://" not in c.url else None
-        self.empty_reads.path, self.empty_reads.in_a_row = path, 0
+        self.empty_reads = EmptyReads(c.url if "://" not in c.url else None)
 
     def _icount(self) -> tuple[int, ...] | None:
         """The serial driver's (frame, overrun, parity, buffer overrun) error counters
@@ -362,8 +361,8 @@ class SerialTransport(Transport[serial.SerialBase]):
         return (v[6], v[7], v[8], v[10])
 
     def losses(self) -> dict[str, int]:
-        """The driver's error counters (a real UART) and ``empty_reads`` (readable but empty,
-        all connections so far; no data lost, the port was read again)."""
+        """The driver's error counters (a real UART) and ``empty_reads`` (readable but empty on
+        this connection; no data lost, the port was read again)."""
         empty = {"empty_reads": self.empty_reads.total} if self.empty_reads.total else {}
         now, base = self._icount(), self._icount0
         if now is None or base is None:

@@ -189,7 +189,7 @@ def test_pty_readable_but_empty_is_counted_and_read_again_until_it_persists(pty_
     with pytest.raises(Disconnected, match=f"no data {EMPTY_READS_LIMIT} times in a row"):
         for _ in range(EMPTY_READS_LIMIT):
             t.read(1.0)
-    assert not t.is_open and t.empty_reads.total == 3 + EMPTY_READS_LIMIT
+    assert not t.is_open and t.empty_reads.total == 3 + EMPTY_READS_LIMIT  # (this connection)
 
 
 @pytest.mark.e2e
