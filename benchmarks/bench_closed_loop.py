@@ -20,11 +20,15 @@ line's baud from then). End: the host time the ``ActuatorCommand`` CAN frame the
 reaches the emulated controller's SLCAN adapter. A command is tied to its INS frame by its time:
 the pilot stamps each command with the time of the odometry sample it stepped on, which is the
 INS sample's (its device clock mapped onto the gateway's vehicle-paced stamps, within the
-smallest transport delay: the frame's 10 ms tick is taken as the one at or before). Printed:
+smallest transport delay: the frame's 10 ms tick is taken as the one at or before). INS frames
+before vehicle t ``LOCKSTEP_FIRST_S`` are not counted: a lock-step sim runs that long before it
+waits for the first answer, so their commands measure the start, not the loop. Printed:
 p50 / p90 / p99 / max in host ms and in vehicle ms (the sim's clock when the CAN frame arrived
 minus the INS frame's time), the number of commands, the machine's load average and core count;
-``--sim free|lockstep|both``: the sim on the host clock, or paced by the pilot (``auvgw sim
---lockstep``: its vehicle latency stays bounded however the host stalls).
+``--sim free,ungated,lockstep`` (any of them; ``both`` = ``free,lockstep``): the sim on the
+host clock, or paced by the pilot (``auvgw sim --lockstep``: its vehicle latency stays bounded
+however the host stalls), its answers counted on arrival (``ungated``, as before the command
+gate) or once the emulated actuators have the command they carry (``lockstep``).
 """
 
 from __future__ import annotations
@@ -53,6 +57,9 @@ from auvgw.sim_devices.world import World
 SCENARIO = config_file("scenarios/closed_loop.json")
 #: vehicle s the lock-step sim may run past the pilot's last answer (``auvgw sim`` default)
 LOCKSTEP_STEP_S = 0.15
+#: vehicle s the lock-step sim runs before the pilot's first answer (``auvgw sim`` default):
+#: unanswered, so commands caused by INS frames before it are not counted (in every mode)
+LOCKSTEP_FIRST_S = 1.0
 
 
 def bare(seconds: float) -> float:
@@ -98,10 +105,11 @@ def emulated(speed: float, seconds: float) -> tuple[int, float, float]:
 
 
 def loop_latency(speed: float, seconds: float, out: Path, lockstep: bool = False,
-                 ) -> tuple[list[tuple[float, float]], dict[str, Any]]:  # fmt: skip
+                 gate: bool = True) -> tuple[list[tuple[float, float]], dict[str, Any]]:
     """(host s, vehicle s) from each INS frame to the actuator command stepped on it (see the
     module docstring), for ``seconds`` of vehicle time at ``speed`` (``lockstep``: the sim
-    paced by the pilot); and the run's counters."""
+    paced by the pilot; ``gate`` False: its answers count before the emulated actuators have
+    the command they carry); and the run's counters."""
     from auvgw.bus import Keys, decode_envelope, open_session
     from auvgw.commands.demo_parts import _fusion_config, _gateway_toml
     from auvgw.config.bus import BusConfig
@@ -144,8 +152,9 @@ def loop_latency(speed: float, seconds: float, out: Path, lockstep: bool = False
     step = None
     try:
         fusion = _fusion_config("auv1", (0.0, 0.0, scn.vehicle.depth_m), scn.devices.ins.noise)
-        # as the closed-loop demo runs it: a 0.03 s lag and no clock warm-up (a warm-up holds
-        # the first 2 s of samples back, which a lock-step sim waits on in a hold)
+        # a 0.03 s lag as in the closed-loop demo, and no clock warm-up: the demo's holds the
+        # first 2 s of odometry back (its sim's first hold and captive start make room for it,
+        # demo_closed_loop.lockstep_first_s), and the latency counts from vehicle t 1 s
         filt = fusion.filter.model_copy(update={"max_latency_s": 0.03})
         fusion = fusion.model_copy(update={"clock_warmup_s": 0.0, "filter": filt})
         (out / "fusion.json").write_text(fusion.model_dump_json())
@@ -157,7 +166,8 @@ def loop_latency(speed: float, seconds: float, out: Path, lockstep: bool = False
                                  "--connect", hub, "--listen", free_endpoint()])  # fmt: skip
         start_at = time.monotonic() + 30.0
         if lockstep:
-            step = Lockstep(r, "auv1", LOCKSTEP_STEP_S, 5.0, 1.0, clock_file, start_at, session)
+            step = Lockstep(r, "auv1", LOCKSTEP_STEP_S, 5.0, LOCKSTEP_FIRST_S, clock_file,
+                            start_at, session, gate_commands=gate)  # fmt: skip
         cfg = r.write_gateway_config(out / "sim" / "gateway.toml", vehicle="auv1",
                                      start_at=start_at,
                                      sim_clock=clock_file if lockstep else None)  # fmt: skip
@@ -181,6 +191,7 @@ def loop_latency(speed: float, seconds: float, out: Path, lockstep: bool = False
                  "applied": len(arrived), "ins_frames": len(written),
                  "lockstep": step.summary() if step is not None else ""}  # fmt: skip
     finally:
+        r.close()  # first: a hold timeout while closing publishes to the lock-step's clock file
         if step is not None:
             step.__exit__()
         for name in list(children.procs):
@@ -189,11 +200,10 @@ def loop_latency(speed: float, seconds: float, out: Path, lockstep: bool = False
         cmd_sub.undeclare()
         sub.close()
         session.close()
-        r.close()
     lat = []
     for seq, stamp_ns, _ in cmds:
         tick = math.floor((stamp_ns - epoch_ns) / 1e7 + 1e-6)  # the INS tick at or before it
-        if seq in arrived and tick in written and tick > 0:
+        if seq in arrived and tick in written and tick >= round(LOCKSTEP_FIRST_S * 100):
             lat.append((arrived[seq][0] - written[tick], arrived[seq][1] - tick / 100))
     return lat, stats
 
@@ -204,19 +214,24 @@ def _pct(v: list[float], q: float) -> float:
 
 def main_latency(args: argparse.Namespace) -> None:
     print(f"loop latency: INS frame to the pty -> the ActuatorCommand it causes at the CAN "
-          f"adapter ({args.seconds:g} vehicle s per speed; {os.cpu_count()} cores)")  # fmt: skip
+          f"adapter ({args.seconds:g} vehicle s per speed, INS frames from vehicle t "
+          f"{LOCKSTEP_FIRST_S:g} s on; {os.cpu_count()} cores)")  # fmt: skip
     print(f"{'sim':>11s} {'speed':>5s} {'n':>5s} {'p50 ms':>7s} {'p90':>7s} {'p99':>7s} "
           f"{'max':>7s}  {'vehicle p50':>11s} {'p99':>7s} {'max':>7s}  "
           "load avg (start -> end)")  # fmt: skip
-    modes = {"free": [False], "lockstep": [True], "both": [False, True]}[args.sim]
+    names = {"free": "free", "ungated": "ungated", "lockstep": "lock-step"}
+    modes = args.sim.replace("both", "free,lockstep").split(",")
+    if not set(modes) <= set(names):
+        raise SystemExit(f"--sim: one or more of {', '.join(names)}, both; got {args.sim!r}")
     for sp in (float(v) for v in args.speeds.split(",")):
-        for ls in modes:
+        for mode in modes:
             with tempfile.TemporaryDirectory() as tmp:
-                lat, st = loop_latency(sp, args.seconds, Path(tmp), lockstep=ls)
+                lat, st = loop_latency(sp, args.seconds, Path(tmp), lockstep=mode != "free",
+                                       gate=mode == "lockstep")  # fmt: skip
             ms = [1e3 * h for h, _ in lat]
             vms = [1e3 * v for _, v in lat]
             (l0, l1) = st["load"]
-            print(f"{'lock-step' if ls else 'free':>11s} {sp:5g} {len(ms):5d} "
+            print(f"{names[mode]:>11s} {sp:5g} {len(ms):5d} "
                   f"{_pct(ms, 50):7.1f} {_pct(ms, 90):7.1f} {_pct(ms, 99):7.1f} "
                   f"{max(ms, default=math.nan):7.1f}  {_pct(vms, 50):11.1f} {_pct(vms, 99):7.1f} "
                   f"{max(vms, default=math.nan):7.1f}  {l0[0]:.1f} -> {l1[0]:.1f} (1 min), "
@@ -231,8 +246,10 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--speeds", default="1,4,8")
     ap.add_argument("--latency", action="store_true", help="the loop latency through the chain")
-    ap.add_argument("--sim", choices=("free", "lockstep", "both"), default="both",
-                    help="--latency: the sim free-running, in lock-step with the pilot, or both")
+    ap.add_argument("--sim", default="both",
+                    help="--latency: comma list of free (the sim on the host clock), ungated "
+                    "(lock-step, answers counted on arrival), lockstep (answers counted once "
+                    "the emulated actuators have their command); both = free,lockstep")
     args = ap.parse_args()
     if args.latency:
         main_latency(args)

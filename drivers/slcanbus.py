@@ -8,8 +8,11 @@ the emulated INS on CAN fell tens of vehicle seconds behind and its adapter drop
 the line parsing in ``_recv_internal``, ``send``, ``shutdown``) and replaces only ``_read``: it
 takes what the port has ready in one call and hands out one line at a time from its buffer.
 
-A line that is not a well-formed frame (a wrong length for its DLC, a bad digit: bytes lost on
-the host link cut lines and join their ends) is dropped and counted
+A read of the adapter that is readable but empty is counted
+(:attr:`BulkSlcanBus.empty_reads`) and retried; the adapter is taken as gone only when that
+persists (:mod:`~auvgw.drivers.emptyreads`). A line that is not a well-formed frame (a wrong
+length for its DLC, a bad digit: bytes lost on the host link cut lines and join their ends)
+is dropped and counted
 (:attr:`BulkSlcanBus.malformed_lines`) instead of reaching python-can's parser, which would
 raise on it or pass a frame with missing data bytes.
 
@@ -38,6 +41,7 @@ from typing import Any
 import serial
 from can.interfaces.slcan import slcanBus
 
+from auvgw.drivers.emptyreads import EmptyReads
 from auvgw.drivers.portlock import PortLock
 
 __all__ = ["SLCAN_FLAGS", "BulkSlcanBus"]
@@ -70,6 +74,8 @@ class BulkSlcanBus(slcanBus):
         #: the adapter's exclusive lock (None: a pyserial URL, nothing to lock)
         self._lock: PortLock | None = None
         path = channel.split("@", 1)[0]  # python-can's "port@baud"
+        #: readable-but-empty reads of the adapter (:mod:`~auvgw.drivers.emptyreads`)
+        self.empty_reads = EmptyReads(path if "://" not in path else None)
         if "://" not in path and os.path.exists(path):
             self._lock = PortLock(path)
         try:
@@ -162,11 +168,11 @@ class BulkSlcanBus(slcanBus):
                     data = os.read(self._fd, 65536)  # (pyserial opened it non-blocking)
                 except (BlockingIOError, InterruptedError):
                     continue
-                if not data:  # readable but empty: the adapter went away
-                    raise serial.SerialException(
-                        "device reports readiness to read but returned no data "
-                        "(device disconnected or multiple access on port?)"
-                    )
+                if not data:  # readable but empty: transient unless it persists
+                    if (gone := self.empty_reads.empty()) is not None:
+                        raise serial.SerialException(gone)
+                    continue
+                self.empty_reads.data()
                 self._buffer.extend(data)
                 continue
             waiting = port.in_waiting

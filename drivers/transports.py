@@ -55,6 +55,7 @@ from auvgw.config.transport import (
     UdpTransportConfig,
     parse_transport_config,
 )
+from auvgw.drivers.emptyreads import EmptyReads
 from auvgw.drivers.portlock import PortLockedError, lock_holder
 from auvgw.drivers.slcanbus import BulkSlcanBus
 from auvgw.ground.closing import Closing
@@ -282,7 +283,9 @@ class SerialTransport(Transport[serial.SerialBase]):
 
     Device files (``/dev/tty*``, ``/dev/pts/N``) are waited on with ``select`` and read without
     blocking; other URL handlers use pyserial timeouts. A pty whose writer closed, an unplugged
-    USB adapter and a closed socket peer all raise :class:`Disconnected`.
+    USB adapter and a closed socket peer all raise :class:`Disconnected`. A device readable but
+    empty is read again on its next readiness (counted in :attr:`empty_reads`) and only taken
+    as gone when that persists (:mod:`~auvgw.drivers.emptyreads`).
 
     :attr:`read_interval_s` (s, default 0: every write read at once) reads the port at most
     that often: bytes that arrive sooner after the previous read wait for the rest of the
@@ -306,6 +309,9 @@ class SerialTransport(Transport[serial.SerialBase]):
         self._socket_like = False
         self._posix = False
         self._icount0: tuple[int, ...] | None = None  # driver counters at open (None: no ioctl)
+        #: readable-but-empty reads of the device on this connection (transient until they
+        #: persist; see :mod:`~auvgw.drivers.emptyreads`)
+        self.empty_reads = EmptyReads(None)
 
     @property
     def port(self) -> str:
@@ -340,6 +346,7 @@ class SerialTransport(Transport[serial.SerialBase]):
         self._posix = self._fd is not None and type(ser) is serial.Serial
         self._handle = ser
         self._icount0 = self._icount()
+        self.empty_reads = EmptyReads(c.url if "://" not in c.url else None)
 
     def _icount(self) -> tuple[int, ...] | None:
         """The serial driver's (frame, overrun, parity, buffer overrun) error counters
@@ -354,11 +361,14 @@ class SerialTransport(Transport[serial.SerialBase]):
         return (v[6], v[7], v[8], v[10])
 
     def losses(self) -> dict[str, int]:
+        """The driver's error counters (a real UART) and ``empty_reads`` (readable but empty on
+        this connection; no data lost, the port was read again)."""
+        empty = {"empty_reads": self.empty_reads.total} if self.empty_reads.total else {}
         now, base = self._icount(), self._icount0
         if now is None or base is None:
-            return {}
+            return empty
         names = ("framing_errors", "uart_overruns", "parity_errors", "buffer_overruns")
-        return {n: a - b for n, a, b in zip(names, now, base, strict=True)}
+        return {**{n: a - b for n, a, b in zip(names, now, base, strict=True)}, **empty}
 
     def _set_timeout(self, ser: serial.SerialBase, timeout_s: float | None) -> None:
         if ser.timeout != timeout_s:
@@ -386,11 +396,11 @@ class SerialTransport(Transport[serial.SerialBase]):
                         data = os.read(self._fd, limit)
                     except (BlockingIOError, InterruptedError):
                         return None
-                    if not data:  # ready but empty: the device went away
-                        raise serial.SerialException(
-                            "device reports readiness to read but returned no data "
-                            "(device disconnected or multiple access on port?)"
-                        )
+                    if not data:  # ready but empty: transient unless it persists
+                        if (gone := self.empty_reads.empty()) is not None:
+                            raise serial.SerialException(gone)
+                        return None
+                    self.empty_reads.data()
                 else:
                     data = ser.read(limit)  # timeout 0: what is ready; b"" ready = gone (raises)
                     if not data:
@@ -558,6 +568,8 @@ class CanTransport(Transport[can.BusABC]):
             bus.poll_status()
         out = {f"adapter_{k}": bus.flag_counts[k] for k in ("data_overrun", "rx_fifo_full")}
         out["malformed_lines"] = bus.malformed_lines
+        if bus.empty_reads.total:
+            out["empty_reads"] = bus.empty_reads.total
         return out
 
     def send_frame(self, can_id: int, data: bytes, *, is_extended_id: bool) -> None:

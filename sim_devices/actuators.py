@@ -16,7 +16,12 @@ answering) lets the shaft coast down (command 0, no current). Motor current is
 on which the host's ``ActuatorCommand`` frames arrive (applied at the vehicle time they arrive)
 and ``ActuatorState`` feedback leaves at ``rate_hz`` (20 Hz). In a closed-loop scenario
 (``vehicle.mode = "dynamics"``) it is the truth's input: each dynamics step reads the model's
-rudder, stern plane and shaft speed (:meth:`ActuatorEmulator.inputs`).
+rudder, stern plane and shaft speed (:meth:`ActuatorEmulator.inputs`). ``on_applied(seq)``
+(optional) is told the sequence number of every command applied.
+
+:class:`CommandGate` is the lock-step sim's side of a command's way back: a controller's answer
+that carries the ``seq`` of its newest command counts only once the controller has applied that
+command (or a newer one), so vehicle time never runs on while a command is still on its way.
 
 Options: ``can_bitrate`` (500000), ``max_rpm`` (1525), ``rpm_rate`` (rpm/s, 1000),
 ``rpm_tau_s`` (0.3), ``rpm_dead_band`` (5), ``max_fin_deg`` (20), ``fin_rate_dps`` (30),
@@ -29,7 +34,7 @@ from __future__ import annotations
 
 import math
 import threading
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -40,7 +45,8 @@ from auvgw.drivers.can_codec import CanCodecError, CanFrame
 from auvgw.sim_devices.closedloop import ClosedLoopTruth
 from auvgw.sim_devices.emulator import Emulator, SimContext
 
-__all__ = ["ActuatorEmulator", "ActuatorLimits", "ActuatorModel", "AxisLimits", "Reading"]
+__all__ = ["ActuatorEmulator", "ActuatorLimits", "ActuatorModel", "AxisLimits", "CommandGate",
+           "Reading"]
 
 #: longest integration sub-step of the axes, vehicle s
 SUBSTEP_S = 0.005
@@ -209,6 +215,8 @@ class ActuatorEmulator(Emulator):
             "actuators.dbc", self.option("can_bitrate", 500_000), name=self.name
         )
         self.can.adapter.on_frame = self._on_frame
+        #: told the sequence number of every command applied (a lock-step :class:`CommandGate`)
+        self.on_applied: Callable[[int], object] | None = None
         if isinstance(ctx.truth, ClosedLoopTruth):
             ctx.truth.set_inputs(self.inputs)
 
@@ -230,6 +238,8 @@ class ActuatorEmulator(Emulator):
         with self._model_lock:
             self.model.command(self.clock.now(), msg.shaft_rpm, msg.rudder, msg.stern, msg.seq)
         self.host["commands"] += 1
+        if self.on_applied is not None:
+            self.on_applied(int(msg.seq))
 
     def measure(self, t: float) -> Reading:
         """The controller's reading at vehicle time ``t``."""
@@ -252,3 +262,54 @@ class ActuatorEmulator(Emulator):
     def stats(self) -> dict[str, Any]:
         """The base counters plus the host's frames (commands applied, undecodable, other)."""
         return {**super().stats(), "host": dict(self.host)}
+
+
+class CommandGate:
+    """Lock-step answers gated on the command's way back: :meth:`answered` (vehicle s, the
+    ``seq`` of the newest command the controller had sent when it answered; None or 0: none)
+    passes to ``answered`` at once when the actuators' controller has already applied ``seq``
+    or a newer command (:meth:`applied`), else when it does. Sequence numbers compare modulo
+    ``SEQ_MODULO`` (newer: less than half the modulo ahead), so a lost command is covered by
+    the next one applied. At most ``max_pending`` answers wait (the oldest passes first)."""
+
+    def __init__(self, answered: Callable[[float], object], max_pending: int = 4096) -> None:
+        self._answered = answered
+        self._lock = threading.Lock()
+        self._applied: int | None = None  # newest seq applied
+        self._pending: deque[tuple[int, float]] = deque()  # (seq, vehicle s), in answer order
+        self._max_pending = max_pending
+        self.waited = 0  #: answers that waited for their command
+
+    def _covers(self, seq: int) -> bool:
+        a = self._applied
+        return a is not None and (a - seq) % SEQ_MODULO < SEQ_MODULO // 2
+
+    def answered(self, t: float, seq: int | None) -> None:
+        """The controller answered up to vehicle time ``t`` after sending command ``seq``."""
+        release: list[float] = []
+        with self._lock:
+            if not seq or (not self._pending and self._covers(seq % SEQ_MODULO)):
+                release.append(t)
+            else:
+                self.waited += 1
+                self._pending.append((seq % SEQ_MODULO, t))
+                while len(self._pending) > self._max_pending:
+                    release.append(self._pending.popleft()[1])
+        for tr in release:
+            self._answered(tr)
+
+    def applied(self, seq: int) -> None:
+        """The controller applied command ``seq``: the answers it covers pass, in order."""
+        release: list[float] = []
+        with self._lock:
+            self._applied = seq % SEQ_MODULO
+            while self._pending and self._covers(self._pending[0][0]):
+                release.append(self._pending.popleft()[1])
+        for tr in release:
+            self._answered(tr)
+
+    @property
+    def pending(self) -> int:
+        """Answers waiting for their command now."""
+        with self._lock:
+            return len(self._pending)

@@ -11,6 +11,13 @@ its ``inputs(t)`` callable gives at the step's start (the actuator emulator's me
 ``--speed`` scales it like everything else, and a command changes what every emulator reports
 from the next step on.
 
+A *captive* start (:meth:`ClosedLoopTruth.hold_captive`, what a lock-step sim does until the
+controller under test first answers): the vehicle runs straight at its start attitude and body
+velocity (position integrated, nothing else changes, the inputs unread), as on a launch rail,
+until :meth:`ClosedLoopTruth.release`; the dynamics take over from that state. Without it a
+controller that comes up late (the fusion's clock warm-up holds the first odometry back) leaves
+the open-loop unstable vehicle uncontrolled for that long.
+
 Sampling a past time (the sonar's ping time) interpolates the stored steps of the last
 ``history_s`` seconds. The fields are those of :class:`~auvgw.sim_devices.vehicle.Truth`:
 ``u, v`` are the body surge and sway over ground, ``w`` the vertical speed (down), ``yaw_rate,
@@ -95,6 +102,9 @@ class ClosedLoopTruth:
         self.state[6:9] = (x, y, float(scn.vehicle.depth_m))
         self.state[11] = h
         self.steps = 0
+        #: vehicle s the captive start ended at (None: not released yet, or never captive)
+        self.released_at: float | None = None
+        self._captive = False
         self._lock = threading.Lock()
         self._t = 0.0
         self._heading = h  # unwrapped
@@ -119,6 +129,19 @@ class ClosedLoopTruth:
         """Take the inputs from ``inputs(t)`` from the next step on."""
         with self._lock:
             self._inputs = inputs
+
+    def hold_captive(self) -> None:
+        """Run straight at the start attitude and velocity from the next step on, until
+        :meth:`release` (see the module docstring)."""
+        with self._lock:
+            self._captive = True
+
+    def release(self) -> None:
+        """End the captive start: the dynamics integrate from the next step on (once)."""
+        with self._lock:
+            if self._captive:
+                self._captive = False
+                self.released_at = self._t
 
     def at(self, t: float) -> TruthSample:
         """The truth at vehicle time ``t`` (s): integrates up to it first if it is ahead of
@@ -147,8 +170,12 @@ class ClosedLoopTruth:
         return np.asarray(r @ s[0:3], dtype=float)
 
     def _step(self) -> None:
-        u = np.asarray(self._inputs(self._t), dtype=float)
-        new = dynamics.step(self.params, self.state, u, self.dt, self.current)
+        if self._captive:  # on the rail: only the position moves, at the NED velocity
+            new = self.state.copy()
+            new[6:9] += self._vel * self.dt
+        else:
+            u = np.asarray(self._inputs(self._t), dtype=float)
+            new = dynamics.step(self.params, self.state, u, self.dt, self.current)
         self._heading += (float(new[11]) - self._heading + math.pi) % _TWO_PI - math.pi
         self._roll += (float(new[9]) - self._roll + math.pi) % _TWO_PI - math.pi
         self.state = new

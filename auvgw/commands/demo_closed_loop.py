@@ -41,11 +41,12 @@ if TYPE_CHECKING:
     import zenoh
 
     from auvgw.ground.procs import Children
+    from auvgw.stages.fusion import FusionStageConfig
     from auvgw.subscribe import GatewaySubscriber
 
 _T = TypeVar("_T")
 
-__all__ = ["ChainResult", "ChainRun", "fly_chain", "run_closed_loop", "score"]
+__all__ = ["ChainResult", "ChainRun", "fly_chain", "lockstep_first_s", "run_closed_loop", "score"]
 
 SCENARIO = config_file("scenarios/closed_loop.json")
 VEHICLE = "auv1"
@@ -82,9 +83,21 @@ class ChainRun:
     #: clock, where a stalled process delays the loop in vehicle time
     lockstep: bool = True
     lockstep_step: float = 0.15
+    #: vehicle s the lock-step sim runs before the pilot's first answer, on top of the fusion's
+    #: clock warm-up and lag (:func:`lockstep_first_s`)
+    lockstep_first: float = 1.0
     #: start the vehicle on the mission (at its first waypoint and depth, heading along leg 0,
     #: as the in-process runs do) instead of at the scenario's start pose
     start_on_mission: bool = False
+
+
+def lockstep_first_s(fusion: FusionStageConfig, first: float = 1.0) -> float:
+    """Vehicle s a lock-step sim may run before the pilot's first answer: ``first`` plus the
+    fusion's clock warm-up and fixed lag. The warm-up holds every sample of its first
+    ``clock_warmup_s`` of receive time, and the gateway stamps receive time on the sim's clock:
+    a first hold shorter than that stands the clock still before the warm-up ends, so no
+    odometry, no answer, and only the hold timeouts move vehicle time on."""
+    return first + fusion.clock_warmup_s + fusion.filter.max_latency_s
 
 
 @dataclass
@@ -281,10 +294,10 @@ def fly_chain(run: ChainRun, progress: bool = False) -> ChainResult:
         x0, y0, _ = scn.start_pose
         settings = out / "fusion.json"
         fusion = _fusion_config(VEHICLE, (x0, y0, scn.vehicle.depth_m), scn.devices.ins.noise)
-        # no clock warm-up: the pilot steers on the first frames, and vehicle time 0 waits for
-        # the stages, so the ports are open before any frame (no backlog to learn around)
+        # the demo's fusion (its clock warm-up included) with the loop's short lag; the
+        # lock-step sim's first hold leaves room for the warm-up (lockstep_first_s)
         filt = fusion.filter.model_copy(update={"max_latency_s": run.fusion_lag_s})
-        fusion = fusion.model_copy(update={"clock_warmup_s": 0.0, "filter": filt})
+        fusion = fusion.model_copy(update={"filter": filt})
         settings.write_text(fusion.model_dump_json(indent=1))
         children.start("fusion", ["fusion", "--settings", str(settings), "--connect", hub,
                                   "--listen", free_endpoint()])  # fmt: skip
@@ -307,8 +320,9 @@ def fly_chain(run: ChainRun, progress: bool = False) -> ChainResult:
             "sim", "--scenario", str(scenario), "--speed", str(run.speed), "--duration",
             str(duration), "--out", str(sim_dir), "--vehicle", VEHICLE, "--hold",
             "--start-delay", str(run.start_delay),
-            *(["--lockstep", "--lockstep-step", str(run.lockstep_step), "--connect", hub,
-                "--listen", free_endpoint()] if run.lockstep else [])])  # fmt: skip
+            *(["--lockstep", "--lockstep-step", str(run.lockstep_step), "--lockstep-first",
+               str(lockstep_first_s(fusion, run.lockstep_first)), "--connect", hub,
+               "--listen", free_endpoint()] if run.lockstep else [])])  # fmt: skip
         _wait_for(sim_dir / "gateway.toml", sim, 120.0)
         epoch_s = _sim_epoch_ns(_read_when_written(lambda: _load_sim_config(sim_dir))) / 1e9
         follow = _Follow(session, VEHICLE, epoch_s, out)

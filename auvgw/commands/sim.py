@@ -294,18 +294,33 @@ class Lockstep:
     """The sim's side of lock-step: the controller's answers (``auv/<vehicle>/pilot/ack`` on
     ``session``) move ``runner``'s clock hold limit (``step``, ``timeout``, ``first``: see
     :meth:`~auvgw.sim_devices.clock.SimClock.lockstep`); every new anchor goes to the clock file
-    ``clock_file`` (:mod:`auvgw.ground.simclock`). Set :attr:`epoch_ns` (the gateway's ``[clock]
-    epoch_ns``), then :meth:`begin` before the runner starts at the host instant ``start_at``.
+    ``clock_file`` (:mod:`auvgw.ground.simclock`). An answer that carries the ``seq`` of the
+    controller's newest command counts once the emulated actuators have applied it
+    (:class:`~auvgw.sim_devices.actuators.CommandGate`; ``gate_commands`` False: at once).
+    A closed-loop vehicle runs captive (straight, :meth:`~auvgw.sim_devices.closedloop.
+    ClosedLoopTruth.hold_captive`) until the first answer counts.
+    Set :attr:`epoch_ns` (the gateway's ``[clock] epoch_ns``), then :meth:`begin` before the
+    runner starts at the host instant ``start_at``.
     Closing it withdraws the subscriber (and closes ``session`` if ``own_session``)."""
 
     def __init__(self, runner: Runner, vehicle: str, step: float, timeout: float, first: float,
                  clock_file: Path, start_at: float, session: zenoh.Session,
-                 own_session: bool = False) -> None:  # fmt: skip
+                 own_session: bool = False, gate_commands: bool = True) -> None:  # fmt: skip
         from auvgw.bus import Keys
         from auvgw.ground.simclock import ClockFileWriter
+        from auvgw.sim_devices.actuators import ActuatorEmulator, CommandGate
+        from auvgw.sim_devices.closedloop import ClosedLoopTruth
         from auvgw.stages.pilot import ACK
 
         self.clock = runner.clock
+        #: a closed-loop truth held captive until the first answer counts (None: scripted)
+        self.truth = runner.truth if isinstance(runner.truth, ClosedLoopTruth) else None
+        #: answers that carry a command's ``seq`` count once the emulated actuators have it
+        self.gate: CommandGate | None = None
+        acts = [em for em in runner.emulators.values() if isinstance(em, ActuatorEmulator)]
+        if gate_commands and len(acts) == 1:
+            self.gate = CommandGate(self._answered)
+            acts[0].on_applied = self.gate.applied
         self.key = f"{Keys(vehicle).base}/pilot/{ACK}"
         self.epoch_ns = 0
         self.bad = 0  # answers that could not be read
@@ -333,6 +348,8 @@ class Lockstep:
             self._writer.publish(t, host, speed, limit, self.epoch_ns)
 
         self.clock.lockstep(*self._params, on_anchor)
+        if self.truth is not None:  # on its launch rail until the controller answers
+            self.truth.hold_captive()
         # the anchor of vehicle time 0 before the clock starts: readers map the host clock
         self._writer.publish(0.0, self._start_at, self.clock.speed, self.clock.limit,
                              self.epoch_ns)  # fmt: skip
@@ -342,11 +359,25 @@ class Lockstep:
         import json
 
         try:
-            t = float(json.loads(sample.payload.to_bytes())["t"])  # type: ignore[attr-defined]
-        except (ValueError, KeyError, TypeError):
+            body = json.loads(sample.payload.to_bytes())  # type: ignore[attr-defined]
+            t = float(body["t"])
+            seq = body.get("seq")
+            if seq is not None and (type(seq) is not int or seq < 0):
+                raise ValueError(f"seq {seq!r}")
+        except (ValueError, KeyError, TypeError, AttributeError):
             self.bad += 1
             return
-        self.clock.answered(t - self.epoch_ns / 1e9)
+        t -= self.epoch_ns / 1e9
+        if self.gate is not None:
+            self.gate.answered(t, seq)
+        else:
+            self._answered(t)
+
+    def _answered(self, t: float) -> None:
+        """An answer counts: the clock runs on, and the first one frees a captive vehicle."""
+        if self.truth is not None and self.truth.released_at is None:
+            self.truth.release()
+        self.clock.answered(t)
 
     def summary(self) -> str:
         """One line: answers, holds, held host time, timeouts (and the vehicle times of the
@@ -356,4 +387,8 @@ class Lockstep:
         more = ", ..." if c.hold_timeouts > 5 else ""
         return (f"{c.answers} answers, {c.holds} holds ({c.held_s:.1f} host s held), "
                 f"{c.hold_timeouts} hold timeouts" + (f" (at vehicle t {at}{more} s)" if at else "")
-                + f", {self.bad} unreadable answers; limit at the end {c.limit:.2f} s")  # fmt: skip
+                + f", {self.bad} unreadable answers"
+                + (f", captive until vehicle t {self.truth.released_at:.2f} s"
+                   if self.truth is not None and self.truth.released_at is not None else "")
+                + (f", {self.gate.waited} waited for their command" if self.gate else ", ungated")
+                + f"; limit at the end {c.limit:.2f} s")  # fmt: skip

@@ -17,9 +17,10 @@ last odometry's time plus the host time since, so a silent navigation is caught 
 ``nav_timeout_s`` + one period and the vehicle surfaces. Against a lock-step sim
 (``lockstep_clock``: the sim's clock file, :mod:`auvgw.ground.simclock`) the timer counts
 *vehicle* time instead (a stalled host then delays nothing in vehicle time), and every odometry
-sample is answered on ``auv/<v>/pilot/ack`` (``{"t": s}``, the odometry time acted on, held
-back to half the feedback timeout past the newest actuator feedback when the feedback is
-checked; type ``PilotAck``), which lets the sim's clock run on. Each step's
+sample is answered on ``auv/<v>/pilot/ack`` (``{"t": s, "seq": n}``: the odometry time acted
+on, held back to half the feedback timeout past the newest actuator feedback when the feedback
+is checked; the sequence number of the newest command sent, with :class:`BusCommands`; type
+``PilotAck``), which lets the sim's clock run on once its controller has that command. Each step's
 :class:`~auvgw.control.autopilot.ActuatorCommand` goes to the ``sink`` (a
 :data:`~auvgw.control.autopilot.CommandSink`; :class:`BusCommands` puts it on
 ``auv/<v>/cmd/<device>`` as the actuators' ``ActuatorCommand``, which the gateway checks and
@@ -208,7 +209,17 @@ class PilotStage(Stage):
             self._t_last_step = t
             self._step(t)
         if self.config.lockstep_clock is not None:  # answered up to t (after its command)
-            self.publish_json(ACK, {"t": self._ack_time(t)}, t, "PilotAck")
+            self.publish_json(ACK, self._ack(t), t, "PilotAck")
+
+    def _ack(self, t: float) -> dict[str, float | int]:
+        """The lock-step answer to odometry time ``t``: ``{"t": s}`` (:meth:`_ack_time`), plus
+        ``seq``, the sequence number of the newest command sent, when the sink numbers them
+        (:class:`BusCommands`): the sim counts the answer once its controller has applied it."""
+        body: dict[str, float | int] = {"t": self._ack_time(t)}
+        seq = getattr(self.sink, "seq", None)
+        if isinstance(seq, int):
+            body["seq"] = seq
+        return body
 
     def _ack_time(self, t: float) -> float:
         """The time a lock-step sim may take as answered: the odometry's ``t``, held back to

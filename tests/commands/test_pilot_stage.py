@@ -242,6 +242,24 @@ def test_against_a_lockstep_sim_the_timer_counts_vehicle_time_and_odometry_is_an
     checked.feed_actuators(ActuatorFeedback(epoch + 9.0, 1000.0, 0.0, 0.0))
     checked.feed_odometry(odometry(epoch + 9.9, x))
     assert published[-1] == ("auv/auv1/pilot/ack", {"t": pytest.approx(epoch + 9.5)})
+    # a sink that numbers its commands (as BusCommands does): the answer carries the newest
+    # one's seq, so the sim counts it once its actuators have that command
+
+    class Numbered:
+        seq = 0
+
+        def __call__(self, cmd: object) -> None:
+            self.seq += 1
+
+    numbered = PilotStage(MISSION, PilotStageConfig(feedback_timeout_s=0.0,
+                                                    lockstep_clock=str(tmp_path / "clock")),
+                          sink=Numbered(),
+                          on_publish=lambda k, b, t: published.append((k, json.loads(b))))
+    for t in (9.9, 9.92, 9.95):  # 9.92: within the control period, no new command
+        numbered.feed_odometry(odometry(epoch + t, x))
+    assert [b for k, b in published[-7:] if k == "auv/auv1/pilot/ack"] == [
+        {"t": pytest.approx(epoch + 9.9), "seq": 1}, {"t": pytest.approx(epoch + 9.92), "seq": 1},
+        {"t": pytest.approx(epoch + 9.95), "seq": 2}]
     # the host moves on, the sim's clock does not (a stall): no timer step, no nav_lost
     stage.tick()
     assert stage.stats.timer_steps == 0 and stage.autopilot.status.mode == "running"

@@ -156,6 +156,62 @@ def test_pty_writer_closing_raises_disconnected_naming_the_port(pty_pair):
         t.open()
 
 
+def _read_empty(fd: int) -> None:
+    """Make the kernel read the tty ``fd`` empty while it reports readiness: canonical mode
+    with EOF = ^D (each ^D from the master is one readable, zero-byte read), the pty's other
+    end still open, as a loaded pty did to the gateway (issue 30)."""
+    import termios
+
+    attrs = termios.tcgetattr(fd)
+    attrs[3] |= termios.ICANON
+    attrs[6][termios.VEOF] = b"\x04"
+    termios.tcsetattr(fd, termios.TCSANOW, attrs)
+
+
+@pytest.mark.e2e
+def test_pty_readable_but_empty_is_counted_and_read_again_until_it_persists(pty_pair):
+    from auvgw.drivers.emptyreads import EMPTY_READS_LIMIT
+
+    fds, path = pty_pair
+    t = open_transport({"kind": "serial", "url": path})
+    assert isinstance(t, SerialTransport)
+    _read_empty(t._fd)
+    os.write(fds["master"], b"\x04" * 3)
+    assert [t.read(1.0) for _ in range(3)] == [None] * 3  # each one ready and empty: no close
+    assert t.is_open and t.empty_reads.total == 3 and t.losses() == {"empty_reads": 3}
+    tty.setraw(t._fd)
+    os.write(fds["master"], b"after")
+    assert b"".join(c.data for c in read_exactly(t, 5)) == b"after"
+    assert t.empty_reads.in_a_row == 0  # bytes ended the run
+    # persisting (no byte between): the port is taken as gone and closed, as a real hang-up
+    _read_empty(t._fd)
+    os.write(fds["master"], b"\x04" * EMPTY_READS_LIMIT)
+    with pytest.raises(Disconnected, match=f"no data {EMPTY_READS_LIMIT} times in a row"):
+        for _ in range(EMPTY_READS_LIMIT):
+            t.read(1.0)
+    assert not t.is_open and t.empty_reads.total == 3 + EMPTY_READS_LIMIT  # (this connection)
+
+
+@pytest.mark.e2e
+def test_slcan_adapter_readable_but_empty_is_read_again(pty_pair):
+    """The same on the actuators' SLCAN port: the frame after the empty reads arrives, with
+    the transport open throughout (a reopen refused the commands sent meanwhile)."""
+    fds, path = pty_pair
+    master = fds["master"]
+    t = _slcan_on(path)
+    drain_master(master)
+    bus = t._handle
+    _read_empty(bus._fd)
+    os.write(master, b"\x04\x04")
+    assert t.read(0.3) is None and t.is_open
+    tty.setraw(bus._fd)
+    os.write(master, b"t3102ABCD\r")
+    c = t.read(2.0)
+    assert c is not None and (c.can_id, c.data) == (0x310, b"\xab\xcd")
+    assert bus.empty_reads.total == 2 and t.losses()["empty_reads"] == 2
+    t.close()
+
+
 def test_missing_device_open_error_names_port_and_what_to_check():
     path = f"/dev/ttyUSB-auvgw-missing-{uuid.uuid4().hex[:6]}"
     with pytest.raises(TransportOpenError) as info:

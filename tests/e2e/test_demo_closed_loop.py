@@ -76,6 +76,19 @@ def test_the_pilot_flies_its_legs_and_the_truth_follows(demo_run) -> None:
     # the sim waited on the pilot's answers: one per odometry sample, every one readable
     answers = int(res["lockstep"].split(" answers")[0])
     assert answers > 500 and "0 unreadable answers" in res["lockstep"], res["lockstep"]
+    # ... counted once the emulated actuators had the command each one carries (its seq)
+    waited = int(res["lockstep"].split(" waited for their command")[0].rsplit(", ", 1)[1])
+    assert 0 < waited <= answers, res["lockstep"]
+    # the fusion ran with the demo's 2 s clock warm-up, and the sim's first hold left room for
+    # it: a warm-up inside the hold stands the clock still until 7 or more hold timeouts (5 host
+    # s each) carry it on; one or two are a starved host's (tolerance)
+    assert json.loads((out / "fusion.json").read_text())["clock_warmup_s"] == 2.0
+    timeouts = int(res["lockstep"].split(" hold timeouts")[0].rsplit(" ", 1)[1])
+    assert timeouts <= 2, res["lockstep"]
+    # the vehicle ran captive (straight) until the first answer counted: after the warm-up's
+    # 2 s, within the sim's first hold (1 s + the warm-up + the fusion's lag)
+    released = float(res["lockstep"].split("captive until vehicle t ")[1].split(" s")[0])
+    assert 2.0 <= released <= 3.1, res["lockstep"]
 
 
 def test_the_pilot_is_in_the_rerun_file_and_the_recording(demo_run) -> None:

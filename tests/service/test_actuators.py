@@ -325,6 +325,24 @@ def test_closed_loop_truth_is_causal_and_samples_the_past() -> None:
     assert a.x == pytest.approx(1.3, rel=0.1) and a.z == pytest.approx(5.0, abs=0.1)
 
 
+def test_a_captive_start_runs_straight_until_released() -> None:
+    """What a lock-step sim does until the controller first answers: the vehicle runs straight
+    at its start attitude and velocity (the inputs unread: a hard-over rudder does nothing),
+    then the dynamics take over from there."""
+    scn = load_scenario(SCENARIO)
+    truth = ClosedLoopTruth(scn, World.from_scenario(scn), inputs=lambda _t: (0.35, 0.35, 0.0))
+    truth.hold_captive()
+    s0, a = truth.at(0.0), truth.at(2.0)
+    assert (a.heading, a.pitch, a.roll, a.z, a.u) == (s0.heading, s0.pitch, s0.roll, s0.z, s0.u)
+    assert a.x - s0.x == pytest.approx(2.0 * s0.u, rel=1e-6) and a.y == s0.y
+    truth.release()
+    assert truth.released_at == pytest.approx(2.0)
+    b = truth.at(4.0)  # released: the rudder and stern plane hard over turn and pitch it
+    assert abs(b.heading - s0.heading) > 0.1 and abs(b.pitch) > 0.1
+    truth.release()  # once
+    assert truth.released_at == pytest.approx(2.0)
+
+
 def test_the_ins_reports_the_dynamics_body_rates() -> None:
     """The truth's rates are Euler angle rates (the scripted truth's, which the INS emulator
     turns into body rates); the closed-loop truth stored the body rates p, q, r there, so a

@@ -645,6 +645,42 @@ def test_lockstep_holds_vehicle_time_until_answered_and_times_out_a_silent_contr
     reader.close()
 
 
+def test_lockstep_answers_wait_for_the_command_they_carry() -> None:
+    """The command's way back (issue 30): an answer counts once the emulated actuators have
+    applied its command's seq, or a newer one (a lost command is covered by the next)."""
+    from auvgw.drivers.actuators import SEQ_MODULO
+    from auvgw.sim_devices.actuators import CommandGate
+
+    host = [0.0]
+    c = SimClock(speed=1.0, time_fn=lambda: host[0])
+    c.lockstep(0.15, 5.0, 1.0)
+    c.start()
+    gate = CommandGate(c.answered)
+    gate.answered(0.5, None)  # no command yet (a pilot before its first step): counts at once
+    gate.answered(0.6, 0)
+    assert c.answers == 2 and c.limit == 1.0
+    gate.answered(1.0, 1)  # command 1 still crossing the gateway and the CAN bus
+    gate.answered(1.05, 1)
+    gate.answered(1.1, 2)
+    assert c.answers == 2 and c.limit == 1.0 and gate.pending == 3 and gate.waited == 3
+    host[0] = 2.0
+    assert c.now() == pytest.approx(1.0), "held: the answers do not count yet"
+    gate.applied(1)  # the answers of command 1 pass, not command 2's
+    assert c.answers == 4 and c.limit == pytest.approx(1.2) and gate.pending == 1
+    gate.answered(1.2, 3)
+    gate.applied(3)  # command 2 lost on its way: command 3 covers both answers
+    assert c.answers == 6 and c.limit == pytest.approx(1.35) and gate.pending == 0
+    gate.answered(1.3, 3)  # applied already: counts at once
+    assert c.answers == 7 and c.limit == pytest.approx(1.45)
+    # the sequence wraps: SEQ_MODULO - 1 is older than 2, and 5 is newer than 3
+    gate.applied(SEQ_MODULO - 1)
+    gate.answered(1.4, 2)
+    assert gate.pending == 1
+    gate.applied(5)
+    assert gate.pending == 0 and c.limit == pytest.approx(1.55)
+    assert c.hold_timeouts == 0
+
+
 def test_clock_start_at_a_given_host_instant() -> None:
     host = [100.0]
     c = SimClock(speed=10.0, time_fn=lambda: host[0])
