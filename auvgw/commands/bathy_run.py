@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING, Any
 from auvgw.ground.errors import UserError, format_validation_error
 
 if TYPE_CHECKING:
+    from auvgw.config.scenario import Scenario
     from auvgw.stages.bathymetric import BathymetricStageConfig
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -37,7 +38,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="a stage or filter setting (repeatable), e.g. radius_m=40")  # fmt: skip
 
 
-def demo_accepts(scn: Any) -> bool:
+def demo_accepts(scn: Scenario) -> bool:
     """A survey (``auvgw demo`` runs this pipeline on it): multibeam on, no point or line
     features and no magnetic beacons to map."""
     return bool(

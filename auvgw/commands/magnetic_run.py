@@ -24,7 +24,11 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from auvgw.config.scenario import Scenario
+    from auvgw.stages.magnetic import MagneticStageConfig
 
 from auvgw.ground.errors import UserError
 
@@ -44,13 +48,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "the beacons' phase reference; default 0)")  # fmt: skip
 
 
-def demo_accepts(scn: Any) -> bool:
+def demo_accepts(scn: Scenario) -> bool:
     """A scenario ``auvgw demo`` runs this pipeline on: magnetic beacons and an emulated
     magnetometer."""
     return bool(scn.magnetic_beacons) and scn.devices.magnetometer.enabled
 
 
-def stage_config(args: argparse.Namespace, vehicle: str) -> Any:
+def stage_config(args: argparse.Namespace, vehicle: str) -> MagneticStageConfig:
     """The stage's settings from ``--scenario`` (required) and the magnetic options."""
     from pydantic import ValidationError
 

@@ -16,7 +16,9 @@ MAG = ms3a_can()
 
 def hn_sample(seq: int, k: float = 1.0):
     """An HN-100 CAN epoch, sequence ``seq``, every value scaled by ``k``."""
-    return HN.sample_type(
+    sample_type = HN.sample_type
+    assert sample_type is not None  # built when the DBC was read
+    return sample_type(
         seq=seq,
         time=1234.567891 * k,
         roll=0.1 * k,

@@ -11,6 +11,7 @@ from typing import Any
 
 from auvgw.config.scenario import Scenario
 from auvgw.sim_devices.clock import SimClock
+from auvgw.sim_devices.closedloop import ClosedLoopTruth
 from auvgw.sim_devices.dvl import DvlEmulator
 from auvgw.sim_devices.emulator import SimContext
 from auvgw.sim_devices.vehicle import Truth, simulate
@@ -49,7 +50,9 @@ def scenario(dvl: dict[str, Any] | None = None, **changes: Any) -> Scenario:
     return Scenario.model_validate(data)
 
 
-def offline(scn: Scenario, tmp_path: Path) -> tuple[DvlEmulator, Truth, World]:
+def offline(
+    scn: Scenario, tmp_path: Path
+) -> tuple[DvlEmulator, Truth | ClosedLoopTruth, World]:
     """The emulator without a clock or a port (``frame_at(t)`` gives the bytes of one ping),
     and the ground truth at any time."""
     world = World.from_scenario(scn)

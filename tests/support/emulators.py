@@ -10,7 +10,7 @@ import time
 
 import serial
 
-from auvgw.sim_devices.emulator import Endpoint
+from auvgw.sim_devices.emulator import CanChannel, Endpoint
 from auvgw.sim_devices.runner import Runner
 
 __all__ = ["SerialReader", "endpoint", "run_for"]
@@ -75,7 +75,7 @@ def run_for(runner: Runner, duration: float) -> None:
     end = time.monotonic() + 10
     for em in runner.emulators.values():
         for ch in em.channels:
-            while ch.kind == "can" and not ch.adapter.is_open and time.monotonic() < end:
+            while isinstance(ch, CanChannel) and not ch.adapter.is_open and time.monotonic() < end:
                 time.sleep(0.005)
     runner.start(duration=duration)
     assert runner.wait(60), "the run did not end"
