@@ -8,14 +8,11 @@ from __future__ import annotations
 import datetime as dt
 import json
 import math
-import threading
-import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
-import serial
 
 from auvgw.drivers import pd0
 from auvgw.drivers.framing import ErrorPolicy
@@ -26,6 +23,7 @@ from auvgw.sim_devices.runner import Runner, RunOptions
 from auvgw.sim_devices.vehicle import Truth
 from auvgw.sim_devices.world import body_to_ned
 from auvgw.testing.dvl import BASE, offline, scenario
+from auvgw.testing.emulators import SerialReader
 
 S30, C30 = math.sin(math.radians(30)), math.cos(math.radians(30))
 #: beams 1-4 out of a down-facing transducer with beam 3 forward, body axes (fwd, stbd, down):
@@ -438,37 +436,6 @@ def test_water_mass_layer_is_bad_when_the_bottom_is_too_close(tmp_path: Path) ->
 # -- over a real pty ----------------------------------------------------------------------------
 
 
-class Reader:
-    """pyserial on the emulator's pty in a thread."""
-
-    def __init__(self, path: str) -> None:
-        self.chunks: list[bytes] = []
-        self._stop = threading.Event()
-        self._s = serial.Serial(path, 115200, timeout=0.02)
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            try:
-                data = self._s.read(max(1, self._s.in_waiting))
-            except (serial.SerialException, OSError):
-                return
-            if data:
-                self.chunks.append(data)
-
-    def finish(self, quiet: float = 1.0, timeout: float = 10.0) -> bytes:
-        end = time.monotonic() + timeout
-        n = -1
-        while time.monotonic() < end and len(self.chunks) != n:
-            n = len(self.chunks)
-            time.sleep(quiet)
-        self._stop.set()
-        self._thread.join(5)
-        self._s.close()
-        return b"".join(self.chunks)
-
-
 @pytest.mark.e2e
 def test_runner_serves_the_dvl_on_a_pty(tmp_path: Path) -> None:
     """The runner's DVL on its pty, read with pyserial at 20x real time: every ensemble arrives
@@ -479,7 +446,7 @@ def test_runner_serves_the_dvl_on_a_pty(tmp_path: Path) -> None:
         (ep,) = r.endpoints()
         assert ep.name == "dvl" and ep.format == "pd0" and Path(ep.target).is_symlink()
         assert ep.transport == {"kind": "serial", "url": ep.target, "baud": 115200}
-        reader = Reader(ep.target)
+        reader = SerialReader(ep.target, 115200)
         r.start(duration=20.0)
         assert r.wait(60), "the run did not end"
         r.stop()
