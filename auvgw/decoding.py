@@ -13,13 +13,13 @@ import struct
 import time
 from collections import Counter
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from auvgw.config.gateway import ConfigError, DeviceConfig, GatewayConfig
 from auvgw.drivers import registry
 from auvgw.drivers.formats import Format, format_from_table, get_format
 from auvgw.drivers.framing import ErrorPolicy, Frame, Framer
-from auvgw.envelope import layout_body
+from auvgw.envelope import Packed, layout_body
 
 if TYPE_CHECKING:
     from auvgw.drivers.can_codec import CanDeviceCodec
@@ -51,7 +51,7 @@ def unpack_can_raw(raw: bytes) -> tuple[int, bool, bytes]:
     return can_id, bool(flags & 1), raw[_CAN_HEAD.size :]
 
 
-def message_type(msg: Any) -> str:
+def message_type(msg: object) -> str:
     """A decoded message's type name (its ``TYPE`` or class name), as in ``to_jsonable``."""
     return str(getattr(msg, "TYPE", type(msg).__name__))
 
@@ -63,7 +63,7 @@ def kind_of(type_name: str) -> str:
     return registry.kind_of(type_name)
 
 
-def message_kind(msg: Any) -> str:
+def message_kind(msg: object) -> str:
     """The ``<kind>`` key segment of a decoded message (:func:`kind_of` its type name)."""
     return kind_of(message_type(msg))
 
@@ -74,7 +74,7 @@ class DecodedItem:
 
     raw: bytes
     offset: int
-    messages: tuple[Any, ...] = ()
+    messages: tuple[object, ...] = ()
     error: str | None = None
 
 
@@ -148,7 +148,7 @@ class DeviceDecoder:
             c.frames + s.frames, bad, c.skipped_bytes + s.skipped_bytes, self._reasons
         )
 
-    def decode_raw(self, raw: bytes, verified: bool = False) -> tuple[Any, ...]:
+    def decode_raw(self, raw: bytes, verified: bool = False) -> tuple[object, ...]:
         """Messages of one raw frame as published on the bus (raises on undecodable content);
         ``verified``: the frame came out of this decoder's framer, its checksum is not checked
         again (replay and offline tools leave it False: their bytes are checked)."""
@@ -169,7 +169,7 @@ class DeviceDecoder:
                 raw, offset, (), f"{self.name}: {where}: {type(exc).__name__}: {exc}"
             )
 
-    def envelope_body(self, raw: bytes) -> tuple[str, int, list[Any]] | None:
+    def envelope_body(self, raw: bytes) -> tuple[str, int, list[Packed]] | None:
         """(type, schema, body) of the envelope of a frame this decoder's framer delivered,
         read straight from its bytes (:func:`auvgw.envelope.layout_body`): the envelope of the
         message :meth:`item` decodes, byte for byte. None where the format has no such path or

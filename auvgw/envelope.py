@@ -38,9 +38,9 @@ import threading
 import types
 import typing
 import zlib
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, TypeAlias
+from typing import TYPE_CHECKING, Any, TypeAlias, TypeGuard
 
 import msgspec
 import numpy as np
@@ -56,6 +56,9 @@ from auvgw.drivers.spec import (
     resolve_type,
 )
 from auvgw.drivers.spec import plan as table_plan
+
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
 
 __all__ = [
     "ENVELOPE_VERSION",
@@ -99,7 +102,7 @@ Packed: TypeAlias = (
 #: a field's encoder: (its SI value, as the message holds it; trusted) -> what travels
 Encoder: TypeAlias = Callable[[Any, bool], Packed]
 #: a field's decoder: what MessagePack gave back -> the SI value
-Decoder: TypeAlias = Callable[[Any], Any]
+Decoder: TypeAlias = Callable[[object], object]
 #: what a field-by-field walk of a table gives: (encode or None, decode, schema text)
 Coders: TypeAlias = tuple[Encoder | None, Decoder, str]
 
@@ -122,7 +125,7 @@ class Envelope:
     t_recv_ns: int
     seq: int
     body: Any = field(default_factory=dict)
-    message: Any = None
+    message: object = None
     key: str = ""
     wire: str = ""
     schema: int = 0
@@ -161,7 +164,7 @@ def _enc_any(v: Any, trusted: bool = False) -> Packed:
     return v
 
 
-def _typed_ext(v: Any, trusted: bool = False) -> msgspec.msgpack.Ext:
+def _typed_ext(v: object, trusted: bool = False) -> msgspec.msgpack.Ext:
     name = str(getattr(v, "TYPE", type(v).__name__))
     body = _ENCODER.encode(pack_body(v, trusted))
     return msgspec.msgpack.Ext(EXT_TYPED, name.encode() + b"\0" + body)
@@ -175,7 +178,7 @@ class _Typed:
     body: list[Packed]
 
 
-def _dec_typed(v: Any) -> Any:
+def _dec_typed(v: object) -> object:
     if isinstance(v, _Typed):
         cls = resolve_type(v.name)
         if cls is None:
@@ -184,11 +187,11 @@ def _dec_typed(v: Any) -> Any:
     return v
 
 
-def _is_message_class(tp: Any) -> bool:
+def _is_message_class(tp: object) -> TypeGuard[type[DataclassInstance]]:
     return isinstance(tp, type) and dataclasses.is_dataclass(tp)
 
 
-def _hint_coders(tp: Any) -> Coders:
+def _hint_coders(tp: object) -> Coders:
     """(encode, decode, schema text) of a field with no wire row, from its type hint."""
     origin, args = typing.get_origin(tp), typing.get_args(tp)
     if origin in (types.UnionType, typing.Union):
@@ -209,7 +212,7 @@ def _hint_coders(tp: Any) -> Coders:
         #: is packed once, not per frame (one tuple, replaced whole: safe across threads)
         last: tuple[object, list[Packed] | None] = (None, None)
 
-        def enc_msg(v: Any, t: bool) -> Packed:
+        def enc_msg(v: object, t: bool) -> Packed:
             nonlocal last
             if type(v) is not cls:
                 return _typed_ext(v, t)
@@ -221,7 +224,7 @@ def _hint_coders(tp: Any) -> Coders:
                 last = (v, body)
             return body
 
-        def dec_msg(v: Any) -> Any:
+        def dec_msg(v: object) -> object:
             return unpack_body(cls, v) if isinstance(v, list) else _dec_typed(v)
 
         return enc_msg, dec_msg, f"{cls.__name__}#{schema_id(cls):04x}"
@@ -287,7 +290,7 @@ def _wire_coders(w: Wire) -> Coders:
                 return raw
             return _enc_float(float(v))
 
-        def dec_scalar(v: Any) -> Any:
+        def dec_scalar(v: object) -> object:
             if type(v) is not int:
                 return v
             return math.nan if v == invalid else v * scale + add
@@ -351,7 +354,7 @@ def _wire_coders(w: Wire) -> Coders:
             return a
         return a.astype(wdt, copy=False).tobytes() if a.ndim == 1 else a
 
-    def dec_array(v: Any) -> Any:
+    def dec_array(v: object) -> object:
         if v is None:
             return None
         if isinstance(v, bytes | bytearray | memoryview):
@@ -376,7 +379,7 @@ def _linear_coders(
     """A CAN signal decoded as ``float(raw * scale + offset) * factor`` (cantools, then the
     codec's unit factor): its raw integer where that gives the value back exactly."""
 
-    def enc(v: Any, t: bool) -> Packed:
+    def enc(v: object, t: bool) -> Packed:
         if type(v) is not float:
             return _enc_any(v, t)
         if not math.isfinite(v):
@@ -384,7 +387,7 @@ def _linear_coders(
         raw = round((v / factor - offset) / scale)
         return raw if float(raw * scale + offset) * factor == v else _enc_float(v)
 
-    def dec(v: Any) -> Any:
+    def dec(v: object) -> object:
         return float(v * scale + offset) * factor if type(v) is int else v
 
     return enc, dec, f"lin*{scale!r}+{offset!r}*{factor!r}"
@@ -401,12 +404,12 @@ class _Plan:
     decoders: tuple[Decoder, ...]
     schema: int
     #: ``pack(msg, trusted) -> body``, generated for the class (see :func:`_packer`)
-    pack: Callable[[Any, bool], list[Packed]]
+    pack: Callable[[object, bool], list[Packed]]
 
 
 def _packer(
     names: tuple[str, ...], encoders: tuple[Encoder | None, ...]
-) -> Callable[[Any, bool], list[Packed]]:
+) -> Callable[[object, bool], list[Packed]]:
     """A function building the positional body of one class: one list display of attribute
     reads and encoder calls (no loop, no zip, no per-field lookup)."""
     ns: dict[str, Any] = {}
@@ -467,7 +470,7 @@ def layout_body(layout: WireLayout, frame: bytes) -> tuple[str, int, list[Packed
     return type_name, schema, read(frame)
 
 
-def _hint_names(hint: Any, cls: type) -> bool:
+def _hint_names(hint: object, cls: type) -> bool:
     """``hint`` is ``cls`` or ``cls | None`` (the envelope nests ``cls`` untyped there)."""
     if hint is cls:
         return True
@@ -488,7 +491,7 @@ def _layout_reader(
     slots: list[tuple[int, str, int]] = []  # (frame offset, struct code, bytes): item "@k@"
     endians: set[str] = set()
 
-    def const(v: Any) -> str:
+    def const(v: object) -> str:
         name = f"c{len(ns)}"
         ns[name] = v
         return name
@@ -527,7 +530,7 @@ def _layout_reader(
             return None
         return item
 
-    def value(v: Any, hint: Any, enc: Encoder | None) -> str | None:
+    def value(v: object, hint: object, enc: Encoder | None) -> str | None:
         if v is None:
             return "None"
         if isinstance(v, WireLayout):
@@ -597,7 +600,7 @@ def schema_id(cls: type) -> int:
     return _plan(cls).schema
 
 
-def pack_body(msg: Any, trusted: bool = False) -> list[Packed]:
+def pack_body(msg: object, trusted: bool = False) -> list[Packed]:
     """The positional body of a message (its class's table order; see the module docstring).
     ``trusted``: the message comes straight from its codec's decode, so every scaled array is
     ``raw * scale + add`` of integers and its raw values are recovered without checking."""
@@ -605,7 +608,7 @@ def pack_body(msg: Any, trusted: bool = False) -> list[Packed]:
     return _plan(cls).pack(msg, trusted)
 
 
-def unpack_body(cls: type, body: list[Any]) -> Any:
+def unpack_body(cls: type, body: Sequence[object]) -> DataclassInstance:
     """The typed, immutable message of a positional body (inverse of :func:`pack_body`)."""
     p = _plan(cls)
     if len(body) != len(p.names):
@@ -624,12 +627,12 @@ def unpack_body(cls: type, body: list[Any]) -> Any:
     return cls(**kwargs)
 
 
-def message_fields(msg: Any) -> dict[str, Any]:
+def message_fields(msg: DataclassInstance) -> dict[str, object]:
     """A message's fields by name (shallow: nested messages stay typed)."""
     return {f.name: getattr(msg, f.name) for f in dataclasses.fields(msg)}
 
 
-_ARRAY_HEADS: dict[tuple[Any, tuple[int, ...]], bytes] = {}
+_ARRAY_HEADS: dict[tuple[np.dtype, tuple[int, ...]], bytes] = {}
 
 
 def _array_head(dtype: np.dtype, shape: tuple[int, ...]) -> bytes:
@@ -654,7 +657,7 @@ def _enc_hook(obj: object) -> Packed:
     raise NotImplementedError(f"cannot encode a {type(obj).__name__} in an envelope")
 
 
-def _ext_hook(code: int, data: memoryview) -> Any:
+def _ext_hook(code: int, data: memoryview) -> object:
     if code == EXT_NDARRAY:
         raw = bytes(data)
         head, _, body = raw.partition(b"\0")
@@ -688,11 +691,11 @@ def pack_envelope(
 
 
 def encode_envelope(
-    msg: Any,
+    msg: object,
     device: str,
     t_recv_ns: int,
     seq: int,
-    body: Mapping[str, Any] | None = None,
+    body: Mapping[str, object] | None = None,
     wire: str = "",
     decoded: bool = False,
 ) -> tuple[bytes, zenoh.Encoding]:
@@ -887,7 +890,9 @@ def decode_envelope(payload: bytes, key: str = "", typed: bool = True) -> Envelo
     return Envelope(type_name, device, t_ns, seq, named, message, key, wire, schema)
 
 
-def typed_body(cls: type, type_name: str, schema: int, body: list[Any]) -> Any:
+def typed_body(
+    cls: type, type_name: str, schema: int, body: Sequence[object]
+) -> DataclassInstance:
     """The message of a positional body, after checking the schema fingerprint."""
     mine = schema_id(cls)
     if schema != mine:

@@ -210,7 +210,7 @@ class Gateway:
         self,
         cfg: GatewayConfig,
         session: zenoh.Session | None = None,
-        on_message: Callable[[str, int, Any], None] | None = None,
+        on_message: Callable[[str, int, object], None] | None = None,
     ) -> None:
         self.cfg = cfg
         self.keys = Keys(cfg.vehicle)

@@ -42,7 +42,7 @@ class Backoff:
         self._next = 0.0
 
 
-def device_time_s(msg: Any) -> float | None:
+def device_time_s(msg: object) -> float | None:
     """A decoded message's own clock in seconds (``device_time_s``, ``device_time`` or ``time``:
     a float, or a datetime as its POSIX time), or None when its wire carries no time."""
     for name in ("device_time_s", "device_time", "time"):

@@ -16,14 +16,13 @@ from __future__ import annotations
 import logging
 import threading
 from collections.abc import Callable, Iterable
-from typing import Any
 
 __all__ = ["Listener", "Notifier"]
 
 log = logging.getLogger(__name__)
 
 #: ``(device, t_recv_ns, message)``
-Listener = Callable[[str, int, Any], object]
+Listener = Callable[[str, int, object], object]
 
 
 class Notifier:
@@ -47,7 +46,7 @@ class Notifier:
 
         return unsubscribe
 
-    def notify(self, device: str, t_recv_ns: int, messages: Iterable[Any]) -> int:
+    def notify(self, device: str, t_recv_ns: int, messages: Iterable[object]) -> int:
         """Every message to every listener; returns how many calls raised (each is logged)."""
         listeners = self._listeners
         failed = 0

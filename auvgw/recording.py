@@ -214,7 +214,7 @@ class Ros2McapWriter:
 class _Fields:
     """Attribute access to a JSON body (a decoded message whose type is not loaded here)."""
 
-    def __init__(self, type_name: str, body: Mapping[str, Any]) -> None:
+    def __init__(self, type_name: str, body: Mapping[str, object]) -> None:
         self.TYPE = type_name
         self.__dict__.update(body)
 
@@ -446,7 +446,7 @@ class Recorded(NamedTuple):
     key: str
     t_recv_ns: int
     raw: bytes
-    messages: tuple[Any, ...]
+    messages: tuple[object, ...]
 
 
 def _open(path: Path) -> IO[bytes]:
@@ -825,7 +825,7 @@ def iter_recording(
             yield Recorded(s.key, t_ns, s.payload, item.messages)
         elif section == "truth" and truth:
             try:
-                msgs: tuple[Any, ...] = (json.loads(s.payload),)
+                msgs: tuple[object, ...] = (json.loads(s.payload),)
             except ValueError:
                 msgs = ()
             yield Recorded(s.key, s.log_time_ns, s.payload, msgs)

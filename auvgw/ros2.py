@@ -59,9 +59,11 @@ from typing import TYPE_CHECKING, Any, NamedTuple, Protocol, SupportsFloat, cast
 import numpy as np
 
 from auvgw.drivers import registry
+from auvgw.drivers.roles import Field, Ins
 from auvgw.ground.geometry import quaternion_zyx
 
 if TYPE_CHECKING:  # rosbags' own message classes (the type store builds the same at run time)
+    from rosbags.interfaces.typing import Typesdict
     from rosbags.typesys.store import Typestore
     from rosbags.typesys.stores.ros2_humble import (
         diagnostic_msgs__msg__DiagnosticArray as DiagnosticArray,
@@ -85,45 +87,12 @@ if TYPE_CHECKING:  # rosbags' own message classes (the type store builds the sam
     from rosbags.typesys.stores.ros2_humble import std_msgs__msg__Header as Header
     from rosbags.typesys.stores.ros2_humble import tf2_msgs__msg__TFMessage as TFMessage
 
+    from auvgw.drivers import kongsberg, pd0
+    from auvgw.drivers.seanet import HeadData
     from auvgw.fusion.odometry import Odometry
 
 #: a 3-vector of anything ``float()`` takes (a tuple, a numpy row)
 Vec3 = Iterable[SupportsFloat]
-
-
-class InertialSample(Protocol):
-    """What :func:`imu_msg` reads of an INS solution (HN-100 binary or CAN): attitude (rad,
-    NED), body rates (rad/s, FRD) and accelerations (m/s^2, FRD)."""
-
-    @property
-    def roll(self) -> float: ...
-    @property
-    def pitch(self) -> float: ...
-    @property
-    def heading(self) -> float: ...
-    @property
-    def rate_x(self) -> float: ...
-    @property
-    def rate_y(self) -> float: ...
-    @property
-    def rate_z(self) -> float: ...
-    @property
-    def accel_x(self) -> float: ...
-    @property
-    def accel_y(self) -> float: ...
-    @property
-    def accel_z(self) -> float: ...
-
-
-class FieldSample(Protocol):
-    """What :func:`magnetic_field_msg` reads of a magnetometer sample: the field, nT, FRD."""
-
-    @property
-    def bx(self) -> float: ...
-    @property
-    def by(self) -> float: ...
-    @property
-    def bz(self) -> float: ...
 
 
 class PlanarPose(Protocol):
@@ -239,11 +208,11 @@ class RosMessage(NamedTuple):
     msg: Any
 
 
-def auvgw_types() -> dict[str, Any]:
+def auvgw_types() -> Typesdict:
     """The auvgw_msgs types (rosbags' parsed definitions), to register in a type store."""
     from rosbags.typesys import get_types_from_msg
 
-    types: dict[str, Any] = {}
+    types: Typesdict = {}
     for text, name in ((RAW_FRAME_MSG, RAW_FRAME_TYPE), (DECODED_MSG, DECODED_TYPE),
                        (ACTUATOR_COMMAND_MSG, ACTUATOR_COMMAND_TYPE)):  # fmt: skip
         types.update(get_types_from_msg(text, name))
@@ -424,7 +393,7 @@ def raw_frame_msg(
 
 
 def decoded_msg(
-    topic: str, source: str, type_name: str, t_ns: int, seq: int, body: Any,
+    topic: str, source: str, type_name: str, t_ns: int, seq: int, body: object,
     frame: str | None = None,
 ) -> RosMessage:
     """Any message as ``auvgw_msgs/msg/Decoded`` (``body``: a JSON-ready mapping or JSON text;
@@ -440,7 +409,7 @@ def decoded_msg(
 # -- per stream ------------------------------------------------------------------------------------
 
 
-def imu_msg(msg: InertialSample, device: str, t_ns: int) -> Imu:
+def imu_msg(msg: Ins, device: str, t_ns: int) -> Imu:
     """An HN-100 solution (serial or CAN) as sensor_msgs/Imu in frame ``device`` (FLU)."""
     q = quaternion_enu_flu(msg.heading, msg.pitch, msg.roll)
     zeros = np.zeros(9)
@@ -453,7 +422,7 @@ def imu_msg(msg: InertialSample, device: str, t_ns: int) -> Imu:
     )  # fmt: skip
 
 
-def magnetic_field_msg(msg: FieldSample, device: str, t_ns: int) -> MagneticField:
+def magnetic_field_msg(msg: Field, device: str, t_ns: int) -> MagneticField:
     """An MS3A sample (nT, sensor FRD axes) as sensor_msgs/MagneticField (T, FLU)."""
     b = flu_from_frd((msg.bx, msg.by, msg.bz))
     return _t("sensor_msgs/msg/MagneticField")(
@@ -472,7 +441,7 @@ class DvlReading(NamedTuple):
     field_of_view: float  #: rad (twice the beam angle; 0 unknown)
 
 
-def dvl_reading(msg: Any, device: str) -> DvlReading | None:
+def dvl_reading(msg: pd0.Ensemble, device: str) -> DvlReading | None:
     """The twist and altitude of a PD0 ensemble (see the module docstring), None for an
     ensemble the fusion's adapter refuses."""
     from auvgw.fusion.adapters import AdapterError, dvl_from_pd0
@@ -490,7 +459,7 @@ def dvl_reading(msg: Any, device: str) -> DvlReading | None:
     return DvlReading(frame, v, bool(s.bottom_lock), float(s.altitude), fov)
 
 
-def dvl_msgs(msg: Any, device: str, t_ns: int) -> list[RosMessage]:
+def dvl_msgs(msg: pd0.Ensemble, device: str, t_ns: int) -> list[RosMessage]:
     """A PD0 ensemble as a twist (the DVL's frame, see the module docstring) and an altitude."""
     d = dvl_reading(msg, device)
     if d is None:
@@ -515,7 +484,7 @@ def dvl_msgs(msg: Any, device: str, t_ns: int) -> list[RosMessage]:
     ]
 
 
-def swath_points(msg: Any) -> tuple[np.ndarray, np.ndarray | None]:
+def swath_points(msg: kongsberg.XYZ88 | kongsberg.Depth) -> tuple[np.ndarray, np.ndarray | None]:
     """(xyz FLU, m; reflectivity dB or None) of a multibeam ping (:func:`swath_msg`)."""
     b = msg.beams
     xyz = np.column_stack(
@@ -527,7 +496,7 @@ def swath_points(msg: Any) -> tuple[np.ndarray, np.ndarray | None]:
     return xyz, None if refl is None else np.asarray(refl, float)
 
 
-def swath_msg(msg: Any, device: str, t_ns: int) -> PointCloud2:
+def swath_msg(msg: kongsberg.XYZ88 | kongsberg.Depth, device: str, t_ns: int) -> PointCloud2:
     """Multibeam beams (along x forward, across y starboard, depth z down, m from the transmit
     transducer) as a PointCloud2 in frame ``device`` (FLU), intensity = reflectivity (dB); a
     beam without a detection (XYZ 88 detection info bit 7; Depth: depth 0, which the sonar
@@ -536,7 +505,7 @@ def swath_msg(msg: Any, device: str, t_ns: int) -> PointCloud2:
 
 
 def scanline_points(
-    msg: Any, sound_speed: float = DEFAULT_SOUND_SPEED
+    msg: HeadData, sound_speed: float = DEFAULT_SOUND_SPEED
 ) -> tuple[np.ndarray, np.ndarray]:
     """(xyz FLU, m; bin amplitudes) of an MSIS scan line (:func:`scanline_msg`)."""
     bins = np.asarray(msg.bins, float)
@@ -549,7 +518,7 @@ def scanline_points(
 
 
 def scanline_msg(
-    msg: Any, device: str, t_ns: int, sound_speed: float = DEFAULT_SOUND_SPEED
+    msg: HeadData, device: str, t_ns: int, sound_speed: float = DEFAULT_SOUND_SPEED
 ) -> PointCloud2:
     """One MSIS scan line: a point per bin at the bin's centre range along the transducer
     bearing (rad, clockwise from forward seen from above, i.e. towards starboard), FLU frame
@@ -607,7 +576,7 @@ def slam_pose_msg(body: Mapping[str, Any], t_ns: int) -> PoseWithCovarianceStamp
     )
 
 
-def landmarks_msg(body: Mapping[str, Any], t_ns: int) -> PointCloud2:
+def landmarks_msg(body: Mapping[str, object], t_ns: int) -> PointCloud2:
     """SLAM point landmarks (map NED x, y) as a PointCloud2 in ``map`` (ENU), intensity = id."""
     mean = np.asarray(body.get("mean") or np.zeros((0, 2)), float).reshape(-1, 2)
     xyz = np.column_stack([mean[:, 1], mean[:, 0], np.zeros(len(mean))])
@@ -735,7 +704,7 @@ def _ned_of_pose(pose: Pose) -> _Ned:
 DIAG_OK, DIAG_WARN, DIAG_ERROR, DIAG_STALE = 0, 1, 2, 3
 
 
-def _diag_value(v: Any) -> str:
+def _diag_value(v: object) -> str:
     if isinstance(v, float):
         return f"{v:.6g}"
     if isinstance(v, dict | list):
@@ -743,7 +712,7 @@ def _diag_value(v: Any) -> str:
     return str(v)
 
 
-def diagnostics_msg(status: Mapping[str, Any], t_ns: int) -> DiagnosticArray:
+def diagnostics_msg(status: Mapping[str, object], t_ns: int) -> DiagnosticArray:
     """A component's status JSON as diagnostic_msgs/DiagnosticArray: one DiagnosticStatus per
     gateway device, of the gateway's status or a device's own (name
     ``auvgw/<vehicle>/<device>``, hardware_id its port; OK, WARN when it has bad frames or decode
@@ -777,7 +746,7 @@ def diagnostics_msg(status: Mapping[str, Any], t_ns: int) -> DiagnosticArray:
     else:
         comp = str(status.get("component", "stage"))
         stopped = bool(status.get("stopped", False))
-        flat: dict[str, Any] = {}
+        flat: dict[str, object] = {}
         for k, v in status.items():
             if isinstance(v, Mapping):
                 flat.update({f"{k}.{kk}": vv for kk, vv in v.items()})
@@ -799,11 +768,11 @@ _MAG = registry.types_with_role("field")
 _SWATH = registry.types_with_role("swath")
 
 
-def _type_name(msg: Any) -> str:
-    return getattr(msg, "TYPE", type(msg).__name__)
+def _type_name(msg: object) -> str:
+    return str(getattr(msg, "TYPE", type(msg).__name__))
 
 
-def sensor_form(msg: Any) -> str | None:
+def sensor_form(msg: object) -> str | None:
     """The standard ROS 2 form of a decoded sensor message: ``imu`` (sensor_msgs/Imu),
     ``magnetic_field``, ``dvl`` (a twist and a Range), ``points`` (a multibeam PointCloud2),
     ``returns`` (an MSIS scan line's PointCloud2), or None (``auvgw_msgs/Decoded``)."""
@@ -819,7 +788,7 @@ def sensor_form(msg: Any) -> str | None:
     return "returns" if name == "mtHeadData" else None
 
 
-def _jsonable(msg: Any) -> Any:
+def _jsonable(msg: object) -> object:
     from auvgw.drivers.spec import to_jsonable
 
     if dataclasses.is_dataclass(msg) and not isinstance(msg, type):

@@ -18,9 +18,15 @@ from __future__ import annotations
 import struct
 from collections.abc import Iterator
 from functools import lru_cache
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from auvgw import ros2
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from auvgw.drivers import pd0
+    from auvgw.drivers.roles import Field, Ins
 
 __all__ = ["ENCAPSULATION", "cdr_struct", "sensor_cdr"]
 
@@ -122,7 +128,7 @@ _CLOUD_FIELDS = tuple((4 * i, c.encode()) for i, c in enumerate(("x", "y", "z", 
 _FLOAT32 = 7  # sensor_msgs/PointField.FLOAT32
 
 
-def _stamp(t_ns: int, frame: str) -> tuple[int, bytes, tuple[Any, ...]]:
+def _stamp(t_ns: int, frame: str) -> tuple[int, bytes, tuple[int | bytes, ...]]:
     """(len(frame), its bytes, the header's packed values) of a ``std_msgs/Header``.
 
     ``builtin_interfaces/Time.sec`` is an int32: a stamp outside 1901-2038 raises ValueError."""
@@ -133,7 +139,7 @@ def _stamp(t_ns: int, frame: str) -> tuple[int, bytes, tuple[Any, ...]]:
     return len(f), f, (ENCAPSULATION, t_ns // 1_000_000_000, t_ns % 1_000_000_000, len(f) + 1, f)
 
 
-def _imu(msg: Any, device: str, t_ns: int) -> bytes:
+def _imu(msg: Ins, device: str, t_ns: int) -> bytes:
     n, _, head = _stamp(t_ns, device)
     q = ros2.quaternion_enu_flu(msg.heading, msg.pitch, msg.roll)
     return cdr_struct("sensor_msgs/msg/Imu", (n,)).pack(
@@ -143,7 +149,7 @@ def _imu(msg: Any, device: str, t_ns: int) -> bytes:
     )  # fmt: skip
 
 
-def _magnetic_field(msg: Any, device: str, t_ns: int) -> bytes:
+def _magnetic_field(msg: Field, device: str, t_ns: int) -> bytes:
     n, _, head = _stamp(t_ns, device)
     b = ros2.flu_from_frd((msg.bx, msg.by, msg.bz))
     return cdr_struct("sensor_msgs/msg/MagneticField", (n,)).pack(
@@ -151,7 +157,7 @@ def _magnetic_field(msg: Any, device: str, t_ns: int) -> bytes:
     )
 
 
-def _cloud(t_ns: int, frame: str, xyz: Any, intensity: Any) -> bytes:
+def _cloud(t_ns: int, frame: str, xyz: np.ndarray, intensity: np.ndarray | None) -> bytes:
     import numpy as np
 
     rows = ros2.cloud_points(xyz, intensity)
@@ -164,7 +170,7 @@ def _cloud(t_ns: int, frame: str, xyz: Any, intensity: Any) -> bytes:
     )  # fmt: skip
 
 
-def _dvl(msg: Any, device: str, t_ns: int) -> list[tuple[str, str, bytes]]:
+def _dvl(msg: pd0.Ensemble, device: str, t_ns: int) -> list[tuple[str, str, bytes]]:
     d = ros2.dvl_reading(msg, device)
     if d is None:
         return []

@@ -24,10 +24,11 @@ import base64
 import hashlib
 import json
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Literal
 
 from auvgw.ground.errors import UserError
 
@@ -84,7 +85,7 @@ def key_id(raw_public: bytes) -> str:
     return "SHA256:" + hashlib.sha256(raw_public).hexdigest()[:16]
 
 
-def _message(fields: dict[str, Any]) -> bytes:
+def _message(fields: Mapping[str, object]) -> bytes:
     body = json.dumps({k: fields[k] for k in _FIELDS}, sort_keys=True, separators=(",", ":"))
     return (SIG_FORMAT + "\n" + body).encode()
 
@@ -179,7 +180,7 @@ def sign_file(path: str | Path, key_path: str | Path, signer: str | None = None)
     name = signer or key_path.name.removesuffix(".key").removesuffix(".sign")
     digest, size = file_sha256(path)
     raw = _raw_public(private.public_key())
-    fields: dict[str, Any] = {
+    fields: dict[str, str | int] = {
         "format": SIG_FORMAT,
         "algorithm": "ed25519",
         "hash": "sha256",

@@ -33,7 +33,7 @@ import logging
 import queue
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -58,7 +58,9 @@ __all__ = [
 ]
 
 
-def typed_message(type_name: str, body: Any, schema: int | None = None) -> Any:
+def typed_message(
+    type_name: str, body: list[object] | Mapping[str, object], schema: int | None = None
+) -> object:
     """The typed, immutable message of an envelope's body (by name, or positional with the
     envelope's ``schema``), or None for an unknown type or a body that does not fit."""
     cls = message_class(type_name)
@@ -73,7 +75,7 @@ def typed_message(type_name: str, body: Any, schema: int | None = None) -> Any:
         return None
 
 
-def envelope_message(env: Envelope) -> Any:
+def envelope_message(env: Envelope) -> object:
     """The typed message of a decoded envelope (rebuilt now if its type was not known when the
     envelope was decoded), or None."""
     if env.message is not None:

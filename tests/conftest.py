@@ -5,18 +5,11 @@ real_data marks, and the check that a test starting processes, ptys or Zenoh ses
 from __future__ import annotations
 
 import os
-import sys
 from pathlib import Path
 
 import pytest
 
 from auvgw.ground.paths import shared_dir
-
-#: test modules are one flat namespace (their basenames are unique; pytest refuses two alike), so a
-#: test imports a sibling's helpers from any folder (``from test_emulators import SerialReader``)
-sys.path[:0] = sorted(
-    str(d) for d in Path(__file__).parent.iterdir() if d.is_dir() and any(d.glob("test_*.py"))
-)
 
 #: a test not marked ``e2e`` that starts a process, a pty or a Zenoh session fails
 pytest_plugins = ["auvgw.testing.e2e_marks"]

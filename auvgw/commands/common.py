@@ -10,11 +10,11 @@ import argparse
 import logging
 import signal
 import threading
-from collections.abc import Iterator
+from collections.abc import Collection, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from types import FrameType
-from typing import TYPE_CHECKING, Any, TextIO, TypeAlias
+from typing import TYPE_CHECKING, TextIO, TypeAlias
 
 from auvgw.commands import COMMANDS
 from auvgw.ground.errors import ConfigError, UserError
@@ -79,7 +79,7 @@ def open_output(path: Path | None) -> TextIO | None:
         raise UserError(f"{path}: cannot write: {exc.strerror}") from exc
 
 
-def study_algorithms(args: argparse.Namespace, known: Any) -> tuple[str, ...]:
+def study_algorithms(args: argparse.Namespace, known: Collection[str]) -> tuple[str, ...]:
     """The names in ``--algorithms`` (comma separated), each one of ``known``; a
     :class:`UserError` for an unknown name or a ``--runs``, ``--jobs`` or ``--particles`` below 1
     (``slam eval``, both pipelines)."""

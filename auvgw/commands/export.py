@@ -15,7 +15,10 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from auvgw.config.gateway import GatewayConfig
 
 from auvgw.commands.common import (
     SubParsers,
@@ -40,7 +43,7 @@ def register(sub: SubParsers) -> None:
     p.set_defaults(func=run)
 
 
-def export_ros2(src: Path, out: Path, config: Any = None) -> dict[str, int]:
+def export_ros2(src: Path, out: Path, config: GatewayConfig | None = None) -> dict[str, int]:
     """Write ``src`` (any auvgw recording layout) to ``out`` in the ROS 2 profile; returns the
     message counts per topic. Raises :class:`~auvgw.recording.RecordingError`."""
     from auvgw import ros2

@@ -42,6 +42,7 @@ import json
 import logging
 import math
 import sys
+from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -339,6 +340,6 @@ class _Summary:
         print(f"  coasting             {100.0 * self.coasting / self.n:.1f} % of samples")
 
 
-def _print_counters(c: dict[str, Any]) -> None:
+def _print_counters(c: Mapping[str, object]) -> None:
     keep = {k: c[k] for k in ("stage", "adapter", "ins_device", "dvl_device", "filter", "buffer")}
     print(f"fusion counters: {json.dumps(keep)}", file=sys.stderr)

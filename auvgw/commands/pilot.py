@@ -25,7 +25,10 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import zenoh
 
 from auvgw.commands.common import SubParsers, add_command, add_duration
 from auvgw.ground.errors import UserError
@@ -101,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
                            lockstep_clock=None if args.lockstep is None
                            else str(args.lockstep))  # fmt: skip
 
-    def make(session: Any) -> PilotStage:
+    def make(session: zenoh.Session) -> PilotStage:
         sink = None if args.no_commands else BusCommands(session, args.vehicle, args.actuators)
         return PilotStage(mission, cfg, session, sink=sink)
 

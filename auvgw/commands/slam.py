@@ -25,7 +25,14 @@ import shlex
 import sys
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Protocol
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+    from concurrent.futures import Executor
+
+    from auvgw.slam.evaluation.metrics import RunResult
+    from auvgw.slam.evaluation.runner import Study
 
 from auvgw.commands.common import SubParsers, UserError, study_algorithms
 from auvgw.slam import pipelines
@@ -166,7 +173,12 @@ def command_line(args: argparse.Namespace) -> str:
     return " ".join(shlex.quote(p) for p in parts)
 
 
-def _monte_carlo(study: Any, jobs: int, progress: Any, executor: Any = None) -> Any:
+def _monte_carlo(
+    study: Study,
+    jobs: int,
+    progress: Callable[[RunResult], None] | None,
+    executor: Executor | None = None,
+) -> list[RunResult]:
     """:func:`~auvgw.slam.evaluation.runner.monte_carlo` with scenario errors (a route the
     vehicle cannot drive) as user errors."""
     from auvgw.config.scenario import ScenarioError
@@ -178,8 +190,17 @@ def _monte_carlo(study: Any, jobs: int, progress: Any, executor: Any = None) -> 
         raise UserError(str(exc)) from None
 
 
-def _advance(bar: Any) -> Any:
-    return lambda _result: bar.update(1)
+class _Progress(Protocol):
+    """A progress bar (tqdm's): one more step done."""
+
+    def update(self, n: float = 1) -> bool | None: ...
+
+
+def _advance(bar: _Progress) -> Callable[[RunResult], None]:
+    def step(_result: RunResult) -> None:
+        bar.update(1)
+
+    return step
 
 
 def run(args: argparse.Namespace) -> int:
@@ -188,7 +209,7 @@ def run(args: argparse.Namespace) -> int:
     pipe = pipelines.get(args.pipeline)
     if args.algorithms is None:
         args.algorithms = pipe.eval_algorithms
-    entry: Any = pipelines.load(pipe.evaluation)
+    entry: Callable[[argparse.Namespace], int] = pipelines.load(pipe.evaluation)
     return int(entry(args))
 
 
@@ -215,7 +236,7 @@ def run_landmark(args: argparse.Namespace) -> int:
         return _run_landmark(args, executor)
 
 
-def _run_landmark(args: argparse.Namespace, executor: Any) -> int:
+def _run_landmark(args: argparse.Namespace, executor: Executor | None) -> int:
     from auvgw.config.scenario import ScenarioError, load_scenario
     from auvgw.slam.evaluation.report import format_table, plot_results, summaries_by_algorithm
     from auvgw.slam.evaluation.runner import Study
@@ -244,7 +265,7 @@ def _run_landmark(args: argparse.Namespace, executor: Any) -> int:
     command = command_line(args)
     blocks_txt: list[str] = []
     blocks_md: list[str] = []
-    summary_json: list[dict[str, Any]] = []
+    summary_json: list[dict[str, object]] = []
     for n, p in settings:
         study = Study(
             scenario=scenario,

@@ -19,7 +19,6 @@ import json
 import shlex
 import sys
 from pathlib import Path
-from typing import Any
 
 from auvgw.commands.common import UserError, study_algorithms
 from auvgw.ground.errors import format_validation_error
@@ -27,10 +26,10 @@ from auvgw.ground.errors import format_validation_error
 __all__ = ["command_line", "parse_sets", "run"]
 
 
-def parse_sets(items: list[str] | None) -> dict[str, Any]:
+def parse_sets(items: list[str] | None) -> dict[str, object]:
     """``["lccd=false", "radius_m=20"]`` -> ``{"lccd": False, "radius_m": 20}`` (JSON values,
     bare words as strings)."""
-    out: dict[str, Any] = {}
+    out: dict[str, object] = {}
     for item in items or []:
         key, sep, val = item.partition("=")
         if not sep or not key.strip():

@@ -19,7 +19,10 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from typing import Any
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from auvgw.stages.swath import SwathStageConfig
 
 from auvgw.bus import add_bus_arguments
 from auvgw.commands.common import SubParsers, UserError, add_command, add_duration
@@ -39,7 +42,7 @@ def register(sub: SubParsers) -> None:
     p.set_defaults(func=run)
 
 
-def stage_config(args: argparse.Namespace) -> Any:
+def stage_config(args: argparse.Namespace) -> SwathStageConfig:
     """The stage's settings from the options; a bad one is a :class:`UserError`."""
     from pydantic import ValidationError
 

@@ -166,7 +166,7 @@ def _bus(args: argparse.Namespace) -> tuple[str, BusConfig]:
     return args.vehicle or vehicle, bus.as_spoke()
 
 
-def _summary(args: argparse.Namespace, **counts: Any) -> int:
+def _summary(args: argparse.Namespace, **counts: object) -> int:
     """Print the run's summary (``counts`` and the ``.rrd`` written) as one JSON line on
     stderr; the exit status, 0."""
     summary = {**counts, "rrd": None if args.rrd is None else str(args.rrd)}

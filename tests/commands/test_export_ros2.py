@@ -8,7 +8,6 @@ import json
 import numpy as np
 from mcap.writer import Writer
 from rosbags.highlevel import AnyReader
-from test_record_replay import gateway_config_json
 
 from auvgw.bus import pack_raw_attachment
 from auvgw.cli import main
@@ -20,7 +19,7 @@ from auvgw.recording import (
     pack_raw_record,
     read_info,
 )
-from auvgw.testing import local_decoded, pd0_frames
+from auvgw.testing import gateway_config_json, local_decoded, pd0_frames
 
 
 def _old_recording(path, frames):

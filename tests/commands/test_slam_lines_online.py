@@ -7,10 +7,14 @@ import math
 
 import numpy as np
 import pytest
-import test_slam_stage
 
 from auvgw.slam.landmark.registry import make_filter
 from auvgw.slam.models import LineFeature, RangeBearing, VelocityModel, wrap_angle
+from auvgw.testing import slam_harbour
+from auvgw.testing.slam_harbour import run_events
+
+#: the emulated harbour run of the landmark SLAM stage (a module-scoped fixture)
+harbour_run = slam_harbour.harbour_run
 
 #: a 100 m x 60 m basin: walls x = 0, x = 100 (theta 0), y = 0, y = 60 (theta pi/2), as
 #: (rho, theta) with rho >= 0 seen from the origin; piles inside
@@ -19,8 +23,6 @@ PILES = np.array([[30.0, 20.0], [70.0, 40.0], [50.0, 10.0]])
 SIG_RHO, SIG_TH = 0.05, math.radians(0.3)
 SIG_R, SIG_B = 0.2, math.radians(1.0)
 DT = 0.5
-#: the emulated harbour run of tests/commands/test_slam_stage.py (a module-scoped fixture)
-harbour_run = test_slam_stage.harbour_run
 YAW_BIAS = math.radians(0.03)  # rad/s in the odometry's yaw rate
 
 
@@ -177,7 +179,7 @@ def test_stage_feeds_the_walls_to_the_filter_and_holds_the_heading(harbour_run):
         cfg2 = cfg.model_copy(
             update={"use_lines": lines, "sigma_yaw_rate_dps": 0.3, "heading_sigma_deg": None}
         )  # a biased gyro: no reference
-        runs[lines], _ = test_slam_stage.run_events(cfg2, events)
+        runs[lines], _ = run_events(cfg2, events)
     assert runs[False].counters()["stage"]["line_updates"] == 0
     assert runs[False].counters()["line_landmarks"] == 0
 

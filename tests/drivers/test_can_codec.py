@@ -15,41 +15,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from auvgw.drivers.can_codec import CanCodecError, CanFrame, DbcCodec, hn100_can, ms3a_can
+from auvgw.drivers.can_codec import CanCodecError, CanFrame, DbcCodec
 from auvgw.drivers.ms3a import CODEC as MS3A_ASCII
 from auvgw.drivers.spec import to_jsonable
 from auvgw.ground.paths import config_file
-
-HN = hn100_can()
-MAG = ms3a_can()
-
-
-def hn_sample(seq: int, k: float = 1.0):
-    return HN.sample_type(
-        seq=seq,
-        time=1234.567891 * k,
-        roll=0.1 * k,
-        pitch=-0.2 * k,
-        heading=3.0 * k,
-        rate_x=0.01 * k,
-        rate_y=0.02 * k,
-        rate_z=-0.03 * k,
-        accel_x=0.1 * k,
-        accel_y=0.2 * k,
-        accel_z=-9.81 * k,
-        vel_n=1.0 * k,
-        vel_e=-0.5 * k,
-        vel_d=0.01 * k,
-        latitude=math.radians(43.1234567) * k,
-        depth=100.5 * k,
-        longitude=math.radians(-5.9876543) * k,
-        alignment="FINE",
-        gnss_aided=0,
-        dvl_aided=1,
-        error="OK",
-        reserved=0,
-    )
-
+from auvgw.testing.can_samples import HN, MAG, hn_sample
 
 # -- the DBC files ------------------------------------------------------------------------------
 

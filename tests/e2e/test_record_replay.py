@@ -31,20 +31,13 @@ from auvgw.testing import (
     endpoint,
     frame_counters,
     free_port,
+    gateway_config_json,
     local_decoded,
     pd0_frames,
     read_jsonl,
     wait_until,
     write_gateway_toml,
 )
-
-
-def gateway_config_json(vehicle: str, url: str) -> str:
-    from auvgw.config.gateway import parse_gateway_config
-
-    dvl = {"format": "pd0", "transport": {"kind": "serial", "url": url}}
-    cfg = parse_gateway_config({"vehicle": vehicle, "devices": {"dvl": dvl}})
-    return cfg.model_dump_json()
 
 
 def test_live_record_then_replay_gives_the_same_decoded_stream(procs, tmp_path, shared_data):

@@ -9,7 +9,6 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from test_emulators import SerialReader, endpoint, run_for
 
 from auvgw.config.gateway import load_gateway_config
 from auvgw.config.scenario import Scenario
@@ -18,6 +17,7 @@ from auvgw.drivers.acoustic import CODEC, AcousticFramer, AcousticReply
 from auvgw.drivers.formats import get_format
 from auvgw.drivers.framing import ErrorPolicy, FrameError
 from auvgw.sim_devices.runner import Runner, RunOptions
+from auvgw.testing.emulators import SerialReader, endpoint, run_for
 from auvgw.testing.format_samples import ACOUSTIC_LINE as LINE
 
 

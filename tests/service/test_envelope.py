@@ -170,9 +170,8 @@ def test_versions_two_and_one_are_still_read(shared_data):
 
 def test_can_samples_round_trip_field_for_field():
     """CAN epochs (DBC message classes, no wire table: floats and ints by their hints)."""
-    from test_can_codec import HN, MAG, hn_sample
-
     from auvgw.decoding import pack_can_raw
+    from auvgw.testing.can_samples import HN, MAG, hn_sample
 
     mag = MAG.sample_type(counter=1, bx=21345.6, by=-1234.5, bz=43210.0, status="OK")
     for codec, sample in ((HN, hn_sample(3)), (MAG, mag)):

@@ -13,13 +13,13 @@ import struct
 
 import numpy as np
 import pytest
-from test_dvl_emulator import offline, scenario
 
 from auvgw.decoding import DeviceDecoder
 from auvgw.drivers import hn100, pd0
 from auvgw.drivers.formats import format_from_table, get_format
 from auvgw.envelope import decode_envelope, encode_envelope, pack_envelope
 from auvgw.ground.paths import config_file
+from auvgw.testing.dvl import offline, scenario
 from auvgw.testing.format_samples import hn100_frames
 
 T_NS = 1_763_800_000_123_456_789

@@ -5,29 +5,25 @@ with pyserial."""
 
 from __future__ import annotations
 
-import copy
 import datetime as dt
 import json
 import math
-import threading
-import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
-import serial
 
-from auvgw.config.scenario import Scenario
 from auvgw.drivers import pd0
 from auvgw.drivers.framing import ErrorPolicy
 from auvgw.drivers.spec import raw_value
-from auvgw.sim_devices.clock import SimClock
 from auvgw.sim_devices.dvl import DvlEmulator
-from auvgw.sim_devices.emulator import DEFAULT_EPOCH, SimContext
+from auvgw.sim_devices.emulator import DEFAULT_EPOCH
 from auvgw.sim_devices.runner import Runner, RunOptions
-from auvgw.sim_devices.vehicle import Truth, simulate
-from auvgw.sim_devices.world import World, body_to_ned
+from auvgw.sim_devices.vehicle import Truth
+from auvgw.sim_devices.world import body_to_ned
+from auvgw.testing.dvl import BASE, offline, scenario
+from auvgw.testing.emulators import SerialReader
 
 S30, C30 = math.sin(math.radians(30)), math.cos(math.radians(30))
 #: beams 1-4 out of a down-facing transducer with beam 3 forward, body axes (fwd, stbd, down):
@@ -35,44 +31,6 @@ S30, C30 = math.sin(math.radians(30)), math.cos(math.radians(30))
 BEAMS = np.array([[0, -S30, C30], [0, S30, C30], [S30, 0, C30], [-S30, 0, C30]])
 SIGMA_V = 0.002  # the Pathfinder's 0.2 cm/s
 MM = 0.001  # 0x0600 resolution
-
-#: a vehicle that turns (roll), follows the terrain (pitch, heave) and crabs in a current (sway)
-BASE: dict[str, Any] = {
-    "name": "dvl-test",
-    "seed": 5,
-    "duration_s": 120.0,
-    "vehicle": {
-        "waypoints": [[0, 0], [70, 0], [70, 50], [0, 50]],
-        "speed_mps": 1.5,
-        "altitude_m": 12.0,
-        "max_yaw_rate_dps": 12.0,
-        "accept_radius_m": 3.0,
-        "lookahead_m": 6.0,
-        "current_mps": [0.2, -0.15],
-    },
-    "terrain": {"kind": "procedural", "depth_m": 30.0, "relief_m": 4.0, "wavelength_m": 40.0,
-                "octaves": 2, "seed": 4},
-}
-
-
-def scenario(dvl: dict[str, Any] | None = None, **changes: Any) -> Scenario:
-    data = copy.deepcopy(BASE)
-    data.update(changes)
-    dvl = dict(dvl or {})
-    dvl.setdefault("options", {})
-    dvl["options"] = {"serial": False, **dvl["options"]}
-    data["devices"] = {"dvl": dvl}
-    return Scenario.model_validate(data)
-
-
-def offline(scn: Scenario, tmp_path: Path) -> tuple[DvlEmulator, Truth, World]:
-    """The emulator without a clock or a port (``frame_at(t)`` gives the bytes of one ping),
-    and the ground truth at any time."""
-    world = World.from_scenario(scn)
-    truth = simulate(scn, world)
-    ctx = SimContext(scn, world, truth, SimClock(0), tmp_path / "ports")
-    return DvlEmulator(ctx), ctx.truth, world
-
 
 def run(
     em: DvlEmulator, times: np.ndarray, reencode_every: int = 1
@@ -478,37 +436,6 @@ def test_water_mass_layer_is_bad_when_the_bottom_is_too_close(tmp_path: Path) ->
 # -- over a real pty ----------------------------------------------------------------------------
 
 
-class Reader:
-    """pyserial on the emulator's pty in a thread."""
-
-    def __init__(self, path: str) -> None:
-        self.chunks: list[bytes] = []
-        self._stop = threading.Event()
-        self._s = serial.Serial(path, 115200, timeout=0.02)
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            try:
-                data = self._s.read(max(1, self._s.in_waiting))
-            except (serial.SerialException, OSError):
-                return
-            if data:
-                self.chunks.append(data)
-
-    def finish(self, quiet: float = 1.0, timeout: float = 10.0) -> bytes:
-        end = time.monotonic() + timeout
-        n = -1
-        while time.monotonic() < end and len(self.chunks) != n:
-            n = len(self.chunks)
-            time.sleep(quiet)
-        self._stop.set()
-        self._thread.join(5)
-        self._s.close()
-        return b"".join(self.chunks)
-
-
 @pytest.mark.e2e
 def test_runner_serves_the_dvl_on_a_pty(tmp_path: Path) -> None:
     """The runner's DVL on its pty, read with pyserial at 20x real time: every ensemble arrives
@@ -519,7 +446,7 @@ def test_runner_serves_the_dvl_on_a_pty(tmp_path: Path) -> None:
         (ep,) = r.endpoints()
         assert ep.name == "dvl" and ep.format == "pd0" and Path(ep.target).is_symlink()
         assert ep.transport == {"kind": "serial", "url": ep.target, "baud": 115200}
-        reader = Reader(ep.target)
+        reader = SerialReader(ep.target, 115200)
         r.start(duration=20.0)
         assert r.wait(60), "the run did not end"
         r.stop()

@@ -16,7 +16,6 @@ from typing import Any
 import can
 import numpy as np
 import pytest
-import serial
 
 from auvgw.config.gateway import load_gateway_config
 from auvgw.config.scenario import Scenario
@@ -29,6 +28,7 @@ from auvgw.sim_devices.ins import body_rates, latlon, specific_force
 from auvgw.sim_devices.runner import Runner, RunOptions, gateway_toml
 from auvgw.sim_devices.vehicle import MOTION_FIELDS, TRUTH_FIELDS
 from auvgw.sim_devices.world import MU0_OVER_4PI, body_to_ned, wrap_angle
+from auvgw.testing.emulators import SerialReader, endpoint, run_for
 
 BASE: dict[str, Any] = {
     "name": "emu-test",
@@ -60,60 +60,6 @@ def make_scenario(**changes: Any) -> Scenario:
     return Scenario.model_validate(data)
 
 
-class SerialReader:
-    """pyserial on a pty in a thread; reconnects (to the symlink) after an unplug."""
-
-    def __init__(self, path: str, baud: int, reconnect: bool = False) -> None:
-        self.path = path
-        self.baud = baud
-        self.reconnect = reconnect
-        self.chunks: list[bytes] = []
-        self.disconnects = 0
-        self._stop = threading.Event()
-        self._s = serial.Serial(path, baud, timeout=0.02)
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            try:
-                data = self._s.read(max(1, self._s.in_waiting))
-            except (serial.SerialException, OSError):
-                self.disconnects += 1
-                self._s.close()
-                if not self.reconnect:
-                    return
-                while not self._stop.is_set():
-                    try:
-                        self._s = serial.Serial(self.path, self.baud, timeout=0.02)
-                        break
-                    except (serial.SerialException, OSError):
-                        time.sleep(0.002)
-                continue
-            if data:
-                self.chunks.append(data)
-
-    def data(self) -> bytes:
-        return b"".join(self.chunks)
-
-    def finish(self, quiet: float = 1.0, timeout: float = 10.0) -> bytes:
-        """Wait until nothing arrived for ``quiet`` s, stop, return every byte."""
-        end = time.monotonic() + timeout
-        n = -1
-        while time.monotonic() < end:
-            if len(self.chunks) == n:
-                break
-            n = len(self.chunks)
-            time.sleep(quiet)
-        self._stop.set()
-        self._thread.join(5)
-        self._s.close()
-        return self.data()
-
-    def write(self, data: bytes) -> None:
-        self._s.write(data)
-
-
 class CanReader:
     """python-can's slcan interface on the emulated adapter, in a thread."""
 
@@ -142,23 +88,6 @@ class CanReader:
         self._thread.join(5)
         self.bus.shutdown()
         return self.messages
-
-
-def run_for(runner: Runner, duration: float) -> None:
-    # python-can returns from Bus() once it wrote 'O'; the adapter may not have read it yet
-    end = time.monotonic() + 10
-    for em in runner.emulators.values():
-        for ch in em.channels:
-            while ch.kind == "can" and not ch.adapter.is_open and time.monotonic() < end:
-                time.sleep(0.005)
-    runner.start(duration=duration)
-    assert runner.wait(60), "the run did not end"
-    runner.stop()
-    runner.flush()
-
-
-def endpoint(runner: Runner, name: str) -> Any:
-    return next(ep for ep in runner.endpoints() if ep.name == name)
 
 
 def rms(a: np.ndarray) -> float:

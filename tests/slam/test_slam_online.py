@@ -7,13 +7,13 @@ import math
 from dataclasses import asdict
 
 import pytest
-import test_slam_stage
 
 from auvgw.slam.history import StateHistory
 from auvgw.slam.landmark.online import LandmarkOnline, LandmarkOnlineConfig
+from auvgw.testing import slam_harbour
 
-#: the emulated harbour run of tests/commands/test_slam_stage.py (a module-scoped fixture)
-harbour_run = test_slam_stage.harbour_run
+#: the emulated harbour run of the landmark SLAM stage (a module-scoped fixture)
+harbour_run = slam_harbour.harbour_run
 
 
 def test_history_interpolates_angles_the_short_way_and_trims():

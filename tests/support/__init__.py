@@ -6,7 +6,7 @@ and benchmarks import it without editing ``sys.path``).
 * processes - :class:`Proc`, :class:`Procs` (the ``procs`` fixture), ``AUVGW``, ``PYTHON``,
   free ports (:func:`free_port`, :func:`endpoint`; :mod:`auvgw.ground.procs` is their home);
 * ptys - :class:`PtyDevice`;
-* config writers - :func:`write_gateway_toml`;
+* config writers - :func:`write_gateway_toml`, :func:`gateway_config_json`;
 * data - :func:`pd0_frames`, :func:`local_decoded`, :func:`read_jsonl`, :func:`frame_counters`;
 * emulation helpers - :mod:`~auvgw.testing.fusion_emulated`, :mod:`~auvgw.testing.fusion_lowcost`,
   :mod:`~auvgw.testing.slam_helpers`, :mod:`~auvgw.testing.format_samples`,
@@ -18,7 +18,7 @@ and benchmarks import it without editing ``sys.path``).
 if __name__ != "auvgw.testing":
     raise ImportError(f"import auvgw.testing, not {__name__}: the folder is mapped (setup.py)")
 
-from auvgw.testing.configs import write_gateway_toml
+from auvgw.testing.configs import gateway_config_json, write_gateway_toml
 from auvgw.testing.data import frame_counters, local_decoded, pd0_frames, read_jsonl
 from auvgw.testing.processes import (
     AUVGW,
@@ -45,6 +45,7 @@ __all__ = [
     "endpoint",
     "frame_counters",
     "free_port",
+    "gateway_config_json",
     "local_decoded",
     "pd0_frames",
     "read_jsonl",

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-__all__ = ["write_gateway_toml"]
+__all__ = ["gateway_config_json", "write_gateway_toml"]
 
 
 def write_gateway_toml(
@@ -37,3 +37,13 @@ def write_gateway_toml(
 
 def read_jsonl(path: Path) -> list[dict]:
     return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
+def gateway_config_json(vehicle: str, url: str) -> str:
+    """The JSON configuration (``GatewayConfig.model_dump_json``) of a gateway with one PD0 DVL on
+    the serial port ``url``."""
+    from auvgw.config.gateway import parse_gateway_config
+
+    dvl = {"format": "pd0", "transport": {"kind": "serial", "url": url}}
+    cfg = parse_gateway_config({"vehicle": vehicle, "devices": {"dvl": dvl}})
+    return cfg.model_dump_json()
