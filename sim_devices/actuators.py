@@ -124,25 +124,43 @@ class ActuatorModel:
     cmd_seq: int = 0
     last_command_t: float = 0.0
     timed_out: bool = False
-    commands: int = 0
+    commands: int = 0  #: commands received (applied or still pending)
+    _pending: deque[tuple[float, float, float, float, int]] = field(
+        default_factory=deque, repr=False)  # (arrival vehicle s, rpm, rudder, stern, seq)
 
     def __post_init__(self) -> None:
         self.cmd_rpm = self.rpm
 
     def command(self, t: float, rpm: float, rudder: float, stern: float, seq: int) -> None:
-        """A command arriving at vehicle time ``t`` (rpm, rad, rad; its sequence number)."""
-        self.advance(t)
+        """A command arriving at vehicle time ``t`` (rpm, rad, rad; its sequence number).
+
+        It takes effect when the integration reaches ``t``: a reading for an earlier time (a
+        feedback tick dispatched late on a busy host) does not see it yet. A command for a time
+        the model has already passed takes effect at once."""
+        self.commands += 1
+        if t <= self.t:
+            self._apply(t, rpm, rudder, stern, seq)
+        else:
+            self._pending.append((t, rpm, rudder, stern, seq))
+
+    def _apply(self, t: float, rpm: float, rudder: float, stern: float, seq: int) -> None:
         self.cmd_rpm, self.cmd_rudder, self.cmd_stern = rpm, rudder, stern
         self.cmd_seq = seq % SEQ_MODULO
         self.last_command_t = max(t, self.t)
         self.timed_out = False
-        self.commands += 1
 
     def advance(self, t: float) -> None:
-        """Integrate the axes up to vehicle time ``t`` (a time already passed: nothing)."""
+        """Integrate the axes up to vehicle time ``t`` (a time already passed: nothing),
+        applying each pending command at its own time."""
         lim = self.limits
-        while self.t < t - 1e-12:
+        while True:
+            while self._pending and self._pending[0][0] <= self.t + 1e-12:
+                self._apply(*self._pending.popleft())
+            if self.t >= t - 1e-12:
+                return
             h = min(SUBSTEP_S, t - self.t)
+            if self._pending:
+                h = min(h, self._pending[0][0] - self.t)
             active = self.faults_at(self.t)
             if self.t - self.last_command_t >= lim.command_timeout_s:
                 self.timed_out = True

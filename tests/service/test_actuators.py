@@ -145,6 +145,20 @@ def test_model_timeout_stops_the_thruster_and_a_command_clears_it() -> None:
     assert m.read(3.6).faults == FAULT_BITS["command_timeout"]  # 0.5 s without a command
 
 
+def test_a_command_takes_effect_at_its_own_time_even_when_ticks_run_late() -> None:
+    """On a busy host the feedback ticks are dispatched late, after a command arrived at a
+    later vehicle time: a tick for an earlier time reports the state before the command."""
+    m = ActuatorModel(ActuatorLimits(command_timeout_s=100), rpm=1000.0)
+    m.advance(1.0)
+    m.command(1.2, 1100.0, 0.1, 0.0, seq=7)  # arrives at 1.2 s; ticks at 1.05... still due
+    early = m.read(1.15)
+    assert early.cmd_seq == 0 and early.rpm == 1000.0 and early.rudder == 0.0
+    r = m.read(1.5)  # 0.3 s after the command: one time constant
+    assert r.cmd_seq == 7 and r.rpm - 1000.0 == pytest.approx(63.2, abs=1.0)
+    m.command(1.4, 900.0, 0.0, 0.0, seq=8)  # a time already integrated: at once
+    assert m.cmd_seq == 8 and m.commands == 2
+
+
 def test_model_silent_thruster_and_overcurrent_from_the_fault_windows() -> None:
     def windows(t: float) -> frozenset[str]:
         return frozenset({"thruster_silent"}) if 1.0 <= t < 3.0 else frozenset()
