@@ -11,7 +11,8 @@ __all__ = ["overrides", "subclasses"]
 def subclasses(cls: type) -> set[type]:
     """Every subclass of ``cls``, at any depth (those imported so far)."""
     out: set[type] = set()
-    for sub in cls.__subclasses__():
+    direct: list[type] = cls.__subclasses__()
+    for sub in direct:
         out |= {sub, *subclasses(sub)}
     return out
 
