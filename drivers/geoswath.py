@@ -544,7 +544,13 @@ class GeoSwathFramer(Framer):
     A candidate inside whose data a complete plausible ping starts (its whole header inside
     the candidate's claimed size, its ``ping_time`` within :attr:`inner_window_s` of the
     candidate's) is refused too (reason ``inner_frame``): a ping cut short whose claim swallows
-    the next ping costs itself only. The search resumes at the next plausible header
+    the next ping costs itself only. A complete candidate is accepted when the bytes at its
+    claimed end start a plausible ping (or the stream ends there); else a plausible header near
+    its time inside its claim (its own header's tail, its data, across its end) proves it cut
+    (reason ``cut``: cut in its last bytes or inside its header, in a byte stream), and with
+    none it is accepted (garbage follows). So a complete ping in a byte stream waits for a
+    header's worth of the next bytes; :meth:`expire` delivers one that waited too long (an
+    idle stream's last ping). The search resumes at the next plausible header
     (:meth:`GeoSwathCodec.plausible`, vectorised). ``stats`` counts frames, bad frames (one per
     refused stretch, by reason) and skipped bytes, the same for any chunking.
     """
@@ -704,6 +710,12 @@ class GeoSwathFramer(Framer):
             if len(q):
                 return lo + int(q[0])
         return len(buf) if eof else max(lo, hi)
+
+    @property
+    def held(self) -> int | None:
+        """Stream offset of the complete ping waiting only for a header's worth of the bytes
+        after it (:meth:`finish` or :meth:`expire` delivers it), else None."""
+        return self._held
 
     # -- driving ------------------------------------------------------------------------------
     def feed(self, chunk: bytes | bytearray | memoryview, now: float | None = None) -> list[Frame]:
