@@ -54,6 +54,7 @@ from auvgw.drivers.transports import (
     Transport,
     TransportError,
     make_transport,
+    udp_receive_buffer,
 )
 from auvgw.envelope import decode_envelope, pack_envelope
 from auvgw.ground.errors import UserError
@@ -767,8 +768,15 @@ class Gateway:
         cfg = dev.cfg
         backoff = Backoff(cfg.backoff_initial_s, cfg.backoff_max_s)
         failures = 0
+        tcfg = cfg.transport
+        fmt = dev.decoder.format
+        if tcfg.kind == "udp" and tcfg.receive_buffer_bytes is None and fmt is not None:
+            # a receive buffer for a burst of the format's largest datagrams while this thread
+            # is starved (the kernel's default holds a few GeoSwath pings: issue 31)
+            size = udp_receive_buffer(fmt.framer().max_frame_size)
+            tcfg = tcfg.model_copy(update={"receive_buffer_bytes": size})
         while not self.stop_event.is_set():
-            transport = make_transport(cfg.transport)
+            transport = make_transport(tcfg)
             try:
                 transport.open()
             except TransportError as exc:

@@ -81,14 +81,14 @@ def main() -> None:
     rng = np.random.default_rng(0)
     print(
         "| samples | encode us | decode us | framer+decode us | encode/decode "
-        "| framer+decode/decode | Msamples/s |"
+        "| framer+decode/decode | Msamples/s | without the end check us | with/without |"
     )
-    print("|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|")
     for n in SIZES:
         pings = [build(n, k, rng) for k in range(args.pings)]
         wire = [codec.encode(p) for p in pings]
         stream = b"".join(wire)
-        times: dict[str, list[float]] = {"enc": [], "dec": [], "frm": []}
+        times: dict[str, list[float]] = {"enc": [], "dec": [], "frm": [], "old": []}
         for _ in range(args.rounds):
             t = clock()
             for p in pings:
@@ -98,20 +98,25 @@ def main() -> None:
             for w in wire:
                 codec.decode(w)
             times["dec"].append(clock() - t)
-            t = clock()
-            fr = GeoSwathFramer(codec)
-            got = 0
-            for i in range(0, len(stream), 1 << 16):
-                for rec in fr.feed(stream[i : i + (1 << 16)]):
+            for key, check_end in (("frm", True), ("old", False)):
+                t = clock()
+                fr = GeoSwathFramer(codec)
+                fr.check_end = check_end  # False: no end check (before issue 31)
+                got = 0
+                for i in range(0, len(stream), 1 << 16):
+                    for rec in fr.feed(stream[i : i + (1 << 16)]):
+                        codec.decode_ping(rec.data)
+                        got += 1
+                for rec in fr.finish():
                     codec.decode_ping(rec.data)
                     got += 1
-            times["frm"].append(clock() - t)
-            assert got == len(pings) and fr.stats.bad_frames == 0
+                times[key].append(clock() - t)
+                assert got == len(pings) and fr.stats.bad_frames == 0
         us = {k: statistics.median(v) / len(pings) * 1e6 for k, v in times.items()}
         print(
             f"| {n} | {us['enc']:.1f} | {us['dec']:.1f} | {us['frm']:.1f} | "
             f"{us['enc'] / us['dec']:.2f} | {us['frm'] / us['dec']:.2f} | "
-            f"{n / us['frm']:.1f} |"
+            f"{n / us['frm']:.1f} | {us['old']:.1f} | {us['frm'] / us['old']:.2f} |"
         )
     print()
     print(

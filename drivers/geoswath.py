@@ -544,7 +544,13 @@ class GeoSwathFramer(Framer):
     A candidate inside whose data a complete plausible ping starts (its whole header inside
     the candidate's claimed size, its ``ping_time`` within :attr:`inner_window_s` of the
     candidate's) is refused too (reason ``inner_frame``): a ping cut short whose claim swallows
-    the next ping costs itself only. The search resumes at the next plausible header
+    the next ping costs itself only. A complete candidate is accepted when the bytes at its
+    claimed end start a plausible ping (or the stream ends there); else a plausible header near
+    its time inside its claim (its own header's tail, its data, across its end) proves it cut
+    (reason ``cut``: cut in its last bytes or inside its header, in a byte stream), and with
+    none it is accepted (garbage follows). So a complete ping in a byte stream waits for a
+    header's worth of the next bytes; :meth:`expire` delivers one that waited too long (an
+    idle stream's last ping). The search resumes at the next plausible header
     (:meth:`GeoSwathCodec.plausible`, vectorised). ``stats`` counts frames, bad frames (one per
     refused stretch, by reason) and skipped bytes, the same for any chunking.
     """
@@ -581,6 +587,13 @@ class GeoSwathFramer(Framer):
         self._refusing = False  # inside a refused stretch (counted once, across chunks)
         #: refuse a candidate inside which a complete plausible ping starts (as the base)
         self.abandon_on_inner = True
+        #: judge the bytes at a complete ping's claimed end (:meth:`_end_check`); False accepts
+        #: it at once, as before issue 31 (the benchmark's reference: the two cut cases open)
+        self.check_end = True
+        #: stream offset of a complete ping held for the header after it (:meth:`_end_check`)
+        self._held: int | None = None
+        #: stream offset of a held ping :meth:`expire` released (delivered without that header)
+        self._release: int | None = None
 
     # -- judging one candidate ----------------------------------------------------------------
     def _check_at(self, start: int, eof: bool) -> int:
@@ -617,15 +630,52 @@ class GeoSwathFramer(Framer):
                 reason = f"previous_ping_position {prev} does not link to the last ping ({last})"
         if reason is not None:
             raise BadFrame(reason)
-        total = hsize + int(header["ping_size"])
+        total, t = hsize + int(header["ping_size"]), float(header["ping_time"])
         inner = None
         if self.abandon_on_inner:
-            inner = self._inner(start, total, float(header["ping_time"]))
+            inner = self._inner(start, total, t)
         if inner == "complete":
             raise BadFrame("inner_frame: a complete ping starts inside this one")
         if len(buf) - start < total or (inner == "open" and not eof):
             return 0
+        end = self._end_check(start, total, t, eof) if self.check_end else "ok"
+        if end == "cut":
+            raise BadFrame("cut: the bytes at its claimed end start no ping, and a ping "
+                           "header starts inside its claim")  # fmt: skip
+        if end == "wait":
+            self._held = self._base + start
+            return 0
         return total
+
+    def _end_check(self, start: int, total: int, t: float, eof: bool) -> str:
+        """Whether the complete candidate ``_buf[start:start+total]`` ends where a ping ends
+        (``"ok"``), was cut short and claims the next ping's first bytes (``"cut"``), or must
+        wait for a header's worth of the bytes after it (``"wait"``).
+
+        ``"ok"``: the bytes at its claimed end hold a plausible ping header (in a file, one
+        linking back to this ping), or the stream (the datagram) ends right there, or the
+        candidate was released by :meth:`expire`; else ``"cut"`` when a plausible header with
+        a time within :attr:`inner_window_s` of the candidate's starts anywhere inside its claim
+        after its first byte (inside its own header, in its data, or across its end: the cut
+        ping's claim ends inside the next ping), else ``"ok"`` (garbage follows it)."""
+        buf, codec = self._buf, self.codec
+        hsize = codec.layout.ping_header.itemsize
+        end = start + total
+        if self._release == self._base + start:
+            return "ok"
+        if len(buf) >= end + hsize:
+            after = codec.decode_header(buf, end)
+            if codec.check_header(after) is None and (
+                not self.file_mode or int(after["previous_ping_position"]) == self._base + start
+            ):
+                return "ok"
+        elif not eof:
+            return "wait"
+        elif len(buf) == end:
+            return "ok"
+        lo, hi = start + 1, min(end, len(buf) - hsize + 1)
+        _, _, tq = codec.plausible(bytes(buf[lo : hi + hsize - 1]), 0, hi - lo)
+        return "cut" if bool((np.abs(tq - t) <= self.inner_window_s).any()) else "ok"
 
     def _inner(self, start: int, total: int, t: float) -> str | None:
         """Whether a plausible ping starts inside the data of the candidate
@@ -661,6 +711,12 @@ class GeoSwathFramer(Framer):
                 return lo + int(q[0])
         return len(buf) if eof else max(lo, hi)
 
+    @property
+    def held(self) -> int | None:
+        """Stream offset of the complete ping waiting only for a header's worth of the bytes
+        after it (:meth:`finish` or :meth:`expire` delivers it), else None."""
+        return self._held
+
     # -- driving ------------------------------------------------------------------------------
     def feed(self, chunk: bytes | bytearray | memoryview, now: float | None = None) -> list[Frame]:
         """Add bytes; return every record they complete, in order, with its stream offset;
@@ -683,8 +739,12 @@ class GeoSwathFramer(Framer):
         return self._scan(eof=True)
 
     def finish(self) -> list[Frame]:
-        """End of stream: a record left incomplete is counted as truncated."""
-        return self._scan(eof=True)
+        """End of stream: a record left incomplete is counted as truncated (a complete ping
+        held for the bytes after it comes out)."""
+        out = self._scan(eof=True)
+        if self._waiting is None:
+            self._waiting_since = None
+        return out
 
     def expire(self, now: float, max_age_s: float) -> list[Frame]:
         """As every framer's (:meth:`Framer.expire`): the record waiting longer than
@@ -693,6 +753,14 @@ class GeoSwathFramer(Framer):
         since = self._waiting_since
         if self._waiting is None or since is None or now - since <= max_age_s:
             return []
+        if self._held is not None and self._held == self._waiting:
+            # a complete ping waiting only for the next ping's header (an idle stream's last
+            # ping): delivered as at the stream's end, not dropped
+            self._release = self._held
+            try:
+                return self.feed(b"", now)
+            finally:
+                self._release = None
         self._refusing = self._bad_since = True
         return super().expire(now, max_age_s)
 
@@ -700,7 +768,7 @@ class GeoSwathFramer(Framer):
         out, self._pending = self._pending, []
         i, buf = 0, self._buf
         error: FrameError | None = None
-        self._waiting = None
+        self._waiting = self._held = None
         while i < len(buf):
             try:
                 n = self._check_at(i, eof)

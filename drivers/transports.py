@@ -31,6 +31,7 @@ import errno
 import fcntl
 import io
 import ipaddress
+import logging
 import os
 import select
 import socket
@@ -48,6 +49,7 @@ from serial.urlhandler import protocol_socket
 from auvgw.config.transport import (
     CAN_EXT_MAX,
     CAN_STD_MAX,
+    MAX_RECEIVE_BUFFER_BYTES,
     CanTransportConfig,
     FileTransportConfig,
     SerialTransportConfig,
@@ -76,10 +78,18 @@ __all__ = [
     "make_transport",
     "open_transport",
     "replay_schedule",
+    "udp_receive_buffer",
 ]
+
+log = logging.getLogger(__name__)
 
 #: largest UDP payload (IPv4: 65535 - 8 UDP - 20 IP header bytes); reads never truncate
 UDP_MAX_DATAGRAM = 65535
+#: largest payload of one IPv4 UDP datagram (65535 - 8 UDP - 20 IP header bytes)
+UDP_MAX_PAYLOAD = 65507
+#: how many of a device's largest datagrams its UDP socket holds by default while the reader
+#: is starved of CPU (:func:`udp_receive_buffer`)
+UDP_BUFFER_DEPTH = 32
 
 
 @dataclass(frozen=True, slots=True)
@@ -618,6 +628,25 @@ class CanTransport(Transport[can.BusABC]):
         return self.cfg.describe()
 
 
+def _net_core(name: str) -> int | None:
+    """``/proc/sys/net/core/<name>`` (Linux: ``rmem_default``, ``rmem_max``, bytes), or None."""
+    try:
+        with open(f"/proc/sys/net/core/{name}") as f:
+            return int(f.read())
+    except (OSError, ValueError):
+        return None
+
+
+def udp_receive_buffer(largest_frame: int, depth: int = UDP_BUFFER_DEPTH) -> int:
+    """``SO_RCVBUF`` (bytes) to ask for a UDP device whose frames are at most ``largest_frame``
+    bytes: ``depth`` of its largest datagrams (a frame, at most a UDP payload), never less than
+    the kernel's default (``net.core.rmem_default``), within the configuration's bound. The
+    gateway asks it for a UDP device without ``receive_buffer_bytes``; the kernel then caps it
+    at ``net.core.rmem_max`` (:attr:`UdpTransport.receive_buffer_granted` says)."""
+    want = min(largest_frame, UDP_MAX_PAYLOAD) * depth
+    return min(max(want, _net_core("rmem_default") or 0, 1024), MAX_RECEIVE_BUFFER_BYTES)
+
+
 #: Linux SO_RXQ_OVFL: a u32 ancillary count of datagrams dropped on this socket so far
 _SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40)
 _ANC_SPACE = socket.CMSG_SPACE(4)
@@ -648,6 +677,9 @@ class UdpTransport(Transport[socket.socket]):
         #: datagrams the kernel dropped because the receive buffer was full (SO_RXQ_OVFL; Linux
         #: reports the count with the next datagram it queues after the drops)
         self.kernel_drops = 0
+        #: the receive buffer the kernel granted (``SO_RCVBUF`` read back after open, bytes;
+        #: Linux doubles what is asked, for its bookkeeping, up to twice ``net.core.rmem_max``)
+        self.receive_buffer_granted: int | None = None
         self._allowed: list[ipaddress.IPv4Network | ipaddress.IPv6Network] | None = None
 
     @property
@@ -697,6 +729,17 @@ class UdpTransport(Transport[socket.socket]):
                 self._name(), f"cannot open: cannot resolve an allowed sender ({exc})"
             ) from exc
         self._handle = sock
+        self.receive_buffer_granted = granted = sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+        asked = c.receive_buffer_bytes
+        if asked is not None and granted < 2 * asked:  # Linux grants 2 x min(asked, rmem_max)
+            rmem_max = _net_core("rmem_max")
+            log.warning(
+                "%s: receive buffer of %d B asked, the kernel granted %d B: capped by "
+                "net.core.rmem_max = %s B (raise it: sysctl -w net.core.rmem_max=%d)",
+                self._name(), asked, granted, rmem_max, asked,
+            )  # fmt: skip
+        else:
+            log.info("%s: receive buffer %d B (asked %s)", self._name(), granted, asked)
 
     def read(self, timeout_s: float | None) -> Chunk | None:
         self._check_timeout(timeout_s)
@@ -758,6 +801,8 @@ class UdpTransport(Transport[socket.socket]):
         out = self.cfg.describe()
         if self._handle is not None and self.cfg.port == 0:
             out += f" (bound port {self.local_address[1]})"
+        if self._handle is not None and self.receive_buffer_granted is not None:
+            out += f" (receive buffer {self.receive_buffer_granted} B)"
         return out
 
 

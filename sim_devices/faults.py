@@ -265,6 +265,8 @@ class FaultInjector:
         # that also abandons waiting candidates rejects too, for any chunking of the stream
         f.abandon_on_inner = False
         frames = f.feed(data)
+        if good is not None and getattr(f, "held", None) == len(data) - len(good):
+            frames += f.finish()  # a GeoSwath ping waits for the next bytes: they would come
         if good is None:
             frames += f.finish()
             return None if frames else f.stats.bad_frames

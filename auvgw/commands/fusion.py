@@ -257,7 +257,7 @@ def _online(args: argparse.Namespace, cfg: FusionStageConfig) -> int:
         args,
         lambda session: FusionStage(cfg, session),
         lambda st: f"fusion running: vehicle {cfg.vehicle}, odometry on {st.keys.odometry()}",
-        lambda st: [st.subscription_key()],
+        lambda st: st.source_keys(),
     )
     _print_counters(stage.counters())
     return 0

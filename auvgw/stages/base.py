@@ -330,10 +330,14 @@ class Stage(Worker[_Item]):
             self._decls.append(s.liveliness().declare_token(self.keys.alive(self.component)))
 
     def subscribe(self) -> None:
-        """Subscribe to :meth:`input_keys` on the session."""
+        """Subscribe to :meth:`input_keys` on the session, each callback run in Zenoh's
+        receiving thread (``indirect=False``: by default each subscription has a thread of its
+        own, and two subscriptions' samples would reach the queue in any relative order). The
+        callback only matches the key and queues the payload (never blocking)."""
         assert self.session is not None
         for key in self.input_keys():
-            self._decls.append(self.session.declare_subscriber(key, self._on_sample))
+            handler = zenoh.handlers.Callback(self._on_sample, indirect=False)
+            self._decls.append(self.session.declare_subscriber(key, handler))
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)

@@ -1,12 +1,14 @@
 """The fusion stage: the gateway's decoded attitude and DVL messages in, odometry out.
 
-Online it subscribes to ``auv/<v>/sensor/*/*`` (one subscription, so the arrival order across
-devices is kept) and keeps the attitude kinds (``ins``: HN-100 on serial or CAN; a DVL's ``sa`` /
-``ensemble`` compass) of the configured ``attitude`` device and the velocity kinds (``ensemble``
-PD0, ``bi`` / ``bs`` / ``be`` PD6) of the configured ``velocity`` device (never "the first seen":
-:class:`~auvgw.fusion.adapters.MessageAdapter`), rebuilds the typed messages from the envelopes
-(:func:`auvgw.drivers.spec.from_jsonable`, the values the gateway decoded), maps each device's
-clock onto the host clock, feeds a
+Online it subscribes to the kinds it reads, ``auv/<v>/sensor/*/<kind>`` for every kind of the
+registry's ``attitude`` and ``velocity`` roles (``ins``: HN-100 on serial or CAN; a DVL's ``sa``
+/ ``ensemble`` compass; ``ensemble`` PD0, ``bi`` / ``bs`` / ``be`` PD6), so a multibeam's pings
+never reach its process; its callbacks run in Zenoh's receiving thread, so the samples of all
+these subscriptions are queued in their arrival order. It keeps the attitude kinds of the
+configured ``attitude`` device and the velocity kinds of the configured ``velocity`` device
+(never "the first seen": :class:`~auvgw.fusion.adapters.MessageAdapter`), rebuilds the typed
+messages from the envelopes (:func:`auvgw.drivers.spec.from_jsonable`, the values the gateway
+decoded), maps each device's clock onto the host clock, feeds a
 :class:`~auvgw.fusion.NavFilter`, and publishes one :class:`~auvgw.fusion.Odometry` envelope per
 INS sample on ``auv/<v>/nav/odometry`` (``CongestionControl.DROP``: a slow subscriber never
 stalls the stage). Its counters go to ``auv/<v>/status/fusion`` (published every
@@ -116,6 +118,8 @@ class StageStats(BusCounters):
     """Counters of the stage (``received``: messages fed, on the bus or in-process)."""
 
     published: int = 0  #: odometry samples produced (published when on the bus)
+    #: samples the subscriptions delivered to this process (before the key filter, :meth:`wanted`)
+    delivered: int = 0
 
 
 class FusionStage(Stage):
@@ -221,14 +225,23 @@ class FusionStage(Stage):
         }
 
     # -- on the bus ---------------------------------------------------------------------------
-    def subscription_key(self) -> str:
-        """The one key expression the stage subscribes to: every decoded message of the vehicle.
+    def subscription_keys(self) -> list[str]:
+        """The key expressions the stage subscribes to: ``auv/<v>/sensor/*/<kind>`` for each
+        kind of the registry's attitude and velocity message types (by role, any device: a
+        multibeam's or a sonar's messages never reach the stage's process).
 
-        One subscription, not one per device and kind: Zenoh may deliver the samples of two
-        subscriptions in any relative order, and the filter's fixed lag only absorbs so much.
-        The callback keeps the wanted ones (:meth:`wanted`) before anything is parsed.
+        Several subscriptions keep one arrival order because :meth:`subscribe` runs their
+        callbacks in Zenoh's receiving thread (the filter's fixed lag only absorbs so much
+        reordering). The callback keeps the configured devices' ones (:meth:`wanted`) before
+        anything is parsed.
         """
-        return self.keys.sensor("*", "*")
+        return [self.keys.sensor("*", kind) for kind in sorted(self._ins_kinds | self._dvl_kinds)]
+
+    def source_keys(self) -> list[str]:
+        """``auv/<v>/sensor/<device>/*`` of the configured attitude and velocity devices (what
+        ``auvgw fusion`` watches for "no publisher")."""
+        a = self.adapter
+        return list(dict.fromkeys(self.keys.sensor(d, "*") for d in (a.ins_device, a.dvl_device)))
 
     def wanted(self, key: str) -> bool:
         """Whether a sensor key carries an attitude or velocity message of a configured source
@@ -241,18 +254,20 @@ class FusionStage(Stage):
         )
 
     def input_keys(self) -> list[str]:
-        """:meth:`subscription_key`."""
-        return [self.subscription_key()]
+        """:meth:`subscription_keys`."""
+        return self.subscription_keys()
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        self.stats.delivered += 1  # (only Zenoh's receiving thread writes it)
+        super()._on_sample(sample)
 
     def on_start(self, subscribe: bool) -> None:
         """Log where the stage's input comes from: the bus, or in-process
         (``Gateway(..., on_message=stage.feed)`` in ``auvgw demo``, ``subscribe=False``: it still
         publishes odometry and status on the bus)."""
-        log.info(
-            "fusion stage for vehicle %r: %s",
-            self.config.vehicle,
-            f"subscribed to {self.subscription_key()}" if subscribe else "fed in-process",
-        )
+        keys = ", ".join(self.subscription_keys())
+        how = f"subscribed to {keys}" if subscribe else "fed in-process"
+        log.info("fusion stage for vehicle %r: %s", self.config.vehicle, how)
 
     def publish_status(self) -> None:
         """The status, after logging each new kind of diagnostics warning once while it lasts."""

@@ -147,7 +147,11 @@ def test_odometry_round_trips_through_json(data):
 def test_stage_keeps_the_keys_of_its_devices():
     keys = Keys("v")
     default = FusionStage(FusionStageConfig(vehicle="v"))  # sources "ins" and "dvl"
-    assert default.subscription_key() == "auv/v/sensor/*/*"
+    # the kinds of the attitude and velocity roles, any device: no multibeam ping, no sonar
+    assert default.subscription_keys() == [
+        f"auv/v/sensor/*/{k}" for k in ("be", "bi", "bs", "ensemble", "ins", "sa")
+    ]
+    assert default.source_keys() == ["auv/v/sensor/ins/*", "auv/v/sensor/dvl/*"]
     for key in ("auv/v/sensor/ins/ins", "auv/v/sensor/dvl/ensemble", "auv/v/sensor/dvl/bi",
                 "auv/v/sensor/dvl/be"):  # fmt: skip
         assert default.wanted(key)

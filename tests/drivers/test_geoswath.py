@@ -145,6 +145,7 @@ def test_broadcast_stream_round_trip_any_chunking() -> None:
     for chunk in (1, 13, 4096):
         fr = GeoSwathFramer(CODEC, file_mode=False)
         got = [f.data for i in range(0, len(stream), chunk) for f in fr.feed(stream[i : i + chunk])]
+        got += [f.data for f in fr.finish()]  # the last ping waits for the stream's end
         assert got == pings and fr.stats.bad_frames == 0 and fr.stats.skipped_bytes == 0
 
 
@@ -165,7 +166,7 @@ def test_random_pings_round_trip(n: int, seed: int, side: int, strings: list[byt
     back = CODEC.decode(data)
     assert back == ping and CODEC.encode(back) == data
     fr = GeoSwathFramer(CODEC)
-    assert [fr_.data for fr_ in fr.feed(data)] == [data]
+    assert [fr_.data for fr_ in fr.feed(data) + fr.finish()] == [data]
 
 
 def test_huge_claimed_size_rejected_at_once() -> None:
@@ -176,7 +177,8 @@ def test_huge_claimed_size_rejected_at_once() -> None:
     got = [f.data for f in fr.feed(bytes(bad[:HSIZE]))]  # the header alone is enough to refuse it
     assert got == [] and fr.stats.bad_frames == 1 and fr.stats.reasons["ping_size"] == 1
     got += [fr_.data for fr_ in fr.feed(bytes(bad[HSIZE:]) + pings[1] + pings[2])]
-    assert got == pings[1:]
+    assert got == pings[1:2]  # the last one waits for the bytes after it (or the end)
+    assert [fr_.data for fr_ in fr.finish()] == pings[2:]
 
 
 @pytest.mark.parametrize("file_mode", [True, False])
@@ -338,7 +340,8 @@ def test_a_partial_ping_expires_as_every_framer_s() -> None:
     assert fr.expire(10.5, 1.0) == []  # not old enough
     assert fr.expire(12.0, 1.0) == [] and fr.stats.reasons["stale"] == 1
     got = fr.feed(pings[1] + pings[2], now=12.5)
-    assert [f.data for f in got] == pings[1:] and fr.waiting_s is None
+    assert [f.data for f in got] == pings[1:2] and fr.waiting_s == 12.5  # pings[2] is held
+    assert [f.data for f in fr.finish()] == pings[2:] and fr.waiting_s is None
     assert fr.stats.skipped_bytes == 200 and fr.stats.bad_frames == 1
 
 
@@ -350,10 +353,9 @@ OPS = st.sampled_from(["keep", "keep", "flip", "truncate", "garbage"])
        chunk=st.integers(1, 400))  # fmt: skip
 def test_fuzz_corrupted_stream_keeps_every_untouched_ping(ops, data, chunk: int) -> None:
     """The broadcast stream, each ping kept, bit-flipped anywhere (header or samples), cut
-    short (leaving at least the next ping's header inside its claim: see the next test) or
-    after garbage, in random chunks: every untouched ping comes out, in order, and whatever
-    comes out is a ping that decodes and re-encodes to its bytes (a flip inside a sample or a
-    time goes unseen: no checksum)."""
+    short anywhere (its claim then takes the next bytes) or after garbage, in random chunks:
+    every untouched ping comes out, in order, and whatever comes out is a ping that decodes
+    and re-encodes to its bytes (a flip inside a sample or a time goes unseen: no checksum)."""
     _, pings = rdf_bytes(len(ops), seed=len(ops))
     stream, kept = bytearray(), []
     for op, p in zip(ops, pings, strict=True):
@@ -364,10 +366,8 @@ def test_fuzz_corrupted_stream_keeps_every_untouched_ping(ops, data, chunk: int)
             b = bytearray(p)
             b[data.draw(st.integers(0, len(p) - 1))] ^= 1 << data.draw(st.integers(0, 7))
             stream += b
-        elif op == "truncate":  # its header whole, and the next ping's header whole inside
-            # its claim after up to 200 bytes of garbage (Hypothesis found both open cases
-            # below: a cut of one header length before one garbage byte; a cut inside the header)
-            stream += p[: data.draw(st.integers(HSIZE, max(HSIZE, len(p) - HSIZE - 200)))]
+        elif op == "truncate":  # cut anywhere: inside its header, its data, its last bytes
+            stream += p[: data.draw(st.integers(1, len(p) - 1))]
         else:
             stream += data.draw(st.binary(max_size=200)) + p
             kept.append(p)
@@ -387,22 +387,42 @@ def test_a_ping_cut_in_its_last_header_length_costs_itself_only_over_udp(cut: in
     assert got == pings[1:] and fr.stats.reasons["truncated"] == 1
 
 
-@pytest.mark.xfail(strict=True, reason="open: in a byte stream (TCP, a file) a ping cut in its "
-                   "last 63 bytes takes the next ping's first bytes as its own (the next "
-                   "ping's header is not whole inside its claim, so nothing proves the cut); "
-                   "the next ping is lost. Catching it means holding every complete ping until "
-                   "a header's worth of the next bytes arrives (docs/protocols/geoswath.md)")
-@pytest.mark.parametrize("chunk", [1, 1 << 16])
-def test_a_ping_cut_in_its_last_header_length_in_a_byte_stream(chunk: int) -> None:
+@pytest.mark.parametrize("cut", [1, 20, HSIZE - 1])
+@pytest.mark.parametrize("chunk", [1, 64, 1 << 16])
+def test_a_ping_cut_in_its_last_header_length_in_a_byte_stream(cut: int, chunk: int) -> None:
+    """A ping missing its last ``cut`` bytes (< a header) before an intact one, in a byte
+    stream: the bytes at its claimed end start no ping and the next ping's header starts inside
+    its claim, so it is refused (``cut``) and the search resumes at that header, whatever the
+    chunking."""
     _, pings = rdf_bytes(3, seed=4)
-    _, got = frame_all(pings[0][:-20] + pings[1] + pings[2], file_mode=False, chunk=chunk)
+    fr, got = frame_all(pings[0][:-cut] + pings[1] + pings[2], file_mode=False, chunk=chunk)
     assert got == pings[1:]
+    assert fr.stats.reasons == {"cut": 1} and fr.stats.skipped_bytes == len(pings[0]) - cut
 
 
-@pytest.mark.xfail(strict=True, reason="open: in a byte stream a ping cut inside its own header "
-                   "(51 of 64 bytes kept) takes the next ping's first bytes into its header; the "
-                   "spliced ping decodes (no checksum) and the next ping is lost")
-def test_a_ping_cut_inside_its_header_in_a_byte_stream() -> None:
+@pytest.mark.parametrize("kept", [13, 51, HSIZE - 1])
+def test_a_ping_cut_inside_its_header_in_a_byte_stream(kept: int) -> None:
+    """A ping cut inside its own header (``kept`` of 64 bytes) before an intact ping: a header
+    spliced from both may pass every header check (no checksum), but its claimed end starts no
+    ping and the next ping's header starts inside it: only the cut ping is lost."""
     _, pings = rdf_bytes(2, seed=2)
-    _, got = frame_all(pings[0][:51] + pings[1], file_mode=False, chunk=1)
-    assert got == pings[1:]
+    for chunk in (1, 1 << 16):
+        fr, got = frame_all(pings[0][:kept] + pings[1], file_mode=False, chunk=chunk)
+        assert got == pings[1:] and fr.stats.bad_frames == 1
+        assert fr.stats.skipped_bytes == kept
+
+
+def test_a_complete_ping_waits_for_the_next_header_then_expires_to_delivery() -> None:
+    """The cost of the rule: in a byte stream a complete ping comes out when a header's worth
+    of the next bytes shows it ended where a ping starts (or at :meth:`finish`); an idle
+    stream's last ping is delivered, not dropped, when it has waited ``max_age_s``."""
+    _, pings = rdf_bytes(3, seed=5)
+    fr = GeoSwathFramer(CODEC, file_mode=False)
+    assert fr.feed(pings[0], now=1.0) == [] and fr.waiting_s == 1.0
+    assert [f.data for f in fr.feed(pings[1][: HSIZE - 1], now=1.2)] == []
+    assert [f.data for f in fr.feed(pings[1][HSIZE - 1 :], now=1.3)] == pings[:1]
+    assert fr.expire(3.0, 2.0) == []  # pings[1] held since 1.2 s: not old enough
+    got = fr.expire(3.5, 2.0)
+    assert [f.data for f in got] == [pings[1]] and fr.waiting_s is None
+    assert [f.data for f in fr.feed(pings[2]) + fr.finish()] == [pings[2]]
+    assert fr.stats.bad_frames == 0 and fr.stats.skipped_bytes == 0

@@ -271,7 +271,7 @@ def test_a_stage_without_gateway_says_no_publisher_and_recorder_fails(procs, tmp
     fusion = procs.start([AUVGW, "fusion"], "fusion")
     fusion.wait_line("fusion running", timeout=60)
     endpoint = default_endpoint()
-    wait_until(lambda: "no publisher on auv/auv1/sensor/*/*" in fusion.stderr(), timeout=60,
+    wait_until(lambda: "no publisher on auv/auv1/sensor/ins/*" in fusion.stderr(), timeout=60,
                what="the fusion stage's 'no publisher' line")  # fmt: skip
     assert endpoint in fusion.stderr()
     wait_until(lambda: "no publisher on auv/auv1/raw/**" in rec.stderr(), timeout=60,

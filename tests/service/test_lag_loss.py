@@ -11,11 +11,18 @@ import tty
 from pathlib import Path
 
 import can
+import numpy as np
 import pytest
 
 from auvgw.config.gateway import parse_gateway_config
 from auvgw.drivers import hn100
-from auvgw.drivers.transports import CanTransport, UdpTransport, open_transport
+from auvgw.drivers.geoswath import default_codec
+from auvgw.drivers.transports import (
+    CanTransport,
+    UdpTransport,
+    open_transport,
+    udp_receive_buffer,
+)
 from auvgw.health import DeviceHealth, LagTracker, device_time_s
 from auvgw.sim_devices.slcan import SlcanAdapter
 from auvgw.testing import PtyDevice, wait_until
@@ -120,6 +127,65 @@ def test_udp_datagrams_the_kernel_dropped_are_counted() -> None:
         t.close()
 
 
+def _rmem_max() -> int:
+    return int(Path("/proc/sys/net/core/rmem_max").read_text())
+
+
+def _burst(t: UdpTransport, datagrams: list[bytes]) -> tuple[int, int]:
+    """Send ``datagrams`` to ``t`` before it reads one (its reader paused), then read them all:
+    (datagrams read, datagrams the kernel counted as dropped)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
+        for d in datagrams:
+            tx.sendto(d, ("127.0.0.1", t.local_address[1]))
+        got = 0
+        while (c := t.read(0.2)) is not None:
+            assert c.data in datagrams
+            got += 1
+        # the kernel reports its drops with the next datagram it queues: a small carrier
+        tx.sendto(b"end", ("127.0.0.1", t.local_address[1]))
+        c = t.read(5.0)
+        assert c is not None and c.data == b"end"
+    return got, t.losses()["kernel_drops"]
+
+
+def test_a_geoswath_udp_burst_fits_the_sized_buffer_and_the_default_s_drops_are_counted(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """64 GeoSwath pings of 4000 samples (24 kB, as the emulator's) sent while the reader is
+    paused: the kernel's default receive buffer drops some, and what was sent minus what was
+    read is exactly its ``SO_RXQ_OVFL`` count; the buffer the gateway asks for a GeoSwath
+    (:func:`udp_receive_buffer` of the format's largest datagram) holds them all where
+    ``net.core.rmem_max`` grants it, and a size the kernel caps is said in the log."""
+    codec = default_codec()
+    rng = np.random.default_rng(0)
+    raa = np.frombuffer(rng.bytes(6 * 4000), codec.layout.arrays[0][2])
+    pings = [
+        codec.encode(codec.make_ping({"ping_number": k, "ping_time": 1.0 + k, "side": k % 2},
+                                     {"raa": raa}))
+        for k in range(64)
+    ]  # fmt: skip
+    size = udp_receive_buffer(codec.framer().max_frame_size)
+    udp = {"kind": "udp", "host": "127.0.0.1", "port": 0}
+    default = open_transport(udp)
+    sized = open_transport({**udp, "receive_buffer_bytes": size})
+    assert isinstance(default, UdpTransport) and isinstance(sized, UdpTransport)
+    try:
+        got, drops = _burst(default, pings)
+        assert drops > 0 and got + drops == len(pings)
+        assert sized.receive_buffer_granted is not None
+        if sized.receive_buffer_granted >= 2 * size:  # not capped by net.core.rmem_max
+            assert _burst(sized, pings) == (len(pings), 0)
+    finally:
+        default.close()
+        sized.close()
+    with caplog.at_level("WARNING", "auvgw.drivers.transports"):
+        capped = open_transport({**udp, "receive_buffer_bytes": 1 << 27})  # over rmem_max
+        capped.close()
+    assert isinstance(capped, UdpTransport) and capped.receive_buffer_granted is not None
+    was_capped = capped.receive_buffer_granted < 2 << 27
+    assert ("capped by net.core.rmem_max" in caplog.text) == was_capped
+
+
 @pytest.mark.e2e
 def test_slcan_adapter_overruns_are_counted(tmp_path: Path) -> None:
     """An emulated USB-CAN adapter whose host link stalls (the gateway does not read) loses
@@ -203,7 +269,9 @@ def test_gateway_status_counts_udp_kernel_drops_and_garbage_as_lost_bytes() -> N
     cfg = parse_gateway_config(
         {"vehicle": "loss1", "devices": {"mbes": {"format": "kongsberg", "transport": {
             "kind": "udp", "host": "127.0.0.1", "port": port, "receive_buffer_bytes": 2048,
-            "allowed_senders": ["127.0.0.1"]}}}}
+            "allowed_senders": ["127.0.0.1"]}},
+            "gs": {"format": "geoswath", "transport": {"kind": "udp", "host": "127.0.0.1",
+                                                       "port": 0}}}}
     )  # fmt: skip
     n, size = 400, 1000
     tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -229,5 +297,10 @@ def test_gateway_status_counts_udp_kernel_drops_and_garbage_as_lost_bytes() -> N
                 threading.Event().wait(0.6)  # the gateway reads the counters every 0.5 s
             assert st["transport_lost"] == st["transport_losses"]["kernel_drops"] > 0
             assert st["frames"] == 0 and st["skipped_bytes"] % size == 0
+            # a UDP device without receive_buffer_bytes gets a buffer sized from its format
+            gs = wait_until(lambda: gw.devices["gs"].transport, what="the GeoSwath socket")
+            asked = udp_receive_buffer(default_codec().framer().max_frame_size)
+            assert asked > 1 << 20  # 32 of its largest (a UDP payload's worth) datagrams
+            assert gs.receive_buffer_granted == 2 * min(asked, _rmem_max())
     finally:
         tx.close()
