@@ -259,9 +259,10 @@ class SimClock:
         """Turn elastic pacing on (speed > 0, before :meth:`start`): vehicle time runs at most
         ``lag`` vehicle s past the earliest tick not dispatched yet (here or as told by
         :meth:`report`), and stands still while dispatch is behind. The hold limit moves in
-        steps of ``lag / 4`` (with nothing left to dispatch and no end, it runs free). A hold longer than ``timeout`` host s (a dispatcher that never
-        comes back) moves on by ``lag`` and counts in :attr:`hold_timeouts`. ``on_anchor``:
-        as for :meth:`lockstep` (every new anchor and limit, for the clock file)."""
+        steps of ``lag / 4`` (with nothing left to dispatch and no end, it runs free). A hold
+        longer than ``timeout`` host s (a dispatcher that never comes back) moves on by ``lag``
+        and counts in :attr:`hold_timeouts`. ``on_anchor``: as for :meth:`lockstep` (every new
+        anchor and limit, for the clock file)."""
         if self._speed == 0:
             raise ValueError("elastic pacing needs a real-time clock (speed > 0)")
         if not (lag > 0 and timeout > 0):
@@ -275,6 +276,11 @@ class SimClock:
     def elastic_lag(self) -> float:
         """The elastic pacing's lag (vehicle s; 0: not elastic)."""
         return self._elastic
+
+    @property
+    def following(self) -> bool:
+        """Vehicle time is read from another clock (:meth:`follow`)."""
+        return self._follow is not None
 
     def report(self, t: float) -> None:
         """Elastic pacing: every other dispatcher (another process's clock, see :meth:`follow`)

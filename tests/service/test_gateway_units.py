@@ -40,7 +40,8 @@ def test_backoff_doubles_to_the_cap_and_resets():
 def test_health_rate_is_counted_over_the_device_times_so_a_late_burst_reads_true():
     """A 100 Hz INS whose frames stall for 2 s of the stamp clock, then arrive in a burst
     (200 frames in 0.1 s) and 4.5 s on time: the rate over the 5 s window is the device's
-    100 Hz, where the count of stamps reads 130 Hz; a device clock that restarts starts a new span."""
+    100 Hz, where the count of stamps reads 130 Hz; a device clock that restarts starts a new
+    span."""
     h = DeviceHealth("ins", "hn100", window_s=5.0)
     t0 = 1_000_000_000_000
     stamps = [t0 + k * 10_000_000 for k in range(300)]  # 3 s on time
