@@ -284,7 +284,8 @@ class SimClock:
 
     def report(self, t: float) -> None:
         """Elastic pacing: every other dispatcher (another process's clock, see :meth:`follow`)
-        has dispatched all its ticks before vehicle time ``t`` (s; inf: none left)."""
+        has dispatched all its ticks before vehicle time ``t`` (s; inf: none left). Report
+        once before :meth:`start` where others will (until then they count as done)."""
         with self._cv:
             self._others = float(t)
             self._pace()

@@ -841,6 +841,8 @@ class DeviceProcesses(Closing):
         t0 = time.monotonic() + lead_s if start_at is None else float(start_at)
         for proc in self.procs.values():
             self._send(proc, f"start {t0!r} {until!r}")
+        if self._board is not None:  # nothing dispatched yet: the holder waits for them
+            self.truth_runner.clock.report(self._board.least(self._slots.values()))
         self.truth_runner.start(duration=until, start_at=t0)
         if self._board is not None:
             self._poller = threading.Thread(target=self._poll_board, name="sim-elastic",
