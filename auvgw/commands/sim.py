@@ -298,10 +298,10 @@ def run(args: argparse.Namespace) -> int:
             print("finished; ports held open until SIGINT/SIGTERM", flush=True)
             stop.wait()
         runner.stop()
-        _print_stats(runner)
         if args.speed > 0:
             print(_pace_line(runner.stats(), wall_s, args.pace if elastic else "free"),
                   flush=True)  # fmt: skip
+        _print_stats(runner)
         if lockstep is not None:
             print(f"lock-step: {lockstep.summary()}", flush=True)
     finally:
