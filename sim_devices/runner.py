@@ -36,6 +36,7 @@ import dataclasses
 import json
 import logging
 import math
+import os
 import resource
 import subprocess
 import sys
@@ -218,7 +219,9 @@ def write_gateway_config(
         f"auvgw gateway configuration for the emulated vehicle of scenario '{scenario_name}'\n"
         f"(written by auvgw sim; ports are stable symlinks in {port_dir})"
     )
-    path.write_text(gateway_toml(data, header))
+    tmp = path.with_name(path.name + ".new")  # put in place whole: a reader never sees half
+    tmp.write_text(gateway_toml(data, header))
+    os.replace(tmp, path)
     return path
 
 

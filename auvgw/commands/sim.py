@@ -298,7 +298,7 @@ def run(args: argparse.Namespace) -> int:
             print("finished; ports held open until SIGINT/SIGTERM", flush=True)
             stop.wait()
         runner.stop()
-        if args.speed > 0:
+        if args.speed > 0 and runner.stats()["vehicle_time"] > 0:  # (not stopped before 0)
             print(_pace_line(runner.stats(), wall_s, args.pace if elastic else "free"),
                   flush=True)  # fmt: skip
         _print_stats(runner)
