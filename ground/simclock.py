@@ -56,18 +56,22 @@ class ClockState(tuple[float, float, float, float, int]):
         return min(limit, t_anchor + max(0.0, mono - mono_anchor) * speed)
 
 
-def _read_seqlocked(m: mmap.mmap, at: int, body: struct.Struct, path: Path) -> tuple[Any, ...]:
-    """``u64 seq | body | u64 seq`` at offset ``at``: the body once both numbers agree and are
-    even (0: never written)."""
+def _read_seqlocked(m: mmap.mmap, at: int, body: struct.Struct) -> tuple[Any, ...] | None:
+    """``u64 seq | body | u64 seq`` at offset ``at``: ``(seq, *body)`` once both numbers agree
+    and are even (seq 0: never written); None when a writer stayed in the middle of an update
+    for the whole try (about 0.1 s: a writer process the host does not schedule), and the
+    caller keeps the last value it read."""
     end = at + _SEQ.size + body.size
-    for _ in range(1000):
+    for i in range(200):
         (a,) = _SEQ.unpack_from(m, at)
         values = body.unpack_from(m, at + _SEQ.size)
         (b,) = _SEQ.unpack_from(m, end)
         (c,) = _SEQ.unpack_from(m, at)
         if a == b == c and a % 2 == 0:
             return (a, *values)
-    raise RuntimeError(f"{path}: the clock file kept changing while read")
+        if i >= 10:
+            time.sleep(0.0005)
+    return None
 
 
 class ClockFileWriter:
@@ -107,6 +111,7 @@ class ClockFileReader:
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
         self._map: mmap.mmap | None = None
+        self._last: ClockState | None = None
 
     def _open(self) -> mmap.mmap | None:
         if self._map is None:
@@ -127,8 +132,15 @@ class ClockFileReader:
         m = self._open()
         if m is None:
             return None
-        seq, *body = _read_seqlocked(m, 0, _BODY, self.path)
-        return None if seq == 0 else ClockState(body)
+        got = _read_seqlocked(m, 0, _BODY)
+        if got is None:  # the writer is stuck in an update: the anchor before it
+            if self._last is None:
+                raise RuntimeError(f"{self.path}: the clock file kept changing while read")
+            return self._last
+        seq, *body = got
+        if seq:
+            self._last = ClockState(body)
+        return self._last
 
     def vehicle_s(self) -> float | None:
         """Vehicle time now (s), None before the clock was written."""
@@ -184,6 +196,7 @@ class DispatchBoard:
             os.close(fd)
         self.slots = size // _SLOT
         self._seqs = [2] * self.slots
+        self._last = [start if slots is not None else -math.inf] * self.slots
 
     def _at(self, slot: int) -> int:
         if not 0 <= slot < self.slots:
@@ -201,8 +214,12 @@ class DispatchBoard:
         _SEQ.pack_into(self._map, at, seq)
 
     def pending(self, slot: int) -> float:
-        """The vehicle time (s) reported in ``slot``."""
-        return float(_read_seqlocked(self._map, self._at(slot), _SLOT_BODY, self.path)[1])
+        """The vehicle time (s) reported in ``slot`` (while its writer is stuck in an update,
+        the value before: it only grows, so an older one holds the clock back, never on)."""
+        got = _read_seqlocked(self._map, self._at(slot), _SLOT_BODY)
+        if got is not None:
+            self._last[slot] = float(got[1])
+        return self._last[slot]
 
     def least(self, slots: Iterable[int]) -> float:
         """The earliest pending vehicle time (s) over ``slots`` (inf: none)."""
