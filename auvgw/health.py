@@ -2,9 +2,13 @@
 
 A device's reader thread updates its :class:`DeviceHealth`; the status publisher and the status
 queryable read :meth:`DeviceHealth.snapshot` (the JSON fields are listed in docs/gateway.md).
-Times are host wall-clock ns since the Unix epoch (``time.time_ns()``); rates are per second of
-the stamp clock (the host's, or the vehicle's under a gateway ``[clock]``, so an emulated vehicle
-at ``--speed 2`` shows its INS at 100 Hz, not 200).
+Times are host wall-clock ns since the Unix epoch (``time.time_ns()``). A rate counts the
+messages received in the last ``window_s`` seconds of the stamp clock (the host's, or the
+vehicle's under a gateway ``[clock]``) over the span of their own device times, so it is per
+second of the device's clock: an emulated vehicle at ``--speed 2`` shows its INS at 100 Hz, not
+200, and a burst of frames that arrive late after a stall reads the rate they were sampled at,
+not the rate they arrived at. A message type whose wire carries no time is counted over the
+window of stamps.
 """
 
 from __future__ import annotations
@@ -20,7 +24,7 @@ from typing import Any
 
 __all__ = ["RATE_SAMPLES", "Backoff", "DeviceHealth", "LagTracker", "device_time_s"]
 
-#: receive times kept per message type for the rate (bounds memory under a flood; above
+#: (stamp, device time) pairs kept per message type for the rate (bounds memory under a flood; above
 #: RATE_SAMPLES / window_s messages per second the rate is taken over the samples kept)
 RATE_SAMPLES = 4096
 
@@ -52,6 +56,24 @@ def device_time_s(msg: object) -> float | None:
         if isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v):
             return float(v)
     return None
+
+
+def _device_rate(times: deque[tuple[int, float | None]]) -> float | None:
+    """Samples per second of their own device time, ``(n - 1) / (last - first)``, over the
+    newest run of ``(stamp, device time)`` pairs whose device time increases (a device clock
+    that stepped back restarted); None where fewer than two samples carry a time."""
+    n = 0
+    last = first = math.inf
+    for _, t in reversed(times):
+        if t is None or t >= first:  # no time, or the device clock stepped back here
+            break
+        if n == 0:
+            last = t
+        first = t
+        n += 1
+    if n < 2:
+        return None
+    return (n - 1) / (last - first)
 
 
 @dataclass
@@ -89,7 +111,8 @@ class LagTracker:
 class DeviceHealth:
     """What the gateway knows about one device; updated by its reader, read by the status task.
 
-    Rates are messages per second over the last ``window_s`` seconds of host time.
+    Rates: the messages stamped in the last ``window_s`` seconds, per second of the time their
+    device times span (see the module docstring; per ``window_s`` where there is none).
     """
 
     name: str
@@ -121,7 +144,7 @@ class DeviceHealth:
     #: <auvgw.drivers.transports.Transport.losses>`), since the gateway started
     transport_losses: Counter[str] = field(default_factory=Counter)
     lag: LagTracker = field(default_factory=LagTracker)
-    _times: dict[str, deque[int]] = field(default_factory=dict)
+    _times: dict[str, deque[tuple[int, float | None]]] = field(default_factory=dict)
     _lock: threading.Lock = field(default_factory=threading.Lock)
 
     def seen(
@@ -142,7 +165,7 @@ class DeviceHealth:
             times = self._times.get(type_name)
             if times is None:  # (not setdefault: that builds a deque per message)
                 times = self._times[type_name] = deque(maxlen=RATE_SAMPLES)
-            times.append(stamp)  # rates on the stamp clock: vehicle-paced under a [clock]
+            times.append((stamp, t_device_s))  # the window on the stamp clock
             if t_device_s is not None:
                 self.lag_s = self.lag.observe(stamp / 1e9, t_device_s)
                 self.lag_max_s = max(self.lag_s, self.lag_max_s or 0.0)
@@ -219,10 +242,13 @@ class DeviceHealth:
         cutoff = now_ns - int(self.window_s * 1e9)
         out = {}
         for name, times in self._times.items():
-            while times and times[0] < cutoff:
+            while times and times[0][0] < cutoff:
                 times.popleft()
-            if len(times) == times.maxlen and now_ns > times[0]:  # faster than the samples kept
-                out[name] = round(len(times) / ((now_ns - times[0]) / 1e9), 3)
+            rate = _device_rate(times)
+            if rate is not None:
+                out[name] = round(rate, 3)
+            elif len(times) == times.maxlen and now_ns > times[0][0]:  # faster than kept
+                out[name] = round(len(times) / ((now_ns - times[0][0]) / 1e9), 3)
             else:
                 out[name] = round(len(times) / self.window_s, 3)
         return out

@@ -23,6 +23,15 @@ instead of vehicle time. A hold longer than a wall timeout is counted
 but never hangs it. ``on_anchor`` is told every new anchor (for the processes that read the
 clock through :mod:`auvgw.ground.simclock`).
 
+Elastic pacing (:meth:`SimClock.elastic`, speed > 0), as HIL benches run when the host cannot
+keep up: the same hold, driven by the clock's own dispatch instead of a controller. Vehicle time
+never runs more than ``lag`` past the earliest tick not dispatched yet (this clock's, and
+through :meth:`SimClock.report` those of other processes' clocks), so when dispatch falls behind
+vehicle time stands still and wall time stretches: a tick leaves the host at most ``lag``
+vehicle s after its time, instead of arbitrarily late. A clock in another process follows the
+one that holds (:meth:`SimClock.follow`: its vehicle time read from the holder's clock file, its
+own dispatch progress reported back), so every process reads one vehicle time.
+
 Everything is thread-safe (one condition variable).
 """
 
@@ -131,6 +140,17 @@ class SimClock:
         self.held_s = 0.0  #: host s spent holding
         self.hold_timeouts = 0  #: holds released by the wall timeout, not by an answer
         self.timeout_times: list[float] = []  #: vehicle s of the first 20 of them
+        # elastic pacing: the lag (vehicle s, 0: off), this clock's earliest undispatched tick
+        # and the other dispatchers' (vehicle s); the limit moves in steps of _quantum
+        self._elastic = 0.0
+        self._quantum = 0.0
+        self._pending = float(start_time)
+        self._others = math.inf
+        # following another process's clock: its state (t_anchor, host anchor, speed, limit),
+        # and where this clock's own dispatch progress goes
+        self._follow: Callable[[], tuple[float, ...] | None] | None = None
+        self._on_pending: Callable[[float], object] | None = None
+        self._follow_held = False
 
     # -- time ---------------------------------------------------------------------------------
     @property
@@ -180,6 +200,13 @@ class SimClock:
         if not self._started or self._speed == 0:
             return self._t_anchor
         host = self._time_fn()
+        if self._follow is not None:
+            st = self._follow()
+            if st is not None:  # the holder's clock (before its first anchor: this one's)
+                t_anchor, host_anchor, speed, limit = st[:4]
+                t = t_anchor + (host - host_anchor) * speed
+                self._follow_held = t >= limit
+                return min(t, limit)
         t = self._t_anchor + (host - self._real_anchor) * self._speed
         if t <= self._limit:
             return t
@@ -224,6 +251,74 @@ class SimClock:
             self.answers += 1
             if t + self._step > self._limit:
                 self._move_limit(t + self._step, self._time_fn())
+
+    # -- elastic pacing -------------------------------------------------------------------------
+    def elastic(self, lag: float, timeout: float = 10.0,
+                on_anchor: Callable[[float, float, float, float], object] | None = None,
+                ) -> None:  # fmt: skip
+        """Turn elastic pacing on (speed > 0, before :meth:`start`): vehicle time runs at most
+        ``lag`` vehicle s past the earliest tick not dispatched yet (here or as told by
+        :meth:`report`), and stands still while dispatch is behind. The hold limit moves in
+        steps of ``lag / 4`` (with nothing left to dispatch and no end, it runs free). A hold
+        longer than ``timeout`` host s (a dispatcher that never comes back) moves on by ``lag``
+        and counts in :attr:`hold_timeouts`. ``on_anchor``: as for :meth:`lockstep` (every new
+        anchor and limit, for the clock file)."""
+        if self._speed == 0:
+            raise ValueError("elastic pacing needs a real-time clock (speed > 0)")
+        if not (lag > 0 and timeout > 0):
+            raise ValueError(f"elastic lag and timeout must be > 0, got {lag}, {timeout}")
+        with self._cv:
+            self._elastic, self._quantum = float(lag), float(lag) / 4
+            self._step, self._hold_timeout, self._on_anchor = float(lag), float(timeout), on_anchor
+            self._move_limit(min(self._pending, self._others) + lag, self._time_fn())
+
+    @property
+    def elastic_lag(self) -> float:
+        """The elastic pacing's lag (vehicle s; 0: not elastic)."""
+        return self._elastic
+
+    @property
+    def following(self) -> bool:
+        """Vehicle time is read from another clock (:meth:`follow`)."""
+        return self._follow is not None
+
+    def report(self, t: float) -> None:
+        """Elastic pacing: every other dispatcher (another process's clock, see :meth:`follow`)
+        has dispatched all its ticks before vehicle time ``t`` (s; inf: none left). Report
+        once before :meth:`start` where others will (until then they count as done)."""
+        with self._cv:
+            self._others = float(t)
+            self._pace()
+
+    def _pace(self) -> None:
+        """Move the elastic hold limit to the earliest pending tick + lag (lock held), in
+        steps of the quantum; it never moves back."""
+        if not self._elastic:
+            return
+        target = min(self._pending, self._others) + self._elastic
+        if target >= self._limit + self._quantum:
+            self._move_limit(target, self._time_fn())
+
+    def follow(self, state: Callable[[], tuple[float, ...] | None],
+               on_pending: Callable[[float], object] | None = None) -> None:  # fmt: skip
+        """Read vehicle time from another clock (speed > 0): ``state()`` gives its ``(t_anchor,
+        host anchor, speed, limit)`` (:class:`auvgw.ground.simclock.ClockState`; None until
+        it is written, and this clock runs on its own); ``on_pending(t)`` is told the vehicle
+        time of this clock's earliest undispatched tick as it moves (the holder's
+        :meth:`report`). A sleeper polls every 2 ms host while the followed clock holds."""
+        if self._speed == 0:
+            raise ValueError("following a clock needs a real-time clock (speed > 0)")
+        with self._cv:
+            self._follow, self._on_pending = state, on_pending
+
+    def _note_pending(self, t: float) -> None:
+        """This clock's earliest undispatched tick is at vehicle time ``t`` (lock held)."""
+        if t == self._pending:
+            return
+        self._pending = t
+        if self._on_pending is not None:
+            self._on_pending(t)
+        self._pace()
 
     def _move_limit(self, limit: float, host: float) -> None:
         """Re-anchor at the current time (lock held), then move the limit and tell."""
@@ -316,6 +411,8 @@ class SimClock:
                     remaining = (deadline - self._now()) / self._speed
                     if math.isfinite(self._limit):  # held: wake to judge the hold's timeout
                         remaining = min(remaining, 0.05)
+                    if self._follow_held:  # the followed clock holds: poll its file
+                        remaining = min(remaining, 0.002)
                     self._cv.wait(min(remaining, 3600.0) if math.isfinite(remaining) else None)
         finally:
             del self._waiting[me]
@@ -425,6 +522,7 @@ class SimClock:
                 return None
             head = self._heap[0][2] if self._heap else None
             head_t = self._heap[0][0] if self._heap else math.inf
+            self._note_pending(min(head_t, end))
             if head is not None and head_t <= end and self._now() >= head_t:
                 heapq.heappop(self._heap)
                 return head

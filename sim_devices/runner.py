@@ -36,6 +36,7 @@ import dataclasses
 import json
 import logging
 import math
+import os
 import resource
 import subprocess
 import sys
@@ -218,7 +219,9 @@ def write_gateway_config(
         f"auvgw gateway configuration for the emulated vehicle of scenario '{scenario_name}'\n"
         f"(written by auvgw sim; ports are stable symlinks in {port_dir})"
     )
-    path.write_text(gateway_toml(data, header))
+    tmp = path.with_name(path.name + ".new")  # put in place whole: a reader never sees half
+    tmp.write_text(gateway_toml(data, header))
+    os.replace(tmp, path)
     return path
 
 
@@ -234,7 +237,11 @@ class RunOptions:
     device). ``epoch``: UTC POSIX time of vehicle time 0 (device clocks that carry a date).
     ``udp_host``: the address UDP devices send from and to. ``on_truth(sample)``: called with
     the ground truth at ``truth_rate_hz`` (clock thread; keep it short). ``truth_log``: a
-    ``.jsonl`` or ``.npz`` path. Checked when made (a ValueError names the bad value).
+    ``.jsonl`` or ``.npz`` path. ``elastic_lag``: elastic pacing (vehicle s, speed > 0; 0:
+    free-running): vehicle time runs at most that far past the earliest tick not dispatched yet
+    (:meth:`SimClock.elastic`) and is shared through the clock file ``out_dir/clock``
+    (:mod:`auvgw.ground.simclock`), which the gateway configuration then names. Checked when
+    made (a ValueError names the bad value).
     """
 
     out_dir: Path
@@ -245,9 +252,14 @@ class RunOptions:
     truth_rate_hz: float = 10.0
     on_truth: Callable[[TruthSample], object] | None = None
     truth_log: Path | None = None
+    elastic_lag: float = 0.0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "out_dir", Path(self.out_dir))
+        if not (0 <= self.elastic_lag <= 60):
+            raise ValueError(f"elastic_lag must be 0 to 60 vehicle s, got {self.elastic_lag}")
+        if self.elastic_lag and not self.speed > 0:
+            raise ValueError("elastic pacing needs a real-time clock: speed > 0")
         if self.devices is not None:
             object.__setattr__(self, "devices", tuple(self.devices))
         if self.truth_log is not None:
@@ -296,6 +308,9 @@ class Runner(Closing):
         self._cpu0 = 0.0
         self._cpu_end: float | None = None
         self.until: float | None = None
+        #: the gateway's [clock] epoch_ns (vehicle time 0 on the stamp clock) once known
+        self.clock_epoch_ns: int | None = None
+        self._clock_writer: Any = None
         try:
             for kind in DEVICE_ORDER:
                 settings: DeviceSettings = getattr(scenario.devices, kind)
@@ -340,12 +355,38 @@ class Runner(Closing):
         sim_clock: Path | None = None,
     ) -> Path:
         """Validate :meth:`gateway_config` with the gateway's own model and write it as TOML
-        (``sim_clock``: see :func:`gateway_clock`)."""
+        (``sim_clock``: see :func:`gateway_clock`; an elastic run names its own clock file)."""
+        if sim_clock is None and self.options.elastic_lag:
+            sim_clock = self.clock_file
         clock = None if start_at is None else gateway_clock(self.clock.speed, start_at,
                                                             sim_clock)  # fmt: skip
+        if clock is not None:
+            self.clock_epoch_ns = clock["epoch_ns"]
         return write_gateway_config(
             path, self.endpoints(), vehicle, self.scenario.name, self.ctx.port_dir, clock
         )
+
+    @property
+    def clock_file(self) -> Path:
+        """Where an elastic run shares its clock (:mod:`auvgw.ground.simclock`)."""
+        return self.options.out_dir / "clock"
+
+    def _start_elastic(self, start_at: float | None) -> None:
+        """Elastic pacing on this runner's clock, its anchors published to :attr:`clock_file`
+        (vehicle time 0 at ``start_at``, the gateway's ``epoch_ns`` on the stamp clock)."""
+        from auvgw.ground.simclock import ClockFileWriter
+
+        t0 = time.monotonic() if start_at is None else start_at
+        if self.clock_epoch_ns is None:
+            self.clock_epoch_ns = time.time_ns() + round((t0 - time.monotonic()) * 1e9)
+        epoch = self.clock_epoch_ns
+        writer = self._clock_writer = ClockFileWriter(self.clock_file)
+
+        def publish(t: float, host: float, speed: float, limit: float) -> None:
+            writer.publish(t, host, speed, limit, epoch)
+
+        self.clock.elastic(self.options.elastic_lag, on_anchor=publish)
+        writer.publish(0.0, t0, self.clock.speed, self.clock.limit, epoch)
 
     def emulator(self, name: str) -> Emulator:
         try:
@@ -375,6 +416,10 @@ class Runner(Closing):
             "clock_cpu_s": self.clock.thread_cpu_s,
             "late_ticks": self.clock.late_ticks,
             "max_lag_s": self.clock.max_lag,
+            "elastic_lag_s": self.clock.elastic_lag,
+            "holds": self.clock.holds,
+            "held_s": self.clock.held_s,
+            "hold_timeouts": self.clock.hold_timeouts,
             "devices": {k: em.stats() for k, em in self.emulators.items()},
         }
 
@@ -508,6 +553,8 @@ class Runner(Closing):
                 1.0 / o.truth_rate_hz, self._truth_tick, start=0.0, name="truth"
             )
         self._cpu0 = _process_cpu_s()
+        if o.elastic_lag and self.clock.elastic_lag == 0 and not self.clock.following:
+            self._start_elastic(start_at)
         for em in self.emulators.values():
             em.start(0.0)
         self.clock.start(at=start_at)
@@ -573,6 +620,8 @@ class Runner(Closing):
             with contextlib.suppress(Exception):
                 em.close()
         self._finish_truth_log()
+        if self._clock_writer is not None:
+            self._clock_writer.close()
 
 
 
@@ -581,10 +630,25 @@ class Runner(Closing):
 #: real seconds a device process may take to catch up with the run's end after "finish"
 _FINISH_TIMEOUT_S = 60.0
 _CHILD = "from auvgw.sim_devices.runner import child_main; child_main()"
+#: an elastic run's dispatch board (:class:`auvgw.ground.simclock.DispatchBoard`), beside the
+#: clock file
+_BOARD = "clock.dispatch"
+#: host s between the parent's reads of the dispatch board (elastic, one process per device)
+_BOARD_POLL_S = 0.002
 
 
 def _endpoint_dict(ep: Endpoint) -> dict[str, Any]:
     return dataclasses.asdict(ep)
+
+
+def _follow_parent(runner: Runner, slot: int) -> None:
+    """An elastic run's device process: vehicle time from the parent's clock file, this
+    process's dispatch progress into its ``slot`` of the dispatch board beside it."""
+    from auvgw.ground.simclock import ClockFileReader, DispatchBoard
+
+    board = DispatchBoard(runner.clock_file.with_name(_BOARD))
+    reader = ClockFileReader(runner.clock_file)
+    runner.clock.follow(reader.state, lambda t: board.report(slot, t))
 
 
 def child_main(argv: list[str] | None = None) -> None:
@@ -606,6 +670,8 @@ def child_main(argv: list[str] | None = None) -> None:
             epoch=args["epoch"], udp_host=args["udp_host"],
         )  # fmt: skip
         runner = Runner(scn, options)
+        if args.get("slot") is not None:  # elastic: the parent's clock, this device's slot
+            _follow_parent(runner, int(args["slot"]))
     except (ScenarioError, ValueError, OSError) as exc:
         print(json.dumps({"error": str(exc)}), flush=True)
         return
@@ -663,7 +729,8 @@ class DeviceProcesses(Closing):
                 "truth is integrated where the actuators are): leave out --processes"
             )
         self.control = str(control) if control is not None else None
-        # ground truth here (no device): the same world and trajectory as every child builds
+        # ground truth here (no device): the same world and trajectory as every child builds;
+        # elastic, its clock is the one that holds (on the children's dispatch board)
         self.truth_runner = Runner(self.scenario, dataclasses.replace(options, devices=()))
         devices = options.devices
         wanted = DEVICE_ORDER if devices is None else [d for d in DEVICE_ORDER if d in devices]
@@ -671,13 +738,24 @@ class DeviceProcesses(Closing):
         self._endpoints: dict[str, list[Endpoint]] = {}
         self._stats: dict[str, Any] = {}
         self.procs: dict[str, subprocess.Popen[str]] = {}
+        self._slots: dict[str, int] = {}
+        self._board: Any = None
+        self._poll_stop = threading.Event()
+        self._poller: threading.Thread | None = None
         try:
-            for kind in wanted:
-                if not getattr(self.scenario.devices, kind).enabled:
-                    continue
+            kinds = [k for k in wanted if getattr(self.scenario.devices, k).enabled]
+            if options.elastic_lag and kinds:
+                from auvgw.ground.simclock import DispatchBoard
+
+                options.out_dir.mkdir(parents=True, exist_ok=True)
+                self._board = DispatchBoard(self.truth_runner.clock_file.with_name(_BOARD),
+                                            len(kinds))  # fmt: skip
+                self._slots = {k: i for i, k in enumerate(kinds)}
+            for kind in kinds:
                 args = {"scenario": str(self.scenario_path), "out_dir": str(options.out_dir),
                         "speed": options.speed, "device": kind, "epoch": options.epoch,
-                        "udp_host": options.udp_host, "control": self.control}  # fmt: skip
+                        "udp_host": options.udp_host, "control": self.control,
+                        "slot": self._slots.get(kind)}  # fmt: skip
                 self.procs[kind] = subprocess.Popen(
                     [sys.executable, "-c", _CHILD, json.dumps(args)],
                     stdin=subprocess.PIPE,
@@ -742,7 +820,11 @@ class DeviceProcesses(Closing):
     def write_gateway_config(
         self, path: str | Path, vehicle: str = "auv1", start_at: float | None = None
     ) -> Path:
-        clock = None if start_at is None else gateway_clock(self.options.speed, start_at)
+        sim_clock = self.truth_runner.clock_file if self.options.elastic_lag else None
+        clock = None if start_at is None else gateway_clock(self.options.speed, start_at,
+                                                            sim_clock)  # fmt: skip
+        if clock is not None:
+            self.truth_runner.clock_epoch_ns = clock["epoch_ns"]
         return write_gateway_config(
             path, self.endpoints(), vehicle, self.scenario.name, self.options.out_dir / "ports",
             clock,
@@ -762,7 +844,26 @@ class DeviceProcesses(Closing):
         t0 = time.monotonic() + lead_s if start_at is None else float(start_at)
         for proc in self.procs.values():
             self._send(proc, f"start {t0!r} {until!r}")
+        if self._board is not None:  # nothing dispatched yet: the holder waits for them
+            self.truth_runner.clock.report(self._board.least(self._slots.values()))
         self.truth_runner.start(duration=until, start_at=t0)
+        if self._board is not None:
+            self._poller = threading.Thread(target=self._poll_board, name="sim-elastic",
+                                            daemon=True)  # fmt: skip
+            self._poller.start()
+
+    def _poll_board(self) -> None:
+        """Elastic: tell the holding clock the least pending tick of the device processes
+        still running (one that exited holds nothing up), until :meth:`close`."""
+        clock, board = self.truth_runner.clock, self._board
+        while not self._poll_stop.wait(_BOARD_POLL_S):
+            procs = dict(self.procs)  # (stop pops them from another thread)
+            alive = [i for k, i in self._slots.items()
+                     if k in procs and procs[k].poll() is None]  # fmt: skip
+            try:
+                clock.report(board.least(alive))
+            except Exception:  # never leave the clock to its hold timeouts
+                log.exception("elastic pacing: reading the dispatch board failed")
 
     @property
     def running(self) -> bool:
@@ -811,6 +912,7 @@ class DeviceProcesses(Closing):
             "clock_cpu_s": truth["clock_cpu_s"],
             "late_ticks": 0,
             "max_lag_s": 0.0,
+            **{k: truth[k] for k in ("elastic_lag_s", "holds", "held_s", "hold_timeouts")},
             "devices": {},
         }
         for st in self._stats.values():
@@ -826,5 +928,10 @@ class DeviceProcesses(Closing):
         for kind in list(self.procs):
             with contextlib.suppress(Exception):
                 self._finish(kind, timeout=5.0)
+        self._poll_stop.set()
+        if self._poller is not None:
+            self._poller.join(2.0)
+        if self._board is not None:
+            self._board.close()
         self.truth_runner.close()
 

@@ -128,6 +128,9 @@ def register(sub: SubParsers) -> None:
         help=f"x real time (default {DEFAULT_SPEED:g}; a survey with --processes "
         f"{SURVEY_SPEED:g}: about 3.5 min)",
     )
+    p.add_argument("--pace", choices=("elastic", "free"), default="elastic",
+                   help="the sim's clock (auvgw sim --pace): elastic (default) waits for its "
+                   "devices on a loaded host; free runs at --speed whatever happens")
     p.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder")
     p.add_argument("--rrd", type=Path, default=None, help="Rerun file (default OUT/demo.rrd)")
     p.add_argument("--connect", default=None, help="also stream to a Rerun viewer at this URL")
@@ -274,9 +277,11 @@ def _path_error(est: _Track, truth: _Track, since: float = -math.inf) -> dict[st
     }
 
 
-def _sim_argv(scenario: Path, speed: float, duration: float, sim_dir: Path) -> list[str]:
+def _sim_argv(scenario: Path, speed: float, duration: float, sim_dir: Path,
+              pace: str = "elastic") -> list[str]:  # fmt: skip
     return ["sim", "--scenario", str(scenario), "--speed", str(speed), "--duration",
-            str(duration), "--out", str(sim_dir), "--vehicle", VEHICLE, "--hold"]  # fmt: skip
+            str(duration), "--out", str(sim_dir), "--vehicle", VEHICLE, "--hold",
+            "--pace", pace]  # fmt: skip
 
 
 def _sim_done(sim: subprocess.Popen[bytes], sim_dir: Path) -> bool:
@@ -336,7 +341,8 @@ def run(args: argparse.Namespace) -> int:
         return _run_processes(args, sim_dir, scenario, rrd, speed)
     sim_log = open(out / "sim.log", "wb")  # noqa: SIM115 (closed in finally)
     sim = subprocess.Popen(
-        [sys.executable, "-m", "auvgw", *_sim_argv(scenario, speed, args.duration, sim_dir)],
+        [sys.executable, "-m", "auvgw",
+         *_sim_argv(scenario, speed, args.duration, sim_dir, args.pace)],
         stdout=sim_log, stderr=subprocess.STDOUT,
     )  # fmt: skip
     try:
@@ -788,7 +794,7 @@ def _run_processes(
         # the GeoSwath's emulator (numpy work on 4000-sample pings) in its own process, so it
         # never holds the INS emulator's interpreter (issue 31: in one sim process its pings
         # made the INS frames leave 40-58 vehicle s late at 10x); every device then has its own
-        sim = children.start("sim", [*_sim_argv(scenario, speed, args.duration, sim_dir),
+        sim = children.start("sim", [*_sim_argv(scenario, speed, args.duration, sim_dir, args.pace),
                                      "--start-delay", str(args.start_delay),
                                      *(["--processes"] if scn.devices.geoswath.enabled
                                        else [])])  # fmt: skip

@@ -17,6 +17,16 @@ file ``faults.json``: write ``{"ins": {"corrupt_p": 0.1}, "dvl": {"unplug": [[30
 scenario's FaultSettings fields; windows in vehicle seconds) and each device's faults become the
 scenario's plus those; delete the file to restore them.
 
+Pacing (``--pace``, ``--speed`` > 0): ``elastic`` (the default) holds vehicle time within
+``--elastic-lag`` vehicle s of what the devices have actually dispatched, as HIL benches do
+when the host cannot keep up: on a loaded host wall time stretches instead of frames leaving
+late (with ``--processes`` every device process reports its dispatch, and reads its time from
+the clock file). The clock is shared through ``OUT/clock`` (:mod:`auvgw.ground.simclock`), and
+gateway.toml's ``[clock] sim_clock`` makes the gateway stamp that vehicle time. ``free``: the
+clock runs at ``--speed`` whatever happens; a tick dispatched late still carries its exact
+vehicle time but leaves the host late. The end of the run prints the vehicle and wall seconds,
+the effective speed, the time held and the late ticks.
+
 ``--lockstep`` (closed loop, one process, ``--speed`` > 0): the sim is paced by the controller
 under test, as HIL benches' synchronous modes are. It joins the bus (``--connect``) and takes
 the controller's answers on ``auv/<V>/pilot/ack`` (JSON ``{"t": s}``: the newest odometry time
@@ -49,6 +59,9 @@ if TYPE_CHECKING:
     from auvgw.sim_devices.runner import DeviceProcesses, Runner
 
 log = logging.getLogger(__name__)
+
+#: the elastic clock's lag, vehicle s: 15 INS periods, 1.5 host ms x speed 10
+ELASTIC_LAG_S = 0.15
 
 
 def register(sub: SubParsers) -> None:
@@ -116,6 +129,12 @@ def register(sub: SubParsers) -> None:
         help="run each device in its own process on one shared clock (uses every "
         "core; one Python process runs on about one)",
     )
+    p.add_argument("--pace", choices=("elastic", "free"), default="elastic",
+                   help="elastic (default): vehicle time waits for the devices' dispatch on a "
+                   "loaded host; free: it runs at --speed whatever happens")
+    p.add_argument("--elastic-lag", type=float, default=ELASTIC_LAG_S, metavar="S",
+                   help="vehicle s the elastic clock may run past the earliest tick not "
+                   f"dispatched yet (default {ELASTIC_LAG_S:g})")
     g = p.add_argument_group("lock-step (closed loop: the sim paced by the controller)")
     g.add_argument("--lockstep", action="store_true",
                    help="hold vehicle time within --lockstep-step of the controller's last "
@@ -200,6 +219,10 @@ def run(args: argparse.Namespace) -> int:
     control = out / "faults.json"
     if args.processes and args.speed == 0:
         raise UserError("--processes needs a real-time clock: --speed > 0")
+    if not 0 < args.elastic_lag <= 60:
+        raise UserError(f"--elastic-lag must be > 0 and <= 60 vehicle s, got {args.elastic_lag}")
+    # lock-step holds on the controller instead; as fast as possible never runs late
+    elastic = args.pace == "elastic" and args.speed > 0 and not args.lockstep
     if args.lockstep:
         if args.speed == 0 or args.processes:
             raise UserError("--lockstep needs one process (no --processes) and --speed > 0")
@@ -210,7 +233,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         options = RunOptions(
             out_dir=out, speed=args.speed, devices=devices, truth_log=truth_log,
-            truth_rate_hz=args.truth_rate,
+            truth_rate_hz=args.truth_rate, elastic_lag=args.elastic_lag if elastic else 0.0,
         )  # fmt: skip
         if args.processes:
             runner: Runner | DeviceProcesses = DeviceProcesses(args.scenario, options,
@@ -225,6 +248,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         until = args.duration if args.duration is not None else runner.route_duration
         pace = "as fast as possible" if args.speed == 0 else f"{args.speed:g}x real time"
+        if elastic:
+            pace += f", elastic (lag {args.elastic_lag:g} vehicle s)"
         if args.processes:
             pace += ", one process per device"
         print(f"auvgw sim: scenario '{scn.name}' (route {runner.route_duration:.1f} s), {pace}, "
@@ -267,11 +292,15 @@ def run(args: argparse.Namespace) -> int:
         runner.start(duration=until, start_at=start_at)
         while not stop.is_set() and runner.running:
             stop.wait(0.2)
+        wall_s = time.monotonic() - (start_at if start_at is not None else time.monotonic())
         if args.hold and not stop.is_set():
             (out / "finished").write_text(f"{runner.hold():.3f}\n")
             print("finished; ports held open until SIGINT/SIGTERM", flush=True)
             stop.wait()
         runner.stop()
+        if args.speed > 0 and runner.stats()["vehicle_time"] > 0:  # (not stopped before 0)
+            print(_pace_line(runner.stats(), wall_s, args.pace if elastic else "free"),
+                  flush=True)  # fmt: skip
         _print_stats(runner)
         if lockstep is not None:
             print(f"lock-step: {lockstep.summary()}", flush=True)
@@ -279,6 +308,18 @@ def run(args: argparse.Namespace) -> int:
         runner.close()
         signals.close()
     return 0
+
+
+def _pace_line(st: dict[str, object], wall_s: float, pace: str) -> str:
+    """One line: vehicle and wall seconds of the run, effective speed, time held, late ticks."""
+    vehicle = float(st["vehicle_time"])  # type: ignore[arg-type]
+    speed = vehicle / wall_s if wall_s > 0 else 0.0
+    line = (f"pacing {pace}: {vehicle:.1f} vehicle s in {wall_s:.1f} wall s, effective speed "
+            f"{speed:.2f}x")  # fmt: skip
+    if pace == "elastic":
+        line += (f", held {float(st['held_s']):.1f} wall s ({st['holds']} holds, "  # type: ignore[arg-type]
+                 f"{st['hold_timeouts']} timeouts)")  # fmt: skip
+    return line + f", late ticks {st['late_ticks']} (max lag {float(st['max_lag_s']):.3f} s)"  # type: ignore[arg-type]
 
 
 def _load_epoch_ns(path: Path) -> int:

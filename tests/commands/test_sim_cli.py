@@ -147,6 +147,20 @@ def test_sim_runs_for_a_duration_and_applies_the_fault_control_file(
     assert rows[-1]["x"] == pytest.approx(1.5 * 3.0, abs=0.05)
     cfg = load_gateway_config(out / "gateway.toml")
     assert set(cfg.devices) == {"ins", "ins_can", "magnetometer", "magnetometer_can"}
+    # elastic pacing (the default): the gateway stamps the sim's own clock file, which ends
+    # held within the lag of the run's end; every device process reported its dispatch there
+    pacing = next(ln for ln in stdout.splitlines() if ln.startswith("pacing elastic: 3.0 "))
+    assert "max lag" in pacing and "timeouts" in pacing
+    assert cfg.clock.sim_clock == str(out / "clock")
+    from auvgw.ground.simclock import ClockFileReader, DispatchBoard
+
+    reader = ClockFileReader(out / "clock")
+    assert 3.0 <= (reader.vehicle_s() or 0.0) <= 3.0 + 0.15 + 1e-9
+    reader.close()
+    if processes:
+        board = DispatchBoard(out / "clock.dispatch")
+        assert board.slots == 2 and board.least(range(2)) >= 3.0  # ins, magnetometer
+        board.close()
 
 
 def test_sim_bad_input_is_a_one_line_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]):
@@ -168,6 +182,8 @@ def test_sim_bad_input_is_a_one_line_error(tmp_path: Path, capsys: pytest.Captur
     assert "--lockstep needs one process" in capsys.readouterr().err
     assert main([*args, "--lockstep", "--lockstep-timeout", "0"]) == 2
     assert "--lockstep-timeout must be > 0" in capsys.readouterr().err
+    assert main([*args, "--elastic-lag", "0"]) == 2
+    assert "--elastic-lag must be > 0" in capsys.readouterr().err
 
 
 @pytest.mark.e2e

@@ -37,6 +37,29 @@ def test_backoff_doubles_to_the_cap_and_resets():
     assert b.next_delay() == 0.2
 
 
+def test_health_rate_is_counted_over_the_device_times_so_a_late_burst_reads_true():
+    """A 100 Hz INS whose frames stall for 2 s of the stamp clock, then arrive in a burst
+    (200 frames in 0.1 s) and 4.5 s on time: the rate over the 5 s window is the device's
+    100 Hz, where the count of stamps reads 130 Hz; a device clock that restarts starts a new
+    span."""
+    h = DeviceHealth("ins", "hn100", window_s=5.0)
+    t0 = 1_000_000_000_000
+    stamps = [t0 + k * 10_000_000 for k in range(300)]  # 3 s on time
+    stamps += [stamps[-1] + 2_000_000_000 + k * 500_000 for k in range(1, 201)]  # the burst
+    stamps += [stamps[-1] + k * 10_000_000 for k in range(1, 451)]  # on time again
+    for k, stamp in enumerate(stamps):
+        h.seen(stamp, "hn100.Nav", t_device_s=50.0 + k * 0.01)
+    now = stamps[-1] + 5_000_000
+    counted = sum(1 for s in stamps if s >= now - 5_000_000_000)
+    assert counted / 5.0 > 125  # what a count of receive stamps would say
+    assert h.rate_hz(now) == pytest.approx(100.0)
+    h.seen(now + 10_000_000, "hn100.Nav", t_device_s=0.0)  # the device clock restarted
+    h.seen(now + 20_000_000, "hn100.Nav", t_device_s=0.02)
+    assert h.rate_hz(now + 20_000_000) == pytest.approx(50.0)  # 2 samples, 0.02 s: the new span
+    h.seen(now + 30_000_000, "hn100.Status")  # a message type without a device time
+    assert h.snapshot(now + 30_000_000)["rates_hz"]["hn100.Status"] == 0.2  # per window
+
+
 def test_health_counts_outages_connects_and_rates():
     h = DeviceHealth("dvl", "pd0", window_s=2.0)
     h.set_connected(False, "cannot open", retry_in_s=0.4)

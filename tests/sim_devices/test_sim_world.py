@@ -681,6 +681,95 @@ def test_lockstep_answers_wait_for_the_command_they_carry() -> None:
     assert c.hold_timeouts == 0
 
 
+def _slow_ticks(clock: SimClock, host_s: float, n_slow: int) -> list[float]:
+    """Run ``clock`` (50x) to vehicle 0.3 s with a 100 Hz tick whose first ``n_slow``
+    callbacks take ``host_s`` host s each (a loaded host); each tick's lag, vehicle s."""
+    lags: list[float] = []
+
+    def tick(t: float) -> None:
+        lags.append(clock.now() - t)
+        if len(lags) <= n_slow:
+            time.sleep(host_s)
+
+    clock.every(0.01, tick, start=0.0)
+    clock.run(until=0.3)
+    return lags
+
+
+def test_elastic_clock_holds_vehicle_time_on_its_dispatch_where_a_free_one_runs_late() -> None:
+    # 10 host ms per tick at 50x is 0.5 vehicle s per 0.01 s tick: a free clock falls behind
+    free = SimClock(speed=50.0)
+    lags = _slow_ticks(free, 0.01, 10)
+    assert max(lags) > 4.0 and free.late_ticks >= 10 and free.holds == 0
+    elastic = SimClock(speed=50.0)
+    elastic.elastic(0.2)
+    lags = _slow_ticks(elastic, 0.01, 10)
+    assert len(lags) == 31, "every tick dispatched"
+    # vehicle time never ran more than the lag past the tick being dispatched
+    assert max(lags) <= 0.2 + 1e-9
+    assert elastic.holds >= 1 and elastic.held_s > 0 and elastic.hold_timeouts == 0
+    assert elastic.late_ticks == sum(lag > 0.01 for lag in lags)
+    with pytest.raises(ValueError):
+        SimClock(speed=0).elastic(0.2)
+
+
+def test_elastic_clock_in_another_process_holds_the_one_shared_clock(tmp_path: Path) -> None:
+    """A device process's clock follows the holder's clock file and reports its dispatch on
+    the board; the holder (polled as DeviceProcesses does) stands still while it is behind,
+    and the gateway stamps that held time."""
+    from auvgw.config.gateway import ClockConfig
+    from auvgw.ground.simclock import ClockFileReader, ClockFileWriter, DispatchBoard
+
+    holder = SimClock(speed=50.0)
+    writer = ClockFileWriter(tmp_path / "clock")
+    start = time.monotonic() + 0.05
+    holder.elastic(0.2, on_anchor=lambda *a: writer.publish(*a, epoch_ns=10**18))
+    writer.publish(0.0, start, 50.0, holder.limit, 10**18)
+    board = DispatchBoard(tmp_path / "clock.dispatch", 2)
+    assert board.least([0, 1]) == 0.0 and board.least([]) == math.inf
+    board.report(1, math.inf)  # a second device with nothing left to send
+    device = SimClock(speed=50.0)
+    reader = ClockFileReader(tmp_path / "clock")
+    device.follow(reader.state, lambda t: board.report(0, t))
+    assert device.following and not holder.following
+    stop = threading.Event()
+    stamps: list[float] = []
+    gateway = ClockConfig(time_scale=50.0, epoch_ns=10**18, sim_clock=str(tmp_path / "clock"))
+
+    def poll() -> None:
+        while not stop.wait(0.001):
+            holder.report(board.least([0, 1]))
+            stamps.append((gateway.stamp(time.time_ns()) - 10**18) / 1e9 - board.pending(0))
+
+    holder.report(board.least([0, 1]))  # before the start: the device has sent nothing
+    holder.start(at=start)
+    holder.start_thread(until=0.3)  # the holder's own dispatch (DeviceProcesses: the truth's)
+    device.start(at=start)
+    poller = threading.Thread(target=poll, daemon=True)
+    poller.start()
+    try:
+        lags = _slow_ticks(device, 0.01, 10)
+    finally:
+        stop.set()
+        poller.join(5)
+    assert len(lags) == 31 and max(lags) <= 0.2 + 1e-9
+    assert holder.holds >= 1 and holder.hold_timeouts == 0
+    # the gateway's stamps never ran more than the lag past what the device had dispatched
+    assert stamps and max(stamps) <= 0.2 + 1e-6
+    assert board.pending(0) == pytest.approx(0.3)  # reached the end
+    holder.close()
+    # a writer the host stops in the middle of an update (an odd sequence number, issue 33's
+    # loaded host): the readers keep the value before it instead of failing
+    import struct
+
+    state = reader.state()
+    for m in (board._map, writer._map):
+        m[0:8] = struct.pack("<Q", 10**6 + 1)
+    assert board.pending(0) == pytest.approx(0.3) and reader.state() == state
+    for f in (writer, reader, board):
+        f.close()
+
+
 def test_clock_start_at_a_given_host_instant() -> None:
     host = [100.0]
     c = SimClock(speed=10.0, time_fn=lambda: host[0])
