@@ -113,7 +113,7 @@ def test_stage_feed_is_adapter_plus_navfilter_and_counts_everything(data):
     json.dumps(c)  # JSON-ready
     assert c["stage"] == {"received": len(msgs), "bad_payloads": 0, "queue_dropped": 0,
                           "bad_stamps": 0, "published": n_ins,
-                          "delivered": 0}  # fed in-process: nothing from a subscription  # fmt: skip
+                          "delivered": 0}  # fed in-process  # fmt: skip
     assert c["adapter"]["ins"] == n_ins and c["adapter"]["dvl"] == n_dvl
     assert c["adapter"]["ignored"] == n_can  # the CAN copy of the same INS is not used twice
     assert c["ins_device"] == "ins" and c["dvl_device"] == "dvl"
