@@ -529,7 +529,7 @@ def _run_stages(
     t_start = time.monotonic()
     gateway.start()
     try:
-        progress = _Progress(epoch_ns, speed, args.duration)
+        progress = _Progress(tail, args.duration)
         while not _sim_done(sim, sim_dir) and not stop.is_set():
             tail.poll()
             stop.wait(0.2)
@@ -570,10 +570,10 @@ def _run_stages(
 
 @dataclass
 class _Progress:
-    """Prints the vehicle time every 5 host seconds."""
+    """Prints the vehicle time every 5 host seconds: the newest truth sample's (the sim's own
+    clock, which an elastic or lock-step sim holds while the host is behind), not host time."""
 
-    epoch_ns: int
-    speed: float
+    tail: _TruthTail
     duration: float
     last: float = 0.0
 
@@ -581,8 +581,7 @@ class _Progress:
         now = time.monotonic()
         if now - self.last > 5.0:
             self.last = now
-            vt = max(0.0, (time.time_ns() - self.epoch_ns) * self.speed / 1e9)
-            print(f"  vehicle t = {vt:6.1f} s / {self.duration:.0f} s", flush=True)
+            print(f"  vehicle t = {self.tail.t:6.1f} s / {self.duration:.0f} s", flush=True)
 
 
 def _report(
@@ -829,7 +828,7 @@ def _run_processes(
             truth_pub.put(json.dumps(sample).encode())
 
         tail = _TruthTail(sim_dir / "truth.jsonl", on_truth)
-        progress = _Progress(epoch_ns, speed, args.duration)
+        progress = _Progress(tail, args.duration)
         while not _sim_done(sim, sim_dir) and not stop.is_set():
             tail.poll()
             _check_children(children)

@@ -90,6 +90,7 @@ class _TruthTail:
         self.on_sample = on_sample
         self._pos = 0
         self._partial = ""
+        self.t = 0.0  #: vehicle time of the newest sample, s (the sim's own clock)
 
     def poll(self) -> None:
         if not self.path.is_file():
@@ -103,7 +104,9 @@ class _TruthTail:
         self._partial = lines.pop()
         for line in lines:
             if line.strip():
-                self.on_sample(json.loads(line))
+                sample = json.loads(line)
+                self.t = max(self.t, float(sample["t"]))
+                self.on_sample(sample)
 
 
 def _load_sim_config(sim_dir: Path) -> GatewayConfig:
