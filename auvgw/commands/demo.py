@@ -486,7 +486,8 @@ def _run_stages(
             x0, y0 = float(np.interp(t_vehicle, tt, xt)), float(np.interp(t_vehicle, tt, yt))
         else:
             x0, y0, _ = scn.start_pose
-        cfg = _fusion_config(gw_cfg.vehicle, (x0, y0, scn.vehicle.depth_m), scn.devices.ins.noise)
+        cfg = _fusion_config(gw_cfg.vehicle, (x0, y0, scn.vehicle.depth_m), scn.devices.ins.noise,
+                             speed)  # fmt: skip
         stage = FusionStage(cfg, session=session, on_odometry=on_odometry)
         stage.start(subscribe=False)  # fed in-process, publishes odometry and status
         return stage
@@ -774,7 +775,7 @@ def _run_processes(
         x0, y0, _ = scn.start_pose
         settings = out / "fusion.json"
         settings.write_text(_fusion_config(VEHICLE, (x0, y0, scn.vehicle.depth_m),
-                                           scn.devices.ins.noise)
+                                           scn.devices.ins.noise, speed)
                             .model_dump_json(indent=1))  # fmt: skip
         children.start("fusion", ["fusion", "--settings", str(settings),
                                   "--connect", hub, "--listen", free_endpoint()])  # fmt: skip

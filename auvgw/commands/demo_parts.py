@@ -126,15 +126,25 @@ def _sim_epoch_ns(gw_cfg: GatewayConfig) -> int:
     return gw_cfg.clock.epoch_ns
 
 
+#: host seconds of delivery jitter between the sensors' paths that the demo's fusion absorbs:
+#: its fixed lag (``FusionConfig.max_latency_s``, vehicle s) is this times the speed, at least the
+#: filter's default 0.2 s. At 10x on a loaded host DVL ensembles reached the fusion more than the
+#: default 0.2 vehicle s (20 host ms) after the INS sample of their time: 7 % of them were
+#: dropped as late (``aiding_late``) in a survey run at load 10-20, 2-5 a run on a quiet host.
+FUSION_JITTER_HOST_S = 0.1
+
+
 def _fusion_config(
-    vehicle: str, position_m: tuple[float, float, float], ins_noise: dict[str, float] | None = None
+    vehicle: str, position_m: tuple[float, float, float], ins_noise: dict[str, float] | None = None,
+    speed: float = 1.0,
 ) -> FusionStageConfig:
     """The demo's fusion stage: dead reckoning starts from the true position (what a GNSS fix at
     the surface gives a real vehicle). The INS heading error model follows the emulated INS
     (``ins_noise``: the scenario's ``devices.ins.noise``): with ``heading_bias_deg`` > 0 its
     heading error is Gauss-Markov (RMS ``heading_bias_deg``, correlation time
     ``heading_bias_tau_s``, default 300 s), and so is the filter's (``heading_error_sigma_deg``,
-    ``heading_error_tau_s``); otherwise it is white (``heading_deg``, default 0.3 deg), tau = 0."""
+    ``heading_error_tau_s``); otherwise it is white (``heading_deg``, default 0.3 deg), tau = 0.
+    ``speed``: the run's x real time, which scales the fixed lag (:data:`FUSION_JITTER_HOST_S`)."""
     from auvgw.fusion.config import FusionConfig, InitialState
     from auvgw.sim_devices.ins import DEFAULT_NOISE, HEADING_ERROR
     from auvgw.stages.fusion import FusionStageConfig
@@ -151,6 +161,7 @@ def _fusion_config(
         heading_error_sigma_deg=sigma,
         heading_error_tau_s=tau,
         pitch_error_tau_s=0.0,
+        max_latency_s=max(0.2, FUSION_JITTER_HOST_S * speed),
     )
     # the clocks warm up for 2 s: the first frames after the ports open arrive late (a backlog,
     # more on a loaded host) and cost motion otherwise (0.65 m in a 30 s harbour run)
