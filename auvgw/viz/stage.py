@@ -52,6 +52,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import zenoh
 
 from auvgw.bus import SCHEMA_VERSION, Keys, decode_envelope
 from auvgw.drivers.spec import from_jsonable, resolve_type
@@ -209,7 +210,9 @@ def _lines(value: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.nd
 class VizStage(Stage):
     """Maps the bus of one vehicle to a :class:`RerunLogger` (see the module docstring).
 
-    :meth:`attach` subscribes on a Zenoh session and :meth:`start` runs the mapping thread;
+    :meth:`attach` subscribes on a Zenoh session and :meth:`Stage.start` ``(subscribe=False)``
+    runs the mapping thread (the stage declares nothing else: no outputs, no status on the bus);
+    :meth:`Stage.stop` maps what is queued (the logger stays open: close it afterwards);
     :meth:`handle_sample` maps one payload synchronously (tests, replay) and
     :meth:`on_message` one typed message (in-process, e.g. ``Gateway(on_message=...)``). Its
     own health (every ``health_period_s`` and at :meth:`stop`) goes to the logger, not the bus.
@@ -278,20 +281,13 @@ class VizStage(Stage):
         """``auv/<v>/<section>/**`` of each attached section."""
         return [self.keys.all(f"{section}/**") for section in self.sections]
 
-    def attach(self, session: Any, sections: Iterable[str] = SECTIONS) -> None:
-        """Subscribe to this vehicle's ``sections`` on ``session`` (a ``zenoh.Session``)."""
+    def attach(self, session: zenoh.Session, sections: Iterable[str] = SECTIONS) -> None:
+        """Subscribe to this vehicle's ``sections`` on ``session`` (the mapping thread is the
+        base's worker: :meth:`Stage.start` ``(subscribe=False)`` starts it; not started,
+        :meth:`Stage.stop` maps what is queued on the calling thread)."""
         self.session = session
         self.sections = tuple(sections)
         self.subscribe()
-
-    def start(self, subscribe: bool = False) -> None:
-        """Start the mapping thread (idempotent; :meth:`attach` subscribes)."""
-        self.start_worker()
-
-    def stop(self, timeout_s: float = 10.0) -> None:  # type: ignore[override]
-        """Undeclare the subscribers, map what is queued (``timeout_s``: given up after that
-        long without progress), stop the thread (the logger stays open: close it afterwards)."""
-        super().stop(flush=True, timeout_s=timeout_s)
 
     def publish_status(self) -> None:
         """The stage's own health into the logger (once something was mapped)."""
@@ -834,13 +830,13 @@ class VizRunner:
     def close(self, timeout_s: float = 30.0) -> None:
         """Stop the stage (mapping what is queued), then close the logger (writes the footer)."""
         try:
-            self.stage.stop(timeout_s)
+            self.stage.stop(timeout_s=timeout_s)
         finally:
             self.logger.close(timeout_s)
 
 
 def open_viz(
-    session: Any,
+    session: zenoh.Session,
     vehicle: str,
     *,
     rrd: str | Path | None = None,
@@ -861,5 +857,5 @@ def open_viz(
     except Exception:
         logger.close()
         raise
-    stage.start()
+    stage.start(subscribe=False)  # attached above; nothing of its own to declare on the bus
     return VizRunner(logger, stage)
