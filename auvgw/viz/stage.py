@@ -49,7 +49,7 @@ from collections import Counter
 from collections.abc import Callable, Iterable, Mapping, Sized
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Protocol, SupportsFloat, SupportsIndex, TypeVar, cast
+from typing import TYPE_CHECKING, Protocol, SupportsFloat, TypeVar, cast
 
 import numpy as np
 import zenoh
@@ -180,10 +180,10 @@ class StageStats(BusCounters):
 
 def _float(v: object, default: float = math.nan) -> float:
     """``v`` as a float (a number or a numeric string), else ``default``."""
-    if not isinstance(v, str | SupportsFloat | SupportsIndex):
+    if v is None:
         return default
-    try:
-        return float(v)
+    try:  # float() raises TypeError for what is neither (a cheap test: this runs per field)
+        return float(cast(SupportsFloat, v))
     except (TypeError, ValueError):
         return default
 
