@@ -180,9 +180,11 @@ class StageStats(BusCounters):
 
 def _float(v: object, default: float = math.nan) -> float:
     """``v`` as a float (a number or a numeric string), else ``default``."""
+    if type(v) is float:  # most fields (this runs per field: no Protocol isinstance)
+        return v
     if v is None:
         return default
-    try:  # float() raises TypeError for what is neither (a cheap test: this runs per field)
+    try:  # float() raises TypeError for what is neither
         return float(cast(SupportsFloat, v))
     except (TypeError, ValueError):
         return default
