@@ -11,7 +11,13 @@ Rerun SDK (about 0.8 s).
 from __future__ import annotations
 
 import importlib
-from typing import Any
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # what the names below are, for type checkers (loaded lazily at run time)
+    from auvgw.viz.blueprint import VIEW_NAMES, default_blueprint
+    from auvgw.viz.entities import TIMELINE
+    from auvgw.viz.logger import LoggerStats, RerunLogger
+    from auvgw.viz.options import VizOptions
 
 __all__ = [
     "TIMELINE",
@@ -32,7 +38,7 @@ _WHERE = {
 }
 
 
-def __getattr__(name: str) -> Any:
+def __getattr__(name: str) -> object:
     if name in _WHERE:
         return getattr(importlib.import_module(_WHERE[name]), name)
     raise AttributeError(f"module 'auvgw.viz' has no attribute {name!r}")

@@ -9,11 +9,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pyarrow as pa
-from rerun.chunk import RrdReader
+from rerun.chunk import RrdReader, StoreEntry
 
 from auvgw.viz.entities import TIMELINE
 
@@ -29,13 +28,13 @@ class EntityRows:
     times: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     #: the same times in the order the rows were written (chunks in file order)
     written: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
-    columns: dict[str, list[Any]] = field(default_factory=dict)
-    static: dict[str, Any] = field(default_factory=dict)
+    columns: dict[str, list[object]] = field(default_factory=dict)
+    static: dict[str, object] = field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(self.times)
 
-    def values(self, component: str) -> list[Any]:
+    def values(self, component: str) -> list[object]:
         """Per-row values of ``component`` (``None`` where a row lacks it)."""
         return self.columns.get(component, [None] * len(self))
 
@@ -46,7 +45,7 @@ def _component_names(rb: pa.RecordBatch) -> list[str]:
 
 def read_recording(path: str | Path, timeline: str = TIMELINE) -> dict[str, EntityRows]:
     """Entity path (without the leading ``/``) -> :class:`EntityRows` of the first recording."""
-    parts: dict[str, list[tuple[np.ndarray, dict[str, list[Any]]]]] = {}
+    parts: dict[str, list[tuple[np.ndarray, dict[str, list[object]]]]] = {}
     out: dict[str, EntityRows] = {}
     for chunk in RrdReader(str(path)).stream():
         entity = chunk.entity_path.lstrip("/")
@@ -81,13 +80,15 @@ def health_metrics(rec: dict[str, EntityRows], device: str) -> list[tuple[int, d
         parts = path.split("/")
         if len(parts) != 3 or parts[0] != "health" or parts[2] != device:
             continue
-        names = [
-            str(n).removeprefix(f"{device} ") for n in rows.static.get("SeriesLines:names") or []
-        ]
+        named = rows.static.get("SeriesLines:names")
+        names = (
+            [str(n).removeprefix(f"{device} ") for n in named] if isinstance(named, list) else []
+        )
         for i, (t, vals) in enumerate(zip(rows.times, rows.values("Scalars:scalars"), strict=True)):
             if i == len(out):
                 out.append((int(t), {}))
-            out[i][1].update(zip(names, vals or [], strict=False))
+            if isinstance(vals, list):
+                out[i][1].update(zip(names, vals, strict=False))
     return out
 
 
@@ -105,7 +106,7 @@ def read_views(path: str | Path) -> list[tuple[str, str, str]]:
     return _views(reader, stores[-1]) if stores else []
 
 
-def _views(reader: RrdReader, store: Any) -> list[tuple[str, str, str]]:
+def _views(reader: RrdReader, store: StoreEntry) -> list[tuple[str, str, str]]:
     views: list[tuple[str, str, str]] = []
     for chunk in reader.stream(store=store):
         rb = chunk.to_record_batch()

@@ -46,20 +46,28 @@ import math
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sized
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Protocol, SupportsFloat, TypeVar, cast
 
 import numpy as np
+import zenoh
 
 from auvgw.bus import SCHEMA_VERSION, Keys, decode_envelope
+from auvgw.drivers.roles import Attitude, Field, Range
 from auvgw.drivers.spec import from_jsonable, resolve_type
 from auvgw.ground.devicetime import DeviceClock
 from auvgw.slam import pipelines
 from auvgw.stages.base import BusCounters, Stage, StageConfig
 from auvgw.subscribe import slam_output
 from auvgw.viz.logger import RerunLogger, VizOptions
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
+
+    from auvgw.drivers.geoswath import GeoSwathPing
+    from auvgw.drivers.pd0 import Ensemble
 
 __all__ = ["SECTIONS", "StageStats", "VizRunner", "VizStage", "host_clock", "open_viz"]
 
@@ -87,14 +95,55 @@ class _Obj:
 
     __slots__ = ("_d",)
 
-    def __init__(self, d: Mapping[str, Any]) -> None:
+    def __init__(self, d: Mapping[str, object]) -> None:
         self._d = d
 
-    def __getattr__(self, name: str) -> Any:
+    def __getattr__(self, name: str) -> object:
         try:
             return self._d[name]
         except KeyError:
             raise AttributeError(name) from None
+
+
+class _Swath(Protocol):
+    """Role ``swath`` (Kongsberg XYZ 88, Depth): per-beam ``xyz`` (along, across, depth m from
+    the transducer) and the ``beams`` table (its ``valid`` flags, else non-zero ``depth``)."""
+
+    @property
+    def xyz(self) -> ArrayLike: ...
+    @property
+    def beams(self) -> object: ...
+
+
+class _SonarPing(Protocol):
+    """Role ``sonar`` (SeaNet ``mtHeadData``): one scan line: ``bearing`` (rad, clockwise from
+    forward), ``bins`` (near to far), ``range_m``, head ``step`` (rad), 8-bit data or 4-bit."""
+
+    @property
+    def bearing(self) -> float: ...
+    @property
+    def bins(self) -> ArrayLike: ...
+    @property
+    def range_m(self) -> float: ...
+    @property
+    def step(self) -> float: ...
+    @property
+    def adc8on(self) -> bool: ...
+
+
+_T = TypeVar("_T")
+
+
+def _mapping(v: object, what: str) -> Mapping[str, object]:
+    """``v`` as a JSON object (TypeError naming ``what`` otherwise)."""
+    if not isinstance(v, Mapping):
+        raise TypeError(f"{what}: a JSON object expected, not {type(v).__name__}")
+    return v
+
+
+def _array(v: object) -> np.ndarray | None:
+    """A JSON array (or None) as a float64 array."""
+    return None if v is None else np.asarray(v, dtype=np.float64)
 
 
 def host_clock(jump_s: float = 1.0, sync_s: float = 60.0) -> DeviceClock:
@@ -129,14 +178,19 @@ class StageStats(BusCounters):
         return self.queue_dropped
 
 
-def _float(v: Any, default: float = math.nan) -> float:
-    try:
-        return float(v) if v is not None else default
+def _float(v: object, default: float = math.nan) -> float:
+    """``v`` as a float (a number or a numeric string), else ``default``."""
+    if type(v) is float:  # most fields (this runs per field: no Protocol isinstance)
+        return v
+    if v is None:
+        return default
+    try:  # float() raises TypeError for what is neither
+        return float(cast(SupportsFloat, v))
     except (TypeError, ValueError):
         return default
 
 
-def _get(obj: Any, *names: str) -> Any:
+def _get(obj: object, *names: str) -> object:
     """First attribute or key of ``obj`` among ``names`` (None if none)."""
     for n in names:
         v = obj.get(n) if isinstance(obj, Mapping) else getattr(obj, n, None)
@@ -145,12 +199,12 @@ def _get(obj: Any, *names: str) -> Any:
     return None
 
 
-def _numeric_leaves(body: Mapping[str, Any], limit: int = 16) -> dict[str, float]:
+def _numeric_leaves(body: Mapping[str, object], limit: int = 16) -> dict[str, float]:
     """Numbers of a status object, nested objects flattened as ``a.b`` (two levels), at most
     ``limit``; the schema version and times in ns are left out."""
     out: dict[str, float] = {}
 
-    def walk(obj: Mapping[str, Any], prefix: str, depth: int) -> None:
+    def walk(obj: Mapping[str, object], prefix: str, depth: int) -> None:
         for k, v in obj.items():
             if len(out) >= limit:
                 return
@@ -164,19 +218,29 @@ def _numeric_leaves(body: Mapping[str, Any], limit: int = 16) -> dict[str, float
     return out
 
 
-def _points(value: Any) -> tuple[np.ndarray, np.ndarray | None]:
+def _items(value: object, what: str) -> list[object]:
+    """A JSON array (None: empty) as a list (TypeError naming ``what`` otherwise)."""
+    if not value:
+        return []
+    if not isinstance(value, Iterable):
+        raise TypeError(f"{what}: an array expected, not {type(value).__name__}")
+    return list(value)
+
+
+def _points(value: object) -> tuple[np.ndarray, np.ndarray | None]:
     """Points (L, 2) and ids from a list of [x, y] / {"x", "y", "id"} / an (L, 2) array."""
     if isinstance(value, Mapping):
         value = value.get("mean", value.get("points"))
-    items = list(value or [])
+    items = _items(value, "points")
     if items and isinstance(items[0], Mapping):
-        xy = np.array([[_float(p.get("x")), _float(p.get("y"))] for p in items])
-        ids = [p.get("id") for p in items]
+        objs = [_mapping(p, "point") for p in items]
+        xy = np.array([[_float(p.get("x")), _float(p.get("y"))] for p in objs])
+        ids = [p.get("id") for p in objs]
         return xy.reshape(-1, 2), (None if any(i is None for i in ids) else np.array(ids))
     return np.asarray(items, dtype=np.float64).reshape(-1, 2), None
 
 
-def _lines(value: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+def _lines(value: object) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
     """(rho, theta, cov, endpoints) from a list of {"rho", "theta", "cov"?, "p0"?, "p1"?} or
     [rho, theta] pairs, or {"rho": [...], "theta": [...], "cov": [...], "p0"?: [...], "p1"?:
     [...]} (a :class:`~auvgw.slam.outputs.LineSet`)."""
@@ -187,17 +251,18 @@ def _lines(value: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.nd
         c = None if cov is None else np.asarray(cov, dtype=np.float64).reshape(-1, 2, 2)
         p0, p1 = value.get("p0"), value.get("p1")
         e = None
-        if p0 is not None and p1 is not None and len(p0) == len(p1) == len(rho):
+        if isinstance(p0, Sized) and isinstance(p1, Sized) and len(p0) == len(p1) == len(rho):
             e = np.stack([np.asarray(p0, np.float64).reshape(-1, 2),
                           np.asarray(p1, np.float64).reshape(-1, 2)], axis=1)  # fmt: skip
         return rho, theta, c, e
-    items = list(value or [])
+    items = _items(value, "lines")
     if items and isinstance(items[0], Mapping):
-        rho = np.array([_float(v.get("rho")) for v in items])
-        theta = np.array([_float(v.get("theta")) for v in items])
-        covs = [v.get("cov") for v in items]
+        objs = [_mapping(v, "line") for v in items]
+        rho = np.array([_float(v.get("rho")) for v in objs])
+        theta = np.array([_float(v.get("theta")) for v in objs])
+        covs = [v.get("cov") for v in objs]
         c = None if any(x is None for x in covs) else np.asarray(covs, dtype=np.float64)
-        ends = [(v.get("p0"), v.get("p1")) for v in items]
+        ends = [(v.get("p0"), v.get("p1")) for v in objs]
         e = None
         if all(a is not None and b is not None for a, b in ends):
             e = np.asarray(ends, dtype=np.float64).reshape(-1, 2, 2)
@@ -209,7 +274,9 @@ def _lines(value: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.nd
 class VizStage(Stage):
     """Maps the bus of one vehicle to a :class:`RerunLogger` (see the module docstring).
 
-    :meth:`attach` subscribes on a Zenoh session and :meth:`start` runs the mapping thread;
+    :meth:`attach` subscribes on a Zenoh session and :meth:`Stage.start` ``(subscribe=False)``
+    runs the mapping thread (the stage declares nothing else: no outputs, no status on the bus);
+    :meth:`Stage.stop` maps what is queued (the logger stays open: close it afterwards);
     :meth:`handle_sample` maps one payload synchronously (tests, replay) and
     :meth:`on_message` one typed message (in-process, e.g. ``Gateway(on_message=...)``). Its
     own health (every ``health_period_s`` and at :meth:`stop`) goes to the logger, not the bus.
@@ -238,14 +305,15 @@ class VizStage(Stage):
         self._acoustic: dict[str, tuple[float, float]] = {}  # acoustic beacon logged, per map
         #: magnetic-beacon ranges of the latest window, per map: (t, beacon positions)
         self._ranges: dict[str, tuple[float, list[tuple[float, float]]]] = {}
-        self._status: dict[str, tuple[Any, Any]] = {}
+        self._status: dict[str, tuple[object, object]] = {}  # (connected, last error)
+        self._warnings: dict[str, tuple[str, ...]] = {}  # a fusion's diagnostics warnings
         self._pilot_mode: str | None = None  # the autopilot's mode last shown
         self._losses: dict[str, dict[str, float]] = {}  # the loss counters seen, per device
         self._t_last = 0.0  # the newest data time (sensor, odometry stamps), s; never goes back
         self._raw_ping_t: dict[tuple[str, int], float] = {}  # raw ping shown last, per side
         #: device registry role -> handler; a message type is shown by the first of its roles
         #: that has one (registry.MessageType.roles)
-        self._role_handlers: dict[str, Callable[[str, Any, float], bool]] = {
+        self._role_handlers: dict[str, Callable[[str, object, float], bool]] = {
             "swath": self._swath,
             "samples": self._raw_ping,
             "velocity": self._dvl,
@@ -278,20 +346,13 @@ class VizStage(Stage):
         """``auv/<v>/<section>/**`` of each attached section."""
         return [self.keys.all(f"{section}/**") for section in self.sections]
 
-    def attach(self, session: Any, sections: Iterable[str] = SECTIONS) -> None:
-        """Subscribe to this vehicle's ``sections`` on ``session`` (a ``zenoh.Session``)."""
+    def attach(self, session: zenoh.Session, sections: Iterable[str] = SECTIONS) -> None:
+        """Subscribe to this vehicle's ``sections`` on ``session`` (the mapping thread is the
+        base's worker: :meth:`Stage.start` ``(subscribe=False)`` starts it; not started,
+        :meth:`Stage.stop` maps what is queued on the calling thread)."""
         self.session = session
         self.sections = tuple(sections)
         self.subscribe()
-
-    def start(self, subscribe: bool = False) -> None:
-        """Start the mapping thread (idempotent; :meth:`attach` subscribes)."""
-        self.start_worker()
-
-    def stop(self, timeout_s: float = 10.0) -> None:  # type: ignore[override]
-        """Undeclare the subscribers, map what is queued (``timeout_s``: given up after that
-        long without progress), stop the thread (the logger stays open: close it afterwards)."""
-        super().stop(flush=True, timeout_s=timeout_s)
 
     def publish_status(self) -> None:
         """The stage's own health into the logger (once something was mapped)."""
@@ -362,7 +423,7 @@ class VizStage(Stage):
                 t_stamp = env.t_recv_ns / 1e9
                 self._t_last = max(self._t_last, t_stamp)
                 return self._sensor(env.device, env.type, env.message, t_stamp)
-            data: Any = {"v": SCHEMA_VERSION, "type": env.type, "device": env.device,
+            data: object = {"v": SCHEMA_VERSION, "type": env.type, "device": env.device,
                          "msg": env.body, "t_recv_ns": env.t_recv_ns}  # fmt: skip
         elif section == "slam":  # a declared SLAM output (auvgw.slam.outputs), or JSON
             data = slam_output(payload, key)
@@ -396,7 +457,7 @@ class VizStage(Stage):
             return self._pilot(parts[1], body, t_host)
         return f"unknown:{section}"
 
-    def _pilot(self, what: str, body: Mapping[str, Any], t_host: float) -> str:
+    def _pilot(self, what: str, body: Mapping[str, object], t_host: float) -> str:
         """The autopilot (auvgw.stages.pilot, docs/pilot.md) on the odometry's clock, one unit
         per view (:data:`auvgw.viz.entities.PILOT_VIEWS`): its ``state`` as ``pilot/track``
         (cross- and along-track error, depth set-point, m), ``pilot/setpoints`` (heading and
@@ -432,8 +493,11 @@ class VizStage(Stage):
                               "ERROR" if mode == "aborted" else "INFO")  # fmt: skip
         return "logged"
 
-    def _sensor_json(self, device: str, type_name: str, body: Mapping[str, Any], t: float) -> str:
+    def _sensor_json(
+        self, device: str, type_name: str, body: Mapping[str, object], t: float
+    ) -> str:
         cls = self._classes.get(type_name)
+        msg: object
         if type_name == "pd0.Ensemble" and cls is not None:
             msg = self._ensemble(body)
         elif cls is not None:
@@ -442,23 +506,23 @@ class VizStage(Stage):
             msg = _Obj(body)
         return self._sensor(device, type_name, msg, t)
 
-    def _ensemble(self, body: Mapping[str, Any]) -> Any:
+    def _ensemble(self, body: Mapping[str, object]) -> Ensemble:
         """A PD0 ensemble with only the blocks shown (the profiles are not rebuilt)."""
         from auvgw.drivers import pd0
 
-        parts: dict[str, Any] = {}
-        for name, cls in (
-            ("fixed_leader", pd0.FixedLeader),
-            ("variable_leader", pd0.VariableLeader),
-            ("bottom_track", pd0.BottomTrack),
-            ("bt_high_res", pd0.BottomTrackHighRes),
-            ("bt_range", pd0.BottomTrackRange),
-        ):
-            if body.get(name) is not None:
-                parts[name] = from_jsonable(body[name], cls)
-        return pd0.Ensemble(**parts)
+        def block(name: str, cls: type[_T]) -> _T | None:
+            v = body.get(name)
+            return None if v is None else from_jsonable(_mapping(v, name), cls)
 
-    def on_message(self, device: str, t_recv_ns: int, msg: Any) -> str:
+        return pd0.Ensemble(
+            fixed_leader=block("fixed_leader", pd0.FixedLeader),
+            variable_leader=block("variable_leader", pd0.VariableLeader),
+            bottom_track=block("bottom_track", pd0.BottomTrack),
+            bt_high_res=block("bt_high_res", pd0.BottomTrackHighRes),
+            bt_range=block("bt_range", pd0.BottomTrackRange),
+        )
+
+    def on_message(self, device: str, t_recv_ns: int, msg: object) -> str:
         """Map one typed message (in-process: ``Gateway(on_message=stage.on_message)``)."""
         with self._lock:
             self.stats.received += 1
@@ -472,7 +536,7 @@ class VizStage(Stage):
             return self._error(f"{device}/{type_name}", exc)
         return self._count(outcome)
 
-    def _sensor(self, device: str, type_name: str, msg: Any, t_host: float) -> str:
+    def _sensor(self, device: str, type_name: str, msg: object, t_host: float) -> str:
         from auvgw.drivers import registry
 
         if type_name in IGNORED_TYPES:
@@ -483,26 +547,29 @@ class VizStage(Stage):
                 return "logged"
         return f"sensor:{type_name or '?'}"
 
-    def _attitude(self, device: str, msg: Any, t_host: float) -> bool:
-        if not all(hasattr(msg, n) for n in ("roll", "pitch", "heading")):
+    def _attitude(self, device: str, message: object, t_host: float) -> bool:
+        if not all(hasattr(message, n) for n in ("roll", "pitch", "heading")):
             return False
+        msg = cast(Attitude, message)
         t = self._clock(device)(_float(getattr(msg, "time", None)), t_host)
         self.logger.attitude(t, _float(msg.roll), _float(msg.pitch), _float(msg.heading))
         return True
 
-    def _field(self, device: str, msg: Any, t_host: float) -> bool:
-        if not all(hasattr(msg, n) for n in ("bx", "by", "bz")):
+    def _field(self, device: str, message: object, t_host: float) -> bool:
+        if not all(hasattr(message, n) for n in ("bx", "by", "bz")):
             return False
+        msg = cast(Field, message)
         b = (_float(msg.bx), _float(msg.by), _float(msg.bz))
         self.logger.magnetometer(self._clock(device)(None, t_host), b)
         return True
 
-    def _acoustic_fix(self, device: str, msg: Any, t_host: float) -> bool:
+    def _acoustic_fix(self, device: str, message: object, t_host: float) -> bool:
         """An acoustic beacon reply (slant ``range`` m, ``bearing`` rad from the bow,
         ``depression`` rad): a line from the navigation pose to where the fix places the beacon
         (``map/acoustic/ranges``; it ends on the beacon while the navigation is right)."""
-        if not all(hasattr(msg, n) for n in ("range", "bearing")):
+        if not all(hasattr(message, n) for n in ("range", "bearing")):
             return False
+        msg = cast(Range, message)
         pose = self._nav or self._truth
         if pose is None:
             return True  # nothing to draw it from yet
@@ -520,11 +587,14 @@ class VizStage(Stage):
             return (0.0, 0.0, 0.0, heading)
         return pose
 
-    def _swath(self, device: str, msg: Any, t_host: float) -> bool:
+    def _swath(self, device: str, message: object, t_host: float) -> bool:
+        msg = cast(_Swath, message)
         t = self._clock(device)(_float(getattr(msg, "device_time", None)), t_host)
         xyz = np.asarray(msg.xyz, dtype=np.float64)
         beams = msg.beams
-        valid = beams.valid if hasattr(beams, "valid") else np.asarray(beams.depth) != 0
+        valid = getattr(beams, "valid", None)
+        if valid is None:
+            valid = np.asarray(getattr(beams, "depth", ())) != 0
         x, y, z, h = self._pose_for_swath(_float(getattr(msg, "heading", 0.0), 0.0))
         draft = _float(getattr(msg, "transducer_depth_total", None))
         if math.isnan(draft):
@@ -535,13 +605,15 @@ class VizStage(Stage):
         )
         return True
 
-    def _raw_ping(self, device: str, ping: Any, t_host: float) -> bool:
+    def _raw_ping(self, device: str, message: object, t_host: float) -> bool:
         """A GeoSwath ping: its samples' return angle (deg) and slant range (m, at the ping's
         MINISVS sound speed and the device's frequency: ``geoswath_frequencies_hz``, else
         ``geoswath_frequency_hz``) with their amplitude, every ``raw_ping_period_s`` device
         seconds per side."""
-        if not hasattr(ping, "arrays") or "raa" not in ping.arrays:
+        arrays = getattr(message, "arrays", None)
+        if not isinstance(arrays, Mapping) or "raa" not in arrays:
             return False
+        ping = cast("GeoSwathPing", message)
         from auvgw.slam.bathymetric.swath_processing import SwathProcessing, ping_samples
 
         opts = self.logger.options
@@ -562,9 +634,10 @@ class VizStage(Stage):
         3: ("east", "north", "up"),
     }
 
-    def _dvl(self, device: str, ens: Any, t_host: float) -> bool:
-        if not hasattr(ens, "bottom_track"):  # a PD0 ensemble; PD6 velocities are not shown
+    def _dvl(self, device: str, message: object, t_host: float) -> bool:
+        if not hasattr(message, "bottom_track"):  # a PD0 ensemble; PD6 velocities are not shown
             return False
+        ens = cast("Ensemble", message)
         vl = ens.variable_leader
         t = self._clock(device)(None if vl is None else vl.device_time_s, t_host)
         bt, hr, rng = ens.bottom_track, ens.bt_high_res, ens.bt_range
@@ -584,14 +657,15 @@ class VizStage(Stage):
         self.logger.dvl(t, v, altitude, names, lock)
         return True
 
-    def _msis(self, device: str, msg: Any, t_host: float) -> bool:
+    def _msis(self, device: str, message: object, t_host: float) -> bool:
+        msg = cast(_SonarPing, message)
         t = self._clock(device)(None, t_host)
         max_value = 255 if msg.adc8on else 15
         self.logger.msis_ping(t, msg.bearing, msg.bins, msg.range_m, msg.step, max_value)
         return True
 
     # nav, slam, truth, status (JSON objects) ------------------------------------------------
-    def _odometry(self, body: Mapping[str, Any], t_host: float) -> str:
+    def _odometry(self, body: Mapping[str, object], t_host: float) -> str:
         if "x" not in body or "y" not in body:
             return "nav:?"
         t = self._clock("nav")(_float(body.get("t")), t_host)
@@ -603,7 +677,7 @@ class VizStage(Stage):
         self.logger.trajectory("dead_reckoning", t, x, y, z, h, cxy)
         return "logged"
 
-    def _pose_of(self, body: Mapping[str, Any]) -> tuple[float, float, float, float] | None:
+    def _pose_of(self, body: Mapping[str, object]) -> tuple[float, float, float, float] | None:
         pose = body.get("pose")
         if isinstance(pose, list | tuple) and len(pose) >= 2:
             h = _float(pose[2]) if len(pose) > 2 else math.nan
@@ -615,7 +689,7 @@ class VizStage(Stage):
             )  # fmt: skip
         return None
 
-    def _map_features(self, name: str, body: Mapping[str, Any], t: float) -> bool:
+    def _map_features(self, name: str, body: Mapping[str, object], t: float) -> bool:
         shown = False
         pts = _get(body, "mean", "landmarks", "points", "features")
         if pts is not None:
@@ -648,7 +722,7 @@ class VizStage(Stage):
             shown = True
         return shown
 
-    def _slam(self, pipeline: str, what: str, body: Mapping[str, Any], t_host: float) -> str:
+    def _slam(self, pipeline: str, what: str, body: Mapping[str, object], t_host: float) -> str:
         """A SLAM output, shown by its view in the pipeline registry
         (:data:`auvgw.slam.pipelines.OUTPUT_VIEWS`): the pipeline publishing under ``pipeline``
         names the view of each of its outputs ``what``."""
@@ -668,7 +742,8 @@ class VizStage(Stage):
             shown = True
         particles = body.get("particles")
         if particles is not None:
-            self.logger.particles(name, t, particles, body.get("weights"))
+            self.logger.particles(name, t, np.asarray(particles, dtype=np.float64),
+                                  _array(body.get("weights")))  # fmt: skip
             shown = True
         if view == "dem":
             shown |= self._dem(name, body, t)
@@ -682,7 +757,7 @@ class VizStage(Stage):
             shown |= self._path(name, body)
         return "logged" if shown else f"slam:{what}"
 
-    def _path(self, name: str, body: Mapping[str, Any]) -> bool:
+    def _path(self, name: str, body: Mapping[str, object]) -> bool:
         """A smoothed trajectory (bathymetric SLAM's ``track``: ``t``, ``x``, ``y`` per pose,
         sent once at the end): its own track ``<name>-smoothed``, each pose at its time."""
         t, x, y = body.get("t"), body.get("x"), body.get("y")
@@ -693,24 +768,26 @@ class VizStage(Stage):
                 self.logger.trajectory(f"{name}-smoothed", float(ti), float(xi), float(yi))
         return bool(t)
 
-    def _dem(self, name: str, body: Mapping[str, Any], t: float) -> bool:
+    def _dem(self, name: str, body: Mapping[str, object], t: float) -> bool:
         """A DEM tile (bathymetric SLAM's ``map``: ``depth`` grid, ``cell_m``, ``x0``, ``y0``)."""
         if "cell_m" not in body or "depth" not in body:
             return False
-        grid = [[math.nan if v is None else v for v in row] for row in body["depth"]]
+        rows = [[math.nan if v is None else v for v in _items(row, "depth")]
+                for row in _items(body["depth"], "depth")]  # fmt: skip
+        grid = np.asarray(rows, dtype=np.float64)
         self.logger.dem(name, t, _float(body["x0"]), _float(body["y0"]), _float(body["cell_m"]),
                         grid)  # fmt: skip
         return True
 
-    def _seabed(self, name: str, body: Mapping[str, Any], t: float) -> bool:
+    def _seabed(self, name: str, body: Mapping[str, object], t: float) -> bool:
         """Seabed points (bathymetric SLAM's ``cloud``: ``points`` [[x, y, depth]])."""
         pts = body.get("points")
-        if pts is not None and len(pts) and len(pts[0]) == 3:
+        if isinstance(pts, list) and len(pts) and len(pts[0]) == 3:
             self.logger.seabed(name, t, pts)
             return True
         return False
 
-    def _beacon_ranges(self, name: str, body: Mapping[str, Any], t: float) -> bool:
+    def _beacon_ranges(self, name: str, body: Mapping[str, object], t: float) -> bool:
         """One magnetic-beacon observation (``slam/magnetic/observations``: ``z`` = [range m,
         bearing rad from the heading] seen from ``x``, ``y``, ``heading``): a line from the
         vehicle to where it places the beacon."""
@@ -733,7 +810,7 @@ class VizStage(Stage):
         self.logger.ranges(name, t, (x, y), ends)
         return True
 
-    def _truth_msg(self, body: Mapping[str, Any], t_host: float) -> str:
+    def _truth_msg(self, body: Mapping[str, object], t_host: float) -> str:
         t = self._clock("truth")(_float(body.get("t")), t_host)
         shown = False
         pose = self._pose_of(body)
@@ -747,7 +824,7 @@ class VizStage(Stage):
     #: fusion diagnostics shown as one series each (``<device>_diagnostics``), window shares
     _DIAG_KEYS = ("accepted_share", "rejected_share", "coasting_share", "nis_mean_per_dof")
 
-    def _diagnostics(self, device: str, diag: Mapping[str, Any], t: float) -> None:
+    def _diagnostics(self, device: str, diag: Mapping[str, object], t: float) -> None:
         """A fusion status's diagnostics: the window's shares, NIS and the adapted DVL noise as
         series, and each new warning as a WARN event (docs/fusion.md, Diagnostics)."""
         win = diag.get("window")
@@ -758,13 +835,12 @@ class VizStage(Stage):
         for axis, v in zip("xyz", sig, strict=True):
             metrics[f"dvl_noise_{axis}_mps"] = _float(v)
         self.logger.health(f"{device}_diagnostics", t, metrics)
-        warnings = tuple(str(w) for w in diag.get("warnings") or ())
-        key = f"{device}_diagnostics"
-        prev = self._status.get(key)
-        if prev is None or prev[0] != warnings:
-            self._status[key] = (warnings, None)
+        warnings = tuple(str(w) for w in _items(diag.get("warnings"), "warnings"))
+        prev = self._warnings.get(device)
+        if prev != warnings:
+            self._warnings[device] = warnings
             for w in warnings:
-                if prev is None or w.split(":", 1)[0] not in {p.split(":", 1)[0] for p in prev[0]}:
+                if prev is None or w.split(":", 1)[0] not in {p.split(":", 1)[0] for p in prev}:
                     self.logger.event(device, t, f"{device}: {w}", "WARN")
 
     _HEALTH_KEYS = (
@@ -775,7 +851,7 @@ class VizStage(Stage):
     #: a device's loss counters: each increase is a WARN event
     _LOSS_KEYS = ("bad_frames", "decode_errors", "skipped_bytes", "transport_lost")
 
-    def _health(self, device: str, body: Mapping[str, Any], t_host: float) -> str:
+    def _health(self, device: str, body: Mapping[str, object], t_host: float) -> str:
         if device == "gateway" or "devices" in body:
             return "ignored"  # the gateway summary repeats the per-device status
         # on the data's timeline (the gateway's stamp clock, vehicle-paced in emulation), not
@@ -827,20 +903,20 @@ class VizRunner:
     stage: VizStage
 
     @property
-    def on_message(self) -> Callable[[str, int, Any], str]:
+    def on_message(self) -> Callable[[str, int, object], str]:
         """In-process hook for ``Gateway(on_message=...)`` (then attach without ``sensor``)."""
         return self.stage.on_message
 
     def close(self, timeout_s: float = 30.0) -> None:
         """Stop the stage (mapping what is queued), then close the logger (writes the footer)."""
         try:
-            self.stage.stop(timeout_s)
+            self.stage.stop(timeout_s=timeout_s)
         finally:
             self.logger.close(timeout_s)
 
 
 def open_viz(
-    session: Any,
+    session: zenoh.Session,
     vehicle: str,
     *,
     rrd: str | Path | None = None,
@@ -861,5 +937,5 @@ def open_viz(
     except Exception:
         logger.close()
         raise
-    stage.start()
+    stage.start(subscribe=False)  # attached above; nothing of its own to declare on the bus
     return VizRunner(logger, stage)

@@ -16,7 +16,6 @@ from __future__ import annotations
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
@@ -24,7 +23,8 @@ from auvgw.viz.logger import RerunLogger
 
 __all__ = ["Rates", "SyntheticWorld", "iter_truth", "log_synthetic_run", "synthetic_calls"]
 
-Call = tuple[str, tuple[Any, ...], dict[str, Any]]
+#: one logger call: (method name, positional arguments, keyword arguments)
+Call = tuple[str, tuple[object, ...], dict[str, object]]
 
 
 @dataclass(frozen=True)
@@ -125,7 +125,7 @@ def synthetic_calls(
     rng = np.random.default_rng(seed)
     calls: list[tuple[float, int, Call]] = []
 
-    def add(t: float, name: str, *args: Any, **kwargs: Any) -> None:
+    def add(t: float, name: str, *args: object, **kwargs: object) -> None:
         calls.append((t, len(calls), (name, args, kwargs)))
 
     # INS attitude and the truth trajectory at the INS rate
@@ -219,9 +219,17 @@ def iter_truth(
     yield from zip(t.tolist(), x.tolist(), y.tolist(), strict=True)
 
 
-def log_synthetic_run(logger: RerunLogger, duration_s: float, **kwargs: Any) -> int:
+def log_synthetic_run(
+    logger: RerunLogger,
+    duration_s: float,
+    *,
+    t0: float = 1_700_000_000.0,
+    rates: Rates | None = None,
+    world: SyntheticWorld | None = None,
+    seed: int = 1,
+) -> int:
     """Make every call of :func:`synthetic_calls` on ``logger``; returns how many were queued."""
     queued = 0
-    for name, args, kw in synthetic_calls(duration_s, **kwargs):
+    for name, args, kw in synthetic_calls(duration_s, t0=t0, rates=rates, world=world, seed=seed):
         queued += bool(getattr(logger, name)(*args, **kw))
     return queued

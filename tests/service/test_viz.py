@@ -24,6 +24,7 @@ from auvgw.viz.logger import (
 )
 from auvgw.viz.readback import health_metrics, read_recording, read_views
 from auvgw.viz.synthetic import Rates, SyntheticWorld, synthetic_calls
+from auvgw.viz.views import VIEWS
 
 T0 = 1_700_000_000.0
 DURATION = 12.0
@@ -329,6 +330,37 @@ def test_failing_item_is_counted_not_fatal(tmp_path) -> None:
     assert (st_.processed, st_.errors) == (3, 1) and "lines" in st_.last_error
     rec = read_recording(path)
     assert len(rec[ent.DVL_VELOCITY]) == 1 and len(rec["map/x/landmarks"]) == 1
+
+
+def test_every_view_is_one_class_and_one_row(tmp_path) -> None:
+    """The logger's table of views: one row per class, kinds unique, each class with a logging
+    method of its own, and each kind what one of the logger's methods queues (white box)."""
+    kinds = [v.kind for v in VIEWS]
+    assert len(set(kinds)) == len(kinds) and all(kinds)
+    assert all("log" in vars(v) for v in VIEWS), [v.__name__ for v in VIEWS if "log" not in vars(v)]
+    logger = RerunLogger(rrd=tmp_path / "kinds.rrd", autostart=False)
+    xy = np.zeros((2, 2))
+    logger.trajectory("truth", T0, 0.0, 0.0)
+    logger.landmarks("truth", T0, xy)
+    logger.lines("truth", T0, [1.0], [0.0])
+    logger.particles("slam/x", T0, xy)
+    logger.ranges("slam/x", T0, (0.0, 0.0), xy)
+    logger.acoustic_beacon("truth", T0, 1.0, 2.0)
+    logger.attitude(T0, 0.0, 0.0, 0.0)
+    logger.dvl(T0, (0.0, 0.0, 0.0))
+    logger.magnetometer(T0, (1.0, 2.0, 3.0))
+    logger.msis_ping(T0, 0.0, np.zeros(10), 10.0)
+    logger.raw_ping("gs", T0, 0, [1.0], [2.0], [3.0])
+    logger.swath(T0, [0.0], [0.0], [10.0])
+    logger.seabed("slam/x", T0, [[0.0, 0.0, 10.0]])
+    logger.dem("slam/x", T0, 0.0, 0.0, 1.0, [[10.0]])
+    logger.health("ins", T0, {"rate_hz": 1.0})
+    logger.series("pilot/leg", T0, {"leg": 1.0})
+    logger.event("ins", T0, "hello")
+    queued = sorted(kind for kind, _, _ in list(logger._w_inbox.queue.queue))
+    assert queued == sorted(kinds)
+    logger.close()
+    assert (logger.stats().processed, logger.stats().errors) == (len(kinds), 0)
 
 
 def test_options_and_outputs_are_checked(tmp_path) -> None:
