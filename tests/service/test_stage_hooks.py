@@ -17,9 +17,6 @@ from auvgw.testing.overrides import overrides, subclasses
 
 #: the base's lifecycle methods a subclass never redefines
 LIFECYCLE = ("start", "stop")
-#: overrides another branch of issue 29 removes ("views": the Rerun stage); the test fails
-#: while an entry here is stale, so the merge drops it
-PENDING = {"auvgw.viz.stage.VizStage.start", "auvgw.viz.stage.VizStage.stop"}
 
 
 def _overrides(classes: set[type]) -> set[str]:
@@ -42,9 +39,7 @@ def test_no_stage_overrides_start_or_stop() -> None:
     names = {c.__qualname__ for c in subs}
     assert {"FusionStage", "PilotStage", "Ros2Bridge", "FoxgloveStage", "VizStage",
             "MagneticStage", "BathymetricStage", "SlamStage", "SwathStage"} <= names  # fmt: skip
-    found = _overrides(subs)
-    assert found - PENDING == set(), "override the hooks (on_start, on_stop, keep) instead"
-    assert found >= PENDING, f"stale PENDING entries (remove them): {sorted(PENDING - found)}"
+    assert _overrides(subs) == set(), "override the hooks (on_start, on_stop, keep) instead"
 
 
 def test_the_check_finds_a_planted_override() -> None:
