@@ -14,8 +14,9 @@ CPU seconds. Tuning seeds only (below 1000): this is what the demo's settings ar
 ``--delay-s D ...`` (issue 28, the along-track question): each swath is placed with the pose of
 ``D`` s after its ping, as the online stage did when it used the swath's receive stamp; one row
 per delay (0: as before). Every row also splits the errors into x (north: along the survey's
-lines) and y (east: across them), and each closure's own error into its along- and across-track parts (the vehicle's frame at
-the closure's end; signed medians: a delay shows as a constant along-track part).
+lines) and y (east: across them), and each closure's own error into its along- and across-track
+parts (the vehicle's frame at the closure's end; signed medians: a delay shows as a constant
+along-track part).
 """
 
 from __future__ import annotations
@@ -64,8 +65,13 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--variants", required=True, help="JSON: name -> settings over BATHY_FILTER")
     ap.add_argument("--seeds", type=int, nargs="+", default=[11, 12])
-    ap.add_argument("--delay-s", type=float, nargs="+", default=[0.0],
-                    help="place each swath with the pose this many s after its ping (s)")
+    ap.add_argument(
+        "--delay-s",
+        type=float,
+        nargs="+",
+        default=[0.0],
+        help="place each swath with the pose this many s after its ping (s)",
+    )
     ap.add_argument("--scenario", nargs="+", default=[str(config_file("scenarios/survey.json"))])
     a = ap.parse_args()
     if any(seed_split(s) != "tuning" for s in a.seeds):
@@ -108,10 +114,11 @@ def main() -> None:
                 cross = -own_xy[:, 0] * np.sin(h) + own_xy[:, 1] * np.cos(h)
                 ma, mc = (np.median(along), np.median(cross)) if len(own) else (np.nan, np.nan)
                 print(f"  {name}: final {e[-1]:.2f} RMS {rms(e):.2f} (x {rms(d[:, 0]):.2f}, y "
-                      f"{rms(d[:, 1]):.2f}) filt {rms(res.err_online):.2f} (x {rms(d_on[:, 0]):.2f}, "
-                      f"y {rms(d_on[:, 1]):.2f}); closures {len(acc)}/{len(f.loops)}, first at "
-                      f"ping {first}, own error median {med:.2f} max {top:.2f}, signed median "
-                      f"along {ma:+.2f} across {mc:+.2f}; CPU {cpu:.0f} s", flush=True)  # fmt: skip
+                      f"{rms(d[:, 1]):.2f}) filt {rms(res.err_online):.2f} (x "
+                      f"{rms(d_on[:, 0]):.2f}, y {rms(d_on[:, 1]):.2f}); closures {len(acc)}/"
+                      f"{len(f.loops)}, first at ping {first}, own error median {med:.2f} max "
+                      f"{top:.2f}, signed median along {ma:+.2f} across {mc:+.2f}; CPU "
+                      f"{cpu:.0f} s", flush=True)  # fmt: skip
 
 
 if __name__ == "__main__":
