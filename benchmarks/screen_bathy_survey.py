@@ -11,9 +11,11 @@ ping of the first and each closure's own error: its end relative to its loop poi
 against truth (``|(s_end - s_loop) - (x_end - x_loop)|``, m; median and max), and the filter's
 CPU seconds. Tuning seeds only (below 1000): this is what the demo's settings are chosen on.
 
-``--delay-s D ...`` (issue 28, the along-track question): each swath is placed with the pose of
-``D`` s after its ping, as the online stage did when it used the swath's receive stamp; one row
-per delay (0: as before). Every row also splits the errors into x (north: along the survey's
+``--nav-heading`` (issue 28): each swath rotated by the DR's INS heading error, as the online stage
+rotates it with the odometry's heading (the screen, like the paper's A30, uses the true one
+otherwise). ``--delay-s D ...`` (issue 28, the along-track question): each swath is placed with the
+pose of ``D`` s after its ping, as the online stage did when it used the swath's receive stamp; one
+row per delay (0: as before). Every row also splits the errors into x (north: along the survey's
 lines) and y (east: across them), and each closure's own error into its along- and across-track
 parts (the vehicle's frame at the closure's end; signed medians: a delay shows as a constant
 along-track part).
@@ -22,6 +24,7 @@ along-track part).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import time
 from pathlib import Path
@@ -35,7 +38,7 @@ from auvgw.ground.paths import config_file
 from auvgw.sim_devices.world import World
 from auvgw.slam.bathymetric.config import BathyConfig
 from auvgw.slam.bathymetric.evaluate import run_filter
-from auvgw.slam.bathymetric.simulate import BathyRun, simulate_survey
+from auvgw.slam.bathymetric.simulate import BathyRun, DRModel, simulate_survey
 from auvgw.slam.evaluation.heldout import seed_split
 
 
@@ -57,6 +60,29 @@ def delayed(sim: BathyRun, delay_s: float) -> BathyRun:
                     meta=sim.meta)  # fmt: skip
 
 
+@dataclasses.dataclass(frozen=True)
+class HeadingTap(DRModel):
+    """A :class:`DRModel` that keeps the INS heading error of the last run it drew."""
+
+    psi: list[np.ndarray] = dataclasses.field(default_factory=list)
+
+    def errors(self, truth: np.ndarray, dt_s: float, rng: np.random.Generator) -> np.ndarray:
+        e, psi = self.errors_and_heading(truth, dt_s, rng)
+        self.psi[:] = [psi]
+        return e
+
+
+def nav_heading(sim: BathyRun, psi: np.ndarray) -> BathyRun:
+    """``sim`` with every swath rotated by the navigation's heading error ``psi`` (rad, per DR
+    step; the first ping takes the first step's), as the online stage places it with the
+    odometry's heading where the offline screen (A30) uses the true one."""
+    p = np.concatenate([psi[:1], psi])
+    c, sn = np.cos(p)[:, None], np.sin(p)[:, None]
+    o = sim.offsets
+    rot = np.stack([c * o[..., 0] - sn * o[..., 1], sn * o[..., 0] + c * o[..., 1]], axis=-1)
+    return dataclasses.replace(sim, offsets=rot)
+
+
 def rms(e: np.ndarray) -> float:
     return float(np.sqrt(np.mean(e**2)))
 
@@ -72,6 +98,11 @@ def main() -> None:
         default=[0.0],
         help="place each swath with the pose this many s after its ping (s)",
     )
+    ap.add_argument(
+        "--nav-heading",
+        action="store_true",
+        help="rotate each swath by the DR's INS heading error, as the online stage does",
+    )
     ap.add_argument("--scenario", nargs="+", default=[str(config_file("scenarios/survey.json"))])
     a = ap.parse_args()
     if any(seed_split(s) != "tuning" for s in a.seeds):
@@ -79,15 +110,19 @@ def main() -> None:
     variants = json.loads(a.variants)
     for path in a.scenario:
         data = json.loads(Path(path).read_text())
-        dr = dr_model(data["devices"], "insdvl", 0.0)
+        dr = HeadingTap(**dataclasses.asdict(dr_model(data["devices"], "insdvl", 0.0)))
         data["duration_s"] = 1800
         mb = {"rate_hz": 0.85, "options": {"n_beams": 141, "swath_factor": 12}}
         data["devices"] = {"multibeam": mb}
         scn = Scenario.model_validate(data)
         world = World.from_scenario(scn)
         for seed, delay in ((s, d) for s in a.seeds for d in a.delay_s):
-            sim = delayed(simulate_survey(scn, np.random.default_rng(seed), dr=dr, world=world),
-                          delay)  # fmt: skip
+            sim = simulate_survey(scn, np.random.default_rng(seed), dr=dr, world=world)
+            if a.nav_heading:
+                sim = nav_heading(sim, dr.psi[0])
+                psi = np.degrees(dr.psi[0])
+                print(f"  INS heading error: mean {psi.mean():+.2f} deg, std {psi.std():.2f}")
+            sim = delayed(sim, delay)
             d_dr = sim.dr - sim.truth
             e_dr = np.hypot(*d_dr.T)
             print(f"{Path(path).stem} seed {seed} delay {delay:g} s: DR final {e_dr[-1]:.2f} m, "
