@@ -11,14 +11,14 @@ ping of the first and each closure's own error: its end relative to its loop poi
 against truth (``|(s_end - s_loop) - (x_end - x_loop)|``, m; median and max), and the filter's
 CPU seconds. Tuning seeds only (below 1000): this is what the demo's settings are chosen on.
 
-``--nav-heading`` (issue 28): each swath rotated by the DR's INS heading error, as the online stage
-rotates it with the odometry's heading (the screen, like the paper's A30, uses the true one
-otherwise). ``--delay-s D ...`` (issue 28, the along-track question): each swath is placed with the
-pose of ``D`` s after its ping, as the online stage did when it used the swath's receive stamp; one
-row per delay (0: as before). Every row also splits the errors into x (north: along the survey's
-lines) and y (east: across them), and each closure's own error into its along- and across-track
-parts (the vehicle's frame at the closure's end; signed medians: a delay shows as a constant
-along-track part).
+``--nav-heading`` (issue 28): each swath rotated by the DR's INS heading error (and/or by a constant
+``--heading-offset-deg``), as the online stage rotates it with the odometry's heading (the screen,
+like the paper's A30, uses the true one otherwise). ``--delay-s D ...`` (issue 28, the along-track
+question): each swath is placed with the pose of ``D`` s after its ping, as the online stage did
+when it used the swath's receive stamp; one row per delay (0: as before). Every row also splits the
+errors into x (north: along the survey's lines) and y (east: across them), and each closure's own
+error into its along- and across-track parts (the vehicle's frame at the closure's end; signed
+medians: a delay shows as a constant along-track part).
 """
 
 from __future__ import annotations
@@ -103,6 +103,12 @@ def main() -> None:
         action="store_true",
         help="rotate each swath by the DR's INS heading error, as the online stage does",
     )
+    ap.add_argument(
+        "--heading-offset-deg",
+        type=float,
+        default=0.0,
+        help="rotate each swath by this constant heading error as well (deg)",
+    )
     ap.add_argument("--scenario", nargs="+", default=[str(config_file("scenarios/survey.json"))])
     a = ap.parse_args()
     if any(seed_split(s) != "tuning" for s in a.seeds):
@@ -118,10 +124,11 @@ def main() -> None:
         world = World.from_scenario(scn)
         for seed, delay in ((s, d) for s in a.seeds for d in a.delay_s):
             sim = simulate_survey(scn, np.random.default_rng(seed), dr=dr, world=world)
-            if a.nav_heading:
-                sim = nav_heading(sim, dr.psi[0])
-                psi = np.degrees(dr.psi[0])
-                print(f"  INS heading error: mean {psi.mean():+.2f} deg, std {psi.std():.2f}")
+            if a.nav_heading or a.heading_offset_deg:
+                psi = dr.psi[0] * a.nav_heading + np.radians(a.heading_offset_deg)
+                sim = nav_heading(sim, psi)
+                p = np.degrees(psi)
+                print(f"  swath heading error: mean {p.mean():+.2f} deg, std {p.std():.2f}")
             sim = delayed(sim, delay)
             d_dr = sim.dr - sim.truth
             e_dr = np.hypot(*d_dr.T)
