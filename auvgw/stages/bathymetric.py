@@ -9,9 +9,15 @@ stamps):
 * **multibeam swaths**: Kongsberg XYZ 88 (kind ``xyz88``) and Depth (kind ``depth``) datagrams
   of the configured device (or of any device). Their beam depths are from the transmit
   transducer, so the seabed depth is ``transducer depth + beam depth`` (XYZ 88
-  ``transducer_depth``, Depth ``transducer_depth_total``). A swath waits until the odometry
-  covers its receive time, then goes to :class:`~auvgw.slam.bathymetric.online.OnlineBathy`
-  with the odometry pose interpolated at that time; the odometry displacement since the
+  ``transducer_depth``, Depth ``transducer_depth_total``). A swath's time is its *ping* time:
+  the datagram's own clock mapped onto the odometry clock by a
+  :class:`~auvgw.ground.devicetime.DeviceClock` (as the fusion maps the INS's), not its receive
+  stamp, which comes later by the sonar's, the emulator's and the transport's delay (issue 28:
+  at 1.7 m/s each 0.1 s of it placed a swath 0.17 m further along track, the opposite way on
+  neighbouring lines); a datagram without a valid time keeps its receive stamp. A swath waits
+  until the odometry covers its time, then goes to
+  :class:`~auvgw.slam.bathymetric.online.OnlineBathy` with the odometry pose interpolated at
+  that time; the odometry displacement since the
   previous used swath is the filter's control ``u`` (eq. 2). A swath is used only once the
   vehicle has moved ``min_ping_spacing_m`` since the last used one (the paper pings at 1 Hz
   at 2.2 m/s; a 5 Hz multibeam at 1.7 m/s would make the T_p = 20 swath submap 7 m long).
@@ -52,6 +58,8 @@ from pydantic import Field
 
 from auvgw.drivers.kongsberg import XYZ88, Depth
 from auvgw.fusion.odometry import Odometry
+from auvgw.ground.devicetime import DeviceClock
+from auvgw.health import device_time_s
 from auvgw.slam.bathymetric.config import BathyConfig
 from auvgw.slam.bathymetric.evaluate import grid_dem
 from auvgw.slam.bathymetric.online import OnlineBathy
@@ -117,6 +125,12 @@ class BathymetricStats(BusCounters):
     bad_swaths: int = 0  #: swaths with fewer than 2 valid soundings
     published: int = 0  #: pose publications
     maps: int = 0  #: map (DEM tile + cloud) publications
+    #: swaths placed at their own (ping) time rather than their receive stamp
+    ping_timed: int = 0
+    #: receive stamp minus the mapped ping time over those swaths (s, odometry clock): times
+    #: the vehicle speed, how far along track the receive stamp would have placed them
+    stamp_delay_mean_s: float = 0.0
+    stamp_delay_max_s: float = 0.0
 
 
 def swath_soundings(msg: Swath) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -156,6 +170,7 @@ class BathymetricStage(PipelineStage):
         self._odo = StateHistory(3, angles=(2,))  # x, y (m NED), heading (rad)
         self._swaths: HeldSamples[Swath] = HeldSamples(cfg.max_pending_swaths)
         self._last_xy: tuple[float, float] | None = None
+        self._ping_clock = DeviceClock()  # the multibeam's clock onto the odometry clock
         self.sources["swath"] = cfg.multibeam_device
 
     def input_keys(self) -> list[str]:
@@ -174,9 +189,12 @@ class BathymetricStage(PipelineStage):
             self._odo.trim(o.t - self.config.odometry_window_s)
 
     def feed_swath(self, t: float, msg: Swath) -> None:
-        """One decoded XYZ 88 / Depth datagram received at ``t`` (s, odometry clock)."""
+        """One decoded XYZ 88 / Depth datagram received at ``t`` (s, odometry clock); placed at
+        its ping time (its own clock mapped onto the odometry clock), or at ``t`` if it has
+        none."""
         with self._lock:
             self.stats.swaths += 1
+            t = self._ping_time(t, msg)
             first = self._odo.first_t
             if first is not None and t < first:
                 self.stats.before_odometry += 1
@@ -189,6 +207,20 @@ class BathymetricStage(PipelineStage):
         configured one, else the first seen) are used, everything else ignored."""
         if isinstance(message, XYZ88 | Depth) and self.from_source("swath", device):
             self.feed_swath(t_recv_ns * 1e-9, message)
+
+    def _ping_time(self, t_recv: float, msg: Swath) -> float:
+        """The ping time of a swath received at ``t_recv`` (s, odometry clock): its device time
+        through the multibeam's clock; ``t_recv`` for a datagram without one."""
+        t_dev = device_time_s(msg)
+        if t_dev is None:
+            return t_recv
+        t = self._ping_clock.to_common(t_dev, t_recv)
+        st = self.stats
+        st.ping_timed += 1
+        delay = t_recv - t
+        st.stamp_delay_mean_s += (delay - st.stamp_delay_mean_s) / st.ping_timed
+        st.stamp_delay_max_s = max(st.stamp_delay_max_s, delay)
+        return t
 
     def _drain(self) -> None:
         for t, msg in self._swaths.release(self._odo.last_t):

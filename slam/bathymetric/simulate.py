@@ -60,15 +60,23 @@ class DRModel:
     def errors(self, truth: np.ndarray, dt_s: float, rng: np.random.Generator) -> np.ndarray:
         """Step errors ``e(t)`` (T-1, 2) m of a DR over the true positions ``truth`` (T, 2) m
         sampled every ``dt_s`` s."""
+        return self.errors_and_heading(truth, dt_s, rng)[0]
+
+    def errors_and_heading(
+        self, truth: np.ndarray, dt_s: float, rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`errors` and the INS heading error ``psi`` (T-1,) rad of each step (``insdvl``;
+        zeros for the world-frame kinds): what an online stage that rotates each swath by the
+        navigation's heading adds to it (issue 28)."""
         d = np.diff(truth, axis=0)
         n = len(d)
         if self.kind == "eq28":
-            return rng.normal(self.bias_m, self.sigma_m, (n, 2))
+            return rng.normal(self.bias_m, self.sigma_m, (n, 2)), np.zeros(n)
         noise = rng.normal(0.0, self.sigma_m, (n, 2))
         if self.kind == "turning":
             ang = math.radians(45.0) + math.radians(self.turn_deg) * np.arange(n) / max(n - 1, 1)
             b = math.sqrt(2) * self.bias_m
-            return b * np.column_stack([np.cos(ang), np.sin(ang)]) + noise
+            return b * np.column_stack([np.cos(ang), np.sin(ang)]) + noise, np.zeros(n)
         a = math.exp(-dt_s / self.heading_tau_s)
         sig = math.radians(self.heading_sigma_deg)
         psi = np.empty(n)
@@ -80,7 +88,7 @@ class DRModel:
         s = 1.0 + rng.normal(0.0, self.scale_sigma)
         c, sn = np.cos(rot), np.sin(rot)
         moved = s * np.column_stack([c * d[:, 0] - sn * d[:, 1], sn * d[:, 0] + c * d[:, 1]])
-        return moved - d + noise
+        return moved - d + noise, psi
 
 
 @dataclass

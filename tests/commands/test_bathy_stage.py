@@ -47,13 +47,14 @@ def ned_offsets_all(heading: np.ndarray, across: np.ndarray) -> np.ndarray:
     )
 
 
-def _swath(sim: BathyRun, k: int, kind: str = "xyz88") -> Any:
+def _swath(sim: BathyRun, k: int, kind: str = "xyz88", t: float | None = None) -> Any:
     """Ping ``k`` as the multibeam sends it: depths from the transducer, across / along in the
-    vehicle frame."""
+    vehicle frame; its clock reads ``EPOCH`` + ``t`` (default: the ping's time)."""
     h = float(sim.heading[k])
     across = sim.offsets[k] @ np.array([-math.sin(h), math.cos(h)])
     make = kongsberg.make_xyz88 if kind == "xyz88" else kongsberg.make_depth
-    return make(time=EPOCH + float(sim.t[k]), depth=sim.depth[k] - DRAFT, across=across,
+    t_ping = float(sim.t[k]) if t is None else t
+    return make(time=EPOCH + t_ping, depth=sim.depth[k] - DRAFT, across=across,
                 along=np.zeros_like(across), heading=h % math.tau,
                 transducer_depth=DRAFT, ping_counter=k)  # fmt: skip
 
@@ -81,25 +82,33 @@ def test_stage_reproduces_the_batch_filter_and_maps_the_true_terrain(tiny: Bathy
                                               float(sim.heading[k - 1])))  # fmt: skip
         msg = _swath(sim, k)
         seen.append(msg)
-        stage.feed("mb", int(t * 1e9), msg)
+        # received 0-0.6 s after its ping (a loaded sonar, emulator or host; issue 28): placed
+        # at its own time, the batch filter's, not at its receive stamp (to within the
+        # DeviceClock's skew allowance, 1e-4 s/s between the prompt ones: < 1 ms here)
+        delay = 0.0 if k == len(sim.t) - 1 else 0.2 * (k % 4)
+        stage.feed("mb", int((t + delay) * 1e9), msg)
         stage.feed_odometry(_odometry(t, float(sim.dr[k, 0]), float(sim.dr[k, 1]),
                                       float(sim.heading[k])))  # fmt: skip
     stage.feed("ins", 0, object())  # not a swath: ignored
     stage.flush()
     st = stage.stats
     assert st.pings == st.swaths == len(sim.t) and st.bad_swaths == 0 and st.before_odometry == 0
+    assert st.ping_timed == len(sim.t)
+    assert st.stamp_delay_max_s == pytest.approx(0.6, abs=1e-3)
+    assert 0.25 < st.stamp_delay_mean_s < 0.35
     # the same filter, ping by ping, as the batch run over the same (decoded) soundings
     depth = np.array([m.beams.depth + DRAFT for m in seen], float)
     across = np.array([m.beams.across for m in seen], float)
     offsets = ned_offsets_all(sim.heading, across)
     same = dataclasses.replace(sim, depth=depth, offsets=offsets)
     batch, _ = run_filter("mtm-pf", same, BathyConfig(n_particles=50), np.random.default_rng(9))
-    np.testing.assert_allclose(stage.online.filter.trajectory(), batch.final, atol=1e-6)
+    np.testing.assert_allclose(stage.online.filter.trajectory(), batch.final, atol=2e-3)
     poses = [b for k, b in published if k.endswith("/pose")]
     assert all(k.startswith("auv/auv1/slam/bathymetric/") for k, _ in published)
     assert len(poses) == len(sim.t)
     assert len(stage.online.filter.loops) > 0  # the crossing closed a loop online
-    np.testing.assert_allclose([p["dr"] for p in poses], sim.dr, atol=1e-6)
+    np.testing.assert_allclose([p["dr"] for p in poses], sim.dr, atol=2e-3)
+    np.testing.assert_allclose(stage.ping_times, sim.t, atol=1e-3)
     final = np.array([poses[-1]["x"], poses[-1]["y"]])
     assert np.hypot(*(final - sim.truth[-1])) < 1.5 * np.hypot(*(sim.dr[-1] - sim.truth[-1])) + 2
     # maps: every 50 pings, and the whole map at flush; the transducer depth was added back
@@ -127,9 +136,10 @@ def test_stage_reproduces_the_batch_filter_and_maps_the_true_terrain(tiny: Bathy
     tracks = [(i, b) for i, (k, b) in enumerate(published) if k.endswith("/track")]
     assert len(tracks) == 1 and published[tracks[0][0] + 1][0].endswith("/map")
     track = tracks[0][1]
-    np.testing.assert_allclose(track["t"], sim.t)
-    np.testing.assert_allclose(np.column_stack([track["x"], track["y"]]), batch.final, atol=1e-3)
-    assert track["closures_t"] == [float(sim.t[lp.t_end]) for lp in loops if lp.accepted]
+    np.testing.assert_allclose(track["t"], sim.t, atol=1e-3)
+    np.testing.assert_allclose(np.column_stack([track["x"], track["y"]]), batch.final, atol=3e-3)
+    closures_t = [float(sim.t[lp.t_end]) for lp in loops if lp.accepted]
+    assert track["closures_t"] == pytest.approx(closures_t, abs=1e-3)
     assert track["loops"] == last["loops"]
 
 
@@ -142,23 +152,26 @@ def test_stage_places_swaths_at_the_odometry_and_spaces_pings(tiny: BathyRun) ->
                                  min_ping_spacing_m=5.0, odometry_window_s=5.0)  # fmt: skip
     stage = BathymetricStage(cfg)
     stage.feed_odometry(_odometry(100.0, 0.0, 0.0, 0.0))
-    stage.feed_swath(99.0, _swath(sim, 0))  # older than the odometry history
+    stage.feed_swath(99.0, _swath(sim, 0, t=99.0))  # older than the odometry history
     assert stage.stats.before_odometry == 1
-    stage.feed_swath(100.5, _swath(sim, 1))  # waits for odometry
+    stage.feed_swath(100.9, _swath(sim, 1, t=100.5))  # pinged at 100.5: waits for odometry
     assert stage.stats.pings == 0
     stage.feed_odometry(_odometry(101.0, 2.0, 0.0, 0.0))
-    assert stage.stats.pings == 1 and stage.track[-1][1] == pytest.approx(1.0)  # interpolated
+    # placed at its ping time (interpolated), not at its receive stamp (x = 1.8 m)
+    assert stage.stats.pings == 1 and stage.track[-1][:2] == pytest.approx((100.5, 1.0), abs=2e-3)
     for k in range(2, 12):  # 1 m apart: every 5th one is used
-        stage.feed_swath(100.5 + k, _swath(sim, k))
+        stage.feed_swath(100.5 + k + 0.1 * k, _swath(sim, k, t=100.5 + k))
         stage.feed_odometry(_odometry(101.0 + k, 2.0 + k, 0.0, 0.0))
     assert stage.stats.pings == 3 and stage.stats.spacing_skipped == 8
-    empty = kongsberg.make_xyz88(time=EPOCH, depth=np.full(5, np.nan), across=np.zeros(5),
-                                 along=np.zeros(5))  # fmt: skip
+    # placed at x 1.0, 6.5 and 11.5 m
+    assert stage.ping_times == pytest.approx([100.5, 105.5, 110.5], abs=2e-3)
+    empty = kongsberg.make_xyz88(time=EPOCH + 113.0, depth=np.full(5, np.nan),
+                                 across=np.zeros(5), along=np.zeros(5))  # fmt: skip
     stage.feed_swath(113.0, empty)
     stage.feed_odometry(_odometry(114.0, 30.0, 0.0, 0.0))
     assert stage.stats.bad_swaths == 1 and stage.stats.pings == 3
     # a Depth ('D') datagram: the transducer depth (with its offset multiplier) added back
-    d = _swath(sim, 20, "depth")
+    d = _swath(sim, 20, "depth", t=115.0)
     assert d.n_beams == sim.depth.shape[1]
     stage.feed("mb", int(115e9), d)
     stage.feed_odometry(_odometry(116.0, 40.0, 0.0, 0.0))

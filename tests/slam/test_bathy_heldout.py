@@ -118,6 +118,14 @@ def test_nav_models() -> None:
     assert np.abs(e[:199] - north).max() < 1e-12  # constant on a leg
     assert np.abs(e[200:] + north).max() < 1e-12  # reversed with the vehicle
     assert abs(e[0, 1]) > 0.01  # 2 deg of a 1 m step across track
+    # the INS heading error it turned each step by (issue 28: the online stage rotates the
+    # swaths by it too): a heading error alone turns each 1 m step by exactly psi
+    m = DRModel(kind="insdvl", sigma_m=0.0, misalign_sigma_deg=0.0, scale_sigma=0.0)
+    e, psi = m.errors_and_heading(truth, 1.0, np.random.default_rng(4))
+    np.testing.assert_array_equal(e, m.errors(truth, 1.0, np.random.default_rng(4)))
+    assert psi.shape == (399,) and 0.1 < np.degrees(psi).std() < 3.0
+    np.testing.assert_allclose(e[:199, 1], np.sin(psi[:199]), atol=1e-12)
+    assert not DRModel().errors_and_heading(truth, 1.0, np.random.default_rng(1))[1].any()
     with pytest.raises(ValueError, match="nav model"):
         DRModel(kind="gps")
 
