@@ -105,7 +105,9 @@ def run_events(cfg: SlamStageConfig, events: list[tuple]) -> tuple[SlamStage, li
 
 
 @pytest.fixture(scope="module")
-def harbour_run():
+def harbour_run() -> tuple[object, ...]:
+    """The harbour scenario run in-process: (world, track, dr, t_odo, stage, published, events,
+    cfg)."""
     scn = load_scenario(config_file("scenarios/harbour.json"))
     scn = scn.model_copy(update={"duration_s": DURATION_S})
     world = World.from_scenario(scn)
