@@ -30,7 +30,6 @@ import contextlib
 import logging
 import threading
 import time
-from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import ClassVar, cast
@@ -117,11 +116,7 @@ class RosStage(Stage):
         #: the sections taken from the bus (in the gateway, the sensors come in-process:
         #: :meth:`post`, from the gateway's listeners, no envelope round trip)
         self.sections = sections
-        #: s a batch of posted messages waits for more (:meth:`post`)
-        self.batch_s = config.batch_ms / 1000
-        #: (bus key, device, message, receive ns, kind) posted, waiting for the worker
-        self._batch: deque[tuple[str, str, object, int, str]] = deque()
-        self._batch_queued = False
+        self.batch_s = config.batch_ms / 1000  # Stage.post: one worker call per batch
         self.stats: Ros2Counters = self.stats  # type: ignore[assignment]
         self._static_lock = threading.Lock()
         self._static_at = -float("inf")  # monotonic s of the last /tf_static
@@ -131,33 +126,11 @@ class RosStage(Stage):
     def input_keys(self) -> list[str]:
         return [self.keys.all(f"{s}/**") for s in self.sections]
 
-    def post(self, device: str, t_recv_ns: int, message: object) -> None:
-        """:meth:`feed` on the worker, in batches: the first message of a batch queues one
-        call that waits ``batch_s`` (``[ros2] batch_ms``) and takes every message posted
-        meanwhile (the gateway's listener at 1000 messages/s wakes the worker 50 times a second
-        at 20 ms, not 1000: a wake costs more than a message's conversion, and the puts of a
-        batch go out together, :meth:`_work_item`). A message nobody would see (:meth:`wanted`) is
-        counted and left there."""
-        kind = message_kind(message)
-        key = self.keys.sensor(device, kind)
-        if not self.wanted(key):
-            return
-        self._batch.append((key, device, message, t_recv_ns, kind))
-        if not self._batch_queued:
-            self._batch_queued = True
-            self._post(self._take_batch, ())
-
-    def _take_batch(self) -> None:
-        time.sleep(self.batch_s)
-        self._batch_queued = False  # before taking: a post from now on queues the next batch
-        n = 0
-        try:
-            while self._batch:  # each checked by post() (wanted): converted, counted once
-                self.emit_sensor(*self._batch.popleft())
-                n += 1
-        finally:
-            with self._lock:
-                self.stats.received += n
+    def accepts(self, device: str, message: object) -> bool:
+        """:meth:`Stage.post` queues a message somebody would see (:meth:`wanted`), in batches
+        of ``batch_s`` (``[ros2] batch_ms``: the puts of a batch go out together,
+        :meth:`_work_item`)."""
+        return self.wanted(self.keys.sensor(device, message_kind(message)))
 
     def feed(self, device: str, t_recv_ns: int, message: object) -> object:
         """One decoded sensor message in-process (the gateway's listener, via :meth:`post`)."""
@@ -196,7 +169,7 @@ class RosStage(Stage):
         return full
 
     # -- bus side ---------------------------------------------------------------------------
-    def handle_sample(self, key: str, payload: bytes, t_arrival_ns: int | None = None) -> object:
+    def read_payload(self, key: str, payload: bytes, t_arrival_ns: int | None) -> object:
         """One bus sample as its ROS 2 messages (a sample with no ROS form is counted as a bad
         payload, never raised)."""
         from auvgw.recording import sample_to_ros
@@ -229,10 +202,9 @@ class RosStage(Stage):
                 msg = ros2.static_tf(self.config.mounts, t_ns)
                 self.put(ros2.RosMessage("/tf_static", ros2.TF_TYPE, msg), t_ns)
 
-    def publish_status(self) -> None:
-        """The status, and ``/tf_static`` again once ``static_period_s`` has passed (checked at
+    def on_status(self) -> None:
+        """After the status: ``/tf_static`` again once ``static_period_s`` has passed (checked at
         every status period: a late subscriber waits at most the longer of the two)."""
-        super().publish_status()
         if time.monotonic() - self._static_at >= self.config.static_period_s:
             self.publish_static(time.time_ns())
 
@@ -297,22 +269,22 @@ class Ros2Bridge(RosStage):
         self._remember(key, [self.put_cdr(topic, ros_type, cdr, t_ns)
                              for topic, ros_type, cdr in out])  # fmt: skip
 
-    def handle_sample(self, key: str, payload: bytes, t_arrival_ns: int | None = None) -> object:
+    def read_payload(self, key: str, payload: bytes, t_arrival_ns: int | None) -> object:
         """A decoded sensor sample of a standard ROS 2 form straight from its envelope to the
         compiled writers (``auvgw ros2 bridge`` takes the gateway's sensors this way: no
         rosbags objects); every other sample, and one whose envelope or conversion fails, as
-        :meth:`RosStage.handle_sample` takes it (which counts what is wrong)."""
+        :meth:`RosStage.read_payload` takes it (which counts what is wrong)."""
         if not (self.compiled and key.startswith(self._sensor_base)):
-            return super().handle_sample(key, payload, t_arrival_ns)
+            return super().read_payload(key, payload, t_arrival_ns)
         try:
             env = decode_envelope(payload)
             msg = envelope_message(env)
             device = key[len(self._sensor_base):].partition("/")[0]
             out = None if msg is None else ros2_cdr.sensor_cdr(device, msg, env.t_recv_ns)
-        except Exception:  # RosStage.handle_sample takes it again and counts what is wrong
+        except Exception:  # RosStage.read_payload takes it again and counts what is wrong
             out = None
         if out is None:
-            return super().handle_sample(key, payload, t_arrival_ns)
+            return super().read_payload(key, payload, t_arrival_ns)
         if not self._stamps.accept(env.t_recv_ns):
             self._bad_payload(key, ValueError(
                 f"stamp {env.t_recv_ns} ns implausible against the stage's clock"))

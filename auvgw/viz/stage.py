@@ -354,8 +354,8 @@ class VizStage(Stage):
         self.sections = tuple(sections)
         self.subscribe()
 
-    def publish_status(self) -> None:
-        """The stage's own health into the logger (once something was mapped)."""
+    def on_status(self) -> None:
+        """The stage's own health into the logger (once something was mapped), not the bus."""
         if not self._t_last:
             return
         s = self.stats
@@ -376,8 +376,9 @@ class VizStage(Stage):
             c = self._clocks[source] = host_clock()
         return c
 
-    def handle_sample(self, key: str, payload: bytes, t_arrival_ns: int | None = None) -> str:
-        """Map one bus sample; returns ``logged``, ``ignored``, ``unknown`` or ``error``."""
+    def read_payload(self, key: str, payload: bytes, t_arrival_ns: int | None) -> str:
+        """Map one bus sample (:meth:`Stage.handle_sample`: envelopes and the JSON sections);
+        returns ``logged``, ``ignored``, ``unknown`` or ``error``."""
         with self._lock:
             self.stats.received += 1
         t_host = (t_arrival_ns if t_arrival_ns is not None else time.time_ns()) / 1e9
