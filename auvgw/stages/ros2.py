@@ -39,7 +39,7 @@ import zenoh
 from auvgw import ros2, ros2_cdr
 from auvgw.bus import Keys
 from auvgw.config.ros2 import Mount, Ros2Config
-from auvgw.decoding import message_kind
+from auvgw.decoding import kind_of, message_type
 from auvgw.envelope import decode_envelope, encode_envelope
 from auvgw.rmw_zenoh import (
     DEFAULT_QOS,
@@ -122,6 +122,8 @@ class RosStage(Stage):
         self._static_at = -float("inf")  # monotonic s of the last /tf_static
         self._tf = ros2.TfTracker()  # map -> odom
         self._topics: dict[str, str] = {}
+        #: (device, type name) -> (bus key, kind): sensor_key
+        self._sensor_keys: dict[tuple[str, str], tuple[str, str]] = {}
 
     def input_keys(self) -> list[str]:
         return [self.keys.all(f"{s}/**") for s in self.sections]
@@ -130,12 +132,24 @@ class RosStage(Stage):
         """:meth:`Stage.post` queues a message somebody would see (:meth:`wanted`), in batches
         of ``batch_s`` (``[ros2] batch_ms``: the puts of a batch go out together,
         :meth:`_work_item`)."""
-        return self.wanted(self.keys.sensor(device, message_kind(message)))
+        return self.wanted(self.sensor_key(device, message)[0])
+
+    def sensor_key(self, device: str, message: object) -> tuple[str, str]:
+        """The bus key and kind of a decoded sensor message of ``device``, remembered per device
+        and type (up to 4096): :meth:`accepts` and :meth:`feed` key a posted message twice at
+        the cost of two look-ups."""
+        type_name = message_type(message)
+        hit = self._sensor_keys.get((device, type_name))
+        if hit is None:
+            if len(self._sensor_keys) >= 4096:
+                self._sensor_keys.clear()
+            kind = kind_of(type_name)
+            hit = self._sensor_keys[(device, type_name)] = (self.keys.sensor(device, kind), kind)
+        return hit
 
     def feed(self, device: str, t_recv_ns: int, message: object) -> object:
         """One decoded sensor message in-process (the gateway's listener, via :meth:`post`)."""
-        kind = message_kind(message)
-        key = self.keys.sensor(device, kind)
+        key, kind = self.sensor_key(device, message)
         with self._lock:
             self.stats.received += 1
         if self.wanted(key):
