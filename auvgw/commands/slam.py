@@ -66,8 +66,8 @@ def register(sub: SubParsers) -> None:
     e.add_argument(
         "--pipeline",
         default=pipelines.default().name,
-        choices=pipelines.names(),
-        help="; ".join(f"{p.name}: {p.summary}" for p in pipelines.PIPELINES),
+        choices=pipelines.names("slam"),
+        help="; ".join(f"{p.name}: {p.summary}" for p in pipelines.of_kind("slam")),
     )
     e.add_argument(
         "--variant",
@@ -80,7 +80,7 @@ def register(sub: SubParsers) -> None:
         "--algorithms",
         default=None,
         help="comma-separated algorithm names (default: "
-        + "; ".join(f"{p.name} {p.eval_algorithms}" for p in pipelines.PIPELINES) + ")",
+        + "; ".join(f"{p.name} {p.eval_algorithms}" for p in pipelines.of_kind("slam")) + ")",
     )
     e.add_argument("--runs", type=int, default=10, help="Monte Carlo runs per noise setting")
     e.add_argument(
@@ -209,7 +209,7 @@ def run(args: argparse.Namespace) -> int:
     pipe = pipelines.get(args.pipeline)
     if args.algorithms is None:
         args.algorithms = pipe.eval_algorithms
-    entry: Callable[[argparse.Namespace], int] = pipelines.load(pipe.evaluation)
+    entry: Callable[[argparse.Namespace], int] = pipe.entry("evaluation")
     return int(entry(args))
 
 

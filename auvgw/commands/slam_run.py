@@ -79,8 +79,9 @@ def configure(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--vehicle", default="auv1", help="live: vehicle name (default auv1)")
     add_duration(p, "live: ")
-    p.add_argument("--pipeline", default=pipelines.default().name, choices=pipelines.names(),
-                   help="; ".join(f"{r.name}: {r.summary}" for r in pipelines.PIPELINES)
+    p.add_argument("--pipeline", default=pipelines.default().name,
+                   choices=pipelines.names("slam"),
+                   help="; ".join(f"{r.name}: {r.summary}" for r in pipelines.of_kind("slam"))
                    + f" (default {pipelines.default().name})")  # fmt: skip
     p.add_argument("--particles", type=int, default=50, help="particles (default 50)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
@@ -94,8 +95,8 @@ def configure(p: argparse.ArgumentParser) -> None:
         help="fusion stage settings (TOML/JSON, as auvgw fusion --settings)",
     )
     p.add_argument("--out", type=Path, default=None, help="offline: JSON lines of the SLAM output")
-    for record in pipelines.PIPELINES:
-        pipelines.load(record.run).add_arguments(p)
+    for record in pipelines.of_kind("slam"):  # a control pipeline's options are its command's
+        record.entry("run").add_arguments(p)
     add_bus_arguments(p)
     p.set_defaults(func=run)  # fmt: skip
 
@@ -165,7 +166,7 @@ def _stage_config(args: argparse.Namespace, vehicle: str = "auv1") -> SlamStageC
 def run(args: argparse.Namespace) -> int:
     """The pipeline's ``live`` (on the bus) or, with ``--recording``, ``offline`` entry (its
     registry record's ``run`` module); returns the exit code."""
-    module = pipelines.load(pipelines.get(args.pipeline).run)
+    module = pipelines.get(args.pipeline).entry("run")
     if args.recording is None and (args.out is not None or args.fusion_settings is not None):
         raise UserError("--out and --fusion-settings are for --recording (offline) runs")
     return int(module.live(args) if args.recording is None else module.offline(args))

@@ -22,8 +22,15 @@ A :class:`Stage` owns the plumbing; a subclass gives only what is its own:
   liveliness token) and :meth:`Stage.on_stop` (stop what feeds the worker besides the
   subscriptions: timers, command subscriptions; first thing at stop), with what must live
   until the end handed to :meth:`Stage.keep` (withdrawn after the last status, the last kept
-  first). A subclass never overrides :meth:`Stage.start` or :meth:`Stage.stop`
-  (``tests/service/test_stage_hooks.py`` walks them).
+  first);
+* **its own reading and reporting**: :meth:`Stage.read_payload` (a payload that is not read as an
+  envelope: the Rerun stage's JSON sections, the ROS 2 stages' conversions), :meth:`Stage.accepts`
+  (which in-process messages :meth:`Stage.post` queues), :attr:`Stage.batch_s` (:meth:`Stage.post`
+  queues one call per batch) and :meth:`Stage.on_status` (health reported elsewhere than the bus,
+  at each status period and at stop).
+
+The methods a subclass gives are marked :func:`hook`; it never overrides any other public method
+of the base (``tests/service/test_stage_hooks.py`` walks them all).
 
 The base does the rest. Zenoh callbacks only copy the payload into a bounded queue (counting
 ``queue_dropped`` when it is full: a callback never blocks the network thread); one worker thread
@@ -50,9 +57,10 @@ import json
 import logging
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass
-from typing import Any, ClassVar
+from typing import Any, ClassVar, TypeVar
 
 import zenoh
 from pydantic import BaseModel, ConfigDict, Field
@@ -71,7 +79,7 @@ from auvgw.fusion.odometry import Odometry
 from auvgw.ground.worker import Worker
 from auvgw.stages import StampGuard, log_bad_payload
 
-__all__ = ["DROP", "BusCounters", "OnPublish", "PipelineStage", "Stage", "StageConfig"]
+__all__ = ["DROP", "BusCounters", "OnPublish", "PipelineStage", "Stage", "StageConfig", "hook"]
 
 log = logging.getLogger(__name__)
 
@@ -82,6 +90,15 @@ DROP = zenoh.CongestionControl.DROP
 OnPublish = Callable[[str, bytes, int], object]
 #: a queued call: the bound method and its arguments
 _Item = tuple[Callable[..., object], tuple[object, ...]]
+
+_F = TypeVar("_F", bound=Callable[..., object])
+
+
+def hook(fn: _F) -> _F:
+    """Mark a method of :class:`Stage` as one a subclass gives (overrides); every other public
+    method of the base is its own (``tests/service/test_stage_hooks.py``)."""
+    fn.__stage_hook__ = True  # type: ignore[attr-defined]
+    return fn
 
 
 @dataclass
@@ -159,29 +176,39 @@ class Stage(Worker[_Item]):
         self._seq = 0  # envelopes published (publish_message)
         #: the device used in each role (:meth:`from_source`); None: the first one seen
         self.sources: dict[str, str | None] = {}
+        #: s a batch of posted messages waits for more (:meth:`post`); 0: one call per message
+        self.batch_s = 0.0
+        self._batch: deque[tuple[str, int, object]] = deque()  # posted, waiting for the worker
+        self._batch_queued = False
 
     # -- what a subclass gives ------------------------------------------------------------------
     @property
+    @hook
     def component(self) -> str:
         """Status / liveliness component name (default :attr:`name`)."""
         return self.name
 
+    @hook
     def key(self, what: str) -> str:
         """The key expression of output ``what``."""
         raise NotImplementedError(f"{type(self).__name__} has no output {what!r}")
 
+    @hook
     def input_keys(self) -> list[str]:
         """The key expressions the stage subscribes to."""
         return []
 
+    @hook
     def wanted(self, key: str) -> bool:
         """Whether a sample on ``key`` is queued (runs in the Zenoh callback: keep it cheap)."""
         return True
 
+    @hook
     def feed(self, device: str, t_recv_ns: int, message: object) -> object:
         """One decoded message of ``device`` received at ``t_recv_ns`` (the stamp clock, ns)."""
         return None
 
+    @hook
     def feed_odometry(self, o: Odometry) -> None:
         """One fusion odometry sample (stages that use it override this)."""
 
@@ -196,6 +223,7 @@ class Stage(Worker[_Item]):
                 self.sources[role] = want = device
             return device == want
 
+    @hook
     def dispatch(self, env: Envelope, message: object) -> None:
         """One decoded bus message: odometry to :meth:`feed_odometry`, the rest to
         :meth:`feed` with the envelope's device and receive stamp."""
@@ -204,20 +232,24 @@ class Stage(Worker[_Item]):
         else:
             self.feed(env.device, int(env.t_recv_ns), message)
 
+    @hook
     def status_fields(self) -> dict[str, object]:
         """The stage's own status fields (JSON-ready), after the common ones."""
         return {}
 
+    @hook
     def flush(self) -> object:
         """End of data: publish what is held back (called by :meth:`stop`)."""
         return None
 
+    @hook
     def on_start(self, subscribe: bool) -> None:
         """The stage's own start, called once by :meth:`start` after the outputs, the status
         and the worker are up and before the subscriptions (``subscribe``: whether they are
         made) and the liveliness token: declare servers, tokens and extra subscriptions here,
         each handed to :meth:`keep`."""
 
+    @hook
     def on_stop(self) -> None:
         """The stage's own stop, called once first thing by :meth:`stop` (before the
         subscriptions are withdrawn and the queue drained): stop what feeds the worker besides
@@ -230,10 +262,68 @@ class Stage(Worker[_Item]):
         self._decls.append(decl)
         return decl
 
+    @hook
+    def accepts(self, device: str, message: object) -> bool:
+        """Whether :meth:`post` queues an in-process message of ``device`` (runs on the posting
+        thread: keep it cheap); the base takes every one."""
+        return True
+
+    @hook
+    def read_payload(self, key: str, payload: bytes, t_arrival_ns: int | None) -> object:
+        """How the stage reads one bus payload (:meth:`handle_sample`; ``t_arrival_ns``: host
+        arrival time, ns, None: unknown). The base: the envelope decoded, its stamp checked and
+        the typed message given to :meth:`dispatch`, a malformed payload, an unknown type or a
+        failed handling counted (``bad_payloads``) and logged. A stage whose payloads are not
+        (only) envelopes reads them here (the Rerun stage: JSON sections)."""
+        from auvgw.subscribe import envelope_message
+
+        try:
+            env = decode_envelope(payload, key)
+            msg = envelope_message(env)
+            if msg is None:
+                raise ValueError(f"unknown or unusable message type {env.type!r}")
+        except Exception as exc:  # any malformed payload ([] on a sensor key...): count, go on
+            self._bad_payload(key, exc)
+            return None
+        if not self._stamps.accept(env.t_recv_ns):  # one forged stamp never moves the clock
+            with self._lock:
+                n = self.stats.bad_stamps
+                self.stats.bad_stamps += 1
+            clock = self._stamps.clock_ns
+            log_bad_payload(self.name, key, ValueError(
+                f"stamp {env.t_recv_ns} ns is {(env.t_recv_ns - (clock or 0)) / 1e9:+.3g} s from "
+                f"the stage's clock; refused"), n)  # fmt: skip
+            return None
+        self.dispatch(env, msg)
+        return None
+
+    @hook
+    def on_status(self) -> None:
+        """The stage's own report at each status period and at :meth:`stop`, after the status
+        is put on the bus (health shown elsewhere, a periodic re-publication)."""
+
     # -- in-process use -------------------------------------------------------------------------
     def post(self, device: str, t_recv_ns: int, message: object) -> None:
-        """:meth:`feed` on the worker thread (after :meth:`start`): returns at once."""
-        self._post(self.feed, (device, t_recv_ns, message))
+        """:meth:`feed` on the worker thread (after :meth:`start`): returns at once. Only what
+        :meth:`accepts` is queued; with :attr:`batch_s` > 0 the first message of a batch queues
+        one call that waits ``batch_s`` and feeds every message posted meanwhile (a worker's
+        wake can cost more than a message: at 1000 messages/s and 20 ms it wakes 50 times a
+        second, not 1000)."""
+        if not self.accepts(device, message):
+            return
+        if self.batch_s <= 0:
+            self._post(self.feed, (device, t_recv_ns, message))
+            return
+        self._batch.append((device, t_recv_ns, message))
+        if not self._batch_queued:
+            self._batch_queued = True
+            self._post(self._take_batch, ())
+
+    def _take_batch(self) -> None:
+        time.sleep(self.batch_s)
+        self._batch_queued = False  # before taking: a post from now on queues the next batch
+        while self._batch:
+            self.feed(*self._batch.popleft())
 
     def post_odometry(self, o: Odometry) -> None:
         """:meth:`feed_odometry` on the worker thread (after :meth:`start`): returns at once."""
@@ -290,11 +380,13 @@ class Stage(Worker[_Item]):
             }
 
     def publish_status(self) -> None:
-        """Put :meth:`counters` on the status key (every ``status_period_s`` and at stop)."""
+        """Put :meth:`counters` on the status key (every ``status_period_s`` and at stop), then
+        :meth:`on_status`."""
         if self._status_pub is not None and self.status_schema is not None:
             with contextlib.suppress(zenoh.ZError):
                 self._status_pub.put(json.dumps(self.counters()).encode(),
                                      encoding=json_encoding(self.status_schema))  # fmt: skip
+        self.on_status()
 
     def _answer_status(self, query: zenoh.Query) -> None:
         assert self.status_schema is not None
@@ -355,33 +447,14 @@ class Stage(Worker[_Item]):
         self.publish_status()
 
     def handle_sample(self, key: str, payload: bytes, t_arrival_ns: int | None = None) -> object:
-        """One bus payload: its envelope decoded and the typed message given to
-        :meth:`dispatch`; a malformed payload, an unknown type or a failed handling is counted
+        """One bus payload (the worker's call for each queued sample; tests and replays call it
+        directly): :meth:`read_payload`, whose result it returns; what that raises is counted
         (``bad_payloads``) and logged, never raised. ``t_arrival_ns``: host arrival time."""
-        from auvgw.subscribe import envelope_message
-
         try:
-            env = decode_envelope(payload, key)
-            msg = envelope_message(env)
-            if msg is None:
-                raise ValueError(f"unknown or unusable message type {env.type!r}")
-        except Exception as exc:  # any malformed payload ([] on a sensor key...): count, go on
-            self._bad_payload(key, exc)
-            return None
-        if not self._stamps.accept(env.t_recv_ns):  # one forged stamp never moves the clock
-            with self._lock:
-                n = self.stats.bad_stamps
-                self.stats.bad_stamps += 1
-            clock = self._stamps.clock_ns
-            log_bad_payload(self.name, key, ValueError(
-                f"stamp {env.t_recv_ns} ns is {(env.t_recv_ns - (clock or 0)) / 1e9:+.3g} s from "
-                f"the stage's clock; refused"), n)  # fmt: skip
-            return None
-        try:
-            self.dispatch(env, msg)
+            return self.read_payload(key, payload, t_arrival_ns)
         except Exception as exc:  # one bad message must not stop the stage
             self._bad_payload(key, exc, exc_info=True)
-        return None
+            return None
 
     def _bad_payload(self, key: str, exc: BaseException, exc_info: bool = False) -> None:
         with self._lock:

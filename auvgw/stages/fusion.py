@@ -269,8 +269,8 @@ class FusionStage(Stage):
         how = f"subscribed to {keys}" if subscribe else "fed in-process"
         log.info("fusion stage for vehicle %r: %s", self.config.vehicle, how)
 
-    def publish_status(self) -> None:
-        """The status, after logging each new kind of diagnostics warning once while it lasts."""
+    def on_status(self) -> None:
+        """With the status: each new kind of diagnostics warning logged once while it lasts."""
         if self._status_pub is None:
             return
         with self._lock:
@@ -279,7 +279,6 @@ class FusionStage(Stage):
         for kind in sorted(warnings.keys() - self._warned):
             log.warning("fusion: %s", warnings[kind])
         self._warned = set(warnings)
-        super().publish_status()
 
 
 def _register_can_types() -> None:

@@ -30,7 +30,6 @@ import contextlib
 import logging
 import threading
 import time
-from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import ClassVar, cast
@@ -40,7 +39,7 @@ import zenoh
 from auvgw import ros2, ros2_cdr
 from auvgw.bus import Keys
 from auvgw.config.ros2 import Mount, Ros2Config
-from auvgw.decoding import message_kind
+from auvgw.decoding import kind_of, message_type
 from auvgw.envelope import decode_envelope, encode_envelope
 from auvgw.rmw_zenoh import (
     DEFAULT_QOS,
@@ -117,52 +116,40 @@ class RosStage(Stage):
         #: the sections taken from the bus (in the gateway, the sensors come in-process:
         #: :meth:`post`, from the gateway's listeners, no envelope round trip)
         self.sections = sections
-        #: s a batch of posted messages waits for more (:meth:`post`)
-        self.batch_s = config.batch_ms / 1000
-        #: (bus key, device, message, receive ns, kind) posted, waiting for the worker
-        self._batch: deque[tuple[str, str, object, int, str]] = deque()
-        self._batch_queued = False
+        self.batch_s = config.batch_ms / 1000  # Stage.post: one worker call per batch
         self.stats: Ros2Counters = self.stats  # type: ignore[assignment]
         self._static_lock = threading.Lock()
         self._static_at = -float("inf")  # monotonic s of the last /tf_static
         self._tf = ros2.TfTracker()  # map -> odom
         self._topics: dict[str, str] = {}
+        #: (device, type name) -> (bus key, kind): sensor_key
+        self._sensor_keys: dict[tuple[str, str], tuple[str, str]] = {}
 
     def input_keys(self) -> list[str]:
         return [self.keys.all(f"{s}/**") for s in self.sections]
 
-    def post(self, device: str, t_recv_ns: int, message: object) -> None:
-        """:meth:`feed` on the worker, in batches: the first message of a batch queues one
-        call that waits ``batch_s`` (``[ros2] batch_ms``) and takes every message posted
-        meanwhile (the gateway's listener at 1000 messages/s wakes the worker 50 times a second
-        at 20 ms, not 1000: a wake costs more than a message's conversion, and the puts of a
-        batch go out together, :meth:`_work_item`). A message nobody would see (:meth:`wanted`) is
-        counted and left there."""
-        kind = message_kind(message)
-        key = self.keys.sensor(device, kind)
-        if not self.wanted(key):
-            return
-        self._batch.append((key, device, message, t_recv_ns, kind))
-        if not self._batch_queued:
-            self._batch_queued = True
-            self._post(self._take_batch, ())
+    def accepts(self, device: str, message: object) -> bool:
+        """:meth:`Stage.post` queues a message somebody would see (:meth:`wanted`), in batches
+        of ``batch_s`` (``[ros2] batch_ms``: the puts of a batch go out together,
+        :meth:`_work_item`)."""
+        return self.wanted(self.sensor_key(device, message)[0])
 
-    def _take_batch(self) -> None:
-        time.sleep(self.batch_s)
-        self._batch_queued = False  # before taking: a post from now on queues the next batch
-        n = 0
-        try:
-            while self._batch:  # each checked by post() (wanted): converted, counted once
-                self.emit_sensor(*self._batch.popleft())
-                n += 1
-        finally:
-            with self._lock:
-                self.stats.received += n
+    def sensor_key(self, device: str, message: object) -> tuple[str, str]:
+        """The bus key and kind of a decoded sensor message of ``device``, remembered per device
+        and type (up to 4096): :meth:`accepts` and :meth:`feed` key a posted message twice at
+        the cost of two look-ups."""
+        type_name = message_type(message)
+        hit = self._sensor_keys.get((device, type_name))
+        if hit is None:
+            if len(self._sensor_keys) >= 4096:
+                self._sensor_keys.clear()
+            kind = kind_of(type_name)
+            hit = self._sensor_keys[(device, type_name)] = (self.keys.sensor(device, kind), kind)
+        return hit
 
     def feed(self, device: str, t_recv_ns: int, message: object) -> object:
         """One decoded sensor message in-process (the gateway's listener, via :meth:`post`)."""
-        kind = message_kind(message)
-        key = self.keys.sensor(device, kind)
+        key, kind = self.sensor_key(device, message)
         with self._lock:
             self.stats.received += 1
         if self.wanted(key):
@@ -196,7 +183,7 @@ class RosStage(Stage):
         return full
 
     # -- bus side ---------------------------------------------------------------------------
-    def handle_sample(self, key: str, payload: bytes, t_arrival_ns: int | None = None) -> object:
+    def read_payload(self, key: str, payload: bytes, t_arrival_ns: int | None) -> object:
         """One bus sample as its ROS 2 messages (a sample with no ROS form is counted as a bad
         payload, never raised)."""
         from auvgw.recording import sample_to_ros
@@ -229,10 +216,9 @@ class RosStage(Stage):
                 msg = ros2.static_tf(self.config.mounts, t_ns)
                 self.put(ros2.RosMessage("/tf_static", ros2.TF_TYPE, msg), t_ns)
 
-    def publish_status(self) -> None:
-        """The status, and ``/tf_static`` again once ``static_period_s`` has passed (checked at
+    def on_status(self) -> None:
+        """After the status: ``/tf_static`` again once ``static_period_s`` has passed (checked at
         every status period: a late subscriber waits at most the longer of the two)."""
-        super().publish_status()
         if time.monotonic() - self._static_at >= self.config.static_period_s:
             self.publish_static(time.time_ns())
 
@@ -297,22 +283,22 @@ class Ros2Bridge(RosStage):
         self._remember(key, [self.put_cdr(topic, ros_type, cdr, t_ns)
                              for topic, ros_type, cdr in out])  # fmt: skip
 
-    def handle_sample(self, key: str, payload: bytes, t_arrival_ns: int | None = None) -> object:
+    def read_payload(self, key: str, payload: bytes, t_arrival_ns: int | None) -> object:
         """A decoded sensor sample of a standard ROS 2 form straight from its envelope to the
         compiled writers (``auvgw ros2 bridge`` takes the gateway's sensors this way: no
         rosbags objects); every other sample, and one whose envelope or conversion fails, as
-        :meth:`RosStage.handle_sample` takes it (which counts what is wrong)."""
+        :meth:`RosStage.read_payload` takes it (which counts what is wrong)."""
         if not (self.compiled and key.startswith(self._sensor_base)):
-            return super().handle_sample(key, payload, t_arrival_ns)
+            return super().read_payload(key, payload, t_arrival_ns)
         try:
             env = decode_envelope(payload)
             msg = envelope_message(env)
             device = key[len(self._sensor_base):].partition("/")[0]
             out = None if msg is None else ros2_cdr.sensor_cdr(device, msg, env.t_recv_ns)
-        except Exception:  # RosStage.handle_sample takes it again and counts what is wrong
+        except Exception:  # RosStage.read_payload takes it again and counts what is wrong
             out = None
         if out is None:
-            return super().handle_sample(key, payload, t_arrival_ns)
+            return super().read_payload(key, payload, t_arrival_ns)
         if not self._stamps.accept(env.t_recv_ns):
             self._bad_payload(key, ValueError(
                 f"stamp {env.t_recv_ns} ns implausible against the stage's clock"))

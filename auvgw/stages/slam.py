@@ -141,11 +141,9 @@ class SlamStage(Stage):
             self.stats.received += 1
             self.online.add_ping(t_recv_ns / 1e9, message)
 
-    def post(self, device: str, t_recv_ns: int, message: object) -> None:
-        """:meth:`feed` on the stage's worker thread (after :meth:`start`); only scan lines are
-        queued."""
-        if isinstance(message, sn.HeadData):
-            super().post(device, t_recv_ns, message)
+    def accepts(self, device: str, message: object) -> bool:
+        """Only scan lines are queued by :meth:`Stage.post`."""
+        return isinstance(message, sn.HeadData)
 
     def flush(self) -> None:
         """End of data: publish the latest estimate (pings newer than the odometry stay out)."""

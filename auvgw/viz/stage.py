@@ -23,6 +23,9 @@ role ``range`` (acoustic ``AcousticReply``)    a line from the navigation pose t
 ``slam/<p>/cloud``, ``slam/<p>/map`` (DEM)     seabed points, DEM tile (bathymetric SLAM)
 ``truth/<what>``                               ``truth`` trajectory, true landmarks and lines
 ``status/<device>``                            per-device health series + connection events
+``pilot/state``, ``pilot/command``             the autopilot's set-points and track errors,
+                                               its fins and shaft (a control pipeline's
+                                               outputs, by their registry views)
 ============================================  ==================================================
 
 Messages of other types are skipped and counted per type (:attr:`StageStats.unknown`); a
@@ -73,8 +76,9 @@ __all__ = ["SECTIONS", "StageStats", "VizRunner", "VizStage", "host_clock", "ope
 
 log = logging.getLogger(__name__)
 
-#: bus sections the stage subscribes to
-SECTIONS: tuple[str, ...] = ("sensor", "nav", "slam", "truth", "status", "pilot")
+#: bus sections the stage subscribes to: its own and each control pipeline's (``pilot``: the
+#: pipeline registry's records that are not SLAM, :func:`auvgw.slam.pipelines.sections`)
+SECTIONS: tuple[str, ...] = ("sensor", "nav", "slam", "truth", "status", *pipelines.sections())
 
 #: sensor message types that carry nothing to show (replies, configuration, raw blocks)
 IGNORED_TYPES = frozenset(
@@ -307,7 +311,7 @@ class VizStage(Stage):
         self._ranges: dict[str, tuple[float, list[tuple[float, float]]]] = {}
         self._status: dict[str, tuple[object, object]] = {}  # (connected, last error)
         self._warnings: dict[str, tuple[str, ...]] = {}  # a fusion's diagnostics warnings
-        self._pilot_mode: str | None = None  # the autopilot's mode last shown
+        self._modes: dict[str, str] = {}  # each control pipeline's mode last shown
         self._losses: dict[str, dict[str, float]] = {}  # the loss counters seen, per device
         self._t_last = 0.0  # the newest data time (sensor, odometry stamps), s; never goes back
         self._raw_ping_t: dict[tuple[str, int], float] = {}  # raw ping shown last, per side
@@ -354,8 +358,8 @@ class VizStage(Stage):
         self.sections = tuple(sections)
         self.subscribe()
 
-    def publish_status(self) -> None:
-        """The stage's own health into the logger (once something was mapped)."""
+    def on_status(self) -> None:
+        """The stage's own health into the logger (once something was mapped), not the bus."""
         if not self._t_last:
             return
         s = self.stats
@@ -376,8 +380,9 @@ class VizStage(Stage):
             c = self._clocks[source] = host_clock()
         return c
 
-    def handle_sample(self, key: str, payload: bytes, t_arrival_ns: int | None = None) -> str:
-        """Map one bus sample; returns ``logged``, ``ignored``, ``unknown`` or ``error``."""
+    def read_payload(self, key: str, payload: bytes, t_arrival_ns: int | None) -> str:
+        """Map one bus sample (:meth:`Stage.handle_sample`: envelopes and the JSON sections);
+        returns ``logged``, ``ignored``, ``unknown`` or ``error``."""
         with self._lock:
             self.stats.received += 1
         t_host = (t_arrival_ns if t_arrival_ns is not None else time.time_ns()) / 1e9
@@ -453,45 +458,59 @@ class VizStage(Stage):
             return self._truth_msg(body, t_host)
         if section == "status" and len(parts) >= 2:
             return self._health(parts[1], body, t_host)
-        if section == "pilot" and len(parts) >= 2:
-            return self._pilot(parts[1], body, t_host)
+        record = pipelines.for_section(section)
+        if record is not None and len(parts) >= 2:
+            return self._control(record, parts[1], body, t_host)
         return f"unknown:{section}"
 
-    def _pilot(self, what: str, body: Mapping[str, object], t_host: float) -> str:
-        """The autopilot (auvgw.stages.pilot, docs/pilot.md) on the odometry's clock, one unit
-        per view (:data:`auvgw.viz.entities.PILOT_VIEWS`): its ``state`` as ``pilot/track``
-        (cross- and along-track error, depth set-point, m), ``pilot/setpoints`` (heading and
-        pitch, deg), ``pilot/speed`` (set-point, m/s) and ``pilot/leg``, with a
-        ``health/pilot-state/events`` line at each change of mode (an abort with its reason, as
-        an error); its ``command`` as ``pilot/fins`` (rudder and stern plane, deg) and
-        ``pilot/shaft`` (rpm)."""
+    def _control(self, record: pipelines.Pipeline, what: str, body: Mapping[str, object],
+                 t_host: float) -> str:  # fmt: skip
+        """An output of a control pipeline (``auv/<v>/<name>/<what>``), shown by its view in
+        the pipeline registry (``setpoints``, ``commands``), on the odometry's clock."""
         t = _float(body.get("t"), t_host)
+        view = record.view_of(what)
+        if view == "setpoints":
+            self._setpoints(record.name, body, t)
+        elif view == "commands":
+            self._commands(record.name, body, t)
+        else:
+            return f"{record.name}:{what}"
+        return "logged"
+
+    def _commands(self, name: str, body: Mapping[str, object], t: float) -> None:
+        """An actuator command (the pilot's ``command``: ``rpm``, ``rudder``, ``stern`` rad) as
+        ``<name>/fins`` (rudder and stern plane, deg) and ``<name>/shaft`` (rpm)
+        (:data:`auvgw.viz.entities.PILOT_VIEWS`)."""
         deg = math.degrees
-        if what == "command":
-            self.logger.series("pilot/fins", t, {
-                "rudder_deg": deg(_float(body.get("rudder"))),
-                "stern_deg": deg(_float(body.get("stern")))})  # fmt: skip
-            self.logger.series("pilot/shaft", t, {"rpm": _float(body.get("rpm"))})
-            return "logged"
-        if what != "state":
-            return f"pilot:{what}"
-        self.logger.series("pilot/track", t, {
+        self.logger.series(f"{name}/fins", t, {
+            "rudder_deg": deg(_float(body.get("rudder"))),
+            "stern_deg": deg(_float(body.get("stern")))})  # fmt: skip
+        self.logger.series(f"{name}/shaft", t, {"rpm": _float(body.get("rpm"))})
+
+    def _setpoints(self, name: str, body: Mapping[str, object], t: float) -> None:
+        """An autopilot's state (auvgw.stages.pilot, docs/pilot.md; the pilot's ``state``), one
+        unit per view (:data:`auvgw.viz.entities.PILOT_VIEWS`): ``<name>/track`` (cross- and
+        along-track error, depth set-point, m), ``<name>/setpoints`` (heading and pitch, deg),
+        ``<name>/speed`` (set-point, m/s) and ``<name>/leg``, with a
+        ``health/<name>-state/events`` line at each change of mode (an abort with its reason,
+        as an error)."""
+        deg = math.degrees
+        self.logger.series(f"{name}/track", t, {
             "cross_track_m": _float(body.get("cross_track")),
             "along_track_m": _float(body.get("along_track")),
             "depth_d_m": _float(body.get("depth_d"))})  # fmt: skip
-        self.logger.series("pilot/setpoints", t, {
+        self.logger.series(f"{name}/setpoints", t, {
             "heading_d_deg": deg(_float(body.get("heading_d"))),
             "pitch_d_deg": deg(_float(body.get("pitch_d")))})  # fmt: skip
-        self.logger.series("pilot/speed", t, {"speed_d_mps": _float(body.get("speed_d"))})
-        self.logger.series("pilot/leg", t, {"leg": _float(body.get("leg"))})
+        self.logger.series(f"{name}/speed", t, {"speed_d_mps": _float(body.get("speed_d"))})
+        self.logger.series(f"{name}/leg", t, {"leg": _float(body.get("leg"))})
         mode = str(body.get("mode", ""))
-        if self._pilot_mode != mode:
-            self._pilot_mode = mode
+        if self._modes.get(name) != mode:
+            self._modes[name] = mode
             reason = body.get("abort_reason") or ""
             why = f": {reason} ({body.get('abort_detail', '')})" if reason else ""
-            self.logger.event("pilot-state", t, f"mode {mode}{why}",
+            self.logger.event(f"{name}-state", t, f"mode {mode}{why}",
                               "ERROR" if mode == "aborted" else "INFO")  # fmt: skip
-        return "logged"
 
     def _sensor_json(
         self, device: str, type_name: str, body: Mapping[str, object], t: float

@@ -1,5 +1,6 @@
-"""The SLAM-pipeline registry (auvgw.slam.pipelines): every record's targets exist and agree with
-their stage, the demo's choice per shipped scenario, the Rerun stage's views; and a toy pipeline
+"""The pipeline registry (auvgw.slam.pipelines): every record's targets exist and agree with
+their stage, the demo's choice per shipped scenario, the Rerun stage's views, the closed-loop
+pilot a record of kind "control" that the SLAM commands leave out; and a toy pipeline
 registered here, in the test, runs through ``auvgw slam run`` and ``auvgw slam eval`` without a
 line of the commands knowing it (docs/adding-a-pipeline.md shows the same example)."""
 
@@ -27,7 +28,7 @@ from auvgw.stages.base import BusCounters, PipelineStage, StageConfig
 # -- the registry ---------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("record", pipelines.PIPELINES, ids=lambda r: r.name)
+@pytest.mark.parametrize("record", pipelines.of_kind("slam"), ids=lambda r: r.name)
 def test_every_record_names_what_exists(record: pipelines.Pipeline) -> None:
     online, stage = pipelines.load(record.online), pipelines.load(record.stage)
     assert isinstance(online, type) and issubclass(stage, PipelineStage | _landmark_stage())
@@ -45,7 +46,7 @@ def _landmark_stage() -> type:
     return SlamStage
 
 
-@pytest.mark.parametrize("record", pipelines.PIPELINES, ids=lambda r: r.name)
+@pytest.mark.parametrize("record", pipelines.of_kind("slam"), ids=lambda r: r.name)
 def test_the_demo_runs_each_pipeline_on_its_own_scenario(record: pipelines.Pipeline) -> None:
     scn = load_scenario(config_file(f"scenarios/{record.demo_scenario}.json"))
     assert pipelines.for_demo(scn) is record
@@ -63,7 +64,7 @@ DEMO_PLANS = {
 }  # fmt: skip
 
 
-@pytest.mark.parametrize("record", pipelines.PIPELINES, ids=lambda r: r.name)
+@pytest.mark.parametrize("record", pipelines.of_kind("slam"), ids=lambda r: r.name)
 def test_each_record_gives_its_demo_processes(record: pipelines.Pipeline) -> None:
     """The processes ``demo --processes`` starts for a pipeline come from its record, each on
     the demo's bus (its hub, an endpoint of its own); one started after the sim's clock is
@@ -87,7 +88,12 @@ def test_each_record_gives_its_demo_processes(record: pipelines.Pipeline) -> Non
 
 
 def test_lookups_and_their_errors() -> None:
-    assert pipelines.names() == ["magnetic", "bathymetric", "landmark"]
+    assert pipelines.names("slam") == ["magnetic", "bathymetric", "landmark"]
+    assert pipelines.names() == ["magnetic", "bathymetric", "landmark", "pilot"]
+    assert pipelines.names("control") == ["pilot"] and pipelines.sections() == ("pilot",)
+    assert pipelines.for_section("pilot") is pipelines.get("pilot")
+    assert pipelines.for_section("slam") is None and pipelines.for_segment("pilot") is not (
+        pipelines.get("pilot"))  # a SLAM segment named pilot is a landmark filter's
     assert pipelines.default().name == "landmark"
     # the landmark stage's key segment is its algorithm's name
     assert pipelines.for_segment("vb-aufastslam") is pipelines.get("landmark")
@@ -95,12 +101,108 @@ def test_lookups_and_their_errors() -> None:
     assert pipelines.get("landmark").view_of("map") == "landmarks"
     assert pipelines.get("magnetic").view_of("observations") == "ranges"
     assert pipelines.get("magnetic").view_of("cloud") is None
-    with pytest.raises(KeyError, match="unknown SLAM pipeline 'sonar'; known: magnetic"):
+    with pytest.raises(KeyError, match="unknown pipeline 'sonar'; known: magnetic"):
         pipelines.get("sonar")
     with pytest.raises(ValueError, match="already registered"):
         pipelines.register(pipelines.get("magnetic"))
     with pytest.raises(ValueError, match="unknown view 'mesh'"):
         pipelines.Output("map", "mesh")
+    with pytest.raises(KeyError, match="unknown pipeline kind 'sonar'"):
+        pipelines.of_kind("sonar")
+    with pytest.raises(ValueError, match=r"pipeline pilot \(control\) has no run"):
+        pipelines.get("pilot").entry("run")
+    common = {"online": "m:C", "stage": "m:S", "outputs": ()}
+    with pytest.raises(ValueError, match="unknown kind 'steer'"):
+        pipelines.Pipeline("x", "x", kind="steer", **common)
+    with pytest.raises(ValueError, match="a control record needs command, demo_option, demo_run"):
+        pipelines.Pipeline("x", "x", kind="control", **common)
+    with pytest.raises(ValueError, match="a slam record needs run, evaluation, eval_algorithms"):
+        pipelines.Pipeline("x", "x", **common)
+
+
+# -- the closed-loop pilot: a record of kind "control" ---------------------------------------------
+
+
+def test_the_pilot_record_names_what_exists() -> None:
+    """Its pure class, its stage (whose outputs are the record's, on ``auv/<v>/pilot/``), its
+    command (registered), its demo option and entry, its scenario and page."""
+    from auvgw.commands import COMMANDS
+    from auvgw.stages.base import Stage
+
+    rec = pipelines.get("pilot")
+    assert rec.kind == "control" and rec.section == "pilot"
+    assert isinstance(pipelines.load(rec.online), type)
+    stage = pipelines.load(rec.stage)
+    assert issubclass(stage, Stage) and not issubclass(stage, PipelineStage)
+    assert set(stage.outputs) == set(rec.output_names)
+    assert {o.what: o.view for o in rec.outputs} == {"state": "setpoints", "command": "commands",
+                                                     "ack": None}  # fmt: skip
+    assert COMMANDS[rec.name][0] == rec.command and callable(rec.entry("command").register)
+    assert callable(rec.entry("demo_run"))
+    assert config_file(f"scenarios/{rec.demo_scenario}.json").is_file()
+    assert (Path(__file__).parents[2] / "docs" / rec.doc).is_file()
+
+
+def test_the_slam_commands_offer_only_slam_pipelines(capsys) -> None:
+    """``slam eval`` and ``slam run`` take their choices from the SLAM records; the pilot's
+    options stay in ``auvgw pilot``; ``auvgw demo`` has the pilot's option."""
+    from auvgw.cli import build_parser
+
+    def options(command: str, *sub: str) -> dict[str, argparse.Action]:
+        p = build_parser(command)
+        for word in (command, *sub):
+            p = next(a for a in p._actions if isinstance(a, argparse._SubParsersAction)).choices[
+                word]  # fmt: skip
+        return {o: a for a in p._actions for o in a.option_strings}
+
+    slam_names = ["magnetic", "bathymetric", "landmark"]
+    for sub in ("eval", "run"):
+        assert list(options("slam", sub)["--pipeline"].choices) == slam_names
+    from auvgw.bus import add_bus_arguments
+
+    bus = argparse.ArgumentParser()
+    add_bus_arguments(bus)
+    shared = {o for a in bus._actions for o in a.option_strings} | {"--vehicle", "--duration"}
+    pilot_only = set(options("pilot")) - shared
+    assert "--mission" in pilot_only and not pilot_only & set(options("slam", "run"))
+    assert pipelines.get("pilot").demo_option in options("demo")
+    with pytest.raises(SystemExit) as exc:
+        build_parser("slam").parse_args(["slam", "eval", "--pipeline", "pilot",
+                                          "--scenario", "x.json"])  # fmt: skip
+    assert exc.value.code == 2 and "invalid choice: 'pilot'" in capsys.readouterr().err
+
+
+def test_the_rerun_stage_shows_a_control_pipeline_by_its_record(tmp_path: Path) -> None:
+    """A control pipeline registered under another name is shown from its record's views, at
+    ``<name>/...``; an output without a view is counted, not shown."""
+    from auvgw.viz.logger import RerunLogger
+    from auvgw.viz.readback import read_recording
+    from auvgw.viz.stage import VizStage
+
+    pilot = pipelines.get("pilot")
+    helm = pipelines.Pipeline("helm", "a second autopilot (a test)", kind="control",
+                              online=pilot.online, stage=pilot.stage, command=pilot.command,
+                              outputs=(pipelines.Output("state", "setpoints"),
+                                       pipelines.Output("ack", None)),
+                              demo_option="--helm", demo_run=pilot.demo_run)  # fmt: skip
+    pipelines.register(helm)
+    try:
+        assert pipelines.sections() == ("pilot", "helm")
+        logger = RerunLogger(rrd=tmp_path / "helm.rrd")
+        viz = VizStage(logger, "auv1")
+        state = {"t": 5.0, "mode": "running", "leg": 1, "cross_track": 1.5, "depth_d": 4.0}
+        assert viz.handle_sample("auv/auv1/helm/state", json.dumps(state).encode()) == "logged"
+        assert viz.handle_sample("auv/auv1/helm/ack", b'{"t": 5.0, "seq": 1}') == "unknown"
+        assert viz.stats.unknown == {"helm:ack": 1}
+        viz.stop()
+        logger.close()
+    finally:
+        pipelines.unregister("helm")
+    rec = read_recording(tmp_path / "helm.rrd")
+    e = rec["helm/track"]
+    row = dict(zip(e.static["SeriesLines:names"], e.values("Scalars:scalars")[0], strict=True))
+    assert list(e.times) == [5_000_000_000] and row["cross_track_m"] == 1.5
+    assert row["depth_d_m"] == 4.0 and "pilot/track" not in rec
 
 
 def test_held_samples_are_bounded_and_counted() -> None:

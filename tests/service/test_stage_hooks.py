@@ -1,11 +1,13 @@
-"""No bus stage overrides the base's ``start`` or ``stop`` (issue 29): each declares what differs
-through the hooks (:meth:`Stage.on_start`, :meth:`Stage.on_stop`, :meth:`Stage.keep`), which
-the base calls at defined points."""
+"""No bus stage overrides a public method of the base (issue 29) other than the hooks the base
+marks as the subclass's (:func:`auvgw.stages.base.hook`: ``feed``, ``key``, ``on_start``,
+``read_payload``, ``on_status``...): each declares what differs through them, and the base calls
+them at defined points."""
 
 from __future__ import annotations
 
 import gc
 import importlib
+import inspect
 import pkgutil
 from typing import Any, ClassVar
 
@@ -15,12 +17,21 @@ from auvgw.slam import pipelines
 from auvgw.stages.base import BusCounters, Stage, StageConfig
 from auvgw.testing.overrides import overrides, subclasses
 
-#: the base's lifecycle methods a subclass never redefines
-LIFECYCLE = ("start", "stop")
+
+def _is_hook(value: object) -> bool:
+    return getattr(getattr(value, "fget", value), "__stage_hook__", False) is True
+
+
+#: every public method and property of the base (its own and the Worker's) that is not a hook
+PUBLIC = sorted({n for klass in Stage.__mro__ if klass is not object for n, v in vars(klass).items()
+                 if not n.startswith("_") and (callable(v) or isinstance(v, property))
+                 and not _is_hook(v)})  # fmt: skip
+#: the hooks the base marks
+HOOKS = sorted(n for n, v in vars(Stage).items() if _is_hook(v))
 
 
 def _overrides(classes: set[type]) -> set[str]:
-    return set(overrides(classes, LIFECYCLE))
+    return set(overrides(classes, PUBLIC))
 
 
 def _import_stages() -> None:
@@ -33,23 +44,30 @@ def _import_stages() -> None:
         pipelines.load(p.stage)
 
 
-def test_no_stage_overrides_start_or_stop() -> None:
+def test_no_stage_overrides_a_public_method_of_the_base() -> None:
+    # the base's own plumbing and the Worker's, whatever is added later
+    assert {"start", "stop", "post", "post_odometry", "handle_sample", "publish", "publish_json",
+            "publish_message", "publish_status", "counters", "from_source", "keep", "subscribe",
+            "submit", "start_worker", "stop_worker", "worker_stats"} <= set(PUBLIC)  # fmt: skip
+    assert {"key", "input_keys", "wanted", "feed", "feed_odometry", "dispatch", "status_fields",
+            "flush", "on_start", "on_stop", "accepts", "read_payload", "on_status",
+            "component"} == set(HOOKS)  # fmt: skip
     _import_stages()
     subs = subclasses(Stage)
     names = {c.__qualname__ for c in subs}
     assert {"FusionStage", "PilotStage", "Ros2Bridge", "FoxgloveStage", "VizStage",
             "MagneticStage", "BathymetricStage", "SlamStage", "SwathStage"} <= names  # fmt: skip
-    assert _overrides(subs) == set(), "override the hooks (on_start, on_stop, keep) instead"
+    assert _overrides(subs) == set(), f"override the hooks ({', '.join(HOOKS)}) instead"
 
 
-def test_the_check_finds_a_planted_override() -> None:
-    class Bad(Stage):
-        def stop(self, flush: bool = True, timeout_s: float = 5.0) -> None:
-            super().stop(flush, timeout_s)
-
-    assert _overrides({Bad}) == {f"{__name__}.{Bad.__qualname__}.stop"}
-    assert Bad in subclasses(Stage)
-    del Bad
+@pytest.mark.parametrize("name", PUBLIC)
+def test_the_check_finds_a_planted_override(name: str) -> None:
+    """An override of any public method of the base, planted in a subclass, is found."""
+    original = inspect.getattr_static(Stage, name)
+    bad = type("Bad", (Stage,), {name: original})
+    assert _overrides({bad}) == {f"{__name__}.Bad.{name}"}
+    assert bad in subclasses(Stage)
+    del bad
     gc.collect()  # out of Stage.__subclasses__() again
 
 
