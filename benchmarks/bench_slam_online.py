@@ -46,7 +46,8 @@ from typing import Any
 
 import numpy as np
 
-from auvgw.commands.demo import _fusion_config, _path_error, _Track
+from auvgw.commands.demo_parts import _fusion_config
+from auvgw.commands.demo_report import _path_error, _Track
 from auvgw.config.scenario import Scenario
 from auvgw.drivers import seanet as sn
 from auvgw.sim_devices.clock import SimClock

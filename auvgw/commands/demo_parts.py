@@ -12,10 +12,11 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, TypedDict
 
 from auvgw.commands.common import UserError
 from auvgw.config.gateway import ConfigError, load_gateway_config
+from auvgw.slam import pipelines
 
 if TYPE_CHECKING:
     from auvgw.config.gateway import GatewayConfig
@@ -23,15 +24,26 @@ if TYPE_CHECKING:
     from auvgw.stages.fusion import FusionStageConfig
 
 __all__ = [
+    "BATHYMETRIC",
+    "MAGNETIC",
+    "VEHICLE",
     "DemoContext",
     "DemoPlan",
     "DemoProcess",
+    "OnPublish",
     "TruthSample",
     "_TruthTail",
+    "_bathymetric_scenario",
     "_fusion_config",
     "_gateway_toml",
+    "_is_magnetic",
     "_load_sim_config",
+    "_sim_argv",
+    "_sim_done",
     "_sim_epoch_ns",
+    "_streamed_frames",
+    "_true_beacons",
+    "_wait_drained",
     "_wait_for",
 ]
 
@@ -197,3 +209,79 @@ def _wait_for(path: Path, proc: subprocess.Popen[bytes], timeout_s: float) -> No
         if time.monotonic() > deadline:
             raise UserError(f"the emulated vehicle wrote no {path.name} in {timeout_s:.0f} s")
         time.sleep(0.1)
+
+#: the emulated vehicle's name (the <v> key segment)
+VEHICLE = "auv1"
+#: a stage's in-process publication hook: (key, payload, stamp ns)
+OnPublish = Callable[[str, bytes, int], object]
+
+
+def _sim_argv(scenario: Path, speed: float, duration: float, sim_dir: Path,
+              pace: str = "elastic") -> list[str]:  # fmt: skip
+    return ["sim", "--scenario", str(scenario), "--speed", str(speed), "--duration",
+            str(duration), "--out", str(sim_dir), "--vehicle", VEHICLE, "--hold",
+            "--pace", pace]  # fmt: skip
+
+
+def _sim_done(sim: subprocess.Popen[bytes], sim_dir: Path) -> bool:
+    """The emulated run is over: the sim wrote ``finished`` (ports still open) or exited."""
+    return sim.poll() is not None or (sim_dir / "finished").exists()
+
+
+def _streamed_frames(gw_cfg: GatewayConfig, devices: dict[str, dict[str, int]]) -> int:
+    """Frames the gateway has read from the devices that speak on their own: a polled device
+    (a host driver, the MSIS head) answers every poll for as long as its port stays open, so its
+    frames never go quiet; counted, they held the drain at its limit while the gateway kept
+    stamping rows past the end of the run (issue 33: 20 s of vehicle time at ``--speed 2``)."""
+    from auvgw.drivers import registry
+
+    polled = {k.format for k in registry.DEVICES if k.host_driver}
+    return sum(
+        int(d.get("frames", 0))
+        for name, d in devices.items()
+        if name not in gw_cfg.devices or gw_cfg.devices[name].format not in polled
+    )
+
+
+def _wait_drained(frames: Callable[[], int], quiet_s: float = 0.5, limit_s: float = 10.0) -> None:
+    """Wait until a count has not moved for ``quiet_s``, at most ``limit_s``: the gateway's
+    frames (the last read from the held-open ports) or a stage's received messages."""
+    last, since, end = frames(), time.monotonic(), time.monotonic() + limit_s
+    while time.monotonic() < end and time.monotonic() - since < quiet_s:
+        time.sleep(0.05)
+        n = frames()
+        if n != last:
+            last, since = n, time.monotonic()
+
+
+#: the registry records of the pipelines the demo wires itself (in process and as processes)
+BATHYMETRIC = pipelines.get("bathymetric")
+MAGNETIC = pipelines.get("magnetic")
+
+
+def _bathymetric_scenario(scn: Scenario) -> bool:
+    """A survey: the registry gives the scenario to the bathymetric pipeline
+    (:func:`auvgw.commands.bathy_run.demo_accepts`)."""
+    return pipelines.for_demo(scn) is BATHYMETRIC
+
+
+def _is_magnetic(scn: Scenario) -> bool:
+    """A scenario for the magnetic stage: the registry gives it to the magnetic pipeline
+    (:func:`auvgw.commands.magnetic_run.demo_accepts`; the MSIS SLAM stage otherwise)."""
+    return pipelines.for_demo(scn) is MAGNETIC
+
+
+class _Beacons(TypedDict, total=False):
+    landmarks: list[list[float]]  # the magnetic beacons, [x, y] m
+    acoustic_beacon: list[float]  # [x, y] m
+
+
+def _true_beacons(scn: Scenario) -> _Beacons:
+    """The scenario's magnetic beacons (``landmarks``, [x, y] m) and acoustic beacon
+    (``acoustic_beacon``) for ``truth/map`` (nothing without beacons)."""
+    out: _Beacons = {}
+    if scn.magnetic_beacons:
+        out["landmarks"] = [[b.x, b.y] for b in scn.magnetic_beacons]
+    if scn.acoustic_beacon is not None:
+        out["acoustic_beacon"] = [scn.acoustic_beacon.x, scn.acoustic_beacon.y]
+    return out
