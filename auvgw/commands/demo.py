@@ -42,7 +42,6 @@ from pathlib import Path
 from auvgw.commands.common import SubParsers, UserError, add_command
 from auvgw.commands.demo_inprocess import _run_stages
 from auvgw.commands.demo_parts import (
-    _bathymetric_scenario,
     _sim_argv,
     _wait_for,
 )
@@ -56,9 +55,6 @@ DEFAULT_SCENARIO = "harbour"
 #: the demo's vehicle seconds and speed (x real time) unless told otherwise
 DEFAULT_DURATION_S = 180.0
 DEFAULT_SPEED = 2.0
-#: a survey's speed: its whole route (1812 s of survey.json) in about 3 minutes; measured here
-#: with --processes, every INS sample arrives and the bathymetric stage keeps up
-SURVEY_SPEED = 10.0
 
 
 def register(sub: SubParsers) -> None:
@@ -74,15 +70,21 @@ def register(sub: SubParsers) -> None:
         "--duration",
         type=float,
         default=None,
-        help=f"vehicle seconds (default {DEFAULT_DURATION_S:.0f}; a survey with --processes: its "
-        "whole route, about 30 min, whose tie line crosses every line: the loop closures)",
+        help=f"vehicle seconds (default {DEFAULT_DURATION_S:.0f}; with --processes on the "
+        "scenario of a pipeline with a route speed ("
+        + ", ".join(r.demo_scenario for r in pipelines.PIPELINES if r.demo_route_speed)
+        + "): its whole route; a survey's, about 30 min, whose tie line crosses every line: "
+        "the loop closures)",
     )
     p.add_argument(
         "--speed",
         type=float,
         default=None,
-        help=f"x real time (default {DEFAULT_SPEED:g}; a survey with --processes "
-        f"{SURVEY_SPEED:g}: about 3.5 min)",
+        help=f"x real time (default {DEFAULT_SPEED:g}; with --processes, its pipeline's route "
+        "speed: "
+        + ", ".join(f"{r.demo_scenario} {r.demo_route_speed:g}" for r in pipelines.PIPELINES
+                    if r.demo_route_speed)
+        + ")",
     )
     p.add_argument("--pace", choices=("elastic", "free"), default="elastic",
                    help="the sim's clock (auvgw sim --pace): elastic (default) waits for its "
@@ -149,10 +151,10 @@ def _demo_scenario(
     frames/s here, and the HN-100's 800 frames/s x speed would overrun it (the CAN form of the
     INS is exercised by the tests; the magnetometer keeps its CAN form). ``multibeam``
     "geoswath": the GeoSwath emulator replaces a multibeam the scenario has on. ``seed``: the
-    emulators' seed instead of the scenario's. A survey (the bathymetric pipeline) runs without
-    the devices that pipeline does not read (:data:`SURVEY_IDLE_DEVICES`) unless its file turns
-    them on: on a loaded host they only add lag, and the INS clock resets lag causes move dead
-    reckoning's stamps off the vehicle's time."""
+    emulators' seed instead of the scenario's. The devices the scenario's pipeline does not read
+    (its record's ``demo_idle_devices``) are off unless its file turns them on: on a loaded host
+    they only add lag, and the INS clock resets lag causes move dead reckoning's stamps off the
+    vehicle's time."""
     try:
         scn = load_scenario(src)
     except ScenarioError as exc:
@@ -163,9 +165,8 @@ def _demo_scenario(
     ins.setdefault("options", {})["can"] = False
     if seed is not None:
         data["seed"] = seed
-    if _bathymetric_scenario(scn):
-        for name in SURVEY_IDLE_DEVICES:
-            devices.setdefault(name, {}).setdefault("enabled", False)
+    for name in pipelines.for_demo(scn).demo_idle_devices:
+        devices.setdefault(name, {}).setdefault("enabled", False)
     if multibeam == "geoswath" and scn.devices.multibeam.enabled:
         devices["multibeam"] = {**devices.get("multibeam", {}), "enabled": False}
         devices["geoswath"] = {**devices.get("geoswath", {}), "enabled": True}
@@ -218,16 +219,17 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _scenario_defaults(args: argparse.Namespace, scenario: Path) -> None:
-    """``--duration`` and ``--speed`` where not given: a survey (the bathymetric pipeline) with
-    ``--processes`` runs its whole route at :data:`SURVEY_SPEED` (its first loop closure comes
-    with the second line, about 5 minutes in, the gain over dead reckoning with the whole
-    route); any other run :data:`DEFAULT_DURATION_S` at
-    :data:`DEFAULT_SPEED` (one process does not keep up with the survey's devices at 10x: it
-    lost 40 % of the INS frames and dead reckoning diverged, measured here)."""
-    survey = _bathymetric_scenario(load_scenario(scenario))
-    whole = survey and args.processes
+    """``--duration`` and ``--speed`` where not given: with ``--processes``, the whole route at
+    the speed of the scenario's pipeline (its record's ``demo_route_speed``: the survey's loop
+    closures, the bathymetric SLAM's gain over dead reckoning, come along the whole route); any
+    other run :data:`DEFAULT_DURATION_S` at :data:`DEFAULT_SPEED` (one process does not keep up
+    with the survey's devices at 10x: it lost 40 % of the INS frames and dead reckoning
+    diverged, measured here)."""
+    record = pipelines.for_demo(load_scenario(scenario))
+    route_speed = record.demo_route_speed
+    whole = route_speed is not None and args.processes
     if args.speed is None:
-        args.speed = SURVEY_SPEED if whole else DEFAULT_SPEED
+        args.speed = route_speed if whole else DEFAULT_SPEED
     if args.duration is None:
         args.duration = DEFAULT_DURATION_S
         if whole:
@@ -236,13 +238,7 @@ def _scenario_defaults(args: argparse.Namespace, scenario: Path) -> None:
 
             scn = load_scenario(scenario)
             args.duration = math.ceil(simulate(scn, World.from_scenario(scn)).duration)
-        elif survey:
-            print("note: the survey's first loop closure comes with its second line, about 5 "
-                  "minutes of vehicle time in; `auvgw demo --scenario survey --processes` runs "
-                  f"the whole route at {SURVEY_SPEED:g}x", flush=True)  # fmt: skip
-
-
-#: emulated devices a survey's demo leaves off (the bathymetric pipeline reads the INS, DVL and
-#: multibeam only): the MSIS (polled) and the magnetometer (serial and SLCAN) took 118,000 of
-#: the 317,000 frames of a whole-route run here
-SURVEY_IDLE_DEVICES = ("msis", "magnetometer")
+        elif route_speed is not None:
+            print(f"note: the {record.name} SLAM's gain comes along the whole route; `auvgw demo "
+                  f"--scenario {args.scenario} --processes` runs it at {route_speed:g}x",
+                  flush=True)  # fmt: skip

@@ -1,7 +1,6 @@
 """``auvgw demo`` in one process: the gateway, the fusion, the SLAM stage and the Rerun recording
 in this process, fed in-process, beside ``auvgw sim`` in its own."""
 
-
 from __future__ import annotations
 
 import argparse
@@ -11,22 +10,18 @@ import signal
 import subprocess
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from auvgw.bus import Keys, decode_envelope, encode_envelope, open_session
-from auvgw.commands.bathy_run import DISPLAY_NAME as BATHY_NAME
-from auvgw.commands.bathy_run import demo_config as _bathy_config
+from auvgw.bus import Keys, encode_envelope, open_session
 from auvgw.commands.demo_parts import (
-    BATHYMETRIC,
-    VEHICLE,
-    OnPublish,
+    InProcessContext,
+    InProcessPlan,
     TruthSample,
-    _bathymetric_scenario,
     _fusion_config,
-    _is_magnetic,
     _load_sim_config,
     _sim_done,
     _sim_epoch_ns,
@@ -36,35 +31,24 @@ from auvgw.commands.demo_parts import (
     _wait_drained,
 )
 from auvgw.commands.demo_report import (
+    Track,
     _bathy_map_summary,
     _Progress,
     _report,
     _smoothed_track,
-    _Track,
 )
-from auvgw.commands.magnetic_run import DISPLAY_NAME as MAGNETIC_NAME
-from auvgw.commands.magnetic_run import mag_rate_hz
-from auvgw.commands.slam_run import demo_config as _slam_config
 from auvgw.config.bus import BusConfig
 from auvgw.config.scenario import load_scenario
 from auvgw.health import device_time_s
+from auvgw.slam import pipelines
 from auvgw.subscribe import slam_output
 
 if TYPE_CHECKING:
-    import zenoh
 
-    from auvgw.config.gateway import GatewayConfig
-    from auvgw.config.scenario import Scenario
     from auvgw.fusion.odometry import Odometry
-    from auvgw.stages.bathymetric import BathymetricStage
     from auvgw.stages.fusion import FusionStage
-    from auvgw.stages.magnetic import MagneticStage
-    from auvgw.stages.slam import SlamStage
-    from auvgw.stages.swath import SwathStage
     from auvgw.viz.stage import VizRunner
 
-    #: the in-process SLAM stage of a demo
-    DemoSlam = SlamStage | BathymetricStage | MagneticStage
 
 
 def _run_stages(
@@ -77,13 +61,12 @@ def _run_stages(
 ) -> int:
     from auvgw.gateway import Gateway
     from auvgw.stages.fusion import FusionStage
-    from auvgw.stages.slam import SlamStage
 
     gw_cfg = _load_sim_config(sim_dir)
     keys = Keys(gw_cfg.vehicle)
     epoch_ns = _sim_epoch_ns(gw_cfg)
     epoch_s = epoch_ns / 1e9  # stamps (s) - epoch_s = vehicle seconds
-    truth, dead_reckoning, slam_track = _Track(), _Track(), _Track()
+    truth, dead_reckoning, slam_track = Track(), Track(), Track()
     lock = threading.Lock()
     scn = load_scenario(scenario)
 
@@ -98,14 +81,20 @@ def _run_stages(
         viz = open_viz(session, gw_cfg.vehicle, rrd=rrd, connect=args.connect,
                        options=gateway_viz_options(gw_cfg), sections=("status",))  # fmt: skip
 
-    bathy_map: list[bytes] = []  # the bathymetric stage's latest DEM tile (the whole map last)
-    bathy_track: list[bytes] = []  # its smoothed trajectory (at flush)
+    # the SLAM pipeline the registry gives the scenario, and its stage in this process
+    record = None if args.no_slam else pipelines.for_demo(scn)
+    # a pipeline's latest DEM tile (its dem output: the whole map last) and its smoothed
+    # trajectory (its path output, at flush): the map summary's
+    outputs = () if record is None else record.outputs
+    views = {o.view: keys.slam(record.name, o.what) for o in outputs if record is not None}
+    dem_map: list[bytes] = []
+    smoothed: list[bytes] = []
 
     def on_slam(key: str, payload: bytes, t_ns: int) -> None:
-        if key == keys.slam(BATHYMETRIC.name, "map"):
-            bathy_map[:] = [payload]
-        if key.endswith("/bathymetric/track"):
-            bathy_track[:] = [payload]
+        if key == views.get("dem"):
+            dem_map[:] = [payload]
+        if key == views.get("path"):
+            smoothed[:] = [payload]
         if key.endswith("/pose"):
             p = slam_output(payload, key)
             with lock:
@@ -113,42 +102,18 @@ def _run_stages(
         if viz is not None:
             viz.stage.handle_sample(key, payload, t_ns)
 
-    # SLAM on the MSIS point features (or, on a survey, the multibeam swaths: bathymetric; with
-    # magnetic beacons, AMB-SLAM) and the fusion odometry, fed in-process (publishes on
-    # auv/<v>/slam/<pipeline>/... too)
-    from auvgw.drivers import registry
-
-    sonar = {dev.format for dev, m in registry.message_types() if "sonar" in m.roles}
-    msis = [n for n, d in gw_cfg.devices.items() if d.format in sonar and d.enabled]
-    slam: DemoSlam | None = None
-    if args.no_slam:
-        pass
-    elif _is_magnetic(scn):  # the magnetic beacons' AMB-SLAM instead of the MSIS features
-        slam = _magnetic_stage(scenario, scn, epoch_ns, session, on_slam)
-    elif _bathymetric_scenario(scn):
-        slam = _bathy_stage(gw_cfg, session, on_slam)
-    else:
-        slam = SlamStage(
-            _slam_config(gw_cfg.vehicle, msis[0] if msis else None, scn),
-            session=session,
-            on_publish=on_slam,
-        )
+    # fed in-process (publishes on auv/<v>/slam/<pipeline>/... too); the stages in front of it
+    # (a GeoSwath's swath stage) first
+    plan: InProcessPlan | None = None
+    if record is not None and record.demo_inprocess is not None:
+        ctx = InProcessContext(scenario, scn, gw_cfg, epoch_ns, session, on_slam)
+        plan = pipelines.load(record.demo_inprocess)(ctx)
+    slam = None if plan is None else plan.stage
     if slam is not None:
         slam.start(subscribe=False)
-
-    def on_swath(key: str, payload: bytes, t_ns: int) -> None:
-        from auvgw.subscribe import envelope_message
-
-        env = decode_envelope(payload, key)
-        if slam is not None:
-            slam.post(env.device, t_ns, envelope_message(env))
-        if viz is not None:
-            viz.stage.handle_sample(key, payload, t_ns)
-
-    # GeoSwath raw pings -> swaths (XYZ 88 on auv/<v>/sensor/<device>_swath/xyz88) -> SLAM
-    swath = _swath_stage(gw_cfg, session, on_swath)
-    if swath is not None:
-        swath.start(subscribe=False)
+    before = {} if plan is None else plan.before
+    for stage in before.values():
+        stage.start(subscribe=False)
 
     def on_odometry(o: Odometry) -> None:
         with lock:
@@ -208,9 +173,12 @@ def _run_stages(
 
     tail = _TruthTail(sim_dir / "truth.jsonl", on_truth)
     gateway = Gateway(gw_cfg, session=session)
-    for listener in (to_fusion, slam and slam.post, swath and swath.post, viz and viz.on_message):
-        if listener:
-            gateway.listeners.subscribe(listener)
+    listeners: list[Callable[[str, int, object], object]] = [to_fusion]
+    listeners += [st.post for st in ([slam] if slam is not None else []) + list(before.values())]
+    if viz is not None:
+        listeners.append(viz.on_message)
+    for listener in listeners:
+        gateway.listeners.subscribe(listener)
     if viz is not None:
         _log_true_map(viz, keys, scenario, epoch_ns)
     stop = threading.Event()
@@ -234,10 +202,10 @@ def _run_stages(
         if fusion_box:
             fusion_box[0].stop(flush=True)
             fusion_counters = fusion_box[0].counters()
-        swath_counters = None
-        if swath is not None:  # its last swaths reach the SLAM stage before that stops
-            swath.stop(flush=True)
-            swath_counters = swath.counters()
+        before_counters: dict[str, Any] = {}
+        for name, stage in before.items():  # their last outputs reach the SLAM stage first
+            stage.stop(flush=True)
+            before_counters[name] = stage.counters()
         slam_counters = None
         if slam is not None:
             slam.stop(flush=True)
@@ -247,13 +215,12 @@ def _run_stages(
         session.close()
     _report(
         args, status, fusion_counters,
-        None if slam is None else (_slam_name(slam), slam_counters),
+        None if record is None or plan is None else (record, plan.display, slam_counters),
         dead_reckoning, slam_track, truth, rrd, time.monotonic() - t_start, speed,
         {"ins_time_span_s": ins_span[1] - ins_span[0] if ins_span else 0.0,
          "dvl_time_span_s": dvl_span[1] - dvl_span[0] if dvl_span else 0.0,
-         **({"swath": swath_counters} if swath_counters is not None else {}),
-         **_bathy_map_summary(bathy_map, scn)},
-        smoothed=_smoothed_track(bathy_track, epoch_s),
+         **before_counters, **_bathy_map_summary(dem_map, scn)},
+        smoothed=_smoothed_track(smoothed, epoch_s),
     )  # fmt: skip
     return 0
 
@@ -272,62 +239,3 @@ def _log_true_map(viz: VizRunner, keys: Keys, scenario: Path, epoch_ns: int) -> 
     landmarks = [list(p) for p in scn.point_features()] + beacons.pop("landmarks", [])
     body = {"t": 0.0, "landmarks": landmarks, "lines": lines, **beacons}
     viz.stage.handle_sample(keys.truth("map"), json.dumps(body).encode(), epoch_ns)
-
-
-def _geoswath_device(gw_cfg: GatewayConfig) -> str | None:
-    """The gateway's GeoSwath device, if any."""
-    gs = [n for n, d in gw_cfg.devices.items() if d.format == "geoswath" and d.enabled]
-    return gs[0] if gs else None
-
-
-def _bathy_stage(
-    gw_cfg: GatewayConfig, session: zenoh.Session, on_publish: OnPublish
-) -> BathymetricStage:
-    """The in-process bathymetric stage on the gateway's Kongsberg device (or the swaths the
-    swath stage makes of its GeoSwath device's pings)."""
-    from auvgw.stages.bathymetric import BathymetricStage
-
-    mb = [n for n, d in gw_cfg.devices.items() if d.format == "kongsberg" and d.enabled]
-    gs = _geoswath_device(gw_cfg)
-    device = mb[0] if mb else f"{gs}_swath" if gs else None
-    cfg = _bathy_config(gw_cfg.vehicle, device)
-    return BathymetricStage(cfg, session=session, on_publish=on_publish)
-
-
-def _swath_stage(
-    gw_cfg: GatewayConfig, session: zenoh.Session, on_publish: OnPublish
-) -> SwathStage | None:
-    """The in-process swath stage on the gateway's GeoSwath device (None: none), processing
-    at the frequency of the device's model (its gateway configuration)."""
-    from auvgw.config.gateway import GeoSwathModel
-    from auvgw.stages.swath import SwathStage, SwathStageConfig
-
-    device = _geoswath_device(gw_cfg)
-    if device is None:
-        return None
-    f_hz = (gw_cfg.devices[device].geoswath or GeoSwathModel()).frequency_hz
-    cfg = SwathStageConfig(vehicle=gw_cfg.vehicle, device=device,
-                           processing={"frequency_hz": f_hz})  # fmt: skip
-    return SwathStage(cfg, session=session, on_publish=on_publish)
-
-
-def _slam_name(stage: DemoSlam) -> str:
-    """The in-process SLAM stage's name in the summary."""
-    name = getattr(stage.config, "display_name", None)
-    if name is not None:
-        return str(name)
-    return BATHY_NAME if type(stage).__name__ == "BathymetricStage" else MAGNETIC_NAME
-
-
-def _magnetic_stage(
-    scenario: Path, scn: Scenario, epoch_ns: int, session: zenoh.Session, on_publish: OnPublish
-) -> MagneticStage:
-    """The in-process magnetic stage: the scenario's channels and acoustic beacon, the serial
-    magnetometer timed by its counter from the gateway's epoch (the beacons' phase reference)."""
-    from auvgw.stages.magnetic import MagneticStage, config_from_scenario
-
-    cfg = config_from_scenario(
-        scenario, vehicle=VEHICLE, mag_device="magnetometer", mag_rate_hz=mag_rate_hz(scn),
-        clock_epoch_s=epoch_ns / 1e9,
-    )  # fmt: skip
-    return MagneticStage(cfg, session=session, on_publish=on_publish)

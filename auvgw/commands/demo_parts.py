@@ -10,33 +10,33 @@ import json
 import subprocess
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, TypedDict
 
 from auvgw.commands.common import UserError
 from auvgw.config.gateway import ConfigError, load_gateway_config
-from auvgw.slam import pipelines
 
 if TYPE_CHECKING:
+    import zenoh
+
     from auvgw.config.gateway import GatewayConfig
     from auvgw.config.scenario import Scenario
+    from auvgw.stages.base import Stage
     from auvgw.stages.fusion import FusionStageConfig
 
 __all__ = [
-    "BATHYMETRIC",
-    "MAGNETIC",
     "VEHICLE",
     "DemoContext",
     "DemoPlan",
     "DemoProcess",
+    "InProcessContext",
+    "InProcessPlan",
     "OnPublish",
     "TruthSample",
     "_TruthTail",
-    "_bathymetric_scenario",
     "_fusion_config",
     "_gateway_toml",
-    "_is_magnetic",
     "_load_sim_config",
     "_sim_argv",
     "_sim_done",
@@ -92,6 +92,35 @@ class DemoPlan:
     alive: frozenset[str]
     component: str
     display: str
+
+
+@dataclass(frozen=True)
+class InProcessContext:
+    """What a pipeline's stage in the in-process demo is made from: the scenario (``scenario``:
+    its file, ``scn``: loaded), the gateway configuration the sim wrote (``gw_cfg``: its devices
+    and vehicle), vehicle time 0 on the stamps' clock (``epoch_ns``, the sim's ``[clock]``), the
+    demo's session and ``on_publish``, the hook every output of the stage goes to (the demo's
+    SLAM track and Rerun recording)."""
+
+    scenario: Path
+    scn: Scenario
+    gw_cfg: GatewayConfig
+    epoch_ns: int
+    session: zenoh.Session
+    on_publish: OnPublish
+
+
+@dataclass(frozen=True)
+class InProcessPlan:
+    """What a SLAM pipeline runs in the in-process demo (its record's ``demo_inprocess`` entry,
+    ``plan(ctx: InProcessContext) -> InProcessPlan``): its stage (not started; the demo feeds it
+    the gateway's messages and the fusion's odometry), its name in the summary and the stages
+    in front of it by summary key (fed the gateway's messages, started before it and stopped,
+    flushed, before it; their counters go into ``summary.json`` under their key)."""
+
+    stage: Stage
+    display: str
+    before: dict[str, Stage] = field(default_factory=dict)
 
 
 class _TruthTail:
@@ -157,6 +186,7 @@ def _fusion_config(
     ``heading_bias_tau_s``, default 300 s), and so is the filter's (``heading_error_sigma_deg``,
     ``heading_error_tau_s``); otherwise it is white (``heading_deg``, default 0.3 deg), tau = 0.
     ``speed``: the run's x real time, which scales the fixed lag (:data:`FUSION_JITTER_HOST_S`)."""
+
     from auvgw.fusion.config import FusionConfig, InitialState
     from auvgw.sim_devices.ins import DEFAULT_NOISE, HEADING_ERROR
     from auvgw.stages.fusion import FusionStageConfig
@@ -210,6 +240,7 @@ def _wait_for(path: Path, proc: subprocess.Popen[bytes], timeout_s: float) -> No
             raise UserError(f"the emulated vehicle wrote no {path.name} in {timeout_s:.0f} s")
         time.sleep(0.1)
 
+
 #: the emulated vehicle's name (the <v> key segment)
 VEHICLE = "auv1"
 #: a stage's in-process publication hook: (key, payload, stamp ns)
@@ -252,23 +283,6 @@ def _wait_drained(frames: Callable[[], int], quiet_s: float = 0.5, limit_s: floa
         n = frames()
         if n != last:
             last, since = n, time.monotonic()
-
-
-#: the registry records of the pipelines the demo wires itself (in process and as processes)
-BATHYMETRIC = pipelines.get("bathymetric")
-MAGNETIC = pipelines.get("magnetic")
-
-
-def _bathymetric_scenario(scn: Scenario) -> bool:
-    """A survey: the registry gives the scenario to the bathymetric pipeline
-    (:func:`auvgw.commands.bathy_run.demo_accepts`)."""
-    return pipelines.for_demo(scn) is BATHYMETRIC
-
-
-def _is_magnetic(scn: Scenario) -> bool:
-    """A scenario for the magnetic stage: the registry gives it to the magnetic pipeline
-    (:func:`auvgw.commands.magnetic_run.demo_accepts`; the MSIS SLAM stage otherwise)."""
-    return pipelines.for_demo(scn) is MAGNETIC
 
 
 class _Beacons(TypedDict, total=False):

@@ -1,7 +1,6 @@
 """``auvgw demo --processes``: every part its own OS process on the demo's bus; this process
 only listens (the bus hub), publishes the truth, collects odometry, SLAM poses and status."""
 
-
 from __future__ import annotations
 
 import argparse
@@ -36,11 +35,11 @@ from auvgw.commands.demo_parts import (
     _wait_for,
 )
 from auvgw.commands.demo_report import (
+    Track,
     _bathy_map_summary,
     _Progress,
     _report,
     _smoothed_track,
-    _Track,
 )
 from auvgw.config.bus import BusConfig
 from auvgw.config.scenario import load_scenario
@@ -69,7 +68,7 @@ class _Collector:
     def __init__(self, session: zenoh.Session, keys: Keys, epoch_s: float) -> None:
         self.epoch_s = epoch_s
         self.lock = threading.Lock()
-        self.dead_reckoning, self.slam, self.truth = _Track(), _Track(), _Track()
+        self.dead_reckoning, self.slam, self.truth = Track(), Track(), Track()
         self.odometry_stamps: list[tuple[float, float]] = []  # (envelope stamp s, host s)
         self.status: dict[str, dict[str, Any]] = {}
         self._subs = [
@@ -289,7 +288,8 @@ def _run_processes(
         for n, p in procs.items()))  # fmt: skip
     c = collector
     assert c is not None
-    slam = None if slam_part is None else (slam_part[0], c.status.get(slam_part[1]))
+    slam = None if slam_part is None or record is None else (
+        record, slam_part[0], c.status.get(slam_part[1]))  # fmt: skip
     _report(
         args, status, c.status.get("fusion"), slam, c.dead_reckoning, c.slam, c.truth, rrd, wall,
         speed, {"processes": procs, "odometry_timing": c.timing(),

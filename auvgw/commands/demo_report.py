@@ -1,7 +1,6 @@
 """``auvgw demo``'s report (both modes): the summary printed and ``summary.json``, the errors
 of dead reckoning and the SLAM estimate against the truth, each pipeline's own lines."""
 
-
 from __future__ import annotations
 
 import argparse
@@ -14,23 +13,16 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from auvgw.commands.bathy_run import DISPLAY_NAME as BATHY_NAME
-from auvgw.commands.demo_parts import (
-    MAGNETIC,
-    _TruthTail,
-)
+from auvgw.commands.demo_parts import _TruthTail
+from auvgw.slam import pipelines
 from auvgw.subscribe import slam_output
 
 if TYPE_CHECKING:
     from auvgw.config.scenario import Scenario
 
 
-#: RMSE / distance x 100 of VB-AUFastSLAM in the sea trial of Mu et al. 2022 (INS + DVL + MSIS)
-VB_PAPER_RMSE_PCT = 0.742
-
-
 @dataclass
-class _Track:
+class Track:
     t: list[float] = field(default_factory=list)
     x: list[float] = field(default_factory=list)
     y: list[float] = field(default_factory=list)
@@ -51,7 +43,7 @@ class _Track:
         return np.asarray(self.t), np.asarray(self.x), np.asarray(self.y)
 
 
-def _path_error(est: _Track, truth: _Track, since: float = -math.inf) -> dict[str, float] | None:
+def path_error(est: Track, truth: Track, since: float = -math.inf) -> dict[str, float] | None:
     """Horizontal error of ``est`` against ``truth`` (interpolated at the estimate's times),
     from vehicle time ``since`` (s); ``samples``: the estimates scored, ``outside_truth``: those
     left out, stamped outside the truth log's span (the last swath's pose may be stamped after
@@ -99,41 +91,59 @@ class _Progress:
             print(f"  vehicle t = {self.tail.t:6.1f} s / {self.duration:.0f} s", flush=True)
 
 
+@dataclass(frozen=True)
+class SlamReport:
+    """What a pipeline's own lines in the demo's summary are made from (its record's
+    ``demo_report`` entry, ``report(r: SlamReport) -> dict``): its name in the summary, its
+    stage's last counters (its status), its poses against the truth (:func:`path_error`, from
+    dead reckoning's first DVL fix; None: too few), dead reckoning's, the truth track (vehicle
+    s, m NED) and a stage's smoothed trajectory with its closures' vehicle times
+    (:func:`_smoothed_track`; None: no ``path`` output)."""
+
+    name: str
+    counters: dict[str, Any]
+    err: dict[str, float] | None
+    dead_reckoning: dict[str, float] | None
+    truth: Track
+    smoothed: tuple[Track, list[float]] | None
+
+
 def _report(
     args: argparse.Namespace,
     status: dict[str, Any],
     fusion_counters: dict[str, Any] | None,
-    slam: tuple[str, dict[str, Any] | None] | None,
-    dead_reckoning: _Track,
-    slam_track: _Track,
-    truth: _Track,
+    slam: tuple[pipelines.Pipeline, str, dict[str, Any] | None] | None,
+    dead_reckoning: Track,
+    slam_track: Track,
+    truth: Track,
     rrd: Path | None,
     wall: float,
     speed: float,
     extra: dict[str, Any],
-    smoothed: tuple[_Track, list[float]] | None = None,
+    smoothed: tuple[Track, list[float]] | None = None,
 ) -> dict[str, Any]:
     """Print the summary and write ``summary.json`` (both modes); returns the summary.
-    ``smoothed``: the bathymetric stage's smoothed trajectory and its closures' vehicle times
-    (:func:`_smoothed_track`)."""
-    nav = _path_error(dead_reckoning, truth)
+    ``slam``: the pipeline's record, its name in the summary and its stage's counters (None:
+    no SLAM stage); the record's ``demo_report`` prints the pipeline's own lines and gives its
+    entries of ``navigation`` (without one: the error line alone). ``smoothed``: a stage's
+    smoothed trajectory and its closures' vehicle times (:func:`_smoothed_track`)."""
+    nav = path_error(dead_reckoning, truth)
     _print_summary(status, fusion_counters, nav, rrd, wall)
     navigation: dict[str, Any] = {"dead_reckoning": nav}
     slam_counters: dict[str, Any] | None = None
-    if slam is not None and slam[1] is not None:
-        name, slam_counters = slam[0], slam[1]
+    record, name, counters = slam if slam is not None else (None, "", None)
+    if record is not None and counters is not None:
+        slam_counters = counters
         # over the same span as dead reckoning's: from the first DVL fix
-        slam_err = _path_error(slam_track, truth, dead_reckoning.t[0] if dead_reckoning.t else 0.0)
-        if slam_counters.get("component") == MAGNETIC_COMPONENT:
-            _print_magnetic(name, slam_counters, slam_err, nav)
+        slam_err = path_error(slam_track, truth, dead_reckoning.t[0] if dead_reckoning.t else 0.0)
+        if record.demo_report is None:
+            print_vs_truth(f"SLAM ({name})", slam_err, "not enough SLAM poses or truth to compare")
         else:
-            _print_slam(name, slam_counters, slam_err)
-            if name == BATHY_NAME:
-                _print_gain(name, slam_err, nav)
-                navigation.update(_bathy_report(nav, slam_err, smoothed, truth))
-        # the VB paper's figure, for the landmark SLAM stage only
-        landmark = name != BATHY_NAME and slam_counters.get("component") != MAGNETIC_COMPONENT
-        paper = VB_PAPER_RMSE_PCT if landmark else None
+            report = pipelines.load(record.demo_report)
+            navigation.update(report(SlamReport(name, counters, slam_err, nav, truth,
+                                                smoothed)))  # fmt: skip
+        # a published figure to compare with (paper_rmse_pct_distance): after the others
+        paper = navigation.pop("paper_rmse_pct_distance", None)
         navigation.update(slam=slam_err, slam_algorithm=name,
                           paper_rmse_pct_distance=paper)  # fmt: skip
     summary = {"devices": status["devices"], "fusion": fusion_counters, "slam": slam_counters,
@@ -179,22 +189,7 @@ def _print_summary(
     print(f"wall time {wall_s:.0f} s")
 
 
-def _print_slam(name: str, counters: dict[str, Any], err: dict[str, float] | None) -> None:
-    st = counters["stage"]
-    paper = f" (VB paper sea trial: {VB_PAPER_RMSE_PCT} %)"
-    label = f"SLAM ({name})"
-    if counters.get("component") == "slam-bathymetric":
-        _print_bathy(counters)
-        paper = ""
-        label = f"SLAM filtered ({name}: each pose as published)"
-    else:
-        print(f"slam: {st['pings']} scan lines, {st['point_features']} point and "
-              f"{st['line_features']} line features, {st['updates']} updates, "
-              f"{counters['landmarks']} landmarks")  # fmt: skip
-    _print_vs_truth(label, err, "not enough SLAM poses or truth to compare", paper)
-
-
-def _print_vs_truth(label: str, err: dict[str, float] | None, missing: str, tail: str = "") -> None:
+def print_vs_truth(label: str, err: dict[str, float] | None, missing: str, tail: str = "") -> None:
     """``<label> vs truth``: the error (m, RMSE / distance x 100, then ``tail``), or ``missing``
     without one."""
     if err is None:
@@ -205,57 +200,14 @@ def _print_vs_truth(label: str, err: dict[str, float] | None, missing: str, tail
           f"RMSE/distance x 100 {err['rmse_pct_distance']:.3f} %{tail}")  # fmt: skip
 
 
-def _print_bathy(counters: dict[str, Any]) -> None:
-    st = counters["stage"]
-    print(f"slam: {st['swaths']} swaths, {st['pings']} used, {st['bad_swaths']} bad, "
-          f"{counters['loops_accepted']} loop closures accepted, "
-          f"{counters['loops_rejected']} rejected; {st['maps']} maps")  # fmt: skip
-
-
-def _smoothed_track(payloads: list[bytes], epoch_s: float) -> tuple[_Track, list[float]] | None:
+def _smoothed_track(payloads: list[bytes], epoch_s: float) -> tuple[Track, list[float]] | None:
     """The bathymetric stage's ``track`` payload (the last of ``payloads``; None without one)
     as a vehicle-time track and its accepted closures' vehicle times (s)."""
     if not payloads:
         return None
     body = slam_output(payloads[-1])
-    track = _Track([t - epoch_s for t in body["t"]], list(body["x"]), list(body["y"]))
+    track = Track([t - epoch_s for t in body["t"]], list(body["x"]), list(body["y"]))
     return track, [t - epoch_s for t in body.get("closures_t", [])]
-
-
-def _ratio(dr: float, slam: float) -> str:
-    return f"{dr / slam:.2f}x" if slam > 0 else "inf"
-
-
-def _bathy_report(
-    dr: dict[str, float] | None,
-    filtered: dict[str, float] | None,
-    smoothed: tuple[_Track, list[float]] | None,
-    truth: _Track,
-) -> dict[str, Any]:
-    """The bathymetric SLAM's report lines (issues 28, 31, 33): the smoothed trajectory
-    (mtm-pf's mean trajectory after every accepted closure) against the truth, then one line
-    of dead reckoning against the filtered (published pose) and smoothed estimates, as
-    DR / SLAM ratios (> 1: SLAM better), and when the closures came. Returns the summary's
-    ``slam_smoothed`` and ``closures_vehicle_s``."""
-    if smoothed is None:
-        print("SLAM smoothed: no trajectory from the bathymetric stage")
-        return {"slam_smoothed": None, "closures_vehicle_s": None}
-    track, closures = smoothed
-    # over the filtered estimate's span (from dead reckoning's first DVL fix)
-    err = _path_error(track, truth, filtered["from_s"] if filtered else -math.inf)
-    _print_vs_truth("SLAM smoothed (mtm-pf mean trajectory after every closure)", err,
-                    "not enough smoothed poses or truth to compare")  # fmt: skip
-    when = (f"at vehicle t = {', '.join(f'{t:.0f}' for t in closures)} s" if closures
-            else "none")  # fmt: skip
-    print(f"loop closures accepted: {len(closures)}, {when}")
-    if dr is not None and filtered is not None and err is not None:
-        fin, rms = dr["final_m"], dr["rmse_m"]
-        print(f"bathymetric SLAM vs dead reckoning (DR / SLAM, > 1: SLAM better): final "
-              f"DR {fin:.2f} m / filtered {filtered['final_m']:.2f} m = "
-              f"{_ratio(fin, filtered['final_m'])}; RMSE DR {rms:.2f} m / filtered "
-              f"{filtered['rmse_m']:.2f} m = {_ratio(rms, filtered['rmse_m'])}, / smoothed "
-              f"{err['rmse_m']:.2f} m = {_ratio(rms, err['rmse_m'])}")  # fmt: skip
-    return {"slam_smoothed": err, "closures_vehicle_s": closures}
 
 
 def _bathy_map_summary(last: list[bytes], scn: Scenario) -> dict[str, Any]:
@@ -285,24 +237,7 @@ def _bathy_map_summary(last: list[bytes], scn: Scenario) -> dict[str, Any]:
     return {"bathymetric_map": out}
 
 
-#: the magnetic stage's status component
-MAGNETIC_COMPONENT = f"slam-{MAGNETIC.name}"
-
-
-def _print_magnetic(
-    name: str, counters: dict[str, Any], err: dict[str, float] | None,
-    dr: dict[str, float] | None,
-) -> None:
-    """The magnetic stage's counters and its error against the truth beside dead reckoning's."""
-    st = counters["stage"]
-    print(f"magnetic stage: {st['mag']} magnetometer samples, {st['acoustic']} acoustic fixes, "
-          f"{st['observations']} beacon observations, {counters['landmarks']} beacons mapped, "
-          f"{st['bad_payloads']} bad payloads")  # fmt: skip
-    _print_vs_truth(name, err, "not enough poses or truth to compare")
-    _print_gain(name, err, dr)
-
-
-def _print_gain(name: str, err: dict[str, float] | None, dr: dict[str, float] | None) -> None:
+def print_gain(name: str, err: dict[str, float] | None, dr: dict[str, float] | None) -> None:
     """The SLAM estimate against dead reckoning: RMSE and final error ratios (< 1: SLAM
     better)."""
     if err is None or dr is None or not dr["rmse_m"] or not dr["final_m"]:
