@@ -32,7 +32,7 @@ from auvgw.commands.demo_parts import (
 )
 from auvgw.commands.demo_report import (
     Track,
-    _bathy_map_summary,
+    _map_summary,
     _Progress,
     _report,
     _smoothed_track,
@@ -219,7 +219,7 @@ def _run_stages(
         dead_reckoning, slam_track, truth, rrd, time.monotonic() - t_start, speed,
         {"ins_time_span_s": ins_span[1] - ins_span[0] if ins_span else 0.0,
          "dvl_time_span_s": dvl_span[1] - dvl_span[0] if dvl_span else 0.0,
-         **before_counters, **_bathy_map_summary(dem_map, scn)},
+         **before_counters, **_map_summary(dem_map, scn)},
         smoothed=_smoothed_track(smoothed, epoch_s),
     )  # fmt: skip
     return 0

@@ -1,8 +1,9 @@
-"""Parts of ``auvgw demo`` shared by its modes (the survey and harbour runs in
-:mod:`auvgw.commands.demo`, the closed loop in :mod:`auvgw.commands.demo_closed_loop`): the sim's
-truth log followed, its gateway configuration read and joined to the demo's bus, the fusion's
-settings, and what a SLAM pipeline's record says it needs in ``demo --processes``
-(:class:`DemoPlan`, from its ``demo_processes`` entry)."""
+"""Parts of ``auvgw demo`` shared by its modes (in one process,
+:mod:`auvgw.commands.demo_inprocess`; one process per part, :mod:`auvgw.commands.demo_processes`;
+the closed loop, :mod:`auvgw.commands.demo_closed_loop`): the sim's truth log followed, its
+gateway configuration read and joined to the demo's bus, the fusion's settings, and what a SLAM
+pipeline's record says it needs in the demo (:class:`InProcessPlan`, from its
+``demo_inprocess`` entry; :class:`DemoPlan`, from its ``demo_processes`` entry)."""
 
 from __future__ import annotations
 
@@ -86,7 +87,8 @@ class DemoPlan:
     """What a SLAM pipeline needs in ``demo --processes`` (its record's ``demo_processes``
     entry, ``plan(ctx: DemoContext) -> DemoPlan``): its processes (in start order), the
     components the demo waits for on the bus before vehicle t = 0 (its devices and stages, by
-    liveliness), its stage's status component and its name in the summary."""
+    liveliness), its stage's status component and its name in the summary. The last process is
+    its stage's, stopped once what the others (stopped with the gateway) put has reached it."""
 
     processes: tuple[DemoProcess, ...]
     alive: frozenset[str]

@@ -36,7 +36,7 @@ from auvgw.commands.demo_parts import (
 )
 from auvgw.commands.demo_report import (
     Track,
-    _bathy_map_summary,
+    _map_summary,
     _Progress,
     _report,
     _smoothed_track,
@@ -264,11 +264,14 @@ def _run_processes(
         _wait_drained(lambda: _streamed_frames(
             gw_cfg, (sub.status(timeout=2.0) or {"devices": {}})["devices"]), quiet_s=1.5)
         status = sub.status(timeout=2.0) or collector.status.get("gateway") or {"devices": {}}
-        for name in ("gateway", "fusion", "swath"):  # (swath, if any: flushes its last swaths)
+        # the plan's processes in front of its stage (the last) with them (a swath stage: flushes
+        # its last swaths)
+        parts = [p.name for p in plan.processes] if plan is not None else []
+        for name in ("gateway", "fusion", *parts[:-1]):
             children.stop(name)
         if slam_part is not None:
             _wait_drained(partial(collector.received, slam_part[1]), quiet_s=2.5, limit_s=20.0)
-        for name in ("slam", "sim"):
+        for name in (*parts[-1:], "sim"):
             children.stop(name)
         collector.wait_stopped(["fusion", *([slam_part[1]] if slam_part else [])], map_tap)
     finally:
@@ -294,7 +297,7 @@ def _run_processes(
         args, status, c.status.get("fusion"), slam, c.dead_reckoning, c.slam, c.truth, rrd, wall,
         speed, {"processes": procs, "odometry_timing": c.timing(),
                 "ready_vehicle_s": ready_vehicle_s,
-                **_bathy_map_summary(map_tap.last if map_tap else [], scn)},
+                **_map_summary(map_tap.last if map_tap else [], scn)},
         smoothed=_smoothed_track(map_tap.track if map_tap else [], epoch_ns / 1e9),
     )  # fmt: skip
     bad = [n for n, p in procs.items() if p["exit_code"] != 0]

@@ -201,8 +201,8 @@ def print_vs_truth(label: str, err: dict[str, float] | None, missing: str, tail:
 
 
 def _smoothed_track(payloads: list[bytes], epoch_s: float) -> tuple[Track, list[float]] | None:
-    """The bathymetric stage's ``track`` payload (the last of ``payloads``; None without one)
-    as a vehicle-time track and its accepted closures' vehicle times (s)."""
+    """A stage's smoothed trajectory (its ``path`` output: the last of ``payloads``; None
+    without one) as a vehicle-time track and its accepted closures' vehicle times (s)."""
     if not payloads:
         return None
     body = slam_output(payloads[-1])
@@ -210,10 +210,10 @@ def _smoothed_track(payloads: list[bytes], epoch_s: float) -> tuple[Track, list[
     return track, [t - epoch_s for t in body.get("closures_t", [])]
 
 
-def _bathy_map_summary(last: list[bytes], scn: Scenario) -> dict[str, Any]:
-    """``{"bathymetric_map": ...}``: the stage's last DEM against the scenario's true terrain
-    (depth of each cell centre): cells, mean / median |error| m, share under 2 m (the paper's
-    registration measure); empty when no map was published."""
+def _map_summary(last: list[bytes], scn: Scenario) -> dict[str, Any]:
+    """``{"bathymetric_map": ...}``: a stage's last DEM (its ``dem`` output) against the
+    scenario's true terrain (depth of each cell centre): cells, mean / median |error| m, share
+    under 2 m (the paper's registration measure); empty when no map was published."""
     if not last:
         return {}
     from auvgw.sim_devices.world import World
