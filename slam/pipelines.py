@@ -3,9 +3,8 @@
 Every list of pipelines the rest of the project needs is derived from :data:`PIPELINES`: the
 ``--pipeline`` choices and help of ``auvgw slam eval`` and ``auvgw slam run``, the evaluation
 each one runs and its default algorithms, the stage ``slam run`` serves or replays a recording
-through and the options it adds to that command, the pipeline ``auvgw demo`` runs on a scenario,
-the stage it runs in process, the processes ``auvgw demo --processes`` starts for it and its
-lines in the demo's summary, and the Rerun view each of its
+through and the options it adds to that command, the pipeline ``auvgw demo`` runs on a scenario
+and the processes ``auvgw demo --processes`` starts for it, and the Rerun view each of its
 outputs goes to (:mod:`auvgw.viz.stage`). A new pipeline is its own files plus one
 :class:`Pipeline` record here (``docs/adding-a-pipeline.md``).
 
