@@ -46,7 +46,8 @@ from typing import Any
 
 import numpy as np
 
-from auvgw.commands.demo import _fusion_config, _path_error, _Track
+from auvgw.commands.demo_parts import _fusion_config
+from auvgw.commands.demo_report import Track, path_error
 from auvgw.config.scenario import Scenario
 from auvgw.drivers import seanet as sn
 from auvgw.sim_devices.clock import SimClock
@@ -167,12 +168,12 @@ def emulate(path: str, a: argparse.Namespace) -> Emulation:
     return Emulation(odo, pings, truth, world, bursts)
 
 
-def aligned(track: _Track, x0: float, y0: float, e0: float) -> _Track:
+def aligned(track: Track, x0: float, y0: float, e0: float) -> Track:
     """``track`` rotated about ``(x0, y0)`` by ``-e0`` rad (the initial heading error removed)."""
     t, x, y = track.arrays()
     c, s = math.cos(e0), math.sin(e0)
     dx, dy = x - x0, y - y0
-    out = _Track()
+    out = Track()
     for ti, xi, yi in zip(t, x0 + c * dx + s * dy, y0 - s * dx + c * dy, strict=True):
         out.add(float(ti), float(xi), float(yi))
     return out
@@ -237,17 +238,17 @@ def main() -> None:
         t0 = time.perf_counter()
         em = emulate(path, a)
         name = Path(path).stem
-        tt = _Track()
+        tt = Track()
         for t, x, y in zip(em.truth.t, em.truth.x, em.truth.y, strict=True):
             tt.add(float(t), float(x), float(y))
-        dr = _Track()
+        dr = Track()
         for o in em.odometry:
             dr.add(o.t - HOST_EPOCH, o.x, o.y)
-        dre = _path_error(dr, tt)
+        dre = path_error(dr, tt)
         o0 = em.odometry[0]
         e0 = float(wrap_angle(o0.heading - em.truth.at(o0.t - HOST_EPOCH).heading))
-        dra = _path_error(aligned(dr, o0.x, o0.y, e0), tt)
-        floor = _path_error(aligned(tt, o0.x, o0.y, -e0), tt)
+        dra = path_error(aligned(dr, o0.x, o0.y, e0), tt)
+        floor = path_error(aligned(tt, o0.x, o0.y, -e0), tt)
         print(
             f"# {name}: {len(em.odometry)} odometry, {len(em.pings)} pings ({em.burst_pings} "
             f"in noise bursts), initial heading error {math.degrees(e0):+.2f} deg (perfect SLAM "
@@ -264,11 +265,11 @@ def main() -> None:
                     use_lines=FEATURE_SETS[feats], **extra,
                 )  # fmt: skip
                 online = run_slam(em, cfg)
-                st = _Track()
+                st = Track()
                 for t, x, y, _h in online.track:
                     st.add(t - HOST_EPOCH, x, y)
-                se = _path_error(st, tt)
-                sea = _path_error(aligned(st, o0.x, o0.y, e0), tt)
+                se = path_error(st, tt)
+                sea = path_error(aligned(st, o0.x, o0.y, e0), tt)
                 c = {"stage": asdict(online.stats), **online.summary()}
                 row = {"scenario": name, "features": feats, "seed": seed, "dr": dre, "slam": se,
                        "dr_aligned": dra, "slam_aligned": sea, "initial_heading_error_rad": e0,

@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 from study_bathy_demo import dr_model
 
-from auvgw.commands.demo import BATHY_FILTER
+from auvgw.commands.bathy_run import DEMO_FILTER as BATHY_FILTER
 from auvgw.config.scenario import Scenario
 from auvgw.ground.paths import config_file
 from auvgw.sim_devices.world import World

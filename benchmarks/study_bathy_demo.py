@@ -7,7 +7,7 @@ Simulates ``config/scenarios/survey.json`` as the demo's emulators see it (1800 
 12 x the altitude with 141 soundings, one ping per 2 m of track: 0.85 Hz at 1.7 m/s) with the
 paper's eq. (28) dead reckoning at ``--dr-bias`` m per ping and axis (0.003: RMS error 3.5-3.9 m,
 as the emulated INS + DVL fusion drifts on this survey), then runs mtm-pf with the paper's
-values and with the demo's (``auvgw.commands.demo.BATHY_FILTER``) on each seed and prints the
+values and with the demo's (``auvgw.commands.bathy_run.DEMO_FILTER``) on each seed and prints the
 final and RMS error of each against dead reckoning's, and the loop closures accepted / made.
 ``RMS m`` is the smoothed trajectory's (the mean trajectory once every closure is in, what the
 stage publishes at the end as ``track``), ``filt. RMS`` the filtered estimate's (each ping's
@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from auvgw.commands.demo import BATHY_FILTER
+from auvgw.commands.bathy_run import DEMO_FILTER as BATHY_FILTER
 from auvgw.config.scenario import Scenario
 from auvgw.ground.paths import config_file
 from auvgw.sim_devices.world import World

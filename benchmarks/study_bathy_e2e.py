@@ -10,7 +10,7 @@ multibeam, one run after the other, and a table of what each demo's ``summary.js
 Seeds are the scenario's emulator seeds (``auvgw demo --seed``): ``--purpose test`` (default)
 takes only held-out seeds (>= 1000), ``--purpose tuning`` only tuning seeds (below 1000), as
 :mod:`auvgw.slam.evaluation.heldout` rules. The demo's bathymetric settings
-(``auvgw.commands.demo.BATHY_FILTER``) are what is measured; nothing here changes them.
+(``auvgw.commands.bathy_run.DEMO_FILTER``) are what is measured; nothing here changes them.
 
 Columns (metres, horizontal, against the emulator's ground truth): dead reckoning (the fusion
 odometry) final error and RMSE; the SLAM *filtered* estimate (each pose as the stage published
@@ -38,11 +38,11 @@ from auvgw.slam.evaluation.heldout import seed_split
 MULTIBEAMS = {"xyz88": "kongsberg", "geoswath": "geoswath"}
 
 
-#: runs the demo with ``BATHY_FILTER`` updated from the JSON object in argv[1] (``--set``): the
-#: demo hands its settings to the stage process (``slam run --set``)
+#: runs the demo with ``DEMO_FILTER`` (``auvgw.commands.bathy_run``) updated from the JSON object
+#: in argv[1] (``--set``): the demo hands its settings to the stage process (``slam run --set``)
 PATCHED_DEMO = (
-    "import json, sys; import auvgw.commands.demo as d; "
-    "d.BATHY_FILTER.update(json.loads(sys.argv.pop(1))); "
+    "import json, sys; import auvgw.commands.bathy_run as d; "
+    "d.DEMO_FILTER.update(json.loads(sys.argv.pop(1))); "
     "from auvgw.cli import main; sys.exit(main())"
 )
 

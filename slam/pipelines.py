@@ -107,8 +107,19 @@ class Pipeline:
     in ``auvgw demo --processes``, the components the demo waits for and its stage's status
     component and summary name; ``demo_accepts``: ``"module:callable"``,
     ``accepts(scenario) -> bool``, whether the demo runs this pipeline on a scenario (None: the
-    fallback, when no other record accepts it); ``any_segment``: its stage's key segment is its
-    algorithm's name (the landmark filters), so a segment no record names is this pipeline's.
+    fallback, when no other record accepts it); ``demo_inprocess``: ``"module:callable"``,
+    ``plan(ctx) -> InProcessPlan`` (:mod:`auvgw.commands.demo_parts`), its stage in the
+    in-process ``auvgw demo`` (None: the demo runs no SLAM stage on its scenarios) and its
+    summary name; ``demo_report``: ``"module:callable"``, ``report(r: SlamReport) -> dict``
+    (:mod:`auvgw.commands.demo_report`), which prints its own lines of the demo's summary and
+    gives its entries of ``summary.json``'s ``navigation`` (None: the error line alone);
+    ``demo_idle_devices``: emulated devices ``auvgw demo`` turns off on its scenarios unless the
+    scenario file turns them on (devices it does not read, which only add lag on a loaded host);
+    ``demo_route_speed``: ``auvgw demo --processes`` runs its scenario's whole route at this
+    speed (x real time) unless told otherwise (None: the demo's default duration and speed);
+    ``any_segment``: its stage's key segment is its
+    algorithm's name (the landmark filters), so a segment no record names is this pipeline's;
+    ``doc``: its page in ``docs/``.
 
     A control record: ``command``: the module of its own command (``auvgw <name>``, registered
     in :data:`auvgw.commands.COMMANDS`); ``demo_option``: the ``auvgw demo`` option that runs it
@@ -129,6 +140,10 @@ class Pipeline:
     demo_scenario: str = ""
     demo_processes: str = ""
     demo_accepts: str | None = None
+    demo_inprocess: str | None = None
+    demo_report: str | None = None
+    demo_idle_devices: tuple[str, ...] = ()
+    demo_route_speed: float | None = None
     particle_filters: bool = True
     any_segment: bool = False
     command: str = ""
@@ -193,6 +208,8 @@ PIPELINES: list[Pipeline] = [
                  Output("observations", "ranges")),
         demo_scenario="beacons",
         demo_processes=f"{_C}.magnetic_run:demo_plan",
+        demo_inprocess=f"{_C}.magnetic_run:demo_inprocess",
+        demo_report=f"{_C}.magnetic_run:demo_report",
         demo_accepts=f"{_C}.magnetic_run:demo_accepts",
         doc="slam_magnetic.md",
     ),
@@ -209,6 +226,15 @@ PIPELINES: list[Pipeline] = [
                  Output("track", "path")),
         demo_scenario="survey",
         demo_processes=f"{_C}.bathy_run:demo_plan",
+        demo_inprocess=f"{_C}.bathy_run:demo_inprocess",
+        demo_report=f"{_C}.bathy_run:demo_report",
+        # the MSIS (polled) and the magnetometer (serial and SLCAN) took 118,000 of the 317,000
+        # frames of a whole-route run here; the stage reads the INS, DVL and multibeam only
+        demo_idle_devices=("msis", "magnetometer"),
+        # survey.json's whole route (1812 s) in about 3 minutes: measured with --processes,
+        # every INS sample arrives and the stage keeps up; its first loop closure comes with the
+        # second line, about 5 minutes in
+        demo_route_speed=10.0,
         demo_accepts=f"{_C}.bathy_run:demo_accepts",
         doc="slam_bathymetric.md",
     ),
@@ -226,6 +252,8 @@ PIPELINES: list[Pipeline] = [
                  Output("map", "landmarks")),
         demo_scenario="harbour",
         demo_processes=f"{_C}.slam_run:demo_plan",
+        demo_inprocess=f"{_C}.slam_run:demo_inprocess",
+        demo_report=f"{_C}.slam_run:demo_report",
         any_segment=True,
         doc="slam_online.md",
     ),

@@ -21,9 +21,17 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from typing import TYPE_CHECKING, Any
 
-from auvgw.commands.demo_parts import DemoContext, DemoPlan, DemoProcess
+from auvgw.commands.demo_parts import (
+    DemoContext,
+    DemoPlan,
+    DemoProcess,
+    InProcessContext,
+    InProcessPlan,
+)
+from auvgw.commands.demo_report import SlamReport, Track, path_error, print_gain, print_vs_truth
 from auvgw.ground.errors import UserError, format_validation_error
 from auvgw.ground.procs import free_endpoint
 
@@ -132,6 +140,86 @@ def demo_plan(ctx: DemoContext) -> DemoPlan:
         procs = (DemoProcess("slam", lambda _: demo_argv(cfg, ctx.hub)),)
         alive = {"multibeam", component}
     return DemoPlan(procs, frozenset(alive), component, DISPLAY_NAME)
+
+
+def demo_inprocess(ctx: InProcessContext) -> InProcessPlan:
+    """The in-process demo on a survey: this stage on the gateway's Kongsberg device or, with a
+    GeoSwath, on the swaths the swath stage in front of it (at the model's frequency) makes of
+    its pings (``auv/<v>/sensor/<device>_swath/xyz88``)."""
+    from auvgw.bus import decode_envelope
+    from auvgw.config.gateway import GeoSwathModel
+    from auvgw.stages.bathymetric import BathymetricStage
+    from auvgw.stages.swath import SwathStage, SwathStageConfig
+    from auvgw.subscribe import envelope_message
+
+    devices = ctx.gw_cfg.devices
+    mb = [n for n, d in devices.items() if d.format == "kongsberg" and d.enabled]
+    gs = [n for n, d in devices.items() if d.format == "geoswath" and d.enabled]
+    device = mb[0] if mb else f"{gs[0]}_swath" if gs else None
+    stage = BathymetricStage(demo_config(ctx.gw_cfg.vehicle, device), session=ctx.session,
+                             on_publish=ctx.on_publish)  # fmt: skip
+    if not gs:
+        return InProcessPlan(stage, DISPLAY_NAME)
+
+    def on_swath(key: str, payload: bytes, t_ns: int) -> None:
+        env = decode_envelope(payload, key)
+        stage.post(env.device, t_ns, envelope_message(env))
+        ctx.on_publish(key, payload, t_ns)
+
+    f_hz = (devices[gs[0]].geoswath or GeoSwathModel()).frequency_hz
+    cfg = SwathStageConfig(vehicle=ctx.gw_cfg.vehicle, device=gs[0],
+                           processing={"frequency_hz": f_hz})  # fmt: skip
+    swath = SwathStage(cfg, session=ctx.session, on_publish=on_swath)
+    return InProcessPlan(stage, DISPLAY_NAME, {"swath": swath})
+
+
+def demo_report(r: SlamReport) -> dict[str, Any]:
+    """The demo summary's lines of this stage (issues 28, 31, 33): its counters, its filtered
+    poses (each as published) against the truth and dead reckoning, then its smoothed
+    trajectory (mtm-pf's mean trajectory after every accepted closure) against the truth, one
+    line of dead reckoning against the filtered and smoothed estimates as DR / SLAM ratios
+    (> 1: SLAM better), and when the closures came. Returns ``summary.json``'s
+    ``slam_smoothed`` and ``closures_vehicle_s``."""
+    st = r.counters["stage"]
+    print(f"slam: {st['swaths']} swaths, {st['pings']} used, {st['bad_swaths']} bad, "
+          f"{r.counters['loops_accepted']} loop closures accepted, "
+          f"{r.counters['loops_rejected']} rejected; {st['maps']} maps")  # fmt: skip
+    print_vs_truth(f"SLAM filtered ({r.name}: each pose as published)", r.err,
+                   "not enough SLAM poses or truth to compare")  # fmt: skip
+    print_gain(r.name, r.err, r.dead_reckoning)
+    return _smoothed_report(r.dead_reckoning, r.err, r.smoothed, r.truth)
+
+
+def _ratio(dr: float, slam: float) -> str:
+    return f"{dr / slam:.2f}x" if slam > 0 else "inf"
+
+
+def _smoothed_report(
+    dr: dict[str, float] | None,
+    filtered: dict[str, float] | None,
+    smoothed: tuple[Track, list[float]] | None,
+    truth: Track,
+) -> dict[str, Any]:
+    """:func:`demo_report`'s lines of the smoothed trajectory and the closures."""
+    if smoothed is None:
+        print("SLAM smoothed: no trajectory from the bathymetric stage")
+        return {"slam_smoothed": None, "closures_vehicle_s": None}
+    track, closures = smoothed
+    # over the filtered estimate's span (from dead reckoning's first DVL fix)
+    err = path_error(track, truth, filtered["from_s"] if filtered else -math.inf)
+    print_vs_truth("SLAM smoothed (mtm-pf mean trajectory after every closure)", err,
+                   "not enough smoothed poses or truth to compare")  # fmt: skip
+    when = (f"at vehicle t = {', '.join(f'{t:.0f}' for t in closures)} s" if closures
+            else "none")  # fmt: skip
+    print(f"loop closures accepted: {len(closures)}, {when}")
+    if dr is not None and filtered is not None and err is not None:
+        fin, rms = dr["final_m"], dr["rmse_m"]
+        print(f"bathymetric SLAM vs dead reckoning (DR / SLAM, > 1: SLAM better): final "
+              f"DR {fin:.2f} m / filtered {filtered['final_m']:.2f} m = "
+              f"{_ratio(fin, filtered['final_m'])}; RMSE DR {rms:.2f} m / filtered "
+              f"{filtered['rmse_m']:.2f} m = {_ratio(rms, filtered['rmse_m'])}, / smoothed "
+              f"{err['rmse_m']:.2f} m = {_ratio(rms, err['rmse_m'])}")  # fmt: skip
+    return {"slam_smoothed": err, "closures_vehicle_s": closures}
 
 
 def stage_config(args: argparse.Namespace, vehicle: str) -> BathymetricStageConfig:

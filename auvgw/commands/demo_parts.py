@@ -1,8 +1,9 @@
-"""Parts of ``auvgw demo`` shared by its modes (the survey and harbour runs in
-:mod:`auvgw.commands.demo`, the closed loop in :mod:`auvgw.commands.demo_closed_loop`): the sim's
-truth log followed, its gateway configuration read and joined to the demo's bus, the fusion's
-settings, and what a SLAM pipeline's record says it needs in ``demo --processes``
-(:class:`DemoPlan`, from its ``demo_processes`` entry)."""
+"""Parts of ``auvgw demo`` shared by its modes (in one process,
+:mod:`auvgw.commands.demo_inprocess`; one process per part, :mod:`auvgw.commands.demo_processes`;
+the closed loop, :mod:`auvgw.commands.demo_closed_loop`): the sim's truth log followed, its
+gateway configuration read and joined to the demo's bus, the fusion's settings, and what a SLAM
+pipeline's record says it needs in the demo (:class:`InProcessPlan`, from its
+``demo_inprocess`` entry; :class:`DemoPlan`, from its ``demo_processes`` entry)."""
 
 from __future__ import annotations
 
@@ -10,28 +11,40 @@ import json
 import subprocess
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, TypedDict
 
 from auvgw.commands.common import UserError
 from auvgw.config.gateway import ConfigError, load_gateway_config
 
 if TYPE_CHECKING:
+    import zenoh
+
     from auvgw.config.gateway import GatewayConfig
     from auvgw.config.scenario import Scenario
+    from auvgw.stages.base import Stage
     from auvgw.stages.fusion import FusionStageConfig
 
 __all__ = [
+    "VEHICLE",
     "DemoContext",
     "DemoPlan",
     "DemoProcess",
+    "InProcessContext",
+    "InProcessPlan",
+    "OnPublish",
     "TruthSample",
     "_TruthTail",
     "_fusion_config",
     "_gateway_toml",
     "_load_sim_config",
+    "_sim_argv",
+    "_sim_done",
     "_sim_epoch_ns",
+    "_streamed_frames",
+    "_true_beacons",
+    "_wait_drained",
     "_wait_for",
 ]
 
@@ -74,12 +87,42 @@ class DemoPlan:
     """What a SLAM pipeline needs in ``demo --processes`` (its record's ``demo_processes``
     entry, ``plan(ctx: DemoContext) -> DemoPlan``): its processes (in start order), the
     components the demo waits for on the bus before vehicle t = 0 (its devices and stages, by
-    liveliness), its stage's status component and its name in the summary."""
+    liveliness), its stage's status component and its name in the summary. The last process is
+    its stage's, stopped once what the others (stopped with the gateway) put has reached it."""
 
     processes: tuple[DemoProcess, ...]
     alive: frozenset[str]
     component: str
     display: str
+
+
+@dataclass(frozen=True)
+class InProcessContext:
+    """What a pipeline's stage in the in-process demo is made from: the scenario (``scenario``:
+    its file, ``scn``: loaded), the gateway configuration the sim wrote (``gw_cfg``: its devices
+    and vehicle), vehicle time 0 on the stamps' clock (``epoch_ns``, the sim's ``[clock]``), the
+    demo's session and ``on_publish``, the hook every output of the stage goes to (the demo's
+    SLAM track and Rerun recording)."""
+
+    scenario: Path
+    scn: Scenario
+    gw_cfg: GatewayConfig
+    epoch_ns: int
+    session: zenoh.Session
+    on_publish: OnPublish
+
+
+@dataclass(frozen=True)
+class InProcessPlan:
+    """What a SLAM pipeline runs in the in-process demo (its record's ``demo_inprocess`` entry,
+    ``plan(ctx: InProcessContext) -> InProcessPlan``): its stage (not started; the demo feeds it
+    the gateway's messages and the fusion's odometry), its name in the summary and the stages
+    in front of it by summary key (fed the gateway's messages, started before it and stopped,
+    flushed, before it; their counters go into ``summary.json`` under their key)."""
+
+    stage: Stage
+    display: str
+    before: dict[str, Stage] = field(default_factory=dict)
 
 
 class _TruthTail:
@@ -145,6 +188,7 @@ def _fusion_config(
     ``heading_bias_tau_s``, default 300 s), and so is the filter's (``heading_error_sigma_deg``,
     ``heading_error_tau_s``); otherwise it is white (``heading_deg``, default 0.3 deg), tau = 0.
     ``speed``: the run's x real time, which scales the fixed lag (:data:`FUSION_JITTER_HOST_S`)."""
+
     from auvgw.fusion.config import FusionConfig, InitialState
     from auvgw.sim_devices.ins import DEFAULT_NOISE, HEADING_ERROR
     from auvgw.stages.fusion import FusionStageConfig
@@ -197,3 +241,63 @@ def _wait_for(path: Path, proc: subprocess.Popen[bytes], timeout_s: float) -> No
         if time.monotonic() > deadline:
             raise UserError(f"the emulated vehicle wrote no {path.name} in {timeout_s:.0f} s")
         time.sleep(0.1)
+
+
+#: the emulated vehicle's name (the <v> key segment)
+VEHICLE = "auv1"
+#: a stage's in-process publication hook: (key, payload, stamp ns)
+OnPublish = Callable[[str, bytes, int], object]
+
+
+def _sim_argv(scenario: Path, speed: float, duration: float, sim_dir: Path,
+              pace: str = "elastic") -> list[str]:  # fmt: skip
+    return ["sim", "--scenario", str(scenario), "--speed", str(speed), "--duration",
+            str(duration), "--out", str(sim_dir), "--vehicle", VEHICLE, "--hold",
+            "--pace", pace]  # fmt: skip
+
+
+def _sim_done(sim: subprocess.Popen[bytes], sim_dir: Path) -> bool:
+    """The emulated run is over: the sim wrote ``finished`` (ports still open) or exited."""
+    return sim.poll() is not None or (sim_dir / "finished").exists()
+
+
+def _streamed_frames(gw_cfg: GatewayConfig, devices: dict[str, dict[str, int]]) -> int:
+    """Frames the gateway has read from the devices that speak on their own: a polled device
+    (a host driver, the MSIS head) answers every poll for as long as its port stays open, so its
+    frames never go quiet; counted, they held the drain at its limit while the gateway kept
+    stamping rows past the end of the run (issue 33: 20 s of vehicle time at ``--speed 2``)."""
+    from auvgw.drivers import registry
+
+    polled = {k.format for k in registry.DEVICES if k.host_driver}
+    return sum(
+        int(d.get("frames", 0))
+        for name, d in devices.items()
+        if name not in gw_cfg.devices or gw_cfg.devices[name].format not in polled
+    )
+
+
+def _wait_drained(frames: Callable[[], int], quiet_s: float = 0.5, limit_s: float = 10.0) -> None:
+    """Wait until a count has not moved for ``quiet_s``, at most ``limit_s``: the gateway's
+    frames (the last read from the held-open ports) or a stage's received messages."""
+    last, since, end = frames(), time.monotonic(), time.monotonic() + limit_s
+    while time.monotonic() < end and time.monotonic() - since < quiet_s:
+        time.sleep(0.05)
+        n = frames()
+        if n != last:
+            last, since = n, time.monotonic()
+
+
+class _Beacons(TypedDict, total=False):
+    landmarks: list[list[float]]  # the magnetic beacons, [x, y] m
+    acoustic_beacon: list[float]  # [x, y] m
+
+
+def _true_beacons(scn: Scenario) -> _Beacons:
+    """The scenario's magnetic beacons (``landmarks``, [x, y] m) and acoustic beacon
+    (``acoustic_beacon``) for ``truth/map`` (nothing without beacons)."""
+    out: _Beacons = {}
+    if scn.magnetic_beacons:
+        out["landmarks"] = [[b.x, b.y] for b in scn.magnetic_beacons]
+    if scn.acoustic_beacon is not None:
+        out["acoustic_beacon"] = [scn.acoustic_beacon.x, scn.acoustic_beacon.y]
+    return out

@@ -24,9 +24,16 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
-from auvgw.commands.demo_parts import DemoContext, DemoPlan, DemoProcess
+from auvgw.commands.demo_parts import (
+    DemoContext,
+    DemoPlan,
+    DemoProcess,
+    InProcessContext,
+    InProcessPlan,
+)
+from auvgw.commands.demo_report import SlamReport, print_gain, print_vs_truth
 from auvgw.ground.errors import UserError
 
 if TYPE_CHECKING:
@@ -88,6 +95,32 @@ def demo_plan(ctx: DemoContext) -> DemoPlan:
     return DemoPlan((DemoProcess("slam", argv, after_clock=True),),
                     frozenset({"magnetometer", "acoustic", component}), component,
                     DISPLAY_NAME)  # fmt: skip
+
+
+def demo_inprocess(ctx: InProcessContext) -> InProcessPlan:
+    """The in-process demo on a beacons scenario: this stage on the scenario's channels and
+    acoustic beacon, the serial magnetometer timed by its counter from the gateway's epoch (the
+    beacons' phase reference)."""
+    from auvgw.stages.magnetic import MagneticStage, config_from_scenario
+
+    cfg = config_from_scenario(
+        ctx.scenario, vehicle=ctx.gw_cfg.vehicle, mag_device="magnetometer",
+        mag_rate_hz=mag_rate_hz(ctx.scn), clock_epoch_s=ctx.epoch_ns / 1e9,
+    )  # fmt: skip
+    return InProcessPlan(MagneticStage(cfg, session=ctx.session, on_publish=ctx.on_publish),
+                         DISPLAY_NAME)  # fmt: skip
+
+
+def demo_report(r: SlamReport) -> dict[str, Any]:
+    """The demo summary's lines of this stage: its counters and its error against the truth
+    beside dead reckoning's (nothing more for ``summary.json``)."""
+    st = r.counters["stage"]
+    print(f"magnetic stage: {st['mag']} magnetometer samples, {st['acoustic']} acoustic fixes, "
+          f"{st['observations']} beacon observations, {r.counters['landmarks']} beacons mapped, "
+          f"{st['bad_payloads']} bad payloads")  # fmt: skip
+    print_vs_truth(r.name, r.err, "not enough poses or truth to compare")
+    print_gain(r.name, r.err, r.dead_reckoning)
+    return {}
 
 
 def stage_config(args: argparse.Namespace, vehicle: str) -> MagneticStageConfig:

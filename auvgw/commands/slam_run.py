@@ -30,13 +30,20 @@ import argparse
 import json
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from auvgw.bus import add_bus_arguments
 from auvgw.commands.common import SubParsers, UserError, add_duration, open_output
-from auvgw.commands.demo_parts import DemoContext, DemoPlan, DemoProcess
+from auvgw.commands.demo_parts import (
+    DemoContext,
+    DemoPlan,
+    DemoProcess,
+    InProcessContext,
+    InProcessPlan,
+)
+from auvgw.commands.demo_report import SlamReport, print_vs_truth
 from auvgw.commands.slam_common import (
     Paths,
     check_recording,
@@ -142,6 +149,36 @@ def demo_plan(ctx: DemoContext) -> DemoPlan:
     component = f"slam-{cfg.pipeline_name}"
     return DemoPlan((DemoProcess("slam", lambda _: argv),), frozenset({"msis", component}),
                     component, cfg.display_name)  # fmt: skip
+
+
+def demo_inprocess(ctx: InProcessContext) -> InProcessPlan:
+    """The in-process demo on a scenario of point and line features: this stage on the
+    gateway's first sonar device (the MSIS)."""
+    from auvgw.drivers import registry
+    from auvgw.stages.slam import SlamStage
+
+    sonar = {dev.format for dev, m in registry.message_types() if "sonar" in m.roles}
+    msis = [n for n, d in ctx.gw_cfg.devices.items() if d.format in sonar and d.enabled]
+    cfg = demo_config(ctx.gw_cfg.vehicle, msis[0] if msis else None, ctx.scn)
+    return InProcessPlan(SlamStage(cfg, session=ctx.session, on_publish=ctx.on_publish),
+                         cfg.display_name)  # fmt: skip
+
+
+#: RMSE / distance x 100 of VB-AUFastSLAM in the sea trial of Mu et al. 2022 (INS + DVL + MSIS)
+VB_PAPER_RMSE_PCT = 0.742
+
+
+def demo_report(r: SlamReport) -> dict[str, Any]:
+    """The demo summary's lines of this stage (scan lines, features, updates, landmarks; its
+    error against the truth beside the VB paper's sea trial); the paper's figure for
+    ``summary.json``."""
+    st = r.counters["stage"]
+    print(f"slam: {st['pings']} scan lines, {st['point_features']} point and "
+          f"{st['line_features']} line features, {st['updates']} updates, "
+          f"{r.counters['landmarks']} landmarks")  # fmt: skip
+    print_vs_truth(f"SLAM ({r.name})", r.err, "not enough SLAM poses or truth to compare",
+                   f" (VB paper sea trial: {VB_PAPER_RMSE_PCT} %)")  # fmt: skip
+    return {"paper_rmse_pct_distance": VB_PAPER_RMSE_PCT}
 
 
 def _stage_config(args: argparse.Namespace, vehicle: str = "auv1") -> SlamStageConfig:

@@ -197,7 +197,7 @@ def test_stage_feeds_the_walls_to_the_filter_and_holds_the_heading(harbour_run):
 
 
 def test_demo_fusion_heading_error_model_follows_the_emulated_ins():
-    from auvgw.commands.demo import _fusion_config
+    from auvgw.commands.demo_parts import _fusion_config
     from auvgw.config.scenario import load_scenario
     from auvgw.ground.paths import config_file
 

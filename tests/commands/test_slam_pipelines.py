@@ -12,11 +12,19 @@ import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import pytest
 
-from auvgw.commands.demo_parts import DemoContext, DemoPlan, DemoProcess
+from auvgw.commands.demo_parts import (
+    DemoContext,
+    DemoPlan,
+    DemoProcess,
+    InProcessContext,
+    InProcessPlan,
+)
+from auvgw.commands.demo_report import SlamReport, Track, _report, print_vs_truth
 from auvgw.config.scenario import load_scenario
 from auvgw.fusion.odometry import Odometry
 from auvgw.ground.paths import config_file
@@ -306,6 +314,18 @@ def demo_plan(ctx: DemoContext) -> DemoPlan:
                     "slam-toy", "toy (every n-th odometry sample)")  # fmt: skip
 
 
+def demo_inprocess(ctx: InProcessContext) -> InProcessPlan:
+    stage = ToyStage(ToyConfig(vehicle=ctx.gw_cfg.vehicle), session=ctx.session,
+                     on_publish=ctx.on_publish)  # fmt: skip
+    return InProcessPlan(stage, "toy (every n-th odometry sample)")
+
+
+def demo_report(r: SlamReport) -> dict[str, Any]:
+    print(f"toy: {r.counters['stage']['published']} poses")
+    print_vs_truth(f"SLAM ({r.name})", r.err, "not enough poses or truth to compare")
+    return {}
+
+
 TOY = pipelines.Pipeline(
     "toy",
     "dead reckoning, every n-th odometry sample (a test)",
@@ -318,6 +338,8 @@ TOY = pipelines.Pipeline(
     demo_scenario="harbour",
     demo_processes=f"{__name__}:demo_plan",
     demo_accepts=f"{__name__}:accepts",
+    demo_inprocess=f"{__name__}:demo_inprocess",
+    demo_report=f"{__name__}:demo_report",
 )
 
 
@@ -380,3 +402,35 @@ def test_a_toy_pipeline_runs_through_slam_run_and_slam_eval(tmp_path: Path, toy,
     assert [(p.name, p.argv(None)) for p in plan.processes] == [
         ("slam", ["slam", "run", "--pipeline", "toy", "--vehicle", "auv1",
                   "--connect", "tcp/127.0.0.1:1", "--listen", "tcp/127.0.0.1:2"])]  # fmt: skip
+
+
+def test_a_toy_pipeline_runs_in_the_in_process_demo(tmp_path: Path, toy, capsys) -> None:
+    """The in-process demo's part of the toy: its record's stage, made from the demo's context
+    and fed odometry, publishes through the demo's hook; the demo's report prints its record's
+    lines and writes the same ``navigation`` keys as for a shipped pipeline."""
+    gw_cfg = SimpleNamespace(vehicle="auv1", devices={})  # what the toy reads of the sim's
+    published: list[str] = []
+    ctx = InProcessContext(Path("world.json"), load_scenario(config_file("scenarios/harbour.json")),
+                           gw_cfg, 0, None, lambda key, _p, _t: published.append(key))  # type: ignore[arg-type]
+    plan = pipelines.load(toy.demo_inprocess)(ctx)
+    assert isinstance(plan.stage, ToyStage) and plan.before == {}
+    truth, dr = Track(), Track()
+    for i in range(20):  # 1 m/s along x; dead reckoning 0.1 m off, the toy's poses 0.2 m
+        t = float(i)
+        truth.add(t, t, 0.0)
+        dr.add(t, t, 0.1)
+        plan.stage.feed_odometry(SimpleNamespace(t=t, x=t, y=0.2, heading=0.0))
+    slam = Track(*([p[k] for p in plan.stage.track] for k in range(3)))
+    assert published == ["auv/auv1/slam/toy/pose"] * 4  # every 5th of 20
+    args = argparse.Namespace(out=tmp_path)
+    status = {"devices": {}}
+    summary = _report(args, status, None, (toy, plan.display, plan.stage.counters()), dr, slam,
+                      truth, None, 1.0, 2.0, {})  # fmt: skip
+    out = capsys.readouterr().out
+    assert "toy: 4 poses\n" in out
+    assert "SLAM (toy (every n-th odometry sample)) vs truth over 15 m: RMSE 0.20 m" in out
+    nav = json.loads((tmp_path / "summary.json").read_text())["navigation"]
+    assert list(nav) == ["dead_reckoning", "slam", "slam_algorithm", "paper_rmse_pct_distance"]
+    assert nav["slam_algorithm"] == plan.display and nav["paper_rmse_pct_distance"] is None
+    assert nav["slam"]["rmse_m"] == pytest.approx(0.2)
+    assert summary["slam"]["stage"]["published"] == 4

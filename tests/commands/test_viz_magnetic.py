@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from auvgw.commands.demo import _true_beacons
+from auvgw.commands.demo_parts import _true_beacons
 from auvgw.config.scenario import load_scenario
 from auvgw.slam.magnetic.stream import stage_inputs
 from auvgw.stages.magnetic import MagneticStage, config_from_scenario

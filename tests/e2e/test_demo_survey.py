@@ -90,13 +90,12 @@ def test_the_stage_process_runs_the_demo_settings() -> None:
     swath, the filter's own likelihood and closure defaults."""
     import argparse
 
-    from auvgw.commands.bathy_run import stage_config
-    from auvgw.commands.demo import BATHY_FILTER, _bathy_argv, _bathy_config
+    from auvgw.commands.bathy_run import DEMO_FILTER, demo_argv, demo_config, stage_config
     from auvgw.slam.bathymetric.config import BathyConfig
 
-    argv = _bathy_argv(_bathy_config("auv1", "multibeam"), "tcp/127.0.0.1:1")
+    argv = demo_argv(demo_config("auv1", "multibeam"), "tcp/127.0.0.1:1")
     sets = [argv[i + 1] for i, a in enumerate(argv) if a == "--set"]
-    assert {k: json.loads(v) for k, _, v in (s.partition("=") for s in sets)} == BATHY_FILTER
+    assert {k: json.loads(v) for k, _, v in (s.partition("=") for s in sets)} == DEMO_FILTER
     args = argparse.Namespace(particles=200, seed=0, multibeam="multibeam", set=sets)
     cfg = stage_config(args, "auv1").bathy_config()
     # R = 90 m: half the 180 m swath (the lines are 80 m apart)
