@@ -8,7 +8,10 @@ vehicle's under a gateway ``[clock]``) over the span of their own device times, 
 second of the device's clock: an emulated vehicle at ``--speed 2`` shows its INS at 100 Hz, not
 200, and a burst of frames that arrive late after a stall reads the rate they were sampled at,
 not the rate they arrived at. A message type whose wire carries no time is counted over the
-window of stamps.
+window of stamps once it has been seen for a whole window. A rate not known yet (a type first
+seen less than a window ago that has no span of device times: untimed, or a single frame, as the
+first frame of a connection before a stall) is left out of ``rates_hz`` and makes ``rate_hz``
+None: counted over the window, that one frame read 0.2 Hz for a 100 Hz INS (issue 33).
 """
 
 from __future__ import annotations
@@ -112,7 +115,8 @@ class DeviceHealth:
     """What the gateway knows about one device; updated by its reader, read by the status task.
 
     Rates: the messages stamped in the last ``window_s`` seconds, per second of the time their
-    device times span (see the module docstring; per ``window_s`` where there is none).
+    device times span (see the module docstring; per ``window_s`` where there is none, once the
+    type has been seen for a whole window; None until a rate is known).
     """
 
     name: str
@@ -145,6 +149,8 @@ class DeviceHealth:
     transport_losses: Counter[str] = field(default_factory=Counter)
     lag: LagTracker = field(default_factory=LagTracker)
     _times: dict[str, deque[tuple[int, float | None]]] = field(default_factory=dict)
+    #: the stamp (ns) each message type was first seen at (for an untimed type's full window)
+    _first_ns: dict[str, int] = field(default_factory=dict)
     _lock: threading.Lock = field(default_factory=threading.Lock)
 
     def seen(
@@ -165,6 +171,7 @@ class DeviceHealth:
             times = self._times.get(type_name)
             if times is None:  # (not setdefault: that builds a deque per message)
                 times = self._times[type_name] = deque(maxlen=RATE_SAMPLES)
+                self._first_ns[type_name] = stamp
             times.append((stamp, t_device_s))  # the window on the stamp clock
             if t_device_s is not None:
                 self.lag_s = self.lag.observe(stamp / 1e9, t_device_s)
@@ -238,9 +245,11 @@ class DeviceHealth:
             self.skipped_bytes = skipped_bytes
             self.bad_frame_reasons = reasons
 
-    def _rates(self, now_ns: int) -> dict[str, float]:
+    def _rates(self, now_ns: int) -> tuple[dict[str, float], bool]:
+        """The rate per message type that has one, and whether every type has one."""
         cutoff = now_ns - int(self.window_s * 1e9)
         out = {}
+        complete = True
         for name, times in self._times.items():
             while times and times[0][0] < cutoff:
                 times.popleft()
@@ -249,16 +258,20 @@ class DeviceHealth:
                 out[name] = round(rate, 3)
             elif len(times) == times.maxlen and now_ns > times[0][0]:  # faster than kept
                 out[name] = round(len(times) / ((now_ns - times[0][0]) / 1e9), 3)
-            else:
+            elif self._first_ns[name] <= cutoff:  # seen for a whole window: count over it
                 out[name] = round(len(times) / self.window_s, 3)
-        return out
+            else:  # untimed or a single timed sample, first seen less than a window ago
+                complete = False
+        return out, complete
 
-    def rate_hz(self, now_ns: int | None = None) -> float:
+    def rate_hz(self, now_ns: int | None = None) -> float | None:
         """Messages per second (all types) over the last ``window_s`` seconds of the stamp clock
-        (``now_ns``: now on it; the host clock where no ``[clock]`` paces the stamps)."""
+        (``now_ns``: now on it; the host clock where no ``[clock]`` paces the stamps); None
+        while a type's rate is not known yet (see the module docstring)."""
         now_ns = time.time_ns() if now_ns is None else now_ns
         with self._lock:
-            return round(sum(self._rates(now_ns).values()), 3)
+            rates, complete = self._rates(now_ns)
+            return round(sum(rates.values()), 3) if complete else None
 
     def snapshot(
         self,
@@ -274,7 +287,7 @@ class DeviceHealth:
             age = None
             if self.last_stamp_ns is not None:
                 age = round((now_stamp_ns - self.last_stamp_ns) / 1e9 + (self.lag_s or 0.0), 3)
-            rates = self._rates(now_stamp_ns)
+            rates, complete = self._rates(now_stamp_ns)
             silent = (
                 None if self.last_seen_ns is None else round((now_ns - self.last_seen_ns) / 1e9, 3)
             )
@@ -290,7 +303,7 @@ class DeviceHealth:
                 "connected": self.connected,
                 "ended": self.ended,
                 "stale": stale,
-                "rate_hz": round(sum(rates.values()), 3),
+                "rate_hz": round(sum(rates.values()), 3) if complete else None,
                 "rates_hz": rates,
                 "frames": self.frames,
                 "bad_frames": self.bad_frames,

@@ -57,7 +57,24 @@ def test_health_rate_is_counted_over_the_device_times_so_a_late_burst_reads_true
     h.seen(now + 20_000_000, "hn100.Nav", t_device_s=0.02)
     assert h.rate_hz(now + 20_000_000) == pytest.approx(50.0)  # 2 samples, 0.02 s: the new span
     h.seen(now + 30_000_000, "hn100.Status")  # a message type without a device time
-    assert h.snapshot(now + 30_000_000)["rates_hz"]["hn100.Status"] == 0.2  # per window
+    snap = h.snapshot(now + 30_000_000)  # seen for less than a window: no rate yet
+    assert "hn100.Status" not in snap["rates_hz"] and snap["rate_hz"] is None
+    later = now + 5_030_000_000  # a whole window after it: counted per window
+    assert h.snapshot(later)["rates_hz"]["hn100.Status"] == 0.2
+
+
+def test_health_rate_of_a_single_frame_before_a_stall_is_not_known_yet():
+    """The first frame of a connection, then a stall: one timed sample is no rate (counted
+    over the window it read 0.2 Hz for a 100 Hz INS, issue 33); the burst that follows reads
+    the device's rate."""
+    h = DeviceHealth("ins", "hn100", window_s=5.0)
+    t0 = 1_000_000_000_000
+    h.seen(t0, "hn100.Nav", t_device_s=1.17)
+    snap = h.snapshot(t0 + 1_000_000_000)
+    assert snap["rate_hz"] is None and snap["rates_hz"] == {}
+    for k in range(1, 200):  # 2 s of samples read in 0.2 s after a 1.7 s stall
+        h.seen(t0 + 1_700_000_000 + k * 1_000_000, "hn100.Nav", t_device_s=1.17 + k * 0.01)
+    assert h.rate_hz(t0 + 2_000_000_000) == pytest.approx(100.0)
 
 
 def test_health_counts_outages_connects_and_rates():
@@ -68,9 +85,10 @@ def test_health_counts_outages_connects_and_rates():
     t = 1_000_000_000_000
     for i in range(10):
         h.seen(t + i * 100_000_000, "pd0.Ensemble")
-    snap = h.snapshot(t + 1_000_000_000, stale_after_s=2.0)
+    assert h.snapshot(t + 1_000_000_000)["rate_hz"] is None  # untimed, seen for < a window
+    snap = h.snapshot(t + 2_000_000_000, stale_after_s=2.0)
     assert snap["rate_hz"] == 5.0 and snap["messages"] == {"pd0.Ensemble": 10}
-    assert snap["silent_s"] == pytest.approx(0.1) and snap["stale"] is False
+    assert snap["silent_s"] == pytest.approx(1.1) and snap["stale"] is False
     assert h.snapshot(t + 5_000_000_000, stale_after_s=2.0)["stale"] is True
     assert h.snapshot(t + 5_000_000_000)["rate_hz"] == 0.0  # outside the window
     h.set_connected(False, "disconnected")
