@@ -7,16 +7,19 @@ messages received in the last ``window_s`` seconds of the stamp clock (the host'
 vehicle's under a gateway ``[clock]``) over the span of their own device times, so it is per
 second of the device's clock: an emulated vehicle at ``--speed 2`` shows its INS at 100 Hz, not
 200, and a burst of frames that arrive late after a stall reads the rate they were sampled at,
-not the rate they arrived at. A message type whose wire carries no time is counted over the
-window of stamps once it has been seen for a whole window. A rate not known yet (a type first
-seen less than a window ago that has no span of device times: untimed, or a single frame, as the
-first frame of a connection before a stall) is left out of ``rates_hz`` and makes ``rate_hz``
-None: counted over the window, that one frame read 0.2 Hz for a 100 Hz INS (issue 33).
+not the rate they arrived at. A message type whose wire carries no time is timed by the lower
+envelope of its receive stamps (the samples that arrived on time; see :func:`_arrival_rate`),
+and counted over the window where it has too few samples for that (once it has been seen for a
+whole window). A rate not known yet (a type first seen less than a window ago with one or two
+samples, as the first frame of a connection before a stall) is left out of ``rates_hz`` and
+makes ``rate_hz`` None: counted over the window, that one frame read 0.2 Hz for a 100 Hz INS
+(issue 33).
 """
 
 from __future__ import annotations
 
 import datetime as dt
+import itertools
 import math
 import threading
 import time
@@ -77,6 +80,31 @@ def _device_rate(times: deque[tuple[int, float | None]]) -> float | None:
     if n < 2:
         return None
     return (n - 1) / (last - first)
+
+
+def _arrival_rate(times: deque[tuple[int, float | None]]) -> float | None:
+    """Samples per second of a type whose wire carries no time, from their receive stamps:
+    a delay (a stall, then a burst) only adds to a stamp, so the samples that arrived on time
+    lie on the lower convex hull of (sample index, stamp), and its edge over the middle sample
+    has the sampling period for slope (a count over the window read 20 Hz as 24-28 Hz when
+    bursts crossed its edges on a loaded host, issue 33). None with fewer than three samples
+    or no positive slope there (one burst)."""
+    n = len(times)
+    if n < 3:
+        return None
+    hull: list[tuple[int, int]] = []
+    for k, (stamp, _) in enumerate(times):
+        while len(hull) >= 2:
+            (k0, s0), (k1, s1) = hull[-2], hull[-1]
+            if (k1 - k0) * (stamp - s0) - (s1 - s0) * (k - k0) > 0:  # a left turn: convex
+                break
+            hull.pop()
+        hull.append((k, stamp))
+    mid = (n - 1) / 2
+    for (k0, s0), (k1, s1) in itertools.pairwise(hull):
+        if k0 <= mid <= k1:
+            return (k1 - k0) * 1e9 / (s1 - s0) if s1 > s0 else None
+    return None
 
 
 @dataclass
@@ -254,13 +282,15 @@ class DeviceHealth:
             while times and times[0][0] < cutoff:
                 times.popleft()
             rate = _device_rate(times)
+            if rate is None and times and times[-1][1] is None:
+                rate = _arrival_rate(times)
             if rate is not None:
                 out[name] = round(rate, 3)
             elif len(times) == times.maxlen and now_ns > times[0][0]:  # faster than kept
                 out[name] = round(len(times) / ((now_ns - times[0][0]) / 1e9), 3)
             elif self._first_ns[name] <= cutoff:  # seen for a whole window: count over it
                 out[name] = round(len(times) / self.window_s, 3)
-            else:  # untimed or a single timed sample, first seen less than a window ago
+            else:  # a sample or two, first seen less than a window ago
                 complete = False
         return out, complete
 
