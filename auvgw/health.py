@@ -7,13 +7,19 @@ messages received in the last ``window_s`` seconds of the stamp clock (the host'
 vehicle's under a gateway ``[clock]``) over the span of their own device times, so it is per
 second of the device's clock: an emulated vehicle at ``--speed 2`` shows its INS at 100 Hz, not
 200, and a burst of frames that arrive late after a stall reads the rate they were sampled at,
-not the rate they arrived at. A message type whose wire carries no time is counted over the
-window of stamps.
+not the rate they arrived at. A message type whose wire carries no time is timed by the lower
+envelope of its receive stamps (the samples that arrived on time; see :func:`_arrival_rate`),
+and counted over the window where it has too few samples for that (once it has been seen for a
+whole window). A rate not known yet (a type first seen less than a window ago with one or two
+samples, as the first frame of a connection before a stall) is left out of ``rates_hz`` and
+makes ``rate_hz`` None: counted over the window, that one frame read 0.2 Hz for a 100 Hz INS
+(issue 33).
 """
 
 from __future__ import annotations
 
 import datetime as dt
+import itertools
 import math
 import threading
 import time
@@ -76,6 +82,31 @@ def _device_rate(times: deque[tuple[int, float | None]]) -> float | None:
     return (n - 1) / (last - first)
 
 
+def _arrival_rate(times: deque[tuple[int, float | None]]) -> float | None:
+    """Samples per second of a type whose wire carries no time, from their receive stamps:
+    a delay (a stall, then a burst) only adds to a stamp, so the samples that arrived on time
+    lie on the lower convex hull of (sample index, stamp), and its edge over the middle sample
+    has the sampling period for slope (a count over the window read 20 Hz as 24-28 Hz when
+    bursts crossed its edges on a loaded host, issue 33). None with fewer than three samples
+    or no positive slope there (one burst)."""
+    n = len(times)
+    if n < 3:
+        return None
+    hull: list[tuple[int, int]] = []
+    for k, (stamp, _) in enumerate(times):
+        while len(hull) >= 2:
+            (k0, s0), (k1, s1) = hull[-2], hull[-1]
+            if (k1 - k0) * (stamp - s0) - (s1 - s0) * (k - k0) > 0:  # a left turn: convex
+                break
+            hull.pop()
+        hull.append((k, stamp))
+    mid = (n - 1) / 2
+    for (k0, s0), (k1, s1) in itertools.pairwise(hull):
+        if k0 <= mid <= k1:
+            return (k1 - k0) * 1e9 / (s1 - s0) if s1 > s0 else None
+    return None
+
+
 @dataclass
 class LagTracker:
     """Transport lag from a device's own clock: ``(t_recv - t_device) - min(t_recv - t_device)``.
@@ -112,7 +143,8 @@ class DeviceHealth:
     """What the gateway knows about one device; updated by its reader, read by the status task.
 
     Rates: the messages stamped in the last ``window_s`` seconds, per second of the time their
-    device times span (see the module docstring; per ``window_s`` where there is none).
+    device times span (see the module docstring; per ``window_s`` where there is none, once the
+    type has been seen for a whole window; None until a rate is known).
     """
 
     name: str
@@ -145,6 +177,8 @@ class DeviceHealth:
     transport_losses: Counter[str] = field(default_factory=Counter)
     lag: LagTracker = field(default_factory=LagTracker)
     _times: dict[str, deque[tuple[int, float | None]]] = field(default_factory=dict)
+    #: the stamp (ns) each message type was first seen at (for an untimed type's full window)
+    _first_ns: dict[str, int] = field(default_factory=dict)
     _lock: threading.Lock = field(default_factory=threading.Lock)
 
     def seen(
@@ -165,6 +199,7 @@ class DeviceHealth:
             times = self._times.get(type_name)
             if times is None:  # (not setdefault: that builds a deque per message)
                 times = self._times[type_name] = deque(maxlen=RATE_SAMPLES)
+                self._first_ns[type_name] = stamp
             times.append((stamp, t_device_s))  # the window on the stamp clock
             if t_device_s is not None:
                 self.lag_s = self.lag.observe(stamp / 1e9, t_device_s)
@@ -238,27 +273,35 @@ class DeviceHealth:
             self.skipped_bytes = skipped_bytes
             self.bad_frame_reasons = reasons
 
-    def _rates(self, now_ns: int) -> dict[str, float]:
+    def _rates(self, now_ns: int) -> tuple[dict[str, float], bool]:
+        """The rate per message type that has one, and whether every type has one."""
         cutoff = now_ns - int(self.window_s * 1e9)
         out = {}
+        complete = True
         for name, times in self._times.items():
             while times and times[0][0] < cutoff:
                 times.popleft()
             rate = _device_rate(times)
+            if rate is None and times and times[-1][1] is None:
+                rate = _arrival_rate(times)
             if rate is not None:
                 out[name] = round(rate, 3)
             elif len(times) == times.maxlen and now_ns > times[0][0]:  # faster than kept
                 out[name] = round(len(times) / ((now_ns - times[0][0]) / 1e9), 3)
-            else:
+            elif self._first_ns[name] <= cutoff:  # seen for a whole window: count over it
                 out[name] = round(len(times) / self.window_s, 3)
-        return out
+            else:  # a sample or two, first seen less than a window ago
+                complete = False
+        return out, complete
 
-    def rate_hz(self, now_ns: int | None = None) -> float:
+    def rate_hz(self, now_ns: int | None = None) -> float | None:
         """Messages per second (all types) over the last ``window_s`` seconds of the stamp clock
-        (``now_ns``: now on it; the host clock where no ``[clock]`` paces the stamps)."""
+        (``now_ns``: now on it; the host clock where no ``[clock]`` paces the stamps); None
+        while a type's rate is not known yet (see the module docstring)."""
         now_ns = time.time_ns() if now_ns is None else now_ns
         with self._lock:
-            return round(sum(self._rates(now_ns).values()), 3)
+            rates, complete = self._rates(now_ns)
+            return round(sum(rates.values()), 3) if complete else None
 
     def snapshot(
         self,
@@ -274,7 +317,7 @@ class DeviceHealth:
             age = None
             if self.last_stamp_ns is not None:
                 age = round((now_stamp_ns - self.last_stamp_ns) / 1e9 + (self.lag_s or 0.0), 3)
-            rates = self._rates(now_stamp_ns)
+            rates, complete = self._rates(now_stamp_ns)
             silent = (
                 None if self.last_seen_ns is None else round((now_ns - self.last_seen_ns) / 1e9, 3)
             )
@@ -290,7 +333,7 @@ class DeviceHealth:
                 "connected": self.connected,
                 "ended": self.ended,
                 "stale": stale,
-                "rate_hz": round(sum(rates.values()), 3),
+                "rate_hz": round(sum(rates.values()), 3) if complete else None,
                 "rates_hz": rates,
                 "frames": self.frames,
                 "bad_frames": self.bad_frames,

@@ -738,7 +738,8 @@ def diagnostics_msg(status: Mapping[str, object], t_ns: int) -> DiagnosticArray:
                 level, text = DIAG_WARN, (f"{d.get('bad_frames', 0)} bad frames, "
                                           f"{d.get('decode_errors', 0)} decode errors")  # fmt: skip
             else:
-                level, text = DIAG_OK, f"{d.get('rate_hz', 0)} Hz"
+                rate = d.get("rate_hz")  # None: not known yet (auvgw.health)
+                level, text = DIAG_OK, "rate not known yet" if rate is None else f"{rate} Hz"
             values = [kv(key=k, value=_diag_value(v)) for k, v in d.items()
                       if isinstance(v, int | float | str | bool) and v is not None]  # fmt: skip
             out.append(ds(level=level, name=f"auvgw/{vehicle}/{name}", message=text,

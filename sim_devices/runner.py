@@ -588,6 +588,8 @@ class Runner(Closing):
         if self._truth_task is not None:
             self._truth_task.cancel()
         self.clock.close()
+        if self._truth_file is not None:  # a reader of a held run sees its end (issue 33)
+            self._truth_file.flush()
 
     def flush(self, drain_timeout: float = 5.0) -> None:
         """After :meth:`stop`: send the held-back bad frames and wait (real seconds) until the

@@ -199,10 +199,14 @@ class FusionStage(Stage):
                 self.on_odometry(o)
 
     def status_fields(self) -> dict[str, object]:
-        """Adapter, device clocks, filter, reorder buffer, diagnostics and the last sample."""
+        """Adapter, device clocks, filter, reorder buffer, diagnostics and the last sample;
+        ``t_stamp_ns``: the newest input's receive stamp (the stamp clock, vehicle-paced under a
+        gateway ``[clock]``; None before any input), the time a viewer puts the status at, as
+        a device's, rather than the host time of its sending (issue 33)."""
         a = self.adapter
         last = self.last
         return {
+            "t_stamp_ns": self._now_ns or None,
             "adapter": asdict(a.stats),
             "ins_device": a.ins_device,
             "dvl_device": a.dvl_device,

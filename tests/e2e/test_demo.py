@@ -175,5 +175,8 @@ def test_every_row_is_stamped_on_the_vehicle_clock(run, request) -> None:
 
 
 def _recorded_rates(rec, device: str, start: int, end: int) -> list[float]:
-    """The ``rate_hz`` of ``device``'s health rows between ``start`` and ``end`` (ns)."""
-    return [m["rate_hz"] for t, m in health_metrics(rec, device) if start <= t <= end]
+    """The ``rate_hz`` of ``device``'s health rows between ``start`` and ``end`` (ns) that
+    carry one: a rate not known yet (the first frame of a connection, then a stall) is null in
+    the status and NaN in the recording, not a number to take the median of."""
+    got = [m["rate_hz"] for t, m in health_metrics(rec, device) if start <= t <= end]
+    return [r for r in got if r == r]

@@ -57,7 +57,50 @@ def test_health_rate_is_counted_over_the_device_times_so_a_late_burst_reads_true
     h.seen(now + 20_000_000, "hn100.Nav", t_device_s=0.02)
     assert h.rate_hz(now + 20_000_000) == pytest.approx(50.0)  # 2 samples, 0.02 s: the new span
     h.seen(now + 30_000_000, "hn100.Status")  # a message type without a device time
-    assert h.snapshot(now + 30_000_000)["rates_hz"]["hn100.Status"] == 0.2  # per window
+    snap = h.snapshot(now + 30_000_000)  # seen for less than a window: no rate yet
+    assert "hn100.Status" not in snap["rates_hz"] and snap["rate_hz"] is None
+    later = now + 5_030_000_000  # a whole window after it: counted per window
+    assert h.snapshot(later)["rates_hz"]["hn100.Status"] == 0.2
+
+
+def test_health_rate_of_an_untimed_type_is_its_sampling_rate_through_bursts():
+    """A 20 Hz magnetometer (no time on its wire) read with stalls of 1.5 s, each followed
+    by a burst: the count of stamps in the 5 s window swings around 20 Hz, the lower envelope
+    of the stamps gives 20 Hz at every status (issue 33); a lone burst is no rate."""
+    h = DeviceHealth("magnetometer", "ms3a", window_s=5.0)
+    t0 = 1_000_000_000_000
+    stamps = []
+    for k in range(400):  # sampled every 50 ms; read on time except in 1.5 s of every 4 s
+        t = t0 + k * 50_000_000
+        stall_end = t0 + ((t - t0) // 4_000_000_000) * 4_000_000_000 + 1_500_000_000
+        stamps.append(max(t, stall_end) if (t - t0) % 4_000_000_000 < 1_500_000_000 else t)
+    counts, rates, fed = [], [], 0
+    for now in range(t0 + 6_000_000_000, t0 + 19_000_000_000, 300_000_000):
+        while fed < len(stamps) and stamps[fed] <= now:
+            h.seen(stamps[fed], "Ms3aSample")
+            fed += 1
+        counts.append(sum(now - 5_000_000_000 <= s <= now for s in stamps) / 5.0)
+        rates.append(h.rate_hz(now))
+    assert max(abs(c - 20.0) for c in counts) >= 2.0  # what a count of stamps says
+    assert rates == pytest.approx([20.0] * len(rates))
+    burst = DeviceHealth("magnetometer", "ms3a", window_s=5.0)
+    for _ in range(30):  # a backlog read in one chunk at connect
+        burst.seen(t0, "Ms3aSample")
+    assert burst.rate_hz(t0 + 100_000_000) is None
+
+
+def test_health_rate_of_a_single_frame_before_a_stall_is_not_known_yet():
+    """The first frame of a connection, then a stall: one timed sample is no rate (counted
+    over the window it read 0.2 Hz for a 100 Hz INS, issue 33); the burst that follows reads
+    the device's rate."""
+    h = DeviceHealth("ins", "hn100", window_s=5.0)
+    t0 = 1_000_000_000_000
+    h.seen(t0, "hn100.Nav", t_device_s=1.17)
+    snap = h.snapshot(t0 + 1_000_000_000)
+    assert snap["rate_hz"] is None and snap["rates_hz"] == {}
+    for k in range(1, 200):  # 2 s of samples read in 0.2 s after a 1.7 s stall
+        h.seen(t0 + 1_700_000_000 + k * 1_000_000, "hn100.Nav", t_device_s=1.17 + k * 0.01)
+    assert h.rate_hz(t0 + 2_000_000_000) == pytest.approx(100.0)
 
 
 def test_health_counts_outages_connects_and_rates():
@@ -69,7 +112,7 @@ def test_health_counts_outages_connects_and_rates():
     for i in range(10):
         h.seen(t + i * 100_000_000, "pd0.Ensemble")
     snap = h.snapshot(t + 1_000_000_000, stale_after_s=2.0)
-    assert snap["rate_hz"] == 5.0 and snap["messages"] == {"pd0.Ensemble": 10}
+    assert snap["rate_hz"] == 10.0 and snap["messages"] == {"pd0.Ensemble": 10}
     assert snap["silent_s"] == pytest.approx(0.1) and snap["stale"] is False
     assert h.snapshot(t + 5_000_000_000, stale_after_s=2.0)["stale"] is True
     assert h.snapshot(t + 5_000_000_000)["rate_hz"] == 0.0  # outside the window
