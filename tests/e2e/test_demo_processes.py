@@ -47,15 +47,20 @@ def test_every_part_ran_in_its_own_process_and_exited_cleanly(processes_run) -> 
 
 def test_stamps_are_vehicle_paced(processes_run) -> None:
     """The odometry envelopes (published by the fusion process) carry the gateway's stamps:
-    they span the INS's own time span (not a quarter of it) and advance at the sim's speed
-    against the host clock."""
-    _, _, _, summary = processes_run
+    they span the INS's own time span (not a quarter of it) and advance at the sim's own
+    effective speed against the host clock (its elastic clock holds vehicle time while its
+    devices are behind, so on a loaded host that is below ``SPEED``; never above it)."""
+    out, _, _, summary = processes_run
     timing = summary["odometry_timing"]
     n_ins = summary["devices"]["ins"]["messages"]["Hn100Nav"]
     ins_span = (n_ins - 1) / INS_RATE_HZ
     assert timing["samples"] >= 0.98 * n_ins  # one odometry sample per INS sample
     assert timing["stamp_span_s"] == pytest.approx(ins_span, rel=0.1)
-    assert timing["stamp_rate"] == pytest.approx(SPEED, rel=0.15)
+    pacing = re.search(r"effective speed ([0-9.]+)x", (out / "sim.log").read_text())
+    assert pacing, "the sim prints its pacing line at the end of the run"
+    effective = float(pacing.group(1))
+    assert effective <= SPEED * 1.01
+    assert timing["stamp_rate"] == pytest.approx(effective, rel=0.15), effective
     assert 0.0 <= timing["first_vehicle_s"] < 3.0
     # the fusion counters came from the fusion process's own status
     fusion = summary["fusion"]
