@@ -7,7 +7,7 @@ Simulates ``config/scenarios/survey.json`` as the demo's emulators see it (1800 
 12 x the altitude with 141 soundings, one ping per 2 m of track: 0.85 Hz at 1.7 m/s) with the
 paper's eq. (28) dead reckoning at ``--dr-bias`` m per ping and axis (0.003: RMS error 3.5-3.9 m,
 as the emulated INS + DVL fusion drifts on this survey), then runs mtm-pf with the paper's
-values and with the demo's (``auvgw.commands.demo.BATHY_FILTER``) on each seed and prints the
+values and with the demo's (``auvgw.commands.bathy_run.DEMO_FILTER``) on each seed and prints the
 final and RMS error of each against dead reckoning's, and the loop closures accepted / made.
 ``RMS m`` is the smoothed trajectory's (the mean trajectory once every closure is in, what the
 stage publishes at the end as ``track``), ``filt. RMS`` the filtered estimate's (each ping's
@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from auvgw.commands.demo import BATHY_FILTER
+from auvgw.commands.bathy_run import DEMO_FILTER
 from auvgw.config.scenario import Scenario
 from auvgw.ground.paths import config_file
 from auvgw.sim_devices.world import World
@@ -68,10 +68,10 @@ def main() -> None:
                                      "options": {"n_beams": 141, "swath_factor": 12}}}  # fmt: skip
     scn = Scenario.model_validate(data)
     world = World.from_scenario(scn)
-    variants: dict[str, dict[str, Any]] = {"paper": {}, "demo": dict(BATHY_FILTER)}
+    variants: dict[str, dict[str, Any]] = {"paper": {}, "demo": dict(DEMO_FILTER)}
     if a.set:
         extra = {k: json.loads(v) for k, _, v in (s.partition("=") for s in a.set)}
-        variants["--set"] = {**BATHY_FILTER, **extra}
+        variants["--set"] = {**DEMO_FILTER, **extra}
     rows = []
     for seed in tqdm(a.seeds, desc="surveys"):
         sim = simulate_survey(scn, np.random.default_rng(seed), dr=dr,
@@ -89,7 +89,7 @@ def main() -> None:
                          float(np.sqrt(np.mean(res.err_online**2))), f"{len(acc)}/{len(f.loops)}",
                          str(acc[0].t_end) if acc else "-", time.perf_counter() - t0))  # fmt: skip
     print(f"survey.json, {len(sim.t)} pings, {sim.distance_m:.0f} m, N = {a.particles}, "
-          f"DR {dr}; demo: {BATHY_FILTER}")  # fmt: skip
+          f"DR {dr}; demo: {DEMO_FILTER}")  # fmt: skip
     print(f"{'seed':>4} {'variant':8} {'final m':>8} {'RMS m':>7} {'filt. RMS':>9} {'loops':>6} "
           f"{'1st loop':>8} {'s':>5}")  # fmt: skip
     for seed, name, fin, rms, rms_f, loops, first, sec in rows:

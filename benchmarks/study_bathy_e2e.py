@@ -10,7 +10,7 @@ multibeam, one run after the other, and a table of what each demo's ``summary.js
 Seeds are the scenario's emulator seeds (``auvgw demo --seed``): ``--purpose test`` (default)
 takes only held-out seeds (>= 1000), ``--purpose tuning`` only tuning seeds (below 1000), as
 :mod:`auvgw.slam.evaluation.heldout` rules. The demo's bathymetric settings
-(``auvgw.commands.demo.BATHY_FILTER``) are what is measured; nothing here changes them.
+(``auvgw.commands.bathy_run.DEMO_FILTER``) are what is measured; nothing here changes them.
 
 Columns (metres, horizontal, against the emulator's ground truth): dead reckoning (the fusion
 odometry) final error and RMSE; the SLAM *filtered* estimate (each pose as the stage published
@@ -38,11 +38,11 @@ from auvgw.slam.evaluation.heldout import seed_split
 MULTIBEAMS = {"xyz88": "kongsberg", "geoswath": "geoswath"}
 
 
-#: runs the demo with ``BATHY_FILTER`` updated from the JSON object in argv[1] (``--set``): the
+#: runs the demo with ``DEMO_FILTER`` updated from the JSON object in argv[1] (``--set``): the
 #: demo hands its settings to the stage process (``slam run --set``)
 PATCHED_DEMO = (
-    "import json, sys; import auvgw.commands.demo as d; "
-    "d.BATHY_FILTER.update(json.loads(sys.argv.pop(1))); "
+    "import json, sys; import auvgw.commands.bathy_run as d; "
+    "d.DEMO_FILTER.update(json.loads(sys.argv.pop(1))); "
     "from auvgw.cli import main; sys.exit(main())"
 )
 
@@ -68,7 +68,7 @@ def run_one(
     sets: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """One demo run; its summary.json, or ``{"error": ...}`` when it failed. ``sets``: filter
-    settings over the demo's ``BATHY_FILTER`` (tuning runs)."""
+    settings over the demo's ``DEMO_FILTER`` (tuning runs)."""
     out.mkdir(parents=True, exist_ok=True)
     head = [sys.executable, "-c", PATCHED_DEMO, json.dumps(sets)] if sets else [
         sys.executable, "-m", "auvgw"]  # fmt: skip
@@ -133,7 +133,7 @@ def main() -> None:
     ap.add_argument("--viz", action="store_true", help="keep each run's Rerun recording")
     ap.add_argument("--scenario", default="survey", help="shipped scenario name or JSON file")
     ap.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=JSON",
-                    help="a filter setting over the demo's BATHY_FILTER (tuning runs only)")
+                    help="a filter setting over the demo's DEMO_FILTER (tuning runs only)")
     a = ap.parse_args()
     sets = parse_sets(a.sets)
     if sets and a.purpose != "tuning":
