@@ -32,6 +32,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from study_bathy_heldout import _git_rev
+
 from auvgw.slam.evaluation.heldout import seed_split
 
 #: --multibeam name here -> ``auvgw demo --multibeam``
@@ -134,10 +136,22 @@ def main() -> None:
     ap.add_argument("--scenario", default="survey", help="shipped scenario name or JSON file")
     ap.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=JSON",
                     help="a filter setting over the demo's DEMO_FILTER (tuning runs only)")
+    ap.add_argument("--frozen", nargs=2, metavar=("FILE", "VARIANT"),
+                    help="settings over DEMO_FILTER: VARIANT of a committed JSON file of "
+                    "variants (screen_bathy_survey.py --frozen's); test runs too")  # fmt: skip
     a = ap.parse_args()
     sets = parse_sets(a.sets)
     if sets and a.purpose != "tuning":
         ap.error("--set: settings are tuned on tuning seeds only; freeze them in the demo")
+    if a.frozen:
+        if sets:
+            ap.error("--frozen and --set: one or the other")
+        path = Path(a.frozen[0])
+        rev = _git_rev(path)
+        if not rev:
+            ap.error(f"--frozen {path}: not committed (freeze the settings first)")
+        sets = json.loads(path.read_text())[a.frozen[1]]
+        print(f"frozen settings: {path} [{a.frozen[1]}] at commit {rev}: {sets}", flush=True)
     wrong = [s for s in a.seeds if seed_split(s) != a.purpose]
     if wrong:
         ap.error(f"--purpose {a.purpose}: seeds {wrong} are not {a.purpose} seeds (test >= 1000)")
