@@ -5,20 +5,25 @@ survey route(s) x filter variants x seeds, with the survey's own INS + DVL error
         --variants '{"sharpR90": {"radius_m": 90.0, ...}}' --seeds 11 12 \
         [--scenario config/scenarios/survey.json ...]
 
-Each variant is a set of filter settings over the demo's ``BATHY_FILTER``; each row prints the
-DR's and mtm-pf's final and RMS error (smoothed and filtered, m), the accepted closures, the
-ping of the first and each closure's own error: its end relative to its loop point, estimate
-against truth (``|(s_end - s_loop) - (x_end - x_loop)|``, m; median and max), and the filter's
-CPU seconds. Tuning seeds only (below 1000): this is what the demo's settings are chosen on.
+Each variant is a set of filter settings over the demo's ``DEMO_FILTER`` (``bathy_run``); each row
+prints the DR's and mtm-pf's final and RMS error (smoothed and filtered, m), the accepted closures,
+the ping of the first and each closure's own error: its end relative to its loop point, estimate
+against truth (``|(s_end - s_loop) - (x_end - x_loop)|``, m; median and max), and the filter's CPU
+seconds. Tuning seeds only (below 1000) with ``--variants``: this is what the demo's settings are
+chosen on; test seeds (1000 on) only with ``--frozen FILE``, the variants of a committed file (issue
+28's held-out rule).
 
 ``--nav-heading`` (issue 28): each swath rotated by the DR's INS heading error (and/or by a constant
 ``--heading-offset-deg``), as the online stage rotates it with the odometry's heading (the screen,
-like the paper's A30, uses the true one otherwise). ``--delay-s D ...`` (issue 28, the along-track
-question): each swath is placed with the pose of ``D`` s after its ping, as the online stage did
-when it used the swath's receive stamp; one row per delay (0: as before). Every row also splits the
-errors into x (north: along the survey's lines) and y (east: across them), and each closure's own
-error into its along- and across-track parts (the vehicle's frame at the closure's end; signed
-medians: a delay shows as a constant along-track part).
+like the paper's A30, uses the true one otherwise); a variant with ``heading_bias`` also prints the
+filter's heading offset (final mean +- spread) against the swaths' own error, and its RMS error
+against that error and against its change since ping 0 (a heading error constant over the whole
+route turns the track and the map alike about the known start: no closure can see it).
+``--delay-s D ...`` (issue 28, the along-track question): each swath is placed with the pose of
+``D`` s after its ping, as the online stage did when it used the swath's receive stamp; one row per
+delay (0: as before). Every row also splits the errors into x (north: along the survey's lines) and
+y (east: across them), and each closure's own error into its along- and across-track parts (the
+vehicle's frame at the closure's end; signed medians: a delay shows as a constant along-track part).
 """
 
 from __future__ import annotations
@@ -31,13 +36,15 @@ from pathlib import Path
 
 import numpy as np
 from study_bathy_demo import dr_model
+from study_bathy_heldout import _git_rev
 
-from auvgw.commands.bathy_run import DEMO_FILTER as BATHY_FILTER
+from auvgw.commands.bathy_run import DEMO_FILTER
 from auvgw.config.scenario import Scenario
 from auvgw.ground.paths import config_file
 from auvgw.sim_devices.world import World
 from auvgw.slam.bathymetric.config import BathyConfig
 from auvgw.slam.bathymetric.evaluate import run_filter
+from auvgw.slam.bathymetric.filters import rotate
 from auvgw.slam.bathymetric.simulate import BathyRun, DRModel, simulate_survey
 from auvgw.slam.evaluation.heldout import seed_split
 
@@ -77,10 +84,7 @@ def nav_heading(sim: BathyRun, psi: np.ndarray) -> BathyRun:
     step; the first ping takes the first step's), as the online stage places it with the
     odometry's heading where the offline screen (A30) uses the true one."""
     p = np.concatenate([psi[:1], psi])
-    c, sn = np.cos(p)[:, None], np.sin(p)[:, None]
-    o = sim.offsets
-    rot = np.stack([c * o[..., 0] - sn * o[..., 1], sn * o[..., 0] + c * o[..., 1]], axis=-1)
-    return dataclasses.replace(sim, offsets=rot)
+    return dataclasses.replace(sim, offsets=rotate(sim.offsets, p[:, None]))
 
 
 def rms(e: np.ndarray) -> float:
@@ -89,7 +93,10 @@ def rms(e: np.ndarray) -> float:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--variants", required=True, help="JSON: name -> settings over BATHY_FILTER")
+    ap.add_argument("--variants", help="JSON: name -> settings over DEMO_FILTER")
+    ap.add_argument("--frozen", type=Path,
+                    help="a committed JSON file of variants instead: the only way to test seeds "
+                         "(>= 1000)")  # fmt: skip
     ap.add_argument("--seeds", type=int, nargs="+", default=[11, 12])
     ap.add_argument(
         "--delay-s",
@@ -111,9 +118,18 @@ def main() -> None:
     )
     ap.add_argument("--scenario", nargs="+", default=[str(config_file("scenarios/survey.json"))])
     a = ap.parse_args()
-    if any(seed_split(s) != "tuning" for s in a.seeds):
-        ap.error("--seeds: tuning seeds only (below 1000)")
-    variants = json.loads(a.variants)
+    if (a.variants is None) == (a.frozen is None):
+        ap.error("give --variants or --frozen")
+    if a.frozen is not None:
+        rev = _git_rev(a.frozen)
+        if not rev:
+            ap.error(f"--frozen {a.frozen}: not committed (freeze the settings first)")
+        print(f"frozen settings: {a.frozen} at commit {rev}")
+        variants = json.loads(a.frozen.read_text())
+    else:
+        if any(seed_split(s) != "tuning" for s in a.seeds):
+            ap.error("--seeds: tuning seeds only (below 1000) with --variants; --frozen for test")
+        variants = json.loads(a.variants)
     for path in a.scenario:
         data = json.loads(Path(path).read_text())
         dr = HeadingTap(**dataclasses.asdict(dr_model(data["devices"], "insdvl", 0.0)))
@@ -124,6 +140,7 @@ def main() -> None:
         world = World.from_scenario(scn)
         for seed, delay in ((s, d) for s in a.seeds for d in a.delay_s):
             sim = simulate_survey(scn, np.random.default_rng(seed), dr=dr, world=world)
+            psi = np.zeros(len(sim.t) - 1)
             if a.nav_heading or a.heading_offset_deg:
                 psi = dr.psi[0] * a.nav_heading + np.radians(a.heading_offset_deg)
                 sim = nav_heading(sim, psi)
@@ -136,7 +153,7 @@ def main() -> None:
                   f"RMS {rms(e_dr):.2f} m (x {rms(d_dr[:, 0]):.2f}, y {rms(d_dr[:, 1]):.2f})",
                   flush=True)  # fmt: skip
             for name, kw in variants.items():
-                cfg = BathyConfig(n_particles=200, **{**BATHY_FILTER, **kw})
+                cfg = BathyConfig(n_particles=200, **{**DEMO_FILTER, **kw})
                 t0 = time.process_time()
                 res, f = run_filter("mtm-pf", sim, cfg, np.random.default_rng([seed, 1]))
                 cpu = time.process_time() - t0
@@ -155,6 +172,14 @@ def main() -> None:
                 along = own_xy[:, 0] * np.cos(h) + own_xy[:, 1] * np.sin(h)
                 cross = -own_xy[:, 0] * np.sin(h) + own_xy[:, 1] * np.cos(h)
                 ma, mc = (np.median(along), np.median(cross)) if len(own) else (np.nan, np.nan)
+                if cfg.heading_bias:  # the filter's heading offset against the swaths' own
+                    hb = np.degrees(f.heading_log[: len(sim.t)])
+                    hp = np.degrees(np.concatenate([psi[:1], psi]))[: len(hb)]
+                    print(f"    {name} heading offset: final {hb[-1, 0]:+.2f} +- "
+                          f"{hb[-1, 1]:.2f} deg "
+                          f"(swath's {hp[-1]:+.2f}); RMS error {rms(hb[:, 0] - hp):.2f} deg, "
+                          f"against its change since ping 0 {rms(hb[:, 0] - hp + hp[0]):.2f}, "
+                          f"mean spread {hb[:, 1].mean():.2f} deg", flush=True)  # fmt: skip
                 print(f"  {name}: final {e[-1]:.2f} RMS {rms(e):.2f} (x {rms(d[:, 0]):.2f}, y "
                       f"{rms(d[:, 1]):.2f}) filt {rms(res.err_online):.2f} (x "
                       f"{rms(d_on[:, 0]):.2f}, y {rms(d_on[:, 1]):.2f}); closures {len(acc)}/"

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from auvgw.commands.bathy_run import DEMO_FILTER as BATHY_FILTER
+from auvgw.commands.bathy_run import DEMO_FILTER
 from auvgw.config.scenario import Scenario
 from auvgw.ground.paths import config_file
 from auvgw.sim_devices.world import World
@@ -68,10 +68,10 @@ def main() -> None:
                                      "options": {"n_beams": 141, "swath_factor": 12}}}  # fmt: skip
     scn = Scenario.model_validate(data)
     world = World.from_scenario(scn)
-    variants: dict[str, dict[str, Any]] = {"paper": {}, "demo": dict(BATHY_FILTER)}
+    variants: dict[str, dict[str, Any]] = {"paper": {}, "demo": dict(DEMO_FILTER)}
     if a.set:
         extra = {k: json.loads(v) for k, _, v in (s.partition("=") for s in a.set)}
-        variants["--set"] = {**BATHY_FILTER, **extra}
+        variants["--set"] = {**DEMO_FILTER, **extra}
     rows = []
     for seed in tqdm(a.seeds, desc="surveys"):
         sim = simulate_survey(scn, np.random.default_rng(seed), dr=dr,
@@ -89,7 +89,7 @@ def main() -> None:
                          float(np.sqrt(np.mean(res.err_online**2))), f"{len(acc)}/{len(f.loops)}",
                          str(acc[0].t_end) if acc else "-", time.perf_counter() - t0))  # fmt: skip
     print(f"survey.json, {len(sim.t)} pings, {sim.distance_m:.0f} m, N = {a.particles}, "
-          f"DR {dr}; demo: {BATHY_FILTER}")  # fmt: skip
+          f"DR {dr}; demo: {DEMO_FILTER}")  # fmt: skip
     print(f"{'seed':>4} {'variant':8} {'final m':>8} {'RMS m':>7} {'filt. RMS':>9} {'loops':>6} "
           f"{'1st loop':>8} {'s':>5}")  # fmt: skip
     for seed, name, fin, rms, rms_f, loops, first, sec in rows:

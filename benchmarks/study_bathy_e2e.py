@@ -32,14 +32,16 @@ import time
 from pathlib import Path
 from typing import Any
 
+from study_bathy_heldout import _git_rev
+
 from auvgw.slam.evaluation.heldout import seed_split
 
 #: --multibeam name here -> ``auvgw demo --multibeam``
 MULTIBEAMS = {"xyz88": "kongsberg", "geoswath": "geoswath"}
 
 
-#: runs the demo with ``DEMO_FILTER`` (``auvgw.commands.bathy_run``) updated from the JSON object
-#: in argv[1] (``--set``): the demo hands its settings to the stage process (``slam run --set``)
+#: runs the demo with ``DEMO_FILTER`` updated from the JSON object in argv[1] (``--set``): the
+#: demo hands its settings to the stage process (``slam run --set``)
 PATCHED_DEMO = (
     "import json, sys; import auvgw.commands.bathy_run as d; "
     "d.DEMO_FILTER.update(json.loads(sys.argv.pop(1))); "
@@ -68,7 +70,7 @@ def run_one(
     sets: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """One demo run; its summary.json, or ``{"error": ...}`` when it failed. ``sets``: filter
-    settings over the demo's ``BATHY_FILTER`` (tuning runs)."""
+    settings over the demo's ``DEMO_FILTER`` (tuning runs)."""
     out.mkdir(parents=True, exist_ok=True)
     head = [sys.executable, "-c", PATCHED_DEMO, json.dumps(sets)] if sets else [
         sys.executable, "-m", "auvgw"]  # fmt: skip
@@ -133,11 +135,23 @@ def main() -> None:
     ap.add_argument("--viz", action="store_true", help="keep each run's Rerun recording")
     ap.add_argument("--scenario", default="survey", help="shipped scenario name or JSON file")
     ap.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=JSON",
-                    help="a filter setting over the demo's BATHY_FILTER (tuning runs only)")
+                    help="a filter setting over the demo's DEMO_FILTER (tuning runs only)")
+    ap.add_argument("--frozen", nargs=2, metavar=("FILE", "VARIANT"),
+                    help="settings over DEMO_FILTER: VARIANT of a committed JSON file of "
+                    "variants (screen_bathy_survey.py --frozen's); test runs too")  # fmt: skip
     a = ap.parse_args()
     sets = parse_sets(a.sets)
     if sets and a.purpose != "tuning":
         ap.error("--set: settings are tuned on tuning seeds only; freeze them in the demo")
+    if a.frozen:
+        if sets:
+            ap.error("--frozen and --set: one or the other")
+        path = Path(a.frozen[0])
+        rev = _git_rev(path)
+        if not rev:
+            ap.error(f"--frozen {path}: not committed (freeze the settings first)")
+        sets = json.loads(path.read_text())[a.frozen[1]]
+        print(f"frozen settings: {path} [{a.frozen[1]}] at commit {rev}: {sets}", flush=True)
     wrong = [s for s in a.seeds if seed_split(s) != a.purpose]
     if wrong:
         ap.error(f"--purpose {a.purpose}: seeds {wrong} are not {a.purpose} seeds (test >= 1000)")

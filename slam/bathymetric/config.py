@@ -227,6 +227,31 @@ class BathyConfig(BaseModel):
     body_block_pings: int = Field(
         60, ge=1, description="'body': pings over which psi is held constant (estimation grid)"
     )
+    heading_bias: bool = Field(
+        False,
+        description="MTM-PF, ours (issue 28; NOT the paper's, whose A30 takes the heading as "
+        "error-free): each particle carries a heading offset b (rad) of the navigation "
+        "(INS heading = true + b) that rotates its DR increment by -b in prediction (eq. 2) "
+        "and its Pmap by -b about the vehicle in the match (eqs. 4-5); the stored swath is "
+        "rotated by the cloud's mean -b. Resampling keeps each particle's b; its estimate and "
+        "spread are logged per ping (MTMPF.heading_log). False = position only (as before)",
+    )
+    heading_sigma0_deg: float = Field(
+        0.5, ge=0, description="'heading_bias': initial spread of b (deg, std; mean 0)"
+    )
+    heading_walk_deg: float = Field(
+        0.01,
+        ge=0,
+        description="'heading_bias': random walk of b per ping (deg, std per step); with "
+        "heading_tau_pings > 0 the driving noise of a Gauss-Markov b of that stationary std "
+        "sqrt(walk^2 / (1 - a^2)), a = exp(-1 / tau), as sim_devices/ins.py HEADING_ERROR",
+    )
+    heading_tau_pings: float = Field(
+        0.0,
+        ge=0,
+        description="'heading_bias': Gauss-Markov correlation time of b (pings; 0 = a pure "
+        "random walk)",
+    )
     drift_min_agree: int = Field(
         2,
         ge=1,

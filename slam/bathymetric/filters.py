@@ -35,6 +35,7 @@ __all__ = [
     "mode_weights",
     "no_match_weight",
     "own_nearest",
+    "rotate",
 ]
 
 
@@ -136,6 +137,13 @@ def mode_odds(x: np.ndarray, w: np.ndarray, radius_m: float, apart_m: float) -> 
     near = ((x - x[centre]) ** 2).sum(-1) <= apart_m**2
     rest = float(w[~near].sum())
     return float(w[near].sum()) / rest if rest > 0 else float("inf")
+
+
+def rotate(v: np.ndarray, angle: np.ndarray | float) -> np.ndarray:
+    """Vectors ``v`` (..., 2) (NED, m) turned by ``angle`` (rad, broadcast against ``v[..., 0]``;
+    positive from north towards east, as a heading)."""
+    c, s = np.cos(angle), np.sin(angle)
+    return np.stack([c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1]], axis=-1)
 
 
 def own_nearest(
@@ -257,6 +265,7 @@ class BathyFilter:
         "pred_corr",
         "shift",
         "spread",
+        "heading_log",
     )
 
     def __init__(self, cfg: BathyConfig, n_pings: int, rng: np.random.Generator) -> None:
@@ -433,11 +442,31 @@ class MTMPF(BathyFilter):
         self._tlp = np.zeros(cfg.n_particles, dtype=int)
         self._parts: list[np.ndarray] = []  # log weights of the crossing's pings with evidence
         self.weak_crossings = 0  # crossings below min_mode_ratio (no closure)
+        # heading_bias (ours, issue 28; not the paper's, A30): each particle's navigation
+        # heading offset b (rad), the mean b the current ping's swath was turned by, and per
+        # ping the cloud's mean b and its std (rad) after that ping's update
+        self.b = np.zeros(cfg.n_particles)
+        self.b_swath = 0.0
+        self.heading_log = np.zeros((n_pings, 2))
 
     def start(self, x0: np.ndarray, offsets: np.ndarray, depth: np.ndarray) -> None:
         super().start(x0, offsets, depth)
         self.x[:] = x0
         self.traj[0] = x0
+        if self.cfg.heading_bias:  # the offset's prior: N(0, heading_sigma0^2)
+            self.b = self.rng.normal(0.0, math.radians(self.cfg.heading_sigma0_deg), len(self.b))
+            self.heading_log[0] = self.b.mean(), self.b.std()
+
+    def _heading_walk(self, frozen: bool) -> None:
+        """``heading_bias``: one step of b's random walk (or Gauss-Markov with
+        ``heading_tau_pings``); ``frozen``: inside a crossing without jitter (each particle
+        keeps one state through it, as its position offset)."""
+        cfg = self.cfg
+        if frozen:
+            return
+        if cfg.heading_tau_pings > 0:
+            self.b *= math.exp(-1.0 / cfg.heading_tau_pings)
+        self.b += self.rng.normal(0.0, math.radians(cfg.heading_walk_deg), len(self.b))
 
     def trajectory(self) -> np.ndarray:
         return self.traj[: self.t + 1]
@@ -455,7 +484,13 @@ class MTMPF(BathyFilter):
         if self.body is not None:  # the body-frame error of this step (ours)
             k = np.array([self.t + 1])
             b = self.body.step_error(self.body_s, self.body_psi, u[None], k)[0]
-        self.x += self._advance(u, offsets, depth, var) - b  # eq. (2), u - b (ours)
+        turn = np.zeros((n, 2))
+        if cfg.heading_bias:  # ours: the step and the swath turned back by the offset b
+            self._heading_walk(frozen=var == 0.0 and self.crossing_len > 0)
+            self.b_swath = float(self.b.mean())
+            offsets = rotate(offsets, -self.b_swath)
+            turn = rotate(u, -self.b) - u
+        self.x += self._advance(u, offsets, depth, var) - b + turn  # eq. (2), R(-b) u - b (ours)
         t = self.t
         if self.body is not None:
             self.pred_corr[t] = b
@@ -465,16 +500,13 @@ class MTMPF(BathyFilter):
         w, tlp = self.weights()
         if cfg.closure == "crossing":
             self._crossing(w, tlp)
-            self.estimates[t] = self.traj[t]
-            return
-        if w is None:
-            self.estimates[t] = self.traj[t]
-            return
-        neff = 1.0 / np.sum(w**2)  # eq. (13)
-        self.neff_log[t] = neff
-        if neff < cfg.neff_fraction * n:
-            self._resample(w, tlp)
+        elif w is not None:
+            neff = 1.0 / np.sum(w**2)  # eq. (13)
+            self.neff_log[t] = neff
+            if neff < cfg.neff_fraction * n:
+                self._resample(w, tlp)
         self.estimates[t] = self.traj[t]
+        self.heading_log[t] = self.b.mean(), self.b.std()
 
     def _submap(self) -> tuple[cKDTree, np.ndarray]:
         """Pmap as placed by the mean trajectory (eq. 4 with V_ec = 0): tree and depths."""
@@ -521,7 +553,13 @@ class MTMPF(BathyFilter):
         tree, z_p = self._submap()
         v = x[near] - self.traj[t]  # V_ec, eq. (5)
         idx, ok = self._mmap_index(tlp[near], h)
-        z_pm, z_mm, valid, n_m = self._mmap_vs_pmap(tree, z_p, idx, ok, v, self.traj)
+        # heading_bias (ours): each particle's Pmap also turned by -(b - b_swath) about the
+        # vehicle (the swath is stored turned by -b_swath); b belongs to the particles, so a
+        # probe of other positions (len(x) != N) matches unturned
+        turn = None
+        if cfg.heading_bias and len(x) == len(self.b):
+            turn = self.b[near] - self.b_swath
+        z_pm, z_mm, valid, n_m = self._mmap_vs_pmap(tree, z_p, idx, ok, v, self.traj, turn)
         w0 = no_match_weight(cfg.n_particles, cfg)
         w_m, gate, _ = match_weights(z_pm, z_mm, valid, n_m, cfg, fallback=w0)
         return tlp, near, w_m, gate
@@ -534,15 +572,21 @@ class MTMPF(BathyFilter):
         ok: np.ndarray,
         shift: np.ndarray,
         traj: np.ndarray,
+        turn: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """IDW of the Pmap at each row's Mmap points. Shifting the Pmap by ``shift`` (eq. 4) is
-        querying the Mmap points shifted by ``-shift``: one tree serves every particle."""
+        querying the Mmap points shifted by ``-shift``: one tree serves every particle. ``turn``
+        (K,) rad (ours, ``heading_bias``): the row's Pmap is also turned by ``-turn`` about the
+        vehicle (``traj[t]``), i.e. the query points by ``+turn`` about it."""
         assert self.offsets is not None and self.depths is not None
         cfg = self.cfg
         bsl = slice(None, None, cfg.mmap_beam_stride)  # gather only the strided beams
         q = self.offsets[:, bsl][idx]  # (K, W, B', 2), in place below: no temporaries
         q += traj[idx][:, :, None, :]  # the Mmap points
         q -= shift[:, None, None, :]
+        if turn is not None:
+            c = self.traj[self.t]
+            q[:] = rotate(q - c, turn[:, None, None]) + c
         z_mm = self.depths[:, bsl][idx]
         z_pm, valid = idw(
             tree, z_p, q, cfg.idw_k, cfg.idw_radius_m, cfg.idw_power, cfg.idw_min_neighbours
@@ -615,11 +659,12 @@ class MTMPF(BathyFilter):
         """Resample = one loop closure (14); ``agree``: the crossing's own LCCD decision
         (``lccd_mode = 'parts'``), None = the pool's (Sec. IV-B)."""
         cfg, t = self.cfg, self.t
-        before = self.x.copy()
+        before, b_before = self.x.copy(), self.b.copy()
         s_before = self.traj[t].copy()
         if cfg.closure == "crossing" and cfg.closure_estimate == "mode":
             w = mode_weights(self.x, w, cfg.mode_radius_m)
-        self.x = self.x[systematic_resample(w, self.rng)]  # A20
+        i = systematic_resample(w, self.rng)  # A20
+        self.x, self.b = self.x[i], self.b[i]  # each particle keeps its heading offset (ours)
         s_after = self.x.mean(0)
         m = s_after - s_before  # eq. (14)
         h = t - cfg.t_l
@@ -648,7 +693,7 @@ class MTMPF(BathyFilter):
             valid = self.lccd.judge(loop)
         loop.accepted = valid
         if not valid:  # A18 (and a pending closure): restore the particles, map unchanged
-            self.x = before
+            self.x, self.b = before, b_before
             return
         covered = self.covered
         if cfg.min_ramp_pings > 0:  # ours: never a kink inside the recent pings

@@ -29,6 +29,7 @@ from auvgw.slam.bathymetric.filters import (
     mode_ratio,
     mode_weights,
     no_match_weight,
+    rotate,
 )
 from auvgw.slam.bathymetric.loops import (
     LCCD,
@@ -905,3 +906,35 @@ def test_spread_after_resampling_reads_the_logged_cloud() -> None:
     assert out["spread_before_m"] == pytest.approx(39.0)  # pings 19 and 59
     assert out["spread_lag10_m"] == pytest.approx(50.0)
     assert out["spread_lag100_m"] == pytest.approx(120.0)  # 60 + 100 is past t: only 20's
+
+
+@pytest.mark.parametrize("offset_deg", [3.0, -2.0])
+def test_heading_bias_state_recovers_a_constant_heading_offset(offset_deg: float) -> None:
+    """heading_bias (ours, issue 28): from ping 200 on the navigation's heading is off by a
+    constant ``offset_deg`` (the DR steps and the swaths turned by it, as the online stage gets
+    them); the particles carry heading offsets spread evenly over +-6 deg from then on. The
+    TINY survey's one crossing of the first (error-free) line weighs each particle's turned
+    step and Pmap (eqs. 2, 4-5), its resampling keeps the offsets of the survivors: their mean
+    is the true offset, their spread far below the prior's, and the track ends on the truth."""
+    sim = simulate_survey(Scenario.model_validate(TINY), np.random.default_rng(3), DRModel(0, 0))
+    e = math.radians(offset_deg)
+    cfg = BathyConfig(n_particles=100, heading_bias=True, heading_sigma0_deg=0.0,
+                      heading_walk_deg=0.0, sigma_c2=0.0, jitter_a=0.0, omega_sigma_m=0.0,
+                      lccd=False, min_mode_ratio=1.0)  # fmt: skip
+    f = MTMPF(cfg, len(sim.t), np.random.default_rng(0))
+    u = sim.controls()
+    f.start(sim.dr[0], sim.offsets[0], sim.depth[0])
+    k0 = 200
+    for k in range(1, len(sim.t)):
+        if k == k0:
+            f.b = np.radians(np.linspace(-6.0, 6.0, cfg.n_particles))
+        turn = e if k >= k0 else 0.0
+        f.step(rotate(u[k - 1], turn), rotate(sim.offsets[k], turn), sim.depth[k])
+    assert len(f.resampled_at) == 1 and f.resampled_at[0] > k0
+    assert np.degrees(f.heading_log[k0, 1]) > 3.0  # the prior's spread before the crossing
+    mean, spread = np.degrees(f.heading_log[len(sim.t) - 1])
+    assert mean == pytest.approx(offset_deg, abs=0.5)
+    assert spread < 1.2
+    dr_err = np.hypot(*(sim.truth[0] + rotate(u[k0 - 1 :], e).sum(0) + u[: k0 - 1].sum(0)
+                        - sim.truth[-1]))  # fmt: skip
+    assert np.hypot(*(f.traj[len(sim.t) - 1] - sim.truth[-1])) < 0.1 * dr_err
