@@ -30,6 +30,7 @@ __all__ = [
     "endpoint",
     "free_port",
     "run_demo_processes",
+    "uart_overruns",
 ]
 
 #: the repository (this file is tests/support/processes.py)
@@ -156,3 +157,16 @@ def run_demo_processes(
             demo.wait()
     assert demo.returncode == 0, stdout
     return demo.pid, stdout, json.loads((out / "summary.json").read_text())
+
+
+def uart_overruns(sim_log: Path) -> dict[str, int]:
+    """Bytes each emulated port dropped because its host did not read it in time (``auvgw sim``'s
+    end-of-run table, "dropped bytes"; a UART overrun, :mod:`auvgw.sim_devices.ports`), by
+    channel name. A frame the overrun cut is a bad frame at the gateway, rightly: on a loaded
+    machine a test allows bad frames only on a port that overran."""
+    import re
+
+    rows = re.finditer(r"^\s+(\S+)\s+samples\s+\d+\s+sent\s+\d+\s+bytes\s+\d+\s+dropped bytes"
+                       r"\s+(\d+)", sim_log.read_text(errors="replace"), re.MULTILINE)  # fmt: skip
+    return {m[1]: int(m[2]) for m in rows}
+
