@@ -17,10 +17,13 @@ from __future__ import annotations
 
 import argparse
 import base64
+import contextlib
 import functools
 import http.server
 import json
+import os
 import shutil
+import signal
 import socket
 import subprocess
 import sys
@@ -77,7 +80,8 @@ def render(rrd: Path, png: Path, wait_s: float, width: int, height: int) -> None
         procs.append(subprocess.Popen(
             [str(rerun), "--serve-web", "--web-viewer-port", str(web_port), "--port",
              str(grpc_port), "--bind", "127.0.0.1"],
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))  # fmt: skip
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+            start_new_session=True))  # fmt: skip (its own group: the launcher forks the viewer)
         viewer = f"http://127.0.0.1:{web_port}/"
         _wait_http(viewer, 60)
         page = f"{viewer}?url=http://127.0.0.1:{file_port}/{rrd.name}"
@@ -87,7 +91,8 @@ def render(rrd: Path, png: Path, wait_s: float, width: int, height: int) -> None
              "--use-angle=swiftshader", f"--window-size={width},{height}",
              f"--remote-debugging-port={devtools_port}", "--remote-allow-origins=*",
              f"--user-data-dir={profile}", page],
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))  # fmt: skip
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+            start_new_session=True))  # fmt: skip
         targets = json.loads(_wait_http(f"http://127.0.0.1:{devtools_port}/json", 60))
         ws_url = next(t["webSocketDebuggerUrl"] for t in targets if t.get("type") == "page")
         t0 = time.monotonic()
@@ -106,12 +111,13 @@ def render(rrd: Path, png: Path, wait_s: float, width: int, height: int) -> None
         png.write_bytes(base64.b64decode(answer["result"]["data"]))
         print(f"render_rrd: {png} ({png.stat().st_size} bytes)")
     finally:
-        for p in reversed(procs):
-            p.terminate()
+        for p in reversed(procs):  # each whole process group (rerun's launcher forks the viewer)
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(p.pid, signal.SIGTERM)
             try:
                 p.wait(10)
             except subprocess.TimeoutExpired:
-                p.kill()
+                os.killpg(p.pid, signal.SIGKILL)
         files.shutdown()
 
 
