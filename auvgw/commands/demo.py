@@ -55,11 +55,6 @@ DEFAULT_SCENARIO = "harbour"
 #: the demo's vehicle seconds and speed (x real time) unless told otherwise
 DEFAULT_DURATION_S = 180.0
 DEFAULT_SPEED = 2.0
-#: host s from the sim's gateway.toml to vehicle time 0 in the in-process demo: its session,
-#: Rerun logger, stages and gateway start in that time (the sim's own default, 0.5 s, left the
-#: gateway joining 8-17 vehicle s into a 2x run on a host at load 10-15: too few sonar frames,
-#: INS frames dropped while it caught up)
-INPROCESS_START_DELAY_S = 2.0
 
 
 def register(sub: SubParsers) -> None:
@@ -209,8 +204,7 @@ def run(args: argparse.Namespace) -> int:
     sim_log = open(out / "sim.log", "wb")  # noqa: SIM115 (closed in finally)
     sim = subprocess.Popen(
         [sys.executable, "-m", "auvgw",
-         *_sim_argv(scenario, speed, args.duration, sim_dir, args.pace),
-         "--start-delay", str(INPROCESS_START_DELAY_S)],
+         *_sim_argv(scenario, speed, args.duration, sim_dir, args.pace)],
         stdout=sim_log, stderr=subprocess.STDOUT,
     )  # fmt: skip
     try:
