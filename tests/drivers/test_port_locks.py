@@ -29,6 +29,19 @@ t.close()
 """
 
 
+def _settled_commands(adapter) -> int:
+    """The adapter's command count once two polls in a row see it unchanged (the holder's last
+    set-up command may still be in the pty when its channel reads open)."""
+    seen: list[int] = []
+
+    def settled() -> bool:
+        seen.append(adapter.stats.commands)
+        return len(seen) >= 2 and seen[-1] == seen[-2]
+
+    wait_until(settled, 10, what="the holder's set-up commands taken")
+    return seen[-1]
+
+
 def _slcan(path: str) -> dict:
     return {
         "kind": "can",
@@ -54,7 +67,7 @@ def test_an_slcan_adapter_held_by_another_process_is_refused_naming_the_holder(a
     try:
         assert holder.stdout is not None and holder.stdout.readline().startswith("READY")
         wait_until(lambda: adapter.is_open, 10, what="the holder opened the channel")
-        commands = adapter.stats.commands
+        commands = _settled_commands(adapter)  # the holder's set-up may still be in flight
         assert lock_holder(adapter.device) is not None
         assert lock_holder(adapter.device).startswith(f"pid {holder.pid} (")
 
