@@ -123,7 +123,7 @@ def register(sub: SubParsers) -> None:
         "gateway process to start and open every port (default 10)",
     )
     for rec in pipelines.of_kind("control"):  # each control pipeline's own demo option
-        p.add_argument(rec.demo_option, action="store_true",
+        p.add_argument(rec.demo_option, action="store_true", dest=f"run_{rec.name}",
                        help=f"run the {rec.name} pipeline on its scenario ({rec.demo_scenario}) "
                        "through the whole chain, each part a process, and print the errors "
                        f"against the truth: {rec.summary}")  # fmt: skip
@@ -180,7 +180,7 @@ def _demo_scenario(
 
 def run(args: argparse.Namespace) -> int:
     for rec in pipelines.of_kind("control"):
-        if getattr(args, rec.demo_option.lstrip("-").replace("-", "_")):
+        if getattr(args, f"run_{rec.name}"):
             return int(rec.entry("demo_run")(args))
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
