@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import os
 import queue
+import re
 import signal
 import subprocess
 import sys
@@ -164,8 +165,6 @@ def uart_overruns(sim_log: Path) -> dict[str, int]:
     end-of-run table, "dropped bytes"; a UART overrun, :mod:`auvgw.sim_devices.ports`), by
     channel name. A frame the overrun cut is a bad frame at the gateway, rightly: on a loaded
     machine a test allows bad frames only on a port that overran."""
-    import re
-
     rows = re.finditer(r"^\s+(\S+)\s+samples\s+\d+\s+sent\s+\d+\s+bytes\s+\d+\s+dropped bytes"
                        r"\s+(\d+)", sim_log.read_text(errors="replace"), re.MULTILINE)  # fmt: skip
     return {m[1]: int(m[2]) for m in rows}
