@@ -24,6 +24,11 @@ route turns the track and the map alike about the known start: no closure can se
 delay (0: as before). Every row also splits the errors into x (north: along the survey's lines) and
 y (east: across them), and each closure's own error into its along- and across-track parts (the
 vehicle's frame at the closure's end; signed medians: a delay shows as a constant along-track part).
+``--save DIR`` (issue 28, the gauge): each row's truth, DR, filtered and smoothed positions and
+the DR's INS heading error at every second ping (and the last) as
+``DIR/<scenario>-<seed>-<variant>.npz`` (``bathy_gauge.save_tracks``), a ``gauge`` line per row
+(the errors raw and after the best rotation about the start, the floor), and at the end
+``bathy_gauge``'s table of every row and its summary.
 """
 
 from __future__ import annotations
@@ -35,6 +40,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from bathy_gauge import figures, save_tracks, table
 from study_bathy_demo import dr_model
 from study_bathy_heldout import _git_rev
 
@@ -117,7 +123,11 @@ def main() -> None:
         help="rotate each swath by this constant heading error as well (deg)",
     )
     ap.add_argument("--scenario", nargs="+", default=[str(config_file("scenarios/survey.json"))])
+    ap.add_argument("--save", type=Path, metavar="DIR",
+                    help="keep each row's tracks as DIR/<scenario>-<seed>-<variant>.npz and print "
+                         "the gauge table")  # fmt: skip
     a = ap.parse_args()
+    gauged: dict[str, dict[str, float]] = {}
     if (a.variants is None) == (a.frozen is None):
         ap.error("give --variants or --frozen")
     if a.frozen is not None:
@@ -186,6 +196,22 @@ def main() -> None:
                       f"{len(f.loops)}, first at ping {first}, own error median {med:.2f} max "
                       f"{top:.2f}, signed median along {ma:+.2f} across {mc:+.2f}; CPU "
                       f"{cpu:.0f} s", flush=True)  # fmt: skip
+                if a.save is not None:
+                    tag = f"{Path(path).stem}-{seed}-{name}" + (f"-d{delay:g}" if delay else "")
+                    ins = np.concatenate([dr.psi[0][:1], dr.psi[0]])[: len(sim.t)]
+                    save_tracks(a.save / f"{tag}.npz", sim.t, ins, 2, truth=sim.truth,
+                                dr=sim.dr, filtered=res.online, smoothed=res.final)  # fmt: skip
+                    with np.load(a.save / f"{tag}.npz") as z:
+                        g = gauged[tag] = figures(z)
+                    print(f"    gauge: DR yaw {g['dr_angle_deg']:+.3f} deg, aligned final / RMS "
+                          f"{g['dr_al_final']:.2f} / {g['dr_al_rmse']:.2f}; floor "
+                          f"{g['floor_final']:.2f} / {g['floor_rmse']:.2f}; SLAM smoothed yaw "
+                          f"{g['smoothed_angle_deg']:+.3f} deg, aligned final / filt / smoothed "
+                          f"{g['filtered_al_final']:.2f} / {g['filtered_al_rmse']:.2f} / "
+                          f"{g['smoothed_al_rmse']:.2f}", flush=True)  # fmt: skip
+    if gauged:
+        print()
+        print(table(gauged))
 
 
 if __name__ == "__main__":

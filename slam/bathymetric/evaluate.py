@@ -11,11 +11,21 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from auvgw.slam.bathymetric.config import BathyConfig
-from auvgw.slam.bathymetric.filters import FILTERS, BathyFilter
+from auvgw.slam.bathymetric.filters import FILTERS, BathyFilter, rotate
 from auvgw.slam.bathymetric.loops import loop_valid
 from auvgw.slam.bathymetric.simulate import BathyRun
 
-__all__ = ["BathyResult", "error_budget", "grid_dem", "label_loops", "run_filter"]
+__all__ = [
+    "BathyResult",
+    "GaugeError",
+    "error_budget",
+    "gauge_error",
+    "gauge_floor",
+    "grid_dem",
+    "label_loops",
+    "run_filter",
+    "yaw_about_start",
+]
 
 
 @dataclass
@@ -92,6 +102,55 @@ def error_budget(f: BathyFilter, sim: BathyRun) -> dict[str, float]:
         "accrued_since_m": disp_err(traj),
         "dr_drift_since_m": disp_err(dr[: t_e + 1]),
     }
+
+
+def yaw_about_start(est: np.ndarray, truth: np.ndarray) -> float:
+    """The rotation about the known start ``truth[0]`` (rad, positive from north towards east, as
+    a heading) that best turns ``truth`` onto ``est`` ((T, 2) NED, m) in the least-squares sense:
+    ``est ~ start + rotate(truth - start, angle)``. Yaw only, no translation: the start is known
+    and depth is observed, so a constant heading error is the one direction a relative method
+    cannot see (Zhang and Scaramuzza, "A Tutorial on Quantitative Trajectory Evaluation for
+    Visual(-Inertial) Odometry", IROS 2018: align over the unobservable DOF only; the closed
+    form of the best yaw). 0 when every point is at the start."""
+    a = truth - truth[0]
+    b = est - truth[0]
+    cross = float(np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]))
+    dot = float(np.sum(a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]))
+    return math.atan2(cross, dot) if (cross or dot) else 0.0
+
+
+@dataclass(frozen=True)
+class GaugeError:
+    """An estimate's error against the truth, raw and gauge-aligned (m, horizontal NED):
+    ``angle_rad``: its fitted yaw about the start (:func:`yaw_about_start`); ``rmse_m`` /
+    ``final_m``: as it is; ``aligned_rmse_m`` / ``aligned_final_m``: once turned back by that
+    angle about the start (what a relative method can be asked to correct)."""
+
+    angle_rad: float
+    rmse_m: float
+    final_m: float
+    aligned_rmse_m: float
+    aligned_final_m: float
+
+
+def gauge_error(est: np.ndarray, truth: np.ndarray) -> GaugeError:
+    """:class:`GaugeError` of ``est`` against ``truth`` ((T, 2) NED, m, at the same times,
+    ``truth[0]`` the known start)."""
+    angle = yaw_about_start(est, truth)
+    aligned = truth[0] + rotate(est - truth[0], -angle)
+    raw = np.hypot(*(est - truth).T)
+    err = np.hypot(*(aligned - truth).T)
+    return GaugeError(angle, float(np.sqrt(np.mean(raw**2))), float(raw[-1]),
+                      float(np.sqrt(np.mean(err**2))), float(err[-1]))  # fmt: skip
+
+
+def gauge_floor(truth: np.ndarray, angle_rad: float) -> tuple[float, float]:
+    """(RMSE, final error) m of the truth turned by ``angle_rad`` about its start: what an
+    estimate that corrected everything but a rotation of that size about the start (dead
+    reckoning's own, :func:`yaw_about_start`) would still show, raw."""
+    turned = truth[0] + rotate(truth - truth[0], angle_rad)
+    e = np.hypot(*(turned - truth).T)
+    return float(np.sqrt(np.mean(e**2))), float(e[-1])
 
 
 SPREAD_LAGS = (1, 10, 30, 100)

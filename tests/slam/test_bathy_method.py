@@ -8,6 +8,9 @@ from typing import Any
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.optimize import minimize_scalar
 from scipy.spatial import cKDTree
 
 from auvgw.config.scenario import Scenario
@@ -15,6 +18,8 @@ from auvgw.sim_devices.world import ProceduralTerrain
 from auvgw.slam.bathymetric.config import BathyConfig
 from auvgw.slam.bathymetric.evaluate import (
     error_budget,
+    gauge_error,
+    gauge_floor,
     grid_dem,
     label_loops,
     run_filter,
@@ -650,6 +655,53 @@ def test_error_budget_splits_the_final_error_at_the_last_closure() -> None:
     assert eb["err_at_last_closure_m"] == pytest.approx(5.0)
     assert eb["accrued_since_m"] == pytest.approx(2.0)
     assert eb["dr_drift_since_m"] == pytest.approx(0.4 * math.sqrt(2))
+
+
+def _lawnmower() -> np.ndarray:
+    """Three 400 m lines 80 m apart from a start off the origin (NED, m, one point a metre)."""
+    a = np.arange(401.0)
+    legs = [np.column_stack([a, np.zeros_like(a)]),
+            np.column_stack([400.0 - a, np.full_like(a, 80.0)]),
+            np.column_stack([a, np.full_like(a, 160.0)])]  # fmt: skip
+    return np.concatenate(legs) + np.array([1200.0, -350.0])
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.floats(-0.2, 0.2))
+def test_gauge_error_recovers_a_rigid_turn_about_the_start(angle: float) -> None:
+    """evaluate.gauge_error: a track turned rigidly about its start by a known angle gives that
+    angle and no error once aligned; its raw error is the floor of that angle (gauge_floor)."""
+    truth = _lawnmower()
+    est = truth[0] + rotate(truth - truth[0], angle)
+    g = gauge_error(est, truth)
+    assert g.angle_rad == pytest.approx(angle, abs=1e-12)
+    assert g.aligned_rmse_m == pytest.approx(0.0, abs=1e-8)
+    assert g.aligned_final_m == pytest.approx(0.0, abs=1e-8)
+    rmse, final = gauge_floor(truth, angle)
+    assert (g.rmse_m, g.final_m) == (pytest.approx(rmse), pytest.approx(final))
+    # the last point is r = |(400, 160)| m from the start: a chord of 2 r sin(angle / 2)
+    assert final == pytest.approx(2.0 * math.hypot(400.0, 160.0) * abs(math.sin(angle / 2.0)))
+
+
+def test_gauge_error_gives_the_least_squares_angle_under_noise() -> None:
+    """With noise and a drift added to the turned track, the fitted angle is the one that
+    minimises the summed squared error (a numerical search agrees), the aligned RMSE is that
+    minimum and no larger than the raw one; a translation is not absorbed (the start is known)."""
+    rng = np.random.default_rng(3)
+    truth = _lawnmower()
+    est = truth[0] + rotate(truth - truth[0], 0.01) + rng.normal(0.0, 0.5, truth.shape)
+    est += np.linspace(0.0, 1.0, len(truth))[:, None] * (2.0, -1.0)
+
+    def sse(a: float) -> float:
+        return float(np.sum((truth[0] + rotate(est - truth[0], -a) - truth) ** 2))
+
+    best = minimize_scalar(sse, bounds=(-0.1, 0.1), method="bounded", options={"xatol": 1e-10})
+    g = gauge_error(est, truth)
+    assert g.angle_rad == pytest.approx(best.x, abs=1e-7)
+    assert g.aligned_rmse_m == pytest.approx(math.sqrt(best.fun / len(truth)), rel=1e-6)
+    assert g.aligned_rmse_m < g.rmse_m
+    shifted = gauge_error(truth + np.array([3.0, 4.0]), truth)
+    assert shifted.rmse_m == pytest.approx(5.0) and shifted.aligned_rmse_m > 3.5
 
 
 def test_drift_model_rates_spec_and_pairwise_agreement() -> None:
