@@ -12,10 +12,9 @@ that corrected everything else would still show. Ratios are DR / SLAM (> 1: SLAM
 three figures, raw and aligned: the final error (the filtered estimate's last pose), the
 filtered RMSE and the smoothed RMSE.
 
-The ``.npz`` (:func:`save_tracks`): ``t`` (s), ``truth``, ``dr``, ``filtered``, ``smoothed``
-((n, 2) NED m, float32, at the SLAM's ping times: every ``step``-th ping and the last) and
-``heading_error_deg`` (the navigation's heading error on the swaths at those times: INS or
-odometry heading minus the true one).
+The ``.npz`` files are :func:`auvgw.slam.bathymetric.evaluate.save_tracks`'s, written by
+``screen_bathy_survey.py --save`` (offline: every second ping, the DR's INS heading error) and by
+``auvgw demo`` as ``tracks.npz`` (end to end: every SLAM pose, the odometry's heading error).
 """
 
 from __future__ import annotations
@@ -29,22 +28,10 @@ import numpy as np
 
 from auvgw.slam.bathymetric.evaluate import gauge_error, gauge_floor
 
-TRACKS = ("truth", "dr", "filtered", "smoothed")
 #: the three DR / SLAM figures of the issue's bar: (name, DR's field, SLAM's field)
 FIGURES = (("final", "dr_final", "filtered_final"),
            ("filtered RMSE", "dr_rmse", "filtered_rmse"),
            ("smoothed RMSE", "dr_rmse", "smoothed_rmse"))  # fmt: skip
-
-
-def save_tracks(path: Path, t: np.ndarray, heading_error_rad: np.ndarray, step: int = 1,
-                **tracks: np.ndarray) -> None:  # fmt: skip
-    """Write one run's :data:`TRACKS` (each (n, 2) NED m at times ``t`` s) and the heading
-    error (rad) on its swaths as ``path`` (compressed, float32), every ``step``-th sample and
-    the last."""
-    keep = np.unique(np.r_[np.arange(0, len(t), step), len(t) - 1])
-    path.parent.mkdir(parents=True, exist_ok=True)
-    np.savez_compressed(path, t=t[keep], heading_error_deg=np.degrees(heading_error_rad[keep]),
-                        **{k: tracks[k][keep].astype(np.float32) for k in TRACKS})  # fmt: skip
 
 
 def figures(tracks: Any) -> dict[str, float]:

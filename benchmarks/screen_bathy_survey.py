@@ -26,7 +26,7 @@ y (east: across them), and each closure's own error into its along- and across-t
 vehicle's frame at the closure's end; signed medians: a delay shows as a constant along-track part).
 ``--save DIR`` (issue 28, the gauge): each row's truth, DR, filtered and smoothed positions and
 the DR's INS heading error at every second ping (and the last) as
-``DIR/<scenario>-<seed>-<variant>.npz`` (``bathy_gauge.save_tracks``), a ``gauge`` line per row
+``DIR/<scenario>-<seed>-<variant>.npz`` (``evaluate.save_tracks``), a ``gauge`` line per row
 (the errors raw and after the best rotation about the start, the floor), and at the end
 ``bathy_gauge``'s table of every row and its summary.
 """
@@ -40,7 +40,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from bathy_gauge import figures, save_tracks, table
+from bathy_gauge import figures, table
 from study_bathy_demo import dr_model
 from study_bathy_heldout import _git_rev
 
@@ -49,7 +49,7 @@ from auvgw.config.scenario import Scenario
 from auvgw.ground.paths import config_file
 from auvgw.sim_devices.world import World
 from auvgw.slam.bathymetric.config import BathyConfig
-from auvgw.slam.bathymetric.evaluate import run_filter
+from auvgw.slam.bathymetric.evaluate import run_filter, save_tracks
 from auvgw.slam.bathymetric.filters import rotate
 from auvgw.slam.bathymetric.simulate import BathyRun, DRModel, simulate_survey
 from auvgw.slam.evaluation.heldout import seed_split

@@ -117,7 +117,7 @@ def _run_stages(
 
     def on_odometry(o: Odometry) -> None:
         with lock:
-            dead_reckoning.add_odometry(o.t - epoch_s, o.x, o.y, o.coasting)
+            dead_reckoning.add_odometry(o.t - epoch_s, o.x, o.y, o.coasting, o.heading)
         if viz is not None:
             payload, _ = encode_envelope(o, "fusion", int(o.t * 1e9), 0)
             viz.stage.handle_sample(keys.odometry(), payload, int(o.t * 1e9))
@@ -165,7 +165,7 @@ def _run_stages(
 
     def on_truth(sample: TruthSample) -> None:
         with lock:
-            truth.add(sample["t"], sample["x"], sample["y"])
+            truth.add(sample["t"], sample["x"], sample["y"], sample["heading"])
         body = json.dumps(sample).encode()
         truth_pub.put(body)
         if viz is not None:

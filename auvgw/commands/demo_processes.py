@@ -82,7 +82,7 @@ class _Collector:
         o = env.body
         with self.lock:
             self.dead_reckoning.add_odometry(
-                o["t"] - self.epoch_s, o["x"], o["y"], bool(o["coasting"])
+                o["t"] - self.epoch_s, o["x"], o["y"], bool(o["coasting"]), o["heading"]
             )
             self.odometry_stamps.append((env.t_recv_ns / 1e9, time.time()))
 
@@ -245,7 +245,7 @@ def _run_processes(
         def on_truth(sample: TruthSample) -> None:
             assert collector is not None
             with collector.lock:
-                collector.truth.add(sample["t"], sample["x"], sample["y"])
+                collector.truth.add(sample["t"], sample["x"], sample["y"], sample["heading"])
             truth_pub.put(json.dumps(sample).encode())
 
         tail = _TruthTail(sim_dir / "truth.jsonl", on_truth)

@@ -23,21 +23,28 @@ if TYPE_CHECKING:
 
 @dataclass
 class Track:
+    """A horizontal track: vehicle times (s), NED positions (m) and headings (rad; NaN where
+    the source gives none)."""
+
     t: list[float] = field(default_factory=list)
     x: list[float] = field(default_factory=list)
     y: list[float] = field(default_factory=list)
+    h: list[float] = field(default_factory=list)
 
-    def add(self, t: float, x: float, y: float) -> None:
+    def add(self, t: float, x: float, y: float, h: float = math.nan) -> None:
         self.t.append(t)
         self.x.append(x)
         self.y.append(y)
+        self.h.append(h)
 
-    def add_odometry(self, t: float, x: float, y: float, coasting: bool) -> None:
+    def add_odometry(
+        self, t: float, x: float, y: float, coasting: bool, h: float = math.nan
+    ) -> None:
         """Dead reckoning is scored from its first DVL fix: before it the filter has no
         velocity and holds its start position whatever the vehicle does (how long depends on
         which port the gateway opened first), after it the fix's correction carries back."""
         if self.t or not coasting:
-            self.add(t, x, y)
+            self.add(t, x, y, h)
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return np.asarray(self.t), np.asarray(self.x), np.asarray(self.y)
@@ -146,12 +153,51 @@ def _report(
         paper = navigation.pop("paper_rmse_pct_distance", None)
         navigation.update(slam=slam_err, slam_algorithm=name,
                           paper_rmse_pct_distance=paper)  # fmt: skip
+    if slam_counters is not None:
+        _save_tracks(args.out / "tracks.npz", dead_reckoning, slam_track, truth, smoothed)
     summary = {"devices": status["devices"], "fusion": fusion_counters, "slam": slam_counters,
                "navigation": navigation,
                "rrd": str(rrd) if rrd else None, "wall_s": wall, "speed": speed,
                **extra}  # fmt: skip
     (args.out / "summary.json").write_text(json.dumps(summary, indent=1, default=str))
     return summary
+
+
+def _save_tracks(
+    path: Path,
+    dead_reckoning: Track,
+    slam_track: Track,
+    truth: Track,
+    smoothed: tuple[Track, list[float]] | None,
+) -> None:
+    """The run's tracks at the SLAM's pose times, from dead reckoning's first DVL fix and within
+    the truth's span (:func:`path_error`'s), as ``path`` (:func:`evaluate.save_tracks`, issue
+    28's gauge): the truth, dead reckoning and the smoothed trajectory interpolated there, the
+    poses as published, and the odometry's heading error (its heading minus the truth's: what
+    a SLAM stage turns its swaths with). Nothing without two such poses."""
+    from auvgw.slam.bathymetric.evaluate import save_tracks
+
+    te, xe, ye = slam_track.arrays()
+    if len(truth.t) < 2 or not dead_reckoning.t:
+        return
+    keep = (te >= max(truth.t[0], dead_reckoning.t[0])) & (te <= truth.t[-1])
+    if keep.sum() < 2:
+        return
+    te = te[keep]
+
+    def at(track: Track) -> np.ndarray:
+        tt, x, y = track.arrays()
+        return np.column_stack([np.interp(te, tt, x), np.interp(te, tt, y)])
+
+    def heading(track: Track) -> np.ndarray:
+        return np.interp(te, track.t, np.unwrap(np.asarray(track.h, float)))
+
+    psi = heading(dead_reckoning) - heading(truth)
+    psi = (psi + math.pi) % (2.0 * math.pi) - math.pi
+    smo = at(smoothed[0]) if smoothed is not None and len(smoothed[0].t) > 1 else (
+        np.full((len(te), 2), math.nan))  # fmt: skip
+    save_tracks(path, te, psi, truth=at(truth), dr=at(dead_reckoning),
+                filtered=np.column_stack([xe[keep], ye[keep]]), smoothed=smo)  # fmt: skip
 
 
 def _print_summary(

@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -24,6 +25,7 @@ __all__ = [
     "grid_dem",
     "label_loops",
     "run_filter",
+    "save_tracks",
     "yaw_about_start",
 ]
 
@@ -151,6 +153,23 @@ def gauge_floor(truth: np.ndarray, angle_rad: float) -> tuple[float, float]:
     turned = truth[0] + rotate(truth - truth[0], angle_rad)
     e = np.hypot(*(turned - truth).T)
     return float(np.sqrt(np.mean(e**2))), float(e[-1])
+
+
+#: the positions a run's tracks file holds (:func:`save_tracks`)
+TRACKS = ("truth", "dr", "filtered", "smoothed")
+
+
+def save_tracks(path: Path, t: np.ndarray, heading_error_rad: np.ndarray, step: int = 1,
+                **tracks: np.ndarray) -> None:  # fmt: skip
+    """One run's positions for the gauge (issue 28) as ``path`` (``.npz``, compressed): ``t``
+    (s), each of :data:`TRACKS` ((n, 2) NED m at ``t``, float32: dead reckoning, the SLAM's
+    filtered and smoothed estimates; NaN where an estimate has none) and ``heading_error_deg``
+    (the navigation's heading error at ``t``, from ``heading_error_rad``), every ``step``-th
+    sample and the last."""
+    keep = np.unique(np.r_[np.arange(0, len(t), step), len(t) - 1])
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(path, t=t[keep], heading_error_deg=np.degrees(heading_error_rad[keep]),
+                        **{k: tracks[k][keep].astype(np.float32) for k in TRACKS})  # fmt: skip
 
 
 SPREAD_LAGS = (1, 10, 30, 100)

@@ -82,6 +82,33 @@ def test_report_prints_filtered_smoothed_and_closures(survey_run) -> None:
     assert f"final DR {dr['final_m']:.2f} m / filtered {filtered['final_m']:.2f} m" in ratio
     assert f"/ smoothed {smoothed['rmse_m']:.2f} m = " in ratio
 
+def test_tracks_file_holds_the_scored_run(survey_run) -> None:
+    """Issue 28's gauge: ``tracks.npz`` holds the truth, dead reckoning, the published and the
+    smoothed poses at the scored pose times (the summary's filtered error comes back from it)
+    and the odometry's heading error, which the INS's Gauss-Markov bias (0.4 deg) keeps small
+    and not zero."""
+    import numpy as np
+
+    from auvgw.slam.bathymetric.evaluate import gauge_error
+
+    out, _stdout, summary = survey_run
+    nav = summary["navigation"]
+    with np.load(out / "tracks.npz") as z:
+        tr = {k: z[k] for k in z.files}
+    filtered = nav["slam"]
+    assert len(tr["t"]) == filtered["samples"] and tr["t"][0] == pytest.approx(filtered["from_s"])
+    err = np.hypot(*(tr["filtered"] - tr["truth"]).T)
+    assert np.sqrt(np.mean(err**2)) == pytest.approx(filtered["rmse_m"], abs=1e-3)
+    assert err[-1] == pytest.approx(filtered["final_m"], abs=1e-3)
+    # no closure: the smoothed track is the published one
+    np.testing.assert_allclose(tr["smoothed"], tr["filtered"], atol=0.05)
+    dr = np.hypot(*(tr["dr"] - tr["truth"]).T)
+    assert 0.0 < np.sqrt(np.mean(dr**2)) < 2.0 * nav["dead_reckoning"]["rmse_m"] + 0.5
+    psi = tr["heading_error_deg"]
+    assert np.isfinite(psi).all() and 0.0 < np.abs(psi).max() < 3.0
+    g = gauge_error(tr["dr"].astype(float), tr["truth"].astype(float))
+    assert g.aligned_rmse_m <= g.rmse_m + 1e-9
+
 
 
 def test_the_stage_process_runs_the_demo_settings() -> None:
