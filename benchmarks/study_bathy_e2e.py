@@ -19,7 +19,9 @@ accepted closure, published once at the end); closures accepted / rejected and t
 of the first; DR / SLAM ratios (> 1: SLAM better); the fusion's INS gaps and INS clock resets
 (a host too loaded to pace the emulators: each reset moves the INS clock forward by the lag,
 and dead reckoning coasts over the gap). ``--viz`` keeps the Rerun recording (off by
-default: it only loads the machine).
+default: it only loads the machine). Issue 28's gauge: each run's ``tracks.npz`` (the demo's,
+every published pose) scored raw and after the best rotation about the start, printed as
+``bathy_gauge``'s table at the end.
 """
 
 from __future__ import annotations
@@ -32,6 +34,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+from bathy_gauge import figures, table
 from study_bathy_heldout import _git_rev
 
 from auvgw.slam.evaluation.heldout import seed_split
@@ -156,15 +160,23 @@ def main() -> None:
     if wrong:
         ap.error(f"--purpose {a.purpose}: seeds {wrong} are not {a.purpose} seeds (test >= 1000)")
     rows = []
+    gauged: dict[str, dict[str, float]] = {}
     for seed in a.seeds:
         for mb in a.multibeam:
             s = run_one(a.out / f"{mb}-{seed}", seed, mb, a.speed, a.viz, a.scenario, sets)
             rows.append(row(seed, mb, s))
             print(rows[-1], flush=True)
+            tracks = a.out / f"{mb}-{seed}" / "tracks.npz"
+            if "error" not in s and tracks.is_file():
+                with np.load(tracks) as z:
+                    gauged[f"{mb}-{seed}"] = figures(z)
     print(f"\nauvgw demo --scenario {a.scenario} --processes --speed {a.speed:g}, {a.purpose} "
           f"seeds {a.seeds}, settings {sets or 'of the demo'}; metres")  # fmt: skip
     print(HEADER)
     print("\n".join(rows))
+    if gauged:
+        print("\nthe gauge (tracks.npz; m, deg):")
+        print(table(gauged))
 
 
 if __name__ == "__main__":
