@@ -8,9 +8,10 @@ the known start: the map stays self-consistent and no closure can see it. So eac
 reckoning, SLAM filtered, SLAM smoothed) is also scored after the rotation about the start that
 best fits it to the truth (:func:`auvgw.slam.bathymetric.evaluate.gauge_error`, yaw only), and the
 *floor* is the raw error of the truth turned by dead reckoning's own fitted rotation: what a SLAM
-that corrected everything else would still show. Ratios are DR / SLAM (> 1: SLAM better) on
-three figures, raw and aligned: the final error (the filtered estimate's last pose), the
-filtered RMSE and the smoothed RMSE.
+that corrected everything else would still show (and, narrower, the truth turned by the mean
+heading error on the swaths: the part that turns the track and the map alike). Ratios are
+DR / SLAM (> 1: SLAM better) on three figures, raw and aligned: the final error (the filtered
+estimate's last pose), the filtered RMSE and the smoothed RMSE.
 
 The ``.npz`` files are :func:`auvgw.slam.bathymetric.evaluate.save_tracks`'s, written by
 ``screen_bathy_survey.py --save`` (offline: every second ping, the DR's INS heading error) and by
@@ -46,6 +47,10 @@ def figures(tracks: Any) -> dict[str, float]:
                     f"{name}_final": g.final_m, f"{name}_al_rmse": g.aligned_rmse_m,
                     f"{name}_al_final": g.aligned_final_m})  # fmt: skip
     out["floor_rmse"], out["floor_final"] = gauge_floor(truth, math.radians(out["dr_angle_deg"]))
+    # the part no closure can see at all: the swaths' mean heading error turns them and the
+    # track alike (the DR's fitted yaw also holds the DVL's misalignment and the heading
+    # error's changes, which turn the track and not the map)
+    out["floor_psi_rmse"], out["floor_psi_final"] = gauge_floor(truth, math.radians(psi.mean()))
     for label, dr, slam in FIGURES:
         out[f"raw {label}"] = out[dr] / out[slam]
         out[f"aligned {label}"] = (
@@ -60,6 +65,7 @@ def row(name: str, f: dict[str, float]) -> str:
             f"{f['dr_final']:.2f} / {f['dr_rmse']:.2f} | {f['dr_angle_deg']:+.3f} | "
             f"{f['dr_al_final']:.2f} / {f['dr_al_rmse']:.2f} | "
             f"{f['floor_final']:.2f} / {f['floor_rmse']:.2f} | "
+            f"{f['floor_psi_final']:.2f} / {f['floor_psi_rmse']:.2f} | "
             f"{f['filtered_final']:.2f} / {f['filtered_rmse']:.2f} / {f['smoothed_rmse']:.2f} | "
             f"{f['smoothed_angle_deg']:+.3f} | "
             f"{f['filtered_al_final']:.2f} / {f['filtered_al_rmse']:.2f} / "
@@ -70,10 +76,11 @@ def row(name: str, f: dict[str, float]) -> str:
 
 HEADER = (
     "| run | heading error on the swaths, deg (mean +- std) | DR final / RMSE | DR fitted yaw, "
-    "deg | DR aligned final / RMSE | floor final / RMSE | SLAM final / filtered / smoothed RMSE "
+    "deg | DR aligned final / RMSE | floor final / RMSE | floor of the mean heading error, final / "
+    "RMSE | SLAM final / filtered / smoothed RMSE "
     "| SLAM smoothed fitted yaw, deg | SLAM aligned final / filtered / smoothed RMSE | "
     "DR / SLAM raw (final / filtered / smoothed) | DR / SLAM aligned |\n"
-    "|---|---|---|---|---|---|---|---|---|---|---|"
+    "|---|---|---|---|---|---|---|---|---|---|---|---|"
 )
 
 #: the summary's columns: (label, key)
@@ -81,6 +88,8 @@ SUMMARY = (("|heading error mean|, deg", "abs_psi"), ("DR final", "dr_final"),
            ("DR RMSE", "dr_rmse"), ("|DR fitted yaw|, deg", "abs_dr_angle"),
            ("DR aligned final", "dr_al_final"), ("DR aligned RMSE", "dr_al_rmse"),
            ("floor final", "floor_final"), ("floor RMSE", "floor_rmse"),
+           ("floor of the mean heading error, final", "floor_psi_final"),
+           ("floor of the mean heading error, RMSE", "floor_psi_rmse"),
            ("SLAM final", "filtered_final"), ("SLAM filtered RMSE", "filtered_rmse"),
            ("SLAM smoothed RMSE", "smoothed_rmse"), ("SLAM aligned final", "filtered_al_final"),
            ("SLAM aligned filtered RMSE", "filtered_al_rmse"),
