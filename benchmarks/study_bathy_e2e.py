@@ -13,9 +13,10 @@ takes only held-out seeds (>= 1000), ``--purpose tuning`` only tuning seeds (bel
 (``auvgw.commands.bathy_run.DEMO_FILTER``) are what is measured; nothing here changes them.
 
 Columns (metres, horizontal, against the emulator's ground truth): dead reckoning (the fusion
-odometry) final error and RMSE; the SLAM *filtered* estimate (each pose as the stage published
-it) final and RMSE; the *smoothed* trajectory's RMSE (mtm-pf's mean trajectory after every
-accepted closure, published once at the end); closures accepted / rejected and the vehicle time
+odometry, scored at the SLAM's pose times: the same instants) final error and RMSE; the SLAM
+*filtered* estimate (each pose as the stage published it) final and RMSE; the *smoothed*
+trajectory's RMSE (mtm-pf's mean trajectory after every accepted closure, published once at
+the end); closures accepted / rejected and the vehicle time
 of the first; DR / SLAM ratios (> 1: SLAM better); the fusion's INS gaps and INS clock resets
 (a host too loaded to pace the emulators: each reset moves the INS clock forward by the lag,
 and dead reckoning coasts over the gap). ``--viz`` keeps the Rerun recording (off by
@@ -96,7 +97,10 @@ def row(seed: int, multibeam: str, s: dict[str, Any]) -> str:
     if "error" in s:
         return f"| {seed} | {multibeam} | {s['error']} |"
     nav = s["navigation"]
-    dr, flt, smo = nav["dead_reckoning"], nav["slam"], nav.get("slam_smoothed")
+    # dead reckoning at the SLAM's pose times (summaries before it: at its own samples, whose
+    # last came up to 1.2 s after the SLAM's last pose)
+    dr = nav.get("dead_reckoning_at_slam") or nav["dead_reckoning"]
+    flt, smo = nav["slam"], nav.get("slam_smoothed")
     slam = s.get("slam") or {}
     closures = nav.get("closures_vehicle_s") or []
     first = f"{closures[0]:.0f}" if closures else "-"

@@ -49,6 +49,18 @@ class Track:
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return np.asarray(self.t), np.asarray(self.x), np.asarray(self.y)
 
+    def at(self, times: list[float]) -> Track:
+        """This track's positions interpolated at ``times`` (vehicle s) inside its own span
+        (times outside it are left out; headings NaN): dead reckoning scored at a SLAM stage's
+        pose times, so the two are compared at the same instants."""
+        t, x, y = self.arrays()
+        ts = np.asarray(times, dtype=float)
+        if len(t) < 2 or not len(ts):
+            return Track()
+        ts = ts[(ts >= t[0]) & (ts <= t[-1])]
+        return Track(ts.tolist(), np.interp(ts, t, x).tolist(), np.interp(ts, t, y).tolist(),
+                     [math.nan] * len(ts))  # fmt: skip
+
 
 def path_error(est: Track, truth: Track, since: float = -math.inf) -> dict[str, float] | None:
     """Horizontal error of ``est`` against ``truth`` (interpolated at the estimate's times),
@@ -103,9 +115,9 @@ class SlamReport:
     """What a pipeline's own lines in the demo's summary are made from (its record's
     ``demo_report`` entry, ``report(r: SlamReport) -> dict``): its name in the summary, its
     stage's last counters (its status), its poses against the truth (:func:`path_error`, from
-    dead reckoning's first DVL fix; None: too few), dead reckoning's, the truth track (vehicle
-    s, m NED) and a stage's smoothed trajectory with its closures' vehicle times
-    (:func:`_smoothed_track`; None: no ``path`` output)."""
+    dead reckoning's first DVL fix; None: too few), dead reckoning's (at the SLAM's pose times
+    when it has any), the truth track (vehicle s, m NED) and a stage's smoothed trajectory with
+    its closures' vehicle times (:func:`_smoothed_track`; None: no ``path`` output)."""
 
     name: str
     counters: dict[str, Any]
@@ -142,12 +154,17 @@ def _report(
     if record is not None and counters is not None:
         slam_counters = counters
         # over the same span as dead reckoning's: from the first DVL fix
-        slam_err = path_error(slam_track, truth, dead_reckoning.t[0] if dead_reckoning.t else 0.0)
+        since = dead_reckoning.t[0] if dead_reckoning.t else 0.0
+        slam_err = path_error(slam_track, truth, since)
+        # dead reckoning at the SLAM's pose times: a ratio of the two compares the same instants
+        # (its own last sample can be a second after the SLAM's last pose: up to 1.2 m apart)
+        dr_at = path_error(dead_reckoning.at(slam_track.t), truth, since)
+        navigation["dead_reckoning_at_slam"] = dr_at
         if record.demo_report is None:
             print_vs_truth(f"SLAM ({name})", slam_err, "not enough SLAM poses or truth to compare")
         else:
             report = pipelines.load(record.demo_report)
-            navigation.update(report(SlamReport(name, counters, slam_err, nav, truth,
+            navigation.update(report(SlamReport(name, counters, slam_err, dr_at or nav, truth,
                                                 smoothed)))  # fmt: skip
         # a published figure to compare with (paper_rmse_pct_distance): after the others
         paper = navigation.pop("paper_rmse_pct_distance", None)

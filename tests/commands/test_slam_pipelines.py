@@ -430,7 +430,11 @@ def test_a_toy_pipeline_runs_in_the_in_process_demo(tmp_path: Path, toy, capsys)
     assert "toy: 4 poses\n" in out
     assert "SLAM (toy (every n-th odometry sample)) vs truth over 15 m: RMSE 0.20 m" in out
     nav = json.loads((tmp_path / "summary.json").read_text())["navigation"]
-    assert list(nav) == ["dead_reckoning", "slam", "slam_algorithm", "paper_rmse_pct_distance"]
+    assert list(nav) == ["dead_reckoning", "dead_reckoning_at_slam", "slam", "slam_algorithm",
+                         "paper_rmse_pct_distance"]  # fmt: skip
+    # dead reckoning scored at the toy's 4 pose times (every 5th), 0.1 m off at each
+    assert nav["dead_reckoning_at_slam"]["samples"] == 4
+    assert nav["dead_reckoning_at_slam"]["rmse_m"] == pytest.approx(0.1)
     assert nav["slam_algorithm"] == plan.display and nav["paper_rmse_pct_distance"] is None
     assert nav["slam"]["rmse_m"] == pytest.approx(0.2)
     assert summary["slam"]["stage"]["published"] == 4
