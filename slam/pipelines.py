@@ -202,7 +202,8 @@ PIPELINES: list[Pipeline] = [
         stage="auvgw.stages.magnetic:MagneticStage",
         run=f"{_C}.magnetic_run",
         evaluation=f"{_C}.slam:run_magnetic",
-        eval_algorithms="amb-slam,acoustic-only,mb-slam,mb-slam-fej,mb-slam-oc,dr",  # MAGNETIC_ALGORITHMS
+        # MAGNETIC_ALGORITHMS
+        eval_algorithms="amb-slam,acoustic-only,mb-slam,mb-slam-fej,mb-slam-oc,dr",
         particle_filters=False,  # EKFs; the association is a --variant key
         outputs=(Output("pose", "pose"), Output("landmarks", "landmarks"),
                  Output("observations", "ranges")),

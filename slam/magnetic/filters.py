@@ -270,7 +270,8 @@ def make_magnetic(
 ) -> MagneticSLAM:
     """``amb-slam`` (beacons + acoustic anchor), ``acoustic-only`` (the anchor, no beacons),
     ``mb-slam`` (beacons only), ``mb-slam-fej`` (MB-SLAM with first-estimates Jacobians),
-    ``mb-slam-oc`` (MB-SLAM, observability-constrained) or ``dr``; ``known``: association by the observations' true ids (evaluation)."""
+    ``mb-slam-oc`` (MB-SLAM, observability-constrained) or ``dr``; ``known``: association by
+    the observations' true ids (evaluation)."""
     if name not in MAGNETIC_ALGORITHMS:
         raise ValueError(f"unknown magnetic algorithm {name!r}; choose from {MAGNETIC_ALGORITHMS}")
     return MagneticSLAM(
