@@ -34,7 +34,7 @@ def main() -> int:
     for label, d in ROWS:
         old, new = rows(HERE / d / "results.json"), rows(HERE / f"{d}_oc" / "results.json")
         if old["mb-slam"]["rmse_runs"] != new["mb-slam"]["rmse_runs"]:
-            print(f"{d}: mb-slam differs between {d} and {d}_oc: not the same runs", file=sys.stderr)
+            print(f"{d}: mb-slam differs in {d} and {d}_oc: not the same runs", file=sys.stderr)
             return 1
         allr = {**old, "mb-slam-oc": new["mb-slam-oc"]}
         for a in ("amb-slam", "acoustic-only", "mb-slam", "mb-slam-fej", "mb-slam-oc", "dr"):
