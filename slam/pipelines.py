@@ -197,12 +197,13 @@ PIPELINES: list[Pipeline] = [
     Pipeline(
         "magnetic",
         "AMB-SLAM on the MS3A magnetometer and the acoustic beacon (amb-slam, acoustic-only, "
-        "mb-slam, mb-slam-fej, dr; docs/slam_magnetic.md)",
+        "mb-slam, mb-slam-fej, mb-slam-oc, dr; docs/slam_magnetic.md)",
         online=f"{_SM}.online:MagneticOnline",
         stage="auvgw.stages.magnetic:MagneticStage",
         run=f"{_C}.magnetic_run",
         evaluation=f"{_C}.slam:run_magnetic",
-        eval_algorithms="amb-slam,acoustic-only,mb-slam,mb-slam-fej,dr",  # MAGNETIC_ALGORITHMS
+        # MAGNETIC_ALGORITHMS
+        eval_algorithms="amb-slam,acoustic-only,mb-slam,mb-slam-fej,mb-slam-oc,dr",
         particle_filters=False,  # EKFs; the association is a --variant key
         outputs=(Output("pose", "pose"), Output("landmarks", "landmarks"),
                  Output("observations", "ranges")),

@@ -93,7 +93,14 @@ GRAVITY = 9.81
 #: the scenarios the parameters were chosen on (module docstring)
 TUNING_SCENARIOS = ("beacons_amb", "beacons_amb_v03", "beacons_dense")
 #: the paired comparisons reported when both algorithms ran: (baseline, other)
-PAIRS = (("acoustic-only", "amb-slam"), ("mb-slam-fej", "amb-slam"), ("mb-slam", "mb-slam-fej"))
+PAIRS = (
+    ("acoustic-only", "amb-slam"),
+    ("mb-slam-fej", "amb-slam"),
+    ("mb-slam", "mb-slam-fej"),
+    ("mb-slam", "mb-slam-oc"),
+    ("mb-slam-oc", "amb-slam"),
+    ("mb-slam-fej", "mb-slam-oc"),
+)
 
 
 @dataclass(frozen=True)
