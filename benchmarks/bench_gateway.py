@@ -554,7 +554,7 @@ def all_devices_phase(
                 profile.mkdir(parents=True, exist_ok=True)
                 spy = subprocess.Popen(
                     [str(BIN / "py-spy"), "record", "--pid", str(gw.pid), "--native",
-                     "--threads", "--rate", "200", "--format", "raw", "--duration",
+                     "--threads", "--rate", "100", "--format", "raw", "--duration",
                      f"{max(1, int(seconds - 1))}", "--output",
                      str(profile / f"{speed:g}x-{ros2.replace(' ', '-') or 'plain'}.txt")],
                     stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
@@ -563,8 +563,11 @@ def all_devices_phase(
             c1, m1, th1 = cpu_ticks(gw.pid), time.monotonic(), thread_ticks(gw.pid)
             b1 = cpu_ticks(bridge.pid) if bridge is not None else 0
             load = os.getloadavg()[0]
-            if spy is not None:
-                spy.wait(60)
+            if spy is not None:  # native stacks on a loaded machine: py-spy lags its window
+                try:
+                    spy.wait(90)
+                except subprocess.TimeoutExpired:
+                    stop_process(spy, signal.SIGINT, 30.0)  # SIGINT: it writes what it has
             threads = thread_groups(th0, th1, python_thread_names(gw.pid), m1 - m0)
             # the devices are silent from t_close: the gateway's counts settle once it has read
             # what the ports hold (a loaded machine can leave it a few seconds behind)
