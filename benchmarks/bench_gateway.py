@@ -684,18 +684,19 @@ def print_ros2(phases: list[AllPhase]) -> None:
         return
     ok = [ph for ph in phases if not any(r.lost for r in ph.rows)]
     print("\n[ros2] every phase, in run order (gateway CPU at the bench's speed, % of a core; "
-          "ratio: against the same round's plain phase)\n")
+          "ratio: against the same round's plain phase, none where either lost frames)\n")
     cols = [("round", 5), ("phase", -12), ("gateway %", 9), ("ratio", 6), ("bridge %", 8),
             ("ROS 2 msgs", 10), ("lost", 6), ("load", 5)]  # fmt: skip
     print_head(cols)
     rnd, plain_cpu = 0, float("nan")
     for ph in phases:
+        lost = sum(r.lost for r in ph.rows)
         if ph.ros2 == "":
-            rnd, plain_cpu = rnd + 1, ph.cpu_pct
+            rnd, plain_cpu = rnd + 1, ph.cpu_pct if not lost else float("nan")
+        ratio = "-" if lost or math.isnan(plain_cpu) else f"{ph.cpu_pct / plain_cpu:.2f}x"
         bridge = "" if math.isnan(ph.bridge_cpu_pct) else f"{ph.bridge_cpu_pct:.1f}"
-        print(table_line(cols, (rnd, ph.ros2 or "plain", f"{ph.cpu_pct:.1f}",
-                                f"{ph.cpu_pct / plain_cpu:.2f}x", bridge, ph.ros2_received,
-                                sum(r.lost for r in ph.rows), f"{ph.load:.1f}")))  # fmt: skip
+        print(table_line(cols, (rnd, ph.ros2 or "plain", f"{ph.cpu_pct:.1f}", ratio, bridge,
+                                ph.ros2_received, lost, f"{ph.load:.1f}")))  # fmt: skip
     for speed in sorted({ph.speed for ph in ros}):
         plain = [ph for ph in ok if (ph.speed, ph.ros2) == (speed, "")]
         if not plain:
