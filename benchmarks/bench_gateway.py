@@ -77,6 +77,8 @@ import argparse
 import json
 import math
 import os
+import re
+import shutil
 import signal
 import statistics
 import subprocess
@@ -86,7 +88,7 @@ import threading
 import time
 import tomllib
 import tty
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import zenoh
@@ -137,6 +139,51 @@ time.sleep(3600)
 def cpu_ticks(pid: int) -> int:
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     return int(fields[11]) + int(fields[12])  # utime, stime (fields 14 and 15 of stat)
+
+
+def thread_ticks(pid: int) -> dict[int, tuple[str, int]]:
+    """{thread id: (its kernel name, utime + stime ticks)} of every thread of process ``pid``
+    (``/proc/<pid>/task/*/stat``; a thread that ended meanwhile is left out)."""
+    out = {}
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        try:
+            stat = (task / "stat").read_text()
+        except OSError:
+            continue
+        head, _, rest = stat.rpartition(")")
+        f = rest.split()
+        out[int(task.name)] = (head.partition("(")[2], int(f[11]) + int(f[12]))
+    return out
+
+
+def python_thread_names(pid: int) -> dict[int, str]:
+    """{OS thread id: Python thread name} of process ``pid`` from ``py-spy dump`` (Python 3.11
+    gives its threads no kernel name; empty without py-spy or if it cannot attach)."""
+    spy = shutil.which("py-spy", path=str(BIN)) or shutil.which("py-spy")
+    if spy is None:
+        return {}
+    try:
+        out = subprocess.run([spy, "dump", "--pid", str(pid), "--json"], capture_output=True,
+                             text=True, timeout=30, check=True).stdout  # fmt: skip
+        return {int(t["os_thread_id"]): str(t["thread_name"] or t["thread_id"])
+                for t in json.loads(out) if t.get("os_thread_id")}  # fmt: skip
+    except (subprocess.SubprocessError, ValueError, KeyError, TypeError):
+        return {}
+
+
+def thread_groups(t0: dict[int, tuple[str, int]], t1: dict[int, tuple[str, int]],
+                  names: dict[int, str], seconds: float) -> dict[str, float]:
+    """% of a core per group of threads between two :func:`thread_ticks`: a Python thread by its
+    Python name (``py:<name>``, from :func:`python_thread_names`), a native one (Zenoh's Rust
+    threads: ``rx-0``, ``tx-2``, ``net-1``, ``acc-0``...) by its kernel name with the number
+    dropped (``native:rx``); threads started inside the window count from zero."""
+    groups: dict[str, float] = {}
+    for tid, (comm, ticks) in t1.items():
+        name = names.get(tid)
+        group = "py:" + name if name is not None else "native:" + re.sub(r"[-_]?\d+$", "", comm)
+        d = ticks - t0.get(tid, (comm, 0))[1]
+        groups[group] = groups.get(group, 0.0) + d / CLK_TCK / seconds * 100
+    return groups
 
 
 #: a printed table's columns: (title, width); a negative width left-aligns (text columns)
@@ -368,6 +415,10 @@ class AllPhase:
     geoswath: bool = False
     #: CPU of the ``auvgw ros2 bridge`` process (own process), % of a core
     bridge_cpu_pct: float = float("nan")
+    #: the gateway's CPU per group of threads over the window, % of a core (:func:`thread_groups`)
+    threads: dict[str, float] = field(default_factory=dict)
+    #: the machine's 1-minute load at the end of the window
+    load: float = float("nan")
 
 
 def all_devices_scenario(
@@ -406,10 +457,13 @@ def all_devices_phase(
     tail_s: float = 6.0,
     ros2: str = "",
     geoswath: bool = False,
+    profile: Path | None = None,
 ) -> AllPhase:
     """Every emulated device at ``speed`` for ``seconds`` of wall time, read by ``auvgw run``
     (``ros2``: with its ``[ros2]`` bridge on, "watched": and a subscriber here on every ROS 2
-    data key of domain 0; ``geoswath``: the GeoSwath on UDP as well)."""
+    data key of domain 0; ``geoswath``: the GeoSwath on UDP as well; ``profile``: a folder where
+    ``py-spy record --native --threads`` writes the gateway's stacks over the measured window,
+    one raw flame graph per phase: the sampling pauses the gateway, so its CPU reads higher)."""
     from auvgw.drivers.can_codec import DbcCodec
     from auvgw.ground.paths import config_file
     from auvgw.sim_devices.runner import gateway_toml
@@ -493,11 +547,28 @@ def all_devices_phase(
             # CPU over the sending window, half a second inside each end
             w0 = t_start + warm_s + 0.5
             time.sleep(max(0.0, w0 - time.monotonic()))
-            c0, m0 = cpu_ticks(gw.pid), time.monotonic()
+            c0, m0, th0 = cpu_ticks(gw.pid), time.monotonic(), thread_ticks(gw.pid)
             b0 = cpu_ticks(bridge.pid) if bridge is not None else 0
+            spy = None
+            if profile is not None:
+                profile.mkdir(parents=True, exist_ok=True)
+                spy = subprocess.Popen(
+                    [str(BIN / "py-spy"), "record", "--pid", str(gw.pid), "--native",
+                     "--threads", "--rate", "100", "--format", "raw", "--duration",
+                     f"{max(1, int(seconds - 1))}", "--output",
+                     str(profile / f"{speed:g}x-{ros2.replace(' ', '-') or 'plain'}.txt")],
+                    stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                )  # fmt: skip
             time.sleep(max(0.0, t_start + warm_s + seconds - 0.5 - time.monotonic()))
-            c1, m1 = cpu_ticks(gw.pid), time.monotonic()
+            c1, m1, th1 = cpu_ticks(gw.pid), time.monotonic(), thread_ticks(gw.pid)
             b1 = cpu_ticks(bridge.pid) if bridge is not None else 0
+            load = os.getloadavg()[0]
+            if spy is not None:  # native stacks on a loaded machine: py-spy lags its window
+                try:
+                    spy.wait(90)
+                except subprocess.TimeoutExpired:
+                    stop_process(spy, signal.SIGINT, 30.0)  # SIGINT: it writes what it has
+            threads = thread_groups(th0, th1, python_thread_names(gw.pid), m1 - m0)
             # the devices are silent from t_close: the gateway's counts settle once it has read
             # what the ports hold (a loaded machine can leave it a few seconds behind)
             time.sleep(max(0.0, t_start + warm_s + seconds + tail_s / 2 - time.monotonic()))
@@ -544,7 +615,8 @@ def all_devices_phase(
     cpu = (c1 - c0) / CLK_TCK / (m1 - m0) * 100
     bridge_cpu = (b1 - b0) / CLK_TCK / (m1 - m0) * 100 if bridge is not None else float("nan")
     return AllPhase(
-        speed, seconds, cpu, rows, sim_rc, sizes, ros2, ros2_seen[0], geoswath, bridge_cpu
+        speed, seconds, cpu, rows, sim_rc, sizes, ros2, ros2_seen[0], geoswath, bridge_cpu,
+        threads, load,
     )
 
 
@@ -594,30 +666,81 @@ def print_all_devices(phases: list[AllPhase]) -> None:
             print(f"GeoSwath at {speed:g}x: gateway CPU {a:.1f} % with it against {b:.1f} % "
                   f"without ({a / b:.2f}x, {a - b:+.1f} % of a core; means of {len(on)} runs "
                   f"each, interleaved); frames lost with it {lost} (bar: 0)")  # fmt: skip
-    # --ros2: medians over the rounds, of the phases that lost no frame (a phase that lost frames
-    # measured a gateway that fell behind its devices on a loaded machine, or started late)
-    def kept(speed: float, mode: str) -> list[AllPhase]:
-        return [ph for ph in phases if (ph.speed, ph.ros2) == (speed, mode)
-                and not any(r.lost for r in ph.rows)]  # fmt: skip
+    print_ros2(phases)
 
-    for speed, mode in sorted({(ph.speed, ph.ros2) for ph in phases if ph.ros2}):
-        runs, plain = kept(speed, mode), kept(speed, "")
-        n_all = sum(1 for ph in phases if (ph.speed, ph.ros2) == (speed, mode))
-        if not runs or not plain:
-            print(f"[ros2] bridge at {speed:g}x, {mode}: every phase (or every plain one) lost "
-                  "frames; nothing to compare")  # fmt: skip
+
+#: the --ros2 phases, in each round's order
+ROS2_MODES = ("", "unwatched", "watched", "own process")
+
+
+def print_ros2(phases: list[AllPhase]) -> None:
+    """The --ros2 verdict: every phase in run order with its ratio to the same round's plain
+    phase, then per mode the median gateway CPU of the phases that lost no frame (a phase that
+    lost frames measured a gateway that fell behind its devices, or started late) against the
+    plain phases' median, then the gateway's CPU per group of threads (medians) and what each
+    mode adds per ROS 2 message received."""
+    ros = [ph for ph in phases if ph.ros2]
+    if not ros:
+        return
+    ok = [ph for ph in phases if not any(r.lost for r in ph.rows)]
+    print("\n[ros2] every phase, in run order (gateway CPU at the bench's speed, % of a core; "
+          "ratio: against the same round's plain phase, none where either lost frames)\n")
+    cols = [("round", 5), ("phase", -12), ("gateway %", 9), ("ratio", 6), ("bridge %", 8),
+            ("ROS 2 msgs", 10), ("lost", 6), ("load", 5)]  # fmt: skip
+    print_head(cols)
+    rnd, plain_cpu = 0, float("nan")
+    for ph in phases:
+        lost = sum(r.lost for r in ph.rows)
+        if ph.ros2 == "":
+            rnd, plain_cpu = rnd + 1, ph.cpu_pct if not lost else float("nan")
+        ratio = "-" if lost or math.isnan(plain_cpu) else f"{ph.cpu_pct / plain_cpu:.2f}x"
+        bridge = "" if math.isnan(ph.bridge_cpu_pct) else f"{ph.bridge_cpu_pct:.1f}"
+        print(table_line(cols, (rnd, ph.ros2 or "plain", f"{ph.cpu_pct:.1f}", ratio, bridge,
+                                ph.ros2_received, lost, f"{ph.load:.1f}")))  # fmt: skip
+    for speed in sorted({ph.speed for ph in ros}):
+        plain = [ph for ph in ok if (ph.speed, ph.ros2) == (speed, "")]
+        if not plain:
+            print(f"\n[ros2] {speed:g}x: every plain phase lost frames; nothing to compare")
             continue
-        cpu = statistics.median(ph.cpu_pct for ph in runs)
         base = statistics.median(ph.cpu_pct for ph in plain)
-        got = statistics.median(ph.ros2_received for ph in runs)
-        seen = f"; {got:.0f} ROS 2 messages received (median)" if mode != "unwatched" else ""
-        if mode == "own process":
-            seen += (f"; the bridge process itself "
-                     f"{statistics.median(ph.bridge_cpu_pct for ph in runs):.1f} %")  # fmt: skip
-        print(f"[ros2] bridge at {speed:g}x, {mode}: {cpu:.1f} % against {base:.1f} %, "
-              f"{cpu / base:.2f}x the plain gateway's CPU (medians of {len(runs)} of {n_all} "
-              f"phases and {len(plain)} plain, interleaved in the same run; bar: at most "
-              f"1.10x){seen}")
+        print(f"\n[ros2] summary at {speed:g}x: medians of the phases that lost no frame "
+              "(bar: at most 1.10x the plain gateway's CPU)\n")
+        cols = [("phase", -12), ("phases", 6), ("gateway %", 9), ("range", 11), ("ratio", 6),
+                ("ROS 2 msgs/s", 12), ("us/msg", 6), ("bridge %", 8)]  # fmt: skip
+        print_head(cols)
+        modes = [m for m in ROS2_MODES if any((ph.speed, ph.ros2) == (speed, m) for ph in phases)]
+        kept = {m: [ph for ph in ok if (ph.speed, ph.ros2) == (speed, m)] for m in modes}
+        for m in modes:
+            runs = kept[m]
+            n_all = sum(1 for ph in phases if (ph.speed, ph.ros2) == (speed, m))
+            if not runs:
+                print(table_line(cols, (m or "plain", f"0/{n_all}", "-", "-", "-", "-", "-",
+                                        "-")))  # fmt: skip
+                continue
+            cpu = statistics.median(ph.cpu_pct for ph in runs)
+            lo, hi = min(ph.cpu_pct for ph in runs), max(ph.cpu_pct for ph in runs)
+            rate = statistics.median(ph.ros2_received / ph.seconds for ph in runs)
+            # what the mode adds over plain, per ROS 2 message received: us of CPU
+            per = f"{(cpu - base) / 100 / rate * 1e6:.0f}" if rate > 0 and m else "-"
+            bcpu = statistics.median(ph.bridge_cpu_pct for ph in runs)
+            print(table_line(cols, (m or "plain", f"{len(runs)}/{n_all}", f"{cpu:.1f}",
+                                    f"{lo:.1f}-{hi:.1f}", f"{cpu / base:.2f}x",
+                                    f"{rate:.0f}" if m else "-", per,
+                                    "" if math.isnan(bcpu) else f"{bcpu:.1f}")))  # fmt: skip
+        groups = sorted({g for ph in ros + plain for g in ph.threads},
+                        key=lambda g: -statistics.median(ph.threads.get(g, 0.0)
+                                                         for ph in kept.get("watched") or plain))
+        if not groups:
+            continue
+        print(f"\n[ros2] the gateway's CPU per group of threads at {speed:g}x, % of a core "
+              "(medians; py: Python threads, native: the others, Zenoh's)\n")
+        cols = [("threads", -22)] + [(m or "plain", 11) for m in modes]
+        print_head(cols)
+        for g in groups:
+            cells = [f"{statistics.median(ph.threads.get(g, 0.0) for ph in kept[m]):.1f}"
+                     if kept[m] else "-" for m in modes]  # fmt: skip
+            if any(c not in ("0.0", "-") for c in cells):
+                print(table_line(cols, (g, *cells)))
 
 
 @dataclass
@@ -837,7 +960,8 @@ def all_devices_run(args: argparse.Namespace) -> list[AllPhase]:
                     for g in (False, True) if args.geoswath else (False,):
                         try:
                             ph = all_devices_phase(Path(tmp), k, seconds, warm_s=args.all_warm,
-                                                   ros2=r, geoswath=g)  # fmt: skip
+                                                   ros2=r, geoswath=g,
+                                                   profile=args.profile)  # fmt: skip
                         except SystemExit as exc:  # a loaded machine: this phase only is lost
                             print(f"phase {k:g}x {r or 'plain'}: not measured: {exc}",
                                   file=sys.stderr, flush=True)  # fmt: skip
@@ -1000,6 +1124,11 @@ def main() -> int:
                          "[ros2] bridge, with it and no ROS 2 subscriber, with it and a "
                          "subscriber on every topic, and with `auvgw ros2 bridge` as its own "
                          "process and a subscriber on every topic")  # fmt: skip
+    ap.add_argument("--profile", type=Path, default=None, metavar="DIR",
+                    help="all-devices run: py-spy's stacks of the gateway (native frames, per "
+                         "thread) over each phase's window, one raw flame graph per phase in "
+                         "DIR (the sampling pauses the gateway: take its CPU from a run "
+                         "without)")  # fmt: skip
     ap.add_argument("--geoswath", type=int, default=0, metavar="N",
                     help="all-devices run: N pairs at 1x and --all-factor, without and with "
                          "the GeoSwath emulator (UDP) beside the five devices")  # fmt: skip

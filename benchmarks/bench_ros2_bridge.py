@@ -17,7 +17,10 @@ feeding loop alone) in the same round:
 * ``unwatched``: the bridge, no subscriber (it converts nothing: Zenoh's matching status);
 * ``watched, rosbags``: rosbags objects and ``serialize_cdr`` for every message (the bridge
   before the compiled writers), 20 ms batches, puts held;
-* ``watched, compiled``: the sensors' CDR from :mod:`auvgw.ros2_cdr` (now).
+* ``watched, compiled, DATA priority``: the sensors' CDR from :mod:`auvgw.ros2_cdr`, the ROS 2
+  publishers at the bus's own priority (the bridge before it put them at ``DATA_LOW``);
+* ``watched, compiled``: the sensors' CDR from :mod:`auvgw.ros2_cdr`, publishers at
+  ``DATA_LOW`` (now).
 
 Rounds interleave the cases so the machine's drift hits them all. First, the parts of one
 watched message, per ROS 2 form (single-thread timings, medians of 5 repeats): the conversion to
@@ -38,6 +41,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+import zenoh
+
 from auvgw.bus import open_session
 from auvgw.config.bus import BusConfig
 from auvgw.stages.ros2 import Ros2Bridge, Ros2BridgeConfig
@@ -54,12 +59,13 @@ with open_session(BusConfig(mode="peer", connect=[sys.argv[1]])) as s:
     for _ in sys.stdin:
         print(n[0], flush=True)
 """
-#: case -> (bridge on, watched, compiled CDR)
-CASES: dict[str, tuple[bool, bool, bool]] = {
-    "no bridge": (False, False, True),
-    "unwatched": (True, False, True),
-    "watched, rosbags": (True, True, False),
-    "watched, compiled": (True, True, True),
+#: case -> (bridge on, watched, compiled CDR, ROS 2 publishers at the bus's DATA priority)
+CASES: dict[str, tuple[bool, bool, bool, bool]] = {
+    "no bridge": (False, False, True, False),
+    "unwatched": (True, False, True, False),
+    "watched, rosbags": (True, True, False, False),
+    "watched, compiled, DATA priority": (True, True, True, True),
+    "watched, compiled": (True, True, True, False),
 }
 #: the all-devices bench's mix: (device, format, messages per 30)
 MIX = (("ins", "hn100", 20), ("mag", "ms3a", 4), ("msis", "seanet", 4), ("dvl", "pd0", 1),
@@ -112,7 +118,7 @@ def run_case(case: str, rate: float, seconds: float,
              cycle: list[tuple[str, Any]]) -> tuple[float, float, int, int]:  # fmt: skip
     """(CPU % of a core, us per message, ROS 2 messages the subscriber got, ROS 2 messages the
     bridge put) of one case, over the fed window."""
-    bridge_on, watched, compiled = CASES[case]
+    bridge_on, watched, compiled, data_priority = CASES[case]
     ep = endpoint(free_port())
     sub: Any = None
     with open_session(BusConfig(mode="peer", listen=[ep])) as session:
@@ -122,6 +128,8 @@ def run_case(case: str, rate: float, seconds: float,
         if bridge_on:
             bridge = Ros2Bridge(Ros2BridgeConfig(vehicle="v"), session, sections=())
             bridge.compiled = compiled
+            if data_priority:
+                bridge.priority = zenoh.Priority.DATA
             bridge.start()
             for d, m in cycle:  # each topic's first message declares its publisher
                 bridge.post(d, time.time_ns(), m)

@@ -249,6 +249,9 @@ class Ros2Bridge(RosStage):
         #: the publishers each bus key's samples went to (:meth:`wanted`; a tuple replaced, never
         #: changed in place: the Zenoh callbacks and the gateway's listeners read it)
         self._made: dict[str, tuple[_Endpoint, ...]] = {}
+        #: (RosMessage topic, ROS type) -> its publisher once declared: the sensors' puts
+        #: (:meth:`_put_all`) take it in one look-up instead of :meth:`put_cdr`'s three
+        self._routes: dict[tuple[str, str], _Endpoint] = {}
         #: puts held back on the worker (:meth:`_work_item`): (endpoint, CDR, attachment)
         self._held: list[tuple[_Endpoint, bytes, bytes]] = []
         self._holder: int | None = None  # the thread whose puts are held (the worker, in a call)
@@ -267,6 +270,11 @@ class Ros2Bridge(RosStage):
     #: False: rosbags objects and ``serialize_cdr`` for every message (the same bytes, slower:
     #: ``benchmarks/bench_ros2_bridge.py`` measures one against the other)
     compiled = True
+    #: the Zenoh priority of the ROS 2 publishers: below the bus's own data (the raw frames,
+    #: the decoded envelopes, the stages' outputs: ``DATA``), a copy of which they are. Zenoh
+    #: keeps a transmission queue per priority, so a group of held puts (up to
+    #: :attr:`MAX_HELD`) never waits in front of a raw frame; CPU-neutral (docs/ros2.md, Cost)
+    priority = zenoh.Priority.DATA_LOW
 
     def emit_sensor(self, key: str, device: str, message: object, t_ns: int, kind: str) -> None:
         """A decoded sensor message's ROS 2 messages written by :func:`auvgw.ros2_cdr.
@@ -279,9 +287,33 @@ class Ros2Bridge(RosStage):
         self._put_all(key, out, t_ns)
 
     def _put_all(self, key: str, out: list[tuple[str, str, bytes]], t_ns: int) -> None:
-        """:meth:`put_cdr` each (topic, ROS type, CDR) of a sample on bus key ``key``."""
-        self._remember(key, [self.put_cdr(topic, ros_type, cdr, t_ns)
-                             for topic, ros_type, cdr in out])  # fmt: skip
+        """Put each (topic, ROS type, CDR) of a sample on bus key ``key``: on a declared
+        publisher straight away (its sequence number and attachment, held on the worker, counted
+        once per sample); the first of a topic, or in-process (``on_publish``), through
+        :meth:`put_cdr`."""
+        routes, made = self._routes, self._made.get(key, ())
+        hold = self._holder == threading.get_ident()
+        new: list[_Endpoint | None] = []
+        n = 0
+        for topic, ros_type, cdr in out:
+            ep = routes.get((topic, ros_type)) if self.on_publish is None else None
+            if ep is None:
+                new.append(self.put_cdr(topic, ros_type, cdr, t_ns))
+                continue
+            ep.seq += 1
+            att = pack_attachment(ep.seq, t_ns, ep.gid)
+            if hold:
+                self._held.append((ep, cdr, att))
+            else:
+                self._send(ep, cdr, att)
+            n += 1
+            if ep not in made:
+                new.append(ep)
+        if n:
+            with self._lock:
+                self.stats.published += n
+        if new:
+            self._remember(key, new)
 
     def read_payload(self, key: str, payload: bytes, t_arrival_ns: int | None) -> object:
         """A decoded sensor sample of a standard ROS 2 form straight from its envelope to the
@@ -320,7 +352,7 @@ class Ros2Bridge(RosStage):
             key = self._keys[(topic, ros_type)] = data_key(self.config.domain_id, topic, ros_type)
         ep = self._endpoints.get(key)
         if ep is None and self.session is not None:
-            ep = self._declare(topic, ros_type, key)
+            ep = self._routes[(rel_topic, ros_type)] = self._declare(topic, ros_type, key)
         if ep is not None:
             ep.seq += 1
             att = pack_attachment(ep.seq, t_ns, ep.gid)
@@ -342,8 +374,11 @@ class Ros2Bridge(RosStage):
 
     def _send_held(self) -> None:
         held, self._held = self._held, []
-        for item in held:
-            self._send(*item)
+        for ep, cdr, att in held:
+            try:
+                ep.pub.put(cdr, attachment=att)
+            except zenoh.ZError as exc:
+                log.warning("ros2: cannot publish on %s: %s", ep.pub.key_expr, exc)
 
     #: puts held back at most (:meth:`_work_item`)
     MAX_HELD = 64
@@ -368,8 +403,11 @@ class Ros2Bridge(RosStage):
         the bridge costs next to nothing. A key's first sample is always taken (it declares the
         publishers, so ``ros2 topic list`` shows them); in-process (no session) every one is."""
         made = self._made.get(key)
-        if self.session is None or not made or any(ep.matching for ep in made):
+        if self.session is None or not made:
             return True
+        for ep in made:
+            if ep.matching:
+                return True
         with self._lock:
             self.stats.unwatched += 1
         return False
@@ -390,7 +428,7 @@ class Ros2Bridge(RosStage):
                                 "MP", self.config.namespace, self.config.node, topic,
                                 ros_type, qos)  # fmt: skip
         self._next_entity += 1
-        pub = self.session.declare_publisher(key, congestion_control=DROP)
+        pub = self.session.declare_publisher(key, congestion_control=DROP, priority=self.priority)
         token = self.session.liveliness().declare_token(token_key)
         ep = self._endpoints[key] = _Endpoint(pub, token, entity_gid(token_key))
         for d in (pub, token, ep.listener):  # withdrawn at stop, the listener first

@@ -186,8 +186,11 @@ def test_the_bridge_converts_only_what_a_subscriber_matches(tmp_path: Path):
     publishers (the graph lists them) and the rest are counted ``unwatched`` in the Zenoh
     callback, never queued nor converted; once a subscriber on the IMU's data key appears
     (Zenoh's matching status), the INS samples are converted and arrive while the DVL's stay
-    unwatched."""
-    from auvgw.rmw_zenoh import data_key
+    unwatched: one sample per ROS 2 message, with rmw_zenoh's attachment (the publisher's
+    sequence numbers in order, the envelope's stamp, its GID), at ``DATA_LOW`` (below the raw
+    frames' priority)."""
+    from auvgw.envelope import decode_envelope
+    from auvgw.rmw_zenoh import data_key, unpack_attachment
     from auvgw.stages.ros2 import Ros2Bridge, Ros2BridgeConfig
     from auvgw.testing import free_port, hostile
 
@@ -219,20 +222,28 @@ def test_the_bridge_converts_only_what_a_subscriber_matches(tmp_path: Path):
             send(ins[1:] + dvl[1:], len(ins) + len(dvl))
             assert counts() == (2, len(ins) + len(dvl) - 2)
             imu_key = data_key(0, "/auv1/sensor/ins/imu", "sensor_msgs/msg/Imu")
-            got: list[bytes] = []
-            sub = spoke.declare_subscriber(imu_key, lambda s: got.append(bytes(s.payload)))
+            got: list[tuple[bytes, bytes, zenoh.Priority]] = []
+            sub = spoke.declare_subscriber(imu_key, lambda s: got.append(
+                (bytes(s.payload), bytes(s.attachment or b""), s.priority)))  # fmt: skip
             imu_ep = bridge._endpoints[imu_key]
             wait_until(lambda: imu_ep.matching, timeout=30, what="the subscriber matched")
+            published = bridge.counters()["stage"]["published"]
             send(ins + dvl, 2 * (len(ins) + len(dvl)))
             wait_until(lambda: len(got) >= len(ins), timeout=30, what="the IMU messages")
             assert counts() == (2 + len(ins), 2 * (len(ins) + len(dvl)) - 2 - len(ins))
+            assert bridge.counters()["stage"]["published"] == published + len(ins)
+            # the IMU publisher's first put was the first INS sample's (sequence 1)
+            assert [unpack_attachment(a) for _, a, _ in got] == [
+                (seq, decode_envelope(p).t_recv_ns, imu_ep.gid)
+                for seq, (_, p) in enumerate(ins, start=2)]  # fmt: skip
+            assert [prio for _, _, prio in got] == [zenoh.Priority.DATA_LOW] * len(got)
             # the compiled writers' bytes (auvgw.ros2_cdr) are the recorder's (rosbags'), in order
             from auvgw.recording import sample_to_ros
 
             base = "auv/auv1/"
             want = [bytes(ros2.serialize(m)) for k, p in ins
                     for m in sample_to_ros("sensor", k[len(base) + 7:], p, 0)[0]]  # fmt: skip
-            assert got == want
+            assert [cdr for cdr, _, _ in got] == want
             sub.undeclare()
         finally:
             bridge.stop(flush=False)
