@@ -119,8 +119,9 @@ def register(sub: SubParsers) -> None:
         type=float,
         default=10.0,
         metavar="S",
-        help="--processes: host seconds from the sim's gateway.toml to vehicle time 0, for the "
-        "gateway process to start and open every port (default 10)",
+        help="--processes: host seconds from the sim's gateway.toml to vehicle time 0 at the "
+        "latest; it comes as soon as every part is up and the gateway has opened every port "
+        "(--pace free: always this; default 10)",
     )
     for rec in pipelines.of_kind("control"):  # each control pipeline's own demo option
         p.add_argument(rec.demo_option, action="store_true", dest=f"run_{rec.name}",
@@ -185,8 +186,8 @@ def run(args: argparse.Namespace) -> int:
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
     sim_dir = out / "sim"
-    for stale in (sim_dir / "gateway.toml", sim_dir / "truth.jsonl", sim_dir / "finished"):
-        stale.unlink(missing_ok=True)
+    for stale in ("gateway.toml", "truth.jsonl", "finished", "clock"):
+        (sim_dir / stale).unlink(missing_ok=True)
     scenario = _demo_scenario(_scenario_path(args.scenario), out, args.multibeam, args.seed)
     _scenario_defaults(args, scenario)
     rrd = None if args.no_viz else (args.rrd or out / "demo.rrd")
