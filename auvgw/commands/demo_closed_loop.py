@@ -74,7 +74,7 @@ class ChainRun:
     rrd: Path | None = None
     mcap: Path | None = None
     faults: dict[str, Any] | None = None
-    start_delay: float = 10.0
+    start_delay: float = 60.0  # the latest: vehicle time 0 comes once every part is up
     feedback_timeout: float = 1.0
     max_vehicle_s: float | None = None
     fusion_lag_s: float = FUSION_LAG_S

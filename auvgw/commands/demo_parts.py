@@ -28,6 +28,10 @@ if TYPE_CHECKING:
     from auvgw.stages.fusion import FusionStageConfig
 
 __all__ = [
+    "FREE_START_DELAY_S",
+    "START_DELAY_S",
+    "START_FILE",
+    "START_LEAD_S",
     "VEHICLE",
     "DemoContext",
     "DemoPlan",
@@ -247,6 +251,12 @@ def _wait_for(path: Path, proc: subprocess.Popen[bytes], timeout_s: float) -> No
 
 #: the sim's ``--start-when`` file in its folder: the demo writes it once every part is up
 START_FILE = "go"
+#: host s from the sim's gateway.toml to vehicle time 0 at the latest (it comes as soon as every
+#: part is up: a quiet host waits 1-3 s; a loaded one took more than 10 s, its first magnetometer
+#: samples lost)
+START_DELAY_S = 60.0
+#: the same with ``--pace free``, where it is a fixed wait (the gateway maps host time to it)
+FREE_START_DELAY_S = 10.0
 #: host s from every part's readiness to vehicle time 0 (the sim's device processes take it)
 START_LEAD_S = 0.5
 
