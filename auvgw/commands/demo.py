@@ -42,6 +42,8 @@ from pathlib import Path
 from auvgw.commands.common import SubParsers, UserError, add_command
 from auvgw.commands.demo_inprocess import _run_stages
 from auvgw.commands.demo_parts import (
+    FREE_START_DELAY_S,
+    START_DELAY_S,
     _sim_argv,
     _wait_for,
 )
@@ -117,10 +119,12 @@ def register(sub: SubParsers) -> None:
     p.add_argument(
         "--start-delay",
         type=float,
-        default=10.0,
+        default=None,
         metavar="S",
-        help="--processes: host seconds from the sim's gateway.toml to vehicle time 0, for the "
-        "gateway process to start and open every port (default 10)",
+        help="--processes, --closed-loop: host seconds from the sim's gateway.toml to vehicle "
+        "time 0 at the latest; it comes as soon as every part is up and the gateway has opened "
+        f"every port (default {START_DELAY_S:g}; --pace free: always this, default "
+        f"{FREE_START_DELAY_S:g})",
     )
     for rec in pipelines.of_kind("control"):  # each control pipeline's own demo option
         p.add_argument(rec.demo_option, action="store_true", dest=f"run_{rec.name}",
@@ -179,22 +183,24 @@ def _demo_scenario(
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.start_delay is None:  # only the latest, unless free pacing waits all of it
+        args.start_delay = FREE_START_DELAY_S if args.pace == "free" else START_DELAY_S
+    if not 0 <= args.start_delay <= 600:
+        raise UserError(f"--start-delay must be 0 to 600 s, got {args.start_delay}")
     for rec in pipelines.of_kind("control"):
         if getattr(args, f"run_{rec.name}"):
             return int(rec.entry("demo_run")(args))
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
     sim_dir = out / "sim"
-    for stale in (sim_dir / "gateway.toml", sim_dir / "truth.jsonl", sim_dir / "finished"):
-        stale.unlink(missing_ok=True)
+    for stale in ("gateway.toml", "truth.jsonl", "finished", "clock"):
+        (sim_dir / stale).unlink(missing_ok=True)
     scenario = _demo_scenario(_scenario_path(args.scenario), out, args.multibeam, args.seed)
     _scenario_defaults(args, scenario)
     rrd = None if args.no_viz else (args.rrd or out / "demo.rrd")
     speed = float(args.speed)
     if speed <= 0:
         raise UserError("--speed must be > 0 (the gateway reads the devices in real time)")
-    if not 0 <= args.start_delay <= 600:
-        raise UserError(f"--start-delay must be 0 to 600 s, got {args.start_delay}")
 
     print(f"auvgw demo: scenario {scenario.name}, {args.duration:.0f} s of vehicle time at "
           f"{speed:g}x real time" + (", one process per part" if args.processes else ""),

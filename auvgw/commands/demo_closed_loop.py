@@ -4,14 +4,14 @@
 ``auvgw pilot --mission M`` (its commands on ``auv/<v>/cmd/actuators``, the actuators'
 feedback checked), optionally ``auvgw viz`` (Rerun file) and ``auvgw record`` (MCAP), then
 ``auvgw sim`` on the closed-loop scenario (REMUS 100 dynamics driven by the emulated actuators'
-CAN controller; vehicle time 0 held back ``start_delay`` host seconds) and the gateway
-(``auvgw run``) on the sim's ports. This process is the bus hub: it publishes the sim's ground
-truth (``truth.jsonl``) on ``auv/<v>/truth/pose`` and follows ``auv/<v>/pilot/state`` until the
-pilot reports ``done`` or ``aborted`` (or the time runs out), then stops everything in data-flow
-order. :func:`score` compares the *truth* with the mission the pilot flew: per truth sample,
-the cross-track error from the leg the pilot was on at that vehicle time and the depth error
-from that leg's depth (m), over the samples flown (mode ``running``), as ``control.closed_loop``
-does in-process.
+CAN controller; vehicle time 0 held back until every part is up and every port open,
+``start_delay`` host seconds at the latest) and the gateway (``auvgw run``) on the sim's ports.
+This process is the bus hub: it publishes the sim's ground truth (``truth.jsonl``) on
+``auv/<v>/truth/pose`` and follows ``auv/<v>/pilot/state`` until the pilot reports ``done`` or
+``aborted`` (or the time runs out), then stops everything in data-flow order. :func:`score`
+compares the *truth* with the mission the pilot flew: per truth sample, the cross-track error
+from the leg the pilot was on at that vehicle time and the depth error from that leg's depth
+(m), over the samples flown (mode ``running``), as ``control.closed_loop`` does in-process.
 
 Time: the gateway stamps vehicle-paced receive times (``[clock]`` of the sim's gateway.toml), so
 the odometry, the pilot's steps and its state are on ``epoch + vehicle s``; the truth log is in
@@ -74,7 +74,7 @@ class ChainRun:
     rrd: Path | None = None
     mcap: Path | None = None
     faults: dict[str, Any] | None = None
-    start_delay: float = 10.0
+    start_delay: float = 60.0  # the latest: vehicle time 0 comes once every part is up
     feedback_timeout: float = 1.0
     max_vehicle_s: float | None = None
     fusion_lag_s: float = FUSION_LAG_S
@@ -254,11 +254,13 @@ def fly_chain(run: ChainRun, progress: bool = False) -> ChainResult:
     """Fly ``run`` through the chain (see the module docstring) and score it against the truth."""
     from auvgw.bus import Keys, open_session
     from auvgw.commands.demo_parts import (
+        START_FILE,
         TruthSample,
         _fusion_config,
         _gateway_toml,
         _load_sim_config,
         _sim_epoch_ns,
+        _start_vehicle,
         _TruthTail,
         _wait_for,
     )
@@ -314,22 +316,25 @@ def fly_chain(run: ChainRun, progress: bool = False) -> ChainResult:
             children.start("record", ["record", "--vehicle", VEHICLE, "--out", str(run.mcap),
                                       "--force", "--connect", hub, "--listen", free_endpoint()])
         # the stages first, up before the sim starts its clock: vehicle time 0 then waits
-        # only for the gateway (start_delay after the sim's gateway.toml)
+        # only for the gateway (start_delay after the sim's gateway.toml at the latest)
         _wait_alive(sub, {"fusion", "pilot"}, children, 120.0)
         sim = children.start("sim", [
             "sim", "--scenario", str(scenario), "--speed", str(run.speed), "--duration",
             str(duration), "--out", str(sim_dir), "--vehicle", VEHICLE, "--hold",
-            "--start-delay", str(run.start_delay),
+            "--start-delay", str(run.start_delay), "--start-when", str(sim_dir / START_FILE),
             *(["--lockstep", "--lockstep-step", str(run.lockstep_step), "--lockstep-first",
                str(lockstep_first_s(fusion, run.lockstep_first)), "--connect", hub,
                "--listen", free_endpoint()] if run.lockstep else [])])  # fmt: skip
         _wait_for(sim_dir / "gateway.toml", sim, 120.0)
-        epoch_s = _sim_epoch_ns(_read_when_written(lambda: _load_sim_config(sim_dir))) / 1e9
+        gw_cfg = _read_when_written(lambda: _load_sim_config(sim_dir))
+        epoch_s = _sim_epoch_ns(gw_cfg) / 1e9
         follow = _Follow(session, VEHICLE, epoch_s, out)
         children.start("gateway", ["run", "--config",
                                    str(_gateway_toml(sim_dir, out, free_endpoint(), hub))])
+        # vehicle time 0 once every part is up and every port open (start_delay at the latest)
+        wanted |= {name for name, d in gw_cfg.devices.items() if d.enabled}
         _wait_alive(sub, wanted, children, 120.0)
-        ready_vehicle_s = (time.time() - epoch_s) * run.speed
+        ready_vehicle_s = _start_vehicle(sim_dir, run.speed)
         if ready_vehicle_s > 0:
             raise UserError(f"every part was up only at vehicle t = {ready_vehicle_s:.1f} s: "
                             "raise --start-delay")  # fmt: skip

@@ -8,6 +8,7 @@ pipeline's record says it needs in the demo (:class:`InProcessPlan`, from its
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import time
 from collections.abc import Callable
@@ -27,6 +28,10 @@ if TYPE_CHECKING:
     from auvgw.stages.fusion import FusionStageConfig
 
 __all__ = [
+    "FREE_START_DELAY_S",
+    "START_DELAY_S",
+    "START_FILE",
+    "START_LEAD_S",
     "VEHICLE",
     "DemoContext",
     "DemoPlan",
@@ -42,6 +47,7 @@ __all__ = [
     "_sim_argv",
     "_sim_done",
     "_sim_epoch_ns",
+    "_start_vehicle",
     "_streamed_frames",
     "_true_beacons",
     "_wait_drained",
@@ -241,6 +247,41 @@ def _wait_for(path: Path, proc: subprocess.Popen[bytes], timeout_s: float) -> No
         if time.monotonic() > deadline:
             raise UserError(f"the emulated vehicle wrote no {path.name} in {timeout_s:.0f} s")
         time.sleep(0.1)
+
+
+#: the sim's ``--start-when`` file in its folder: the demo writes it once every part is up
+START_FILE = "go"
+#: host s from the sim's gateway.toml to vehicle time 0 at the latest (it comes as soon as every
+#: part is up: a quiet host waits 1-3 s; a loaded one took more than 10 s, its first magnetometer
+#: samples lost)
+START_DELAY_S = 60.0
+#: the same with ``--pace free``, where it is a fixed wait (the gateway maps host time to it)
+FREE_START_DELAY_S = 10.0
+#: host s from every part's readiness to vehicle time 0 (the sim's device processes take it)
+START_LEAD_S = 0.5
+
+
+def _start_vehicle(sim_dir: Path, speed: float) -> float:
+    """Every part that should see the whole run is up: vehicle time 0 :data:`START_LEAD_S` host
+    s from now (written to the sim's ``--start-when`` file, ``sim_dir/go``), unless the sim's
+    clock (``sim_dir/clock``, elastic or lock-step) has already started on its
+    ``--start-delay``. Returns the vehicle time of the readiness, s (< 0: before time 0)."""
+    from auvgw.ground.simclock import ClockFileReader
+
+    now = time.monotonic()
+    reader = ClockFileReader(sim_dir / "clock")
+    try:
+        st = reader.state()
+    finally:
+        reader.close()
+    if st is not None and st[1] <= now:  # its anchor's host instant passed: the clock runs
+        return st.vehicle_s(now)
+    t0 = now + START_LEAD_S
+    go = sim_dir / START_FILE
+    tmp = go.with_name(go.name + ".new")
+    tmp.write_text(f"{t0!r}\n")
+    os.replace(tmp, go)  # whole: the sim reads it once it exists
+    return (now - t0) * speed
 
 
 #: the emulated vehicle's name (the <v> key segment)

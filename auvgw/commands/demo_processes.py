@@ -18,6 +18,7 @@ import numpy as np
 from auvgw.bus import Keys, decode_envelope, open_session
 from auvgw.commands.common import UserError
 from auvgw.commands.demo_parts import (
+    START_FILE,
     VEHICLE,
     DemoContext,
     DemoPlan,
@@ -28,6 +29,7 @@ from auvgw.commands.demo_parts import (
     _sim_argv,
     _sim_done,
     _sim_epoch_ns,
+    _start_vehicle,
     _streamed_frames,
     _true_beacons,
     _TruthTail,
@@ -214,8 +216,13 @@ def _run_processes(
         # the GeoSwath's emulator (numpy work on 4000-sample pings) in its own process, so it
         # never holds the INS emulator's interpreter (issue 31: in one sim process its pings
         # made the INS frames leave 40-58 vehicle s late at 10x); every device then has its own
+        # vehicle time 0 once every part is up (elastic pacing: the stamps follow the sim's
+        # clock file), --start-delay at the latest (free pacing: always; host time maps to it)
+        elastic = args.pace == "elastic"
         sim = children.start("sim", [*_sim_argv(scenario, speed, args.duration, sim_dir, args.pace),
                                      "--start-delay", str(args.start_delay),
+                                     *(["--start-when", str(sim_dir / START_FILE)] if elastic
+                                       else []),
                                      *(["--processes"] if scn.devices.geoswath.enabled
                                        else [])])  # fmt: skip
         _wait_for(sim_dir / "gateway.toml", sim, 120.0)
@@ -233,11 +240,17 @@ def _run_processes(
         for proc in plan.processes if plan is not None else ():
             if proc.after_clock:  # after gateway.toml: its [clock] epoch (vehicle time 0)
                 children.start(proc.name, proc.argv(epoch_ns))
+        # every device's port open too (the fixed 10 s gave them all the time to): vehicle
+        # time 0 follows
+        wanted |= {name for name, d in gw_cfg.devices.items() if d.enabled}
         ready = _wait_alive(sub, wanted, children, 120.0, "--processes")
+        if elastic:
+            ready_vehicle_s = _start_vehicle(sim_dir, speed)
+        else:
+            ready_vehicle_s = (ready - epoch_ns / 1e9) * speed
         beacons = _true_beacons(scn)
         if beacons and rrd is not None:  # the true beacons, for the gateway's Rerun recording
             session.put(keys.truth("map"), json.dumps({"t": 0.0, **beacons}).encode())
-        ready_vehicle_s = (ready - epoch_ns / 1e9) * speed
         if ready_vehicle_s > 0:
             print(f"  warning: every part was up only at vehicle t = {ready_vehicle_s:.1f} s "
                   "(dead reckoning starts from the pose at t = 0)", flush=True)  # fmt: skip

@@ -11,8 +11,11 @@ Files in ``OUT`` (``--out``, default a new temporary folder): ``gateway.toml`` (
 run --config OUT/gateway.toml``; at ``--speed k`` > 0 its ``[clock]`` section has ``time_scale = k``
 and ``epoch_ns``, the host time of vehicle time 0, so the gateway stamps vehicle-paced receive
 times: vehicle seconds = ``(t_recv_ns - epoch_ns) / 1e9``; vehicle time 0 is ``--start-delay`` host
-seconds after the file is written), ``truth.jsonl`` (ground truth at ``--truth-rate`` Hz, one JSON
-object per line: t, x, y, z, heading, roll, pitch, ... in SI / NED / radians) and the fault control
+seconds after the file is written, or earlier with ``--start-when FILE``: as soon as the parts
+that should see the whole run say they are ready by writing FILE; the stamps then follow the
+clock file and ``epoch_ns`` stays their origin), ``truth.jsonl`` (ground truth at
+``--truth-rate`` Hz, one JSON object per line: t, x, y, z, heading, roll, pitch, ... in SI / NED /
+radians) and the fault control
 file ``faults.json``: write ``{"ins": {"corrupt_p": 0.1}, "dvl": {"unplug": [[30, 40]]}}`` (the
 scenario's FaultSettings fields; windows in vehicle seconds) and each device's faults become the
 scenario's plus those; delete the file to restore them.
@@ -118,6 +121,18 @@ def register(sub: SubParsers) -> None:
         "time to start a gateway and stages that should see the whole run)",
     )
     p.add_argument(
+        "--start-when",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="vehicle time 0 as soon as FILE appears (removed when gateway.toml is written; "
+        "written whole, it holds the host time.monotonic() instant of vehicle time 0, empty: "
+        "at once), at the "
+        "latest --start-delay s after gateway.toml: the processes that should see the whole run "
+        "say when they are ready instead of a fixed wait (elastic pacing or --lockstep: their "
+        "stamps follow the clock file, not epoch_ns)",
+    )
+    p.add_argument(
         "--hold",
         action="store_true",
         help="at the end of the run keep the ports open (the devices silent) until SIGINT/"
@@ -190,6 +205,11 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--duration must be > 0 vehicle seconds, got {args.duration}")
     if not 0 <= args.start_delay <= 3600:
         raise UserError(f"--start-delay must be 0 to 3600 s, got {args.start_delay}")
+    if args.start_when is not None and (args.speed == 0 or (args.pace == "free"
+                                                            and not args.lockstep)):
+        raise UserError("--start-when needs a real-time clock (--speed > 0) paced elastic or "
+                        "--lockstep: with --pace free the gateway maps host time through "
+                        "epoch_ns, fixed by --start-delay")
     if not args.truth_rate > 0:
         raise UserError(f"--truth-rate must be > 0, got {args.truth_rate}")
     try:
@@ -255,8 +275,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"auvgw sim: scenario '{scn.name}' (route {runner.route_duration:.1f} s), {pace}, "
               f"until vehicle time {until:.1f} s", flush=True)  # fmt: skip
         _print_ports(runner)
-        # vehicle time 0 is fixed now, so the gateway configuration can carry its epoch
+        # vehicle time 0 at the latest: the gateway configuration's epoch (the stamps' origin;
+        # --start-when may bring vehicle time 0 forward, the stamps then follow the clock file)
         start_at = time.monotonic() + args.start_delay if args.speed > 0 else None
+        if args.start_when is not None:
+            args.start_when.unlink(missing_ok=True)  # a stale one from an earlier run
         lockstep = None
         if args.lockstep and isinstance(runner, Runner):
             assert start_at is not None
@@ -288,6 +311,13 @@ def run(args: argparse.Namespace) -> int:
         if truth_log is not None:
             print(f"truth log: {truth_log}")
         print(f"fault control: {control} (JSON {{device: {{fault settings}}}}, applied on change)")
+        if args.start_when is not None and start_at is not None:
+            latest = start_at
+            start_at = _wait_start(args.start_when, latest, stop)  # (the lock-step clock
+            # file gets the new anchor of vehicle time 0 when the runner's clock starts)
+            print(f"vehicle time 0: {args.start_when.name}'s, {latest - start_at:.2f} s before "
+                  "--start-delay's" if start_at < latest else "vehicle time 0: --start-delay's "
+                  f"({args.start_when.name} did not come before it)", flush=True)  # fmt: skip
         print("running; Ctrl-C to stop", flush=True)
         runner.start(duration=until, start_at=start_at)
         while not stop.is_set() and runner.running:
@@ -320,6 +350,21 @@ def _pace_line(st: dict[str, object], wall_s: float, pace: str) -> str:
         line += (f", held {float(st['held_s']):.1f} wall s ({st['holds']} holds, "  # type: ignore[arg-type]
                  f"{st['hold_timeouts']} timeouts)")  # fmt: skip
     return line + f", late ticks {st['late_ticks']} (max lag {float(st['max_lag_s']):.3f} s)"  # type: ignore[arg-type]
+
+
+def _wait_start(path: Path, latest: float, stop: threading.Event) -> float:
+    """The host ``time.monotonic()`` instant of vehicle time 0: the one written in ``path`` once
+    it appears (empty or in the past: now), never later than ``latest`` (nor past a stop)."""
+    while not path.exists():
+        if time.monotonic() >= latest or stop.wait(0.02):
+            return latest
+    text = path.read_text().strip()
+    try:
+        wanted = float(text) if text else time.monotonic()
+    except ValueError as exc:
+        raise UserError(f"--start-when {path}: not a host time.monotonic() instant: "
+                        f"{text[:40]!r}") from exc
+    return min(latest, max(wanted, time.monotonic()))
 
 
 def _load_epoch_ns(path: Path) -> int:

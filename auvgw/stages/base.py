@@ -312,7 +312,7 @@ class Stage(Worker[_Item]):
         if not self.accepts(device, message):
             return
         if self.batch_s <= 0:
-            self._post(self.feed, (device, t_recv_ns, message))
+            self._post(self._feed_posted, (device, t_recv_ns, message))
             return
         self._batch.append((device, t_recv_ns, message))
         if not self._batch_queued:
@@ -323,11 +323,21 @@ class Stage(Worker[_Item]):
         time.sleep(self.batch_s)
         self._batch_queued = False  # before taking: a post from now on queues the next batch
         while self._batch:
-            self.feed(*self._batch.popleft())
+            self._feed_posted(*self._batch.popleft())
+
+    def _feed_posted(self, device: str, t_recv_ns: int, message: object) -> None:
+        """A posted message on the worker: its stamp moves the stage's clock (in-process, from
+        a trusted source: never refused), then :meth:`feed`."""
+        self._stamps.accept(t_recv_ns)
+        self.feed(device, t_recv_ns, message)
 
     def post_odometry(self, o: Odometry) -> None:
         """:meth:`feed_odometry` on the worker thread (after :meth:`start`): returns at once."""
-        self._post(self.feed_odometry, (o,))
+        self._post(self._odometry_posted, (o,))
+
+    def _odometry_posted(self, o: Odometry) -> None:
+        self._stamps.accept(round(o.t * 1e9))  # the odometry's time is on the stamp clock
+        self.feed_odometry(o)
 
     def _post(self, fn: Callable[..., object], args: tuple[object, ...]) -> None:
         if not self.worker_started:
@@ -367,13 +377,16 @@ class Stage(Worker[_Item]):
 
     def counters(self) -> dict[str, Any]:
         """Every counter, JSON-ready: the common fields (``stopped``: the last status, sent at
-        :meth:`stop` after everything else the stage published), then :meth:`status_fields`."""
+        :meth:`stop` after everything else the stage published; ``t_stamp_ns``: the stage's
+        clock, the newest input stamp it took from the bus or :meth:`post`, None before any:
+        the vehicle time a viewer puts the status at), then :meth:`status_fields`."""
         with self._lock:
             return {
                 "v": SCHEMA_VERSION,
                 "component": self.component,
                 "vehicle": self.keys.vehicle,
                 "t_ns": time.time_ns(),
+                "t_stamp_ns": self._stamps.clock_ns,
                 "stopped": self._stopped,
                 "stage": asdict(self.stats),
                 **self.status_fields(),

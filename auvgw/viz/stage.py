@@ -874,11 +874,13 @@ class VizStage(Stage):
         if device == "gateway" or "devices" in body:
             return "ignored"  # the gateway summary repeats the per-device status
         # on the data's timeline (the gateway's stamp clock, vehicle-paced in emulation), not
-        # the host clock of arrival, which falls behind it at speed != 1; a stage's status has
-        # no stamp: it goes at the newest data time this stage has seen
+        # the host clock of arrival, which falls behind it at speed != 1: a device's status and
+        # a stage's (its own clock: the newest input stamp it took) carry their stamp
         t = _float(body.get("t_stamp_ns"), math.nan) / 1e9
         if t != t:
-            t = self._t_last or t_host
+            if "t_stamp_ns" in body:  # a stage before its first input: no vehicle time yet
+                return "ignored"
+            t = self._t_last or t_host  # no stamp at all: the newest data time seen here
         if not any(k in body for k in (*self._HEALTH_KEYS, *self._HEALTH_FLAGS)):
             # another component's status (fusion, SLAM, ...): its numbers, one series each
             leaves = _numeric_leaves(body)

@@ -19,6 +19,10 @@ class ExecutorError(RuntimeError):
     """The executor could not be started (unreachable scheduler, dask not installed)."""
 
 
+#: s to reach a Dask scheduler before giving up (a refused connection is retried until then)
+DASK_CONNECT_TIMEOUT_S = 10.0
+
+
 @contextmanager
 def open_executor(jobs: int = 1, dask: Any = None) -> Iterator[Executor | None]:
     """``None`` (run in this process) for ``jobs <= 1`` without ``dask``; a process pool of
@@ -42,7 +46,7 @@ def open_executor(jobs: int = 1, dask: Any = None) -> Iterator[Executor | None]:
         yield dask.get_executor(pure=False)
         return
     try:
-        client = Client(dask, timeout="10s")
+        client = Client(dask, timeout=f"{DASK_CONNECT_TIMEOUT_S:g}s")
     except (OSError, TimeoutError) as exc:
         raise ExecutorError(f"--dask {dask}: cannot reach the Dask scheduler: {exc}") from exc
     try:

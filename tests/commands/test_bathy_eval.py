@@ -66,9 +66,14 @@ def test_landmark_trials_on_dask_match_the_serial_ones(shared_data, tmp_path) ->
         np.testing.assert_array_equal(a.est, b.est)
 
 
-def test_unreachable_dask_scheduler_is_a_user_error(tmp_path) -> None:
+def test_unreachable_dask_scheduler_is_a_user_error(tmp_path, monkeypatch) -> None:
     pytest.importorskip("distributed")
     from auvgw.ground.errors import UserError
+    from auvgw.slam.evaluation import executor
+
+    # nothing listens on port 1: the refused connection is retried until the timeout (10 s by
+    # default, all of it idle here)
+    monkeypatch.setattr(executor, "DASK_CONNECT_TIMEOUT_S", 0.5)
 
     args = _bathy_args(tmp_path, "--runs", "1", "--dask", "tcp://127.0.0.1:1", "--no-progress")
     with pytest.raises(UserError, match="cannot reach the Dask scheduler"):

@@ -18,6 +18,7 @@ import serial
 from auvgw.config.gateway import load_gateway_config
 from auvgw.drivers import hn100, ms3a
 from auvgw.drivers.can_codec import hn100_can
+from auvgw.testing import wait_until
 
 SCENARIO = {
     "name": "cli-mini",
@@ -131,11 +132,26 @@ def test_sim_runs_for_a_duration_and_applies_the_fault_control_file(
     out = tmp_path / "out"
     out.mkdir()
     (out / "faults.json").write_text(json.dumps({"magnetometer": {"dropout_p": 1.0}}))
+    # vehicle time 0 when the go file says (an hour at the latest: the run would never end in
+    # the test's time without it); a stale one is removed first (read, it would be exit 2)
+    go = out / "go"
+    go.write_text("stale")
     extra = ["--processes"] if processes else []
     proc = _sim("--scenario", str(_scenario(tmp_path)), "--speed", "2", "--duration", "3",
-                "--out", str(out), "--devices", "ins,magnetometer", "--truth-rate", "5", *extra)
-    stdout, stderr = proc.communicate(timeout=90)
+                "--out", str(out), "--devices", "ins,magnetometer", "--truth-rate", "5",
+                "--start-delay", "3600", "--start-when", str(go), *extra)  # fmt: skip
+    try:
+        wait_until(lambda: (out / "gateway.toml").is_file() or proc.poll() is not None,
+                   what="the sim's gateway.toml")  # fmt: skip
+        (out / "go.new").write_text(f"{time.monotonic() + 0.2!r}\n")
+        os.replace(out / "go.new", go)
+        stdout, stderr = proc.communicate(timeout=90)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
     assert proc.returncode == 0, stderr
+    assert "vehicle time 0: go's, " in stdout and "s before --start-delay's" in stdout
     assert "stopped at vehicle time 3.00 s" in stdout
     assert ("one process per device" in stdout) == processes
     stats = {ln.split()[0]: ln for ln in stdout.splitlines()[-4:] if ln.startswith("  ")}
@@ -184,6 +200,9 @@ def test_sim_bad_input_is_a_one_line_error(tmp_path: Path, capsys: pytest.Captur
     assert "--lockstep-timeout must be > 0" in capsys.readouterr().err
     assert main([*args, "--elastic-lag", "0"]) == 2
     assert "--elastic-lag must be > 0" in capsys.readouterr().err
+    assert main([*args, "--pace", "free", "--start-when", str(tmp_path / "go")]) == 2
+    assert "--start-when needs a real-time clock (--speed > 0) paced elastic or --lockstep" \
+        in capsys.readouterr().err
 
 
 @pytest.mark.e2e

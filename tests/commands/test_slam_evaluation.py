@@ -172,6 +172,21 @@ def test_eval_command_rejects_bad_input(tmp_path, web):
         slam_cmd.run(parse(["--scenario", str(tmp_path / "missing.json")]))
 
 
+def test_cli_pipeline_magnetic_rejects_options_it_does_not_read(capsys) -> None:
+    """The recorded "Made by" line lists only options the pipeline reads: the others are
+    user errors (exit 2, one line). (In this process: an interpreter each cost 3-4 s.)"""
+    from auvgw.cli import main
+    from auvgw.ground.paths import config_file
+
+    scenario = config_file("scenarios/beacons_amb.json")
+    for extra in (["--particles", "5"], ["--r0-scale", "2"], ["--association", "nn"]):
+        code = main(["slam", "eval", "--pipeline", "magnetic", "--scenario", str(scenario),
+                     "--runs", "1", *extra])  # fmt: skip
+        err = capsys.readouterr().err
+        assert code == 2 and f"does not read {extra[0]}" in err, err
+        assert len(err.strip().splitlines()) == 1
+
+
 def test_a_diverged_run_is_counted_and_kept_out_of_the_metrics(web, monkeypatch):
     """A filter that fails numerically (here: singular S at the 5th scan, NaN pose at the 3rd)
     does not stop the study: its run is marked with the scan and time, its scans before the

@@ -48,7 +48,7 @@ def demo_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[subprocess.Compl
     mission.write_text(MISSION)
     proc = subprocess.run(
         [sys.executable, "-m", "auvgw", "demo", "--closed-loop", "--mission", str(mission),
-         "--speed", "1", "--start-delay", "8", "--duration", "60", "--out", str(out)],
+         "--speed", "1", "--duration", "60", "--out", str(out)],
         cwd=REPO, capture_output=True, text=True, timeout=180,
     )  # fmt: skip
     return proc, out

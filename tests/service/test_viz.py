@@ -427,3 +427,44 @@ def test_map_grid_scale_and_legend(tmp_path) -> None:
         "truth", "dead reckoning", "SLAM a", "SLAM b", "true features"
     ]
     assert len(set(legend["LineStrips2D:colors"])) == 5  # every one its own colour
+
+
+def test_a_slam_stages_status_row_lies_at_its_own_clock(tmp_path) -> None:
+    """The SLAM stage's status carries its own clock (``t_stamp_ns``: the newest input stamp
+    it took) and the Rerun stage puts its row there, not at the newest data time it has seen
+    (the sensors run ahead of the stage); a status made before any input has no vehicle time
+    and gives no row (it went at the host time of arrival: before vehicle time 0 in emulation)."""
+    import json
+
+    from auvgw.bus import encode_envelope
+    from auvgw.fusion.odometry import Odometry
+    from auvgw.stages.slam import SlamStage
+    from auvgw.viz.stage import VizStage
+
+    def odometry(t_ns: int) -> bytes:
+        o = Odometry(t=t_ns / NS, x=1.0, y=2.0, z=4.0, roll=0.0, pitch=0.0, heading=0.3,
+                     velocity_ned=(1.0, 0.0, 0.0), velocity_body=(1.0, 0.0, 0.0),
+                     angular_rate=(0.0, 0.0, 0.0), covariance=np.eye(8), bottom_lock=True,
+                     coasting=False, dvl_age_s=0.0, depth_age_s=0.0, ins_gap=False,
+                     increment=None)  # fmt: skip
+        return encode_envelope(o, "fusion", t_ns, 1)[0]
+
+    slam = SlamStage()
+    key = f"auv/auv1/status/{slam.component}"
+    before = slam.counters()
+    assert before["t_stamp_ns"] is None
+    t_stage, t_data = int((T0 + 2.0) * NS), int((T0 + 9.0) * NS)
+    slam.handle_sample("auv/auv1/nav/odometry", odometry(t_stage))
+    after = slam.counters()
+    assert after["t_stamp_ns"] == t_stage and after["stage"]["bad_payloads"] == 0
+    path = tmp_path / "status.rrd"
+    logger = RerunLogger(rrd=path)
+    viz = VizStage(logger, "auv1")
+    assert viz.handle_sample("auv/auv1/nav/odometry", odometry(t_data), t_data) == "logged"
+    assert viz.handle_sample(key, json.dumps(before).encode(), t_data) == "ignored"
+    assert viz.handle_sample(key, json.dumps(after).encode(), t_data) == "logged"
+    viz.stop()
+    logger.close()
+    rows = health_metrics(read_recording(path), slam.component)
+    assert [t for t, _ in rows] == [t_stage], [(t - t_stage) / NS for t, _ in rows]
+    assert rows[0][1]["stage.received"] == after["stage"]["received"]
