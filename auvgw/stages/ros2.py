@@ -300,12 +300,7 @@ class Ros2Bridge(RosStage):
             if ep is None:
                 new.append(self.put_cdr(topic, ros_type, cdr, t_ns))
                 continue
-            ep.seq += 1
-            att = pack_attachment(ep.seq, t_ns, ep.gid)
-            if hold:
-                self._held.append((ep, cdr, att))
-            else:
-                self._send(ep, cdr, att)
+            self._out(ep, cdr, t_ns, hold)
             n += 1
             if ep not in made:
                 new.append(ep)
@@ -354,16 +349,21 @@ class Ros2Bridge(RosStage):
         if ep is None and self.session is not None:
             ep = self._routes[(rel_topic, ros_type)] = self._declare(topic, ros_type, key)
         if ep is not None:
-            ep.seq += 1
-            att = pack_attachment(ep.seq, t_ns, ep.gid)
-            if self._holder == threading.get_ident():
-                self._held.append((ep, cdr, att))
-            else:
-                self._send(ep, cdr, att)
+            self._out(ep, cdr, t_ns, self._holder == threading.get_ident())
         self.count(m, topic)
         if self.on_publish is not None:
             self.on_publish(key, cdr, t_ns)
         return ep
+
+    def _out(self, ep: _Endpoint, cdr: bytes, t_ns: int, hold: bool) -> None:
+        """The next sample of ``ep`` (its sequence number and attachment): held back for
+        :meth:`_send_held` (``hold``: on the worker, in a call) or put now."""
+        ep.seq += 1
+        att = pack_attachment(ep.seq, t_ns, ep.gid)
+        if hold:
+            self._held.append((ep, cdr, att))
+        else:
+            self._send(ep, cdr, att)
 
     @staticmethod
     def _send(ep: _Endpoint, cdr: bytes, att: bytes) -> None:
@@ -374,11 +374,8 @@ class Ros2Bridge(RosStage):
 
     def _send_held(self) -> None:
         held, self._held = self._held, []
-        for ep, cdr, att in held:
-            try:
-                ep.pub.put(cdr, attachment=att)
-            except zenoh.ZError as exc:
-                log.warning("ros2: cannot publish on %s: %s", ep.pub.key_expr, exc)
+        for item in held:
+            self._send(*item)
 
     #: puts held back at most (:meth:`_work_item`)
     MAX_HELD = 64
