@@ -49,17 +49,21 @@ class Track:
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return np.asarray(self.t), np.asarray(self.x), np.asarray(self.y)
 
+    def xy_at(self, times: np.ndarray) -> np.ndarray:
+        """(n, 2) NED positions (m) interpolated at ``times`` (vehicle s; held at the ends)."""
+        t, x, y = self.arrays()
+        return np.column_stack([np.interp(times, t, x), np.interp(times, t, y)])
+
     def at(self, times: list[float]) -> Track:
         """This track's positions interpolated at ``times`` (vehicle s) inside its own span
         (times outside it are left out; headings NaN): dead reckoning scored at a SLAM stage's
         pose times, so the two are compared at the same instants."""
-        t, x, y = self.arrays()
         ts = np.asarray(times, dtype=float)
-        if len(t) < 2 or not len(ts):
+        if len(self.t) < 2 or not len(ts):
             return Track()
-        ts = ts[(ts >= t[0]) & (ts <= t[-1])]
-        return Track(ts.tolist(), np.interp(ts, t, x).tolist(), np.interp(ts, t, y).tolist(),
-                     [math.nan] * len(ts))  # fmt: skip
+        ts = ts[(ts >= self.t[0]) & (ts <= self.t[-1])]
+        xy = self.xy_at(ts)
+        return Track(ts.tolist(), xy[:, 0].tolist(), xy[:, 1].tolist(), [math.nan] * len(ts))
 
 
 def path_error(est: Track, truth: Track, since: float = -math.inf) -> dict[str, float] | None:
@@ -202,18 +206,14 @@ def _save_tracks(
         return
     te = te[keep]
 
-    def at(track: Track) -> np.ndarray:
-        tt, x, y = track.arrays()
-        return np.column_stack([np.interp(te, tt, x), np.interp(te, tt, y)])
-
     def heading(track: Track) -> np.ndarray:
         return np.interp(te, track.t, np.unwrap(np.asarray(track.h, float)))
 
     psi = heading(dead_reckoning) - heading(truth)
     psi = (psi + math.pi) % (2.0 * math.pi) - math.pi
-    smo = at(smoothed[0]) if smoothed is not None and len(smoothed[0].t) > 1 else (
+    smo = smoothed[0].xy_at(te) if smoothed is not None and len(smoothed[0].t) > 1 else (
         np.full((len(te), 2), math.nan))  # fmt: skip
-    save_tracks(path, te, psi, truth=at(truth), dr=at(dead_reckoning),
+    save_tracks(path, te, psi, truth=truth.xy_at(te), dr=dead_reckoning.xy_at(te),
                 filtered=np.column_stack([xe[keep], ye[keep]]), smoothed=smo)  # fmt: skip
 
 
