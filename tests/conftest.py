@@ -69,6 +69,28 @@ def slcan_adapter(tmp_path):
         a.close()
 
 
+#: the folder whose tests run one after another on one worker under ``make test``'s two
+#: workers (its demos start four to six processes each; two at once would starve each other)
+SERIAL_FOLDER = "tests/e2e/"
+
+
+@pytest.hookimpl(optionalhook=True)  # a pytest-xdist hook (tests/README.md, "Two workers")
+def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object:
+    """Under ``--dist loadscope``: ``tests/e2e/`` as one unit of work, every other module as its
+    own (its fixtures built once, on one worker). xdist's ``loadgroup`` marks would say the same
+    but rename the node ids, which pytest 9 no longer lets a plugin do."""
+    if config.getvalue("dist") != "loadscope":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class FolderScope(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            path = nodeid.split("::", 1)[0]
+            return SERIAL_FOLDER if path.startswith(SERIAL_FOLDER) else path
+
+    return FolderScope(config, log)
+
+
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """Mark every test not marked ``e2e`` (``tests/e2e/`` by folder, elsewhere by its own mark)
     ``real_data`` (recordings from ../shared) or ``unit``, from the fixtures it uses."""
