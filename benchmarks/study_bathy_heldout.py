@@ -193,6 +193,8 @@ def _gauge_lines(
     dr_yaw = np.array([first[i]["gauge_dr_yaw_deg"] for i in whole])
     fl_fin = np.array([first[i]["gauge_floor_final_m"] for i in whole])
     fl_rms = np.array([first[i]["gauge_floor_rms_m"] for i in whole])
+    dr_row = next((r for r in rows if r.endswith("/dr")), None)
+    dr_fin = col(dr_row, "final_error_m") if dr_row else np.full(len(whole), np.nan)
     lines += [
         "", "Gauge (issue 28): each row's track (the one the raw figures score) turned back by "
         "its own least-squares yaw about the known start, every row alike; the floor is the "
@@ -200,17 +202,23 @@ def _gauge_lines(
         f"still show). DR's fitted yaw: median {np.median(dr_yaw):+.3f} deg, range "
         f"[{dr_yaw.min():+.3f}, {dr_yaw.max():+.3f}], mean |yaw| {np.abs(dr_yaw).mean():.3f} deg; "
         f"floor final error mean {fl_fin.mean():.2f} m (median {np.median(fl_fin):.2f}), "
-        f"floor RMSE mean {fl_rms.mean():.2f} m.", "",
+        f"floor RMSE mean {fl_rms.mean():.2f} m. Floor / DR's raw final error, ratio of means "
+        f"{fl_fin.mean() / dr_fin.mean():.3f} (the raw ratio to DR of an estimate that corrected "
+        f"everything but DR's fitted rotation); floor above 0.5 x DR's raw final error in "
+        f"{int((fl_fin > 0.5 * dr_fin).sum())} of {len(whole)} runs.", "",
         "| row | final error raw / aligned, mean (m) | median raw / aligned | RMSE raw / aligned, "
-        "mean (m) | fitted yaw median [range] (deg) |", "|---|---|---|---|---|",
+        "mean (m) | fitted yaw median [range] (deg) | yaw against DR's: r, slope |",
+        "|---|---|---|---|---|---|",
     ]  # fmt: skip
     for r in rows:
         fe, fa, yaw = col(r, "final_error_m"), col(r, "gauge_final_m"), col(r, "gauge_yaw_deg")
+        fit = (f"{np.corrcoef(dr_yaw, yaw)[0, 1]:.2f}, {np.polyfit(dr_yaw, yaw, 1)[0]:.2f}"
+               if len(whole) > 2 and dr_yaw.std() > 0 and yaw.std() > 0 else "-")  # fmt: skip
         lines.append(
             f"| {r} | {fe.mean():.2f} / {fa.mean():.2f} | {np.median(fe):.2f} / "
             f"{np.median(fa):.2f} | {col(r, 'rms_m').mean():.2f} / "
             f"{col(r, 'gauge_rms_m').mean():.2f} | {np.median(yaw):+.3f} "
-            f"[{yaw.min():+.3f}, {yaw.max():+.3f}] |"
+            f"[{yaw.min():+.3f}, {yaw.max():+.3f}] | {fit} |"
         )
     al_fin = {r: col(r, "gauge_final_m").tolist() for r in rows}
     al_rms = {r: col(r, "gauge_rms_m").tolist() for r in rows}
