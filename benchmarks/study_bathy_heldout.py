@@ -19,6 +19,12 @@ Test (base seed >= 1000, test scenarios, parameters from the committed frozen fi
 
 ``--report`` rebuilds the tables from ``OUT/runs.jsonl`` (a study cut short reports its whole
 runs).
+
+``--gauge`` also scores every run after the rotation about the known start that no relative
+method can see (``heldout.gauge_fields``: each estimate's fitted yaw, its aligned final error and
+RMSE, dead reckoning's fitted yaw and the floor it leaves); the report then adds the aligned
+columns and the paired ratios on them beside the raw ones. The same alignment (each track's own
+least-squares yaw about the start) is applied to every row alike, DR included.
 """
 
 from __future__ import annotations
@@ -35,7 +41,7 @@ import numpy as np
 
 from auvgw.config.scenario import load_scenario
 from auvgw.slam.bathymetric.config import BathyConfig
-from auvgw.slam.bathymetric.heldout import SPLIT, load_frozen, paired_rows
+from auvgw.slam.bathymetric.heldout import GAUGE_KEYS, SPLIT, load_frozen, paired_rows
 from auvgw.slam.bathymetric.simulate import NAV_MODELS, DRModel
 from auvgw.slam.evaluation.heldout import seed_split
 
@@ -129,20 +135,11 @@ def report(out: Path) -> None:
     rms = {r: [by[r][i]["rms_m"] for i in whole] for r in rows}
     comp_rms = paired_rows(rms, pairs)
     for what, cs in (("final error", comp), ("RMS error of the final trajectory", comp_rms)):
-        if not cs:
-            continue
-        lines += [
-            "", f"Paired {what}, other vs base:", "",
-            "| other vs base | base mean (m) | other mean (m) | difference (m) [95 % CI] | "
-            "ratio of means [95 % CI] | runs other lower |", "|---|---|---|---|---|---|",
-        ]  # fmt: skip
-        for c in cs:
-            lines.append(
-                f"| {c['other']} vs {c['base']} | {c['base_mean']:.2f} | {c['other_mean']:.2f} "
-                f"| {c['diff']:+.2f} [{c['diff_ci'][0]:+.2f}, {c['diff_ci'][1]:+.2f}] | "
-                f"{c['ratio']:.3f} [{c['ratio_ci'][0]:.3f}, {c['ratio_ci'][1]:.3f}] | "
-                f"{c['other_better']} of {c['runs']} |"
-            )
+        if cs:
+            lines += _paired_lines(what, cs)
+    gauge: dict[str, Any] = {}
+    if whole and all(k in by[r][i] for r in rows for i in whole for k in GAUGE_KEYS):
+        gauge = _gauge_lines(by, rows, whole, pairs, lines)
     (out / "tables.md").write_text("\n".join(lines) + "\n")
     (out / "results.json").write_text(
         json.dumps(
@@ -153,11 +150,83 @@ def report(out: Path) -> None:
                 "rms": rms,
                 "paired": comp,
                 "paired_rms": comp_rms,
+                **gauge,
             },
             indent=1,
         )
     )
     print("\n".join(lines))
+
+
+def _paired_lines(what: str, cs: list[dict[str, Any]]) -> list[str]:
+    """The paired table of ``paired_rows``' comparisons ``cs`` (figure ``what``, m)."""
+    lines = [
+        "", f"Paired {what}, other vs base:", "",
+        "| other vs base | base mean (m) | other mean (m) | difference (m) [95 % CI] | "
+        "ratio of means [95 % CI] | runs other lower |", "|---|---|---|---|---|---|",
+    ]  # fmt: skip
+    for c in cs:
+        lines.append(
+            f"| {c['other']} vs {c['base']} | {c['base_mean']:.2f} | {c['other_mean']:.2f} "
+            f"| {c['diff']:+.2f} [{c['diff_ci'][0]:+.2f}, {c['diff_ci'][1]:+.2f}] | "
+            f"{c['ratio']:.3f} [{c['ratio_ci'][0]:.3f}, {c['ratio_ci'][1]:.3f}] | "
+            f"{c['other_better']} of {c['runs']} |"
+        )
+    return lines
+
+
+def _gauge_lines(
+    by: dict[str, dict[int, dict[str, Any]]],
+    rows: list[str],
+    whole: list[int],
+    pairs: list[tuple[str, str]],
+    lines: list[str],
+) -> dict[str, Any]:
+    """Append the ``--gauge`` tables to ``lines`` (raw beside aligned per row, DR's fitted yaw
+    and floor, paired ratios on the aligned final error and RMSE); return them for
+    results.json."""
+
+    def col(r: str, k: str) -> np.ndarray:
+        return np.array([by[r][i][k] for i in whole], dtype=float)
+
+    first = by[rows[0]]
+    dr_yaw = np.array([first[i]["gauge_dr_yaw_deg"] for i in whole])
+    fl_fin = np.array([first[i]["gauge_floor_final_m"] for i in whole])
+    fl_rms = np.array([first[i]["gauge_floor_rms_m"] for i in whole])
+    dr_row = next((r for r in rows if r.endswith("/dr")), None)
+    dr_fin = col(dr_row, "final_error_m") if dr_row else np.full(len(whole), np.nan)
+    lines += [
+        "", "Gauge (issue 28): each row's track (the one the raw figures score) turned back by "
+        "its own least-squares yaw about the known start, every row alike; the floor is the "
+        "truth turned by DR's fitted yaw (what an estimate that corrected everything else would "
+        f"still show). DR's fitted yaw: median {np.median(dr_yaw):+.3f} deg, range "
+        f"[{dr_yaw.min():+.3f}, {dr_yaw.max():+.3f}], mean |yaw| {np.abs(dr_yaw).mean():.3f} deg; "
+        f"floor final error mean {fl_fin.mean():.2f} m (median {np.median(fl_fin):.2f}), "
+        f"floor RMSE mean {fl_rms.mean():.2f} m. Floor / DR's raw final error, ratio of means "
+        f"{fl_fin.mean() / dr_fin.mean():.3f} (the raw ratio to DR of an estimate that corrected "
+        f"everything but DR's fitted rotation); floor above 0.5 x DR's raw final error in "
+        f"{int((fl_fin > 0.5 * dr_fin).sum())} of {len(whole)} runs.", "",
+        "| row | final error raw / aligned, mean (m) | median raw / aligned | RMSE raw / aligned, "
+        "mean (m) | fitted yaw median [range] (deg) | yaw against DR's: r, slope |",
+        "|---|---|---|---|---|---|",
+    ]  # fmt: skip
+    for r in rows:
+        fe, fa, yaw = col(r, "final_error_m"), col(r, "gauge_final_m"), col(r, "gauge_yaw_deg")
+        fit = (f"{np.corrcoef(dr_yaw, yaw)[0, 1]:.2f}, {np.polyfit(dr_yaw, yaw, 1)[0]:.2f}"
+               if len(whole) > 2 and dr_yaw.std() > 0 and yaw.std() > 0 else "-")  # fmt: skip
+        lines.append(
+            f"| {r} | {fe.mean():.2f} / {fa.mean():.2f} | {np.median(fe):.2f} / "
+            f"{np.median(fa):.2f} | {col(r, 'rms_m').mean():.2f} / "
+            f"{col(r, 'gauge_rms_m').mean():.2f} | {np.median(yaw):+.3f} "
+            f"[{yaw.min():+.3f}, {yaw.max():+.3f}] | {fit} |"
+        )
+    al_fin = {r: col(r, "gauge_final_m").tolist() for r in rows}
+    al_rms = {r: col(r, "gauge_rms_m").tolist() for r in rows}
+    comp, comp_rms = paired_rows(al_fin, pairs), paired_rows(al_rms, pairs)
+    lines += _paired_lines("aligned final error", comp)
+    lines += _paired_lines("aligned RMS error of the final trajectory", comp_rms)
+    return {"gauge": {"aligned_final": al_fin, "aligned_rms": al_rms, "dr_yaw_deg":
+                      dr_yaw.tolist(), "paired": comp, "paired_rms": comp_rms}}  # fmt: skip
 
 
 def merge(dirs: list[Path], out: Path) -> None:
@@ -189,6 +258,11 @@ def main() -> int:
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--report", action="store_true", help="only rebuild the tables")
+    ap.add_argument(
+        "--gauge",
+        action="store_true",
+        help="also score each run aligned by its fitted yaw about the start (heldout.gauge_fields)",
+    )
     ap.add_argument(
         "--resume",
         action="store_true",
@@ -222,8 +296,10 @@ def main() -> int:
     first, kept = 0, ""
     if args.resume and (args.out / "runs.jsonl").exists():
         old = json.loads((args.out / "meta.json").read_text())
-        if old["rows"] != [f"{p}/{a}" for p, a, _ in rows] or old["seed"] != args.seed:
-            print(f"--resume: {args.out} holds other rows or another seed", file=sys.stderr)
+        if (old["rows"] != [f"{p}/{a}" for p, a, _ in rows] or old["seed"] != args.seed
+                or old.get("gauge", False) != args.gauge):  # fmt: skip
+            print(f"--resume: {args.out} holds other rows, another seed or another --gauge",
+                  file=sys.stderr)  # fmt: skip
             return 2
         recs = [json.loads(x) for x in (args.out / "runs.jsonl").read_text().splitlines() if x]
         done = [sum(r["run"] == i for r in recs) == len(rows) for i in range(args.runs)]
@@ -232,7 +308,7 @@ def main() -> int:
     meta = {
         "command": " ".join(["python", *sys.argv]), "purpose": args.purpose, "seed": args.seed,
         "scenarios": [s.name for s in scns], "nav": args.nav, "particles": args.particles,
-        "runs": args.runs, "rows": [f"{p}/{a}" for p, a, _ in rows],
+        "runs": args.runs, "rows": [f"{p}/{a}" for p, a, _ in rows], "gauge": args.gauge,
         "params": f"{args.frozen} at commit {rev or 'UNCOMMITTED'}"
         + (f", with {' '.join(args.set)}" if args.set else ""),
     }  # fmt: skip
@@ -251,15 +327,16 @@ def main() -> int:
         fh.write(kept)
         fh.flush()  # a study stopped in its first new run keeps the runs it resumed from
         t0 = time.time()
+        nav = DRModel(kind=args.nav)
         for i, preset, alg, res in run_rows(
-            scns, rows, args.runs, args.seed, DRModel(kind=args.nav), args.purpose, first
+            scns, rows, args.runs, args.seed, nav, args.purpose, first, args.gauge
         ):
             rec = {
                 "run": i, "row": f"{preset}/{alg}", "scenario": scns[i % len(scns)].name,
                 "final_error_m": res.final_error_m, "rms_m": res.rms_m,
                 "runtime_s": res.runtime_s, "loops_accepted": res.loops_accepted,
                 "resamplings": res.extra.get("resamplings", 0.0),
-                **{k: v for k, v in res.extra.items() if k.startswith("spread_")},
+                **{k: v for k, v in res.extra.items() if k.startswith(("spread_", "gauge_"))},
             }  # fmt: skip
             fh.write(json.dumps(rec) + "\n")
             fh.flush()

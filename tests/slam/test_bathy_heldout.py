@@ -14,8 +14,15 @@ import pytest
 from auvgw.config.scenario import Scenario
 from auvgw.slam.bathymetric.config import BathyConfig
 from auvgw.slam.bathymetric.evaluate import run_filter
-from auvgw.slam.bathymetric.filters import BPSLAM, own_nearest
-from auvgw.slam.bathymetric.heldout import SPLIT, load_frozen, paired_rows, run_rows
+from auvgw.slam.bathymetric.filters import BPSLAM, own_nearest, rotate
+from auvgw.slam.bathymetric.heldout import (
+    GAUGE_KEYS,
+    SPLIT,
+    gauge_fields,
+    load_frozen,
+    paired_rows,
+    run_rows,
+)
 from auvgw.slam.bathymetric.simulate import DRModel, simulate_survey
 from auvgw.slam.evaluation.heldout import (
     TEST_SEED_MIN,
@@ -178,6 +185,32 @@ def test_paired_bootstrap() -> None:
     assert rows[0]["diff"] == 1.0 and rows[0]["other_better"] == 0
     with pytest.raises(ValueError, match="same runs"):
         paired_bootstrap_arrays(base, base[:3])
+
+
+def test_gauge_fields_score_a_turn_about_the_start() -> None:
+    """heldout.gauge_fields (the study's ``--gauge``): a track turned rigidly about its start by
+    a known angle scores that angle and ~0 aligned error; the floor is the truth turned by DR's
+    own fitted yaw; a translation is not absorbed (the start is known)."""
+    a = np.arange(301.0)
+    truth = np.concatenate([np.column_stack([a, 0.0 * a]),
+                            np.column_stack([300.0 - a, np.full_like(a, 60.0)])])  # fmt: skip
+    truth += np.array([500.0, -200.0])
+
+    def turned(deg: float) -> np.ndarray:
+        return truth[0] + rotate(truth - truth[0], math.radians(deg))
+
+    g = gauge_fields(turned(1.5), truth, turned(-0.8))
+    assert tuple(g) == GAUGE_KEYS
+    assert g["gauge_yaw_deg"] == pytest.approx(1.5, abs=1e-9)
+    assert g["gauge_final_m"] == pytest.approx(0.0, abs=1e-8)
+    assert g["gauge_rms_m"] == pytest.approx(0.0, abs=1e-8)
+    assert g["gauge_dr_yaw_deg"] == pytest.approx(-0.8, abs=1e-9)
+    # the last point is 60 m from the start: the floor's final error is the chord 2 r sin(a / 2)
+    assert g["gauge_floor_final_m"] == pytest.approx(2 * 60.0 * math.sin(math.radians(0.4)))
+    rms = np.sqrt(np.mean(np.sum((turned(-0.8) - truth) ** 2, axis=1)))
+    assert g["gauge_floor_rms_m"] == pytest.approx(rms)
+    shifted = gauge_fields(truth + np.array([3.0, 4.0]), truth, truth)
+    assert shifted["gauge_final_m"] > 4.0 and shifted["gauge_floor_final_m"] == 0.0
 
 
 def test_own_nearest_is_the_brute_force_search() -> None:
