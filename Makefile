@@ -22,7 +22,7 @@ test: $(STAMP)
 
 test-fast: $(STAMP)
 	$(BIN)/ruff check .
-	$(BIN)/python -m pytest -q -m "not e2e"
+	$(BIN)/python -m pytest -q -m "not e2e" -n 2 --dist loadscope
 
 # mypy sees the installed package (a plain, non-editable copy: the editable install maps folders
 # through an import hook no type checker follows); strict on ground/, drivers/, slam/ and control/ (pyproject.toml)
