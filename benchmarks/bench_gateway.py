@@ -60,9 +60,11 @@ ports close), so every frame an emulator sends falls in the measured run.
   held clock; its status said ``connected: true, stale: true, frames: 0, silent_s: null`` for
   all six ports (a connected port that has sent nothing is stale, asserted in
   ``tests/e2e/test_gateway.py::test_status_liveliness_and_config``). Timed on the sim's clock,
-  the same plain phase under the same conditions (three phases, load 20-26) lost no frame on
-  any port: the sim at 1.59x, 1.90x and 2.46x (held 56-124 wall s), the windows at 1.8-3.0x
-  vehicle time, the gateway at 5.5-7.0 % of a core. At ``nice -n 0`` (eight phases of the old
+  the same plain phase under the same conditions (four phases, load 16-26) lost no frame on
+  any port: the sim at 1.59-3.67x (held 17-124 wall s), the windows at 1.8-3.9x vehicle time,
+  the gateway at 5.5-12.8 % of a core; in each, 20 wall s after the gateway started, the sim's
+  clock stood at 14-54 vehicle s, before the devices' first word: the wall-time bench would
+  have read nothing in all four. At ``nice -n 0`` (eight phases of the old
   bench, load 10-33) the sim kept 8.6-9.8x and no phase read nothing; seven lost frames
   another way, 1,713-5,656 per phase, all on the pty ports (INS 1,713-4,810, DVL 0-184,
   magnetometer 0-670; UDP and SLCAN none), as many as the sim's dropped bytes say (its table
