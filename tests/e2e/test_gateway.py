@@ -121,7 +121,10 @@ def test_status_liveliness_and_config(procs, tmp_path, dvl, shared_data):
     )
     gateway = procs.gateway(cfg)
     with GatewaySubscriber("stat1", BusConfig(connect=[ep])) as me:
-        wait_until(lambda: (me.status("dvl") or {}).get("connected"), what="dvl connected")
+        # open, nothing sent yet (as the all-devices bench's devices in their warm-up): stale
+        waiting = wait_until(
+            lambda: (s := me.status("dvl")) and s["connected"] and s, what="dvl connected"
+        )
         dvl.write(stream)
         st = wait_until(
             lambda: (s := me.status("dvl")) and s["frames"] == len(good) and s, what="12 frames"
@@ -149,6 +152,8 @@ def test_status_liveliness_and_config(procs, tmp_path, dvl, shared_data):
     assert st["connects"] == 1 and st["outages"] == 0
     assert st["last_seen_ns"] >= st["connected_since_ns"] > 0
     assert st["silent_s"] >= 0
+    assert waiting["stale"] is True and waiting["frames"] == 0 and waiting["silent_s"] is None
+    assert waiting["last_seen_ns"] is None and waiting["rates_hz"] == {}
 
     assert "dvl2" not in alive  # never connected: no token
     assert st2["connected"] is False and st2["stale"] is True
