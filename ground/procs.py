@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import IO, Any
 
 __all__ = [
+    "STOP_GRACE_S",
     "Children",
     "end_without_finalising",
     "ending_without_finalising",
@@ -24,6 +25,10 @@ __all__ = [
     "free_port",
     "stop_process",
 ]
+
+#: s a supervisor (:meth:`Children.stop`) gives a child between SIGINT and SIGKILL; a stage's
+#: command drains its queue for half of it at most (:func:`auvgw.commands.run.serve_stage`)
+STOP_GRACE_S = 15.0
 
 
 def free_port(host: str = "127.0.0.1") -> int:
@@ -95,7 +100,7 @@ class Children:
             return ""
         return text[-n:].strip().replace("\n", " | ")
 
-    def stop(self, name: str, grace_s: float = 15.0) -> int | None:
+    def stop(self, name: str, grace_s: float = STOP_GRACE_S) -> int | None:
         """SIGINT, then SIGKILL after ``grace_s``; the exit code (negative: signal)."""
         proc = self.procs.get(name)
         if proc is None:

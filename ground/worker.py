@@ -28,21 +28,28 @@ log = logging.getLogger(__name__)
 T = TypeVar("T")
 
 
-def join_draining(worker: threading.Thread, q: queue.Queue[T], stall_s: float | None) -> bool:
+def join_draining(
+    worker: threading.Thread, q: queue.Queue[T], stall_s: float | None, limit_s: float | None = None
+) -> bool:
     """Wait for ``worker`` to drain ``q`` and exit. It may take as long as it needs while it makes
-    progress (the queue shrinks); it is given up on only after ``stall_s`` seconds without
-    progress (None: never), so a busy machine slows the drain down but never cuts it short.
-    True if it exited."""
-    if stall_s is None:
+    progress (the queue shrinks), up to ``limit_s`` seconds in all (None: no limit); it is given
+    up on after ``stall_s`` seconds without progress (None: never), so a busy machine slows the
+    drain down but never cuts it short before ``limit_s``. True if it exited."""
+    if stall_s is None and limit_s is None:
         worker.join()
         return True
-    last, deadline = q.qsize(), time.monotonic() + stall_s
+    now = time.monotonic()
+    end = math.inf if limit_s is None else now + limit_s
+    step = 0.2 if stall_s is None else min(0.2, stall_s)
+    last, deadline = q.qsize(), now + (math.inf if stall_s is None else stall_s)
     while worker.is_alive():
-        worker.join(min(0.2, stall_s))
-        size = q.qsize()
-        if size < last:
-            last, deadline = size, time.monotonic() + stall_s
-        elif time.monotonic() > deadline:
+        worker.join(step)
+        size, now = q.qsize(), time.monotonic()
+        if size < last and stall_s is not None:
+            last, deadline = size, now + stall_s
+        elif now > deadline:
+            return False
+        if now > end:
             return False
     return True
 
@@ -137,6 +144,8 @@ class Worker(Generic[T]):
         self._w_thread_name = thread_name or self.worker_name
         self._w_thread: threading.Thread | None = None
         self._w_stopping = False  # set once by stop_worker (a bool: read per item, no call)
+        self._w_discard = False  # the drain's limit passed: queued items are dropped, not handled
+        self._w_discarded = 0
         self._w_finished = threading.Event()
         self._w_handled = 0
         self._w_errors = 0
@@ -188,11 +197,13 @@ class Worker(Generic[T]):
         return self._w_inbox.put(item)  # closed by stop_worker
 
     @final
-    def stop_worker(self, timeout_s: float | None = 5.0) -> bool:
+    def stop_worker(self, timeout_s: float | None = 5.0, limit_s: float | None = None) -> bool:
         """Refuse new items, let the worker handle what is queued and end (for as long as it
-        makes progress: ``timeout_s`` s without any gives up on it, None waits for ever); never
-        started: the queue is handled on the calling thread. True if the worker finished.
-        Safe to call more than once."""
+        makes progress: ``timeout_s`` s without any gives up on it, None waits for ever; at most
+        ``limit_s`` s in all, None: no limit, after which the items still queued are dropped
+        unhandled, counted in :attr:`worker_discarded` and logged); never started: the queue is
+        handled on the calling thread. True if the worker finished. Safe to call more than
+        once."""
         if not self._w_stopping:
             self._w_inbox.close()
             self._w_stopping = True
@@ -200,11 +211,24 @@ class Worker(Generic[T]):
                 self._w_inbox.queue.put_nowait(_WAKE)
             if self._w_thread is None:
                 self._w_loop()
-        if self._w_thread is not None and not join_draining(self._w_thread, self._w_inbox.queue,
-                                                          timeout_s):  # fmt: skip
-            log.warning("%s: the worker made no progress for %.1f s; stopping without it",
-                        self._w_thread_name, timeout_s)  # fmt: skip
+        t, q = self._w_thread, self._w_inbox.queue
+        if t is not None and not join_draining(t, q, timeout_s, limit_s) and t.is_alive():
+            if limit_s is not None and not self._w_discard:  # past the limit: drop the rest
+                self._w_discard = True
+                t.join(timeout_s)  # the item in hand finishes; the rest is dropped at once
+                log.warning("%s: %d items still queued after the %.1f s drain limit dropped "
+                            "unhandled", self._w_thread_name, self._w_discarded,
+                            limit_s)  # fmt: skip
+            if t.is_alive():
+                log.warning("%s: the worker made no progress for %s s; stopping without it",
+                            self._w_thread_name, timeout_s)  # fmt: skip
         return self._w_finished.is_set()
+
+    @final
+    @property
+    def worker_discarded(self) -> int:
+        """Items dropped unhandled at stop, past :meth:`stop_worker`'s ``limit_s``."""
+        return self._w_discarded
 
     @final
     def worker_stats(self) -> WorkerStats:
@@ -230,7 +254,9 @@ class Worker(Generic[T]):
                 if stopping:
                     break
                 item = _WAKE
-            if not isinstance(item, _Signal):
+            if self._w_discard and not isinstance(item, _Signal):
+                self._w_discarded += 1
+            elif not isinstance(item, _Signal):
                 self._w_handled += 1
                 try:
                     self._work_item(item)

@@ -474,17 +474,23 @@ class Stage(Worker[_Item]):
             log_bad_payload(self.name, key, exc, self.stats.bad_payloads, exc_info)
             self.stats.bad_payloads += 1
 
-    def stop(self, flush: bool = True, timeout_s: float = 5.0) -> None:
+    def stop(
+        self, flush: bool = True, timeout_s: float = 5.0, drain_limit_s: float | None = None
+    ) -> None:
         """:meth:`on_stop`, withdraw the subscriptions, drain the queue (on the worker for as
-        long as it makes progress, ``timeout_s`` without any gives up on it; without a worker on
-        the calling thread), :meth:`flush` (``flush``), publish a last status and withdraw every
-        other declaration (the last declared first). Safe to call more than once."""
+        long as it makes progress, ``timeout_s`` without any gives up on it, ``drain_limit_s``
+        in all at most, None: no limit, after which what is still queued is dropped and counted
+        in ``queue_dropped``; without a worker on the calling thread), :meth:`flush`
+        (``flush``), publish a last status and withdraw every other declaration (the last
+        declared first). Safe to call more than once."""
         if self._stopped:
             return
         self._stopped = True
         self.on_stop()
         undeclare(d for d in self._decls if isinstance(d, zenoh.Subscriber))
-        self.stop_worker(timeout_s)
+        self.stop_worker(timeout_s, drain_limit_s)
+        with self._drop_lock:  # what the drain's limit left unhandled: in the last status
+            self.stats.queue_dropped += self.worker_discarded
         if flush:
             self.flush()
         self.publish_status()

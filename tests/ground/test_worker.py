@@ -159,3 +159,23 @@ def test_the_override_check_finds_a_planted_override() -> None:
     assert inspect.getattr_static(Worker, "submit") is not inspect.getattr_static(Bad, "submit")
     del Bad
     gc.collect()  # out of Worker.__subclasses__() again
+
+
+def test_a_drain_past_its_limit_drops_the_rest_and_counts_it(caplog) -> None:
+    # a stage far behind on a loaded host drained for longer than its supervisor's grace and was
+    # killed unflushed: with limit_s the backlog left at the limit is dropped, counted and logged
+    w = _Recorder(queue_size=100)
+    w.start_worker()
+    for i in range(50):
+        w.submit(i)
+    wait_until(lambda: w.worker_stats().handled == 1, 10, what="item 0 taken (held on the gate)")
+    stopper = threading.Thread(target=w.stop_worker, kwargs={"timeout_s": 30, "limit_s": 0.2})
+    stopper.start()
+    # past the limit (item 0 still held) the stopper waits for the item in hand, then drops
+    wait_until(lambda: w._w_discard, 30, what="the drain's limit passed")
+    w.gate.set()  # item 0 ends; the 49 behind it are dropped unhandled
+    stopper.join(30)
+    assert not stopper.is_alive() and not w.worker_alive
+    assert w.seen == [0] and w.worker_discarded == 49
+    assert w.events == ["started", "finished after 1"]
+    assert "49 items still queued after the 0.2 s drain limit dropped" in caplog.text

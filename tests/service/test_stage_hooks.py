@@ -9,12 +9,14 @@ import gc
 import importlib
 import inspect
 import pkgutil
+import threading
 from typing import Any, ClassVar
 
 import pytest
 
 from auvgw.slam import pipelines
 from auvgw.stages.base import BusCounters, Stage, StageConfig
+from auvgw.testing import wait_until
 from auvgw.testing.overrides import overrides, subclasses
 
 
@@ -124,3 +126,41 @@ def test_the_hooks_are_called_at_their_points() -> None:
         stage.stop()
     assert log == ["on_start worker=True decls=1", "on_stop worker=True", "flush",
                    "undeclare second", "undeclare first"]  # fmt: skip
+
+
+class _Held(Stage):
+    """In-process, no session: the first message fed waits on ``gate``."""
+
+    name: ClassVar[str] = "held"
+
+    def __init__(self) -> None:
+        super().__init__(StageConfig(), BusCounters())
+        self.gate = threading.Event()
+        self.fed: list[int] = []
+        self.flushed = False
+
+    def feed(self, device: str, t_recv_ns: int, message: object) -> None:
+        self.gate.wait(30)
+        self.fed.append(t_recv_ns)
+
+    def flush(self) -> None:
+        self.flushed = True
+
+
+def test_a_stop_past_its_drain_limit_drops_the_backlog_counts_it_and_flushes() -> None:
+    """A stage far behind (a loaded host) asked to stop with ``drain_limit_s`` stops at the
+    limit: the message in hand finishes, the backlog is counted in ``queue_dropped`` (in its last
+    status), and it still flushes (issue stop40: a fusion killed after the demo's grace)."""
+    stage = _Held()
+    stage.start_worker()  # fed in-process: the worker without a session
+    for i in range(20):
+        stage.post("dev", i, None)
+    wait_until(lambda: stage.worker_stats().handled == 1, 10, what="message 0 taken")
+    stopper = threading.Thread(target=stage.stop, kwargs={"drain_limit_s": 0.2, "timeout_s": 30})
+    stopper.start()
+    wait_until(lambda: stage._w_discard, 30, what="the drain's limit passed")
+    stage.gate.set()
+    stopper.join(30)
+    assert not stopper.is_alive() and stage.fed == [0] and stage.flushed
+    counters = stage.counters()
+    assert counters["stopped"] and counters["stage"]["queue_dropped"] == 19
