@@ -7,7 +7,8 @@ device (:data:`FACTORIES`), each on its own virtual port with a stable symlink i
 ``<out_dir>/ports/``. It publishes nothing itself: ground truth goes to an ``on_truth`` callback
 and/or a truth log (``.jsonl``: one JSON object per sample with the fields of
 :data:`~auvgw.sim_devices.vehicle.TRUTH_FIELDS`; ``.npz``: one array per field), at
-``truth_rate_hz`` on the vehicle clock.
+``truth_rate_hz`` on the vehicle clock; a ``.jsonl`` line is on disk as soon as its sample
+is taken (line-buffered), so a reader can tail the log live.
 
 Faults come from each device's ``faults`` in the scenario and can be switched at run time:
 
@@ -547,7 +548,10 @@ class Runner(Closing):
         if o.truth_log is not None:
             o.truth_log.parent.mkdir(parents=True, exist_ok=True)
             if o.truth_log.suffix == ".jsonl":
-                self._truth_file = o.truth_log.open("w", encoding="utf-8")
+                # a line on disk per sample: readers tail it live (the in-process demo starts
+                # dead reckoning from it, in the INS reader; block-buffered, it trailed the
+                # vehicle by up to 8 KiB of lines, 2.3 s at 10 Hz)
+                self._truth_file = o.truth_log.open("w", encoding="utf-8", buffering=1)
         if o.on_truth is not None or o.truth_log is not None:
             self._truth_task = self.clock.every(
                 1.0 / o.truth_rate_hz, self._truth_tick, start=0.0, name="truth"

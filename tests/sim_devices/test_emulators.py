@@ -615,3 +615,25 @@ def test_bad_device_options_and_names_are_clear_errors(tmp_path: Path) -> None:
         Runner(scn, RunOptions(out_dir=tmp_path, devices=["multibeam"]))
     with pytest.raises(ValueError, match="unknown device"):
         Runner(make_scenario(), RunOptions(out_dir=tmp_path, devices=["sonar"]))
+
+
+def test_truth_log_lines_are_on_disk_as_the_samples_are_taken(tmp_path: Path) -> None:
+    """A reader tailing ``truth.jsonl`` (the in-process demo starts dead reckoning from it, in
+    the gateway's INS reader) finds every earlier sample on disk when a sample is taken:
+    block-buffered, the first 8 KiB of lines (2.3 s at 10 Hz) were on disk only at once, and the
+    INS reader stalled for up to that long after its first frame: its rate null for 2 s)."""
+    log_path = tmp_path / "truth.jsonl"
+    on_disk: dict[float, list[float]] = {}
+
+    def on_truth(sample: Any) -> None:  # the clock thread, before the sample's own line
+        lines = log_path.read_text().splitlines()
+        on_disk[round(sample.t, 1)] = [json.loads(line)["t"] for line in lines]
+
+    options = RunOptions(out_dir=tmp_path, speed=0, devices=[], on_truth=on_truth,
+                         truth_log=log_path)  # fmt: skip
+    with Runner(make_scenario(), options) as r:
+        r.start(duration=1.0)
+        assert r.wait(30)
+    assert sorted(on_disk) == pytest.approx([k / 10 for k in range(11)])
+    for t, lines in on_disk.items():
+        assert lines == pytest.approx([k / 10 for k in range(round(t * 10))]), t
