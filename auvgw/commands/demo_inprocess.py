@@ -129,7 +129,7 @@ def _run_stages(
     def start_fusion(t_vehicle: float) -> FusionStage:
         """Dead reckoning from the true position at the first INS sample the gateway got."""
         deadline = time.monotonic() + 3.0
-        while True:  # the truth log trails the vehicle by its write buffer
+        while True:  # the truth log (a line per sample) may trail the first INS sample a little
             tail.poll()
             with lock:
                 tt, xt, yt = truth.arrays()

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import os
 import subprocess
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -132,30 +133,35 @@ class InProcessPlan:
 
 
 class _TruthTail:
-    """Follows the simulator's truth log (JSON lines), feeding each sample to ``on_sample``."""
+    """Follows the simulator's truth log (JSON lines), feeding each sample to ``on_sample`` once,
+    in order, whichever thread polls (the in-process demo polls from its main loop and from the
+    INS reader that starts dead reckoning)."""
 
     def __init__(self, path: Path, on_sample: Callable[[TruthSample], object]) -> None:
         self.path = path
         self.on_sample = on_sample
+        self._lock = threading.Lock()
         self._pos = 0
         self._partial = ""
         self.t = 0.0  #: vehicle time of the newest sample, s (the sim's own clock)
 
     def poll(self) -> None:
+        """Feed every complete line written since the last poll."""
         if not self.path.is_file():
             return
-        with open(self.path) as fh:
-            fh.seek(self._pos)
-            data = fh.read()
-            self._pos = fh.tell()
-        text = self._partial + data
-        lines = text.split("\n")
-        self._partial = lines.pop()
-        for line in lines:
-            if line.strip():
-                sample = json.loads(line)
-                self.t = max(self.t, float(sample["t"]))
-                self.on_sample(sample)
+        with self._lock:  # two pollers must not read one stretch twice or feed it out of order
+            with open(self.path) as fh:
+                fh.seek(self._pos)
+                data = fh.read()
+                self._pos = fh.tell()
+            text = self._partial + data
+            lines = text.split("\n")
+            self._partial = lines.pop()
+            for line in lines:
+                if line.strip():
+                    sample = json.loads(line)
+                    self.t = max(self.t, float(sample["t"]))
+                    self.on_sample(sample)
 
 
 def _load_sim_config(sim_dir: Path) -> GatewayConfig:
