@@ -178,8 +178,8 @@ def test_every_row_is_stamped_on_the_vehicle_clock(run, request) -> None:
     # the rows from 6 s into the truth to its end and the slack after it (the rows the span check
     # above keeps): the in-process gateway opens its ports seconds after the sim's clock starts
     # (8 s of the 12 under load ~17, two test workers), and a device's rate is null until it is
-    # known (a first frame, then a stall of its reader); a rate is the samples' own device-time
-    # span, so a row after the data's end still reads the rate they were sent at
+    # known (from its second device-timed sample); a rate is the samples' own device-time span,
+    # so a row after the data's end still reads the rate they were sent at
     for device, hz in rates.items():
         got = _recorded_rates(rec, device, t0 + int(6e9), t1 + slack)
         first = [round((t - t0) / 1e9, 1) for t, _ in health_metrics(rec, device)][:1]
