@@ -134,9 +134,8 @@ def report(out: Path) -> None:
     comp = paired_rows(finals, pairs)
     rms = {r: [by[r][i]["rms_m"] for i in whole] for r in rows}
     comp_rms = paired_rows(rms, pairs)
-    for what, cs in (("final error", comp), ("RMS error of the final trajectory", comp_rms)):
-        if cs:
-            lines += _paired_lines(what, cs)
+    lines += _paired_lines("final error", comp)
+    lines += _paired_lines("RMS error of the final trajectory", comp_rms)
     gauge: dict[str, Any] = {}
     if whole and all(k in by[r][i] for r in rows for i in whole for k in GAUGE_KEYS):
         gauge = _gauge_lines(by, rows, whole, pairs, lines)
@@ -159,7 +158,10 @@ def report(out: Path) -> None:
 
 
 def _paired_lines(what: str, cs: list[dict[str, Any]]) -> list[str]:
-    """The paired table of ``paired_rows``' comparisons ``cs`` (figure ``what``, m)."""
+    """The paired table of ``paired_rows``' comparisons ``cs`` (figure ``what``, m); none
+    without comparisons."""
+    if not cs:
+        return []
     lines = [
         "", f"Paired {what}, other vs base:", "",
         "| other vs base | base mean (m) | other mean (m) | difference (m) [95 % CI] | "

@@ -38,18 +38,16 @@ def join_draining(
     if stall_s is None and limit_s is None:
         worker.join()
         return True
+    stall = math.inf if stall_s is None else stall_s
     now = time.monotonic()
-    end = math.inf if limit_s is None else now + limit_s
-    step = 0.2 if stall_s is None else min(0.2, stall_s)
-    last, deadline = q.qsize(), now + (math.inf if stall_s is None else stall_s)
+    end = now + (math.inf if limit_s is None else limit_s)
+    last, deadline = q.qsize(), now + stall
     while worker.is_alive():
-        worker.join(step)
+        worker.join(min(0.2, stall))
         size, now = q.qsize(), time.monotonic()
-        if size < last and stall_s is not None:
-            last, deadline = size, now + stall_s
-        elif now > deadline:
-            return False
-        if now > end:
+        if size < last:  # progress: the stall's clock starts again
+            last, deadline = size, now + stall
+        if now > min(deadline, end):
             return False
     return True
 

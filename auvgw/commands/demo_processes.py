@@ -215,8 +215,8 @@ def _run_processes(
                     children.start(proc.name, proc.argv(None))
         # the GeoSwath's emulator (numpy work on 4000-sample pings) in its own process, so it
         # never holds the INS emulator's interpreter (issue 31: in one sim process its pings
-        # made the INS frames leave 40-58 vehicle s late at 10x); every device then has its own
-        # vehicle time 0 once every part is up (elastic pacing: the stamps follow the sim's
+        # made the INS frames leave 40-58 vehicle s late at 10x): every device then has its own
+        # process. Vehicle time 0 once every part is up (elastic pacing: the stamps follow the sim's
         # clock file), --start-delay at the latest (free pacing: always; host time maps to it)
         elastic = args.pace == "elastic"
         sim = children.start("sim", [*_sim_argv(scenario, speed, args.duration, sim_dir, args.pace),
