@@ -59,7 +59,6 @@ from auvgw.fusion.frames import beam_matrix
 from auvgw.fusion.samples import DvlSample, InsSample
 from auvgw.ground.devicetime import ClockStats, DeviceClock
 from auvgw.ground.errors import DataError
-from auvgw.ground.geometry import body_to_ned_matrix
 
 __all__ = [
     "ATTITUDE_TYPES",
@@ -110,8 +109,6 @@ OWN_ADAPTERS: dict[str, frozenset[str]] = {
 #: body (forward, starboard, down)
 RDI_DOWN_BEAM3_FORWARD_DEG = (180.0, 0.0, 90.0)
 
-#: body (forward, starboard, down) <-> RDI ship (starboard, forward, mast), NED <-> ENU
-_SWAP = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 #: Janus angle of the fixed leader's system configuration bits 8-9 (Pathfinder/Workhorse guides)
 _BEAM_ANGLES_DEG = {0: 15.0, 1: 20.0, 2: 30.0}
 #: EZ sensor source bit of the depth sensor (ED computed from the pressure sensor)
@@ -202,21 +199,24 @@ def janus_angle(fixed: pd0.FixedLeader) -> float:
     return math.radians(_BEAM_ANGLES_DEG[code])
 
 
-def _bt_velocity(ens: pd0.Ensemble, frame: pd0.CoordinateFrame, high_res: bool) -> np.ndarray:
+def _bt_velocity(
+    ens: pd0.Ensemble, frame: pd0.CoordinateFrame, high_res: bool
+) -> list[float]:
     """The 4 bottom-track components as the instrument moving over the bottom (beam: closing
-    speeds as on the wire), preferring 0x5803 when valid; NaN when bad."""
+    speeds as on the wire), preferring 0x5803 when valid; NaN when bad. Plain floats: the
+    adapter works on four numbers, where numpy's per-call cost is most of the work (the ROS 2
+    bridge runs it for every ensemble, docs/ros2.md#cost)."""
     hr = ens.bt_high_res
+    beam = frame is pd0.CoordinateFrame.BEAM
     if high_res and hr is not None:
-        v = np.asarray(hr.vehicle_velocity, dtype=float)
-        beam = frame is pd0.CoordinateFrame.BEAM
-        if (np.isfinite(v).sum() >= 3) if beam else np.isfinite(v[:3]).all():
+        v = np.asarray(hr.vehicle_velocity, dtype=float).tolist()
+        good = [math.isfinite(x) for x in v]
+        if (sum(good) >= 3) if beam else all(good[:3]):
             return v
     bt = ens.bottom_track
     if bt is None:
-        return np.full(4, math.nan)
-    if frame is pd0.CoordinateFrame.BEAM:
-        return np.asarray(bt.velocity, dtype=float)
-    return np.asarray(bt.vehicle_velocity, dtype=float)
+        return [math.nan] * 4
+    return np.asarray(bt.velocity if beam else bt.vehicle_velocity, dtype=float).tolist()
 
 
 def _altitude(ens: pd0.Ensemble) -> float:
@@ -226,9 +226,25 @@ def _altitude(ens: pd0.Ensemble) -> float:
     bt = ens.bottom_track
     if bt is None:
         return math.nan
-    ranges = bt.range
-    good = ranges[np.isfinite(ranges)]
-    return float(good.mean()) if len(good) else math.nan
+    good = [x for x in bt.range.tolist() if math.isfinite(x)]
+    return sum(good) / len(good) if good else math.nan
+
+
+def _body_from_ship(
+    v: list[float], heading: float, pitch: float, roll: float
+) -> tuple[float, float, float]:
+    """A ship-frame vector (starboard, forward, mast; earth: east, north, up) as body FRD:
+    ``R(heading, pitch, roll)^T SWAP v`` (rad), written out on three floats
+    (:func:`~auvgw.ground.geometry.body_to_ned_matrix`'s ``R``)."""
+    f, s, d = v[1], v[0], -v[2]  # SWAP: (forward, starboard, down) or (north, east, down)
+    ch, sh = math.cos(heading), math.sin(heading)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cr, sr = math.cos(roll), math.sin(roll)
+    return (
+        ch * cp * f + sh * cp * s - sp * d,
+        (ch * sp * sr - sh * cr) * f + (sh * sp * sr + ch * cr) * s + cp * sr * d,
+        (ch * sp * cr + sh * sr) * f + (sh * sp * cr - ch * sr) * s + cp * cr * d,
+    )
 
 
 def dvl_from_pd0(ens: pd0.Ensemble, t: float | None = None, high_res: bool = True) -> DvlSample:
@@ -256,17 +272,19 @@ def dvl_from_pd0(ens: pd0.Ensemble, t: float | None = None, high_res: bool = Tru
             )
     frame = fixed.coordinate_frame
     raw = _bt_velocity(ens, frame, high_res)
+    nan3 = (math.nan, math.nan, math.nan)
     if frame is pd0.CoordinateFrame.BEAM:
-        good = np.isfinite(raw)
+        beams = np.array(raw)
+        good = np.isfinite(beams)
         lock = int(good.sum()) >= 3
-        vel = np.full(3, math.nan)
+        vel: tuple[float, ...] = nan3
         if lock:
             B = beam_matrix(janus_angle(fixed), convex=bool(fixed.system_config & 0x08))
-            vel = np.linalg.lstsq(B[good], raw[good], rcond=None)[0]
+            vel = tuple(np.linalg.lstsq(B[good], beams[good], rcond=None)[0].tolist())
         out_frame = "instrument"
     else:
-        vel = raw[:3]
-        lock = bool(np.isfinite(vel).all())
+        vel = tuple(raw[:3])
+        lock = all(math.isfinite(x) for x in vel)
         if frame is pd0.CoordinateFrame.INSTRUMENT:
             out_frame = "instrument"
         else:
@@ -278,14 +296,14 @@ def dvl_from_pd0(ens: pd0.Ensemble, t: float | None = None, high_res: bool = Tru
             pitch, roll = (var.pitch, var.roll) if fixed.tilts_used else (0.0, 0.0)
             heading = var.heading if frame is pd0.CoordinateFrame.EARTH else 0.0
             # ship/earth = SWAP R(heading, pitch, roll) v_body  =>  v_body = R^T SWAP v
-            vel = body_to_ned_matrix(heading, pitch, roll).T @ (_SWAP @ vel)
+            vel = _body_from_ship(raw, heading, pitch, roll)
             out_frame = "body"
     if not lock:
-        vel = np.full(3, math.nan)
+        vel = nan3
     depth = math.nan
     if var is not None and fixed.sensor_source & _EZ_DEPTH:
         depth = float(var.depth)
-    a, b, c = (float(x) for x in vel)
+    a, b, c = vel
     return DvlSample(
         t=float(t),
         velocity=(a, b, c),
