@@ -53,11 +53,12 @@ import json
 import math
 import re
 from collections.abc import Iterable, Mapping
-from functools import cache
+from functools import cache, lru_cache
 from typing import TYPE_CHECKING, Any, NamedTuple, Protocol, SupportsFloat, cast
 
 import numpy as np
 
+from auvgw.decoding import message_type
 from auvgw.drivers import registry
 from auvgw.drivers.roles import Field, Ins
 from auvgw.ground.geometry import quaternion_zyx
@@ -302,14 +303,14 @@ def actuator_command(cdr: bytes) -> tuple[Any, int]:
 
 def enu_from_ned(v: Vec3) -> tuple[float, float, float]:
     """A NED vector (north, east, down) as ENU (east, north, up)."""
-    n, e, d = (float(x) for x in v)
-    return e, n, -d
+    n, e, d = v
+    return float(e), float(n), -float(d)
 
 
 def flu_from_frd(v: Vec3) -> tuple[float, float, float]:
     """A body FRD vector (forward, starboard, down) as FLU (forward, left, up)."""
-    f, s, d = (float(x) for x in v)
-    return f, -s, -d
+    f, s, d = v
+    return float(f), -float(s), -float(d)
 
 
 def quaternion_enu_flu(
@@ -360,17 +361,17 @@ def cloud_points(xyz: np.ndarray, intensity: np.ndarray | None) -> np.ndarray:
     return cols
 
 
-def _cloud(t_ns: int, frame: str, xyz: np.ndarray, intensity: np.ndarray | None) -> PointCloud2:
-    """PointCloud2 of float32 x, y, z, intensity (NaN points kept: ``is_dense`` False)."""
+def _cloud(t_ns: int, frame: str, rows: np.ndarray) -> PointCloud2:
+    """PointCloud2 of :func:`cloud_points` rows (float32 x, y, z, intensity; NaN points kept:
+    ``is_dense`` False)."""
     PF = _t("sensor_msgs/msg/PointField")
-    n = len(xyz)
-    cols = cloud_points(xyz, intensity)
+    n = len(rows)
     fields = [PF(name=c, offset=4 * i, datatype=PF.FLOAT32, count=1) for i, c in enumerate("xyz")]
     fields.append(PF(name="intensity", offset=12, datatype=PF.FLOAT32, count=1))
     return _t("sensor_msgs/msg/PointCloud2")(
         header=_header(t_ns, frame), height=1, width=n, fields=fields, is_bigendian=False,
-        point_step=16, row_step=16 * n, data=cols.reshape(-1).view(np.uint8),
-        is_dense=bool(np.isfinite(cols).all()),
+        point_step=16, row_step=16 * n, data=rows.reshape(-1).view(np.uint8),
+        is_dense=bool(np.isfinite(rows).all()),
     )  # fmt: skip
 
 
@@ -484,16 +485,21 @@ def dvl_msgs(msg: pd0.Ensemble, device: str, t_ns: int) -> list[RosMessage]:
     ]
 
 
-def swath_points(msg: kongsberg.XYZ88 | kongsberg.Depth) -> tuple[np.ndarray, np.ndarray | None]:
-    """(xyz FLU, m; reflectivity dB or None) of a multibeam ping (:func:`swath_msg`)."""
+def swath_points(msg: kongsberg.XYZ88 | kongsberg.Depth) -> np.ndarray:
+    """The :func:`cloud_points` rows of a multibeam ping (:func:`swath_msg`): x, y, z FLU (m),
+    intensity the reflectivity (dB; 0 without)."""
     b = msg.beams
-    xyz = np.column_stack(
-        [np.asarray(b.along, float), -np.asarray(b.across, float), -np.asarray(b.depth, float)]
-    )
-    valid = b.valid if hasattr(b, "valid") else np.asarray(b.depth) != 0
-    xyz[~np.asarray(valid, dtype=bool)] = np.nan
+    rows = np.empty((len(b.depth), 4), dtype="<f4")
+    rows[:, 0] = b.along
+    np.negative(b.across, out=rows[:, 1], casting="unsafe")
+    np.negative(b.depth, out=rows[:, 2], casting="unsafe")
     refl = getattr(b, "reflectivity", None)
-    return xyz, None if refl is None else np.asarray(refl, float)
+    rows[:, 3] = 0.0 if refl is None else refl
+    valid = getattr(b, "valid", None)
+    valid = np.asarray(b.depth) != 0 if valid is None else valid
+    if not valid.all():
+        rows[~valid, :3] = np.nan
+    return rows
 
 
 def swath_msg(msg: kongsberg.XYZ88 | kongsberg.Depth, device: str, t_ns: int) -> PointCloud2:
@@ -501,20 +507,28 @@ def swath_msg(msg: kongsberg.XYZ88 | kongsberg.Depth, device: str, t_ns: int) ->
     transducer) as a PointCloud2 in frame ``device`` (FLU), intensity = reflectivity (dB); a
     beam without a detection (XYZ 88 detection info bit 7; Depth: depth 0, which the sonar
     writes for one) is a NaN point, never a sounding at the transducer."""
-    return _cloud(t_ns, device, *swath_points(msg))
+    return _cloud(t_ns, device, swath_points(msg))
 
 
-def scanline_points(
-    msg: HeadData, sound_speed: float = DEFAULT_SOUND_SPEED
-) -> tuple[np.ndarray, np.ndarray]:
-    """(xyz FLU, m; bin amplitudes) of an MSIS scan line (:func:`scanline_msg`)."""
-    bins = np.asarray(msg.bins, float)
-    r = (np.arange(len(bins)) + 0.5) * msg.bin_length(sound_speed)
-    xyz = np.empty((len(bins), 3))  # filled in place: the bridge does this 200 times a second
-    np.multiply(r, math.cos(msg.bearing), out=xyz[:, 0])
-    np.multiply(-r, math.sin(msg.bearing), out=xyz[:, 1])
-    xyz[:, 2] = 0.0
-    return xyz, bins
+def scanline_points(msg: HeadData, sound_speed: float = DEFAULT_SOUND_SPEED) -> np.ndarray:
+    """The :func:`cloud_points` rows of an MSIS scan line (:func:`scanline_msg`): x, y, z FLU
+    (m), intensity the bin's amplitude."""
+    n = len(msg.bins)
+    rows = np.empty((n, 4), dtype="<f4")  # filled in place: the bridge does this 200 times a second
+    r = _bin_centres(n) * msg.bin_length(sound_speed)
+    np.multiply(r, math.cos(msg.bearing), out=rows[:, 0], casting="unsafe")
+    np.multiply(r, -math.sin(msg.bearing), out=rows[:, 1], casting="unsafe")
+    rows[:, 2] = 0.0
+    rows[:, 3] = msg.bins
+    return rows
+
+
+@lru_cache(maxsize=16)
+def _bin_centres(n: int) -> np.ndarray:
+    """0.5, 1.5, ... n - 0.5: an MSIS line's bin centres in bin lengths (read only)."""
+    out = np.arange(n) + 0.5
+    out.flags.writeable = False
+    return out
 
 
 def scanline_msg(
@@ -523,7 +537,7 @@ def scanline_msg(
     """One MSIS scan line: a point per bin at the bin's centre range along the transducer
     bearing (rad, clockwise from forward seen from above, i.e. towards starboard), FLU frame
     ``device``, intensity = the bin's amplitude."""
-    return _cloud(t_ns, device, *scanline_points(msg, sound_speed))
+    return _cloud(t_ns, device, scanline_points(msg, sound_speed))
 
 
 #: Odometry state (x, y, z, heading, pitch, u, v, w) -> ROS pose (x, y, z, roll, pitch, yaw) ENU
@@ -581,7 +595,7 @@ def landmarks_msg(body: Mapping[str, object], t_ns: int) -> PointCloud2:
     mean = np.asarray(body.get("mean") or np.zeros((0, 2)), float).reshape(-1, 2)
     xyz = np.column_stack([mean[:, 1], mean[:, 0], np.zeros(len(mean))])
     ids = np.asarray(body.get("ids") or np.zeros(len(mean)), float)
-    return _cloud(t_ns, FRAME_MAP, xyz, ids)
+    return _cloud(t_ns, FRAME_MAP, cloud_points(xyz, ids))
 
 
 def _transform(
@@ -769,15 +783,15 @@ _MAG = registry.types_with_role("field")
 _SWATH = registry.types_with_role("swath")
 
 
-def _type_name(msg: object) -> str:
-    return str(getattr(msg, "TYPE", type(msg).__name__))
-
-
 def sensor_form(msg: object) -> str | None:
     """The standard ROS 2 form of a decoded sensor message: ``imu`` (sensor_msgs/Imu),
     ``magnetic_field``, ``dvl`` (a twist and a Range), ``points`` (a multibeam PointCloud2),
     ``returns`` (an MSIS scan line's PointCloud2), or None (``auvgw_msgs/Decoded``)."""
-    name = _type_name(msg)
+    return form_of_type(message_type(msg))
+
+
+def form_of_type(name: str) -> str | None:
+    """:func:`sensor_form` of a decoded type's name (``TYPE``, else the class name)."""
     if name in _INS:
         return "imu"
     if name in _MAG:
@@ -809,7 +823,7 @@ def to_ros(
     message without a standard type.
     """
     if section == "sensor":
-        name = _type_name(msg)
+        name = message_type(msg)
         form = sensor_form(msg)
         if form == "imu":
             return [
@@ -838,7 +852,7 @@ def to_ros(
                 f"sensor/{source}/{kind or name.lower()}", source, name, t_ns, seq, _jsonable(msg)
             )
         ]
-    if section == "nav" and _type_name(msg) == "Odometry":
+    if section == "nav" and message_type(msg) == "Odometry":
         return [RosMessage(f"nav/{source}", "nav_msgs/msg/Odometry", odometry_msg(msg, t_ns)),
                 RosMessage("/tf", TF_TYPE, tf_msg([odom_tf(msg, t_ns)]))]  # fmt: skip
     if section == "slam" and isinstance(msg, Mapping):

@@ -15,12 +15,15 @@ form.
 
 from __future__ import annotations
 
+import math
 import struct
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from functools import lru_cache
 from typing import TYPE_CHECKING, Any
 
 from auvgw import ros2
+from auvgw.decoding import message_type
+from auvgw.ground.geometry import quaternion_zyx
 
 if TYPE_CHECKING:
     import numpy as np
@@ -28,7 +31,7 @@ if TYPE_CHECKING:
     from auvgw.drivers import pd0
     from auvgw.drivers.roles import Field, Ins
 
-__all__ = ["ENCAPSULATION", "cdr_struct", "sensor_cdr"]
+__all__ = ["ENCAPSULATION", "cdr_struct", "sensor_cdr", "sensor_writer"]
 
 #: CDR little endian (``CDR_LE``), no options: the 4 bytes before every payload
 ENCAPSULATION = b"\x00\x01\x00\x00"
@@ -126,51 +129,80 @@ _INF = float("inf")
 #: PointField names of :func:`auvgw.ros2.cloud_points`' rows and their CDR values
 _CLOUD_FIELDS = tuple((4 * i, c.encode()) for i, c in enumerate(("x", "y", "z", "intensity")))
 _FLOAT32 = 7  # sensor_msgs/PointField.FLOAT32
+#: the four PointFields as packed: (name length + 1, name, offset, datatype, count) each
+_CLOUD_FIELD_VALUES = tuple(v for off, name in _CLOUD_FIELDS
+                            for v in (len(name) + 1, name, off, _FLOAT32, 1))  # fmt: skip
 
 
-def _stamp(t_ns: int, frame: str) -> tuple[int, bytes, tuple[int | bytes, ...]]:
-    """(len(frame), its bytes, the header's packed values) of a ``std_msgs/Header``.
-
-    ``builtin_interfaces/Time.sec`` is an int32: a stamp outside 1901-2038 raises ValueError."""
+def _seconds(t_ns: int) -> tuple[int, int]:
+    """``builtin_interfaces/Time`` (sec, nanosec) of a stamp; its ``sec`` is an int32: a stamp
+    outside 1901-2038 raises ValueError."""
     if not -(2**31) * 1_000_000_000 <= t_ns < 2**31 * 1_000_000_000:
         raise ValueError(f"stamp {t_ns} ns is outside builtin_interfaces/Time's int32 seconds "
                          "(1901-12-13 to 2038-01-19 UTC)")
+    return divmod(t_ns, 1_000_000_000)
+
+
+def _stamp(t_ns: int, frame: str) -> tuple[int, bytes, tuple[int | bytes, ...]]:
+    """(len(frame), its bytes, the header's packed values) of a ``std_msgs/Header``."""
     f = frame.encode()
-    return len(f), f, (ENCAPSULATION, t_ns // 1_000_000_000, t_ns % 1_000_000_000, len(f) + 1, f)
+    return len(f), f, (ENCAPSULATION, *_seconds(t_ns), len(f) + 1, f)
 
 
-def _imu(msg: Ins, device: str, t_ns: int) -> bytes:
-    n, _, head = _stamp(t_ns, device)
-    q = ros2.quaternion_enu_flu(msg.heading, msg.pitch, msg.roll)
-    return cdr_struct("sensor_msgs/msg/Imu", (n,)).pack(
-        *head, *q, *_Z9,
-        *ros2.flu_from_frd((msg.rate_x, msg.rate_y, msg.rate_z)), *_Z9,
-        *ros2.flu_from_frd((msg.accel_x, msg.accel_y, msg.accel_z)), *_Z9,
-    )  # fmt: skip
+#: what a writer gives for one decoded message: (topic, ROS type, CDR) per ROS 2 message
+Out = list[tuple[str, str, bytes]]
+Writer = Callable[[Any, int], Out]
+_IMU, _FIELD = "sensor_msgs/msg/Imu", "sensor_msgs/msg/MagneticField"
+_HALF_PI = math.pi / 2
 
 
-def _magnetic_field(msg: Field, device: str, t_ns: int) -> bytes:
-    n, _, head = _stamp(t_ns, device)
-    b = ros2.flu_from_frd((msg.bx, msg.by, msg.bz))
-    return cdr_struct("sensor_msgs/msg/MagneticField", (n,)).pack(
-        *head, b[0] * 1e-9, b[1] * 1e-9, b[2] * 1e-9, *_Z9
-    )
+def _imu_writer(source: str) -> Writer:
+    """``sensor_msgs/Imu`` of an INS solution, frame ``source``: :func:`auvgw.ros2.imu_msg`'s
+    values (:func:`auvgw.ros2.quaternion_enu_flu`, :func:`auvgw.ros2.flu_from_frd`) written out
+    on the message's fields, with the topic, frame and struct bound once per device."""
+    topic, frame = f"sensor/{source}/imu", source.encode()
+    pack, n = cdr_struct(_IMU, (len(frame),)).pack, len(frame) + 1
+
+    def write(msg: Ins, t_ns: int) -> Out:
+        q = quaternion_zyx(msg.roll, -msg.pitch, _HALF_PI - msg.heading)  # ENU <- FLU
+        return [(topic, _IMU, pack(
+            ENCAPSULATION, *_seconds(t_ns), n, frame, *q, *_Z9,
+            float(msg.rate_x), -float(msg.rate_y), -float(msg.rate_z), *_Z9,  # FLU <- FRD
+            float(msg.accel_x), -float(msg.accel_y), -float(msg.accel_z), *_Z9,
+        ))]  # fmt: skip
+
+    return write
 
 
-def _cloud(t_ns: int, frame: str, xyz: np.ndarray, intensity: np.ndarray | None) -> bytes:
+def _field_writer(source: str) -> Writer:
+    """``sensor_msgs/MagneticField`` (tesla, FLU) of a field sample (nT, FRD), frame
+    ``source`` (:func:`auvgw.ros2.magnetic_field_msg`'s values)."""
+    topic, frame = f"sensor/{source}/magnetic_field", source.encode()
+    pack, n = cdr_struct(_FIELD, (len(frame),)).pack, len(frame) + 1
+
+    def write(msg: Field, t_ns: int) -> Out:
+        return [(topic, _FIELD, pack(
+            ENCAPSULATION, *_seconds(t_ns), n, frame,
+            float(msg.bx) * 1e-9, -float(msg.by) * 1e-9, -float(msg.bz) * 1e-9, *_Z9,
+        ))]  # fmt: skip
+
+    return write
+
+
+def _cloud(t_ns: int, frame: str, rows: np.ndarray) -> bytes:
+    """A PointCloud2 of :func:`auvgw.ros2.cloud_points` rows."""
     import numpy as np
 
-    rows = ros2.cloud_points(xyz, intensity)
     n, _, head = _stamp(t_ns, frame)
     count = len(rows)
-    fields = [v for off, name in _CLOUD_FIELDS for v in (len(name) + 1, name, off, _FLOAT32, 1)]
+    # is_dense: every value finite, i.e. their float64 sum is (float32 values cannot overflow it)
     return cdr_struct("sensor_msgs/msg/PointCloud2", (n, 4, 1, 1, 1, 9, 16 * count)).pack(
-        *head, 1, count, 4, *fields, False, 16, 16 * count, 16 * count, rows.tobytes(),
-        bool(np.isfinite(rows).all()),
+        *head, 1, count, 4, *_CLOUD_FIELD_VALUES, False, 16, 16 * count, 16 * count,
+        rows.tobytes(), math.isfinite(rows.sum(dtype=np.float64)),
     )  # fmt: skip
 
 
-def _dvl(msg: pd0.Ensemble, device: str, t_ns: int) -> list[tuple[str, str, bytes]]:
+def _dvl(msg: pd0.Ensemble, device: str, t_ns: int) -> Out:
     d = ros2.dvl_reading(msg, device)
     if d is None:
         return []
@@ -186,22 +218,34 @@ def _dvl(msg: pd0.Ensemble, device: str, t_ns: int) -> list[tuple[str, str, byte
             (f"sensor/{device}/altitude", "sensor_msgs/msg/Range", rng)]  # fmt: skip
 
 
-def sensor_cdr(source: str, msg: Any, t_ns: int) -> list[tuple[str, str, bytes]] | None:
+def _cloud_writer(source: str, form: str) -> Writer:
+    """A ``PointCloud2`` (topic ``sensor/<source>/<form>``) of a multibeam ping (``points``)
+    or an MSIS scan line (``returns``)."""
+    topic = f"sensor/{source}/{form}"
+    points = ros2.swath_points if form == "points" else ros2.scanline_points
+    return lambda msg, t_ns: [(topic, "sensor_msgs/msg/PointCloud2",
+                               _cloud(t_ns, source, points(msg)))]  # fmt: skip
+
+
+@lru_cache(maxsize=1024)
+def sensor_writer(source: str, type_name: str) -> Writer | None:
+    """The writer of decoded messages of type ``type_name`` from device ``source`` (None for a
+    type with no standard form), made once per pair: :func:`sensor_cdr` calls it."""
+    form = ros2.form_of_type(type_name)
+    if form == "imu":
+        return _imu_writer(source)
+    if form == "magnetic_field":
+        return _field_writer(source)
+    if form == "dvl":
+        return lambda msg, t_ns: _dvl(msg, source, t_ns)
+    if form in ("points", "returns"):
+        return _cloud_writer(source, form)
+    return None
+
+
+def sensor_cdr(source: str, msg: Any, t_ns: int) -> Out | None:
     """(topic, ROS type, CDR bytes) of each ROS 2 message of a decoded sensor message, byte for
     byte what ``serialize`` of :func:`auvgw.ros2.to_ros`'s messages gives (same topics, same
     order); None for a message with no standard form (``auvgw_msgs/Decoded``: use ``to_ros``)."""
-    form = ros2.sensor_form(msg)
-    if form == "imu":
-        return [(f"sensor/{source}/imu", "sensor_msgs/msg/Imu", _imu(msg, source, t_ns))]
-    if form == "magnetic_field":
-        return [(f"sensor/{source}/magnetic_field", "sensor_msgs/msg/MagneticField",
-                 _magnetic_field(msg, source, t_ns))]  # fmt: skip
-    if form == "dvl":
-        return _dvl(msg, source, t_ns)
-    if form == "points":
-        return [(f"sensor/{source}/points", "sensor_msgs/msg/PointCloud2",
-                 _cloud(t_ns, source, *ros2.swath_points(msg)))]  # fmt: skip
-    if form == "returns":
-        return [(f"sensor/{source}/returns", "sensor_msgs/msg/PointCloud2",
-                 _cloud(t_ns, source, *ros2.scanline_points(msg)))]  # fmt: skip
-    return None
+    write = sensor_writer(source, message_type(msg))
+    return None if write is None else write(msg, t_ns)

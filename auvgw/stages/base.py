@@ -26,8 +26,9 @@ A :class:`Stage` owns the plumbing; a subclass gives only what is its own:
 * **its own reading and reporting**: :meth:`Stage.read_payload` (a payload that is not read as an
   envelope: the Rerun stage's JSON sections, the ROS 2 stages' conversions), :meth:`Stage.accepts`
   (which in-process messages :meth:`Stage.post` queues), :attr:`Stage.batch_s` (:meth:`Stage.post`
-  queues one call per batch) and :meth:`Stage.on_status` (health reported elsewhere than the bus,
-  at each status period and at stop).
+  queues one call per batch; :meth:`Stage.feed_batch` takes a batch, message by message unless
+  the stage writes it in one pass) and :meth:`Stage.on_status` (health reported elsewhere than
+  the bus, at each status period and at stop).
 
 The methods a subclass gives are marked :func:`hook`; it never overrides any other public method
 of the base (``tests/service/test_stage_hooks.py`` walks them all).
@@ -322,8 +323,15 @@ class Stage(Worker[_Item]):
     def _take_batch(self) -> None:
         time.sleep(self.batch_s)
         self._batch_queued = False  # before taking: a post from now on queues the next batch
-        while self._batch:
-            self._feed_posted(*self._batch.popleft())
+        self.feed_batch(self._batch)
+
+    @hook
+    def feed_batch(self, batch: deque[tuple[str, int, object]]) -> None:
+        """Take every posted (device, receive stamp ns, message) of ``batch`` (popped from its
+        left, where the listeners append: each message once) on the worker: a subclass that
+        writes a batch in one pass overrides it."""
+        while batch:
+            self._feed_posted(*batch.popleft())
 
     def _feed_posted(self, device: str, t_recv_ns: int, message: object) -> None:
         """A posted message on the worker: its stamp moves the stage's clock (in-process, from

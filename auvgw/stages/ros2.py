@@ -30,6 +30,7 @@ import contextlib
 import logging
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import ClassVar, cast
@@ -277,22 +278,53 @@ class Ros2Bridge(RosStage):
     priority = zenoh.Priority.DATA_LOW
 
     def emit_sensor(self, key: str, device: str, message: object, t_ns: int, kind: str) -> None:
-        """A decoded sensor message's ROS 2 messages written by :func:`auvgw.ros2_cdr.
-        sensor_cdr` (no rosbags objects), or, for one with no standard form, by
-        :func:`auvgw.ros2.to_ros` (:meth:`RosStage.emit_sensor`)."""
+        """A decoded sensor message's ROS 2 messages (:meth:`_write_sensor`)."""
+        n = self._write_sensor(key, device, message, t_ns, kind,
+                               self._holder == threading.get_ident())  # fmt: skip
+        with self._lock:
+            self.stats.published += n
+
+    def _write_sensor(self, key: str, device: str, message: object, t_ns: int, kind: str,
+                      hold: bool) -> int:  # fmt: skip
+        """Put a decoded sensor message's ROS 2 messages written by :func:`auvgw.ros2_cdr.
+        sensor_cdr` (no rosbags objects), or, for one with no standard form (or with
+        :attr:`compiled` off), by :func:`auvgw.ros2.to_ros` (:meth:`RosStage.emit_sensor`);
+        what :meth:`_put_all` put for the caller to count."""
         out = ros2_cdr.sensor_cdr(device, message, t_ns) if self.compiled else None
         if out is None:
             super().emit_sensor(key, device, message, t_ns, kind)
-            return
-        self._put_all(key, out, t_ns)
+            return 0
+        return self._put_all(key, out, t_ns, hold)
 
-    def _put_all(self, key: str, out: list[tuple[str, str, bytes]], t_ns: int) -> None:
-        """Put each (topic, ROS type, CDR) of a sample on bus key ``key``: on a declared
-        publisher straight away (its sequence number and attachment, held on the worker, counted
-        once per sample); the first of a topic, or in-process (``on_publish``), through
-        :meth:`put_cdr`."""
-        routes, made = self._routes, self._made.get(key, ())
+    def feed_batch(self, batch: deque[tuple[str, int, object]]) -> None:
+        """A batch of the gateway's decoded sensor messages in one pass (each was
+        :meth:`wanted` when posted): the stamp clock, :meth:`_write_sensor`, the puts held,
+        the counts once per batch. One whose conversion raises is counted (``bad_payloads``)
+        and logged, and the rest of the batch goes on."""
+        accept, key_of, write = self._stamps.accept, self.sensor_key, self._write_sensor
         hold = self._holder == threading.get_ident()
+        taken = put = 0
+        while batch:
+            device, t_ns, message = batch.popleft()
+            accept(t_ns)  # in-process, from a trusted source: moves the clock, never refused
+            key, kind = key_of(device, message)
+            taken += 1
+            try:
+                put += write(key, device, message, t_ns, kind, hold)
+            except Exception as exc:  # one message must never cost the batch
+                self._bad_payload(key, exc)
+        with self._lock:
+            self.stats.received += taken
+            self.stats.published += put
+
+    def _put_all(self, key: str, out: list[tuple[str, str, bytes]], t_ns: int,
+                 hold: bool) -> int:  # fmt: skip
+        """Put each (topic, ROS type, CDR) of a sample on bus key ``key`` (``hold``: on the
+        worker, in a call): on a declared publisher straight away (its sequence number and
+        attachment); the first of a topic, or in-process (``on_publish``), through
+        :meth:`put_cdr` (which counts it). What was put on a declared publisher: the caller
+        counts it in ``published``."""
+        routes, made = self._routes, self._made.get(key, ())
         new: list[_Endpoint | None] = []
         n = 0
         for topic, ros_type, cdr in out:
@@ -304,11 +336,9 @@ class Ros2Bridge(RosStage):
             n += 1
             if ep not in made:
                 new.append(ep)
-        if n:
-            with self._lock:
-                self.stats.published += n
         if new:
             self._remember(key, new)
+        return n
 
     def read_payload(self, key: str, payload: bytes, t_arrival_ns: int | None) -> object:
         """A decoded sensor sample of a standard ROS 2 form straight from its envelope to the
@@ -330,9 +360,10 @@ class Ros2Bridge(RosStage):
             self._bad_payload(key, ValueError(
                 f"stamp {env.t_recv_ns} ns implausible against the stage's clock"))
             return None
-        self._put_all(key, out, env.t_recv_ns)
+        n = self._put_all(key, out, env.t_recv_ns, self._holder == threading.get_ident())
         with self._lock:
             self.stats.received += 1
+            self.stats.published += n
         return None
 
     def put_cdr(self, rel_topic: str, ros_type: str, cdr: bytes, t_ns: int,

@@ -264,3 +264,43 @@ def test_cdr_struct_refuses_sizes_that_do_not_fit_the_type():
         cdr_struct("sensor_msgs/msg/Imu", ())
     with pytest.raises(ValueError, match="longer than"):
         cdr_struct("sensor_msgs/msg/Imu", (3, 1))
+
+
+def test_a_batch_puts_every_good_message_in_order_around_one_that_fails(sensor_samples):
+    """The gateway's batch (``Ros2Bridge.feed_batch``): each message's CDR in the posted order,
+    the compiled writers' bytes; a message whose conversion raises (a stamp ROS 2 cannot hold)
+    is counted and the rest of the batch still goes out."""
+    from collections import deque
+
+    from auvgw.ros2_cdr import sensor_cdr
+    from auvgw.stages.ros2 import Ros2Bridge, Ros2BridgeConfig
+
+    got: list[tuple[str, bytes, int]] = []
+    bridge = Ros2Bridge(Ros2BridgeConfig(vehicle="v"),
+                        on_publish=lambda key, cdr, t_ns: got.append((key, cdr, t_ns)))  # fmt: skip
+    forms = {}
+    for _, m in sensor_samples:
+        forms.setdefault(ros2.sensor_form(m), m)
+    t0, bad = 1_700_000_000_000_000_000, 2**31 * 10**9  # past 2038: Time.sec overflows
+    posted = [("ins", t0 + i, m) for i, m in enumerate(forms.values())]
+    posted.insert(2, ("mag", bad, forms["magnetic_field"]))
+    bridge.feed_batch(deque(posted))
+    expect = [(cdr, t) for d, t, m in posted if t != bad for _, _, cdr in sensor_cdr(d, m, t)]
+    assert [(cdr, t) for _, cdr, t in got] == expect and len(expect) == 6  # the DVL's two
+    stats = bridge.counters()["stage"]
+    assert (stats["received"], stats["published"], stats["bad_payloads"]) == (6, 6, 1)
+
+
+@pytest.mark.parametrize(("value", "dense"),
+                         [(1.0, True), (np.nan, False), (np.inf, False), (-np.inf, False),
+                          (3e38, True), (-3e38, True)])  # fmt: skip
+def test_a_clouds_is_dense_says_whether_every_value_is_finite(value, dense):
+    """``is_dense`` (the compiled writer: a float64 sum) is rosbags' ``isfinite().all()``:
+    NaN and either infinity make it False, float32's largest values do not overflow it."""
+    from auvgw.ros2_cdr import _cloud
+
+    rows = np.full((8, 4), 3e38, dtype="<f4")
+    rows[5, 2] = value
+    cdr = _cloud(1_700_000_000_000_000_000, "mb", rows)
+    msg = ros2.typestore().deserialize_cdr(cdr, "sensor_msgs/msg/PointCloud2")
+    assert msg.is_dense is bool(np.isfinite(rows).all()) is dense

@@ -51,9 +51,9 @@ def test_no_stage_overrides_a_public_method_of_the_base() -> None:
     assert {"start", "stop", "post", "post_odometry", "handle_sample", "publish", "publish_json",
             "publish_message", "publish_status", "counters", "from_source", "keep", "subscribe",
             "submit", "start_worker", "stop_worker", "worker_stats"} <= set(PUBLIC)  # fmt: skip
-    assert {"key", "input_keys", "wanted", "feed", "feed_odometry", "dispatch", "status_fields",
-            "flush", "on_start", "on_stop", "accepts", "read_payload", "on_status",
-            "component"} == set(HOOKS)  # fmt: skip
+    assert {"key", "input_keys", "wanted", "feed", "feed_batch", "feed_odometry", "dispatch",
+            "status_fields", "flush", "on_start", "on_stop", "accepts", "read_payload",
+            "on_status", "component"} == set(HOOKS)  # fmt: skip
     _import_stages()
     subs = subclasses(Stage)
     names = {c.__qualname__ for c in subs}
