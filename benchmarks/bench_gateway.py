@@ -783,12 +783,15 @@ def print_ros2(phases: list[AllPhase]) -> None:
             ("ROS 2 msgs", 10), ("lost", 6), ("window", 6), ("load", 5)]  # fmt: skip
     print_head(cols)
     rnd, plain_cpu = 0, float("nan")
+    paired: dict[tuple[float, str], list[float]] = {}  # (speed, mode) -> each round's ratio
     for ph in phases:
         lost = sum(r.lost for r in ph.rows)
         if ph.ros2 == "":
             rnd, plain_cpu = rnd + 1, ph.cpu_pct if not lost and not ph.slow else float("nan")
         bad = lost or ph.slow or math.isnan(plain_cpu)
         ratio = "-" if bad else f"{ph.cpu_pct / plain_cpu:.2f}x"
+        if not bad:
+            paired.setdefault((ph.speed, ph.ros2), []).append(ph.cpu_pct / plain_cpu)
         bridge = "" if math.isnan(ph.bridge_cpu_pct) else f"{ph.bridge_cpu_pct:.1f}"
         print(table_line(cols, (rnd, ph.ros2 or "plain", f"{ph.cpu_pct:.1f}", ratio, bridge,
                                 ph.ros2_received, lost, f"{ph.window_speed:.1f}x",
@@ -800,9 +803,10 @@ def print_ros2(phases: list[AllPhase]) -> None:
             continue
         base = statistics.median(ph.cpu_pct for ph in plain)
         print(f"\n[ros2] summary at {speed:g}x: medians of the phases that lost no frame "
-              "(bar: at most 1.10x the plain gateway's CPU)\n")
+              "(bar: at most 1.10x the plain gateway's CPU; paired: the median of each round's "
+              "ratio to its own plain phase)\n")
         cols = [("phase", -12), ("phases", 6), ("gateway %", 9), ("range", 11), ("ratio", 6),
-                ("ROS 2 msgs/s", 12), ("us/msg", 6), ("bridge %", 8)]  # fmt: skip
+                ("paired", 6), ("ROS 2 msgs/s", 12), ("us/msg", 6), ("bridge %", 8)]  # fmt: skip
         print_head(cols)
         modes = [m for m in ROS2_MODES if any((ph.speed, ph.ros2) == (speed, m) for ph in phases)]
         kept = {m: [ph for ph in ok if (ph.speed, ph.ros2) == (speed, m)] for m in modes}
@@ -810,9 +814,10 @@ def print_ros2(phases: list[AllPhase]) -> None:
             runs = kept[m]
             n_all = sum(1 for ph in phases if (ph.speed, ph.ros2) == (speed, m))
             if not runs:
-                print(table_line(cols, (m or "plain", f"0/{n_all}", "-", "-", "-", "-", "-",
+                print(table_line(cols, (m or "plain", f"0/{n_all}", "-", "-", "-", "-", "-", "-",
                                         "-")))  # fmt: skip
                 continue
+            pr = paired.get((speed, m), [])
             cpu = statistics.median(ph.cpu_pct for ph in runs)
             lo, hi = min(ph.cpu_pct for ph in runs), max(ph.cpu_pct for ph in runs)
             rate = statistics.median(ph.ros2_received / ph.seconds for ph in runs)
@@ -821,6 +826,7 @@ def print_ros2(phases: list[AllPhase]) -> None:
             bcpu = statistics.median(ph.bridge_cpu_pct for ph in runs)
             print(table_line(cols, (m or "plain", f"{len(runs)}/{n_all}", f"{cpu:.1f}",
                                     f"{lo:.1f}-{hi:.1f}", f"{cpu / base:.2f}x",
+                                    f"{statistics.median(pr):.2f}x" if pr else "-",
                                     f"{rate:.0f}" if m else "-", per,
                                     "" if math.isnan(bcpu) else f"{bcpu:.1f}")))  # fmt: skip
         groups = sorted({g for ph in ros + plain for g in ph.threads},
@@ -1052,7 +1058,9 @@ def all_devices_run(args: argparse.Namespace) -> list[AllPhase]:
         phases = []
         for _ in range(max(args.ros2, args.geoswath, 1)):
             for k in speeds:
-                for r in ("", "unwatched", "watched", "own process") if args.ros2 else ("",):
+                for r in ROS2_MODES if args.ros2 else ("",):
+                    if args.ros2 and (r or "plain") not in args.ros2_phases:
+                        continue
                     for g in (False, True) if args.geoswath else (False,):
                         try:
                             ph = all_devices_phase(Path(tmp), k, seconds, warm_s=args.all_warm,
@@ -1221,6 +1229,10 @@ def main() -> int:
                          "[ros2] bridge, with it and no ROS 2 subscriber, with it and a "
                          "subscriber on every topic, and with `auvgw ros2 bridge` as its own "
                          "process and a subscriber on every topic")  # fmt: skip
+    ap.add_argument("--ros2-phases", nargs="+", default=[p or "plain" for p in ROS2_MODES],
+                    choices=[p or "plain" for p in ROS2_MODES], metavar="PHASE",
+                    help="with --ros2: the phases to run (default all four: plain, unwatched, "
+                         "watched, 'own process')")  # fmt: skip
     ap.add_argument("--profile", type=Path, default=None, metavar="DIR",
                     help="all-devices run: py-spy's stacks of the gateway (native frames, per "
                          "thread) over each phase's window, one raw flame graph per phase in "
