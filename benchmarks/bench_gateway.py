@@ -457,6 +457,8 @@ class AllPhase:
     threads: dict[str, float] = field(default_factory=dict)
     #: the machine's 1-minute load at the end of the window
     load: float = float("nan")
+    #: the round it belongs to (--ros2, --geoswath: 1, 2, ...; its phases are compared)
+    round: int = 0
     #: vehicle s per wall s over the window (the sim's elastic clock: below ``speed`` when its
     #: devices could not keep up and it held vehicle time)
     window_speed: float = float("nan")
@@ -782,18 +784,18 @@ def print_ros2(phases: list[AllPhase]) -> None:
     cols = [("round", 5), ("phase", -12), ("gateway %", 9), ("ratio", 6), ("bridge %", 8),
             ("ROS 2 msgs", 10), ("lost", 6), ("window", 6), ("load", 5)]  # fmt: skip
     print_head(cols)
-    rnd, plain_cpu = 0, float("nan")
+    # each round's plain phase (the rounds' order of modes rotates: plain need not come first)
+    plains = {(ph.round, ph.speed): ph.cpu_pct for ph in ok if ph.ros2 == ""}
     paired: dict[tuple[float, str], list[float]] = {}  # (speed, mode) -> each round's ratio
     for ph in phases:
         lost = sum(r.lost for r in ph.rows)
-        if ph.ros2 == "":
-            rnd, plain_cpu = rnd + 1, ph.cpu_pct if not lost and not ph.slow else float("nan")
+        plain_cpu = plains.get((ph.round, ph.speed), float("nan"))
         bad = lost or ph.slow or math.isnan(plain_cpu)
         ratio = "-" if bad else f"{ph.cpu_pct / plain_cpu:.2f}x"
         if not bad:
             paired.setdefault((ph.speed, ph.ros2), []).append(ph.cpu_pct / plain_cpu)
         bridge = "" if math.isnan(ph.bridge_cpu_pct) else f"{ph.bridge_cpu_pct:.1f}"
-        print(table_line(cols, (rnd, ph.ros2 or "plain", f"{ph.cpu_pct:.1f}", ratio, bridge,
+        print(table_line(cols, (ph.round, ph.ros2 or "plain", f"{ph.cpu_pct:.1f}", ratio, bridge,
                                 ph.ros2_received, lost, f"{ph.window_speed:.1f}x",
                                 f"{ph.load:.1f}")))  # fmt: skip
     for speed in sorted({ph.speed for ph in ros}):
@@ -1056,11 +1058,12 @@ def all_devices_run(args: argparse.Namespace) -> list[AllPhase]:
         # with --ros2 (--geoswath): plain and bridged runs (runs with the GeoSwath)
         # interleaved, so the machine's drift hits both
         phases = []
-        for _ in range(max(args.ros2, args.geoswath, 1)):
+        modes = [m for m in ROS2_MODES if (m or "plain") in args.ros2_phases] if args.ros2 else [""]
+        for rnd in range(max(args.ros2, args.geoswath, 1)):
             for k in speeds:
-                for r in ROS2_MODES if args.ros2 else ("",):
-                    if args.ros2 and (r or "plain") not in args.ros2_phases:
-                        continue
+                # each round starts one mode later: none is always first (s41: the phase that
+                # opens a round read lower, whichever it was)
+                for r in modes[rnd % len(modes):] + modes[:rnd % len(modes)]:
                     for g in (False, True) if args.geoswath else (False,):
                         try:
                             ph = all_devices_phase(Path(tmp), k, seconds, warm_s=args.all_warm,
@@ -1070,6 +1073,7 @@ def all_devices_run(args: argparse.Namespace) -> list[AllPhase]:
                             print(f"phase {k:g}x {r or 'plain'}: not measured: {exc}",
                                   file=sys.stderr, flush=True)  # fmt: skip
                             continue
+                        ph.round = rnd + 1
                         bcpu = ph.bridge_cpu_pct
                         bridge = "" if math.isnan(bcpu) else f", bridge {bcpu:.1f} %"
                         print(f"phase {k:g}x {r or 'plain'}{' +GeoSwath' if g else ''}: gateway "
