@@ -457,13 +457,13 @@ class AllPhase:
     threads: dict[str, float] = field(default_factory=dict)
     #: the machine's 1-minute load at the end of the window
     load: float = float("nan")
-    #: the round it belongs to (--ros2, --geoswath: 1, 2, ...; its phases are compared)
-    round: int = 0
     #: vehicle s per wall s over the window (the sim's elastic clock: below ``speed`` when its
     #: devices could not keep up and it held vehicle time)
     window_speed: float = float("nan")
     #: the sim's pacing line at exit (vehicle and wall s of the run, effective speed, holds)
     pacing: str = ""
+    #: the round it belongs to (--ros2, --geoswath: 1, 2, ...; its phases are compared)
+    round: int = 0
 
     @property
     def slow(self) -> bool:
