@@ -211,6 +211,7 @@ def test_no_test_imports_a_layer_above_its_folder():
 
 @pytest.mark.e2e  # it starts a pytest process, whose tests open a pty and start a process
 def test_an_unmarked_test_that_starts_a_pty_fails_and_a_marked_one_runs(tmp_path):
+    """The tripwires blame the test whose thread (or a thread it started) made the call."""
     from auvgw.testing import PYTHON
 
     (tmp_path / "test_planted.py").write_text(
@@ -218,7 +219,20 @@ def test_an_unmarked_test_that_starts_a_pty_fails_and_a_marked_one_runs(tmp_path
         "def test_unmarked():\n    a, b = os.openpty()\n    os.close(a)\n    os.close(b)\n\n"
         "@pytest.mark.e2e\ndef test_marked():\n"
         "    subprocess.run([sys.executable, '-c', ''], check=True)\n\n"
-        "def test_pure():\n    assert sum([1, 1]) == 2\n"
+        "def test_pure():\n    assert sum([1, 1]) == 2\n\n"
+        # a thread an earlier test left running starts a process while an unmarked test runs:
+        # not that test's (the events order it; nothing sleeps)
+        "import threading\ngo, done = threading.Event(), threading.Event()\n\n"
+        "@pytest.mark.e2e\ndef test_marked_leaves_a_thread():\n"
+        "    def later():\n        go.wait(60)\n"
+        "        subprocess.run([sys.executable, '-c', ''], check=True)\n        done.set()\n"
+        "    threading.Thread(target=later, daemon=True).start()\n\n"
+        "def test_unmarked_while_an_earlier_thread_starts_a_process():\n"
+        "    go.set()\n    assert done.wait(60)\n\n"
+        # ... but a thread the unmarked test starts itself is the test's
+        "def test_unmarked_thread():\n"
+        "    t = threading.Thread(target=subprocess.run, args=([sys.executable, '-c', ''],))\n"
+        "    t.start()\n    t.join()\n"
     )
     out = subprocess.run(
         [PYTHON, "-m", "pytest", "-q", "-p", "auvgw.testing.e2e_marks", "-p", "no:cacheprovider",
@@ -227,4 +241,5 @@ def test_an_unmarked_test_that_starts_a_pty_fails_and_a_marked_one_runs(tmp_path
     )  # fmt: skip
     assert out.returncode == 1, out.stdout + out.stderr
     assert "test_planted.py::test_unmarked started a pty but is not marked e2e" in out.stdout
-    assert "1 failed, 2 passed" in out.stdout, out.stdout
+    assert "test_planted.py::test_unmarked_thread started a process but is not" in out.stdout
+    assert "2 failed, 4 passed" in out.stdout, out.stdout
