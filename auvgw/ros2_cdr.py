@@ -21,13 +21,13 @@ from collections.abc import Callable, Iterator
 from functools import lru_cache
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 from auvgw import ros2
 from auvgw.decoding import message_type
 from auvgw.ground.geometry import quaternion_zyx
 
 if TYPE_CHECKING:
-    import numpy as np
-
     from auvgw.drivers import pd0
     from auvgw.drivers.roles import Field, Ins
 
@@ -191,8 +191,6 @@ def _field_writer(source: str) -> Writer:
 
 def _cloud(t_ns: int, frame: str, rows: np.ndarray) -> bytes:
     """A PointCloud2 of :func:`auvgw.ros2.cloud_points` rows."""
-    import numpy as np
-
     n, _, head = _stamp(t_ns, frame)
     count = len(rows)
     # is_dense: every value finite, i.e. their float64 sum is (float32 values cannot overflow it)

@@ -199,9 +199,7 @@ def janus_angle(fixed: pd0.FixedLeader) -> float:
     return math.radians(_BEAM_ANGLES_DEG[code])
 
 
-def _bt_velocity(
-    ens: pd0.Ensemble, frame: pd0.CoordinateFrame, high_res: bool
-) -> list[float]:
+def _bt_velocity(ens: pd0.Ensemble, frame: pd0.CoordinateFrame, high_res: bool) -> list[float]:
     """The 4 bottom-track components as the instrument moving over the bottom (beam: closing
     speeds as on the wire), preferring 0x5803 when valid; NaN when bad. Plain floats: the
     adapter works on four numbers, where numpy's per-call cost is most of the work (the ROS 2
