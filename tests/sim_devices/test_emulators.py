@@ -130,7 +130,9 @@ def test_truth_at_matches_a_reference_interpolation(tmp_path: Path) -> None:
 @pytest.mark.e2e
 def test_ins_serial_frames_match_the_truth_within_the_seed_noise(tmp_path: Path) -> None:
     scn = make_scenario(devices={"ins": {"options": {"can": False}}})
-    with Runner(scn, RunOptions(out_dir=tmp_path, speed=20, devices=["ins"])) as r:
+    # 4x, not 20x: at 20x the pty carries 230 kB/s and a reader starved past the emulator's write
+    # timeout (two workers beside two burners, s41) cut a frame (bad checksum at byte 18,722)
+    with Runner(scn, RunOptions(out_dir=tmp_path, speed=4, devices=["ins"])) as r:
         ep = endpoint(r, "ins")
         assert ep.format == "hn100" and Path(ep.target).is_symlink()
         reader = SerialReader(ep.target, 115200)
