@@ -382,8 +382,8 @@ def test_writes_closer_than_the_read_interval_are_read_together(tmp_path):
     """``read_interval_s``: while bytes keep coming, a serial port is read at most that often,
     so writes closer together are read (and stamped) together; every frame still comes out.
     Three HN-100 frames written 10 ms apart with a 1 s interval (the most the setting takes):
-    the last two share the receive stamp of one read (s41: with 0.3 s, a test thread starved
-    past it between two writes, two CPU burners beside the suite, read them apart)."""
+    the last two share the receive stamp of one read (s41: the first frame is read alone
+    before the others are written; written at once, a late first read took two of them)."""
     import os
     import time
 
@@ -404,7 +404,9 @@ def test_writes_closer_than_the_read_interval_are_read_together(tmp_path):
     try:
         with Gateway(cfg, on_message=lambda d, t, m: got.append((t, m))) as gw:
             wait_until(lambda: gw.device_status("ins")["connected"], what="the port open")
-            for f in frames:
+            os.write(dev.master, frames[0])  # read alone: the next read waits the interval
+            wait_until(lambda: len(got) == 1, what="the first frame")
+            for f in frames[1:]:
                 os.write(dev.master, f)
                 time.sleep(0.01)
             wait_until(lambda: len(got) == 3, what="three frames")
