@@ -46,6 +46,11 @@ _STRICT = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False)
 _PATH = Field(None, max_length=4096)
 #: most listen or connect endpoints of one session
 MAX_ENDPOINTS = 32
+#: Zenoh's transmission queue per link and data priority, in batches (Zenoh's default is 2:
+#: 128 KiB, which a burst of multibeam pings overflows while its sending thread waits for a CPU,
+#: and a ``CongestionControl.DROP`` sample then waits 1 ms and is dropped; 16 is 1 MiB, allocated
+#: only when used). A subscriber that stops reading still costs its own link only.
+TX_QUEUE_BATCHES = 16
 
 
 def _rebase(value: str | None, base: Path) -> str | None:
@@ -166,6 +171,11 @@ class BusConfig(BaseModel):
         description="Zenoh's access_control section (enabled, default_permission, rules, "
         "subjects, policies), passed as is; see docs/security.md",
     )
+    tx_queue_batches: int = Field(
+        TX_QUEUE_BATCHES, ge=1, le=64,
+        description="Zenoh batches (64 KiB each) queued per link for each data priority before "
+        "a DROP sample is dropped",
+    )  # fmt: skip
     no_publisher_after_s: float = Field(
         NO_PUBLISHER_AFTER_S, ge=0.1, le=3600,
         description="say 'no publisher' after this many seconds",
@@ -254,6 +264,8 @@ class BusConfig(BaseModel):
             "scouting/multicast/enabled": json.dumps(self.multicast_scouting),
             "scouting/gossip/enabled": json.dumps(self.gossip),
         }
+        for prio in ("data_high", "data", "data_low"):
+            out[f"transport/link/tx/queue/size/{prio}"] = json.dumps(self.tx_queue_batches)
         if self.tls is not None:
             for k, v in self.tls.model_dump(exclude_none=True).items():
                 out[f"transport/link/tls/{k}"] = json.dumps(v)

@@ -68,7 +68,12 @@ def test_udp_and_tcp_pings_are_published_raw_and_decoded(procs, tmp_path: Path) 
                     frames[fr.key.rsplit("/", 1)[-1]].append(fr)
                 return len(got["gsu"]) >= 5 and len(got["gst"]) >= 4
 
-            wait_until(drained, timeout=30.0, what="9 decoded pings")
+            try:
+                wait_until(drained, timeout=30.0, what="9 decoded pings")
+            except AssertionError as exc:  # which were lost: on the bus, or before the gateway
+                counts = {d: (len(got[d]), len(frames[d]), (me.status(d) or {}).get("messages"))
+                          for d in got}  # fmt: skip
+                raise AssertionError(f"{exc}; (decoded, raw, gateway's count): {counts}") from None
             st = wait_until(lambda: (s := me.status("gst")) and s["bad_frames"] and s, what="st")
     for dev, want in (("gsu", pings), ("gst", tcp_want)):
         assert [fr.data for fr in frames[dev]] == want, dev  # raw first, byte for byte
