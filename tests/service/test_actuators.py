@@ -256,14 +256,19 @@ def _first_time(samples, start: int, cond) -> float:
 def test_emulated_limits_measured_from_the_feedback(tmp_path: Path) -> None:
     """Commands at t ~ 0.2 s: rudder +30 deg (saturates at 20, rate limit 30 deg/s), shaft
     1000 -> 1100 rpm (tau 0.3 s, under the rate limit), stern 0.1 deg (inside the 0.2 deg dead
-    band); the rudder jams at t = 2 s while a -10 deg command is pending."""
-    b = _Bench(_scenario({"rudder_jam": [[2.0, 1000.0]]}), tmp_path)
+    band); the rudder jams at t = 8 s while a -10 deg command is pending. The emulator's clock
+    runs on wall time (2x): the jam is late enough that a host thread starved for 3 s still
+    commands before the move (at t = 2 s the command of a host about 0.9 s late, two burners
+    beside the suite, met the jam after 0.4 deg of its ramp)."""
+    jam_s = 8.0
+    b = _Bench(_scenario({"rudder_jam": [[jam_s, 1000.0]]}), tmp_path)
     try:
         b.start()
         b.read_until(lambda s: s.counter >= 5)
         b.send(1, 1100.0, 30.0, 0.1)
         b.read_until(lambda s: s.cmd_seq == 1)
         i0 = len(b.samples) - 1
+        assert b.samples[i0].counter / 50 < jam_s - 1.5, "the command came too late to measure"
         b.read_until(lambda s: s.counter >= b.samples[i0].counter + 75)  # 1.5 s
         s = b.samples
         rud = np.array([x.rudder for x in s[i0:]]) / DEG
@@ -281,7 +286,7 @@ def test_emulated_limits_measured_from_the_feedback(tmp_path: Path) -> None:
         # dead band: a 0.1 deg stern command never moves the plane
         assert all(x.stern == 0.0 for x in s[i0:])
         assert all(x.faults == 0 for x in s) and s[-1].motor_current > 0.3
-        # the jam: at t = 2 s the rudder freezes at 20 deg and the fault word says so
+        # the jam: at t = 8 s the rudder freezes at 20 deg and the fault word says so
         jammed = b.read_until(lambda s: s.faults & FAULT_BITS["rudder_jammed"])[-1]
         b.send(2, 1100.0, -10.0, 0.0)
         b.read_until(lambda s: s.cmd_seq == 2)

