@@ -126,7 +126,7 @@ from pathlib import Path
 
 import zenoh
 
-from auvgw.bus import decode_envelope, open_session
+from auvgw.bus import decode_envelope, open_session, unpack_raw_attachment
 from auvgw.config.bus import BusConfig
 from auvgw.drivers.formats import get_format
 from auvgw.drivers.transports import Chunk
@@ -464,6 +464,10 @@ class AllPhase:
     pacing: str = ""
     #: the round it belongs to (--ros2, --geoswath: 1, 2, ...; its phases are compared)
     round: int = 0
+    #: raw frames' latency over the window, ms: from the gateway's receive stamp (the host
+    #: time of its read, its ``[clock]`` scaling undone) to their arrival in this script's
+    #: Zenoh callback (one host clock), every port's frames together; sorted
+    raw_latency_ms: list[float] = field(default_factory=list)
 
     @property
     def slow(self) -> bool:
@@ -614,12 +618,21 @@ def all_devices_phase(
         with GatewaySubscriber("benchall", BusConfig(connect=[ep])) as me:
             sizes: dict[str, list[int]] = {}
 
+            clock = cfg.get("clock", {})
+            scale, epoch = float(clock.get("time_scale", 1.0)), int(clock.get("epoch_ns", 0))
+            latency: list[float] = []
+            measuring = threading.Event()
+
             def on_sample(smp: zenoh.Sample) -> None:
+                arrived = time.time_ns()
                 parts = str(smp.key_expr).split("/")
                 c = sizes.setdefault(parts[3], [0, 0, 0, 0])
                 i = 0 if parts[2] == "raw" else 2
                 c[i] += 1
                 c[i + 1] += len(smp.payload.to_bytes())
+                if i == 0 and measuring.is_set() and smp.attachment is not None:
+                    stamp = unpack_raw_attachment(smp.attachment.to_bytes())[0]
+                    latency.append((arrived - epoch - (stamp - epoch) / scale) / 1e6)
 
             size_subs = [me.session.declare_subscriber(f"auv/benchall/{sec}/**", on_sample)
                          for sec in ("raw", "sensor")]  # fmt: skip
@@ -639,6 +652,7 @@ def all_devices_phase(
             # CPU over the sending window, half a (wall) second at speed inside each end
             vclock.wait(t_open + 0.5 * speed)
             c0, m0, th0 = cpu_ticks(gw.pid), time.monotonic(), thread_ticks(gw.pid)
+            measuring.set()
             v0 = vclock.now()
             b0 = cpu_ticks(bridge.pid) if bridge is not None else 0
             spy = None
@@ -653,6 +667,7 @@ def all_devices_phase(
                 )  # fmt: skip
             vclock.wait(t_close - 0.5 * speed)
             c1, m1, th1 = cpu_ticks(gw.pid), time.monotonic(), thread_ticks(gw.pid)
+            measuring.clear()
             v1 = vclock.now()
             b1 = cpu_ticks(bridge.pid) if bridge is not None else 0
             load = os.getloadavg()[0]
@@ -709,7 +724,7 @@ def all_devices_phase(
     bridge_cpu = (b1 - b0) / CLK_TCK / (m1 - m0) * 100 if bridge is not None else float("nan")
     return AllPhase(
         speed, seconds, cpu, rows, sim_rc, sizes, ros2, ros2_seen[0], geoswath, bridge_cpu,
-        threads, load, (v1 - v0) / (m1 - m0), sim_pacing(lines),
+        threads, load, (v1 - v0) / (m1 - m0), sim_pacing(lines), raw_latency_ms=sorted(latency),
     )
 
 
@@ -766,6 +781,16 @@ def print_all_devices(phases: list[AllPhase]) -> None:
 ROS2_MODES = ("", "unwatched", "watched", "own process")
 
 
+def _latency(*phases: AllPhase) -> str:
+    """The raw frames' latency of ``phases`` (each phase's median and 99th percentile, ms; of
+    several phases, the medians of those)."""
+    runs = [ph.raw_latency_ms for ph in phases if ph.raw_latency_ms]
+    if not runs:
+        return "-"
+    p50 = statistics.median(pct(r, 0.5) for r in runs)
+    return f"{p50:.2f}/{statistics.median(pct(r, 0.99) for r in runs):.2f}"
+
+
 def print_ros2(phases: list[AllPhase]) -> None:
     """The --ros2 verdict: every phase in run order with its ratio to the same round's plain
     phase, then per mode the median gateway CPU of the phases that lost no frame (a phase that
@@ -773,7 +798,8 @@ def print_ros2(phases: list[AllPhase]) -> None:
     vehicle clock ran at the bench's speed over the window (an elastic sim held on a loaded
     host: its devices sent fewer frames per wall second, :data:`SLOW_WINDOW`) against the
     plain phases' median, then the gateway's CPU per group of threads (medians) and what each
-    mode adds per ROS 2 message received."""
+    mode adds per ROS 2 message received. Each phase's raw frames' latency beside it
+    (:attr:`AllPhase.raw_latency_ms`)."""
     ros = [ph for ph in phases if ph.ros2]
     if not ros:
         return
@@ -782,7 +808,8 @@ def print_ros2(phases: list[AllPhase]) -> None:
           "ratio: against the same round's plain phase, none where either lost frames or ran "
           "slow; window: vehicle s per wall s)\n")
     cols = [("round", 5), ("phase", -12), ("gateway %", 9), ("ratio", 6), ("bridge %", 8),
-            ("ROS 2 msgs", 10), ("lost", 6), ("window", 6), ("load", 5)]  # fmt: skip
+            ("ROS 2 msgs", 10), ("lost", 6), ("window", 6), ("load", 5),
+            ("raw ms p50/p99", 14)]  # fmt: skip
     print_head(cols)
     # each round's plain phase (the rounds' order of modes rotates: plain need not come first)
     plains = {(ph.round, ph.speed): ph.cpu_pct for ph in ok if ph.ros2 == ""}
@@ -797,7 +824,7 @@ def print_ros2(phases: list[AllPhase]) -> None:
         bridge = "" if math.isnan(ph.bridge_cpu_pct) else f"{ph.bridge_cpu_pct:.1f}"
         print(table_line(cols, (ph.round, ph.ros2 or "plain", f"{ph.cpu_pct:.1f}", ratio, bridge,
                                 ph.ros2_received, lost, f"{ph.window_speed:.1f}x",
-                                f"{ph.load:.1f}")))  # fmt: skip
+                                f"{ph.load:.1f}", _latency(ph))))  # fmt: skip
     for speed in sorted({ph.speed for ph in ros}):
         plain = [ph for ph in ok if (ph.speed, ph.ros2) == (speed, "")]
         if not plain:
@@ -808,7 +835,8 @@ def print_ros2(phases: list[AllPhase]) -> None:
               "(bar: at most 1.10x the plain gateway's CPU; paired: the median of each round's "
               "ratio to its own plain phase)\n")
         cols = [("phase", -12), ("phases", 6), ("gateway %", 9), ("range", 11), ("ratio", 6),
-                ("paired", 6), ("ROS 2 msgs/s", 12), ("us/msg", 6), ("bridge %", 8)]  # fmt: skip
+                ("paired", 6), ("ROS 2 msgs/s", 12), ("us/msg", 6), ("bridge %", 8),
+                ("raw ms p50/p99", 14)]  # fmt: skip
         print_head(cols)
         modes = [m for m in ROS2_MODES if any((ph.speed, ph.ros2) == (speed, m) for ph in phases)]
         kept = {m: [ph for ph in ok if (ph.speed, ph.ros2) == (speed, m)] for m in modes}
@@ -817,7 +845,7 @@ def print_ros2(phases: list[AllPhase]) -> None:
             n_all = sum(1 for ph in phases if (ph.speed, ph.ros2) == (speed, m))
             if not runs:
                 print(table_line(cols, (m or "plain", f"0/{n_all}", "-", "-", "-", "-", "-", "-",
-                                        "-")))  # fmt: skip
+                                        "-", "-")))  # fmt: skip
                 continue
             pr = paired.get((speed, m), [])
             cpu = statistics.median(ph.cpu_pct for ph in runs)
@@ -830,7 +858,8 @@ def print_ros2(phases: list[AllPhase]) -> None:
                                     f"{lo:.1f}-{hi:.1f}", f"{cpu / base:.2f}x",
                                     f"{statistics.median(pr):.2f}x" if pr else "-",
                                     f"{rate:.0f}" if m else "-", per,
-                                    "" if math.isnan(bcpu) else f"{bcpu:.1f}")))  # fmt: skip
+                                    "" if math.isnan(bcpu) else f"{bcpu:.1f}",
+                                    _latency(*runs))))  # fmt: skip
         groups = sorted({g for ph in ros + plain for g in ph.threads},
                         key=lambda g: -statistics.median(ph.threads.get(g, 0.0)
                                                          for ph in kept.get("watched") or plain))

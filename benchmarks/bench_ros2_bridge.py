@@ -2,7 +2,7 @@
 never fails on a time.
 
     .venv/bin/python benchmarks/bench_ros2_bridge.py [--rate 1650] [--seconds 6] [--rounds 2]
-                                                      [--parts-only]
+                                                      [--parts-only] [--cases CASE ...]
 
 The bridge (:class:`auvgw.stages.ros2.Ros2Bridge`) in this process, fed as the gateway feeds it
 (:meth:`~auvgw.stages.ros2.RosStage.post` from a thread) with the all-devices bench's mix at 10x
@@ -22,10 +22,11 @@ feeding loop alone) in the same round:
 * ``watched, compiled``: the sensors' CDR from :mod:`auvgw.ros2_cdr`, publishers at
   ``DATA_LOW`` (now).
 
-Rounds interleave the cases so the machine's drift hits them all. First, the parts of one
-watched message, per ROS 2 form (single-thread timings, medians of 5 repeats): the conversion to
-rosbags objects, their CDR, the compiled writer (conversion and CDR in one), the attachment, and
-a Zenoh put made alone and in a group of 40 (a subscriber in another process).
+Rounds interleave the cases, in an order rotated per round, so the machine's drift hits them
+all. First, the parts of one watched message, per ROS 2 form (single-thread timings, medians of
+5 repeats): the conversion to rosbags objects, their CDR, the compiled writer (conversion and
+CDR in one), the attachment, and a Zenoh put made alone and in a group of 40 (a subscriber in
+another process).
 """
 
 from __future__ import annotations
@@ -236,14 +237,17 @@ def main() -> int:
     ap.add_argument("--seconds", type=float, default=6.0, help="seconds per case (default 6)")
     ap.add_argument("--rounds", type=int, default=2, help="interleaved rounds (default 2)")
     ap.add_argument("--parts-only", action="store_true", help="only the parts table")
+    ap.add_argument("--cases", nargs="+", choices=list(CASES), default=list(CASES),
+                    metavar="CASE", help="a subset of the cases ('no bridge' always runs)")
     args = ap.parse_args()
+    cases = ["no bridge", *(c for c in args.cases if c != "no bridge")]
     cycle = mix()
     parts(cycle)
     if args.parts_only:
         return 0
-    res: dict[str, list[tuple[float, float, int, int]]] = {c: [] for c in CASES}
+    res: dict[str, list[tuple[float, float, int, int]]] = {c: [] for c in cases}
     for r in range(args.rounds):
-        for case in CASES:
+        for case in cases[r % len(cases):] + cases[:r % len(cases)]:  # rotated per round
             res[case].append(run_case(case, args.rate, args.seconds, cycle))
             cpu, us, got, put = res[case][-1]
             print(f"round {r + 1} {case}: {cpu:.1f} % ({us:.1f} us/msg), put {put}, "
