@@ -136,7 +136,7 @@ def test_auvgw_pilot_flies_the_model_over_the_bus_then_surfaces_when_navigation_
         for sub in subs:
             sub.undeclare()
     proc.signal()
-    assert proc.wait() == 0
+    assert proc.wait(60) == 0  # once 30 s was not enough beside two burners (s42): stacks if not
     with cond:
         states, commands = list(got["state"]), list(got["command"])
     running = [st for st in states if st["mode"] == "running"]

@@ -36,7 +36,12 @@ def test_every_part_ran_in_its_own_process_and_exited_cleanly(processes_run) -> 
     assert re.search(r"processes: .*gateway pid \d+ exit 0", stdout)
     # the gateway stopped before the emulators: its last status has every device connected
     assert all(d["connected"] for d in summary["devices"].values()), summary["devices"]
-    assert "WARNING" not in (out / "gateway.log").read_text()
+    # ... so no device went away under it, and nothing failed to stop; a loaded host may still
+    # cost a frame or a silent stretch on the way (warned and counted: two burners beside the
+    # suite, s42), which says nothing about the order of the stop
+    warnings = [ln for ln in (out / "gateway.log").read_text().splitlines() if " WARNING " in ln]
+    assert not [ln for ln in warnings if any(
+        w in ln for w in ("disconnected", "transport error", "did not stop"))], warnings
     # the gateway the demo ran is the sim's, joined to the demo's bus, with the sim's clock
     gw = (out / "gateway.toml").read_text()
     assert "[clock]" in gw and f"time_scale = {SPEED}" in gw and "connect = [" in gw

@@ -96,9 +96,24 @@ class Proc:
             self.p.send_signal(sig)
 
     def wait(self, timeout: float = 30.0) -> int:
-        rc = self.p.wait(timeout)
+        """The exit code; an AssertionError naming where the process is stuck (its Python
+        stacks by ``py-spy dump``) and its stderr when it has not exited within ``timeout`` s."""
+        try:
+            rc = self.p.wait(timeout)
+        except subprocess.TimeoutExpired:
+            raise AssertionError(f"{self.args[:2]} still running {timeout:g} s on:\n"
+                                 f"{self.stacks()}\nstderr:\n{self.stderr()}") from None
         self._t.join(5)
         return rc
+
+    def stacks(self) -> str:
+        """Every thread's Python stack now (``py-spy dump``; what went wrong if it cannot)."""
+        try:
+            res = subprocess.run([str(VENV_BIN / "py-spy"), "dump", "--pid", str(self.p.pid)],
+                                 capture_output=True, text=True, timeout=30)  # fmt: skip
+        except (OSError, subprocess.TimeoutExpired) as exc:
+            return f"(no stacks: {exc})"
+        return res.stdout[-6000:] or f"(no stacks: {res.stderr.strip()[-500:]})"
 
     def stop(self) -> int | None:
         """Terminate (then kill) if still running; returns the exit code."""
