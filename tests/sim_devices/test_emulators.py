@@ -277,7 +277,10 @@ def test_magnetometer_field_falls_with_the_cube_of_the_range_to_a_beacon(tmp_pat
         reader = SerialReader(endpoint(r, "magnetometer").target, 38400)
         run_for(r, 25.0)
         msgs = [ms3a.CODEC.decode(f.data) for f in ms3a.Ms3aFramer().frames([reader.finish()])]
-    assert len(msgs) == em.ticks
+        port = em.serial.port.stats
+    # every sample but those the port counted lost to a starved reader (the INS test's)
+    dropped = port.writes_cut + port.writes_dropped
+    assert len(msgs) == em.ticks - dropped and dropped <= em.ticks // 2
     rng_m, mag = [], []
     for m in msgs:
         s = r.truth.at(m.counter * em.period)
