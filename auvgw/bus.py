@@ -66,6 +66,7 @@ __all__ = [
     "undeclare",
     "unpack_raw_attachment",
     "wire_format_of",
+    "zenoh_config",
 ]
 
 #: version of the JSON documents (status, configuration, SLAM outputs, truth)
@@ -101,10 +102,15 @@ def open_session(cfg: BusConfig | None = None) -> zenoh.Session:
                     "%s: any process that reaches it can publish sensor data the vehicle uses; "
                     "see docs/security.md ([bus.tls], [bus.auth], access control)",
                     ", ".join(open_to))  # fmt: skip
+    return zenoh.open(zenoh_config(cfg))
+
+
+def zenoh_config(cfg: BusConfig) -> zenoh.Config:
+    """The Zenoh configuration of ``cfg`` (:meth:`BusConfig.zenoh_json5`'s entries)."""
     conf = zenoh.Config()
     for key, value in cfg.zenoh_json5().items():
         conf.insert_json5(key, value)
-    return zenoh.open(conf)
+    return conf
 
 
 def open_cli_session(

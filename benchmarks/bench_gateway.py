@@ -466,7 +466,7 @@ class AllPhase:
     round: int = 0
     #: raw frames' latency over the window, ms: from the gateway's receive stamp (the host
     #: time of its read, its ``[clock]`` scaling undone) to their arrival in this script's
-    #: Zenoh callback (one host clock), every port's frames together; sorted
+    #: Zenoh callback (one host clock), every port's frames together
     raw_latency_ms: list[float] = field(default_factory=list)
 
     @property
@@ -724,7 +724,7 @@ def all_devices_phase(
     bridge_cpu = (b1 - b0) / CLK_TCK / (m1 - m0) * 100 if bridge is not None else float("nan")
     return AllPhase(
         speed, seconds, cpu, rows, sim_rc, sizes, ros2, ros2_seen[0], geoswath, bridge_cpu,
-        threads, load, (v1 - v0) / (m1 - m0), sim_pacing(lines), raw_latency_ms=sorted(latency),
+        threads, load, (v1 - v0) / (m1 - m0), sim_pacing(lines), raw_latency_ms=latency,
     )
 
 

@@ -78,6 +78,11 @@ class PortStats:
     unplugs: int = 0
     replugs: int = 0
 
+    @property
+    def writes_lost(self) -> int:
+        """Writes the reader did not get whole: cut short or dropped."""
+        return self.writes_cut + self.writes_dropped
+
     def as_dict(self) -> dict[str, int]:
         return asdict(self)
 

@@ -7,17 +7,14 @@ from __future__ import annotations
 import json
 
 import pytest
-import zenoh
 from pydantic import ValidationError
 
+from auvgw.bus import zenoh_config
 from auvgw.config.bus import TX_QUEUE_BATCHES, BusConfig
 
 
 def queue_sizes(cfg: BusConfig) -> dict[str, int]:
-    conf = zenoh.Config()
-    for key, value in cfg.zenoh_json5().items():
-        conf.insert_json5(key, value)
-    return json.loads(conf.get_json("transport/link/tx/queue/size"))
+    return json.loads(zenoh_config(cfg).get_json("transport/link/tx/queue/size"))
 
 
 def test_the_data_priorities_queue_the_configured_batches_and_control_keeps_zenohs():
