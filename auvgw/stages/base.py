@@ -25,18 +25,20 @@ A :class:`Stage` owns the plumbing; a subclass gives only what is its own:
   first);
 * **its own reading and reporting**: :meth:`Stage.read_payload` (a payload that is not read as an
   envelope: the Rerun stage's JSON sections, the ROS 2 stages' conversions), :meth:`Stage.accepts`
-  (which in-process messages :meth:`Stage.post` queues), :attr:`Stage.batch_s` (:meth:`Stage.post`
-  queues one call per batch; :meth:`Stage.feed_batch` takes a batch, message by message unless
-  the stage writes it in one pass) and :meth:`Stage.on_status` (health reported elsewhere than
-  the bus, at each status period and at stop).
+  (which in-process messages :meth:`Stage.post` queues), :attr:`Stage.batch_s` (one worker
+  call per batch, for the posted messages and the bus samples alike; :meth:`Stage.feed_batch`
+  takes the messages, one by one unless the stage writes them in one pass) and
+  :meth:`Stage.on_status` (health reported elsewhere than the bus, at each status period and at
+  stop).
 
 The methods a subclass gives are marked :func:`hook`; it never overrides any other public method
 of the base (``tests/service/test_stage_hooks.py`` walks them all).
 
-The base does the rest. Zenoh callbacks only copy the payload into a bounded queue (counting
-``queue_dropped`` when it is full: a callback never blocks the network thread); one worker thread
-decodes the envelopes (:func:`auvgw.bus.decode_envelope`, then the typed message) and feeds them
-in arrival order, so the subclass's state is touched by one thread at a time (take
+The base does the rest. Zenoh callbacks only copy the payload into a bounded queue (or, with
+:attr:`Stage.batch_s`, the batch; counting ``queue_dropped`` when it is full: a callback never
+blocks the network thread); one worker thread decodes the envelopes
+(:func:`auvgw.bus.decode_envelope`, then the typed message) and feeds them in arrival order, so
+the subclass's state is touched by one thread at a time (take
 ``self._lock`` in ``feed`` when it is also fed in-process). A malformed payload, an unknown type
 or a message whose handling fails is counted (``bad_payloads``) and logged (the first and every
 100th), never stops the worker. The worker publishes :meth:`Stage.counters` on
@@ -177,9 +179,12 @@ class Stage(Worker[_Item]):
         self._seq = 0  # envelopes published (publish_message)
         #: the device used in each role (:meth:`from_source`); None: the first one seen
         self.sources: dict[str, str | None] = {}
-        #: s a batch of posted messages waits for more (:meth:`post`); 0: one call per message
+        #: s a batch of posted messages and bus samples waits for more (:meth:`post`); 0: one
+        #: worker call per message and per sample
         self.batch_s = 0.0
         self._batch: deque[tuple[str, int, object]] = deque()  # posted, waiting for the worker
+        self._samples: deque[tuple[str, bytes, int]] = deque()  # bus samples, likewise
+        self._samples_max = config.queue_size
         self._batch_queued = False
 
     # -- what a subclass gives ------------------------------------------------------------------
@@ -307,22 +312,31 @@ class Stage(Worker[_Item]):
     def post(self, device: str, t_recv_ns: int, message: object) -> None:
         """:meth:`feed` on the worker thread (after :meth:`start`): returns at once. Only what
         :meth:`accepts` is queued; with :attr:`batch_s` > 0 the first message of a batch queues
-        one call that waits ``batch_s`` and feeds every message posted meanwhile (a worker's
-        wake can cost more than a message: at 1000 messages/s and 20 ms it wakes 50 times a
-        second, not 1000)."""
+        one call that waits ``batch_s`` and then takes every bus sample (:meth:`handle_sample`)
+        and every message (:meth:`feed_batch`) that came meanwhile: a worker's run costs more
+        than most messages (its code and data gone cold since the last, docs/ros2.md#cost), so
+        at 1,000 messages/s and 100 ms it runs 10 times a second, not 1,000."""
         if not self.accepts(device, message):
             return
         if self.batch_s <= 0:
             self._post(self._feed_posted, (device, t_recv_ns, message))
             return
         self._batch.append((device, t_recv_ns, message))
+        self._queue_batch()
+
+    def _queue_batch(self) -> None:
+        """Queue the call that takes the batch, unless one is queued (two threads may both
+        queue one: the second finds the batch empty or small)."""
         if not self._batch_queued:
             self._batch_queued = True
             self._post(self._take_batch, ())
 
     def _take_batch(self) -> None:
         time.sleep(self.batch_s)
-        self._batch_queued = False  # before taking: a post from now on queues the next batch
+        self._batch_queued = False  # before taking: what comes from now on queues the next
+        samples = self._samples
+        while samples:
+            self.handle_sample(*samples.popleft())
         self.feed_batch(self._batch)
 
     @hook
@@ -454,8 +468,17 @@ class Stage(Worker[_Item]):
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
-        if self.wanted(key):
-            self._enqueue(self.handle_sample, (key, sample.payload.to_bytes(), time.time_ns()))
+        if not self.wanted(key):
+            return
+        item = (key, sample.payload.to_bytes(), time.time_ns())
+        if self.batch_s <= 0:
+            self._enqueue(self.handle_sample, item)
+        elif len(self._samples) >= self._samples_max:  # the worker behind by a whole queue
+            with self._drop_lock:
+                self.stats.queue_dropped += 1
+        else:
+            self._samples.append(item)
+            self._queue_batch()
 
     def _work_item(self, item: _Item) -> None:
         fn, args = item

@@ -164,3 +164,65 @@ def test_a_stop_past_its_drain_limit_drops_the_backlog_counts_it_and_flushes() -
     assert not stopper.is_alive() and stage.fed == [0] and stage.flushed
     counters = stage.counters()
     assert counters["stopped"] and counters["stage"]["queue_dropped"] == 19
+
+
+class _Batched(Stage):
+    """Batches of ``batch_s``: bus samples on ``hooked/in`` and posted messages, each noted with
+    the number of batches taken before it."""
+
+    name: ClassVar[str] = "batched"
+
+    def __init__(self, session: Any, batch_s: float) -> None:
+        super().__init__(StageConfig(), BusCounters(), session)
+        self.batch_s = batch_s
+        self.seen: list[tuple[str, int]] = []  # (what, batches taken before it)
+        self.batches = 0
+
+    def input_keys(self) -> list[str]:
+        return [self.keys.all("hooked/in")]
+
+    def read_payload(self, key: str, payload: bytes, t_arrival_ns: int | None) -> object:
+        self.seen.append((payload.decode(), self.batches))
+        return None
+
+    def feed(self, device: str, t_recv_ns: int, message: object) -> None:
+        self.seen.append((f"{device}:{message}", self.batches))
+
+    def feed_batch(self, batch: Any) -> None:
+        while batch:
+            self.feed(*batch.popleft())
+        self.batches += 1
+
+
+@pytest.mark.e2e
+@pytest.mark.parametrize("batch_s", [0.0, 3.0])
+def test_bus_samples_wait_for_the_batch_with_the_posted_messages(batch_s: float) -> None:
+    """With ``batch_s`` the bus samples that arrive while a batch waits are taken in that batch
+    (in arrival order, before its posted messages): one worker run for both, as the ROS 2
+    bridge's status samples ride its sensor batches (docs/ros2.md#cost); without, each sample
+    is its own worker call as it arrives."""
+    import zenoh
+
+    conf = zenoh.Config()
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    with zenoh.open(conf) as s:
+        stage = _Batched(s, batch_s)
+        stage.start()
+        pub = s.declare_publisher(stage.keys.all("hooked/in"))
+        for i in range(5):
+            pub.put(f"sample {i}".encode())
+        if batch_s:  # the first sample started the batch's wait: the rest join it
+            wait_until(lambda: len(stage._samples) == 5, 30, what="5 samples waiting")
+        stage.post("dev", 1, "first")
+        stage.post("dev", 2, "second")
+        wait_until(lambda: len(stage.seen) == 7, 30, what="5 samples and 2 messages taken")
+        stage.stop()
+    samples = [w for w, _ in stage.seen if w.startswith("sample")]
+    assert samples == [f"sample {i}" for i in range(5)]
+    if batch_s:
+        # one batch: the five samples (queued by the time it was taken) and both messages
+        assert stage.seen == [(f"sample {i}", 0) for i in range(5)] + [
+            ("dev:first", 0), ("dev:second", 0)]  # fmt: skip
+        assert stage.batches == 1
+    else:  # each went straight to the worker: no batch
+        assert stage.seen[-2:] == [("dev:first", 0), ("dev:second", 0)] and stage.batches == 0
