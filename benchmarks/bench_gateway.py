@@ -482,12 +482,13 @@ class AllPhase:
 
 
 def all_devices_scenario(
-    path: Path, t_open: float, t_close: float, geoswath: bool = False
+    path: Path, t_open: float, t_close: float, geoswath: bool = False, name: str = "harbour"
 ) -> Path:
-    """A copy of the harbour scenario: INS CAN off; with ``geoswath`` the GeoSwath emulator on
-    (250 kHz, sides alternating, 4 pings/s: UDP); every device silent before ``t_open`` and
-    from ``t_close`` (vehicle s)."""
-    scn = json.loads((REPO_ROOT / "config" / "scenarios" / "harbour.json").read_text())
+    """A copy of scenario ``name`` (``config/scenarios/<name>.json``; the harbour by default)
+    with all five devices: INS CAN off; with ``geoswath`` the GeoSwath emulator on (250 kHz,
+    sides alternating, 4 pings/s: UDP); every device silent before ``t_open`` and from
+    ``t_close`` (vehicle s)."""
+    scn = json.loads((REPO_ROOT / "config" / "scenarios" / f"{name}.json").read_text())
     devices = scn.setdefault("devices", {})
     if geoswath:
         devices.setdefault("geoswath", {})["enabled"] = True

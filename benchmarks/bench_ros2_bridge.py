@@ -3,6 +3,7 @@ never fails on a time.
 
     .venv/bin/python benchmarks/bench_ros2_bridge.py [--rate 1650] [--seconds 6] [--rounds 2]
                                                       [--parts-only] [--cases CASE ...]
+    .venv/bin/python benchmarks/bench_ros2_bridge.py --cold [--rate 1650] [--seconds 6]
 
 The bridge (:class:`auvgw.stages.ros2.Ros2Bridge`) in this process, fed as the gateway feeds it
 (:meth:`~auvgw.stages.ros2.RosStage.post` from a thread) with the all-devices bench's mix at 10x
@@ -27,6 +28,11 @@ all. First, the parts of one watched message, per ROS 2 form (single-thread timi
 5 repeats): the conversion to rosbags objects, their CDR, the compiled writer (conversion and
 CDR in one), the attachment, and a Zenoh put made alone and in a group of 40 (a subscriber in
 another process).
+
+``--cold`` prints instead what running once per batch window costs the bridge's worker (why
+``[ros2] batch_ms`` defaults to 100, docs/ros2.md#cost): the mix in batches of a window's worth,
+each after a sleep of the window, per message by window; and a writer's time by its place in a
+20 ms batch and by whether a message of its form came before it in that batch.
 """
 
 from __future__ import annotations
@@ -231,17 +237,89 @@ def parts(cycle: list[tuple[str, Any]]) -> None:
         sub.wait(30)
 
 
+def cold(cycle: list[tuple[str, Any]], rate: float, seconds: float) -> None:
+    """Print what the bridge's worker pays for running once per batch window: the mix's
+    messages (fresh copies, as the gateway decodes new ones) in batches of what ``rate`` fills in
+    a window, each batch after a sleep of the window, written by the compiled writers and put
+    (a subscriber in another process), this thread's CPU per message; then, for 20 ms windows,
+    a message's writer alone by its place in the batch and by whether its form came before."""
+    import copy
+
+    from auvgw import ros2, ros2_cdr
+    from auvgw.rmw_zenoh import pack_attachment
+
+    ep = endpoint(free_port())
+    gid = bytes(16)
+    with open_session(BusConfig(mode="peer", listen=[ep])) as session:
+        sub = _subscriber(ep)
+        pubs: dict[str, Any] = {}
+        for d, m in cycle:
+            for topic, _, _ in ros2_cdr.sensor_cdr(d, m, 10**18) or []:
+                pubs.setdefault(topic, session.declare_publisher(
+                    "0/bench/" + topic.replace("/", "_"), priority=zenoh.Priority.DATA_LOW))
+        time.sleep(1.0)  # the subscriber matched (a settle, not a measured wait)
+        print("\nThe worker's batches, cold (compiled writers + attachment + put, this thread's "
+              f"CPU; {rate:,.0f} messages/s):")
+        print("| window (ms) | messages per batch | us per message | % of a core at this rate |")
+        print("|---|---|---|---|")
+        for window_ms in (0, 20, 50, 100, 200):
+            size = max(1, round(rate * max(window_ms, 20) / 1000))
+            batches = max(3, round(seconds * 1000 / max(window_ms, 20)))
+            work = [[copy.deepcopy(cycle[(b * size + i) % len(cycle)]) for i in range(size)]
+                    for b in range(batches)]  # fmt: skip
+            cpu = 0.0
+            for batch in work:
+                time.sleep(window_ms / 1000)
+                t = time.thread_time()
+                for d, m in batch:
+                    for topic, _, cdr in ros2_cdr.sensor_cdr(d, m, 10**18) or []:
+                        pubs[topic].put(cdr, attachment=pack_attachment(1, 10**18, gid))
+                cpu += time.thread_time() - t
+            per = cpu / (batches * size) * 1e6
+            label = f"{window_ms}" if window_ms else "0 (no sleep: warm)"
+            print(f"| {label} | {size} | {per:.1f} | {per * rate / 1e4:.2f} |")
+        sub.stdin.close()  # type: ignore[union-attr]
+        sub.wait(30)
+    size = max(1, round(rate * 0.02))
+    place: dict[int, list[float]] = {}
+    first: dict[str, list[float]] = {}
+    later: dict[str, list[float]] = {}
+    for b in range(max(50, round(seconds * 50))):
+        batch = [copy.deepcopy(cycle[(b * size + i) % len(cycle)]) for i in range(size)]
+        time.sleep(0.02)
+        seen: set[str] = set()
+        for i, (d, m) in enumerate(batch):
+            t = time.thread_time()
+            ros2_cdr.sensor_cdr(d, m, 10**18)
+            us = (time.thread_time() - t) * 1e6
+            place.setdefault(min(i, 3), []).append(us)
+            form = str(ros2.sensor_form(m))
+            (later if form in seen else first).setdefault(form, []).append(us)
+            seen.add(form)
+    print(f"\nOne writer in a 20 ms batch of {size} (us, medians): by its place in the batch: "
+          + ", ".join(f"{'4th on' if k == 3 else f'#{k + 1}'} {statistics.median(v):.1f}"
+                      for k, v in sorted(place.items())))  # fmt: skip
+    print("by form, the first of its form in the batch / a later one: " + "; ".join(
+        f"{f} {statistics.median(first[f]):.1f} / "
+        + (f"{statistics.median(later[f]):.1f}" if later.get(f) else "-") for f in first))
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--rate", type=float, default=1650.0, help="ROS 2 messages/s (default 1650)")
     ap.add_argument("--seconds", type=float, default=6.0, help="seconds per case (default 6)")
     ap.add_argument("--rounds", type=int, default=2, help="interleaved rounds (default 2)")
     ap.add_argument("--parts-only", action="store_true", help="only the parts table")
+    ap.add_argument("--cold", action="store_true",
+                    help="only the batches' cold cost by window and by place (the worker's wakes)")
     ap.add_argument("--cases", nargs="+", choices=list(CASES), default=list(CASES),
                     metavar="CASE", help="a subset of the cases ('no bridge' always runs)")
     args = ap.parse_args()
     cases = ["no bridge", *(c for c in args.cases if c != "no bridge")]
     cycle = mix()
+    if args.cold:
+        cold(cycle, args.rate, args.seconds)
+        return 0
     parts(cycle)
     if args.parts_only:
         return 0
