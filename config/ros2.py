@@ -46,10 +46,11 @@ class Ros2Config(BaseModel):
     send (a subscription on ``<namespace>/<vehicle>/cmd/<device>``, each message put on the bus
     command key, where the gateway's gate checks it; none by default: opt-in); ``batch_ms``:
     ms the bridge in the gateway gathers sensor messages before it converts and sends them
-    together: a ROS 2 subscriber sees them up to this much later (half of it on average), and
-    the bridge's worker runs once per window, each run paying for code and data gone cold since
-    the last, which is most of its cost (at 10x: 1.18-1.20x the gateway's CPU at 20 ms, 1.06-1.10x
-    at 100, docs/ros2.md#cost); 0: each message on its own."""
+    together: a ROS 2 subscriber sees them up to this much later (about 60 ms at the median at
+    100), and the bridge's worker runs once per window, each run paying for code and data gone
+    cold since the last, which is most of its cost (at 10x, every topic watched, paired: the
+    gateway's CPU 1.18-1.19x at 20 ms, 1.07-1.11x at 100: docs/ros2.md#cost); 0: each message on
+    its own."""
 
     model_config = ConfigDict(extra="forbid")
 
