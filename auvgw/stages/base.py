@@ -184,7 +184,7 @@ class Stage(Worker[_Item]):
         self.batch_s = 0.0
         self._batch: deque[tuple[str, int, object]] = deque()  # posted, waiting for the worker
         self._samples: deque[tuple[str, bytes, int]] = deque()  # bus samples, likewise
-        self._samples_max = config.queue_size
+        self._batch_max = config.queue_size  # each deque's bound, as the worker's queue's
         self._batch_queued = False
 
     # -- what a subclass gives ------------------------------------------------------------------
@@ -315,14 +315,18 @@ class Stage(Worker[_Item]):
         one call that waits ``batch_s`` and then takes every bus sample (:meth:`handle_sample`)
         and every message (:meth:`feed_batch`) that came meanwhile: a worker's run costs more
         than most messages (its code and data gone cold since the last, docs/ros2.md#cost), so
-        at 1,000 messages/s and 100 ms it runs 10 times a second, not 1,000."""
+        at 1,000 messages/s and 100 ms it runs 10 times a second, not 1,000. A batch holds at
+        most ``queue_size`` messages (and as many samples): more, while the worker is that far
+        behind, are dropped and counted in ``queue_dropped``."""
         if not self.accepts(device, message):
             return
         if self.batch_s <= 0:
             self._post(self._feed_posted, (device, t_recv_ns, message))
-            return
-        self._batch.append((device, t_recv_ns, message))
-        self._queue_batch()
+        elif len(self._batch) >= self._batch_max:  # the worker behind by a whole queue
+            self._count_dropped()
+        else:
+            self._batch.append((device, t_recv_ns, message))
+            self._queue_batch()
 
     def _queue_batch(self) -> None:
         """Queue the call that takes the batch, unless one is queued (two threads may both
@@ -368,8 +372,11 @@ class Stage(Worker[_Item]):
 
     def _enqueue(self, fn: Callable[..., object], args: tuple[object, ...]) -> None:
         if not self.submit((fn, args)):
-            with self._drop_lock:
-                self.stats.queue_dropped += 1
+            self._count_dropped()
+
+    def _count_dropped(self) -> None:
+        with self._drop_lock:
+            self.stats.queue_dropped += 1
 
     # -- outputs and status ---------------------------------------------------------------------
     def publish(self, what: str, payload: bytes, encoding: zenoh.Encoding, t_ns: int) -> None:
@@ -473,9 +480,8 @@ class Stage(Worker[_Item]):
         item = (key, sample.payload.to_bytes(), time.time_ns())
         if self.batch_s <= 0:
             self._enqueue(self.handle_sample, item)
-        elif len(self._samples) >= self._samples_max:  # the worker behind by a whole queue
-            with self._drop_lock:
-                self.stats.queue_dropped += 1
+        elif len(self._samples) >= self._batch_max:  # the worker behind by a whole queue
+            self._count_dropped()
         else:
             self._samples.append(item)
             self._queue_batch()

@@ -226,3 +226,37 @@ def test_bus_samples_wait_for_the_batch_with_the_posted_messages(batch_s: float)
         assert stage.batches == 1
     else:  # each went straight to the worker: no batch
         assert stage.seen[-2:] == [("dev:first", 0), ("dev:second", 0)] and stage.batches == 0
+
+
+class _Stalled(Stage):
+    """Batches of 50 ms, ``queue_size`` 5; the first batch's ``feed_batch`` waits on ``gate``."""
+
+    name: ClassVar[str] = "stalled"
+
+    def __init__(self) -> None:
+        super().__init__(StageConfig(queue_size=5), BusCounters())
+        self.batch_s = 0.05
+        self.gate = threading.Event()
+        self.taken: list[int] = []
+
+    def feed_batch(self, batch: Any) -> None:
+        while batch:
+            self.taken.append(batch.popleft()[1])
+        self.gate.wait(30)
+
+
+def test_a_batch_behind_a_stalled_worker_is_bounded_and_counts_what_it_drops() -> None:
+    """Posted messages wait in the batch at most ``queue_size`` deep while the worker is stuck
+    (a loaded host, a slow sink): the rest are dropped and counted in ``queue_dropped``, the
+    batch's memory never grows without bound; once the worker moves the held ones go out."""
+    stage = _Stalled()
+    stage.start_worker()
+    stage.post("dev", 0, None)
+    wait_until(lambda: stage.taken == [0], 10, what="the first batch taken (the worker stuck)")
+    for i in range(1, 9):
+        stage.post("dev", i, None)
+    assert len(stage._batch) == 5 and stage.stats.queue_dropped == 3
+    stage.gate.set()
+    wait_until(lambda: len(stage.taken) == 6, 10, what="the held five taken")
+    stage.stop()
+    assert stage.taken == [0, 1, 2, 3, 4, 5] and stage.counters()["stage"]["queue_dropped"] == 3
