@@ -123,6 +123,7 @@ import tomllib
 import tty
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import IO
 
 import zenoh
 
@@ -534,6 +535,43 @@ class SimVehicleClock:
             time.sleep(min(0.5, max(0.01, left / self.speed)))
 
 
+def start_sim(
+    scenario: Path, speed: float, duration: float, out: Path
+) -> tuple[subprocess.Popen[str], IO[bytes], list[str], SimVehicleClock, threading.Thread]:
+    """``auvgw sim --processes`` of ``scenario`` (vehicle ``benchall``, output in ``out``,
+    stderr in ``out/sim.log``), returned once it prints ``running``: the process, its open log
+    (the caller closes it), the lines it printed (a thread goes on collecting them), its
+    vehicle clock and that thread. A sim that never runs: SystemExit naming its log."""
+    sim_log = open(out / "sim.log", "wb")  # noqa: SIM115 - the caller closes it
+    sim = subprocess.Popen(
+        [str(BIN / "auvgw"), "sim", "--scenario", str(scenario), "--processes", "--speed",
+         f"{speed:g}", "--duration", f"{duration:g}", "--out", str(out), "--vehicle", "benchall",
+         "--no-truth-log"],
+        stdout=subprocess.PIPE, stderr=sim_log, text=True, cwd=REPO_ROOT,
+    )  # fmt: skip
+    assert sim.stdout is not None
+    lines: list[str] = []
+    for line in sim.stdout:
+        lines.append(line.rstrip("\n"))
+        if line.startswith("running"):
+            break
+    else:
+        raise SystemExit(f"auvgw sim failed; see {out / 'sim.log'}")
+    # the sim's own vehicle time (its elastic clock holds on a loaded host: wall time
+    # stretches, so every instant of a phase is one of vehicle time, never of wall time)
+    vclock = SimVehicleClock(out / "clock", time.monotonic() + 0.5, speed, sim)
+    stdout = sim.stdout
+    reader = threading.Thread(target=lambda: lines.extend(x.rstrip("\n") for x in stdout))
+    reader.start()
+    return sim, sim_log, lines, vclock, reader
+
+
+def host_latency_ms(stamp_ns: int, arrived_ns: int, scale: float, epoch_ns: int) -> float:
+    """Arrival (host ns) minus the host time of ``stamp_ns``, a stamp on the gateway's
+    ``[clock]`` (``time_scale`` ``scale`` from ``epoch_ns``), in ms."""
+    return (arrived_ns - epoch_ns - (stamp_ns - epoch_ns) / scale) / 1e6
+
+
 def sim_counters(lines: list[str]) -> dict[str, tuple[int, int]]:
     """{port: (frames sent, dropped bytes)} from the counters ``auvgw sim`` prints at exit."""
     out = {}
@@ -569,26 +607,7 @@ def all_devices_phase(
     t_open, t_close = warm_s * speed, (warm_s + seconds) * speed
     scn = all_devices_scenario(tmp / f"harbour-{speed:g}x{tag}.json", t_open, t_close, geoswath)
     duration = t_close + tail_s * speed
-    sim_log = open(out / "sim.log", "wb")  # noqa: SIM115 - closed below
-    sim = subprocess.Popen(
-        [str(BIN / "auvgw"), "sim", "--scenario", str(scn), "--processes", "--speed",
-         f"{speed:g}", "--duration", f"{duration:g}", "--out", str(out), "--vehicle", "benchall",
-         "--no-truth-log"],
-        stdout=subprocess.PIPE, stderr=sim_log, text=True, cwd=REPO_ROOT,
-    )  # fmt: skip
-    assert sim.stdout is not None
-    lines: list[str] = []
-    for line in sim.stdout:
-        lines.append(line.rstrip("\n"))
-        if line.startswith("running"):
-            break
-    else:
-        raise SystemExit(f"auvgw sim failed; see {out / 'sim.log'}")
-    # the sim's own vehicle time (its elastic clock holds on a loaded host: wall time
-    # stretches, so every instant of the phase is one of vehicle time, never of wall time)
-    vclock = SimVehicleClock(out / "clock", time.monotonic() + 0.5, speed, sim)
-    reader = threading.Thread(target=lambda: lines.extend(x.rstrip("\n") for x in sim.stdout))
-    reader.start()
+    sim, sim_log, lines, vclock, reader = start_sim(scn, speed, duration, out)
     cfg = tomllib.loads((out / "gateway.toml").read_text())
     ep = free_endpoint()
     cfg["status_period_s"] = 1.0
@@ -633,7 +652,7 @@ def all_devices_phase(
                 c[i + 1] += len(smp.payload.to_bytes())
                 if i == 0 and measuring.is_set() and smp.attachment is not None:
                     stamp = unpack_raw_attachment(smp.attachment.to_bytes())[0]
-                    latency.append((arrived - epoch - (stamp - epoch) / scale) / 1e6)
+                    latency.append(host_latency_ms(stamp, arrived, scale, epoch))
 
             size_subs = [me.session.declare_subscriber(f"auv/benchall/{sec}/**", on_sample)
                          for sec in ("raw", "sensor")]  # fmt: skip

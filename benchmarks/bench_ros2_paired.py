@@ -51,20 +51,21 @@ from auvgw.sim_devices.runner import gateway_toml
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_gateway import (  # the sibling bench's helpers (sys.path above)
     BIN,
+    CLK_TCK,
     REPO_ROOT,
-    SimVehicleClock,
     all_devices_scenario,
     cpu_ticks,
     free_endpoint,
+    host_latency_ms,
     pct,
     python_thread_names,
+    start_sim,
     stop_process,
     thread_groups,
     thread_ticks,
 )
 
-CLK_TCK = os.sysconf("SC_CLK_TCK")
-VEHICLE = "benchall"
+VEHICLE = "benchall"  # start_sim's
 
 
 @dataclass
@@ -89,22 +90,7 @@ def run_gateway(batch_ms: float, speed: float, cycles: int, window_s: float, set
     t_open, t_close = 5.0 * speed, wall * speed
     out = Path(tempfile.mkdtemp(prefix=f"paired-{batch_ms:g}ms-", dir=tmp))
     scn = all_devices_scenario(out / "scenario.json", t_open, t_close, name=scenario)
-    sim_log = open(out / "sim.log", "wb")  # noqa: SIM115 - closed below
-    sim = subprocess.Popen(
-        [str(BIN / "auvgw"), "sim", "--scenario", str(scn), "--processes", "--speed",
-         f"{speed:g}", "--duration", f"{t_close + 5 * speed:g}", "--out", str(out),
-         "--vehicle", VEHICLE, "--no-truth-log"],
-        stdout=subprocess.PIPE, stderr=sim_log, text=True, cwd=REPO_ROOT,
-    )  # fmt: skip
-    assert sim.stdout is not None
-    for line in sim.stdout:
-        if line.startswith("running"):
-            break
-    else:
-        raise SystemExit(f"auvgw sim failed; see {out / 'sim.log'}")
-    vclock = SimVehicleClock(out / "clock", time.monotonic() + 0.5, speed, sim)
-    drain = threading.Thread(target=lambda: sim.stdout.read() if sim.stdout else None, daemon=True)
-    drain.start()
+    sim, sim_log, _, vclock, _ = start_sim(scn, speed, t_close + 5 * speed, out)
     cfg = tomllib.loads((out / "gateway.toml").read_text())
     ep = free_endpoint()
     cfg["status_period_s"] = 1.0
@@ -118,8 +104,7 @@ def run_gateway(batch_ms: float, speed: float, cycles: int, window_s: float, set
     scale, epoch = float(clock.get("time_scale", 1.0)), int(clock.get("epoch_ns", 0))
 
     def host_ms(stamp_ns: int, arrived_ns: int) -> float:
-        """Arrival minus the host time of a stamp on the gateway's ``[clock]`` (ms)."""
-        return (arrived_ns - epoch - (stamp_ns - epoch) / scale) / 1e6
+        return host_latency_ms(stamp_ns, arrived_ns, scale, epoch)
 
     windows: list[Window] = []
     raw: list[float] = []
